@@ -1,0 +1,22 @@
+"""sonarsim: real-time 2D forward-looking sonar simulation with flat-ground multipath.
+
+The pipeline, one module each: :mod:`~sonarsim.sonar` (beams, range window, pose) ->
+:mod:`~sonarsim.scene` / :mod:`~sonarsim.loader` (objects, ground, settings) ->
+:mod:`~sonarsim.rays` (ray fan) -> :mod:`~sonarsim.backends` + :mod:`~sonarsim.tracing`
+(closest surfaces) -> :mod:`~sonarsim.imaging` (Algorithm 1) -> :mod:`~sonarsim.fan` and
+:mod:`~sonarsim.output` (images, files). :class:`Simulator` ties them together.
+"""
+
+from .errors import ConfigError, MeshFileError, SonarsimError
+from .loader import load_scene
+from .scene import GroundSpec, ObjectSpec, RenderSettings, Scene
+from .simulator import RayMaps, Simulator, SonarImage, render
+from .sonar import SonarConfig
+from .transforms import Pose
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ConfigError", "GroundSpec", "MeshFileError", "ObjectSpec", "Pose", "RayMaps", "RenderSettings",
+    "Scene", "Simulator", "SonarConfig", "SonarImage", "SonarsimError", "load_scene", "render",
+]

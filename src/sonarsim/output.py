@@ -1,0 +1,356 @@
+"""Writing simulation results: 8-bit display mapping, PNG and NPZ files.
+
+Every file is written atomically: the data goes to a temporary file in the destination's
+directory, which then replaces the destination with :func:`os.replace`. A reader (e.g. a
+viewer polling the output folder while the simulator renders) therefore sees either the old
+file or the complete new one, never a partial file, and a failed write leaves nothing
+behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import stat
+import tempfile
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from PIL import Image
+
+__all__ = [
+    "CONFIG_KEY",
+    "MAPPINGS",
+    "atomic_write",
+    "read_npz",
+    "to_uint8",
+    "write_npz",
+    "write_png",
+]
+
+#: Intensity mappings accepted by :func:`to_uint8`.
+MAPPINGS = ("db", "linear")
+
+#: Key under which :func:`write_npz` stores the configuration (a 0-d unicode array of JSON).
+CONFIG_KEY = "config_json"
+
+PathLike = str | os.PathLike
+
+
+def to_uint8(
+    image: np.ndarray,
+    mapping: str = "db",
+    gain_db: float = 0.0,
+    dynamic_range_db: float = 60.0,
+    reference: float | None = None,
+    mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """Map a sonar intensity image to 8-bit display values.
+
+    The intensity ``I`` is treated as a power-like quantity (echo intensity), so decibels
+    are ``10*log10`` and a gain of ``gain_db`` multiplies intensity by ``10**(gain_db/10)``
+    in both mappings. With this choice a pixel saturates (255) in the linear mapping exactly
+    when it reaches 0 dB in the dB mapping.
+
+    * ``"linear"``: ``v = clip(10**(gain_db/10) * I / ref, 0, 1)``
+    * ``"db"``: ``d = 10*log10(I / ref) + gain_db`` (``-inf`` for ``I <= 0``), then
+      ``v = clip((d + dynamic_range_db) / dynamic_range_db, 0, 1)``, i.e. the window
+      ``[-dynamic_range_db, 0]`` dB maps linearly onto ``[0, 1]``.
+
+    The output is ``floor(255 * v + 0.5)`` (round half up). Zero, negative and NaN
+    intensities give 0; ``+inf`` gives 255. ``ref`` is ``reference`` if given, else the
+    largest finite intensity (inside ``mask`` if given). If that is not positive (e.g. an
+    all-zero image) the result is all zeros, without warnings.
+
+    Parameters
+    ----------
+    image : array_like, any shape, real
+        Intensity, linear units (any scale; only ratios to ``ref`` matter).
+    mapping : {"db", "linear"}
+        Intensity mapping, see above.
+    gain_db : float
+        Display gain, dB (intensity dB: +10 dB = x10 intensity).
+    dynamic_range_db : float
+        Width of the displayed dB window, > 0. Only used by ``"db"``.
+    reference : float, optional
+        Intensity mapped to full scale at zero gain, > 0. Default: the image maximum. Pass a
+        fixed value to keep the brightness comparable across frames.
+    mask : array_like of bool, same shape as ``image``, optional
+        Pixels where ``mask`` is False are set to 0 (e.g. outside a sonar fan) and do not
+        take part in the default reference.
+
+    Returns
+    -------
+    np.ndarray, same shape as ``image``, uint8
+
+    Raises
+    ------
+    ValueError
+        For an unknown mapping, a non-finite gain, a non-positive dynamic range or reference,
+        a non-real image, or a mask of another shape.
+    """
+    if mapping not in MAPPINGS:
+        raise ValueError(
+            f"mapping must be one of {', '.join(map(repr, MAPPINGS))}, got {mapping!r}"
+        )
+    gain_db = float(gain_db)
+    if not math.isfinite(gain_db):
+        raise ValueError(f"gain_db must be finite, got {gain_db!r}")
+    dynamic_range_db = float(dynamic_range_db)
+    if not (math.isfinite(dynamic_range_db) and dynamic_range_db > 0.0):
+        raise ValueError(f"dynamic_range_db must be finite and > 0, got {dynamic_range_db!r}")
+
+    arr = np.asarray(image)
+    if arr.dtype.kind not in "biuf":
+        raise ValueError(f"image must be a real-valued array, got dtype {arr.dtype}")
+    # float64 so that huge dynamic ranges and log10 keep their precision whatever came in.
+    intensity = arr.astype(np.float64, copy=False)
+
+    inside: np.ndarray | None = None
+    if mask is not None:
+        inside = np.asarray(mask, dtype=bool)
+        if inside.shape != intensity.shape:
+            raise ValueError(
+                f"mask must have the image's shape {intensity.shape}, got {inside.shape}"
+            )
+
+    if reference is None:
+        usable = np.isfinite(intensity)
+        if inside is not None:
+            usable &= inside
+        candidates = intensity[usable]
+        ref = float(candidates.max()) if candidates.size else 0.0
+    else:
+        ref = float(reference)
+        if not (math.isfinite(ref) and ref > 0.0):
+            raise ValueError(f"reference must be finite and > 0, got {reference!r}")
+
+    out = np.zeros(intensity.shape, dtype=np.uint8)
+    if not ref > 0.0:
+        # Nothing to show (all zero/negative/NaN); avoid dividing by zero.
+        return out
+
+    # Only positive intensities can be non-zero on output; selecting them first keeps log10
+    # away from zeros/negatives/NaN, so no RuntimeWarning is ever emitted.
+    lit = intensity > 0.0
+    if inside is not None:
+        lit &= inside
+    ratio = intensity[lit] / ref
+    if mapping == "linear":
+        v = ratio * 10.0 ** (gain_db / 10.0)
+    else:
+        d = 10.0 * np.log10(ratio) + gain_db
+        v = (d + dynamic_range_db) / dynamic_range_db
+    v = np.clip(v, 0.0, 1.0)
+    out[lit] = np.floor(v * 255.0 + 0.5).astype(np.uint8)
+    return out
+
+
+def _current_umask() -> int:
+    """The process umask, read without changing it where the OS allows."""
+    # /proc avoids the set-and-restore dance, which would briefly change the umask for
+    # other threads.
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    old = os.umask(0o022)
+    os.umask(old)
+    return old
+
+
+@contextlib.contextmanager
+def atomic_write(path: PathLike, mode: str = "wb", *, fsync: bool = False) -> Iterator[IO[Any]]:
+    """Open a temporary file that replaces ``path`` only if the ``with`` block succeeds.
+
+    The temporary file lives in the destination's directory (so :func:`os.replace` is an
+    atomic rename on the same file system) and is removed if the block raises; an existing
+    ``path`` is then left untouched. The new file gets the permissions of the file it
+    replaces, or ``0o666 & ~umask`` for a new file, as a plain ``open`` would give it (the
+    temporary file itself is created private).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination. Its directory must exist.
+    mode : {"wb", "w"}
+        Binary, or text (UTF-8, ``"\\n"`` newlines).
+    fsync : bool
+        Flush the data to disk before the rename, so that after a power failure the file is
+        either old or new, never empty. Off by default because it costs a disk sync per file,
+        which is slow when writing many frames; the rename is atomic for other processes
+        either way.
+
+    Yields
+    ------
+    file object
+        Write to it; do not close it.
+    """
+    if mode not in ("wb", "w"):
+        raise ValueError(f"mode must be 'wb' or 'w', got {mode!r}")
+    target = Path(path)
+    directory = target.parent
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
+    try:
+        if mode == "w":
+            handle: IO[Any] = os.fdopen(fd, "w", encoding="utf-8", newline="\n")
+        else:
+            handle = os.fdopen(fd, "wb")
+    except BaseException:
+        os.close(fd)
+        os.unlink(tmp_name)
+        raise
+    try:
+        with handle:
+            yield handle
+            handle.flush()
+            if fsync:
+                os.fsync(handle.fileno())
+        try:
+            file_mode = stat.S_IMODE(os.stat(target).st_mode)
+        except FileNotFoundError:
+            file_mode = 0o666 & ~_current_umask()
+        os.chmod(tmp_name, file_mode)
+        os.replace(tmp_name, target)
+    except BaseException:
+        # BaseException so that Ctrl-C during a long write also leaves no temp file.
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp_name)
+        raise
+
+
+def write_png(path: PathLike, image_uint8: np.ndarray) -> None:
+    """Write an 8-bit image to a PNG file, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination file; its directory must exist. Written as PNG whatever the suffix.
+    image_uint8 : np.ndarray, shape (H, W), (H, W, 3) or (H, W, 4), uint8
+        Grey-scale, RGB or RGBA image; row 0 is the top of the picture. Use
+        :func:`to_uint8` to make one from intensities.
+
+    Raises
+    ------
+    ValueError
+        If the array is not uint8 or has another shape. Checked before any file is touched.
+    """
+    arr = np.asarray(image_uint8)
+    # No silent casting: float images in [0, 1] or int images above 255 would be wrapped or
+    # truncated into garbage; make the caller choose a mapping.
+    if arr.dtype != np.uint8:
+        raise ValueError(f"image_uint8 must have dtype uint8, got {arr.dtype}; see to_uint8")
+    if not (arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] in (3, 4))):
+        raise ValueError(
+            f"image_uint8 must have shape (H, W), (H, W, 3) or (H, W, 4), got {arr.shape}"
+        )
+    if arr.shape[0] == 0 or arr.shape[1] == 0:
+        raise ValueError(f"image_uint8 must not be empty, got shape {arr.shape}")
+    picture = Image.fromarray(np.ascontiguousarray(arr))
+    with atomic_write(path, "wb") as handle:
+        picture.save(handle, format="PNG")
+
+
+def _json_default(value: Any) -> Any:
+    """Make numpy values and paths JSON-serialisable (as their plain Python equivalents)."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    raise TypeError(f"object of type {type(value).__name__} is not JSON serialisable")
+
+
+def write_npz(
+    path: PathLike, arrays: Mapping[str, np.ndarray], config: Mapping[str, Any]
+) -> None:
+    """Save arrays and the configuration that produced them to a compressed ``.npz``, atomically.
+
+    The configuration is stored as JSON text in a 0-d unicode array under :data:`CONFIG_KEY`
+    (``"config_json"``), so the file loads with ``allow_pickle=False``. JSON has no tuples,
+    so tuples come back as lists; numpy scalars/arrays and paths are stored as plain numbers,
+    lists and strings.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Destination, used exactly as given (unlike :func:`numpy.savez_compressed`, no
+        ``.npz`` suffix is appended). Its directory must exist.
+    arrays : Mapping[str, array_like]
+        Name -> array (any shape, any non-object dtype), e.g. ``{"polar": (n_range_bins,
+        n_beams) float32, "fan": (H, W) float32}``.
+    config : Mapping[str, Any]
+        JSON-serialisable configuration (nested dicts/lists of str, numbers, bools, None).
+
+    Raises
+    ------
+    ValueError
+        For a key that is not a non-empty string or is :data:`CONFIG_KEY`, an object-dtype
+        array, or a configuration that cannot be serialised. Checked before any file is
+        touched.
+    """
+    if not isinstance(config, Mapping):
+        raise ValueError(f"config must be a mapping, got {type(config).__name__}")
+    payload: dict[str, np.ndarray] = {}
+    for name, value in arrays.items():
+        if not isinstance(name, str) or not name:
+            raise ValueError(f"arrays keys must be non-empty strings, got {name!r}")
+        if name == CONFIG_KEY:
+            raise ValueError(f"arrays must not use the reserved key {CONFIG_KEY!r}")
+        arr = np.asarray(value)
+        if arr.dtype.hasobject:
+            raise ValueError(
+                f"arrays[{name!r}] has object dtype, which cannot be stored without pickle"
+            )
+        payload[name] = arr
+    try:
+        text = json.dumps(dict(config), sort_keys=True, default=_json_default)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"config is not JSON-serialisable: {exc}") from exc
+    payload[CONFIG_KEY] = np.array(text, dtype=np.str_)
+    with atomic_write(path, "wb") as handle:
+        # Looked up on np at call time on purpose (tests replace it to simulate failures).
+        np.savez_compressed(handle, **payload)
+
+
+def read_npz(path: PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """Read a file written by :func:`write_npz`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.npz`` file.
+
+    Returns
+    -------
+    arrays : dict[str, np.ndarray]
+        All stored arrays except the configuration, fully loaded into memory.
+    config : dict
+        The decoded configuration.
+
+    Raises
+    ------
+    ValueError
+        If the file has no :data:`CONFIG_KEY` entry or it is not a JSON object.
+    """
+    # allow_pickle=False: an npz from elsewhere must not be able to run code on load.
+    with np.load(path, allow_pickle=False) as archive:
+        if CONFIG_KEY not in archive.files:
+            raise ValueError(f"{os.fspath(path)}: no {CONFIG_KEY!r} entry; not written by write_npz")
+        arrays = {name: archive[name] for name in archive.files if name != CONFIG_KEY}
+        text = archive[CONFIG_KEY]
+    try:
+        config = json.loads(str(text[()]))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{os.fspath(path)}: {CONFIG_KEY!r} is not valid JSON: {exc}") from exc
+    if not isinstance(config, dict):
+        raise ValueError(f"{os.fspath(path)}: {CONFIG_KEY!r} is not a JSON object")
+    return arrays, config

@@ -1,0 +1,256 @@
+"""Scene description: objects, the ground plane, render settings and the sonar.
+
+These frozen dataclasses are what the rest of sonarsim trusts. They check their own values on
+construction (so Python callers get the same messages as scene files); :mod:`sonarsim.loader`
+turns YAML/JSON/dicts into them and rejects unknown keys and wrong types.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import ConfigError
+from .sonar import SonarConfig
+from .transforms import Pose
+
+PRIMITIVES = ("box", "sphere", "cylinder")
+METHODS = ("fast", "paper")
+BEAM_PATTERNS = ("uniform", "gaussian")
+
+
+def _check_unit_interval(key: str, value: float) -> None:
+    if not (np.isfinite(value) and 0.0 <= value <= 1.0):
+        raise ConfigError(key, f"must be within [0, 1], got {value}")
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One object of the scene: a primitive or a mesh, with pose, scale and albedo.
+
+    Attributes
+    ----------
+    name : str
+        Label, unique in the scene.
+    primitive : {'box', 'sphere', 'cylinder'} or None
+        Shape, centred on the object's origin (a cylinder's axis is its z axis).
+    size_m : (3,) tuple of float or None
+        Box edge lengths along its x, y, z axes.
+    radius_m, height_m : float or None
+        Sphere/cylinder radius and cylinder height.
+    mesh : str, pathlib.Path or trimesh.Trimesh or None
+        A mesh file (anything trimesh loads) or an in-memory mesh, in object coordinates.
+    pose : Pose
+        Object-to-world pose.
+    scale : float or (3,) tuple of float
+        Scale applied in object coordinates before the pose.
+    albedo : float
+        Diffuse albedo rho in [0, 1] (paper: concrete 0.8, smooth plastic 0.4).
+    """
+
+    name: str
+    primitive: str | None = None
+    size_m: tuple[float, float, float] | None = None
+    radius_m: float | None = None
+    height_m: float | None = None
+    mesh: Any = None
+    pose: Pose = field(default_factory=Pose)
+    scale: float | tuple[float, float, float] = 1.0
+    albedo: float = 0.8
+
+    def __post_init__(self) -> None:
+        if (self.primitive is None) == (self.mesh is None):
+            raise ConfigError("primitive", "give exactly one of `primitive` or `mesh`")
+        if self.primitive is not None:
+            if self.primitive not in PRIMITIVES:
+                raise ConfigError(
+                    "primitive", f"unknown primitive {self.primitive!r}; allowed: {', '.join(PRIMITIVES)}"
+                )
+            needed = {"box": ("size_m",), "sphere": ("radius_m",), "cylinder": ("radius_m", "height_m")}
+            for key in needed[self.primitive]:
+                if getattr(self, key) is None:
+                    raise ConfigError(key, f"required for a {self.primitive}")
+            for key in ("size_m", "radius_m", "height_m"):
+                if key not in needed[self.primitive] and getattr(self, key) is not None:
+                    raise ConfigError(key, f"not used by a {self.primitive}; allowed: {', '.join(needed[self.primitive])}")
+            if self.size_m is not None:
+                size = tuple(float(v) for v in self.size_m)
+                if len(size) != 3 or not all(np.isfinite(v) and v > 0 for v in size):
+                    raise ConfigError("size_m", f"must be three positive lengths in metres, got {self.size_m}")
+                object.__setattr__(self, "size_m", size)
+            for key in ("radius_m", "height_m"):
+                v = getattr(self, key)
+                if v is not None and not (np.isfinite(v) and v > 0):
+                    raise ConfigError(key, f"must be a positive length in metres, got {v}")
+        scale = np.atleast_1d(np.asarray(self.scale, dtype=float))
+        if scale.size not in (1, 3) or not np.all(np.isfinite(scale) & (scale > 0)):
+            raise ConfigError("scale", f"must be a positive number or three positive numbers, got {self.scale}")
+        _check_unit_interval("albedo", self.albedo)
+
+    def to_dict(self) -> dict:
+        out: dict = {"name": self.name}
+        if self.primitive is not None:
+            out["primitive"] = self.primitive
+            for key in ("size_m", "radius_m", "height_m"):
+                v = getattr(self, key)
+                if v is not None:
+                    out[key] = list(v) if isinstance(v, tuple) else v
+        elif isinstance(self.mesh, (str, Path)):
+            out["mesh"] = str(self.mesh)
+        else:
+            out["mesh"] = "<in-memory mesh>"
+        out["pose"] = self.pose.to_dict()
+        out["scale"] = list(self.scale) if isinstance(self.scale, tuple) else self.scale
+        out["albedo"] = self.albedo
+        return out
+
+
+@dataclass(frozen=True)
+class GroundSpec:
+    """The flat ground plane ``z = height_m`` (normal +z).
+
+    Attributes
+    ----------
+    height_m : float
+        Height of the plane in the world frame, metres.
+    albedo : float
+        Diffuse albedo in [0, 1]: the direct ground echo.
+    specular : float
+        Specular reflectance R in [0, 1] that drives the multipath (double bounces scale by R,
+        triple by R**2).
+    """
+
+    height_m: float = 0.0
+    albedo: float = 0.8
+    specular: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.height_m):
+            raise ConfigError("ground.height_m", f"must be a finite number, got {self.height_m}")
+        _check_unit_interval("ground.albedo", self.albedo)
+        _check_unit_interval("ground.specular", self.specular)
+
+    def to_dict(self) -> dict:
+        return {"height_m": self.height_m, "albedo": self.albedo, "specular": self.specular}
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How to sample and form the image.
+
+    Attributes
+    ----------
+    elevation_samples : int or 'auto'
+        Rays per beam across the elevation aperture. ``'auto'``: enough that neighbouring rays
+        are at most about two range bins apart across the aperture at the far range (see
+        :func:`sonarsim.rays.auto_elevation_samples`).
+    azimuth_samples : int
+        Rays per beam across its azimuth width (1: along the beam centre only).
+    tvg : bool
+        Time-variant gain: ``l(r) = 1``; ``False`` gives ``l(r) = 1/r**2`` (paper Eq. 5).
+    bounces : tuple of int
+        Which echoes to form: 1 direct, 2 double (cases 2/3), 3 triple (case 4).
+    method : {'fast', 'paper'}
+        Ground-echo implementation (see :mod:`sonarsim.multipath`).
+    beam_pattern : {'uniform', 'gaussian'}
+        beta(theta, phi): uniform (paper Eq. 4), or Gaussian falling to -3 dB at the edges of the
+        elevation aperture and of each beam's azimuth width.
+    range_splat : bool
+        Spread the energy between neighbouring rays on one surface over the range interval they
+        span (no stripes on grazing surfaces). ``False`` is the paper's Algorithm 1: each ray
+        deposits at its own range.
+    seed : int
+        Seed of any random choice (kept in the configuration for reproducibility).
+    threads : int or None
+        Ray-casting threads; ``None``: all CPU cores.
+    """
+
+    elevation_samples: int | str = "auto"
+    azimuth_samples: int = 1
+    tvg: bool = True
+    bounces: tuple[int, ...] = (1, 2, 3)
+    method: str = "fast"
+    beam_pattern: str = "uniform"
+    range_splat: bool = True
+    seed: int = 0
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        es = self.elevation_samples
+        if es != "auto" and (isinstance(es, bool) or not isinstance(es, (int, np.integer)) or es < 1):
+            raise ConfigError("render.elevation_samples", f"must be 'auto' or a positive integer, got {es!r}")
+        az = self.azimuth_samples
+        if isinstance(az, bool) or not isinstance(az, (int, np.integer)) or az < 1:
+            raise ConfigError("render.azimuth_samples", f"must be a positive integer, got {az!r}")
+        bounces = tuple(sorted(set(int(b) for b in self.bounces)))
+        if not bounces or any(b not in (1, 2, 3) for b in bounces):
+            raise ConfigError("render.bounces", f"must be a non-empty subset of [1, 2, 3], got {list(self.bounces)}")
+        object.__setattr__(self, "bounces", bounces)
+        if self.method not in METHODS:
+            raise ConfigError("render.method", f"unknown method {self.method!r}; allowed: {', '.join(METHODS)}")
+        if self.beam_pattern not in BEAM_PATTERNS:
+            raise ConfigError(
+                "render.beam_pattern", f"unknown pattern {self.beam_pattern!r}; allowed: {', '.join(BEAM_PATTERNS)}"
+            )
+        if self.threads is not None and (isinstance(self.threads, bool) or self.threads < 1):
+            raise ConfigError("render.threads", f"must be a positive integer or null, got {self.threads!r}")
+
+    def to_dict(self) -> dict:
+        return {
+            "elevation_samples": self.elevation_samples if self.elevation_samples == "auto" else int(self.elevation_samples),
+            "azimuth_samples": int(self.azimuth_samples),
+            "tvg": self.tvg,
+            "bounces": list(self.bounces),
+            "method": self.method,
+            "beam_pattern": self.beam_pattern,
+            "range_splat": self.range_splat,
+            "seed": int(self.seed),
+            "threads": self.threads,
+        }
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Everything needed to render: sonar, objects, optional ground, render settings.
+
+    Attributes
+    ----------
+    sonar : SonarConfig
+    objects : tuple of ObjectSpec
+    ground : GroundSpec or None
+        ``None``: no ground (no direct ground echo, no multipath).
+    render : RenderSettings
+    source : str or None
+        File the scene was read from (mesh paths are relative to its folder).
+    """
+
+    sonar: SonarConfig
+    objects: tuple[ObjectSpec, ...] = ()
+    ground: GroundSpec | None = None
+    render: RenderSettings = field(default_factory=RenderSettings)
+    source: str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "objects", tuple(self.objects))
+        names = [o.name for o in self.objects]
+        for i, name in enumerate(names):
+            if name in names[:i]:
+                raise ConfigError(f"objects[{i}].name", f"duplicate object name {name!r}; names must be unique")
+
+    def with_pose(self, pose: Pose) -> "Scene":
+        """The same scene with the sonar at another pose."""
+        return replace(self, sonar=self.sonar.with_pose(pose))
+
+    def to_dict(self) -> dict:
+        """The scene-file form (JSON/YAML-serialisable)."""
+        out: dict = {
+            "sonar": self.sonar.to_dict(),
+            "render": self.render.to_dict(),
+            "objects": [o.to_dict() for o in self.objects],
+        }
+        if self.ground is not None:
+            out["ground"] = self.ground.to_dict()
+        return out

@@ -1,0 +1,247 @@
+"""The renderer: a :class:`Simulator` holds the acceleration structure and renders poses.
+
+Pipeline per frame: rays of the sonar (cached per sonar) -> rotate to the pose -> closest
+surfaces (Embree + analytic ground) -> per-ray intensities (D_f, I_f) -> polar images per
+component (one bincount) -> ground echoes -> :class:`SonarImage`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from .backends import make_caster
+from .geometry import object_mesh_world
+from .imaging import continuity, form_image, lambertian_intensity
+from .loader import load_scene, parse_pose
+from .rays import RayFan, make_ray_fan
+from .scene import Scene
+from .sonar import SonarConfig
+from .tracing import GROUND_ID, NO_HIT, trace
+from .transforms import Pose
+
+# Rays are cast this far past the range window so that range splatting sees the neighbour of a
+# ray that ends just inside it.
+RANGE_MARGIN = 1.25
+
+COMPONENTS_SINGLE = ("object", "ground")
+
+
+@dataclass(frozen=True)
+class RayMaps:
+    """The paper's intermediate forms, one entry per ray.
+
+    Arrays are shaped ``(n_beams, n_azimuth_samples, n_elevation_samples)``: beam left-most
+    first, elevation ascending.
+
+    Attributes
+    ----------
+    distance_m : float32 ndarray
+        D_f: range of the first surface hit, metres; ``inf`` for none.
+    intensity : float32 ndarray
+        I_f: backscattered energy of the ray (what Algorithm 1 accumulates).
+    surface_id : int16 ndarray
+        -1 nothing, 0 the ground, k + 1 the scene's object k (ground-truth labels).
+    azimuth_deg : (n_beams, n_azimuth_samples) ndarray
+    elevation_deg : (n_elevation_samples,) ndarray
+    """
+
+    distance_m: np.ndarray
+    intensity: np.ndarray
+    surface_id: np.ndarray
+    azimuth_deg: np.ndarray
+    elevation_deg: np.ndarray
+
+
+@dataclass(frozen=True)
+class SonarImage:
+    """A rendered (or recorded) sonar image in polar form, with its axes and components.
+
+    Attributes
+    ----------
+    polar : (n_range_bins, n_beams) float32 ndarray
+        The total image. Row 0 is the nearest range bin, column 0 the left-most beam.
+    range_m : (n_range_bins,) float64 ndarray
+        Centre of each range bin, metres.
+    azimuth_deg : (n_beams,) float64 ndarray
+        Centre of each beam, degrees, left-most first (descending).
+    components : mapping of str to (n_range_bins, n_beams) float32 ndarray
+        ``object``, ``ground``, ``single`` (= object + ground), and the ground echoes
+        ``double`` and ``triple`` when rendered; ``polar`` is the sum of those selected.
+    sonar : SonarConfig
+        The sonar (with its pose) that produced the image.
+    rays : RayMaps or None
+        Per-ray distance and intensity maps (D_f, I_f) and surface labels.
+    config : dict
+        The full scene configuration, in scene-file form.
+    """
+
+    polar: np.ndarray
+    range_m: np.ndarray
+    azimuth_deg: np.ndarray
+    components: Mapping[str, np.ndarray]
+    sonar: SonarConfig
+    rays: RayMaps | None = None
+    config: dict = field(default_factory=dict)
+
+    @property
+    def range_edges_m(self) -> np.ndarray:
+        return self.sonar.range_edges_m
+
+    def fan(self, pixel_size_m: float | None = None, component: str | None = None, interpolation: str = "linear"):
+        """The fan-shaped Cartesian image (see :func:`sonarsim.fan.polar_to_fan`).
+
+        Parameters
+        ----------
+        pixel_size_m : float, optional
+            Pixel edge, metres; default the range resolution.
+        component : str, optional
+            A key of :attr:`components`; default the total image.
+        interpolation : {'linear', 'nearest'}
+        """
+        from .fan import polar_to_fan
+
+        img = self.polar if component is None else self.components[component]
+        return polar_to_fan(
+            img, self.sonar.range_min_m, self.sonar.range_max_m, self.azimuth_deg,
+            pixel_size_m=pixel_size_m, interpolation=interpolation,
+        )
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Everything as named arrays (what the NPZ file holds, less the configuration)."""
+        out = {"polar": self.polar, "range_m": self.range_m, "azimuth_deg": self.azimuth_deg}
+        out.update(self.components)
+        if self.rays is not None:
+            out.update(
+                rays_distance_m=self.rays.distance_m,
+                rays_intensity=self.rays.intensity,
+                rays_surface_id=self.rays.surface_id,
+                rays_azimuth_deg=self.rays.azimuth_deg,
+                rays_elevation_deg=self.rays.elevation_deg,
+            )
+        return out
+
+    def save_npz(self, path) -> None:
+        """Write :meth:`arrays` and the configuration to an NPZ file, atomically."""
+        from .output import write_npz
+
+        write_npz(path, self.arrays(), self.config)
+
+
+def as_pose(pose: Any) -> Pose:
+    """A :class:`Pose` from a Pose, a ``{position_m, rpy_deg | quat_xyzw}`` dict or a 4x4 matrix."""
+    if isinstance(pose, Pose):
+        return pose
+    if isinstance(pose, Mapping):
+        return parse_pose(pose, "pose")
+    from .transforms import matrix_to_rpy
+
+    m = np.asarray(pose, dtype=float)
+    if m.shape != (4, 4):
+        raise TypeError("pose must be a Pose, a dict with position_m and rpy_deg/quat_xyzw, or a 4x4 matrix")
+    return Pose(tuple(m[:3, 3]), tuple(np.degrees(matrix_to_rpy(m[:3, :3]))))
+
+
+class Simulator:
+    """Renders a scene from many sonar poses, building the acceleration structure once.
+
+    Parameters
+    ----------
+    scene : Scene, mapping or path
+        Anything :func:`sonarsim.load_scene` accepts.
+    backend : {'embree', 'numpy'}
+        Ray-casting engine; ``numpy`` is a slow reference for tests.
+
+    Examples
+    --------
+    >>> sim = Simulator("tank.yaml")                       # doctest: +SKIP
+    >>> img = sim.render(pose={"position_m": [0, 0, 1], "rpy_deg": [0, 20, 0]})  # doctest: +SKIP
+    """
+
+    def __init__(self, scene: Any, backend: str = "embree") -> None:
+        self.scene: Scene = load_scene(scene)
+        self.meshes = [object_mesh_world(o) for o in self.scene.objects]
+        self.caster = make_caster(backend, self.meshes, self.scene.render.threads)
+        ground_albedo = self.scene.ground.albedo if self.scene.ground is not None else 0.0
+        # Albedo by surface id + 1: index 0 is "no hit", 1 the ground, k + 2 object k.
+        self._albedo = np.array([0.0, ground_albedo] + [o.albedo for o in self.scene.objects])
+        self._fans: dict[SonarConfig, RayFan] = {}
+        self.last_timing: dict[str, float] = {}
+
+    def ray_fan(self, sonar: SonarConfig) -> RayFan:
+        """The (cached) rays of a sonar in its own frame."""
+        key = replace(sonar, pose=Pose())
+        fan = self._fans.get(key)
+        if fan is None:
+            fan = make_ray_fan(sonar, self.scene.render)
+            self._fans = {key: fan}  # one sonar at a time is the common case; keep memory flat
+        return fan
+
+    def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True) -> SonarImage:
+        """Render one image.
+
+        Parameters
+        ----------
+        pose : Pose, dict or (4, 4) array, optional
+            Sonar pose in the world frame; default the scene's.
+        sonar : SonarConfig, optional
+            Another sonar (its pose is used unless ``pose`` is given); default the scene's.
+        keep_rays : bool
+            Attach the per-ray maps (D_f, I_f, labels) to the result.
+        """
+        t0 = time.perf_counter()
+        sonar = sonar if sonar is not None else self.scene.sonar
+        if pose is not None:
+            sonar = sonar.with_pose(as_pose(pose))
+        render = self.scene.render
+        fan = self.ray_fan(sonar)
+        rot = sonar.pose.rotation
+        origin = sonar.pose.translation
+        directions = fan.directions @ rot.T
+        t1 = time.perf_counter()
+        hits = trace(self.caster, origin, directions, self.scene.ground, sonar.range_max_m * RANGE_MARGIN)
+        t2 = time.perf_counter()
+        albedo = self._albedo[hits.surface_id + 1]
+        intensity = lambertian_intensity(fan.weight, hits.cos_incidence, albedo, hits.distance_m, render.tvg)
+        cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None
+        # Component label: 0 object, 1 ground, -1 nothing.
+        label = np.where(hits.surface_id > GROUND_ID, 0, np.where(hits.surface_id == GROUND_ID, 1, -1))
+        beam_index = np.arange(sonar.n_beams)[:, None, None]
+        single = form_image(
+            hits.distance_m, intensity, beam_index, sonar.range_min_m, sonar.range_resolution_m,
+            sonar.n_range_bins, sonar.n_beams, label=label, n_labels=2, continuous=cont,
+        )
+        t3 = time.perf_counter()
+        components = {
+            "object": single[0].astype(np.float32),
+            "ground": single[1].astype(np.float32),
+        }
+        components["single"] = components["object"] + components["ground"]
+        total = np.zeros((sonar.n_range_bins, sonar.n_beams), dtype=np.float32)
+        if 1 in render.bounces:
+            total += components["single"]
+        rays = None
+        if keep_rays:
+            rays = RayMaps(
+                distance_m=hits.distance_m.astype(np.float32),
+                intensity=intensity.astype(np.float32),
+                surface_id=hits.surface_id.astype(np.int16),
+                azimuth_deg=np.degrees(fan.azimuth_rad),
+                elevation_deg=np.degrees(fan.elevation_rad),
+            )
+        config = replace(self.scene, sonar=sonar).to_dict()
+        t4 = time.perf_counter()
+        self.last_timing = {"rays": t1 - t0, "cast": t2 - t1, "image": t3 - t2, "assemble": t4 - t3, "total": t4 - t0}
+        return SonarImage(
+            polar=total, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg,
+            components=components, sonar=sonar, rays=rays, config=config,
+        )
+
+
+def render(scene: Any, pose: Any = None, backend: str = "embree") -> SonarImage:
+    """Load (if needed) and render a scene once. For many poses, use :class:`Simulator`."""
+    return Simulator(scene, backend=backend).render(pose=pose)
