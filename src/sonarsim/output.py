@@ -344,7 +344,9 @@ def read_npz(path: PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     # allow_pickle=False: an npz from elsewhere must not be able to run code on load.
     with np.load(path, allow_pickle=False) as archive:
         if CONFIG_KEY not in archive.files:
-            raise ValueError(f"{os.fspath(path)}: no {CONFIG_KEY!r} entry; not written by write_npz")
+            raise ValueError(
+                f"{os.fspath(path)}: no {CONFIG_KEY!r} entry; not written by write_npz"
+            )
         arrays = {name: archive[name] for name in archive.files if name != CONFIG_KEY}
         text = archive[CONFIG_KEY]
     try:
