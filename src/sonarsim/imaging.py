@@ -100,11 +100,11 @@ def _half_segment_ends(x: np.ndarray, cont: np.ndarray) -> tuple[np.ndarray, np.
     false = np.zeros(x.shape[:-1] + (1,), dtype=bool)
     c_up = np.concatenate([cont, false], axis=-1)  # ray k continues to k+1
     c_dn = np.concatenate([false, cont], axis=-1)  # ray k continues to k-1
-    up_interp = 0.5 * (x + nxt)
-    dn_interp = 0.5 * (x + prv)
-    up_extra = x + 0.5 * (x - prv)  # mirror of the lower neighbour
-    dn_extra = x + 0.5 * (x - nxt)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"):  # inf - inf where rays miss: masked out below
+        up_interp = 0.5 * (x + nxt)
+        dn_interp = 0.5 * (x + prv)
+        up_extra = x + 0.5 * (x - prv)  # mirror of the lower neighbour
+        dn_extra = x + 0.5 * (x - nxt)
         upper = np.where(c_up, up_interp, np.where(c_dn, up_extra, np.nan))
         lower = np.where(c_dn, dn_interp, np.where(c_up, dn_extra, np.nan))
     return lower, upper
