@@ -10,7 +10,7 @@ from __future__ import annotations
 def demo_scene_dict() -> dict:
     """The demo tank scene in scene-file form.
 
-    An ARIS Explorer 3000 (128 beams, 0.5-5 m, 1288 bins) 1 m above a concrete floor, pitched
+    An ARIS Explorer 3000 (preset: 128 beams, 0.7-5 m, 1288 bins) 1 m above a concrete floor, pitched
     20 degrees down; the floor is lit from about 2.2 m to 4.4 m on the centre beam. On the
     floor: a concrete block, a plastic drum standing upright and a pipe lying down; above it, a
     tethered buoy. Each casts an acoustic shadow on the floor behind it.
@@ -18,9 +18,6 @@ def demo_scene_dict() -> dict:
     return {
         "sonar": {
             "preset": "aris3000-128",
-            "range_min_m": 0.5,
-            "range_max_m": 5.0,
-            "n_range_bins": 1288,
             "pose": {"position_m": [0.0, 0.0, 1.0], "rpy_deg": [0.0, 20.0, 0.0]},
         },
         "render": {"elevation_samples": "auto", "tvg": True, "bounces": [1, 2, 3], "method": "fast"},

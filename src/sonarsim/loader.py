@@ -118,7 +118,7 @@ def parse_sonar(d: Any, base_dir: Path | None) -> SonarConfig:
         path = Path(_string(user.pop("beam_angles_file"), "sonar.beam_angles_file"))
         if base_dir is not None and not path.is_absolute():
             path = base_dir / path
-        user["beam_angles_deg"] = list(beam_angles_from_table(path))
+        user["beam_angles_deg"] = list(beam_angles_from_table(path, key="sonar.beam_angles_file"))
     # Keys given by the user replace the preset's alternatives for the same quantity.
     if "beam_angles_deg" in user or "azimuth_fov_deg" in user or "n_beams" in user:
         if "beam_angles_deg" not in user:
