@@ -104,3 +104,38 @@ def object_mesh_world(obj: ObjectSpec) -> TriangleMesh:
     scale = np.broadcast_to(np.asarray(obj.scale, dtype=float), (3,))
     v = (local.vertices * scale) @ obj.pose.rotation.T + obj.pose.translation
     return TriangleMesh(v, np.ascontiguousarray(local.faces, dtype=np.int32))
+
+
+def clip_above_plane(mesh: TriangleMesh, height_m: float) -> TriangleMesh:
+    """The part of a mesh above the ground plane ``z = height_m`` (possibly no faces at all).
+
+    Below-ground geometry can never be seen, but the paper's mirror renders would see it (and
+    its mirror image would rise above the floor), and faces lying in the plane (the base of an
+    object resting on the floor) coincide with the ground and with their own mirror image. Both
+    are removed here so that no method produces echoes from them.
+    """
+    z = mesh.vertices[:, 2]
+    tol = 1e-9 * max(1.0, float(np.abs(mesh.vertices).max()))
+    if z.min() >= height_m + tol:
+        return mesh
+    tz = z[mesh.faces]
+    keep = ~np.all(tz <= height_m + tol, axis=1)  # drop faces on or below the plane
+    crossing = keep & np.any(tz < height_m - tol, axis=1)
+    faces = mesh.faces[keep & ~crossing]
+    if not crossing.any():
+        return TriangleMesh(mesh.vertices, np.ascontiguousarray(faces, dtype=np.int32))
+    import trimesh
+
+    part = trimesh.Trimesh(mesh.vertices, mesh.faces[crossing], process=False)
+    cut = trimesh.intersections.slice_mesh_plane(part, plane_normal=[0, 0, 1], plane_origin=[0, 0, height_m], cap=False)
+    n0 = len(mesh.vertices)
+    verts = np.concatenate([mesh.vertices, np.asarray(cut.vertices, float)])
+    faces = np.concatenate([faces, np.asarray(cut.faces, np.int32) + n0]) if len(cut.faces) else faces
+    return TriangleMesh(verts, np.ascontiguousarray(faces, dtype=np.int32))
+
+
+def mirror_across_plane(mesh: TriangleMesh, height_m: float) -> TriangleMesh:
+    """Mirror image across ``z = height_m`` (winding reversed so normals stay outward)."""
+    v = mesh.vertices.copy()
+    v[:, 2] = 2.0 * height_m - v[:, 2]
+    return TriangleMesh(v, np.ascontiguousarray(mesh.faces[:, ::-1]))

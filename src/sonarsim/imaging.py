@@ -168,6 +168,8 @@ def form_image(
         img = np.bincount(flat(rows, sel), weights=energy[sel], minlength=size)
         return img.reshape(n_labels, n_rows, n_beams)[:, :n_range_bins]
 
+    # A ray without energy (dropped, out of the field of view) is no neighbour to spread towards.
+    continuous = continuous & live[..., 1:] & live[..., :-1]
     lower, upper = _half_segment_ends(x, continuous)
     half = 0.5 * energy
     direct = np.zeros(size)

@@ -20,6 +20,7 @@ from .transforms import Pose
 PRIMITIVES = ("box", "sphere", "cylinder")
 METHODS = ("fast", "paper")
 BEAM_PATTERNS = ("uniform", "gaussian")
+DOUBLE_BEAMS = ("paper", "split")
 
 
 def _check_unit_interval(key: str, value: float) -> None:
@@ -162,6 +163,13 @@ class RenderSettings:
         Spread the energy between neighbouring rays on one surface over the range interval they
         span (no stripes on grazing surfaces). ``False`` is the paper's Algorithm 1: each ray
         deposits at its own range.
+    double_beam : {'paper', 'split'}
+        Where double bounces (cases 2/3) are recorded. ``'paper'``: both in the beam of the ray
+        that reached the mirror point A' (Algorithm 2). ``'split'``: half the energy as case 2 in
+        the beam of A (the direction it arrives from) and half as case 3 in the beam of A'.
+    double_line_of_sight : bool
+        Also require the path O-A to be unoccluded for cases 2/3 (the paper only requires A to
+        lie in the field of view and range window).
     seed : int
         Seed of any random choice (kept in the configuration for reproducibility).
     threads : int or None
@@ -175,6 +183,8 @@ class RenderSettings:
     method: str = "fast"
     beam_pattern: str = "uniform"
     range_splat: bool = True
+    double_beam: str = "paper"
+    double_line_of_sight: bool = False
     seed: int = 0
     threads: int | None = None
 
@@ -195,6 +205,10 @@ class RenderSettings:
             raise ConfigError(
                 "render.beam_pattern", f"unknown pattern {self.beam_pattern!r}; allowed: {', '.join(BEAM_PATTERNS)}"
             )
+        if self.double_beam not in DOUBLE_BEAMS:
+            raise ConfigError(
+                "render.double_beam", f"unknown choice {self.double_beam!r}; allowed: {', '.join(DOUBLE_BEAMS)}"
+            )
         if self.threads is not None and (isinstance(self.threads, bool) or self.threads < 1):
             raise ConfigError("render.threads", f"must be a positive integer or null, got {self.threads!r}")
 
@@ -207,6 +221,8 @@ class RenderSettings:
             "method": self.method,
             "beam_pattern": self.beam_pattern,
             "range_splat": self.range_splat,
+            "double_beam": self.double_beam,
+            "double_line_of_sight": self.double_line_of_sight,
             "seed": int(self.seed),
             "threads": self.threads,
         }

@@ -15,20 +15,25 @@ from typing import Any
 import numpy as np
 
 from .backends import make_caster
-from .geometry import object_mesh_world
+from .geometry import clip_above_plane, mirror_across_plane, object_mesh_world
 from .imaging import continuity, form_image, lambertian_intensity
 from .loader import load_scene, parse_pose
 from .rays import RayFan, make_ray_fan
 from .scene import Scene
 from .sonar import SonarConfig
-from .tracing import GROUND_ID, NO_HIT, trace
+from .multipath import fast_mirror_paths, ground_echo_images, render_paper, sonar_above_ground
+from .tracing import GROUND_ID, trace
 from .transforms import Pose
 
 # Rays are cast this far past the range window so that range splatting sees the neighbour of a
 # ray that ends just inside it.
 RANGE_MARGIN = 1.25
 
-COMPONENTS_SINGLE = ("object", "ground")
+# Unfolded ground-echo paths OA' matter up to 2 * range_max - range_min (cases 2/3 land at
+# (OA + OA') / 2 with OA >= range_min); cast that far when there is multipath to form.
+MULTIPATH_REACH = 2.0
+
+COMPONENTS = ("object", "ground", "single", "double", "triple", "total")
 
 
 @dataclass(frozen=True)
@@ -70,8 +75,10 @@ class SonarImage:
     azimuth_deg : (n_beams,) float64 ndarray
         Centre of each beam, degrees, left-most first (descending).
     components : mapping of str to (n_range_bins, n_beams) float32 ndarray
-        ``object``, ``ground``, ``single`` (= object + ground), and the ground echoes
-        ``double`` and ``triple`` when rendered; ``polar`` is the sum of those selected.
+        ``object``, ``ground``, ``single`` (= object + ground), the ground echoes ``double``
+        (cases 2/3) and ``triple`` (case 4), and ``total`` (= ``polar``): the sum of those
+        selected by ``render.bounces`` (1: single, 2: double, 3: triple). All are always
+        formed, so that each is available as a label whatever enters the total.
     sonar : SonarConfig
         The sonar (with its pose) that produced the image.
     rays : RayMaps or None
@@ -164,8 +171,14 @@ class Simulator:
 
     def __init__(self, scene: Any, backend: str = "embree") -> None:
         self.scene: Scene = load_scene(scene)
+        self.backend = backend
         self.meshes = [object_mesh_world(o) for o in self.scene.objects]
+        if self.scene.ground is not None:
+            # Nothing below the floor can be seen; removing it (and faces lying on the floor)
+            # keeps mirror geometry and coincident faces from making echoes.
+            self.meshes = [clip_above_plane(m, self.scene.ground.height_m) for m in self.meshes]
         self.caster = make_caster(backend, self.meshes, self.scene.render.threads)
+        self._mirrored_caster = None
         ground_albedo = self.scene.ground.albedo if self.scene.ground is not None else 0.0
         # Albedo by surface id + 1: index 0 is "no hit", 1 the ground, k + 2 object k.
         self._albedo = np.array([0.0, ground_albedo] + [o.albedo for o in self.scene.objects])
@@ -180,6 +193,14 @@ class Simulator:
             fan = make_ray_fan(sonar, self.scene.render)
             self._fans = {key: fan}  # one sonar at a time is the common case; keep memory flat
         return fan
+
+    def mirrored_caster(self):
+        """Objects followed by their mirror images (``method: paper`` only), built on first use."""
+        if self._mirrored_caster is None:
+            h = self.scene.ground.height_m
+            mirrored = self.meshes + [mirror_across_plane(m, h) for m in self.meshes]
+            self._mirrored_caster = make_caster(self.backend, mirrored, self.scene.render.threads)
+        return self._mirrored_caster
 
     def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True) -> SonarImage:
         """Render one image.
@@ -203,27 +224,44 @@ class Simulator:
         origin = sonar.pose.translation
         directions = fan.directions @ rot.T
         t1 = time.perf_counter()
-        hits = trace(self.caster, origin, directions, self.scene.ground, sonar.range_max_m * RANGE_MARGIN)
+        ground = self.scene.ground
+        multipath = sonar_above_ground(sonar, ground) and ground.specular > 0
+        reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
+        hits = trace(self.caster, origin, directions, ground, reach)
         t2 = time.perf_counter()
         albedo = self._albedo[hits.surface_id + 1]
         intensity = lambertian_intensity(fan.weight, hits.cos_incidence, albedo, hits.distance_m, render.tvg)
-        cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None
-        # Component label: 0 object, 1 ground, -1 nothing.
-        label = np.where(hits.surface_id > GROUND_ID, 0, np.where(hits.surface_id == GROUND_ID, 1, -1))
         beam_index = np.arange(sonar.n_beams)[:, None, None]
-        single = form_image(
-            hits.distance_m, intensity, beam_index, sonar.range_min_m, sonar.range_resolution_m,
-            sonar.n_range_bins, sonar.n_beams, label=label, n_labels=2, continuous=cont,
-        )
+        shape = (sonar.n_range_bins, sonar.n_beams)
+        if render.method == "paper" and multipath:
+            images = render_paper(
+                self.caster, self.mirrored_caster(), origin, directions, sonar, render, ground,
+                fan.weight, self._albedo, len(self.meshes), reach,
+            )
+        else:
+            cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None
+            # Component label: 0 object, 1 ground, -1 nothing.
+            label = np.where(hits.surface_id > GROUND_ID, 0, np.where(hits.surface_id == GROUND_ID, 1, -1))
+            single = form_image(
+                hits.distance_m, intensity, beam_index, sonar.range_min_m, sonar.range_resolution_m,
+                sonar.n_range_bins, sonar.n_beams, label=label, n_labels=2, continuous=cont,
+            )
+            images = {"object": single[0], "ground": single[1], "double": np.zeros(shape), "triple": np.zeros(shape)}
+            if multipath:
+                paths = fast_mirror_paths(
+                    self.caster, origin, directions, hits, ground.height_m, fan.weight, self._albedo,
+                    render.tvg, reach,
+                )
+                images["double"], images["triple"] = ground_echo_images(paths, sonar, render, ground.specular, self.caster)
         t3 = time.perf_counter()
-        components = {
-            "object": single[0].astype(np.float32),
-            "ground": single[1].astype(np.float32),
-        }
+        components = {k: np.asarray(images[k], dtype=np.float32) for k in ("object", "ground", "double", "triple")}
         components["single"] = components["object"] + components["ground"]
-        total = np.zeros((sonar.n_range_bins, sonar.n_beams), dtype=np.float32)
-        if 1 in render.bounces:
-            total += components["single"]
+        total = np.zeros(shape, dtype=np.float32)
+        for bounce, key in ((1, "single"), (2, "double"), (3, "triple")):
+            if bounce in render.bounces:
+                total += components[key]
+        components["total"] = total
+        components = {k: components[k] for k in COMPONENTS}
         rays = None
         if keep_rays:
             rays = RayMaps(

@@ -45,6 +45,9 @@ class EmbreeCaster:
         self.threads = threads or available_cores()
         self.n_meshes = len(meshes)
         self._scene = None
+        # Embree numbers the meshes it is given; empty meshes are skipped, so map back.
+        self._ids = np.array([i for i, m in enumerate(meshes) if len(m.faces)], dtype=np.int32)
+        meshes = [m for m in meshes if len(m.faces)]
         if meshes:
             # robust=False: 15-35% faster; closed meshes lose no hits at this precision.
             self._scene = rtcore_scene.EmbreeScene(robust=False)
@@ -80,8 +83,9 @@ class EmbreeCaster:
                 )
             )
             res = {k: np.concatenate([p[k] for p in parts]) for k in ("tfar", "geomID", "Ng")}
-        mesh_id = res["geomID"].astype(np.int32, copy=False)
-        hit = mesh_id >= 0
+        geom = res["geomID"]
+        hit = geom >= 0
+        mesh_id = np.where(hit, self._ids[np.maximum(geom, 0)], -1).astype(np.int32)
         distance = np.where(hit, res["tfar"], np.float32(np.inf)).astype(np.float32, copy=False)
         ng = res["Ng"]
         norm = np.linalg.norm(ng, axis=1, keepdims=True)
