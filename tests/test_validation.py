@@ -218,6 +218,9 @@ BAD_SCENES: list = [
      ["'auto' or a positive integer"]),
     ("azimuth-samples-0", [(("render", "azimuth_samples"), 0)], "render.azimuth_samples", ["positive integer"]),
     ("threads-0", [(("render", "threads"), 0)], "render.threads", ["positive integer"]),
+    ("unknown-double-beam", [(("render", "double_beam"), "both")], "render.double_beam", ["paper, split"]),
+    ("int-double-line-of-sight", [(("render", "double_line_of_sight"), 1)], "render.double_line_of_sight",
+     ["true or false"]),
     pytest.param(
         "elevation-samples-str", [(("render", "elevation_samples"), "many")], "render.elevation_samples",
         ["auto"], marks=pytest.mark.xfail(reason=ELEVATION_SAMPLES_BUG, strict=True),

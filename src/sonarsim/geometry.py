@@ -124,13 +124,12 @@ def clip_above_plane(mesh: TriangleMesh, height_m: float) -> TriangleMesh:
     faces = mesh.faces[keep & ~crossing]
     if not crossing.any():
         return TriangleMesh(mesh.vertices, np.ascontiguousarray(faces, dtype=np.int32))
-    import trimesh
+    from trimesh.intersections import slice_faces_plane
 
-    part = trimesh.Trimesh(mesh.vertices, mesh.faces[crossing], process=False)
-    cut = trimesh.intersections.slice_mesh_plane(part, plane_normal=[0, 0, 1], plane_origin=[0, 0, height_m], cap=False)
+    cut_v, cut_f, _ = slice_faces_plane(mesh.vertices, mesh.faces[crossing], [0.0, 0.0, 1.0], [0.0, 0.0, height_m])
     n0 = len(mesh.vertices)
-    verts = np.concatenate([mesh.vertices, np.asarray(cut.vertices, float)])
-    faces = np.concatenate([faces, np.asarray(cut.faces, np.int32) + n0]) if len(cut.faces) else faces
+    verts = np.concatenate([mesh.vertices, np.asarray(cut_v, float)])
+    faces = np.concatenate([faces, np.asarray(cut_f, np.int32) + n0]) if len(cut_f) else faces
     return TriangleMesh(verts, np.ascontiguousarray(faces, dtype=np.int32))
 
 

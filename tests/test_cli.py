@@ -1,0 +1,357 @@
+"""The ``sonarsim`` command line, run in a subprocess and in-process via ``sonarsim.cli.main``.
+
+Bad input must end with a non-zero exit status and a message on stderr naming the key or file,
+never a traceback, and must leave no partial files behind.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from PIL import Image
+
+from sonarsim import cli
+
+PRESET_NAMES = [
+    "aris3000-128", "aris3000-64", "didson300", "oculus-m750d-lf", "oculus-m750d-hf",
+    "oculus-m1200d-lf", "oculus-m1200d-hf", "blueview-p900-130", "gemini-720i",
+]
+NPZ_KEYS = {"polar", "range_m", "azimuth_deg", "object", "ground", "single", "config_json"}
+
+# A small, fast scene: 8 beams x 50 bins, 8 elevation samples.
+TINY_SCENE = {
+    "sonar": {
+        "n_beams": 8, "azimuth_fov_deg": 20.0, "elevation_fov_deg": 10.0,
+        "range_min_m": 0.5, "range_max_m": 3.0, "n_range_bins": 50,
+        "pose": {"position_m": [0.0, 0.0, 1.0], "rpy_deg": [0.0, 20.0, 0.0]},
+    },
+    "render": {"elevation_samples": 8},
+    "ground": {"height_m": 0.0, "albedo": 0.5, "specular": 0.5},
+    "objects": [{"name": "block", "primitive": "box", "size_m": [0.3, 0.3, 0.3],
+                 "pose": {"position_m": [2.0, 0.0, 0.15]}}],
+}
+
+
+def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "sonarsim", *map(str, args)],
+        cwd=cwd, capture_output=True, text=True, timeout=120,
+    )
+
+
+def run_main(capsys, *args: str) -> tuple[int, str, str]:
+    """``cli.main`` in-process; argparse errors (SystemExit) count as the exit status."""
+    try:
+        code = cli.main([str(a) for a in args])
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def _leftovers(folder: Path) -> list[str]:
+    """Temporary or partial files in ``folder`` (hidden names included)."""
+    if not folder.exists():
+        return []
+    return sorted(n for n in os.listdir(folder) if n.endswith(".tmp") or n.startswith("."))
+
+
+def _assert_complete_outputs(folder: Path) -> None:
+    """Whatever files remain in ``folder`` are complete: PNGs decode, npz files load."""
+    assert _leftovers(folder) == []
+    for name in os.listdir(folder):
+        p = folder / name
+        if not p.is_file():
+            continue
+        if name.endswith(".png"):
+            with Image.open(p) as im:
+                im.load()
+        elif name.endswith(".npz"):
+            with np.load(p, allow_pickle=False) as z:
+                for key in z.files:
+                    z[key]
+
+
+@pytest.fixture()
+def tiny_scene(tmp_path: Path) -> Path:
+    path = tmp_path / "tiny.yaml"
+    path.write_text(yaml.safe_dump(TINY_SCENE))
+    return path
+
+
+@pytest.fixture(scope="module")
+def demo_dir(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("demo") / "out"
+    proc = run_cli("demo", "--out", out, "--elevation-samples", "40")
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    return out
+
+
+# --------------------------------------------------------------------------- help and presets
+
+
+@pytest.mark.parametrize("sub", [[], ["render"], ["demo"], ["presets"]], ids=["top", "render", "demo", "presets"])
+def test_help_subprocess(sub) -> None:
+    proc = run_cli(*sub, "--help")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("usage: sonarsim" + (" " + sub[0] if sub else ""))
+    assert "Traceback" not in proc.stderr
+    if not sub:
+        for command in ("render", "demo", "presets"):
+            assert command in proc.stdout
+    elif sub[0] in ("render", "demo"):
+        assert "--out" in proc.stdout and "--bounces" in proc.stdout
+
+
+@pytest.mark.parametrize("sub", [[], ["render"], ["demo"], ["presets"]], ids=["top", "render", "demo", "presets"])
+def test_help_in_process(capsys, sub) -> None:
+    code, out, err = run_main(capsys, *sub, "--help")
+    assert code == 0
+    assert "usage: sonarsim" in out
+
+
+def test_no_command_is_an_error(capsys) -> None:
+    code, out, err = run_main(capsys)
+    assert code != 0
+    assert "usage" in err and "Traceback" not in err
+
+
+def test_presets_table_subprocess() -> None:
+    proc = run_cli("presets")
+    assert proc.returncode == 0, proc.stderr
+    listed = [line.split()[0] for line in proc.stdout.splitlines()[1:] if line.strip()]
+    assert listed == PRESET_NAMES
+
+
+def test_presets_json_subprocess() -> None:
+    proc = run_cli("presets", "--json")
+    assert proc.returncode == 0, proc.stderr
+    rows = json.loads(proc.stdout)
+    assert [r["name"] for r in rows] == PRESET_NAMES
+    by_name = {r["name"]: r for r in rows}
+    assert by_name["aris3000-128"]["n_beams"] == 128
+    assert by_name["aris3000-128"]["n_range_bins"] == 1288
+    for r in rows:
+        assert r["range_max_m"] > r["range_min_m"] >= 0
+        assert 0 < r["azimuth_fov_deg"] < 180 and 0 < r["elevation_fov_deg"] < 180
+
+
+def test_presets_in_process(capsys) -> None:
+    code, out, err = run_main(capsys, "presets")
+    assert code == 0
+    for name in PRESET_NAMES:
+        assert name in out
+    code, out, err = run_main(capsys, "presets", "--json")
+    assert code == 0
+    assert {r["name"] for r in json.loads(out)} == set(PRESET_NAMES)
+
+
+# --------------------------------------------------------------------------- demo and render
+
+
+def test_demo_writes_all_files(demo_dir: Path) -> None:
+    for name in ("scene.yaml", "polar.png", "fan.png", "render.npz"):
+        assert (demo_dir / name).is_file(), name
+    assert _leftovers(demo_dir) == []
+    with Image.open(demo_dir / "polar.png") as im:
+        im.load()
+        assert im.size == (128, 1288)  # width = beams, height = range bins
+    with Image.open(demo_dir / "fan.png") as im:
+        im.load()
+        assert im.width > 0 and im.height > 0
+    doc = yaml.safe_load((demo_dir / "scene.yaml").read_text())
+    assert set(doc) >= {"sonar", "objects"}
+
+
+def test_demo_npz_contents(demo_dir: Path) -> None:
+    with np.load(demo_dir / "render.npz", allow_pickle=False) as z:
+        assert NPZ_KEYS <= set(z.files)
+        polar = z["polar"]
+        assert polar.shape == (1288, 128)
+        assert polar.dtype == np.float32
+        assert np.all(np.isfinite(polar)) and np.any(polar > 0)
+        assert z["range_m"].shape == (1288,)
+        assert z["azimuth_deg"].shape == (128,)
+        for key in ("object", "ground", "single"):
+            assert z[key].shape == (1288, 128)
+        config = json.loads(str(z["config_json"][()]))
+    assert isinstance(config, dict)
+
+
+def test_render_reproduces_demo_with_same_override(demo_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "again"
+    proc = run_cli("render", demo_dir / "scene.yaml", "--out", out, "--elevation-samples", "40")
+    assert proc.returncode == 0, proc.stderr
+    with np.load(demo_dir / "render.npz") as a, np.load(out / "render.npz") as b:
+        assert a["polar"].shape == b["polar"].shape
+        assert np.allclose(a["polar"], b["polar"])
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="cli.cmd_demo (cli.py:156-161) writes scene.yaml from demo_scene_dict(), not the scene "
+    "with the --elevation-samples/--bounces overrides, so scene.yaml says elevation_samples: auto "
+    "while render.npz was made with 40 samples, and rendering scene.yaml does not reproduce it",
+)
+def test_demo_scene_yaml_reproduces_the_demo_render(demo_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "again"
+    proc = run_cli("render", demo_dir / "scene.yaml", "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    with np.load(demo_dir / "render.npz") as a, np.load(out / "render.npz") as b:
+        assert np.allclose(a["polar"], b["polar"])
+
+
+def test_render_in_process(capsys, tiny_scene: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    code, _, err = run_main(capsys, "render", tiny_scene, "--out", out, "--bounces", "1,2", "--components")
+    assert code == 0, err
+    with np.load(out / "render.npz") as z:
+        assert z["polar"].shape == (50, 8)
+        assert json.loads(str(z["config_json"][()]))["render"]["bounces"] == [1, 2]
+    with Image.open(out / "polar.png") as im:
+        assert im.size == (8, 50)
+    assert (out / "polar_object.png").is_file()
+    _assert_complete_outputs(out)
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def _bad_cases(tmp_path: Path, tiny_scene: Path) -> dict:
+    bad_key = tmp_path / "badkey.yaml"
+    doc = yaml.safe_load(tiny_scene.read_text())
+    doc["sonar"]["range_maximum"] = 4.0
+    bad_key.write_text(yaml.safe_dump(doc))
+    bad_value = tmp_path / "badvalue.json"
+    doc = yaml.safe_load(tiny_scene.read_text())
+    doc["objects"][0]["albedo"] = 1.5
+    bad_value.write_text(json.dumps(doc))
+    bad_mesh = tmp_path / "badmesh.yaml"
+    doc = yaml.safe_load(tiny_scene.read_text())
+    doc["objects"] = [{"name": "m", "mesh": "nothing_here.stl"}]
+    bad_mesh.write_text(yaml.safe_dump(doc))
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("sonar:\n  n_beams: [1, 2\n")
+    a_file = tmp_path / "a_file.txt"
+    a_file.write_text("I am a file\n")
+    out = tmp_path / "out"
+    return {
+        "unknown-key": (["render", bad_key, "--out", out], ["sonar.range_maximum", "badkey.yaml"]),
+        "bad-value": (["render", bad_value, "--out", out], ["objects[0].albedo", "badvalue.json"]),
+        "bad-mesh": (["render", bad_mesh, "--out", out], ["objects[0].mesh", "nothing_here.stl"]),
+        "invalid-yaml": (["render", broken, "--out", out], ["broken.yaml", "line"]),
+        "missing-scene": (["render", tmp_path / "missing.yaml", "--out", out], ["missing.yaml"]),
+        "bounces-4": (["render", tiny_scene, "--out", out, "--bounces", "4"], ["--bounces"]),
+        "bounces-text": (["render", tiny_scene, "--out", out, "--bounces", "one"], ["--bounces"]),
+        "elevation-samples-0": (["render", tiny_scene, "--out", out, "--elevation-samples", "0"],
+                                ["render.elevation_samples"]),
+        "demo-bounces": (["demo", "--out", out, "--bounces", "1,4"], ["--bounces"]),
+        "out-under-file": (["render", tiny_scene, "--out", a_file / "child"], ["a_file.txt"]),
+        "out-is-file": (["render", tiny_scene, "--out", a_file], ["a_file.txt"]),
+        "demo-out-under-file": (["demo", "--out", a_file / "child", "--elevation-samples", "4"], ["a_file.txt"]),
+    }
+
+
+BAD_IDS = [
+    "unknown-key", "bad-value", "bad-mesh", "invalid-yaml", "missing-scene", "bounces-4", "bounces-text",
+    "elevation-samples-0", "demo-bounces", "out-under-file", "out-is-file", "demo-out-under-file",
+]
+# Each error path once in a subprocess (a real process exit); all of them in-process.
+SUBPROCESS_IDS = ["unknown-key", "missing-scene", "bounces-4", "out-under-file", "demo-out-under-file"]
+
+
+def _check_failure(code: int, err: str, expected: list[str], out_dir: Path) -> None:
+    assert code != 0
+    assert "Traceback" not in err, err
+    for text in expected:
+        assert text in err, f"{text!r} not in stderr {err!r}"
+    # Nothing half-written: the out folder is absent or holds no temporary/partial files.
+    if out_dir.is_dir():
+        _assert_complete_outputs(out_dir)
+        assert not (out_dir / "render.npz").exists()
+
+
+@pytest.mark.parametrize("case", SUBPROCESS_IDS)
+def test_bad_input_subprocess(tmp_path: Path, tiny_scene: Path, case: str) -> None:
+    args, expected = _bad_cases(tmp_path, tiny_scene)[case]
+    proc = run_cli(*args, cwd=tmp_path)
+    _check_failure(proc.returncode, proc.stderr, expected, tmp_path / "out")
+    assert proc.stdout == ""
+
+
+@pytest.mark.parametrize("case", BAD_IDS)
+def test_bad_input_in_process(capsys, tmp_path: Path, tiny_scene: Path, case: str) -> None:
+    args, expected = _bad_cases(tmp_path, tiny_scene)[case]
+    code, out, err = run_main(capsys, *args)
+    _check_failure(code, err, expected, tmp_path / "out")
+    if not case.startswith(("bounces", "demo-bounces")):
+        assert code == cli.EXIT_BAD_INPUT
+        assert err.startswith("sonarsim: error: ") or "\nsonarsim: error: " in err
+
+
+def test_bad_scene_creates_no_out_folder(capsys, tmp_path: Path, tiny_scene: Path) -> None:
+    args, _ = _bad_cases(tmp_path, tiny_scene)["unknown-key"]
+    run_main(capsys, *args)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("blocked", ["polar.png", "fan.png", "render.npz"])
+def test_failed_write_leaves_no_partial_files(capsys, tmp_path: Path, tiny_scene: Path, blocked: str) -> None:
+    out = tmp_path / "out"
+    (out / blocked).mkdir(parents=True)  # a folder where an output file must go
+    code, _, err = run_main(capsys, "render", tiny_scene, "--out", out)
+    assert code == cli.EXIT_BAD_INPUT
+    assert "Traceback" not in err
+    assert blocked in err
+    _assert_complete_outputs(out)
+    assert (out / blocked).is_dir() and os.listdir(out / blocked) == []
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="cli.main (cli.py:205) prints OSError.filename, which for the failed os.replace in "
+    "output.atomic_write is the already-deleted temporary file ('.../.polar.png.XXXX.tmp'), not "
+    "the destination (OSError.filename2)",
+)
+def test_failed_write_names_the_destination_not_a_temp_file(capsys, tmp_path: Path, tiny_scene: Path) -> None:
+    out = tmp_path / "out"
+    (out / "polar.png").mkdir(parents=True)
+    code, _, err = run_main(capsys, "render", tiny_scene, "--out", out)
+    assert code == cli.EXIT_BAD_INPUT
+    assert ".tmp" not in err
+    assert str(out / "polar.png") in err
+
+
+def test_failed_npz_write_leaves_nothing(capsys, monkeypatch, tmp_path: Path, tiny_scene: Path) -> None:
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(np, "savez_compressed", disk_full)
+    out = tmp_path / "out"
+    code, _, err = run_main(capsys, "render", tiny_scene, "--out", out)
+    assert code == cli.EXIT_BAD_INPUT
+    assert "No space left on device" in err and "Traceback" not in err
+    assert not (out / "render.npz").exists()
+    _assert_complete_outputs(out)
+
+
+def test_failed_rerender_leaves_only_complete_files(capsys, tmp_path: Path, tiny_scene: Path) -> None:
+    out = tmp_path / "out"
+    code, _, err = run_main(capsys, "render", tiny_scene, "--out", out)
+    assert code == 0, err
+    before = {n: (out / n).read_bytes() for n in os.listdir(out)}
+    # A second render whose npz cannot be written must not damage the first render's files.
+    (out / "render.npz").unlink()
+    (out / "render.npz").mkdir()
+    code, _, err = run_main(capsys, "render", tiny_scene, "--out", out, "--bounces", "1")
+    assert code == cli.EXIT_BAD_INPUT
+    _assert_complete_outputs(out)
+    assert set(os.listdir(out)) == set(before)
