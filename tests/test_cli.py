@@ -195,12 +195,6 @@ def test_render_reproduces_demo_with_same_override(demo_dir: Path, tmp_path: Pat
         assert np.allclose(a["polar"], b["polar"])
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="cli.cmd_demo (cli.py:156-161) writes scene.yaml from demo_scene_dict(), not the scene "
-    "with the --elevation-samples/--bounces overrides, so scene.yaml says elevation_samples: auto "
-    "while render.npz was made with 40 samples, and rendering scene.yaml does not reproduce it",
-)
 def test_demo_scene_yaml_reproduces_the_demo_render(demo_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "again"
     proc = run_cli("render", demo_dir / "scene.yaml", "--out", out)
@@ -315,12 +309,6 @@ def test_failed_write_leaves_no_partial_files(capsys, tmp_path: Path, tiny_scene
     assert (out / blocked).is_dir() and os.listdir(out / blocked) == []
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="cli.main (cli.py:205) prints OSError.filename, which for the failed os.replace in "
-    "output.atomic_write is the already-deleted temporary file ('.../.polar.png.XXXX.tmp'), not "
-    "the destination (OSError.filename2)",
-)
 def test_failed_write_names_the_destination_not_a_temp_file(capsys, tmp_path: Path, tiny_scene: Path) -> None:
     out = tmp_path / "out"
     (out / "polar.png").mkdir(parents=True)

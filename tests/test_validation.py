@@ -84,11 +84,6 @@ def _resolution(res):
     return [(("sonar", "n_range_bins"), DELETE), (("sonar", "range_resolution_m"), res)]
 
 
-ELEVATION_SAMPLES_BUG = (
-    "loader.parse_render (loader.py:187): a string other than 'auto' for render.elevation_samples "
-    "is reported as 'must be an integer' -- the message does not say that 'auto' is allowed"
-)
-
 # (id, edits, expected key, fragments of the message that say what is allowed)
 BAD_SCENES: list = [
     # ---- unknown keys at every level
@@ -223,7 +218,7 @@ BAD_SCENES: list = [
      ["true or false"]),
     pytest.param(
         "elevation-samples-str", [(("render", "elevation_samples"), "many")], "render.elevation_samples",
-        ["auto"], marks=pytest.mark.xfail(reason=ELEVATION_SAMPLES_BUG, strict=True),
+        ["auto"],
     ),
 ]
 
@@ -327,13 +322,6 @@ def test_every_preset_loads_alone(name: str) -> None:
     assert sonar.n_beams == PRESETS[name].sonar["n_beams"]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="loader.parse_sonar (loader.py:132-133): when the user gives beam_angles_deg, only the "
-    "preset's azimuth_fov_deg is dropped, not its n_beams, so a preset plus the user's own beam "
-    "table fails with 'sonar.n_beams: is 128 but beam_angles_deg has 3 angles' although the user "
-    "never gave n_beams",
-)
 @pytest.mark.parametrize("preset", ["aris3000-128", "didson300"])
 def test_preset_with_own_beam_table(preset: str) -> None:
     sonar = load_scene({"sonar": {"preset": preset, "beam_angles_deg": [1.0, 0.0, -1.0]}}).sonar
@@ -341,12 +329,6 @@ def test_preset_with_own_beam_table(preset: str) -> None:
     assert sonar.n_beams == 3
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="loader.parse_sonar (loader.py:171): azimuth_fov_deg and beam_angles_deg given together "
-    "are accepted and azimuth_fov_deg is silently ignored; n_range_bins + range_resolution_m, the "
-    "other pair describing one quantity, is rejected",
-)
 def test_azimuth_fov_and_beam_angles_together_are_rejected() -> None:
     doc = modified((("sonar", "n_beams"), DELETE), (("sonar", "beam_angles_deg"), [1.0, 0.0, -1.0]))
     with pytest.raises(ConfigError) as info:

@@ -82,7 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("demo", help="render the built-in water-tank scene (needs no files)",
                        description="Render the built-in water-tank scene: an ARIS 3000 1 m above a concrete floor, "
                        "tilted 20 degrees down, with a block, a drum, a pipe and a buoy. Writes scene.yaml, "
-                       "polar.png, fan.png and render.npz into --out.")
+                       "polar.png, fan.png, render.npz and ground_echo.png (fan views of single, single + triple "
+                       "and all bounces side by side, as in the paper's Fig. 9) into --out.")
     p.add_argument("--out", default="sonarsim-demo", help="output folder (default: ./sonarsim-demo)")
     _add_render_options(p)
     _add_image_options(p)
@@ -137,6 +138,7 @@ def _render_and_write(scene, out: Path, args) -> None:
             write(f"_{key}", comp, key)
     image.save_npz(out / "render.npz")
     _log(f"wrote {out / 'polar.png'}, {out / 'fan.png'}, {out / 'render.npz'} in {time.perf_counter() - t2:.3f} s")
+    return image
 
 
 def cmd_render(args) -> None:
@@ -154,12 +156,22 @@ def cmd_demo(args) -> None:
     from .output import atomic_write
 
     doc = demo_scene_dict()
-    scene = _override_render(scene_from_dict(doc), args)
+    # The scene.yaml written must reproduce this render, command-line overrides included.
+    if args.bounces is not None:
+        doc["render"]["bounces"] = list(args.bounces)
+    if args.elevation_samples is not None:
+        doc["render"]["elevation_samples"] = args.elevation_samples
+    scene = scene_from_dict(doc)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with atomic_write(out / "scene.yaml", "w") as f:
         yaml.safe_dump(doc, f, sort_keys=False)
-    _render_and_write(scene, out, args)
+    image = _render_and_write(scene, out, args)
+    from .figures import bounce_comparison
+    from .output import write_png
+
+    write_png(out / "ground_echo.png", bounce_comparison(image, args.pixel_size, args.mapping, args.gain_db, args.dynamic_range_db))
+    _log(f"wrote {out / 'ground_echo.png'} (fan views: single | single + triple | all bounces)")
 
 
 def cmd_presets(args) -> None:
@@ -202,7 +214,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         _log(f"error: {exc}")
         return EXIT_BAD_INPUT
     except OSError as exc:  # e.g. an output folder that cannot be written
-        _log(f"error: {exc.filename or ''}: {exc.strerror or exc}")
+        # A failed rename names the temporary file first; the user wants the destination.
+        name = exc.filename2 or exc.filename or ""
+        _log(f"error: {name}: {exc.strerror or exc}")
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         return 130

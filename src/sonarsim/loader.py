@@ -120,6 +120,8 @@ def parse_sonar(d: Any, base_dir: Path | None) -> SonarConfig:
             path = base_dir / path
         user["beam_angles_deg"] = list(beam_angles_from_table(path, key="sonar.beam_angles_file"))
     # Keys given by the user replace the preset's alternatives for the same quantity.
+    if "beam_angles_deg" in user and "azimuth_fov_deg" in user:
+        raise ConfigError("sonar.azimuth_fov_deg", "give either azimuth_fov_deg or beam_angles_deg, not both")
     if "beam_angles_deg" in user or "azimuth_fov_deg" in user or "n_beams" in user:
         if "beam_angles_deg" not in user:
             # A user's beam count or field of view turns a preset's lens table into equal beams.
@@ -131,6 +133,8 @@ def parse_sonar(d: Any, base_dir: Path | None) -> SonarConfig:
             merged.pop("beam_angles_deg", None)
         else:
             merged.pop("azimuth_fov_deg", None)
+            if "n_beams" not in user:
+                merged.pop("n_beams", None)
     if "n_range_bins" in user or "range_resolution_m" in user:
         merged.pop("n_range_bins", None)
         merged.pop("range_resolution_m", None)
@@ -184,7 +188,9 @@ def parse_render(d: Any) -> RenderSettings:
     for key, value in d.items():
         k = f"render.{key}"
         if key == "elevation_samples":
-            kw[key] = value if value == "auto" else _integer(value, k)
+            if isinstance(value, str) and value != "auto" or isinstance(value, bool) or not isinstance(value, (str, int)):
+                raise ConfigError(k, f"must be 'auto' or a positive integer, got {value!r}")
+            kw[key] = value
         elif key in ("azimuth_samples", "seed"):
             kw[key] = _integer(value, k)
         elif key == "threads":
