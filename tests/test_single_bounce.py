@@ -232,3 +232,21 @@ def test_range_splatting_conserves_energy_and_spreads_uniformly():
     # An isolated ray lands in its own bin.
     img = form_image(dist, inten, np.zeros((1, 1, 1), int), 0.0, 0.01, 200, 1, continuous=~cont)[0][:, 0]
     assert img[100] == pytest.approx(2.0) and img[110] == pytest.approx(2.0) and img.sum() == pytest.approx(4.0)
+
+
+def test_gaussian_beam_pattern_weights_the_aperture_as_documented():
+    # beta(phi) = exp(-ln2 (phi / a)^2): half power at the aperture edges phi = +-a.
+    from scipy.integrate import quad
+
+    d, rho, elev = 3.0, 0.6, 12.0
+    scene = {
+        "sonar": sonar_dict(elevation_fov_deg=elev),
+        "objects": [{"name": "wall", "primitive": "box", "size_m": [0.2, 10.0, 10.0],
+                     "pose": {"position_m": [d + 0.1, 0.0, 0.0]}, "albedo": rho}],
+        "render": {"beam_pattern": "gaussian"},
+    }
+    img = sonarsim.render(scene)
+    a = math.radians(elev) / 2
+    integral, _ = quad(lambda p: math.exp(-math.log(2) * (p / a) ** 2) * math.cos(p), -a, a)
+    expected = rho * np.cos(np.radians(img.azimuth_deg)) * integral
+    np.testing.assert_allclose(img.polar.sum(axis=0), expected, rtol=2e-3)

@@ -7,6 +7,7 @@ component (one bincount) -> ground echoes -> :class:`SonarImage`.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
@@ -110,13 +111,10 @@ class SonarImage:
             A key of :attr:`components`; default the total image.
         interpolation : {'linear', 'nearest'}
         """
-        from .fan import polar_to_fan
-
         img = self.polar if component is None else self.components[component]
-        return polar_to_fan(
-            img, self.sonar.range_min_m, self.sonar.range_max_m, self.azimuth_deg,
-            pixel_size_m=pixel_size_m, interpolation=interpolation,
-        )
+        s = self.sonar
+        mapper = _fan_mapper(s.n_range_bins, s.range_min_m, s.range_max_m, s.beam_angles_deg, pixel_size_m, interpolation)
+        return mapper(img)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Everything as named arrays (what the NPZ file holds, less the configuration)."""
@@ -137,6 +135,16 @@ class SonarImage:
         from .output import write_npz
 
         write_npz(path, self.arrays(), self.config)
+
+
+@functools.lru_cache(maxsize=8)
+def _fan_mapper(n_range_bins, range_min_m, range_max_m, beam_angles_deg, pixel_size_m, interpolation):
+    """Scan-conversion tables are costly to build and the same for every frame of a sonar."""
+    from .fan import FanMapper
+
+    return FanMapper(
+        n_range_bins, range_min_m, range_max_m, np.asarray(beam_angles_deg), pixel_size_m, interpolation
+    )
 
 
 def as_pose(pose: Any) -> Pose:
