@@ -5,12 +5,14 @@ Two ways to put a ray's energy into range bins:
 * ``splat=False`` -- the paper's Algorithm 1: ray k adds its intensity ``I_f[k]`` to the bin of
   its range ``D_f[k]``. Surfaces seen at grazing angles (the floor) then show empty bins
   (stripes) wherever neighbouring rays land more than a bin apart.
-* ``splat=True`` (default) -- ray k stands for the elevation interval ``[phi_k - dphi/2,
-  phi_k + dphi/2]``. Each half of it is spread uniformly over the range interval it covers on
-  the surface: up to the midpoint towards the neighbouring ray when both rays lie on one
-  continuous surface, else extrapolated from the other neighbour, else (an isolated ray) put at
-  the ray's own range. This integrates Eq. 3 with a piecewise-linear range map r(phi): it
-  conserves every ray's energy exactly and leaves no stripes at any ray density.
+* ``splat=True`` (default) -- ray k stands for the elevation cell ``[phi_k - dphi/2,
+  phi_k + dphi/2]``, and its energy is spread uniformly over the range interval that cell covers
+  on the surface: from the midpoint towards one neighbouring ray to the midpoint towards the
+  other, where the neighbour lies on the same continuous surface; mirrored from the other side
+  where it does not; the ray's own bin for an isolated ray. The interval always includes the
+  ray's own range (so a range minimum, e.g. the nearest point of a sphere, is kept). This
+  integrates Eq. 3 with a piecewise-linear range map r(phi): it conserves every ray's energy
+  exactly and leaves no stripes at any ray density.
 
 Spreading expands each (half-)segment into the bins it overlaps (``np.repeat``) and adds
 ``density x overlap`` with one ``np.bincount`` for all images of a frame: exact, with work
@@ -92,24 +94,6 @@ def continuity(points: np.ndarray, normals: np.ndarray, surface_id: np.ndarray) 
         return same & (off0 <= limit) & (off1 <= limit)
 
 
-def _half_segment_ends(x: np.ndarray, cont: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Far ends (in bins) of each ray's lower and upper half-interval; NaN means 'a point'."""
-    nan = np.full(x.shape[:-1] + (1,), np.nan)
-    nxt = np.concatenate([x[..., 1:], nan], axis=-1)
-    prv = np.concatenate([nan, x[..., :-1]], axis=-1)
-    false = np.zeros(x.shape[:-1] + (1,), dtype=bool)
-    c_up = np.concatenate([cont, false], axis=-1)  # ray k continues to k+1
-    c_dn = np.concatenate([false, cont], axis=-1)  # ray k continues to k-1
-    with np.errstate(invalid="ignore"):  # inf - inf where rays miss: masked out below
-        up_interp = 0.5 * (x + nxt)
-        dn_interp = 0.5 * (x + prv)
-        up_extra = x + 0.5 * (x - prv)  # mirror of the lower neighbour
-        dn_extra = x + 0.5 * (x - nxt)
-        upper = np.where(c_up, up_interp, np.where(c_dn, up_extra, np.nan))
-        lower = np.where(c_dn, dn_interp, np.where(c_up, dn_extra, np.nan))
-    return lower, upper
-
-
 @dataclass(frozen=True)
 class RayEnergy:
     """Energy arriving along a set of rays, for :func:`accumulate`.
@@ -138,27 +122,40 @@ class RayEnergy:
 
 
 def _segments(rays: RayEnergy, range_min_m: float, dr: float, n_range_bins: int, n_beams: int):
-    """Flat (lo, hi, energy, column) of every (half-)segment, lo/hi in fractional bins.
+    """(lo, hi, density, column) of every ray's range cell, flat, lo/hi in fractional bins.
 
-    ``column`` is ``label * n_range_bins * n_beams + beam``; a point has ``hi == lo``.
+    Rays without energy get an empty cell (lo == hi); isolated rays the cell of their own bin.
+    ``column`` is ``label * n_range_bins * n_beams + beam``.
     """
     x = (np.asarray(rays.distance_m, dtype=float) - range_min_m) / dr
     energy = np.asarray(rays.intensity, dtype=float)
-    beam = np.broadcast_to(np.asarray(rays.beam_index, dtype=np.int64), x.shape)
     label = np.broadcast_to(np.asarray(rays.label, dtype=np.int64), x.shape)
     live = np.isfinite(x) & (energy != 0) & (label >= 0)
-    column = label * (n_range_bins * n_beams) + beam
+    x = np.where(live, x, 0.0)  # finite everywhere: dead rays get empty cells below
+    column = np.maximum(label, 0) * (n_range_bins * n_beams) + np.asarray(rays.beam_index, dtype=np.int64)
+    column = np.broadcast_to(column, x.shape)
     if rays.continuous is None:
-        xs = x[live]
-        return xs, xs, energy[live], column[live]
-    # A ray without energy (dropped, out of the field of view) is no neighbour to spread towards.
-    cont = rays.continuous & live[..., 1:] & live[..., :-1]
-    lower, upper = _half_segment_ends(x, cont)
-    xs, half, col = x[live], 0.5 * energy[live], column[live]
-    ends = np.concatenate([lower[live], upper[live]])
-    xx = np.concatenate([xs, xs])
-    ends = np.where(np.isnan(ends), xx, ends)  # no neighbour either side: a point
-    return np.minimum(xx, ends), np.maximum(xx, ends), np.concatenate([half, half]), np.concatenate([col, col])
+        lo = hi = x
+    else:
+        # A ray without energy (dropped, out of the field of view) is no neighbour to spread to.
+        cont = rays.continuous & live[..., 1:] & live[..., :-1]
+        edge = np.zeros(x.shape[:-1] + (1,))
+        no = np.zeros(x.shape[:-1] + (1,), dtype=bool)
+        mid = 0.5 * (x[..., 1:] + x[..., :-1])
+        m_dn, c_dn = np.concatenate([edge, mid], axis=-1), np.concatenate([no, cont], axis=-1)
+        m_up, c_up = np.concatenate([mid, edge], axis=-1), np.concatenate([cont, no], axis=-1)
+        lower = np.where(c_dn, m_dn, np.where(c_up, 2.0 * x - m_up, x))
+        upper = np.where(c_up, m_up, np.where(c_dn, 2.0 * x - m_dn, x))
+        lo = np.minimum(np.minimum(lower, upper), x)
+        hi = np.maximum(np.maximum(lower, upper), x)
+    width = hi - lo
+    point = width < MIN_SPREAD_BINS
+    # A point is the unit cell of its bin with density = its energy.
+    lo = np.where(point, np.floor(lo), lo)
+    hi = np.where(point, lo + 1.0, hi)
+    density = np.where(live, energy / np.where(point, 1.0, width), 0.0)
+    hi = np.where(live, hi, lo)
+    return lo.ravel(), hi.ravel(), density.ravel(), column.ravel()
 
 
 def accumulate(
@@ -187,25 +184,20 @@ def accumulate(
     (n_labels, n_range_bins, n_beams) float64 ndarray
     """
     parts = [_segments(r, range_min_m, range_resolution_m, n_range_bins, n_beams) for r in rays]
-    lo, hi, energy, column = (np.concatenate(p) for p in zip(*parts))
-    width = hi - lo
-    point = width < MIN_SPREAD_BINS
-    # Points land in the bin of their position; segments are clipped to the window (the energy
-    # outside it is lost, as it should be) and expanded into the bins they overlap.
-    lo_c = np.clip(lo, 0.0, n_range_bins)
-    hi_c = np.clip(hi, 0.0, n_range_bins)
-    keep = np.where(point, (lo >= 0) & (lo < n_range_bins), hi_c > lo_c)
-    lo, lo_c, hi_c, energy, column, point = lo[keep], lo_c[keep], hi_c[keep], energy[keep], column[keep], point[keep]
-    density = np.where(point, energy, energy / np.where(point, 1.0, width[keep]))
-    first = np.floor(lo_c).astype(np.int64)
-    count = np.where(point, 1, np.ceil(hi_c).astype(np.int64) - first)
-    owner = np.repeat(np.arange(len(first)), count)
-    offset = np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count)
-    bins = first[owner] + offset
-    overlap = np.minimum(hi_c[owner], bins + 1.0) - np.maximum(lo_c[owner], bins)
-    weight = density[owner] * np.where(point[owner], 1.0, overlap)
+    lo, hi, density, column = (np.concatenate(p) for p in zip(*parts))
+    # Clip the cells to the window (the energy outside it is lost, as it should be) and expand
+    # each into the bins it overlaps: count 0 drops a cell.
+    lo = np.clip(lo, 0.0, n_range_bins)
+    hi = np.clip(hi, 0.0, n_range_bins)
+    first = np.floor(lo)
+    count = np.where(hi > lo, np.ceil(hi) - first, 0.0).astype(np.int64)
+    total = int(count.sum())
+    start = np.repeat(np.cumsum(count) - count, count)
+    bins = np.repeat(first, count) + (np.arange(total) - start)
+    overlap = np.minimum(np.repeat(hi, count), bins + 1.0) - np.maximum(np.repeat(lo, count), bins)
+    index = np.repeat(column, count) + bins.astype(np.int64) * n_beams
     size = n_labels * n_range_bins * n_beams
-    img = np.bincount(column[owner] + bins * n_beams, weights=weight, minlength=size)
+    img = np.bincount(index, weights=np.repeat(density, count) * overlap, minlength=size)
     return img.reshape(n_labels, n_range_bins, n_beams)
 
 

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .imaging import continuity, form_image, lambertian_intensity
+from .imaging import RayEnergy, accumulate, continuity, form_image, lambertian_intensity
 from .scene import RenderSettings
 from .sonar import SonarConfig
 from .tracing import GROUND_ID, NO_HIT, SurfaceHits, ground_distance, trace
@@ -145,14 +145,15 @@ def _beam_of(sonar: SonarConfig, azimuth_deg: np.ndarray) -> np.ndarray:
     return np.where((j >= 0) & (j < sonar.n_beams), j, -1)
 
 
-def ground_echo_images(
+def ground_echo_rays(
     paths: MirrorPaths,
     sonar: SonarConfig,
     render: RenderSettings,
     specular: float,
     caster=None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The double (cases 2/3) and triple (case 4) images from mirror paths.
+    labels: tuple[int, int] = (0, 1),
+) -> list[RayEnergy]:
+    """The double (cases 2/3) and triple (case 4) echoes as ray energies for :func:`accumulate`.
 
     Parameters
     ----------
@@ -165,51 +166,65 @@ def ground_echo_images(
         R: double bounces are scaled by R, triple by R**2.
     caster : RayCaster, optional
         Needed for ``double_line_of_sight``.
-
-    Returns
-    -------
-    double, triple : (n_range_bins, n_beams) float64 ndarrays
+    labels : (int, int)
+        Image labels of the double and the triple echoes.
     """
-    n_beams = sonar.n_beams
-    beam = np.broadcast_to(np.arange(n_beams)[:, None, None], paths.distance_m.shape)
-    geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, n_beams)
+    label_double, label_triple = labels
+    beam = np.arange(sonar.n_beams)[:, None, None]
     cont = None
     if render.range_splat:
         cont = continuity(paths.point_virtual, paths.normal_virtual, paths.surface_id)
-    triple = form_image(paths.distance_m, paths.intensity, beam, *geometry, continuous=cont)[0]
+    out = [RayEnergy(paths.distance_m, specular**2 * paths.intensity, beam, label_triple, cont)]
 
     # Cases 2/3: A must lie in the field of view and the range window.
-    origin = sonar.pose.translation
-    rel = (paths.point_real - origin) @ sonar.pose.rotation  # sonar frame
-    oa = np.linalg.norm(rel, axis=-1)
     reached = np.isfinite(paths.distance_m)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        az = np.degrees(np.arctan2(rel[..., 1], rel[..., 0]))
-        el = np.degrees(np.arcsin(np.clip(rel[..., 2] / oa, -1.0, 1.0)))
-    beam_a = _beam_of(sonar, np.where(reached, az, np.inf))
+    if not reached.any():
+        return out
+    origin = sonar.pose.translation
+    sel = np.nonzero(reached)
+    rel = (paths.point_real[sel] - origin) @ sonar.pose.rotation  # sonar frame
+    oa = np.linalg.norm(rel, axis=-1)
+    az = np.degrees(np.arctan2(rel[:, 1], rel[:, 0]))
+    el = np.degrees(np.arcsin(np.clip(rel[:, 2] / oa, -1.0, 1.0)))
+    beam_a = _beam_of(sonar, az)
     in_view = (
-        reached
-        & (beam_a >= 0)
+        (beam_a >= 0)
         & (np.abs(el) <= sonar.elevation_fov_deg / 2)
         & (oa >= sonar.range_min_m)
         & (oa < sonar.range_max_m)
     )
     if render.double_line_of_sight and caster is not None and in_view.any():
-        sel = np.nonzero(in_view)
-        to_a = rel[sel] / oa[sel][:, None] @ sonar.pose.rotation.T
-        hit = caster.intersect(origin, to_a, float(oa[sel].max()) + 1.0)
+        to_a = (rel[in_view] / oa[in_view, None]) @ sonar.pose.rotation.T
+        hit = caster.intersect(origin, to_a, float(oa[in_view].max()) + 1.0)
         # Visible when the first thing on the way is A itself (to float32 precision).
-        visible = hit.distance >= oa[sel] - 1e-3 * np.maximum(oa[sel], 1.0)
-        in_view = in_view.copy()
-        in_view[tuple(i[~visible] for i in sel)] = False
-    r23 = np.where(in_view, 0.5 * (oa + paths.distance_m), np.inf)
-    e23 = np.where(in_view, paths.intensity, 0.0)
+        visible = hit.distance >= oa[in_view] - 1e-3 * np.maximum(oa[in_view], 1.0)
+        in_view[np.flatnonzero(in_view)[~visible]] = False
+    shape = paths.distance_m.shape
+    r23 = np.full(shape, np.inf)
+    r23[sel] = np.where(in_view, 0.5 * (oa + paths.distance_m[sel]), np.inf)
+    e23 = np.zeros(shape)
+    e23[sel] = np.where(in_view, specular * paths.intensity[sel], 0.0)
     if render.double_beam == "paper":
-        double = form_image(r23, e23, beam, *geometry, continuous=cont)[0]
+        out.append(RayEnergy(r23, e23, beam, label_double, cont))
     else:
-        double = form_image(r23, 0.5 * e23, beam, *geometry, continuous=cont)[0]
-        double += form_image(r23, 0.5 * e23, np.where(in_view, beam_a, 0), *geometry, continuous=cont)[0]
-    return specular * double, specular**2 * triple
+        beam_of_a = np.zeros(shape, dtype=np.int64)
+        beam_of_a[sel] = np.maximum(beam_a, 0)
+        out.append(RayEnergy(r23, 0.5 * e23, beam, label_double, cont))
+        out.append(RayEnergy(r23, 0.5 * e23, beam_of_a, label_double, cont))
+    return out
+
+
+def ground_echo_images(
+    paths: MirrorPaths,
+    sonar: SonarConfig,
+    render: RenderSettings,
+    specular: float,
+    caster=None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The double and triple images, each (n_range_bins, n_beams) float64 (see :func:`ground_echo_rays`)."""
+    rays = ground_echo_rays(paths, sonar, render, specular, caster)
+    img = accumulate(rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams, 2)
+    return img[0], img[1]
 
 
 def render_paper(
@@ -276,6 +291,6 @@ def sonar_above_ground(sonar: SonarConfig, ground) -> bool:
 
 
 __all__ = [
-    "MirrorPaths", "fast_mirror_paths", "ground_distance", "ground_echo_images", "mirror_z",
+    "MirrorPaths", "fast_mirror_paths", "ground_distance", "ground_echo_images", "ground_echo_rays", "mirror_z",
     "render_paper", "sonar_above_ground",
 ]

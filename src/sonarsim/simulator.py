@@ -17,12 +17,12 @@ import numpy as np
 
 from .backends import make_caster
 from .geometry import clip_above_plane, mirror_across_plane, object_mesh_world
-from .imaging import continuity, form_image, lambertian_intensity
+from .imaging import RayEnergy, accumulate, continuity, lambertian_intensity
 from .loader import load_scene, parse_pose
 from .rays import RayFan, make_ray_fan
 from .scene import Scene
 from .sonar import SonarConfig
-from .multipath import fast_mirror_paths, ground_echo_images, render_paper, sonar_above_ground
+from .multipath import fast_mirror_paths, ground_echo_rays, render_paper, sonar_above_ground
 from .tracing import GROUND_ID, trace
 from .transforms import Pose
 
@@ -248,19 +248,19 @@ class Simulator:
             )
         else:
             cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None
-            # Component label: 0 object, 1 ground, -1 nothing.
+            # Labels: 0 object, 1 ground, 2 double, 3 triple; -1 nothing.
             label = np.where(hits.surface_id > GROUND_ID, 0, np.where(hits.surface_id == GROUND_ID, 1, -1))
-            single = form_image(
-                hits.distance_m, intensity, beam_index, sonar.range_min_m, sonar.range_resolution_m,
-                sonar.n_range_bins, sonar.n_beams, label=label, n_labels=2, continuous=cont,
-            )
-            images = {"object": single[0], "ground": single[1], "double": np.zeros(shape), "triple": np.zeros(shape)}
+            rays = [RayEnergy(hits.distance_m, intensity, beam_index, label, cont)]
             if multipath:
                 paths = fast_mirror_paths(
                     self.caster, origin, directions, hits, ground.height_m, fan.weight, self._albedo,
                     render.tvg, reach,
                 )
-                images["double"], images["triple"] = ground_echo_images(paths, sonar, render, ground.specular, self.caster)
+                rays += ground_echo_rays(paths, sonar, render, ground.specular, self.caster, labels=(2, 3))
+            img = accumulate(
+                rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams, n_labels=4
+            )
+            images = dict(zip(("object", "ground", "double", "triple"), img))
         t3 = time.perf_counter()
         components = {k: np.asarray(images[k], dtype=np.float32) for k in ("object", "ground", "double", "triple")}
         components["single"] = components["object"] + components["ground"]
