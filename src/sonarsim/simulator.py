@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from ._memory import keep_freed_memory
 from .backends import make_caster
 from .geometry import clip_above_plane, mirror_across_plane, object_mesh_world
 from .imaging import RayEnergy, accumulate, continuity, lambertian_intensity
@@ -178,6 +179,7 @@ class Simulator:
     """
 
     def __init__(self, scene: Any, backend: str = "embree") -> None:
+        keep_freed_memory()  # per-frame temporaries would otherwise page-fault every frame
         self.scene: Scene = load_scene(scene)
         self.backend = backend
         self.meshes = [object_mesh_world(o) for o in self.scene.objects]

@@ -1,0 +1,223 @@
+"""Frame-rate benchmark of ``Simulator.render`` (issue: real time on 2 CPU cores).
+
+Measures, in one run on this machine:
+
+* (a) the demo tank, ARIS 3000 preset, 128 beams x 1288 bins, all bounces, default ray density;
+* (b) the same scene with a ~500,000-triangle mesh added (a bumpy rock on the floor);
+* (c) the same tank seen by an Oculus M1200d (low-frequency mode, 512 beams);
+* for each, the bare ray-casting time of the very rays the frame cast (Embree alone, same
+  threads), replayed outside the renderer, and the ratio frame time / bare casting time;
+* ``method: paper`` (Algorithm 2 literally) on (a), and the speed-up of the default over it;
+* peak memory (Python heap via tracemalloc, and the process's peak resident set);
+* sweeps: frame time against the number of rays and against the number of triangles.
+
+Usage::
+
+    python benchmarks/bench_render.py [--repeats 30] [--json bench.json] [--quick]
+
+Times are medians over warm repeats; ratios are taken within one run because this machine is
+shared and noisy. ``--quick`` runs tiny sizes (used by the test suite as a smoke test).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import os
+import platform
+import resource
+import statistics
+import sys
+import time
+import tracemalloc
+
+import numpy as np
+
+import sonarsim
+from sonarsim.demo import demo_scene_dict
+from sonarsim.loader import scene_from_dict
+from sonarsim.scene import ObjectSpec
+from sonarsim.transforms import Pose
+
+
+def rock_mesh(n_triangles: int, radius: float = 0.25, seed: int = 0):
+    """A bumpy closed mesh with about ``n_triangles`` faces (a UV sphere with radial noise)."""
+    import trimesh
+
+    count = max(8, int(np.sqrt(n_triangles / 2)))
+    m = trimesh.creation.uv_sphere(radius=radius, count=[count, count])
+    rng = np.random.default_rng(seed)
+    v = np.asarray(m.vertices)
+    # Smooth bumps: a few random low-order modes, so the surface stays a plausible rock.
+    d = v / np.linalg.norm(v, axis=1, keepdims=True)
+    bump = sum(0.08 * rng.normal() * np.sin(k * d @ rng.normal(size=3)) for k in (2, 3, 5, 7))
+    return trimesh.Trimesh(v * (1 + bump)[:, None], m.faces, process=False)
+
+
+def scene_with_mesh(n_triangles: int) -> sonarsim.Scene:
+    base = scene_from_dict(demo_scene_dict())
+    rock = ObjectSpec(name="rock", mesh=rock_mesh(n_triangles), pose=Pose((3.5, -0.05, 0.2)), albedo=0.7)
+    return sonarsim.Scene(sonar=base.sonar, objects=base.objects + (rock,), ground=base.ground, render=base.render)
+
+
+def oculus_scene() -> dict:
+    doc = demo_scene_dict()
+    doc["sonar"] = {"preset": "oculus-m1200d-lf", "range_max_m": 6.0,
+                    "pose": {"position_m": [0.0, 0.0, 1.0], "rpy_deg": [0.0, 20.0, 0.0]}}
+    return doc
+
+
+def time_frames(sim: sonarsim.Simulator, repeats: int) -> list[float]:
+    for _ in range(3):
+        sim.render(keep_rays=False)
+    out = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        sim.render(keep_rays=False)
+        out.append(time.perf_counter() - t)
+    return out
+
+
+def bare_cast_time(sim: sonarsim.Simulator, repeats: int) -> tuple[float, int]:
+    """Median time to cast, with Embree alone, exactly the rays that one frame cast."""
+    from sonarsim.backends.embree import EmbreeCaster
+
+    recorded = []
+    original = EmbreeCaster.cast_raw
+
+    def recording(self, origins, directions, tfar):
+        recorded.append((self, origins.copy(), directions.copy(), tfar.copy()))
+        return original(self, origins, directions, tfar)
+
+    EmbreeCaster.cast_raw = recording
+    try:
+        sim.render(keep_rays=False)
+    finally:
+        EmbreeCaster.cast_raw = original
+    n_rays = sum(len(d) for _, _, d, _ in recorded)
+    times = []
+    for _ in range(repeats + 3):
+        t = time.perf_counter()
+        for caster, o, d, tfar in recorded:
+            caster.cast_raw(o, d, tfar)
+        times.append(time.perf_counter() - t)
+    return statistics.median(times[3:]), n_rays
+
+
+def measure(name: str, scene, repeats: int) -> dict:
+    sim = sonarsim.Simulator(scene)
+    frames = time_frames(sim, repeats)
+    cast, n_rays = bare_cast_time(sim, repeats)
+    # Alternate once more so that drifts in machine load hit both figures alike.
+    frames += time_frames(sim, repeats)
+    frame = statistics.median(frames)
+    s = sim.scene.sonar
+    return {
+        "case": name,
+        "image": f"{s.n_range_bins} x {s.n_beams}",
+        "triangles": int(sum(len(m.faces) for m in sim.meshes)),
+        "rays_per_frame": n_rays,
+        "frame_ms": 1e3 * frame,
+        "fps": 1.0 / frame,
+        "bare_cast_ms": 1e3 * cast,
+        "frame_over_cast": frame / cast,
+    }
+
+
+def peak_memory(scene) -> dict:
+    tracemalloc.start()
+    sim = sonarsim.Simulator(scene)
+    for _ in range(3):
+        sim.render(keep_rays=False)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return {"python_heap_peak_mb": peak / 2**20,
+            "process_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeats", type=int, default=30)
+    ap.add_argument("--json", default="benchmarks/results.json", help="where to write the results")
+    ap.add_argument("--quick", action="store_true", help="tiny sizes, a smoke test")
+    args = ap.parse_args(argv)
+    quick = args.quick
+    repeats = 2 if quick else args.repeats
+
+    demo = demo_scene_dict()
+    if quick:
+        demo["render"]["elevation_samples"] = 16
+    results: dict = {
+        "machine": {"cpu_cores": os.cpu_count(), "processor": platform.processor() or platform.machine(),
+                    "python": sys.version.split()[0], "numpy": np.__version__, "sonarsim": sonarsim.__version__},
+        "cases": [],
+    }
+    n_mesh = 2_000 if quick else 500_000
+    cases = [("a: demo tank, ARIS 3000, all bounces", demo),
+             (f"b: (a) + {n_mesh:,}-triangle mesh", None),
+             ("c: Oculus M1200d lf, 512 beams", oculus_scene())]
+    for name, scene in cases:
+        if scene is None:
+            scene = scene_with_mesh(n_mesh)
+            if quick:
+                from dataclasses import replace
+                scene = replace(scene, render=replace(scene.render, elevation_samples=16))
+        if quick and isinstance(scene, dict):
+            scene = copy.deepcopy(scene)
+            scene["render"]["elevation_samples"] = 16
+        results["cases"].append(measure(name, scene, repeats))
+        print(f"  measured {name}", file=sys.stderr)
+
+    paper = copy.deepcopy(demo)
+    paper["render"]["method"] = "paper"
+    res_paper = measure("a with method: paper", paper, max(2, repeats // 3))
+    results["cases"].append(res_paper)
+    results["speedup_fast_over_paper"] = res_paper["frame_ms"] / results["cases"][0]["frame_ms"]
+
+    results["peak_memory_b"] = peak_memory(scene_with_mesh(n_mesh))
+
+    # Sweeps: cost against rays (elevation samples) and against triangles.
+    sweep_rays = []
+    for n_el in ((8, 16) if quick else (50, 100, 200, 400, 800)):
+        doc = copy.deepcopy(demo)
+        doc["render"]["elevation_samples"] = n_el
+        r = measure(f"rays: {n_el} per beam", doc, max(2, repeats // 3))
+        sweep_rays.append({k: r[k] for k in ("rays_per_frame", "frame_ms", "bare_cast_ms")} | {"elevation_samples": n_el})
+    results["sweep_rays"] = sweep_rays
+    sweep_tris = []
+    for n_tri in ((500, 2_000) if quick else (1_000, 10_000, 100_000, 500_000, 2_000_000)):
+        sc = scene_with_mesh(n_tri)
+        if quick:
+            from dataclasses import replace
+            sc = replace(sc, render=replace(sc.render, elevation_samples=16))
+        r = measure(f"mesh: {n_tri} triangles", sc, max(2, repeats // 3))
+        sweep_tris.append({k: r[k] for k in ("triangles", "frame_ms", "bare_cast_ms")})
+    results["sweep_triangles"] = sweep_tris
+
+    print(f"\nsonarsim {sonarsim.__version__} on {results['machine']['cpu_cores']} cores, "
+          f"{results['machine']['processor']}, Python {results['machine']['python']}, NumPy {np.__version__}")
+    print(f"{'case':<42} {'image':>11} {'triangles':>10} {'rays':>8} {'frame ms':>9} {'fps':>7} {'cast ms':>8} {'frame/cast':>10}")
+    for c in results["cases"]:
+        print(f"{c['case']:<42} {c['image']:>11} {c['triangles']:>10,} {c['rays_per_frame']:>8,} "
+              f"{c['frame_ms']:>9.2f} {c['fps']:>7.1f} {c['bare_cast_ms']:>8.2f} {c['frame_over_cast']:>10.2f}")
+    print(f"speed-up of method fast over method paper: {results['speedup_fast_over_paper']:.2f}x")
+    m = results["peak_memory_b"]
+    print(f"peak memory, case b: Python heap {m['python_heap_peak_mb']:.0f} MB, process RSS {m['process_peak_rss_mb']:.0f} MB")
+    print("\nrays per frame -> frame ms (bare cast ms)")
+    for r in sweep_rays:
+        print(f"  {r['rays_per_frame']:>8,} -> {r['frame_ms']:7.2f} ({r['bare_cast_ms']:.2f})")
+    print("triangles -> frame ms (bare cast ms)")
+    for r in sweep_tris:
+        print(f"  {r['triangles']:>10,} -> {r['frame_ms']:7.2f} ({r['bare_cast_ms']:.2f})")
+    if args.json:
+        tmp = args.json + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(results, f, indent=2)
+        os.replace(tmp, args.json)
+        print(f"\nwrote {args.json}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
