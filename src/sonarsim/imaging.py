@@ -85,7 +85,7 @@ def continuity(points: np.ndarray, normals: np.ndarray, surface_id: np.ndarray) 
     (..., n - 1) bool ndarray: entry k is True when rays k and k+1 are on one surface.
     """
     chord = points[..., 1:, :] - points[..., :-1, :]
-    length = np.linalg.norm(chord, axis=-1)
+    length = np.sqrt(np.einsum("...k,...k->...", chord, chord))
     off0 = np.abs(np.einsum("...k,...k->...", chord, normals[..., :-1, :]))
     off1 = np.abs(np.einsum("...k,...k->...", chord, normals[..., 1:, :]))
     limit = CONTINUITY_SINE * length

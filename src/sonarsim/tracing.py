@@ -28,11 +28,11 @@ class SurfaceHits:
         Distance to the hit, metres; ``inf`` for none.
     surface_id : (...) int32 ndarray
         -1 none, 0 ground, k + 1 object k.
-    point : (..., 3) float64 ndarray
+    point : (..., 3) float32 ndarray
         Hit point in the world frame, metres (NaN for none).
-    normal : (..., 3) float64 ndarray
+    normal : (..., 3) float32 ndarray
         Unit normal of the surface hit (0 for none).
-    cos_incidence : (...) float64 ndarray
+    cos_incidence : (...) float32 ndarray
         ``|n . d|``: cosine of the angle between the ray and the normal (0 for none).
     """
 
@@ -84,22 +84,23 @@ def trace(
     max_distance_m : float
         Hits further away count as none.
     """
-    d = np.asarray(directions, dtype=float)
+    d = np.asarray(directions)
     shape = d.shape[:-1]
-    flat_d = d.reshape(-1, 3)
-    o = np.broadcast_to(np.asarray(origins, dtype=float), d.shape)
-    hits = caster.intersect(o.reshape(-1, 3), flat_d, max_distance_m)
+    o = np.asarray(origins, dtype=float)
+    hits = caster.intersect(np.broadcast_to(o, d.shape).reshape(-1, 3), d.reshape(-1, 3), max_distance_m)
     dist = hits.distance.astype(float).reshape(shape)
-    sid = np.where(hits.mesh_id >= 0, hits.mesh_id + 1, NO_HIT).astype(np.int32).reshape(shape)
-    normal = hits.normal.astype(float).reshape(shape + (3,))
+    sid = hits.mesh_id.reshape(shape) + np.int32(1)  # -1 (none) becomes 0: fixed below
+    sid[sid == 0] = NO_HIT
+    normal = hits.normal.reshape(shape + (3,))
     if ground is not None:
         tg = ground_distance(o, d, ground.height_m)
         on_ground = (tg < dist) & (tg <= max_distance_m)
-        dist = np.where(on_ground, tg, dist)
-        sid = np.where(on_ground, GROUND_ID, sid).astype(np.int32)
-        normal = np.where(on_ground[..., None], np.array([0.0, 0.0, 1.0]), normal)
+        dist[on_ground] = tg[on_ground]
+        sid[on_ground] = GROUND_ID
+        normal[on_ground] = (0.0, 0.0, 1.0)
     hit = sid != NO_HIT
-    with np.errstate(invalid="ignore"):
-        point = np.where(hit[..., None], o + d * dist[..., None], np.nan)
-    cos_inc = np.abs(np.einsum("...k,...k->...", normal, d))
+    # Points in float32, like the ray caster: 0.3 micrometres at 5 m.
+    point = (o + d * np.where(hit, dist, 0.0)[..., None]).astype(np.float32)
+    point[~hit] = np.nan
+    cos_inc = np.abs(np.einsum("...k,...k->...", normal, d.astype(np.float32, copy=False)))
     return SurfaceHits(distance_m=dist, surface_id=sid, point=point, normal=normal, cos_incidence=cos_inc)

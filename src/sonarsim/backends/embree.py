@@ -106,9 +106,10 @@ class EmbreeCaster:
         mesh_id = np.where(hit, self._ids[np.maximum(geom, 0)], -1).astype(np.int32)
         distance = np.where(hit, res["tfar"], np.float32(np.inf)).astype(np.float32, copy=False)
         ng = res["Ng"]
-        norm = np.linalg.norm(ng, axis=1, keepdims=True)
-        normal = np.divide(ng, norm, out=np.zeros_like(ng), where=norm > 0)
-        return Hits(distance=distance, mesh_id=mesh_id, normal=normal.astype(np.float32, copy=False))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = 1.0 / np.sqrt(np.einsum("ij,ij->i", ng, ng))
+        inv[~hit] = 0.0  # embreex leaves Ng of a miss undefined
+        return Hits(distance=distance, mesh_id=mesh_id, normal=ng * inv[:, None])
 
     def close(self) -> None:
         if getattr(self, "_pool", None) is not None:
