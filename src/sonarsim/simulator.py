@@ -193,15 +193,20 @@ class Simulator:
         # Albedo by surface id + 1: index 0 is "no hit", 1 the ground, k + 2 object k.
         self._albedo = np.array([0.0, ground_albedo] + [o.albedo for o in self.scene.objects])
         self._fans: dict[SonarConfig, RayFan] = {}
+        self._last_fan: tuple[SonarConfig, RayFan] | None = None
+        self._image_buffer: np.ndarray | None = None
         self.last_timing: dict[str, float] = {}
 
     def ray_fan(self, sonar: SonarConfig) -> RayFan:
         """The (cached) rays of a sonar in its own frame."""
+        if self._last_fan is not None and self._last_fan[0] is sonar:
+            return self._last_fan[1]
         key = replace(sonar, pose=Pose())
         fan = self._fans.get(key)
         if fan is None:
             fan = make_ray_fan(sonar, self.scene.render)
             self._fans = {key: fan}  # one sonar at a time is the common case; keep memory flat
+        self._last_fan = (sonar, fan)
         return fan
 
     def mirrored_caster(self):
@@ -259,8 +264,12 @@ class Simulator:
                     render.tvg, reach,
                 )
                 rays += ground_echo_rays(paths, sonar, render, ground.specular, self.caster, labels=(2, 3))
+            shape4 = (4,) + shape
+            if self._image_buffer is None or self._image_buffer.shape != shape4:
+                self._image_buffer = np.zeros(shape4)
             img = accumulate(
-                rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams, n_labels=4
+                rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams,
+                n_labels=4, out=self._image_buffer,
             )
             images = dict(zip(("object", "ground", "double", "triple"), img))
         t3 = time.perf_counter()
