@@ -45,7 +45,7 @@ def rock_mesh(n_triangles: int, radius: float = 0.25, seed: int = 0):
     """A bumpy closed mesh with about ``n_triangles`` faces (a UV sphere with radial noise)."""
     import trimesh
 
-    count = max(8, int(np.sqrt(n_triangles / 2)))
+    count = max(8, int(round(np.sqrt(n_triangles / 4))))  # a UV sphere has about 4 count^2 faces
     m = trimesh.creation.uv_sphere(radius=radius, count=[count, count])
     rng = np.random.default_rng(seed)
     v = np.asarray(m.vertices)

@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import functools
 import time
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from . import compiled
 from ._memory import keep_freed_memory
+from .errors import ConfigError
 from .backends import make_caster
 from .geometry import clip_above_plane, mirror_across_plane, object_mesh_world
 from .imaging import RayEnergy, accumulate, continuity, lambertian_intensity
@@ -171,6 +174,10 @@ class Simulator:
         Anything :func:`sonarsim.load_scene` accepts.
     backend : {'embree', 'numpy'}
         Ray-casting engine; ``numpy`` is a slow reference for tests.
+    kernels : {'compiled', 'numpy'}
+        Per-ray arithmetic of the default (fast) method: compiled loops, or the NumPy reference
+        they are tested against. ``compiled`` falls back to ``numpy`` (with a warning) when the
+        extension is not built.
 
     Examples
     --------
@@ -178,8 +185,15 @@ class Simulator:
     >>> img = sim.render(pose={"position_m": [0, 0, 1], "rpy_deg": [0, 20, 0]})  # doctest: +SKIP
     """
 
-    def __init__(self, scene: Any, backend: str = "embree") -> None:
+    def __init__(self, scene: Any, backend: str = "embree", kernels: str = "compiled") -> None:
         keep_freed_memory()  # per-frame temporaries would otherwise page-fault every frame
+        if kernels not in ("compiled", "numpy"):
+            raise ConfigError("kernels", f"unknown kernels {kernels!r}; allowed: compiled, numpy")
+        if kernels == "compiled" and not compiled.AVAILABLE:
+            warnings.warn("sonarsim's compiled kernels are not built; using the NumPy kernels", stacklevel=2)
+            kernels = "numpy"
+        self.kernels = kernels
+        self._work: compiled.Workspace | None = None
         self.scene: Scene = load_scene(scene)
         self.backend = backend
         self.meshes = [object_mesh_world(o) for o in self.scene.objects]
@@ -217,6 +231,16 @@ class Simulator:
             self._mirrored_caster = make_caster(self.backend, mirrored, self.scene.render.threads)
         return self._mirrored_caster
 
+    def _buffer(self, shape: tuple[int, ...]) -> np.ndarray:
+        """The float64 image buffer reused by every frame (results are copied out of it)."""
+        if self._image_buffer is None or self._image_buffer.shape != shape:
+            self._image_buffer = np.zeros(shape)
+        return self._image_buffer
+
+    def _intensity(self, fan: RayFan, hits) -> np.ndarray:
+        albedo = self._albedo[hits.surface_id + 1]
+        return lambertian_intensity(fan.weight, hits.cos_incidence, albedo, hits.distance_m, self.scene.render.tvg)
+
     def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True) -> SonarImage:
         """Render one image.
 
@@ -242,34 +266,44 @@ class Simulator:
         ground = self.scene.ground
         multipath = sonar_above_ground(sonar, ground) and ground.specular > 0
         reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
-        hits = trace(self.caster, origin, directions, ground, reach)
-        t2 = time.perf_counter()
-        albedo = self._albedo[hits.surface_id + 1]
-        intensity = lambertian_intensity(fan.weight, hits.cos_incidence, albedo, hits.distance_m, render.tvg)
-        beam_index = np.arange(sonar.n_beams)[:, None, None]
         shape = (sonar.n_range_bins, sonar.n_beams)
         if render.method == "paper" and multipath:
+            hits = trace(self.caster, origin, directions, ground, reach)
+            primary = (hits.distance_m, self._intensity(fan, hits), hits.surface_id)
+            t2 = time.perf_counter()
             images = render_paper(
                 self.caster, self.mirrored_caster(), origin, directions, sonar, render, ground,
                 fan.weight, self._albedo, len(self.meshes), reach,
             )
+        elif self.kernels == "compiled":
+            if self._work is None or self._work.n != fan.n_rays:
+                self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, fan.n_rays // sonar.n_beams)
+            out = self._buffer((4,) + shape)
+            t2 = time.perf_counter()
+            compiled.render_fast(
+                self.caster, sonar, fan, directions, ground, render, self._albedo, reach, multipath, self._work, out
+            )
+            images = dict(zip(("object", "ground", "double", "triple"), out))
+            w = self._work
+            primary = (w.dist.reshape(fan.shape), w.intensity.reshape(fan.shape), w.sid.reshape(fan.shape))
         else:
+            hits = trace(self.caster, origin, directions, ground, reach)
+            t2 = time.perf_counter()
+            intensity = self._intensity(fan, hits)
+            primary = (hits.distance_m, intensity, hits.surface_id)
             cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None
             # Labels: 0 object, 1 ground, 2 double, 3 triple; -1 nothing.
             label = np.where(hits.surface_id > GROUND_ID, 0, np.where(hits.surface_id == GROUND_ID, 1, -1))
-            rays = [RayEnergy(hits.distance_m, intensity, beam_index, label, cont)]
+            rays = [RayEnergy(hits.distance_m, intensity, np.arange(sonar.n_beams)[:, None, None], label, cont)]
             if multipath:
                 paths = fast_mirror_paths(
                     self.caster, origin, directions, hits, ground.height_m, fan.weight, self._albedo,
                     render.tvg, reach,
                 )
                 rays += ground_echo_rays(paths, sonar, render, ground.specular, self.caster, labels=(2, 3))
-            shape4 = (4,) + shape
-            if self._image_buffer is None or self._image_buffer.shape != shape4:
-                self._image_buffer = np.zeros(shape4)
             img = accumulate(
                 rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams,
-                n_labels=4, out=self._image_buffer,
+                n_labels=4, out=self._buffer((4,) + shape),
             )
             images = dict(zip(("object", "ground", "double", "triple"), img))
         t3 = time.perf_counter()
@@ -284,15 +318,15 @@ class Simulator:
         rays = None
         if keep_rays:
             rays = RayMaps(
-                distance_m=hits.distance_m.astype(np.float32),
-                intensity=intensity.astype(np.float32),
-                surface_id=hits.surface_id.astype(np.int16),
+                distance_m=primary[0].astype(np.float32),
+                intensity=primary[1].astype(np.float32),
+                surface_id=primary[2].astype(np.int16),
                 azimuth_deg=np.degrees(fan.azimuth_rad),
                 elevation_deg=np.degrees(fan.elevation_rad),
             )
         config = replace(self.scene, sonar=sonar).to_dict()
         t4 = time.perf_counter()
-        self.last_timing = {"rays": t1 - t0, "cast": t2 - t1, "image": t3 - t2, "assemble": t4 - t3, "total": t4 - t0}
+        self.last_timing = {"setup": t1 - t0, "trace": t2 - t1, "image": t3 - t2, "assemble": t4 - t3, "total": t4 - t0}
         return SonarImage(
             polar=total, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg,
             components=components, sonar=sonar, rays=rays, config=config,

@@ -16,6 +16,11 @@ from ..errors import SonarsimError
 from ..geometry import TriangleMesh
 from .base import Hits, available_cores
 
+try:  # the same post-processing as below, as one compiled loop
+    from .. import _kernels
+except ImportError:
+    _kernels = None
+
 # Below this many rays per thread, the thread hand-off costs more than it saves.
 MIN_RAYS_PER_CHUNK = 8192
 
@@ -101,6 +106,10 @@ class EmbreeCaster:
         o = np.ascontiguousarray(np.broadcast_to(origins, (n, 3)), dtype=np.float32)
         d = np.ascontiguousarray(directions, dtype=np.float32)
         res = self.cast_raw(o, d, np.full(n, max_distance, dtype=np.float32))
+        if _kernels is not None:
+            hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty((n, 3), np.float32))
+            _kernels.embree_hits(res["tfar"], res["geomID"], res["Ng"], self._ids, hits.distance, hits.mesh_id, hits.normal)
+            return hits
         geom = res["geomID"]
         hit = geom >= 0
         mesh_id = np.where(hit, self._ids[np.maximum(geom, 0)], -1).astype(np.int32)
