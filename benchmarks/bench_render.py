@@ -68,19 +68,8 @@ def oculus_scene() -> dict:
     return doc
 
 
-def time_frames(sim: sonarsim.Simulator, repeats: int) -> list[float]:
-    for _ in range(3):
-        sim.render(keep_rays=False)
-    out = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        sim.render(keep_rays=False)
-        out.append(time.perf_counter() - t)
-    return out
-
-
-def bare_cast_time(sim: sonarsim.Simulator, repeats: int) -> tuple[float, int]:
-    """Median time to cast, with Embree alone, exactly the rays that one frame cast."""
+def record_casts(sim: sonarsim.Simulator) -> list:
+    """Every batch of rays that one frame hands to Embree, with its caster."""
     from sonarsim.backends.embree import EmbreeCaster
 
     recorded = []
@@ -95,23 +84,30 @@ def bare_cast_time(sim: sonarsim.Simulator, repeats: int) -> tuple[float, int]:
         sim.render(keep_rays=False)
     finally:
         EmbreeCaster.cast_raw = original
-    n_rays = sum(len(d) for _, _, d, _ in recorded)
-    times = []
-    for _ in range(repeats + 3):
-        t = time.perf_counter()
-        for caster, o, d, tfar in recorded:
-            caster.cast_raw(o, d, tfar)
-        times.append(time.perf_counter() - t)
-    return statistics.median(times[3:]), n_rays
+    return recorded
 
 
 def measure(name: str, scene, repeats: int) -> dict:
+    """Median frame time and median bare casting time of the same rays, interleaved.
+
+    Frames and bare casts alternate, so that the machine's load drifts (it is shared) hit both
+    medians alike and their ratio holds.
+    """
     sim = sonarsim.Simulator(scene)
-    frames = time_frames(sim, repeats)
-    cast, n_rays = bare_cast_time(sim, repeats)
-    # Alternate once more so that drifts in machine load hit both figures alike.
-    frames += time_frames(sim, repeats)
-    frame = statistics.median(frames)
+    for _ in range(3):
+        sim.render(keep_rays=False)
+    recorded = record_casts(sim)
+    n_rays = sum(len(d) for _, _, d, _ in recorded)
+    frames, casts = [], []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        sim.render(keep_rays=False)
+        frames.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        for caster, o, d, tfar in recorded:
+            caster.cast_raw(o, d, tfar)
+        casts.append(time.perf_counter() - t)
+    frame, cast = statistics.median(frames), statistics.median(casts)
     s = sim.scene.sonar
     return {
         "case": name,

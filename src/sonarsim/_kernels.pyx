@@ -213,50 +213,124 @@ def mirror_paths(const Py_ssize_t[::1] g_index, const double[::1] g_t, const flo
             ry = rotation[0, 1] * ax + rotation[1, 1] * ay + rotation[2, 1] * az_
             rz = rotation[0, 2] * ax + rotation[1, 2] * ay + rotation[2, 2] * az_
             oa = sqrt(rx * rx + ry * ry + rz * rz)
-            az_deg = atan2(ry, rx) * rad2deg
+            # Cheapest test first: most reflected paths fail the range window or elevation.
+            if not (oa >= range_min and oa < range_max):
+                continue
             el_deg = rz / oa
             if el_deg > 1.0:
                 el_deg = 1.0
             elif el_deg < -1.0:
                 el_deg = -1.0
             el_deg = asin(el_deg) * rad2deg
+            if not fabs(el_deg) <= half_elevation_deg:
+                continue
+            az_deg = atan2(ry, rx) * rad2deg
             b = beam_of(edges, az_deg)
-            if b >= 0 and fabs(el_deg) <= half_elevation_deg and oa >= range_min and oa < range_max:
+            if b >= 0:
                 r23[i] = 0.5 * (oa + oa_v)
                 e23[i] = specular * c
                 beam_a[i] = <int>b
 
 
-def splat(const double[::1] distance, const double[::1] energy, const int[::1] beam,
-          const signed char[::1] label, int label_const,
-          const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[::1] sid,
-          bint spread, Py_ssize_t n_elevation, double range_min, double dr,
-          Py_ssize_t n_range_bins, Py_ssize_t n_beams, double[::1] out):
-    """Continuity + range cells + accumulation of one set of rays into ``out``.
+cdef inline double ffloor(double v) noexcept nogil:
+    """floor() without a libm call (the x86-64 baseline has no rounding instruction)."""
+    cdef double t = <double>(<long long>v)
+    return t - 1.0 if t > v else t
 
-    ``out`` is the flat ``(n_labels, n_range_bins, n_beams)`` image; ``label`` (or, where it is
-    empty, ``label_const``) picks the image of each ray. See ``imaging`` for the cell rule.
+
+cdef inline void deposit(double x, double x_dn, double x_up, bint c_dn, bint c_up, double energy,
+                         float* column, Py_ssize_t stride, double nb) noexcept nogil:
+    """Spread one ray's energy over its range cell (see imaging._segments) into ``column``.
+
+    ``column`` points at bin 0 of the ray's (label, beam) image column, whose bins are
+    ``stride`` floats apart; x are in bins.
+    """
+    cdef double lower = x, upper = x, lo, hi, width, density, m_dn = 0.0, m_up = 0.0, ov
+    cdef Py_ssize_t b, b1
+    if c_dn:
+        m_dn = 0.5 * (x + x_dn)
+    if c_up:
+        m_up = 0.5 * (x_up + x)
+    if c_dn or c_up:
+        lower = m_dn if c_dn else 2.0 * x - m_up
+        upper = m_up if c_up else 2.0 * x - m_dn
+    lo = lower if lower < upper else upper
+    hi = upper if upper > lower else lower
+    if x < lo:
+        lo = x
+    if x > hi:
+        hi = x
+    width = hi - lo
+    if width < MIN_SPREAD_BINS:
+        lo = ffloor(lo)
+        hi = lo + 1.0
+        density = energy
+    else:
+        density = energy / width
+    if lo < 0.0:
+        lo = 0.0
+    if hi > nb:
+        hi = nb
+    if not hi > lo:
+        return
+    b1 = <Py_ssize_t>hi  # 0 <= lo < hi here: truncation is floor, and ceil is one more
+    if b1 < hi:
+        b1 += 1
+    for b in range(<Py_ssize_t>lo, b1):
+        ov = (hi if hi < b + 1.0 else b + 1.0) - (lo if lo > b else <double>b)
+        column[b * stride] += <float>(density * ov)
+
+
+cdef inline bint alive(const double[::1] distance, const double[::1] energy, Py_ssize_t i) noexcept nogil:
+    return energy[i] != 0 and isfinite(distance[i])
+
+
+def splat(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[::1] sid,
+          const double[::1] distance, const double[::1] energy, const int[::1] beam,
+          const signed char[::1] label, int label_const,
+          const double[::1] distance2, const double[::1] energy2, const int[::1] beam2, int label2,
+          bint spread, Py_ssize_t n_elevation, double range_min, double dr,
+          Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out,
+          Py_ssize_t col_begin=0, Py_ssize_t col_end=-1):
+    """Continuity + range cells + accumulation of one or two sets of rays on one geometry.
+
+    ``out`` is the flat float32 ``(n_labels, n_range_bins, n_beams)`` image. Set 1: ``distance``, ``energy``, ``beam``, with ``label`` per ray (or
+    ``label_const`` where ``label`` is empty). Set 2 (used where ``distance2`` is not empty):
+    ``distance2``, ``energy2``, ``beam2``, label ``label2`` -- the double bounce shares the
+    triple's geometry, so the continuity test runs once for both. Neighbours count as
+    continuous for a set only where both carry energy in it. Only ray columns
+    ``col_begin:col_end`` are done; the GIL is released, so disjoint column ranges that write
+    disjoint beams can run in parallel threads.
     """
     cdef Py_ssize_t n = distance.shape[0], n_cols = n // n_elevation
-    cdef Py_ssize_t col, k, i, b, b0, b1, base
-    cdef double x, xn, xp, lower, upper, lo, hi, width, density, m_dn, m_up, ov
-    cdef bint c_dn, c_up, live_i
+    cdef Py_ssize_t col, k, i, first
+    cdef bint geo, live1, live1_up, live2, live2_up, c1_dn, c2_dn, c1_up, c2_up
+    cdef bint two = distance2.shape[0] > 0, use_label = label.shape[0] > 0
     cdef real_t cx, cy, cz, length, off0, off1, limit
     cdef int lab
-    cdef bint use_label = label.shape[0] > 0
+    cdef double x_dn1 = 0.0, x_dn2 = 0.0, x1, x2, x_up1, x_up2
     cdef double nb = <double>n_range_bins
+    cdef float* base = &out[0]
+    if col_end < 0 or col_end > n_cols:
+        col_end = n_cols
     with nogil:
-        for col in range(n_cols):
-            c_dn = False  # continuity to the previous ray of this column
+        for col in range(col_begin, col_end):
+            first = col * n_elevation
+            c1_dn = False
+            c2_dn = False
+            live1_up = alive(distance, energy, first) and (label[first] if use_label else label_const) >= 0
+            live2_up = two and alive(distance2, energy2, first)
             for k in range(n_elevation):
-                i = col * n_elevation + k
-                lab = label[i] if use_label else label_const
-                live_i = lab >= 0 and energy[i] != 0 and isfinite(distance[i])
-                c_up = False
-                if spread and live_i and k + 1 < n_elevation:
-                    lab = label[i + 1] if use_label else label_const
-                    if (lab >= 0 and energy[i + 1] != 0 and isfinite(distance[i + 1])
-                            and sid[i] >= 0 and sid[i + 1] == sid[i]):
+                i = first + k
+                live1 = live1_up
+                live2 = live2_up
+                geo = False
+                live1_up = False
+                live2_up = False
+                if k + 1 < n_elevation:
+                    live1_up = alive(distance, energy, i + 1) and (label[i + 1] if use_label else label_const) >= 0
+                    live2_up = two and alive(distance2, energy2, i + 1)
+                    if spread and (live1 and live1_up or live2 and live2_up) and sid[i] >= 0 and sid[i + 1] == sid[i]:
                         cx = points[i + 1, 0] - points[i, 0]
                         cy = points[i + 1, 1] - points[i, 1]
                         cz = points[i + 1, 2] - points[i, 2]
@@ -264,46 +338,46 @@ def splat(const double[::1] distance, const double[::1] energy, const int[::1] b
                         off0 = cx * normals[i, 0] + cy * normals[i, 1] + cz * normals[i, 2]
                         off1 = cx * normals[i + 1, 0] + cy * normals[i + 1, 1] + cz * normals[i + 1, 2]
                         limit = <real_t>CONTINUITY_SINE * length
-                        c_up = (off0 if off0 >= 0 else -off0) <= limit and (off1 if off1 >= 0 else -off1) <= limit
-                if not live_i:
-                    c_dn = False
-                    continue
-                lab = label[i] if use_label else label_const
-                x = (distance[i] - range_min) / dr
-                lower = x
-                upper = x
-                if c_dn or c_up:
-                    if c_dn:
-                        xp = (distance[i - 1] - range_min) / dr
-                        m_dn = 0.5 * (x + xp)
-                    if c_up:
-                        xn = (distance[i + 1] - range_min) / dr
-                        m_up = 0.5 * (xn + x)
-                    lower = m_dn if c_dn else 2.0 * x - m_up
-                    upper = m_up if c_up else 2.0 * x - m_dn
-                lo = lower if lower < upper else upper
-                hi = upper if upper > lower else lower
-                if x < lo:
-                    lo = x
-                if x > hi:
-                    hi = x
-                width = hi - lo
-                if width < MIN_SPREAD_BINS:
-                    lo = floor(lo)
-                    hi = lo + 1.0
-                    density = energy[i]
+                        geo = (off0 if off0 >= 0 else -off0) <= limit and (off1 if off1 >= 0 else -off1) <= limit
+                if live1:
+                    lab = label[i] if use_label else label_const
+                    x1 = (distance[i] - range_min) / dr
+                    c1_up = geo and live1_up
+                    x_up1 = (distance[i + 1] - range_min) / dr if c1_up else 0.0
+                    deposit(x1, x_dn1, x_up1, c1_dn, c1_up, energy[i],
+                            base + <Py_ssize_t>lab * n_range_bins * n_beams + beam[i], n_beams, nb)
+                    c1_dn = c1_up
+                    x_dn1 = x1
                 else:
-                    density = energy[i] / width
-                c_dn = c_up
-                if lo < 0.0:
-                    lo = 0.0
-                if hi > nb:
-                    hi = nb
-                if not hi > lo:
-                    continue
-                base = (<Py_ssize_t>lab * n_range_bins) * n_beams + beam[i]
-                b0 = <Py_ssize_t>floor(lo)
-                b1 = <Py_ssize_t>ceil(hi)
-                for b in range(b0, b1):
-                    ov = (hi if hi < b + 1.0 else b + 1.0) - (lo if lo > b else <double>b)
-                    out[base + b * n_beams] += density * ov
+                    c1_dn = False
+                if live2:
+                    x2 = (distance2[i] - range_min) / dr
+                    c2_up = geo and live2_up
+                    x_up2 = (distance2[i + 1] - range_min) / dr if c2_up else 0.0
+                    deposit(x2, x_dn2, x_up2, c2_dn, c2_up, energy2[i],
+                            base + <Py_ssize_t>label2 * n_range_bins * n_beams + beam2[i], n_beams, nb)
+                    c2_dn = c2_up
+                    x_dn2 = x2
+                else:
+                    c2_dn = False
+
+
+
+def rotate(const double[:, ::1] dirs, const double[:, ::1] rotation, double[:, ::1] out64, float[:, ::1] out32):
+    """World-frame ray directions ``R @ d`` in float64 and float32 (for Embree), one pass."""
+    cdef Py_ssize_t i, n = dirs.shape[0]
+    cdef double x, y, z, a, b, c
+    with nogil:
+        for i in range(n):
+            x = dirs[i, 0]
+            y = dirs[i, 1]
+            z = dirs[i, 2]
+            a = rotation[0, 0] * x + rotation[0, 1] * y + rotation[0, 2] * z
+            b = rotation[1, 0] * x + rotation[1, 1] * y + rotation[1, 2] * z
+            c = rotation[2, 0] * x + rotation[2, 1] * y + rotation[2, 2] * z
+            out64[i, 0] = a
+            out64[i, 1] = b
+            out64[i, 2] = c
+            out32[i, 0] = <float>a
+            out32[i, 1] = <float>b
+            out32[i, 2] = <float>c

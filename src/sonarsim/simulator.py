@@ -8,6 +8,7 @@ component (one bincount) -> ground echoes -> :class:`SonarImage`.
 from __future__ import annotations
 
 import functools
+from concurrent.futures import ThreadPoolExecutor
 import time
 import warnings
 from collections.abc import Mapping
@@ -19,7 +20,7 @@ import numpy as np
 from . import compiled
 from ._memory import keep_freed_memory
 from .errors import ConfigError
-from .backends import make_caster
+from .backends import available_cores, make_caster
 from .geometry import clip_above_plane, mirror_across_plane, object_mesh_world
 from .imaging import RayEnergy, accumulate, continuity, lambertian_intensity
 from .loader import load_scene, parse_pose
@@ -141,6 +142,19 @@ class SonarImage:
         write_npz(path, self.arrays(), self.config)
 
 
+def _assemble(images: Mapping[str, np.ndarray], bounces: tuple[int, ...]) -> dict[str, np.ndarray]:
+    """float32 components from the object, ground, double and triple images."""
+    # Already float32 and contiguous (compiled path): no copy.
+    out = {k: np.ascontiguousarray(images[k], dtype=np.float32) for k in ("object", "ground", "double", "triple")}
+    out["single"] = out["object"] + out["ground"]
+    keys = [key for bounce, key in ((1, "single"), (2, "double"), (3, "triple")) if bounce in bounces]
+    total = out[keys[0]].copy()
+    for key in keys[1:]:
+        np.add(total, out[key], out=total)
+    out["total"] = total
+    return out
+
+
 @functools.lru_cache(maxsize=8)
 def _fan_mapper(n_range_bins, range_min_m, range_max_m, beam_angles_deg, pixel_size_m, interpolation):
     """Scan-conversion tables are costly to build and the same for every frame of a sonar."""
@@ -203,6 +217,8 @@ class Simulator:
             self.meshes = [clip_above_plane(m, self.scene.ground.height_m) for m in self.meshes]
         self.caster = make_caster(backend, self.meshes, self.scene.render.threads)
         self._mirrored_caster = None
+        threads = self.scene.render.threads or available_cores()
+        self._pool = ThreadPoolExecutor(2) if threads > 1 else None
         ground_albedo = self.scene.ground.albedo if self.scene.ground is not None else 0.0
         # Albedo by surface id + 1: index 0 is "no hit", 1 the ground, k + 2 object k.
         self._albedo = np.array([0.0, ground_albedo] + [o.albedo for o in self.scene.objects])
@@ -259,14 +275,14 @@ class Simulator:
             sonar = sonar.with_pose(as_pose(pose))
         render = self.scene.render
         fan = self.ray_fan(sonar)
-        rot = sonar.pose.rotation
         origin = sonar.pose.translation
-        directions = fan.directions @ rot.T
         t1 = time.perf_counter()
         ground = self.scene.ground
         multipath = sonar_above_ground(sonar, ground) and ground.specular > 0
         reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
         shape = (sonar.n_range_bins, sonar.n_beams)
+        use_compiled = self.kernels == "compiled" and not (render.method == "paper" and multipath)
+        directions = None if use_compiled else fan.directions @ sonar.pose.rotation.T
         if render.method == "paper" and multipath:
             hits = trace(self.caster, origin, directions, ground, reach)
             primary = (hits.distance_m, self._intensity(fan, hits), hits.surface_id)
@@ -278,10 +294,12 @@ class Simulator:
         elif self.kernels == "compiled":
             if self._work is None or self._work.n != fan.n_rays:
                 self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, fan.n_rays // sonar.n_beams)
-            out = self._buffer((4,) + shape)
+            # A fresh buffer per frame: the result's components are views of it.
+            out = np.zeros((4,) + shape, dtype=np.float32)
             t2 = time.perf_counter()
             compiled.render_fast(
-                self.caster, sonar, fan, directions, ground, render, self._albedo, reach, multipath, self._work, out
+                self.caster, sonar, fan, ground, render, self._albedo, reach, multipath, self._work, out,
+                pool=self._pool,
             )
             images = dict(zip(("object", "ground", "double", "triple"), out))
             w = self._work
@@ -307,14 +325,9 @@ class Simulator:
             )
             images = dict(zip(("object", "ground", "double", "triple"), img))
         t3 = time.perf_counter()
-        components = {k: np.asarray(images[k], dtype=np.float32) for k in ("object", "ground", "double", "triple")}
-        components["single"] = components["object"] + components["ground"]
-        total = np.zeros(shape, dtype=np.float32)
-        for bounce, key in ((1, "single"), (2, "double"), (3, "triple")):
-            if bounce in render.bounces:
-                total += components[key]
-        components["total"] = total
-        components = {k: components[k] for k in COMPONENTS}
+        images = _assemble(images, render.bounces)
+        components = {k: images[k] for k in COMPONENTS}
+        total = components["total"]
         rays = None
         if keep_rays:
             rays = RayMaps(
