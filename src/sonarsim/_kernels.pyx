@@ -12,7 +12,7 @@ All arrays are flat (C-contiguous) views of the ray fan ``(n_beams, n_azimuth, n
 Nothing here allocates; the caller owns every array.
 """
 
-from libc.math cimport sqrt, sqrtf, fabs, fabsf, floor, ceil, atan2, asin, isfinite, INFINITY, NAN
+from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, isfinite, INFINITY, NAN
 from libc.math cimport M_PI
 cimport cython
 
@@ -290,17 +290,14 @@ def splat(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[:
           const signed char[::1] label, int label_const,
           const double[::1] distance2, const double[::1] energy2, const int[::1] beam2, int label2,
           bint spread, Py_ssize_t n_elevation, double range_min, double dr,
-          Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out,
-          Py_ssize_t col_begin=0, Py_ssize_t col_end=-1):
+          Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out):
     """Continuity + range cells + accumulation of one or two sets of rays on one geometry.
 
     ``out`` is the flat float32 ``(n_labels, n_range_bins, n_beams)`` image. Set 1: ``distance``, ``energy``, ``beam``, with ``label`` per ray (or
     ``label_const`` where ``label`` is empty). Set 2 (used where ``distance2`` is not empty):
     ``distance2``, ``energy2``, ``beam2``, label ``label2`` -- the double bounce shares the
     triple's geometry, so the continuity test runs once for both. Neighbours count as
-    continuous for a set only where both carry energy in it. Only ray columns
-    ``col_begin:col_end`` are done; the GIL is released, so disjoint column ranges that write
-    disjoint beams can run in parallel threads.
+    continuous for a set only where both carry energy in it. The GIL is released.
     """
     cdef Py_ssize_t n = distance.shape[0], n_cols = n // n_elevation
     cdef Py_ssize_t col, k, i, first
@@ -311,10 +308,8 @@ def splat(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[:
     cdef double x_dn1 = 0.0, x_dn2 = 0.0, x1, x2, x_up1, x_up2
     cdef double nb = <double>n_range_bins
     cdef float* base = &out[0]
-    if col_end < 0 or col_end > n_cols:
-        col_end = n_cols
     with nogil:
-        for col in range(col_begin, col_end):
+        for col in range(n_cols):
             first = col * n_elevation
             c1_dn = False
             c2_dn = False

@@ -1,0 +1,33 @@
+"""Smoke test: the benchmark script runs end to end at tiny sizes (no timing is asserted)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_benchmark_runs_at_tiny_sizes(tmp_path):
+    out = tmp_path / "bench.json"
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "bench_render.py"), "--quick", "--json", str(out)],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "frame/cast" in proc.stdout
+    res = json.loads(out.read_text())
+    assert [c["case"][:2] for c in res["cases"]] == ["a:", "b:", "c:", "a "]
+    for c in res["cases"]:
+        assert c["frame_ms"] > 0 and c["bare_cast_ms"] > 0 and c["rays_per_frame"] > 0
+        assert c["frame_over_cast"] == c["frame_ms"] / c["bare_cast_ms"]
+    assert res["speedup_fast_over_paper"] > 0
+    assert res["peak_memory_b"]["process_peak_rss_mb"] > 0
+    assert len(res["sweep_rays"]) >= 2 and len(res["sweep_triangles"]) >= 2
+    # The sweeps really vary what they claim to.
+    rays = [r["rays_per_frame"] for r in res["sweep_rays"]]
+    tris = [r["triangles"] for r in res["sweep_triangles"]]
+    assert rays == sorted(rays) and len(set(rays)) == len(rays)
+    assert tris == sorted(tris) and len(set(tris)) == len(tris)
