@@ -45,8 +45,11 @@ def rock_mesh(n_triangles: int, radius: float = 0.25, seed: int = 0):
     """A bumpy closed mesh with about ``n_triangles`` faces (a UV sphere with radial noise)."""
     import trimesh
 
-    count = max(8, int(round(np.sqrt(n_triangles / 4))))  # a UV sphere has about 4 count^2 faces
+    count = max(8, int(np.sqrt(n_triangles / 4)))
     m = trimesh.creation.uv_sphere(radius=radius, count=[count, count])
+    while len(m.faces) < n_triangles:  # about 4 count^2 faces; step up to the first mesh >= n
+        count = int(count * np.sqrt(n_triangles / len(m.faces))) + 1
+        m = trimesh.creation.uv_sphere(radius=radius, count=[count, count])
     rng = np.random.default_rng(seed)
     v = np.asarray(m.vertices)
     # Smooth bumps: a few random low-order modes, so the surface stays a plausible rock.
