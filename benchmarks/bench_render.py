@@ -60,7 +60,10 @@ def rock_mesh(n_triangles: int, radius: float = 0.25, seed: int = 0):
 
 def scene_with_mesh(n_triangles: int) -> sonarsim.Scene:
     base = scene_from_dict(demo_scene_dict())
-    rock = ObjectSpec(name="rock", mesh=rock_mesh(n_triangles), pose=Pose((3.5, -0.05, 0.2)), albedo=0.7)
+    mesh = rock_mesh(n_triangles)
+    # Resting on the floor (touching it at its lowest point), so that no part is clipped away.
+    z = 1e-3 - float(np.asarray(mesh.vertices)[:, 2].min())
+    rock = ObjectSpec(name="rock", mesh=mesh, pose=Pose((3.5, -0.05, z)), albedo=0.7)
     return sonarsim.Scene(sonar=base.sonar, objects=base.objects + (rock,), ground=base.ground, render=base.render)
 
 
