@@ -96,8 +96,9 @@ def record_casts(sim: sonarsim.Simulator) -> list:
 def measure(name: str, scene, repeats: int) -> dict:
     """Median frame time and median bare casting time of the same rays, interleaved.
 
-    Frames and bare casts alternate, so that the machine's load drifts (it is shared) hit both
-    medians alike and their ratio holds.
+    Blocks of frames and blocks of bare casts alternate, so that the machine's load drifts (it
+    is shared) hit both medians alike and their ratio holds; within a block each runs back to
+    back, as in a renderer's steady state.
     """
     sim = sonarsim.Simulator(scene)
     for _ in range(3):
@@ -105,14 +106,17 @@ def measure(name: str, scene, repeats: int) -> dict:
     recorded = record_casts(sim)
     n_rays = sum(len(d) for _, _, d, _ in recorded)
     frames, casts = [], []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        sim.render(keep_rays=False)
-        frames.append(time.perf_counter() - t)
-        t = time.perf_counter()
-        for caster, o, d, tfar in recorded:
-            caster.cast_raw(o, d, tfar)
-        casts.append(time.perf_counter() - t)
+    block = 5
+    for _ in range(max(1, repeats // block)):
+        for _ in range(block):
+            t = time.perf_counter()
+            sim.render(keep_rays=False)
+            frames.append(time.perf_counter() - t)
+        for _ in range(block):
+            t = time.perf_counter()
+            for caster, o, d, tfar in recorded:
+                caster.cast_raw(o, d, tfar)
+            casts.append(time.perf_counter() - t)
     frame, cast = statistics.median(frames), statistics.median(casts)
     s = sim.scene.sonar
     return {

@@ -290,14 +290,17 @@ def splat(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[:
           const signed char[::1] label, int label_const,
           const double[::1] distance2, const double[::1] energy2, const int[::1] beam2, int label2,
           bint spread, Py_ssize_t n_elevation, double range_min, double dr,
-          Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out):
+          Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out,
+          Py_ssize_t col_begin=0, Py_ssize_t col_end=-1):
     """Continuity + range cells + accumulation of one or two sets of rays on one geometry.
 
     ``out`` is the flat float32 ``(n_labels, n_range_bins, n_beams)`` image. Set 1: ``distance``, ``energy``, ``beam``, with ``label`` per ray (or
     ``label_const`` where ``label`` is empty). Set 2 (used where ``distance2`` is not empty):
     ``distance2``, ``energy2``, ``beam2``, label ``label2`` -- the double bounce shares the
     triple's geometry, so the continuity test runs once for both. Neighbours count as
-    continuous for a set only where both carry energy in it. The GIL is released.
+    continuous for a set only where both carry energy in it. Only the ray columns
+    ``col_begin:col_end`` are done (continuity runs along a column, so columns are
+    independent). The GIL is released.
     """
     cdef Py_ssize_t n = distance.shape[0], n_cols = n // n_elevation
     cdef Py_ssize_t col, k, i, first
@@ -308,8 +311,10 @@ def splat(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[:
     cdef double x_dn1 = 0.0, x_dn2 = 0.0, x1, x2, x_up1, x_up2
     cdef double nb = <double>n_range_bins
     cdef float* base = &out[0]
+    if col_end < 0 or col_end > n_cols:
+        col_end = n_cols
     with nogil:
-        for col in range(n_cols):
+        for col in range(col_begin, col_end):
             first = col * n_elevation
             c1_dn = False
             c2_dn = False
@@ -358,12 +363,17 @@ def splat(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[:
 
 
 
-def rotate(const double[:, ::1] dirs, const double[:, ::1] rotation, double[:, ::1] out64, float[:, ::1] out32):
-    """World-frame ray directions ``R @ d`` in float64 and float32 (for Embree), one pass."""
+def rotate(const double[:, ::1] dirs, const double[:, ::1] rotation, double ox, double oy, double oz,
+           double[:, ::1] out64, float[:, ::1] out32, float[:, ::1] origins32):
+    """World-frame ray directions ``R @ d`` in float64 and float32, and the ray origins in
+    float32 (both for Embree), in one pass."""
     cdef Py_ssize_t i, n = dirs.shape[0]
     cdef double x, y, z, a, b, c
     with nogil:
         for i in range(n):
+            origins32[i, 0] = <float>ox
+            origins32[i, 1] = <float>oy
+            origins32[i, 2] = <float>oz
             x = dirs[i, 0]
             y = dirs[i, 1]
             z = dirs[i, 2]

@@ -22,7 +22,12 @@ except ImportError:  # not built (e.g. a source tree used without installing)
 
 AVAILABLE = _kernels is not None
 
-FIRST_BATCH = 0.7  # share of the reflected rays cast while the direct image forms
+# Where the reflected rays are cut into batches, as shares of the ray columns: small first, so
+# that this core soon has echo paths to form while the other core casts the next batch.
+BATCH_CUTS = (0.3, 0.65)
+# Share of the direct image (left beams) formed on this core; the other core, busy casting,
+# forms the rest.
+DIRECT_SHARE = 0.7
 
 
 class Workspace:
@@ -97,13 +102,13 @@ def render_fast(
         ``intensity``: D_f, labels, I_f).
     out : (4, n_range_bins, n_beams) float32 C-contiguous zeroed ndarray
         Receives the images. float32 sums lose nothing here that the float32 result would keep.
-    pool : concurrent.futures.Executor, optional
-        Casts the reflected rays while this thread forms the direct image.
+    pool : concurrent.futures.ThreadPoolExecutor with one worker, optional
+        The other core: casts the reflected rays and forms half of the direct image.
     """
     origin = sonar.pose.translation
     d64 = work.d64
-    _kernels.rotate(fan.directions.reshape(-1, 3), np.ascontiguousarray(sonar.pose.rotation), d64, work.d32)
-    work.o32[:] = origin
+    _kernels.rotate(fan.directions.reshape(-1, 3), np.ascontiguousarray(sonar.pose.rotation),
+                    origin[0], origin[1], origin[2], d64, work.d32, work.o32)
     hits = caster.intersect(work.o32, work.d32, reach_m)
     weight = fan.weight.reshape(-1)
     has_ground = ground is not None
@@ -118,35 +123,56 @@ def render_fast(
     flat_out = out.reshape(-1)
     spread = render.range_splat
 
-    def splat(points, normals, sid, set1, set2=None):
+    def splat(points, normals, sid, set1, set2=None, columns=(0, -1)):
         """Run the splat kernel: ``set = (distance, energy, beams, label array, label)``."""
         d2, e2, b2, _, l2 = set2 if set2 is not None else (work.empty_f64, work.empty_f64, work.empty_i32, None, -1)
-        _kernels.splat(points, normals, sid, *set1, d2, e2, b2, l2, spread, n_el, *geometry, flat_out)
+        _kernels.splat(points, normals, sid, *set1, d2, e2, b2, l2, spread, n_el, *geometry, flat_out, *columns)
 
     if not (multipath and n_g):
         splat(work.point, work.normal, work.sid, (work.dist, work.intensity, work.beam, work.label, 0))
         return
 
-    # The reflected rays go in two batches to the other core: the first while this thread
-    # forms the direct image, the second while it turns the first into echo paths. The direct
-    # image takes about twice as long as the echo paths, hence the 70/30 split.
+    mirror = (work.v_point, work.v_normal, work.v_sid)
+    triple = (work.tri_dist, work.tri_energy, work.beam, work.no_label, 3)
+
+    def echoes(columns):
+        if render.double_beam == "paper":
+            splat(*mirror, triple, (work.r23, work.e23, work.beam, None, 2), columns=columns)
+        else:
+            half = 0.5 * work.e23
+            splat(*mirror, triple, (work.r23, half, work.beam, None, 2), columns=columns)
+            splat(*mirror, (work.r23, half, work.beam_a, work.no_label, 2), columns=columns)  # case 2: beam of A
+
+    # Two cores share the rest. The other core casts the reflected rays in batches of whole ray
+    # columns and then forms the right part of the direct image; this core forms the left part,
+    # then turns each batch into echo paths and echo images as it arrives (columns are
+    # independent; the halves of the direct image and the echoes write disjoint memory).
     reach2 = float(reach_m - t_min)
-    cut = int(FIRST_BATCH * n_g) if pool is not None else n_g
-    batches = [(0, cut), (cut, n_g)] if 0 < cut < n_g else [(0, n_g)]
+    n_cols = fan.shape[0] * fan.shape[1]
+    col_cuts = [0, n_cols] if pool is None else [0, *(int(f * n_cols) for f in BATCH_CUTS), n_cols]
+    ray_cuts = np.searchsorted(work.g_index[:n_g], np.asarray(col_cuts) * n_el)
+    batches = [(int(a), int(b)) for a, b in zip(ray_cuts[:-1], ray_cuts[1:])]
+    pipelined = not render.double_line_of_sight  # that option casts again after all paths
 
     def cast(ab):
         a, b = ab
         return caster.intersect(work.g_start[a:b], work.g_dir[a:b], reach2)
 
-    pending = pool.submit(cast, batches[0]) if pool is not None else None
-    splat(work.point, work.normal, work.sid, (work.dist, work.intensity, work.beam, work.label, 0))
+    direct = (work.point, work.normal, work.sid, (work.dist, work.intensity, work.beam, work.label, 0))
+    if pool is not None:
+        # ``pool`` runs one task at a time, in order: the casts, then the right half.
+        pending = [pool.submit(cast, ab) for ab in batches]
+        split = int(DIRECT_SHARE * fan.shape[0]) * fan.shape[1]
+        right = pool.submit(splat, *direct, columns=(split, -1))
+        splat(*direct, columns=(0, split))
+    else:
+        splat(*direct)
     work.reset_mirror()
     half_el = sonar.elevation_fov_deg / 2.0
     rotation = np.ascontiguousarray(sonar.pose.rotation)
     edges = np.ascontiguousarray(sonar.beam_edges_deg)
     for k, (a, b) in enumerate(batches):
-        hits2 = pending.result() if pending is not None else cast((a, b))
-        pending = pool.submit(cast, batches[k + 1]) if pool is not None and k + 1 < len(batches) else None
+        hits2 = pending[k].result() if pool is not None else cast((a, b))
         _kernels.mirror_paths(
             work.g_index[a:b], work.g_t[a:b], work.g_start[a:b], hits2.distance, hits2.mesh_id, hits2.normal,
             d64, work.point, origin[0], origin[1], origin[2], rotation,
@@ -155,16 +181,13 @@ def render_fast(
             work.tri_dist, work.tri_energy, work.v_point, work.v_normal, work.v_sid,
             work.r23, work.e23, work.beam_a,
         )
-    if render.double_line_of_sight:
+        if pipelined:
+            echoes((col_cuts[k], col_cuts[k + 1]))
+    if not pipelined:
         _drop_hidden(caster, sonar, ground.height_m, work)
-    mirror = (work.v_point, work.v_normal, work.v_sid)
-    triple = (work.tri_dist, work.tri_energy, work.beam, work.no_label, 3)
-    if render.double_beam == "paper":
-        splat(*mirror, triple, (work.r23, work.e23, work.beam, None, 2))
-    else:
-        half = 0.5 * work.e23
-        splat(*mirror, triple, (work.r23, half, work.beam, None, 2))
-        splat(*mirror, (work.r23, half, work.beam_a, work.no_label, 2))  # case 2: beam of A
+        echoes((0, -1))
+    if pool is not None:
+        right.result()
 
 
 def _drop_hidden(caster, sonar: SonarConfig, ground_height_m: float, work: Workspace) -> None:

@@ -218,7 +218,8 @@ class Simulator:
         self.caster = make_caster(backend, self.meshes, self.scene.render.threads)
         self._mirrored_caster = None
         threads = self.scene.render.threads or available_cores()
-        self._pool = ThreadPoolExecutor(2) if threads > 1 else None
+        # One worker: the second core of the compiled path (tasks run in order on it).
+        self._pool = ThreadPoolExecutor(1) if threads > 1 else None
         ground_albedo = self.scene.ground.albedo if self.scene.ground is not None else 0.0
         # Albedo by surface id + 1: index 0 is "no hit", 1 the ground, k + 2 object k.
         self._albedo = np.array([0.0, ground_albedo] + [o.albedo for o in self.scene.objects])
