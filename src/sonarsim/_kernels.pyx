@@ -306,7 +306,7 @@ def splat(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[:
     cdef Py_ssize_t col, k, i, first
     cdef bint geo, live1, live1_up, live2, live2_up, c1_dn, c2_dn, c1_up, c2_up
     cdef bint two = distance2.shape[0] > 0, use_label = label.shape[0] > 0
-    cdef real_t cx, cy, cz, length, off0, off1, limit
+    cdef real_t cx, cy, cz, off0, off1, limit
     cdef int lab
     cdef double x_dn1 = 0.0, x_dn2 = 0.0, x1, x2, x_up1, x_up2
     cdef double nb = <double>n_range_bins
@@ -334,11 +334,11 @@ def splat(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[:
                         cx = points[i + 1, 0] - points[i, 0]
                         cy = points[i + 1, 1] - points[i, 1]
                         cz = points[i + 1, 2] - points[i, 2]
-                        length = <real_t>sqrt(cx * cx + cy * cy + cz * cz)
+                        # |n . chord| <= sine |chord| for both normals, squared: no square root.
                         off0 = cx * normals[i, 0] + cy * normals[i, 1] + cz * normals[i, 2]
                         off1 = cx * normals[i + 1, 0] + cy * normals[i + 1, 1] + cz * normals[i + 1, 2]
-                        limit = <real_t>CONTINUITY_SINE * length
-                        geo = (off0 if off0 >= 0 else -off0) <= limit and (off1 if off1 >= 0 else -off1) <= limit
+                        limit = <real_t>(CONTINUITY_SINE * CONTINUITY_SINE) * (cx * cx + cy * cy + cz * cz)
+                        geo = off0 * off0 <= limit and off1 * off1 <= limit
                 if live1:
                     lab = label[i] if use_label else label_const
                     x1 = (distance[i] - range_min) / dr
