@@ -303,6 +303,9 @@ class Simulator:
                 pool=self._pool,
             )
             images = dict(zip(("object", "ground", "double", "triple"), out))
+            images["single"], images["total"] = np.empty(shape, np.float32), np.empty(shape, np.float32)
+            b = render.bounces
+            compiled.combine(out, images["single"], images["total"], 1 in b, 2 in b, 3 in b)
             w = self._work
             primary = (w.dist.reshape(fan.shape), w.intensity.reshape(fan.shape), w.sid.reshape(fan.shape))
         else:
@@ -326,7 +329,8 @@ class Simulator:
             )
             images = dict(zip(("object", "ground", "double", "triple"), img))
         t3 = time.perf_counter()
-        images = _assemble(images, render.bounces)
+        if "total" not in images:
+            images = _assemble(images, render.bounces)
         components = {k: images[k] for k in COMPONENTS}
         total = components["total"]
         rays = None
