@@ -165,7 +165,6 @@ def accumulate(
     n_range_bins: int,
     n_beams: int,
     n_labels: int = 1,
-    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Accumulate ray energies into polar images (paper Algorithm 1, vectorised, with splatting).
 
@@ -179,13 +178,10 @@ def accumulate(
         Image shape.
     n_labels : int
         Number of images (labels ``0 .. n_labels - 1``).
-    out : (n_labels, n_range_bins, n_beams) float64 C-contiguous ndarray, optional
-        Reused as the result (overwritten). A renderer passes the same buffer every frame:
-        a fresh multi-megabyte result costs more in page faults than the accumulation itself.
 
     Returns
     -------
-    (n_labels, n_range_bins, n_beams) float64 ndarray (``out`` if given)
+    (n_labels, n_range_bins, n_beams) float64 ndarray
     """
     parts = [_segments(r, range_min_m, range_resolution_m, n_range_bins, n_beams) for r in rays]
     lo, hi, density, column = (np.concatenate(p) for p in zip(*parts))
@@ -208,11 +204,7 @@ def accumulate(
     overlap = np.minimum(hi[owner], bins + 1.0) - np.maximum(lo[owner], bins)
     index = column[live][owner] + bins.astype(np.intp) * n_beams
     shape = (n_labels, n_range_bins, n_beams)
-    if out is None:
-        return np.bincount(index, weights=density[owner] * overlap, minlength=np.prod(shape)).reshape(shape)
-    out.fill(0.0)
-    np.add.at(out.reshape(-1), index, density[owner] * overlap)
-    return out
+    return np.bincount(index, weights=density[owner] * overlap, minlength=np.prod(shape)).reshape(shape)
 
 
 def form_image(

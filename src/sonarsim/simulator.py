@@ -225,7 +225,6 @@ class Simulator:
         self._albedo = np.array([0.0, ground_albedo] + [o.albedo for o in self.scene.objects])
         self._fans: dict[SonarConfig, RayFan] = {}
         self._last_fan: tuple[SonarConfig, RayFan] | None = None
-        self._image_buffer: np.ndarray | None = None
         self.last_timing: dict[str, float] = {}
 
     def ray_fan(self, sonar: SonarConfig) -> RayFan:
@@ -247,12 +246,6 @@ class Simulator:
             mirrored = self.meshes + [mirror_across_plane(m, h) for m in self.meshes]
             self._mirrored_caster = make_caster(self.backend, mirrored, self.scene.render.threads)
         return self._mirrored_caster
-
-    def _buffer(self, shape: tuple[int, ...]) -> np.ndarray:
-        """The float64 image buffer reused by every frame (results are copied out of it)."""
-        if self._image_buffer is None or self._image_buffer.shape != shape:
-            self._image_buffer = np.zeros(shape)
-        return self._image_buffer
 
     def _intensity(self, fan: RayFan, hits) -> np.ndarray:
         albedo = self._albedo[hits.surface_id + 1]
@@ -324,8 +317,7 @@ class Simulator:
                 )
                 rays += ground_echo_rays(paths, sonar, render, ground.specular, self.caster, labels=(2, 3))
             img = accumulate(
-                rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams,
-                n_labels=4, out=self._buffer((4,) + shape),
+                rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams, n_labels=4
             )
             images = dict(zip(("object", "ground", "double", "triple"), img))
         t3 = time.perf_counter()
