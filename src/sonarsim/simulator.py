@@ -251,6 +251,56 @@ class Simulator:
         albedo = self._albedo[hits.surface_id + 1]
         return lambertian_intensity(fan.weight, hits.cos_incidence, albedo, hits.distance_m, self.scene.render.tvg)
 
+    # The three ways to form the images; each returns (images by name, (D_f, I_f, surface ids)).
+
+    def _render_paper(self, sonar: SonarConfig, fan: RayFan, reach: float):
+        """``method: paper``: Algorithm 2 literally (NumPy)."""
+        origin, directions = sonar.pose.translation, fan.directions @ sonar.pose.rotation.T
+        hits = trace(self.caster, origin, directions, self.scene.ground, reach)
+        images = render_paper(
+            self.caster, self.mirrored_caster(), origin, directions, sonar, self.scene.render, self.scene.ground,
+            fan.weight, self._albedo, len(self.meshes), reach,
+        )
+        return images, (hits.distance_m, self._intensity(fan, hits), hits.surface_id)
+
+    def _render_compiled(self, sonar: SonarConfig, fan: RayFan, reach: float, multipath: bool):
+        """``method: fast`` with the compiled kernels (the default)."""
+        if self._work is None or self._work.n != fan.n_rays:
+            self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, fan.n_rays // sonar.n_beams)
+        shape = (sonar.n_range_bins, sonar.n_beams)
+        out = np.zeros((4,) + shape, dtype=np.float32)  # fresh: the components are views of it
+        render = self.scene.render
+        compiled.render_fast(
+            self.caster, sonar, fan, self.scene.ground, render, self._albedo, reach, multipath, self._work, out,
+            pool=self._pool,
+        )
+        images = dict(zip(("object", "ground", "double", "triple"), out))
+        images["single"], images["total"] = np.empty(shape, np.float32), np.empty(shape, np.float32)
+        b = render.bounces
+        compiled.combine(out, images["single"], images["total"], 1 in b, 2 in b, 3 in b)
+        w = self._work
+        return images, (w.dist.reshape(fan.shape), w.intensity.reshape(fan.shape), w.sid.reshape(fan.shape))
+
+    def _render_numpy(self, sonar: SonarConfig, fan: RayFan, reach: float, multipath: bool):
+        """``method: fast`` with the NumPy reference of the compiled kernels."""
+        origin, directions = sonar.pose.translation, fan.directions @ sonar.pose.rotation.T
+        render, ground = self.scene.render, self.scene.ground
+        hits = trace(self.caster, origin, directions, ground, reach)
+        intensity = self._intensity(fan, hits)
+        cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None
+        # Labels: 0 object, 1 ground, 2 double, 3 triple; -1 nothing.
+        label = np.where(hits.surface_id > GROUND_ID, 0, np.where(hits.surface_id == GROUND_ID, 1, -1))
+        rays = [RayEnergy(hits.distance_m, intensity, np.arange(sonar.n_beams)[:, None, None], label, cont)]
+        if multipath:
+            paths = fast_mirror_paths(
+                self.caster, origin, directions, hits, ground.height_m, fan.weight, self._albedo, render.tvg, reach,
+            )
+            rays += ground_echo_rays(paths, sonar, render, ground.specular, self.caster, labels=(2, 3))
+        img = accumulate(
+            rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams, n_labels=4
+        )
+        return dict(zip(("object", "ground", "double", "triple"), img)), (hits.distance_m, intensity, hits.surface_id)
+
     def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True) -> SonarImage:
         """Render one image.
 
@@ -269,57 +319,16 @@ class Simulator:
             sonar = sonar.with_pose(as_pose(pose))
         render = self.scene.render
         fan = self.ray_fan(sonar)
-        origin = sonar.pose.translation
         t1 = time.perf_counter()
         ground = self.scene.ground
         multipath = sonar_above_ground(sonar, ground) and ground.specular > 0
         reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
-        shape = (sonar.n_range_bins, sonar.n_beams)
-        use_compiled = self.kernels == "compiled" and not (render.method == "paper" and multipath)
-        directions = None if use_compiled else fan.directions @ sonar.pose.rotation.T
         if render.method == "paper" and multipath:
-            hits = trace(self.caster, origin, directions, ground, reach)
-            primary = (hits.distance_m, self._intensity(fan, hits), hits.surface_id)
-            t2 = time.perf_counter()
-            images = render_paper(
-                self.caster, self.mirrored_caster(), origin, directions, sonar, render, ground,
-                fan.weight, self._albedo, len(self.meshes), reach,
-            )
+            images, primary = self._render_paper(sonar, fan, reach)
         elif self.kernels == "compiled":
-            if self._work is None or self._work.n != fan.n_rays:
-                self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, fan.n_rays // sonar.n_beams)
-            # A fresh buffer per frame: the result's components are views of it.
-            out = np.zeros((4,) + shape, dtype=np.float32)
-            t2 = time.perf_counter()
-            compiled.render_fast(
-                self.caster, sonar, fan, ground, render, self._albedo, reach, multipath, self._work, out,
-                pool=self._pool,
-            )
-            images = dict(zip(("object", "ground", "double", "triple"), out))
-            images["single"], images["total"] = np.empty(shape, np.float32), np.empty(shape, np.float32)
-            b = render.bounces
-            compiled.combine(out, images["single"], images["total"], 1 in b, 2 in b, 3 in b)
-            w = self._work
-            primary = (w.dist.reshape(fan.shape), w.intensity.reshape(fan.shape), w.sid.reshape(fan.shape))
+            images, primary = self._render_compiled(sonar, fan, reach, multipath)
         else:
-            hits = trace(self.caster, origin, directions, ground, reach)
-            t2 = time.perf_counter()
-            intensity = self._intensity(fan, hits)
-            primary = (hits.distance_m, intensity, hits.surface_id)
-            cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None
-            # Labels: 0 object, 1 ground, 2 double, 3 triple; -1 nothing.
-            label = np.where(hits.surface_id > GROUND_ID, 0, np.where(hits.surface_id == GROUND_ID, 1, -1))
-            rays = [RayEnergy(hits.distance_m, intensity, np.arange(sonar.n_beams)[:, None, None], label, cont)]
-            if multipath:
-                paths = fast_mirror_paths(
-                    self.caster, origin, directions, hits, ground.height_m, fan.weight, self._albedo,
-                    render.tvg, reach,
-                )
-                rays += ground_echo_rays(paths, sonar, render, ground.specular, self.caster, labels=(2, 3))
-            img = accumulate(
-                rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams, n_labels=4
-            )
-            images = dict(zip(("object", "ground", "double", "triple"), img))
+            images, primary = self._render_numpy(sonar, fan, reach, multipath)
         t3 = time.perf_counter()
         if "total" not in images:
             images = _assemble(images, render.bounces)
@@ -336,7 +345,7 @@ class Simulator:
             )
         config = replace(self.scene, sonar=sonar).to_dict()
         t4 = time.perf_counter()
-        self.last_timing = {"setup": t1 - t0, "trace": t2 - t1, "image": t3 - t2, "assemble": t4 - t3, "total": t4 - t0}
+        self.last_timing = {"setup": t1 - t0, "render": t3 - t1, "assemble": t4 - t3, "total": t4 - t0}
         return SonarImage(
             polar=total, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg,
             components=components, sonar=sonar, rays=rays, config=config,
