@@ -4,11 +4,14 @@ The pipeline, one module each: :mod:`~sonarsim.sonar` (beams, range window, pose
 :mod:`~sonarsim.scene` / :mod:`~sonarsim.loader` (objects, ground, settings) ->
 :mod:`~sonarsim.rays` (ray fan) -> :mod:`~sonarsim.backends` + :mod:`~sonarsim.tracing`
 (closest surfaces) -> :mod:`~sonarsim.imaging` (Algorithm 1) -> :mod:`~sonarsim.fan` and
-:mod:`~sonarsim.output` (images, files). :class:`Simulator` ties them together.
+:mod:`~sonarsim.output` (images, files) -> :mod:`~sonarsim.readers`, :mod:`~sonarsim.metrics` and
+:mod:`~sonarsim.fitting` (real recordings, comparison, pose fitting). :class:`Simulator` ties
+the simulation together.
 """
 
 from .errors import ConfigError, MeshFileError, SonarsimError
 from .loader import load_scene
+from .readers import read, read_frames
 from .scene import GroundSpec, ObjectSpec, RenderSettings, Scene
 from .simulator import RayMaps, Simulator, SonarImage, render
 from .sonar import SonarConfig
@@ -18,5 +21,6 @@ __version__ = "0.1.0"
 
 __all__ = [
     "ConfigError", "GroundSpec", "MeshFileError", "ObjectSpec", "Pose", "RayMaps", "RenderSettings",
-    "Scene", "Simulator", "SonarConfig", "SonarImage", "SonarsimError", "load_scene", "render",
+    "Scene", "Simulator", "SonarConfig", "SonarImage", "SonarsimError", "load_scene", "read", "read_frames",
+    "render",
 ]

@@ -91,6 +91,15 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("presets", help="list the sonar presets",
                        description="List the built-in sonar presets with their main figures.")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+    # Real data: reading recordings, comparing images, fitting the pose.
+    from .compare_cli import add_compare_parser
+    from .fit_cli import add_fit_parser
+    from .readers.show import add_show_parser
+
+    add_show_parser(sub)
+    add_compare_parser(sub)
+    add_fit_parser(sub)
     return parser
 
 
@@ -209,7 +218,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        COMMANDS[args.command](args)
+        handler = getattr(args, "func", None) or COMMANDS[args.command]
+        handler(args)
     except SonarsimError as exc:
         _log(f"error: {exc}")
         return EXIT_BAD_INPUT

@@ -19,7 +19,6 @@ Nelder-Mead) does the rest.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from typing import Sequence
 
