@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from .argtypes import finite_float, positive_float
 from .errors import SonarsimError
 
 EXIT_BAD_INPUT = 2
@@ -31,24 +32,14 @@ def _bounces(text: str) -> list[int]:
     return values
 
 
-def _positive(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
-
-
 def _add_image_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("images")
-    g.add_argument("--pixel-size", type=_positive, default=None, metavar="M",
+    g.add_argument("--pixel-size", type=positive_float, default=None, metavar="M",
                    help="fan image pixel size in metres (default: the range resolution)")
     g.add_argument("--mapping", choices=("db", "linear"), default="db",
                    help="PNG intensity mapping: dB window below the maximum, or linear (default: db)")
-    g.add_argument("--gain-db", type=float, default=0.0, help="display gain in dB (default: 0)")
-    g.add_argument("--dynamic-range-db", type=_positive, default=40.0,
+    g.add_argument("--gain-db", type=finite_float, default=0.0, help="display gain in dB (default: 0)")
+    g.add_argument("--dynamic-range-db", type=positive_float, default=40.0,
                    help="width of the dB window shown (default: 40)")
     g.add_argument("--components", action="store_true",
                    help="also write one polar and one fan PNG per component (object, ground, single, ...)")

@@ -18,30 +18,11 @@ import math
 import sys
 from typing import Any
 
+from .argtypes import frame_index, positive_float
+
 __all__ = ["add_compare_parser", "cmd_compare"]
 
 _NORMALIZE_CHOICES = ("max", "minmax", "none")
-
-
-def _positive(text: str) -> float:
-    # Not imported from sonarsim.cli: that module imports this one.
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
-
-
-def _frame(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a frame number >= 0, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a frame number >= 0, got {text!r}")
-    return v
 
 
 def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -72,16 +53,16 @@ def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("a", metavar="A", help="reference image file (e.g. a real recording)")
     p.add_argument("b", metavar="B", help="image file compared with A (e.g. a simulation)")
-    p.add_argument("--frame-a", type=_frame, default=None, metavar="N",
+    p.add_argument("--frame-a", type=frame_index, default=None, metavar="N",
                    help="frame of A, for recordings (default: 0)")
-    p.add_argument("--frame-b", type=_frame, default=None, metavar="N",
+    p.add_argument("--frame-b", type=frame_index, default=None, metavar="N",
                    help="frame of B, for recordings (default: 0)")
     p.add_argument("--component-a", default=None, metavar="NAME",
                    help="NPZ only: compare this component of A instead of the total image "
                    "(object, ground, single, double, triple, total)")
     p.add_argument("--component-b", default=None, metavar="NAME",
                    help="NPZ only: compare this component of B instead of the total image")
-    p.add_argument("--pixel-size", type=_positive, default=None, metavar="M",
+    p.add_argument("--pixel-size", type=positive_float, default=None, metavar="M",
                    help="fan pixel size in metres (default: A's range resolution)")
     p.add_argument("--normalize", choices=_NORMALIZE_CHOICES, default="max",
                    help="normalisation of each image to 0-255: divide by its maximum (default), "

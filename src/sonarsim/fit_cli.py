@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .argtypes import frame_index
 from .errors import SonarsimError
 
 
@@ -29,7 +30,7 @@ def add_fit_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--scene", required=True, help="scene file (YAML or JSON); its sonar pose is the start")
     p.add_argument("--free", default="z,pitch", help="pose parameters to fit, from x,y,z,roll,pitch,yaw (default: z,pitch)")
     p.add_argument("--out", required=True, help="where to write the fitted scene (YAML)")
-    p.add_argument("--frame", type=int, default=0, help="frame of the recording (default: 0)")
+    p.add_argument("--frame", type=frame_index, default=0, help="frame of the recording (default: 0)")
     p.add_argument("--domain", choices=("edges", "band"), default="edges",
                    help="compare edge maps of whole images (default), or the near and far edges of the floor band")
     p.add_argument("--max-renders", type=int, default=600, help="render budget of the search (default: 600)")

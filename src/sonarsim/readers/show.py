@@ -19,10 +19,11 @@ reference, ``--dynamic-range-db`` wide).
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
+
+from ..argtypes import finite_float, positive_float
 
 __all__ = ["add_show_parser", "cmd_show"]
 
@@ -30,26 +31,6 @@ __all__ = ["add_show_parser", "cmd_show"]
 def _log(msg: str) -> None:
     # Same form as sonarsim.cli's messages; progress goes to stderr, results to files.
     print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not value > 0:  # also refuses nan
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
-
-
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
 
 
 def add_show_parser(subparsers) -> argparse.ArgumentParser:
@@ -77,13 +58,13 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
                    help="0-based frame (ARIS) or ping (Oculus) to show (default: 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
     g = p.add_argument_group("images")
-    g.add_argument("--pixel-size", type=_positive, default=None, metavar="M",
+    g.add_argument("--pixel-size", type=positive_float, default=None, metavar="M",
                    help="fan image pixel size in metres (default: the range resolution)")
     g.add_argument("--mapping", choices=("db", "linear"), default="linear",
                    help="PNG intensity mapping (default: linear, which shows the recorded "
                    "8-bit values as they are; db compresses them a second time)")
-    g.add_argument("--gain-db", type=_finite, default=0.0, metavar="DB", help="display gain in dB (default: 0)")
-    g.add_argument("--dynamic-range-db", type=_positive, default=40.0, metavar="DB",
+    g.add_argument("--gain-db", type=finite_float, default=0.0, metavar="DB", help="display gain in dB (default: 0)")
+    g.add_argument("--dynamic-range-db", type=positive_float, default=40.0, metavar="DB",
                    help="width of the dB window shown with --mapping db (default: 40)")
     p.set_defaults(func=cmd_show)
     return p
