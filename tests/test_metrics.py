@@ -1,4 +1,4 @@
-"""Tests of sonarsim.metrics (MSE, PSNR, SSIM, normalisation, image comparison, loading) and of
+"""Tests of sonarsim.metrics (MSE, PSNR, SSIM, normalisation), sonarsim.comparison (image comparison, loading) and of
 the ``sonarsim compare`` command (sonarsim.compare_cli).
 
 SSIM is checked against scikit-image's ``structural_similarity`` (the reference the module
@@ -24,16 +24,8 @@ from scipy import ndimage
 import sonarsim
 from sonarsim.compare_cli import add_compare_parser, cmd_compare
 from sonarsim.errors import SonarsimError
-from sonarsim.metrics import (
-    PlainImage,
-    compare_images,
-    load_image,
-    mse,
-    normalize_255,
-    psnr,
-    ssim,
-    ssim_support,
-)
+from sonarsim.comparison import PlainImage, compare_images, load_image
+from sonarsim.metrics import mse, normalize_255, psnr, ssim, ssim_support
 from sonarsim.output import to_uint8, write_npz, write_png
 
 

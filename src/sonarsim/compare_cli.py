@@ -1,6 +1,6 @@
 """The ``sonarsim compare`` command: MSE, PSNR and SSIM between two sonar images.
 
-A thin layer over :mod:`sonarsim.metrics`. Wire it into the main parser with::
+A thin layer over :mod:`sonarsim.comparison`. Wire it into the main parser with::
 
     from .compare_cli import add_compare_parser, cmd_compare
     add_compare_parser(sub)          # sub = parser.add_subparsers(...)
@@ -124,7 +124,7 @@ def cmd_compare(args: argparse.Namespace) -> None:
     SonarsimError
         For files that cannot be read or images that cannot be compared.
     """
-    from .metrics import DOMAINS, compare_images, load_image
+    from .comparison import DOMAINS, compare_images, load_image
 
     image_a = load_image(args.a, args.frame_a, args.component_a)
     image_b = load_image(args.b, args.frame_b, args.component_b)

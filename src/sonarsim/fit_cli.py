@@ -40,7 +40,7 @@ def add_fit_parser(sub) -> argparse.ArgumentParser:
 
 
 def _load_real(path: str, frame: int):
-    from .metrics import load_image
+    from .comparison import load_image
 
     image = load_image(path, frame=frame)
     if getattr(image, "sonar", None) is None:
