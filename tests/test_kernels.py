@@ -68,3 +68,10 @@ def test_compiled_path_renders_many_poses_from_one_workspace():
 def test_unknown_kernels_name_is_rejected():
     with pytest.raises(sonarsim.ConfigError, match="kernels"):
         sonarsim.Simulator(demo_scene_dict(), kernels="gpu")
+
+
+def test_a_closed_simulator_still_renders_on_one_thread():
+    with sonarsim.Simulator(demo_scene_dict()) as sim:
+        before = sim.render().polar
+    after = sim.render().polar  # the compiled path without its second core, Embree inline
+    np.testing.assert_allclose(after, before, rtol=1e-5, atol=1e-9)

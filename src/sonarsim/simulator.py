@@ -227,6 +227,21 @@ class Simulator:
         self._last_fan: tuple[SonarConfig, RayFan] | None = None
         self.last_timing: dict[str, float] = {}
 
+    def close(self) -> None:
+        """Stop the worker threads now (they also stop when the simulator is collected)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        for caster in (self.caster, self._mirrored_caster):
+            if hasattr(caster, "close"):
+                caster.close()
+
+    def __enter__(self) -> "Simulator":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
     def ray_fan(self, sonar: SonarConfig) -> RayFan:
         """The (cached) rays of a sonar in its own frame."""
         if self._last_fan is not None and self._last_fan[0] is sonar:

@@ -116,3 +116,37 @@ def check_range_window(
         raise RecordingError(source, f"gives a window start of {start_m!r} m", where, field)
     if not (math.isfinite(length_m) and length_m > 0.0):
         raise RecordingError(source, f"gives a window length of {length_m!r} m", where, field)
+
+
+class Recording:
+    """An open recording file, read on demand with seeks; subclasses index it in ``_open``.
+
+    Holds the file open (closed by :meth:`close` or a ``with`` block) and closes it again if
+    ``_open`` finds the file unusable.
+    """
+
+    format = ""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = path
+        self._source = os.fspath(path)
+        self._handle = open(path, "rb")  # noqa: SIM115 (held open for seeks; close())
+        try:
+            self._file_size = os.fstat(self._handle.fileno()).st_size
+            self._open()
+        except BaseException:
+            self._handle.close()
+            raise
+
+    def _open(self) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Close the file."""
+        self._handle.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

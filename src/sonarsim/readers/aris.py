@@ -46,7 +46,6 @@ from the file size (the SDK advises against trusting the file header's ``FrameCo
 from __future__ import annotations
 
 import math
-import os
 import struct
 from collections.abc import Iterator
 from typing import Any
@@ -54,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
-from ._common import RecordingError, check_range_window, frame_index, read_at
+from ._common import Recording, RecordingError, check_range_window, frame_index, read_at
 
 __all__ = [
     "ARIS_SIGNATURE",
@@ -154,7 +153,7 @@ def _decode(buffer: bytes, fields: tuple[tuple[str, int, str], ...]) -> dict[str
     return {name: struct.unpack_from(fmt, buffer, offset)[0] for name, offset, fmt in fields}
 
 
-class ArisRecording:
+class ArisRecording(Recording):
     """An open ARIS file; frames are read on demand with seeks.
 
     Parameters
@@ -177,29 +176,6 @@ class ArisRecording:
     """
 
     format = "aris"
-
-    def __init__(self, path: str | os.PathLike) -> None:
-        self.path = path
-        self._source = os.fspath(path)
-        self._handle = open(path, "rb")  # noqa: SIM115 (held open for seeks; close())
-        try:
-            self._file_size = os.fstat(self._handle.fileno()).st_size
-            self._open()
-        except BaseException:
-            self._handle.close()
-            raise
-
-    # -- context management ---------------------------------------------------------------
-
-    def close(self) -> None:
-        """Close the file."""
-        self._handle.close()
-
-    def __enter__(self) -> ArisRecording:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # -- layout ---------------------------------------------------------------------------
 

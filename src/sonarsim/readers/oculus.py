@@ -57,7 +57,6 @@ Values wider than 24 bits lose precision in the float32 image (float32 has a 24-
 from __future__ import annotations
 
 import math
-import os
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -66,7 +65,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
-from ._common import RecordingError, frame_index, read_at
+from ._common import Recording, RecordingError, frame_index, read_at
 
 __all__ = ["MESSAGE_HEADER_SIZE", "OCULUS_ID", "SIMPLE_PING_RESULT", "OculusRecording"]
 
@@ -136,7 +135,7 @@ class _Message:
     size: int  # header + payload
 
 
-class OculusRecording:
+class OculusRecording(Recording):
     """An open file of Oculus messages; pings are read on demand with seeks.
 
     The messages are indexed lazily (16 bytes read per message), so opening a long log and
@@ -158,31 +157,13 @@ class OculusRecording:
 
     format = "oculus"
 
-    def __init__(self, path: str | os.PathLike) -> None:
-        self.path = path
-        self._source = os.fspath(path)
-        self._handle = open(path, "rb")  # noqa: SIM115 (held open for seeks; close())
-        try:
-            self._file_size = os.fstat(self._handle.fileno()).st_size
-            self._messages: list[_Message] = []
-            self._pings: list[_Message] = []
-            self._next_offset = 0
-            self._done = False
-            self._tail_error: RecordingError | None = None
-            self._scan_next()  # the first header must be an Oculus one
-        except BaseException:
-            self._handle.close()
-            raise
-
-    def close(self) -> None:
-        """Close the file."""
-        self._handle.close()
-
-    def __enter__(self) -> OculusRecording:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def _open(self) -> None:
+        self._messages: list[_Message] = []
+        self._pings: list[_Message] = []
+        self._next_offset = 0
+        self._done = False
+        self._tail_error: RecordingError | None = None
+        self._scan_next()  # the first header must be an Oculus one
 
     # -- indexing -------------------------------------------------------------------------
 
