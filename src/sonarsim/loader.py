@@ -195,7 +195,7 @@ def parse_render(d: Any) -> RenderSettings:
             kw[key] = _integer(value, k)
         elif key == "threads":
             kw[key] = None if value is None else _integer(value, k)
-        elif key in ("tvg", "range_splat", "double_line_of_sight"):
+        elif key in ("tvg", "range_splat", "double_line_of_sight", "speckle"):
             kw[key] = _boolean(value, k)
         elif key == "bounces":
             if isinstance(value, int) and not isinstance(value, bool):

@@ -170,8 +170,13 @@ class RenderSettings:
     double_line_of_sight : bool
         Also require the path O-A to be unoccluded for cases 2/3 (the paper only requires A to
         lie in the field of view and range window).
+    speckle : bool
+        Multiply the total image by fully developed speckle: independent, unit-mean exponential
+        factors per pixel (the intensity statistics of many random scatterers per resolution
+        cell). The components stay noise-free, as ground truth.
     seed : int
-        Seed of any random choice (kept in the configuration for reproducibility).
+        Seed of the speckle: a :class:`~sonarsim.Simulator` draws frame after frame from one
+        generator seeded with it, so a sequence of renders is reproducible.
     threads : int or None
         Ray-casting threads; ``None``: all CPU cores.
     """
@@ -185,6 +190,7 @@ class RenderSettings:
     range_splat: bool = True
     double_beam: str = "paper"
     double_line_of_sight: bool = False
+    speckle: bool = False
     seed: int = 0
     threads: int | None = None
 
@@ -223,6 +229,7 @@ class RenderSettings:
             "range_splat": self.range_splat,
             "double_beam": self.double_beam,
             "double_line_of_sight": self.double_line_of_sight,
+            "speckle": self.speckle,
             "seed": int(self.seed),
             "threads": self.threads,
         }

@@ -75,7 +75,8 @@ class SonarImage:
     Attributes
     ----------
     polar : (n_range_bins, n_beams) float32 ndarray
-        The total image. Row 0 is the nearest range bin, column 0 the left-most beam.
+        The image: ``components["total"]``, times speckle when ``render.speckle`` is on. Row 0
+        is the nearest range bin, column 0 the left-most beam.
     range_m : (n_range_bins,) float64 ndarray
         Centre of each range bin, metres.
     azimuth_deg : (n_beams,) float64 ndarray
@@ -223,6 +224,7 @@ class Simulator:
         ground_albedo = self.scene.ground.albedo if self.scene.ground is not None else 0.0
         # Albedo by surface id + 1: index 0 is "no hit", 1 the ground, k + 2 object k.
         self._albedo = np.array([0.0, ground_albedo] + [o.albedo for o in self.scene.objects])
+        self._rng = np.random.default_rng(self.scene.render.seed)  # speckle, frame after frame
         self._fans: dict[SonarConfig, RayFan] = {}
         self._last_fan: tuple[SonarConfig, RayFan] | None = None
         self.last_timing: dict[str, float] = {}
@@ -349,6 +351,8 @@ class Simulator:
             images = _assemble(images, render.bounces)
         components = {k: images[k] for k in COMPONENTS}
         total = components["total"]
+        if render.speckle:
+            total = (total * self._rng.exponential(1.0, total.shape)).astype(np.float32)
         rays = None
         if keep_rays:
             rays = RayMaps(
