@@ -135,7 +135,8 @@ def _render_and_write(scene, out: Path, args) -> None:
     write("", image.polar, None)
     if args.components:
         for key, comp in image.components.items():
-            write(f"_{key}", comp, key)
+            if key != "total":  # that is polar.png / fan.png (less any speckle)
+                write(f"_{key}", comp, key)
     image.save_npz(out / "render.npz")
     _log(f"wrote {out / 'polar.png'}, {out / 'fan.png'}, {out / 'render.npz'} in {time.perf_counter() - t2:.3f} s")
     return image
