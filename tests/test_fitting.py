@@ -110,7 +110,7 @@ def test_fit_command_rejects_a_bad_parameter_without_traceback(tmp_path, capsys)
 
     sonarsim.render(floor_scene(0.4, 28.0, 0.0)).save_npz(tmp_path / "real.npz")
     scene_file = tmp_path / "scene.json"
-    scene_file.write_text('{"sonar": {"preset": "oculus-m1200d-hf"}, "ground": {}}')
+    scene_file.write_text('{"sonar": {"preset": "oculus-m1200d-hf", "pose": {"position_m": [0, 0, 0.4]}}, "ground": {}}')
     rc = main(["fit", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--free", "depth",
                "--out", str(tmp_path / "f.yaml")])
     err = capsys.readouterr().err

@@ -87,7 +87,7 @@ def _resolution(res):
 # (id, edits, expected key, fragments of the message that say what is allowed)
 BAD_SCENES: list = [
     # ---- unknown keys at every level
-    ("unknown-top", [(("bogus",), 1)], "bogus", ["unknown key", "sonar, render, ground, objects"]),
+    ("unknown-top", [(("bogus",), 1)], "bogus", ["unknown key", "sonar, render, ground, planes, objects"]),
     ("unknown-sonar", [(("sonar", "bogus"), 1)], "sonar.bogus", ["unknown key", "range_max_m", "n_beams"]),
     ("unknown-sonar-pose", [(("sonar", "pose", "bogus"), 1)], "sonar.pose.bogus",
      ["unknown key", "position_m", "rpy_deg", "quat_xyzw"]),
@@ -130,8 +130,8 @@ BAD_SCENES: list = [
     # ---- mapping where a list is expected (and the reverse)
     ("map-rpy", [(("sonar", "pose", "rpy_deg"), {"pitch": 20})], "sonar.pose.rpy_deg", ["list of 3 numbers"]),
     ("map-size", [(("objects", 0, "size_m"), {"x": 1})], "objects[0].size_m", ["list of 3 numbers"]),
-    ("map-bounces", [(("render", "bounces"), {"a": 1})], "render.bounces", ["list", "1, 2, 3"]),
-    ("str-bounces", [(("render", "bounces"), "1,2")], "render.bounces", ["list", "1, 2, 3"]),
+    ("map-bounces", [(("render", "bounces"), {"a": 1})], "render.bounces", ["list", "path orders"]),
+    ("str-bounces", [(("render", "bounces"), "1,2")], "render.bounces", ["list", "path orders"]),
     ("map-objects", [(("objects",), {"name": "x"})], "objects", ["list"]),
     ("map-beam-angles", _table({"a": 1}), "sonar.beam_angles_deg", ["list of numbers"]),
     ("list-pose", [(("sonar", "pose"), [0.0, 0.0, 1.0])], "sonar.pose", ["mapping", "position_m", "rpy_deg"]),

@@ -18,11 +18,11 @@ import numpy as np
 from .errors import ConfigError, MeshFileError, SonarsimError
 from .geometry import load_mesh_file
 from .presets import beam_angles_from_table, get_preset
-from .scene import GroundSpec, ObjectSpec, RenderSettings, Scene
+from .scene import GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene
 from .sonar import SonarConfig, beam_edges_deg
 from .transforms import Pose
 
-TOP_KEYS = ("sonar", "render", "ground", "objects")
+TOP_KEYS = ("sonar", "render", "ground", "planes", "objects")
 SONAR_KEYS = (
     "preset", "n_beams", "azimuth_fov_deg", "beam_angles_deg", "beam_angles_file", "beam_width_deg",
     "elevation_fov_deg", "range_min_m", "range_max_m", "n_range_bins", "range_resolution_m",
@@ -31,6 +31,7 @@ SONAR_KEYS = (
 POSE_KEYS = ("position_m", "rpy_deg", "quat_xyzw")
 RENDER_KEYS = tuple(RenderSettings.__dataclass_fields__)
 GROUND_KEYS = ("height_m", "albedo", "specular")
+PLANE_KEYS = ("name", "point_m", "normal", "albedo", "specular")
 OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "pose", "scale", "albedo")
 
 
@@ -191,7 +192,7 @@ def parse_render(d: Any) -> RenderSettings:
             if isinstance(value, str) and value != "auto" or isinstance(value, bool) or not isinstance(value, (str, int)):
                 raise ConfigError(k, f"must be 'auto' or a positive integer, got {value!r}")
             kw[key] = value
-        elif key in ("azimuth_samples", "seed"):
+        elif key in ("azimuth_samples", "seed", "max_order"):
             kw[key] = _integer(value, k)
         elif key == "threads":
             kw[key] = None if value is None else _integer(value, k)
@@ -200,8 +201,11 @@ def parse_render(d: Any) -> RenderSettings:
         elif key == "bounces":
             if isinstance(value, int) and not isinstance(value, bool):
                 value = [value]
+            if value is None:
+                kw[key] = None
+                continue
             if not isinstance(value, (list, tuple)):
-                raise ConfigError(k, f"must be a list drawn from [1, 2, 3], got {value!r}")
+                raise ConfigError(k, f"must be a list of path orders (1 single, 2 double, 3 triple, ...), got {value!r}")
             kw[key] = tuple(_integer(v, f"{k}[{i}]") for i, v in enumerate(value))
         else:
             kw[key] = _string(value, k)
@@ -214,6 +218,24 @@ def parse_ground(d: Any) -> GroundSpec | None:
     _check_keys(d, GROUND_KEYS, "ground")
     kw = {key: _number(value, f"ground.{key}") for key, value in d.items()}
     return _prefixed("ground", GroundSpec, **kw)
+
+
+def parse_plane(d: Any, index: int) -> PlaneSpec:
+    """One entry of the ``planes`` list."""
+    where = f"planes[{index}]"
+    _check_keys(d, PLANE_KEYS, where)
+    for key in ("name", "point_m", "normal"):
+        if key not in d:
+            raise ConfigError(f"{where}.{key}", "required for a plane (name, point_m, normal; albedo, specular optional)")
+    kw: dict[str, Any] = {
+        "name": _string(d["name"], f"{where}.name"),
+        "point_m": _vector(d["point_m"], f"{where}.point_m", 3),
+        "normal": _vector(d["normal"], f"{where}.normal", 3),
+    }
+    for key in ("albedo", "specular"):
+        if key in d:
+            kw[key] = _number(d[key], f"{where}.{key}")
+    return _prefixed(where, PlaneSpec, **kw)
 
 
 def parse_object(d: Any, index: int, base_dir: Path | None) -> ObjectSpec:
@@ -264,12 +286,16 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
         objects_raw = d.get("objects", []) or []
         if not isinstance(objects_raw, list):
             raise ConfigError("objects", f"must be a list of objects, got {type(objects_raw).__name__}")
+        planes_raw = d.get("planes", []) or []
+        if not isinstance(planes_raw, list):
+            raise ConfigError("planes", f"must be a list of planes, got {type(planes_raw).__name__}")
         return _prefixed(
             "",
             Scene,
             sonar=parse_sonar(d["sonar"], base),
             objects=tuple(parse_object(o, i, base) for i, o in enumerate(objects_raw)),
             ground=parse_ground(d.get("ground")),
+            planes=tuple(parse_plane(p, i) for i, p in enumerate(planes_raw)),
             render=parse_render(d.get("render", {}) or {}),
             source=source,
         )
