@@ -1,0 +1,239 @@
+"""Reflecting planes as arrays, their mirror maps, and the plane sequences (chains) of path legs.
+
+A path leg meets planes in order; a *chain* is that order, listed going out from the sonar
+(``(floor, surface)``: the sound leaves the sonar, meets the floor, then the surface). Mirror
+maps make the image-source method a matter of 3 x 4 affine maps:
+
+* ``unfold[c]`` maps a point A to ``A* = M_p1 M_p2 ... M_pk A``: the straight line from the
+  sonar O to A* leaves O in the direction the leg leaves it, and ``|A* - O|`` is the leg's
+  length (mirror maps are isometries);
+* ``source[c, j]`` is the image of O after its first ``j`` mirrors, ``M_pj ... M_p1 O``: walking
+  back from A towards those images finds the reflection points (:func:`reflection_points`).
+
+Surface ids of the per-ray labels: -1 nothing, ``p`` the plane ``p`` of the scene's
+:attr:`~sonarsim.scene.Scene.reflecting_planes` (the ground first), ``P + k`` object ``k``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+# A reflection point may lie this far outside the water (round-off at a corner of two planes).
+WATER_TOLERANCE_M = 1e-7
+
+
+@dataclass(frozen=True)
+class PlaneSet:
+    """The scene's reflecting planes as arrays; plane ``p`` has surface id ``p``.
+
+    Attributes
+    ----------
+    names : tuple of str
+    normal : (P, 3) float64 ndarray
+        Unit normals into the water.
+    offset : (P,) float64 ndarray
+        ``n . x`` on each plane, metres; the water is ``n . x > offset``.
+    albedo, specular : (P,) float64 ndarray
+        Diffuse albedo and specular reflectance R.
+    """
+
+    names: tuple[str, ...]
+    normal: np.ndarray
+    offset: np.ndarray
+    albedo: np.ndarray
+    specular: np.ndarray
+
+    @classmethod
+    def from_specs(cls, planes: Sequence) -> "PlaneSet":
+        """From :class:`~sonarsim.scene.PlaneSpec` objects (any number, also none)."""
+        normal = np.array([p.normal for p in planes], dtype=float).reshape(-1, 3)
+        return cls(
+            names=tuple(p.name for p in planes),
+            normal=normal,
+            offset=np.array([p.offset_m for p in planes], dtype=float),
+            albedo=np.array([p.albedo for p in planes], dtype=float),
+            specular=np.array([p.specular for p in planes], dtype=float),
+        )
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def signed_distance(self, points: np.ndarray) -> np.ndarray:
+        """(..., P) signed distances of points (..., 3) from every plane, positive in the water."""
+        return np.asarray(points, dtype=float) @ self.normal.T - self.offset
+
+    def facing(self, position: np.ndarray) -> np.ndarray:
+        """(P,) bool: the planes whose water side the sonar at ``position`` is on.
+
+        A sonar on the wrong side of a plane sees neither the plane nor any path through it.
+        """
+        return self.signed_distance(np.asarray(position, dtype=float).reshape(3)) > 0.0
+
+    def mirror(self, p: int) -> np.ndarray:
+        """(3, 4) affine map of the reflection across plane ``p``: ``x - 2 (n.x - offset) n``."""
+        n = self.normal[p]
+        out = np.empty((3, 4))
+        out[:, :3] = np.eye(3) - 2.0 * np.outer(n, n)
+        out[:, 3] = 2.0 * self.offset[p] * n
+        return out
+
+
+def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The (3, 4) affine map ``x -> a(b(x))``."""
+    out = np.empty((3, 4))
+    out[:, :3] = a[:, :3] @ b[:, :3]
+    out[:, 3] = a[:, :3] @ b[:, 3] + a[:, 3]
+    return out
+
+
+def apply(affine: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a (3, 4) affine map to points (..., 3)."""
+    return np.asarray(points, dtype=float) @ affine[:, :3].T + affine[:, 3]
+
+
+IDENTITY = np.hstack([np.eye(3), np.zeros((3, 1))])
+
+
+@dataclass
+class ChainTable:
+    """The chains met in one frame, each with its mirror maps; chain 0 is the empty chain.
+
+    Grows as the receive tracing finds new chains (:meth:`child`); the compiled tracing fills
+    ``children`` itself and :meth:`sync` then completes the maps of the new entries.
+
+    Attributes
+    ----------
+    planes : PlaneSet
+    origin : (3,) float64 ndarray
+        The sonar O, metres.
+    max_length : int
+        Longest chain kept.
+    children : (capacity, P) int32 ndarray
+        ``children[c, p]``: the chain ``c + (p,)``, -1 where not met yet.
+    """
+
+    planes: PlaneSet
+    origin: np.ndarray
+    max_length: int
+    capacity: int = 64
+    chains: list = field(default_factory=list)
+    children: np.ndarray = field(init=False)
+    _unfold: list = field(default_factory=list)
+    _sources: list = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.origin = np.asarray(self.origin, dtype=float).reshape(3)
+        self.children = np.full((self.capacity, max(len(self.planes), 1)), -1, dtype=np.int32)
+        self.chains = [()]
+        self._unfold = [IDENTITY.copy()]
+        self._sources = [self.origin[None, :].copy()]
+
+    def __len__(self) -> int:
+        return len(self.chains)
+
+    def child(self, c: int, p: int) -> int:
+        """Id of the chain ``chains[c] + (p,)``, added if new."""
+        k = int(self.children[c, p])
+        if k < 0:
+            k = len(self.chains)
+            if k >= self.capacity:
+                self._grow()
+            self.children[c, p] = k
+            self._append(c, p)
+        return k
+
+    def _grow(self) -> None:
+        bigger = np.full((2 * self.capacity, self.children.shape[1]), -1, dtype=np.int32)
+        bigger[: self.capacity] = self.children
+        self.children, self.capacity = bigger, 2 * self.capacity
+
+    def _append(self, c: int, p: int) -> None:
+        self.chains.append(self.chains[c] + (p,))
+        self._unfold.append(compose(self._unfold[c], self.planes.mirror(p)))
+        src = self._sources[c]
+        self._sources.append(np.vstack([src, apply(self.planes.mirror(p), src[-1])]))
+
+    def sync(self, n_chains: int) -> None:
+        """Complete the maps of chains ``len(self) .. n_chains - 1`` entered in ``children``."""
+        if n_chains <= len(self.chains):
+            return
+        parent = {}
+        for c, p in zip(*np.nonzero(self.children >= 0)):
+            parent[int(self.children[c, p])] = (int(c), int(p))
+        for k in range(len(self.chains), n_chains):
+            self._append(*parent[k])
+
+    # Views used by the path formation -----------------------------------------------------
+
+    def length(self, c: int) -> int:
+        return len(self.chains[c])
+
+    def unfold(self, c: int) -> np.ndarray:
+        """(3, 4) map A -> A* of chain ``c`` (see the module docstring)."""
+        return self._unfold[c]
+
+    def sources(self, c: int) -> np.ndarray:
+        """(len + 1, 3) images of the sonar after 0, 1, ... mirrors of chain ``c``."""
+        return self._sources[c]
+
+    def specular(self, c: int) -> float:
+        """Product of the specular reflectances along chain ``c``."""
+        return float(np.prod(self.planes.specular[list(self.chains[c])])) if self.chains[c] else 1.0
+
+    def key(self, c: int) -> tuple:
+        """Order of chains for the reciprocal-pair convention: more planes first, then by ids."""
+        return (len(self.chains[c]), self.chains[c])
+
+    def name(self, c: int) -> str:
+        """``surface-ground``: the planes in the order the sonar's side meets them."""
+        return "-".join(self.planes.names[p] for p in self.chains[c])
+
+
+def reflection_points(
+    planes: PlaneSet, chain: tuple[int, ...], sources: np.ndarray, points: np.ndarray, active: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Reflection points of the transmit legs from the sonar to ``points`` via ``chain``.
+
+    Walks back from each point A towards the sonar's images (the image-source method) and
+    checks that every reflection point lies on its plane between its neighbours and inside the
+    water (on the water side of every active plane).
+
+    Parameters
+    ----------
+    planes : PlaneSet
+    chain : tuple of int
+        Planes in the order the sound meets them going out from the sonar.
+    sources : (len(chain) + 1, 3) float array
+        Images of the sonar (:meth:`ChainTable.sources`).
+    points : (m, 3) float array
+        Scatterers A, metres.
+    active : (P,) bool array
+        Planes that bound the water this frame.
+
+    Returns
+    -------
+    q : (m, len(chain), 3) float64 ndarray
+        Reflection points, in the order met from the sonar.
+    valid : (m,) bool ndarray
+    """
+    a = np.asarray(points, dtype=float)
+    m, k = len(a), len(chain)
+    q = np.full((m, k, 3), np.nan)
+    valid = np.ones(m, dtype=bool)
+    x = a
+    for j in range(k - 1, -1, -1):
+        p = chain[j]
+        n, off = planes.normal[p], planes.offset[p]
+        towards = sources[j + 1] - x
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (off - x @ n) / (towards @ n)
+        ok = (t > 0.0) & (t < 1.0)
+        x = x + t[:, None] * towards
+        dist = planes.signed_distance(x)[:, active]
+        ok &= np.all(dist >= -WATER_TOLERANCE_M * np.maximum(1.0, np.abs(x).max(axis=1))[:, None], axis=1)
+        valid &= ok
+        q[:, j] = x
+    return q, valid
