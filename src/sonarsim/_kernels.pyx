@@ -23,6 +23,7 @@ ctypedef fused real_t:
 cdef double CONTINUITY_SINE = 0.5
 cdef double MIN_SPREAD_BINS = 1e-6
 cdef double SURFACE_OFFSET_M = 1e-5
+cdef double WATER_TOLERANCE_M = 1e-7
 
 
 def embree_hits(const float[::1] tfar, const int[::1] geom_id, const float[:, ::1] ng,
@@ -412,3 +413,302 @@ def combine(const float[:, :, ::1] parts, float[:, ::1] single, float[:, ::1] to
                 if with_triple:
                     t = t + parts[3, i, j] if (with_single or with_double) else parts[3, i, j]
                 total[i, j] = t
+
+
+# General reflecting planes (sonarsim.paths.engine is the NumPy twin) ----------------------
+
+cdef inline double dot3(const double[:, ::1] a, Py_ssize_t i, double x, double y, double z) noexcept nogil:
+    return a[i, 0] * x + a[i, 1] * y + a[i, 2] * z
+
+
+def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const int[::1] hit_mesh,
+              const float[:, ::1] hit_normal, const double[:, ::1] org, const double[:, ::1] dirs,
+              const double[::1] before, const double[::1] atten, const int[::1] chain,
+              const double[:, ::1] plane_normal, const double[::1] plane_offset,
+              const unsigned char[::1] plane_active, const double[::1] plane_specular,
+              double reach, const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
+              bint first, bint reflect, int[:, ::1] children, int n_chains,
+              double[::1] dist, int[::1] sid, double[:, ::1] point, double[:, ::1] normal,
+              double[::1] intensity, double[::1] atten_out, int[::1] chain_out,
+              Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
+              double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
+              double[::1] nx_atten, int[::1] nx_chain):
+    """One generation of receive legs: closest of objects and active planes, diffuse weight,
+    and the specular reflection of the rays that meet a plane (twin: ``engine.trace_legs``).
+
+    Rows ``k`` are rays ``ray[k]`` of the fan; ``org``, ``before``, ``atten``, ``chain`` may
+    have one row for all (the first generation). Dense outputs (indexed by fan ray) must come
+    filled with "nothing"; only reached rays are set. ``children[c, p]`` is the chain
+    ``c + (p,)`` (-1: new, numbered from ``n_chains`` on).
+
+    Returns
+    -------
+    (n_next, n_chains, min_before_next, overflow)
+    """
+    cdef Py_ssize_t k, i, m = ray.shape[0], n_next = 0, P = plane_normal.shape[0]
+    cdef Py_ssize_t row, p, best_p, cap = children.shape[0]
+    cdef bint one = org.shape[0] == 1
+    cdef double ox, oy, oz, dx, dy, dz, t, tp, dn, nx, ny, nz, b, total, c, r, rx, ry, rz, twice
+    cdef double px, py, pz, min_next = INFINITY
+    cdef float fx, fy, fz, cosf
+    cdef int s, ch, child
+    cdef bint overflow = False
+    with nogil:
+        for k in range(m):
+            i = ray[k]
+            row = 0 if one else k
+            ox = org[row, 0]
+            oy = org[row, 1]
+            oz = org[row, 2]
+            dx = dirs[k, 0]
+            dy = dirs[k, 1]
+            dz = dirs[k, 2]
+            b = before[row]
+            if hit_mesh[k] >= 0:
+                t = hit_distance[k]
+                s = hit_mesh[k] + <int>P
+                nx = hit_normal[k, 0]
+                ny = hit_normal[k, 1]
+                nz = hit_normal[k, 2]
+            else:
+                t = INFINITY
+                s = -1
+                nx = 0.0
+                ny = 0.0
+                nz = 0.0
+            best_p = -1
+            for p in range(P):
+                if not plane_active[p]:
+                    continue
+                dn = dot3(plane_normal, p, dx, dy, dz)
+                if dn < 0:
+                    tp = (plane_offset[p] - dot3(plane_normal, p, ox, oy, oz)) / dn
+                    if tp > 0 and tp < t and b + tp <= reach:
+                        t = tp
+                        best_p = p
+            if best_p >= 0:
+                s = <int>best_p
+                nx = plane_normal[best_p, 0]
+                ny = plane_normal[best_p, 1]
+                nz = plane_normal[best_p, 2]
+            total = b + t
+            if s < 0 or not total <= reach:
+                continue
+            if first:
+                # As the caster reports them: float32 points and incidence.
+                px = <float>(ox + dx * t)
+                py = <float>(oy + dy * t)
+                pz = <float>(oz + dz * t)
+                cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
+                c = cosf
+            else:
+                px = ox + dx * t
+                py = oy + dy * t
+                pz = oz + dz * t
+                c = fabs(nx * dx + ny * dy + nz * dz)
+            c = weight[i] * albedo_by_id[s + 1] * c
+            if not tvg:
+                r = total if total > 1e-6 else 1e-6
+                c = c / (r * r)
+            ch = chain[row]
+            dist[i] = total
+            sid[i] = s
+            point[i, 0] = px
+            point[i, 1] = py
+            point[i, 2] = pz
+            normal[i, 0] = nx
+            normal[i, 1] = ny
+            normal[i, 2] = nz
+            intensity[i] = c
+            atten_out[i] = atten[row]
+            chain_out[i] = ch
+            if not (reflect and s < P and total < reach and plane_specular[s] > 0):
+                continue
+            child = children[ch, s]
+            if child < 0:
+                if n_chains >= cap:
+                    overflow = True
+                    continue
+                child = n_chains
+                children[ch, s] = child
+                n_chains += 1
+            twice = 2.0 * (dx * nx + dy * ny + dz * nz)
+            rx = dx - twice * nx
+            ry = dy - twice * ny
+            rz = dz - twice * nz
+            fx = <float>px
+            fy = <float>py
+            fz = <float>pz
+            nx_ray[n_next] = i
+            nx_org[n_next, 0] = fx + SURFACE_OFFSET_M * rx
+            nx_org[n_next, 1] = fy + SURFACE_OFFSET_M * ry
+            nx_org[n_next, 2] = fz + SURFACE_OFFSET_M * rz
+            nx_org32[n_next, 0] = <float>nx_org[n_next, 0]
+            nx_org32[n_next, 1] = <float>nx_org[n_next, 1]
+            nx_org32[n_next, 2] = <float>nx_org[n_next, 2]
+            nx_dir[n_next, 0] = rx
+            nx_dir[n_next, 1] = ry
+            nx_dir[n_next, 2] = rz
+            nx_dir32[n_next, 0] = <float>rx
+            nx_dir32[n_next, 1] = <float>ry
+            nx_dir32[n_next, 2] = <float>rz
+            nx_before[n_next] = total + SURFACE_OFFSET_M
+            nx_atten[n_next] = atten[row] * plane_specular[s]
+            nx_chain[n_next] = child
+            if total + SURFACE_OFFSET_M < min_next:
+                min_next = total + SURFACE_OFFSET_M
+            n_next += 1
+    return n_next, n_chains, min_next, overflow
+
+
+def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::1] sid,
+                const double[:, ::1] point, const double[::1] intensity, const double[::1] atten,
+                const int[::1] chain, bint same, int tx, const double[:, ::1] unfold,
+                const double[:, ::1] sources, const int[::1] tx_planes, double tx_specular,
+                const int[::1] rank, bint separate, int label, int n_planes, Py_ssize_t rays_per_beam,
+                double ox, double oy, double oz, const double[:, ::1] rotation,
+                const double[::1] edges, double half_elevation_deg, double range_min, double range_max,
+                const double[:, ::1] plane_normal, const double[::1] plane_offset,
+                const unsigned char[::1] plane_active,
+                Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
+                int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label):
+    """Paths of one generation's receive legs and one transmit option (twin:
+    ``engine.form_paths`` + ``engine.transmit_legs``).
+
+    ``same``: the transmit leg is the receive leg reversed (order label ``label``; for the
+    first generation the label is 0 on objects, 1 on planes). Otherwise the transmit leg
+    follows chain ``tx`` (``unfold``: its 3 x 4 map, ``sources``: the sonar's images,
+    ``tx_planes``: its planes from the sonar). Paths are written compactly, in ray order.
+
+    Returns
+    -------
+    int : the number of paths written.
+    """
+    cdef Py_ssize_t k, i, m = 0, n = live.shape[0], K = tx_planes.shape[0], j, q, P = plane_normal.shape[0]
+    cdef int c, s, last = tx_planes[K - 1] if K > 0 else -1, rank_tx = rank[tx] if not same else 0
+    cdef double ax, ay, az_, ux, uy, uz, vx, vy, vz, length, el, azd, e, t, wx, wy, wz, tx_, ty, tz
+    cdef double rad2deg = 180.0 / M_PI, denom, tol
+    cdef Py_ssize_t b
+    cdef bint ok
+    with nogil:
+        for k in range(n):
+            i = live[k]
+            s = sid[i]
+            if same:
+                out_ray[m] = i
+                out_dist[m] = dist[i]
+                out_energy[m] = atten[i] * atten[i] * intensity[i]
+                out_beam[m] = <int>(i // rays_per_beam)
+                out_beam_tx[m] = out_beam[m]
+                out_label[m] = <signed char>((0 if s >= n_planes else 1) if label == 1 else label)
+                m += 1
+                continue
+            c = chain[i]
+            if c == tx or s == last:
+                continue
+            if not separate and rank[c] <= rank_tx:
+                continue
+            ax = point[i, 0]
+            ay = point[i, 1]
+            az_ = point[i, 2]
+            ux = unfold[0, 0] * ax + unfold[0, 1] * ay + unfold[0, 2] * az_ + unfold[0, 3] - ox
+            uy = unfold[1, 0] * ax + unfold[1, 1] * ay + unfold[1, 2] * az_ + unfold[1, 3] - oy
+            uz = unfold[2, 0] * ax + unfold[2, 1] * ay + unfold[2, 2] * az_ + unfold[2, 3] - oz
+            vx = rotation[0, 0] * ux + rotation[1, 0] * uy + rotation[2, 0] * uz
+            vy = rotation[0, 1] * ux + rotation[1, 1] * uy + rotation[2, 1] * uz
+            vz = rotation[0, 2] * ux + rotation[1, 2] * uy + rotation[2, 2] * uz
+            length = sqrt(vx * vx + vy * vy + vz * vz)
+            if not (length >= range_min and length < range_max):
+                continue
+            el = vz / length
+            if el > 1.0:
+                el = 1.0
+            elif el < -1.0:
+                el = -1.0
+            el = asin(el) * rad2deg
+            if not fabs(el) <= half_elevation_deg:
+                continue
+            azd = atan2(vy, vx) * rad2deg
+            b = beam_of(edges, azd)
+            if b < 0:
+                continue
+            # Walk back from A towards the sonar's images: each reflection point must lie on
+            # its plane, between its neighbours, inside the water.
+            ok = True
+            wx = ax
+            wy = ay
+            wz = az_
+            j = K - 1
+            while ok and j >= 0:
+                q = tx_planes[j]
+                tx_ = sources[j + 1, 0] - wx
+                ty = sources[j + 1, 1] - wy
+                tz = sources[j + 1, 2] - wz
+                denom = dot3(plane_normal, q, tx_, ty, tz)
+                t = (plane_offset[q] - dot3(plane_normal, q, wx, wy, wz)) / denom
+                if not (t > 0.0 and t < 1.0):
+                    ok = False
+                    break
+                wx = wx + t * tx_
+                wy = wy + t * ty
+                wz = wz + t * tz
+                tol = fabs(wx)
+                if fabs(wy) > tol:
+                    tol = fabs(wy)
+                if fabs(wz) > tol:
+                    tol = fabs(wz)
+                tol = WATER_TOLERANCE_M * (tol if tol > 1.0 else 1.0)
+                for q in range(P):
+                    if plane_active[q] and dot3(plane_normal, q, wx, wy, wz) - plane_offset[q] < -tol:
+                        ok = False
+                        break
+                j -= 1
+            if not ok:
+                continue
+            out_ray[m] = i
+            out_dist[m] = 0.5 * (dist[i] + length)
+            out_energy[m] = atten[i] * tx_specular * intensity[i]
+            out_beam[m] = <int>(i // rays_per_beam)
+            out_beam_tx[m] = <int>b
+            out_label[m] = <signed char>label
+            m += 1
+    return m
+
+
+def splat_events(const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
+                 const Py_ssize_t[::1] ray, const double[::1] distance, const double[::1] energy,
+                 const int[::1] beam, const signed char[::1] label, double scale,
+                 bint spread, Py_ssize_t n_elevation, double range_min, double dr,
+                 Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out):
+    """Continuity + range cells + accumulation of one compact path set (twin: the path set
+    made dense and given to ``imaging.accumulate``).
+
+    Paths are in ray order; two are neighbours when their rays are neighbours in elevation
+    (same ray column) with equal ``key`` (same surface via the same chain) and the chord
+    between their scatterers lies within the continuity angle of both normals. Each path's
+    energy is ``scale * energy``.
+    """
+    cdef Py_ssize_t k, i, m = ray.shape[0]
+    cdef bint c_dn = False, c_up
+    cdef double x, x_dn = 0.0, x_up, cx, cy, cz, off0, off1, limit
+    cdef double nb = <double>n_range_bins
+    cdef float* base = &out[0]
+    with nogil:
+        for k in range(m):
+            i = ray[k]
+            c_up = False
+            if spread and k + 1 < m and ray[k + 1] == i + 1 and (i + 1) % n_elevation != 0 \
+                    and key[i] >= 0 and key[i + 1] == key[i]:
+                cx = points[i + 1, 0] - points[i, 0]
+                cy = points[i + 1, 1] - points[i, 1]
+                cz = points[i + 1, 2] - points[i, 2]
+                off0 = cx * normals[i, 0] + cy * normals[i, 1] + cz * normals[i, 2]
+                off1 = cx * normals[i + 1, 0] + cy * normals[i + 1, 1] + cz * normals[i + 1, 2]
+                limit = CONTINUITY_SINE * CONTINUITY_SINE * (cx * cx + cy * cy + cz * cz)
+                c_up = off0 * off0 <= limit and off1 * off1 <= limit
+            x = (distance[k] - range_min) / dr
+            x_up = (distance[k + 1] - range_min) / dr if c_up else 0.0
+            deposit(x, x_dn, x_up, c_dn, c_up, scale * energy[k],
+                    base + <Py_ssize_t>label[k] * n_range_bins * n_beams + beam[k], n_beams, nb)
+            c_dn = c_up
+            x_dn = x

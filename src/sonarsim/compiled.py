@@ -207,3 +207,99 @@ def _drop_hidden(caster, sonar: SonarConfig, ground_height_m: float, work: Works
     hidden = hit.distance < oa - 1e-3 * np.maximum(oa, 1.0)
     work.e23[cand[hidden]] = 0.0
     work.r23[cand[hidden]] = np.inf
+
+
+def trace_legs(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Workspace, weight: np.ndarray,
+               albedo_by_id: np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> list:
+    """Receive legs with the compiled kernel (twin: :func:`sonarsim.paths.engine.trace_legs`).
+
+    The first generation's rays are ``work``'s rotated fan (see :func:`render_fast`).
+    """
+    from .paths.engine import Leg
+
+    n = fan.n_rays
+    origin = sonar.pose.translation
+    act = np.ascontiguousarray(active, dtype=np.uint8)
+    legs = []
+    ray = np.arange(n, dtype=np.intp)
+    org = origin.reshape(1, 3).copy()
+    dirs, o32, d32 = work.d64, work.o32, work.d32
+    before, atten, chain = np.zeros(1), np.ones(1), np.zeros(1, dtype=np.int32)
+    limit = reach_m
+    for g in range(n_generations):
+        leg = Leg(g, np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan), np.zeros((n, 3)),
+                  np.zeros(n), np.zeros(n), np.full(n, -1, np.int32))
+        legs.append(leg)
+        m = len(ray)
+        if not m:
+            continue
+        hits = caster.intersect(o32, d32, limit)
+        nx = (np.empty(m, np.intp), np.empty((m, 3)), np.empty((m, 3), np.float32), np.empty((m, 3)),
+              np.empty((m, 3), np.float32), np.empty(m), np.empty(m), np.empty(m, np.int32))
+        while True:
+            n_next, n_chains, min_next, overflow = _kernels.trace_leg(
+                ray, hits.distance, hits.mesh_id, hits.normal, org, dirs, before, atten, chain,
+                planes.normal, planes.offset, act, planes.specular, reach_m, albedo_by_id, weight, tvg,
+                g == 0, g + 1 < n_generations, table.children, len(table),
+                leg.distance, leg.sid, leg.point, leg.normal, leg.intensity, leg.atten, leg.chain, *nx,
+            )
+            table.sync(n_chains)
+            if not overflow:
+                break
+            table._grow()
+        ray, org, o32, dirs, d32, before, atten, chain = (a[:n_next] for a in nx)
+        limit = float(reach_m - min_next)
+    return legs
+
+
+def form_paths(legs, table, view, active, n_planes: int, rays_per_beam: int, max_order: int,
+               double_beam: str) -> list:
+    """Every path of the frame with the compiled kernel (twin: :func:`sonarsim.paths.engine.form_paths`)."""
+    from .paths.engine import SAME, PathSet, chain_ranks, label_of_order, transmit_options
+
+    rank = chain_ranks(table)
+    act = np.ascontiguousarray(active, dtype=np.uint8)
+    planes = table.planes
+    no_planes = np.empty(0, np.int32)
+    out = []
+    for leg in legs:
+        g = leg.gen
+        live = np.flatnonzero(np.isfinite(leg.distance) & (leg.intensity != 0))
+        if not len(live):
+            continue
+        m = len(live)
+        for tx in transmit_options(table, g, max_order):
+            buf = (np.empty(m, np.intp), np.empty(m), np.empty(m), np.empty(m, np.int32), np.empty(m, np.int32),
+                   np.empty(m, np.int8))
+            same = tx == SAME
+            chain = () if same else table.chains[tx]
+            order = 2 * g + 1 if same else g + len(chain) + 1
+            k = _kernels.path_events(
+                live, leg.distance, leg.sid, leg.point, leg.intensity, leg.atten, leg.chain,
+                same, 0 if same else tx, table.unfold(0 if same else tx), table.sources(0 if same else tx),
+                np.asarray(chain, np.int32) if chain else no_planes, 1.0 if same else table.specular(tx),
+                rank, double_beam == "separate", label_of_order(order) if order > 1 else 1, n_planes,
+                rays_per_beam, *view.origin, view.rotation, view.beam_edges_deg, view.half_elevation_deg,
+                view.range_min_m, view.range_max_m, planes.normal, planes.offset, act, *buf,
+            )
+            if not k:
+                continue
+            ray, dist, energy, beam, beam_tx, label = (a[:k] for a in buf)
+            if double_beam == "split" and not same:
+                out.append(PathSet(g, tx, ray, dist, 0.5 * energy, beam, label))
+                out.append(PathSet(g, tx, ray, dist, 0.5 * energy, beam_tx, label))
+            else:
+                out.append(PathSet(g, tx, ray, dist, energy, beam, label))
+    return out
+
+
+def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, spread: bool, out: np.ndarray) -> None:
+    """Accumulate path sets into the float32 image stack ``out`` (labels x bins x beams)."""
+    flat = out.reshape(-1)
+    keys = {}
+    for s in sets:
+        leg = legs[s.gen]
+        if s.gen not in keys:
+            keys[s.gen] = leg.key(n_surfaces)
+        _kernels.splat_events(leg.point, leg.normal, keys[s.gen], s.ray, s.distance, s.energy, s.beam, s.label,
+                              1.0, spread, n_elevation, *geometry, flat)
