@@ -36,9 +36,9 @@ import numpy as np
 
 import sonarsim
 from sonarsim.demo import demo_scene_dict
-from sonarsim.loader import scene_from_dict
-from sonarsim.scene import ObjectSpec
-from sonarsim.transforms import Pose
+from sonarsim.config.loader import scene_from_dict
+from sonarsim.config.scene import ObjectSpec
+from sonarsim.core.transforms import Pose
 
 
 def rock_mesh(n_triangles: int, radius: float = 0.25, seed: int = 0):

@@ -13,7 +13,7 @@ import sonarsim
 from sonarsim.demo import demo_scene_dict
 from sonarsim.errors import ConfigError
 from sonarsim.fitting import fit_pose, floor_band_m, parse_free
-from sonarsim.transforms import Pose
+from sonarsim.core.transforms import Pose
 
 
 def noisy(image, seed=0):

@@ -16,7 +16,7 @@ import pytest
 from PIL import Image
 
 from sonarsim import SonarImage, SonarsimError, readers
-from sonarsim.presets import aris_beam_angles_deg
+from sonarsim.config.presets import aris_beam_angles_deg
 from sonarsim.readers import RecordingError
 from sonarsim.readers import aris as aris_module
 from sonarsim.readers.oculus import elevation_fov_deg

@@ -20,8 +20,8 @@ import yaml
 import sonarsim
 from sonarsim import ConfigError, SonarsimError, load_scene
 from sonarsim.geometry import object_mesh_world
-from sonarsim.presets import PRESETS
-from sonarsim.sonar import uniform_beam_angles_deg
+from sonarsim.config.presets import PRESETS
+from sonarsim.config.sonar import uniform_beam_angles_deg
 
 # --------------------------------------------------------------------------- the base scene
 

@@ -104,8 +104,8 @@ def _override_render(scene, args):
         changes["elevation_samples"] = args.elevation_samples
     if not changes:
         return scene
-    from .loader import _prefixed
-    from .scene import RenderSettings
+    from .config.loader import _prefixed
+    from .config.scene import RenderSettings
 
     render = _prefixed("render", RenderSettings, **{**scene.render.__dict__, **changes})
     return replace(scene, render=render)
@@ -143,7 +143,7 @@ def _render_and_write(scene, out: Path, args) -> None:
 
 
 def cmd_render(args) -> None:
-    from .loader import load_scene
+    from .config.loader import load_scene
 
     scene = _override_render(load_scene(args.scene), args)
     _render_and_write(scene, Path(args.out), args)
@@ -153,7 +153,7 @@ def cmd_demo(args) -> None:
     import yaml
 
     from .demo import demo_scene_dict
-    from .loader import scene_from_dict
+    from .config.loader import scene_from_dict
     from .output import atomic_write
 
     doc = demo_scene_dict()
@@ -178,11 +178,11 @@ def cmd_demo(args) -> None:
 def cmd_presets(args) -> None:
     import json
 
-    from .presets import PRESETS
+    from .config.presets import PRESETS
 
     rows = []
     for name, p in PRESETS.items():
-        from .loader import parse_sonar
+        from .config.loader import parse_sonar
 
         s = parse_sonar({"preset": name}, None)
         rows.append({

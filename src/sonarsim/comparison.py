@@ -160,7 +160,7 @@ def _geometry_of(image: Any, polar: np.ndarray, name: str) -> _Geometry | None:
         az = np.asarray(azimuth, dtype=np.float64).ravel()
         if az.size > 1 and not np.all(np.diff(az) < 0):
             raise SonarsimError(f"{name}: azimuth_deg must be strictly descending (left beam first)")
-        from .sonar import beam_edges_deg
+        from .config.sonar import beam_edges_deg
 
         edges = beam_edges_deg(az)
         geom = _Geometry(rmin, rmax, int(np.size(range_m)), az, float(edges[0]), float(edges[-1]))
@@ -581,7 +581,7 @@ def _load_png(p: Path, name: str) -> PlainImage:
 def _load_npz(p: Path, name: str, component: str | None):
     from .output import read_npz
     from .simulator import COMPONENTS, SonarImage
-    from .sonar import SonarConfig
+    from .config.sonar import SonarConfig
 
     try:
         arrays, config = read_npz(p)
@@ -611,7 +611,7 @@ def _load_npz(p: Path, name: str, component: str | None):
         if isinstance(s.get(k), (int, float)):
             kwargs[k] = float(s[k])
     if isinstance(s.get("pose"), dict):
-        from .loader import parse_pose
+        from .config.loader import parse_pose
 
         try:
             kwargs["pose"] = parse_pose(s["pose"], "sonar.pose")

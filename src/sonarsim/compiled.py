@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .rays import RayFan
-from .scene import GroundSpec, RenderSettings
-from .sonar import SonarConfig
+from .core.rays import RayFan
+from .config.scene import GroundSpec, RenderSettings
+from .config.sonar import SonarConfig
 
 try:
     from . import _kernels

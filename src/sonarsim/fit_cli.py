@@ -50,7 +50,7 @@ def _load_real(path: str, frame: int):
 
 def _fitted_document(scene_path: Path, out_path: Path, pose) -> dict:
     """The user's scene document with the fitted pose; relative paths still resolve from out."""
-    from .loader import read_document
+    from .config.loader import read_document
 
     doc = copy.deepcopy(read_document(scene_path))
     sonar = doc.setdefault("sonar", {})
@@ -106,7 +106,7 @@ def cmd_fit(args) -> None:
     import yaml
 
     from .fitting import UNITS, fit_pose, floor_band_m
-    from .loader import load_scene
+    from .config.loader import load_scene
     from .output import atomic_write, write_png
 
     real = _load_real(args.real, args.frame)

@@ -26,9 +26,9 @@ import numpy as np
 from scipy import ndimage, optimize
 
 from .errors import ConfigError
-from .scene import Scene
+from .config.scene import Scene
 from .simulator import Simulator, SonarImage
-from .transforms import Pose
+from .core.transforms import Pose
 
 PARAMETERS = ("x", "y", "z", "roll", "pitch", "yaw")
 UNITS = {"x": "m", "y": "m", "z": "m", "roll": "deg", "pitch": "deg", "yaw": "deg"}

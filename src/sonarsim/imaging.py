@@ -34,40 +34,6 @@ CONTINUITY_SINE = 0.5
 MIN_SPREAD_BINS = 1e-6
 
 
-def lambertian_intensity(
-    weight: np.ndarray,
-    cos_incidence: np.ndarray,
-    albedo: np.ndarray,
-    distance_m: np.ndarray,
-    tvg: bool,
-) -> np.ndarray:
-    """Per-ray backscatter ``beta * l(r) * rho * cos(alpha) * dphi`` (paper Eq. 3-6).
-
-    Parameters
-    ----------
-    weight : (...) float array
-        Ray weight ``beta(theta, phi) * dphi`` (radians), see :class:`sonarsim.rays.RayFan`.
-    cos_incidence : (...) float array
-        cos of the angle between the ray and the surface normal, in [0, 1].
-    albedo : (...) float array
-        Diffuse albedo rho of the surface hit (0 where nothing is hit).
-    distance_m : (...) float array
-        Range of the hit, metres (``inf`` where nothing is hit).
-    tvg : bool
-        ``True``: ``l(r) = 1``; ``False``: ``l(r) = 1 / r**2``.
-
-    Returns
-    -------
-    (...) float64 ndarray: the intensity map I_f (0 where nothing is hit).
-    """
-    hit = np.isfinite(distance_m)
-    out = np.where(hit, weight * albedo * cos_incidence, 0.0)
-    if not tvg:
-        r = np.where(hit, distance_m, 1.0)
-        out = out / np.maximum(r, 1e-6) ** 2
-    return out
-
-
 def continuity(points: np.ndarray, normals: np.ndarray, surface_id: np.ndarray) -> np.ndarray:
     """Whether neighbouring rays along the last ray axis hit one continuous surface.
 

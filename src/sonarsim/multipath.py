@@ -28,9 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .imaging import RayEnergy, accumulate, continuity, form_image, lambertian_intensity
-from .scene import RenderSettings
-from .sonar import SonarConfig
+from .core.radiometry import lambertian_intensity
+from .imaging import RayEnergy, accumulate, continuity, form_image
+from .config.scene import RenderSettings
+from .config.sonar import SonarConfig
 from .tracing import GROUND_ID, NO_HIT, SurfaceHits, ground_distance, trace
 
 # Secondary rays start this far off the ground so that they cannot hit the plane's own
@@ -98,7 +99,7 @@ def fast_mirror_paths(
         Closest hits of those rays against objects and ground.
     ground_height_m : float
     weight : (...) float array
-        Ray weights (beam pattern x dphi), see :class:`sonarsim.rays.RayFan`.
+        Ray weights (beam pattern x dphi), see :class:`sonarsim.core.rays.RayFan`.
     albedo_by_id : (n_objects + 2,) float array
         Albedo indexed by ``surface_id + 1``.
     tvg : bool

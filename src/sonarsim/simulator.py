@@ -18,18 +18,19 @@ from typing import Any
 import numpy as np
 
 from . import compiled
-from ._memory import keep_freed_memory
+from .core.memory import keep_freed_memory
 from .errors import ConfigError
 from .backends import available_cores, make_caster
 from .geometry import clip_above_plane, mirror_across_plane, object_mesh_world
-from .imaging import RayEnergy, accumulate, continuity, lambertian_intensity
-from .loader import load_scene, parse_pose
-from .rays import RayFan, make_ray_fan
-from .scene import Scene
-from .sonar import SonarConfig
+from .core.radiometry import lambertian_intensity
+from .imaging import RayEnergy, accumulate, continuity
+from .config.loader import load_scene, parse_pose
+from .core.rays import RayFan, make_ray_fan
+from .config.scene import Scene
+from .config.sonar import SonarConfig
 from .multipath import fast_mirror_paths, ground_echo_rays, render_paper, sonar_above_ground
 from .tracing import GROUND_ID, trace
-from .transforms import Pose
+from .core.transforms import Pose
 
 # Rays are cast this far past the range window so that range splatting sees the neighbour of a
 # ray that ends just inside it.
@@ -172,7 +173,7 @@ def as_pose(pose: Any) -> Pose:
         return pose
     if isinstance(pose, Mapping):
         return parse_pose(pose, "pose")
-    from .transforms import matrix_to_rpy
+    from .core.transforms import matrix_to_rpy
 
     m = np.asarray(pose, dtype=float)
     if m.shape != (4, 4):

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .backends import RayCaster
-from .scene import GroundSpec
+from .config.scene import GroundSpec
 
 GROUND_ID = 0
 NO_HIT = -1

@@ -25,7 +25,7 @@ Geometry, per frame (the frame header, not the file header, is authoritative):
   ``WindowLength`` are rounded display values (3.33 m and 20.3 m in the SDK's sample, whose
   samples span 3.298-23.401 m) and are only reported, not used;
 * beam angles from the closed-form fits of Sound Metrics' measured tables
-  (:func:`sonarsim.presets.aris_beam_angles_deg`), chosen as the SDK's ``Metrics.cs`` does from
+  (:func:`sonarsim.config.presets.aris_beam_angles_deg`), chosen as the SDK's ``Metrics.cs`` does from
   ``TheSystemType`` (0 = ARIS 1800, 1 = ARIS 3000, 2 = ARIS 1200; ``FrameHeader.h`` and
   ``ArisSystemType.cs``), ``LargeLens`` (1 = telephoto lens) and the beam count. Sound Metrics
   has tables for 1200/1800 x 48, 1800 x 96, 3000 x 64/128 and the telephoto lens x 48/96; other
@@ -333,7 +333,7 @@ class ArisRecording(Recording):
             Frame out of range, truncated, or with an impossible header.
         """
         from ..simulator import SonarImage
-        from ..sonar import SonarConfig
+        from ..config.sonar import SonarConfig
 
         k = self._check_frame(frame)
         where = self._where(k)
@@ -402,7 +402,7 @@ class ArisRecording(Recording):
         )
 
     def _beam_angles(self, model: str, fit_key: str, n_beams: int, h: dict, where: str) -> np.ndarray:
-        from ..presets import aris_beam_angles_deg
+        from ..config.presets import aris_beam_angles_deg
 
         try:
             return aris_beam_angles_deg(fit_key, n_beams)

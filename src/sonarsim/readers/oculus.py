@@ -289,7 +289,7 @@ class OculusRecording(Recording):
 
     def _decode(self, data: bytes, k: int, where: str, m: _Message):
         from ..simulator import SonarImage
-        from ..sonar import SonarConfig
+        from ..config.sonar import SonarConfig
 
         src = self._source
         if m.version in (0, 1):

@@ -1,7 +1,7 @@
 """Scene description: objects, the ground plane, render settings and the sonar.
 
 These frozen dataclasses are what the rest of sonarsim trusts. They check their own values on
-construction (so Python callers get the same messages as scene files); :mod:`sonarsim.loader`
+construction (so Python callers get the same messages as scene files); :mod:`sonarsim.config.loader`
 turns YAML/JSON/dicts into them and rejects unknown keys and wrong types.
 """
 
@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ConfigError
+from ..errors import ConfigError
 from .sonar import SonarConfig
-from .transforms import Pose
+from ..core.transforms import Pose
 
 PRIMITIVES = ("box", "sphere", "cylinder")
 METHODS = ("fast", "paper")
@@ -147,7 +147,7 @@ class RenderSettings:
     elevation_samples : int or 'auto'
         Rays per beam across the elevation aperture. ``'auto'``: enough that neighbouring rays
         are at most about two range bins apart across the aperture at the far range (see
-        :func:`sonarsim.rays.auto_elevation_samples`).
+        :func:`sonarsim.core.rays.auto_elevation_samples`).
     azimuth_samples : int
         Rays per beam across its azimuth width (1: along the beam centre only).
     tvg : bool

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scene import RenderSettings
-from .sonar import SonarConfig
+from ..config.scene import RenderSettings
+from ..config.sonar import SonarConfig
 
 AUTO_MIN_SAMPLES = 32
 AUTO_MAX_SAMPLES = 1024

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .errors import ConfigError
-from .transforms import Pose
+from ..errors import ConfigError
+from ..core.transforms import Pose
 
 
 def uniform_beam_angles_deg(n_beams: int, azimuth_fov_deg: float) -> np.ndarray:

@@ -1,7 +1,7 @@
 """Read scenes from YAML/JSON files or dicts, rejecting unknown keys, wrong types and bad values.
 
 This is the edge of the library: everything after it trusts the frozen dataclasses of
-:mod:`sonarsim.scene`. Every error names the key (``objects[1].albedo``) or the file.
+:mod:`sonarsim.config.scene`. Every error names the key (``objects[1].albedo``) or the file.
 """
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ConfigError, MeshFileError, SonarsimError
-from .geometry import load_mesh_file
+from ..errors import ConfigError, MeshFileError, SonarsimError
+from ..geometry import load_mesh_file
 from .presets import beam_angles_from_table, get_preset
 from .scene import GroundSpec, ObjectSpec, RenderSettings, Scene
 from .sonar import SonarConfig, beam_edges_deg
-from .transforms import Pose
+from ..core.transforms import Pose
 
 TOP_KEYS = ("sonar", "render", "ground", "objects")
 SONAR_KEYS = (
