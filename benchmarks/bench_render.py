@@ -76,7 +76,7 @@ def oculus_scene() -> dict:
 
 def record_casts(sim: sonarsim.Simulator) -> list:
     """Every batch of rays that one frame hands to Embree, with its caster."""
-    from sonarsim.backends.embree import EmbreeCaster
+    from sonarsim.trace.embree import EmbreeCaster
 
     recorded = []
     original = EmbreeCaster.cast_raw

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.geometry import TriangleMesh, clip_above_plane
+from sonarsim.scene.meshes import TriangleMesh, clip_above_plane
 from sonarsim.demo import demo_scene_dict
 from conftest import sonar_dict
 

@@ -2,7 +2,7 @@
 
 The pipeline, one module each: :mod:`~sonarsim.config.sonar` (beams, range window, pose) ->
 :mod:`~sonarsim.config.scene` / :mod:`~sonarsim.config.loader` (objects, ground, settings) ->
-:mod:`~sonarsim.core.rays` (ray fan) -> :mod:`~sonarsim.backends` + :mod:`~sonarsim.tracing`
+:mod:`~sonarsim.core.rays` (ray fan) -> :mod:`~sonarsim.trace` + :mod:`~sonarsim.trace.surfaces`
 (closest surfaces) -> :mod:`~sonarsim.imaging` (Algorithm 1) -> :mod:`~sonarsim.fan` and
 :mod:`~sonarsim.output` (images, files) -> :mod:`~sonarsim.readers`, :mod:`~sonarsim.metrics` and
 :mod:`~sonarsim.fitting` (real recordings, comparison, pose fitting). :class:`Simulator` ties

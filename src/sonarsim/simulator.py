@@ -20,16 +20,16 @@ import numpy as np
 from . import compiled
 from .core.memory import keep_freed_memory
 from .errors import ConfigError
-from .backends import available_cores, make_caster
-from .geometry import clip_above_plane, mirror_across_plane, object_mesh_world
+from .trace import available_cores, make_caster
+from .scene.meshes import clip_above_plane, mirror_across_plane, object_mesh_world
 from .core.radiometry import lambertian_intensity
 from .imaging import RayEnergy, accumulate, continuity
 from .config.loader import load_scene, parse_pose
 from .core.rays import RayFan, make_ray_fan
 from .config.scene import Scene
 from .config.sonar import SonarConfig
-from .multipath import fast_mirror_paths, ground_echo_rays, render_paper, sonar_above_ground
-from .tracing import GROUND_ID, trace
+from .paths.algorithm2 import fast_mirror_paths, ground_echo_rays, render_paper, sonar_above_ground
+from .trace.surfaces import GROUND_ID, trace
 from .core.transforms import Pose
 
 # Rays are cast this far past the range window so that range splatting sees the neighbour of a

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, MeshFileError, SonarsimError
-from ..geometry import load_mesh_file
+from ..scene.meshes import load_mesh_file
 from .presets import beam_angles_from_table, get_preset
 from .scene import GroundSpec, ObjectSpec, RenderSettings, Scene
 from .sonar import SonarConfig, beam_edges_deg

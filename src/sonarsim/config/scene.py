@@ -155,7 +155,7 @@ class RenderSettings:
     bounces : tuple of int
         Which echoes to form: 1 direct, 2 double (cases 2/3), 3 triple (case 4).
     method : {'fast', 'paper'}
-        Ground-echo implementation (see :mod:`sonarsim.multipath`).
+        Ground-echo implementation (see :mod:`sonarsim.paths.algorithm2`).
     beam_pattern : {'uniform', 'gaussian'}
         beta(theta, phi): uniform (paper Eq. 4), or Gaussian falling to -3 dB at the edges of the
         elevation aperture and of each beam's azimuth width.

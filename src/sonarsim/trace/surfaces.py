@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .backends import RayCaster
-from .config.scene import GroundSpec
+from .base import RayCaster
+from ..config.scene import GroundSpec
 
 GROUND_ID = 0
 NO_HIT = -1

@@ -28,11 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .core.radiometry import lambertian_intensity
-from .imaging import RayEnergy, accumulate, continuity, form_image
-from .config.scene import RenderSettings
-from .config.sonar import SonarConfig
-from .tracing import GROUND_ID, NO_HIT, SurfaceHits, ground_distance, trace
+from ..core.radiometry import lambertian_intensity
+from ..imaging import RayEnergy, accumulate, continuity, form_image
+from ..config.scene import RenderSettings
+from ..config.sonar import SonarConfig
+from ..trace.surfaces import GROUND_ID, NO_HIT, SurfaceHits, ground_distance, trace
 
 # Secondary rays start this far off the ground so that they cannot hit the plane's own
 # neighbourhood (the base of an object resting on it) through round-off, metres.

@@ -9,7 +9,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..geometry import TriangleMesh
+from ..scene.meshes import TriangleMesh
 from .base import Hits
 
 # Rays x triangles evaluated at once; bounds the temporary arrays to a few tens of MB.

@@ -12,7 +12,7 @@ from typing import Protocol, Sequence
 
 import numpy as np
 
-from ..geometry import TriangleMesh
+from ..scene.meshes import TriangleMesh
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import SonarsimError
-from ..geometry import TriangleMesh
+from ..scene.meshes import TriangleMesh
 from .base import Hits, available_cores
 
 try:  # the same post-processing as below, as one compiled loop

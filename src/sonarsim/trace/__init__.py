@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Callable, Sequence
 
 from ..errors import ConfigError
-from ..geometry import TriangleMesh
+from ..scene.meshes import TriangleMesh
 from .base import Hits, RayCaster, available_cores
 
 

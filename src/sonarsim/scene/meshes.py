@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import MeshFileError
-from .config.scene import ObjectSpec
+from ..errors import MeshFileError
+from ..config.scene import ObjectSpec
 
 # Sphere tessellation: subdivision 4 gives 5120 faces, with facet normals within about 2 degrees
 # of the true normal -- far below what the elevation sampling resolves.
