@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.imaging import form_image
+from sonarsim.render.formation import form_image
 from conftest import sonar_dict
 
 

@@ -3,7 +3,7 @@
 The pipeline, one module each: :mod:`~sonarsim.config.sonar` (beams, range window, pose) ->
 :mod:`~sonarsim.config.scene` / :mod:`~sonarsim.config.loader` (objects, ground, settings) ->
 :mod:`~sonarsim.core.rays` (ray fan) -> :mod:`~sonarsim.trace` + :mod:`~sonarsim.trace.surfaces`
-(closest surfaces) -> :mod:`~sonarsim.imaging` (Algorithm 1) -> :mod:`~sonarsim.fan` and
+(closest surfaces) -> :mod:`~sonarsim.render.formation` (Algorithm 1) -> :mod:`~sonarsim.image.fan` and
 :mod:`~sonarsim.output` (images, files) -> :mod:`~sonarsim.readers`, :mod:`~sonarsim.metrics` and
 :mod:`~sonarsim.fitting` (real recordings, comparison, pose fitting). :class:`Simulator` ties
 the simulation together.
@@ -13,7 +13,8 @@ from .errors import ConfigError, MeshFileError, SonarsimError
 from .config.loader import load_scene
 from .readers import read, read_frames
 from .config.scene import GroundSpec, ObjectSpec, RenderSettings, Scene
-from .simulator import RayMaps, Simulator, SonarImage, render
+from .image import RayMaps, SonarImage
+from .render.simulator import Simulator, render
 from .config.sonar import SonarConfig
 from .core.transforms import Pose
 

@@ -113,7 +113,7 @@ def _override_render(scene, args):
 
 def _render_and_write(scene, out: Path, args) -> None:
     from .output import to_uint8, write_png
-    from .simulator import Simulator
+    from .render.simulator import Simulator
 
     t0 = time.perf_counter()
     sim = Simulator(scene, backend=args.backend)

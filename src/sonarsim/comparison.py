@@ -241,7 +241,7 @@ def _resample_polar(polar: np.ndarray, src: _Geometry, dst: _Geometry) -> tuple[
 
     Bilinear in (range, azimuth): the fractional range index is linear in range, the
     fractional beam index piecewise linear in azimuth between ``src``'s beam centres (as in
-    :mod:`sonarsim.fan`, so non-uniform lens tables work). Between ``src``'s outermost
+    :mod:`sonarsim.image.fan`, so non-uniform lens tables work). Between ``src``'s outermost
     centres and its coverage edges the edge bin/beam is used; outside its coverage the result
     is 0 and the returned mask is False.
 
@@ -267,14 +267,14 @@ def _resample_polar(polar: np.ndarray, src: _Geometry, dst: _Geometry) -> tuple[
 
 
 def _fan_pixels(geom: _Geometry, pixel_size_m: float) -> float:
-    """Size of the fan image of ``geom`` (as :func:`sonarsim.fan.fan_geometry` lays it out)."""
+    """Size of the fan image of ``geom`` (as :func:`sonarsim.image.fan.fan_geometry` lays it out)."""
     half_fov = math.radians(max(abs(geom.left_edge_deg), abs(geom.right_edge_deg)))
     rows = math.ceil(geom.range_max_m / pixel_size_m)
     return rows * 2.0 * math.ceil(geom.range_max_m * math.sin(half_fov) / pixel_size_m)
 
 
 def _fan(polar: np.ndarray, geom: _Geometry, pixel_size_m: float):
-    from .fan import FanMapper
+    from .image.fan import FanMapper
 
     mapper = FanMapper(
         geom.n_range_bins, geom.range_min_m, geom.range_max_m, geom.azimuth_deg, pixel_size_m,
@@ -286,7 +286,7 @@ def _fan(polar: np.ndarray, geom: _Geometry, pixel_size_m: float):
 def _onto_grid(values: np.ndarray, src, dst) -> np.ndarray:
     """Copy an array on fan grid ``src`` onto fan grid ``dst`` (zeros where ``src`` has none).
 
-    ``src`` and ``dst`` are :class:`~sonarsim.fan.FanImage` objects with the same pixel size.
+    ``src`` and ``dst`` are :class:`~sonarsim.image.fan.FanImage` objects with the same pixel size.
     Such grids are aligned (pixel centres at half-integer multiples of the pixel size from
     the apex), so this is a shift by whole pixels, with no interpolation.
     """
@@ -340,7 +340,7 @@ def compare_images(
     * ``"polar"``: on A's polar grid. If B's grid differs (range window, number of bins, beam
       angles), B is resampled onto A's bin centres (bilinear in range and azimuth, zero
       outside B's coverage) and only A's bins inside B's coverage count.
-    * ``"fan"``: both images scan-converted (:mod:`sonarsim.fan`, linear) to Cartesian fans
+    * ``"fan"``: both images scan-converted (:mod:`sonarsim.image.fan`, linear) to Cartesian fans
       with the same pixel size, on A's fan grid; only pixels inside both fans count. B is
       converted from its own polar grid, so it is interpolated once, not twice.
 
@@ -580,7 +580,7 @@ def _load_png(p: Path, name: str) -> PlainImage:
 
 def _load_npz(p: Path, name: str, component: str | None):
     from .output import read_npz
-    from .simulator import COMPONENTS, SonarImage
+    from .image.result import COMPONENTS, SonarImage
     from .config.sonar import SonarConfig
 
     try:

@@ -27,7 +27,8 @@ from scipy import ndimage, optimize
 
 from .errors import ConfigError
 from .config.scene import Scene
-from .simulator import Simulator, SonarImage
+from .image.result import SonarImage
+from .render.simulator import Simulator
 from .core.transforms import Pose
 
 PARAMETERS = ("x", "y", "z", "roll", "pitch", "yaw")

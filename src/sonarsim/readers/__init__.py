@@ -1,6 +1,6 @@
 """Readers of real sonar recordings into sonarsim's image type.
 
-A recording becomes the same :class:`~sonarsim.simulator.SonarImage` a simulation produces, so
+A recording becomes the same :class:`~sonarsim.image.result.SonarImage` a simulation produces, so
 that real and simulated images can be shown, compared and saved with the same code: ``polar``
 is float32 ``(n_range_bins, n_beams)``, row 0 the nearest range, column 0 the LEFT-most beam
 (positive azimuth = the sonar's left, so ``azimuth_deg`` descends); ``components`` is
@@ -129,7 +129,7 @@ def n_frames(path: PathLike) -> int:
 
 
 def read(path: PathLike, frame: int = 0):
-    """One frame of a recording as a :class:`~sonarsim.simulator.SonarImage`.
+    """One frame of a recording as a :class:`~sonarsim.image.result.SonarImage`.
 
     Parameters
     ----------

@@ -317,7 +317,7 @@ class ArisRecording(Recording):
         )
 
     def read(self, frame: int = 0):
-        """Frame ``frame`` (0-based) as a :class:`~sonarsim.simulator.SonarImage`.
+        """Frame ``frame`` (0-based) as a :class:`~sonarsim.image.result.SonarImage`.
 
         Returns
         -------
@@ -332,7 +332,7 @@ class ArisRecording(Recording):
         RecordingError
             Frame out of range, truncated, or with an impossible header.
         """
-        from ..simulator import SonarImage
+        from ..image.result import SonarImage
         from ..config.sonar import SonarConfig
 
         k = self._check_frame(frame)

@@ -288,7 +288,7 @@ class OculusRecording(Recording):
         return self._decode(data, k, where, m)
 
     def _decode(self, data: bytes, k: int, where: str, m: _Message):
-        from ..simulator import SonarImage
+        from ..image.result import SonarImage
         from ..config.sonar import SonarConfig
 
         src = self._source

@@ -17,7 +17,7 @@ from ..scene.meshes import TriangleMesh
 from .base import Hits, available_cores
 
 try:  # the same post-processing as below, as one compiled loop
-    from .. import _kernels
+    from ..render import _kernels
 except ImportError:
     _kernels = None
 

@@ -1,8 +1,9 @@
-"""The default render path with its per-ray loops compiled (:mod:`sonarsim._kernels`).
+"""The default render path with its per-ray loops compiled (:mod:`sonarsim.render._kernels`).
 
-Same physics, same images as the NumPy path (``Simulator(kernels="numpy")``: ``tracing.trace``,
-``multipath.fast_mirror_paths``, ``multipath.ground_echo_rays``, ``imaging.accumulate``), which
-the tests compare it against. Per frame: cast the primary rays, one kernel for the closest
+Same physics, same images as the NumPy path (``Simulator(kernels="numpy")``:
+``trace.surfaces.trace``, ``paths.algorithm2.fast_mirror_paths``,
+``paths.algorithm2.ground_echo_rays``, ``render.formation.accumulate``), which the tests compare
+it against. Per frame: cast the primary rays, one kernel for the closest
 surfaces and intensities, cast the reflected rays of those that reached the ground, one kernel
 for the ground echoes, one kernel per set of rays to spread them into the images.
 """
@@ -11,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .core.rays import RayFan
-from .config.scene import GroundSpec, RenderSettings
-from .config.sonar import SonarConfig
+from ..core.rays import RayFan
+from ..config.scene import GroundSpec, RenderSettings
+from ..config.sonar import SonarConfig
 
 try:
     from . import _kernels

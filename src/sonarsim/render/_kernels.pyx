@@ -2,8 +2,8 @@
 """Compiled per-ray kernels of the default render path.
 
 Each kernel is the loop form of NumPy code that stays in the package as the reference
-(``tracing.trace`` + ``imaging.lambertian_intensity``, ``multipath.fast_mirror_paths`` +
-``multipath.ground_echo_rays``, ``imaging.continuity`` + ``imaging.accumulate``); the tests
+(``trace.surfaces.trace`` + ``core.radiometry.lambertian_intensity``, ``paths.algorithm2.fast_mirror_paths`` +
+``paths.algorithm2.ground_echo_rays``, ``render.formation.continuity`` + ``render.formation.accumulate``); the tests
 require both to give the same images. They exist because a frame of the demo casts ~40,000
 rays in ~3 ms, and the same arithmetic as a chain of NumPy passes costs three to four times
 that; fused into one loop per stage it costs a fraction of the casting.
@@ -117,7 +117,7 @@ def primary(const float[::1] hit_distance, const int[::1] hit_mesh, const float[
             intensity[i] = c
             label[i] = 0 if s > 0 else 1
             if s == 0 and dd < max_dist:
-                # Reflect at G and start just off the plane (see multipath.SURFACE_OFFSET_M).
+                # Reflect at G and start just off the plane (see paths.algorithm2.SURFACE_OFFSET_M).
                 g_index[n_g] = i
                 g_t[n_g] = dd
                 g_dir[n_g, 0] = <float>dx
@@ -240,7 +240,7 @@ cdef inline double ffloor(double v) noexcept nogil:
 
 cdef inline void deposit(double x, double x_dn, double x_up, bint c_dn, bint c_up, double energy,
                          float* column, Py_ssize_t stride, double nb) noexcept nogil:
-    """Spread one ray's energy over its range cell (see imaging._segments) into ``column``.
+    """Spread one ray's energy over its range cell (see render.formation._segments) into ``column``.
 
     ``column`` points at bin 0 of the ray's (label, beam) image column, whose bins are
     ``stride`` floats apart; x are in bins.
