@@ -9,7 +9,7 @@ import pytest
 
 import sonarsim
 from sonarsim.render import compiled
-from sonarsim.demo import demo_scene_dict
+from sonarsim.cli.demo import demo_scene_dict
 
 pytestmark = pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled kernels not built")
 

@@ -4,14 +4,14 @@ The pipeline, one module each: :mod:`~sonarsim.config.sonar` (beams, range windo
 :mod:`~sonarsim.config.scene` / :mod:`~sonarsim.config.loader` (objects, ground, settings) ->
 :mod:`~sonarsim.core.rays` (ray fan) -> :mod:`~sonarsim.trace` + :mod:`~sonarsim.trace.surfaces`
 (closest surfaces) -> :mod:`~sonarsim.render.formation` (Algorithm 1) -> :mod:`~sonarsim.image.fan` and
-:mod:`~sonarsim.output` (images, files) -> :mod:`~sonarsim.readers`, :mod:`~sonarsim.metrics` and
-:mod:`~sonarsim.fitting` (real recordings, comparison, pose fitting). :class:`Simulator` ties
+:mod:`~sonarsim.io.output` (images, files) -> :mod:`~sonarsim.io.readers`, :mod:`~sonarsim.analysis.metrics` and
+:mod:`~sonarsim.analysis.fitting` (real recordings, comparison, pose fitting). :class:`Simulator` ties
 the simulation together.
 """
 
 from .errors import ConfigError, MeshFileError, SonarsimError
 from .config.loader import load_scene
-from .readers import read, read_frames
+from .io.readers import read, read_frames
 from .config.scene import GroundSpec, ObjectSpec, RenderSettings, Scene
 from .image import RayMaps, SonarImage
 from .render.simulator import Simulator, render

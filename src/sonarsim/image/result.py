@@ -1,6 +1,6 @@
 """The result types: a sonar image in polar form (:class:`SonarImage`) and its per-ray maps.
 
-Renders and real recordings (:mod:`sonarsim.readers`) give the same :class:`SonarImage`, so
+Renders and real recordings (:mod:`sonarsim.io.readers`) give the same :class:`SonarImage`, so
 everything downstream (fan, files, comparison, fitting) treats both alike.
 """
 
@@ -117,7 +117,7 @@ class SonarImage:
 
     def save_npz(self, path) -> None:
         """Write :meth:`arrays` and the configuration to an NPZ file, atomically."""
-        from ..output import write_npz
+        from ..io.output import write_npz
 
         write_npz(path, self.arrays(), self.config)
 

@@ -2,9 +2,10 @@
 """Compiled per-ray kernels of the default render path.
 
 Each kernel is the loop form of NumPy code that stays in the package as the reference
-(``trace.surfaces.trace`` + ``core.radiometry.lambertian_intensity``, ``paths.algorithm2.fast_mirror_paths`` +
-``paths.algorithm2.ground_echo_rays``, ``render.formation.continuity`` + ``render.formation.accumulate``); the tests
-require both to give the same images. They exist because a frame of the demo casts ~40,000
+(``trace.surfaces.trace`` + ``core.radiometry.lambertian_intensity``,
+``paths.algorithm2.fast_mirror_paths`` + ``paths.algorithm2.ground_echo_rays``,
+``render.formation.continuity`` + ``render.formation.accumulate``); the tests require both to
+give the same images. They exist because a frame of the demo casts ~40,000
 rays in ~3 ms, and the same arithmetic as a chain of NumPy passes costs three to four times
 that; fused into one loop per stage it costs a fraction of the casting.
 

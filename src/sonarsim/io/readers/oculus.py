@@ -64,7 +64,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError
+from ...errors import ConfigError
 from ._common import Recording, RecordingError, frame_index, read_at
 
 __all__ = ["MESSAGE_HEADER_SIZE", "OCULUS_ID", "SIMPLE_PING_RESULT", "OculusRecording"]
@@ -288,8 +288,8 @@ class OculusRecording(Recording):
         return self._decode(data, k, where, m)
 
     def _decode(self, data: bytes, k: int, where: str, m: _Message):
-        from ..image.result import SonarImage
-        from ..config.sonar import SonarConfig
+        from ...image.result import SonarImage
+        from ...config.sonar import SonarConfig
 
         src = self._source
         if m.version in (0, 1):

@@ -1,8 +1,8 @@
 """The ``sonarsim compare`` command: MSE, PSNR and SSIM between two sonar images.
 
-A thin layer over :mod:`sonarsim.comparison`. Wire it into the main parser with::
+A thin layer over :mod:`sonarsim.analysis.comparison`. Wire it into the main parser with::
 
-    from .compare_cli import add_compare_parser, cmd_compare
+    from .compare import add_compare_parser, cmd_compare
     add_compare_parser(sub)          # sub = parser.add_subparsers(...)
     COMMANDS["compare"] = cmd_compare  # or dispatch on args.func, which the parser sets
 
@@ -46,7 +46,7 @@ def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
             "and SSIM (11x11 Gaussian window, sigma 1.5), after normalising each image to "
             "0-255, in the polar domain and in the fan-shaped Cartesian domain (pixels inside "
             "both fans). A and B are sonarsim NPZ files (render.npz), PNGs (no geometry: "
-            "same shape only, polar only) or recordings that sonarsim.readers can read. If "
+            "same shape only, polar only) or recordings that sonarsim.io.readers can read. If "
             "the geometries differ, B is resampled onto A's grid when it covers at least half "
             "of A's area."
         ),
@@ -124,7 +124,7 @@ def cmd_compare(args: argparse.Namespace) -> None:
     SonarsimError
         For files that cannot be read or images that cannot be compared.
     """
-    from .comparison import DOMAINS, compare_images, load_image
+    from ..analysis.comparison import DOMAINS, compare_images, load_image
 
     image_a = load_image(args.a, args.frame_a, args.component_a)
     image_b = load_image(args.b, args.frame_b, args.component_b)

@@ -1,8 +1,8 @@
 """``sonarsim show``: write the polar and fan images of one frame of a real recording.
 
-Wiring (in :mod:`sonarsim.cli`)::
+Wiring (in :mod:`sonarsim.cli.main`)::
 
-    from .readers.show import add_show_parser, cmd_show
+    from ..io.readers.readers.show import add_show_parser, cmd_show
     add_show_parser(sub)          # in build_parser(), after the other sub-commands
     COMMANDS["show"] = cmd_show
 
@@ -23,13 +23,13 @@ import sys
 import time
 from pathlib import Path
 
-from ..argtypes import finite_float, positive_float
+from .argtypes import finite_float, positive_float
 
 __all__ = ["add_show_parser", "cmd_show"]
 
 
 def _log(msg: str) -> None:
-    # Same form as sonarsim.cli's messages; progress goes to stderr, results to files.
+    # Same form as sonarsim.cli.main's messages; progress goes to stderr, results to files.
     print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
 
 
@@ -87,8 +87,8 @@ def cmd_show(args: argparse.Namespace) -> None:
     OSError
         If the recording cannot be opened or the output folder cannot be written.
     """
-    from ..output import to_uint8, write_png
-    from . import RecordingError, open_recording
+    from ..io.output import to_uint8, write_png
+    from ..io.readers import RecordingError, open_recording
 
     t0 = time.perf_counter()
     with open_recording(args.recording) as recording:

@@ -52,7 +52,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError
+from ...errors import ConfigError
 from ._common import Recording, RecordingError, check_range_window, frame_index, read_at
 
 __all__ = [
@@ -332,8 +332,8 @@ class ArisRecording(Recording):
         RecordingError
             Frame out of range, truncated, or with an impossible header.
         """
-        from ..image.result import SonarImage
-        from ..config.sonar import SonarConfig
+        from ...image.result import SonarImage
+        from ...config.sonar import SonarConfig
 
         k = self._check_frame(frame)
         where = self._where(k)
@@ -402,7 +402,7 @@ class ArisRecording(Recording):
         )
 
     def _beam_angles(self, model: str, fit_key: str, n_beams: int, h: dict, where: str) -> np.ndarray:
-        from ..config.presets import aris_beam_angles_deg
+        from ...config.presets import aris_beam_angles_deg
 
         try:
             return aris_beam_angles_deg(fit_key, n_beams)

@@ -25,11 +25,11 @@ from typing import Sequence
 import numpy as np
 from scipy import ndimage, optimize
 
-from .errors import ConfigError
-from .config.scene import Scene
-from .image.result import SonarImage
-from .render.simulator import Simulator
-from .core.transforms import Pose
+from ..errors import ConfigError
+from ..config.scene import Scene
+from ..image.result import SonarImage
+from ..render.simulator import Simulator
+from ..core.transforms import Pose
 
 PARAMETERS = ("x", "y", "z", "roll", "pitch", "yaw")
 UNITS = {"x": "m", "y": "m", "z": "m", "roll": "deg", "pitch": "deg", "yaw": "deg"}

@@ -30,7 +30,7 @@ def bounce_comparison(image, pixel_size_m: float | None = None, mapping: str = "
     -------
     (H, 3 W + 2 gap_px) uint8 ndarray
     """
-    from .image.fan import FanMapper
+    from ..image.fan import FanMapper
 
     s = image.sonar
     mapper = FanMapper(s.n_range_bins, s.range_min_m, s.range_max_m, image.azimuth_deg, pixel_size_m)

@@ -10,9 +10,9 @@ and for 8-bit Oculus data), not calibrated intensities.
 
 Supported, recognised from the file's first bytes (never from its name):
 
-* ``"aris"``: Sound Metrics ARIS files (DDF_05), see :mod:`sonarsim.readers.aris`;
+* ``"aris"``: Sound Metrics ARIS files (DDF_05), see :mod:`sonarsim.io.readers.aris`;
 * ``"oculus"``: Blueprint Subsea Oculus simple-ping-result messages (versions 1 and 2), one or
-  many back to back, as liboculus records them; see :mod:`sonarsim.readers.oculus`.
+  many back to back, as liboculus records them; see :mod:`sonarsim.io.readers.oculus`.
 
 Every problem with a file's content raises :class:`RecordingError` (a
 :class:`~sonarsim.errors.SonarsimError`) naming the file, the frame or message and the field.

@@ -13,7 +13,7 @@ import operator
 import os
 from typing import BinaryIO
 
-from ..errors import SonarsimError
+from ...errors import SonarsimError
 
 __all__ = ["RecordingError"]
 

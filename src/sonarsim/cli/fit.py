@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .argtypes import frame_index
-from .errors import SonarsimError
+from ..errors import SonarsimError
 
 
 def add_fit_parser(sub) -> argparse.ArgumentParser:
@@ -40,7 +40,7 @@ def add_fit_parser(sub) -> argparse.ArgumentParser:
 
 
 def _load_real(path: str, frame: int):
-    from .comparison import load_image
+    from ..analysis.comparison import load_image
 
     image = load_image(path, frame=frame)
     if getattr(image, "sonar", None) is None:
@@ -50,7 +50,7 @@ def _load_real(path: str, frame: int):
 
 def _fitted_document(scene_path: Path, out_path: Path, pose) -> dict:
     """The user's scene document with the fitted pose; relative paths still resolve from out."""
-    from .config.loader import read_document
+    from ..config.loader import read_document
 
     doc = copy.deepcopy(read_document(scene_path))
     sonar = doc.setdefault("sonar", {})
@@ -73,8 +73,8 @@ def side_by_side(real, fitted, gap_px: int = 8) -> np.ndarray:
     -------
     (H, 2 W + gap_px, 3) uint8 ndarray
     """
-    from .fitting import floor_band_m
-    from .output import to_uint8
+    from ..analysis.fitting import floor_band_m
+    from ..io.output import to_uint8
 
     pixel = max(real.sonar.range_resolution_m, real.sonar.range_max_m / 1000.0)
     fan_r, fan_s = real.fan(pixel_size_m=pixel), fitted.fan(pixel_size_m=pixel)
@@ -105,9 +105,9 @@ def side_by_side(real, fitted, gap_px: int = 8) -> np.ndarray:
 def cmd_fit(args) -> None:
     import yaml
 
-    from .fitting import UNITS, fit_pose, floor_band_m
-    from .config.loader import load_scene
-    from .output import atomic_write, write_png
+    from ..analysis.fitting import UNITS, fit_pose, floor_band_m
+    from ..config.loader import load_scene
+    from ..io.output import atomic_write, write_png
 
     real = _load_real(args.real, args.frame)
     scene = load_scene(args.scene)

@@ -1,9 +1,9 @@
 """Comparing two sonar images whatever their geometry, and loading them from files.
 
-:func:`compare_images` runs the metrics of :mod:`sonarsim.metrics` (MSE, PSNR, SSIM) in the
+:func:`compare_images` runs the metrics of :mod:`sonarsim.analysis.metrics` (MSE, PSNR, SSIM) in the
 polar domain, on image A's grid (B resampled if the geometries differ), and in the fan-shaped
 (Cartesian) domain, on the pixels inside both fans. :func:`load_image` reads a sonarsim NPZ, a
-PNG, or a real recording (:mod:`sonarsim.readers`), recognised from the first bytes.
+PNG, or a real recording (:mod:`sonarsim.io.readers`), recognised from the first bytes.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from .errors import SonarsimError
+from ..errors import SonarsimError
 from .metrics import NORMALIZATIONS, mse, normalize_255, psnr, ssim_map, ssim_support
 
 __all__ = ["DOMAINS", "MAX_FAN_PIXELS", "MIN_OVERLAP", "PlainImage", "compare_images", "load_image"]
@@ -160,7 +160,7 @@ def _geometry_of(image: Any, polar: np.ndarray, name: str) -> _Geometry | None:
         az = np.asarray(azimuth, dtype=np.float64).ravel()
         if az.size > 1 and not np.all(np.diff(az) < 0):
             raise SonarsimError(f"{name}: azimuth_deg must be strictly descending (left beam first)")
-        from .config.sonar import beam_edges_deg
+        from ..config.sonar import beam_edges_deg
 
         edges = beam_edges_deg(az)
         geom = _Geometry(rmin, rmax, int(np.size(range_m)), az, float(edges[0]), float(edges[-1]))
@@ -274,7 +274,7 @@ def _fan_pixels(geom: _Geometry, pixel_size_m: float) -> float:
 
 
 def _fan(polar: np.ndarray, geom: _Geometry, pixel_size_m: float):
-    from .image.fan import FanMapper
+    from ..image.fan import FanMapper
 
     mapper = FanMapper(
         geom.n_range_bins, geom.range_min_m, geom.range_max_m, geom.azimuth_deg, pixel_size_m,
@@ -487,7 +487,7 @@ def load_image(path: str | os.PathLike, frame: int | None = None, component: str
 
     The format is told by the file's first bytes, not its name:
 
-    * an NPZ written by sonarsim (:meth:`SonarImage.save_npz`, :func:`sonarsim.output.read_npz`;
+    * an NPZ written by sonarsim (:meth:`SonarImage.save_npz`, :func:`sonarsim.io.output.read_npz`;
       keys ``polar``, ``range_m``, ``azimuth_deg``, ``config_json``): a
       :class:`~sonarsim.SonarImage` whose :class:`~sonarsim.SonarConfig` is rebuilt from the
       axes (range window from the uniform bin centres, beam table from ``azimuth_deg``) and
@@ -498,7 +498,7 @@ def load_image(path: str | os.PathLike, frame: int | None = None, component: str
       flipped on reading, because sonarsim draws polar PNGs with far range at the top, so that
       row 0 is the nearest range bin as in a polar array. A flip does not change MSE, PSNR or
       SSIM between two PNGs.
-    * anything else: a real recording, read by ``sonarsim.readers.read(path, frame)``
+    * anything else: a real recording, read by ``sonarsim.io.readers.read(path, frame)``
       (ARIS, Oculus, ...).
 
     Parameters
@@ -514,7 +514,7 @@ def load_image(path: str | os.PathLike, frame: int | None = None, component: str
 
     Returns
     -------
-    SonarImage, PlainImage or what ``sonarsim.readers.read`` returns
+    SonarImage, PlainImage or what ``sonarsim.io.readers.read`` returns
         An object with ``polar`` and, where known, the geometry (``sonar``, ``range_m``,
         ``azimuth_deg``); it also has ``source`` set to the path when it is a PlainImage.
 
@@ -523,7 +523,7 @@ def load_image(path: str | os.PathLike, frame: int | None = None, component: str
     SonarsimError
         For a missing or unreadable file, an NPZ that is not sonarsim's, a frame other than 0
         of a one-frame file, an unknown component, or a recording when
-        :mod:`sonarsim.readers` is not available.
+        :mod:`sonarsim.io.readers` is not available.
     """
     p = Path(path)
     name = os.fspath(path)
@@ -553,11 +553,11 @@ def load_image(path: str | os.PathLike, frame: int | None = None, component: str
     try:
         # Imported here, through sys.modules: the readers are not needed to compare simulated
         # images, and a missing or broken readers module must only fail this case.
-        readers = importlib.import_module("sonarsim.readers")
+        readers = importlib.import_module("sonarsim.io.readers")
     except ImportError as exc:
         raise SonarsimError(
             f"{name}: not a sonarsim NPZ or a PNG, and the readers of sonar recordings "
-            f"(sonarsim.readers) are not available ({exc})"
+            f"(sonarsim.io.readers) are not available ({exc})"
         ) from None
     return readers.read(p, 0 if frame is None else int(frame))
 
@@ -579,9 +579,9 @@ def _load_png(p: Path, name: str) -> PlainImage:
 
 
 def _load_npz(p: Path, name: str, component: str | None):
-    from .output import read_npz
-    from .image.result import COMPONENTS, SonarImage
-    from .config.sonar import SonarConfig
+    from ..io.output import read_npz
+    from ..image.result import COMPONENTS, SonarImage
+    from ..config.sonar import SonarConfig
 
     try:
         arrays, config = read_npz(p)
@@ -611,7 +611,7 @@ def _load_npz(p: Path, name: str, component: str | None):
         if isinstance(s.get(k), (int, float)):
             kwargs[k] = float(s[k])
     if isinstance(s.get("pose"), dict):
-        from .config.loader import parse_pose
+        from ..config.loader import parse_pose
 
         try:
             kwargs["pose"] = parse_pose(s["pose"], "sonar.pose")

@@ -4,7 +4,7 @@ The paper (Section V, Table I) compares synthetic and real sonar images, "normal
 0~255", with the mean squared error (MSE) and the peak signal-to-noise ratio (PSNR), in the
 polar domain and in the fan-shaped (Cartesian) domain. This module computes those two, plus the
 structural similarity index (SSIM, Wang et al. 2004), which rewards matching structure (edges,
-shadows) rather than matching brightness, and :mod:`sonarsim.comparison` compares two sonar
+shadows) rather than matching brightness, and :mod:`sonarsim.analysis.comparison` compares two sonar
 images whatever their geometry with them.
 
 Definitions used here (the standard ones):
