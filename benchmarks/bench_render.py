@@ -35,10 +35,10 @@ import tracemalloc
 import numpy as np
 
 import sonarsim
-from sonarsim.demo import demo_scene_dict
-from sonarsim.loader import scene_from_dict
-from sonarsim.scene import ObjectSpec
-from sonarsim.transforms import Pose
+from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.loader import scene_from_dict
+from sonarsim.config.scene import ObjectSpec
+from sonarsim.core.transforms import Pose
 
 
 def rock_mesh(n_triangles: int, radius: float = 0.25, seed: int = 0):
@@ -76,7 +76,7 @@ def oculus_scene() -> dict:
 
 def record_casts(sim: sonarsim.Simulator) -> list:
     """Every batch of rays that one frame hands to Embree, with its caster."""
-    from sonarsim.backends.embree import EmbreeCaster
+    from sonarsim.trace.embree import EmbreeCaster
 
     recorded = []
     original = EmbreeCaster.cast_raw

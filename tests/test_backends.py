@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 import sonarsim
-from sonarsim.backends import make_caster
-from sonarsim.geometry import object_mesh_world
+from sonarsim.trace import make_caster
+from sonarsim.scene.meshes import object_mesh_world
 from conftest import sonar_dict
 
 SCENE = {

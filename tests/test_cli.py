@@ -1,4 +1,4 @@
-"""The ``sonarsim`` command line, run in a subprocess and in-process via ``sonarsim.cli.main``.
+"""The ``sonarsim`` command line, run in a subprocess and in-process via ``sonarsim.cli.main.main``.
 
 Bad input must end with a non-zero exit status and a message on stderr naming the key or file,
 never a traceback, and must leave no partial files behind.
@@ -17,7 +17,7 @@ import pytest
 import yaml
 from PIL import Image
 
-from sonarsim import cli
+from sonarsim.cli import main as cli
 
 PRESET_NAMES = [
     "aris3000-128", "aris3000-64", "didson300", "oculus-m750d-lf", "oculus-m750d-hf",

@@ -1,4 +1,4 @@
-"""Tests of the polar -> fan scan conversion (sonarsim.fan)."""
+"""Tests of the polar -> fan scan conversion (sonarsim.image.fan)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from sonarsim.fan import (
+from sonarsim.image.fan import (
     FanImage,
     FanMapper,
     beam_edges_deg,

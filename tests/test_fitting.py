@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.demo import demo_scene_dict
+from sonarsim.cli.demo import demo_scene_dict
 from sonarsim.errors import ConfigError
-from sonarsim.fitting import fit_pose, floor_band_m, parse_free
-from sonarsim.transforms import Pose
+from sonarsim.analysis.fitting import fit_pose, floor_band_m, parse_free
+from sonarsim.core.transforms import Pose
 
 
 def noisy(image, seed=0):
@@ -82,7 +82,7 @@ def test_fit_command_writes_the_fitted_scene_and_the_side_by_side_image(tmp_path
     import yaml
     from PIL import Image
 
-    from sonarsim.cli import main
+    from sonarsim.cli.main import main
 
     truth = floor_scene(0.40, 28.0, 0.0)
     noisy(sonarsim.render(truth), seed=2).save_npz(tmp_path / "real.npz")
@@ -106,7 +106,7 @@ def test_fit_command_writes_the_fitted_scene_and_the_side_by_side_image(tmp_path
 
 
 def test_fit_command_rejects_a_bad_parameter_without_traceback(tmp_path, capsys):
-    from sonarsim.cli import main
+    from sonarsim.cli.main import main
 
     sonarsim.render(floor_scene(0.4, 28.0, 0.0)).save_npz(tmp_path / "real.npz")
     scene_file = tmp_path / "scene.json"
@@ -119,7 +119,7 @@ def test_fit_command_rejects_a_bad_parameter_without_traceback(tmp_path, capsys)
 
 
 def test_real_oculus_floor_fit_reproduces_the_onset_curve(shared_data):
-    from sonarsim.readers import read
+    from sonarsim.io.readers import read
 
     real = read(shared_data / "real" / "oculus" / "one_ping_8bit.raw")
     scene = sonarsim.load_scene(Path(__file__).resolve().parents[1] / "examples" / "oculus_floor.yaml")

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.geometry import TriangleMesh, clip_above_plane
-from sonarsim.demo import demo_scene_dict
+from sonarsim.scene.meshes import TriangleMesh, clip_above_plane
+from sonarsim.cli.demo import demo_scene_dict
 from conftest import sonar_dict
 
 POSE = {"position_m": [0.0, 0.0, 1.0], "rpy_deg": [8.0, 15.0, 4.0]}  # rolled, pitched, yawed

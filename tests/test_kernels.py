@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim import compiled
-from sonarsim.demo import demo_scene_dict
+from sonarsim.render import compiled
+from sonarsim.cli.demo import demo_scene_dict
 
 pytestmark = pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled kernels not built")
 

@@ -1,5 +1,5 @@
-"""Tests of sonarsim.metrics (MSE, PSNR, SSIM, normalisation), sonarsim.comparison (image comparison, loading) and of
-the ``sonarsim compare`` command (sonarsim.compare_cli).
+"""Tests of sonarsim.analysis.metrics (MSE, PSNR, SSIM, normalisation), sonarsim.analysis.comparison (image comparison, loading) and of
+the ``sonarsim compare`` command (sonarsim.cli.compare).
 
 SSIM is checked against scikit-image's ``structural_similarity`` (the reference the module
 documents matching), MSE and PSNR against hand-computed values, resampling against images that
@@ -22,11 +22,11 @@ from conftest import sonar_dict
 from scipy import ndimage
 
 import sonarsim
-from sonarsim.compare_cli import add_compare_parser, cmd_compare
+from sonarsim.cli.compare import add_compare_parser, cmd_compare
 from sonarsim.errors import SonarsimError
-from sonarsim.comparison import PlainImage, compare_images, load_image
-from sonarsim.metrics import mse, normalize_255, psnr, ssim, ssim_support
-from sonarsim.output import to_uint8, write_npz, write_png
+from sonarsim.analysis.comparison import PlainImage, compare_images, load_image
+from sonarsim.analysis.metrics import mse, normalize_255, psnr, ssim, ssim_support
+from sonarsim.io.output import to_uint8, write_npz, write_png
 
 
 def _skimage_ssim(a, b, full=False):
@@ -374,11 +374,11 @@ def test_load_image_refuses_what_it_cannot_read(tmp_path, npz_files, monkeypatch
     np.savez(foreign, polar=np.zeros((3, 3)))
     with pytest.raises(SonarsimError, match="not a readable sonarsim NPZ"):
         load_image(foreign)
-    # Anything else goes to sonarsim.readers; simulate it being absent.
+    # Anything else goes to sonarsim.io.readers; simulate it being absent.
     other = tmp_path / "recording.aris"
     other.write_bytes(b"\x00" * 64)
-    monkeypatch.setitem(sys.modules, "sonarsim.readers", None)
-    with pytest.raises(SonarsimError, match="sonarsim.readers"):
+    monkeypatch.setitem(sys.modules, "sonarsim.io.readers", None)
+    with pytest.raises(SonarsimError, match="sonarsim.io.readers"):
         load_image(other)
 
 
@@ -389,7 +389,7 @@ def test_load_image_hands_recordings_to_the_readers(tmp_path, renders, monkeypat
         calls.append((str(path), frame))
         return renders["full"]
 
-    monkeypatch.setitem(sys.modules, "sonarsim.readers", types.SimpleNamespace(read=read))
+    monkeypatch.setitem(sys.modules, "sonarsim.io.readers", types.SimpleNamespace(read=read))
     other = tmp_path / "recording.aris"
     other.write_bytes(b"\x05DDF" + b"\x00" * 60)
     assert load_image(other, frame=3) is renders["full"]
@@ -492,13 +492,13 @@ def test_compare_errors_are_sonarsim_errors(capsys, tmp_path, npz_files):
 
 
 def test_compare_through_the_main_cli_exits_2_without_traceback(capsys, npz_files):
-    from sonarsim import cli
+    from sonarsim.cli import main as cli
 
     try:
         cli.main(["compare", "--help"])
     except SystemExit as exc:
         if exc.code != 0:
-            pytest.skip("`compare` is not wired into sonarsim.cli yet")
+            pytest.skip("`compare` is not wired into sonarsim.cli.main yet")
     capsys.readouterr()
     assert cli.main(["compare", str(npz_files["full"]), str(npz_files["half"])]) == 0
     assert "polar" in capsys.readouterr().out
@@ -508,7 +508,7 @@ def test_compare_through_the_main_cli_exits_2_without_traceback(capsys, npz_file
 
 
 def test_compare_real_oculus_pings(capsys, shared_data):
-    """Real recordings through sonarsim.readers: a ping equals itself, and differs from the next."""
+    """Real recordings through sonarsim.io.readers: a ping equals itself, and differs from the next."""
     three = shared_data / "real" / "oculus" / "three_pings_8bit.raw"
     one = shared_data / "real" / "oculus" / "one_ping_8bit.raw"
     doc = json.loads(_run(capsys, three, one, "--json")[0])  # one_ping is the first of three

@@ -1,4 +1,4 @@
-"""Tests of sonarsim.output: display mapping and atomic PNG/NPZ writing."""
+"""Tests of sonarsim.io.output: display mapping and atomic PNG/NPZ writing."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from sonarsim import output
-from sonarsim.output import atomic_write, read_npz, to_uint8, write_npz, write_png
+from sonarsim.io import output
+from sonarsim.io.output import atomic_write, read_npz, to_uint8, write_npz, write_png
 
 # --------------------------------------------------------------------------- to_uint8
 

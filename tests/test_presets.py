@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sonarsim.errors import ConfigError
-from sonarsim.presets import (
+from sonarsim.config.presets import (
     ARIS_BEAM_ANGLE_FITS,
     PRESETS,
     SONAR_KEYS,

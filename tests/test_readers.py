@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from sonarsim import SonarImage, SonarsimError, readers
-from sonarsim.presets import aris_beam_angles_deg
-from sonarsim.readers import RecordingError
-from sonarsim.readers import aris as aris_module
-from sonarsim.readers.oculus import elevation_fov_deg
-from sonarsim.readers.show import add_show_parser, cmd_show
+from sonarsim import SonarImage, SonarsimError
+from sonarsim.io import readers
+from sonarsim.config.presets import aris_beam_angles_deg
+from sonarsim.io.readers import RecordingError
+from sonarsim.io.readers import aris as aris_module
+from sonarsim.io.readers.oculus import elevation_fov_deg
+from sonarsim.cli.show import add_show_parser, cmd_show
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 ARIS_SAMPLE = DATA / "real" / "aris" / "sample.aris"
@@ -624,7 +625,7 @@ def test_header_is_json_serialisable(tmp_path):
     path = write_aris(tmp_path / "j.aris", [({}, [(1, 1)])])
     image = readers.read(path)
     image.save_npz(tmp_path / "j.npz")  # the config (with the header) goes through JSON
-    from sonarsim.output import read_npz
+    from sonarsim.io.output import read_npz
 
     arrays, config = read_npz(tmp_path / "j.npz")
     assert config["header"]["PingMode"] == 1 and arrays["polar"].shape == (100, 48)

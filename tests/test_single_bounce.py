@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.imaging import form_image
+from sonarsim.render.formation import form_image
 from conftest import sonar_dict
 
 
@@ -131,7 +131,7 @@ def test_wall_radiometry_matches_the_integral_of_eq3(tvg):
 
 
 def test_image_does_not_depend_on_the_number_of_rays():
-    from sonarsim.demo import demo_scene_dict
+    from sonarsim.cli.demo import demo_scene_dict
 
     doc = demo_scene_dict()
     doc["render"] = {"elevation_samples": 150, "bounces": [1]}
@@ -253,7 +253,7 @@ def test_gaussian_beam_pattern_weights_the_aperture_as_documented():
 
 
 def test_speckle_is_seeded_unit_mean_exponential_and_leaves_the_components_clean():
-    from sonarsim.demo import demo_scene_dict
+    from sonarsim.cli.demo import demo_scene_dict
 
     doc = demo_scene_dict()
     doc["render"] = {"speckle": True, "seed": 7, "elevation_samples": 60}

@@ -19,9 +19,9 @@ import yaml
 
 import sonarsim
 from sonarsim import ConfigError, SonarsimError, load_scene
-from sonarsim.geometry import object_mesh_world
-from sonarsim.presets import PRESETS
-from sonarsim.sonar import uniform_beam_angles_deg
+from sonarsim.scene.meshes import object_mesh_world
+from sonarsim.config.presets import PRESETS
+from sonarsim.config.sonar import uniform_beam_angles_deg
 
 # --------------------------------------------------------------------------- the base scene
 

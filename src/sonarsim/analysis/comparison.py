@@ -1,0 +1,640 @@
+"""Comparing two sonar images whatever their geometry, and loading them from files.
+
+:func:`compare_images` runs the metrics of :mod:`sonarsim.analysis.metrics` (MSE, PSNR, SSIM) in the
+polar domain, on image A's grid (B resampled if the geometries differ), and in the fan-shaped
+(Cartesian) domain, on the pixels inside both fans. :func:`load_image` reads a sonarsim NPZ, a
+PNG, or a real recording (:mod:`sonarsim.io.readers`), recognised from the first bytes.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+from ..errors import SonarsimError
+from .metrics import NORMALIZATIONS, mse, normalize_255, psnr, ssim_map, ssim_support
+
+__all__ = ["DOMAINS", "MAX_FAN_PIXELS", "MIN_OVERLAP", "PlainImage", "compare_images", "load_image"]
+
+#: Domains :func:`compare_images` can compare in.
+DOMAINS = ("polar", "fan")
+
+#: Smallest fraction of image A's coverage (area of its annular sector) that image B must cover
+#: for :func:`compare_images` to resample B onto A's grid. Below it the comparison would rest on
+#: a small corner of A and say little about the images.
+MIN_OVERLAP = 0.5
+
+#: Largest fan image (pixels) :func:`compare_images` builds: some ten float64 arrays of this
+#: size are alive at once, so a pixel size typed in millimetres instead of metres must fail
+#: with a message, not exhaust the memory.
+MAX_FAN_PIXELS = 50_000_000
+
+# Geometry of two images is "the same" when their axes agree to these tolerances (metres,
+# degrees): far below any bin or beam width, far above float round-off of a saved file.
+_RANGE_ATOL_M = 1e-6
+_AZIMUTH_ATOL_DEG = 1e-6
+
+
+
+# --------------------------------------------------------------------------------------------
+# Images with and without geometry
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class PlainImage:
+    """An image without sonar geometry (e.g. read from a PNG): a polar array only.
+
+    It has the attributes :func:`compare_images` looks for, with ``None`` for the geometry,
+    so it compares only with images of the same shape, and only in the polar domain.
+
+    Attributes
+    ----------
+    polar : np.ndarray, shape (n_rows, n_cols), float32
+        The pixel values, as read (0-255 for an 8-bit PNG).
+    source : str
+        Where it came from (a file name), for messages.
+    range_m, azimuth_deg, sonar : None
+        No geometry.
+    """
+
+    polar: np.ndarray
+    source: str = ""
+    range_m: None = None
+    azimuth_deg: None = None
+    sonar: None = None
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """Polar grid of an image: uniform range bins and a descending beam table."""
+
+    range_min_m: float
+    range_max_m: float
+    n_range_bins: int
+    azimuth_deg: np.ndarray  # (n_beams,), descending
+    left_edge_deg: float
+    right_edge_deg: float
+
+    @property
+    def range_resolution_m(self) -> float:
+        return (self.range_max_m - self.range_min_m) / self.n_range_bins
+
+    @property
+    def range_m(self) -> np.ndarray:
+        """Bin centres, metres."""
+        i = np.arange(self.n_range_bins, dtype=np.float64)
+        return self.range_min_m + (i + 0.5) * self.range_resolution_m
+
+    @property
+    def n_beams(self) -> int:
+        return int(self.azimuth_deg.size)
+
+    @property
+    def fov_deg(self) -> float:
+        return self.left_edge_deg - self.right_edge_deg
+
+    def sector_area(self, r0: float, r1: float, left: float, right: float) -> float:
+        """Area of the annular sector ``[r0, r1] x [right, left]``, m^2 (0 if empty)."""
+        if r1 <= r0 or left <= right:
+            return 0.0
+        return 0.5 * math.radians(left - right) * (r1 * r1 - r0 * r0)
+
+    @property
+    def area_m2(self) -> float:
+        return self.sector_area(
+            self.range_min_m, self.range_max_m, self.left_edge_deg, self.right_edge_deg
+        )
+
+    def describe(self) -> str:
+        return (
+            f"{self.range_min_m:g}-{self.range_max_m:g} m in {self.n_range_bins} bins, "
+            f"{self.n_beams} beams over {self.fov_deg:.4g} deg "
+            f"({self.left_edge_deg:+.4g} to {self.right_edge_deg:+.4g})"
+        )
+
+
+def _name(image: Any, default: str) -> str:
+    return str(getattr(image, "source", "") or default)
+
+
+def _polar_of(image: Any, name: str) -> np.ndarray:
+    polar = getattr(image, "polar", None)
+    if polar is None:
+        raise SonarsimError(f"{name}: not an image (no polar array)")
+    arr = np.asarray(polar)
+    if arr.ndim != 2 or arr.dtype.kind not in "biuf" or 0 in arr.shape:
+        raise SonarsimError(
+            f"{name}: the polar image must be a non-empty 2-D real array, got shape "
+            f"{arr.shape} of {arr.dtype}"
+        )
+    if not np.all(np.isfinite(arr)):
+        raise SonarsimError(f"{name}: the image contains NaN or infinite values")
+    return arr
+
+
+def _geometry_of(image: Any, polar: np.ndarray, name: str) -> _Geometry | None:
+    """The polar grid of a SonarImage-like object, or None for an image without one."""
+    sonar = getattr(image, "sonar", None)
+    if sonar is not None:
+        az = np.asarray(sonar.azimuth_deg, dtype=np.float64)
+        edges = np.asarray(sonar.beam_edges_deg, dtype=np.float64)
+        geom = _Geometry(
+            float(sonar.range_min_m), float(sonar.range_max_m), int(sonar.n_range_bins),
+            az, float(edges[0]), float(edges[-1]),
+        )
+    else:
+        range_m = getattr(image, "range_m", None)
+        azimuth = getattr(image, "azimuth_deg", None)
+        if range_m is None or azimuth is None:
+            return None
+        rmin, rmax = _range_window(np.asarray(range_m, dtype=np.float64), name)
+        az = np.asarray(azimuth, dtype=np.float64).ravel()
+        if az.size > 1 and not np.all(np.diff(az) < 0):
+            raise SonarsimError(f"{name}: azimuth_deg must be strictly descending (left beam first)")
+        from ..config.sonar import beam_edges_deg
+
+        edges = beam_edges_deg(az)
+        geom = _Geometry(rmin, rmax, int(np.size(range_m)), az, float(edges[0]), float(edges[-1]))
+    if polar.shape != (geom.n_range_bins, geom.n_beams):
+        raise SonarsimError(
+            f"{name}: the polar image has shape {polar.shape} but its geometry has "
+            f"{geom.n_range_bins} range bins and {geom.n_beams} beams"
+        )
+    return geom
+
+
+def _range_window(range_m: np.ndarray, name: str) -> tuple[float, float]:
+    """``(range_min_m, range_max_m)`` from uniformly spaced bin centres."""
+    r = range_m.ravel()
+    if r.size < 2:
+        raise SonarsimError(
+            f"{name}: cannot recover the range window from {r.size} range bin centre(s)"
+        )
+    step = np.diff(r)
+    dr = float(r[-1] - r[0]) / (r.size - 1)
+    # Bins are uniform by the project's convention; anything else is not a sonarsim image.
+    if not (dr > 0 and np.allclose(step, dr, rtol=1e-6, atol=1e-9)):
+        raise SonarsimError(f"{name}: range_m must be uniformly spaced, increasing bin centres")
+    # Rounded to 12 significant digits so that a window such as 0.5-5 m comes back as exactly
+    # that rather than 0.49999999999999994 (float round-off of centre - dr/2); the change is
+    # far below any meaningful range.
+    return float(f"{r[0] - dr / 2.0:.12g}"), float(f"{r[-1] + dr / 2.0:.12g}")
+
+
+def _same_grid(ga: _Geometry, gb: _Geometry) -> bool:
+    return (
+        ga.n_range_bins == gb.n_range_bins
+        and ga.n_beams == gb.n_beams
+        and np.allclose(ga.range_m, gb.range_m, rtol=0.0, atol=_RANGE_ATOL_M)
+        and np.allclose(ga.azimuth_deg, gb.azimuth_deg, rtol=0.0, atol=_AZIMUTH_ATOL_DEG)
+    )
+
+
+def _overlap_fraction(ga: _Geometry, gb: _Geometry) -> float:
+    """Fraction of A's coverage (annular sector area) that B's coverage also covers."""
+    inter = ga.sector_area(
+        max(ga.range_min_m, gb.range_min_m), min(ga.range_max_m, gb.range_max_m),
+        min(ga.left_edge_deg, gb.left_edge_deg), max(ga.right_edge_deg, gb.right_edge_deg),
+    )
+    return inter / ga.area_m2
+
+
+def _differences(ga: _Geometry, gb: _Geometry) -> str:
+    """What differs between two grids, for messages."""
+    out = []
+    if not (
+        math.isclose(ga.range_min_m, gb.range_min_m, abs_tol=_RANGE_ATOL_M)
+        and math.isclose(ga.range_max_m, gb.range_max_m, abs_tol=_RANGE_ATOL_M)
+    ):
+        out.append(
+            f"ranges {ga.range_min_m:g}-{ga.range_max_m:g} m vs {gb.range_min_m:g}-{gb.range_max_m:g} m"
+        )
+    if ga.n_range_bins != gb.n_range_bins:
+        out.append(f"range bins {ga.n_range_bins} vs {gb.n_range_bins}")
+    if not (
+        math.isclose(ga.left_edge_deg, gb.left_edge_deg, abs_tol=_AZIMUTH_ATOL_DEG)
+        and math.isclose(ga.right_edge_deg, gb.right_edge_deg, abs_tol=_AZIMUTH_ATOL_DEG)
+    ):
+        out.append(
+            f"fields of view {ga.fov_deg:.4g} deg ({ga.left_edge_deg:+.4g} to "
+            f"{ga.right_edge_deg:+.4g}) vs {gb.fov_deg:.4g} deg ({gb.left_edge_deg:+.4g} to "
+            f"{gb.right_edge_deg:+.4g})"
+        )
+    if ga.n_beams != gb.n_beams:
+        out.append(f"beams {ga.n_beams} vs {gb.n_beams}")
+    elif not np.allclose(ga.azimuth_deg, gb.azimuth_deg, rtol=0.0, atol=_AZIMUTH_ATOL_DEG):
+        out.append("beam angle tables differ")
+    return "; ".join(out) or "no difference"
+
+
+def _resample_polar(polar: np.ndarray, src: _Geometry, dst: _Geometry) -> tuple[np.ndarray, np.ndarray]:
+    """Image ``polar`` on grid ``src`` sampled at the bin centres of grid ``dst``.
+
+    Bilinear in (range, azimuth): the fractional range index is linear in range, the
+    fractional beam index piecewise linear in azimuth between ``src``'s beam centres (as in
+    :mod:`sonarsim.image.fan`, so non-uniform lens tables work). Between ``src``'s outermost
+    centres and its coverage edges the edge bin/beam is used; outside its coverage the result
+    is 0 and the returned mask is False.
+
+    Returns
+    -------
+    values : np.ndarray, shape (dst.n_range_bins, dst.n_beams), float64
+    covered : np.ndarray, same shape, bool
+    """
+    r = dst.range_m
+    theta = dst.azimuth_deg
+    r_idx = (r - src.range_min_m) / src.range_resolution_m - 0.5
+    # np.interp wants increasing sample points: feed the descending table reversed.
+    b_idx = np.interp(theta, src.azimuth_deg[::-1], np.arange(src.n_beams, dtype=np.float64)[::-1])
+    rr, bb = np.meshgrid(r_idx, b_idx, indexing="ij")
+    values = ndimage.map_coordinates(
+        np.asarray(polar, dtype=np.float64), [rr, bb], order=1, mode="nearest"
+    )
+    covered = ((r >= src.range_min_m) & (r <= src.range_max_m))[:, None] & (
+        (theta <= src.left_edge_deg) & (theta >= src.right_edge_deg)
+    )[None, :]
+    values[~covered] = 0.0
+    return values, covered
+
+
+def _fan_pixels(geom: _Geometry, pixel_size_m: float) -> float:
+    """Size of the fan image of ``geom`` (as :func:`sonarsim.image.fan.fan_geometry` lays it out)."""
+    half_fov = math.radians(max(abs(geom.left_edge_deg), abs(geom.right_edge_deg)))
+    rows = math.ceil(geom.range_max_m / pixel_size_m)
+    return rows * 2.0 * math.ceil(geom.range_max_m * math.sin(half_fov) / pixel_size_m)
+
+
+def _fan(polar: np.ndarray, geom: _Geometry, pixel_size_m: float):
+    from ..image.fan import FanMapper
+
+    mapper = FanMapper(
+        geom.n_range_bins, geom.range_min_m, geom.range_max_m, geom.azimuth_deg, pixel_size_m,
+        "linear", single_beam_width_deg=geom.fov_deg,
+    )
+    return mapper(polar)
+
+
+def _onto_grid(values: np.ndarray, src, dst) -> np.ndarray:
+    """Copy an array on fan grid ``src`` onto fan grid ``dst`` (zeros where ``src`` has none).
+
+    ``src`` and ``dst`` are :class:`~sonarsim.image.fan.FanImage` objects with the same pixel size.
+    Such grids are aligned (pixel centres at half-integer multiples of the pixel size from
+    the apex), so this is a shift by whole pixels, with no interpolation.
+    """
+    p = dst.pixel_size_m
+    # Row i of dst has x = dst.x_m[i]; the same x is row i + dr of src (rows count from the far
+    # end, so a longer fan has more rows above). Likewise for columns from the left.
+    dr = round(float(src.x_m[0] - dst.x_m[0]) / p)
+    dc = round(float(src.y_m[0] - dst.y_m[0]) / p)
+    h, w = dst.shape
+    out = np.zeros((h, w), dtype=values.dtype)
+    i0, i1 = max(0, -dr), min(h, src.shape[0] - dr)
+    j0, j1 = max(0, -dc), min(w, src.shape[1] - dc)
+    if i1 > i0 and j1 > j0:
+        out[i0:i1, j0:j1] = values[i0 + dr:i1 + dr, j0 + dc:j1 + dc]
+    return out
+
+
+def _metrics(x: np.ndarray, y: np.ndarray, mask: np.ndarray, normalize: str | None,
+             data_range: float) -> dict[str, Any]:
+    if normalize is not None:
+        x = normalize_255(x, mask, normalize)
+        y = normalize_255(y, mask, normalize)
+    support = ssim_support(x.shape, mask)
+    out: dict[str, Any] = {
+        "mse": mse(x, y, mask),
+        "psnr": psnr(x, y, mask, data_range),
+        # NaN rather than an error: MSE and PSNR are still meaningful for a region too small
+        # for an SSIM window (e.g. a tiny PNG), and the caller reports "n/a".
+        "ssim": float(np.mean(ssim_map(x, y, data_range)[support])) if support.any() else math.nan,
+        "n_pixels": int(mask.sum()),
+        "n_ssim_pixels": int(support.sum()),
+    }
+    return out
+
+
+def compare_images(
+    a: Any,
+    b: Any,
+    domains: tuple[str, ...] = DOMAINS,
+    pixel_size_m: float | None = None,
+    *,
+    normalize: str | None = "max",
+    data_range: float = 255.0,
+    names: tuple[str, str] | None = None,
+) -> dict[str, Any]:
+    """MSE, PSNR and SSIM between two sonar images, in the polar and fan domains.
+
+    Each image is normalised to 0-255 (:func:`normalize_255`, ``normalize`` mode) over the
+    pixels compared in each domain, then compared there (the paper's Table I):
+
+    * ``"polar"``: on A's polar grid. If B's grid differs (range window, number of bins, beam
+      angles), B is resampled onto A's bin centres (bilinear in range and azimuth, zero
+      outside B's coverage) and only A's bins inside B's coverage count.
+    * ``"fan"``: both images scan-converted (:mod:`sonarsim.image.fan`, linear) to Cartesian fans
+      with the same pixel size, on A's fan grid; only pixels inside both fans count. B is
+      converted from its own polar grid, so it is interpolated once, not twice.
+
+    Parameters
+    ----------
+    a, b : SonarImage or SonarImage-like
+        Objects with ``polar`` ((n_range_bins, n_beams) array) and either ``sonar`` (a
+        :class:`~sonarsim.SonarConfig`) or ``range_m`` (uniform bin centres, metres) and
+        ``azimuth_deg`` (descending beam centres, degrees), as returned by
+        :func:`load_image`. A :class:`PlainImage` (no geometry) compares only with an image of
+        the same shape, pixel by pixel, and only in the polar domain.
+    domains : tuple of {"polar", "fan"}
+        Domains to compare in. ``"fan"`` is skipped (see ``info["skipped"]``) when an image
+        has no geometry.
+    pixel_size_m : float, optional
+        Fan pixel edge, metres, > 0. Default: A's range resolution.
+    normalize : {"max", "minmax"} or None
+        Normalisation to 0-255 of each image (see :func:`normalize_255`); None compares the
+        values as they are (e.g. two 8-bit images already on the same scale).
+    data_range : float
+        Peak value for PSNR and SSIM: 255 for normalised images.
+    names : (str, str), optional
+        What to call A and B in messages (e.g. their file names). Default: a PlainImage's
+        ``source``, else "image A" and "image B".
+
+    Returns
+    -------
+    dict
+        ``{domain: {"mse", "psnr", "ssim", "n_pixels", "n_ssim_pixels"}}`` for each domain
+        compared (MSE in squared grey levels, PSNR in dB (``inf`` if identical), SSIM
+        (NaN when no 11 x 11 window fits in the compared region), the number of compared
+        pixels and of pixels SSIM is averaged over), plus ``"info"``: ``{"normalize",
+        "resampled" (bool: B was resampled onto A's grid), "overlap" (fraction of A's coverage
+        area that B covers, 1 for the same grid; None without geometry), "pixel_size_m"
+        (fan pixel size, None if no fan), "skipped" ({domain: reason})}``.
+
+    Raises
+    ------
+    SonarsimError
+        When the images cannot be compared: different shapes without geometry, coverages
+        overlapping on less than :data:`MIN_OVERLAP` of A's area (the message says what
+        differs), unknown domains or normalisation, a bad pixel size or one that would make a
+        fan image of more than :data:`MAX_FAN_PIXELS` pixels, non-finite values.
+    """
+    domains = tuple(domains)
+    unknown = [d for d in domains if d not in DOMAINS]
+    if unknown or not domains:
+        raise SonarsimError(
+            f"domains must be a non-empty selection of {', '.join(DOMAINS)}, got {list(domains)}"
+        )
+    if normalize is not None and normalize not in NORMALIZATIONS:
+        raise SonarsimError(
+            f"normalize must be one of {', '.join(NORMALIZATIONS)} or None, got {normalize!r}"
+        )
+    if pixel_size_m is not None:
+        try:
+            pixel_size_m = float(pixel_size_m)
+        except (TypeError, ValueError):
+            raise SonarsimError(f"pixel size must be a positive number of metres, got {pixel_size_m!r}") from None
+        if not (math.isfinite(pixel_size_m) and pixel_size_m > 0.0):
+            raise SonarsimError(f"pixel size must be a positive number of metres, got {pixel_size_m!r}")
+
+    if names is not None:
+        name_a, name_b = map(str, names)
+    else:
+        name_a, name_b = _name(a, "image A"), _name(b, "image B")
+    pa, pb = _polar_of(a, name_a), _polar_of(b, name_b)
+    ga, gb = _geometry_of(a, pa, name_a), _geometry_of(b, pb, name_b)
+    info: dict[str, Any] = {
+        "normalize": normalize, "resampled": False, "overlap": None, "pixel_size_m": None,
+        "skipped": {},
+    }
+    result: dict[str, Any] = {}
+
+    if ga is None or gb is None:
+        if pa.shape != pb.shape:
+            which = name_a if ga is None else name_b
+            raise SonarsimError(
+                f"cannot compare {name_a} (shape {pa.shape}) with {name_b} (shape {pb.shape}): "
+                f"{which} has no sonar geometry (range bins and beam angles, e.g. a PNG), so it "
+                "can only be compared with an image of the same shape"
+            )
+        b_on_a = pb.astype(np.float64)
+        polar_mask = np.ones(pa.shape, dtype=bool)
+    elif _same_grid(ga, gb):
+        info["overlap"] = 1.0
+        b_on_a = pb.astype(np.float64)
+        polar_mask = np.ones(pa.shape, dtype=bool)
+    else:
+        overlap = _overlap_fraction(ga, gb)
+        info["overlap"] = overlap
+        if overlap < MIN_OVERLAP:
+            raise SonarsimError(
+                f"cannot compare {name_a} with {name_b}: their geometries differ "
+                f"({_differences(ga, gb)}) and {name_b} covers only {100 * overlap:.3g} % of "
+                f"the area seen by {name_a} (at least {100 * MIN_OVERLAP:g} % is needed to "
+                f"resample it onto {name_a}'s grid)"
+            )
+        b_on_a, polar_mask = _resample_polar(pb, gb, ga)
+        info["resampled"] = True
+
+    if "polar" in domains:
+        result["polar"] = _metrics(pa, b_on_a, polar_mask, normalize, data_range)
+
+    if "fan" in domains:
+        if ga is None or gb is None:
+            info["skipped"]["fan"] = (
+                f"{name_a if ga is None else name_b} has no sonar geometry (e.g. a PNG)"
+            )
+        else:
+            p = pixel_size_m if pixel_size_m is not None else ga.range_resolution_m
+            info["pixel_size_m"] = p
+            for g, n in ((ga, name_a), (gb, name_b)):
+                if _fan_pixels(g, p) > MAX_FAN_PIXELS:
+                    raise SonarsimError(
+                        f"a fan pixel size of {p:g} m is too small for {n}: its fan image "
+                        f"would have {_fan_pixels(g, p):.3g} pixels (at most "
+                        f"{MAX_FAN_PIXELS:.3g}); give a larger pixel size"
+                    )
+            fa, fb = _fan(pa, ga, p), _fan(pb, gb, p)
+            image_b = _onto_grid(fb.image, fb, fa)
+            mask_b = _onto_grid(np.asarray(fb.mask), fb, fa)
+            mask = np.asarray(fa.mask) & mask_b
+            if not mask.any():
+                raise SonarsimError(
+                    f"no fan pixel of {p:g} m lies inside both fans; use a smaller pixel size"
+                )
+            result["fan"] = _metrics(fa.image, image_b, mask, normalize, data_range)
+
+    result["info"] = info
+    return result
+
+
+# --------------------------------------------------------------------------------------------
+# Files
+# --------------------------------------------------------------------------------------------
+
+_ZIP_MAGIC = b"PK\x03\x04"
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def load_image(path: str | os.PathLike, frame: int | None = None, component: str | None = None):
+    """Read one sonar image from a file, for :func:`compare_images`.
+
+    The format is told by the file's first bytes, not its name:
+
+    * an NPZ written by sonarsim (:meth:`SonarImage.save_npz`, :func:`sonarsim.io.output.read_npz`;
+      keys ``polar``, ``range_m``, ``azimuth_deg``, ``config_json``): a
+      :class:`~sonarsim.SonarImage` whose :class:`~sonarsim.SonarConfig` is rebuilt from the
+      axes (range window from the uniform bin centres, beam table from ``azimuth_deg``) and
+      from the configuration (elevation aperture, 14 deg if absent; pose; beam width). Its
+      ``components`` are the stored ones; ``rays`` is None.
+    * a PNG: a :class:`PlainImage` (no geometry) holding the grey levels as float32 (colour is
+      converted to luma by Pillow; 16-bit and float images keep their values). Rows are
+      flipped on reading, because sonarsim draws polar PNGs with far range at the top, so that
+      row 0 is the nearest range bin as in a polar array. A flip does not change MSE, PSNR or
+      SSIM between two PNGs.
+    * anything else: a real recording, read by ``sonarsim.io.readers.read(path, frame)``
+      (ARIS, Oculus, ...).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    frame : int, optional
+        Frame of a recording, from 0 (default 0). NPZ and PNG files hold one frame: only 0
+        or None is accepted.
+    component : str, optional
+        NPZ only: the array to compare instead of ``polar``, e.g. ``"single"`` (the paper's
+        "Single" rows of Table I) or ``"triple"``.
+
+    Returns
+    -------
+    SonarImage, PlainImage or what ``sonarsim.io.readers.read`` returns
+        An object with ``polar`` and, where known, the geometry (``sonar``, ``range_m``,
+        ``azimuth_deg``); it also has ``source`` set to the path when it is a PlainImage.
+
+    Raises
+    ------
+    SonarsimError
+        For a missing or unreadable file, an NPZ that is not sonarsim's, a frame other than 0
+        of a one-frame file, an unknown component, or a recording when
+        :mod:`sonarsim.io.readers` is not available.
+    """
+    p = Path(path)
+    name = os.fspath(path)
+    if frame is not None and (
+        isinstance(frame, (bool, np.bool_)) or not isinstance(frame, (int, np.integer)) or frame < 0
+    ):
+        raise SonarsimError(f"{name}: frame must be an integer >= 0, got {frame!r}")
+    try:
+        with open(p, "rb") as handle:
+            head = handle.read(8)
+    except FileNotFoundError:
+        raise SonarsimError(f"{name}: no such file") from None
+    except OSError as exc:
+        raise SonarsimError(f"{name}: cannot read: {exc.strerror or exc}") from None
+
+    if head.startswith((_ZIP_MAGIC, _PNG_MAGIC)):
+        if frame not in (None, 0):
+            raise SonarsimError(f"{name}: holds a single frame; frame {frame} does not exist")
+        if component is not None and not head.startswith(_ZIP_MAGIC):
+            raise SonarsimError(f"{name}: a PNG has no components; {component!r} was asked for")
+        if head.startswith(_ZIP_MAGIC):
+            return _load_npz(p, name, component)
+        return _load_png(p, name)
+
+    if component is not None:
+        raise SonarsimError(f"{name}: components ({component!r}) exist only in sonarsim NPZ files")
+    try:
+        # Imported here, through sys.modules: the readers are not needed to compare simulated
+        # images, and a missing or broken readers module must only fail this case.
+        readers = importlib.import_module("sonarsim.io.readers")
+    except ImportError as exc:
+        raise SonarsimError(
+            f"{name}: not a sonarsim NPZ or a PNG, and the readers of sonar recordings "
+            f"(sonarsim.io.readers) are not available ({exc})"
+        ) from None
+    return readers.read(p, 0 if frame is None else int(frame))
+
+
+def _load_png(p: Path, name: str) -> PlainImage:
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(p) as im:
+            im.load()
+            if im.mode in ("I", "I;16", "I;16B", "I;16L", "F"):
+                arr = np.asarray(im)
+            else:
+                arr = np.asarray(im.convert("L"))
+    except (OSError, UnidentifiedImageError, ValueError) as exc:
+        raise SonarsimError(f"{name}: cannot read the PNG: {exc}") from None
+    polar = np.ascontiguousarray(arr[::-1], dtype=np.float32)
+    return PlainImage(polar=polar, source=name)
+
+
+def _load_npz(p: Path, name: str, component: str | None):
+    from ..io.output import read_npz
+    from ..image.result import COMPONENTS, SonarImage
+    from ..config.sonar import SonarConfig
+
+    try:
+        arrays, config = read_npz(p)
+    except (ValueError, OSError, zipfile.BadZipFile, KeyError) as exc:
+        raise SonarsimError(f"{name}: not a readable sonarsim NPZ file: {exc}") from None
+    missing = [k for k in ("polar", "range_m", "azimuth_deg") if k not in arrays]
+    if missing:
+        raise SonarsimError(f"{name}: not a sonarsim image: no {', '.join(missing)} array(s)")
+    key = "polar" if component is None else component
+    if key not in arrays or np.ndim(arrays[key]) != 2:
+        stored = sorted(k for k, v in arrays.items() if np.ndim(v) == 2 and np.shape(v) == np.shape(arrays["polar"]))
+        raise SonarsimError(
+            f"{name}: no image {key!r}; the file holds {', '.join(stored)}"
+        )
+    polar = np.asarray(arrays[key], dtype=np.float32)
+    range_m = np.asarray(arrays["range_m"], dtype=np.float64).ravel()
+    azimuth = np.asarray(arrays["azimuth_deg"], dtype=np.float64).ravel()
+    if polar.shape != (range_m.size, azimuth.size):
+        raise SonarsimError(
+            f"{name}: {key!r} has shape {polar.shape} but range_m and azimuth_deg give "
+            f"({range_m.size}, {azimuth.size})"
+        )
+    rmin, rmax = _range_window(range_m, name)
+    s = config.get("sonar") if isinstance(config.get("sonar"), dict) else {}
+    kwargs: dict[str, Any] = {}
+    for k in ("beam_width_deg", "frequency_khz"):
+        if isinstance(s.get(k), (int, float)):
+            kwargs[k] = float(s[k])
+    if isinstance(s.get("pose"), dict):
+        from ..config.loader import parse_pose
+
+        try:
+            kwargs["pose"] = parse_pose(s["pose"], "sonar.pose")
+        except SonarsimError:
+            pass  # the pose plays no part in a comparison; a bad one must not block it
+    elevation = s.get("elevation_fov_deg", 14.0)
+    try:
+        sonar = SonarConfig(
+            beam_angles_deg=tuple(azimuth),
+            elevation_fov_deg=float(elevation),
+            range_min_m=rmin,
+            range_max_m=rmax,
+            n_range_bins=int(range_m.size),
+            **kwargs,
+        )
+    except (SonarsimError, TypeError, ValueError) as exc:
+        raise SonarsimError(f"{name}: inconsistent sonar geometry: {exc}") from None
+    components = {
+        k: np.asarray(arrays[k], dtype=np.float32)
+        for k in COMPONENTS
+        if k in arrays and np.shape(arrays[k]) == polar.shape
+    }
+    return SonarImage(
+        polar=polar, range_m=range_m, azimuth_deg=azimuth, components=components, sonar=sonar,
+        rays=None, config=config,
+    )

@@ -1,0 +1,168 @@
+"""The ``sonarsim compare`` command: MSE, PSNR and SSIM between two sonar images.
+
+A thin layer over :mod:`sonarsim.analysis.comparison`. Wire it into the main parser with::
+
+    from .compare import add_compare_parser, cmd_compare
+    add_compare_parser(sub)          # sub = parser.add_subparsers(...)
+    COMMANDS["compare"] = cmd_compare  # or dispatch on args.func, which the parser sets
+
+Results go to stdout (a table, or JSON with ``--json``); notes go to stderr. Bad input raises
+:class:`~sonarsim.errors.SonarsimError`, which the main CLI prints without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from typing import Any
+
+from .argtypes import frame_index, positive_float
+
+__all__ = ["add_compare_parser", "cmd_compare"]
+
+_NORMALIZE_CHOICES = ("max", "minmax", "none")
+
+
+def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add the ``compare`` sub-command to an ``add_subparsers()`` object.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        What ``ArgumentParser.add_subparsers`` returned.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        The new sub-parser; its defaults set ``func=cmd_compare``.
+    """
+    p = subparsers.add_parser(
+        "compare",
+        help="MSE, PSNR and SSIM between two sonar images (polar and fan)",
+        description=(
+            "Compare two sonar images as in the paper's Table I: MSE and PSNR (data range 255) "
+            "and SSIM (11x11 Gaussian window, sigma 1.5), after normalising each image to "
+            "0-255, in the polar domain and in the fan-shaped Cartesian domain (pixels inside "
+            "both fans). A and B are sonarsim NPZ files (render.npz), PNGs (no geometry: "
+            "same shape only, polar only) or recordings that sonarsim.io.readers can read. If "
+            "the geometries differ, B is resampled onto A's grid when it covers at least half "
+            "of A's area."
+        ),
+    )
+    p.add_argument("a", metavar="A", help="reference image file (e.g. a real recording)")
+    p.add_argument("b", metavar="B", help="image file compared with A (e.g. a simulation)")
+    p.add_argument("--frame-a", type=frame_index, default=None, metavar="N",
+                   help="frame of A, for recordings (default: 0)")
+    p.add_argument("--frame-b", type=frame_index, default=None, metavar="N",
+                   help="frame of B, for recordings (default: 0)")
+    p.add_argument("--component-a", default=None, metavar="NAME",
+                   help="NPZ only: compare this component of A instead of the total image "
+                   "(object, ground, single, double, triple, total)")
+    p.add_argument("--component-b", default=None, metavar="NAME",
+                   help="NPZ only: compare this component of B instead of the total image")
+    p.add_argument("--pixel-size", type=positive_float, default=None, metavar="M",
+                   help="fan pixel size in metres (default: A's range resolution)")
+    p.add_argument("--normalize", choices=_NORMALIZE_CHOICES, default="max",
+                   help="normalisation of each image to 0-255: divide by its maximum (default), "
+                   "min-max, or none (compare the values as stored)")
+    p.add_argument("--json", action="store_true",
+                   help="print JSON instead of a table (infinite PSNR and undefined SSIM as null)")
+    p.set_defaults(func=cmd_compare)
+    return p
+
+
+def _describe(image: Any) -> dict[str, Any]:
+    """Shape and geometry of an image, JSON-ready."""
+    polar = image.polar
+    out: dict[str, Any] = {"shape": [int(polar.shape[0]), int(polar.shape[1])]}
+    sonar = getattr(image, "sonar", None)
+    if sonar is not None:
+        edges = sonar.beam_edges_deg
+        out.update(
+            range_min_m=float(sonar.range_min_m), range_max_m=float(sonar.range_max_m),
+            n_range_bins=int(sonar.n_range_bins), n_beams=int(sonar.n_beams),
+            left_edge_deg=float(edges[0]), right_edge_deg=float(edges[-1]),
+        )
+    return out
+
+
+def _finite_or_none(value: Any) -> Any:
+    """Strict JSON has no inf or NaN."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _fmt(value: float, spec: str) -> str:
+    if math.isnan(value):
+        return "n/a"
+    if math.isinf(value):
+        return "inf"
+    return format(value, spec)
+
+
+def _summary(path: str, frame: int | None, component: str | None, desc: dict[str, Any]) -> str:
+    what = path
+    if frame is not None:
+        what += f" frame {frame}"
+    if component is not None:
+        what += f" [{component}]"
+    rows, cols = desc["shape"]
+    if "n_beams" in desc:
+        return (f"{what}: {rows} x {cols}, {desc['range_min_m']:g}-{desc['range_max_m']:g} m, "
+                f"{desc['n_beams']} beams {desc['left_edge_deg']:+.4g} to {desc['right_edge_deg']:+.4g} deg")
+    return f"{what}: {rows} x {cols}, no geometry"
+
+
+def cmd_compare(args: argparse.Namespace) -> None:
+    """Run ``sonarsim compare`` with parsed arguments; print the result to stdout.
+
+    Raises
+    ------
+    SonarsimError
+        For files that cannot be read or images that cannot be compared.
+    """
+    from ..analysis.comparison import DOMAINS, compare_images, load_image
+
+    image_a = load_image(args.a, args.frame_a, args.component_a)
+    image_b = load_image(args.b, args.frame_b, args.component_b)
+    normalize = None if args.normalize == "none" else args.normalize
+    result = compare_images(
+        image_a, image_b, DOMAINS, args.pixel_size, normalize=normalize, names=(args.a, args.b)
+    )
+    info = result["info"]
+    desc_a, desc_b = _describe(image_a), _describe(image_b)
+
+    if args.json:
+        doc = {
+            "a": {"path": args.a, "frame": args.frame_a, "component": args.component_a, **desc_a},
+            "b": {"path": args.b, "frame": args.frame_b, "component": args.component_b, **desc_b},
+            **info,
+            "metrics": {
+                d: {k: _finite_or_none(v) for k, v in result[d].items()}
+                for d in DOMAINS if d in result
+            },
+        }
+        print(json.dumps(doc, indent=2, allow_nan=False))
+        return
+
+    print(f"A: {_summary(args.a, args.frame_a, args.component_a, desc_a)}")
+    print(f"B: {_summary(args.b, args.frame_b, args.component_b, desc_b)}")
+    if info["resampled"]:
+        print(f"B resampled onto A's polar grid; B covers {100 * info['overlap']:.3g} % of A's area")
+    norm = {"max": "each image / its maximum x 255", "minmax": "each image min-max to 0-255",
+            None: "none (values as stored)"}[normalize]
+    print(f"normalisation: {norm}; PSNR and SSIM with data range 255")
+    print()
+    print(f"{'domain':<8} {'MSE':>12} {'PSNR dB':>9} {'SSIM':>8} {'pixels':>9}")
+    for d in DOMAINS:
+        if d in result:
+            m = result[d]
+            print(f"{d:<8} {_fmt(m['mse'], '.4f'):>12} {_fmt(m['psnr'], '.3f'):>9} "
+                  f"{_fmt(m['ssim'], '.4f'):>8} {m['n_pixels']:>9}")
+    if info["pixel_size_m"] is not None:
+        print(f"(fan pixel size {info['pixel_size_m']:.4g} m)")
+    for d, why in info["skipped"].items():
+        print(f"sonarsim: note: {d} domain skipped: {why}", file=sys.stderr)

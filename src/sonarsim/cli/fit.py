@@ -1,0 +1,130 @@
+"""``sonarsim fit``: find the sonar pose that makes a scene look like a real recording.
+
+Writes the scene with the fitted pose (the user's own scene document, only ``sonar.pose``
+changed) and a side-by-side picture: the real image with the fitted floor-band edges drawn
+on it, and the render at the fitted pose.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .argtypes import frame_index
+from ..errors import SonarsimError
+
+
+def add_fit_parser(sub) -> argparse.ArgumentParser:
+    """Add the ``fit`` sub-command to an argparse sub-parser collection."""
+    p = sub.add_parser(
+        "fit", help="fit the sonar pose of a scene to a real recording",
+        description="Find the sonar pose parameters (--free) that make the rendered scene match a real "
+        "image, starting from the scene's pose. Writes the scene with the fitted pose to --out and a "
+        "side-by-side picture (real | fitted) next to it.",
+    )
+    p.add_argument("real", help="real recording (.aris, Oculus .raw) or a sonarsim render.npz")
+    p.add_argument("--scene", required=True, help="scene file (YAML or JSON); its sonar pose is the start")
+    p.add_argument("--free", default="z,pitch", help="pose parameters to fit, from x,y,z,roll,pitch,yaw (default: z,pitch)")
+    p.add_argument("--out", required=True, help="where to write the fitted scene (YAML)")
+    p.add_argument("--frame", type=frame_index, default=0, help="frame of the recording (default: 0)")
+    p.add_argument("--domain", choices=("edges", "band"), default="edges",
+                   help="compare edge maps of whole images (default), or the near and far edges of the floor band")
+    p.add_argument("--max-renders", type=int, default=600, help="render budget of the search (default: 600)")
+    p.add_argument("--image", default=None, help="side-by-side PNG (default: next to --out, *_fit.png)")
+    p.set_defaults(func=cmd_fit)
+    return p
+
+
+def _load_real(path: str, frame: int):
+    from ..analysis.comparison import load_image
+
+    image = load_image(path, frame=frame)
+    if getattr(image, "sonar", None) is None:
+        raise SonarsimError(f"{path}: has no sonar geometry (range and beam axes); give a recording or an NPZ")
+    return image
+
+
+def _fitted_document(scene_path: Path, out_path: Path, pose) -> dict:
+    """The user's scene document with the fitted pose; relative paths still resolve from out."""
+    from ..config.loader import read_document
+
+    doc = copy.deepcopy(read_document(scene_path))
+    sonar = doc.setdefault("sonar", {})
+    sonar["pose"] = pose.to_dict()
+    base, new_base = scene_path.resolve().parent, out_path.resolve().parent
+    if base != new_base:
+        for obj in doc.get("objects") or []:
+            if isinstance(obj, dict) and isinstance(obj.get("mesh"), str) and not Path(obj["mesh"]).is_absolute():
+                obj["mesh"] = str(base / obj["mesh"])
+        if isinstance(sonar.get("beam_angles_file"), str) and not Path(sonar["beam_angles_file"]).is_absolute():
+            sonar["beam_angles_file"] = str(base / sonar["beam_angles_file"])
+    return doc
+
+
+def side_by_side(real, fitted, gap_px: int = 8) -> np.ndarray:
+    """RGB picture: the real fan with the fitted band edges (red: near, yellow: far) | the
+    fitted render's fan.
+
+    Returns
+    -------
+    (H, 2 W + gap_px, 3) uint8 ndarray
+    """
+    from ..analysis.fitting import floor_band_m
+    from ..io.output import to_uint8
+
+    pixel = max(real.sonar.range_resolution_m, real.sonar.range_max_m / 1000.0)
+    fan_r, fan_s = real.fan(pixel_size_m=pixel), fitted.fan(pixel_size_m=pixel)
+    left = np.repeat(to_uint8(fan_r.image, "linear", 0.0, mask=fan_r.mask)[..., None], 3, axis=2)
+    right = np.repeat(to_uint8(fan_s.image, "db", 0.0, 40.0, mask=fan_s.mask)[..., None], 3, axis=2)
+    onset, end = floor_band_m(fitted)
+    az = np.radians(fitted.azimuth_deg)
+    for ranges, colour in ((onset, (255, 0, 0)), (end, (255, 220, 0))):
+        ok = np.isfinite(ranges)
+        x = ranges[ok] * np.cos(az[ok])  # forward
+        y = ranges[ok] * np.sin(az[ok])  # left
+        rows = np.round((fan_r.x_m[0] - x) / pixel).astype(int)
+        cols = np.round((fan_r.y_m[0] - y) / pixel).astype(int)
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                rr, cc = rows + dr, cols + dc
+                inside = (rr >= 0) & (rr < left.shape[0]) & (cc >= 0) & (cc < left.shape[1])
+                left[rr[inside], cc[inside]] = colour
+    h = max(left.shape[0], right.shape[0])
+
+    def pad(a):
+        return np.pad(a, ((0, h - a.shape[0]), (0, 0), (0, 0)))
+
+    gap = np.full((h, gap_px, 3), 255, dtype=np.uint8)
+    return np.concatenate([pad(left), gap, pad(right)], axis=1)
+
+
+def cmd_fit(args) -> None:
+    import yaml
+
+    from ..analysis.fitting import UNITS, fit_pose, floor_band_m
+    from ..config.loader import load_scene
+    from ..io.output import atomic_write, write_png
+
+    real = _load_real(args.real, args.frame)
+    scene = load_scene(args.scene)
+    result = fit_pose(real, scene, free=args.free, domain=args.domain, max_renders=args.max_renders)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    doc = _fitted_document(Path(args.scene), out, result.pose)
+    with atomic_write(out, "w") as f:
+        yaml.safe_dump(doc, f, sort_keys=False)
+    image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
+    write_png(image_path, side_by_side(real, result.image))
+    onset_r, end_r = floor_band_m(real)
+    onset_s, end_s = floor_band_m(result.image)
+    end_rms = float(np.sqrt(np.nanmean((end_s - end_r) ** 2))) if np.isfinite(end_s - end_r).any() else float("nan")
+    for name in result.free:
+        print(f"{name:6s} {result.start[name]:10.4f} -> {result.values[name]:10.4f} {UNITS[name]}")
+    what = "1 - edge correlation" if result.domain == "edges" else "band-edge RMS, m"
+    print(f"cost ({what}): {result.cost_start:.4f} -> {result.cost:.4f} in {result.renders} renders")
+    print(f"floor band residual over {len(onset_r)} beams: near edge RMS {result.onset_rms_m:.4f} m, far edge RMS {end_rms:.4f} m")
+    print(f"sonarsim: wrote {out} and {image_path}", file=sys.stderr)

@@ -1,0 +1,67 @@
+"""Command-line interface: a thin layer over the library; one module per command.
+
+Results go to files; progress and timing go to stderr. Bad input ends with a one-line message
+naming the key or file, exit status 2, and no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Sequence
+
+from ..errors import SonarsimError
+
+EXIT_BAD_INPUT = 2
+
+
+def _log(msg: str) -> None:
+    print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``sonarsim`` parser: one sub-command per module of :mod:`sonarsim.cli`."""
+    from .compare import add_compare_parser
+    from .demo import add_demo_parser
+    from .fit import add_fit_parser
+    from .presets import add_presets_parser
+    from .render import add_render_parser
+    from .show import add_show_parser
+
+    parser = argparse.ArgumentParser(
+        prog="sonarsim",
+        description="Simulate 2D forward-looking sonar images (with ground echoes) from 3D scenes.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    add_render_parser(sub)
+    add_demo_parser(sub)
+    add_presets_parser(sub)
+    # Real data: reading recordings, comparing images, fitting the pose.
+    add_show_parser(sub)
+    add_compare_parser(sub)
+    add_fit_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``sonarsim`` command; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        args.func(args)
+    except SonarsimError as exc:
+        _log(f"error: {exc}")
+        return EXIT_BAD_INPUT
+    except OSError as exc:  # e.g. an output folder that cannot be written
+        # A failed rename names the temporary file first; the user wants the destination.
+        name = exc.filename2 or exc.filename or ""
+        _log(f"error: {name}: {exc.strerror or exc}")
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        return 130
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

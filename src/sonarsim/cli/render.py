@@ -1,0 +1,124 @@
+"""The ``sonarsim render`` command: a scene file to polar.png, fan.png and render.npz.
+
+Also holds what ``render`` and ``demo`` share: their options and the render-and-write step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from .argtypes import finite_float, positive_float
+
+__all__ = ["add_image_options", "add_render_options", "add_render_parser", "cmd_render", "render_and_write"]
+
+
+def _log(msg: str) -> None:
+    print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
+
+
+def _bounces(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.replace(" ", "").split(",") if v]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--bounces must be a comma-separated list drawn from 1,2,3, got {text!r}") from None
+    if not values or any(v not in (1, 2, 3) for v in values):
+        raise argparse.ArgumentTypeError(f"--bounces must be a comma-separated list drawn from 1,2,3, got {text!r}")
+    return values
+
+
+def add_image_options(p: argparse.ArgumentParser) -> None:
+    """The PNG options of ``render`` and ``demo``."""
+    g = p.add_argument_group("images")
+    g.add_argument("--pixel-size", type=positive_float, default=None, metavar="M",
+                   help="fan image pixel size in metres (default: the range resolution)")
+    g.add_argument("--mapping", choices=("db", "linear"), default="db",
+                   help="PNG intensity mapping: dB window below the maximum, or linear (default: db)")
+    g.add_argument("--gain-db", type=finite_float, default=0.0, help="display gain in dB (default: 0)")
+    g.add_argument("--dynamic-range-db", type=positive_float, default=40.0,
+                   help="width of the dB window shown (default: 40)")
+    g.add_argument("--components", action="store_true",
+                   help="also write one polar and one fan PNG per component (object, ground, single, ...)")
+
+
+def add_render_options(p: argparse.ArgumentParser) -> None:
+    """The rendering options of ``render`` and ``demo``."""
+    g = p.add_argument_group("rendering")
+    g.add_argument("--bounces", type=_bounces, default=None, metavar="LIST",
+                   help="echoes to form, e.g. 1 or 1,3 or 1,2,3 (overrides render.bounces)")
+    g.add_argument("--elevation-samples", type=int, default=None, metavar="N",
+                   help="rays per beam across the elevation aperture (overrides render.elevation_samples)")
+    g.add_argument("--backend", choices=("embree", "numpy"), default="embree",
+                   help="ray-casting engine (numpy: slow reference)")
+
+
+def add_render_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add the ``render`` sub-command to an ``add_subparsers()`` object; sets ``func=cmd_render``."""
+    p = subparsers.add_parser("render", help="render a scene file to polar.png, fan.png and render.npz",
+                              description="Render a YAML/JSON scene file. Writes polar.png, fan.png and render.npz into --out.")
+    p.add_argument("scene", help="scene file (YAML or JSON)")
+    p.add_argument("--out", required=True, help="output folder (created if missing)")
+    add_render_options(p)
+    add_image_options(p)
+    p.set_defaults(func=cmd_render)
+    return p
+
+
+def override_render(scene, args):
+    """The scene with the command line's ``--bounces`` / ``--elevation-samples`` applied."""
+    from dataclasses import replace
+
+    changes = {}
+    if args.bounces is not None:
+        changes["bounces"] = tuple(args.bounces)
+    if args.elevation_samples is not None:
+        changes["elevation_samples"] = args.elevation_samples
+    if not changes:
+        return scene
+    from ..config.loader import _prefixed
+    from ..config.scene import RenderSettings
+
+    render = _prefixed("render", RenderSettings, **{**scene.render.__dict__, **changes})
+    return replace(scene, render=render)
+
+
+def render_and_write(scene, out: Path, args):
+    """Render ``scene`` once and write polar.png, fan.png and render.npz into ``out``."""
+    from ..io.output import to_uint8, write_png
+    from ..render.simulator import Simulator
+
+    t0 = time.perf_counter()
+    sim = Simulator(scene, backend=args.backend)
+    t1 = time.perf_counter()
+    image = sim.render()
+    t2 = time.perf_counter()
+    s = image.sonar
+    _log(f"scene built in {t1 - t0:.3f} s; rendered {s.n_range_bins} x {s.n_beams} image "
+         f"({sim.ray_fan(s).n_rays} rays) in {t2 - t1:.3f} s")
+    out.mkdir(parents=True, exist_ok=True)
+
+    def write(name: str, polar, label: str) -> None:
+        # The polar PNG shows far range at the top, like the fan, so both read the same way.
+        write_png(out / f"polar{name}.png", to_uint8(polar[::-1], args.mapping, args.gain_db, args.dynamic_range_db))
+        fan = image.fan(pixel_size_m=args.pixel_size, component=label)
+        write_png(out / f"fan{name}.png",
+                  to_uint8(fan.image, args.mapping, args.gain_db, args.dynamic_range_db, mask=fan.mask))
+
+    write("", image.polar, None)
+    if args.components:
+        for key, comp in image.components.items():
+            if key != "total":  # that is polar.png / fan.png (less any speckle)
+                write(f"_{key}", comp, key)
+    image.save_npz(out / "render.npz")
+    _log(f"wrote {out / 'polar.png'}, {out / 'fan.png'}, {out / 'render.npz'} in {time.perf_counter() - t2:.3f} s")
+    return image
+
+
+def cmd_render(args) -> None:
+    from ..config.loader import load_scene
+
+    scene = override_render(load_scene(args.scene), args)
+    render_and_write(scene, Path(args.out), args)

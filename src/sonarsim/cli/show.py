@@ -1,0 +1,124 @@
+"""``sonarsim show``: write the polar and fan images of one frame of a real recording.
+
+Wiring (in :mod:`sonarsim.cli.main`)::
+
+    from ..io.readers.readers.show import add_show_parser, cmd_show
+    add_show_parser(sub)          # in build_parser(), after the other sub-commands
+    COMMANDS["show"] = cmd_show
+
+Display mapping. Recorded 8-bit values are already display values: ARIS maps 0-80 dB of echo
+level onto 0-255 (aris-file-sdk, "Understanding ARIS data"), and the Oculus sends
+gamma-compressed 8-bit data. A dB mapping would compress them a second time and wash out the
+image, so the default is ``linear`` with 0 dB gain against the data type's full scale (255):
+the PNG then shows exactly the recorded values, as the sonar's own software would, and frames
+of one recording keep comparable brightness. Wider data (16/24/32-bit Oculus pings) use the
+frame's maximum as full scale. ``--mapping db`` remains available (dB window below that
+reference, ``--dynamic-range-db`` wide).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from .argtypes import finite_float, positive_float
+
+__all__ = ["add_show_parser", "cmd_show"]
+
+
+def _log(msg: str) -> None:
+    # Same form as sonarsim.cli.main's messages; progress goes to stderr, results to files.
+    print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
+
+
+def add_show_parser(subparsers) -> argparse.ArgumentParser:
+    """Add the ``show`` sub-command to an ``argparse`` sub-parsers object.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        What ``ArgumentParser.add_subparsers()`` returned.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        The new sub-parser; its defaults carry ``func=cmd_show``.
+    """
+    p = subparsers.add_parser(
+        "show",
+        help="write polar.png and fan.png of one frame of a real recording (ARIS, Oculus)",
+        description="Read one frame of a real sonar recording - an ARIS .aris file or Oculus "
+        "simple-ping-result messages (.raw), recognised by content - and write polar.png "
+        "(range up, left-most beam on the left) and fan.png into --out.",
+    )
+    p.add_argument("recording", metavar="FILE", help="the recording (.aris, or Oculus .raw messages)")
+    p.add_argument("--frame", type=int, default=0, metavar="N",
+                   help="0-based frame (ARIS) or ping (Oculus) to show (default: 0)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
+    g = p.add_argument_group("images")
+    g.add_argument("--pixel-size", type=positive_float, default=None, metavar="M",
+                   help="fan image pixel size in metres (default: the range resolution)")
+    g.add_argument("--mapping", choices=("db", "linear"), default="linear",
+                   help="PNG intensity mapping (default: linear, which shows the recorded "
+                   "8-bit values as they are; db compresses them a second time)")
+    g.add_argument("--gain-db", type=finite_float, default=0.0, metavar="DB", help="display gain in dB (default: 0)")
+    g.add_argument("--dynamic-range-db", type=positive_float, default=40.0, metavar="DB",
+                   help="width of the dB window shown with --mapping db (default: 40)")
+    p.set_defaults(func=cmd_show)
+    return p
+
+
+def cmd_show(args: argparse.Namespace) -> None:
+    """Run ``sonarsim show``: read ``args.recording`` frame ``args.frame``, write the PNGs.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``recording``, ``frame``, ``out``, ``pixel_size``, ``mapping``, ``gain_db`` and
+        ``dynamic_range_db``, as :func:`add_show_parser` defines them.
+
+    Raises
+    ------
+    RecordingError
+        For an unreadable recording or a frame out of range (a SonarsimError: the CLI prints
+        it on one line and exits with status 2).
+    OSError
+        If the recording cannot be opened or the output folder cannot be written.
+    """
+    from ..io.output import to_uint8, write_png
+    from ..io.readers import RecordingError, open_recording
+
+    t0 = time.perf_counter()
+    with open_recording(args.recording) as recording:
+        image = recording.read(args.frame)
+        try:
+            total = str(recording.n_frames)
+        except RecordingError:  # a corrupt message after the one shown: still show it
+            total = "?"
+    t1 = time.perf_counter()
+    s = image.sonar
+    cfg = image.config
+    _log(
+        f"read {cfg['format']} frame {cfg['frame']} of {total} from {cfg['source']}: "
+        f"{s.n_range_bins} ranges x {s.n_beams} beams, {s.range_min_m:.3f}-{s.range_max_m:.3f} m, "
+        f"{s.azimuth_fov_deg:.1f} deg wide, in {t1 - t0:.3f} s"
+    )
+
+    # Full scale of 8-bit data is 255 whatever the frame holds (see the module notes).
+    bits = cfg["header"].get("bits_per_value", 8)
+    reference = 255.0 if bits == 8 else None
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    def png(values, mask=None):
+        return to_uint8(values, args.mapping, args.gain_db, args.dynamic_range_db,
+                        reference=reference, mask=mask)
+
+    # Far range at the top of the polar PNG, like the fan, so both read the same way.
+    write_png(out / "polar.png", png(image.polar[::-1]))
+    fan = image.fan(pixel_size_m=args.pixel_size)
+    write_png(out / "fan.png", png(fan.image, fan.mask))
+    _log(f"wrote {out / 'polar.png'} and {out / 'fan.png'} ({fan.shape[1]} x {fan.shape[0]} px) "
+         f"in {time.perf_counter() - t1:.3f} s")

@@ -1,0 +1,346 @@
+"""Read scenes from YAML/JSON files or dicts, rejecting unknown keys, wrong types and bad values.
+
+This is the edge of the library: everything after it trusts the frozen dataclasses of
+:mod:`sonarsim.config.scene`. Every error names the key (``objects[1].albedo``) or the file.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError, MeshFileError, SonarsimError
+from ..scene.meshes import load_mesh_file
+from .presets import beam_angles_from_table, get_preset
+from .scene import GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene
+from .sonar import SonarConfig, beam_edges_deg
+from ..core.transforms import Pose
+
+TOP_KEYS = ("sonar", "render", "ground", "planes", "objects")
+SONAR_KEYS = (
+    "preset", "n_beams", "azimuth_fov_deg", "beam_angles_deg", "beam_angles_file", "beam_width_deg",
+    "elevation_fov_deg", "range_min_m", "range_max_m", "n_range_bins", "range_resolution_m",
+    "frequency_khz", "pose",
+)
+POSE_KEYS = ("position_m", "rpy_deg", "quat_xyzw")
+RENDER_KEYS = tuple(RenderSettings.__dataclass_fields__)
+GROUND_KEYS = ("height_m", "albedo", "specular")
+PLANE_KEYS = ("name", "point_m", "normal", "albedo", "specular")
+OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "pose", "scale", "albedo")
+
+
+# Typed getters ---------------------------------------------------------------------------
+
+def _check_keys(d: Any, allowed: tuple[str, ...], where: str) -> Mapping:
+    if not isinstance(d, Mapping):
+        raise ConfigError(where, f"must be a mapping with keys from: {', '.join(allowed)}; got {type(d).__name__}")
+    for key in d:
+        if key not in allowed:
+            raise ConfigError(
+                f"{where}.{key}" if where else str(key),
+                f"unknown key; allowed keys{' of ' + where if where else ''}: {', '.join(allowed)}",
+            )
+    return d
+
+
+def _number(value: Any, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(key, f"must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _integer(value: Any, key: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(key, f"must be an integer, got {value!r}")
+    return int(value)
+
+
+def _vector(value: Any, key: str, n: int | None) -> tuple[float, ...]:
+    if not isinstance(value, (list, tuple)) or (n is not None and len(value) != n):
+        what = f"a list of {n} numbers" if n is not None else "a list of numbers"
+        raise ConfigError(key, f"must be {what}, got {value!r}")
+    return tuple(_number(v, f"{key}[{i}]") for i, v in enumerate(value))
+
+
+def _string(value: Any, key: str) -> str:
+    if not isinstance(value, str) or not value:
+        raise ConfigError(key, f"must be a non-empty string, got {value!r}")
+    return value
+
+
+def _boolean(value: Any, key: str) -> bool:
+    if not isinstance(value, bool):
+        raise ConfigError(key, f"must be true or false, got {value!r}")
+    return value
+
+
+def _prefixed(prefix: str, fn, *args, **kwargs):
+    """Call a dataclass constructor, putting ``prefix`` before the key named in its errors."""
+    try:
+        return fn(*args, **kwargs)
+    except ConfigError as exc:
+        key = exc.key if exc.key.startswith(prefix) else f"{prefix}.{exc.key}" if exc.key else prefix
+        raise ConfigError(key, exc.detail) from None
+
+
+# Sections ---------------------------------------------------------------------------------
+
+def parse_pose(d: Any, where: str) -> Pose:
+    """A pose mapping ``{position_m, rpy_deg | quat_xyzw}``; missing parts are zero."""
+    _check_keys(d, POSE_KEYS, where)
+    position = _vector(d.get("position_m", [0.0, 0.0, 0.0]), f"{where}.position_m", 3)
+    if "rpy_deg" in d and "quat_xyzw" in d:
+        raise ConfigError(f"{where}.quat_xyzw", "give either rpy_deg or quat_xyzw, not both")
+    if "quat_xyzw" in d:
+        q = _vector(d["quat_xyzw"], f"{where}.quat_xyzw", 4)
+        if np.linalg.norm(q) < 1e-9:
+            raise ConfigError(f"{where}.quat_xyzw", "must not be the zero quaternion")
+        return Pose.from_quaternion(position, q)
+    return Pose(position, _vector(d.get("rpy_deg", [0.0, 0.0, 0.0]), f"{where}.rpy_deg", 3))
+
+
+def parse_sonar(d: Any, base_dir: Path | None) -> SonarConfig:
+    """The ``sonar`` section: a preset (optional) overridden by the keys given."""
+    _check_keys(d, SONAR_KEYS, "sonar")
+    merged: dict[str, Any] = {}
+    preset_name = None
+    if "preset" in d:
+        preset_name = _string(d["preset"], "sonar.preset")
+        merged.update(get_preset(preset_name).sonar)
+    user = dict(d)
+    user.pop("preset", None)
+    if "beam_angles_file" in user:
+        path = Path(_string(user.pop("beam_angles_file"), "sonar.beam_angles_file"))
+        if base_dir is not None and not path.is_absolute():
+            path = base_dir / path
+        user["beam_angles_deg"] = list(beam_angles_from_table(path, key="sonar.beam_angles_file"))
+    # Keys given by the user replace the preset's alternatives for the same quantity.
+    if "beam_angles_deg" in user and "azimuth_fov_deg" in user:
+        raise ConfigError("sonar.azimuth_fov_deg", "give either azimuth_fov_deg or beam_angles_deg, not both")
+    if "beam_angles_deg" in user or "azimuth_fov_deg" in user or "n_beams" in user:
+        if "beam_angles_deg" not in user:
+            # A user's beam count or field of view turns a preset's lens table into equal beams.
+            if "beam_angles_deg" in merged and "azimuth_fov_deg" not in merged:
+                table = np.asarray(merged["beam_angles_deg"], dtype=float)
+                edges = beam_edges_deg(table)
+                merged["azimuth_fov_deg"] = float(edges[0] - edges[-1])
+                merged.setdefault("n_beams", len(table))
+            merged.pop("beam_angles_deg", None)
+        else:
+            merged.pop("azimuth_fov_deg", None)
+            if "n_beams" not in user:
+                merged.pop("n_beams", None)
+    if "n_range_bins" in user or "range_resolution_m" in user:
+        merged.pop("n_range_bins", None)
+        merged.pop("range_resolution_m", None)
+    merged.update(user)
+
+    def get(key, conv):
+        if key not in merged:
+            raise ConfigError(f"sonar.{key}", "required (give it, or a `preset` that sets it)")
+        return conv(merged[key], f"sonar.{key}")
+
+    if "n_range_bins" in merged and "range_resolution_m" in merged:
+        raise ConfigError("sonar.range_resolution_m", "give either n_range_bins or range_resolution_m, not both")
+    r_min = get("range_min_m", _number)
+    r_max = get("range_max_m", _number)
+    if "range_resolution_m" in merged:
+        res = get("range_resolution_m", _number)
+        if res <= 0:
+            raise ConfigError("sonar.range_resolution_m", f"must be > 0 metres, got {res}")
+        n_bins = max(1, int(round((r_max - r_min) / res)))
+    else:
+        n_bins = get("n_range_bins", _integer)
+        if n_bins < 1:
+            raise ConfigError("sonar.n_range_bins", f"must be at least 1, got {n_bins}")
+    pose = parse_pose(merged.get("pose", {}), "sonar.pose")
+    extra = {}
+    for key in ("beam_width_deg", "frequency_khz"):
+        if merged.get(key) is not None:
+            extra[key] = get(key, _number)
+    common = dict(
+        elevation_fov_deg=get("elevation_fov_deg", _number),
+        range_min_m=r_min,
+        range_max_m=r_max,
+        n_range_bins=n_bins,
+        pose=pose,
+        preset=preset_name,
+        **extra,
+    )
+    if "beam_angles_deg" in merged:
+        angles = _vector(merged["beam_angles_deg"], "sonar.beam_angles_deg", None)
+        if "n_beams" in merged and get("n_beams", _integer) != len(angles):
+            raise ConfigError("sonar.n_beams", f"is {merged['n_beams']} but beam_angles_deg has {len(angles)} angles")
+        return SonarConfig(beam_angles_deg=angles, **common)
+    return SonarConfig.uniform(
+        n_beams=get("n_beams", _integer), azimuth_fov_deg=get("azimuth_fov_deg", _number), **common
+    )
+
+
+def parse_render(d: Any) -> RenderSettings:
+    _check_keys(d, RENDER_KEYS, "render")
+    kw: dict[str, Any] = {}
+    for key, value in d.items():
+        k = f"render.{key}"
+        if key == "elevation_samples":
+            if isinstance(value, str) and value != "auto" or isinstance(value, bool) or not isinstance(value, (str, int)):
+                raise ConfigError(k, f"must be 'auto' or a positive integer, got {value!r}")
+            kw[key] = value
+        elif key in ("azimuth_samples", "seed", "max_order"):
+            kw[key] = _integer(value, k)
+        elif key == "threads":
+            kw[key] = None if value is None else _integer(value, k)
+        elif key in ("tvg", "range_splat", "double_line_of_sight", "speckle"):
+            kw[key] = _boolean(value, k)
+        elif key == "bounces":
+            if isinstance(value, int) and not isinstance(value, bool):
+                value = [value]
+            if value is None:
+                kw[key] = None
+                continue
+            if not isinstance(value, (list, tuple)):
+                raise ConfigError(k, f"must be a list of path orders (1 single, 2 double, 3 triple, ...), got {value!r}")
+            kw[key] = tuple(_integer(v, f"{k}[{i}]") for i, v in enumerate(value))
+        else:
+            kw[key] = _string(value, k)
+    return _prefixed("render", RenderSettings, **kw)
+
+
+def parse_ground(d: Any) -> GroundSpec | None:
+    if d is None:
+        return None
+    _check_keys(d, GROUND_KEYS, "ground")
+    kw = {key: _number(value, f"ground.{key}") for key, value in d.items()}
+    return _prefixed("ground", GroundSpec, **kw)
+
+
+def parse_plane(d: Any, index: int) -> PlaneSpec:
+    """One entry of the ``planes`` list."""
+    where = f"planes[{index}]"
+    _check_keys(d, PLANE_KEYS, where)
+    for key in ("name", "point_m", "normal"):
+        if key not in d:
+            raise ConfigError(f"{where}.{key}", "required for a plane (name, point_m, normal; albedo, specular optional)")
+    kw: dict[str, Any] = {
+        "name": _string(d["name"], f"{where}.name"),
+        "point_m": _vector(d["point_m"], f"{where}.point_m", 3),
+        "normal": _vector(d["normal"], f"{where}.normal", 3),
+    }
+    for key in ("albedo", "specular"):
+        if key in d:
+            kw[key] = _number(d[key], f"{where}.{key}")
+    return _prefixed(where, PlaneSpec, **kw)
+
+
+def parse_object(d: Any, index: int, base_dir: Path | None) -> ObjectSpec:
+    where = f"objects[{index}]"
+    _check_keys(d, OBJECT_KEYS, where)
+    kw: dict[str, Any] = {"name": _string(d["name"], f"{where}.name") if "name" in d else f"object{index}"}
+    if "primitive" in d:
+        kw["primitive"] = _string(d["primitive"], f"{where}.primitive")
+    if "mesh" in d:
+        path = Path(_string(d["mesh"], f"{where}.mesh"))
+        if base_dir is not None and not path.is_absolute():
+            path = base_dir / path
+        try:
+            load_mesh_file(path)  # fail now, naming the key, rather than at render time
+        except MeshFileError as exc:
+            raise ConfigError(f"{where}.mesh", str(exc)) from None
+        kw["mesh"] = str(path)
+    if "size_m" in d:
+        kw["size_m"] = _vector(d["size_m"], f"{where}.size_m", 3)
+    for key in ("radius_m", "height_m", "albedo"):
+        if key in d:
+            kw[key] = _number(d[key], f"{where}.{key}")
+    if "scale" in d:
+        s = d["scale"]
+        kw["scale"] = _vector(s, f"{where}.scale", 3) if isinstance(s, (list, tuple)) else _number(s, f"{where}.scale")
+    if "pose" in d:
+        kw["pose"] = parse_pose(d["pose"], f"{where}.pose")
+    return _prefixed(where, ObjectSpec, **kw)
+
+
+def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: str | None = None) -> Scene:
+    """Build a :class:`Scene` from the scene-file dict.
+
+    Parameters
+    ----------
+    d : mapping
+        The document (see DESIGN.md section 2).
+    base_dir : path-like, optional
+        Folder that relative mesh and table paths are resolved against.
+    source : str, optional
+        Name of the file, for error messages.
+    """
+    base = Path(base_dir) if base_dir is not None else None
+    try:
+        _check_keys(d, TOP_KEYS, "")
+        if "sonar" not in d:
+            raise ConfigError("sonar", "required: the sonar section")
+        objects_raw = d.get("objects", []) or []
+        if not isinstance(objects_raw, list):
+            raise ConfigError("objects", f"must be a list of objects, got {type(objects_raw).__name__}")
+        planes_raw = d.get("planes", []) or []
+        if not isinstance(planes_raw, list):
+            raise ConfigError("planes", f"must be a list of planes, got {type(planes_raw).__name__}")
+        return _prefixed(
+            "",
+            Scene,
+            sonar=parse_sonar(d["sonar"], base),
+            objects=tuple(parse_object(o, i, base) for i, o in enumerate(objects_raw)),
+            ground=parse_ground(d.get("ground")),
+            planes=tuple(parse_plane(p, i) for i, p in enumerate(planes_raw)),
+            render=parse_render(d.get("render", {}) or {}),
+            source=source,
+        )
+    except ConfigError as exc:
+        if source and exc.source is None:
+            raise ConfigError(exc.key, exc.detail, source) from None
+        raise
+
+
+def read_document(path: str | os.PathLike) -> Any:
+    """Parse a YAML or JSON file (JSON by a ``.json`` suffix, YAML otherwise)."""
+    import yaml
+
+    p = Path(path)
+    if not p.is_file():
+        raise SonarsimError(f"{p}: scene file not found")
+    text = p.read_text(encoding="utf-8")
+    try:
+        if p.suffix.lower() == ".json":
+            return json.loads(text)
+        return yaml.safe_load(text)
+    except json.JSONDecodeError as exc:
+        raise SonarsimError(f"{p}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise SonarsimError(f"{p}: invalid YAML{where}: {getattr(exc, 'problem', exc)}") from None
+
+
+def load_scene(scene: str | os.PathLike | Mapping | Scene) -> Scene:
+    """Load a scene from a YAML/JSON file, a dict of the same shape, or pass a Scene through.
+
+    Raises
+    ------
+    ConfigError
+        Unknown keys, wrong types or impossible values; the message names the key (and file).
+    SonarsimError
+        The file is missing or not valid YAML/JSON.
+    """
+    if isinstance(scene, Scene):
+        return scene
+    if isinstance(scene, Mapping):
+        return scene_from_dict(scene)
+    p = Path(scene)
+    doc = read_document(p)
+    if doc is None:
+        raise ConfigError("", "the scene file is empty", str(p))
+    return scene_from_dict(doc, base_dir=p.parent, source=str(p))

@@ -1,0 +1,426 @@
+"""Scene description: objects, the ground plane, render settings and the sonar.
+
+These frozen dataclasses are what the rest of sonarsim trusts. They check their own values on
+construction (so Python callers get the same messages as scene files); :mod:`sonarsim.config.loader`
+turns YAML/JSON/dicts into them and rejects unknown keys and wrong types.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError
+from .sonar import SonarConfig
+from ..core.transforms import Pose
+
+PRIMITIVES = ("box", "sphere", "cylinder")
+METHODS = ("fast", "paper")
+BEAM_PATTERNS = ("uniform", "gaussian")
+DOUBLE_BEAMS = ("paper", "split", "separate")
+# Plane names become parts of component names (``O-surface-[objects]-O``): keep them plain.
+PLANE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
+RESERVED_PLANE_NAMES = ("objects", "O")
+# Path orders beyond this cost more than they show (R**order of an echo that is already faint).
+MAX_ORDER_LIMIT = 9
+
+
+def _check_unit_interval(key: str, value: float) -> None:
+    if not (np.isfinite(value) and 0.0 <= value <= 1.0):
+        raise ConfigError(key, f"must be within [0, 1], got {value}")
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One object of the scene: a primitive or a mesh, with pose, scale and albedo.
+
+    Attributes
+    ----------
+    name : str
+        Label, unique in the scene.
+    primitive : {'box', 'sphere', 'cylinder'} or None
+        Shape, centred on the object's origin (a cylinder's axis is its z axis).
+    size_m : (3,) tuple of float or None
+        Box edge lengths along its x, y, z axes.
+    radius_m, height_m : float or None
+        Sphere/cylinder radius and cylinder height.
+    mesh : str, pathlib.Path or trimesh.Trimesh or None
+        A mesh file (anything trimesh loads) or an in-memory mesh, in object coordinates.
+    pose : Pose
+        Object-to-world pose.
+    scale : float or (3,) tuple of float
+        Scale applied in object coordinates before the pose.
+    albedo : float
+        Diffuse albedo rho in [0, 1] (paper: concrete 0.8, smooth plastic 0.4).
+    """
+
+    name: str
+    primitive: str | None = None
+    size_m: tuple[float, float, float] | None = None
+    radius_m: float | None = None
+    height_m: float | None = None
+    mesh: Any = None
+    pose: Pose = field(default_factory=Pose)
+    scale: float | tuple[float, float, float] = 1.0
+    albedo: float = 0.8
+
+    def __post_init__(self) -> None:
+        if (self.primitive is None) == (self.mesh is None):
+            raise ConfigError("primitive", "give exactly one of `primitive` or `mesh`")
+        if self.primitive is not None:
+            if self.primitive not in PRIMITIVES:
+                raise ConfigError(
+                    "primitive", f"unknown primitive {self.primitive!r}; allowed: {', '.join(PRIMITIVES)}"
+                )
+            needed = {"box": ("size_m",), "sphere": ("radius_m",), "cylinder": ("radius_m", "height_m")}
+            for key in needed[self.primitive]:
+                if getattr(self, key) is None:
+                    raise ConfigError(key, f"required for a {self.primitive}")
+            for key in ("size_m", "radius_m", "height_m"):
+                if key not in needed[self.primitive] and getattr(self, key) is not None:
+                    raise ConfigError(key, f"not used by a {self.primitive}; allowed: {', '.join(needed[self.primitive])}")
+            if self.size_m is not None:
+                size = tuple(float(v) for v in self.size_m)
+                if len(size) != 3 or not all(np.isfinite(v) and v > 0 for v in size):
+                    raise ConfigError("size_m", f"must be three positive lengths in metres, got {self.size_m}")
+                object.__setattr__(self, "size_m", size)
+            for key in ("radius_m", "height_m"):
+                v = getattr(self, key)
+                if v is not None and not (np.isfinite(v) and v > 0):
+                    raise ConfigError(key, f"must be a positive length in metres, got {v}")
+        scale = np.atleast_1d(np.asarray(self.scale, dtype=float))
+        if scale.size not in (1, 3) or not np.all(np.isfinite(scale) & (scale > 0)):
+            raise ConfigError("scale", f"must be a positive number or three positive numbers, got {self.scale}")
+        _check_unit_interval("albedo", self.albedo)
+
+    def to_dict(self) -> dict:
+        out: dict = {"name": self.name}
+        if self.primitive is not None:
+            out["primitive"] = self.primitive
+            for key in ("size_m", "radius_m", "height_m"):
+                v = getattr(self, key)
+                if v is not None:
+                    out[key] = list(v) if isinstance(v, tuple) else v
+        elif isinstance(self.mesh, (str, Path)):
+            out["mesh"] = str(self.mesh)
+        else:
+            out["mesh"] = "<in-memory mesh>"
+        out["pose"] = self.pose.to_dict()
+        out["scale"] = list(self.scale) if isinstance(self.scale, tuple) else self.scale
+        out["albedo"] = self.albedo
+        return out
+
+
+@dataclass(frozen=True)
+class GroundSpec:
+    """The flat ground plane ``z = height_m`` (normal +z).
+
+    Attributes
+    ----------
+    height_m : float
+        Height of the plane in the world frame, metres.
+    albedo : float
+        Diffuse albedo in [0, 1]: the direct ground echo.
+    specular : float
+        Specular reflectance R in [0, 1] that drives the multipath (double bounces scale by R,
+        triple by R**2).
+    """
+
+    height_m: float = 0.0
+    albedo: float = 0.8
+    specular: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.height_m):
+            raise ConfigError("ground.height_m", f"must be a finite number, got {self.height_m}")
+        _check_unit_interval("ground.albedo", self.albedo)
+        _check_unit_interval("ground.specular", self.specular)
+
+    def to_dict(self) -> dict:
+        return {"height_m": self.height_m, "albedo": self.albedo, "specular": self.specular}
+
+    def as_plane(self) -> "PlaneSpec":
+        """The same ground as a general reflecting plane named ``ground``."""
+        return PlaneSpec("ground", (0.0, 0.0, self.height_m), (0.0, 0.0, 1.0), self.albedo, self.specular)
+
+
+@dataclass(frozen=True)
+class PlaneSpec:
+    """An infinite reflecting plane: a floor, the water surface, a tank wall.
+
+    Attributes
+    ----------
+    name : str
+        Label, unique among the scene's planes (letters, digits, ``_``; it becomes part of the
+        path component names, e.g. ``O-surface-[objects]-O``). ``ground`` is the name of the
+        plane that the ``ground:`` section stands for.
+    point_m : (3,) tuple of float
+        Any point of the plane in the world frame, metres.
+    normal : (3,) tuple of float
+        Normal pointing into the water (normalised on construction; the water is the side it
+        points to). A horizontal floor has ``[0, 0, 1]``, the water surface ``[0, 0, -1]``.
+    albedo : float
+        Diffuse albedo in [0, 1]: the plane's own direct echo (0 for the water surface).
+    specular : float
+        Specular reflectance R in [0, 1]: each reflection off the plane scales a path by R.
+    """
+
+    name: str
+    point_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    normal: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    albedo: float = 0.0
+    specular: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not PLANE_NAME.match(self.name) or self.name in RESERVED_PLANE_NAMES:
+            raise ConfigError(
+                "name",
+                f"must start with a letter and hold only letters, digits and _ (not "
+                f"{' or '.join(RESERVED_PLANE_NAMES)}), got {self.name!r}",
+            )
+        point = np.asarray(self.point_m, dtype=float).ravel()
+        if point.size != 3 or not np.all(np.isfinite(point)):
+            raise ConfigError("point_m", f"must be three finite coordinates in metres, got {self.point_m}")
+        if np.abs(point).max() > 1e6:
+            raise ConfigError("point_m", f"must lie within 1e6 m of the origin, got {self.point_m}")
+        normal = np.asarray(self.normal, dtype=float).ravel()
+        if normal.size != 3 or not np.all(np.isfinite(normal)):
+            raise ConfigError("normal", f"must be three finite numbers, got {self.normal}")
+        length = float(np.linalg.norm(normal))
+        if not length > 1e-9 * max(1.0, float(np.abs(normal).max())):
+            raise ConfigError("normal", f"must not be the zero vector, got {self.normal}")
+        object.__setattr__(self, "point_m", tuple(float(v) for v in point))
+        object.__setattr__(self, "normal", tuple(float(v) for v in normal / length))
+        _check_unit_interval("albedo", self.albedo)
+        _check_unit_interval("specular", self.specular)
+
+    @property
+    def offset_m(self) -> float:
+        """``n . p``: the plane is ``n . x = offset_m``; the water is ``n . x > offset_m``."""
+        return float(np.dot(self.normal, self.point_m))
+
+    def signed_distance_m(self, points: np.ndarray) -> np.ndarray:
+        """Signed distance of points from the plane, positive in the water, metres.
+
+        Parameters
+        ----------
+        points : (..., 3) float array, metres
+
+        Returns
+        -------
+        (...) float64 ndarray
+        """
+        return np.asarray(points, dtype=float) @ np.asarray(self.normal) - self.offset_m
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name, "point_m": list(self.point_m), "normal": list(self.normal),
+            "albedo": self.albedo, "specular": self.specular,
+        }
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How to sample and form the image.
+
+    Attributes
+    ----------
+    elevation_samples : int or 'auto'
+        Rays per beam across the elevation aperture. ``'auto'``: enough that neighbouring rays
+        are at most about two range bins apart across the aperture at the far range (see
+        :func:`sonarsim.core.rays.auto_elevation_samples`).
+    azimuth_samples : int
+        Rays per beam across its azimuth width (1: along the beam centre only).
+    tvg : bool
+        Time-variant gain: ``l(r) = 1``; ``False`` gives ``l(r) = 1/r**2`` (paper Eq. 5).
+    max_order : int
+        Longest path formed, in surface interactions: 1 single (O-A-O), 2 double, 3 triple
+        (the paper's three), 4 and more over any sequence of the scene's planes.
+    bounces : tuple of int or None
+        Which orders make the total image (1 single, 2 double, 3 triple, ...); all orders are
+        formed anyway, as components. ``None``: every order up to ``max_order``.
+    method : {'fast', 'paper'}
+        Ground-echo implementation (see :mod:`sonarsim.paths.algorithm2`).
+    beam_pattern : {'uniform', 'gaussian'}
+        beta(theta, phi): uniform (paper Eq. 4), or Gaussian falling to -3 dB at the edges of the
+        elevation aperture and of each beam's azimuth width.
+    range_splat : bool
+        Spread the energy between neighbouring rays on one surface over the range interval they
+        span (no stripes on grazing surfaces). ``False`` is the paper's Algorithm 1: each ray
+        deposits at its own range.
+    double_beam : {'paper', 'split', 'separate'}
+        Paths whose two legs meet different planes come in reciprocal pairs (O-G-A-O and
+        O-A-G-O, the paper's cases 2 and 3), of equal length, arriving from different
+        directions. ``'paper'``: each pair is recorded once, in the beam of the leg with more
+        reflections (ties: the later plane in scene order), as Algorithm 2 records cases 2/3 in
+        the beam of A'. ``'split'``: the same, half the energy in that beam and half in the beam
+        the other leg leaves the sonar in. ``'separate'``: every path of the pair is formed from
+        its own receive ray, in the beam it arrives from (the physical picture; the pair then
+        carries twice the paper's energy).
+    double_line_of_sight : bool
+        Also require every transmit leg that is not the receive leg reversed to be unoccluded
+        by objects (the paper only requires A to lie in the field of view and range window).
+    speckle : bool
+        Multiply the total image by fully developed speckle: independent, unit-mean exponential
+        factors per pixel (the intensity statistics of many random scatterers per resolution
+        cell). The components stay noise-free, as ground truth.
+    seed : int
+        Seed of the speckle: a :class:`~sonarsim.Simulator` draws frame after frame from one
+        generator seeded with it, so a sequence of renders is reproducible.
+    threads : int or None
+        Ray-casting threads; ``None``: all CPU cores.
+    """
+
+    elevation_samples: int | str = "auto"
+    azimuth_samples: int = 1
+    tvg: bool = True
+    max_order: int = 3
+    bounces: tuple[int, ...] | None = None
+    method: str = "fast"
+    beam_pattern: str = "uniform"
+    range_splat: bool = True
+    double_beam: str = "paper"
+    double_line_of_sight: bool = False
+    speckle: bool = False
+    seed: int = 0
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        es = self.elevation_samples
+        if es != "auto" and (isinstance(es, bool) or not isinstance(es, (int, np.integer)) or es < 1):
+            raise ConfigError("render.elevation_samples", f"must be 'auto' or a positive integer, got {es!r}")
+        az = self.azimuth_samples
+        if isinstance(az, bool) or not isinstance(az, (int, np.integer)) or az < 1:
+            raise ConfigError("render.azimuth_samples", f"must be a positive integer, got {az!r}")
+        mo = self.max_order
+        if isinstance(mo, bool) or not isinstance(mo, (int, np.integer)) or not 1 <= mo <= MAX_ORDER_LIMIT:
+            raise ConfigError("render.max_order", f"must be an integer from 1 to {MAX_ORDER_LIMIT}, got {mo!r}")
+        object.__setattr__(self, "max_order", int(mo))
+        orders = list(range(1, int(mo) + 1))
+        bounces = tuple(orders) if self.bounces is None else tuple(sorted(set(int(b) for b in self.bounces)))
+        if not bounces or any(b not in orders for b in bounces):
+            raise ConfigError(
+                "render.bounces",
+                f"must be a non-empty subset of the orders up to render.max_order, {orders}, got {list(self.bounces)}",
+            )
+        object.__setattr__(self, "bounces", bounces)
+        if self.method not in METHODS:
+            raise ConfigError("render.method", f"unknown method {self.method!r}; allowed: {', '.join(METHODS)}")
+        if self.beam_pattern not in BEAM_PATTERNS:
+            raise ConfigError(
+                "render.beam_pattern", f"unknown pattern {self.beam_pattern!r}; allowed: {', '.join(BEAM_PATTERNS)}"
+            )
+        if self.double_beam not in DOUBLE_BEAMS:
+            raise ConfigError(
+                "render.double_beam", f"unknown choice {self.double_beam!r}; allowed: {', '.join(DOUBLE_BEAMS)}"
+            )
+        if self.threads is not None and (isinstance(self.threads, bool) or self.threads < 1):
+            raise ConfigError("render.threads", f"must be a positive integer or null, got {self.threads!r}")
+
+    def to_dict(self) -> dict:
+        return {
+            "elevation_samples": self.elevation_samples if self.elevation_samples == "auto" else int(self.elevation_samples),
+            "azimuth_samples": int(self.azimuth_samples),
+            "tvg": self.tvg,
+            "max_order": self.max_order,
+            "bounces": list(self.bounces),
+            "method": self.method,
+            "beam_pattern": self.beam_pattern,
+            "range_splat": self.range_splat,
+            "double_beam": self.double_beam,
+            "double_line_of_sight": self.double_line_of_sight,
+            "speckle": self.speckle,
+            "seed": int(self.seed),
+            "threads": self.threads,
+        }
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Everything needed to render: sonar, objects, optional ground, render settings.
+
+    Attributes
+    ----------
+    sonar : SonarConfig
+    objects : tuple of ObjectSpec
+    ground : GroundSpec or None
+        ``None``: no ground. Shorthand for a horizontal plane named ``ground``.
+    planes : tuple of PlaneSpec
+        Further reflecting planes (water surface, tank walls, a sloping bed).
+    render : RenderSettings
+    source : str or None
+        File the scene was read from (mesh paths are relative to its folder).
+    """
+
+    sonar: SonarConfig
+    objects: tuple[ObjectSpec, ...] = ()
+    ground: GroundSpec | None = None
+    render: RenderSettings = field(default_factory=RenderSettings)
+    source: str | None = None
+    planes: tuple[PlaneSpec, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "objects", tuple(self.objects))
+        object.__setattr__(self, "planes", tuple(self.planes))
+        names = [o.name for o in self.objects]
+        for i, name in enumerate(names):
+            if name in names[:i]:
+                raise ConfigError(f"objects[{i}].name", f"duplicate object name {name!r}; names must be unique")
+        taken = ["ground"] if self.ground is not None else []
+        for i, plane in enumerate(self.planes):
+            if plane.name in taken:
+                earlier = [p.name for p in self.planes[:i]]
+                why = "names must be unique" if plane.name in earlier else "the ground: section is the plane 'ground'"
+                raise ConfigError(f"planes[{i}].name", f"duplicate plane name {plane.name!r}; {why}")
+            taken.append(plane.name)
+
+    @property
+    def reflecting_planes(self) -> tuple[PlaneSpec, ...]:
+        """Every reflecting plane: the ground first (if any), then ``planes`` in order.
+
+        A plane's index here is its surface id in the per-ray labels.
+        """
+        return ((self.ground.as_plane(),) if self.ground is not None else ()) + self.planes
+
+    def with_pose(self, pose: Pose) -> "Scene":
+        """The same scene with the sonar at another pose."""
+        return replace(self, sonar=self.sonar.with_pose(pose))
+
+    def to_dict(self) -> dict:
+        """The scene-file form (JSON/YAML-serialisable)."""
+        out: dict = {
+            "sonar": self.sonar.to_dict(),
+            "render": self.render.to_dict(),
+            "objects": [o.to_dict() for o in self.objects],
+        }
+        if self.ground is not None:
+            out["ground"] = self.ground.to_dict()
+        if self.planes:
+            out["planes"] = [p.to_dict() for p in self.planes]
+        return out
+
+
+# A sonar closer than this to a plane is "on" it: neither side can be told apart at float32.
+ON_PLANE_TOLERANCE_M = 1e-6
+
+
+def check_sonar_position(planes: tuple[PlaneSpec, ...], position_m, key: str) -> None:
+    """Refuse a sonar that lies on a plane (which side sees what would be undefined).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``key`` and the plane.
+    """
+    for plane in planes:
+        d = float(plane.signed_distance_m(np.asarray(position_m, dtype=float)))
+        if abs(d) < ON_PLANE_TOLERANCE_M:
+            raise ConfigError(
+                key,
+                f"the sonar at {list(position_m)} lies on the plane {plane.name!r} (distance {d:.2g} m); "
+                f"move it at least {ON_PLANE_TOLERANCE_M:g} m to either side",
+            )

@@ -1,0 +1,210 @@
+"""The sonar: beam geometry, elevation aperture, range window and pose.
+
+Beam angles are azimuths in degrees, LEFT-most (port) beam first; a positive azimuth is to the
+sonar's left, so the list descends. Range bin ``i`` covers
+``[range_min_m + i*dr, range_min_m + (i+1)*dr)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..core.transforms import Pose
+
+
+def uniform_beam_angles_deg(n_beams: int, azimuth_fov_deg: float) -> np.ndarray:
+    """Centres of ``n_beams`` equal beams spanning ``azimuth_fov_deg`` edge to edge.
+
+    Returns
+    -------
+    (n_beams,) float64 ndarray, degrees, left-most first:
+    ``theta_j = F/2 - (j + 0.5) F/N``.
+    """
+    j = np.arange(n_beams)
+    return azimuth_fov_deg / 2.0 - (j + 0.5) * azimuth_fov_deg / n_beams
+
+
+def beam_edges_deg(beam_angles_deg: np.ndarray) -> np.ndarray:
+    """Edges between beams, midway between centres; the outer edges mirror the inner spacing.
+
+    Returns
+    -------
+    (n_beams + 1,) float64 ndarray, degrees, descending.
+    """
+    c = np.asarray(beam_angles_deg, dtype=float)
+    if c.size == 1:
+        return np.array([c[0] + 0.5, c[0] - 0.5])
+    mid = 0.5 * (c[:-1] + c[1:])
+    return np.concatenate([[c[0] + (c[0] - mid[0])], mid, [c[-1] - (mid[-1] - c[-1])]])
+
+
+@dataclass(frozen=True)
+class SonarConfig:
+    """A forward-looking sonar. Construct with :meth:`uniform` or an explicit beam table.
+
+    Attributes
+    ----------
+    beam_angles_deg : tuple of float, (n_beams,)
+        Beam centre azimuths in degrees, left-most first (strictly descending).
+    elevation_fov_deg : float
+        Full elevation aperture E; rays span [-E/2, +E/2].
+    range_min_m, range_max_m : float
+        The range window, metres.
+    n_range_bins : int
+        Number of range bins (rows of the polar image).
+    pose : Pose
+        Sonar pose in the world frame (x forward, y left, z up in the sonar frame).
+    beam_width_deg : float or None
+        Azimuth width of one beam, used to spread rays across a beam
+        (``render.azimuth_samples > 1``); ``None`` means the spacing between beam centres.
+    frequency_khz : float or None
+        Informational: the carrier frequency.
+    preset : str or None
+        Name of the preset the configuration came from, if any.
+    """
+
+    beam_angles_deg: tuple[float, ...]
+    elevation_fov_deg: float
+    range_min_m: float
+    range_max_m: float
+    n_range_bins: int
+    pose: Pose = field(default_factory=Pose)
+    beam_width_deg: float | None = None
+    frequency_khz: float | None = None
+    preset: str | None = None
+
+    def __post_init__(self) -> None:
+        angles = tuple(float(a) for a in np.ravel(self.beam_angles_deg))
+        object.__setattr__(self, "beam_angles_deg", angles)
+        a = np.asarray(angles)
+        if a.size == 0:
+            raise ConfigError("sonar.n_beams", "must be at least 1")
+        if not np.all(np.isfinite(a)):
+            raise ConfigError("sonar.beam_angles_deg", "must be finite numbers")
+        if a.size > 1 and not np.all(np.diff(a) < 0):
+            raise ConfigError(
+                "sonar.beam_angles_deg",
+                "must be strictly descending (left-most beam first; positive = sonar's left)",
+            )
+        edges = beam_edges_deg(a)
+        if edges[0] - edges[-1] >= 180.0 or np.max(np.abs(edges)) >= 90.0:
+            raise ConfigError(
+                "sonar.azimuth_fov_deg",
+                f"the fan spans {edges[0]:.3g} to {edges[-1]:.3g} deg; allowed: inside (-90, 90), "
+                "i.e. a field of view below 180 degrees",
+            )
+        if not 0.0 < self.elevation_fov_deg < 180.0:
+            raise ConfigError(
+                "sonar.elevation_fov_deg", f"must be in (0, 180) degrees, got {self.elevation_fov_deg}"
+            )
+        if not (np.isfinite(self.range_min_m) and self.range_min_m >= 0.0):
+            raise ConfigError("sonar.range_min_m", f"must be >= 0 metres, got {self.range_min_m}")
+        if not (np.isfinite(self.range_max_m) and self.range_max_m > self.range_min_m):
+            raise ConfigError(
+                "sonar.range_max_m",
+                f"must be greater than range_min_m ({self.range_min_m}), got {self.range_max_m}",
+            )
+        if int(self.n_range_bins) != self.n_range_bins or self.n_range_bins < 1:
+            raise ConfigError(
+                "sonar.n_range_bins", f"must be a positive integer, got {self.n_range_bins}"
+            )
+        object.__setattr__(self, "n_range_bins", int(self.n_range_bins))
+        if self.beam_width_deg is not None and not 0.0 < self.beam_width_deg < 90.0:
+            raise ConfigError(
+                "sonar.beam_width_deg", f"must be in (0, 90) degrees, got {self.beam_width_deg}"
+            )
+
+    @classmethod
+    def uniform(
+        cls,
+        n_beams: int,
+        azimuth_fov_deg: float,
+        elevation_fov_deg: float,
+        range_min_m: float,
+        range_max_m: float,
+        n_range_bins: int,
+        pose: Pose | None = None,
+        **kwargs,
+    ) -> "SonarConfig":
+        """Equal beams spanning ``azimuth_fov_deg`` edge to edge."""
+        if int(n_beams) != n_beams or n_beams < 1:
+            raise ConfigError("sonar.n_beams", f"must be a positive integer, got {n_beams}")
+        if not 0.0 < azimuth_fov_deg < 180.0:
+            raise ConfigError(
+                "sonar.azimuth_fov_deg", f"must be in (0, 180) degrees, got {azimuth_fov_deg}"
+            )
+        return cls(
+            beam_angles_deg=tuple(uniform_beam_angles_deg(int(n_beams), azimuth_fov_deg)),
+            elevation_fov_deg=elevation_fov_deg,
+            range_min_m=range_min_m,
+            range_max_m=range_max_m,
+            n_range_bins=n_range_bins,
+            pose=pose if pose is not None else Pose(),
+            **kwargs,
+        )
+
+    # Derived geometry -------------------------------------------------------------------
+
+    @property
+    def n_beams(self) -> int:
+        return len(self.beam_angles_deg)
+
+    @property
+    def azimuth_deg(self) -> np.ndarray:
+        """(n_beams,) beam centres in degrees, left-most first."""
+        return np.asarray(self.beam_angles_deg)
+
+    @property
+    def beam_edges_deg(self) -> np.ndarray:
+        """(n_beams + 1,) beam edges in degrees, descending."""
+        return beam_edges_deg(self.azimuth_deg)
+
+    @property
+    def azimuth_fov_deg(self) -> float:
+        """Edge-to-edge azimuth extent of the fan, degrees."""
+        e = self.beam_edges_deg
+        return float(e[0] - e[-1])
+
+    @property
+    def range_resolution_m(self) -> float:
+        """Width dr of one range bin, metres."""
+        return (self.range_max_m - self.range_min_m) / self.n_range_bins
+
+    @property
+    def range_edges_m(self) -> np.ndarray:
+        """(n_range_bins + 1,) bin edges, metres."""
+        return np.linspace(self.range_min_m, self.range_max_m, self.n_range_bins + 1)
+
+    @property
+    def range_m(self) -> np.ndarray:
+        """(n_range_bins,) bin centres, metres."""
+        e = self.range_edges_m
+        return 0.5 * (e[:-1] + e[1:])
+
+    def effective_beam_width_deg(self) -> np.ndarray:
+        """(n_beams,) azimuth width of each beam: ``beam_width_deg`` or the local spacing."""
+        if self.beam_width_deg is not None:
+            return np.full(self.n_beams, self.beam_width_deg)
+        return -np.diff(self.beam_edges_deg)
+
+    def with_pose(self, pose: Pose) -> "SonarConfig":
+        """The same sonar at another pose."""
+        return replace(self, pose=pose)
+
+    def to_dict(self) -> dict:
+        """Scene-file form, with the beam table written out explicitly."""
+        out: dict = {
+            "beam_angles_deg": list(self.beam_angles_deg),
+            "elevation_fov_deg": self.elevation_fov_deg,
+            "range_min_m": self.range_min_m,
+            "range_max_m": self.range_max_m,
+            "n_range_bins": self.n_range_bins,
+            "pose": self.pose.to_dict(),
+        }
+        for key in ("beam_width_deg", "frequency_khz"):
+            if getattr(self, key) is not None:
+                out[key] = getattr(self, key)
+        return out

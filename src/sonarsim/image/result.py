@@ -1,0 +1,130 @@
+"""The result types: a sonar image in polar form (:class:`SonarImage`) and its per-ray maps.
+
+Renders and real recordings (:mod:`sonarsim.io.readers`) give the same :class:`SonarImage`, so
+everything downstream (fan, files, comparison, fitting) treats both alike.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..config.sonar import SonarConfig
+from .fan import FanMapper
+
+#: Names of the images in :attr:`SonarImage.components` of a render, in this order:
+#: ``object`` and ``ground`` (single bounce), ``single`` (= object + ground), ``double``
+#: (cases 2/3), ``triple`` (case 4) and ``total`` (the bounces selected by ``render.bounces``).
+COMPONENTS = ("object", "ground", "single", "double", "triple", "total")
+
+
+@dataclass(frozen=True)
+class RayMaps:
+    """The paper's intermediate forms, one entry per ray.
+
+    Arrays are shaped ``(n_beams, n_azimuth_samples, n_elevation_samples)``: beam left-most
+    first, elevation ascending.
+
+    Attributes
+    ----------
+    distance_m : float32 ndarray
+        D_f: range of the first surface hit, metres; ``inf`` for none.
+    intensity : float32 ndarray
+        I_f: backscattered energy of the ray (what Algorithm 1 accumulates).
+    surface_id : int16 ndarray
+        -1 nothing, 0 the ground, k + 1 the scene's object k (ground-truth labels).
+    azimuth_deg : (n_beams, n_azimuth_samples) ndarray
+    elevation_deg : (n_elevation_samples,) ndarray
+    """
+
+    distance_m: np.ndarray
+    intensity: np.ndarray
+    surface_id: np.ndarray
+    azimuth_deg: np.ndarray
+    elevation_deg: np.ndarray
+
+
+@dataclass(frozen=True)
+class SonarImage:
+    """A rendered (or recorded) sonar image in polar form, with its axes and components.
+
+    Attributes
+    ----------
+    polar : (n_range_bins, n_beams) float32 ndarray
+        The image: ``components["total"]``, times speckle when ``render.speckle`` is on. Row 0
+        is the nearest range bin, column 0 the left-most beam.
+    range_m : (n_range_bins,) float64 ndarray
+        Centre of each range bin, metres.
+    azimuth_deg : (n_beams,) float64 ndarray
+        Centre of each beam, degrees, left-most first (descending).
+    components : mapping of str to (n_range_bins, n_beams) float32 ndarray
+        ``object``, ``ground``, ``single`` (= object + ground), the ground echoes ``double``
+        (cases 2/3) and ``triple`` (case 4), and ``total`` (= ``polar``): the sum of those
+        selected by ``render.bounces`` (1: single, 2: double, 3: triple). All are always
+        formed, so that each is available as a label whatever enters the total.
+    sonar : SonarConfig
+        The sonar (with its pose) that produced the image.
+    rays : RayMaps or None
+        Per-ray distance and intensity maps (D_f, I_f) and surface labels.
+    config : dict
+        The full scene configuration, in scene-file form.
+    """
+
+    polar: np.ndarray
+    range_m: np.ndarray
+    azimuth_deg: np.ndarray
+    components: Mapping[str, np.ndarray]
+    sonar: SonarConfig
+    rays: RayMaps | None = None
+    config: dict = field(default_factory=dict)
+
+    @property
+    def range_edges_m(self) -> np.ndarray:
+        return self.sonar.range_edges_m
+
+    def fan(self, pixel_size_m: float | None = None, component: str | None = None, interpolation: str = "linear"):
+        """The fan-shaped Cartesian image (see :func:`sonarsim.image.fan.polar_to_fan`).
+
+        Parameters
+        ----------
+        pixel_size_m : float, optional
+            Pixel edge, metres; default the range resolution.
+        component : str, optional
+            A key of :attr:`components`; default the total image.
+        interpolation : {'linear', 'nearest'}
+        """
+        img = self.polar if component is None else self.components[component]
+        s = self.sonar
+        mapper = _fan_mapper(s.n_range_bins, s.range_min_m, s.range_max_m, s.beam_angles_deg, pixel_size_m, interpolation)
+        return mapper(img)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Everything as named arrays (what the NPZ file holds, less the configuration)."""
+        out = {"polar": self.polar, "range_m": self.range_m, "azimuth_deg": self.azimuth_deg}
+        out.update(self.components)
+        if self.rays is not None:
+            out.update(
+                rays_distance_m=self.rays.distance_m,
+                rays_intensity=self.rays.intensity,
+                rays_surface_id=self.rays.surface_id,
+                rays_azimuth_deg=self.rays.azimuth_deg,
+                rays_elevation_deg=self.rays.elevation_deg,
+            )
+        return out
+
+    def save_npz(self, path) -> None:
+        """Write :meth:`arrays` and the configuration to an NPZ file, atomically."""
+        from ..io.output import write_npz
+
+        write_npz(path, self.arrays(), self.config)
+
+
+@functools.lru_cache(maxsize=8)
+def _fan_mapper(n_range_bins, range_min_m, range_max_m, beam_angles_deg, pixel_size_m, interpolation):
+    """Scan-conversion tables are costly to build and the same for every frame of a sonar."""
+    return FanMapper(
+        n_range_bins, range_min_m, range_max_m, np.asarray(beam_angles_deg), pixel_size_m, interpolation
+    )

@@ -1,0 +1,167 @@
+"""Readers of real sonar recordings into sonarsim's image type.
+
+A recording becomes the same :class:`~sonarsim.image.result.SonarImage` a simulation produces, so
+that real and simulated images can be shown, compared and saved with the same code: ``polar``
+is float32 ``(n_range_bins, n_beams)``, row 0 the nearest range, column 0 the LEFT-most beam
+(positive azimuth = the sonar's left, so ``azimuth_deg`` descends); ``components`` is
+``{"total": polar}``; ``rays`` is None; ``config`` is ``{"source", "format", "frame",
+"header"}`` with the decoded header fields. Values are the recorded ones (8-bit counts for ARIS
+and for 8-bit Oculus data), not calibrated intensities.
+
+Supported, recognised from the file's first bytes (never from its name):
+
+* ``"aris"``: Sound Metrics ARIS files (DDF_05), see :mod:`sonarsim.io.readers.aris`;
+* ``"oculus"``: Blueprint Subsea Oculus simple-ping-result messages (versions 1 and 2), one or
+  many back to back, as liboculus records them; see :mod:`sonarsim.io.readers.oculus`.
+
+Every problem with a file's content raises :class:`RecordingError` (a
+:class:`~sonarsim.errors.SonarsimError`) naming the file, the frame or message and the field.
+A file that cannot be opened raises the usual :class:`OSError`.
+
+Examples
+--------
+>>> from sonarsim import readers
+>>> image = readers.read("sample.aris", frame=2)              # doctest: +SKIP
+>>> for image in readers.read_frames("three_pings_8bit.raw"):  # doctest: +SKIP
+...     print(image.polar.shape)
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from typing import Union
+
+from ._common import RecordingError
+from .aris import ARIS_SIGNATURE, ArisRecording
+from .oculus import OCULUS_ID, OculusRecording
+
+__all__ = [
+    "FORMATS",
+    "ArisRecording",
+    "OculusRecording",
+    "RecordingError",
+    "detect_format",
+    "n_frames",
+    "open_recording",
+    "read",
+    "read_frames",
+]
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+#: Format name -> reader class.
+FORMATS = {"aris": ArisRecording, "oculus": OculusRecording}
+
+# Other files that users are likely to pass by mistake, named in the error message.
+_FOREIGN = (
+    (b"\x89PNG\r\n\x1a\n", "a PNG image"),
+    (b"\xff\xd8\xff", "a JPEG image"),
+    (b"PK\x03\x04", "a ZIP archive (an .npz file?)"),
+    (b"\x93NUMPY", "a NumPy .npy file"),
+    (b"#ROSBAG", "a ROS 1 bag (extract the sonar topic first)"),
+    (b"\x89HDF", "an HDF5 file"),
+)
+
+
+def detect_format(path: PathLike) -> str:
+    """The format of a recording, from its first bytes.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Returns
+    -------
+    {"aris", "oculus"}
+
+    Raises
+    ------
+    RecordingError
+        For an empty file, a DIDSON file (older DDF versions) or any other content.
+    OSError
+        If the file cannot be read.
+    """
+    with open(path, "rb") as handle:
+        head = handle.read(16)
+    source = os.fspath(path)
+    if not head:
+        raise RecordingError(source, "the file is empty")
+    if len(head) >= 4:
+        word = int.from_bytes(head[:4], "little")
+        if word == ARIS_SIGNATURE:
+            return "aris"
+        if head[:3] == b"DDF" and head[3] < 5:
+            raise RecordingError(
+                source,
+                f"DIDSON file format DDF_0{head[3]} is not supported (only ARIS DDF_05)",
+                "file header", "Version",
+            )
+    if len(head) >= 2 and int.from_bytes(head[:2], "little") == OCULUS_ID:
+        return "oculus"
+    for magic, what in _FOREIGN:
+        if head.startswith(magic):
+            raise RecordingError(source, f"this is {what}, not a sonar recording")
+    raise RecordingError(
+        source,
+        f"not a recognised sonar recording (first bytes {head[:8].hex(' ')}); supported: ARIS "
+        f"(.aris, starting with {ARIS_SIGNATURE.to_bytes(4, 'little').hex(' ')}) and Oculus "
+        f"simple ping results (.raw, starting with {OCULUS_ID.to_bytes(2, 'little').hex(' ')})",
+    )
+
+
+def open_recording(path: PathLike) -> ArisRecording | OculusRecording:
+    """Open a recording for repeated reads (a context manager; close it when done).
+
+    Returns
+    -------
+    ArisRecording or OculusRecording
+        With ``n_frames``, ``read(frame)`` and iteration over all frames.
+    """
+    return FORMATS[detect_format(path)](path)
+
+
+def n_frames(path: PathLike) -> int:
+    """Number of complete frames (ARIS) or simple ping results (Oculus) in a recording."""
+    with open_recording(path) as recording:
+        return recording.n_frames
+
+
+def read(path: PathLike, frame: int = 0):
+    """One frame of a recording as a :class:`~sonarsim.image.result.SonarImage`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        An ARIS file or a file of Oculus messages (recognised by content).
+    frame : int
+        0-based frame (ARIS) or ping (Oculus; other message kinds are not counted).
+
+    Returns
+    -------
+    SonarImage
+        See the module notes; ``config["frame"]`` is ``frame``.
+
+    Raises
+    ------
+    RecordingError
+        Unknown content, truncated or corrupt file, ``frame`` out of range (the message gives
+        the valid range).
+    """
+    with open_recording(path) as recording:
+        return recording.read(frame)
+
+
+def read_frames(path: PathLike) -> Iterator:
+    """Every frame of a recording, in order, read one at a time (the file stays open meanwhile).
+
+    The file is opened and recognised at once (a foreign file raises here, not at the first
+    ``next``). A truncated last frame raises :class:`RecordingError` after the complete frames.
+    """
+    return _frames(open_recording(path))
+
+
+def _frames(recording: ArisRecording | OculusRecording) -> Iterator:
+    with recording:
+        yield from recording

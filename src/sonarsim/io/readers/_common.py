@@ -1,0 +1,152 @@
+"""Shared pieces of the recording readers: the error type and careful byte access.
+
+Recordings come from disks and networks: files are cut short by a full disk or a crash, copied
+half-way, or are not recordings at all. Every read here checks that the bytes exist before
+decoding them, so that a bad file ends with a :class:`RecordingError` naming the file, the
+frame (or message) and the field, never with an ``IndexError`` or a ``struct.error``.
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+import os
+from typing import BinaryIO
+
+from ...errors import SonarsimError
+
+__all__ = ["RecordingError"]
+
+
+class RecordingError(SonarsimError, ValueError):
+    """A sonar recording is unreadable: truncated, corrupt, of an unknown kind or unsupported.
+
+    Parameters
+    ----------
+    source : str or os.PathLike
+        The file.
+    message : str
+        What is wrong (and, where it helps, what would be right).
+    where : str, optional
+        The part of the file, e.g. ``"frame 3"`` or ``"message 2 (byte 182016)"``.
+    field : str, optional
+        The header field at fault, e.g. ``"PingMode"``.
+
+    Attributes
+    ----------
+    source, where, field, detail : str or None
+        The parts of the message, for programs that want them separately.
+    """
+
+    def __init__(
+        self,
+        source: str | os.PathLike,
+        message: str,
+        where: str | None = None,
+        field: str | None = None,
+    ) -> None:
+        self.source = os.fspath(source)
+        self.where = where
+        self.field = field
+        self.detail = message
+        parts = [self.source]
+        if where:
+            parts.append(where)
+        if field:
+            parts.append(field)
+        super().__init__(": ".join(parts) + ": " + message)
+
+
+def frame_index(frame: object) -> int:
+    """``frame`` as an int; bools and floats are refused (``frame=1.0`` is a caller's bug)."""
+    if isinstance(frame, bool):
+        raise TypeError(f"frame must be an integer, got {frame!r}")
+    try:
+        return operator.index(frame)  # accepts int and numpy integers only
+    except TypeError:
+        raise TypeError(f"frame must be an integer, got {type(frame).__name__} {frame!r}") from None
+
+
+def read_at(
+    handle: BinaryIO,
+    offset: int,
+    size: int,
+    file_size: int,
+    source: str,
+    where: str,
+    what: str,
+) -> bytes:
+    """Read exactly ``size`` bytes at ``offset`` or raise a :class:`RecordingError`.
+
+    Parameters
+    ----------
+    handle : binary file
+        Open for reading; seekable.
+    offset, size : int
+        Byte range wanted.
+    file_size : int
+        Size of the file (known from ``fstat``), to word the error precisely.
+    source, where : str
+        Error context (file name; frame or message).
+    what : str
+        Name of the part being read, e.g. ``"frame header (1024 bytes)"``.
+    """
+    if offset + size > file_size:
+        missing = offset + size - file_size
+        raise RecordingError(
+            source,
+            f"truncated: the file ends at byte {file_size}, {missing} bytes short of the end "
+            f"of the {what} (bytes {offset}-{offset + size - 1})",
+            where,
+        )
+    handle.seek(offset)
+    data = handle.read(size)
+    if len(data) != size:  # the file shrank while we read it
+        raise RecordingError(
+            source, f"truncated: read {len(data)} of the {size} bytes of the {what}", where
+        )
+    return data
+
+
+def check_range_window(
+    source: str, where: str, field: str, start_m: float, length_m: float
+) -> None:
+    """Refuse non-finite or negative range windows before they reach :class:`SonarConfig`."""
+    if not (math.isfinite(start_m) and start_m >= 0.0):
+        raise RecordingError(source, f"gives a window start of {start_m!r} m", where, field)
+    if not (math.isfinite(length_m) and length_m > 0.0):
+        raise RecordingError(source, f"gives a window length of {length_m!r} m", where, field)
+
+
+class Recording:
+    """An open recording file, read on demand with seeks; subclasses index it in ``_open``.
+
+    Holds the file open (closed by :meth:`close` or a ``with`` block) and closes it again if
+    ``_open`` finds the file unusable.
+    """
+
+    format = ""
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = path
+        self._source = os.fspath(path)
+        self._handle = open(path, "rb")  # noqa: SIM115 (held open for seeks; close())
+        try:
+            self._file_size = os.fstat(self._handle.fileno()).st_size
+            self._open()
+        except BaseException:
+            self._handle.close()
+            raise
+
+    def _open(self) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Close the file."""
+        self._handle.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,297 @@
+"""Ground echo (paper Section IV, Algorithm 2): double and triple bounces off a flat ground.
+
+Notation: O the sonar, A a point on an object, A' its mirror image across the ground plane,
+G where a path meets the ground; R the ground's specular reflectance. Only the ground's
+specular part causes multipath; objects are diffuse.
+
+* case 4 (triple, O-G-A-G-O): range OA', in the beam of the ray that reached A', weight
+  ``R**2 * I_f`` of that ray;
+* cases 2/3 (double, O-G-A-O and O-A-G-O): range (OA + OA')/2, in the beam of that ray (or
+  split, see ``render.double_beam``), weight ``R * I_f``, only where A lies in the sonar's
+  field of view and range window (and, optionally, in its line of sight).
+
+Two implementations give the same images:
+
+* :func:`fast_mirror_paths` -- a ray that passes the ground before reaching an object is exactly
+  a ray that, reflected at G, goes on to the real object. So the primary cast (objects + the
+  analytic plane) is reused, and secondary rays are cast only for the rays that reach the
+  ground: no mirrored geometry, no extra renders.
+* :func:`render_paper` -- Algorithm 2 literally: single-bounce renders of S1 (objects + ground),
+  S2 (objects) and S3 (objects + mirrored objects), difference images and per-ray differences.
+
+Both hand a :class:`MirrorPaths` to :func:`ground_echo_images`, which forms the images.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.radiometry import lambertian_intensity
+from ..render.formation import RayEnergy, accumulate, continuity, form_image
+from ..config.scene import RenderSettings
+from ..config.sonar import SonarConfig
+from ..trace.surfaces import GROUND_ID, NO_HIT, SurfaceHits, ground_distance, trace
+
+# Secondary rays start this far off the ground so that they cannot hit the plane's own
+# neighbourhood (the base of an object resting on it) through round-off, metres.
+SURFACE_OFFSET_M = 1e-5
+
+
+@dataclass(frozen=True)
+class MirrorPaths:
+    """Rays (shaped ``(...)`` like the ray fan) that reach an object's mirror point A'.
+
+    Attributes
+    ----------
+    distance_m : (...) float64 ndarray
+        OA' (= OG + GA), metres; ``inf`` where the ray reaches no mirror point.
+    intensity : (...) float64 ndarray
+        I_f^{o'}: the ray's single-bounce intensity at A' (R not applied).
+    surface_id : (...) int32 ndarray
+        The object reached (k + 1), -1 for none.
+    point_virtual : (..., 3) float64 ndarray
+        A' in the world frame (on the straight ray), metres.
+    normal_virtual : (..., 3) float64 ndarray
+        Unit normal of the mirrored surface at A'.
+    point_real : (..., 3) float64 ndarray
+        A, the real point on the object, metres.
+    """
+
+    distance_m: np.ndarray
+    intensity: np.ndarray
+    surface_id: np.ndarray
+    point_virtual: np.ndarray
+    normal_virtual: np.ndarray
+    point_real: np.ndarray
+
+
+def mirror_z(v: np.ndarray, height_m: float = 0.0, is_direction: bool = False) -> np.ndarray:
+    """Mirror points (or, with ``is_direction``, vectors) across the plane ``z = height_m``."""
+    out = np.array(v, dtype=float, copy=True)
+    out[..., 2] = -out[..., 2] if is_direction else 2.0 * height_m - out[..., 2]
+    return out
+
+
+def fast_mirror_paths(
+    caster,
+    origin: np.ndarray,
+    directions: np.ndarray,
+    primary: SurfaceHits,
+    ground_height_m: float,
+    weight: np.ndarray,
+    albedo_by_id: np.ndarray,
+    tvg: bool,
+    max_distance_m: float,
+) -> MirrorPaths:
+    """Mirror paths from the primary hits: reflect the rays that reach the ground, cast on.
+
+    Parameters
+    ----------
+    caster : RayCaster
+        The objects (mesh k = object k).
+    origin : (3,) float array
+        The sonar O, metres.
+    directions : (..., 3) float array
+        Unit ray directions in the world frame.
+    primary : SurfaceHits
+        Closest hits of those rays against objects and ground.
+    ground_height_m : float
+    weight : (...) float array
+        Ray weights (beam pattern x dphi), see :class:`sonarsim.core.rays.RayFan`.
+    albedo_by_id : (n_objects + 2,) float array
+        Albedo indexed by ``surface_id + 1``.
+    tvg : bool
+    max_distance_m : float
+        Longest unfolded path OA' worth following, metres.
+    """
+    shape = primary.distance_m.shape
+    dist = np.full(shape, np.inf)
+    inten = np.zeros(shape)
+    sid = np.full(shape, NO_HIT, dtype=np.int32)
+    pv = np.full(shape + (3,), np.nan)
+    nv = np.zeros(shape + (3,))
+    pr = np.full(shape + (3,), np.nan)
+    on_ground = (primary.surface_id == GROUND_ID) & (primary.distance_m < max_distance_m)
+    if not on_ground.any():
+        return MirrorPaths(dist, inten, sid, pv, nv, pr)
+    d = directions[on_ground]
+    t_g = primary.distance_m[on_ground]
+    g = primary.point[on_ground]
+    d_ref = mirror_z(d, is_direction=True)
+    start = g + SURFACE_OFFSET_M * d_ref
+    hits = caster.intersect(start, d_ref, float(max_distance_m - t_g.min()))
+    s = hits.distance.astype(float) + SURFACE_OFFSET_M
+    ok = (hits.mesh_id >= 0) & (t_g + s <= max_distance_m)
+    idx = tuple(i[ok] for i in np.nonzero(on_ground))
+    oa_virtual = t_g[ok] + s[ok]
+    normal = hits.normal[ok].astype(float)
+    a_real = g[ok] + d_ref[ok] * s[ok, None]
+    sid_ok = hits.mesh_id[ok] + 1
+    cos_inc = np.abs(np.einsum("ij,ij->i", normal, d_ref[ok]))
+    dist[idx] = oa_virtual
+    sid[idx] = sid_ok
+    inten[idx] = lambertian_intensity(weight[idx], cos_inc, albedo_by_id[sid_ok + 1], oa_virtual, tvg)
+    pv[idx] = np.asarray(origin, float) + d[ok] * oa_virtual[:, None]
+    nv[idx] = mirror_z(normal, is_direction=True)
+    pr[idx] = a_real
+    return MirrorPaths(dist, inten, sid, pv, nv, pr)
+
+
+def _beam_of(sonar: SonarConfig, azimuth_deg: np.ndarray) -> np.ndarray:
+    """Beam index whose edges contain each azimuth; -1 outside the fan."""
+    edges = sonar.beam_edges_deg  # descending
+    j = np.searchsorted(-edges, -azimuth_deg, side="right") - 1
+    return np.where((j >= 0) & (j < sonar.n_beams), j, -1)
+
+
+def ground_echo_rays(
+    paths: MirrorPaths,
+    sonar: SonarConfig,
+    render: RenderSettings,
+    specular: float,
+    caster=None,
+    labels: tuple[int, int] = (0, 1),
+) -> list[RayEnergy]:
+    """The double (cases 2/3) and triple (case 4) echoes as ray energies for :func:`accumulate`.
+
+    Parameters
+    ----------
+    paths : MirrorPaths
+        Shaped like the ray fan ``(n_beams, n_azimuth_samples, n_elevation_samples)``.
+    sonar : SonarConfig
+    render : RenderSettings
+        ``range_splat``, ``double_beam`` and ``double_line_of_sight`` are used.
+    specular : float
+        R: double bounces are scaled by R, triple by R**2.
+    caster : RayCaster, optional
+        Needed for ``double_line_of_sight``.
+    labels : (int, int)
+        Image labels of the double and the triple echoes.
+    """
+    label_double, label_triple = labels
+    beam = np.arange(sonar.n_beams)[:, None, None]
+    cont = None
+    if render.range_splat:
+        cont = continuity(paths.point_virtual, paths.normal_virtual, paths.surface_id)
+    out = [RayEnergy(paths.distance_m, specular**2 * paths.intensity, beam, label_triple, cont)]
+
+    # Cases 2/3: A must lie in the field of view and the range window.
+    reached = np.isfinite(paths.distance_m)
+    if not reached.any():
+        return out
+    origin = sonar.pose.translation
+    sel = np.nonzero(reached)
+    rel = (paths.point_real[sel] - origin) @ sonar.pose.rotation  # sonar frame
+    oa = np.linalg.norm(rel, axis=-1)
+    az = np.degrees(np.arctan2(rel[:, 1], rel[:, 0]))
+    el = np.degrees(np.arcsin(np.clip(rel[:, 2] / oa, -1.0, 1.0)))
+    beam_a = _beam_of(sonar, az)
+    in_view = (
+        (beam_a >= 0)
+        & (np.abs(el) <= sonar.elevation_fov_deg / 2)
+        & (oa >= sonar.range_min_m)
+        & (oa < sonar.range_max_m)
+    )
+    if render.double_line_of_sight and caster is not None and in_view.any():
+        to_a = (rel[in_view] / oa[in_view, None]) @ sonar.pose.rotation.T
+        hit = caster.intersect(origin, to_a, float(oa[in_view].max()) + 1.0)
+        # Visible when the first thing on the way is A itself (to float32 precision).
+        visible = hit.distance >= oa[in_view] - 1e-3 * np.maximum(oa[in_view], 1.0)
+        in_view[np.flatnonzero(in_view)[~visible]] = False
+    shape = paths.distance_m.shape
+    r23 = np.full(shape, np.inf)
+    r23[sel] = np.where(in_view, 0.5 * (oa + paths.distance_m[sel]), np.inf)
+    e23 = np.zeros(shape)
+    e23[sel] = np.where(in_view, specular * paths.intensity[sel], 0.0)
+    if render.double_beam == "paper":
+        out.append(RayEnergy(r23, e23, beam, label_double, cont))
+    else:
+        beam_of_a = np.zeros(shape, dtype=np.int64)
+        beam_of_a[sel] = np.maximum(beam_a, 0)
+        out.append(RayEnergy(r23, 0.5 * e23, beam, label_double, cont))
+        out.append(RayEnergy(r23, 0.5 * e23, beam_of_a, label_double, cont))
+    return out
+
+
+def ground_echo_images(
+    paths: MirrorPaths,
+    sonar: SonarConfig,
+    render: RenderSettings,
+    specular: float,
+    caster=None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The double and triple images, each (n_range_bins, n_beams) float64 (see :func:`ground_echo_rays`)."""
+    rays = ground_echo_rays(paths, sonar, render, specular, caster)
+    img = accumulate(rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams, 2)
+    return img[0], img[1]
+
+
+def render_paper(
+    objects_caster,
+    mirrored_caster,
+    origin: np.ndarray,
+    directions: np.ndarray,
+    sonar: SonarConfig,
+    render: RenderSettings,
+    ground,
+    weight: np.ndarray,
+    albedo_by_id: np.ndarray,
+    n_objects: int,
+    max_distance_m: float,
+) -> dict[str, np.ndarray]:
+    """Algorithm 2 of the paper, literally: three single-bounce renders and their differences.
+
+    ``mirrored_caster`` holds the objects (mesh k = object k) followed by their mirror images
+    (mesh n_objects + k = mirror of object k).
+
+    Returns
+    -------
+    dict with ``object``, ``ground``, ``double``, ``triple`` images, (n_range_bins, n_beams).
+    """
+    n_beams = sonar.n_beams
+    beam = np.arange(n_beams)[:, None, None]
+    geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, n_beams)
+
+    def single_bounce(caster, with_ground, albedo):
+        hits = trace(caster, origin, directions, ground if with_ground else None, max_distance_m)
+        i_f = lambertian_intensity(weight, hits.cos_incidence, albedo[hits.surface_id + 1], hits.distance_m, render.tvg)
+        cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None
+        return hits, i_f, form_image(hits.distance_m, i_f, beam, *geometry, continuous=cont)[0]
+
+    _, _, i_a_og = single_bounce(objects_caster, True, albedo_by_id)  # S1
+    hits_o, i_f_o, i_a_o = single_bounce(objects_caster, False, albedo_by_id)  # S2
+    # Mirror k has surface id n_objects + k + 1 and the albedo of object k.
+    albedo_oo = np.concatenate([albedo_by_id, albedo_by_id[2:]])
+    hits_oo, i_f_oo, i_a_oo = single_bounce(mirrored_caster, False, albedo_oo)  # S3
+    out = {"object": i_a_o, "ground": i_a_og - i_a_o}
+    i_a_mirror = i_a_oo - i_a_o  # Eq. 8: case 4
+    i_f_mirror = i_f_oo - i_f_o  # Eq. 10
+    reached = (i_f_mirror > 0) & (hits_oo.surface_id > n_objects)
+    # The loop of Algorithm 2 over the rays with I_f^{o'} > 0, vectorised: A' from D_f^{oo'},
+    # A its mirror image.
+    a_virtual = np.where(reached[..., None], hits_oo.point, np.nan)
+    paths = MirrorPaths(
+        distance_m=np.where(reached, hits_oo.distance_m, np.inf),
+        intensity=np.where(reached, i_f_mirror, 0.0),
+        surface_id=np.where(reached, hits_oo.surface_id - n_objects, NO_HIT).astype(np.int32),
+        point_virtual=a_virtual,
+        normal_virtual=hits_oo.normal,
+        point_real=mirror_z(a_virtual, ground.height_m),
+    )
+    double, _ = ground_echo_images(paths, sonar, render, ground.specular, objects_caster)
+    out["double"] = double
+    out["triple"] = ground.specular**2 * i_a_mirror
+    return out
+
+
+def sonar_above_ground(sonar: SonarConfig, ground) -> bool:
+    """Multipath needs a ground that the sonar is above."""
+    return ground is not None and sonar.pose.position_m[2] > ground.height_m
+
+
+__all__ = [
+    "MirrorPaths", "fast_mirror_paths", "ground_distance", "ground_echo_images", "ground_echo_rays", "mirror_z",
+    "render_paper", "sonar_above_ground",
+]

@@ -1,0 +1,715 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
+"""Compiled per-ray kernels of the default render path.
+
+Each kernel is the loop form of NumPy code that stays in the package as the reference
+(``trace.surfaces.trace`` + ``core.radiometry.lambertian_intensity``,
+``paths.algorithm2.fast_mirror_paths`` + ``paths.algorithm2.ground_echo_rays``,
+``render.formation.continuity`` + ``render.formation.accumulate``); the tests require both to
+give the same images. They exist because a frame of the demo casts ~40,000
+rays in ~3 ms, and the same arithmetic as a chain of NumPy passes costs three to four times
+that; fused into one loop per stage it costs a fraction of the casting.
+
+All arrays are flat (C-contiguous) views of the ray fan ``(n_beams, n_azimuth, n_elevation)``.
+Nothing here allocates; the caller owns every array.
+"""
+
+from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, isfinite, INFINITY, NAN
+from libc.math cimport M_PI
+cimport cython
+
+ctypedef fused real_t:
+    float
+    double
+
+cdef double CONTINUITY_SINE = 0.5
+cdef double MIN_SPREAD_BINS = 1e-6
+cdef double SURFACE_OFFSET_M = 1e-5
+cdef double WATER_TOLERANCE_M = 1e-7
+
+
+def embree_hits(const float[::1] tfar, const int[::1] geom_id, const float[:, ::1] ng,
+                const int[::1] ids, float[::1] distance, int[::1] mesh_id, float[:, ::1] normal):
+    """Embree's raw answer -> distance (inf for none), mesh index (-1), unit normal (0)."""
+    cdef Py_ssize_t i, n = tfar.shape[0]
+    cdef int g
+    cdef float inv
+    with nogil:
+        for i in range(n):
+            g = geom_id[i]
+            if g >= 0:
+                distance[i] = tfar[i]
+                mesh_id[i] = ids[g]
+                inv = 1.0 / sqrtf(ng[i, 0] * ng[i, 0] + ng[i, 1] * ng[i, 1] + ng[i, 2] * ng[i, 2])
+                normal[i, 0] = ng[i, 0] * inv
+                normal[i, 1] = ng[i, 1] * inv
+                normal[i, 2] = ng[i, 2] * inv
+            else:
+                distance[i] = INFINITY
+                mesh_id[i] = -1
+                normal[i, 0] = 0.0
+                normal[i, 1] = 0.0
+                normal[i, 2] = 0.0
+
+
+def primary(const float[::1] hit_distance, const int[::1] hit_mesh, const float[:, ::1] hit_normal,
+            const double[:, ::1] dirs, double ox, double oy, double oz,
+            bint has_ground, double ground_h, double max_dist,
+            const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
+            double[::1] dist, int[::1] sid, float[:, ::1] point, float[:, ::1] normal,
+            double[::1] intensity, signed char[::1] label,
+            Py_ssize_t[::1] g_index, double[::1] g_t, float[:, ::1] g_start, float[:, ::1] g_dir):
+    """Objects (from the caster) and the analytic ground -> closest surface, I_f, labels.
+
+    Also lists the rays that reach the ground (for the secondary, reflected rays).
+
+    Returns
+    -------
+    (n_ground, min_t_ground) : the number of ground hits within ``max_dist`` and the nearest.
+    """
+    cdef Py_ssize_t i, n = hit_distance.shape[0], n_g = 0
+    cdef double dd, tg, dx, dy, dz, nx, ny, nz, c, r, t_min = INFINITY
+    cdef float px, py, pz, cosf
+    cdef int s, m
+    with nogil:
+        for i in range(n):
+            dx = dirs[i, 0]
+            dy = dirs[i, 1]
+            dz = dirs[i, 2]
+            m = hit_mesh[i]
+            if m >= 0:
+                dd = hit_distance[i]
+                s = m + 1
+                nx = hit_normal[i, 0]
+                ny = hit_normal[i, 1]
+                nz = hit_normal[i, 2]
+            else:
+                dd = INFINITY
+                s = -1
+                nx = 0.0
+                ny = 0.0
+                nz = 0.0
+            if has_ground and oz > ground_h and dz < 0:
+                tg = (ground_h - oz) / dz
+                if tg > 0 and tg < dd and tg <= max_dist:
+                    dd = tg
+                    s = 0
+                    nx = 0.0
+                    ny = 0.0
+                    nz = 1.0
+            dist[i] = dd
+            sid[i] = s
+            normal[i, 0] = <float>nx
+            normal[i, 1] = <float>ny
+            normal[i, 2] = <float>nz
+            if s == -1:
+                point[i, 0] = NAN
+                point[i, 1] = NAN
+                point[i, 2] = NAN
+                intensity[i] = 0.0
+                label[i] = -1
+                continue
+            point[i, 0] = <float>(ox + dx * dd)
+            point[i, 1] = <float>(oy + dy * dd)
+            point[i, 2] = <float>(oz + dz * dd)
+            cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
+            c = weight[i] * albedo_by_id[s + 1] * cosf
+            if not tvg:
+                r = dd if dd > 1e-6 else 1e-6
+                c = c / (r * r)
+            intensity[i] = c
+            label[i] = 0 if s > 0 else 1
+            if s == 0 and dd < max_dist:
+                # Reflect at G and start just off the plane (see paths.algorithm2.SURFACE_OFFSET_M).
+                g_index[n_g] = i
+                g_t[n_g] = dd
+                g_dir[n_g, 0] = <float>dx
+                g_dir[n_g, 1] = <float>dy
+                g_dir[n_g, 2] = <float>(-dz)
+                px = point[i, 0]
+                py = point[i, 1]
+                pz = point[i, 2]
+                g_start[n_g, 0] = <float>(px + SURFACE_OFFSET_M * dx)
+                g_start[n_g, 1] = <float>(py + SURFACE_OFFSET_M * dy)
+                g_start[n_g, 2] = <float>(pz - SURFACE_OFFSET_M * dz)
+                if dd < t_min:
+                    t_min = dd
+                n_g += 1
+    return n_g, t_min
+
+
+cdef inline Py_ssize_t beam_of(const double[::1] edges, double az) noexcept nogil:
+    """Index j with edges[j] >= az > edges[j + 1] (edges descending); -1 outside the fan."""
+    cdef Py_ssize_t lo = 0, hi = edges.shape[0], mid
+    # Count the edges >= az (they come first), minus one; matches
+    # numpy.searchsorted(-edges, -az, side="right") - 1.
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if edges[mid] >= az:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo - 1 < 0 or lo - 1 >= edges.shape[0] - 1:
+        return -1
+    return lo - 1
+
+
+def mirror_paths(const Py_ssize_t[::1] g_index, const double[::1] g_t, const float[:, ::1] g_start,
+                 const float[::1] hit_distance, const int[::1] hit_mesh, const float[:, ::1] hit_normal,
+                 const double[:, ::1] dirs, const float[:, ::1] point,
+                 double ox, double oy, double oz, const double[:, ::1] rotation,
+                 const double[::1] edges, double half_elevation_deg, double range_min, double range_max,
+                 double max_dist, const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
+                 double specular,
+                 double[::1] tri_dist, double[::1] tri_energy, double[:, ::1] v_point,
+                 double[:, ::1] v_normal, int[::1] v_sid,
+                 double[::1] r23, double[::1] e23, int[::1] beam_a):
+    """Reflected rays that reached an object -> case 4 (triple) and cases 2/3 (double).
+
+    Output arrays must come filled with "nothing" (inf, 0, NaN, -1); only reached rays are set.
+    ``e23`` is R x I_f where A lies in the field of view and range window, else 0.
+    """
+    cdef Py_ssize_t j, i, n_g = g_index.shape[0]
+    cdef double s, oa_v, nx, ny, nz, dx, dy, dz, c, ax, ay, az_, rx, ry, rz, oa, az_deg, el_deg
+    cdef double r, tg
+    cdef int m, sv
+    cdef Py_ssize_t b
+    cdef double rad2deg = 180.0 / M_PI
+    with nogil:
+        for j in range(n_g):
+            m = hit_mesh[j]
+            if m < 0:
+                continue
+            s = <double>hit_distance[j] + SURFACE_OFFSET_M
+            tg = g_t[j]
+            if tg + s > max_dist:
+                continue
+            i = g_index[j]
+            oa_v = tg + s
+            dx = dirs[i, 0]
+            dy = dirs[i, 1]
+            dz = dirs[i, 2]
+            nx = hit_normal[j, 0]
+            ny = hit_normal[j, 1]
+            nz = hit_normal[j, 2]
+            sv = m + 1
+            # cos of the reflected ray (dx, dy, -dz) with the object's normal.
+            c = fabs(nx * dx + ny * dy - nz * dz)
+            c = weight[i] * albedo_by_id[sv + 1] * c
+            if not tvg:
+                r = oa_v if oa_v > 1e-6 else 1e-6
+                c = c / (r * r)
+            tri_dist[i] = oa_v
+            tri_energy[i] = specular * specular * c
+            v_sid[i] = sv
+            v_point[i, 0] = ox + dx * oa_v
+            v_point[i, 1] = oy + dy * oa_v
+            v_point[i, 2] = oz + dz * oa_v
+            v_normal[i, 0] = nx
+            v_normal[i, 1] = ny
+            v_normal[i, 2] = -nz
+            # A, the real point, in the sonar frame: R^T (A - O).
+            ax = <double>point[i, 0] + dx * s - ox
+            ay = <double>point[i, 1] + dy * s - oy
+            az_ = <double>point[i, 2] - dz * s - oz
+            rx = rotation[0, 0] * ax + rotation[1, 0] * ay + rotation[2, 0] * az_
+            ry = rotation[0, 1] * ax + rotation[1, 1] * ay + rotation[2, 1] * az_
+            rz = rotation[0, 2] * ax + rotation[1, 2] * ay + rotation[2, 2] * az_
+            oa = sqrt(rx * rx + ry * ry + rz * rz)
+            # Cheapest test first: most reflected paths fail the range window or elevation.
+            if not (oa >= range_min and oa < range_max):
+                continue
+            el_deg = rz / oa
+            if el_deg > 1.0:
+                el_deg = 1.0
+            elif el_deg < -1.0:
+                el_deg = -1.0
+            el_deg = asin(el_deg) * rad2deg
+            if not fabs(el_deg) <= half_elevation_deg:
+                continue
+            az_deg = atan2(ry, rx) * rad2deg
+            b = beam_of(edges, az_deg)
+            if b >= 0:
+                r23[i] = 0.5 * (oa + oa_v)
+                e23[i] = specular * c
+                beam_a[i] = <int>b
+
+
+cdef inline double ffloor(double v) noexcept nogil:
+    """floor() without a libm call (the x86-64 baseline has no rounding instruction)."""
+    cdef double t = <double>(<long long>v)
+    return t - 1.0 if t > v else t
+
+
+cdef inline void deposit(double x, double x_dn, double x_up, bint c_dn, bint c_up, double energy,
+                         float* column, Py_ssize_t stride, double nb) noexcept nogil:
+    """Spread one ray's energy over its range cell (see render.formation._segments) into ``column``.
+
+    ``column`` points at bin 0 of the ray's (label, beam) image column, whose bins are
+    ``stride`` floats apart; x are in bins.
+    """
+    cdef double lower = x, upper = x, lo, hi, width, density, m_dn = 0.0, m_up = 0.0, ov
+    cdef Py_ssize_t b, b1
+    if c_dn:
+        m_dn = 0.5 * (x + x_dn)
+    if c_up:
+        m_up = 0.5 * (x_up + x)
+    if c_dn or c_up:
+        lower = m_dn if c_dn else 2.0 * x - m_up
+        upper = m_up if c_up else 2.0 * x - m_dn
+    lo = lower if lower < upper else upper
+    hi = upper if upper > lower else lower
+    if x < lo:
+        lo = x
+    if x > hi:
+        hi = x
+    width = hi - lo
+    if width < MIN_SPREAD_BINS:
+        lo = ffloor(lo)
+        hi = lo + 1.0
+        density = energy
+    else:
+        density = energy / width
+    if lo < 0.0:
+        lo = 0.0
+    if hi > nb:
+        hi = nb
+    if not hi > lo:
+        return
+    b1 = <Py_ssize_t>hi  # 0 <= lo < hi here: truncation is floor, and ceil is one more
+    if b1 < hi:
+        b1 += 1
+    for b in range(<Py_ssize_t>lo, b1):
+        ov = (hi if hi < b + 1.0 else b + 1.0) - (lo if lo > b else <double>b)
+        column[b * stride] += <float>(density * ov)
+
+
+cdef inline bint alive(const double[::1] distance, const double[::1] energy, Py_ssize_t i) noexcept nogil:
+    return energy[i] != 0 and isfinite(distance[i])
+
+
+def splat(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[::1] sid,
+          const double[::1] distance, const double[::1] energy, const int[::1] beam,
+          const signed char[::1] label, int label_const,
+          const double[::1] distance2, const double[::1] energy2, const int[::1] beam2, int label2,
+          bint spread, Py_ssize_t n_elevation, double range_min, double dr,
+          Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out,
+          Py_ssize_t col_begin=0, Py_ssize_t col_end=-1):
+    """Continuity + range cells + accumulation of one or two sets of rays on one geometry.
+
+    ``out`` is the flat float32 ``(n_labels, n_range_bins, n_beams)`` image. Set 1: ``distance``, ``energy``, ``beam``, with ``label`` per ray (or
+    ``label_const`` where ``label`` is empty). Set 2 (used where ``distance2`` is not empty):
+    ``distance2``, ``energy2``, ``beam2``, label ``label2`` -- the double bounce shares the
+    triple's geometry, so the continuity test runs once for both. Neighbours count as
+    continuous for a set only where both carry energy in it. Only the ray columns
+    ``col_begin:col_end`` are done (continuity runs along a column, so columns are
+    independent). The GIL is released.
+    """
+    cdef Py_ssize_t n = distance.shape[0], n_cols = n // n_elevation
+    cdef Py_ssize_t col, k, i, first
+    cdef bint geo, live1, live1_up, live2, live2_up, c1_dn, c2_dn, c1_up, c2_up
+    cdef bint two = distance2.shape[0] > 0, use_label = label.shape[0] > 0
+    cdef real_t cx, cy, cz, off0, off1, limit
+    cdef int lab
+    cdef double x_dn1 = 0.0, x_dn2 = 0.0, x1, x2, x_up1, x_up2
+    cdef double nb = <double>n_range_bins
+    cdef float* base = &out[0]
+    if col_end < 0 or col_end > n_cols:
+        col_end = n_cols
+    with nogil:
+        for col in range(col_begin, col_end):
+            first = col * n_elevation
+            c1_dn = False
+            c2_dn = False
+            live1_up = alive(distance, energy, first) and (label[first] if use_label else label_const) >= 0
+            live2_up = two and alive(distance2, energy2, first)
+            for k in range(n_elevation):
+                i = first + k
+                live1 = live1_up
+                live2 = live2_up
+                geo = False
+                live1_up = False
+                live2_up = False
+                if k + 1 < n_elevation:
+                    live1_up = alive(distance, energy, i + 1) and (label[i + 1] if use_label else label_const) >= 0
+                    live2_up = two and alive(distance2, energy2, i + 1)
+                    if spread and (live1 and live1_up or live2 and live2_up) and sid[i] >= 0 and sid[i + 1] == sid[i]:
+                        cx = points[i + 1, 0] - points[i, 0]
+                        cy = points[i + 1, 1] - points[i, 1]
+                        cz = points[i + 1, 2] - points[i, 2]
+                        # |n . chord| <= sine |chord| for both normals, squared: no square root.
+                        off0 = cx * normals[i, 0] + cy * normals[i, 1] + cz * normals[i, 2]
+                        off1 = cx * normals[i + 1, 0] + cy * normals[i + 1, 1] + cz * normals[i + 1, 2]
+                        limit = <real_t>(CONTINUITY_SINE * CONTINUITY_SINE) * (cx * cx + cy * cy + cz * cz)
+                        geo = off0 * off0 <= limit and off1 * off1 <= limit
+                if live1:
+                    lab = label[i] if use_label else label_const
+                    x1 = (distance[i] - range_min) / dr
+                    c1_up = geo and live1_up
+                    x_up1 = (distance[i + 1] - range_min) / dr if c1_up else 0.0
+                    deposit(x1, x_dn1, x_up1, c1_dn, c1_up, energy[i],
+                            base + <Py_ssize_t>lab * n_range_bins * n_beams + beam[i], n_beams, nb)
+                    c1_dn = c1_up
+                    x_dn1 = x1
+                else:
+                    c1_dn = False
+                if live2:
+                    x2 = (distance2[i] - range_min) / dr
+                    c2_up = geo and live2_up
+                    x_up2 = (distance2[i + 1] - range_min) / dr if c2_up else 0.0
+                    deposit(x2, x_dn2, x_up2, c2_dn, c2_up, energy2[i],
+                            base + <Py_ssize_t>label2 * n_range_bins * n_beams + beam2[i], n_beams, nb)
+                    c2_dn = c2_up
+                    x_dn2 = x2
+                else:
+                    c2_dn = False
+
+
+
+def rotate(const double[:, ::1] dirs, const double[:, ::1] rotation, double ox, double oy, double oz,
+           double[:, ::1] out64, float[:, ::1] out32, float[:, ::1] origins32):
+    """World-frame ray directions ``R @ d`` in float64 and float32, and the ray origins in
+    float32 (both for Embree), in one pass."""
+    cdef Py_ssize_t i, n = dirs.shape[0]
+    cdef double x, y, z, a, b, c
+    with nogil:
+        for i in range(n):
+            origins32[i, 0] = <float>ox
+            origins32[i, 1] = <float>oy
+            origins32[i, 2] = <float>oz
+            x = dirs[i, 0]
+            y = dirs[i, 1]
+            z = dirs[i, 2]
+            a = rotation[0, 0] * x + rotation[0, 1] * y + rotation[0, 2] * z
+            b = rotation[1, 0] * x + rotation[1, 1] * y + rotation[1, 2] * z
+            c = rotation[2, 0] * x + rotation[2, 1] * y + rotation[2, 2] * z
+            out64[i, 0] = a
+            out64[i, 1] = b
+            out64[i, 2] = c
+            out32[i, 0] = <float>a
+            out32[i, 1] = <float>b
+            out32[i, 2] = <float>c
+
+
+def combine(const float[:, :, ::1] parts, float[:, ::1] single, float[:, ::1] total,
+            bint with_single, bint with_double, bint with_triple):
+    """single = object + ground; total = the selected bounces; one pass over the images.
+
+    ``parts`` is (object, ground, double, triple), each (n_range_bins, n_beams). Sums in
+    float32, in the same order as the NumPy assembly.
+    """
+    cdef Py_ssize_t i, j, n0 = parts.shape[1], n1 = parts.shape[2]
+    cdef float s, t
+    with nogil:
+        for i in range(n0):
+            for j in range(n1):
+                s = parts[0, i, j] + parts[1, i, j]
+                single[i, j] = s
+                t = 0.0
+                if with_single:
+                    t = s
+                    if with_double:
+                        t = t + parts[2, i, j]
+                elif with_double:
+                    t = parts[2, i, j]
+                if with_triple:
+                    t = t + parts[3, i, j] if (with_single or with_double) else parts[3, i, j]
+                total[i, j] = t
+
+
+# General reflecting planes (sonarsim.paths.engine is the NumPy twin) ----------------------
+
+cdef inline double dot3(const double[:, ::1] a, Py_ssize_t i, double x, double y, double z) noexcept nogil:
+    return a[i, 0] * x + a[i, 1] * y + a[i, 2] * z
+
+
+def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const int[::1] hit_mesh,
+              const float[:, ::1] hit_normal, const double[:, ::1] org, const double[:, ::1] dirs,
+              const double[::1] before, const double[::1] atten, const int[::1] chain,
+              const double[:, ::1] plane_normal, const double[::1] plane_offset,
+              const unsigned char[::1] plane_active, const double[::1] plane_specular,
+              double reach, const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
+              bint first, bint reflect, int[:, ::1] children, int n_chains,
+              double[::1] dist, int[::1] sid, double[:, ::1] point, double[:, ::1] normal,
+              double[::1] intensity, double[::1] atten_out, int[::1] chain_out,
+              Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
+              double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
+              double[::1] nx_atten, int[::1] nx_chain):
+    """One generation of receive legs: closest of objects and active planes, diffuse weight,
+    and the specular reflection of the rays that meet a plane (twin: ``engine.trace_legs``).
+
+    Rows ``k`` are rays ``ray[k]`` of the fan; ``org``, ``before``, ``atten``, ``chain`` may
+    have one row for all (the first generation). Dense outputs (indexed by fan ray) must come
+    filled with "nothing"; only reached rays are set. ``children[c, p]`` is the chain
+    ``c + (p,)`` (-1: new, numbered from ``n_chains`` on).
+
+    Returns
+    -------
+    (n_next, n_chains, min_before_next, overflow)
+    """
+    cdef Py_ssize_t k, i, m = ray.shape[0], n_next = 0, P = plane_normal.shape[0]
+    cdef Py_ssize_t row, p, best_p, cap = children.shape[0]
+    cdef bint one = org.shape[0] == 1
+    cdef double ox, oy, oz, dx, dy, dz, t, tp, dn, nx, ny, nz, b, total, c, r, rx, ry, rz, twice
+    cdef double px, py, pz, min_next = INFINITY
+    cdef float fx, fy, fz, cosf
+    cdef int s, ch, child
+    cdef bint overflow = False
+    with nogil:
+        for k in range(m):
+            i = ray[k]
+            row = 0 if one else k
+            ox = org[row, 0]
+            oy = org[row, 1]
+            oz = org[row, 2]
+            dx = dirs[k, 0]
+            dy = dirs[k, 1]
+            dz = dirs[k, 2]
+            b = before[row]
+            if hit_mesh[k] >= 0:
+                t = hit_distance[k]
+                s = hit_mesh[k] + <int>P
+                nx = hit_normal[k, 0]
+                ny = hit_normal[k, 1]
+                nz = hit_normal[k, 2]
+            else:
+                t = INFINITY
+                s = -1
+                nx = 0.0
+                ny = 0.0
+                nz = 0.0
+            best_p = -1
+            for p in range(P):
+                if not plane_active[p]:
+                    continue
+                dn = dot3(plane_normal, p, dx, dy, dz)
+                if dn < 0:
+                    tp = (plane_offset[p] - dot3(plane_normal, p, ox, oy, oz)) / dn
+                    if tp > 0 and tp < t and b + tp <= reach:
+                        t = tp
+                        best_p = p
+            if best_p >= 0:
+                s = <int>best_p
+                nx = plane_normal[best_p, 0]
+                ny = plane_normal[best_p, 1]
+                nz = plane_normal[best_p, 2]
+            total = b + t
+            if s < 0 or not total <= reach:
+                continue
+            if first:
+                # As the caster reports them: float32 points and incidence.
+                px = <float>(ox + dx * t)
+                py = <float>(oy + dy * t)
+                pz = <float>(oz + dz * t)
+                cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
+                c = cosf
+            else:
+                px = ox + dx * t
+                py = oy + dy * t
+                pz = oz + dz * t
+                c = fabs(nx * dx + ny * dy + nz * dz)
+            c = weight[i] * albedo_by_id[s + 1] * c
+            if not tvg:
+                r = total if total > 1e-6 else 1e-6
+                c = c / (r * r)
+            ch = chain[row]
+            dist[i] = total
+            sid[i] = s
+            point[i, 0] = px
+            point[i, 1] = py
+            point[i, 2] = pz
+            normal[i, 0] = nx
+            normal[i, 1] = ny
+            normal[i, 2] = nz
+            intensity[i] = c
+            atten_out[i] = atten[row]
+            chain_out[i] = ch
+            if not (reflect and s < P and total < reach and plane_specular[s] > 0):
+                continue
+            child = children[ch, s]
+            if child < 0:
+                if n_chains >= cap:
+                    overflow = True
+                    continue
+                child = n_chains
+                children[ch, s] = child
+                n_chains += 1
+            twice = 2.0 * (dx * nx + dy * ny + dz * nz)
+            rx = dx - twice * nx
+            ry = dy - twice * ny
+            rz = dz - twice * nz
+            fx = <float>px
+            fy = <float>py
+            fz = <float>pz
+            nx_ray[n_next] = i
+            nx_org[n_next, 0] = fx + SURFACE_OFFSET_M * rx
+            nx_org[n_next, 1] = fy + SURFACE_OFFSET_M * ry
+            nx_org[n_next, 2] = fz + SURFACE_OFFSET_M * rz
+            nx_org32[n_next, 0] = <float>nx_org[n_next, 0]
+            nx_org32[n_next, 1] = <float>nx_org[n_next, 1]
+            nx_org32[n_next, 2] = <float>nx_org[n_next, 2]
+            nx_dir[n_next, 0] = rx
+            nx_dir[n_next, 1] = ry
+            nx_dir[n_next, 2] = rz
+            nx_dir32[n_next, 0] = <float>rx
+            nx_dir32[n_next, 1] = <float>ry
+            nx_dir32[n_next, 2] = <float>rz
+            nx_before[n_next] = total + SURFACE_OFFSET_M
+            nx_atten[n_next] = atten[row] * plane_specular[s]
+            nx_chain[n_next] = child
+            if total + SURFACE_OFFSET_M < min_next:
+                min_next = total + SURFACE_OFFSET_M
+            n_next += 1
+    return n_next, n_chains, min_next, overflow
+
+
+def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::1] sid,
+                const double[:, ::1] point, const double[::1] intensity, const double[::1] atten,
+                const int[::1] chain, bint same, int tx, const double[:, ::1] unfold,
+                const double[:, ::1] sources, const int[::1] tx_planes, double tx_specular,
+                const int[::1] rank, bint separate, int label, int n_planes, Py_ssize_t rays_per_beam,
+                double ox, double oy, double oz, const double[:, ::1] rotation,
+                const double[::1] edges, double half_elevation_deg, double range_min, double range_max,
+                const double[:, ::1] plane_normal, const double[::1] plane_offset,
+                const unsigned char[::1] plane_active,
+                Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
+                int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label):
+    """Paths of one generation's receive legs and one transmit option (twin:
+    ``engine.form_paths`` + ``engine.transmit_legs``).
+
+    ``same``: the transmit leg is the receive leg reversed (order label ``label``; for the
+    first generation the label is 0 on objects, 1 on planes). Otherwise the transmit leg
+    follows chain ``tx`` (``unfold``: its 3 x 4 map, ``sources``: the sonar's images,
+    ``tx_planes``: its planes from the sonar). Paths are written compactly, in ray order.
+
+    Returns
+    -------
+    int : the number of paths written.
+    """
+    cdef Py_ssize_t k, i, m = 0, n = live.shape[0], K = tx_planes.shape[0], j, q, P = plane_normal.shape[0]
+    cdef int c, s, last = tx_planes[K - 1] if K > 0 else -1, rank_tx = rank[tx] if not same else 0
+    cdef double ax, ay, az_, ux, uy, uz, vx, vy, vz, length, el, azd, e, t, wx, wy, wz, tx_, ty, tz
+    cdef double rad2deg = 180.0 / M_PI, denom, tol
+    cdef Py_ssize_t b
+    cdef bint ok
+    with nogil:
+        for k in range(n):
+            i = live[k]
+            s = sid[i]
+            if same:
+                out_ray[m] = i
+                out_dist[m] = dist[i]
+                out_energy[m] = atten[i] * atten[i] * intensity[i]
+                out_beam[m] = <int>(i // rays_per_beam)
+                out_beam_tx[m] = out_beam[m]
+                out_label[m] = <signed char>((0 if s >= n_planes else 1) if label == 1 else label)
+                m += 1
+                continue
+            c = chain[i]
+            if c == tx or s == last:
+                continue
+            if not separate and rank[c] <= rank_tx:
+                continue
+            ax = point[i, 0]
+            ay = point[i, 1]
+            az_ = point[i, 2]
+            ux = unfold[0, 0] * ax + unfold[0, 1] * ay + unfold[0, 2] * az_ + unfold[0, 3] - ox
+            uy = unfold[1, 0] * ax + unfold[1, 1] * ay + unfold[1, 2] * az_ + unfold[1, 3] - oy
+            uz = unfold[2, 0] * ax + unfold[2, 1] * ay + unfold[2, 2] * az_ + unfold[2, 3] - oz
+            vx = rotation[0, 0] * ux + rotation[1, 0] * uy + rotation[2, 0] * uz
+            vy = rotation[0, 1] * ux + rotation[1, 1] * uy + rotation[2, 1] * uz
+            vz = rotation[0, 2] * ux + rotation[1, 2] * uy + rotation[2, 2] * uz
+            length = sqrt(vx * vx + vy * vy + vz * vz)
+            if not (length >= range_min and length < range_max):
+                continue
+            el = vz / length
+            if el > 1.0:
+                el = 1.0
+            elif el < -1.0:
+                el = -1.0
+            el = asin(el) * rad2deg
+            if not fabs(el) <= half_elevation_deg:
+                continue
+            azd = atan2(vy, vx) * rad2deg
+            b = beam_of(edges, azd)
+            if b < 0:
+                continue
+            # Walk back from A towards the sonar's images: each reflection point must lie on
+            # its plane, between its neighbours, inside the water.
+            ok = True
+            wx = ax
+            wy = ay
+            wz = az_
+            j = K - 1
+            while ok and j >= 0:
+                q = tx_planes[j]
+                tx_ = sources[j + 1, 0] - wx
+                ty = sources[j + 1, 1] - wy
+                tz = sources[j + 1, 2] - wz
+                denom = dot3(plane_normal, q, tx_, ty, tz)
+                t = (plane_offset[q] - dot3(plane_normal, q, wx, wy, wz)) / denom
+                if not (t > 0.0 and t < 1.0):
+                    ok = False
+                    break
+                wx = wx + t * tx_
+                wy = wy + t * ty
+                wz = wz + t * tz
+                tol = fabs(wx)
+                if fabs(wy) > tol:
+                    tol = fabs(wy)
+                if fabs(wz) > tol:
+                    tol = fabs(wz)
+                tol = WATER_TOLERANCE_M * (tol if tol > 1.0 else 1.0)
+                for q in range(P):
+                    if plane_active[q] and dot3(plane_normal, q, wx, wy, wz) - plane_offset[q] < -tol:
+                        ok = False
+                        break
+                j -= 1
+            if not ok:
+                continue
+            out_ray[m] = i
+            out_dist[m] = 0.5 * (dist[i] + length)
+            out_energy[m] = atten[i] * tx_specular * intensity[i]
+            out_beam[m] = <int>(i // rays_per_beam)
+            out_beam_tx[m] = <int>b
+            out_label[m] = <signed char>label
+            m += 1
+    return m
+
+
+def splat_events(const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
+                 const Py_ssize_t[::1] ray, const double[::1] distance, const double[::1] energy,
+                 const int[::1] beam, const signed char[::1] label, double scale,
+                 bint spread, Py_ssize_t n_elevation, double range_min, double dr,
+                 Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out):
+    """Continuity + range cells + accumulation of one compact path set (twin: the path set
+    made dense and given to ``imaging.accumulate``).
+
+    Paths are in ray order; two are neighbours when their rays are neighbours in elevation
+    (same ray column) with equal ``key`` (same surface via the same chain) and the chord
+    between their scatterers lies within the continuity angle of both normals. Each path's
+    energy is ``scale * energy``.
+    """
+    cdef Py_ssize_t k, i, m = ray.shape[0]
+    cdef bint c_dn = False, c_up
+    cdef double x, x_dn = 0.0, x_up, cx, cy, cz, off0, off1, limit
+    cdef double nb = <double>n_range_bins
+    cdef float* base = &out[0]
+    with nogil:
+        for k in range(m):
+            i = ray[k]
+            c_up = False
+            if spread and k + 1 < m and ray[k + 1] == i + 1 and (i + 1) % n_elevation != 0 \
+                    and key[i] >= 0 and key[i + 1] == key[i]:
+                cx = points[i + 1, 0] - points[i, 0]
+                cy = points[i + 1, 1] - points[i, 1]
+                cz = points[i + 1, 2] - points[i, 2]
+                off0 = cx * normals[i, 0] + cy * normals[i, 1] + cz * normals[i, 2]
+                off1 = cx * normals[i + 1, 0] + cy * normals[i + 1, 1] + cz * normals[i + 1, 2]
+                limit = CONTINUITY_SINE * CONTINUITY_SINE * (cx * cx + cy * cy + cz * cz)
+                c_up = off0 * off0 <= limit and off1 * off1 <= limit
+            x = (distance[k] - range_min) / dr
+            x_up = (distance[k + 1] - range_min) / dr if c_up else 0.0
+            deposit(x, x_dn, x_up, c_dn, c_up, scale * energy[k],
+                    base + <Py_ssize_t>label[k] * n_range_bins * n_beams + beam[k], n_beams, nb)
+            c_dn = c_up
+            x_dn = x

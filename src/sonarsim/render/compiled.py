@@ -1,0 +1,306 @@
+"""The default render path with its per-ray loops compiled (:mod:`sonarsim.render._kernels`).
+
+Same physics, same images as the NumPy path (``Simulator(kernels="numpy")``:
+``trace.surfaces.trace``, ``paths.algorithm2.fast_mirror_paths``,
+``paths.algorithm2.ground_echo_rays``, ``render.formation.accumulate``), which the tests compare
+it against. Per frame: cast the primary rays, one kernel for the closest
+surfaces and intensities, cast the reflected rays of those that reached the ground, one kernel
+for the ground echoes, one kernel per set of rays to spread them into the images.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.rays import RayFan
+from ..config.scene import GroundSpec, RenderSettings
+from ..config.sonar import SonarConfig
+
+try:
+    from . import _kernels
+except ImportError:  # not built (e.g. a source tree used without installing)
+    _kernels = None
+else:
+    combine = _kernels.combine  # single and total images in one pass
+
+AVAILABLE = _kernels is not None
+
+# Where the reflected rays are cut into batches, as shares of the ray columns: small first, so
+# that this core soon has echo paths to form while the other core casts the next batch.
+BATCH_CUTS = (0.3, 0.65)
+# Share of the direct image (left beams) formed on this core; the other core, busy casting,
+# forms the rest.
+DIRECT_SHARE = 0.7
+
+
+class Workspace:
+    """Per-frame arrays, kept between frames of the same ray count (no allocation per frame)."""
+
+    def __init__(self, n: int, n_beams: int, n_per_beam: int) -> None:
+        self.n = n
+        self.d64 = np.empty((n, 3))
+        self.d32 = np.empty((n, 3), dtype=np.float32)
+        self.o32 = np.empty((n, 3), dtype=np.float32)
+        self.dist = np.empty(n)
+        self.sid = np.empty(n, dtype=np.int32)
+        self.point = np.empty((n, 3), dtype=np.float32)
+        self.normal = np.empty((n, 3), dtype=np.float32)
+        self.intensity = np.empty(n)
+        self.label = np.empty(n, dtype=np.int8)
+        self.g_index = np.empty(n, dtype=np.intp)
+        self.g_t = np.empty(n)
+        self.g_start = np.empty((n, 3), dtype=np.float32)
+        self.g_dir = np.empty((n, 3), dtype=np.float32)
+        self.tri_dist = np.empty(n)
+        self.tri_energy = np.empty(n)
+        self.v_point = np.empty((n, 3))
+        self.v_normal = np.empty((n, 3))
+        self.v_sid = np.empty(n, dtype=np.int32)
+        self.r23 = np.empty(n)
+        self.e23 = np.empty(n)
+        self.beam_a = np.empty(n, dtype=np.int32)
+        self.beam = np.repeat(np.arange(n_beams, dtype=np.int32), n_per_beam)
+        self.no_label = np.empty(0, dtype=np.int8)
+        self.empty_f64 = np.empty(0)
+        self.empty_i32 = np.empty(0, dtype=np.int32)
+
+    def reset_mirror(self) -> None:
+        self.tri_dist.fill(np.inf)
+        self.tri_energy.fill(0.0)
+        self.v_point.fill(np.nan)
+        self.v_normal.fill(0.0)
+        self.v_sid.fill(-1)
+        self.r23.fill(np.inf)
+        self.e23.fill(0.0)
+        self.beam_a.fill(0)
+
+
+def render_fast(
+    caster,
+    sonar: SonarConfig,
+    fan: RayFan,
+    ground: GroundSpec | None,
+    render: RenderSettings,
+    albedo_by_id: np.ndarray,
+    reach_m: float,
+    multipath: bool,
+    work: Workspace,
+    out: np.ndarray,
+    pool=None,
+) -> None:
+    """Render the object, ground, double and triple images into ``out`` (labels 0-3).
+
+    Parameters
+    ----------
+    caster : RayCaster
+    sonar, fan, render : the sonar at its pose, its rays (sonar frame), the settings
+    ground : GroundSpec or None
+    albedo_by_id : (n_objects + 2,) float64 ndarray, indexed by surface id + 1
+    reach_m : float
+        Longest path followed, metres.
+    multipath : bool
+        Form the ground echoes.
+    work : Workspace
+        Receives the per-ray results (``d64``: world directions; ``dist``, ``sid``,
+        ``intensity``: D_f, labels, I_f).
+    out : (4, n_range_bins, n_beams) float32 C-contiguous zeroed ndarray
+        Receives the images. float32 sums lose nothing here that the float32 result would keep.
+    pool : concurrent.futures.ThreadPoolExecutor with one worker, optional
+        The other core: casts the reflected rays and forms half of the direct image.
+    """
+    origin = sonar.pose.translation
+    d64 = work.d64
+    _kernels.rotate(fan.directions.reshape(-1, 3), np.ascontiguousarray(sonar.pose.rotation),
+                    origin[0], origin[1], origin[2], d64, work.d32, work.o32)
+    hits = caster.intersect(work.o32, work.d32, reach_m)
+    weight = fan.weight.reshape(-1)
+    has_ground = ground is not None
+    n_g, t_min = _kernels.primary(
+        hits.distance, hits.mesh_id, hits.normal, d64, origin[0], origin[1], origin[2],
+        has_ground, ground.height_m if has_ground else 0.0, reach_m, albedo_by_id, weight, render.tvg,
+        work.dist, work.sid, work.point, work.normal, work.intensity, work.label,
+        work.g_index, work.g_t, work.g_start, work.g_dir,
+    )
+    n_el = fan.shape[2]
+    geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
+    flat_out = out.reshape(-1)
+    spread = render.range_splat
+
+    def splat(points, normals, sid, set1, set2=None, columns=(0, -1)):
+        """Run the splat kernel: ``set = (distance, energy, beams, label array, label)``."""
+        d2, e2, b2, _, l2 = set2 if set2 is not None else (work.empty_f64, work.empty_f64, work.empty_i32, None, -1)
+        _kernels.splat(points, normals, sid, *set1, d2, e2, b2, l2, spread, n_el, *geometry, flat_out, *columns)
+
+    if not (multipath and n_g):
+        splat(work.point, work.normal, work.sid, (work.dist, work.intensity, work.beam, work.label, 0))
+        return
+
+    mirror = (work.v_point, work.v_normal, work.v_sid)
+    triple = (work.tri_dist, work.tri_energy, work.beam, work.no_label, 3)
+
+    def echoes(columns):
+        if render.double_beam == "paper":
+            splat(*mirror, triple, (work.r23, work.e23, work.beam, None, 2), columns=columns)
+        else:
+            half = 0.5 * work.e23
+            splat(*mirror, triple, (work.r23, half, work.beam, None, 2), columns=columns)
+            splat(*mirror, (work.r23, half, work.beam_a, work.no_label, 2), columns=columns)  # case 2: beam of A
+
+    # Two cores share the rest. The other core casts the reflected rays in batches of whole ray
+    # columns and then forms the right part of the direct image; this core forms the left part,
+    # then turns each batch into echo paths and echo images as it arrives (columns are
+    # independent; the halves of the direct image and the echoes write disjoint memory).
+    reach2 = float(reach_m - t_min)
+    n_cols = fan.shape[0] * fan.shape[1]
+    col_cuts = [0, n_cols] if pool is None else [0, *(int(f * n_cols) for f in BATCH_CUTS), n_cols]
+    ray_cuts = np.searchsorted(work.g_index[:n_g], np.asarray(col_cuts) * n_el)
+    batches = [(int(a), int(b)) for a, b in zip(ray_cuts[:-1], ray_cuts[1:])]
+    pipelined = not render.double_line_of_sight  # that option casts again after all paths
+
+    def cast(ab):
+        a, b = ab
+        return caster.intersect(work.g_start[a:b], work.g_dir[a:b], reach2)
+
+    direct = (work.point, work.normal, work.sid, (work.dist, work.intensity, work.beam, work.label, 0))
+    if pool is not None:
+        # ``pool`` runs one task at a time, in order: the casts, then the right half.
+        pending = [pool.submit(cast, ab) for ab in batches]
+        split = int(DIRECT_SHARE * fan.shape[0]) * fan.shape[1]
+        right = pool.submit(splat, *direct, columns=(split, -1))
+        splat(*direct, columns=(0, split))
+    else:
+        splat(*direct)
+    work.reset_mirror()
+    half_el = sonar.elevation_fov_deg / 2.0
+    rotation = np.ascontiguousarray(sonar.pose.rotation)
+    edges = np.ascontiguousarray(sonar.beam_edges_deg)
+    for k, (a, b) in enumerate(batches):
+        hits2 = pending[k].result() if pool is not None else cast((a, b))
+        _kernels.mirror_paths(
+            work.g_index[a:b], work.g_t[a:b], work.g_start[a:b], hits2.distance, hits2.mesh_id, hits2.normal,
+            d64, work.point, origin[0], origin[1], origin[2], rotation,
+            edges, half_el, sonar.range_min_m, sonar.range_max_m,
+            reach_m, albedo_by_id, weight, render.tvg, ground.specular,
+            work.tri_dist, work.tri_energy, work.v_point, work.v_normal, work.v_sid,
+            work.r23, work.e23, work.beam_a,
+        )
+        if pipelined:
+            echoes((col_cuts[k], col_cuts[k + 1]))
+    if not pipelined:
+        _drop_hidden(caster, sonar, ground.height_m, work)
+        echoes((0, -1))
+    if pool is not None:
+        right.result()
+
+
+def _drop_hidden(caster, sonar: SonarConfig, ground_height_m: float, work: Workspace) -> None:
+    """``double_line_of_sight``: no double bounce from an A that the sonar cannot see."""
+    cand = np.flatnonzero(work.e23 > 0)
+    if not cand.size:
+        return
+    origin = sonar.pose.translation
+    a_point = work.v_point[cand].copy()  # A', mirrored back across the ground: A
+    a_point[:, 2] = 2.0 * ground_height_m - a_point[:, 2]
+    to_a = a_point - origin
+    oa = np.linalg.norm(to_a, axis=1)
+    hit = caster.intersect(origin, to_a / oa[:, None], float(oa.max()) + 1.0)
+    # Visible when the first thing on the way is A itself (to float32 precision).
+    hidden = hit.distance < oa - 1e-3 * np.maximum(oa, 1.0)
+    work.e23[cand[hidden]] = 0.0
+    work.r23[cand[hidden]] = np.inf
+
+
+def trace_legs(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Workspace, weight: np.ndarray,
+               albedo_by_id: np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> list:
+    """Receive legs with the compiled kernel (twin: :func:`sonarsim.paths.engine.trace_legs`).
+
+    The first generation's rays are ``work``'s rotated fan (see :func:`render_fast`).
+    """
+    from .paths.engine import Leg
+
+    n = fan.n_rays
+    origin = sonar.pose.translation
+    act = np.ascontiguousarray(active, dtype=np.uint8)
+    legs = []
+    ray = np.arange(n, dtype=np.intp)
+    org = origin.reshape(1, 3).copy()
+    dirs, o32, d32 = work.d64, work.o32, work.d32
+    before, atten, chain = np.zeros(1), np.ones(1), np.zeros(1, dtype=np.int32)
+    limit = reach_m
+    for g in range(n_generations):
+        leg = Leg(g, np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan), np.zeros((n, 3)),
+                  np.zeros(n), np.zeros(n), np.full(n, -1, np.int32))
+        legs.append(leg)
+        m = len(ray)
+        if not m:
+            continue
+        hits = caster.intersect(o32, d32, limit)
+        nx = (np.empty(m, np.intp), np.empty((m, 3)), np.empty((m, 3), np.float32), np.empty((m, 3)),
+              np.empty((m, 3), np.float32), np.empty(m), np.empty(m), np.empty(m, np.int32))
+        while True:
+            n_next, n_chains, min_next, overflow = _kernels.trace_leg(
+                ray, hits.distance, hits.mesh_id, hits.normal, org, dirs, before, atten, chain,
+                planes.normal, planes.offset, act, planes.specular, reach_m, albedo_by_id, weight, tvg,
+                g == 0, g + 1 < n_generations, table.children, len(table),
+                leg.distance, leg.sid, leg.point, leg.normal, leg.intensity, leg.atten, leg.chain, *nx,
+            )
+            table.sync(n_chains)
+            if not overflow:
+                break
+            table._grow()
+        ray, org, o32, dirs, d32, before, atten, chain = (a[:n_next] for a in nx)
+        limit = float(reach_m - min_next)
+    return legs
+
+
+def form_paths(legs, table, view, active, n_planes: int, rays_per_beam: int, max_order: int,
+               double_beam: str) -> list:
+    """Every path of the frame with the compiled kernel (twin: :func:`sonarsim.paths.engine.form_paths`)."""
+    from .paths.engine import SAME, PathSet, chain_ranks, label_of_order, transmit_options
+
+    rank = chain_ranks(table)
+    act = np.ascontiguousarray(active, dtype=np.uint8)
+    planes = table.planes
+    no_planes = np.empty(0, np.int32)
+    out = []
+    for leg in legs:
+        g = leg.gen
+        live = np.flatnonzero(np.isfinite(leg.distance) & (leg.intensity != 0))
+        if not len(live):
+            continue
+        m = len(live)
+        for tx in transmit_options(table, g, max_order):
+            buf = (np.empty(m, np.intp), np.empty(m), np.empty(m), np.empty(m, np.int32), np.empty(m, np.int32),
+                   np.empty(m, np.int8))
+            same = tx == SAME
+            chain = () if same else table.chains[tx]
+            order = 2 * g + 1 if same else g + len(chain) + 1
+            k = _kernels.path_events(
+                live, leg.distance, leg.sid, leg.point, leg.intensity, leg.atten, leg.chain,
+                same, 0 if same else tx, table.unfold(0 if same else tx), table.sources(0 if same else tx),
+                np.asarray(chain, np.int32) if chain else no_planes, 1.0 if same else table.specular(tx),
+                rank, double_beam == "separate", label_of_order(order) if order > 1 else 1, n_planes,
+                rays_per_beam, *view.origin, view.rotation, view.beam_edges_deg, view.half_elevation_deg,
+                view.range_min_m, view.range_max_m, planes.normal, planes.offset, act, *buf,
+            )
+            if not k:
+                continue
+            ray, dist, energy, beam, beam_tx, label = (a[:k] for a in buf)
+            if double_beam == "split" and not same:
+                out.append(PathSet(g, tx, ray, dist, 0.5 * energy, beam, label))
+                out.append(PathSet(g, tx, ray, dist, 0.5 * energy, beam_tx, label))
+            else:
+                out.append(PathSet(g, tx, ray, dist, energy, beam, label))
+    return out
+
+
+def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, spread: bool, out: np.ndarray) -> None:
+    """Accumulate path sets into the float32 image stack ``out`` (labels x bins x beams)."""
+    flat = out.reshape(-1)
+    keys = {}
+    for s in sets:
+        leg = legs[s.gen]
+        if s.gen not in keys:
+            keys[s.gen] = leg.key(n_surfaces)
+        _kernels.splat_events(leg.point, leg.normal, keys[s.gen], s.ray, s.distance, s.energy, s.beam, s.label,
+                              1.0, spread, n_elevation, *geometry, flat)

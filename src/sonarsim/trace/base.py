@@ -1,0 +1,70 @@
+"""The ray-casting interface: the only thing an engine (Embree, NumPy, a GPU) must provide.
+
+A caster is built once from the scene's triangle meshes (in world coordinates) and answers
+closest-hit queries for batches of rays. It returns plain arrays; the physics lives elsewhere.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Protocol, Sequence
+
+import numpy as np
+
+from ..scene.meshes import TriangleMesh
+
+
+@dataclass(frozen=True)
+class Hits:
+    """Closest hits of a batch of ``n`` rays.
+
+    Attributes
+    ----------
+    distance : (n,) float32 ndarray, metres
+        Distance along the (unit) ray to the hit; ``inf`` where the ray hits nothing within
+        its limit.
+    mesh_id : (n,) int32 ndarray
+        Index of the mesh hit, in the order the meshes were given; -1 for no hit.
+    normal : (n, 3) float32 ndarray
+        Geometric normal of the triangle hit, unit length, either orientation; 0 for no hit.
+    """
+
+    distance: np.ndarray
+    mesh_id: np.ndarray
+    normal: np.ndarray
+
+    @classmethod
+    def misses(cls, n: int) -> "Hits":
+        return cls(
+            distance=np.full(n, np.inf, dtype=np.float32),
+            mesh_id=np.full(n, -1, dtype=np.int32),
+            normal=np.zeros((n, 3), dtype=np.float32),
+        )
+
+
+class RayCaster(Protocol):
+    """What a ray-casting engine implements."""
+
+    name: str
+
+    def __init__(self, meshes: Sequence[TriangleMesh], threads: int | None = None) -> None: ...
+
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, max_distance: float) -> Hits:
+        """Closest hits.
+
+        Parameters
+        ----------
+        origins : (n, 3) float array, metres
+        directions : (n, 3) float array, unit vectors
+        max_distance : float, metres
+            Hits further than this are reported as misses.
+        """
+        ...
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on (respects affinity masks, e.g. in containers)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return os.cpu_count() or 1
