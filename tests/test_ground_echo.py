@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.scene.meshes import TriangleMesh, clip_above_plane
+from sonarsim.scene.meshes import TriangleMesh, clip_to_water
 from sonarsim.cli.demo import demo_scene_dict
 from conftest import sonar_dict
 
@@ -100,7 +100,11 @@ def test_components_sum_to_the_total_and_bounces_select_them():
     doc = demo_scene_dict()
     img = sonarsim.render(doc)
     comp = img.components
-    assert set(comp) == {"object", "ground", "single", "double", "triple", "total"}
+    signatures = {"O-[objects]-O": "object", "O-[ground]-O": "ground", "O-[objects]-ground-O": "double",
+                  "O-ground-[objects]-ground-O": "triple"}
+    assert set(comp) == {"object", "ground", "single", "double", "triple", "total"} | set(signatures)
+    for sig, name in signatures.items():
+        np.testing.assert_allclose(comp[sig], comp[name], rtol=1e-5, atol=1e-7 * comp[name].max())
     assert comp["double"].any() and comp["triple"].any()
     np.testing.assert_allclose(comp["single"], comp["object"] + comp["ground"], rtol=1e-6)
     np.testing.assert_allclose(img.polar, comp["single"] + comp["double"] + comp["triple"], rtol=1e-5, atol=1e-9)
@@ -189,7 +193,7 @@ def test_clipping_keeps_only_geometry_above_the_plane():
 
     m = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
     mesh = TriangleMesh(np.asarray(m.vertices), np.asarray(m.faces, np.int32))
-    clipped = clip_above_plane(mesh, 0.25)
+    clipped = clip_to_water(mesh, (0, 0, 0.25), (0, 0, 1))
     used = clipped.vertices[np.unique(clipped.faces)]
     assert used[:, 2].min() >= 0.25 - 1e-9
     # Area of a spherical cap of height 0.75 on a unit sphere: 2 pi R h.
@@ -199,7 +203,7 @@ def test_clipping_keeps_only_geometry_above_the_plane():
     # A box resting on the floor loses exactly its two base triangles.
     box = trimesh.creation.box(extents=[1, 1, 1])
     resting = TriangleMesh(np.asarray(box.vertices) + [0, 0, 0.5], np.asarray(box.faces, np.int32))
-    assert len(clip_above_plane(resting, 0.0).faces) == 10
+    assert len(clip_to_water(resting, (0, 0, 0), (0, 0, 1)).faces) == 10
 
 
 @pytest.mark.parametrize("method", ["fast", "paper"])

@@ -36,7 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..imaging import RayEnergy, accumulate, continuity, lambertian_intensity
+from ..core.radiometry import lambertian_intensity
+from ..render.formation import RayEnergy, accumulate, continuity
 from .planes import ChainTable, PlaneSet, apply, reflection_points
 
 # Reflected rays start this far off the plane so that round-off cannot make them meet it
@@ -459,22 +460,43 @@ def accumulate_paths(
     return accumulate(rays, *geometry, n_labels=n_labels)
 
 
-def signature_names(s: PathSet, legs: list[Leg], table: ChainTable, n_planes: int) -> np.ndarray:
-    """(m,) str: the path signature of each path of a set (see :func:`path_name`)."""
-    leg = legs[s.gen]
-    rx = leg.chain[s.ray]
-    sid = leg.sid[s.ray]
-    names = {}
-    out = np.empty(len(s.ray), dtype=object)
-    for k, (c, q) in enumerate(zip(rx, sid)):
-        key = (int(c), int(min(q, n_planes)))
-        if key not in names:
-            tx_chain = table.chains[int(c)] if s.tx == SAME else table.chains[s.tx]
-            at = "objects" if q >= n_planes else table.planes.names[int(q)]
-            names[key] = path_name([table.planes.names[p] for p in tx_chain], at,
-                                   [table.planes.names[p] for p in table.chains[int(c)]])
-        out[k] = names[key]
-    return out
+def split_by_signature(sets: list[PathSet], legs: list[Leg], table: ChainTable, n_planes: int) -> dict[str, list[PathSet]]:
+    """The frame's paths grouped by signature (transmit chain, scatterer, receive chain).
+
+    Returns
+    -------
+    dict of :func:`path_name` to the path sets (subsets of ``sets``) of that signature.
+    """
+    groups: dict[str, list[PathSet]] = {}
+    names = table.planes.names
+    for s in sets:
+        leg = legs[s.gen]
+        rx = leg.chain[s.ray].astype(np.int64)
+        kind = np.minimum(leg.sid[s.ray], n_planes).astype(np.int64)
+        code = rx * (n_planes + 1) + kind
+        for c in np.unique(code):
+            rx_chain = table.chains[int(c) // (n_planes + 1)]
+            q = int(c) % (n_planes + 1)
+            tx_chain = rx_chain if s.tx == SAME else table.chains[s.tx]
+            name = path_name([names[p] for p in tx_chain], "objects" if q == n_planes else names[q],
+                             [names[p] for p in rx_chain])
+            k = code == c
+            groups.setdefault(name, []).append(
+                PathSet(s.gen, s.tx, s.ray[k], s.distance[k], s.energy[k], s.beam[k], s.label[k])
+            )
+    return groups
+
+
+#: The ground-only signatures and the component each equals (Algorithm 2 forms those four).
+GROUND_SIGNATURES = {
+    "O-[objects]-O": "object", "O-[ground]-O": "ground",
+    "O-[objects]-ground-O": "double", "O-ground-[objects]-ground-O": "triple",
+}
+
+
+def ground_signatures(images: dict) -> dict[str, np.ndarray]:
+    """Path-signature images of a ground-only frame from its order images (Algorithm 2)."""
+    return {sig: images[name] for sig, name in GROUND_SIGNATURES.items() if name in images and images[name].any()}
 
 
 def path_name(tx: list[str], at: str, rx: list[str]) -> str:

@@ -429,8 +429,8 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
               const unsigned char[::1] plane_active, const double[::1] plane_specular,
               double reach, const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
               bint first, bint reflect, int[:, ::1] children, int n_chains,
-              double[::1] dist, int[::1] sid, double[:, ::1] point, double[:, ::1] normal,
-              double[::1] intensity, double[::1] atten_out, int[::1] chain_out,
+              double[::1] dist, int[::1] sid, double[:, ::1] point, float[:, ::1] point32,
+              double[:, ::1] normal, double[::1] intensity, double[::1] atten_out, int[::1] chain_out,
               Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
               double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
               double[::1] nx_atten, int[::1] nx_chain):
@@ -497,9 +497,13 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
                 continue
             if first:
                 # As the caster reports them: float32 points and incidence.
-                px = <float>(ox + dx * t)
-                py = <float>(oy + dy * t)
-                pz = <float>(oz + dz * t)
+                # Through memory: gcc -O3 drops a float32 round trip held in registers.
+                point32[i, 0] = <float>(ox + dx * t)
+                point32[i, 1] = <float>(oy + dy * t)
+                point32[i, 2] = <float>(oz + dz * t)
+                px = point32[i, 0]
+                py = point32[i, 1]
+                pz = point32[i, 2]
                 cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
                 c = cosf
             else:

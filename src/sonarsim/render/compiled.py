@@ -210,13 +210,20 @@ def _drop_hidden(caster, sonar: SonarConfig, ground_height_m: float, work: Works
     work.r23[cand[hidden]] = np.inf
 
 
+def rotate(fan: RayFan, sonar: SonarConfig, work: Workspace) -> None:
+    """The fan's rays at the sonar's pose: ``work.d64``/``d32`` directions, ``o32`` origins."""
+    o = sonar.pose.translation
+    _kernels.rotate(fan.directions.reshape(-1, 3), np.ascontiguousarray(sonar.pose.rotation), o[0], o[1], o[2],
+                    work.d64, work.d32, work.o32)
+
+
 def trace_legs(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Workspace, weight: np.ndarray,
                albedo_by_id: np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> list:
     """Receive legs with the compiled kernel (twin: :func:`sonarsim.paths.engine.trace_legs`).
 
     The first generation's rays are ``work``'s rotated fan (see :func:`render_fast`).
     """
-    from .paths.engine import Leg
+    from ..paths.engine import Leg
 
     n = fan.n_rays
     origin = sonar.pose.translation
@@ -242,7 +249,7 @@ def trace_legs(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Wo
                 ray, hits.distance, hits.mesh_id, hits.normal, org, dirs, before, atten, chain,
                 planes.normal, planes.offset, act, planes.specular, reach_m, albedo_by_id, weight, tvg,
                 g == 0, g + 1 < n_generations, table.children, len(table),
-                leg.distance, leg.sid, leg.point, leg.normal, leg.intensity, leg.atten, leg.chain, *nx,
+                leg.distance, leg.sid, leg.point, work.point, leg.normal, leg.intensity, leg.atten, leg.chain, *nx,
             )
             table.sync(n_chains)
             if not overflow:
@@ -256,7 +263,7 @@ def trace_legs(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Wo
 def form_paths(legs, table, view, active, n_planes: int, rays_per_beam: int, max_order: int,
                double_beam: str) -> list:
     """Every path of the frame with the compiled kernel (twin: :func:`sonarsim.paths.engine.form_paths`)."""
-    from .paths.engine import SAME, PathSet, chain_ranks, label_of_order, transmit_options
+    from ..paths.engine import SAME, PathSet, chain_ranks, label_of_order, transmit_options
 
     rank = chain_ranks(table)
     act = np.ascontiguousarray(active, dtype=np.uint8)

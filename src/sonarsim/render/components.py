@@ -1,33 +1,146 @@
-"""Which bounces make which image: the components of a render and their assembly.
+"""The table of image components: which rows of the frame's image stack each name sums.
 
-A render forms four images from its rays: ``object`` and ``ground`` (single bounce, O-A-O and
-O-G-O), ``double`` (O-G-A-O / O-A-G-O, cases 2/3) and ``triple`` (O-G-A-G-O, case 4). From them
-come ``single`` (= object + ground) and ``total``: the sum of the bounces selected by
-``render.bounces`` (1 single, 2 double, 3 triple).
+A frame is formed as an image stack ``(max_order + 1, n_range_bins, n_beams)``: row 0 the
+single-bounce echo of the objects, row 1 that of the planes (the direct ground echo), row
+``k >= 2`` the paths of order ``k``. Every component is named here, and only here:
+
+==========  =====  =============================================================
+name        order  what
+==========  =====  =============================================================
+object      1      direct echo of the objects (O-A-O)
+ground      1      direct (diffuse) echo of the reflecting planes (O-G-O)
+single      1      object + ground
+double      2      paths with two surface interactions (the paper's cases 2/3)
+triple      3      paths with three (the paper's case 4)
+order4 ...  4 ...  paths with four and more
+total       --     the orders selected by ``render.bounces``
+==========  =====  =============================================================
+
+Paths by signature (which planes, in which order, on which leg) are further components named
+by :func:`sonarsim.paths.engine.path_name`, e.g. ``O-ground-[objects]-ground-O``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..image.result import COMPONENTS
-
-__all__ = ["BOUNCE_COMPONENTS", "COMPONENTS", "assemble"]
-
-#: The image each bounce count of ``render.bounces`` adds to the total.
-BOUNCE_COMPONENTS = {1: "single", 2: "double", 3: "triple"}
+ORDER_NAMES = {1: "single", 2: "double", 3: "triple"}
+ROW_OBJECT, ROW_PLANE = 0, 1
 
 
-def assemble(images: Mapping[str, np.ndarray], bounces: tuple[int, ...]) -> dict[str, np.ndarray]:
-    """float32 components from the object, ground, double and triple images."""
-    # Already float32 and contiguous (compiled path): no copy.
-    out = {k: np.ascontiguousarray(images[k], dtype=np.float32) for k in ("object", "ground", "double", "triple")}
-    out["single"] = out["object"] + out["ground"]
-    keys = [key for bounce, key in BOUNCE_COMPONENTS.items() if bounce in bounces]
-    total = out[keys[0]].copy()
-    for key in keys[1:]:
-        np.add(total, out[key], out=total)
-    out["total"] = total
+def order_name(order: int) -> str:
+    """``single``, ``double``, ``triple``, then ``order4``, ``order5``, ..."""
+    return ORDER_NAMES.get(order, f"order{order}")
+
+
+@dataclass(frozen=True)
+class Component:
+    """One named image of a frame.
+
+    Attributes
+    ----------
+    name : str
+    order : int or None
+        Path order (None for ``total``).
+    rows : tuple of int
+        Rows of the image stack it sums (empty for ``total``: the selected orders).
+    """
+
+    name: str
+    order: int | None
+    rows: tuple[int, ...]
+
+
+def component_table(max_order: int) -> tuple[Component, ...]:
+    """Every component of a frame formed up to ``max_order``, ``total`` last."""
+    out = [Component("object", 1, (ROW_OBJECT,)), Component("ground", 1, (ROW_PLANE,)),
+           Component("single", 1, (ROW_OBJECT, ROW_PLANE))]
+    out += [Component(order_name(k), k, (k,)) for k in range(2, max_order + 1)]
+    out.append(Component("total", None, ()))
+    return tuple(out)
+
+
+def stack_rows(max_order: int) -> int:
+    """Rows of the image stack of a frame formed up to ``max_order``."""
+    return max_order + 1
+
+
+def assemble(stack: np.ndarray, bounces: tuple[int, ...], max_order: int) -> dict[str, np.ndarray]:
+    """Named float32 components from the image stack.
+
+    Parameters
+    ----------
+    stack : (max_order + 1, n_range_bins, n_beams) float32 ndarray
+        Rows as in the module docstring; single rows are returned as views.
+    bounces : tuple of int
+        Orders that make ``total``.
+
+    Returns
+    -------
+    dict of str to (n_range_bins, n_beams) float32 ndarray
+    """
+    out: dict[str, np.ndarray] = {}
+    for comp in component_table(max_order):
+        if comp.name == "total":
+            parts = [out[order_name(k)] for k in sorted(bounces)]
+        else:
+            parts = [stack[r] for r in comp.rows]
+        if len(parts) == 1:
+            out[comp.name] = parts[0] if comp.name != "total" else parts[0].copy()
+            continue
+        acc = parts[0] + parts[1]
+        for p in parts[2:]:
+            np.add(acc, p, out=acc)
+        out[comp.name] = acc
     return out
+
+
+class Components(Mapping):
+    """The components of a frame: the table's images, and path-signature images on demand.
+
+    Path-signature images cost a pass over the frame's paths; they are formed, all at once,
+    when one is first looked up or the names are listed (as writing an NPZ does), and kept.
+
+    Parameters
+    ----------
+    images : dict of str to ndarray
+        The table's components.
+    paths : callable, optional
+        ``paths() -> dict`` of path-signature name to image.
+    """
+
+    def __init__(self, images: dict, paths: Callable[[], dict] | None = None) -> None:
+        self._images = dict(images)
+        self._paths = paths
+        self._signatures: dict | None = None if paths is not None else {}
+
+    def _formed(self) -> dict:
+        if self._signatures is None:
+            self._signatures = {k: v for k, v in self._paths().items() if k not in self._images}
+        return self._signatures
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name in self._images:
+            return self._images[name]
+        return self._formed()[name]
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._images or name in self._formed()
+
+    def __iter__(self) -> Iterator[str]:
+        yield from self._images
+        yield from self._formed()
+
+    def __len__(self) -> int:
+        return len(self._images) + len(self._formed())
+
+    @property
+    def signatures(self) -> tuple[str, ...]:
+        """Names of the path-signature components of the frame."""
+        return tuple(self._formed())
+
+    def __repr__(self) -> str:
+        return f"Components({', '.join(self._images)}, + {'?' if self._signatures is None else len(self._signatures)} path signatures)"

@@ -1,12 +1,14 @@
 """The renderer: a :class:`Simulator` holds the acceleration structure and renders poses.
 
-Pipeline per frame: rays of the sonar (cached per sonar) -> rotate to the pose -> closest
-surfaces (Embree + analytic ground) -> per-ray intensities (D_f, I_f) -> polar images per
-component (one bincount) -> ground echoes -> :class:`SonarImage`.
+Pipeline per frame: rays of the sonar (cached per sonar) -> rotate to the pose -> receive legs
+(closest surfaces: Embree for the objects, the planes analytically; reflected off the planes,
+generation after generation) -> transmit legs by image sources -> paths into an image stack
+(one row per order) -> components -> :class:`SonarImage`.
 """
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 from collections.abc import Mapping
@@ -25,13 +27,17 @@ from ..core.rays import RayFan, make_ray_fan
 from ..core.transforms import Pose
 from ..errors import ConfigError
 from ..image.result import RayMaps, SonarImage
-from ..paths.algorithm2 import fast_mirror_paths, ground_echo_rays, render_paper, sonar_above_ground
-from ..scene.meshes import clip_above_plane, mirror_across_plane, object_mesh_world
+from ..config.scene import check_sonar_position
+from ..paths.algorithm2 import render_paper
+from ..paths.engine import (
+    Leg, SonarView, accumulate_paths, drop_occluded, form_paths, ground_signatures, split_by_signature, trace_legs,
+)
+from ..paths.planes import ChainTable, PlaneSet
+from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
 from ..trace import available_cores, make_caster
-from ..trace.surfaces import GROUND_ID, trace
+from ..trace.surfaces import trace
 from . import compiled
-from .components import COMPONENTS, assemble
-from .formation import RayEnergy, accumulate, continuity
+from .components import Components, assemble, stack_rows
 
 # Rays are cast this far past the range window so that range splatting sees the neighbour of a
 # ray that ends just inside it.
@@ -87,19 +93,21 @@ class Simulator:
         self._work: compiled.Workspace | None = None
         self.scene: Scene = load_scene(scene)
         self.backend = backend
+        self.planes = PlaneSet.from_specs(self.scene.reflecting_planes)
+        # The ground is the only plane: Algorithm 2 (``method: paper``) applies.
+        self._ground_only = self.scene.ground is not None and not self.scene.planes
         self.meshes = [object_mesh_world(o) for o in self.scene.objects]
-        if self.scene.ground is not None:
-            # Nothing below the floor can be seen; removing it (and faces lying on the floor)
-            # keeps mirror geometry and coincident faces from making echoes.
-            self.meshes = [clip_above_plane(m, self.scene.ground.height_m) for m in self.meshes]
+        for plane in self.scene.reflecting_planes:
+            # Nothing beyond a floor, wall or surface can be seen; removing it (and faces lying
+            # in the plane) keeps mirror geometry and coincident faces from making echoes.
+            self.meshes = [clip_to_water(m, plane.point_m, plane.normal) for m in self.meshes]
         self.caster = make_caster(backend, self.meshes, self.scene.render.threads)
         self._mirrored_caster = None
         threads = self.scene.render.threads or available_cores()
         # One worker: the second core of the compiled path (tasks run in order on it).
         self._pool = ThreadPoolExecutor(1) if threads > 1 else None
-        ground_albedo = self.scene.ground.albedo if self.scene.ground is not None else 0.0
-        # Albedo by surface id + 1: index 0 is "no hit", 1 the ground, k + 2 object k.
-        self._albedo = np.array([0.0, ground_albedo] + [o.albedo for o in self.scene.objects])
+        # Albedo by surface id + 1: index 0 is "no hit", p + 1 plane p, P + k + 1 object k.
+        self._albedo = np.concatenate([[0.0], self.planes.albedo, [o.albedo for o in self.scene.objects]])
         self._rng = np.random.default_rng(self.scene.render.seed)  # speckle, frame after frame
         self._fans: dict[SonarConfig, RayFan] = {}
         self._last_fan: tuple[SonarConfig, RayFan] | None = None
@@ -135,8 +143,8 @@ class Simulator:
     def mirrored_caster(self):
         """Objects followed by their mirror images (``method: paper`` only), built on first use."""
         if self._mirrored_caster is None:
-            h = self.scene.ground.height_m
-            mirrored = self.meshes + [mirror_across_plane(m, h) for m in self.meshes]
+            g = self.scene.ground.as_plane()
+            mirrored = self.meshes + [mirror_across_plane(m, g.point_m, g.normal) for m in self.meshes]
             self._mirrored_caster = make_caster(self.backend, mirrored, self.scene.render.threads)
         return self._mirrored_caster
 
@@ -144,55 +152,71 @@ class Simulator:
         albedo = self._albedo[hits.surface_id + 1]
         return lambertian_intensity(fan.weight, hits.cos_incidence, albedo, hits.distance_m, self.scene.render.tvg)
 
-    # The three ways to form the images; each returns (images by name, (D_f, I_f, surface ids)).
+    # The ways to form the image stack; each returns (stack, legs, path sets, chain table).
 
     def _render_paper(self, sonar: SonarConfig, fan: RayFan, reach: float):
-        """``method: paper``: Algorithm 2 literally (NumPy)."""
+        """``method: paper``: Algorithm 2 literally (NumPy; the ground is the only plane)."""
         origin, directions = sonar.pose.translation, fan.directions @ sonar.pose.rotation.T
-        hits = trace(self.caster, origin, directions, self.scene.ground, reach)
+        ground = self.scene.ground
+        hits = trace(self.caster, origin, directions, ground, reach)
         images = render_paper(
-            self.caster, self.mirrored_caster(), origin, directions, sonar, self.scene.render, self.scene.ground,
+            self.caster, self.mirrored_caster(), origin, directions, sonar, self.scene.render, ground,
             fan.weight, self._albedo, len(self.meshes), reach,
         )
-        return images, (hits.distance_m, self._intensity(fan, hits), hits.surface_id)
+        stack = np.stack([images[k] for k in ("object", "ground", "double", "triple")]).astype(np.float32)
+        leg = Leg(0, hits.distance_m.reshape(-1), hits.surface_id.reshape(-1), hits.point.reshape(-1, 3),
+                  hits.normal.reshape(-1, 3), self._intensity(fan, hits).reshape(-1), np.ones(fan.n_rays),
+                  np.zeros(fan.n_rays, np.int32))
+        return stack, [leg], None, None
 
-    def _render_compiled(self, sonar: SonarConfig, fan: RayFan, reach: float, multipath: bool):
-        """``method: fast`` with the compiled kernels (the default)."""
-        if self._work is None or self._work.n != fan.n_rays:
-            self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, fan.n_rays // sonar.n_beams)
-        shape = (sonar.n_range_bins, sonar.n_beams)
-        out = np.zeros((4,) + shape, dtype=np.float32)  # fresh: the components are views of it
+    def _render_paths(self, sonar: SonarConfig, fan: RayFan, reach: float, active: np.ndarray, n_generations: int):
+        """``method: fast``: receive legs traced, transmit legs by image sources (any planes)."""
         render = self.scene.render
-        compiled.render_fast(
-            self.caster, sonar, fan, self.scene.ground, render, self._albedo, reach, multipath, self._work, out,
-            pool=self._pool,
-        )
-        images = dict(zip(("object", "ground", "double", "triple"), out))
-        images["single"], images["total"] = np.empty(shape, np.float32), np.empty(shape, np.float32)
-        b = render.bounces
-        compiled.combine(out, images["single"], images["total"], 1 in b, 2 in b, 3 in b)
-        w = self._work
-        return images, (w.dist.reshape(fan.shape), w.intensity.reshape(fan.shape), w.sid.reshape(fan.shape))
+        view = SonarView.of(sonar)
+        origin = view.origin
+        table = ChainTable(self.planes, origin, max(render.max_order - 1, 0))
+        n_planes = len(self.planes)
+        n_surfaces = n_planes + len(self.meshes)
+        weight = fan.weight.reshape(-1)
+        per_beam = fan.n_rays // sonar.n_beams
+        geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
+        rows = stack_rows(render.max_order)
+        if self.kernels == "compiled":
+            if self._work is None or self._work.n != fan.n_rays:
+                self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, per_beam)
+            w = self._work
+            compiled.rotate(fan, sonar, w)
+            legs = compiled.trace_legs(self.caster, self.planes, active, sonar, fan, w, weight, self._albedo,
+                                       render.tvg, reach, n_generations, table)
+            sets = compiled.form_paths(legs, table, view, active, n_planes, per_beam, render.max_order,
+                                       render.double_beam)
+        else:
+            directions = (fan.directions @ sonar.pose.rotation.T).reshape(-1, 3)
+            legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._albedo,
+                              render.tvg, reach, n_generations, table)
+            beam = np.repeat(np.arange(sonar.n_beams), per_beam)
+            sets = form_paths(legs, table, view, active, n_planes, beam, render.max_order, render.double_beam)
+        if render.double_line_of_sight:
+            sets = drop_occluded(sets, legs, table, view, active, self.caster)
+        if self.kernels == "compiled":
+            stack = np.zeros((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
+            compiled.splat_paths(sets, legs, n_surfaces, fan.shape[2], geometry, render.range_splat, stack)
+        else:
+            stack = accumulate_paths(sets, legs, n_surfaces, fan.shape, geometry, rows, render.range_splat)
+            stack = stack.astype(np.float32)
+        return stack, legs, sets, table
 
-    def _render_numpy(self, sonar: SonarConfig, fan: RayFan, reach: float, multipath: bool):
-        """``method: fast`` with the NumPy reference of the compiled kernels."""
-        origin, directions = sonar.pose.translation, fan.directions @ sonar.pose.rotation.T
-        render, ground = self.scene.render, self.scene.ground
-        hits = trace(self.caster, origin, directions, ground, reach)
-        intensity = self._intensity(fan, hits)
-        cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None
-        # Labels: 0 object, 1 ground, 2 double, 3 triple; -1 nothing.
-        label = np.where(hits.surface_id > GROUND_ID, 0, np.where(hits.surface_id == GROUND_ID, 1, -1))
-        rays = [RayEnergy(hits.distance_m, intensity, np.arange(sonar.n_beams)[:, None, None], label, cont)]
-        if multipath:
-            paths = fast_mirror_paths(
-                self.caster, origin, directions, hits, ground.height_m, fan.weight, self._albedo, render.tvg, reach,
-            )
-            rays += ground_echo_rays(paths, sonar, render, ground.specular, self.caster, labels=(2, 3))
-        img = accumulate(
-            rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams, n_labels=4
-        )
-        return dict(zip(("object", "ground", "double", "triple"), img)), (hits.distance_m, intensity, hits.surface_id)
+    def _signature_images(self, sonar: SonarConfig, fan: RayFan, legs, sets, table) -> dict[str, np.ndarray]:
+        """One image per path signature (formed on demand; see :class:`Components`)."""
+        geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
+        n_planes = len(self.planes)
+        groups = split_by_signature(sets, legs, table, n_planes)
+        out = {}
+        for name, group in groups.items():
+            stack = accumulate_paths(group, legs, n_planes + len(self.meshes), fan.shape, geometry,
+                                     stack_rows(self.scene.render.max_order), self.scene.render.range_splat)
+            out[name] = stack.sum(axis=0).astype(np.float32)
+        return out
 
     def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True) -> SonarImage:
         """Render one image.
@@ -205,36 +229,46 @@ class Simulator:
             Another sonar (its pose is used unless ``pose`` is given); default the scene's.
         keep_rays : bool
             Attach the per-ray maps (D_f, I_f, labels) to the result.
+
+        Raises
+        ------
+        ConfigError
+            The sonar lies on one of the scene's planes.
         """
         t0 = time.perf_counter()
         sonar = sonar if sonar is not None else self.scene.sonar
         if pose is not None:
             sonar = sonar.with_pose(as_pose(pose))
+        check_sonar_position(self.scene.reflecting_planes, sonar.pose.position_m,
+                             "pose" if pose is not None else "sonar.pose.position_m")
         render = self.scene.render
         fan = self.ray_fan(sonar)
         t1 = time.perf_counter()
-        ground = self.scene.ground
-        multipath = sonar_above_ground(sonar, ground) and ground.specular > 0
+        active = self.planes.facing(sonar.pose.translation)
+        mirrors = active & (self.planes.specular > 0)
+        multipath = render.max_order > 1 and bool(mirrors.any())
         reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
-        if render.method == "paper" and multipath:
-            images, primary = self._render_paper(sonar, fan, reach)
-        elif self.kernels == "compiled":
-            images, primary = self._render_compiled(sonar, fan, reach, multipath)
+        if render.method == "paper" and multipath and self._ground_only:
+            stack, legs, sets, table = self._render_paper(sonar, fan, reach)
         else:
-            images, primary = self._render_numpy(sonar, fan, reach, multipath)
+            stack, legs, sets, table = self._render_paths(sonar, fan, reach, active, render.max_order if multipath else 1)
         t3 = time.perf_counter()
-        if "total" not in images:
-            images = assemble(images, render.bounces)
-        components = {k: images[k] for k in COMPONENTS}
-        total = components["total"]
+        images = assemble(stack, render.bounces, render.max_order)
+        if sets is None:  # Algorithm 2: its four images are the four ground-only signatures
+            paths = lambda: ground_signatures(images)  # noqa: E731
+        else:
+            paths = functools.partial(self._signature_images, sonar, fan, legs, sets, table)
+        components = Components(images, paths)
+        total = images["total"]
         if render.speckle:
             total = (total * self._rng.exponential(1.0, total.shape)).astype(np.float32)
         rays = None
         if keep_rays:
+            primary = legs[0]
             rays = RayMaps(
-                distance_m=primary[0].astype(np.float32),
-                intensity=primary[1].astype(np.float32),
-                surface_id=primary[2].astype(np.int16),
+                distance_m=primary.distance.reshape(fan.shape).astype(np.float32),
+                intensity=primary.intensity.reshape(fan.shape).astype(np.float32),
+                surface_id=primary.sid.reshape(fan.shape).astype(np.int16),
                 azimuth_deg=np.degrees(fan.azimuth_rad),
                 elevation_deg=np.degrees(fan.elevation_rad),
             )

@@ -106,35 +106,52 @@ def object_mesh_world(obj: ObjectSpec) -> TriangleMesh:
     return TriangleMesh(v, np.ascontiguousarray(local.faces, dtype=np.int32))
 
 
-def clip_above_plane(mesh: TriangleMesh, height_m: float) -> TriangleMesh:
-    """The part of a mesh above the ground plane ``z = height_m`` (possibly no faces at all).
+def clip_to_water(mesh: TriangleMesh, point_m, normal) -> TriangleMesh:
+    """The part of a mesh on the water side of a plane (possibly no faces at all).
 
-    Below-ground geometry can never be seen, but the paper's mirror renders would see it (and
-    its mirror image would rise above the floor), and faces lying in the plane (the base of an
-    object resting on the floor) coincide with the ground and with their own mirror image. Both
-    are removed here so that no method produces echoes from them.
+    Geometry beyond a floor, wall or water surface can never be seen, but mirror images of it
+    would rise into the water, and faces lying in the plane (the base of an object resting on
+    the floor) coincide with the plane and with their own mirror image. Both are removed here
+    so that no method produces echoes from them.
+
+    Parameters
+    ----------
+    mesh : TriangleMesh
+    point_m : (3,) float array
+        A point of the plane, metres.
+    normal : (3,) float array
+        Unit normal pointing into the water.
     """
-    z = mesh.vertices[:, 2]
-    tol = 1e-9 * max(1.0, float(np.abs(mesh.vertices).max()))
-    if z.min() >= height_m + tol:
+    n = np.asarray(normal, dtype=float)
+    p = np.asarray(point_m, dtype=float)
+    h = mesh.vertices @ n - float(n @ p)  # signed height above the plane
+    tol = 1e-9 * max(1.0, float(np.abs(mesh.vertices).max()), float(np.abs(p).max()))
+    if h.min() >= tol:
         return mesh
-    tz = z[mesh.faces]
-    keep = ~np.all(tz <= height_m + tol, axis=1)  # drop faces on or below the plane
-    crossing = keep & np.any(tz < height_m - tol, axis=1)
+    th = h[mesh.faces]
+    keep = ~np.all(th <= tol, axis=1)  # drop faces on or beyond the plane
+    crossing = keep & np.any(th < -tol, axis=1)
     faces = mesh.faces[keep & ~crossing]
     if not crossing.any():
         return TriangleMesh(mesh.vertices, np.ascontiguousarray(faces, dtype=np.int32))
     from trimesh.intersections import slice_faces_plane
 
-    cut_v, cut_f, _ = slice_faces_plane(mesh.vertices, mesh.faces[crossing], [0.0, 0.0, 1.0], [0.0, 0.0, height_m])
+    cut_v, cut_f, _ = slice_faces_plane(mesh.vertices, mesh.faces[crossing], n, p)
     n0 = len(mesh.vertices)
     verts = np.concatenate([mesh.vertices, np.asarray(cut_v, float)])
     faces = np.concatenate([faces, np.asarray(cut_f, np.int32) + n0]) if len(cut_f) else faces
     return TriangleMesh(verts, np.ascontiguousarray(faces, dtype=np.int32))
 
 
-def mirror_across_plane(mesh: TriangleMesh, height_m: float) -> TriangleMesh:
-    """Mirror image across ``z = height_m`` (winding reversed so normals stay outward)."""
-    v = mesh.vertices.copy()
-    v[:, 2] = 2.0 * height_m - v[:, 2]
+def mirror_across_plane(mesh: TriangleMesh, point_m, normal) -> TriangleMesh:
+    """Mirror image across a plane (winding reversed so normals stay outward).
+
+    Parameters
+    ----------
+    point_m, normal : (3,) float arrays
+        A point of the plane (metres) and its unit normal.
+    """
+    n = np.asarray(normal, dtype=float)
+    h = mesh.vertices @ n - float(n @ np.asarray(point_m, dtype=float))
+    v = mesh.vertices - 2.0 * h[:, None] * n
     return TriangleMesh(v, np.ascontiguousarray(mesh.faces[:, ::-1]))
