@@ -81,9 +81,9 @@ def record_casts(sim: sonarsim.Simulator) -> list:
     recorded = []
     original = EmbreeCaster.cast_raw
 
-    def recording(self, origins, directions, tfar):
+    def recording(self, origins, directions, tfar, threads=None):
         recorded.append((self, origins.copy(), directions.copy(), tfar.copy()))
-        return original(self, origins, directions, tfar)
+        return original(self, origins, directions, tfar, threads)
 
     EmbreeCaster.cast_raw = recording
     try:

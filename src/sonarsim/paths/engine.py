@@ -235,13 +235,13 @@ def trace_legs(
     chain = np.zeros(n, dtype=np.int32)
     legs = []
     for g in range(n_generations):
+        if not len(ray):
+            break  # no generation after an empty one
         leg = Leg(
             g, np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan), np.zeros((n, 3)),
             np.zeros(n), np.zeros(n), np.full(n, -1, np.int32),
         )
         legs.append(leg)
-        if not len(ray):
-            continue
         limit = float(reach_m - before.min()) if g else float(reach_m)
         hits = caster.intersect(org.astype(np.float32), d.astype(np.float32), limit)
         t = hits.distance.astype(np.float64)
@@ -393,7 +393,7 @@ def form_paths(
     return out
 
 
-def drop_occluded(sets: list[PathSet], legs: list[Leg], table: ChainTable, view: SonarView, active, caster) -> list[PathSet]:
+def drop_occluded(sets: list[PathSet], legs: list[Leg], *, table: ChainTable, view: SonarView, active, caster) -> list[PathSet]:
     """``double_line_of_sight``: keep only the paths whose transmit leg no object blocks.
 
     Every segment of the leg (O -> reflection points -> A) is cast against the objects; the

@@ -31,6 +31,8 @@ BATCH_CUTS = (0.3, 0.65)
 # Share of the direct image (left beams) formed on this core; the other core, busy casting,
 # forms the rest.
 DIRECT_SHARE = 0.7
+# Share of a frame's reflected rays cast on the other core while this one forms the direct image.
+OTHER_CORE_SHARE = 0.65
 
 
 class Workspace:
@@ -217,52 +219,144 @@ def rotate(fan: RayFan, sonar: SonarConfig, work: Workspace) -> None:
                     work.d64, work.d32, work.o32)
 
 
-def trace_legs(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Workspace, weight: np.ndarray,
-               albedo_by_id: np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> list:
-    """Receive legs with the compiled kernel (twin: :func:`sonarsim.paths.engine.trace_legs`).
+class _LegTracer:
+    """Receive legs generation by generation (the state between two calls of the kernel)."""
 
-    The first generation's rays are ``work``'s rotated fan (see :func:`render_fast`).
-    """
-    from ..paths.engine import Leg
+    def __init__(self, caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Workspace, weight: np.ndarray,
+                 albedo_by_id: np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> None:
+        self.caster, self.planes, self.work, self.weight = caster, planes, work, weight
+        self.albedo, self.tvg, self.reach, self.n_gen, self.table = albedo_by_id, tvg, reach_m, n_generations, table
+        self.active = np.ascontiguousarray(active, dtype=np.uint8)
+        self.n = fan.n_rays
+        # The first generation: the rotated fan, one origin for all.
+        self.ray = np.arange(self.n, dtype=np.intp)
+        self.org = sonar.pose.translation.reshape(1, 3).copy()
+        self.dirs, self.o32, self.d32 = work.d64, work.o32, work.d32
+        self.before, self.atten, self.chain = np.zeros(1), np.ones(1), np.zeros(1, dtype=np.int32)
+        self.limit = reach_m
+        self.g = 0
 
-    n = fan.n_rays
-    origin = sonar.pose.translation
-    act = np.ascontiguousarray(active, dtype=np.uint8)
-    legs = []
-    ray = np.arange(n, dtype=np.intp)
-    org = origin.reshape(1, 3).copy()
-    dirs, o32, d32 = work.d64, work.o32, work.d32
-    before, atten, chain = np.zeros(1), np.ones(1), np.zeros(1, dtype=np.int32)
-    limit = reach_m
-    for g in range(n_generations):
-        leg = Leg(g, np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan), np.zeros((n, 3)),
-                  np.zeros(n), np.zeros(n), np.full(n, -1, np.int32))
-        legs.append(leg)
-        m = len(ray)
-        if not m:
-            continue
-        hits = caster.intersect(o32, d32, limit)
+    @property
+    def pending(self) -> int:
+        """Rays of the next generation (0: none left to trace)."""
+        return len(self.ray) if self.g < self.n_gen else 0
+
+    def cast(self, begin: int, end: int, threads: int | None = None):
+        """Cast rays ``begin:end`` of the next generation (to split a generation over cores)."""
+        return self.caster.intersect(self.o32[begin:end], self.d32[begin:end], self.limit, threads=threads)
+
+    def step(self, threads: int | None = None, hits=None):
+        """The next generation's :class:`~sonarsim.paths.engine.Leg`, or None when no ray is left.
+
+        ``hits``: the next generation's rays already cast (see :meth:`cast`).
+        """
+        from ..paths.engine import Leg
+
+        g, n, m = self.g, self.n, len(self.ray)
+        if g >= self.n_gen or not m:
+            return None
+        # Only distance and sid need "nothing" in them: the rest is read where a ray arrived.
+        leg = Leg(g, np.full(n, np.inf), np.full(n, -1, np.int32), np.empty((n, 3)), np.empty((n, 3)),
+                  np.empty(n), np.empty(n), np.empty(n, np.int32))
+        if hits is None:
+            hits = self.caster.intersect(self.o32, self.d32, self.limit, threads=threads)
         nx = (np.empty(m, np.intp), np.empty((m, 3)), np.empty((m, 3), np.float32), np.empty((m, 3)),
               np.empty((m, 3), np.float32), np.empty(m), np.empty(m), np.empty(m, np.int32))
+        table = self.table
         while True:
             n_next, n_chains, min_next, overflow = _kernels.trace_leg(
-                ray, hits.distance, hits.mesh_id, hits.normal, org, dirs, before, atten, chain,
-                planes.normal, planes.offset, act, planes.specular, reach_m, albedo_by_id, weight, tvg,
-                g == 0, g + 1 < n_generations, table.children, len(table),
-                leg.distance, leg.sid, leg.point, work.point, leg.normal, leg.intensity, leg.atten, leg.chain, *nx,
+                self.ray, hits.distance, hits.mesh_id, hits.normal, self.org, self.dirs, self.before, self.atten,
+                self.chain, self.planes.normal, self.planes.offset, self.active, self.planes.specular, self.reach,
+                self.albedo, self.weight, self.tvg, g == 0, g + 1 < self.n_gen, table.children, len(table),
+                leg.distance, leg.sid, leg.point, self.work.point, leg.normal, leg.intensity, leg.atten, leg.chain,
+                *nx,
             )
             table.sync(n_chains)
             if not overflow:
                 break
             table._grow()
-        ray, org, o32, dirs, d32, before, atten, chain = (a[:n_next] for a in nx)
-        limit = float(reach_m - min_next)
-    return legs
+        self.ray, self.org, self.o32, self.dirs, self.d32, self.before, self.atten, self.chain = (a[:n_next] for a in nx)
+        self.limit = float(self.reach - min_next)
+        self.g += 1
+        return leg
+
+    def rest(self, threads: int | None = None) -> list:
+        """Every generation still to come."""
+        legs = []
+        while (leg := self.step(threads)) is not None:
+            legs.append(leg)
+        return legs
+
+
+def _concat_hits(a, b):
+    from ..trace.base import Hits
+
+    return Hits(np.concatenate([a.distance, b.distance]), np.concatenate([a.mesh_id, b.mesh_id]),
+                np.concatenate([a.normal, b.normal]))
+
+
+def trace_legs(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Workspace, weight: np.ndarray,
+               albedo_by_id: np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> list:
+    """Receive legs with the compiled kernel (twin: :func:`sonarsim.paths.engine.trace_legs`).
+
+    The first generation's rays are ``work``'s rotated fan (see :func:`rotate`).
+    """
+    return _LegTracer(caster, planes, active, sonar, fan, work, weight, albedo_by_id, tvg, reach_m, n_generations,
+                      table).rest()
+
+
+def render_paths(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Workspace, weight: np.ndarray,
+                 albedo_by_id: np.ndarray, render: RenderSettings, reach_m: float, n_generations: int, table, view,
+                 n_surfaces: int, stack: np.ndarray, pool=None, occlusion=None) -> tuple[list, list]:
+    """The whole compiled frame: receive legs, paths, and the image stack (float32, zeroed).
+
+    With ``pool`` (one worker, the other core), the later generations are cast and traced
+    there on one thread while this core forms the direct (single-bounce) paths.
+    ``occlusion(sets, legs)`` filters the other paths (``double_line_of_sight``).
+
+    Returns
+    -------
+    legs, sets : the receive legs and every path set (for the path-signature components)
+    """
+    rotate(fan, sonar, work)
+    n_planes = len(planes)
+    per_beam = fan.n_rays // sonar.n_beams
+    geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
+    spread, n_el = render.range_splat, fan.shape[2]
+    tracer = _LegTracer(caster, planes, active, sonar, fan, work, weight, albedo_by_id, render.tvg, reach_m,
+                        n_generations, table)
+    first = tracer.step()
+    legs = [first] if first is not None else []
+    direct: list = []
+    split = first is not None and pool is not None and tracer.pending > 0
+    if split:
+        # Both cores cast the reflected rays on one thread each; this core forms the direct
+        # image first, so it takes the smaller share.
+        m = tracer.pending
+        cut = int(OTHER_CORE_SHARE * m)
+        theirs = pool.submit(tracer.cast, 0, cut, 1)
+        direct = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam,
+                            only_same=True)
+        splat_paths(direct, legs, n_surfaces, n_el, geometry, spread, stack)
+        mine = tracer.cast(cut, m, 1)
+        hits = _concat_hits(theirs.result(), mine)
+        legs.append(tracer.step(hits=hits))
+    legs += tracer.rest()
+    sets = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam,
+                      skip_first_same=split)
+    if occlusion is not None:
+        sets = occlusion(sets, legs)
+    splat_paths(sets, legs, n_surfaces, n_el, geometry, spread, stack)
+    return legs, direct + sets
 
 
 def form_paths(legs, table, view, active, n_planes: int, rays_per_beam: int, max_order: int,
-               double_beam: str) -> list:
-    """Every path of the frame with the compiled kernel (twin: :func:`sonarsim.paths.engine.form_paths`)."""
+               double_beam: str, only_same: bool = False, skip_first_same: bool = False) -> list:
+    """Every path of the frame with the compiled kernel (twin: :func:`sonarsim.paths.engine.form_paths`).
+
+    ``only_same``: only the first generation's direct paths (the receive leg reversed);
+    ``skip_first_same``: all but those.
+    """
     from ..paths.engine import SAME, PathSet, chain_ranks, label_of_order, transmit_options
 
     rank = chain_ranks(table)
@@ -276,7 +370,12 @@ def form_paths(legs, table, view, active, n_planes: int, rays_per_beam: int, max
         if not len(live):
             continue
         m = len(live)
-        for tx in transmit_options(table, g, max_order):
+        options = transmit_options(table, g, max_order)
+        if only_same:
+            options = [SAME] if g == 0 and SAME in options else []
+        elif skip_first_same and g == 0:
+            options = [tx for tx in options if tx != SAME]
+        for tx in options:
             buf = (np.empty(m, np.intp), np.empty(m), np.empty(m), np.empty(m, np.int32), np.empty(m, np.int32),
                    np.empty(m, np.int8))
             same = tx == SAME

@@ -181,27 +181,25 @@ class Simulator:
         per_beam = fan.n_rays // sonar.n_beams
         geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
         rows = stack_rows(render.max_order)
+        occlusion = None
+        if render.double_line_of_sight:
+            occlusion = functools.partial(drop_occluded, table=table, view=view, active=active, caster=self.caster)
         if self.kernels == "compiled":
             if self._work is None or self._work.n != fan.n_rays:
                 self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, per_beam)
-            w = self._work
-            compiled.rotate(fan, sonar, w)
-            legs = compiled.trace_legs(self.caster, self.planes, active, sonar, fan, w, weight, self._albedo,
-                                       render.tvg, reach, n_generations, table)
-            sets = compiled.form_paths(legs, table, view, active, n_planes, per_beam, render.max_order,
-                                       render.double_beam)
+            stack = np.zeros((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
+            legs, sets = compiled.render_paths(
+                self.caster, self.planes, active, sonar, fan, self._work, weight, self._albedo, render, reach,
+                n_generations, table, view, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
+            )
         else:
             directions = (fan.directions @ sonar.pose.rotation.T).reshape(-1, 3)
             legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._albedo,
                               render.tvg, reach, n_generations, table)
             beam = np.repeat(np.arange(sonar.n_beams), per_beam)
             sets = form_paths(legs, table, view, active, n_planes, beam, render.max_order, render.double_beam)
-        if render.double_line_of_sight:
-            sets = drop_occluded(sets, legs, table, view, active, self.caster)
-        if self.kernels == "compiled":
-            stack = np.zeros((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
-            compiled.splat_paths(sets, legs, n_surfaces, fan.shape[2], geometry, render.range_splat, stack)
-        else:
+            if occlusion is not None:
+                sets = occlusion(sets, legs)
             stack = accumulate_paths(sets, legs, n_surfaces, fan.shape, geometry, rows, render.range_splat)
             stack = stack.astype(np.float32)
         return stack, legs, sets, table

@@ -50,7 +50,8 @@ class RayCaster(Protocol):
 
     def __init__(self, meshes: Sequence[TriangleMesh], threads: int | None = None) -> None: ...
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray, max_distance: float) -> Hits:
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, max_distance: float,
+                  threads: int | None = None) -> Hits:
         """Closest hits.
 
         Parameters
@@ -59,6 +60,9 @@ class RayCaster(Protocol):
         directions : (n, 3) float array, unit vectors
         max_distance : float, metres
             Hits further than this are reported as misses.
+        threads : int, optional
+            Use at most this many threads (default: the caster's own count), e.g. 1 when the
+            other core has work of its own.
         """
         ...
 

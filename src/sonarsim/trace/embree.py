@@ -69,7 +69,7 @@ class EmbreeCaster:
     def _run(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray) -> dict:
         return self._scene.run(origins, directions, dists=tfar, output=1)
 
-    def cast_raw(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray) -> dict:
+    def cast_raw(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray, threads: int | None = None) -> dict:
         """Embree's own answer for contiguous float32 rays, over the thread pool.
 
         This is the bare ray-casting cost that benchmarks compare a whole frame against.
@@ -79,13 +79,15 @@ class EmbreeCaster:
         origins, directions : (n, 3) float32 C-contiguous ndarrays
         tfar : (n,) float32 ndarray
             Per-ray maximum distance.
+        threads : int, optional
+            At most this many threads (default: the caster's).
 
         Returns
         -------
         dict with ``tfar`` (n,), ``geomID`` (n,), ``Ng`` (n, 3) as embreex returns them.
         """
         o, d, n = origins, directions, len(directions)
-        n_chunks = min(self.threads, max(1, n // MIN_RAYS_PER_CHUNK))
+        n_chunks = min(threads or self.threads, self.threads, max(1, n // MIN_RAYS_PER_CHUNK))
         if n_chunks == 1 or self._pool is None:
             res = self._run(o, d, tfar)
         else:
@@ -99,13 +101,14 @@ class EmbreeCaster:
             res = {k: np.concatenate([p[k] for p in parts]) for k in ("tfar", "geomID", "Ng")}
         return res
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray, max_distance: float) -> Hits:
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, max_distance: float,
+                  threads: int | None = None) -> Hits:
         n = len(directions)
         if self._scene is None or n == 0:
             return Hits.misses(n)
         o = np.ascontiguousarray(np.broadcast_to(origins, (n, 3)), dtype=np.float32)
         d = np.ascontiguousarray(directions, dtype=np.float32)
-        res = self.cast_raw(o, d, np.full(n, max_distance, dtype=np.float32))
+        res = self.cast_raw(o, d, np.full(n, max_distance, dtype=np.float32), threads)
         if _kernels is not None:
             hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty((n, 3), np.float32))
             _kernels.embree_hits(res["tfar"], res["geomID"], res["Ng"], self._ids, hits.distance, hits.mesh_id, hits.normal)

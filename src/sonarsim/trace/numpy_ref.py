@@ -31,7 +31,8 @@ class NumpyCaster:
         n = np.cross(self._e1, self._e2)
         self._normal = n / np.linalg.norm(n, axis=1, keepdims=True)
 
-    def intersect(self, origins: np.ndarray, directions: np.ndarray, max_distance: float) -> Hits:
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, max_distance: float,
+                  threads: int | None = None) -> Hits:
         d = np.asarray(directions, dtype=float)
         o = np.broadcast_to(np.asarray(origins, dtype=float), d.shape)
         n_rays, n_tri = len(d), len(self._tri)
