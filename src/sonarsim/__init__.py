@@ -1,22 +1,24 @@
 """sonarsim: real-time 2D forward-looking sonar simulation with flat-ground multipath.
 
-The pipeline, one module each: :mod:`~sonarsim.config.sonar` (beams, range window, pose) ->
-:mod:`~sonarsim.config.scene` / :mod:`~sonarsim.config.loader` (objects, ground, settings) ->
-:mod:`~sonarsim.core.rays` (ray fan) -> :mod:`~sonarsim.trace` + :mod:`~sonarsim.trace.surfaces`
-(closest surfaces) -> :mod:`~sonarsim.render.formation` (Algorithm 1) -> :mod:`~sonarsim.image.fan` and
-:mod:`~sonarsim.io.output` (images, files) -> :mod:`~sonarsim.io.readers`, :mod:`~sonarsim.analysis.metrics` and
-:mod:`~sonarsim.analysis.fitting` (real recordings, comparison, pose fitting). :class:`Simulator` ties
-the simulation together.
+The package is laid out in pipeline order: :mod:`~sonarsim.config` (sonar and scene specs, YAML
+I/O, presets) -> :mod:`~sonarsim.core` (poses, ray fans, radiometry) -> :mod:`~sonarsim.scene`
+(meshes in the world) -> :mod:`~sonarsim.trace` (ray casting, closest surfaces) ->
+:mod:`~sonarsim.paths` (ground echoes) -> :mod:`~sonarsim.render` (the :class:`Simulator`:
+components, image formation, compiled kernels) -> :mod:`~sonarsim.image` (result types, polar
+grid, fan) -> :mod:`~sonarsim.io` (files, real recordings) -> :mod:`~sonarsim.analysis`
+(metrics, comparison, pose fitting); :mod:`~sonarsim.cli` is a thin layer on top.
 """
 
-from .errors import ConfigError, MeshFileError, SonarsimError
+# Note: ``sonarsim.render`` is the function below; the package of that name is reached with
+# ``from sonarsim.render import simulator`` (not ``import sonarsim.render.simulator as ...``).
 from .config.loader import load_scene
-from .io.readers import read, read_frames
 from .config.scene import GroundSpec, ObjectSpec, RenderSettings, Scene
-from .image import RayMaps, SonarImage
-from .render.simulator import Simulator, render
 from .config.sonar import SonarConfig
 from .core.transforms import Pose
+from .errors import ConfigError, MeshFileError, SonarsimError
+from .image import RayMaps, SonarImage
+from .io.readers import read, read_frames
+from .render.simulator import Simulator, render
 
 __version__ = "0.1.0"
 

@@ -20,6 +20,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..errors import SonarsimError
+from ..image.grid import PolarGrid, sector_area_m2
 from .metrics import NORMALIZATIONS, mse, normalize_255, psnr, ssim_map, ssim_support
 
 __all__ = ["DOMAINS", "MAX_FAN_PIXELS", "MIN_OVERLAP", "PlainImage", "compare_images", "load_image"]
@@ -73,55 +74,6 @@ class PlainImage:
     sonar: None = None
 
 
-@dataclass(frozen=True)
-class _Geometry:
-    """Polar grid of an image: uniform range bins and a descending beam table."""
-
-    range_min_m: float
-    range_max_m: float
-    n_range_bins: int
-    azimuth_deg: np.ndarray  # (n_beams,), descending
-    left_edge_deg: float
-    right_edge_deg: float
-
-    @property
-    def range_resolution_m(self) -> float:
-        return (self.range_max_m - self.range_min_m) / self.n_range_bins
-
-    @property
-    def range_m(self) -> np.ndarray:
-        """Bin centres, metres."""
-        i = np.arange(self.n_range_bins, dtype=np.float64)
-        return self.range_min_m + (i + 0.5) * self.range_resolution_m
-
-    @property
-    def n_beams(self) -> int:
-        return int(self.azimuth_deg.size)
-
-    @property
-    def fov_deg(self) -> float:
-        return self.left_edge_deg - self.right_edge_deg
-
-    def sector_area(self, r0: float, r1: float, left: float, right: float) -> float:
-        """Area of the annular sector ``[r0, r1] x [right, left]``, m^2 (0 if empty)."""
-        if r1 <= r0 or left <= right:
-            return 0.0
-        return 0.5 * math.radians(left - right) * (r1 * r1 - r0 * r0)
-
-    @property
-    def area_m2(self) -> float:
-        return self.sector_area(
-            self.range_min_m, self.range_max_m, self.left_edge_deg, self.right_edge_deg
-        )
-
-    def describe(self) -> str:
-        return (
-            f"{self.range_min_m:g}-{self.range_max_m:g} m in {self.n_range_bins} bins, "
-            f"{self.n_beams} beams over {self.fov_deg:.4g} deg "
-            f"({self.left_edge_deg:+.4g} to {self.right_edge_deg:+.4g})"
-        )
-
-
 def _name(image: Any, default: str) -> str:
     return str(getattr(image, "source", "") or default)
 
@@ -141,16 +93,11 @@ def _polar_of(image: Any, name: str) -> np.ndarray:
     return arr
 
 
-def _geometry_of(image: Any, polar: np.ndarray, name: str) -> _Geometry | None:
+def _geometry_of(image: Any, polar: np.ndarray, name: str) -> PolarGrid | None:
     """The polar grid of a SonarImage-like object, or None for an image without one."""
     sonar = getattr(image, "sonar", None)
     if sonar is not None:
-        az = np.asarray(sonar.azimuth_deg, dtype=np.float64)
-        edges = np.asarray(sonar.beam_edges_deg, dtype=np.float64)
-        geom = _Geometry(
-            float(sonar.range_min_m), float(sonar.range_max_m), int(sonar.n_range_bins),
-            az, float(edges[0]), float(edges[-1]),
-        )
+        geom = sonar.grid
     else:
         range_m = getattr(image, "range_m", None)
         azimuth = getattr(image, "azimuth_deg", None)
@@ -160,10 +107,11 @@ def _geometry_of(image: Any, polar: np.ndarray, name: str) -> _Geometry | None:
         az = np.asarray(azimuth, dtype=np.float64).ravel()
         if az.size > 1 and not np.all(np.diff(az) < 0):
             raise SonarsimError(f"{name}: azimuth_deg must be strictly descending (left beam first)")
-        from ..config.sonar import beam_edges_deg
-
-        edges = beam_edges_deg(az)
-        geom = _Geometry(rmin, rmax, int(np.size(range_m)), az, float(edges[0]), float(edges[-1]))
+        try:
+            # A lone beam is 1 degree wide, as for a sonar.
+            geom = PolarGrid(rmin, rmax, int(np.size(range_m)), az, single_beam_width_deg=1.0)
+        except ValueError as exc:
+            raise SonarsimError(f"{name}: {exc}") from None
     if polar.shape != (geom.n_range_bins, geom.n_beams):
         raise SonarsimError(
             f"{name}: the polar image has shape {polar.shape} but its geometry has "
@@ -190,7 +138,7 @@ def _range_window(range_m: np.ndarray, name: str) -> tuple[float, float]:
     return float(f"{r[0] - dr / 2.0:.12g}"), float(f"{r[-1] + dr / 2.0:.12g}")
 
 
-def _same_grid(ga: _Geometry, gb: _Geometry) -> bool:
+def _same_grid(ga: PolarGrid, gb: PolarGrid) -> bool:
     return (
         ga.n_range_bins == gb.n_range_bins
         and ga.n_beams == gb.n_beams
@@ -199,16 +147,16 @@ def _same_grid(ga: _Geometry, gb: _Geometry) -> bool:
     )
 
 
-def _overlap_fraction(ga: _Geometry, gb: _Geometry) -> float:
+def _overlap_fraction(ga: PolarGrid, gb: PolarGrid) -> float:
     """Fraction of A's coverage (annular sector area) that B's coverage also covers."""
-    inter = ga.sector_area(
+    inter = sector_area_m2(
         max(ga.range_min_m, gb.range_min_m), min(ga.range_max_m, gb.range_max_m),
         min(ga.left_edge_deg, gb.left_edge_deg), max(ga.right_edge_deg, gb.right_edge_deg),
     )
     return inter / ga.area_m2
 
 
-def _differences(ga: _Geometry, gb: _Geometry) -> str:
+def _differences(ga: PolarGrid, gb: PolarGrid) -> str:
     """What differs between two grids, for messages."""
     out = []
     if not (
@@ -225,8 +173,8 @@ def _differences(ga: _Geometry, gb: _Geometry) -> str:
         and math.isclose(ga.right_edge_deg, gb.right_edge_deg, abs_tol=_AZIMUTH_ATOL_DEG)
     ):
         out.append(
-            f"fields of view {ga.fov_deg:.4g} deg ({ga.left_edge_deg:+.4g} to "
-            f"{ga.right_edge_deg:+.4g}) vs {gb.fov_deg:.4g} deg ({gb.left_edge_deg:+.4g} to "
+            f"fields of view {ga.azimuth_fov_deg:.4g} deg ({ga.left_edge_deg:+.4g} to "
+            f"{ga.right_edge_deg:+.4g}) vs {gb.azimuth_fov_deg:.4g} deg ({gb.left_edge_deg:+.4g} to "
             f"{gb.right_edge_deg:+.4g})"
         )
     if ga.n_beams != gb.n_beams:
@@ -236,7 +184,7 @@ def _differences(ga: _Geometry, gb: _Geometry) -> str:
     return "; ".join(out) or "no difference"
 
 
-def _resample_polar(polar: np.ndarray, src: _Geometry, dst: _Geometry) -> tuple[np.ndarray, np.ndarray]:
+def _resample_polar(polar: np.ndarray, src: PolarGrid, dst: PolarGrid) -> tuple[np.ndarray, np.ndarray]:
     """Image ``polar`` on grid ``src`` sampled at the bin centres of grid ``dst``.
 
     Bilinear in (range, azimuth): the fractional range index is linear in range, the
@@ -266,21 +214,17 @@ def _resample_polar(polar: np.ndarray, src: _Geometry, dst: _Geometry) -> tuple[
     return values, covered
 
 
-def _fan_pixels(geom: _Geometry, pixel_size_m: float) -> float:
+def _fan_pixels(geom: PolarGrid, pixel_size_m: float) -> float:
     """Size of the fan image of ``geom`` (as :func:`sonarsim.image.fan.fan_geometry` lays it out)."""
     half_fov = math.radians(max(abs(geom.left_edge_deg), abs(geom.right_edge_deg)))
     rows = math.ceil(geom.range_max_m / pixel_size_m)
     return rows * 2.0 * math.ceil(geom.range_max_m * math.sin(half_fov) / pixel_size_m)
 
 
-def _fan(polar: np.ndarray, geom: _Geometry, pixel_size_m: float):
+def _fan(polar: np.ndarray, geom: PolarGrid, pixel_size_m: float):
     from ..image.fan import FanMapper
 
-    mapper = FanMapper(
-        geom.n_range_bins, geom.range_min_m, geom.range_max_m, geom.azimuth_deg, pixel_size_m,
-        "linear", single_beam_width_deg=geom.fov_deg,
-    )
-    return mapper(polar)
+    return FanMapper.from_grid(geom, pixel_size_m, "linear")(polar)
 
 
 def _onto_grid(values: np.ndarray, src, dst) -> np.ndarray:

@@ -11,8 +11,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..errors import ConfigError
 from ..core.transforms import Pose
+from ..errors import ConfigError
+from ..image.grid import PolarGrid, beam_edges_deg
+
+__all__ = ["SonarConfig", "beam_edges_deg", "uniform_beam_angles_deg"]
 
 
 def uniform_beam_angles_deg(n_beams: int, azimuth_fov_deg: float) -> np.ndarray:
@@ -25,20 +28,6 @@ def uniform_beam_angles_deg(n_beams: int, azimuth_fov_deg: float) -> np.ndarray:
     """
     j = np.arange(n_beams)
     return azimuth_fov_deg / 2.0 - (j + 0.5) * azimuth_fov_deg / n_beams
-
-
-def beam_edges_deg(beam_angles_deg: np.ndarray) -> np.ndarray:
-    """Edges between beams, midway between centres; the outer edges mirror the inner spacing.
-
-    Returns
-    -------
-    (n_beams + 1,) float64 ndarray, degrees, descending.
-    """
-    c = np.asarray(beam_angles_deg, dtype=float)
-    if c.size == 1:
-        return np.array([c[0] + 0.5, c[0] - 0.5])
-    mid = 0.5 * (c[:-1] + c[1:])
-    return np.concatenate([[c[0] + (c[0] - mid[0])], mid, [c[-1] - (mid[-1] - c[-1])]])
 
 
 @dataclass(frozen=True)
@@ -75,6 +64,7 @@ class SonarConfig:
     beam_width_deg: float | None = None
     frequency_khz: float | None = None
     preset: str | None = None
+    _grid: PolarGrid = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         angles = tuple(float(a) for a in np.ravel(self.beam_angles_deg))
@@ -116,6 +106,10 @@ class SonarConfig:
             raise ConfigError(
                 "sonar.beam_width_deg", f"must be in (0, 90) degrees, got {self.beam_width_deg}"
             )
+        # Checked above with the messages of scene files; the grid cannot fail now. A lone beam
+        # is 1 degree wide, as it has always been.
+        grid = PolarGrid(self.range_min_m, self.range_max_m, self.n_range_bins, angles, 1.0)
+        object.__setattr__(self, "_grid", grid)
 
     @classmethod
     def uniform(
@@ -149,40 +143,43 @@ class SonarConfig:
     # Derived geometry -------------------------------------------------------------------
 
     @property
+    def grid(self) -> PolarGrid:
+        """The polar grid of the sonar's images (range bins and beams)."""
+        return self._grid
+
+    @property
     def n_beams(self) -> int:
-        return len(self.beam_angles_deg)
+        return self._grid.n_beams
 
     @property
     def azimuth_deg(self) -> np.ndarray:
         """(n_beams,) beam centres in degrees, left-most first."""
-        return np.asarray(self.beam_angles_deg)
+        return self._grid.azimuth_deg
 
     @property
     def beam_edges_deg(self) -> np.ndarray:
         """(n_beams + 1,) beam edges in degrees, descending."""
-        return beam_edges_deg(self.azimuth_deg)
+        return self._grid.beam_edges_deg
 
     @property
     def azimuth_fov_deg(self) -> float:
         """Edge-to-edge azimuth extent of the fan, degrees."""
-        e = self.beam_edges_deg
-        return float(e[0] - e[-1])
+        return self._grid.azimuth_fov_deg
 
     @property
     def range_resolution_m(self) -> float:
         """Width dr of one range bin, metres."""
-        return (self.range_max_m - self.range_min_m) / self.n_range_bins
+        return self._grid.range_resolution_m
 
     @property
     def range_edges_m(self) -> np.ndarray:
         """(n_range_bins + 1,) bin edges, metres."""
-        return np.linspace(self.range_min_m, self.range_max_m, self.n_range_bins + 1)
+        return self._grid.range_edges_m
 
     @property
     def range_m(self) -> np.ndarray:
         """(n_range_bins,) bin centres, metres."""
-        e = self.range_edges_m
-        return 0.5 * (e[:-1] + e[1:])
+        return self._grid.range_m
 
     def effective_beam_width_deg(self) -> np.ndarray:
         """(n_beams,) azimuth width of each beam: ``beam_width_deg`` or the local spacing."""

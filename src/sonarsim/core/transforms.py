@@ -7,8 +7,6 @@ pitch turns the body's x axis (the sonar's acoustic axis) DOWN.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 
@@ -64,52 +62,173 @@ def matrix_to_rpy(rotation: np.ndarray) -> tuple[float, float, float]:
     return roll, pitch, yaw
 
 
-@dataclass(frozen=True)
-class Pose:
-    """A rigid pose in the world frame.
+def matrix_to_quat(rotation: np.ndarray) -> tuple[float, float, float, float]:
+    """Unit quaternion ``(x, y, z, w)`` (ROS order, ``w >= 0``) of a rotation matrix.
 
-    Attributes
+    Inverse of :func:`quat_to_matrix` up to the sign of the quaternion.
+    """
+    r = np.asarray(rotation, dtype=float)
+    t = r[0, 0] + r[1, 1] + r[2, 2]
+    # Shepperd's method: divide by the largest of the four candidates for accuracy.
+    if t > max(r[0, 0], r[1, 1], r[2, 2]):
+        w = 0.5 * np.sqrt(1.0 + t)
+        x, y, z = (r[2, 1] - r[1, 2]) / (4 * w), (r[0, 2] - r[2, 0]) / (4 * w), (r[1, 0] - r[0, 1]) / (4 * w)
+    elif r[0, 0] >= r[1, 1] and r[0, 0] >= r[2, 2]:
+        x = 0.5 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+        y, z, w = (r[0, 1] + r[1, 0]) / (4 * x), (r[0, 2] + r[2, 0]) / (4 * x), (r[2, 1] - r[1, 2]) / (4 * x)
+    elif r[1, 1] >= r[2, 2]:
+        y = 0.5 * np.sqrt(1.0 - r[0, 0] + r[1, 1] - r[2, 2])
+        x, z, w = (r[0, 1] + r[1, 0]) / (4 * y), (r[1, 2] + r[2, 1]) / (4 * y), (r[0, 2] - r[2, 0]) / (4 * y)
+    else:
+        z = 0.5 * np.sqrt(1.0 - r[0, 0] - r[1, 1] + r[2, 2])
+        x, y, w = (r[0, 2] + r[2, 0]) / (4 * z), (r[1, 2] + r[2, 1]) / (4 * z), (r[1, 0] - r[0, 1]) / (4 * z)
+    q = np.array([x, y, z, w], dtype=float)
+    q /= np.linalg.norm(q)
+    if q[3] < 0:
+        q = -q
+    return tuple(float(v) for v in q)
+
+
+# Largest deviation from orthonormality accepted by Pose.from_matrix: round-off of a matrix
+# written out to ~9 digits, far below any rotation that means something else.
+_RIGID_ATOL = 1e-6
+
+
+class Pose:
+    """A rigid pose in the world frame: the 4x4 body-to-world transform.
+
+    ``p_world = R @ p_body + t``. The matrix is the pose's state; the roll-pitch-yaw angles and
+    the quaternion are views of it. Immutable, compared and hashed by its matrix (so that a
+    :class:`~sonarsim.config.sonar.SonarConfig` holding it can be a dict key).
+
+    Parameters
     ----------
-    position_m : (3,) tuple of float
+    position_m : (3,) sequence of float
         Origin of the body frame in world coordinates, metres.
-    rpy_deg : (3,) tuple of float
+    rpy_deg : (3,) sequence of float
         Roll, pitch, yaw in degrees (``R = Rz(yaw) Ry(pitch) Rx(roll)``).
+
+    See Also
+    --------
+    Pose.from_quaternion, Pose.from_matrix : the other constructors.
     """
 
-    position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    _rotation: np.ndarray = field(init=False, repr=False, compare=False)
+    __slots__ = ("_matrix", "_rpy_deg")
 
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "position_m", tuple(float(v) for v in self.position_m))
-        object.__setattr__(self, "rpy_deg", tuple(float(v) for v in self.rpy_deg))
-        rot = rpy_to_matrix(*np.radians(self.rpy_deg))
-        rot.setflags(write=False)
-        object.__setattr__(self, "_rotation", rot)
+    def __init__(
+        self,
+        position_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None:
+        rpy = tuple(float(v) for v in rpy_deg)
+        m = np.eye(4)
+        m[:3, :3] = rpy_to_matrix(*np.radians(rpy))
+        m[:3, 3] = [float(v) for v in position_m]
+        # The angles given are kept so that rpy_deg (and the scene files written from it) gives
+        # them back exactly instead of with the round-off of the matrix.
+        self._init(m, rpy)
+
+    def _init(self, m: np.ndarray, rpy_deg: tuple[float, float, float] | None) -> None:
+        m = np.array(m, dtype=np.float64) + 0.0  # + 0.0: no -0.0, so equal poses hash equal
+        m.setflags(write=False)
+        object.__setattr__(self, "_matrix", m)
+        object.__setattr__(self, "_rpy_deg", rpy_deg)
 
     @classmethod
     def from_quaternion(cls, position_m, quat_xyzw) -> "Pose":
-        """Pose from a position and a ``(x, y, z, w)`` quaternion."""
-        rpy = np.degrees(matrix_to_rpy(quat_to_matrix(quat_xyzw)))
-        return cls(tuple(position_m), tuple(rpy))
+        """Pose from a position (metres) and a ``(x, y, z, w)`` quaternion (normalised here)."""
+        m = np.eye(4)
+        m[:3, :3] = quat_to_matrix(quat_xyzw)
+        m[:3, 3] = [float(v) for v in position_m]
+        return cls.from_matrix(m)
+
+    @classmethod
+    def from_matrix(cls, matrix) -> "Pose":
+        """Pose from a (4, 4) homogeneous body-to-world transform.
+
+        Raises
+        ------
+        ValueError
+            When the matrix is not (4, 4), not finite, or not a rigid transform (rotation part
+            orthonormal with determinant +1, last row ``[0, 0, 0, 1]``, within 1e-6).
+        """
+        m = np.asarray(matrix, dtype=np.float64)
+        if m.shape != (4, 4):
+            raise ValueError(f"a pose matrix must be 4x4, got shape {m.shape}")
+        if not np.all(np.isfinite(m)):
+            raise ValueError("a pose matrix must be finite")
+        r = m[:3, :3]
+        if not (
+            np.allclose(r @ r.T, np.eye(3), rtol=0.0, atol=_RIGID_ATOL)
+            and abs(np.linalg.det(r) - 1.0) <= _RIGID_ATOL
+            and np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=_RIGID_ATOL)
+        ):
+            raise ValueError("a pose matrix must be a rigid transform (rotation and translation)")
+        pose = cls.__new__(cls)
+        pose._init(m, None)
+        return pose
+
+    # Views ------------------------------------------------------------------------------
+
+    def matrix(self) -> np.ndarray:
+        """(4, 4) homogeneous body-to-world transform (a fresh, writable copy)."""
+        return self._matrix.copy()
 
     @property
     def rotation(self) -> np.ndarray:
         """(3, 3) body-to-world rotation matrix (read-only)."""
-        return self._rotation
+        return self._matrix[:3, :3]
 
     @property
     def translation(self) -> np.ndarray:
-        """(3,) body origin in the world frame, metres."""
-        return np.array(self.position_m)
+        """(3,) body origin in the world frame, metres (a fresh array)."""
+        return self._matrix[:3, 3].copy()
 
-    def matrix(self) -> np.ndarray:
-        """(4, 4) homogeneous body-to-world transform."""
-        out = np.eye(4)
-        out[:3, :3] = self._rotation
-        out[:3, 3] = self.position_m
-        return out
+    @property
+    def position_m(self) -> tuple[float, float, float]:
+        """Body origin in the world frame, metres."""
+        return tuple(float(v) for v in self._matrix[:3, 3])
+
+    @property
+    def rpy_deg(self) -> tuple[float, float, float]:
+        """Roll, pitch, yaw in degrees (pitch in [-90, 90]; see :func:`matrix_to_rpy`)."""
+        if self._rpy_deg is not None:
+            return self._rpy_deg
+        return tuple(float(v) for v in np.degrees(matrix_to_rpy(self.rotation)))
+
+    @property
+    def quat_xyzw(self) -> tuple[float, float, float, float]:
+        """Unit quaternion ``(x, y, z, w)`` of the rotation, ``w >= 0``."""
+        return matrix_to_quat(self.rotation)
 
     def to_dict(self) -> dict:
         """The scene-file form ``{position_m: [...], rpy_deg: [...]}``."""
         return {"position_m": list(self.position_m), "rpy_deg": list(self.rpy_deg)}
+
+    # Value semantics --------------------------------------------------------------------
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError(f"Pose is immutable; cannot set {name!r}")
+
+    def __delattr__(self, name: str) -> None:
+        raise AttributeError(f"Pose is immutable; cannot delete {name!r}")
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Pose):
+            return NotImplemented
+        return self._matrix.tobytes() == other._matrix.tobytes()
+
+    def __hash__(self) -> int:
+        return hash(self._matrix.tobytes())
+
+    def __repr__(self) -> str:
+        return f"Pose(position_m={self.position_m!r}, rpy_deg={self.rpy_deg!r})"
+
+    def __reduce__(self):
+        return (_restore_pose, (self._matrix.copy(), self._rpy_deg))
+
+
+def _restore_pose(matrix: np.ndarray, rpy_deg: tuple[float, float, float] | None) -> Pose:
+    pose = Pose.__new__(Pose)
+    pose._init(matrix, rpy_deg)
+    return pose

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .grid import PolarGrid, _check_azimuth, _check_count
+
 __all__ = [
     "FanImage",
     "FanGeometry",
@@ -167,31 +169,6 @@ class FanGeometry:
         return (self.range_m - self.range_min_m) / dr - 0.5
 
 
-def _check_count(value: object, name: str) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    if value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-def _check_ranges(range_min_m: float, range_max_m: float) -> tuple[float, float]:
-    try:
-        rmin = float(range_min_m)
-        rmax = float(range_max_m)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"range_min_m and range_max_m must be numbers, got {range_min_m!r}, {range_max_m!r}"
-        ) from None
-    if not (math.isfinite(rmin) and rmin >= 0.0):
-        raise ValueError(f"range_min_m must be finite and >= 0, got {range_min_m!r}")
-    if not (math.isfinite(rmax) and rmax > rmin):
-        raise ValueError(
-            f"range_max_m must be finite and > range_min_m ({rmin}), got {range_max_m!r}"
-        )
-    return rmin, rmax
-
-
 def _check_pixel_size(pixel_size_m: float) -> float:
     try:
         p = float(pixel_size_m)
@@ -200,26 +177,6 @@ def _check_pixel_size(pixel_size_m: float) -> float:
     if not (math.isfinite(p) and p > 0.0):
         raise ValueError(f"pixel_size_m must be finite and > 0, got {pixel_size_m!r}")
     return p
-
-
-def _check_azimuth(azimuth_deg: object) -> np.ndarray:
-    try:
-        az = np.asarray(azimuth_deg, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"azimuth_deg must be a 1-D sequence of numbers, got {type(azimuth_deg).__name__}"
-        ) from None
-    if az.ndim != 1 or az.size == 0:
-        raise ValueError(f"azimuth_deg must be a non-empty 1-D array, got shape {az.shape}")
-    if not np.all(np.isfinite(az)):
-        raise ValueError("azimuth_deg must contain only finite values")
-    if az.size > 1 and not np.all(np.diff(az) < 0):
-        raise ValueError(
-            "azimuth_deg must be strictly descending (column 0 is the left/port beam and "
-            "positive azimuth is to the sonar's left); reverse both the table and the polar "
-            "image columns if yours ascends"
-        )
-    return az
 
 
 def _check_interpolation(interpolation: str) -> str:
@@ -243,7 +200,7 @@ def _cells(length: float, size: float) -> int:
 def beam_edges_deg(
     azimuth_deg: np.ndarray, single_beam_width_deg: float | None = None
 ) -> tuple[float, float]:
-    """Azimuths of the fan's outer edges.
+    """Azimuths of the fan's outer edges (see :class:`~sonarsim.image.grid.PolarGrid`).
 
     The edge of each outermost beam is its centre plus/minus half the spacing to its only
     neighbour.
@@ -261,21 +218,8 @@ def beam_edges_deg(
     left_edge_deg, right_edge_deg : float
         Left (positive side) and right edge, degrees; ``left_edge_deg > right_edge_deg``.
     """
-    az = _check_azimuth(azimuth_deg)
-    if az.size == 1:
-        if single_beam_width_deg is None:
-            raise ValueError(
-                "single_beam_width_deg is required when azimuth_deg has a single beam"
-            )
-        width = float(single_beam_width_deg)
-        if not (math.isfinite(width) and width > 0.0):
-            raise ValueError(
-                f"single_beam_width_deg must be finite and > 0, got {single_beam_width_deg!r}"
-            )
-        return float(az[0] + width / 2.0), float(az[0] - width / 2.0)
-    left = az[0] + (az[0] - az[1]) / 2.0
-    right = az[-1] - (az[-2] - az[-1]) / 2.0
-    return float(left), float(right)
+    grid = PolarGrid(0.0, 1.0, 1, azimuth_deg, single_beam_width_deg)  # the edges need no ranges
+    return grid.left_edge_deg, grid.right_edge_deg
 
 
 def fan_geometry(
@@ -314,10 +258,16 @@ def fan_geometry(
         For a non-positive pixel size, bad ranges, an azimuth table that is not strictly
         descending, or a fan wider than +-90 degrees.
     """
-    rmin, rmax = _check_ranges(range_min_m, range_max_m)
+    # The fan's layout does not depend on the number of range bins.
+    grid = PolarGrid(range_min_m, range_max_m, 1, azimuth_deg, single_beam_width_deg)
+    return _fan_geometry(grid, pixel_size_m)
+
+
+def _fan_geometry(grid: PolarGrid, pixel_size_m: float) -> FanGeometry:
+    rmin, rmax = grid.range_min_m, grid.range_max_m
     p = _check_pixel_size(pixel_size_m)
-    az = _check_azimuth(azimuth_deg)
-    left, right = beam_edges_deg(az, single_beam_width_deg)
+    az = grid.azimuth_deg
+    left, right = grid.left_edge_deg, grid.right_edge_deg
     half_fov = max(abs(left), abs(right))
     if half_fov > 90.0:
         raise ValueError(
@@ -417,14 +367,26 @@ class FanMapper:
         *,
         single_beam_width_deg: float | None = None,
     ) -> None:
-        n_r = _check_count(n_range_bins, "n_range_bins")
-        rmin, rmax = _check_ranges(range_min_m, range_max_m)
+        grid = PolarGrid(range_min_m, range_max_m, n_range_bins, azimuth_deg, single_beam_width_deg)
+        self._build(grid, pixel_size_m, interpolation)
+
+    @classmethod
+    def from_grid(
+        cls, grid: PolarGrid, pixel_size_m: float | None = None, interpolation: str = "linear"
+    ) -> "FanMapper":
+        """The scan converter of images on ``grid`` (see the class for the parameters)."""
+        self = cls.__new__(cls)
+        self._build(grid, pixel_size_m, interpolation)
+        return self
+
+    def _build(self, grid: PolarGrid, pixel_size_m: float | None, interpolation: str) -> None:
+        n_r = grid.n_range_bins
+        rmin, rmax = grid.range_min_m, grid.range_max_m
         self.interpolation = _check_interpolation(interpolation)
         if pixel_size_m is None:
-            pixel_size_m = (rmax - rmin) / n_r
-        geom = fan_geometry(
-            rmin, rmax, azimuth_deg, pixel_size_m, single_beam_width_deg=single_beam_width_deg
-        )
+            pixel_size_m = grid.range_resolution_m
+        geom = _fan_geometry(grid, pixel_size_m)
+        self.grid = grid
         n_b = int(geom.azimuth_deg.size)
         self.polar_shape = (n_r, n_b)
         self.shape = geom.shape

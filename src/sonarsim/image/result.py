@@ -9,11 +9,15 @@ from __future__ import annotations
 import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..config.sonar import SonarConfig
 from .fan import FanMapper
+from .grid import PolarGrid
+
+if TYPE_CHECKING:  # the sonar module builds its grid from this package
+    from ..config.sonar import SonarConfig
 
 #: Names of the images in :attr:`SonarImage.components` of a render, in this order:
 #: ``object`` and ``ground`` (single bounce), ``single`` (= object + ground), ``double``
@@ -82,7 +86,13 @@ class SonarImage:
     config: dict = field(default_factory=dict)
 
     @property
+    def grid(self) -> PolarGrid:
+        """The polar grid of :attr:`polar` (the sonar's)."""
+        return self.sonar.grid
+
+    @property
     def range_edges_m(self) -> np.ndarray:
+        """(n_range_bins + 1,) range bin edges, metres."""
         return self.sonar.range_edges_m
 
     def fan(self, pixel_size_m: float | None = None, component: str | None = None, interpolation: str = "linear"):
@@ -97,9 +107,7 @@ class SonarImage:
         interpolation : {'linear', 'nearest'}
         """
         img = self.polar if component is None else self.components[component]
-        s = self.sonar
-        mapper = _fan_mapper(s.n_range_bins, s.range_min_m, s.range_max_m, s.beam_angles_deg, pixel_size_m, interpolation)
-        return mapper(img)
+        return _fan_mapper(self.sonar.grid, pixel_size_m, interpolation)(img)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Everything as named arrays (what the NPZ file holds, less the configuration)."""
@@ -123,8 +131,6 @@ class SonarImage:
 
 
 @functools.lru_cache(maxsize=8)
-def _fan_mapper(n_range_bins, range_min_m, range_max_m, beam_angles_deg, pixel_size_m, interpolation):
+def _fan_mapper(grid: PolarGrid, pixel_size_m: float | None, interpolation: str) -> FanMapper:
     """Scan-conversion tables are costly to build and the same for every frame of a sonar."""
-    return FanMapper(
-        n_range_bins, range_min_m, range_max_m, np.asarray(beam_angles_deg), pixel_size_m, interpolation
-    )
+    return FanMapper.from_grid(grid, pixel_size_m, interpolation)

@@ -54,12 +54,10 @@ def as_pose(pose: Any) -> Pose:
         return pose
     if isinstance(pose, Mapping):
         return parse_pose(pose, "pose")
-    from ..core.transforms import matrix_to_rpy
-
     m = np.asarray(pose, dtype=float)
     if m.shape != (4, 4):
         raise TypeError("pose must be a Pose, a dict with position_m and rpy_deg/quat_xyzw, or a 4x4 matrix")
-    return Pose(tuple(m[:3, 3]), tuple(np.degrees(matrix_to_rpy(m[:3, :3]))))
+    return Pose.from_matrix(m)
 
 
 class Simulator:

@@ -409,8 +409,8 @@ class OculusRecording(Recording):
         )
         return SonarImage(
             polar=polar,
-            range_m=sonar.range_m,
-            azimuth_deg=sonar.azimuth_deg.copy(),
+            range_m=sonar.grid.range_m,
+            azimuth_deg=sonar.grid.azimuth_deg,
             components={"total": polar},
             sonar=sonar,
             rays=None,

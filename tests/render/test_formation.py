@@ -9,7 +9,7 @@ import pytest
 
 import sonarsim
 from sonarsim.render.formation import form_image
-from conftest import sonar_dict
+from tests.conftest import sonar_dict
 
 
 def floor_range(h: float, tau_deg: float, theta_deg: np.ndarray, phi_deg: float) -> np.ndarray:

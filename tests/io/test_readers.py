@@ -23,7 +23,7 @@ from sonarsim.io.readers import aris as aris_module
 from sonarsim.io.readers.oculus import elevation_fov_deg
 from sonarsim.cli.show import add_show_parser, cmd_show
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 ARIS_SAMPLE = DATA / "real" / "aris" / "sample.aris"
 OCULUS_ONE = DATA / "real" / "oculus" / "one_ping_8bit.raw"
 OCULUS_THREE = DATA / "real" / "oculus" / "three_pings_8bit.raw"

@@ -23,7 +23,7 @@ from sonarsim.config.presets import (
     sine_spaced_beam_angles_deg,
 )
 
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+SHARED_DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 ARIS_TABLES = SHARED_DATA / "aris_beam_widths"
 OCULUS_PING = SHARED_DATA / "real" / "oculus" / "one_ping_8bit.raw"
 

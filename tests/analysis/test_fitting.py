@@ -122,7 +122,7 @@ def test_real_oculus_floor_fit_reproduces_the_onset_curve(shared_data):
     from sonarsim.io.readers import read
 
     real = read(shared_data / "real" / "oculus" / "one_ping_8bit.raw")
-    scene = sonarsim.load_scene(Path(__file__).resolve().parents[1] / "examples" / "oculus_floor.yaml")
+    scene = sonarsim.load_scene(Path(__file__).resolve().parents[2] / "examples" / "oculus_floor.yaml")
     res = fit_pose(real, scene, free=("z", "pitch", "roll"), domain="band")
     # Measured: z 0.416 m, pitch 28.8 deg, roll 1.4 deg; near-edge RMS 0.062 m over 256 beams,
     # most of it in the left third, where the real band starts farther than a flat floor allows.

@@ -7,7 +7,7 @@ import numpy as np
 import sonarsim
 from sonarsim.trace import make_caster
 from sonarsim.scene.meshes import object_mesh_world
-from conftest import sonar_dict
+from tests.conftest import sonar_dict
 
 SCENE = {
     "sonar": sonar_dict(n_beams=24, n_range_bins=300, pose={"position_m": [0, 0, 1.0], "rpy_deg": [5, 15, -3]}),

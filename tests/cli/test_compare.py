@@ -1,0 +1,123 @@
+"""Tests of the ``sonarsim compare`` command (sonarsim.cli.compare)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+import numpy as np
+import pytest
+
+from sonarsim.analysis.comparison import compare_images
+from sonarsim.cli.compare import add_compare_parser, cmd_compare
+from sonarsim.errors import SonarsimError
+from sonarsim.io.output import to_uint8, write_png
+
+# --------------------------------------------------------------------------------------------
+# The compare command
+# --------------------------------------------------------------------------------------------
+
+
+def _parser():
+    parser = argparse.ArgumentParser(prog="sonarsim")
+    add_compare_parser(parser.add_subparsers(dest="command"))
+    return parser
+
+
+def _run(capsys, *argv):
+    args = _parser().parse_args(["compare", *map(str, argv)])
+    assert args.func is cmd_compare
+    args.func(args)
+    out = capsys.readouterr()
+    return out.out, out.err
+
+
+def test_compare_prints_a_table_of_domains_and_metrics(capsys, npz_files, renders):
+    out, _ = _run(capsys, npz_files["full"], npz_files["half"])
+    expected = compare_images(renders["full"], renders["half"])
+    lines = out.splitlines()
+    header = next(line for line in lines if line.startswith("domain"))
+    assert header.split() == ["domain", "MSE", "PSNR", "dB", "SSIM", "pixels"]
+    for domain in ("polar", "fan"):
+        row = next(line for line in lines if line.startswith(domain)).split()
+        m = expected[domain]
+        assert float(row[1]) == pytest.approx(m["mse"], abs=1e-4)
+        assert float(row[2]) == pytest.approx(m["psnr"], abs=1e-3)
+        assert float(row[3]) == pytest.approx(m["ssim"], abs=1e-4)
+        assert int(row[4]) == m["n_pixels"]
+    assert "resampled" in out
+
+
+def test_compare_json_output(capsys, npz_files):
+    out, _ = _run(capsys, npz_files["full"], npz_files["full"], "--json", "--pixel-size", "0.02")
+    doc = json.loads(out)
+    assert doc["a"]["shape"] == [400, 32] and doc["b"]["n_range_bins"] == 400
+    assert doc["pixel_size_m"] == 0.02 and doc["resampled"] is False
+    for domain in ("polar", "fan"):
+        assert doc["metrics"][domain]["mse"] == 0.0
+        assert doc["metrics"][domain]["psnr"] is None  # inf is not JSON
+        assert doc["metrics"][domain]["ssim"] == pytest.approx(1.0)
+
+    out, _ = _run(capsys, npz_files["full"], npz_files["full"], "--json", "--component-b", "single")
+    doc = json.loads(out)
+    assert doc["b"]["component"] == "single"
+    assert 0 < doc["metrics"]["polar"]["mse"] and 0 < doc["metrics"]["polar"]["psnr"] < 100
+
+
+def test_compare_a_png_pair(capsys, tmp_path, renders):
+    rng = np.random.default_rng(7)
+    a = to_uint8(renders["full"].polar[::-1], "db", dynamic_range_db=40)
+    b = np.clip(a.astype(int) + rng.integers(-3, 4, a.shape), 0, 255).astype(np.uint8)
+    write_png(tmp_path / "a.png", a)
+    write_png(tmp_path / "b.png", b)
+    out, err = _run(capsys, tmp_path / "a.png", tmp_path / "b.png", "--normalize", "none")
+    row = next(line for line in out.splitlines() if line.startswith("polar")).split()
+    expected_mse = float(np.mean((a.astype(float) - b) ** 2))
+    assert float(row[1]) == pytest.approx(expected_mse, abs=1e-4)
+    assert float(row[2]) == pytest.approx(10 * math.log10(255**2 / expected_mse), abs=1e-3)
+    assert not any(line.startswith("fan") for line in out.splitlines())
+    assert "no geometry" in out and "fan domain skipped" in err
+
+    out, _ = _run(capsys, tmp_path / "a.png", tmp_path / "b.png", "--json")
+    doc = json.loads(out)
+    assert set(doc["metrics"]) == {"polar"} and "fan" in doc["skipped"]
+
+
+def test_compare_errors_are_sonarsim_errors(capsys, tmp_path, npz_files):
+    with pytest.raises(SonarsimError, match="no such file"):
+        _run(capsys, tmp_path / "nope.npz", npz_files["full"])
+    with pytest.raises(SonarsimError, match="ranges"):
+        _run(capsys, npz_files["full"], npz_files["far"])
+    with pytest.raises(SystemExit):
+        _parser().parse_args(["compare", "a", "b", "--pixel-size", "-1"])
+    capsys.readouterr()
+
+
+def test_compare_through_the_main_cli_exits_2_without_traceback(capsys, npz_files):
+    from sonarsim.cli import main as cli
+
+    try:
+        cli.main(["compare", "--help"])
+    except SystemExit as exc:
+        if exc.code != 0:
+            pytest.skip("`compare` is not wired into sonarsim.cli.main yet")
+    capsys.readouterr()
+    assert cli.main(["compare", str(npz_files["full"]), str(npz_files["half"])]) == 0
+    assert "polar" in capsys.readouterr().out
+    assert cli.main(["compare", str(npz_files["full"]), str(npz_files["far"])]) == 2
+    err = capsys.readouterr().err
+    assert "ranges" in err and "Traceback" not in err
+
+
+def test_compare_real_oculus_pings(capsys, shared_data):
+    """Real recordings through sonarsim.io.readers: a ping equals itself, and differs from the next."""
+    three = shared_data / "real" / "oculus" / "three_pings_8bit.raw"
+    one = shared_data / "real" / "oculus" / "one_ping_8bit.raw"
+    doc = json.loads(_run(capsys, three, one, "--json")[0])  # one_ping is the first of three
+    assert doc["metrics"]["polar"]["mse"] == 0.0 and doc["metrics"]["fan"]["mse"] == 0.0
+    doc = json.loads(_run(capsys, three, three, "--frame-b", "1", "--json")[0])
+    assert doc["b"]["frame"] == 1 and doc["a"]["n_beams"] == 256
+    for domain in ("polar", "fan"):
+        m = doc["metrics"][domain]
+        assert m["mse"] > 0 and 0 < m["psnr"] < 60 and 0 < m["ssim"] < 1
