@@ -11,7 +11,7 @@ import pytest
 
 from sonarsim.config.sonar import SonarConfig
 from sonarsim.core.transforms import Pose, quat_to_matrix, rpy_to_matrix
-from sonarsim.render.simulator import as_pose
+from sonarsim.renderer.simulator import as_pose
 
 RPYS = [(0.0, 0.0, 0.0), (10.0, 20.0, 30.0), (-45.0, 80.0, 170.0), (5.0, -30.0, -120.0)]
 

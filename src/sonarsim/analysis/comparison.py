@@ -524,7 +524,7 @@ def _load_png(p: Path, name: str) -> PlainImage:
 
 def _load_npz(p: Path, name: str, component: str | None):
     from ..io.output import read_npz
-    from ..image.result import COMPONENTS, SonarImage
+    from ..image.result import SonarImage
     from ..config.sonar import SonarConfig
 
     try:
@@ -573,10 +573,12 @@ def _load_npz(p: Path, name: str, component: str | None):
         )
     except (SonarsimError, TypeError, ValueError) as exc:
         raise SonarsimError(f"{name}: inconsistent sonar geometry: {exc}") from None
+    # Every image of the render's shape is a component (orders, path signatures), but the
+    # image itself and the per-ray maps.
     components = {
-        k: np.asarray(arrays[k], dtype=np.float32)
-        for k in COMPONENTS
-        if k in arrays and np.shape(arrays[k]) == polar.shape
+        k: np.asarray(v, dtype=np.float32)
+        for k, v in arrays.items()
+        if k != "polar" and not k.startswith("rays_") and np.shape(v) == polar.shape
     }
     return SonarImage(
         polar=polar, range_m=range_m, azimuth_deg=azimuth, components=components, sonar=sonar,

@@ -28,7 +28,7 @@ from scipy import ndimage, optimize
 from ..errors import ConfigError
 from ..config.scene import Scene
 from ..image.result import SonarImage
-from ..render.simulator import Simulator
+from ..renderer.simulator import Simulator
 from ..core.transforms import Pose
 
 PARAMETERS = ("x", "y", "z", "roll", "pitch", "yaw")

@@ -88,7 +88,7 @@ def override_render(scene, args):
 def render_and_write(scene, out: Path, args):
     """Render ``scene`` once and write polar.png, fan.png and render.npz into ``out``."""
     from ..io.output import to_uint8, write_png
-    from ..render.simulator import Simulator
+    from ..renderer.simulator import Simulator
 
     t0 = time.perf_counter()
     sim = Simulator(scene, backend=args.backend)

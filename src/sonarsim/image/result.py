@@ -19,10 +19,6 @@ from .grid import PolarGrid
 if TYPE_CHECKING:  # the sonar module builds its grid from this package
     from ..config.sonar import SonarConfig
 
-#: Names of the images in :attr:`SonarImage.components` of a render, in this order:
-#: ``object`` and ``ground`` (single bounce), ``single`` (= object + ground), ``double``
-#: (cases 2/3), ``triple`` (case 4) and ``total`` (the bounces selected by ``render.bounces``).
-COMPONENTS = ("object", "ground", "single", "double", "triple", "total")
 
 
 @dataclass(frozen=True)
@@ -65,10 +61,12 @@ class SonarImage:
     azimuth_deg : (n_beams,) float64 ndarray
         Centre of each beam, degrees, left-most first (descending).
     components : mapping of str to (n_range_bins, n_beams) float32 ndarray
-        ``object``, ``ground``, ``single`` (= object + ground), the ground echoes ``double``
-        (cases 2/3) and ``triple`` (case 4), and ``total`` (= ``polar``): the sum of those
-        selected by ``render.bounces`` (1: single, 2: double, 3: triple). All are always
-        formed, so that each is available as a label whatever enters the total.
+        The table of :mod:`sonarsim.renderer.components`: ``object``, ``ground`` (the planes'
+        direct echo), ``single`` (= object + ground), one image per path order (``double``,
+        ``triple``, ``order4``, ...) and ``total`` (= ``polar`` without speckle: the orders
+        selected by ``render.bounces``); then one image per path signature, named by
+        :func:`sonarsim.paths.engine.path_name` (e.g. ``O-ground-[objects]-ground-O``). All
+        are formed whatever enters the total, so that each is available as a label.
     sonar : SonarConfig
         The sonar (with its pose) that produced the image.
     rays : RayMaps or None

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.radiometry import lambertian_intensity
-from ..render.formation import RayEnergy, accumulate, continuity, form_image
+from ..renderer.formation import RayEnergy, accumulate, continuity, form_image
 from ..config.scene import RenderSettings
 from ..config.sonar import SonarConfig
 from ..trace.surfaces import GROUND_ID, NO_HIT, SurfaceHits, ground_distance, trace

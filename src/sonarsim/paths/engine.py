@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.radiometry import lambertian_intensity
-from ..render.formation import RayEnergy, accumulate, continuity
+from ..renderer.formation import RayEnergy, accumulate, continuity
 from .planes import ChainTable, PlaneSet, apply, reflection_points
 
 # Reflected rays start this far off the plane so that round-off cannot make them meet it

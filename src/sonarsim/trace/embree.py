@@ -17,7 +17,7 @@ from ..scene.meshes import TriangleMesh
 from .base import Hits, available_cores
 
 try:  # the same post-processing as below, as one compiled loop
-    from ..render import _kernels
+    from ..renderer import _kernels
 except ImportError:
     _kernels = None
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.render.formation import form_image
+from sonarsim.renderer.formation import form_image
 from tests.conftest import sonar_dict
 
 

@@ -50,13 +50,13 @@ def continuity(points: np.ndarray, normals: np.ndarray, surface_id: np.ndarray) 
     -------
     (..., n - 1) bool ndarray: entry k is True when rays k and k+1 are on one surface.
     """
-    chord = points[..., 1:, :] - points[..., :-1, :]
-    length = np.sqrt(np.einsum("...k,...k->...", chord, chord))
-    off0 = np.abs(np.einsum("...k,...k->...", chord, normals[..., :-1, :]))
-    off1 = np.abs(np.einsum("...k,...k->...", chord, normals[..., 1:, :]))
-    limit = CONTINUITY_SINE * length
-    same = (surface_id[..., 1:] == surface_id[..., :-1]) & (surface_id[..., 1:] >= 0)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"):  # rays without a hit have NaN or no points
+        chord = points[..., 1:, :] - points[..., :-1, :]
+        length = np.sqrt(np.einsum("...k,...k->...", chord, chord))
+        off0 = np.abs(np.einsum("...k,...k->...", chord, normals[..., :-1, :]))
+        off1 = np.abs(np.einsum("...k,...k->...", chord, normals[..., 1:, :]))
+        limit = CONTINUITY_SINE * length
+        same = (surface_id[..., 1:] == surface_id[..., :-1]) & (surface_id[..., 1:] >= 0)
         return same & (off0 <= limit) & (off1 <= limit)
 
 

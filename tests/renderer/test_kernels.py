@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.render import compiled
+from sonarsim.renderer import compiled
 from sonarsim.cli.demo import demo_scene_dict
 
 pytestmark = pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled kernels not built")

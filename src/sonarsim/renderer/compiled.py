@@ -1,4 +1,4 @@
-"""The default render path with its per-ray loops compiled (:mod:`sonarsim.render._kernels`).
+"""The default render path with its per-ray loops compiled (:mod:`sonarsim.renderer._kernels`).
 
 Same physics, same images as the NumPy path (``Simulator(kernels="numpy")``:
 ``trace.surfaces.trace``, ``paths.algorithm2.fast_mirror_paths``,

@@ -263,7 +263,7 @@ class Simulator:
             primary = legs[0]
             rays = RayMaps(
                 distance_m=primary.distance.reshape(fan.shape).astype(np.float32),
-                intensity=primary.intensity.reshape(fan.shape).astype(np.float32),
+                intensity=np.where(primary.sid >= 0, primary.intensity, 0.0).reshape(fan.shape).astype(np.float32),
                 surface_id=primary.sid.reshape(fan.shape).astype(np.int16),
                 azimuth_deg=np.degrees(fan.azimuth_rad),
                 elevation_deg=np.degrees(fan.elevation_rad),
