@@ -431,6 +431,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
               bint first, bint reflect, int[:, ::1] children, int n_chains,
               double[::1] dist, int[::1] sid, double[:, ::1] point, float[:, ::1] point32,
               double[:, ::1] normal, double[::1] intensity, double[::1] atten_out, int[::1] chain_out,
+              int[::1] key, Py_ssize_t[::1] live, int n_surfaces,
               Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
               double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
               double[::1] nx_atten, int[::1] nx_chain):
@@ -439,12 +440,15 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
 
     Rows ``k`` are rays ``ray[k]`` of the fan; ``org``, ``before``, ``atten``, ``chain`` may
     have one row for all (the first generation). Dense outputs (indexed by fan ray) must come
-    filled with "nothing"; only reached rays are set. ``children[c, p]`` is the chain
-    ``c + (p,)`` (-1: new, numbered from ``n_chains`` on).
+    filled with "nothing" (``dist`` inf, ``sid`` and ``key`` -1), except in the first
+    generation, which visits every ray and writes "nothing" itself; only reached rays are set
+    otherwise. ``key`` is ``chain * n_surfaces + sid`` (rays on one surface via one chain: the
+    continuity of range splatting). ``live`` lists, in row order, the rays that scatter some
+    energy. ``children[c, p]`` is the chain ``c + (p,)`` (-1: new, numbered from ``n_chains``).
 
     Returns
     -------
-    (n_next, n_chains, min_before_next, overflow)
+    (n_next, n_chains, min_before_next, overflow, n_live)
     """
     cdef Py_ssize_t k, i, m = ray.shape[0], n_next = 0, P = plane_normal.shape[0]
     cdef Py_ssize_t row, p, best_p, cap = children.shape[0]
@@ -454,6 +458,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     cdef float fx, fy, fz, cosf
     cdef int s, ch, child
     cdef bint overflow = False
+    cdef Py_ssize_t n_live = 0
     with nogil:
         for k in range(m):
             i = ray[k]
@@ -494,6 +499,10 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
                 nz = plane_normal[best_p, 2]
             total = b + t
             if s < 0 or not total <= reach:
+                if first:
+                    dist[i] = INFINITY
+                    sid[i] = -1
+                    key[i] = -1
                 continue
             if first:
                 # As the caster reports them: float32 points and incidence.
@@ -527,6 +536,10 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
             intensity[i] = c
             atten_out[i] = atten[row]
             chain_out[i] = ch
+            key[i] = ch * n_surfaces + s
+            if c != 0:
+                live[n_live] = i
+                n_live += 1
             if not (reflect and s < P and total < reach and plane_specular[s] > 0):
                 continue
             child = children[ch, s]
@@ -563,7 +576,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
             if total + SURFACE_OFFSET_M < min_next:
                 min_next = total + SURFACE_OFFSET_M
             n_next += 1
-    return n_next, n_chains, min_next, overflow
+    return n_next, n_chains, min_next, overflow, n_live
 
 
 def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::1] sid,

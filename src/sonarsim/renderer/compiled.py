@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..paths.engine import Leg
+
 from ..core.rays import RayFan
 from ..config.scene import GroundSpec, RenderSettings
 from ..config.sonar import SonarConfig
@@ -219,11 +221,23 @@ def rotate(fan: RayFan, sonar: SonarConfig, work: Workspace) -> None:
                     work.d64, work.d32, work.o32)
 
 
+class _Leg(Leg):
+    """A :class:`~sonarsim.paths.engine.Leg` with what the kernel lists on the way: the
+    continuity keys (``keys``) and the rays that scatter energy (``live``)."""
+
+    keys: np.ndarray
+    live: np.ndarray
+
+    def key(self, n_surfaces: int) -> np.ndarray:
+        return self.keys
+
+
 class _LegTracer:
     """Receive legs generation by generation (the state between two calls of the kernel)."""
 
     def __init__(self, caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Workspace, weight: np.ndarray,
                  albedo_by_id: np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> None:
+        self.n_surfaces = len(albedo_by_id) - 1  # planes and objects
         self.caster, self.planes, self.work, self.weight = caster, planes, work, weight
         self.albedo, self.tvg, self.reach, self.n_gen, self.table = albedo_by_id, tvg, reach_m, n_generations, table
         self.active = np.ascontiguousarray(active, dtype=np.uint8)
@@ -250,26 +264,28 @@ class _LegTracer:
 
         ``hits``: the next generation's rays already cast (see :meth:`cast`).
         """
-        from ..paths.engine import Leg
-
         g, n, m = self.g, self.n, len(self.ray)
         if g >= self.n_gen or not m:
             return None
-        # Only distance and sid need "nothing" in them: the rest is read where a ray arrived.
-        leg = Leg(g, np.full(n, np.inf), np.full(n, -1, np.int32), np.empty((n, 3)), np.empty((n, 3)),
-                  np.empty(n), np.empty(n), np.empty(n, np.int32))
+        # Only distance, sid and key need "nothing" in them (the first generation writes it
+        # itself): the rest is read where a ray arrived.
+        fill = np.full if g else (lambda shape, value, dtype=float: np.empty(shape, dtype))
+        leg = _Leg(g, fill(n, np.inf), fill(n, -1, np.int32), np.empty((n, 3)), np.empty((n, 3)),
+                   np.empty(n), np.empty(n), np.empty(n, np.int32))
+        leg.keys = fill(n, -1, np.int32)
+        live = np.empty(m, np.intp)
         if hits is None:
             hits = self.caster.intersect(self.o32, self.d32, self.limit, threads=threads)
         nx = (np.empty(m, np.intp), np.empty((m, 3)), np.empty((m, 3), np.float32), np.empty((m, 3)),
               np.empty((m, 3), np.float32), np.empty(m), np.empty(m), np.empty(m, np.int32))
         table = self.table
         while True:
-            n_next, n_chains, min_next, overflow = _kernels.trace_leg(
+            n_next, n_chains, min_next, overflow, n_live = _kernels.trace_leg(
                 self.ray, hits.distance, hits.mesh_id, hits.normal, self.org, self.dirs, self.before, self.atten,
                 self.chain, self.planes.normal, self.planes.offset, self.active, self.planes.specular, self.reach,
                 self.albedo, self.weight, self.tvg, g == 0, g + 1 < self.n_gen, table.children, len(table),
                 leg.distance, leg.sid, leg.point, self.work.point, leg.normal, leg.intensity, leg.atten, leg.chain,
-                *nx,
+                leg.keys, live, self.n_surfaces, *nx,
             )
             table.sync(n_chains)
             if not overflow:
@@ -278,6 +294,7 @@ class _LegTracer:
         self.ray, self.org, self.o32, self.dirs, self.d32, self.before, self.atten, self.chain = (a[:n_next] for a in nx)
         self.limit = float(self.reach - min_next)
         self.g += 1
+        leg.live = live[:n_live]
         return leg
 
     def rest(self, threads: int | None = None) -> list:
@@ -366,7 +383,7 @@ def form_paths(legs, table, view, active, n_planes: int, rays_per_beam: int, max
     out = []
     for leg in legs:
         g = leg.gen
-        live = np.flatnonzero(np.isfinite(leg.distance) & (leg.intensity != 0))
+        live = leg.live
         if not len(live):
             continue
         m = len(live)

@@ -82,20 +82,28 @@ def assemble(stack: np.ndarray, bounces: tuple[int, ...], max_order: int) -> dic
     -------
     dict of str to (n_range_bins, n_beams) float32 ndarray
     """
+    table = component_table(max_order)
+    by_name = {c.name: c for c in table}
     out: dict[str, np.ndarray] = {}
-    for comp in component_table(max_order):
+    for comp in table:
+        rows = comp.rows
         if comp.name == "total":
-            parts = [out[order_name(k)] for k in sorted(bounces)]
-        else:
-            parts = [stack[r] for r in comp.rows]
-        if len(parts) == 1:
-            out[comp.name] = parts[0] if comp.name != "total" else parts[0].copy()
-            continue
-        acc = parts[0] + parts[1]
-        for p in parts[2:]:
-            np.add(acc, p, out=acc)
-        out[comp.name] = acc
+            rows = tuple(sorted(r for k in bounces for r in by_name[order_name(k)].rows))
+        out[comp.name] = _sum_rows(stack, rows, copy=comp.name == "total")
     return out
+
+
+def _sum_rows(stack: np.ndarray, rows: tuple[int, ...], copy: bool) -> np.ndarray:
+    """Sum of stack rows, in row order; one row is a view unless ``copy``."""
+    if len(rows) == 1:
+        return stack[rows[0]].copy() if copy else stack[rows[0]]
+    if rows == tuple(range(rows[0], rows[-1] + 1)):
+        # One pass over a contiguous block, added row after row (as a loop of np.add would).
+        return np.add.reduce(stack[rows[0]:rows[-1] + 1], axis=0)
+    acc = stack[rows[0]] + stack[rows[1]]
+    for r in rows[2:]:
+        np.add(acc, stack[r], out=acc)
+    return acc
 
 
 class Components(Mapping):
