@@ -1,4 +1,5 @@
-"""Figures made of several images, e.g. the paper's Fig. 9 comparison of bounce variants."""
+"""Figures made of several images: the paper's Fig. 9 comparison of bounce variants, and the
+multipath families of a tank (direct echoes, ghosts via the water surface, via the walls)."""
 
 from __future__ import annotations
 
@@ -39,3 +40,67 @@ def bounce_comparison(image, pixel_size_m: float | None = None, mapping: str = "
     tiles = [to_uint8(p.image, mapping, gain_db, dynamic_range_db, reference=ref, mask=p.mask) for p in panels]
     gap = np.full((tiles[0].shape[0], gap_px), 255, dtype=np.uint8)
     return np.concatenate([tiles[0], gap, tiles[1], gap, tiles[2]], axis=1)
+
+
+def _families(image) -> list[tuple[str, np.ndarray]]:
+    """(title, image) of a tank's path families: all, direct, via the surface, via a wall."""
+    from ..paths.engine import parse_path_name
+
+    comp = image.components
+    zero = np.zeros(image.polar.shape)
+    surface, wall = zero.copy(), zero.copy()
+    for name in comp.signatures:
+        tx, _, rx = parse_path_name(name)
+        met = set(tx) | set(rx)
+        if any("surface" in p for p in met):
+            surface += comp[name]
+        if any("wall" in p for p in met):
+            wall += comp[name]
+    order = image.config.get("render", {}).get("max_order", 3)
+    return [
+        (f"all paths up to order {order}", comp["total"]),
+        ("direct echoes (order 1)", comp["single"]),
+        ("ghosts: paths that meet the water surface", surface),
+        ("ghosts: paths that meet a wall", wall),
+    ]
+
+
+def multipath_comparison(image, pixel_size_m: float | None = None, mapping: str = "db", gain_db: float = 0.0,
+                         dynamic_range_db: float = 40.0, gap_px: int = 10, title_px: int = 34) -> np.ndarray:
+    """Fan views of a tank's path families in a labelled 2 x 2 grid.
+
+    All paths | direct echoes; paths that meet the water surface | paths that meet a wall (by
+    plane name: planes named ``*surface*`` and ``*wall*``). One intensity reference (the
+    maximum of all paths) for every panel, so their brightness compares directly.
+
+    Parameters
+    ----------
+    image : SonarImage
+        A render with path-signature components.
+
+    Returns
+    -------
+    (2 (H + title_px) + gap_px, 2 W + gap_px) uint8 ndarray
+    """
+    from PIL import Image, ImageDraw, ImageFont
+
+    from ..image.fan import FanMapper
+
+    s = image.sonar
+    mapper = FanMapper(s.n_range_bins, s.range_min_m, s.range_max_m, image.azimuth_deg, pixel_size_m)
+    panels = _families(image)
+    fans = [mapper(np.asarray(img, dtype=np.float64)) for _, img in panels]
+    ref = float(fans[0].image.max()) or None
+    tiles = [to_uint8(f.image, mapping, gain_db, dynamic_range_db, reference=ref, mask=f.mask) for f in fans]
+    h, w = tiles[0].shape
+    try:
+        font = ImageFont.load_default(size=max(10, title_px * 2 // 3))
+    except (OSError, TypeError):  # Pillow without FreeType: the small bitmap font
+        font = ImageFont.load_default()
+    canvas = Image.new("L", (2 * w + gap_px, 2 * (h + title_px) + gap_px), 255)
+    draw = ImageDraw.Draw(canvas)
+    for k, ((title, _), tile) in enumerate(zip(panels, tiles)):
+        x, y = (k % 2) * (w + gap_px), (k // 2) * (h + title_px + gap_px)
+        canvas.paste(Image.fromarray(tile), (x, y + title_px))
+        draw.text((x + 6, y + 4), title, fill=0, font=font)
+    return np.asarray(canvas)

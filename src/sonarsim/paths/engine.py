@@ -518,3 +518,19 @@ def path_name(tx: list[str], at: str, rx: list[str]) -> str:
         the sound's order).
     """
     return "-".join(["O", *tx, f"[{at}]", *reversed(rx), "O"])
+
+
+def parse_path_name(name: str) -> tuple[list[str], str, list[str]]:
+    """Inverse of :func:`path_name`: ``(tx planes, scatterer, rx planes)``.
+
+    Raises
+    ------
+    ValueError
+        ``name`` is not a path-signature name.
+    """
+    parts = name.split("-")
+    at = [k for k, p in enumerate(parts) if p.startswith("[") and p.endswith("]")]
+    if len(parts) < 3 or parts[0] != "O" or parts[-1] != "O" or len(at) != 1:
+        raise ValueError(f"not a path-signature name: {name!r}")
+    k = at[0]
+    return parts[1:k], parts[k][1:-1], list(reversed(parts[k + 1:-1]))
