@@ -7,6 +7,9 @@ import numpy as np
 
 from .output import to_uint8
 
+# Grey level of the pixels outside the fan in the multipath figure (inside, no echo is black).
+OUTSIDE_FAN_GREY = 72
+
 # (title, components summed) of the paper's Fig. 9 panels (b)-(d).
 BOUNCE_VARIANTS = (
     ("single", ("single",)),
@@ -92,6 +95,8 @@ def multipath_comparison(image, pixel_size_m: float | None = None, mapping: str 
     fans = [mapper(np.asarray(img, dtype=np.float64)) for _, img in panels]
     ref = float(fans[0].image.max()) or None
     tiles = [to_uint8(f.image, mapping, gain_db, dynamic_range_db, reference=ref, mask=f.mask) for f in fans]
+    for tile, f in zip(tiles, fans):
+        tile[~f.mask] = OUTSIDE_FAN_GREY  # so that the fan's outline shows against "no echo"
     h, w = tiles[0].shape
     try:
         font = ImageFont.load_default(size=max(10, title_px * 2 // 3))
