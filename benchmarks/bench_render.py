@@ -5,11 +5,14 @@ Measures, in one run on this machine:
 * (a) the demo tank, ARIS 3000 preset, 128 beams x 1288 bins, all bounces, default ray density;
 * (b) the same scene with a ~500,000-triangle mesh added (a bumpy rock on the floor);
 * (c) the same tank seen by an Oculus M1200d (low-frequency mode, 512 beams);
+* (d) the demo tank with a water surface (floor + surface) and (e) with a water surface and
+  four walls, paths up to order 3;
 * for each, the bare ray-casting time of the very rays the frame cast (Embree alone, same
   threads), replayed outside the renderer, and the ratio frame time / bare casting time;
 * ``method: paper`` (Algorithm 2 literally) on (a), and the speed-up of the default over it;
 * peak memory (Python heap via tracemalloc, and the process's peak resident set);
-* sweeps: frame time against the number of rays and against the number of triangles.
+* sweeps: frame time against the number of rays, the number of triangles, the number of
+  reflecting planes (order 3) and the path order (six planes).
 
 Usage::
 
@@ -93,6 +96,26 @@ def record_casts(sim: sonarsim.Simulator) -> list:
     return recorded
 
 
+# Reflecting planes of the benchmark tank, in the order the planes sweep adds them (the demo
+# tank is 2 m deep; the sonar at x = 0 looks along +x at a floor lit from 2.2 m to 4.4 m).
+TANK_PLANES = (
+    {"name": "surface", "point_m": [0.0, 0.0, 2.0], "normal": [0.0, 0.0, -1.0], "albedo": 0.0, "specular": 0.9},
+    {"name": "far_wall", "point_m": [4.6, 0.0, 0.0], "normal": [-1.0, 0.0, 0.0], "albedo": 0.6, "specular": 0.5},
+    {"name": "left_wall", "point_m": [0.0, 1.5, 0.0], "normal": [0.0, -1.0, 0.0], "albedo": 0.6, "specular": 0.5},
+    {"name": "right_wall", "point_m": [0.0, -1.5, 0.0], "normal": [0.0, 1.0, 0.0], "albedo": 0.6, "specular": 0.5},
+    {"name": "back_wall", "point_m": [-0.5, 0.0, 0.0], "normal": [1.0, 0.0, 0.0], "albedo": 0.6, "specular": 0.5},
+)
+
+
+def tank_scene(n_planes: int, max_order: int = 3) -> dict:
+    """The demo tank with the ground and the first ``n_planes - 1`` of :data:`TANK_PLANES`."""
+    doc = demo_scene_dict()
+    doc["planes"] = [dict(p) for p in TANK_PLANES[: n_planes - 1]]
+    doc["render"]["max_order"] = max_order
+    doc["render"].pop("bounces", None)
+    return doc
+
+
 def measure(name: str, scene, repeats: int) -> dict:
     """Median frame time and median bare casting time of the same rays, interleaved.
 
@@ -162,7 +185,9 @@ def main(argv=None) -> int:
     n_mesh = 2_000 if quick else 500_000
     cases = [("a: demo tank, ARIS 3000, all bounces", demo),
              (f"b: (a) + {n_mesh:,}-triangle mesh", None),
-             ("c: Oculus M1200d lf, 512 beams", oculus_scene())]
+             ("c: Oculus M1200d lf, 512 beams", oculus_scene()),
+             ("d: (a) + water surface, order 3", tank_scene(2)),
+             ("e: (a) + surface + 4 walls, order 3", tank_scene(6))]
     for name, scene in cases:
         if scene is None:
             scene = scene_with_mesh(n_mesh)
@@ -200,6 +225,22 @@ def main(argv=None) -> int:
         r = measure(f"mesh: {n_tri} triangles", sc, max(2, repeats // 3))
         sweep_tris.append({k: r[k] for k in ("triangles", "frame_ms", "bare_cast_ms")})
     results["sweep_triangles"] = sweep_tris
+    sweep_planes = []
+    for n_planes in ((1, 3) if quick else (1, 2, 3, 4, 5, 6)):
+        doc = tank_scene(n_planes)
+        if quick:
+            doc["render"]["elevation_samples"] = 16
+        r = measure(f"planes: {n_planes}", doc, max(2, repeats // 3))
+        sweep_planes.append({k: r[k] for k in ("rays_per_frame", "frame_ms", "bare_cast_ms")} | {"planes": n_planes})
+    results["sweep_planes"] = sweep_planes
+    sweep_order = []
+    for order in ((1, 3) if quick else (1, 2, 3, 4, 5)):
+        doc = tank_scene(6, order)
+        if quick:
+            doc["render"]["elevation_samples"] = 16
+        r = measure(f"order: {order}", doc, max(2, repeats // 3))
+        sweep_order.append({k: r[k] for k in ("rays_per_frame", "frame_ms", "bare_cast_ms")} | {"max_order": order})
+    results["sweep_order"] = sweep_order
 
     print(f"\nsonarsim {sonarsim.__version__} on {results['machine']['cpu_cores']} cores, "
           f"{results['machine']['processor']}, Python {results['machine']['python']}, NumPy {np.__version__}")
@@ -216,6 +257,12 @@ def main(argv=None) -> int:
     print("triangles -> frame ms (bare cast ms)")
     for r in sweep_tris:
         print(f"  {r['triangles']:>10,} -> {r['frame_ms']:7.2f} ({r['bare_cast_ms']:.2f})")
+    print("planes (order 3) -> rays cast per frame, frame ms (bare cast ms)")
+    for r in sweep_planes:
+        print(f"  {r['planes']:>3} -> {r['rays_per_frame']:>8,} {r['frame_ms']:7.2f} ({r['bare_cast_ms']:.2f})")
+    print("max_order (6 planes) -> rays cast per frame, frame ms (bare cast ms)")
+    for r in sweep_order:
+        print(f"  {r['max_order']:>3} -> {r['rays_per_frame']:>8,} {r['frame_ms']:7.2f} ({r['bare_cast_ms']:.2f})")
     if args.json:
         tmp = args.json + ".tmp"
         with open(tmp, "w") as f:

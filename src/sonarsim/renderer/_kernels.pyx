@@ -418,8 +418,10 @@ def combine(const float[:, :, ::1] parts, float[:, ::1] single, float[:, ::1] to
 
 # General reflecting planes (sonarsim.paths.engine is the NumPy twin) ----------------------
 
-cdef inline double dot3(const double[:, ::1] a, Py_ssize_t i, double x, double y, double z) noexcept nogil:
-    return a[i, 0] * x + a[i, 1] * y + a[i, 2] * z
+cdef inline double dot3(const double* a, Py_ssize_t i, double x, double y, double z) noexcept nogil:
+    """Row ``i`` of a C-contiguous (n, 3) array dotted with (x, y, z). A pointer, not a
+    memoryview: passing a memoryview to a function costs a reference count each call."""
+    return a[3 * i] * x + a[3 * i + 1] * y + a[3 * i + 2] * z
 
 
 def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const int[::1] hit_mesh,
@@ -429,7 +431,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
               const unsigned char[::1] plane_active, const double[::1] plane_specular,
               double reach, const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
               bint first, bint reflect, int[:, ::1] children, int n_chains,
-              double[::1] dist, int[::1] sid, double[:, ::1] point, float[:, ::1] point32,
+              double[::1] dist, int[::1] sid, double[:, ::1] point, float[::1] scratch32,
               double[:, ::1] normal, double[::1] intensity, double[::1] atten_out, int[::1] chain_out,
               int[::1] key, Py_ssize_t[::1] live, int n_surfaces,
               Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
@@ -443,7 +445,8 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     filled with "nothing" (``dist`` inf, ``sid`` and ``key`` -1), except in the first
     generation, which visits every ray and writes "nothing" itself; only reached rays are set
     otherwise. ``key`` is ``chain * n_surfaces + sid`` (rays on one surface via one chain: the
-    continuity of range splatting). ``live`` lists, in row order, the rays that scatter some
+    continuity of range splatting). The first generation does not write ``atten_out``,
+    ``chain_out`` and ``key``: they are 1, 0 and ``sid`` there. ``scratch32`` holds 3 floats. ``live`` lists, in row order, the rays that scatter some
     energy. ``children[c, p]`` is the chain ``c + (p,)`` (-1: new, numbered from ``n_chains``).
 
     Returns
@@ -459,6 +462,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     cdef int s, ch, child
     cdef bint overflow = False
     cdef Py_ssize_t n_live = 0
+    cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
     with nogil:
         for k in range(m):
             i = ray[k]
@@ -486,9 +490,9 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
             for p in range(P):
                 if not plane_active[p]:
                     continue
-                dn = dot3(plane_normal, p, dx, dy, dz)
+                dn = dot3(pn, p, dx, dy, dz)
                 if dn < 0:
-                    tp = (plane_offset[p] - dot3(plane_normal, p, ox, oy, oz)) / dn
+                    tp = (plane_offset[p] - dot3(pn, p, ox, oy, oz)) / dn
                     if tp > 0 and tp < t and b + tp <= reach:
                         t = tp
                         best_p = p
@@ -502,17 +506,16 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
                 if first:
                     dist[i] = INFINITY
                     sid[i] = -1
-                    key[i] = -1
                 continue
             if first:
                 # As the caster reports them: float32 points and incidence.
                 # Through memory: gcc -O3 drops a float32 round trip held in registers.
-                point32[i, 0] = <float>(ox + dx * t)
-                point32[i, 1] = <float>(oy + dy * t)
-                point32[i, 2] = <float>(oz + dz * t)
-                px = point32[i, 0]
-                py = point32[i, 1]
-                pz = point32[i, 2]
+                scratch32[0] = <float>(ox + dx * t)
+                scratch32[1] = <float>(oy + dy * t)
+                scratch32[2] = <float>(oz + dz * t)
+                px = scratch32[0]
+                py = scratch32[1]
+                pz = scratch32[2]
                 cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
                 c = cosf
             else:
@@ -534,9 +537,10 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
             normal[i, 1] = ny
             normal[i, 2] = nz
             intensity[i] = c
-            atten_out[i] = atten[row]
-            chain_out[i] = ch
-            key[i] = ch * n_surfaces + s
+            if not first:  # the first generation: no reflection yet, chain 0, key = sid
+                atten_out[i] = atten[row]
+                chain_out[i] = ch
+                key[i] = ch * n_surfaces + s
             if c != 0:
                 live[n_live] = i
                 n_live += 1
@@ -608,6 +612,7 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
     cdef double rad2deg = 180.0 / M_PI, denom, tol
     cdef Py_ssize_t b
     cdef bint ok
+    cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
     with nogil:
         for k in range(n):
             i = live[k]
@@ -662,8 +667,8 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
                 tx_ = sources[j + 1, 0] - wx
                 ty = sources[j + 1, 1] - wy
                 tz = sources[j + 1, 2] - wz
-                denom = dot3(plane_normal, q, tx_, ty, tz)
-                t = (plane_offset[q] - dot3(plane_normal, q, wx, wy, wz)) / denom
+                denom = dot3(pn, q, tx_, ty, tz)
+                t = (plane_offset[q] - dot3(pn, q, wx, wy, wz)) / denom
                 if not (t > 0.0 and t < 1.0):
                     ok = False
                     break
@@ -677,7 +682,7 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
                     tol = fabs(wz)
                 tol = WATER_TOLERANCE_M * (tol if tol > 1.0 else 1.0)
                 for q in range(P):
-                    if plane_active[q] and dot3(plane_normal, q, wx, wy, wz) - plane_offset[q] < -tol:
+                    if plane_active[q] and dot3(pn, q, wx, wy, wz) - plane_offset[q] < -tol:
                         ok = False
                         break
                 j -= 1

@@ -65,6 +65,9 @@ class Workspace:
         self.beam_a = np.empty(n, dtype=np.int32)
         self.beam = np.repeat(np.arange(n_beams, dtype=np.int32), n_per_beam)
         self.no_label = np.empty(0, dtype=np.int8)
+        self.ones = np.ones(n)  # attenuation of the first generation's legs
+        self.zeros_i32 = np.zeros(n, dtype=np.int32)  # their chain (none)
+        self.scratch32 = np.empty(3, dtype=np.float32)
         self.empty_f64 = np.empty(0)
         self.empty_i32 = np.empty(0, dtype=np.int32)
 
@@ -259,39 +262,52 @@ class _LegTracer:
         """Cast rays ``begin:end`` of the next generation (to split a generation over cores)."""
         return self.caster.intersect(self.o32[begin:end], self.d32[begin:end], self.limit, threads=threads)
 
-    def step(self, threads: int | None = None, hits=None):
+    def step(self, threads: int | None = None, parts=None):
         """The next generation's :class:`~sonarsim.paths.engine.Leg`, or None when no ray is left.
 
-        ``hits``: the next generation's rays already cast (see :meth:`cast`).
+        ``parts``: the next generation's rays already cast, as ``(begin, end, hits)`` covering
+        them in order (see :meth:`cast`).
         """
         g, n, m = self.g, self.n, len(self.ray)
         if g >= self.n_gen or not m:
             return None
-        # Only distance, sid and key need "nothing" in them (the first generation writes it
-        # itself): the rest is read where a ray arrived.
-        fill = np.full if g else (lambda shape, value, dtype=float: np.empty(shape, dtype))
-        leg = _Leg(g, fill(n, np.inf), fill(n, -1, np.int32), np.empty((n, 3)), np.empty((n, 3)),
-                   np.empty(n), np.empty(n), np.empty(n, np.int32))
-        leg.keys = fill(n, -1, np.int32)
+        if parts is None:
+            parts = [(0, m, self.caster.intersect(self.o32, self.d32, self.limit, threads=threads))]
+        w = self.work
+        if g == 0:
+            # Every ray is visited and given its "nothing"; no reflection happened yet.
+            leg = _Leg(g, np.empty(n), np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 3)),
+                       np.empty(n), w.ones, w.zeros_i32)
+            leg.keys = leg.sid
+        else:
+            # Only distance, sid and key need "nothing": the rest is read where a ray arrived.
+            leg = _Leg(g, np.full(n, np.inf), np.full(n, -1, np.int32), np.empty((n, 3)), np.empty((n, 3)),
+                       np.empty(n), np.empty(n), np.empty(n, np.int32))
+            leg.keys = np.full(n, -1, np.int32)
         live = np.empty(m, np.intp)
-        if hits is None:
-            hits = self.caster.intersect(self.o32, self.d32, self.limit, threads=threads)
         nx = (np.empty(m, np.intp), np.empty((m, 3)), np.empty((m, 3), np.float32), np.empty((m, 3)),
               np.empty((m, 3), np.float32), np.empty(m), np.empty(m), np.empty(m, np.int32))
         table = self.table
-        while True:
-            n_next, n_chains, min_next, overflow, n_live = _kernels.trace_leg(
-                self.ray, hits.distance, hits.mesh_id, hits.normal, self.org, self.dirs, self.before, self.atten,
-                self.chain, self.planes.normal, self.planes.offset, self.active, self.planes.specular, self.reach,
-                self.albedo, self.weight, self.tvg, g == 0, g + 1 < self.n_gen, table.children, len(table),
-                leg.distance, leg.sid, leg.point, self.work.point, leg.normal, leg.intensity, leg.atten, leg.chain,
-                leg.keys, live, self.n_surfaces, *nx,
-            )
-            table.sync(n_chains)
-            if not overflow:
-                break
-            table._grow()
-        self.ray, self.org, self.o32, self.dirs, self.d32, self.before, self.atten, self.chain = (a[:n_next] for a in nx)
+        one = len(self.before) == 1  # the first generation: one origin for all rays
+        n_next = n_live = 0
+        min_next = np.inf
+        for a, b, hits in parts:
+            rows = slice(0, 1) if one else slice(a, b)
+            while True:
+                k_next, n_chains, k_min, overflow, k_live = _kernels.trace_leg(
+                    self.ray[a:b], hits.distance, hits.mesh_id, hits.normal, self.org[rows], self.dirs[a:b],
+                    self.before[rows], self.atten[rows], self.chain[rows], self.planes.normal, self.planes.offset,
+                    self.active, self.planes.specular, self.reach, self.albedo, self.weight, self.tvg, g == 0,
+                    g + 1 < self.n_gen, table.children, len(table), leg.distance, leg.sid, leg.point, w.scratch32,
+                    leg.normal, leg.intensity, leg.atten, leg.chain, leg.keys, live[n_live:], self.n_surfaces,
+                    *(x[n_next:] for x in nx),
+                )
+                table.sync(n_chains)
+                if not overflow:
+                    break
+                table._grow()
+            n_next, n_live, min_next = n_next + k_next, n_live + k_live, min(min_next, k_min)
+        self.ray, self.org, self.o32, self.dirs, self.d32, self.before, self.atten, self.chain = (x[:n_next] for x in nx)
         self.limit = float(self.reach - min_next)
         self.g += 1
         leg.live = live[:n_live]
@@ -303,13 +319,6 @@ class _LegTracer:
         while (leg := self.step(threads)) is not None:
             legs.append(leg)
         return legs
-
-
-def _concat_hits(a, b):
-    from ..trace.base import Hits
-
-    return Hits(np.concatenate([a.distance, b.distance]), np.concatenate([a.mesh_id, b.mesh_id]),
-                np.concatenate([a.normal, b.normal]))
 
 
 def trace_legs(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Workspace, weight: np.ndarray,
@@ -356,8 +365,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: 
                             only_same=True)
         splat_paths(direct, legs, n_surfaces, n_el, geometry, spread, stack)
         mine = tracer.cast(cut, m, 1)
-        hits = _concat_hits(theirs.result(), mine)
-        legs.append(tracer.step(hits=hits))
+        legs.append(tracer.step(parts=[(0, cut, theirs.result()), (cut, m, mine)]))
     legs += tracer.rest()
     sets = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam,
                       skip_first_same=split)

@@ -22,6 +22,7 @@ by :func:`sonarsim.paths.engine.path_name`, e.g. ``O-ground-[objects]-ground-O``
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 
@@ -106,15 +107,37 @@ def _sum_rows(stack: np.ndarray, rows: tuple[int, ...], copy: bool) -> np.ndarra
     return acc
 
 
+def frame_components(stack: np.ndarray, bounces: tuple[int, ...], max_order: int,
+                     paths: Callable[[], dict] | None = None) -> "Components":
+    """The :class:`Components` of a frame: ``total`` now, the rest when first looked up.
+
+    Single rows are views of ``stack``; sums of rows (``single``) and the path-signature
+    images (``paths()``) are formed on first access. Same images as :func:`assemble`.
+    """
+    table = component_table(max_order)
+    by_name = {c.name: c for c in table}
+    images: dict = {}
+    for comp in table:
+        if comp.name == "total":
+            rows = tuple(sorted(r for k in bounces for r in by_name[order_name(k)].rows))
+            images["total"] = _sum_rows(stack, rows, copy=True)
+        elif len(comp.rows) == 1:
+            images[comp.name] = stack[comp.rows[0]]
+        else:
+            images[comp.name] = functools.partial(_sum_rows, stack, comp.rows, False)
+    return Components(images, paths)
+
+
 class Components(Mapping):
     """The components of a frame: the table's images, and path-signature images on demand.
 
-    Path-signature images cost a pass over the frame's paths; they are formed, all at once,
-    when one is first looked up or the names are listed (as writing an NPZ does), and kept.
+    Images given as zero-argument callables are formed when first looked up. Path-signature
+    images cost a pass over the frame's paths; they are formed, all at once, when one is first
+    looked up or the names are listed (as writing an NPZ does). Everything formed is kept.
 
     Parameters
     ----------
-    images : dict of str to ndarray
+    images : dict of str to ndarray or callable
         The table's components.
     paths : callable, optional
         ``paths() -> dict`` of path-signature name to image.
@@ -132,7 +155,10 @@ class Components(Mapping):
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name in self._images:
-            return self._images[name]
+            img = self._images[name]
+            if callable(img):
+                img = self._images[name] = img()
+            return img
         return self._formed()[name]
 
     def __contains__(self, name: object) -> bool:
@@ -151,4 +177,5 @@ class Components(Mapping):
         return tuple(self._formed())
 
     def __repr__(self) -> str:
-        return f"Components({', '.join(self._images)}, + {'?' if self._signatures is None else len(self._signatures)} path signatures)"
+        n = "?" if self._signatures is None else len(self._signatures)
+        return f"Components({', '.join(self._images)}, + {n} path signatures)"

@@ -27,7 +27,7 @@ from ..core.rays import RayFan, make_ray_fan
 from ..core.transforms import Pose
 from ..errors import ConfigError
 from ..image.result import RayMaps, SonarImage
-from ..config.scene import check_sonar_position
+from ..config.scene import ON_PLANE_TOLERANCE_M, check_sonar_position
 from ..paths.algorithm2 import render_paper
 from ..paths.engine import (
     Leg, SonarView, accumulate_paths, drop_occluded, form_paths, ground_signatures, split_by_signature, trace_legs,
@@ -37,7 +37,7 @@ from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
 from ..trace import available_cores, make_caster
 from ..trace.surfaces import trace
 from . import compiled
-from .components import Components, assemble, stack_rows
+from .components import assemble, frame_components, stack_rows
 
 # Rays are cast this far past the range window so that range splatting sees the neighbour of a
 # ray that ends just inside it.
@@ -110,6 +110,7 @@ class Simulator:
         self._fans: dict[SonarConfig, RayFan] = {}
         self._last_fan: tuple[SonarConfig, RayFan] | None = None
         self.last_timing: dict[str, float] = {}
+        self._config = self.scene.to_dict()  # the scene-file form; each frame adds its sonar
 
     def close(self) -> None:
         """Stop the worker threads now (they also stop when the simulator is collected)."""
@@ -235,8 +236,9 @@ class Simulator:
         sonar = sonar if sonar is not None else self.scene.sonar
         if pose is not None:
             sonar = sonar.with_pose(as_pose(pose))
-        check_sonar_position(self.scene.reflecting_planes, sonar.pose.position_m,
-                             "pose" if pose is not None else "sonar.pose.position_m")
+        if len(self.planes) and np.abs(self.planes.signed_distance(sonar.pose.translation)).min() < ON_PLANE_TOLERANCE_M:
+            check_sonar_position(self.scene.reflecting_planes, sonar.pose.position_m,
+                                 "pose" if pose is not None else "sonar.pose.position_m")
         render = self.scene.render
         fan = self.ray_fan(sonar)
         t1 = time.perf_counter()
@@ -249,13 +251,12 @@ class Simulator:
         else:
             stack, legs, sets, table = self._render_paths(sonar, fan, reach, active, render.max_order if multipath else 1)
         t3 = time.perf_counter()
-        images = assemble(stack, render.bounces, render.max_order)
         if sets is None:  # Algorithm 2: its four images are the four ground-only signatures
-            paths = lambda: ground_signatures(images)  # noqa: E731
+            paths = functools.partial(ground_signatures, assemble(stack, render.bounces, render.max_order))
         else:
             paths = functools.partial(self._signature_images, sonar, fan, legs, sets, table)
-        components = Components(images, paths)
-        total = images["total"]
+        components = frame_components(stack, render.bounces, render.max_order, paths)
+        total = components["total"]
         if render.speckle:
             total = (total * self._rng.exponential(1.0, total.shape)).astype(np.float32)
         rays = None
@@ -268,7 +269,7 @@ class Simulator:
                 azimuth_deg=np.degrees(fan.azimuth_rad),
                 elevation_deg=np.degrees(fan.elevation_rad),
             )
-        config = replace(self.scene, sonar=sonar).to_dict()
+        config = {**self._config, "sonar": sonar.to_dict()}
         t4 = time.perf_counter()
         self.last_timing = {"setup": t1 - t0, "render": t3 - t1, "assemble": t4 - t3, "total": t4 - t0}
         return SonarImage(
