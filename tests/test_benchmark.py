@@ -19,7 +19,7 @@ def test_benchmark_runs_at_tiny_sizes(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "frame/cast" in proc.stdout
     res = json.loads(out.read_text())
-    assert [c["case"][:2] for c in res["cases"]] == ["a:", "b:", "c:", "a "]
+    assert [c["case"][:2] for c in res["cases"]] == ["a:", "b:", "c:", "d:", "e:", "a "]
     for c in res["cases"]:
         assert c["frame_ms"] > 0 and c["bare_cast_ms"] > 0 and c["rays_per_frame"] > 0
         assert c["frame_over_cast"] == c["frame_ms"] / c["bare_cast_ms"]
@@ -31,3 +31,8 @@ def test_benchmark_runs_at_tiny_sizes(tmp_path):
     tris = [r["triangles"] for r in res["sweep_triangles"]]
     assert rays == sorted(rays) and len(set(rays)) == len(rays)
     assert tris == sorted(tris) and len(set(tris)) == len(tris)
+    assert [r["planes"] for r in res["sweep_planes"]] == [1, 3]
+    assert [r["max_order"] for r in res["sweep_order"]] == [1, 3]
+    # More planes and a higher order cast more rays (reflected ones) in the same tank.
+    assert res["sweep_planes"][1]["rays_per_frame"] > res["sweep_planes"][0]["rays_per_frame"]
+    assert res["sweep_order"][1]["rays_per_frame"] > res["sweep_order"][0]["rays_per_frame"]
