@@ -102,7 +102,8 @@ class ChainTable:
     """The chains met in one frame, each with its mirror maps; chain 0 is the empty chain.
 
     Grows as the receive tracing finds new chains (:meth:`child`); the compiled tracing fills
-    ``children`` itself and :meth:`sync` then completes the maps of the new entries.
+    ``children`` itself and :meth:`sync` then adds the new entries. Mirror maps are formed
+    when first asked for.
 
     Attributes
     ----------
@@ -121,15 +122,16 @@ class ChainTable:
     capacity: int = 64
     chains: list = field(default_factory=list)
     children: np.ndarray = field(init=False)
-    _unfold: list = field(default_factory=list)
-    _sources: list = field(default_factory=list)
+    _unfold: dict = field(default_factory=dict)
+    _sources: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.origin = np.asarray(self.origin, dtype=float).reshape(3)
         self.children = np.full((self.capacity, max(len(self.planes), 1)), -1, dtype=np.int32)
         self.chains = [()]
-        self._unfold = [IDENTITY.copy()]
-        self._sources = [self.origin[None, :].copy()]
+        # Maps are formed when first asked for: most chains of a frame never need them.
+        self._unfold = {0: IDENTITY}
+        self._sources = {0: self.origin[None, :].copy()}
 
     def __len__(self) -> int:
         return len(self.chains)
@@ -142,7 +144,7 @@ class ChainTable:
             if k >= self.capacity:
                 self._grow()
             self.children[c, p] = k
-            self._append(c, p)
+            self.chains.append(self.chains[c] + (p,))
         return k
 
     def _grow(self) -> None:
@@ -150,21 +152,17 @@ class ChainTable:
         bigger[: self.capacity] = self.children
         self.children, self.capacity = bigger, 2 * self.capacity
 
-    def _append(self, c: int, p: int) -> None:
-        self.chains.append(self.chains[c] + (p,))
-        self._unfold.append(compose(self._unfold[c], self.planes.mirror(p)))
-        src = self._sources[c]
-        self._sources.append(np.vstack([src, apply(self.planes.mirror(p), src[-1])]))
-
     def sync(self, n_chains: int) -> None:
-        """Complete the maps of chains ``len(self) .. n_chains - 1`` entered in ``children``."""
+        """Add the chains ``len(self) .. n_chains - 1`` that the kernel entered in ``children``."""
         if n_chains <= len(self.chains):
             return
         parent = {}
-        for c, p in zip(*np.nonzero(self.children >= 0)):
-            parent[int(self.children[c, p])] = (int(c), int(p))
+        rows = self.children[: len(self.chains) + n_chains]
+        for c, p in zip(*np.nonzero(rows >= 0)):
+            parent[int(rows[c, p])] = (int(c), int(p))
         for k in range(len(self.chains), n_chains):
-            self._append(*parent[k])
+            c, p = parent[k]
+            self.chains.append(self.chains[c] + (p,))
 
     # Views used by the path formation -----------------------------------------------------
 
@@ -173,10 +171,20 @@ class ChainTable:
 
     def unfold(self, c: int) -> np.ndarray:
         """(3, 4) map A -> A* of chain ``c`` (see the module docstring)."""
+        if c not in self._unfold:
+            m = IDENTITY
+            for p in self.chains[c]:
+                m = compose(m, self.planes.mirror(p))
+            self._unfold[c] = m
         return self._unfold[c]
 
     def sources(self, c: int) -> np.ndarray:
         """(len + 1, 3) images of the sonar after 0, 1, ... mirrors of chain ``c``."""
+        if c not in self._sources:
+            src = [self.origin]
+            for p in self.chains[c]:
+                src.append(apply(self.planes.mirror(p), src[-1]))
+            self._sources[c] = np.vstack(src)
         return self._sources[c]
 
     def specular(self, c: int) -> float:

@@ -396,6 +396,10 @@ def form_paths(legs, table, view, active, n_planes: int, rays_per_beam: int, max
             continue
         m = len(live)
         options = transmit_options(table, g, max_order)
+        if double_beam != "separate":
+            # A pair is formed from the leg with more reflections (ChainTable.key): transmit
+            # chains longer than this generation's receive chains never qualify.
+            options = [tx for tx in options if tx == SAME or table.length(tx) <= g]
         if only_same:
             options = [SAME] if g == 0 and SAME in options else []
         elif skip_first_same and g == 0:
