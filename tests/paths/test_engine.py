@@ -75,6 +75,21 @@ def test_ground_only_images_equal_the_former_fast_method(name, kernels):
     assert new["double"].any() and new["triple"].any()
 
 
+@pytest.mark.parametrize("name", list(_scenes()))
+def test_the_ground_specialised_kernels_equal_the_general_engine(name):
+    doc = _scenes()[name]
+    special = sonarsim.Simulator(doc)
+    general = sonarsim.Simulator(doc)
+    general.specialise_ground = False
+    a, b = special.render(), general.render()
+    for key in ("object", "ground", "single", "double", "triple", "total"):
+        x, y = a.components[key].astype(float), b.components[key].astype(float)
+        assert np.abs(x - y).sum() <= 2e-6 * y.sum() + 1e-12, key
+    np.testing.assert_array_equal(a.rays.surface_id, b.rays.surface_id)
+    np.testing.assert_allclose(a.rays.intensity, b.rays.intensity, rtol=1e-6)
+    assert set(a.components.signatures) == set(b.components.signatures)
+
+
 def test_ground_only_signatures_are_the_paper_paths():
     img = sonarsim.render(demo_scene_dict())
     c = img.components
