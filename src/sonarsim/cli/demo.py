@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .render import _log, add_image_options, add_render_options, render_and_write
+from .render import _log, add_image_options, add_render_options, options_named, render_and_write
 
 __all__ = ["add_demo_parser", "cmd_demo", "demo_scene_dict", "tank_scene_dict"]
 
@@ -127,9 +127,14 @@ def cmd_demo(args) -> None:
     # The scene.yaml written must reproduce this render, command-line overrides included.
     if args.bounces is not None:
         doc["render"]["bounces"] = list(args.bounces)
+    if args.max_order is not None:
+        doc["render"]["max_order"] = args.max_order
+        if args.bounces is None:
+            doc["render"].pop("bounces", None)  # every order up to the new maximum
     if args.elevation_samples is not None:
         doc["render"]["elevation_samples"] = args.elevation_samples
-    scene = scene_from_dict(doc)
+    with options_named(args):
+        scene = scene_from_dict(doc)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with atomic_write(out / "scene.yaml", "w") as f:

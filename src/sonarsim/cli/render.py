@@ -6,6 +6,7 @@ Also holds what ``render`` and ``demo`` share: their options and the render-and-
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 from pathlib import Path
@@ -13,7 +14,8 @@ from typing import Any
 
 from .argtypes import finite_float, positive_float
 
-__all__ = ["add_image_options", "add_render_options", "add_render_parser", "cmd_render", "render_and_write"]
+__all__ = ["add_image_options", "add_render_options", "add_render_parser", "cmd_render", "options_named",
+           "render_and_write"]
 
 
 def _log(msg: str) -> None:
@@ -21,12 +23,13 @@ def _log(msg: str) -> None:
 
 
 def _bounces(text: str) -> list[int]:
+    what = "a comma-separated list of path orders (1 single, 2 double, 3 triple, ... up to --max-order)"
     try:
         values = [int(v) for v in text.replace(" ", "").split(",") if v]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--bounces must be a comma-separated list drawn from 1,2,3, got {text!r}") from None
-    if not values or any(v not in (1, 2, 3) for v in values):
-        raise argparse.ArgumentTypeError(f"--bounces must be a comma-separated list drawn from 1,2,3, got {text!r}")
+        raise argparse.ArgumentTypeError(f"--bounces must be {what}, got {text!r}") from None
+    if not values or any(v < 1 for v in values):
+        raise argparse.ArgumentTypeError(f"--bounces must be {what}, got {text!r}")
     return values
 
 
@@ -41,14 +44,17 @@ def add_image_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--dynamic-range-db", type=positive_float, default=40.0,
                    help="width of the dB window shown (default: 40)")
     g.add_argument("--components", action="store_true",
-                   help="also write one polar and one fan PNG per component (object, ground, single, ...)")
+                   help="also write one polar and one fan PNG per component (object, ground, single, double, ..., "
+                   "and one per path signature such as O-ground-[objects]-ground-O)")
 
 
 def add_render_options(p: argparse.ArgumentParser) -> None:
     """The rendering options of ``render`` and ``demo``."""
     g = p.add_argument_group("rendering")
     g.add_argument("--bounces", type=_bounces, default=None, metavar="LIST",
-                   help="echoes to form, e.g. 1 or 1,3 or 1,2,3 (overrides render.bounces)")
+                   help="path orders that make the total image, e.g. 1 or 1,3 or 1,2,3 (overrides render.bounces)")
+    g.add_argument("--max-order", type=int, default=None, metavar="N",
+                   help="longest path formed, in surface interactions (overrides render.max_order)")
     g.add_argument("--elevation-samples", type=int, default=None, metavar="N",
                    help="rays per beam across the elevation aperture (overrides render.elevation_samples)")
     g.add_argument("--backend", choices=("embree", "numpy"), default="embree",
@@ -68,12 +74,16 @@ def add_render_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def override_render(scene, args):
-    """The scene with the command line's ``--bounces`` / ``--elevation-samples`` applied."""
+    """The scene with the command line's ``--bounces`` / ``--max-order`` / ``--elevation-samples`` applied."""
     from dataclasses import replace
 
     changes = {}
     if args.bounces is not None:
         changes["bounces"] = tuple(args.bounces)
+    if getattr(args, "max_order", None) is not None:
+        changes["max_order"] = args.max_order
+        if args.bounces is None:
+            changes["bounces"] = None  # every order up to the new maximum
     if args.elevation_samples is not None:
         changes["elevation_samples"] = args.elevation_samples
     if not changes:
@@ -81,8 +91,27 @@ def override_render(scene, args):
     from ..config.loader import _prefixed
     from ..config.scene import RenderSettings
 
-    render = _prefixed("render", RenderSettings, **{**scene.render.__dict__, **changes})
+    with options_named(args):
+        render = _prefixed("render", RenderSettings, **{**scene.render.__dict__, **changes})
     return replace(scene, render=render)
+
+
+# Scene keys that a command-line option can set: an error in their value names the option.
+OPTION_OF_KEY = {"render.bounces": "--bounces", "render.max_order": "--max-order"}
+
+
+@contextlib.contextmanager
+def options_named(args):
+    """Re-raise a ConfigError about a key that a given command-line option set, naming the option."""
+    from ..errors import ConfigError
+
+    try:
+        yield
+    except ConfigError as exc:
+        option = OPTION_OF_KEY.get(exc.key)
+        if option is None or getattr(args, option[2:].replace("-", "_"), None) is None:
+            raise
+        raise ConfigError(option, exc.detail) from None
 
 
 def render_and_write(scene, out: Path, args):
