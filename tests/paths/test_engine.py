@@ -114,3 +114,33 @@ def test_a_path_name_is_written_as_the_sound_travels():
     assert path_name(["surface"], "ground", ["left_wall", "surface"]) == "O-surface-[ground]-surface-left_wall-O"
     with pytest.raises(ValueError):
         parse_path_name("ground")
+
+
+@pytest.mark.parametrize("max_order", [1, 2, 3, 4])
+def test_max_order_bounds_the_ground_paths_in_both_methods(max_order):
+    # A ground alone makes paths up to order 3: order 4 adds nothing, order 2 drops the triple.
+    images = {}
+    for method in ("fast", "paper"):
+        doc = demo_scene_dict()
+        doc["render"].update(max_order=max_order, method=method)
+        doc["render"].pop("bounces")
+        images[method] = sonarsim.render(doc).components
+    fast, paper = images["fast"], images["paper"]
+    names = {"single", "double", "triple", "order4"}
+    assert {k for k in fast if k in names} == {"single", "double", "triple", "order4"}.intersection(
+        ["single", "double", "triple", "order4"][:max_order])
+    assert sorted(fast) == sorted(paper)
+    for key in fast:
+        assert np.abs(fast[key] - paper[key]).sum() <= 1e-3 * max(paper[key].sum(), 1e-12), key
+    if max_order >= 2:
+        assert fast["double"].any()
+    if max_order == 4:
+        assert not fast["order4"].any()
+
+
+def test_method_paper_refuses_planes_beyond_the_ground():
+    doc = demo_scene_dict()
+    doc["render"]["method"] = "paper"
+    doc["planes"] = [{"name": "surface", "point_m": [0, 0, 2], "normal": [0, 0, -1]}]
+    with pytest.raises(sonarsim.ConfigError, match="render.method.*surface"):
+        sonarsim.load_scene(doc)

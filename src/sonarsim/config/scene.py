@@ -377,6 +377,12 @@ class Scene:
                 why = "names must be unique" if plane.name in earlier else "the ground: section is the plane 'ground'"
                 raise ConfigError(f"planes[{i}].name", f"duplicate plane name {plane.name!r}; {why}")
             taken.append(plane.name)
+        if self.render.method == "paper" and self.planes:
+            raise ConfigError(
+                "render.method",
+                f"'paper' is Algorithm 2, which mirrors the ground alone; this scene also has the planes "
+                f"{', '.join(p.name for p in self.planes)}: use method: fast (the default)",
+            )
 
     @property
     def reflecting_planes(self) -> tuple[PlaneSpec, ...]:

@@ -37,7 +37,7 @@ from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
 from ..trace import available_cores, make_caster
 from ..trace.surfaces import trace
 from . import compiled
-from .components import frame_components, stack_rows
+from .components import component_table, frame_components, stack_rows
 
 # Rays are cast this far past the range window so that range splatting sees the neighbour of a
 # ray that ends just inside it.
@@ -165,7 +165,10 @@ class Simulator:
             self.caster, self.mirrored_caster(), origin, directions, sonar, self.scene.render, ground,
             fan.weight, self._albedo, len(self.meshes), reach,
         )
-        stack = np.stack([images[k] for k in ("object", "ground", "double", "triple")]).astype(np.float32)
+        # Rows of the orders formed (a ground alone makes no path beyond order 3).
+        stack = np.zeros((stack_rows(self.scene.render.max_order), sonar.n_range_bins, sonar.n_beams), np.float32)
+        for row, k in enumerate(("object", "ground", "double", "triple")[: len(stack)]):
+            stack[row] = images[k]
         leg = Leg(0, hits.distance_m.reshape(-1), hits.surface_id.reshape(-1), hits.point.reshape(-1, 3),
                   hits.normal.reshape(-1, 3), self._intensity(fan, hits).reshape(-1), np.ones(fan.n_rays),
                   np.zeros(fan.n_rays, np.int32))
@@ -275,7 +278,8 @@ class Simulator:
             stack, legs, sets, table = self._render_paths(sonar, fan, reach, active, render.max_order if multipath else 1)
         t3 = time.perf_counter()
         if sets is None:  # ground only: its four images are the four ground-only signatures
-            paths = lambda: ground_signatures(components)  # noqa: E731 (formed on first use)
+            rows = {c.name: stack[c.rows[0]] for c in component_table(render.max_order) if len(c.rows) == 1}
+            paths = functools.partial(ground_signatures, rows)
         else:
             paths = functools.partial(self._signature_images, sonar, fan, legs, sets, table)
         components = frame_components(stack, render.bounces, render.max_order, paths)
