@@ -1,4 +1,7 @@
-"""Ground echo (paper Section IV, Algorithm 2): double and triple bounces off a flat ground.
+"""The paper's ground echo (Section IV, Algorithm 2), kept literally as the ground-only reference.
+
+The renderer forms every path, over any planes, with :mod:`sonarsim.paths.engine`; this module
+is what that engine is checked against on the paper's own case, a flat ground alone.
 
 Notation: O the sonar, A a point on an object, A' its mirror image across the ground plane,
 G where a path meets the ground; R the ground's specular reflectance. Only the ground's
@@ -12,10 +15,10 @@ specular part causes multipath; objects are diffuse.
 
 Two implementations give the same images:
 
-* :func:`fast_mirror_paths` -- a ray that passes the ground before reaching an object is exactly
-  a ray that, reflected at G, goes on to the real object. So the primary cast (objects + the
-  analytic plane) is reused, and secondary rays are cast only for the rays that reach the
-  ground: no mirrored geometry, no extra renders.
+* :func:`fast_mirror_paths` -- sonarsim's former fast method: a ray that passes the ground
+  before reaching an object is exactly a ray that, reflected at G, goes on to the real object,
+  so only the rays that reach the ground are cast again. The general path engine reproduces
+  its images to float precision (``tests/paths/test_engine.py``).
 * :func:`render_paper` -- Algorithm 2 literally: single-bounce renders of S1 (objects + ground),
   S2 (objects) and S3 (objects + mirrored objects), difference images and per-ray differences.
 
@@ -286,12 +289,7 @@ def render_paper(
     return out
 
 
-def sonar_above_ground(sonar: SonarConfig, ground) -> bool:
-    """Multipath needs a ground that the sonar is above."""
-    return ground is not None and sonar.pose.position_m[2] > ground.height_m
-
-
 __all__ = [
     "MirrorPaths", "fast_mirror_paths", "ground_distance", "ground_echo_images", "ground_echo_rays", "mirror_z",
-    "render_paper", "sonar_above_ground",
+    "render_paper",
 ]

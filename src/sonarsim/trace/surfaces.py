@@ -1,5 +1,9 @@
 """Closest surfaces along rays: the scene's meshes (through a ray caster) and the ground plane.
 
+This is the tracing of the paper's literal Algorithm 2 (:mod:`sonarsim.paths.algorithm2`), the
+ground-only reference; the renderer's general path engine meets any planes itself
+(:func:`sonarsim.paths.engine.trace_legs`).
+
 The ground is intersected analytically, never as triangles: exact at any distance, no float32
 trouble with huge triangles, and the multipath code needs the plane itself anyway.
 Surface ids: -1 nothing, 0 the ground, ``k + 1`` the scene's object ``k``.
