@@ -1,11 +1,12 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
 """Compiled per-ray kernels of the default render path.
 
-Each kernel is the loop form of NumPy code that stays in the package as the reference
-(``trace.surfaces.trace`` + ``core.radiometry.lambertian_intensity``,
-``paths.algorithm2.fast_mirror_paths`` + ``paths.algorithm2.ground_echo_rays``,
-``render.formation.continuity`` + ``render.formation.accumulate``); the tests require both to
-give the same images. They exist because a frame of the demo casts ~40,000
+Each kernel is the loop form of NumPy code that stays in the package as the reference: the
+general path engine's ``trace_leg``, ``path_events`` and ``splat_events`` are twinned by
+:mod:`sonarsim.paths.engine` (with ``renderer.formation.accumulate``), kernel by kernel; the
+ground specialisation's ``primary``, ``mirror_paths`` and ``splat`` by the former fast method
+(``trace.surfaces.trace``, ``paths.algorithm2.fast_mirror_paths`` and ``ground_echo_rays``,
+``renderer.formation.accumulate``). The tests require each pair to agree. They exist because a frame of the demo casts ~40,000
 rays in ~3 ms, and the same arithmetic as a chain of NumPy passes costs three to four times
 that; fused into one loop per stage it costs a fraction of the casting.
 

@@ -1,11 +1,16 @@
 """The default render path with its per-ray loops compiled (:mod:`sonarsim.renderer._kernels`).
 
-Same physics, same images as the NumPy path (``Simulator(kernels="numpy")``:
-``trace.surfaces.trace``, ``paths.algorithm2.fast_mirror_paths``,
-``paths.algorithm2.ground_echo_rays``, ``render.formation.accumulate``), which the tests compare
-it against. Per frame: cast the primary rays, one kernel for the closest
-surfaces and intensities, cast the reflected rays of those that reached the ground, one kernel
-for the ground echoes, one kernel per set of rays to spread them into the images.
+General planes (:func:`render_paths`): the kernels ``trace_leg`` (one generation of receive
+legs), ``path_events`` (the paths of one generation and one transmit option) and
+``splat_events`` (paths into the image stack), twinned by the NumPy code of
+:mod:`sonarsim.paths.engine` and :mod:`sonarsim.renderer.formation`. Per frame: cast the fan,
+trace its legs, cast the reflected rays (split over both cores while this one forms the direct
+image), trace them, and so on up to ``max_order - 1`` reflections; then form and splat the paths.
+
+The ground alone at order 3 (:func:`render_fast`): the kernels ``primary``, ``mirror_paths``
+and ``splat`` written for the flat ground before the general engine, which pipeline the
+reflected rays in batches over both cores. Same images as the general path (the tests compare
+them); kept as a specialisation until the general path is as fast on that case.
 """
 
 from __future__ import annotations
