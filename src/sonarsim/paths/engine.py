@@ -25,9 +25,12 @@ come in reciprocal pairs (O-G-A-O and O-A-G-O, the paper's cases 2 and 3); how t
 is ``render.double_beam`` (see :class:`~sonarsim.scene.RenderSettings`). The default, the
 paper's, records each pair once from the leg with more reflections (``ChainTable.key``).
 
-This module is the NumPy twin of the compiled kernels (``_kernels.trace_leg``,
-``_kernels.path_events``, ``_kernels.splat_events``); both produce the same :class:`Leg` and
-:class:`PathSet` arrays, compared piece by piece in the tests.
+This module is the NumPy twin of the compiled kernels of the general path, one function per
+kernel with the same inputs and outputs (``rotate``: :func:`rotate`, ``embree_hits``:
+:func:`embree_hits`, ``trace_leg``: :func:`trace_generation`, ``path_events``:
+:func:`option_paths`, ``splat_events``: :func:`splat_set`), compared kernel by kernel on random
+inputs in the tests; the frame (:func:`trace_legs`, :func:`form_paths`,
+:func:`accumulate_paths`) is a loop over them.
 """
 
 from __future__ import annotations
@@ -38,7 +41,8 @@ import numpy as np
 
 from ..core.radiometry import lambertian_intensity
 from ..renderer.formation import RayEnergy, accumulate, continuity
-from .planes import ChainTable, PlaneSet, apply, reflection_points
+from ..trace.base import Hits
+from .planes import WATER_TOLERANCE_M, ChainTable, PlaneSet, apply, reflection_points
 
 # Reflected rays start this far off the plane so that round-off cannot make them meet it
 # again (or the base of an object resting on it), metres.
@@ -74,9 +78,9 @@ class Leg:
     intensity : (n,) float64 ndarray
         Diffuse weight of the ray at A: ``beta l(r) rho cos(alpha) dphi``.
     atten : (n,) float64 ndarray
-        Product of the specular reflectances along the leg.
+        Product of the specular reflectances along the leg (1 everywhere in generation 0).
     chain : (n,) int32 ndarray
-        Chain id of the leg (:class:`ChainTable`), -1 none.
+        Chain id of the leg (:class:`ChainTable`), -1 none (0 everywhere in generation 0).
     """
 
     gen: int
@@ -158,32 +162,456 @@ class SonarView:
         return np.where((j >= 0) & (j < len(e) - 1), j, -1)
 
 
-def plane_distances(
-    planes: PlaneSet, active: np.ndarray, origins: np.ndarray, directions: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest active plane along each ray, met from the water side.
+# The twins of the compiled kernels, one to one -------------------------------------------
+#
+# Each function below has the inputs and outputs of one kernel of ``renderer/_kernels.pyx``
+# and does the same arithmetic in the same order and precision (so most outputs agree to the
+# bit; tests/renderer/test_kernels.py compares them on random inputs):
+#
+# =======================  ==========================  =====================================
+# kernel                   twin                        what
+# =======================  ==========================  =====================================
+# ``rotate``               :func:`rotate`              fan directions to the world frame
+# ``embree_hits``          :func:`embree_hits`         Embree's raw answer to hits
+# ``trace_leg``            :func:`trace_generation`    one generation of receive legs
+# ``path_events``          :func:`option_paths`        paths of one generation, one transmit
+# ``splat_events``         :func:`splat_set`           one path set into the image stack
+# =======================  ==========================  =====================================
+#
+# Dot products are written out term by term, left to right, as the kernels sum them (a matmul
+# or einsum may sum in another order, or fuse a multiply and an add).
+
+
+def _dot(a: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Rows of ``a`` (m, 3) dotted with ``n`` (3,), summed as the kernels sum: (x + y) + z."""
+    return a[:, 0] * n[0] + a[:, 1] * n[1] + a[:, 2] * n[2]
+
+
+def _rowdot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot of two (m, 3) arrays, summed as the kernels sum."""
+    return a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+
+
+def rotate(directions: np.ndarray, rotation: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World-frame ray directions ``R @ d`` and the float32 copies Embree takes (twin of ``_kernels.rotate``).
 
     Parameters
     ----------
-    origins, directions : (m, 3) float arrays (metres; unit vectors)
+    directions : (n, 3) float64 array
+        Unit directions in the sonar frame.
+    rotation : (3, 3) float64 array
+        Sonar-to-world rotation R.
+    origin : (3,) float array
+        The sonar O, metres.
 
     Returns
     -------
-    t : (m,) float64 ndarray, metres; ``inf`` for none
-    plane : (m,) int32 ndarray, -1 for none
+    d64 : (n, 3) float64 ndarray
+    d32 : (n, 3) float32 ndarray
+    o32 : (n, 3) float32 ndarray
+        ``origin`` for every ray.
     """
-    m = len(directions)
-    best_t = np.full(m, np.inf)
-    best_p = np.full(m, -1, dtype=np.int32)
+    d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    r = np.asarray(rotation, dtype=np.float64)
+    d64 = d[:, 0:1] * r[:, 0] + d[:, 1:2] * r[:, 1] + d[:, 2:3] * r[:, 2]
+    o32 = np.empty((len(d), 3), dtype=np.float32)
+    o32[:] = np.asarray(origin, dtype=np.float64).astype(np.float32)
+    return d64, d64.astype(np.float32), o32
+
+
+def embree_hits(tfar: np.ndarray, geom_id: np.ndarray, ng: np.ndarray, ids: np.ndarray) -> Hits:
+    """Embree's raw answer as :class:`~sonarsim.trace.base.Hits` (twin of ``_kernels.embree_hits``).
+
+    Parameters
+    ----------
+    tfar : (n,) float32 array
+        Distance to the hit, metres (meaningless for a miss).
+    geom_id : (n,) int32 array
+        Embree's geometry id, -1 for a miss.
+    ng : (n, 3) float32 array
+        Unnormalised geometric normal (meaningless for a miss).
+    ids : (n_geometries,) int32 array
+        Mesh index of each Embree geometry (empty meshes are not given to Embree).
+
+    Returns
+    -------
+    Hits
+        float32 distance (``inf`` for a miss), mesh index (-1), unit normal (0).
+    """
+    tfar = np.asarray(tfar, dtype=np.float32)
+    ng = np.asarray(ng, dtype=np.float32).reshape(-1, 3)
+    hit = np.asarray(geom_id) >= 0
+    mesh_id = np.full(len(hit), -1, dtype=np.int32)
+    mesh_id[hit] = np.asarray(ids, dtype=np.int32)[np.asarray(geom_id)[hit]]
+    distance = np.where(hit, tfar, np.float32(np.inf)).astype(np.float32)
+    g = ng[hit]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # float32 sum of squares and root; the division is correctly rounded either way.
+        inv = (1.0 / np.sqrt(_rowdot(g, g)).astype(np.float64)).astype(np.float32)
+    normal = np.zeros((len(hit), 3), dtype=np.float32)
+    normal[hit] = g * inv[:, None]
+    return Hits(distance, mesh_id, normal)
+
+
+@dataclass
+class Rays:
+    """The rays of one generation of receive legs, compact: row ``k`` goes along fan ray ``ray[k]``.
+
+    The first generation gives one row of ``origin``, ``before``, ``atten`` and ``chain`` for
+    all its rays (they all leave the sonar).
+
+    Attributes
+    ----------
+    ray : (m,) intp ndarray
+        Fan ray of each row, ascending.
+    origin : (m, 3) or (1, 3) float64 ndarray
+        Where the rays start, metres.
+    direction : (m, 3) float64 ndarray
+        Unit directions.
+    before : (m,) or (1,) float64 ndarray
+        Length of the leg before the start, metres.
+    atten : (m,) or (1,) float64 ndarray
+        Product of the specular reflectances before the start.
+    chain : (m,) or (1,) int32 ndarray
+        Chain id of the leg so far (:class:`ChainTable`).
+    """
+
+    ray: np.ndarray
+    origin: np.ndarray
+    direction: np.ndarray
+    before: np.ndarray
+    atten: np.ndarray
+    chain: np.ndarray
+
+    @classmethod
+    def from_sonar(cls, origin: np.ndarray, directions: np.ndarray) -> "Rays":
+        """The first generation: every fan ray from the sonar O."""
+        d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        return cls(np.arange(len(d), dtype=np.intp), np.asarray(origin, dtype=np.float64).reshape(1, 3), d,
+                   np.zeros(1), np.ones(1), np.zeros(1, dtype=np.int32))
+
+    def __len__(self) -> int:
+        return len(self.ray)
+
+    @property
+    def origin32(self) -> np.ndarray:
+        """(m, 3) float32 origins for the caster (the first generation's one row, repeated)."""
+        return np.broadcast_to(self.origin, (len(self.ray), 3)).astype(np.float32)
+
+    @property
+    def direction32(self) -> np.ndarray:
+        """(m, 3) float32 directions for the caster."""
+        return self.direction.astype(np.float32)
+
+
+def trace_generation(
+    rays: Rays,
+    hits: Hits,
+    planes: PlaneSet,
+    active: np.ndarray,
+    reach_m: float,
+    albedo_by_id: np.ndarray,
+    weight: np.ndarray,
+    tvg: bool,
+    first: bool,
+    reflect: bool,
+    table: ChainTable,
+    leg: Leg,
+) -> tuple[Rays, np.ndarray]:
+    """One generation of receive legs (twin of ``_kernels.trace_leg``).
+
+    Each ray ends at the closest of its object hit and the active planes it meets from the
+    water side within ``reach_m``; there it scatters (the diffuse weight) and, on a plane with
+    some specular reflectance, reflects and goes on as a ray of the next generation.
+
+    Parameters
+    ----------
+    rays : Rays
+        This generation's rays.
+    hits : Hits
+        The objects along ``rays`` (row by row; mesh k is surface ``P + k``).
+    planes : PlaneSet
+    active : (P,) bool array
+        Planes the sonar faces.
+    reach_m : float
+        Longest receive leg followed, metres.
+    albedo_by_id : (n_surfaces + 1,) float array
+        Diffuse albedo by surface id + 1.
+    weight : (n,) float array
+        Weight ``beta dphi`` of each fan ray.
+    tvg : bool
+    first : bool
+        The first generation: points and incidence as the caster reports them (float32), and
+        the rays that reach nothing are given "nothing" (distance ``inf``, sid -1) in ``leg``.
+    reflect : bool
+        Form the next generation.
+    table : ChainTable
+        Receives the chains met, numbered in the order of the rows that first meet them.
+    leg : Leg
+        Dense over the fan; written at the rays reached (distance, sid, point, normal,
+        intensity; ``atten`` and ``chain`` except in the first generation, where they are
+        1 and 0). Its :meth:`Leg.key` is the kernel's ``key``.
+
+    Returns
+    -------
+    next : Rays
+        The reflected rays, in row order (they start :data:`SURFACE_OFFSET_M` off the plane,
+        from the float32-rounded point, as the caster would report it).
+    live : (l,) intp ndarray
+        The fan rays reached that scatter some energy, in row order.
+    """
+    n_planes = len(planes)
+    m = len(rays)
+    ray, d = rays.ray, rays.direction
+    org = np.broadcast_to(rays.origin, (m, 3))
+    before = np.broadcast_to(rays.before, (m,))
+    hit = hits.mesh_id >= 0
+    t = np.where(hit, hits.distance.astype(np.float64), np.inf)
+    sid = np.where(hit, hits.mesh_id + n_planes, -1).astype(np.int32)
+    normal = np.where(hit[:, None], hits.normal.astype(np.float64), 0.0)
+    best = np.full(m, -1, dtype=np.int32)
     for p in np.flatnonzero(active):
         n = planes.normal[p]
-        dn = directions @ n
+        dn = _dot(d, n)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = (planes.offset[p] - origins @ n) / dn
-        closer = (dn < 0) & (t > 0) & (t < best_t)
-        best_t[closer] = t[closer]
-        best_p[closer] = p
-    return best_t, best_p
+            tp = (planes.offset[p] - _dot(org, n)) / dn
+        # Met from the water side, closer than anything so far (earlier planes win ties).
+        closer = (dn < 0) & (tp > 0) & (tp < t) & (before + tp <= reach_m)
+        t = np.where(closer, tp, t)
+        best[closer] = p
+    on = best >= 0
+    sid[on] = best[on]
+    normal[on] = planes.normal[best[on]]
+    total = before + t
+    ok = (sid >= 0) & (total <= reach_m)
+    if first:
+        leg.distance[ray[~ok]] = np.inf
+        leg.sid[ray[~ok]] = -1
+    k = np.flatnonzero(ok)
+    r, t, sid, normal, total, dd, oo = ray[k], t[k], sid[k], normal[k], total[k], d[k], org[k]
+    point = oo + dd * t[:, None]
+    if first:
+        # As the caster reports them: float32 points and incidence.
+        point = point.astype(np.float32).astype(np.float64)
+        cos = np.abs(_rowdot(normal.astype(np.float32), dd.astype(np.float32))).astype(np.float64)
+    else:
+        cos = np.abs(_rowdot(normal, dd))
+    intensity = lambertian_intensity(np.asarray(weight)[r], cos, albedo_by_id[sid + 1], total, tvg)
+    atten = np.broadcast_to(rays.atten, (m,))[k]
+    chain = np.broadcast_to(rays.chain, (m,))[k]
+    leg.distance[r] = total
+    leg.sid[r] = sid
+    leg.point[r] = point
+    leg.normal[r] = normal
+    leg.intensity[r] = intensity
+    if not first:
+        leg.atten[r] = atten
+        leg.chain[r] = chain
+    live = r[intensity != 0]
+    go = (sid < n_planes) & (total < reach_m)
+    if n_planes:
+        go &= planes.specular[np.minimum(sid, n_planes - 1)] > 0
+    if not (reflect and go.any()):
+        return Rays(r[:0], np.empty((0, 3)), np.empty((0, 3)), np.empty(0), np.empty(0), np.empty(0, np.int32)), live
+    p, c = sid[go], chain[go]
+    # New chains are numbered in the order of the rows that first meet them, as the kernel does.
+    pair = c.astype(np.int64) * n_planes + p
+    _, first_row, back = np.unique(pair, return_index=True, return_inverse=True)
+    child = np.empty(len(first_row), dtype=np.int32)
+    for u in np.argsort(first_row, kind="stable"):
+        child[u] = table.child(int(c[first_row[u]]), int(p[first_row[u]]))
+    nrm = planes.normal[p]
+    twice = 2.0 * _rowdot(dd[go], nrm)
+    d_ref = dd[go] - twice[:, None] * nrm
+    start = point[go].astype(np.float32).astype(np.float64) + SURFACE_OFFSET_M * d_ref
+    nxt = Rays(r[go], start, d_ref, total[go] + SURFACE_OFFSET_M, atten[go] * planes.specular[p],
+               child[back.reshape(-1)])
+    return nxt, live
+
+
+RAD2DEG = 180.0 / np.pi
+
+
+def option_paths(
+    live: np.ndarray,
+    leg: Leg,
+    same: bool,
+    tx: int,
+    unfold: np.ndarray,
+    sources: np.ndarray,
+    tx_planes: np.ndarray,
+    tx_specular: float,
+    rank: np.ndarray,
+    separate: bool,
+    label: int,
+    n_planes: int,
+    rays_per_beam: int,
+    view: SonarView,
+    planes: PlaneSet,
+    active: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Paths of one generation's receive legs and one transmit option (twin of ``_kernels.path_events``).
+
+    Parameters
+    ----------
+    live : (l,) intp array
+        The fan rays whose scatterers make paths, ascending.
+    leg : Leg
+        Their receive legs.
+    same : bool
+        The transmit leg is the receive leg reversed; otherwise it follows chain ``tx``.
+    tx : int
+        Transmit chain id (ignored when ``same``).
+    unfold : (3, 4) float64 array
+        The chain's map A -> A* (:meth:`ChainTable.unfold`).
+    sources : (K + 1, 3) float64 array
+        The sonar's images along the chain (:meth:`ChainTable.sources`).
+    tx_planes : (K,) int array
+        The chain's planes, from the sonar.
+    tx_specular : float
+        Product of the chain's specular reflectances.
+    rank : (n_chains,) int array
+        :func:`chain_ranks`.
+    separate : bool
+        ``double_beam == 'separate'``: every receive chain pairs with every transmit chain;
+        otherwise only with those of lower rank (each reciprocal pair once).
+    label : int
+        Image row of the paths; 1 with ``same`` means order 1: row 0 on objects, 1 on planes.
+    n_planes : int
+    rays_per_beam : int
+        Fan ray ``i`` arrives in beam ``i // rays_per_beam``.
+    view : SonarView
+    planes : PlaneSet
+    active : (P,) bool array
+
+    Returns
+    -------
+    ray : (k,) intp ndarray
+    distance : (k,) float64 ndarray
+        Half the path's length, metres.
+    energy : (k,) float64 ndarray
+    beam : (k,) int32 ndarray
+        Beam of arrival.
+    beam_tx : (k,) int32 ndarray
+        Beam the transmit leg leaves the sonar in.
+    label : (k,) int8 ndarray
+    """
+    i = np.asarray(live, dtype=np.intp)
+    s = leg.sid[i]
+    if same:
+        energy = leg.atten[i] * leg.atten[i] * leg.intensity[i]
+        beam = (i // rays_per_beam).astype(np.int32)
+        lab = np.where(s >= n_planes, LABEL_OBJECT, LABEL_PLANE) if label == 1 else np.full(len(i), label)
+        return i, leg.distance[i], energy, beam, beam.copy(), lab.astype(np.int8)
+    c = leg.chain[i]
+    last = int(tx_planes[-1]) if len(tx_planes) else -1
+    keep = (c != tx) & (s != last)
+    if not separate:
+        keep &= rank[c] > rank[tx]
+    i = i[keep]
+    a = leg.point[i]
+    u = a[:, 0:1] * unfold[:, 0] + a[:, 1:2] * unfold[:, 1] + a[:, 2:3] * unfold[:, 2] + unfold[:, 3] - view.origin
+    rot = view.rotation
+    v = u[:, 0:1] * rot[0] + u[:, 1:2] * rot[1] + u[:, 2:3] * rot[2]  # R^T u: the sonar frame
+    length = np.sqrt(_rowdot(v, v))
+    ok = (length >= view.range_min_m) & (length < view.range_max_m)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        el = np.arcsin(np.clip(v[:, 2] / length, -1.0, 1.0)) * RAD2DEG
+    ok &= np.abs(el) <= view.half_elevation_deg
+    beam_tx = view.beam_of(np.arctan2(v[:, 1], v[:, 0]) * RAD2DEG)
+    ok &= beam_tx >= 0
+    # Walk back from A towards the sonar's images: each reflection point must lie on its
+    # plane, between its neighbours, inside the water.
+    w = a
+    for j in range(len(tx_planes) - 1, -1, -1):
+        q = int(tx_planes[j])
+        n = planes.normal[q]
+        towards = sources[j + 1] - w
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (planes.offset[q] - _dot(w, n)) / _dot(towards, n)
+            ok &= (t > 0.0) & (t < 1.0)
+            w = w + t[:, None] * towards
+            tol = WATER_TOLERANCE_M * np.maximum(np.abs(w).max(axis=1), 1.0)
+            for p in np.flatnonzero(active):
+                ok &= ~(_dot(w, planes.normal[p]) - planes.offset[p] < -tol)
+    k = np.flatnonzero(ok)
+    i = i[k]
+    distance = 0.5 * (leg.distance[i] + length[k])
+    energy = leg.atten[i] * tx_specular * leg.intensity[i]
+    return (i, distance, energy, (i // rays_per_beam).astype(np.int32), beam_tx[k].astype(np.int32),
+            np.full(len(i), label, dtype=np.int8))
+
+
+def set_continuity(points: np.ndarray, normals: np.ndarray, key: np.ndarray, n_elevation: int) -> np.ndarray:
+    """(n_columns, n_elevation - 1) bool: neighbouring fan rays of a leg on one continuous
+    surface via one chain (:func:`~sonarsim.renderer.formation.continuity` on ray columns)."""
+    shape = (-1, n_elevation)
+    return continuity(points.reshape(shape + (3,)), normals.reshape(shape + (3,)), key.reshape(shape))
+
+
+def splat_set(
+    points: np.ndarray,
+    normals: np.ndarray,
+    key: np.ndarray,
+    ray: np.ndarray,
+    distance: np.ndarray,
+    energy: np.ndarray,
+    beam: np.ndarray,
+    label: np.ndarray,
+    scale: float,
+    spread: bool,
+    n_elevation: int,
+    range_min_m: float,
+    range_resolution_m: float,
+    n_range_bins: int,
+    n_beams: int,
+    n_labels: int,
+    continuous: np.ndarray | None = None,
+) -> np.ndarray:
+    """One compact path set into an image stack (twin of ``_kernels.splat_events``).
+
+    The set is made dense over the fan and given to
+    :func:`~sonarsim.renderer.formation.accumulate`: two paths are neighbours when their rays
+    are neighbours in one ray column with the same ``key`` and the chord between their
+    scatterers passes the continuity test; each path's energy is ``scale * energy``.
+
+    Parameters
+    ----------
+    points, normals : (n, 3) float64 arrays
+        The leg's scatterers and their normals, dense over the fan's ``n`` rays.
+    key : (n,) int array
+        :meth:`Leg.key`.
+    ray, distance, energy, beam, label : (m,) arrays
+        The path set (:class:`PathSet`), rays ascending.
+    scale : float
+    spread : bool
+        Range splatting; ``False``: each path in the bin of its range.
+    n_elevation : int
+        Rays per ray column (the fan's last axis).
+    range_min_m, range_resolution_m : float
+    n_range_bins, n_beams, n_labels : int
+    continuous : (n // n_elevation, n_elevation - 1) bool array, optional
+        :func:`set_continuity` of the leg, when already formed.
+
+    Returns
+    -------
+    (n_labels, n_range_bins, n_beams) float64 ndarray
+    """
+    n = len(points)
+    dist = np.full(n, np.inf)
+    e = np.zeros(n)
+    b = np.zeros(n, dtype=np.int64)
+    lab = np.full(n, -1, dtype=np.int64)
+    dist[ray], e[ray], b[ray], lab[ray] = distance, scale * np.asarray(energy), beam, label
+    shape = (-1, n_elevation)
+    cont = None
+    if spread:
+        cont = continuous if continuous is not None else set_continuity(points, normals, key, n_elevation)
+    rays = RayEnergy(dist.reshape(shape), e.reshape(shape), b.reshape(shape), lab.reshape(shape), cont)
+    return accumulate([rays], range_min_m, range_resolution_m, n_range_bins, n_beams, n_labels=n_labels)
+
+
+# The frame, as loops over the twins --------------------------------------------------------
 
 
 def trace_legs(
@@ -199,7 +627,7 @@ def trace_legs(
     n_generations: int,
     table: ChainTable,
 ) -> list[Leg]:
-    """Receive legs of the fan's rays, generation by generation (NumPy reference).
+    """Receive legs of the fan's rays, generation by generation (:func:`trace_generation` in a loop).
 
     Parameters
     ----------
@@ -224,74 +652,30 @@ def trace_legs(
     table : ChainTable
         Receives the chains met.
     """
-    n = len(directions)
-    n_planes = len(planes)
-    origin = np.asarray(origin, dtype=float)
-    ray = np.arange(n)
-    org = np.broadcast_to(origin, (n, 3)).astype(np.float64)
-    d = np.asarray(directions, dtype=np.float64)
-    before = np.zeros(n)
-    atten = np.ones(n)
-    chain = np.zeros(n, dtype=np.int32)
+    rays = Rays.from_sonar(origin, directions)
+    n = len(rays)
     legs = []
     for g in range(n_generations):
-        if not len(ray):
+        if not len(rays):
             break  # no generation after an empty one
+        first = g == 0
         leg = Leg(
             g, np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan), np.zeros((n, 3)),
-            np.zeros(n), np.zeros(n), np.full(n, -1, np.int32),
+            np.zeros(n), np.ones(n) if first else np.zeros(n), np.zeros(n, np.int32) if first else np.full(n, -1, np.int32),
         )
         legs.append(leg)
-        limit = float(reach_m - before.min()) if g else float(reach_m)
-        hits = caster.intersect(org.astype(np.float32), d.astype(np.float32), limit)
-        t = hits.distance.astype(np.float64)
-        sid = np.where(hits.mesh_id >= 0, hits.mesh_id + n_planes, -1).astype(np.int32)
-        normal = hits.normal.astype(np.float64)
-        tp, pp = plane_distances(planes, active, org, d)
-        on_plane = (tp < t) & (before + tp <= reach_m)
-        t = np.where(on_plane, tp, t)
-        sid = np.where(on_plane, pp, sid)
-        normal[on_plane] = planes.normal[pp[on_plane]]
-        total = before + t
-        ok = (sid >= 0) & (total <= reach_m)
-        r, t, sid, normal, total = ray[ok], t[ok], sid[ok], normal[ok], total[ok]
-        dd, oo = d[ok], org[ok]
-        point = oo + dd * t[:, None]
-        if g == 0:
-            # As the caster reports them: float32 points, normals and incidence.
-            point = point.astype(np.float32).astype(np.float64)
-            cos = np.abs(np.einsum("ij,ij->i", normal.astype(np.float32), dd.astype(np.float32))).astype(np.float64)
-        else:
-            cos = np.abs(np.einsum("ij,ij->i", normal, dd))
-        leg.distance[r] = total
-        leg.sid[r] = sid
-        leg.point[r] = point
-        leg.normal[r] = normal
-        leg.intensity[r] = lambertian_intensity(weight[r], cos, albedo_by_id[sid + 1], total, tvg)
-        leg.atten[r] = atten[ok]
-        leg.chain[r] = chain[ok]
-        # Specular reflection off planes, on to the next generation.
-        go = (sid < n_planes) & (total < reach_m)
-        go &= planes.specular[np.minimum(sid, n_planes - 1)] > 0 if n_planes else False
-        if g + 1 >= n_generations or not np.any(go):
-            ray = ray[:0]
-            continue
-        p = sid[go]
-        nrm = planes.normal[p]
-        d_ref = dd[go] - 2.0 * np.einsum("ij,ij->i", dd[go], nrm)[:, None] * nrm
-        start = point[go].astype(np.float32).astype(np.float64) + SURFACE_OFFSET_M * d_ref
-        new_chain = np.array([table.child(int(c), int(q)) for c, q in zip(chain[ok][go], p)], dtype=np.int32)
-        ray, org, d = r[go], start, d_ref
-        before = total[go] + SURFACE_OFFSET_M
-        atten = atten[ok][go] * planes.specular[p]
-        chain = new_chain
+        limit = float(reach_m - rays.before.min())
+        hits = caster.intersect(rays.origin32, rays.direction32, limit)
+        rays, _ = trace_generation(rays, hits, planes, active, reach_m, albedo_by_id, weight, tvg, first,
+                                   g + 1 < n_generations, table, leg)
     return legs
 
 
 def transmit_legs(
     leg: Leg, tx: int, table: ChainTable, view: SonarView, active: np.ndarray, rays: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Transmit legs via chain ``tx`` to the scatterers of ``rays``.
+    """Transmit legs via chain ``tx`` to the scatterers of ``rays`` (with matrix products and
+    :func:`~sonarsim.paths.planes.reflection_points`: an independent check of :func:`option_paths`).
 
     Returns
     -------
@@ -343,7 +727,7 @@ def form_paths(
     max_order: int,
     double_beam: str,
 ) -> list[PathSet]:
-    """Every path of the frame, as compact sets (NumPy reference of ``_kernels.path_events``).
+    """Every path of the frame, as compact sets (:func:`option_paths` in a loop).
 
     Parameters
     ----------
@@ -353,43 +737,35 @@ def form_paths(
     active : (P,) bool array
     n_planes : int
     beam_of_ray : (n,) int array
-        Beam of each fan ray.
+        Beam of each fan ray: ``i // rays_per_beam`` (the fan is beam-major).
     max_order : int
     double_beam : {'paper', 'split', 'separate'}
     """
+    beam_of_ray = np.asarray(beam_of_ray)
+    n = len(beam_of_ray)
+    rays_per_beam = n // (int(beam_of_ray[-1]) + 1) if n else 1
     rank = chain_ranks(table)
+    no_planes = np.empty(0, np.int32)
     out: list[PathSet] = []
     for leg in legs:
         g = leg.gen
         live = np.flatnonzero(np.isfinite(leg.distance) & (leg.intensity != 0))
         for tx in transmit_options(table, g, max_order):
-            if tx == SAME:
-                rays = live
-                label = np.full(len(rays), label_of_order(2 * g + 1), np.int8)
-                if g == 0:
-                    label = np.where(leg.sid[rays] >= n_planes, LABEL_OBJECT, LABEL_PLANE).astype(np.int8)
-                energy = leg.atten[rays] ** 2 * leg.intensity[rays]
-                out.append(PathSet(g, SAME, rays, leg.distance[rays], energy, beam_of_ray[rays].astype(np.int32), label))
-                continue
-            chain = table.chains[tx]
-            rc = leg.chain[live]
-            keep = rc != tx
-            if double_beam != "separate":
-                keep &= rank[rc] > rank[tx]
-            if chain:
-                keep &= leg.sid[live] != chain[-1]
-            rays = live[keep]
-            length, beam, valid = transmit_legs(leg, tx, table, view, active, rays)
-            rays, length, beam = rays[valid], length[valid], beam[valid]
-            distance = 0.5 * (leg.distance[rays] + length)
-            energy = leg.atten[rays] * table.specular(tx) * leg.intensity[rays]
-            label = np.full(len(rays), label_of_order(g + len(chain) + 1), np.int8)
-            arrival = beam_of_ray[rays].astype(np.int32)
-            if double_beam == "split":
-                out.append(PathSet(g, tx, rays, distance, 0.5 * energy, arrival, label))
-                out.append(PathSet(g, tx, rays, distance, 0.5 * energy, beam.astype(np.int32), label))
+            same = tx == SAME
+            c = 0 if same else tx
+            chain = () if same else table.chains[tx]
+            order = 2 * g + 1 if same else g + len(chain) + 1
+            ray, distance, energy, beam, beam_tx, label = option_paths(
+                live, leg, same, c, table.unfold(c), table.sources(c),
+                np.asarray(chain, np.int32) if chain else no_planes, 1.0 if same else table.specular(tx),
+                rank, double_beam == "separate", label_of_order(order) if order > 1 else LABEL_PLANE, n_planes,
+                rays_per_beam, view, table.planes, active,
+            )
+            if double_beam == "split" and not same:
+                out.append(PathSet(g, tx, ray, distance, 0.5 * energy, beam, label))
+                out.append(PathSet(g, tx, ray, distance, 0.5 * energy, beam_tx, label))
             else:
-                out.append(PathSet(g, tx, rays, distance, energy, arrival, label))
+                out.append(PathSet(g, tx, ray, distance, energy, beam, label))
     return out
 
 
@@ -424,7 +800,7 @@ def accumulate_paths(
     sets: list[PathSet], legs: list[Leg], n_surfaces: int, fan_shape: tuple[int, int, int], geometry: tuple,
     n_labels: int, spread: bool,
 ) -> np.ndarray:
-    """Form the image stack of path sets with :func:`~sonarsim.imaging.accumulate` (NumPy reference).
+    """Form the image stack of path sets (:func:`splat_set` in a loop).
 
     Parameters
     ----------
@@ -438,26 +814,19 @@ def accumulate_paths(
     -------
     (n_labels, n_range_bins, n_beams) float64 ndarray
     """
-    n = int(np.prod(fan_shape))
-    cont = {}
-    rays = []
+    n_el = fan_shape[2]
+    out = np.zeros((n_labels, geometry[2], geometry[3]))
+    keys: dict = {}
+    cont: dict = {}
     for s in sets:
-        if s.gen not in cont and spread:
-            leg = legs[s.gen]
-            key = leg.key(n_surfaces).reshape(fan_shape)
-            cont[s.gen] = continuity(leg.point.reshape(fan_shape + (3,)), leg.normal.reshape(fan_shape + (3,)), key)
-        dist = np.full(n, np.inf)
-        energy = np.zeros(n)
-        beam = np.zeros(n, dtype=np.int64)
-        label = np.full(n, -1, dtype=np.int64)
-        dist[s.ray], energy[s.ray], beam[s.ray], label[s.ray] = s.distance, s.energy, s.beam, s.label
-        rays.append(RayEnergy(
-            dist.reshape(fan_shape), energy.reshape(fan_shape), beam.reshape(fan_shape), label.reshape(fan_shape),
-            cont.get(s.gen),
-        ))
-    if not rays:
-        return np.zeros((n_labels, geometry[2], geometry[3]))
-    return accumulate(rays, *geometry, n_labels=n_labels)
+        leg = legs[s.gen]
+        if s.gen not in keys:
+            keys[s.gen] = leg.key(n_surfaces)
+            if spread:  # once per generation: every set of it shares the scatterers
+                cont[s.gen] = set_continuity(leg.point, leg.normal, keys[s.gen], n_el)
+        out += splat_set(leg.point, leg.normal, keys[s.gen], s.ray, s.distance, s.energy, s.beam, s.label, 1.0,
+                         spread, n_el, *geometry, n_labels, continuous=cont.get(s.gen))
+    return out
 
 
 def split_by_signature(sets: list[PathSet], legs: list[Leg], table: ChainTable, n_planes: int) -> dict[str, list[PathSet]]:
