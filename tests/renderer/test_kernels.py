@@ -474,3 +474,55 @@ def test_splat_events_with_zero_energy_paths():
 
     kernel, twin = _splat_both(np.random.default_rng(52), spread=True, fraction=1.1, energy=energy)
     _close(kernel, twin)
+
+
+@pytest.mark.parametrize("first", [True, False])
+def test_trace_leg_ties_and_planes_at_the_reach(first):
+    # Plane 1 is plane 0 again (a tie: the earlier plane wins), and the reach is set to the
+    # length of one ray's leg to the floor: that ray scatters there and is not reflected.
+    rng = np.random.default_rng(60)
+    n = 200
+    origin = np.array([0.1, -0.2, 1.0])
+    normal = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    planes = PlaneSet(("a", "b", "c"), normal, normal @ origin - [1.0, 1.0, 3.0], np.array([0.5, 0.4, 0.3]),
+                      np.array([0.9, 0.8, 0.7]))
+    active = np.ones(3, bool)
+    dirs = _unit(rng, n)
+    dirs[:, 2] = -np.abs(dirs[:, 2])  # all towards the floor
+    ray = np.arange(n, dtype=np.intp)
+    org = origin.reshape(1, 3) if first else np.broadcast_to(origin, (n, 3)).copy()
+    before = np.zeros(1) if first else rng.uniform(0, 1, n)
+    b = np.broadcast_to(before, (n,))
+    tp = (planes.offset[0] - _dot_like_kernel(org if not first else origin.reshape(1, 3), normal[0])) / (
+        dirs[:, 0] * normal[0, 0] + dirs[:, 1] * normal[0, 1] + dirs[:, 2] * normal[0, 2])
+    reach = float(b[7] + tp[7])
+    hits = Hits(np.full(n, np.inf, np.float32), np.full(n, -1, np.int32), np.zeros((n, 3), np.float32))
+    table = ChainTable(planes, origin, 3)
+    kt, tt = copy.deepcopy(table), copy.deepcopy(table)
+    out = [np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan), np.full((n, 3), np.nan),
+           np.full(n, np.nan), np.full(n, np.nan), np.full(n, -7, np.int32)]
+    ref = copy.deepcopy(out)
+    live = np.empty(n, np.intp)
+    nx = (np.empty(n, np.intp), np.empty((n, 3)), np.empty((n, 3), np.float32), np.empty((n, 3)),
+          np.empty((n, 3), np.float32), np.empty(n), np.empty(n), np.empty(n, np.int32))
+    atten, chain = (np.ones(1), np.zeros(1, np.int32)) if first else (np.ones(n), np.zeros(n, np.int32))
+    n_next, n_chains, _, _, n_live = K.trace_leg(
+        ray, hits.distance, hits.mesh_id, hits.normal, org, dirs, before, atten, chain, planes.normal, planes.offset,
+        active.astype(np.uint8), planes.specular, reach, np.array([0.0, 0.5, 0.4, 0.3]), np.ones(n), True, first,
+        True, kt.children, 1, out[0], out[1], out[2], np.empty(3, np.float32), out[3], out[4], out[5], out[6],
+        np.full(n, -1, np.int32), live, 3, *nx)
+    kt.sync(n_chains)
+    leg = engine.Leg(0, *ref)
+    nxt, tlive = engine.trace_generation(engine.Rays(ray, org, dirs, before, atten, chain), hits, planes, active,
+                                         reach, np.array([0.0, 0.5, 0.4, 0.3]), np.ones(n), True, first, True, tt, leg)
+    for a, c in zip(out, ref):
+        np.testing.assert_array_equal(a, c)
+    np.testing.assert_array_equal(nx[0][:n_next], nxt.ray)
+    np.testing.assert_array_equal(nx[7][:n_next], nxt.chain)
+    assert kt.chains == tt.chains
+    assert out[1][7] == 0 and out[0][7] == reach and 7 not in nxt.ray  # at the reach: kept, not reflected
+    assert 1 not in out[1]  # the tie goes to the earlier plane
+
+
+def _dot_like_kernel(org, n):
+    return org[:, 0] * n[0] + org[:, 1] * n[1] + org[:, 2] * n[2]
