@@ -464,9 +464,9 @@ def test_splat_events_on_an_empty_set():
     assert not kernel.any() and not twin.any()
 
 
-@pytest.mark.xfail(strict=True, reason="splat_events counts a path of zero energy as a neighbour; "
-                                       "formation.accumulate does not (see the twin)")
 def test_splat_events_with_zero_energy_paths():
+    # Regression: splat_events used to count a path of zero energy as a continuity neighbour,
+    # which formation.accumulate does not.
     def energy(m):
         e = np.random.default_rng(52).uniform(0.1, 1.0, m)
         e[::3] = 0.0

@@ -596,7 +596,7 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
                 Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
                 int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label):
     """Paths of one generation's receive legs and one transmit option (twin:
-    ``engine.form_paths`` + ``engine.transmit_legs``).
+    ``engine.option_paths``).
 
     ``same``: the transmit leg is the receive leg reversed (order label ``label``; for the
     first generation the label is 0 on objects, 1 on planes). Otherwise the transmit leg
@@ -704,8 +704,8 @@ def splat_events(const double[:, ::1] points, const double[:, ::1] normals, cons
                  const int[::1] beam, const signed char[::1] label, double scale,
                  bint spread, Py_ssize_t n_elevation, double range_min, double dr,
                  Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out):
-    """Continuity + range cells + accumulation of one compact path set (twin: the path set
-    made dense and given to ``imaging.accumulate``).
+    """Continuity + range cells + accumulation of one compact path set (twin:
+    ``engine.splat_set``, the set made dense and given to ``renderer.formation.accumulate``).
 
     Paths are in ray order; two are neighbours when their rays are neighbours in elevation
     (same ray column) with equal ``key`` (same surface via the same chain) and the chord
@@ -721,8 +721,9 @@ def splat_events(const double[:, ::1] points, const double[:, ::1] normals, cons
         for k in range(m):
             i = ray[k]
             c_up = False
+            # A path without energy is no neighbour (as in formation.accumulate).
             if spread and k + 1 < m and ray[k + 1] == i + 1 and (i + 1) % n_elevation != 0 \
-                    and key[i] >= 0 and key[i + 1] == key[i]:
+                    and key[i] >= 0 and key[i + 1] == key[i] and energy[k] != 0 and energy[k + 1] != 0:
                 cx = points[i + 1, 0] - points[i, 0]
                 cy = points[i + 1, 1] - points[i, 1]
                 cz = points[i + 1, 2] - points[i, 2]
