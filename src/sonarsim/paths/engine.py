@@ -27,7 +27,7 @@ paper's, records each pair once from the leg with more reflections (``ChainTable
 
 This module is the NumPy twin of the compiled kernels of the general path, one function per
 kernel with the same inputs and outputs (``rotate``: :func:`rotate`, ``embree_hits``:
-:func:`embree_hits`, ``trace_leg``: :func:`trace_generation`, ``path_events``:
+:func:`sonarsim.trace.embree.embree_hits`, ``trace_leg``: :func:`trace_generation`, ``path_events``:
 :func:`option_paths`, ``splat_events``: :func:`splat_set`), compared kernel by kernel on random
 inputs in the tests; the frame (:func:`trace_legs`, :func:`form_paths`,
 :func:`accumulate_paths`) is a loop over them.
@@ -172,7 +172,7 @@ class SonarView:
 # kernel                   twin                        what
 # =======================  ==========================  =====================================
 # ``rotate``               :func:`rotate`              fan directions to the world frame
-# ``embree_hits``          :func:`embree_hits`         Embree's raw answer to hits
+# ``embree_hits``          ``trace.embree.embree_hits`` Embree's raw answer to hits
 # ``trace_leg``            :func:`trace_generation`    one generation of receive legs
 # ``path_events``          :func:`option_paths`        paths of one generation, one transmit
 # ``splat_events``         :func:`splat_set`           one path set into the image stack
@@ -217,40 +217,6 @@ def rotate(directions: np.ndarray, rotation: np.ndarray, origin: np.ndarray) -> 
     o32 = np.empty((len(d), 3), dtype=np.float32)
     o32[:] = np.asarray(origin, dtype=np.float64).astype(np.float32)
     return d64, d64.astype(np.float32), o32
-
-
-def embree_hits(tfar: np.ndarray, geom_id: np.ndarray, ng: np.ndarray, ids: np.ndarray) -> Hits:
-    """Embree's raw answer as :class:`~sonarsim.trace.base.Hits` (twin of ``_kernels.embree_hits``).
-
-    Parameters
-    ----------
-    tfar : (n,) float32 array
-        Distance to the hit, metres (meaningless for a miss).
-    geom_id : (n,) int32 array
-        Embree's geometry id, -1 for a miss.
-    ng : (n, 3) float32 array
-        Unnormalised geometric normal (meaningless for a miss).
-    ids : (n_geometries,) int32 array
-        Mesh index of each Embree geometry (empty meshes are not given to Embree).
-
-    Returns
-    -------
-    Hits
-        float32 distance (``inf`` for a miss), mesh index (-1), unit normal (0).
-    """
-    tfar = np.asarray(tfar, dtype=np.float32)
-    ng = np.asarray(ng, dtype=np.float32).reshape(-1, 3)
-    hit = np.asarray(geom_id) >= 0
-    mesh_id = np.full(len(hit), -1, dtype=np.int32)
-    mesh_id[hit] = np.asarray(ids, dtype=np.int32)[np.asarray(geom_id)[hit]]
-    distance = np.where(hit, tfar, np.float32(np.inf)).astype(np.float32)
-    g = ng[hit]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # float32 sum of squares and root; the division is correctly rounded either way.
-        inv = (1.0 / np.sqrt(_rowdot(g, g)).astype(np.float64)).astype(np.float32)
-    normal = np.zeros((len(hit), 3), dtype=np.float32)
-    normal[hit] = g * inv[:, None]
-    return Hits(distance, mesh_id, normal)
 
 
 @dataclass
@@ -669,37 +635,6 @@ def trace_legs(
         rays, _ = trace_generation(rays, hits, planes, active, reach_m, albedo_by_id, weight, tvg, first,
                                    g + 1 < n_generations, table, leg)
     return legs
-
-
-def transmit_legs(
-    leg: Leg, tx: int, table: ChainTable, view: SonarView, active: np.ndarray, rays: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Transmit legs via chain ``tx`` to the scatterers of ``rays`` (with matrix products and
-    :func:`~sonarsim.paths.planes.reflection_points`: an independent check of :func:`option_paths`).
-
-    Returns
-    -------
-    length : (m,) float64 ndarray, metres
-    beam : (m,) int ndarray
-        Beam the leg leaves the sonar in (-1 outside the fan).
-    valid : (m,) bool ndarray
-        Inside the aperture and range window, reflection points inside the water.
-    """
-    a = leg.point[rays]
-    unfolded = apply(table.unfold(tx), a)
-    rel = (unfolded - view.origin) @ view.rotation  # sonar frame
-    length = np.linalg.norm(rel, axis=1)
-    valid = (length >= view.range_min_m) & (length < view.range_max_m)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        el = np.degrees(np.arcsin(np.clip(rel[:, 2] / length, -1.0, 1.0)))
-    valid &= np.abs(el) <= view.half_elevation_deg
-    beam = view.beam_of(np.degrees(np.arctan2(rel[:, 1], rel[:, 0])))
-    valid &= beam >= 0
-    if table.length(tx) and valid.any():
-        sel = np.flatnonzero(valid)
-        _, ok = reflection_points(table.planes, table.chains[tx], table.sources(tx), a[sel], active)
-        valid[sel[~ok]] = False
-    return length, beam, valid
 
 
 def transmit_options(table: ChainTable, gen: int, max_order: int) -> list[int]:

@@ -25,6 +25,41 @@ except ImportError:
 MIN_RAYS_PER_CHUNK = 8192
 
 
+def embree_hits(tfar: np.ndarray, geom_id: np.ndarray, ng: np.ndarray, ids: np.ndarray) -> Hits:
+    """Embree's raw answer as :class:`~sonarsim.trace.base.Hits` (NumPy twin of ``_kernels.embree_hits``).
+
+    Parameters
+    ----------
+    tfar : (n,) float32 array
+        Distance to the hit, metres (meaningless for a miss).
+    geom_id : (n,) int32 array
+        Embree's geometry id, -1 for a miss.
+    ng : (n, 3) float32 array
+        Unnormalised geometric normal (meaningless for a miss).
+    ids : (n_geometries,) int32 array
+        Mesh index of each Embree geometry (empty meshes are not given to Embree).
+
+    Returns
+    -------
+    Hits
+        float32 distance (``inf`` for a miss), mesh index (-1), unit normal (0).
+    """
+    tfar = np.asarray(tfar, dtype=np.float32)
+    ng = np.asarray(ng, dtype=np.float32).reshape(-1, 3)
+    hit = np.asarray(geom_id) >= 0
+    mesh_id = np.full(len(hit), -1, dtype=np.int32)
+    mesh_id[hit] = np.asarray(ids, dtype=np.int32)[np.asarray(geom_id)[hit]]
+    distance = np.where(hit, tfar, np.float32(np.inf)).astype(np.float32)
+    g = ng[hit]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # float32 sum of squares and root; the division is correctly rounded either way.
+        inv = (1.0 / np.sqrt(g[:, 0] * g[:, 0] + g[:, 1] * g[:, 1] + g[:, 2] * g[:, 2]).astype(np.float64)).astype(np.float32)
+    normal = np.zeros((len(hit), 3), dtype=np.float32)
+    normal[hit] = g * inv[:, None]
+    return Hits(distance, mesh_id, normal)
+
+
+
 class EmbreeCaster:
     """Closest-hit queries against a static Embree scene.
 
@@ -113,15 +148,7 @@ class EmbreeCaster:
             hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty((n, 3), np.float32))
             _kernels.embree_hits(res["tfar"], res["geomID"], res["Ng"], self._ids, hits.distance, hits.mesh_id, hits.normal)
             return hits
-        geom = res["geomID"]
-        hit = geom >= 0
-        mesh_id = np.where(hit, self._ids[np.maximum(geom, 0)], -1).astype(np.int32)
-        distance = np.where(hit, res["tfar"], np.float32(np.inf)).astype(np.float32, copy=False)
-        ng = res["Ng"]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = 1.0 / np.sqrt(np.einsum("ij,ij->i", ng, ng))
-        inv[~hit] = 0.0  # embreex leaves Ng of a miss undefined
-        return Hits(distance=distance, mesh_id=mesh_id, normal=ng * inv[:, None])
+        return embree_hits(res["tfar"], res["geomID"], res["Ng"], self._ids)
 
     def close(self) -> None:
         if getattr(self, "_pool", None) is not None:
