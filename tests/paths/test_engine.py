@@ -22,6 +22,7 @@ from sonarsim.renderer.formation import RayEnergy, accumulate, continuity
 from sonarsim.renderer.simulator import MULTIPATH_REACH, RANGE_MARGIN
 from sonarsim.core.radiometry import lambertian_intensity
 from sonarsim.trace.surfaces import GROUND_ID, trace
+from tests.paths.test_algorithm2 import _scenes as ground_scenes
 
 
 def former_fast_method(sim: sonarsim.Simulator) -> dict[str, np.ndarray]:
@@ -45,16 +46,12 @@ def former_fast_method(sim: sonarsim.Simulator) -> dict[str, np.ndarray]:
 
 
 def _scenes():
-    demo = demo_scene_dict()
-    rolled = demo_scene_dict()
-    rolled["sonar"]["pose"] = {"position_m": [0.2, -0.1, 1.2], "rpy_deg": [12.0, 25.0, -6.0]}
-    crossing = demo_scene_dict()
-    crossing["objects"].append(
-        {"name": "half_buried", "primitive": "sphere", "radius_m": 0.3, "pose": {"position_m": [3.6, 0.6, 0.05]}})
-    out = {"demo": demo, "rolled": rolled, "crossing": crossing}
+    # The ground-only scenes the literal Algorithm 2 is checked on, and the render options.
+    base = ground_scenes()
+    out = {k: base[k] for k in ("demo", "rolled", "crossing")}
     for key, value in (("range_splat", False), ("tvg", False), ("double_beam", "split"),
                        ("double_line_of_sight", True), ("beam_pattern", "gaussian")):
-        d = copy.deepcopy(rolled)
+        d = copy.deepcopy(base["rolled"])
         d["render"][key] = value
         out[f"{key}={value}"] = d
     return out

@@ -81,6 +81,10 @@ class Leg:
         Product of the specular reflectances along the leg (1 everywhere in generation 0).
     chain : (n,) int32 ndarray
         Chain id of the leg (:class:`ChainTable`), -1 none (0 everywhere in generation 0).
+    live : (l,) intp ndarray or None
+        The rays that scatter some energy, ascending (None: found from the arrays).
+    keys : (n,) int32 ndarray or None
+        :meth:`key` as the tracing listed it (None: computed).
     """
 
     gen: int
@@ -91,10 +95,20 @@ class Leg:
     intensity: np.ndarray
     atten: np.ndarray
     chain: np.ndarray
+    live: np.ndarray | None = None
+    keys: np.ndarray | None = None
 
     def key(self, n_surfaces: int) -> np.ndarray:
         """(n,) int32: rays on one surface via one chain share a key (-1 none): continuity."""
+        if self.keys is not None:
+            return self.keys
         return np.where(self.sid >= 0, self.chain * n_surfaces + self.sid, -1).astype(np.int32)
+
+    def live_rays(self) -> np.ndarray:
+        """(l,) intp: the rays that scatter some energy, ascending."""
+        if self.live is None:
+            self.live = np.flatnonzero(np.isfinite(self.distance) & (self.intensity != 0))
+        return self.live
 
 
 @dataclass
@@ -661,6 +675,9 @@ def form_paths(
     beam_of_ray: np.ndarray,
     max_order: int,
     double_beam: str,
+    only_same: bool = False,
+    skip_first_same: bool = False,
+    paths_of_option=None,
 ) -> list[PathSet]:
     """Every path of the frame, as compact sets (:func:`option_paths` in a loop).
 
@@ -675,7 +692,14 @@ def form_paths(
         Beam of each fan ray: ``i // rays_per_beam`` (the fan is beam-major).
     max_order : int
     double_beam : {'paper', 'split', 'separate'}
+    only_same, skip_first_same : bool
+        Only the first generation's direct paths (the receive leg reversed), or all but those
+        (a frame may form the direct image early, on another core).
+    paths_of_option : callable, optional
+        Forms the paths of one generation and one transmit option, with the arguments and
+        results of :func:`option_paths` (the default); the compiled path passes its kernel.
     """
+    paths_of_option = option_paths if paths_of_option is None else paths_of_option
     beam_of_ray = np.asarray(beam_of_ray)
     n = len(beam_of_ray)
     rays_per_beam = n // (int(beam_of_ray[-1]) + 1) if n else 1
@@ -684,18 +708,29 @@ def form_paths(
     out: list[PathSet] = []
     for leg in legs:
         g = leg.gen
-        live = np.flatnonzero(np.isfinite(leg.distance) & (leg.intensity != 0))
-        for tx in transmit_options(table, g, max_order):
+        live = leg.live_rays()
+        options = transmit_options(table, g, max_order)
+        if double_beam != "separate":
+            # A pair is formed from the leg with more reflections (ChainTable.key): transmit
+            # chains longer than this generation's receive chains never qualify.
+            options = [tx for tx in options if tx == SAME or table.length(tx) <= g]
+        if only_same:
+            options = [SAME] if g == 0 and SAME in options else []
+        elif skip_first_same and g == 0:
+            options = [tx for tx in options if tx != SAME]
+        for tx in options:
             same = tx == SAME
             c = 0 if same else tx
             chain = () if same else table.chains[tx]
             order = 2 * g + 1 if same else g + len(chain) + 1
-            ray, distance, energy, beam, beam_tx, label = option_paths(
+            ray, distance, energy, beam, beam_tx, label = paths_of_option(
                 live, leg, same, c, table.unfold(c), table.sources(c),
                 np.asarray(chain, np.int32) if chain else no_planes, 1.0 if same else table.specular(tx),
                 rank, double_beam == "separate", label_of_order(order) if order > 1 else LABEL_PLANE, n_planes,
                 rays_per_beam, view, table.planes, active,
             )
+            if not len(ray):
+                continue
             if double_beam == "split" and not same:
                 out.append(PathSet(g, tx, ray, distance, 0.5 * energy, beam, label))
                 out.append(PathSet(g, tx, ray, distance, 0.5 * energy, beam_tx, label))

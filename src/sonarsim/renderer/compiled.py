@@ -229,17 +229,6 @@ def rotate(fan: RayFan, sonar: SonarConfig, work: Workspace) -> None:
                     work.d64, work.d32, work.o32)
 
 
-class _Leg(Leg):
-    """A :class:`~sonarsim.paths.engine.Leg` with what the kernel lists on the way: the
-    continuity keys (``keys``) and the rays that scatter energy (``live``)."""
-
-    keys: np.ndarray
-    live: np.ndarray
-
-    def key(self, n_surfaces: int) -> np.ndarray:
-        return self.keys
-
-
 class _LegTracer:
     """Receive legs generation by generation (the state between two calls of the kernel)."""
 
@@ -281,12 +270,12 @@ class _LegTracer:
         w = self.work
         if g == 0:
             # Every ray is visited and given its "nothing"; no reflection happened yet.
-            leg = _Leg(g, np.empty(n), np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 3)),
+            leg = Leg(g, np.empty(n), np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 3)),
                        np.empty(n), w.ones, w.zeros_i32)
             leg.keys = leg.sid
         else:
             # Only distance, sid and key need "nothing": the rest is read where a ray arrived.
-            leg = _Leg(g, np.full(n, np.inf), np.full(n, -1, np.int32), np.empty((n, 3)), np.empty((n, 3)),
+            leg = Leg(g, np.full(n, np.inf), np.full(n, -1, np.int32), np.empty((n, 3)), np.empty((n, 3)),
                        np.empty(n), np.empty(n), np.empty(n, np.int32))
             leg.keys = np.full(n, -1, np.int32)
         live = np.empty(m, np.intp)
@@ -380,58 +369,44 @@ def render_paths(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: 
     return legs, direct + sets
 
 
+def option_paths(live, leg, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes,
+                 rays_per_beam, view, planes, active):
+    """``_kernels.path_events`` with the arguments and results of its twin
+    :func:`sonarsim.paths.engine.option_paths`."""
+    m = len(live)
+    buf = (np.empty(m, np.intp), np.empty(m), np.empty(m), np.empty(m, np.int32), np.empty(m, np.int32),
+           np.empty(m, np.int8))
+    k = _kernels.path_events(
+        live, leg.distance, leg.sid, leg.point, leg.intensity, leg.atten, leg.chain, same, tx, unfold, sources,
+        tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, *view.origin, view.rotation,
+        view.beam_edges_deg, view.half_elevation_deg, view.range_min_m, view.range_max_m, planes.normal,
+        planes.offset, np.ascontiguousarray(active, dtype=np.uint8), *buf,
+    )
+    return tuple(a[:k] for a in buf)
+
+
 def form_paths(legs, table, view, active, n_planes: int, rays_per_beam: int, max_order: int,
                double_beam: str, only_same: bool = False, skip_first_same: bool = False) -> list:
-    """Every path of the frame with the compiled kernel (twin: :func:`sonarsim.paths.engine.form_paths`).
+    """Every path of the frame with the compiled kernel: :func:`sonarsim.paths.engine.form_paths`
+    with :func:`option_paths` (``_kernels.path_events``) for each transmit option."""
+    from ..paths.engine import form_paths as form
 
-    ``only_same``: only the first generation's direct paths (the receive leg reversed);
-    ``skip_first_same``: all but those.
-    """
-    from ..paths.engine import SAME, PathSet, chain_ranks, label_of_order, transmit_options
+    n = rays_per_beam * (int(view.beam_edges_deg.size) - 1)
+    beam_of_ray = _beam_of_ray(n, rays_per_beam)
+    return form(legs, table, view, active, n_planes, beam_of_ray, max_order, double_beam, only_same=only_same,
+                skip_first_same=skip_first_same, paths_of_option=option_paths)
 
-    rank = chain_ranks(table)
-    act = np.ascontiguousarray(active, dtype=np.uint8)
-    planes = table.planes
-    no_planes = np.empty(0, np.int32)
-    out = []
-    for leg in legs:
-        g = leg.gen
-        live = leg.live
-        if not len(live):
-            continue
-        m = len(live)
-        options = transmit_options(table, g, max_order)
-        if double_beam != "separate":
-            # A pair is formed from the leg with more reflections (ChainTable.key): transmit
-            # chains longer than this generation's receive chains never qualify.
-            options = [tx for tx in options if tx == SAME or table.length(tx) <= g]
-        if only_same:
-            options = [SAME] if g == 0 and SAME in options else []
-        elif skip_first_same and g == 0:
-            options = [tx for tx in options if tx != SAME]
-        for tx in options:
-            buf = (np.empty(m, np.intp), np.empty(m), np.empty(m), np.empty(m, np.int32), np.empty(m, np.int32),
-                   np.empty(m, np.int8))
-            same = tx == SAME
-            chain = () if same else table.chains[tx]
-            order = 2 * g + 1 if same else g + len(chain) + 1
-            k = _kernels.path_events(
-                live, leg.distance, leg.sid, leg.point, leg.intensity, leg.atten, leg.chain,
-                same, 0 if same else tx, table.unfold(0 if same else tx), table.sources(0 if same else tx),
-                np.asarray(chain, np.int32) if chain else no_planes, 1.0 if same else table.specular(tx),
-                rank, double_beam == "separate", label_of_order(order) if order > 1 else 1, n_planes,
-                rays_per_beam, *view.origin, view.rotation, view.beam_edges_deg, view.half_elevation_deg,
-                view.range_min_m, view.range_max_m, planes.normal, planes.offset, act, *buf,
-            )
-            if not k:
-                continue
-            ray, dist, energy, beam, beam_tx, label = (a[:k] for a in buf)
-            if double_beam == "split" and not same:
-                out.append(PathSet(g, tx, ray, dist, 0.5 * energy, beam, label))
-                out.append(PathSet(g, tx, ray, dist, 0.5 * energy, beam_tx, label))
-            else:
-                out.append(PathSet(g, tx, ray, dist, energy, beam, label))
-    return out
+
+def _beam_of_ray(n: int, rays_per_beam: int) -> np.ndarray:
+    """(n,) beam of each fan ray (the fan is beam-major); cached, it is the same every frame."""
+    key = (n, rays_per_beam)
+    if key not in _BEAMS:
+        _BEAMS.clear()
+        _BEAMS[key] = np.repeat(np.arange(n // rays_per_beam), rays_per_beam)
+    return _BEAMS[key]
+
+
+_BEAMS: dict = {}
 
 
 def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, spread: bool, out: np.ndarray) -> None:
