@@ -391,32 +391,6 @@ def rotate(const double[:, ::1] dirs, const double[:, ::1] rotation, double ox, 
             out32[i, 2] = <float>c
 
 
-def combine(const float[:, :, ::1] parts, float[:, ::1] single, float[:, ::1] total,
-            bint with_single, bint with_double, bint with_triple):
-    """single = object + ground; total = the selected bounces; one pass over the images.
-
-    ``parts`` is (object, ground, double, triple), each (n_range_bins, n_beams). Sums in
-    float32, in the same order as the NumPy assembly.
-    """
-    cdef Py_ssize_t i, j, n0 = parts.shape[1], n1 = parts.shape[2]
-    cdef float s, t
-    with nogil:
-        for i in range(n0):
-            for j in range(n1):
-                s = parts[0, i, j] + parts[1, i, j]
-                single[i, j] = s
-                t = 0.0
-                if with_single:
-                    t = s
-                    if with_double:
-                        t = t + parts[2, i, j]
-                elif with_double:
-                    t = parts[2, i, j]
-                if with_triple:
-                    t = t + parts[3, i, j] if (with_single or with_double) else parts[3, i, j]
-                total[i, j] = t
-
-
 # General reflecting planes (sonarsim.paths.engine is the NumPy twin) ----------------------
 
 cdef inline double dot3(const double* a, Py_ssize_t i, double x, double y, double z) noexcept nogil:

@@ -27,8 +27,6 @@ try:
     from . import _kernels
 except ImportError:  # not built (e.g. a source tree used without installing)
     _kernels = None
-else:
-    combine = _kernels.combine  # single and total images in one pass
 
 AVAILABLE = _kernels is not None
 
