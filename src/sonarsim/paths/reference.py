@@ -1,0 +1,560 @@
+"""A slow, plainly written reference of the path model, for tests of the fast path engine.
+
+The fast path (:mod:`sonarsim.paths.engine` and its compiled kernels) forms every path of a
+frame with tricks: chains numbered as the tracing meets them, transmit legs only for the chains
+some receive ray followed, image sources composed as affine maps, twins of compiled loops.
+This module computes the same images from first principles, with none of that machinery, so
+that the two can be compared image by image:
+
+* **Receive legs** are traced explicitly: every ray of the fan leaves the sonar O; the nearest
+  surface (an object through the simulator's caster, an active plane by its own ray-plane
+  formula) is a scatterer; on a plane with specular reflectance R > 0 the ray is also
+  reflected (``d - 2 (d.n) n``) and goes on, until ``max_order - 1`` reflections or the reach.
+* **Transmit legs** are enumerated over *every* chain of active mirror planes (no plane twice
+  in a row), not only those the receive rays followed. Each is found by mirroring the sonar
+  across the chain's planes (image sources), walking back from the scatterer A towards them,
+  and then **verified** by tracing a ray from O in the departure direction found: it must meet
+  the chain's planes in order, each as the nearest plane, and then pass within
+  :data:`VERIFY_TOLERANCE_M` of A. The transmit length is the traced length.
+* Every path goes into the single range bin of half its length (paper Algorithm 1, no range
+  splatting), in the beam of the ray it arrives along.
+
+The model and its conventions (surface ids, reciprocal pairs, apertures, image rows) are those
+of :mod:`sonarsim.paths.engine`; see ``docs/DESIGN.md`` section 7. Only
+:func:`~sonarsim.paths.engine.path_name` is taken from there, so that the per-signature images
+carry the same names.
+
+Everything here is float64 NumPy and loops over generations and chains; it is meant for
+small images in tests (a few thousand rays), not for rendering.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .engine import path_name
+
+# Reflected receive rays are cast against the objects from this far off the plane, metres (an
+# object resting on the plane must not be met at distance 0).
+OFF_PLANE_M = 1e-5
+
+# A traced transmit leg must pass this close to the scatterer, metres.
+VERIFY_TOLERANCE_M = 1e-6
+
+# A transmit leg meeting an object this close before A (relative to the leg's last segment,
+# at least 1 mm) is taken to meet A itself (the caster reports A to float32 precision).
+SELF_HIT_M = 1e-3
+
+# Reach of the receive legs: the range window times this, times 2 when there is multipath
+# (a reciprocal pair is recorded at (L_rx + L_tx) / 2 with L_tx >= range_min).
+REACH_MARGIN = 1.25
+MULTIPATH_FACTOR = 2.0
+
+# Ray-plane distances below this are the plane the ray starts on, metres.
+MIN_STEP_M = 1e-9
+
+
+@dataclass
+class ReferencePaths:
+    """Every path the reference recorded (also those outside the range window), one row each.
+
+    Attributes
+    ----------
+    tx_chain, rx_chain : list of tuple of int
+        Planes of the transmit and receive legs, both listed going out from the sonar.
+    scatterer : (m,) int ndarray
+        Surface id of A: plane ``p`` is ``p``, object ``k`` is ``P + k``.
+    range_m : (m,) float64 ndarray
+        Recorded range ``(L_rx + L_tx) / 2``, metres.
+    tx_length_m, rx_length_m : (m,) float64 ndarray
+        Leg lengths, metres.
+    energy : (m,) float64 ndarray
+        Energy of the path (before any split between beams).
+    beam : (m,) int ndarray
+        Beam of the arriving ray.
+    beam_tx : (m,) int ndarray
+        Beam the transmit leg leaves the sonar in.
+    order : (m,) int ndarray
+        Planes met on both legs + 1.
+    ray : (m,) int ndarray
+        Flat index of the fan ray the path arrives along.
+    same : (m,) bool ndarray
+        ``True`` where the transmit leg is the receive leg reversed.
+    tx_vertices, rx_vertices : list of (k + 2, 3) float64 ndarray
+        ``O, q_1, ..., q_k, A``: the legs' corners from the sonar out, metres (only with
+        ``keep_legs``; empty lists otherwise).
+    """
+
+    tx_chain: list = field(default_factory=list)
+    rx_chain: list = field(default_factory=list)
+    scatterer: np.ndarray = field(default_factory=lambda: np.empty(0, int))
+    range_m: np.ndarray = field(default_factory=lambda: np.empty(0))
+    tx_length_m: np.ndarray = field(default_factory=lambda: np.empty(0))
+    rx_length_m: np.ndarray = field(default_factory=lambda: np.empty(0))
+    energy: np.ndarray = field(default_factory=lambda: np.empty(0))
+    beam: np.ndarray = field(default_factory=lambda: np.empty(0, int))
+    beam_tx: np.ndarray = field(default_factory=lambda: np.empty(0, int))
+    order: np.ndarray = field(default_factory=lambda: np.empty(0, int))
+    ray: np.ndarray = field(default_factory=lambda: np.empty(0, int))
+    same: np.ndarray = field(default_factory=lambda: np.empty(0, bool))
+    tx_vertices: list = field(default_factory=list)
+    rx_vertices: list = field(default_factory=list)
+
+
+@dataclass
+class ReferenceImage:
+    """What :func:`render_reference` returns.
+
+    Attributes
+    ----------
+    stack : (max_order + 1, n_range_bins, n_beams) float64 ndarray
+        Row 0 the objects' single paths, row 1 the planes' single paths, row k >= 2 order k.
+    components : dict of str to (n_range_bins, n_beams) float64 ndarray
+        ``object``, ``ground``, ``single``, ``double``, ``triple``, ``order4`` ... and
+        ``total`` (every order), as :mod:`sonarsim.renderer.components` names them.
+    signatures : dict of str to (n_range_bins, n_beams) float64 ndarray
+        One image per path signature, named by :func:`~sonarsim.paths.engine.path_name`.
+    paths : ReferencePaths
+    rx_chains : set of tuple of int
+        The chains some receive ray of the fan travelled along (the fast path tries only
+        these as transmit chains; the reference tries every chain).
+    plane_names : tuple of str
+    """
+
+    stack: np.ndarray
+    components: dict
+    signatures: dict
+    paths: ReferencePaths
+    rx_chains: set
+    plane_names: tuple
+
+
+# Geometry, written out ------------------------------------------------------------------
+
+
+def mirror_point(x: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
+    """Mirror image of points across the plane ``n . x = offset``.
+
+    Parameters
+    ----------
+    x : (..., 3) float array, metres
+    normal : (3,) float array, unit
+    offset : float, metres
+
+    Returns
+    -------
+    (..., 3) float64 ndarray: ``x - 2 (n . x - offset) n``.
+    """
+    x = np.asarray(x, dtype=float)
+    h = np.sum(x * normal, axis=-1) - offset
+    return x - 2.0 * h[..., None] * normal
+
+
+def reflect_direction(d: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Specular reflection of directions ``d`` (m, 3) off a plane of unit normal (3,): ``d - 2 (d.n) n``."""
+    return d - 2.0 * (d @ normal)[:, None] * normal
+
+
+def ray_plane_distance(origin: np.ndarray, d: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
+    """Distance along rays to a plane met from its water side; ``inf`` where it is not.
+
+    Parameters
+    ----------
+    origin, d : (m, 3) float arrays
+        Ray origins (metres) and unit directions.
+    normal : (3,) float array
+        Unit normal into the water.
+    offset : float
+        ``n . x`` on the plane, metres.
+
+    Returns
+    -------
+    (m,) float64 ndarray, metres: ``(offset - n.o) / (n.d)`` where ``n.d < 0`` and the
+    distance exceeds :data:`MIN_STEP_M`.
+    """
+    dn = d @ normal
+    height = origin @ normal - offset  # >= 0 for an origin in the water
+    out = np.full(len(d), np.inf)
+    towards = dn < 0.0
+    t = -height[towards] / dn[towards]
+    out[towards] = np.where(t > MIN_STEP_M, t, np.inf)
+    return out
+
+
+def all_chains(mirrors: list[int], longest: int) -> list[tuple[int, ...]]:
+    """Every sequence of the mirror planes with no plane twice in a row, empty first, by length."""
+    out: list[tuple[int, ...]] = [()]
+    for k in range(1, longest + 1):
+        out += [c for c in itertools.product(mirrors, repeat=k) if all(a != b for a, b in zip(c, c[1:]))]
+    return out
+
+
+def chain_key(chain: tuple[int, ...]) -> tuple:
+    """Order of chains for the reciprocal-pair conventions: more planes first, then by ids."""
+    return (len(chain), chain)
+
+
+# The reference --------------------------------------------------------------------------
+
+
+class _Planes:
+    """The scene's planes as plain arrays (the ground first, as ``Scene.reflecting_planes``)."""
+
+    def __init__(self, specs) -> None:
+        self.names = tuple(p.name for p in specs)
+        self.normal = np.array([p.normal for p in specs], dtype=float).reshape(-1, 3)
+        self.normal /= np.maximum(np.linalg.norm(self.normal, axis=1, keepdims=True), 1e-300)
+        point = np.array([p.point_m for p in specs], dtype=float).reshape(-1, 3)
+        self.offset = np.sum(self.normal * point, axis=1)
+        self.albedo = np.array([p.albedo for p in specs], dtype=float)
+        self.specular = np.array([p.specular for p in specs], dtype=float)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+
+def _receive_legs(sim, planes: _Planes, active: np.ndarray, origin: np.ndarray, directions: np.ndarray,
+                  weight: np.ndarray, tvg: bool, reach: float, n_reflections: int, keep_legs: bool) -> dict:
+    """Trace the fan's rays with reflections; one scatter event per ray and generation.
+
+    Returns
+    -------
+    dict of arrays over the events: ``ray``, ``gen``, ``chain`` (list of tuples), ``sid``,
+    ``point`` (m, 3), ``length`` (receive leg, metres), ``atten`` (product of R),
+    ``weight`` (diffuse weight at A), ``vertices`` (list of (g + 2, 3) arrays, or empty);
+    ``followed``: the set of chains some ray travelled along (whether or not it met anything).
+    """
+    n_planes = len(planes)
+    object_albedo = np.array([o.albedo for o in sim.scene.objects], dtype=float)
+    n = len(directions)
+    ray = np.arange(n)
+    start = np.repeat(origin[None, :], n, axis=0)
+    d = directions.copy()
+    before = np.zeros(n)
+    atten = np.ones(n)
+    chains: list[tuple[int, ...]] = [()] * n
+    corners = np.repeat(origin[None, None, :], n, axis=0)  # (m, g + 1, 3): the leg's corners so far
+    events: dict = {k: [] for k in ("ray", "gen", "sid", "point", "length", "atten", "weight")}
+    events["chain"], events["vertices"] = [], []
+    followed: set = set()
+    for gen in range(n_reflections + 1):
+        if not len(ray):
+            break
+        followed.update(chains)
+        # Objects: from O itself, or just off the plane the ray was reflected at.
+        lift = 0.0 if gen == 0 else OFF_PLANE_M
+        cast_from = (start + lift * d).astype(np.float32)
+        hits = sim.caster.intersect(cast_from, d.astype(np.float32), float(reach - before.min()))
+        hit = np.asarray(hits.mesh_id) >= 0
+        t = np.where(hit, np.asarray(hits.distance, dtype=float) + lift, np.inf)
+        sid = np.where(hit, n_planes + np.asarray(hits.mesh_id), -1)
+        nrm = np.where(hit[:, None], np.asarray(hits.normal, dtype=float), 0.0)
+        # Planes: the nearest active one met from the water side, if nearer than the object.
+        for p in range(n_planes):
+            if not active[p]:
+                continue
+            tp = ray_plane_distance(start, d, planes.normal[p], planes.offset[p])
+            nearer = tp < t
+            t[nearer] = tp[nearer]
+            sid[nearer] = p
+            nrm[nearer] = planes.normal[p]
+        length = before + t
+        ok = (sid >= 0) & (length <= reach)
+        k = np.flatnonzero(ok)
+        a = start[k] + t[k, None] * d[k]
+        cos = np.abs(np.sum(nrm[k] * d[k], axis=1))
+        s = sid[k]
+        albedo = np.where(s < n_planes, planes.albedo[np.minimum(s, max(n_planes - 1, 0))] if n_planes else 0.0,
+                          object_albedo[np.maximum(s - n_planes, 0)] if len(object_albedo) else 0.0)
+        w = weight[ray[k]] * albedo * cos
+        if not tvg:
+            w = w / length[k] ** 2
+        events["ray"].append(ray[k])
+        events["gen"].append(np.full(len(k), gen))
+        events["sid"].append(s)
+        events["point"].append(a)
+        events["length"].append(length[k])
+        events["atten"].append(atten[k])
+        events["weight"].append(w)
+        events["chain"] += [chains[i] for i in k]
+        if keep_legs:  # corners from the sonar out: O, reflection points, A
+            events["vertices"] += list(np.concatenate([corners[k], a[:, None, :]], axis=1))
+        # Reflect off mirror planes, while reflections and reach remain.
+        if gen == n_reflections:
+            break
+        go = (s < n_planes) & (length[k] < reach)
+        if n_planes:
+            go &= planes.specular[np.minimum(s, n_planes - 1)] > 0.0
+        g = k[go]
+        p = s[go]
+        new_d = np.empty((len(g), 3))
+        for q in np.unique(p):
+            sel = p == q
+            new_d[sel] = reflect_direction(d[g[sel]], planes.normal[q])
+        ray, start, d = ray[g], a[go], new_d
+        before, atten = length[g], atten[g] * planes.specular[p]
+        chains = [chains[i] + (int(q),) for i, q in zip(g, p)]
+        corners = np.concatenate([corners[g], start[:, None, :]], axis=1)
+    out = {key: (np.concatenate(v) if v else np.empty(0)) for key, v in events.items()
+           if key not in ("chain", "vertices")}
+    out["point"] = out["point"].reshape(-1, 3)
+    out["ray"] = out["ray"].astype(int)
+    out["gen"] = out["gen"].astype(int)
+    out["sid"] = out["sid"].astype(int)
+    out["chain"], out["vertices"] = events["chain"], events["vertices"]
+    out["followed"] = followed
+    return out
+
+
+def _transmit_legs(planes: _Planes, active: np.ndarray, origin: np.ndarray, chain: tuple[int, ...],
+                   a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Transmit legs from the sonar to scatterers ``a`` via ``chain``: image sources, then a traced check.
+
+    Parameters
+    ----------
+    planes : _Planes
+    active : (P,) bool array
+    origin : (3,) float array
+        The sonar O, metres.
+    chain : tuple of int
+        Planes in the order the sound meets them leaving O.
+    a : (m, 3) float array
+        Scatterers, metres.
+
+    Returns
+    -------
+    valid : (m,) bool ndarray
+        The traced ray meets the chain's planes in order, each as the nearest active plane,
+        then passes within :data:`VERIFY_TOLERANCE_M` of A before any other plane.
+    length : (m,) float64 ndarray
+        Traced length from O to A, metres (NaN where not valid).
+    departure : (m, 3) float64 ndarray
+        Unit direction the leg leaves O in (world frame).
+    vertices : (m, len(chain) + 2, 3) float64 ndarray
+        ``O, q_1, ..., q_k, A`` along the traced leg (the last is the point of the traced ray
+        nearest A).
+    """
+    m, k = len(a), len(chain)
+    # Image sources: the sonar mirrored across the chain's planes in turn.
+    sources = [origin]
+    for p in chain:
+        sources.append(mirror_point(sources[-1], planes.normal[p], planes.offset[p]))
+    # Walk back from A towards the images: the straight line from A to the last image crosses
+    # the last plane at the last reflection point, and so on back to the sonar.
+    x = np.array(a, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for j in range(k, 0, -1):
+            p = chain[j - 1]
+            n, off = planes.normal[p], planes.offset[p]
+            towards = sources[j] - x
+            s = (off - x @ n) / (towards @ n)
+            x = x + s[:, None] * towards
+        first = x if k else np.array(a, dtype=float)
+        departure = first - origin
+        departure = departure / np.linalg.norm(departure, axis=1, keepdims=True)
+    valid = np.all(np.isfinite(departure), axis=1)
+    departure = np.where(valid[:, None], departure, np.array([1.0, 0.0, 0.0]))
+    # Verify: trace a ray from O along the departure direction, reflecting at each plane met.
+    pos = np.repeat(origin[None, :], m, axis=0)
+    d = departure.copy()
+    length = np.zeros(m)
+    vertices = np.empty((m, k + 2, 3))
+    vertices[:, 0] = origin
+    act = np.flatnonzero(active)
+    for j in range(k + 1):
+        dist = np.full((m, len(act)), np.inf)
+        for col, p in enumerate(act):
+            dist[:, col] = ray_plane_distance(pos, d, planes.normal[p], planes.offset[p])
+        nearest = act[np.argmin(dist, axis=1)] if len(act) else np.full(m, -1)
+        t_near = dist.min(axis=1) if len(act) else np.full(m, np.inf)
+        if j < k:
+            p = chain[j]
+            valid &= (nearest == p) & np.isfinite(t_near)
+            t_step = np.where(np.isfinite(t_near), t_near, 0.0)
+            pos = pos + t_step[:, None] * d
+            length += t_step
+            vertices[:, j + 1] = pos
+            d = reflect_direction(d, planes.normal[p])
+        else:
+            # The last segment must pass through A, before it leaves the water.
+            rel = a - pos
+            along = np.sum(rel * d, axis=1)
+            miss = np.linalg.norm(rel - along[:, None] * d, axis=1)
+            valid &= (along > 0.0) & (miss <= VERIFY_TOLERANCE_M) & (along <= t_near + VERIFY_TOLERANCE_M)
+            length += along
+            vertices[:, k + 1] = pos + along[:, None] * d
+    return valid, np.where(valid, length, np.nan), departure, vertices
+
+
+def _in_aperture(sonar, departure: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which world directions (m, 3) leave the sonar inside its fan and elevation aperture.
+
+    Returns
+    -------
+    inside : (m,) bool ndarray
+    beam : (m,) int ndarray
+        Beam whose azimuth edges contain the direction (-1 outside the fan).
+    """
+    v = departure @ np.asarray(sonar.pose.rotation, dtype=float)  # R^T d, row by row
+    azimuth = np.degrees(np.arctan2(v[:, 1], v[:, 0]))
+    elevation = np.degrees(np.arcsin(np.clip(v[:, 2] / np.linalg.norm(v, axis=1), -1.0, 1.0)))
+    edges = np.asarray(sonar.beam_edges_deg, dtype=float)  # descending, left-most beam first
+    beam = np.full(len(v), -1)
+    for j in range(len(edges) - 1):
+        beam[(azimuth <= edges[j]) & (azimuth > edges[j + 1])] = j
+    inside = (beam >= 0) & (np.abs(elevation) <= sonar.elevation_fov_deg / 2.0)
+    return inside, beam
+
+
+def _unoccluded(sim, vertices: np.ndarray) -> np.ndarray:
+    """(m,) bool: no object lies on any segment of legs given by their corners (m, k + 2, 3).
+
+    The last segment ends on the scatterer A itself, which the caster may report a little
+    before A: a hit within :data:`SELF_HIT_M` (relative, at least 1 mm) of A counts as A.
+    """
+    m, n_corners = vertices.shape[:2]
+    free = np.ones(m, dtype=bool)
+    for j in range(n_corners - 1):
+        seg = vertices[:, j + 1] - vertices[:, j]
+        span = np.linalg.norm(seg, axis=1)
+        hits = sim.caster.intersect(vertices[:, j].astype(np.float32), (seg / span[:, None]).astype(np.float32),
+                                    float(span.max()) + 1.0)
+        t = np.asarray(hits.distance, dtype=float)
+        slack = SELF_HIT_M * np.maximum(span, 1.0) if j == n_corners - 2 else 0.0
+        free &= ~(t < span - slack)
+    return free
+
+
+def render_reference(sim, sonar=None, *, max_order: int | None = None, double_beam: str | None = None,
+                     double_line_of_sight: bool | None = None, keep_legs: bool = False) -> ReferenceImage:
+    """Render one frame with the reference path model (Algorithm 1, no range splatting).
+
+    Parameters
+    ----------
+    sim : Simulator
+        Gives the scene (planes, objects' albedo, render settings), the ray fan
+        (``sim.ray_fan``) and the objects' caster (``sim.caster``, meshes clipped to the water).
+    sonar : SonarConfig, optional
+        Default the scene's sonar (at its pose).
+    max_order, double_beam, double_line_of_sight : optional
+        Override the scene's ``render`` settings of those names.
+    keep_legs : bool
+        Keep every path's corners (:attr:`ReferencePaths.tx_vertices`, ``rx_vertices``).
+
+    Returns
+    -------
+    ReferenceImage
+        Images of shape ``(n_range_bins, n_beams)`` in float64.
+    """
+    render = sim.scene.render
+    sonar = sim.scene.sonar if sonar is None else sonar
+    max_order = render.max_order if max_order is None else int(max_order)
+    double_beam = render.double_beam if double_beam is None else double_beam
+    los = render.double_line_of_sight if double_line_of_sight is None else bool(double_line_of_sight)
+    if double_beam not in ("paper", "split", "separate"):
+        raise ValueError(f"double_beam must be 'paper', 'split' or 'separate', got {double_beam!r}")
+
+    planes = _Planes(sim.scene.reflecting_planes)
+    n_planes = len(planes)
+    origin = np.asarray(sonar.pose.translation, dtype=float).reshape(3)
+    rotation = np.asarray(sonar.pose.rotation, dtype=float)
+    # A plane takes part only when the sonar is on its water side.
+    active = (planes.normal @ origin - planes.offset) > 0.0 if n_planes else np.zeros(0, bool)
+    mirrors = [p for p in range(n_planes) if active[p] and planes.specular[p] > 0.0]
+    multipath = max_order > 1 and bool(mirrors)
+    reach = sonar.range_max_m * REACH_MARGIN * (MULTIPATH_FACTOR if multipath else 1.0)
+    n_reflections = max_order - 1 if multipath else 0
+
+    fan = sim.ray_fan(sonar)
+    directions = fan.directions.reshape(-1, 3) @ rotation.T
+    weight = np.asarray(fan.weight, dtype=float).reshape(-1)
+    per_beam = len(directions) // sonar.n_beams
+    ev = _receive_legs(sim, planes, active, origin, directions, weight, render.tvg, reach, n_reflections, keep_legs)
+    rx_chains = ev["followed"]
+
+    # One row per path: (tx chain, rx chain, sid, range, L_tx, L_rx, energy, beam, beam_tx, order,
+    # ray, same, event, tx corners).
+    rows: list = []
+    chains = all_chains(mirrors, n_reflections)
+    number = {c: i for i, c in enumerate(chains)}
+    rank = np.empty(len(chains), dtype=int)
+    rank[sorted(range(len(chains)), key=lambda i: chain_key(chains[i]))] = np.arange(len(chains))
+    rx_id = np.array([number[c] for c in ev["chain"]], dtype=int)
+    for c, tx in enumerate(chains):
+        allowed = ev["gen"] + len(tx) + 1 <= max_order
+        same = (rx_id == c) & allowed
+        # The receive leg reversed: the same chain, the same length, always valid.
+        for i in np.flatnonzero(same & (ev["weight"] != 0.0)):
+            rows.append((tx, tx, ev["sid"][i], ev["length"][i], ev["length"][i], ev["length"][i],
+                         ev["atten"][i] ** 2 * ev["weight"][i], ev["ray"][i] // per_beam, ev["ray"][i] // per_beam,
+                         2 * len(tx) + 1, ev["ray"][i], True, i, None))
+        other = allowed & ~same & (ev["weight"] != 0.0)
+        if tx:
+            other &= ev["sid"] != tx[-1]  # the chain ends on the scatterer's own plane
+        if double_beam != "separate":
+            other &= rank[rx_id] > rank[c]  # each reciprocal pair once, from the greater receive chain
+        idx = np.flatnonzero(other)
+        if not len(idx):
+            continue
+        valid, length, departure, vertices = _transmit_legs(planes, active, origin, tx, ev["point"][idx])
+        inside, beam_tx = _in_aperture(sonar, departure)
+        ok = valid & inside & (length >= sonar.range_min_m) & (length < sonar.range_max_m)
+        if los and ok.any():
+            sel = np.flatnonzero(ok)
+            ok[sel] &= _unoccluded(sim, vertices[sel])
+        r_tx = float(np.prod(planes.specular[list(tx)])) if tx else 1.0
+        for j in np.flatnonzero(ok):
+            i = idx[j]
+            rows.append((tx, ev["chain"][i], ev["sid"][i], 0.5 * (ev["length"][i] + length[j]), length[j],
+                         ev["length"][i], ev["atten"][i] * r_tx * ev["weight"][i], ev["ray"][i] // per_beam,
+                         beam_tx[j], len(tx) + ev["gen"][i] + 1, ev["ray"][i], False, i, vertices[j]))
+
+    paths = ReferencePaths()
+    if rows:
+        cols = list(zip(*rows))
+        paths = ReferencePaths(
+            tx_chain=list(cols[0]), rx_chain=list(cols[1]), scatterer=np.array(cols[2], int),
+            range_m=np.array(cols[3], float), tx_length_m=np.array(cols[4], float),
+            rx_length_m=np.array(cols[5], float), energy=np.array(cols[6], float), beam=np.array(cols[7], int),
+            beam_tx=np.array(cols[8], int), order=np.array(cols[9], int), ray=np.array(cols[10], int),
+            same=np.array(cols[11], bool),
+        )
+        if keep_legs:
+            for r in rows:
+                rx_leg = ev["vertices"][r[12]]
+                paths.rx_vertices.append(rx_leg)
+                paths.tx_vertices.append(rx_leg if r[11] else r[13])
+
+    # Algorithm 1: each path's energy into the bin of its range, in its beam.
+    n_bins, n_beams = sonar.n_range_bins, sonar.n_beams
+    dr = (sonar.range_max_m - sonar.range_min_m) / n_bins
+    stack = np.zeros((max_order + 1, n_bins, n_beams))
+    signatures: dict = {}
+    names = planes.names
+    for k in range(len(paths.energy)):
+        b = int(np.floor((paths.range_m[k] - sonar.range_min_m) / dr))
+        if not 0 <= b < n_bins:
+            continue
+        order = int(paths.order[k])
+        sid = int(paths.scatterer[k])
+        row = order if order > 1 else (1 if sid < n_planes else 0)
+        at = names[sid] if sid < n_planes else "objects"
+        name = path_name([names[p] for p in paths.tx_chain[k]], at, [names[p] for p in paths.rx_chain[k]])
+        image = signatures.setdefault(name, np.zeros((n_bins, n_beams)))
+        e = float(paths.energy[k])
+        if double_beam == "split" and not paths.same[k]:
+            deposits = ((int(paths.beam[k]), 0.5 * e), (int(paths.beam_tx[k]), 0.5 * e))
+        else:
+            deposits = ((int(paths.beam[k]), e),)
+        for beam, energy in deposits:
+            stack[row, b, beam] += energy
+            image[b, beam] += energy
+
+    components = {"object": stack[0], "ground": stack[1], "single": stack[0] + stack[1]}
+    for k in range(2, max_order + 1):
+        components[{2: "double", 3: "triple"}.get(k, f"order{k}")] = stack[k]
+    components["total"] = stack.sum(axis=0)
+    return ReferenceImage(stack, components, signatures, paths, rx_chains, names)
