@@ -240,12 +240,12 @@ def test_the_corner_scene_has_a_transmit_chain_no_receive_ray_followed():
     assert ref.signatures["O-left_wall-[far_wall]-O"].sum() > 0
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "documented culling (paths/engine.py): the fast path tries only transmit chains some receive ray "
-    "followed; O-left_wall-[far_wall]-O leaves the sonar inside the aperture (azimuth 19.3-20 deg) "
-    "but no ray column of the fan meets the left wall first, so the fast path misses it"))
 @pytest.mark.parametrize("kernels", ["compiled", "numpy"])
 def test_fast_path_forms_transmit_chains_no_receive_ray_followed(kernels):
+    # Regression: O-left_wall-[far_wall]-O leaves the sonar inside the aperture (azimuth
+    # 19.3-20 deg) but no ray column of the fan meets the left wall first; the fast path, which
+    # tries the chains the receive rays followed, missed it until it also probed the edges of
+    # the aperture (engine.probe_chains).
     sim = sonarsim.Simulator(corner_dict(), kernels=kernels)
     fast = sim.render().components
     ref = render_reference(sim)

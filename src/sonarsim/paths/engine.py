@@ -13,8 +13,9 @@ of surface interactions: the planes met on both legs plus the scatter.
   is ``|A* - O|`` long, is valid when every reflection point lies on its plane inside the
   water, and must leave O inside the transmit aperture (the sonar's fan and elevation
   aperture) with a length inside the range window, as the paper requires of A for its cases
-  2/3. Only chains that some receive ray followed this frame are tried: a chain that no ray
-  of the fan followed leaves the sonar outside the aperture (up to the ray spacing).
+  2/3. Only chains that some receive ray followed this frame, or that rays along the edges of
+  the aperture follow (:func:`probe_chains`), are tried: a chain that none of them followed
+  leaves the sonar inside the aperture only within a region narrower than the ray spacing.
 * A path is recorded at half its total length, in the beam of the ray it arrives along,
   weighted by the product of the specular reflectances of both legs times the diffuse
   weight of that ray at A (``beta l(r) rho cos(alpha) dphi``, r the receive leg's length).
@@ -649,6 +650,71 @@ def trace_legs(
         rays, _ = trace_generation(rays, hits, planes, active, reach_m, albedo_by_id, weight, tvg, first,
                                    g + 1 < n_generations, table, leg)
     return legs
+
+
+# Rays along each edge of the transmit aperture that :func:`probe_chains` traces.
+PROBES_PER_EDGE = 64
+
+
+def probe_chains(table: ChainTable, view: SonarView, active: np.ndarray, max_length: int,
+                 per_edge: int = PROBES_PER_EDGE) -> None:
+    """Add to ``table`` the chains of planes that the edges of the transmit aperture follow.
+
+    Transmit legs are tried along the chains that some ray followed. The beams' rays sample
+    the aperture at cell centres, half a cell in from its edges; a chain met only in that strip
+    (a side wall seen just inside the fan's outer edge) would be missed. Rays along the four
+    edges of the aperture (azimuth at the fan's outer beam edges, elevation at +-E/2), traced
+    through the planes alone (objects may hide a transmit leg only with
+    ``double_line_of_sight``, which checks each leg anyway), close that gap. Legs are followed
+    no further than the range window reaches (a longer transmit leg is never recorded).
+
+    Parameters
+    ----------
+    table : ChainTable
+        Receives the chains (numbered after the ones it holds).
+    view : SonarView
+    active : (P,) bool array
+        Planes the sonar faces.
+    max_length : int
+        Most reflections on a transmit leg (``max_order - 1``).
+    per_edge : int
+        Rays along each edge.
+    """
+    planes = table.planes
+    if max_length < 1 or not len(planes) or not np.any(active & (planes.specular > 0)):
+        return
+    e = view.beam_edges_deg
+    az = np.radians(np.linspace(e[-1], e[0], per_edge))
+    half = np.radians(view.half_elevation_deg)
+    el = np.linspace(-half, half, per_edge)
+    theta = np.concatenate([az, az, np.full(per_edge, az[0]), np.full(per_edge, az[-1])])
+    phi = np.concatenate([np.full(per_edge, -half), np.full(per_edge, half), el, el])
+    d = np.stack([np.cos(phi) * np.cos(theta), np.cos(phi) * np.sin(theta), np.sin(phi)], axis=1) @ view.rotation.T
+    o = np.broadcast_to(view.origin, d.shape).copy()
+    chain = np.zeros(len(d), dtype=np.int64)
+    travelled = np.zeros(len(d))
+    normal, offset = planes.normal[active], planes.offset[active]
+    index = np.flatnonzero(active)
+    for _ in range(max_length):
+        dn = d @ normal.T  # (rays, active planes): all planes at once
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_all = np.where(dn < 0, (offset - o @ normal.T) / dn, np.inf)
+        t_all[~(t_all > 0)] = np.inf
+        nearest = np.argmin(t_all, axis=1)
+        best_t = t_all[np.arange(len(d)), nearest]
+        best_p = index[nearest]
+        go = np.isfinite(best_t) & (travelled + best_t < view.range_max_m) & (planes.specular[best_p] > 0)
+        if not go.any():
+            return
+        o, d, t, p = o[go], d[go], best_t[go], best_p[go]
+        for c, q in set(zip(chain[go].tolist(), p.tolist())):  # a handful of distinct steps
+            table.child(c, q)
+        chain = table.children[chain[go], p].astype(np.int64)
+        travelled = travelled[go] + t
+        n = planes.normal[p]
+        o = o + d * t[:, None]
+        d = d - 2.0 * np.einsum("ij,ij->i", d, n)[:, None] * n
+        o = o + SURFACE_OFFSET_M * d
 
 
 def transmit_options(table: ChainTable, gen: int, max_order: int) -> list[int]:

@@ -30,7 +30,8 @@ from ..image.result import RayMaps, SonarImage
 from ..config.scene import ON_PLANE_TOLERANCE_M, check_sonar_position
 from ..paths.algorithm2 import render_paper
 from ..paths.engine import (
-    Leg, SonarView, accumulate_paths, drop_occluded, form_paths, ground_signatures, split_by_signature, trace_legs,
+    Leg, SonarView, accumulate_paths, drop_occluded, form_paths, ground_signatures, probe_chains, split_by_signature,
+    trace_legs,
 )
 from ..paths.planes import ChainTable, PlaneSet
 from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
@@ -197,6 +198,8 @@ class Simulator:
         view = SonarView.of(sonar)
         origin = view.origin
         table = ChainTable(self.planes, origin, max(render.max_order - 1, 0))
+        # Transmit legs leaving just inside the aperture's edges (outside the rays' samples).
+        probe_chains(table, view, active, render.max_order - 1 if n_generations > 1 else 0)
         n_planes = len(self.planes)
         n_surfaces = n_planes + len(self.meshes)
         weight = fan.weight.reshape(-1)
