@@ -20,7 +20,7 @@ that the two can be compared image by image:
   splatting), in the beam of the ray it arrives along.
 
 The model and its conventions (surface ids, reciprocal pairs, apertures, image rows) are those
-of :mod:`sonarsim.paths.engine`; see ``docs/DESIGN.md`` section 7. Only
+of :mod:`sonarsim.paths.engine` (README, "Paths over any reflecting planes"). Only
 :func:`~sonarsim.paths.engine.path_name` is taken from there, so that the per-signature images
 carry the same names.
 
