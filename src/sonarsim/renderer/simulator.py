@@ -156,13 +156,13 @@ class Simulator:
 
     # The ways to form the image stack; each returns (stack, legs, path sets, chain table).
 
-    def _render_paper(self, sonar: SonarConfig, fan: RayFan, reach: float):
+    def _render_paper(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float):
         """``method: paper``: Algorithm 2 literally (NumPy; the ground is the only plane)."""
-        origin, directions = sonar.pose.translation, fan.directions @ sonar.pose.rotation.T
+        origin, directions = pose.translation, fan.directions @ pose.rotation.T
         ground = self.scene.ground
         hits = trace(self.caster, origin, directions, ground, reach)
         images = render_paper(
-            self.caster, self.mirrored_caster(), origin, directions, sonar, self.scene.render, ground,
+            self.caster, self.mirrored_caster(), origin, directions, sonar, pose, self.scene.render, ground,
             fan.weight, self._albedo, len(self.meshes), reach,
         )
         # Rows of the orders formed (a ground alone makes no path beyond order 3).
@@ -174,7 +174,7 @@ class Simulator:
                   np.zeros(fan.n_rays, np.int32))
         return stack, [leg], None, None
 
-    def _render_ground_compiled(self, sonar: SonarConfig, fan: RayFan, reach: float, multipath: bool):
+    def _render_ground_compiled(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float, multipath: bool):
         """The paper's case (the ground alone, order 3) with kernels specialised for it.
 
         Same images as :meth:`_render_paths` (the tests compare them), formed by the kernels
@@ -185,16 +185,17 @@ class Simulator:
         if self._work is None or self._work.n != fan.n_rays:
             self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, fan.n_rays // sonar.n_beams)
         stack = np.zeros((stack_rows(3), sonar.n_range_bins, sonar.n_beams), dtype=np.float32)
-        compiled.render_fast(self.caster, sonar, fan, self.scene.ground, self.scene.render, self._albedo, reach,
+        compiled.render_fast(self.caster, sonar, pose, fan, self.scene.ground, self.scene.render, self._albedo, reach,
                              multipath, self._work, stack, pool=self._pool)
         w = self._work
         leg = Leg(0, w.dist, w.sid, w.point, w.normal, w.intensity, w.ones, w.zeros_i32)
         return stack, [leg], None, None
 
-    def _render_paths(self, sonar: SonarConfig, fan: RayFan, reach: float, active: np.ndarray, n_generations: int):
+    def _render_paths(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float, active: np.ndarray,
+                      n_generations: int):
         """``method: fast``: receive legs traced, transmit legs by image sources (any planes)."""
         render = self.scene.render
-        view = SonarView.of(sonar)
+        view = SonarView.of(sonar, pose)
         origin = view.origin
         table = ChainTable(self.planes, origin, max(render.max_order - 1, 0))
         n_planes = len(self.planes)
@@ -211,11 +212,11 @@ class Simulator:
                 self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, per_beam)
             stack = np.zeros((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
             legs, sets = compiled.render_paths(
-                self.caster, self.planes, active, sonar, fan, self._work, weight, self._albedo, render, reach,
+                self.caster, self.planes, active, sonar, pose, fan, self._work, weight, self._albedo, render, reach,
                 n_generations, table, view, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
             )
         else:
-            directions = (fan.directions @ sonar.pose.rotation.T).reshape(-1, 3)
+            directions = (fan.directions @ pose.rotation.T).reshape(-1, 3)
             legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._albedo,
                               render.tvg, reach, n_generations, table)
             beam = np.repeat(np.arange(sonar.n_beams), per_beam)
@@ -259,23 +260,25 @@ class Simulator:
         sonar = sonar if sonar is not None else self.scene.sonar
         if pose is not None:
             sonar = sonar.with_pose(as_pose(pose))
-        if len(self.planes) and np.abs(self.planes.signed_distance(sonar.pose.translation)).min() < ON_PLANE_TOLERANCE_M:
-            check_sonar_position(self.scene.reflecting_planes, sonar.pose.position_m,
-                                 "pose" if pose is not None else "sonar.pose.position_m")
+        pose_given, pose = pose is not None, sonar.pose
+        if len(self.planes) and np.abs(self.planes.signed_distance(pose.translation)).min() < ON_PLANE_TOLERANCE_M:
+            check_sonar_position(self.scene.reflecting_planes, pose.position_m,
+                                 "pose" if pose_given else "sonar.pose.position_m")
         render = self.scene.render
         fan = self.ray_fan(sonar)
         t1 = time.perf_counter()
-        active = self.planes.facing(sonar.pose.translation)
+        active = self.planes.facing(pose.translation)
         mirrors = active & (self.planes.specular > 0)
         multipath = render.max_order > 1 and bool(mirrors.any())
         reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
         if render.method == "paper" and multipath and self._ground_only:
-            stack, legs, sets, table = self._render_paper(sonar, fan, reach)
+            stack, legs, sets, table = self._render_paper(sonar, pose, fan, reach)
         elif (self.specialise_ground and self.kernels == "compiled" and self._ground_only and render.max_order == 3
               and render.double_beam != "separate"):
-            stack, legs, sets, table = self._render_ground_compiled(sonar, fan, reach, multipath)
+            stack, legs, sets, table = self._render_ground_compiled(sonar, pose, fan, reach, multipath)
         else:
-            stack, legs, sets, table = self._render_paths(sonar, fan, reach, active, render.max_order if multipath else 1)
+            stack, legs, sets, table = self._render_paths(sonar, pose, fan, reach, active,
+                                                          render.max_order if multipath else 1)
         t3 = time.perf_counter()
         if sets is None:  # ground only: its four images are the four ground-only signatures
             rows = {c.name: stack[c.rows[0]] for c in component_table(render.max_order) if len(c.rows) == 1}
