@@ -304,7 +304,7 @@ class Simulator:
         self.last_timing = {"setup": t1 - t0, "render": t3 - t1, "assemble": t4 - t3, "total": t4 - t0}
         return SonarImage(
             polar=total, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg,
-            components=components, sonar=sonar, rays=rays, config=config,
+            components=components, sonar=sonar, pose=pose, rays=rays, config=config,
         )
 
 
