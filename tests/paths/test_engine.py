@@ -27,7 +27,7 @@ from tests.paths.test_algorithm2 import _scenes as ground_scenes
 
 def former_fast_method(sim: sonarsim.Simulator) -> dict[str, np.ndarray]:
     """object, ground, double and triple images as the former fast method formed them."""
-    sonar, pose, render, ground = sim.scene.sonar, sim.scene.sonar.pose, sim.scene.render, sim.scene.ground
+    sonar, pose, render, ground = sim.scene.sonar, sim.scene.sonar_pose, sim.scene.render, sim.scene.ground
     fan = sim.ray_fan(sonar)
     origin, directions = pose.translation, fan.directions @ pose.rotation.T
     reach = sonar.range_max_m * RANGE_MARGIN * MULTIPATH_REACH

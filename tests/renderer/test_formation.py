@@ -204,6 +204,23 @@ def test_the_image_carries_the_pose_it_was_rendered_at():
         img = sim.render(pose=given)
         assert img.pose == other
         assert img.config["sonar"]["pose"] == other.to_dict()
+        assert img.sonar is sim.scene.sonar  # the intrinsics, unchanged
+
+
+def test_other_intrinsics_render_at_the_scene_pose_and_every_pose_shares_the_ray_fan():
+    from dataclasses import replace
+
+    pose = Pose((0.0, 0.0, 1.0), (0.0, 20.0, 0.0))
+    sim = sonarsim.Simulator({"sonar": sonar_dict(pose=pose.to_dict()), "ground": {}})
+    fan = sim.ray_fan(sim.scene.sonar)
+    sim.render(pose=Pose((0.0, 0.0, 1.5), (0.0, 30.0, 0.0)))
+    # Keyed by the intrinsics: an equal configuration (another object) finds the same fan.
+    assert sim.ray_fan(replace(sim.scene.sonar)) is fan
+    near = replace(sim.scene.sonar, range_max_m=3.0)
+    img = sim.render(sonar=near)
+    assert img.pose == pose and img.sonar is near
+    np.testing.assert_array_equal(img.range_m, near.range_m)
+    assert img.config["sonar"]["range_max_m"] == 3.0 and img.config["sonar"]["pose"] == pose.to_dict()
 
 
 def algorithm1_reference(distance, intensity, beam, range_min, dr, n_bins, n_beams):

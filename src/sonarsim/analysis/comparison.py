@@ -560,7 +560,7 @@ def _load_npz(p: Path, name: str, component: str | None):
         from ..config.loader import parse_pose
 
         try:
-            pose = kwargs["pose"] = parse_pose(s["pose"], "sonar.pose")
+            pose = parse_pose(s["pose"], "sonar.pose")
         except SonarsimError:
             pass  # the pose plays no part in a comparison; a bad one must not block it
     elevation = s.get("elevation_fov_deg", 14.0)

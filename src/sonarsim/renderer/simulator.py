@@ -13,13 +13,12 @@ import time
 import warnings
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from ..config.loader import load_scene, parse_pose
-from ..config.scene import Scene
+from ..config.scene import Scene, sonar_section
 from ..config.sonar import SonarConfig
 from ..core.memory import keep_freed_memory
 from ..core.radiometry import lambertian_intensity
@@ -107,10 +106,10 @@ class Simulator:
         # Albedo by surface id + 1: index 0 is "no hit", p + 1 plane p, P + k + 1 object k.
         self._albedo = np.concatenate([[0.0], self.planes.albedo, [o.albedo for o in self.scene.objects]])
         self._rng = np.random.default_rng(self.scene.render.seed)  # speckle, frame after frame
-        self._fans: dict[SonarConfig, RayFan] = {}
+        self._fans: dict[SonarConfig, RayFan] = {}  # by intrinsics: every pose shares the fan
         self._last_fan: tuple[SonarConfig, RayFan] | None = None
         self.last_timing: dict[str, float] = {}
-        self._config = self.scene.to_dict()  # the scene-file form; each frame adds its sonar
+        self._config = self.scene.to_dict()  # the scene-file form; each frame adds its sonar and pose
         # The paper's case (ground alone, order 3) on kernels specialised for it; False: the
         # general path engine for every frame (same images; the tests compare the two).
         self.specialise_ground = True
@@ -131,14 +130,13 @@ class Simulator:
         self.close()
 
     def ray_fan(self, sonar: SonarConfig) -> RayFan:
-        """The (cached) rays of a sonar in its own frame."""
+        """The (cached) rays of a sonar (its intrinsics) in its own frame."""
         if self._last_fan is not None and self._last_fan[0] is sonar:
             return self._last_fan[1]
-        key = replace(sonar, pose=Pose())
-        fan = self._fans.get(key)
+        fan = self._fans.get(sonar)
         if fan is None:
             fan = make_ray_fan(sonar, self.scene.render)
-            self._fans = {key: fan}  # one sonar at a time is the common case; keep memory flat
+            self._fans = {sonar: fan}  # one sonar at a time is the common case; keep memory flat
         self._last_fan = (sonar, fan)
         return fan
 
@@ -245,11 +243,17 @@ class Simulator:
         Parameters
         ----------
         pose : Pose, dict or (4, 4) array, optional
-            Sonar pose in the world frame; default the scene's.
+            Sonar pose in the world frame (sonar-to-world); default the scene's
+            (``scene.sonar_pose``).
         sonar : SonarConfig, optional
-            Another sonar (its pose is used unless ``pose`` is given); default the scene's.
+            Other intrinsics (beams, elevation aperture, range window); default the scene's.
         keep_rays : bool
             Attach the per-ray maps (D_f, I_f, labels) to the result.
+
+        Returns
+        -------
+        SonarImage
+            With ``sonar`` the intrinsics and ``pose`` the pose rendered.
 
         Raises
         ------
@@ -258,9 +262,8 @@ class Simulator:
         """
         t0 = time.perf_counter()
         sonar = sonar if sonar is not None else self.scene.sonar
-        if pose is not None:
-            sonar = sonar.with_pose(as_pose(pose))
-        pose_given, pose = pose is not None, sonar.pose
+        pose_given = pose is not None
+        pose = as_pose(pose) if pose_given else self.scene.sonar_pose
         if len(self.planes) and np.abs(self.planes.signed_distance(pose.translation)).min() < ON_PLANE_TOLERANCE_M:
             check_sonar_position(self.scene.reflecting_planes, pose.position_m,
                                  "pose" if pose_given else "sonar.pose.position_m")
@@ -299,7 +302,7 @@ class Simulator:
                 azimuth_deg=np.degrees(fan.azimuth_rad),
                 elevation_deg=np.degrees(fan.elevation_rad),
             )
-        config = {**self._config, "sonar": sonar.to_dict()}
+        config = {**self._config, "sonar": sonar_section(sonar, pose)}
         t4 = time.perf_counter()
         self.last_timing = {"setup": t1 - t0, "render": t3 - t1, "assemble": t4 - t3, "total": t4 - t0}
         return SonarImage(
