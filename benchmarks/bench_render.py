@@ -67,7 +67,8 @@ def scene_with_mesh(n_triangles: int) -> sonarsim.Scene:
     # Resting on the floor (touching it at its lowest point), so that no part is clipped away.
     z = 1e-3 - float(np.asarray(mesh.vertices)[:, 2].min())
     rock = ObjectSpec(name="rock", mesh=mesh, pose=Pose((3.5, -0.05, z)), albedo=0.7)
-    return sonarsim.Scene(sonar=base.sonar, objects=base.objects + (rock,), ground=base.ground, render=base.render)
+    return sonarsim.Scene(sonar=base.sonar, sonar_pose=base.sonar_pose, objects=base.objects + (rock,),
+                          ground=base.ground, render=base.render)
 
 
 def oculus_scene() -> dict:

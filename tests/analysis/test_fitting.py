@@ -52,6 +52,18 @@ def test_band_domain_fit_recovers_a_floor_pose_with_roll():
     assert res.onset_rms_m < 0.005
 
 
+def test_the_fit_result_scene_has_the_fitted_pose_and_the_scene_intrinsics():
+    real = sonarsim.render(floor_scene(0.40, 28.0, 0.0))
+    start = floor_scene(0.37, 26.0, 0.0)
+    res = fit_pose(real, start, free=("z", "pitch"), domain="band", max_renders=12)
+    assert res.scene.sonar_pose == res.pose != start.sonar_pose
+    assert res.scene.sonar == start.sonar  # intrinsics untouched
+    assert res.scene.objects == start.objects and res.scene.ground == start.ground
+    assert res.image.pose == res.pose  # the render at the fitted pose
+    assert res.image.sonar.beam_angles_deg == real.sonar.beam_angles_deg
+    assert res.image.sonar.elevation_fov_deg == start.sonar.elevation_fov_deg
+
+
 def test_band_edges_follow_the_flat_floor_formula():
     h, tau, elev = 0.4, 28.0, 12.0
     img = sonarsim.render(floor_scene(h, tau, 0.0))
@@ -96,8 +108,8 @@ def test_fit_command_writes_the_fitted_scene_and_the_side_by_side_image(tmp_path
                "--domain", "band", "--out", str(out)])
     assert rc == 0
     fitted = sonarsim.load_scene(out)
-    assert abs(fitted.sonar.pose.position_m[2] - 0.40) < 0.01
-    assert abs(fitted.sonar.pose.rpy_deg[1] - 28.0) < 1.0
+    assert abs(fitted.sonar_pose.position_m[2] - 0.40) < 0.01
+    assert abs(fitted.sonar_pose.rpy_deg[1] - 28.0) < 1.0
     assert yaml.safe_load(out.read_text())["sonar"]["preset"] == "oculus-m1200d-hf"  # the user's document
     picture = Image.open(tmp_path / "out" / "fitted_fit.png")
     assert picture.mode == "RGB" and picture.size[0] > picture.size[1]

@@ -22,6 +22,7 @@ from sonarsim import ConfigError, SonarsimError, load_scene
 from sonarsim.scene.meshes import object_mesh_world
 from sonarsim.config.presets import PRESETS
 from sonarsim.config.sonar import uniform_beam_angles_deg
+from sonarsim.core.transforms import Pose
 
 # --------------------------------------------------------------------------- the base scene
 
@@ -387,7 +388,7 @@ def _quat_from_rpy_deg(roll, pitch, yaw):
 
 
 def _sonar_rotation(pose: dict) -> np.ndarray:
-    return load_scene(modified((("sonar", "pose"), pose))).sonar.pose.rotation
+    return load_scene(modified((("sonar", "pose"), pose))).sonar_pose.rotation
 
 
 def test_quaternion_pitch_matches_rpy() -> None:
@@ -396,7 +397,7 @@ def test_quaternion_pitch_matches_rpy() -> None:
     r_quat = _sonar_rotation({"position_m": [0, 0, 1], "quat_xyzw": q})
     r_rpy = _sonar_rotation({"position_m": [0, 0, 1], "rpy_deg": [0.0, 20.0, 0.0]})
     np.testing.assert_allclose(r_quat, r_rpy, atol=1e-12)
-    s = load_scene(modified((("sonar", "pose"), {"quat_xyzw": q}))).sonar.pose
+    s = load_scene(modified((("sonar", "pose"), {"quat_xyzw": q}))).sonar_pose
     assert s.rpy_deg == pytest.approx((0.0, 20.0, 0.0), abs=1e-9)
 
 
@@ -436,12 +437,62 @@ def test_positive_yaw_turns_x_axis_left() -> None:
 
 
 def test_missing_pose_parts_default_to_zero() -> None:
-    sonar = load_scene(modified((("sonar", "pose"), {}))).sonar
-    assert sonar.pose.position_m == (0.0, 0.0, 0.0)
-    np.testing.assert_allclose(sonar.pose.rotation, np.eye(3))
+    pose = load_scene(modified((("sonar", "pose"), {}))).sonar_pose
+    assert pose.position_m == (0.0, 0.0, 0.0)
+    np.testing.assert_allclose(pose.rotation, np.eye(3))
     doc = modified()
     del doc["sonar"]["pose"]
-    np.testing.assert_allclose(load_scene(doc).sonar.pose.rotation, np.eye(3))
+    assert load_scene(doc).sonar_pose == Pose()
+
+
+def test_the_sonar_config_is_the_intrinsics_alone_and_hashable() -> None:
+    from dataclasses import fields
+
+    from sonarsim.config.sonar import SonarConfig
+
+    assert "pose" not in {f.name for f in fields(SonarConfig)} and not hasattr(SonarConfig, "with_pose")
+    with pytest.raises(TypeError):
+        SonarConfig.uniform(8, 20.0, 14.0, 0.5, 5.0, 100, pose=Pose())
+    here = load_scene(BASE)
+    there = load_scene(modified((("sonar", "pose"), {"position_m": [1.0, 2.0, 0.5], "rpy_deg": [5.0, 10.0, 15.0]})))
+    # The same intrinsics at two poses: one key, one hash (the renderer's ray fans share it).
+    assert here.sonar == there.sonar and hash(here.sonar) == hash(there.sonar)
+    assert here.sonar_pose != there.sonar_pose
+    assert "pose" not in here.sonar.to_dict()
+    assert {here.sonar: 1}[there.sonar] == 1
+    other = load_scene(modified((("sonar", "elevation_fov_deg"), 20.0))).sonar
+    assert other != here.sonar and len({here.sonar, there.sonar, other}) == 2
+
+
+@pytest.mark.parametrize("pose", [
+    {"position_m": [0.5, -1.0, 1.25], "rpy_deg": [3.0, 27.5, -40.0]},
+    {"position_m": [0.0, 0.0, 2.0], "quat_xyzw": [0.1, 0.2, -0.3, 0.9]},
+])
+def test_scene_to_dict_round_trips_the_sonar_pose(pose) -> None:
+    from sonarsim.config.loader import scene_from_dict
+
+    scene = load_scene(modified((("sonar", "pose"), pose)))
+    d = scene.to_dict()
+    # Written inside the sonar section, where scene files have it.
+    assert list(d["sonar"])[:6] == ["beam_angles_deg", "elevation_fov_deg", "range_min_m", "range_max_m",
+                                   "n_range_bins", "pose"]
+    assert d["sonar"]["pose"] == scene.sonar_pose.to_dict()
+    again = scene_from_dict(json.loads(json.dumps(d)))
+    assert again.sonar == scene.sonar
+    np.testing.assert_allclose(again.sonar_pose.matrix(), scene.sonar_pose.matrix(), atol=1e-12)
+    if "rpy_deg" in pose:  # given as roll-pitch-yaw: written back exactly
+        assert again.sonar_pose == scene.sonar_pose
+    assert again.to_dict() == json.loads(json.dumps(d))
+
+
+def test_scene_with_pose_moves_the_sonar_only() -> None:
+    scene = load_scene(BASE)
+    pose = Pose((1.0, 0.0, 0.5), (0.0, 10.0, 0.0))
+    moved = scene.with_pose(pose)
+    assert moved.sonar_pose == pose and moved.sonar is scene.sonar
+    assert moved.objects == scene.objects and moved.render == scene.render and moved.ground == scene.ground
+    assert scene.sonar_pose == Pose((0.0, 0.0, 1.0), (0.0, 20.0, 0.0))  # unchanged
+    assert moved.to_dict()["sonar"]["pose"] == {"position_m": [1.0, 0.0, 0.5], "rpy_deg": [0.0, 10.0, 0.0]}
 
 
 def test_optional_sections() -> None:

@@ -75,9 +75,9 @@ def test_equality_and_hash_follow_the_matrix():
     assert len({a, b, Pose()}) == 2
 
 
-def test_a_sonar_with_a_pose_is_a_dict_key():
-    s = SonarConfig.uniform(8, 20.0, 14.0, 0.5, 5.0, 100, pose=Pose((0, 0, 1), (0, 20, 0)))
-    t = SonarConfig.uniform(8, 20.0, 14.0, 0.5, 5.0, 100, pose=Pose((0, 0, 1), (0, 20, 0)))
+def test_a_sonar_and_its_pose_are_a_dict_key():
+    s = SonarConfig.uniform(8, 20.0, 14.0, 0.5, 5.0, 100), Pose((0, 0, 1), (0, 20, 0))
+    t = SonarConfig.uniform(8, 20.0, 14.0, 0.5, 5.0, 100), Pose((0, 0, 1), (0, 20, 0))
     assert {s: 1}[t] == 1
 
 

@@ -88,7 +88,7 @@ def test_the_sonar_delegates_its_grid_properties():
     np.testing.assert_allclose(s.beam_edges_deg, [10.0, 5.0, 0.0, -5.0, -10.0])
     assert s.azimuth_fov_deg == pytest.approx(20.0)
     assert s.range_resolution_m == 0.25
-    # The grid ignores the pose: the same sonar elsewhere has the same grid.
-    from sonarsim.core.transforms import Pose
+    # The grid is the beams and the range window alone: another elevation aperture, the same grid.
+    from dataclasses import replace
 
-    assert s.with_pose(Pose((1.0, 2.0, 3.0), (0.0, 10.0, 0.0))).grid == g
+    assert replace(s, elevation_fov_deg=20.0).grid == g

@@ -181,6 +181,17 @@ def test_aris_bright_sample_lands_in_left_most_first_column(tmp_path):
     assert image.config["header"]["PingMode"] == 1
 
 
+def test_a_recording_has_intrinsics_but_no_pose(tmp_path):
+    # Neither format records where the sonar was: the image says so rather than inventing one.
+    aris = readers.read(write_aris(tmp_path / "one.aris", [({}, [(40, 5)])]))
+    path = tmp_path / "one.raw"
+    path.write_bytes(oculus_message(bright_image(50, 16, [(30, 3, 200)]), ascending_bearings(16)))
+    oculus = readers.read(path)
+    for image in (aris, oculus):
+        assert image.pose is None
+        assert image.sonar.n_beams == image.polar.shape[1]
+
+
 def test_aris_range_axis_from_header_fields(tmp_path):
     # start = 2000 us * 1500 / 2 = 1.5 m; sample = 10 us * 1500 / 2 = 7.5 mm; 100 samples.
     path = write_aris(tmp_path / "r.aris", [({}, [])])

@@ -25,8 +25,7 @@ def sphere_scene(centre, radius=0.05, **render):
 
 
 def sonar_frame(img, p):
-    s = img.sonar
-    return (np.asarray(p) - s.pose.translation) @ s.pose.rotation
+    return (np.asarray(p) - img.pose.translation) @ img.pose.rotation
 
 
 def beam_of(img, p):
@@ -46,7 +45,7 @@ def test_single_double_triple_land_where_the_geometry_says():
     r = 0.05
     img = sonarsim.render(sphere_scene(c, r))
     s = img.sonar
-    o = s.pose.translation
+    o = img.pose.translation
     c_mirror = c * [1, 1, -1]
     oc, oc_m = np.linalg.norm(c - o), np.linalg.norm(c_mirror - o)
     for p in (c, c_mirror):  # the set-up keeps both in the aperture

@@ -27,9 +27,9 @@ from tests.paths.test_algorithm2 import _scenes as ground_scenes
 
 def former_fast_method(sim: sonarsim.Simulator) -> dict[str, np.ndarray]:
     """object, ground, double and triple images as the former fast method formed them."""
-    sonar, render, ground = sim.scene.sonar, sim.scene.render, sim.scene.ground
+    sonar, pose, render, ground = sim.scene.sonar, sim.scene.sonar_pose, sim.scene.render, sim.scene.ground
     fan = sim.ray_fan(sonar)
-    origin, directions = sonar.pose.translation, fan.directions @ sonar.pose.rotation.T
+    origin, directions = pose.translation, fan.directions @ pose.rotation.T
     reach = sonar.range_max_m * RANGE_MARGIN * MULTIPATH_REACH
     hits = trace(sim.caster, origin, directions, ground, reach)
     albedo = sim._albedo  # [none, ground, objects...]: the same table with the ground alone
@@ -40,7 +40,7 @@ def former_fast_method(sim: sonarsim.Simulator) -> dict[str, np.ndarray]:
     rays = [RayEnergy(hits.distance_m, intensity, np.arange(sonar.n_beams)[:, None, None], label, cont)]
     paths = fast_mirror_paths(sim.caster, origin, directions, hits, ground.height_m, fan.weight, albedo, render.tvg,
                               reach)
-    rays += ground_echo_rays(paths, sonar, render, ground.specular, sim.caster, labels=(2, 3))
+    rays += ground_echo_rays(paths, sonar, pose, render, ground.specular, sim.caster, labels=(2, 3))
     img = accumulate(rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams, 4)
     return dict(zip(("object", "ground", "double", "triple"), img))
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import sonarsim
+from sonarsim.core.transforms import Pose
 from sonarsim.renderer.formation import form_image
 from tests.conftest import sonar_dict
 
@@ -192,6 +193,34 @@ def test_left_of_the_sonar_is_the_left_columns_and_pose_moves_the_view():
     img = sim.render(pose={"position_m": [0, 0, 0], "rpy_deg": [0, 0, 90]})
     cols = np.flatnonzero(img.polar.any(axis=0))
     assert cols.min() + cols.max() == 31 and cols.size < 12  # centred on the middle beams
+
+
+def test_the_image_carries_the_pose_it_was_rendered_at():
+    start = Pose((0.0, 0.0, 1.0), (0.0, 20.0, 0.0))
+    sim = sonarsim.Simulator({"sonar": sonar_dict(pose=start.to_dict()), "ground": {}})
+    assert sim.render().pose == start  # the scene's
+    other = Pose((0.5, -0.2, 1.2), (2.0, 25.0, -5.0))
+    for given in (other, other.matrix(), other.to_dict()):
+        img = sim.render(pose=given)
+        assert img.pose == other
+        assert img.config["sonar"]["pose"] == other.to_dict()
+        assert img.sonar is sim.scene.sonar  # the intrinsics, unchanged
+
+
+def test_other_intrinsics_render_at_the_scene_pose_and_every_pose_shares_the_ray_fan():
+    from dataclasses import replace
+
+    pose = Pose((0.0, 0.0, 1.0), (0.0, 20.0, 0.0))
+    sim = sonarsim.Simulator({"sonar": sonar_dict(pose=pose.to_dict()), "ground": {}})
+    fan = sim.ray_fan(sim.scene.sonar)
+    sim.render(pose=Pose((0.0, 0.0, 1.5), (0.0, 30.0, 0.0)))
+    # Keyed by the intrinsics: an equal configuration (another object) finds the same fan.
+    assert sim.ray_fan(replace(sim.scene.sonar)) is fan
+    near = replace(sim.scene.sonar, range_max_m=3.0)
+    img = sim.render(sonar=near)
+    assert img.pose == pose and img.sonar is near
+    np.testing.assert_array_equal(img.range_m, near.range_m)
+    assert img.config["sonar"]["range_max_m"] == 3.0 and img.config["sonar"]["pose"] == pose.to_dict()
 
 
 def algorithm1_reference(distance, intensity, beam, range_min, dr, n_bins, n_beams):

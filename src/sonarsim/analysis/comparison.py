@@ -435,7 +435,8 @@ def load_image(path: str | os.PathLike, frame: int | None = None, component: str
       keys ``polar``, ``range_m``, ``azimuth_deg``, ``config_json``): a
       :class:`~sonarsim.SonarImage` whose :class:`~sonarsim.SonarConfig` is rebuilt from the
       axes (range window from the uniform bin centres, beam table from ``azimuth_deg``) and
-      from the configuration (elevation aperture, 14 deg if absent; pose; beam width). Its
+      from the configuration (elevation aperture, 14 deg if absent; beam width); its ``pose``
+      is the configuration's ``sonar.pose`` (None if absent or unreadable). Its
       ``components`` are the stored ones; ``rays`` is None.
     * a PNG: a :class:`PlainImage` (no geometry) holding the grey levels as float32 (colour is
       converted to luma by Pillow; 16-bit and float images keep their values). Rows are
@@ -554,11 +555,12 @@ def _load_npz(p: Path, name: str, component: str | None):
     for k in ("beam_width_deg", "frequency_khz"):
         if isinstance(s.get(k), (int, float)):
             kwargs[k] = float(s[k])
+    pose = None
     if isinstance(s.get("pose"), dict):
         from ..config.loader import parse_pose
 
         try:
-            kwargs["pose"] = parse_pose(s["pose"], "sonar.pose")
+            pose = parse_pose(s["pose"], "sonar.pose")
         except SonarsimError:
             pass  # the pose plays no part in a comparison; a bad one must not block it
     elevation = s.get("elevation_fov_deg", 14.0)
@@ -581,6 +583,6 @@ def _load_npz(p: Path, name: str, component: str | None):
         if k != "polar" and not k.startswith("rays_") and np.shape(v) == polar.shape
     }
     return SonarImage(
-        polar=polar, range_m=range_m, azimuth_deg=azimuth, components=components, sonar=sonar,
+        polar=polar, range_m=range_m, azimuth_deg=azimuth, components=components, sonar=sonar, pose=pose,
         rays=None, config=config,
     )

@@ -146,6 +146,8 @@ class FitResult:
     ----------
     pose : Pose
         The fitted sonar pose (world frame).
+    scene : Scene
+        The scene fitted, with ``pose`` as its ``sonar_pose`` (its sonar intrinsics unchanged).
     free : tuple of str
         The parameters that were fitted.
     domain : str
@@ -161,7 +163,8 @@ class FitResult:
     renders : int
         Number of images rendered.
     image : SonarImage
-        The render at the fitted pose, in the real image's geometry.
+        The render at the fitted pose (its ``pose``), in the real image's geometry (its ``sonar``:
+        the real image's beams and range window, the scene's elevation aperture).
     """
 
     pose: Pose
@@ -174,6 +177,7 @@ class FitResult:
     onset_rms_m: float
     renders: int
     image: SonarImage
+    scene: Scene
 
 
 DOMAINS = ("edges", "band")
@@ -196,7 +200,8 @@ def fit_pose(
         The real (or reference) image; its beam angles, range window and bins are used for the
         renders.
     scene : Scene
-        The scene; its sonar pose is the starting point, its elevation aperture is used.
+        The scene; its sonar pose (``scene.sonar_pose``) is the starting point, its elevation
+        aperture is used.
     free : sequence of {'x', 'y', 'z', 'roll', 'pitch', 'yaw'}
         Parameters to fit; the others keep the scene's values.
     domain : {'edges', 'band'}
@@ -212,8 +217,9 @@ def fit_pose(
     if domain not in DOMAINS:
         raise ConfigError("domain", f"unknown domain {domain!r}; allowed: {', '.join(DOMAINS)}")
     sim = simulator if simulator is not None else Simulator(scene)
+    # The intrinsics of every render (fixed); only the pose varies.
     geometry = replace(real.sonar, elevation_fov_deg=scene.sonar.elevation_fov_deg)
-    start = pose_values(scene.sonar.pose)
+    start = pose_values(scene.sonar_pose)
     renders = 0
     real_onset, real_end = floor_band_m(real)
 
@@ -221,7 +227,7 @@ def fit_pose(
         nonlocal renders
         renders += 1
         values = dict(start, **dict(zip(free, map(float, vec))))
-        return sim.render(sonar=geometry.with_pose(pose_from_values(values)), keep_rays=False)
+        return sim.render(pose=pose_from_values(values), sonar=geometry, keep_rays=False)
 
     def onset_rms(image: SonarImage) -> float:
         d = floor_onset_m(image) - real_onset
@@ -257,8 +263,9 @@ def fit_pose(
     cost_start = final_cost(render_at(x0))
     fitted = render_at(x)
     values = dict(start, **dict(zip(free, map(float, x))))
+    pose = pose_from_values(values)
     return FitResult(
-        pose=pose_from_values(values), free=free, domain=domain, start=start, values=values,
+        pose=pose, scene=scene.with_pose(pose), free=free, domain=domain, start=start, values=values,
         cost_start=cost_start, cost=final_cost(fitted), onset_rms_m=onset_rms(fitted), renders=renders,
         image=fitted,
     )

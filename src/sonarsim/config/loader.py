@@ -106,7 +106,22 @@ def parse_pose(d: Any, where: str) -> Pose:
 
 
 def parse_sonar(d: Any, base_dir: Path | None) -> SonarConfig:
-    """The ``sonar`` section: a preset (optional) overridden by the keys given."""
+    """The intrinsics of the ``sonar`` section: a preset (optional) overridden by the keys given.
+
+    Its ``pose`` is checked too; :func:`parse_sonar_section` returns it as well.
+    """
+    return parse_sonar_section(d, base_dir)[0]
+
+
+def parse_sonar_section(d: Any, base_dir: Path | None) -> tuple[SonarConfig, Pose]:
+    """The ``sonar`` section: the intrinsics (a preset, optional, overridden by the keys given)
+    and the pose (``sonar.pose``; the origin looking along +x if absent).
+
+    Returns
+    -------
+    sonar : SonarConfig
+    pose : Pose
+    """
     _check_keys(d, SONAR_KEYS, "sonar")
     merged: dict[str, Any] = {}
     preset_name = None
@@ -169,7 +184,6 @@ def parse_sonar(d: Any, base_dir: Path | None) -> SonarConfig:
         range_min_m=r_min,
         range_max_m=r_max,
         n_range_bins=n_bins,
-        pose=pose,
         preset=preset_name,
         **extra,
     )
@@ -177,10 +191,11 @@ def parse_sonar(d: Any, base_dir: Path | None) -> SonarConfig:
         angles = _vector(merged["beam_angles_deg"], "sonar.beam_angles_deg", None)
         if "n_beams" in merged and get("n_beams", _integer) != len(angles):
             raise ConfigError("sonar.n_beams", f"is {merged['n_beams']} but beam_angles_deg has {len(angles)} angles")
-        return SonarConfig(beam_angles_deg=angles, **common)
-    return SonarConfig.uniform(
+        return SonarConfig(beam_angles_deg=angles, **common), pose
+    sonar = SonarConfig.uniform(
         n_beams=get("n_beams", _integer), azimuth_fov_deg=get("azimuth_fov_deg", _number), **common
     )
+    return sonar, pose
 
 
 def parse_render(d: Any) -> RenderSettings:
@@ -289,10 +304,12 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
         planes_raw = d.get("planes", []) or []
         if not isinstance(planes_raw, list):
             raise ConfigError("planes", f"must be a list of planes, got {type(planes_raw).__name__}")
+        sonar, sonar_pose = parse_sonar_section(d["sonar"], base)
         return _prefixed(
             "",
             Scene,
-            sonar=parse_sonar(d["sonar"], base),
+            sonar=sonar,
+            sonar_pose=sonar_pose,
             objects=tuple(parse_object(o, i, base) for i, o in enumerate(objects_raw)),
             ground=parse_ground(d.get("ground")),
             planes=tuple(parse_plane(p, i) for i, p in enumerate(planes_raw)),

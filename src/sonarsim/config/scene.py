@@ -1,4 +1,5 @@
-"""Scene description: objects, the ground plane, render settings and the sonar.
+"""Scene description: objects, the ground plane, render settings and the sonar (its intrinsics
+and its pose).
 
 These frozen dataclasses are what the rest of sonarsim trusts. They check their own values on
 construction (so Python callers get the same messages as scene files); :mod:`sonarsim.config.loader`
@@ -341,11 +342,16 @@ class RenderSettings:
 
 @dataclass(frozen=True)
 class Scene:
-    """Everything needed to render: sonar, objects, optional ground, render settings.
+    """Everything needed to render: sonar and its pose, objects, optional ground, render settings.
 
     Attributes
     ----------
     sonar : SonarConfig
+        The sonar's intrinsics (beams, elevation aperture, range window).
+    sonar_pose : Pose
+        The sonar's pose in the world frame (sonar-to-world; the sonar frame is x forward,
+        y left, z up). Scene files give it as ``sonar.pose``. Default: the origin, looking
+        along +x.
     objects : tuple of ObjectSpec
     ground : GroundSpec or None
         ``None``: no ground. Shorthand for a horizontal plane named ``ground``.
@@ -362,6 +368,8 @@ class Scene:
     render: RenderSettings = field(default_factory=RenderSettings)
     source: str | None = None
     planes: tuple[PlaneSpec, ...] = ()
+    # Last, so that the fields before it keep their positions.
+    sonar_pose: Pose = field(default_factory=Pose)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "objects", tuple(self.objects))
@@ -393,13 +401,13 @@ class Scene:
         return ((self.ground.as_plane(),) if self.ground is not None else ()) + self.planes
 
     def with_pose(self, pose: Pose) -> "Scene":
-        """The same scene with the sonar at another pose."""
-        return replace(self, sonar=self.sonar.with_pose(pose))
+        """The same scene with the sonar at another pose (``sonar_pose``); intrinsics unchanged."""
+        return replace(self, sonar_pose=pose)
 
     def to_dict(self) -> dict:
-        """The scene-file form (JSON/YAML-serialisable)."""
+        """The scene-file form (JSON/YAML-serialisable); the pose is ``sonar.pose``."""
         out: dict = {
-            "sonar": self.sonar.to_dict(),
+            "sonar": sonar_section(self.sonar, self.sonar_pose),
             "render": self.render.to_dict(),
             "objects": [o.to_dict() for o in self.objects],
         }
@@ -408,6 +416,23 @@ class Scene:
         if self.planes:
             out["planes"] = [p.to_dict() for p in self.planes]
         return out
+
+
+def sonar_section(sonar: SonarConfig, pose: Pose) -> dict:
+    """The ``sonar`` section of a scene file: the intrinsics of ``sonar`` and ``pose``.
+
+    Returns
+    -------
+    dict
+        :meth:`SonarConfig.to_dict` with ``pose`` (:meth:`Pose.to_dict`) after
+        ``n_range_bins``, where scene files have always had it.
+    """
+    out: dict = {}
+    for key, value in sonar.to_dict().items():
+        out[key] = value
+        if key == "n_range_bins":
+            out["pose"] = pose.to_dict()
+    return out
 
 
 # A sonar closer than this to a plane is "on" it: neither side can be told apart at float32.

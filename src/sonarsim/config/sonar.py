@@ -1,4 +1,8 @@
-"""The sonar: beam geometry, elevation aperture, range window and pose.
+"""The sonar's intrinsics: beam geometry, elevation aperture and range window.
+
+Where the sonar is (its pose) is not part of it: a :class:`~sonarsim.core.transforms.Pose` held
+next to it (``Scene.sonar_pose``, ``SonarImage.pose``, ``Simulator.render(pose=...)``), so that
+one :class:`SonarConfig` serves every pose (the renderer keys its ray fans by it).
 
 Beam angles are azimuths in degrees, LEFT-most (port) beam first; a positive azimuth is to the
 sonar's left, so the list descends. Range bin ``i`` covers
@@ -7,11 +11,10 @@ sonar's left, so the list descends. Range bin ``i`` covers
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.transforms import Pose
 from ..errors import ConfigError
 from ..image.grid import PolarGrid, beam_edges_deg
 
@@ -32,7 +35,10 @@ def uniform_beam_angles_deg(n_beams: int, azimuth_fov_deg: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class SonarConfig:
-    """A forward-looking sonar. Construct with :meth:`uniform` or an explicit beam table.
+    """A forward-looking sonar's intrinsics. Construct with :meth:`uniform` or an explicit beam table.
+
+    Frozen and hashable (equal configurations hash alike): a dict key for what depends on the
+    sonar alone, such as its ray fan. It holds no pose.
 
     Attributes
     ----------
@@ -44,8 +50,6 @@ class SonarConfig:
         The range window, metres.
     n_range_bins : int
         Number of range bins (rows of the polar image).
-    pose : Pose
-        Sonar pose in the world frame (x forward, y left, z up in the sonar frame).
     beam_width_deg : float or None
         Azimuth width of one beam, used to spread rays across a beam
         (``render.azimuth_samples > 1``); ``None`` means the spacing between beam centres.
@@ -60,7 +64,6 @@ class SonarConfig:
     range_min_m: float
     range_max_m: float
     n_range_bins: int
-    pose: Pose = field(default_factory=Pose)
     beam_width_deg: float | None = None
     frequency_khz: float | None = None
     preset: str | None = None
@@ -120,7 +123,6 @@ class SonarConfig:
         range_min_m: float,
         range_max_m: float,
         n_range_bins: int,
-        pose: Pose | None = None,
         **kwargs,
     ) -> "SonarConfig":
         """Equal beams spanning ``azimuth_fov_deg`` edge to edge."""
@@ -136,7 +138,6 @@ class SonarConfig:
             range_min_m=range_min_m,
             range_max_m=range_max_m,
             n_range_bins=n_range_bins,
-            pose=pose if pose is not None else Pose(),
             **kwargs,
         )
 
@@ -187,19 +188,18 @@ class SonarConfig:
             return np.full(self.n_beams, self.beam_width_deg)
         return -np.diff(self.beam_edges_deg)
 
-    def with_pose(self, pose: Pose) -> "SonarConfig":
-        """The same sonar at another pose."""
-        return replace(self, pose=pose)
-
     def to_dict(self) -> dict:
-        """Scene-file form, with the beam table written out explicitly."""
+        """Scene-file form of the intrinsics, with the beam table written out explicitly.
+
+        The ``sonar`` section of a scene file also holds the pose: see
+        :func:`sonarsim.config.scene.sonar_section`.
+        """
         out: dict = {
             "beam_angles_deg": list(self.beam_angles_deg),
             "elevation_fov_deg": self.elevation_fov_deg,
             "range_min_m": self.range_min_m,
             "range_max_m": self.range_max_m,
             "n_range_bins": self.n_range_bins,
-            "pose": self.pose.to_dict(),
         }
         for key in ("beam_width_deg", "frequency_khz"):
             if getattr(self, key) is not None:

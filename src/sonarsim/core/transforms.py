@@ -99,7 +99,7 @@ class Pose:
 
     ``p_world = R @ p_body + t``. The matrix is the pose's state; the roll-pitch-yaw angles and
     the quaternion are views of it. Immutable, compared and hashed by its matrix (so that a
-    :class:`~sonarsim.config.sonar.SonarConfig` holding it can be a dict key).
+    :class:`~sonarsim.config.scene.Scene` holding it, as ``sonar_pose``, can be a dict key).
 
     Parameters
     ----------

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..core.transforms import Pose
 from .fan import FanMapper
 from .grid import PolarGrid
 
@@ -68,7 +69,10 @@ class SonarImage:
         :func:`sonarsim.paths.engine.path_name` (e.g. ``O-ground-[objects]-ground-O``). All
         are formed whatever enters the total, so that each is available as a label.
     sonar : SonarConfig
-        The sonar (with its pose) that produced the image.
+        The sonar's intrinsics (beams, elevation aperture, range window) that produced the image.
+    pose : Pose or None
+        The sonar's pose in the world frame (sonar-to-world); ``None`` where it is unknown,
+        as for a real recording read by :mod:`sonarsim.io.readers`.
     rays : RayMaps or None
         Per-ray distance and intensity maps (D_f, I_f) and surface labels.
     config : dict
@@ -80,6 +84,7 @@ class SonarImage:
     azimuth_deg: np.ndarray
     components: Mapping[str, np.ndarray]
     sonar: SonarConfig
+    pose: Pose | None = None
     rays: RayMaps | None = None
     config: dict = field(default_factory=dict)
 

@@ -35,6 +35,7 @@ from ..core.radiometry import lambertian_intensity
 from ..renderer.formation import RayEnergy, accumulate, continuity, form_image
 from ..config.scene import RenderSettings
 from ..config.sonar import SonarConfig
+from ..core.transforms import Pose
 from ..trace.surfaces import GROUND_ID, NO_HIT, SurfaceHits, ground_distance, trace
 
 # Secondary rays start this far off the ground so that they cannot hit the plane's own
@@ -152,6 +153,7 @@ def _beam_of(sonar: SonarConfig, azimuth_deg: np.ndarray) -> np.ndarray:
 def ground_echo_rays(
     paths: MirrorPaths,
     sonar: SonarConfig,
+    pose: Pose,
     render: RenderSettings,
     specular: float,
     caster=None,
@@ -164,6 +166,9 @@ def ground_echo_rays(
     paths : MirrorPaths
         Shaped like the ray fan ``(n_beams, n_azimuth_samples, n_elevation_samples)``.
     sonar : SonarConfig
+        The sonar's intrinsics (beams, elevation aperture, range window).
+    pose : Pose
+        The sonar's pose in the world frame.
     render : RenderSettings
         ``range_splat``, ``double_beam`` and ``double_line_of_sight`` are used.
     specular : float
@@ -184,9 +189,9 @@ def ground_echo_rays(
     reached = np.isfinite(paths.distance_m)
     if not reached.any():
         return out
-    origin = sonar.pose.translation
+    origin = pose.translation
     sel = np.nonzero(reached)
-    rel = (paths.point_real[sel] - origin) @ sonar.pose.rotation  # sonar frame
+    rel = (paths.point_real[sel] - origin) @ pose.rotation  # sonar frame
     oa = np.linalg.norm(rel, axis=-1)
     az = np.degrees(np.arctan2(rel[:, 1], rel[:, 0]))
     el = np.degrees(np.arcsin(np.clip(rel[:, 2] / oa, -1.0, 1.0)))
@@ -198,7 +203,7 @@ def ground_echo_rays(
         & (oa < sonar.range_max_m)
     )
     if render.double_line_of_sight and caster is not None and in_view.any():
-        to_a = (rel[in_view] / oa[in_view, None]) @ sonar.pose.rotation.T
+        to_a = (rel[in_view] / oa[in_view, None]) @ pose.rotation.T
         hit = caster.intersect(origin, to_a, float(oa[in_view].max()) + 1.0)
         # Visible when the first thing on the way is A itself (to float32 precision).
         visible = hit.distance >= oa[in_view] - 1e-3 * np.maximum(oa[in_view], 1.0)
@@ -221,12 +226,13 @@ def ground_echo_rays(
 def ground_echo_images(
     paths: MirrorPaths,
     sonar: SonarConfig,
+    pose: Pose,
     render: RenderSettings,
     specular: float,
     caster=None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The double and triple images, each (n_range_bins, n_beams) float64 (see :func:`ground_echo_rays`)."""
-    rays = ground_echo_rays(paths, sonar, render, specular, caster)
+    rays = ground_echo_rays(paths, sonar, pose, render, specular, caster)
     img = accumulate(rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams, 2)
     return img[0], img[1]
 
@@ -237,6 +243,7 @@ def render_paper(
     origin: np.ndarray,
     directions: np.ndarray,
     sonar: SonarConfig,
+    pose: Pose,
     render: RenderSettings,
     ground,
     weight: np.ndarray,
@@ -247,7 +254,8 @@ def render_paper(
     """Algorithm 2 of the paper, literally: three single-bounce renders and their differences.
 
     ``mirrored_caster`` holds the objects (mesh k = object k) followed by their mirror images
-    (mesh n_objects + k = mirror of object k).
+    (mesh n_objects + k = mirror of object k). ``origin`` (3,) and ``directions`` (..., 3), world
+    frame, are the rays of ``sonar`` (intrinsics) at ``pose``.
 
     Returns
     -------
@@ -283,7 +291,7 @@ def render_paper(
         normal_virtual=hits_oo.normal,
         point_real=mirror_z(a_virtual, ground.height_m),
     )
-    double, _ = ground_echo_images(paths, sonar, render, ground.specular, objects_caster)
+    double, _ = ground_echo_images(paths, sonar, pose, render, ground.specular, objects_caster)
     out["double"] = double
     out["triple"] = ground.specular**2 * i_a_mirror
     return out

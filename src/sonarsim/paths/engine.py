@@ -40,7 +40,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config.sonar import SonarConfig
 from ..core.radiometry import lambertian_intensity
+from ..core.transforms import Pose
 from ..renderer.formation import RayEnergy, accumulate, continuity
 from ..trace.base import Hits
 from .planes import WATER_TOLERANCE_M, ChainTable, PlaneSet, apply, reflection_points
@@ -144,7 +146,7 @@ class PathSet:
 
 @dataclass(frozen=True)
 class SonarView:
-    """What the path formation needs of the sonar at its pose.
+    """What the path formation needs of the sonar (its intrinsics) at its pose.
 
     Attributes
     ----------
@@ -163,9 +165,10 @@ class SonarView:
     range_max_m: float
 
     @classmethod
-    def of(cls, sonar) -> "SonarView":
+    def of(cls, sonar: SonarConfig, pose: Pose) -> "SonarView":
+        """The view of ``sonar`` (its intrinsics) at ``pose`` (sonar-to-world, world frame)."""
         return cls(
-            np.asarray(sonar.pose.translation, float), np.ascontiguousarray(sonar.pose.rotation),
+            np.asarray(pose.translation, float), np.ascontiguousarray(pose.rotation),
             np.ascontiguousarray(sonar.beam_edges_deg), sonar.elevation_fov_deg / 2.0,
             sonar.range_min_m, sonar.range_max_m,
         )

@@ -389,7 +389,7 @@ def _transmit_legs(planes: _Planes, active: np.ndarray, origin: np.ndarray, chai
     return valid, np.where(valid, length, np.nan), departure, vertices
 
 
-def _in_aperture(sonar, departure: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _in_aperture(sonar, pose, departure: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Which world directions (m, 3) leave the sonar inside its fan and elevation aperture.
 
     Returns
@@ -398,7 +398,7 @@ def _in_aperture(sonar, departure: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     beam : (m,) int ndarray
         Beam whose azimuth edges contain the direction (-1 outside the fan).
     """
-    v = departure @ np.asarray(sonar.pose.rotation, dtype=float)  # R^T d, row by row
+    v = departure @ np.asarray(pose.rotation, dtype=float)  # R^T d, row by row
     azimuth = np.degrees(np.arctan2(v[:, 1], v[:, 0]))
     elevation = np.degrees(np.arcsin(np.clip(v[:, 2] / np.linalg.norm(v, axis=1), -1.0, 1.0)))
     edges = np.asarray(sonar.beam_edges_deg, dtype=float)  # descending, left-most beam first
@@ -428,7 +428,7 @@ def _unoccluded(sim, vertices: np.ndarray) -> np.ndarray:
     return free
 
 
-def render_reference(sim, sonar=None, *, max_order: int | None = None, double_beam: str | None = None,
+def render_reference(sim, sonar=None, pose=None, *, max_order: int | None = None, double_beam: str | None = None,
                      double_line_of_sight: bool | None = None, keep_legs: bool = False) -> ReferenceImage:
     """Render one frame with the reference path model (Algorithm 1, no range splatting).
 
@@ -438,7 +438,9 @@ def render_reference(sim, sonar=None, *, max_order: int | None = None, double_be
         Gives the scene (planes, objects' albedo, render settings), the ray fan
         (``sim.ray_fan``) and the objects' caster (``sim.caster``, meshes clipped to the water).
     sonar : SonarConfig, optional
-        Default the scene's sonar (at its pose).
+        The sonar's intrinsics; default the scene's.
+    pose : Pose, optional
+        The sonar's pose; default the scene's (``scene.sonar_pose``).
     max_order, double_beam, double_line_of_sight : optional
         Override the scene's ``render`` settings of those names.
     keep_legs : bool
@@ -451,6 +453,7 @@ def render_reference(sim, sonar=None, *, max_order: int | None = None, double_be
     """
     render = sim.scene.render
     sonar = sim.scene.sonar if sonar is None else sonar
+    pose = sim.scene.sonar_pose if pose is None else pose
     max_order = render.max_order if max_order is None else int(max_order)
     double_beam = render.double_beam if double_beam is None else double_beam
     los = render.double_line_of_sight if double_line_of_sight is None else bool(double_line_of_sight)
@@ -459,8 +462,8 @@ def render_reference(sim, sonar=None, *, max_order: int | None = None, double_be
 
     planes = _Planes(sim.scene.reflecting_planes)
     n_planes = len(planes)
-    origin = np.asarray(sonar.pose.translation, dtype=float).reshape(3)
-    rotation = np.asarray(sonar.pose.rotation, dtype=float)
+    origin = np.asarray(pose.translation, dtype=float).reshape(3)
+    rotation = np.asarray(pose.rotation, dtype=float)
     # A plane takes part only when the sonar is on its water side.
     active = (planes.normal @ origin - planes.offset) > 0.0 if n_planes else np.zeros(0, bool)
     mirrors = [p for p in range(n_planes) if active[p] and planes.specular[p] > 0.0]
@@ -500,7 +503,7 @@ def render_reference(sim, sonar=None, *, max_order: int | None = None, double_be
         if not len(idx):
             continue
         valid, length, departure, vertices = _transmit_legs(planes, active, origin, tx, ev["point"][idx])
-        inside, beam_tx = _in_aperture(sonar, departure)
+        inside, beam_tx = _in_aperture(sonar, pose, departure)
         ok = valid & inside & (length >= sonar.range_min_m) & (length < sonar.range_max_m)
         if los and ok.any():
             sel = np.flatnonzero(ok)

@@ -22,6 +22,7 @@ from ..paths.engine import Leg
 from ..core.rays import RayFan
 from ..config.scene import GroundSpec, RenderSettings
 from ..config.sonar import SonarConfig
+from ..core.transforms import Pose
 
 try:
     from . import _kernels
@@ -88,6 +89,7 @@ class Workspace:
 def render_fast(
     caster,
     sonar: SonarConfig,
+    pose: Pose,
     fan: RayFan,
     ground: GroundSpec | None,
     render: RenderSettings,
@@ -103,7 +105,8 @@ def render_fast(
     Parameters
     ----------
     caster : RayCaster
-    sonar, fan, render : the sonar at its pose, its rays (sonar frame), the settings
+    sonar, pose, fan, render : the sonar's intrinsics, its pose (world frame), its rays (sonar
+        frame), the settings
     ground : GroundSpec or None
     albedo_by_id : (n_objects + 2,) float64 ndarray, indexed by surface id + 1
     reach_m : float
@@ -118,9 +121,9 @@ def render_fast(
     pool : concurrent.futures.ThreadPoolExecutor with one worker, optional
         The other core: casts the reflected rays and forms half of the direct image.
     """
-    origin = sonar.pose.translation
+    origin = pose.translation
     d64 = work.d64
-    _kernels.rotate(fan.directions.reshape(-1, 3), np.ascontiguousarray(sonar.pose.rotation),
+    _kernels.rotate(fan.directions.reshape(-1, 3), np.ascontiguousarray(pose.rotation),
                     origin[0], origin[1], origin[2], d64, work.d32, work.o32)
     hits = caster.intersect(work.o32, work.d32, reach_m)
     weight = fan.weight.reshape(-1)
@@ -182,7 +185,7 @@ def render_fast(
         splat(*direct)
     work.reset_mirror()
     half_el = sonar.elevation_fov_deg / 2.0
-    rotation = np.ascontiguousarray(sonar.pose.rotation)
+    rotation = np.ascontiguousarray(pose.rotation)
     edges = np.ascontiguousarray(sonar.beam_edges_deg)
     for k, (a, b) in enumerate(batches):
         hits2 = pending[k].result() if pool is not None else cast((a, b))
@@ -197,18 +200,18 @@ def render_fast(
         if pipelined:
             echoes((col_cuts[k], col_cuts[k + 1]))
     if not pipelined:
-        _drop_hidden(caster, sonar, ground.height_m, work)
+        _drop_hidden(caster, pose, ground.height_m, work)
         echoes((0, -1))
     if pool is not None:
         right.result()
 
 
-def _drop_hidden(caster, sonar: SonarConfig, ground_height_m: float, work: Workspace) -> None:
-    """``double_line_of_sight``: no double bounce from an A that the sonar cannot see."""
+def _drop_hidden(caster, pose: Pose, ground_height_m: float, work: Workspace) -> None:
+    """``double_line_of_sight``: no double bounce from an A that the sonar (at ``pose``) cannot see."""
     cand = np.flatnonzero(work.e23 > 0)
     if not cand.size:
         return
-    origin = sonar.pose.translation
+    origin = pose.translation
     a_point = work.v_point[cand].copy()  # A', mirrored back across the ground: A
     a_point[:, 2] = 2.0 * ground_height_m - a_point[:, 2]
     to_a = a_point - origin
@@ -220,17 +223,17 @@ def _drop_hidden(caster, sonar: SonarConfig, ground_height_m: float, work: Works
     work.r23[cand[hidden]] = np.inf
 
 
-def rotate(fan: RayFan, sonar: SonarConfig, work: Workspace) -> None:
+def rotate(fan: RayFan, pose: Pose, work: Workspace) -> None:
     """The fan's rays at the sonar's pose: ``work.d64``/``d32`` directions, ``o32`` origins."""
-    o = sonar.pose.translation
-    _kernels.rotate(fan.directions.reshape(-1, 3), np.ascontiguousarray(sonar.pose.rotation), o[0], o[1], o[2],
+    o = pose.translation
+    _kernels.rotate(fan.directions.reshape(-1, 3), np.ascontiguousarray(pose.rotation), o[0], o[1], o[2],
                     work.d64, work.d32, work.o32)
 
 
 class _LegTracer:
     """Receive legs generation by generation (the state between two calls of the kernel)."""
 
-    def __init__(self, caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Workspace, weight: np.ndarray,
+    def __init__(self, caster, planes, active, pose: Pose, fan: RayFan, work: Workspace, weight: np.ndarray,
                  albedo_by_id: np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> None:
         self.n_surfaces = len(albedo_by_id) - 1  # planes and objects
         self.caster, self.planes, self.work, self.weight = caster, planes, work, weight
@@ -239,7 +242,7 @@ class _LegTracer:
         self.n = fan.n_rays
         # The first generation: the rotated fan, one origin for all.
         self.ray = np.arange(self.n, dtype=np.intp)
-        self.org = sonar.pose.translation.reshape(1, 3).copy()
+        self.org = pose.translation.reshape(1, 3).copy()
         self.dirs, self.o32, self.d32 = work.d64, work.o32, work.d32
         self.before, self.atten, self.chain = np.zeros(1), np.ones(1), np.zeros(1, dtype=np.int32)
         self.limit = reach_m
@@ -313,35 +316,38 @@ class _LegTracer:
         return legs
 
 
-def trace_legs(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Workspace, weight: np.ndarray,
+def trace_legs(caster, planes, active, pose: Pose, fan: RayFan, work: Workspace, weight: np.ndarray,
                albedo_by_id: np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> list:
     """Receive legs with the compiled kernel (twin: :func:`sonarsim.paths.engine.trace_legs`).
 
-    The first generation's rays are ``work``'s rotated fan (see :func:`rotate`).
+    The first generation's rays are ``work``'s fan rotated to ``pose`` (see :func:`rotate`);
+    they leave from ``pose``'s position.
     """
-    return _LegTracer(caster, planes, active, sonar, fan, work, weight, albedo_by_id, tvg, reach_m, n_generations,
+    return _LegTracer(caster, planes, active, pose, fan, work, weight, albedo_by_id, tvg, reach_m, n_generations,
                       table).rest()
 
 
-def render_paths(caster, planes, active, sonar: SonarConfig, fan: RayFan, work: Workspace, weight: np.ndarray,
-                 albedo_by_id: np.ndarray, render: RenderSettings, reach_m: float, n_generations: int, table, view,
-                 n_surfaces: int, stack: np.ndarray, pool=None, occlusion=None) -> tuple[list, list]:
+def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: RayFan, work: Workspace,
+                 weight: np.ndarray, albedo_by_id: np.ndarray, render: RenderSettings, reach_m: float,
+                 n_generations: int, table, view, n_surfaces: int, stack: np.ndarray, pool=None,
+                 occlusion=None) -> tuple[list, list]:
     """The whole compiled frame: receive legs, paths, and the image stack (float32, zeroed).
 
     With ``pool`` (one worker, the other core), the later generations are cast and traced
     there on one thread while this core forms the direct (single-bounce) paths.
-    ``occlusion(sets, legs)`` filters the other paths (``double_line_of_sight``).
+    ``occlusion(sets, legs)`` filters the other paths (``double_line_of_sight``). ``sonar`` is
+    the intrinsics, ``pose`` the sonar's pose in the world frame.
 
     Returns
     -------
     legs, sets : the receive legs and every path set (for the path-signature components)
     """
-    rotate(fan, sonar, work)
+    rotate(fan, pose, work)
     n_planes = len(planes)
     per_beam = fan.n_rays // sonar.n_beams
     geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
     spread, n_el = render.range_splat, fan.shape[2]
-    tracer = _LegTracer(caster, planes, active, sonar, fan, work, weight, albedo_by_id, render.tvg, reach_m,
+    tracer = _LegTracer(caster, planes, active, pose, fan, work, weight, albedo_by_id, render.tvg, reach_m,
                         n_generations, table)
     first = tracer.step()
     legs = [first] if first is not None else []

@@ -13,13 +13,12 @@ import time
 import warnings
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from ..config.loader import load_scene, parse_pose
-from ..config.scene import Scene
+from ..config.scene import Scene, sonar_section
 from ..config.sonar import SonarConfig
 from ..core.memory import keep_freed_memory
 from ..core.radiometry import lambertian_intensity
@@ -108,10 +107,10 @@ class Simulator:
         # Albedo by surface id + 1: index 0 is "no hit", p + 1 plane p, P + k + 1 object k.
         self._albedo = np.concatenate([[0.0], self.planes.albedo, [o.albedo for o in self.scene.objects]])
         self._rng = np.random.default_rng(self.scene.render.seed)  # speckle, frame after frame
-        self._fans: dict[SonarConfig, RayFan] = {}
+        self._fans: dict[SonarConfig, RayFan] = {}  # by intrinsics: every pose shares the fan
         self._last_fan: tuple[SonarConfig, RayFan] | None = None
         self.last_timing: dict[str, float] = {}
-        self._config = self.scene.to_dict()  # the scene-file form; each frame adds its sonar
+        self._config = self.scene.to_dict()  # the scene-file form; each frame adds its sonar and pose
         # The paper's case (ground alone, order 3) on kernels specialised for it; False: the
         # general path engine for every frame (same images; the tests compare the two).
         self.specialise_ground = True
@@ -132,14 +131,13 @@ class Simulator:
         self.close()
 
     def ray_fan(self, sonar: SonarConfig) -> RayFan:
-        """The (cached) rays of a sonar in its own frame."""
+        """The (cached) rays of a sonar (its intrinsics) in its own frame."""
         if self._last_fan is not None and self._last_fan[0] is sonar:
             return self._last_fan[1]
-        key = replace(sonar, pose=Pose())
-        fan = self._fans.get(key)
+        fan = self._fans.get(sonar)
         if fan is None:
             fan = make_ray_fan(sonar, self.scene.render)
-            self._fans = {key: fan}  # one sonar at a time is the common case; keep memory flat
+            self._fans = {sonar: fan}  # one sonar at a time is the common case; keep memory flat
         self._last_fan = (sonar, fan)
         return fan
 
@@ -157,13 +155,13 @@ class Simulator:
 
     # The ways to form the image stack; each returns (stack, legs, path sets, chain table).
 
-    def _render_paper(self, sonar: SonarConfig, fan: RayFan, reach: float):
+    def _render_paper(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float):
         """``method: paper``: Algorithm 2 literally (NumPy; the ground is the only plane)."""
-        origin, directions = sonar.pose.translation, fan.directions @ sonar.pose.rotation.T
+        origin, directions = pose.translation, fan.directions @ pose.rotation.T
         ground = self.scene.ground
         hits = trace(self.caster, origin, directions, ground, reach)
         images = render_paper(
-            self.caster, self.mirrored_caster(), origin, directions, sonar, self.scene.render, ground,
+            self.caster, self.mirrored_caster(), origin, directions, sonar, pose, self.scene.render, ground,
             fan.weight, self._albedo, len(self.meshes), reach,
         )
         # Rows of the orders formed (a ground alone makes no path beyond order 3).
@@ -175,7 +173,7 @@ class Simulator:
                   np.zeros(fan.n_rays, np.int32))
         return stack, [leg], None, None
 
-    def _render_ground_compiled(self, sonar: SonarConfig, fan: RayFan, reach: float, multipath: bool):
+    def _render_ground_compiled(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float, multipath: bool):
         """The paper's case (the ground alone, order 3) with kernels specialised for it.
 
         Same images as :meth:`_render_paths` (the tests compare them), formed by the kernels
@@ -186,16 +184,17 @@ class Simulator:
         if self._work is None or self._work.n != fan.n_rays:
             self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, fan.n_rays // sonar.n_beams)
         stack = np.zeros((stack_rows(3), sonar.n_range_bins, sonar.n_beams), dtype=np.float32)
-        compiled.render_fast(self.caster, sonar, fan, self.scene.ground, self.scene.render, self._albedo, reach,
+        compiled.render_fast(self.caster, sonar, pose, fan, self.scene.ground, self.scene.render, self._albedo, reach,
                              multipath, self._work, stack, pool=self._pool)
         w = self._work
         leg = Leg(0, w.dist, w.sid, w.point, w.normal, w.intensity, w.ones, w.zeros_i32)
         return stack, [leg], None, None
 
-    def _render_paths(self, sonar: SonarConfig, fan: RayFan, reach: float, active: np.ndarray, n_generations: int):
+    def _render_paths(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float, active: np.ndarray,
+                      n_generations: int):
         """``method: fast``: receive legs traced, transmit legs by image sources (any planes)."""
         render = self.scene.render
-        view = SonarView.of(sonar)
+        view = SonarView.of(sonar, pose)
         origin = view.origin
         table = ChainTable(self.planes, origin, max(render.max_order - 1, 0))
         # Transmit legs leaving just inside the aperture's edges (outside the rays' samples).
@@ -214,11 +213,11 @@ class Simulator:
                 self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, per_beam)
             stack = np.zeros((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
             legs, sets = compiled.render_paths(
-                self.caster, self.planes, active, sonar, fan, self._work, weight, self._albedo, render, reach,
+                self.caster, self.planes, active, sonar, pose, fan, self._work, weight, self._albedo, render, reach,
                 n_generations, table, view, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
             )
         else:
-            directions = (fan.directions @ sonar.pose.rotation.T).reshape(-1, 3)
+            directions = (fan.directions @ pose.rotation.T).reshape(-1, 3)
             legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._albedo,
                               render.tvg, reach, n_generations, table)
             beam = np.repeat(np.arange(sonar.n_beams), per_beam)
@@ -247,11 +246,17 @@ class Simulator:
         Parameters
         ----------
         pose : Pose, dict or (4, 4) array, optional
-            Sonar pose in the world frame; default the scene's.
+            Sonar pose in the world frame (sonar-to-world); default the scene's
+            (``scene.sonar_pose``).
         sonar : SonarConfig, optional
-            Another sonar (its pose is used unless ``pose`` is given); default the scene's.
+            Other intrinsics (beams, elevation aperture, range window); default the scene's.
         keep_rays : bool
             Attach the per-ray maps (D_f, I_f, labels) to the result.
+
+        Returns
+        -------
+        SonarImage
+            With ``sonar`` the intrinsics and ``pose`` the pose rendered.
 
         Raises
         ------
@@ -260,25 +265,26 @@ class Simulator:
         """
         t0 = time.perf_counter()
         sonar = sonar if sonar is not None else self.scene.sonar
-        if pose is not None:
-            sonar = sonar.with_pose(as_pose(pose))
-        if len(self.planes) and np.abs(self.planes.signed_distance(sonar.pose.translation)).min() < ON_PLANE_TOLERANCE_M:
-            check_sonar_position(self.scene.reflecting_planes, sonar.pose.position_m,
-                                 "pose" if pose is not None else "sonar.pose.position_m")
+        pose_given = pose is not None
+        pose = as_pose(pose) if pose_given else self.scene.sonar_pose
+        if len(self.planes) and np.abs(self.planes.signed_distance(pose.translation)).min() < ON_PLANE_TOLERANCE_M:
+            check_sonar_position(self.scene.reflecting_planes, pose.position_m,
+                                 "pose" if pose_given else "sonar.pose.position_m")
         render = self.scene.render
         fan = self.ray_fan(sonar)
         t1 = time.perf_counter()
-        active = self.planes.facing(sonar.pose.translation)
+        active = self.planes.facing(pose.translation)
         mirrors = active & (self.planes.specular > 0)
         multipath = render.max_order > 1 and bool(mirrors.any())
         reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
         if render.method == "paper" and multipath and self._ground_only:
-            stack, legs, sets, table = self._render_paper(sonar, fan, reach)
+            stack, legs, sets, table = self._render_paper(sonar, pose, fan, reach)
         elif (self.specialise_ground and self.kernels == "compiled" and self._ground_only and render.max_order == 3
               and render.double_beam != "separate"):
-            stack, legs, sets, table = self._render_ground_compiled(sonar, fan, reach, multipath)
+            stack, legs, sets, table = self._render_ground_compiled(sonar, pose, fan, reach, multipath)
         else:
-            stack, legs, sets, table = self._render_paths(sonar, fan, reach, active, render.max_order if multipath else 1)
+            stack, legs, sets, table = self._render_paths(sonar, pose, fan, reach, active,
+                                                          render.max_order if multipath else 1)
         t3 = time.perf_counter()
         if sets is None:  # ground only: its four images are the four ground-only signatures
             rows = {c.name: stack[c.rows[0]] for c in component_table(render.max_order) if len(c.rows) == 1}
@@ -299,12 +305,12 @@ class Simulator:
                 azimuth_deg=np.degrees(fan.azimuth_rad),
                 elevation_deg=np.degrees(fan.elevation_rad),
             )
-        config = {**self._config, "sonar": sonar.to_dict()}
+        config = {**self._config, "sonar": sonar_section(sonar, pose)}
         t4 = time.perf_counter()
         self.last_timing = {"setup": t1 - t0, "render": t3 - t1, "assemble": t4 - t3, "total": t4 - t0}
         return SonarImage(
             polar=total, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg,
-            components=components, sonar=sonar, rays=rays, config=config,
+            components=components, sonar=sonar, pose=pose, rays=rays, config=config,
         )
 
 

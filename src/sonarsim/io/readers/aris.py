@@ -397,6 +397,7 @@ class ArisRecording(Recording):
             azimuth_deg=sonar.grid.azimuth_deg,
             components={"total": polar},
             sonar=sonar,
+            pose=None,  # not recorded
             rays=None,
             config={"source": self._source, "format": self.format, "frame": k, "header": header},
         )

@@ -413,6 +413,7 @@ class OculusRecording(Recording):
             azimuth_deg=sonar.grid.azimuth_deg,
             components={"total": polar},
             sonar=sonar,
+            pose=None,  # not recorded
             rays=None,
             config={"source": src, "format": self.format, "frame": k, "header": h},
         )
