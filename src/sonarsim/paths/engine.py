@@ -36,6 +36,7 @@ inputs in the tests; the frame (:func:`trace_legs`, :func:`form_paths`,
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -656,7 +657,20 @@ def trace_legs(
 
 
 # Rays along each edge of the transmit aperture that :func:`probe_chains` traces.
-PROBES_PER_EDGE = 64
+PROBES_PER_EDGE = 48
+
+
+@functools.lru_cache(maxsize=8)
+def _aperture_edges(right_deg: float, left_deg: float, half_elevation_deg: float, per_edge: int) -> np.ndarray:
+    """(4 per_edge, 3) unit vectors in the sonar frame along the four edges of the aperture."""
+    az = np.radians(np.linspace(right_deg, left_deg, per_edge))
+    half = np.radians(half_elevation_deg)
+    el = np.linspace(-half, half, per_edge)
+    theta = np.concatenate([az, az, np.full(per_edge, az[0]), np.full(per_edge, az[-1])])
+    phi = np.concatenate([np.full(per_edge, -half), np.full(per_edge, half), el, el])
+    out = np.stack([np.cos(phi) * np.cos(theta), np.cos(phi) * np.sin(theta), np.sin(phi)], axis=1)
+    out.setflags(write=False)
+    return out
 
 
 def probe_chains(table: ChainTable, view: SonarView, active: np.ndarray, max_length: int,
@@ -686,13 +700,8 @@ def probe_chains(table: ChainTable, view: SonarView, active: np.ndarray, max_len
     planes = table.planes
     if max_length < 1 or not len(planes) or not np.any(active & (planes.specular > 0)):
         return
-    e = view.beam_edges_deg
-    az = np.radians(np.linspace(e[-1], e[0], per_edge))
-    half = np.radians(view.half_elevation_deg)
-    el = np.linspace(-half, half, per_edge)
-    theta = np.concatenate([az, az, np.full(per_edge, az[0]), np.full(per_edge, az[-1])])
-    phi = np.concatenate([np.full(per_edge, -half), np.full(per_edge, half), el, el])
-    d = np.stack([np.cos(phi) * np.cos(theta), np.cos(phi) * np.sin(theta), np.sin(phi)], axis=1) @ view.rotation.T
+    d = _aperture_edges(float(view.beam_edges_deg[-1]), float(view.beam_edges_deg[0]), view.half_elevation_deg,
+                        per_edge) @ view.rotation.T
     o = np.broadcast_to(view.origin, d.shape).copy()
     chain = np.zeros(len(d), dtype=np.int64)
     travelled = np.zeros(len(d))
