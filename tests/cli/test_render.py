@@ -56,3 +56,14 @@ def test_demo_writes_the_tank_and_its_multipath_figure(demo_dir: Path) -> None: 
     panels = [a[:h // 2, :w // 2], a[:h // 2, w // 2:], a[h // 2:, :w // 2], a[h // 2:, w // 2:]]
     assert all((p == 255).any() for p in panels)  # the white title strip and gaps
     assert all(((p > 100) & (p < 255)).sum() > 100 for p in panels)
+
+
+def test_demo_with_a_lower_max_order_writes_every_figure(tmp_path, capsys):
+    for order in ("1", "2"):
+        out = tmp_path / order
+        code = main(["demo", "--out", str(out), "--max-order", order, "--elevation-samples", "24"])
+        err = capsys.readouterr().err
+        assert code == 0 and "Traceback" not in err
+        for name in ("ground_echo.png", "tank.yaml", "multipath.png"):
+            assert (out / name).is_file(), (order, name)
+        assert yaml.safe_load((out / "tank.yaml").read_text())["render"]["max_order"] == int(order)

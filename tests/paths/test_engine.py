@@ -141,3 +141,31 @@ def test_method_paper_refuses_planes_beyond_the_ground():
     doc["planes"] = [{"name": "surface", "point_m": [0, 0, 2], "normal": [0, 0, -1]}]
     with pytest.raises(sonarsim.ConfigError, match="render.method.*surface"):
         sonarsim.load_scene(doc)
+
+
+def test_method_paper_refuses_the_separate_convention():
+    doc = demo_scene_dict()
+    doc["render"].update(method="paper", double_beam="separate")
+    with pytest.raises(sonarsim.ConfigError, match="render.double_beam"):
+        sonarsim.load_scene(doc)
+
+
+def test_a_normal_given_the_wrong_way_round_is_warned_about():
+    # The water surface written with its normal up: the sonar is on its "dry" side, and every
+    # object (below it) is clipped away. Both are almost always a mistake: say so, by name.
+    doc = demo_scene_dict()
+    doc["planes"] = [{"name": "surface", "point_m": [0, 0, 2], "normal": [0, 0, 1]}]
+    with pytest.warns(UserWarning) as record:
+        sonarsim.Simulator(doc)
+    text = " ".join(str(w.message) for w in record)
+    assert "dry side of the planes 'surface'" in text and "'concrete_block'" in text
+
+
+def test_signature_images_are_never_empty():
+    from sonarsim.cli.demo import tank_scene_dict
+
+    doc = tank_scene_dict()
+    doc["sonar"].update(n_beams=48, n_range_bins=300)
+    img = sonarsim.render(doc)
+    assert img.components.signatures
+    assert all(img.components[k].any() for k in img.components.signatures)

@@ -150,9 +150,18 @@ def cmd_demo(args) -> None:
     from ..renderer.simulator import Simulator
 
     tank = tank_scene_dict()
+    # The command line's render options apply to the tank too (its scene file says so).
+    if args.max_order is not None:
+        tank["render"]["max_order"] = args.max_order
+    if args.bounces is not None:
+        tank["render"]["bounces"] = list(args.bounces)
+    if args.elevation_samples is not None:
+        tank["render"]["elevation_samples"] = args.elevation_samples
+    with options_named(args):
+        tank_scene = scene_from_dict(tank)
     with atomic_write(out / "tank.yaml", "w") as f:
         yaml.safe_dump(tank, f, sort_keys=False)
-    with Simulator(scene_from_dict(tank)) as sim:
+    with Simulator(tank_scene, backend=args.backend) as sim:
         tank_image = sim.render()
     figure = multipath_comparison(tank_image, mapping=args.mapping, gain_db=args.gain_db,
                                   dynamic_range_db=args.dynamic_range_db)

@@ -257,7 +257,8 @@ class RenderSettings:
         Paths whose two legs meet different planes come in reciprocal pairs (O-G-A-O and
         O-A-G-O, the paper's cases 2 and 3), of equal length, arriving from different
         directions. ``'paper'``: each pair is recorded once, in the beam of the leg with more
-        reflections (ties: the later plane in scene order), as Algorithm 2 records cases 2/3 in
+        reflections (ties: the leg whose planes, from the sonar outwards, come later in scene
+        order, compared plane by plane), as Algorithm 2 records cases 2/3 in
         the beam of A'. ``'split'``: the same, half the energy in that beam and half in the beam
         the other leg leaves the sonar in. ``'separate'``: every path of the pair is formed from
         its own receive ray, in the beam it arrives from (the physical picture; the pair then
@@ -385,6 +386,11 @@ class Scene:
                 why = "names must be unique" if plane.name in earlier else "the ground: section is the plane 'ground'"
                 raise ConfigError(f"planes[{i}].name", f"duplicate plane name {plane.name!r}; {why}")
             taken.append(plane.name)
+        if self.render.method == "paper" and self.render.double_beam == "separate":
+            raise ConfigError(
+                "render.double_beam",
+                "'separate' is not a convention of Algorithm 2 (method: paper); allowed with it: paper, split",
+            )
         if self.render.method == "paper" and self.planes:
             raise ConfigError(
                 "render.method",

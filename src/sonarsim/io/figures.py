@@ -38,7 +38,9 @@ def bounce_comparison(image, pixel_size_m: float | None = None, mapping: str = "
 
     s = image.sonar
     mapper = FanMapper(s.n_range_bins, s.range_min_m, s.range_max_m, image.azimuth_deg, pixel_size_m)
-    panels = [mapper(sum(image.components[k].astype(np.float64) for k in keys)) for _, keys in BOUNCE_VARIANTS]
+    # Orders beyond the render's max_order are absent: they add nothing to a panel.
+    comp = image.components
+    panels = [mapper(sum(comp[k].astype(np.float64) for k in keys if k in comp)) for _, keys in BOUNCE_VARIANTS]
     ref = float(panels[-1].image.max()) or None
     tiles = [to_uint8(p.image, mapping, gain_db, dynamic_range_db, reference=ref, mask=p.mask) for p in panels]
     gap = np.full((tiles[0].shape[0], gap_px), 255, dtype=np.uint8)

@@ -192,7 +192,8 @@ class ChainTable:
         return float(np.prod(self.planes.specular[list(self.chains[c])])) if self.chains[c] else 1.0
 
     def key(self, c: int) -> tuple:
-        """Order of chains for the reciprocal-pair convention: more planes first, then by ids."""
+        """Sort key of chains for the reciprocal-pair convention: by number of planes, then by
+        plane ids from the sonar outwards (lexicographic); a pair is formed from the greater."""
         return (len(self.chains[c]), self.chains[c])
 
     def name(self, c: int) -> str:

@@ -99,6 +99,7 @@ class Simulator:
             # Nothing beyond a floor, wall or surface can be seen; removing it (and faces lying
             # in the plane) keeps mirror geometry and coincident faces from making echoes.
             self.meshes = [clip_to_water(m, plane.point_m, plane.normal) for m in self.meshes]
+        self._warn_about_planes()
         self.caster = make_caster(backend, self.meshes, self.scene.render.threads)
         self._mirrored_caster = None
         threads = self.scene.render.threads or available_cores()
@@ -114,6 +115,25 @@ class Simulator:
         # The paper's case (ground alone, order 3) on kernels specialised for it; False: the
         # general path engine for every frame (same images; the tests compare the two).
         self.specialise_ground = True
+
+    def _warn_about_planes(self) -> None:
+        """Say so when the planes hide what the user probably meant to see (a normal the wrong way)."""
+        planes = self.scene.reflecting_planes
+        if not planes:
+            return
+        gone = [o.name for o, m in zip(self.scene.objects, self.meshes) if not len(m.faces)]
+        if gone:
+            warnings.warn(
+                f"objects {', '.join(map(repr, gone))} lie entirely beyond the reflecting planes and cannot echo "
+                "(a plane's normal points into the water)", stacklevel=3,
+            )
+        d = self.planes.signed_distance(self.scene.sonar_pose.translation)
+        dry = [p.name for p, dist in zip(planes, d) if dist < 0]
+        if dry:
+            warnings.warn(
+                f"the sonar is on the dry side of the planes {', '.join(map(repr, dry))} (their normals point away "
+                "from it): for this sonar they neither echo nor reflect, and it sees through them", stacklevel=3,
+            )
 
     def close(self) -> None:
         """Stop the worker threads now (they also stop when the simulator is collected)."""
@@ -237,7 +257,9 @@ class Simulator:
         for name, group in groups.items():
             stack = accumulate_paths(group, legs, n_planes + len(self.meshes), fan.shape, geometry,
                                      stack_rows(self.scene.render.max_order), self.scene.render.range_splat)
-            out[name] = stack.sum(axis=0).astype(np.float32)
+            image = stack.sum(axis=0).astype(np.float32)
+            if image.any():  # a path whose energy all fell outside the window leaves no image
+                out[name] = image
         return out
 
     def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True) -> SonarImage:
