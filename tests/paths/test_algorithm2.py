@@ -147,6 +147,8 @@ def test_fast_method_equals_the_literal_algorithm_2(name):
         assert np.abs(a - b).sum() <= 1e-3 * np.abs(b).sum() + 1e-12, key
 
 
+@pytest.mark.filterwarnings("ignore:the sonar is on the dry side")  # a sonar below a plane, on purpose
+@pytest.mark.filterwarnings("ignore:objects .* lie entirely beyond")  # a ground above them, on purpose
 def test_no_multipath_without_ground_below_the_sonar_or_with_r_zero():
     doc = demo_scene_dict()
     for variant in ("no_ground", "below", "r0"):

@@ -161,6 +161,8 @@ def test_azimuth_samples_do_not_change_the_level():
     np.testing.assert_allclose(a, b, rtol=5e-3)
 
 
+@pytest.mark.filterwarnings("ignore:the sonar is on the dry side")
+@pytest.mark.filterwarnings("ignore:objects .* lie entirely beyond")  # on purpose
 def test_empty_scene_and_objects_outside_the_field_of_view_give_zeros():
     empty = sonarsim.render({"sonar": sonar_dict()})
     assert empty.polar.shape == (400, 32) and empty.polar.dtype == np.float32
