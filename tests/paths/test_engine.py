@@ -169,3 +169,18 @@ def test_signature_images_are_never_empty():
     img = sonarsim.render(doc)
     assert img.components.signatures
     assert all(img.components[k].any() for k in img.components.signatures)
+
+
+def test_one_thread_and_two_give_the_same_tank_images():
+    # The compiled frame casts the reflected rays on both cores (a share each) while one forms
+    # the direct image: the images must not depend on it.
+    from sonarsim.cli.demo import tank_scene_dict
+
+    doc = tank_scene_dict()
+    doc["sonar"].update(n_beams=48, n_range_bins=300)
+    two = sonarsim.Simulator(doc).render()
+    doc["render"]["threads"] = 1
+    one = sonarsim.Simulator(doc).render()
+    assert sorted(one.components) == sorted(two.components)
+    for key in two.components:
+        np.testing.assert_array_equal(one.components[key], two.components[key])
