@@ -104,3 +104,63 @@ def test_the_real_oculus_floor_band_has_the_measured_speckle_contrast(shared_dat
     assert speckle_contrast(polar, band) == pytest.approx(0.29, abs=0.02)
     lengths = correlation_lengths(polar, band)
     assert 0.0 < lengths.range_bins < 3.0 and 0.5 < lengths.beams < 4.0
+
+
+def _floor_band(rng, onset=None):
+    """A synthetic polar image: weak water column, then a bright speckled band from ``onset``."""
+    rows, beams = SHAPE
+    onset = np.full(beams, 150) if onset is None else onset
+    level = np.where(np.arange(rows)[:, None] >= onset[None, :], 100.0, 2.0)
+    return level * rng.exponential(1.0, SHAPE), onset
+
+
+def test_auto_regions_find_the_band_and_the_water_column_before_it():
+    from sonarsim.analysis.realism import auto_regions
+
+    rng = np.random.default_rng(6)
+    onset = (150 + 40 * np.sin(np.linspace(0, np.pi, SHAPE[1]))).astype(int)  # a curved floor onset
+    image, onset = _floor_band(rng, onset)
+    regions = auto_regions(image)
+    lit, water = regions["lit"], regions["water"]
+    first_lit = lit.argmax(axis=0)
+    # The local mean blurs the onset by half its window (9 bins) at most.
+    assert np.all(np.abs(first_lit - onset) <= 5)
+    rows = np.arange(SHAPE[0])[:, None]
+    assert not (water & (rows >= onset[None, :] + 5)).any()  # (the same blur)
+    assert water[: onset.min() - 5].all()
+    assert lit[onset.max() + 10:].mean() > 0.95
+
+
+def test_region_statistics_of_an_image_against_itself_and_against_another_draw():
+    from sonarsim.analysis.realism import auto_regions, region_statistics
+
+    rng = np.random.default_rng(7)
+    a, _ = _floor_band(rng)
+    same = region_statistics(a, a, auto_regions(a)["lit"])
+    assert same["ks"] == 0.0 and same["wasserstein"] == 0.0 and same["range_profile_rms_db"] == 0.0
+    assert same["contrast_a"] == same["contrast_b"]
+    b, _ = _floor_band(rng)  # another speckle draw of the same scene
+    other = region_statistics(a, b, auto_regions(a)["lit"])
+    assert other["ks"] < 0.02 and abs(other["contrast_a"] - other["contrast_b"]) < 0.03
+    brighter = region_statistics(a, 2 * b, auto_regions(a)["lit"])  # 3 dB too bright
+    assert brighter["range_profile_rms_db"] == pytest.approx(10 * np.log10(2), abs=0.3)
+    assert brighter["ks"] > 0.2
+
+
+def test_compare_reports_region_statistics(tmp_path, capsys):
+    import json
+
+    from sonarsim.cli.main import main
+
+    rng = np.random.default_rng(8)
+    a, _ = _floor_band(rng)
+    b, _ = _floor_band(rng)
+    for name, img in (("a.npy", a), ("b.npy", b)):
+        from PIL import Image
+
+        Image.fromarray(np.clip(img, 0, 255).astype(np.uint8)[::-1]).save(tmp_path / name.replace(".npy", ".png"))
+    assert main(["compare", str(tmp_path / "a.png"), str(tmp_path / "b.png"), "--normalize", "none", "--stats",
+                 "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert set(doc["stats"]) == {"all", "lit", "water"}
+    assert doc["stats"]["lit"]["ks"] < 0.05 and doc["stats"]["lit"]["pixels"] > 1000

@@ -275,6 +275,7 @@ def compare_images(
     normalize: str | None = "max",
     data_range: float = 255.0,
     names: tuple[str, str] | None = None,
+    stats: bool = False,
 ) -> dict[str, Any]:
     """MSE, PSNR and SSIM between two sonar images, in the polar and fan domains.
 
@@ -309,6 +310,10 @@ def compare_images(
     names : (str, str), optional
         What to call A and B in messages (e.g. their file names). Default: a PlainImage's
         ``source``, else "image A" and "image B".
+    stats : bool
+        Also describe texture and distributions per region of A (``"all"`` and the regions of
+        :func:`sonarsim.analysis.realism.auto_regions`), in the images' own units, as
+        ``"stats": {region: region_statistics(...)}``.
 
     Returns
     -------
@@ -388,6 +393,13 @@ def compare_images(
 
     if "polar" in domains:
         result["polar"] = _metrics(pa, b_on_a, polar_mask, normalize, data_range)
+    if stats:
+        # Texture and distributions per region of A, in the images' own units (no renormalising:
+        # compare a simulation in the device's counts with a recording).
+        from .realism import auto_regions, region_statistics
+
+        regions = {"all": polar_mask, **auto_regions(pa, polar_mask)}
+        result["stats"] = {name: region_statistics(pa, b_on_a, m) for name, m in regions.items()}
 
     if "fan" in domains:
         if ga is None or gb is None:

@@ -223,3 +223,74 @@ def beam_profile_db(image, mask=None, floor_db: float = -300.0) -> np.ndarray:
     """
     x, m = _region(image, mask)
     return _profile_db(x, m, 0, floor_db)
+
+
+# A pixel is "lit" when its local mean is within this factor of the image's bright level (the
+# 99th percentile of the local mean): 0.25 is 6 dB.
+LIT_FRACTION = 0.25
+BRIGHT_PERCENTILE = 99.0
+
+#: Names of the regions :func:`auto_regions` finds.
+REGIONS = ("lit", "water")
+
+
+def auto_regions(image, mask=None, window: tuple[int, int] = LOCAL_MEAN_WINDOW) -> dict[str, np.ndarray]:
+    """Regions of a sonar image found from its own levels.
+
+    * ``lit``: pixels whose local mean is within 6 dB (:data:`LIT_FRACTION`) of the image's
+      bright level (the 99th percentile of the local mean): the lit floor band and objects;
+    * ``water``: in each beam, the range bins nearer than its first lit bin (the water column
+      before the first echo).
+
+    Parameters
+    ----------
+    image : (n_range_bins, n_beams) array
+    mask : (n_range_bins, n_beams) bool array, optional
+        Pixels that may belong to a region (e.g. where a compared image has data).
+
+    Returns
+    -------
+    dict of :data:`REGIONS` name to (n_range_bins, n_beams) bool ndarray (possibly empty)
+    """
+    x, m = _region(image, mask)
+    mean = local_mean(x, window)
+    level = float(np.percentile(mean[m], BRIGHT_PERCENTILE)) if m.any() else 0.0
+    lit = m & (mean >= LIT_FRACTION * level) & (level > 0)
+    first = np.where(lit.any(axis=0), lit.argmax(axis=0), x.shape[0])
+    water = m & (np.arange(x.shape[0])[:, None] < first[None, :])
+    return {"lit": lit, "water": water}
+
+
+def region_statistics(a, b, mask, window: tuple[int, int] = LOCAL_MEAN_WINDOW) -> dict[str, float]:
+    """How region ``mask`` of ``b`` looks next to the same region of ``a`` (same grid and units).
+
+    Returns
+    -------
+    dict with ``pixels``; ``mean_a``, ``mean_b``; ``contrast_a``, ``contrast_b`` (speckle
+    contrast); ``grain_range_a``/``_b`` and ``grain_beams_a``/``_b`` (correlation lengths, bins
+    and beams); ``ks`` and ``wasserstein`` (between the two regions' values); and
+    ``range_profile_rms_db`` (RMS difference of the two mean range profiles, dB, over the
+    rows where both are positive). NaN where a statistic is undefined (too few pixels, no echo).
+    """
+    x, m = _region(a, mask)
+    y = _as_image(b, "b")
+    if y.shape != x.shape:
+        raise ValueError(f"a and b must share a grid, got {x.shape} and {y.shape}")
+    out: dict[str, float] = {"pixels": float(m.sum())}
+    for tag, img in (("a", x), ("b", y)):
+        out[f"mean_{tag}"] = float(img[m].mean()) if m.any() else float("nan")
+        try:
+            out[f"contrast_{tag}"] = speckle_contrast(img, m, window)
+            lengths = correlation_lengths(img, m, window)
+            out[f"grain_range_{tag}"], out[f"grain_beams_{tag}"] = lengths.range_bins, lengths.beams
+        except ValueError:
+            out[f"contrast_{tag}"] = out[f"grain_range_{tag}"] = out[f"grain_beams_{tag}"] = float("nan")
+    if m.any():
+        d = distribution_distances(x, y, m, m)
+        out["ks"], out["wasserstein"] = d.ks, d.wasserstein
+        pa, pb = range_profile_db(x, m), range_profile_db(y, m)
+        both = np.isfinite(pa) & np.isfinite(pb) & (pa > -300) & (pb > -300)
+        out["range_profile_rms_db"] = float(np.sqrt(np.mean((pa[both] - pb[both]) ** 2))) if both.any() else float("nan")
+    else:
+        out["ks"] = out["wasserstein"] = out["range_profile_rms_db"] = float("nan")
+    return out

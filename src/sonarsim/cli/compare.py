@@ -67,6 +67,10 @@ def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--normalize", choices=_NORMALIZE_CHOICES, default="max",
                    help="normalisation of each image to 0-255: divide by its maximum (default), "
                    "min-max, or none (compare the values as stored)")
+    p.add_argument("--stats", action="store_true",
+                   help="also compare texture and distributions per region of A (all, lit, water), in the images' "
+                   "own units: mean, speckle contrast, grain (correlation lengths), KS and Wasserstein distances, "
+                   "range-profile difference in dB")
     p.add_argument("--json", action="store_true",
                    help="print JSON instead of a table (infinite PSNR and undefined SSIM as null)")
     p.set_defaults(func=cmd_compare)
@@ -130,7 +134,8 @@ def cmd_compare(args: argparse.Namespace) -> None:
     image_b = load_image(args.b, args.frame_b, args.component_b)
     normalize = None if args.normalize == "none" else args.normalize
     result = compare_images(
-        image_a, image_b, DOMAINS, args.pixel_size, normalize=normalize, names=(args.a, args.b)
+        image_a, image_b, DOMAINS, args.pixel_size, normalize=normalize, names=(args.a, args.b),
+        stats=args.stats,
     )
     info = result["info"]
     desc_a, desc_b = _describe(image_a), _describe(image_b)
@@ -145,6 +150,8 @@ def cmd_compare(args: argparse.Namespace) -> None:
                 for d in DOMAINS if d in result
             },
         }
+        if "stats" in result:
+            doc["stats"] = {r: {k: _finite_or_none(v) for k, v in st.items()} for r, st in result["stats"].items()}
         print(json.dumps(doc, indent=2, allow_nan=False))
         return
 
@@ -166,3 +173,15 @@ def cmd_compare(args: argparse.Namespace) -> None:
         print(f"(fan pixel size {info['pixel_size_m']:.4g} m)")
     for d, why in info["skipped"].items():
         print(f"sonarsim: note: {d} domain skipped: {why}", file=sys.stderr)
+    if "stats" in result:
+        print()
+        print("per region of A, in the images' own units (A | B):")
+        print(f"{'region':<7} {'pixels':>8} {'mean':>17} {'contrast':>13} {'grain bins':>13} "
+              f"{'grain beams':>13} {'KS':>6} {'W1':>9} {'profile dB':>10}")
+        for region, st in result["stats"].items():
+            def pair(key: str, spec: str) -> str:
+                return f"{_fmt(st[key + '_a'], spec)} | {_fmt(st[key + '_b'], spec)}"
+
+            print(f"{region:<7} {int(st['pixels']):>8} {pair('mean', '.4g'):>17} {pair('contrast', '.3f'):>13} "
+                  f"{pair('grain_range', '.2f'):>13} {pair('grain_beams', '.2f'):>13} {_fmt(st['ks'], '.3f'):>6} "
+                  f"{_fmt(st['wasserstein'], '.4g'):>9} {_fmt(st['range_profile_rms_db'], '.2f'):>10}")
