@@ -92,3 +92,12 @@ def test_the_sonar_delegates_its_grid_properties():
     from dataclasses import replace
 
     assert replace(s, elevation_fov_deg=20.0).grid == g
+
+
+def test_beam_index_of_azimuths_hand_computed():
+    from sonarsim.image.grid import beam_index
+
+    edges = np.array([15.0, 5.0, -5.0, -15.0])  # three beams, left-most first
+    az = np.array([16.0, 15.0, 10.0, 5.0, 0.0, -5.0, -14.9, -15.0, -20.0])
+    # An edge belongs to the beam on its right (edges[j] >= az > edges[j + 1]).
+    np.testing.assert_array_equal(beam_index(edges, az), [-1, 0, 0, 1, 1, 2, 2, -1, -1])

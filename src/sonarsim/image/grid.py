@@ -106,6 +106,23 @@ def beam_edges_deg(beam_angles_deg: np.ndarray, single_beam_width_deg: float = 1
     return np.concatenate([[left], mid, [right]])
 
 
+def beam_index(beam_edges_deg: np.ndarray, azimuth_deg) -> np.ndarray:
+    """Index of the beam whose edges contain each azimuth; -1 outside the fan.
+
+    Parameters
+    ----------
+    beam_edges_deg : (n_beams + 1,) float array, degrees, descending (left-most beam first)
+    azimuth_deg : float array, degrees (positive to the sonar's left)
+
+    Returns
+    -------
+    int ndarray shaped like ``azimuth_deg``: ``j`` with ``edges[j] >= az > edges[j + 1]``.
+    """
+    e = np.asarray(beam_edges_deg, dtype=float)
+    j = np.searchsorted(-e, -np.asarray(azimuth_deg, dtype=float), side="right") - 1
+    return np.where((j >= 0) & (j < len(e) - 1), j, -1)
+
+
 def sector_area_m2(r0: float, r1: float, left_deg: float, right_deg: float) -> float:
     """Area of the annular sector ``[r0, r1] x [right_deg, left_deg]``, m^2 (0 if empty)."""
     if r1 <= r0 or left_deg <= right_deg:

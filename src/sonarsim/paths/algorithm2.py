@@ -36,6 +36,7 @@ from ..renderer.formation import RayEnergy, accumulate, continuity, form_image
 from ..config.scene import RenderSettings
 from ..config.sonar import SonarConfig
 from ..core.transforms import Pose
+from ..image.grid import beam_index
 from ..trace.surfaces import GROUND_ID, NO_HIT, SurfaceHits, ground_distance, trace
 
 # Secondary rays start this far off the ground so that they cannot hit the plane's own
@@ -143,13 +144,6 @@ def fast_mirror_paths(
     return MirrorPaths(dist, inten, sid, pv, nv, pr)
 
 
-def _beam_of(sonar: SonarConfig, azimuth_deg: np.ndarray) -> np.ndarray:
-    """Beam index whose edges contain each azimuth; -1 outside the fan."""
-    edges = sonar.beam_edges_deg  # descending
-    j = np.searchsorted(-edges, -azimuth_deg, side="right") - 1
-    return np.where((j >= 0) & (j < sonar.n_beams), j, -1)
-
-
 def ground_echo_rays(
     paths: MirrorPaths,
     sonar: SonarConfig,
@@ -195,7 +189,7 @@ def ground_echo_rays(
     oa = np.linalg.norm(rel, axis=-1)
     az = np.degrees(np.arctan2(rel[:, 1], rel[:, 0]))
     el = np.degrees(np.arcsin(np.clip(rel[:, 2] / oa, -1.0, 1.0)))
-    beam_a = _beam_of(sonar, az)
+    beam_a = beam_index(sonar.beam_edges_deg, az)
     in_view = (
         (beam_a >= 0)
         & (np.abs(el) <= sonar.elevation_fov_deg / 2)

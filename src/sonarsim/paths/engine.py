@@ -43,6 +43,7 @@ import numpy as np
 
 from ..config.sonar import SonarConfig
 from ..core.radiometry import lambertian_intensity
+from ..image.grid import beam_index
 from ..core.transforms import Pose
 from ..renderer.formation import RayEnergy, accumulate, continuity
 from ..trace.base import Hits
@@ -176,9 +177,7 @@ class SonarView:
 
     def beam_of(self, azimuth_deg: np.ndarray) -> np.ndarray:
         """Beam whose edges contain each azimuth; -1 outside the fan."""
-        e = self.beam_edges_deg
-        j = np.searchsorted(-e, -np.asarray(azimuth_deg), side="right") - 1
-        return np.where((j >= 0) & (j < len(e) - 1), j, -1)
+        return beam_index(self.beam_edges_deg, azimuth_deg)
 
 
 # The twins of the compiled kernels, one to one -------------------------------------------
@@ -750,7 +749,7 @@ def form_paths(
     view: SonarView,
     active: np.ndarray,
     n_planes: int,
-    beam_of_ray: np.ndarray,
+    rays_per_beam: int,
     max_order: int,
     double_beam: str,
     only_same: bool = False,
@@ -766,8 +765,8 @@ def form_paths(
     view : SonarView
     active : (P,) bool array
     n_planes : int
-    beam_of_ray : (n,) int array
-        Beam of each fan ray: ``i // rays_per_beam`` (the fan is beam-major).
+    rays_per_beam : int
+        Rays of the fan per beam: ray ``i`` is in beam ``i // rays_per_beam`` (beam-major).
     max_order : int
     double_beam : {'paper', 'split', 'separate'}
     only_same, skip_first_same : bool
@@ -778,9 +777,6 @@ def form_paths(
         results of :func:`option_paths` (the default); the compiled path passes its kernel.
     """
     paths_of_option = option_paths if paths_of_option is None else paths_of_option
-    beam_of_ray = np.asarray(beam_of_ray)
-    n = len(beam_of_ray)
-    rays_per_beam = n // (int(beam_of_ray[-1]) + 1) if n else 1
     rank = chain_ranks(table)
     no_planes = np.empty(0, np.int32)
     out: list[PathSet] = []
@@ -904,18 +900,6 @@ def split_by_signature(sets: list[PathSet], legs: list[Leg], table: ChainTable, 
     return groups
 
 
-#: The ground-only signatures and the component each equals (Algorithm 2 forms those four).
-GROUND_SIGNATURES = {
-    "O-[objects]-O": "object", "O-[ground]-O": "ground",
-    "O-[objects]-ground-O": "double", "O-ground-[objects]-ground-O": "triple",
-}
-
-
-def ground_signatures(images: dict) -> dict[str, np.ndarray]:
-    """Path-signature images of a ground-only frame from its order images (Algorithm 2)."""
-    return {sig: images[name] for sig, name in GROUND_SIGNATURES.items() if name in images and images[name].any()}
-
-
 def path_name(tx: list[str], at: str, rx: list[str]) -> str:
     """Component name of a path signature: the path as the sound travels it.
 
@@ -951,3 +935,15 @@ def parse_path_name(name: str) -> tuple[list[str], str, list[str]]:
         raise ValueError(f"not a path-signature name: {name!r}")
     k = at[0]
     return parts[1:k], parts[k][1:-1], list(reversed(parts[k + 1:-1]))
+
+
+#: The ground-only signatures and the component each equals (Algorithm 2 forms those four).
+GROUND_SIGNATURES = {
+    path_name([], "objects", []): "object", path_name([], "ground", []): "ground",
+    path_name([], "objects", ["ground"]): "double", path_name(["ground"], "objects", ["ground"]): "triple",
+}
+
+
+def ground_signatures(images: dict) -> dict[str, np.ndarray]:
+    """Path-signature images of a ground-only frame from its order images (Algorithm 2)."""
+    return {sig: images[name] for sig, name in GROUND_SIGNATURES.items() if name in images and images[name].any()}

@@ -395,22 +395,8 @@ def form_paths(legs, table, view, active, n_planes: int, rays_per_beam: int, max
     with :func:`option_paths` (``_kernels.path_events``) for each transmit option."""
     from ..paths.engine import form_paths as form
 
-    n = rays_per_beam * (int(view.beam_edges_deg.size) - 1)
-    beam_of_ray = _beam_of_ray(n, rays_per_beam)
-    return form(legs, table, view, active, n_planes, beam_of_ray, max_order, double_beam, only_same=only_same,
+    return form(legs, table, view, active, n_planes, rays_per_beam, max_order, double_beam, only_same=only_same,
                 skip_first_same=skip_first_same, paths_of_option=option_paths)
-
-
-def _beam_of_ray(n: int, rays_per_beam: int) -> np.ndarray:
-    """(n,) beam of each fan ray (the fan is beam-major); cached, it is the same every frame."""
-    key = (n, rays_per_beam)
-    if key not in _BEAMS:
-        _BEAMS.clear()
-        _BEAMS[key] = np.repeat(np.arange(n // rays_per_beam), rays_per_beam)
-    return _BEAMS[key]
-
-
-_BEAMS: dict = {}
 
 
 def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, spread: bool, out: np.ndarray) -> None:

@@ -240,8 +240,7 @@ class Simulator:
             directions = (fan.directions @ pose.rotation.T).reshape(-1, 3)
             legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._albedo,
                               render.tvg, reach, n_generations, table)
-            beam = np.repeat(np.arange(sonar.n_beams), per_beam)
-            sets = form_paths(legs, table, view, active, n_planes, beam, render.max_order, render.double_beam)
+            sets = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam)
             if occlusion is not None:
                 sets = occlusion(sets, legs)
             stack = accumulate_paths(sets, legs, n_surfaces, fan.shape, geometry, rows, render.range_splat)
