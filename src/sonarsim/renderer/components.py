@@ -83,15 +83,8 @@ def assemble(stack: np.ndarray, bounces: tuple[int, ...], max_order: int) -> dic
     -------
     dict of str to (n_range_bins, n_beams) float32 ndarray
     """
-    table = component_table(max_order)
-    by_name = {c.name: c for c in table}
-    out: dict[str, np.ndarray] = {}
-    for comp in table:
-        rows = comp.rows
-        if comp.name == "total":
-            rows = tuple(sorted(r for k in bounces for r in by_name[order_name(k)].rows))
-        out[comp.name] = _sum_rows(stack, rows, copy=comp.name == "total")
-    return out
+    components = frame_components(stack, bounces, max_order)
+    return {comp.name: components[comp.name] for comp in component_table(max_order)}
 
 
 def _sum_rows(stack: np.ndarray, rows: tuple[int, ...], copy: bool) -> np.ndarray:
@@ -112,7 +105,7 @@ def frame_components(stack: np.ndarray, bounces: tuple[int, ...], max_order: int
     """The :class:`Components` of a frame: ``total`` now, the rest when first looked up.
 
     Single rows are views of ``stack``; sums of rows (``single``) and the path-signature
-    images (``paths()``) are formed on first access. Same images as :func:`assemble`.
+    images (``paths()``) are formed on first access (:func:`assemble` forms them all now).
     """
     table = component_table(max_order)
     by_name = {c.name: c for c in table}
