@@ -181,7 +181,7 @@ def _trace_both(rng, *, first, reflect, tvg, n=600, m=None, capacity=64, at_reac
         n_next, n_chains, min_next, overflow, n_live = K.trace_leg(
             ray, hit_dist, hit_mesh, hit_normal, org, dirs, before, atten, chain, planes.normal, planes.offset,
             active.astype(np.uint8), planes.specular, reach, albedo_by_id, weight, tvg, first, reflect,
-            kt.children, len(kt), kd[0], kd[1], kd[2], np.empty(3, np.float32), kd[3], kd[4], kd[5], kd[6], key,
+            kt.children, len(kt), kd[0], kd[1], kd[2], kd[3], kd[4], kd[5], kd[6], key,
             live, n_surfaces, *nx)
         kt.sync(n_chains)
         if not overflow:
@@ -281,7 +281,7 @@ def test_trace_leg_without_planes():
     r = K.trace_leg(np.arange(n, dtype=np.intp), hit_dist, hit_mesh, hit_normal, np.zeros((1, 3)), dirs, np.zeros(1),
                     np.ones(1), np.zeros(1, np.int32), planes.normal, planes.offset, np.zeros(0, np.uint8),
                     planes.specular, 4.0, albedo, weight, True, True, True, table.children, 1, out[0], out[1], out[2],
-                    np.empty(3, np.float32), out[3], out[4], np.empty(n), np.empty(n, np.int32),
+                    out[3], out[4], np.empty(n), np.empty(n, np.int32),
                     np.empty(n, np.int32), live, 2, *nx)
     leg = engine.Leg(0, *ref, np.ones(n), np.zeros(n, np.int32))
     nxt, tlive = engine.trace_generation(engine.Rays.from_sonar(np.zeros(3), dirs),
@@ -510,7 +510,7 @@ def test_trace_leg_ties_and_planes_at_the_reach(first):
     n_next, n_chains, _, _, n_live = K.trace_leg(
         ray, hits.distance, hits.mesh_id, hits.normal, org, dirs, before, atten, chain, planes.normal, planes.offset,
         active.astype(np.uint8), planes.specular, reach, np.array([0.0, 0.5, 0.4, 0.3]), np.ones(n), True, first,
-        True, kt.children, 1, out[0], out[1], out[2], np.empty(3, np.float32), out[3], out[4], out[5], out[6],
+        True, kt.children, 1, out[0], out[1], out[2], out[3], out[4], out[5], out[6],
         np.full(n, -1, np.int32), live, 3, *nx)
     kt.sync(n_chains)
     leg = engine.Leg(0, *ref)

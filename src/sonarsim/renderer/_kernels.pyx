@@ -406,7 +406,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
               const unsigned char[::1] plane_active, const double[::1] plane_specular,
               double reach, const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
               bint first, bint reflect, int[:, ::1] children, int n_chains,
-              double[::1] dist, int[::1] sid, double[:, ::1] point, float[::1] scratch32,
+              double[::1] dist, int[::1] sid, double[:, ::1] point,
               double[:, ::1] normal, double[::1] intensity, double[::1] atten_out, int[::1] chain_out,
               int[::1] key, Py_ssize_t[::1] live, int n_surfaces,
               Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
@@ -421,7 +421,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     generation, which visits every ray and writes "nothing" itself; only reached rays are set
     otherwise. ``key`` is ``chain * n_surfaces + sid`` (rays on one surface via one chain: the
     continuity of range splatting). The first generation does not write ``atten_out``,
-    ``chain_out`` and ``key``: they are 1, 0 and ``sid`` there. ``scratch32`` holds 3 floats. ``live`` lists, in row order, the rays that scatter some
+    ``chain_out`` and ``key``: they are 1, 0 and ``sid`` there. ``live`` lists, in row order, the rays that scatter some
     energy. ``children[c, p]`` is the chain ``c + (p,)`` (-1: new, numbered from ``n_chains``).
 
     Returns
@@ -483,14 +483,14 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
                     sid[i] = -1
                 continue
             if first:
-                # As the caster reports them: float32 points and incidence.
-                # Through memory: gcc -O3 drops a float32 round trip held in registers.
-                scratch32[0] = <float>(ox + dx * t)
-                scratch32[1] = <float>(oy + dy * t)
-                scratch32[2] = <float>(oz + dz * t)
-                px = scratch32[0]
-                py = scratch32[1]
-                pz = scratch32[2]
+                # As the caster reports them: float32 points and incidence (the round trip
+                # needs the build flag -fno-tree-slp-vectorize, see pyproject.toml).
+                fx = <float>(ox + dx * t)
+                fy = <float>(oy + dy * t)
+                fz = <float>(oz + dz * t)
+                px = fx
+                py = fy
+                pz = fz
                 cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
                 c = cosf
             else:

@@ -71,7 +71,6 @@ class Workspace:
         self.no_label = np.empty(0, dtype=np.int8)
         self.ones = np.ones(n)  # attenuation of the first generation's legs
         self.zeros_i32 = np.zeros(n, dtype=np.int32)  # their chain (none)
-        self.scratch32 = np.empty(3, dtype=np.float32)
         self.empty_f64 = np.empty(0)
         self.empty_i32 = np.empty(0, dtype=np.int32)
 
@@ -293,7 +292,7 @@ class _LegTracer:
                     self.ray[a:b], hits.distance, hits.mesh_id, hits.normal, self.org[rows], self.dirs[a:b],
                     self.before[rows], self.atten[rows], self.chain[rows], self.planes.normal, self.planes.offset,
                     self.active, self.planes.specular, self.reach, self.albedo, self.weight, self.tvg, g == 0,
-                    g + 1 < self.n_gen, table.children, len(table), leg.distance, leg.sid, leg.point, w.scratch32,
+                    g + 1 < self.n_gen, table.children, len(table), leg.distance, leg.sid, leg.point,
                     leg.normal, leg.intensity, leg.atten, leg.chain, leg.keys, live[n_live:], self.n_surfaces,
                     *(x[n_next:] for x in nx),
                 )
