@@ -91,6 +91,12 @@ def test_bad_regions_are_refused():
         speckle_contrast(image, np.zeros(SHAPE, dtype=bool))
     with pytest.raises(ValueError, match="at least one pixel"):
         distribution_distances(image, image, mask_a=np.zeros(SHAPE, dtype=bool))
+    dark_beside_echo = np.zeros(SHAPE)  # a noise-free shadow: zeros whose local mean is not 0
+    dark_beside_echo[:, 0] = 1.0
+    mask = np.zeros(SHAPE, dtype=bool)
+    mask[:, 1:3] = True
+    with pytest.raises(ValueError, match="no echo"):
+        speckle_contrast(dark_beside_echo, mask)
 
 
 def test_the_real_oculus_floor_band_has_the_measured_speckle_contrast(shared_data):
@@ -162,5 +168,128 @@ def test_compare_reports_region_statistics(tmp_path, capsys):
     assert main(["compare", str(tmp_path / "a.png"), str(tmp_path / "b.png"), "--normalize", "none", "--stats",
                  "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
-    assert set(doc["stats"]) == {"all", "lit", "water"}
+    assert set(doc["stats"]) == {"all", "lit", "water", "shadow"}
     assert doc["stats"]["lit"]["ks"] < 0.05 and doc["stats"]["lit"]["pixels"] > 1000
+
+
+# --------------------------------------------------------------------------------------------
+# The shadow region
+# --------------------------------------------------------------------------------------------
+
+
+def _patch_and_shadow(behind=1.0):
+    """Water 1, floor 50 from bin 60, an object 100 at bins 100-119 of beams 20-39 and behind it,
+    bins 120-169, a shadow of level ``behind``; returns the image and the shadow's box."""
+    image = np.full((200, 64), 1.0)
+    image[60:] = 50.0
+    image[100:120, 20:40] = 100.0
+    image[120:170, 20:40] = behind
+    return image, (slice(120, 170), slice(20, 40))
+
+
+def test_shadow_behind_a_bright_patch_is_the_dark_box_less_half_the_window():
+    from sonarsim.analysis.realism import auto_regions
+
+    image, box = _patch_and_shadow()
+    regions = auto_regions(image)
+    # A 9 x 5 mean touching the floor or the object is above 1 + 49/45 > 2 (3 dB over the
+    # water's 1); inside the box it is 1. So the shadow is the box less 4 bins and 2 beams.
+    expected = np.zeros(image.shape, dtype=bool)
+    expected[124:166, 22:38] = True
+    np.testing.assert_array_equal(regions["shadow"], expected)
+    assert not (regions["shadow"] & (regions["lit"] | regions["water"])).any()
+    # The same with speckle: within the box, and nearly all of its core.
+    rng = np.random.default_rng(9)
+    shadow = auto_regions(image * rng.exponential(1.0, image.shape))["shadow"]
+    inside = np.zeros(image.shape, dtype=bool)
+    inside[box] = True
+    assert not (shadow & ~inside).any()
+    assert shadow[expected].mean() > 0.95
+
+
+@pytest.mark.parametrize("behind, found", [(1.8, True), (4.0, False)])
+def test_shadow_is_within_3_db_of_the_water_column(behind, found):
+    from sonarsim.analysis.realism import auto_regions
+
+    image, box = _patch_and_shadow(behind)
+    shadow = auto_regions(image)["shadow"]
+    assert shadow[124:166, 22:38].all() == found and shadow.any() == found
+
+
+def test_an_unlit_floor_behind_the_shadow_is_not_shadow():
+    # An object so bright that the floor is not lit (under a quarter of it): the beams without
+    # the object are floor from bin 60 on, and their "water" (the whole beam) must not set the
+    # level of no echo, or the floor would be at it.
+    from sonarsim.analysis.realism import auto_regions
+
+    image, _ = _patch_and_shadow()
+    image[100:120, 20:40] = 1000.0
+    regions = auto_regions(image)
+    assert not regions["lit"][130:].any()
+    expected = np.zeros(image.shape, dtype=bool)
+    expected[124:166, 22:38] = True
+    np.testing.assert_array_equal(regions["shadow"], expected)
+
+
+def test_no_shadow_without_a_drop_or_without_a_water_column():
+    from sonarsim.analysis.realism import auto_regions
+
+    rng = np.random.default_rng(10)
+    band, _ = _floor_band(rng)  # lit from bin 150 to the far end
+    assert not auto_regions(band)["shadow"].any()
+    image, _ = _patch_and_shadow()
+    assert not auto_regions(image[60:])["shadow"].any()  # lit from the first bin: no level to go by
+    mask = np.ones(image.shape, dtype=bool)
+    mask[:, 30:] = False
+    shadow = auto_regions(image, mask)["shadow"]
+    assert shadow.any() and not shadow[:, 30:].any()
+
+
+def test_a_noise_free_render_has_its_shadow_behind_the_object():
+    # A block on a floor whose lit band runs past the far range: every pixel of the shadow lies
+    # farther than the block's echo in its beam, inside the shadow the block casts (floor echo
+    # without the block, none with it), and covers that cast shadow but for half a window.
+    import sonarsim
+    from scipy.ndimage import binary_erosion
+    from sonarsim.analysis.realism import auto_regions
+
+    from tests.conftest import block_scene_dict
+
+    scene = block_scene_dict(range_max_m=4.0, n_range_bins=350)
+    image = sonarsim.Simulator(scene).render()
+    bare = sonarsim.Simulator({**scene, "objects": []}).render()
+    shadow = auto_regions(image.polar)["shadow"]
+    block = image.components["object"] > 0
+    cast = (bare.components["ground"] > 0) & (image.polar == 0)
+    assert shadow.sum() > 500
+    rows = np.arange(shadow.shape[0])[:, None]
+    last_echo = np.where(block.any(axis=0), block.shape[0] - 1 - block[::-1].argmax(axis=0), block.shape[0])
+    assert not (shadow & (rows <= last_echo[None, :])).any()
+    assert not (shadow & ~cast).any()
+    core = binary_erosion(cast, np.ones((9, 5), dtype=bool), border_value=1)
+    assert core.sum() > 300 and shadow[core].mean() > 0.95
+
+
+def test_the_dark_beyond_a_floor_band_counts_as_shadow(renders):
+    # The documented limit: in the test scene the floor band ends (top of the vertical beam)
+    # before the far range, and behind a lit bin that dark is shadow as well.
+    from sonarsim.analysis.realism import auto_regions
+
+    image = renders["full"]
+    shadow = auto_regions(image.polar)["shadow"]
+    block_beams = (image.components["object"] > 0).any(axis=0)
+    beyond = (image.components["ground"] == 0) & (np.arange(image.polar.shape[0])[:, None] > 300)
+    assert (shadow & ~block_beams[None, :]).any()
+    assert not (shadow & ~block_beams[None, :] & ~beyond).any()
+
+
+def test_the_real_oculus_ping_has_next_to_no_shadow(shared_data):
+    # What is not lit behind its floor band stays 4-6 dB above its water column (DESIGN
+    # section 8: the elevation pattern's echo): not a shadow.
+    import sonarsim
+    from sonarsim.analysis.realism import auto_regions
+
+    polar = sonarsim.read(shared_data / "real" / "oculus" / "one_ping_8bit.raw").polar
+    regions = auto_regions(polar)
+    assert regions["lit"].sum() > 50_000 and regions["water"].sum() > 50_000
+    assert regions["shadow"].sum() < 100

@@ -121,3 +121,24 @@ def test_compare_real_oculus_pings(capsys, shared_data):
     for domain in ("polar", "fan"):
         m = doc["metrics"][domain]
         assert m["mse"] > 0 and 0 < m["psnr"] < 60 and 0 < m["ssim"] < 1
+
+
+def test_compare_stats_reports_the_shadow_region_in_the_table_and_the_json(capsys, npz_files, renders):
+    from sonarsim.analysis.realism import auto_regions
+
+    expected = {k: int(v.sum()) for k, v in auto_regions(renders["full"].polar).items()}
+    assert expected["shadow"] > 0
+    out, _ = _run(capsys, npz_files["full"], npz_files["full"], "--stats", "--normalize", "none")
+    lines = out.splitlines()
+    table = lines[next(i for i, line in enumerate(lines) if line.startswith("region")) + 1:]
+    rows = {line.split()[0]: line.split() for line in table}
+    assert list(rows) == ["all", "lit", "water", "shadow"]
+    for region in ("lit", "water", "shadow"):
+        assert int(rows[region][1]) == expected[region]
+    # Against itself: KS and W1 0; a noise-free shadow is 0, so it has no contrast or profile.
+    assert rows["shadow"][-3:] == ["0.000", "0", "n/a"]
+    assert rows["shadow"][2:8] == ["0", "|", "0", "n/a", "|", "n/a"]  # mean, contrast
+    doc = json.loads(_run(capsys, npz_files["full"], npz_files["half"], "--stats", "--json")[0])
+    assert list(doc["stats"]) == ["all", "lit", "water", "shadow"]
+    assert doc["stats"]["shadow"]["pixels"] == expected["shadow"]
+    assert doc["stats"]["shadow"]["mean_a"] < 0.01 * doc["stats"]["lit"]["mean_a"]

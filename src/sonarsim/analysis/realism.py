@@ -89,6 +89,8 @@ def speckle_contrast(image, mask=None, window: tuple[int, int] = LOCAL_MEAN_WIND
     if keep.sum() < 2:
         raise ValueError("the region holds fewer than two pixels with echo")
     r = ratio[keep]
+    if not r.any():  # zeros beside echo (e.g. a noise-free shadow): no speckle to measure
+        raise ValueError("the region holds no echo")
     return float(r.std() / r.mean())
 
 
@@ -230,8 +232,18 @@ def beam_profile_db(image, mask=None, floor_db: float = -300.0) -> np.ndarray:
 LIT_FRACTION = 0.25
 BRIGHT_PERCENTILE = 99.0
 
+#: A pixel behind the first echo of its beam is in shadow when its local mean is at most this
+#: many dB above the water column's level (2x in intensity): within the spread of a local mean
+#: of speckled noise (a 9 x 5 mean of exponential noise has a std of 15 % of its mean), far
+#: below a lit pixel (at least 6 dB under the bright level).
+SHADOW_DB = 3.0
+
+#: Level taken as "no echo" when the water column is darker still (a noise-free simulation
+#: has a water column of exactly 0): this many dB below the image's bright level.
+SHADOW_FLOOR_DB = 40.0
+
 #: Names of the regions :func:`auto_regions` finds.
-REGIONS = ("lit", "water")
+REGIONS = ("lit", "water", "shadow")
 
 
 def auto_regions(image, mask=None, window: tuple[int, int] = LOCAL_MEAN_WINDOW) -> dict[str, np.ndarray]:
@@ -240,13 +252,31 @@ def auto_regions(image, mask=None, window: tuple[int, int] = LOCAL_MEAN_WINDOW) 
     * ``lit``: pixels whose local mean is within 6 dB (:data:`LIT_FRACTION`) of the image's
       bright level (the 99th percentile of the local mean): the lit floor band and objects;
     * ``water``: in each beam, the range bins nearer than its first lit bin (the water column
-      before the first echo).
+      before the first echo);
+    * ``shadow``: in each beam, the bins farther than its first lit bin that are not lit and
+      whose local mean is within :data:`SHADOW_DB` (3 dB) of the level of no echo: where the
+      echo falls back to the noise behind an echo. The level of no echo is the median of the
+      local mean over the ``water`` of the beams that have a lit bin (a beam without one may
+      hold unlit echo), or :data:`SHADOW_FLOOR_DB` (40 dB) below the bright level when that is
+      higher (a noise-free simulation's water column is exactly 0). This is an object's
+      acoustic shadow on the floor, and also the dark beyond the far edge of a floor band
+      (outside the vertical beam, or where the echo fades into the noise): levels alone do not
+      tell them apart. It is empty when the image has no such drop (the real Oculus ping
+      nearly so: what is not lit behind its first echoes stays 4.4 dB (1st percentile) to
+      5.6 dB (median) above its water column, echo of the elevation pattern), and when no beam
+      has a water column before a lit bin to measure the level in.
+
+    The local mean blurs every edge by up to half the window, so a region stops short of a
+    brighter neighbour by up to half the window (4 bins and 2 beams for 9 x 5): a shadow
+    smaller than the window is not found.
 
     Parameters
     ----------
     image : (n_range_bins, n_beams) array
     mask : (n_range_bins, n_beams) bool array, optional
         Pixels that may belong to a region (e.g. where a compared image has data).
+    window : (int, int)
+        Local-mean window in range bins and beams.
 
     Returns
     -------
@@ -257,8 +287,16 @@ def auto_regions(image, mask=None, window: tuple[int, int] = LOCAL_MEAN_WINDOW) 
     level = float(np.percentile(mean[m], BRIGHT_PERCENTILE)) if m.any() else 0.0
     lit = m & (mean >= LIT_FRACTION * level) & (level > 0)
     first = np.where(lit.any(axis=0), lit.argmax(axis=0), x.shape[0])
-    water = m & (np.arange(x.shape[0])[:, None] < first[None, :])
-    return {"lit": lit, "water": water}
+    rows = np.arange(x.shape[0])[:, None]
+    water = m & (rows < first[None, :])
+    # The water column of a beam with no lit bin is the whole beam, unlit echo included.
+    before_echo = water & lit.any(axis=0)[None, :]
+    if before_echo.any():
+        noise = max(float(np.median(mean[before_echo])), level * 10 ** (-SHADOW_FLOOR_DB / 10))
+        shadow = m & ~lit & (rows > first[None, :]) & (mean <= noise * 10 ** (SHADOW_DB / 10))
+    else:
+        shadow = np.zeros(x.shape, dtype=bool)
+    return {"lit": lit, "water": water, "shadow": shadow}
 
 
 def region_statistics(a, b, mask, window: tuple[int, int] = LOCAL_MEAN_WINDOW) -> dict[str, float]:

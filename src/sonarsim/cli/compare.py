@@ -68,8 +68,8 @@ def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="normalisation of each image to 0-255: divide by its maximum (default), "
                    "min-max, or none (compare the values as stored)")
     p.add_argument("--stats", action="store_true",
-                   help="also compare texture and distributions per region of A (all, lit, water), in the images' "
-                   "own units: mean, speckle contrast, grain (correlation lengths), KS and Wasserstein distances, "
+                   help="also compare texture and distributions per region of A (all, lit, water, shadow), in the "
+                   "images' own units: mean, speckle contrast, grain (correlation lengths), KS and Wasserstein distances, "
                    "range-profile difference in dB")
     p.add_argument("--json", action="store_true",
                    help="print JSON instead of a table (infinite PSNR and undefined SSIM as null)")
