@@ -204,3 +204,94 @@ def test_load_image_reads_png_rows_nearest_range_first(tmp_path, renders):
     res = compare_images(renders["full"], image)
     assert res["polar"]["mse"] <= 0.25
     assert res["polar"]["ssim"] > 0.99
+
+
+# --------------------------------------------------------------------------------------------
+# Regions given as masks
+# --------------------------------------------------------------------------------------------
+
+
+def _speckled_pair(shape=(200, 48)):
+    rng = np.random.default_rng(11)
+    level = np.where(np.arange(shape[0])[:, None] >= 80, 100.0, 2.0) * np.ones(shape)
+    return PlainImage(level * rng.exponential(1.0, shape)), PlainImage(level * rng.exponential(1.0, shape))
+
+
+def test_given_regions_get_the_statistics_of_the_automatic_ones_after_them():
+    from sonarsim.analysis.realism import region_statistics
+
+    a, b = _speckled_pair()
+    wreck = np.zeros(a.polar.shape, dtype=bool)
+    wreck[100:140, 10:20] = True
+    res = compare_images(a, b, normalize=None, regions={"wreck": wreck})  # implies stats
+    assert list(res["stats"]) == ["all", "lit", "water", "shadow", "wreck"]
+    assert res["stats"]["wreck"] == region_statistics(a.polar, b.polar, wreck)
+    assert res["stats"]["wreck"]["pixels"] == 400
+    # Without regions or stats, no statistics; with stats alone, the automatic regions.
+    assert "stats" not in compare_images(a, b)
+    assert list(compare_images(a, b, stats=True)["stats"]) == ["all", "lit", "water", "shadow"]
+
+
+def test_given_regions_count_only_the_bins_inside_b_coverage():
+    fn = lambda r, az: 1.0 + r + 0 * az
+    a = _grid(0.5, 4.5, 40, np.linspace(15, -15, 16), fn)
+    b = _grid(1.0, 5.0, 80, np.linspace(18.5, -9.5, 15), fn)  # covers A's bins 5- and beams 0-12
+    everywhere = np.ones(a.polar.shape, dtype=bool)
+    res = compare_images(a, b, domains=("polar",), normalize=None, regions={"everywhere": everywhere})
+    assert res["stats"]["everywhere"]["pixels"] == 35 * 13 == res["polar"]["n_pixels"]
+    assert res["stats"]["everywhere"]["wasserstein"] < 1e-9
+
+
+@pytest.mark.parametrize("regions, message", [
+    ({"wreck": np.ones((3, 3), dtype=bool)}, r"region 'wreck'.*shape \(3, 3\).*200 range bins and 48 beams"),
+    ({"wreck": np.ones((200, 48), dtype=np.uint8)}, r"region 'wreck'.*boolean.*uint8"),
+    ({"shadow": np.ones((200, 48), dtype=bool)}, r"region 'shadow'.*automatic region"),
+    ({"all": np.ones((200, 48), dtype=bool)}, r"region 'all'.*automatic region"),
+    ({"": np.ones((200, 48), dtype=bool)}, r"non-empty strings"),
+    ([np.ones((200, 48), dtype=bool)], r"dict of name to boolean mask"),
+])
+def test_bad_regions_are_refused_with_their_name(regions, message):
+    a, b = _speckled_pair()
+    with pytest.raises(SonarsimError, match=message):
+        compare_images(a, b, regions=regions)
+
+
+def test_load_region_reads_npy_and_png_masks_on_the_polar_grid(tmp_path):
+    from PIL import Image
+
+    from sonarsim.analysis.comparison import load_region
+
+    mask = np.zeros((30, 8), dtype=bool)
+    mask[2:5, 1:3] = True  # near range, left beams
+    np.save(tmp_path / "bool.npy", mask)
+    np.save(tmp_path / "int.npy", mask.astype(np.int16) * 7)
+    for name in ("bool.npy", "int.npy"):
+        region = load_region(tmp_path / name)
+        assert region.dtype == bool and np.array_equal(region, mask)
+    # A PNG is drawn far range at the top, as sonarsim draws polar PNGs.
+    Image.fromarray((mask[::-1] * 255).astype(np.uint8)).save(tmp_path / "grey.png")
+    rgba = np.zeros((30, 8, 4), dtype=np.uint8)
+    rgba[..., 3] = 255  # opaque black: alpha does not count
+    rgba[mask[::-1], 2] = 1  # the faintest blue does
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "rgba.png")
+    Image.fromarray(mask[::-1]).save(tmp_path / "bilevel.png")
+    for name in ("grey.png", "rgba.png", "bilevel.png"):
+        assert np.array_equal(load_region(tmp_path / name), mask), name
+
+
+def test_load_region_names_the_file_it_cannot_use(tmp_path):
+    from sonarsim.analysis.comparison import load_region
+
+    np.save(tmp_path / "float.npy", np.ones((4, 4)))
+    np.save(tmp_path / "cube.npy", np.ones((2, 4, 4), dtype=bool))
+    (tmp_path / "notes.txt").write_text("the wreck is at 3 m\n")
+    np.save(tmp_path / "cut.npy", np.ones((40, 40), dtype=bool))
+    (tmp_path / "cut.npy").write_bytes((tmp_path / "cut.npy").read_bytes()[:200])
+    (tmp_path / "cut.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 20)
+    cases = {
+        "missing.npy": "no such file", "float.npy": "booleans.*float64", "cube.npy": r"2-D.*\(2, 4, 4\)",
+        "notes.txt": "not a region", "cut.npy": "cannot read the .npy", "cut.png": "cannot read the PNG",
+    }
+    for name, message in cases.items():
+        with pytest.raises(SonarsimError, match=f"{name}: .*{message}"):
+            load_region(tmp_path / name)

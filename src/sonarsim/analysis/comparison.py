@@ -2,8 +2,10 @@
 
 :func:`compare_images` runs the metrics of :mod:`sonarsim.analysis.metrics` (MSE, PSNR, SSIM) in the
 polar domain, on image A's grid (B resampled if the geometries differ), and in the fan-shaped
-(Cartesian) domain, on the pixels inside both fans. :func:`load_image` reads a sonarsim NPZ, a
-PNG, or a real recording (:mod:`sonarsim.io.readers`), recognised from the first bytes.
+(Cartesian) domain, on the pixels inside both fans, and with ``stats`` or ``regions`` describes
+texture and distributions per region (:mod:`sonarsim.analysis.realism`). :func:`load_image` reads
+a sonarsim NPZ, a PNG, or a real recording (:mod:`sonarsim.io.readers`), recognised from the
+first bytes; :func:`load_region` reads a region mask (.npy or PNG).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import os
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 from scipy import ndimage
@@ -23,7 +25,9 @@ from ..errors import SonarsimError
 from ..image.grid import PolarGrid, sector_area_m2
 from .metrics import NORMALIZATIONS, mse, normalize_255, psnr, ssim_map, ssim_support
 
-__all__ = ["DOMAINS", "MAX_FAN_PIXELS", "MIN_OVERLAP", "PlainImage", "compare_images", "load_image"]
+__all__ = [
+    "DOMAINS", "MAX_FAN_PIXELS", "MIN_OVERLAP", "PlainImage", "compare_images", "load_image", "load_region",
+]
 
 #: Domains :func:`compare_images` can compare in.
 DOMAINS = ("polar", "fan")
@@ -276,6 +280,7 @@ def compare_images(
     data_range: float = 255.0,
     names: tuple[str, str] | None = None,
     stats: bool = False,
+    regions: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """MSE, PSNR and SSIM between two sonar images, in the polar and fan domains.
 
@@ -314,6 +319,12 @@ def compare_images(
         Also describe texture and distributions per region of A (``"all"`` and the regions of
         :func:`sonarsim.analysis.realism.auto_regions`), in the images' own units, as
         ``"stats": {region: region_statistics(...)}``.
+    regions : dict of str to (n_range_bins, n_beams) bool array, optional
+        More regions for the statistics (implies ``stats``), given as masks on A's polar grid
+        (e.g. hand-labelled objects and shadows; :func:`load_region` reads them from files).
+        Each is reported after the automatic ones, restricted, like them, to A's bins inside
+        B's coverage. Their names must differ from ``"all"`` and those of
+        :data:`sonarsim.analysis.realism.REGIONS`.
 
     Returns
     -------
@@ -332,7 +343,8 @@ def compare_images(
         When the images cannot be compared: different shapes without geometry, coverages
         overlapping on less than :data:`MIN_OVERLAP` of A's area (the message says what
         differs), unknown domains or normalisation, a bad pixel size or one that would make a
-        fan image of more than :data:`MAX_FAN_PIXELS` pixels, non-finite values.
+        fan image of more than :data:`MAX_FAN_PIXELS` pixels, non-finite values; a region
+        that is not a boolean array of A's shape or has an automatic region's name.
     """
     domains = tuple(domains)
     unknown = [d for d in domains if d not in DOMAINS]
@@ -358,6 +370,7 @@ def compare_images(
         name_a, name_b = _name(a, "image A"), _name(b, "image B")
     pa, pb = _polar_of(a, name_a), _polar_of(b, name_b)
     ga, gb = _geometry_of(a, pa, name_a), _geometry_of(b, pb, name_b)
+    given = _given_regions(regions, pa.shape, name_a)
     info: dict[str, Any] = {
         "normalize": normalize, "resampled": False, "overlap": None, "pixel_size_m": None,
         "skipped": {},
@@ -393,13 +406,14 @@ def compare_images(
 
     if "polar" in domains:
         result["polar"] = _metrics(pa, b_on_a, polar_mask, normalize, data_range)
-    if stats:
+    if stats or given:
         # Texture and distributions per region of A, in the images' own units (no renormalising:
         # compare a simulation in the device's counts with a recording).
         from .realism import auto_regions, region_statistics
 
-        regions = {"all": polar_mask, **auto_regions(pa, polar_mask)}
-        result["stats"] = {name: region_statistics(pa, b_on_a, m) for name, m in regions.items()}
+        masks = {"all": polar_mask, **auto_regions(pa, polar_mask)}
+        masks.update((name, m & polar_mask) for name, m in given.items())
+        result["stats"] = {name: region_statistics(pa, b_on_a, m) for name, m in masks.items()}
 
     if "fan" in domains:
         if ga is None or gb is None:
@@ -430,12 +444,100 @@ def compare_images(
     return result
 
 
+def _given_regions(regions: Mapping[str, Any] | None, shape: tuple[int, int], name_a: str) -> dict[str, np.ndarray]:
+    """``regions`` checked: names free, boolean masks of A's shape."""
+    from .realism import REGIONS
+
+    if regions is None:
+        return {}
+    if not isinstance(regions, Mapping):
+        raise SonarsimError(f"regions must be a dict of name to boolean mask, got {type(regions).__name__}")
+    out = {}
+    for name, mask in regions.items():
+        if not isinstance(name, str) or not name:
+            raise SonarsimError(f"region names must be non-empty strings, got {name!r}")
+        if name in ("all", *REGIONS):
+            raise SonarsimError(
+                f"region {name!r}: the name of an automatic region ({', '.join(('all', *REGIONS))}); "
+                "choose another"
+            )
+        m = np.asarray(mask)
+        if m.dtype != bool:
+            raise SonarsimError(f"region {name!r}: the mask must be a boolean array, got {m.dtype}")
+        if m.shape != shape:
+            raise SonarsimError(
+                f"region {name!r}: the mask has shape {m.shape} but {name_a}'s polar image has "
+                f"{shape[0]} range bins and {shape[1]} beams {shape}"
+            )
+        out[name] = m
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # Files
 # --------------------------------------------------------------------------------------------
 
 _ZIP_MAGIC = b"PK\x03\x04"
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+_NPY_MAGIC = b"\x93NUMPY"
+
+
+def load_region(path: str | os.PathLike) -> np.ndarray:
+    """Read a region (a mask on a polar grid) from a file, for ``compare_images(regions=...)``.
+
+    The format is told by the file's first bytes:
+
+    * a ``.npy`` array (:func:`numpy.save`), 2-D, of booleans, or of integers whose non-zero
+      values are the region; row 0 is the nearest range bin, column 0 the left-most beam, as
+      in a polar image;
+    * a PNG whose non-zero pixels (in any colour channel; alpha is ignored) are the region,
+      drawn as sonarsim draws polar PNGs: far range at the top, so its rows are flipped on
+      reading (as :func:`load_image` does), and a mask painted over A's polar PNG fits A.
+
+    Returns
+    -------
+    (n_range_bins, n_beams) bool ndarray
+
+    Raises
+    ------
+    SonarsimError
+        Naming the file: missing or unreadable, neither format, not 2-D, not boolean or
+        integer.
+    """
+    name = os.fspath(path)
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(8)
+    except FileNotFoundError:
+        raise SonarsimError(f"{name}: no such file") from None
+    except OSError as exc:
+        raise SonarsimError(f"{name}: cannot read: {exc.strerror or exc}") from None
+    if head.startswith(_NPY_MAGIC):
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except (OSError, ValueError, EOFError) as exc:
+            raise SonarsimError(f"{name}: cannot read the .npy array: {exc}") from None
+        if arr.ndim != 2:
+            raise SonarsimError(f"{name}: a region must be a 2-D array (range bins, beams), got shape {arr.shape}")
+        if arr.dtype.kind not in "biu":
+            raise SonarsimError(
+                f"{name}: a region must hold booleans (or integers, non-zero in the region), got {arr.dtype}"
+            )
+        return arr != 0
+    if head.startswith(_PNG_MAGIC):
+        from PIL import Image, UnidentifiedImageError
+
+        try:
+            with Image.open(path) as im:
+                im.load()
+                if im.mode in ("1", "L", "I", "I;16", "I;16B", "I;16L", "F"):
+                    arr = np.asarray(im)
+                else:
+                    arr = np.asarray(im.convert("RGB")).any(axis=2)
+        except (OSError, UnidentifiedImageError, ValueError) as exc:
+            raise SonarsimError(f"{name}: cannot read the PNG: {exc}") from None
+        return np.ascontiguousarray(arr[::-1] != 0)
+    raise SonarsimError(f"{name}: not a region: expected a .npy array (numpy.save) or a PNG")
 
 
 def load_image(path: str | os.PathLike, frame: int | None = None, component: str | None = None):
