@@ -142,3 +142,56 @@ def test_compare_stats_reports_the_shadow_region_in_the_table_and_the_json(capsy
     assert list(doc["stats"]) == ["all", "lit", "water", "shadow"]
     assert doc["stats"]["shadow"]["pixels"] == expected["shadow"]
     assert doc["stats"]["shadow"]["mean_a"] < 0.01 * doc["stats"]["lit"]["mean_a"]
+
+
+def test_compare_region_masks_from_npy_and_png_files(capsys, tmp_path, npz_files, renders):
+    from sonarsim.analysis.realism import REGIONS
+
+    wreck = np.zeros(renders["full"].polar.shape, dtype=bool)
+    wreck[150:250, 4:20] = True  # the block and its surroundings; bin 0 nearest
+    np.save(tmp_path / "wreck.npy", wreck)
+    write_png(tmp_path / "wreck.png", (wreck[::-1] * 255).astype(np.uint8))  # far range at the top
+    expected = compare_images(renders["full"], renders["half"], regions={"wreck": wreck})["stats"]["wreck"]
+    assert expected["pixels"] == 1600
+    # --region implies --stats; the PNG and the .npy give the same region.
+    doc = json.loads(_run(capsys, npz_files["full"], npz_files["half"], "--json",
+                          "--region", f"wreck={tmp_path / 'wreck.npy'}",
+                          "--region", f"wreck_drawn={tmp_path / 'wreck.png'}")[0])
+    assert list(doc["stats"]) == ["all", *REGIONS, "wreck", "wreck_drawn"]
+    for name in ("wreck", "wreck_drawn"):
+        assert doc["stats"][name] == pytest.approx(expected)
+    out, _ = _run(capsys, npz_files["full"], npz_files["half"], "--region", f"wreck_drawn={tmp_path / 'wreck.png'}")
+    row = next(line for line in out.splitlines() if line.startswith("wreck_drawn")).split()
+    assert int(row[1]) == 1600 and float(row[-3]) == pytest.approx(expected["ks"], abs=1e-3)
+
+
+def test_compare_region_errors_name_the_option_and_the_file(capsys, tmp_path, npz_files):
+    from sonarsim.cli import main as cli
+
+    np.save(tmp_path / "small.npy", np.ones((10, 32), dtype=bool))
+    np.save(tmp_path / "float.npy", np.ones((400, 32)))
+    (tmp_path / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 20)
+    np.save(tmp_path / "fine.npy", np.ones((400, 32), dtype=bool))
+    a, b = str(npz_files["full"]), str(npz_files["half"])
+    cases = [
+        (["x=" + str(tmp_path / "small.npy")], ["--region x=", "small.npy", "(10, 32)", "400 range bins and 32 beams"]),
+        (["x=" + str(tmp_path / "float.npy")], ["--region x=", "float.npy", "float64"]),
+        (["x=" + str(tmp_path / "broken.png")], ["--region x=", "broken.png", "cannot read the PNG"]),
+        (["x=" + str(tmp_path / "nope.npy")], ["--region x=", "nope.npy", "no such file"]),
+        (["x=" + a], ["--region x=", "full.npz", "not a region"]),
+        (["shadow=" + str(tmp_path / "fine.npy")], ["--region shadow=", "automatic region"]),
+        (["x=" + str(tmp_path / "fine.npy")] * 2, ["--region x=", "given twice"]),
+    ]
+    for specs, words in cases:
+        argv = ["compare", a, b] + [arg for spec in specs for arg in ("--region", spec)]
+        assert cli.main(argv) == 2, specs
+        captured = capsys.readouterr()
+        assert captured.out == "" and "Traceback" not in captured.err
+        for word in words:
+            assert word in captured.err, (word, captured.err)
+    for bad in ("x", "=x.npy", "x="):
+        with pytest.raises(SystemExit) as exc:
+            cli.main(["compare", a, b, "--region", bad])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert "--region" in err and "NAME=PATH" in err and "Traceback" not in err

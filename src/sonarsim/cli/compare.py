@@ -18,11 +18,20 @@ import math
 import sys
 from typing import Any
 
+from ..errors import SonarsimError
 from .argtypes import frame_index, positive_float
 
 __all__ = ["add_compare_parser", "cmd_compare"]
 
 _NORMALIZE_CHOICES = ("max", "minmax", "none")
+
+
+def _region_spec(text: str) -> tuple[str, str]:
+    """``NAME=PATH`` of ``--region``."""
+    name, sep, path = text.partition("=")
+    if not (sep and name.strip() and path):
+        raise argparse.ArgumentTypeError(f"expected NAME=PATH (e.g. wreck=wreck.png), got {text!r}")
+    return name.strip(), path
 
 
 def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -71,6 +80,11 @@ def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="also compare texture and distributions per region of A (all, lit, water, shadow), in the "
                    "images' own units: mean, speckle contrast, grain (correlation lengths), KS and Wasserstein distances, "
                    "range-profile difference in dB")
+    p.add_argument("--region", type=_region_spec, action="append", default=[], metavar="NAME=PATH",
+                   help="also compare a region of your own (implies --stats; repeatable): PATH is a .npy "
+                   "array (numpy.save) of booleans or integers, non-zero in the region, rows from the "
+                   "nearest range bin, or a PNG whose non-zero pixels are the region, far range at the "
+                   "top as sonarsim draws polar PNGs; either on A's polar grid (A's shape)")
     p.add_argument("--json", action="store_true",
                    help="print JSON instead of a table (infinite PSNR and undefined SSIM as null)")
     p.set_defaults(func=cmd_compare)
@@ -120,22 +134,50 @@ def _summary(path: str, frame: int | None, component: str | None, desc: dict[str
     return f"{what}: {rows} x {cols}, no geometry"
 
 
+def _load_regions(specs: list[tuple[str, str]], shape: tuple[int, ...], path_a: str) -> dict[str, Any]:
+    """The masks of ``--region NAME=PATH``, checked against A's polar shape."""
+    from ..analysis.comparison import load_region
+    from ..analysis.realism import REGIONS
+
+    taken = ("all", *REGIONS)
+    regions: dict[str, Any] = {}
+    for name, path in specs:
+        what = f"--region {name}={path}"
+        if name in taken:
+            raise SonarsimError(f"{what}: {name!r} is an automatic region ({', '.join(taken)}); choose another name")
+        if name in regions:
+            raise SonarsimError(f"{what}: region {name!r} is given twice")
+        try:
+            mask = load_region(path)
+        except SonarsimError as exc:
+            raise SonarsimError(f"{what}: {exc}") from None
+        if mask.shape != tuple(shape):
+            raise SonarsimError(
+                f"{what}: {path}: the mask has shape {mask.shape} but A ({path_a}) has {shape[0]} range "
+                f"bins and {shape[1]} beams; a region is drawn on A's polar grid"
+            )
+        regions[name] = mask
+    return regions
+
+
 def cmd_compare(args: argparse.Namespace) -> None:
     """Run ``sonarsim compare`` with parsed arguments; print the result to stdout.
 
     Raises
     ------
     SonarsimError
-        For files that cannot be read or images that cannot be compared.
+        For files that cannot be read (images or ``--region`` masks), regions that do not fit
+        A, or images that cannot be compared.
     """
     from ..analysis.comparison import DOMAINS, compare_images, load_image
 
     image_a = load_image(args.a, args.frame_a, args.component_a)
     image_b = load_image(args.b, args.frame_b, args.component_b)
+    regions = _load_regions(args.region, image_a.polar.shape, args.a)
     normalize = None if args.normalize == "none" else args.normalize
     result = compare_images(
         image_a, image_b, DOMAINS, args.pixel_size, normalize=normalize, names=(args.a, args.b),
-        stats=args.stats,
+        stats=args.stats, regions=regions,
     )
     info = result["info"]
     desc_a, desc_b = _describe(image_a), _describe(image_b)
@@ -176,12 +218,13 @@ def cmd_compare(args: argparse.Namespace) -> None:
     if "stats" in result:
         print()
         print("per region of A, in the images' own units (A | B):")
-        print(f"{'region':<7} {'pixels':>8} {'mean':>17} {'contrast':>13} {'grain bins':>13} "
+        w = max(7, *map(len, result["stats"]))
+        print(f"{'region':<{w}} {'pixels':>8} {'mean':>17} {'contrast':>13} {'grain bins':>13} "
               f"{'grain beams':>13} {'KS':>6} {'W1':>9} {'profile dB':>10}")
         for region, st in result["stats"].items():
             def pair(key: str, spec: str) -> str:
                 return f"{_fmt(st[key + '_a'], spec)} | {_fmt(st[key + '_b'], spec)}"
 
-            print(f"{region:<7} {int(st['pixels']):>8} {pair('mean', '.4g'):>17} {pair('contrast', '.3f'):>13} "
+            print(f"{region:<{w}} {int(st['pixels']):>8} {pair('mean', '.4g'):>17} {pair('contrast', '.3f'):>13} "
                   f"{pair('grain_range', '.2f'):>13} {pair('grain_beams', '.2f'):>13} {_fmt(st['ks'], '.3f'):>6} "
                   f"{_fmt(st['wasserstein'], '.4g'):>9} {_fmt(st['range_profile_rms_db'], '.2f'):>10}")
