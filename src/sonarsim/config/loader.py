@@ -18,11 +18,12 @@ import numpy as np
 from ..errors import ConfigError, MeshFileError, SonarsimError
 from ..scene.meshes import load_mesh_file
 from .presets import beam_angles_from_table, get_preset
+from .sensor import parse_sensor
 from .scene import GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene
 from .sonar import SonarConfig, beam_edges_deg
 from ..core.transforms import Pose
 
-TOP_KEYS = ("sonar", "render", "ground", "planes", "objects")
+TOP_KEYS = ("sonar", "render", "ground", "planes", "objects", "sensor")
 SONAR_KEYS = (
     "preset", "n_beams", "azimuth_fov_deg", "beam_angles_deg", "beam_angles_file", "beam_width_deg",
     "elevation_fov_deg", "range_min_m", "range_max_m", "n_range_bins", "range_resolution_m",
@@ -315,6 +316,7 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
             planes=tuple(parse_plane(p, i) for i, p in enumerate(planes_raw)),
             render=parse_render(d.get("render", {}) or {}),
             source=source,
+            sensor=parse_sensor(d.get("sensor"), base),
         )
     except ConfigError as exc:
         if source and exc.source is None:

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
+from .sensor import SensorSpec
 from .sonar import SonarConfig
 from ..core.transforms import Pose
 
@@ -361,6 +362,9 @@ class Scene:
     render : RenderSettings
     source : str or None
         File the scene was read from (mesh paths are relative to its folder).
+    sensor : SensorSpec or None
+        The device model applied after image formation (``sensor:``); ``None``: the image is
+        the renderer's noise-free expected backscatter.
     """
 
     sonar: SonarConfig
@@ -369,8 +373,9 @@ class Scene:
     render: RenderSettings = field(default_factory=RenderSettings)
     source: str | None = None
     planes: tuple[PlaneSpec, ...] = ()
-    # Last, so that the fields before it keep their positions.
+    # Last, so that the fields before them keep their positions.
     sonar_pose: Pose = field(default_factory=Pose)
+    sensor: SensorSpec | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "objects", tuple(self.objects))
@@ -391,6 +396,16 @@ class Scene:
                 "render.double_beam",
                 "'separate' is not a convention of Algorithm 2 (method: paper); allowed with it: paper, split",
             )
+        if self.sensor is not None:
+            if not self.render.tvg:
+                raise ConfigError("render.tvg", "must be true with a sensor section: the sensor's sonar equation "
+                                  "applies the spreading loss (and sensor.tvg compensates it)")
+            if self.render.speckle:
+                raise ConfigError("render.speckle", "with a sensor section, speckle is the sensor's: configure "
+                                  "sensor.speckle and leave render.speckle false")
+            if self.sensor.elevation_pattern is not None and self.render.beam_pattern != "uniform":
+                raise ConfigError("render.beam_pattern", "the sensor's elevation_pattern is the beam pattern; "
+                                  "leave render.beam_pattern uniform")
         if self.render.method == "paper" and self.planes:
             raise ConfigError(
                 "render.method",
@@ -421,6 +436,8 @@ class Scene:
             out["ground"] = self.ground.to_dict()
         if self.planes:
             out["planes"] = [p.to_dict() for p in self.planes]
+        if self.sensor is not None:
+            out["sensor"] = self.sensor.to_dict()
         return out
 
 

@@ -64,7 +64,7 @@ class RayFan:
         return int(self.weight.size)
 
 
-def make_ray_fan(sonar: SonarConfig, render: RenderSettings) -> RayFan:
+def make_ray_fan(sonar: SonarConfig, render: RenderSettings, elevation_gain=None) -> RayFan:
     """Sample every beam over its azimuth width and the elevation aperture.
 
     Parameters
@@ -72,6 +72,9 @@ def make_ray_fan(sonar: SonarConfig, render: RenderSettings) -> RayFan:
     sonar : SonarConfig
     render : RenderSettings
         ``elevation_samples``, ``azimuth_samples`` and ``beam_pattern`` are used.
+    elevation_gain : callable, optional
+        ``(n,) elevation (rad) -> (n,) power gain``: a sensor's two-way elevation pattern,
+        multiplied into the weights (the sonar's aperture is then the span it acts over).
     """
     n_el = auto_elevation_samples(sonar) if render.elevation_samples == "auto" else int(render.elevation_samples)
     n_az = int(render.azimuth_samples)
@@ -96,5 +99,7 @@ def make_ray_fan(sonar: SonarConfig, render: RenderSettings) -> RayFan:
         ln2 = math.log(2.0)
         beta = beta * np.exp(-ln2 * (phi / half_el) ** 2)[None, None, :]
         beta = beta * np.exp(-ln2 * (2.0 * frac) ** 2)[None, :, None]
+    if elevation_gain is not None:
+        beta = beta * np.asarray(elevation_gain(phi), dtype=float)[None, None, :]
     weight = beta * (dphi / n_az)
     return RayFan(directions=directions, azimuth_rad=theta, elevation_rad=phi, weight=weight)

@@ -33,6 +33,7 @@ from ..paths.engine import (
     trace_legs,
 )
 from ..paths.planes import ChainTable, PlaneSet
+from ..sensor.model import SensorModel
 from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
 from ..trace import available_cores, make_caster
 from ..trace.surfaces import trace
@@ -109,6 +110,7 @@ class Simulator:
         self._albedo = np.concatenate([[0.0], self.planes.albedo, [o.albedo for o in self.scene.objects]])
         self._rng = np.random.default_rng(self.scene.render.seed)  # speckle, frame after frame
         self._fans: dict[SonarConfig, RayFan] = {}  # by intrinsics: every pose shares the fan
+        self._sensor_models: dict[SonarConfig, SensorModel] = {}
         self._last_fan: tuple[SonarConfig, RayFan] | None = None
         self.last_timing: dict[str, float] = {}
         self._config = self.scene.to_dict()  # the scene-file form; each frame adds its sonar and pose
@@ -150,13 +152,37 @@ class Simulator:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def sensor_model(self, sonar: SonarConfig | None = None) -> SensorModel | None:
+        """The scene's sensor made concrete for a sonar (cached); ``None`` without a sensor section."""
+        if self.scene.sensor is None:
+            return None
+        sonar = sonar if sonar is not None else self.scene.sonar
+        model = self._sensor_models.get(sonar)
+        if model is None:
+            model = SensorModel(self.scene.sensor, sonar, self.scene.render.seed)
+            self._sensor_models = {sonar: model}  # like the fans: one sonar at a time
+        return model
+
+    def traced_sonar(self, sonar: SonarConfig) -> SonarConfig:
+        """The sonar whose rays are cast: with a sensor's elevation pattern, over its wider span."""
+        model = self.sensor_model(sonar)
+        return sonar if model is None else model.trace_sonar(sonar)
+
     def ray_fan(self, sonar: SonarConfig) -> RayFan:
-        """The (cached) rays of a sonar (its intrinsics) in its own frame."""
+        """The (cached) rays of a sonar (its intrinsics) in its own frame.
+
+        With a sensor's elevation pattern the rays span the pattern's ``span_deg`` and their
+        weights carry its two-way gain.
+        """
         if self._last_fan is not None and self._last_fan[0] is sonar:
             return self._last_fan[1]
         fan = self._fans.get(sonar)
         if fan is None:
-            fan = make_ray_fan(sonar, self.scene.render)
+            model = self.sensor_model(sonar)
+            if model is None:
+                fan = make_ray_fan(sonar, self.scene.render)
+            else:
+                fan = make_ray_fan(model.trace_sonar(sonar), self.scene.render, model.elevation_gain)
             self._fans = {sonar: fan}  # one sonar at a time is the common case; keep memory flat
         self._last_fan = (sonar, fan)
         return fan
@@ -261,7 +287,8 @@ class Simulator:
                 out[name] = image
         return out
 
-    def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True) -> SonarImage:
+    def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True,
+               speckle: bool | None = None, frame: int | None = None) -> SonarImage:
         """Render one image.
 
         Parameters
@@ -273,6 +300,15 @@ class Simulator:
             Other intrinsics (beams, elevation aperture, range window); default the scene's.
         keep_rays : bool
             Attach the per-ray maps (D_f, I_f, labels) to the result.
+        speckle : bool, optional
+            ``False``: no random draws: with a sensor, its expected (mean) output; without,
+            the noise-free total. Default: as configured (a sensor draws speckle and noise;
+            ``render.speckle``).
+        frame : int, optional
+            Frame index: the frame's draws come from the generator seeded with
+            ``(render.seed, frame)``, so that a frame is the same whoever renders it and in
+            whatever order. Default: the simulator's own generator, frame after frame.
+            (``sensor.speckle.anchor: world`` draws from the pose instead.)
 
         Returns
         -------
@@ -293,6 +329,7 @@ class Simulator:
                                  "pose" if pose_given else "sonar.pose.position_m")
         render = self.scene.render
         fan = self.ray_fan(sonar)
+        image_sonar, sonar = sonar, self.traced_sonar(sonar)  # the image's grid; the rays' aperture
         t1 = time.perf_counter()
         active = self.planes.facing(pose.translation)
         mirrors = active & (self.planes.specular > 0)
@@ -314,8 +351,14 @@ class Simulator:
             paths = functools.partial(self._signature_images, sonar, fan, legs, sets, table)
         components = frame_components(stack, render.bounces, render.max_order, paths)
         total = components["total"]
-        if render.speckle:
-            total = (total * self._rng.exponential(1.0, total.shape)).astype(np.float32)
+        rng = self._rng if frame is None else np.random.default_rng([int(render.seed), int(frame)])
+        model = self.sensor_model(image_sonar)
+        if model is not None:
+            if self.scene.sensor.speckle is not None and self.scene.sensor.speckle.anchor == "world":
+                rng = model.anchored_rng(pose.position_m, pose.rpy_deg)
+            total = model.apply(total, rng, speckle is not False, pool=self._pool)
+        elif render.speckle and speckle is not False:
+            total = (total * rng.exponential(1.0, total.shape)).astype(np.float32)
         rays = None
         if keep_rays:
             primary = legs[0]
@@ -326,6 +369,7 @@ class Simulator:
                 azimuth_deg=np.degrees(fan.azimuth_rad),
                 elevation_deg=np.degrees(fan.elevation_rad),
             )
+        sonar = image_sonar
         config = {**self._config, "sonar": sonar_section(sonar, pose)}
         t4 = time.perf_counter()
         self.last_timing = {"setup": t1 - t0, "render": t3 - t1, "assemble": t4 - t3, "total": t4 - t0}
@@ -335,6 +379,12 @@ class Simulator:
         )
 
 
-def render(scene: Any, pose: Any = None, backend: str = "embree") -> SonarImage:
-    """Load (if needed) and render a scene once. For many poses, use :class:`Simulator`."""
-    return Simulator(scene, backend=backend).render(pose=pose)
+def render(scene: Any, pose: Any = None, backend: str = "embree", speckle: bool | None = None,
+           frame: int | None = None) -> SonarImage:
+    """Load (if needed) and render a scene once. For many poses, use :class:`Simulator`.
+
+    ``speckle=False``: the expected output, without speckle and noise draws (see
+    :meth:`Simulator.render`).
+    """
+    with Simulator(scene, backend=backend) as sim:
+        return sim.render(pose=pose, speckle=speckle, frame=frame)

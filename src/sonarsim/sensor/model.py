@@ -1,0 +1,290 @@
+"""The sensor stage: from the renderer's noise-free image to what the device outputs.
+
+Per frame, for a range-compensated image X (``render.tvg: true``: the backscatter each bin
+receives, ``sigma / r^2`` summed over the bin):
+
+1. the receive beams' azimuth sidelobes leak each beam's echo into its neighbours, and the
+   pulse spreads it over neighbouring range bins: ``M = K_range * (K_beams * X)`` (powers);
+2. the sonar equation makes it an echo power at the receiver: ``mu = g(r) M + bang(r)``,
+   ``10 log10 g = SL - 20 log10 r - 2 alpha r + 10 log10(dtheta / pi) + TS_offset``
+   (:func:`~sonarsim.sensor.acoustics.echo_level_offset_db`);
+3. speckle and noise are complex amplitudes: ``a = sqrt(mu) F + sqrt(N) W``, F the speckle
+   field (unit power, filtered by the pulse and the beam: its grain is the resolution cell), W
+   white receiver noise;
+4. TVG and gain: ``P = t(r) |a|^2``, ``10 log10 t = spreading log10 r + 2 alpha r + gain``;
+5. the output chain: compression, saturation, quantisation (:mod:`~sonarsim.sensor.output`).
+
+``speckle=False`` gives instead the expected device value ``E[out(t (mu + N) S)]`` (S the unit
+speckle intensity), tabulated over the level. The elevation pattern acts earlier, on the rays:
+the renderer casts them over ``span_deg`` weighted by the two-way pattern
+(:meth:`SensorModel.elevation_gain`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from concurrent.futures import Executor
+from dataclasses import replace
+
+import numpy as np
+
+from ..config.sensor import SensorSpec
+from ..config.sonar import SonarConfig
+from . import acoustics, output, patterns, pulse, speckle as speckle_mod
+
+try:  # the compiled loops; the NumPy twins below are the reference
+    from . import _stage
+except ImportError:  # pragma: no cover - a source checkout without the extension built
+    _stage = None
+
+COMPRESSION_CODES = {None: 0, "log": 1, "gamma": 2, "linear": 3}
+# A sensor's elevation span defaults to this many -3 dB widths.
+DEFAULT_SPAN_WIDTHS = 3.0
+
+
+def _edge_norm(kernel: np.ndarray, n: int) -> np.ndarray:
+    """1 / (kernel weight falling inside 0..n-1) at each index: a uniform image stays uniform."""
+    h = len(kernel) // 2
+    inside = np.convolve(np.ones(n), kernel[::-1], mode="full")[h:h + n]
+    return (1.0 / inside).astype(np.float32)
+
+
+class SensorModel:
+    """A sensor spec made concrete for one sonar: its tables, kernels and speckle pool.
+
+    Parameters
+    ----------
+    spec : SensorSpec
+    sonar : SonarConfig
+        The image's intrinsics (range bins, beams, frequency).
+    seed : int
+        Seed of the speckle and noise pool (the scene's ``render.seed``).
+    """
+
+    def __init__(self, spec: SensorSpec, sonar: SonarConfig, seed: int = 0) -> None:
+        self.spec = spec
+        self.sonar = sonar
+        self.seed = int(seed)
+        freq = spec.frequency_khz if spec.frequency_khz is not None else sonar.frequency_khz
+        self.alpha_db_per_m = acoustics.absorption_db_per_m(spec.absorption, freq, spec.sound_speed_m_s)
+        r = sonar.range_m
+        self.range_m = r
+        self.echo_gain_db = acoustics.echo_level_offset_db(r, spec.source_level_db, self.alpha_db_per_m,
+                                                           spec.target_strength_db)
+        self.tvg_db = acoustics.tvg_db(r, spec.tvg, self.alpha_db_per_m) + spec.gain_db
+        self.echo_gain = (10.0 ** (self.echo_gain_db / 10.0)).astype(np.float32)
+        self.tvg = (10.0 ** (self.tvg_db / 10.0)).astype(np.float32)
+        self.noise_power = 0.0 if spec.noise is None else 10.0 ** (spec.noise.level_db / 10.0)
+        if spec.bang is None:
+            self.bang = np.zeros(len(r), np.float32)
+        else:
+            self.bang = (10.0 ** (spec.bang.level_db / 10.0) * np.exp(-r / spec.bang.length_m)).astype(np.float32)
+        # The image holds backscatter per radian of elevation, summed over each beam's width:
+        # its beam width (radians) over pi completes sigma / r^2 (a Lambertian rho = pi mu).
+        self.column_factor = (np.radians(sonar.effective_beam_width_deg()) / math.pi).astype(np.float32)
+        spacing = float(np.median(np.abs(np.diff(sonar.azimuth_deg)))) if sonar.n_beams > 1 else 1.0
+        default_width = float(np.median(sonar.effective_beam_width_deg()))
+        if spec.azimuth_pattern is None:
+            self.beam_leakage, self.beam_amplitude = np.ones(1), np.ones(1)
+        else:
+            self.beam_leakage, self.beam_amplitude = patterns.azimuth_kernels(spec.azimuth_pattern, spacing,
+                                                                              default_width)
+        self.range_spread, self.range_amplitude = pulse.range_kernels(spec.pulse, sonar.range_resolution_m,
+                                                                      spec.sound_speed_m_s)
+        self._kb = self.beam_leakage.astype(np.float32)
+        self._kr = self.range_spread.astype(np.float32)
+        self._norm_b = _edge_norm(self.beam_leakage, sonar.n_beams)
+        self._norm_r = _edge_norm(self.range_spread, sonar.n_range_bins)
+        shape = (sonar.n_range_bins, sonar.n_beams)
+        self.pool = speckle_mod.SpecklePool(shape, self.range_amplitude, self.beam_amplitude, spec.speckle,
+                                            spec.noise is not None, self.seed)
+        if spec.speckle is None:
+            quantiles = None
+        elif spec.speckle.model == "rayleigh":
+            quantiles = output.exponential_quantiles()
+        else:
+            quantiles = output.empirical_quantiles(np.abs(self.pool.speckle[:, : shape[0], : shape[1]]) ** 2)
+        self.expected_output = output.ExpectedOutput(spec.output, quantiles)
+        out = spec.output
+        self._comp = COMPRESSION_CODES[None if out is None else out.compression]
+        self._fs = 1.0 if out is None else out.full_scale
+        self._quantise = out is not None and out.dtype != "float32"
+        lo = 0.0 if out is None else out.floor_db
+        hi = 1.0 if out is None else out.ceiling_db
+        self._lo_db = lo
+        self._inv_span = 1.0 / (hi - lo) if out is not None and out.compression == "log" else 0.0
+        self._inv_ceiling = 0.0 if out is None else 10.0 ** (-out.ceiling_db / 10.0)
+        self._gamma = 1.0 if out is None else out.gamma
+        # The pools as 2-D float32 (re, im pairs): field f starts at row f * 2 n_range_bins.
+        flat = lambda a: None if a is None else a.view(np.float32).reshape(-1, a.shape[2] * 2)
+        self._speckle_f, self._noise_f = flat(self.pool.speckle), flat(self.pool.noise)
+        self._dummy = np.zeros((1, 2), np.float32)
+        self._work: tuple[np.ndarray, np.ndarray] | None = None
+
+    # The elevation pattern (used by the renderer when it makes the rays) ---------------------
+
+    def elevation_span_deg(self) -> float:
+        """The full elevation span rays are cast over (the sonar's aperture without a pattern)."""
+        p = self.spec.elevation_pattern
+        if p is None:
+            return self.sonar.elevation_fov_deg
+        width = p.width_deg if p.width_deg is not None else self.sonar.elevation_fov_deg
+        return p.span_deg if p.span_deg is not None else min(DEFAULT_SPAN_WIDTHS * width, 170.0)
+
+    def trace_sonar(self, sonar: SonarConfig | None = None) -> SonarConfig:
+        """The sonar the renderer traces: the image's, with the elevation aperture widened to the span."""
+        sonar = sonar if sonar is not None else self.sonar
+        span = self.elevation_span_deg()
+        return sonar if span == sonar.elevation_fov_deg else replace(sonar, elevation_fov_deg=span)
+
+    def elevation_gain(self, elevation_rad: np.ndarray) -> np.ndarray:
+        """Two-way power gain (transmit x receive) at elevations off the acoustic axis; 1 without a pattern."""
+        p = self.spec.elevation_pattern
+        if p is None:
+            return np.ones_like(np.asarray(elevation_rad, dtype=float))
+        return patterns.pattern_gain(elevation_rad, p, self.sonar.elevation_fov_deg, ways=2)
+
+    # Per frame ---------------------------------------------------------------------------------
+
+    def draws(self, rng: np.random.Generator) -> tuple[speckle_mod.FieldDraw, speckle_mod.FieldDraw]:
+        """The speckle and noise fields a frame reads (from the frame's generator)."""
+        return self.pool.draw(rng), self.pool.draw(rng)
+
+    def anchored_rng(self, position_m, rpy_deg) -> np.random.Generator:
+        """A generator that is a function of the pose quantised to half a resolution cell.
+
+        A still sonar reads the same fields frame after frame (still speckle); moving by more
+        than half a range bin, or turning by more than half a beam, reads other fields.
+        """
+        dr = self.sonar.range_resolution_m / 2.0
+        spacing = float(np.median(np.abs(np.diff(self.sonar.azimuth_deg)))) if self.sonar.n_beams > 1 else 1.0
+        q = np.concatenate([np.floor(np.asarray(position_m, float) / dr), np.floor(np.asarray(rpy_deg, float) / (spacing / 2))])
+        key = hashlib.blake2b(q.astype(np.int64).tobytes(), digest_size=8).digest()
+        return np.random.default_rng([self.seed, int.from_bytes(key, "little")])
+
+    def mean_image(self, image: np.ndarray, pool: Executor | None = None) -> np.ndarray:
+        """``M``: the image through the azimuth leakage and the range spread (float32, same shape)."""
+        x = np.ascontiguousarray(image, dtype=np.float32)
+        if _stage is None:
+            return self.mean_image_reference(x)
+        tmp, out = self._buffers(x.shape)
+        self._rows(pool, x.shape[0], lambda a, b: _stage.blur_beams(x, self.column_factor, self._kb, self._norm_b, tmp, a, b))
+        self._rows(pool, x.shape[0], lambda a, b: _stage.blur_range(tmp, self._kr, self._norm_r, out, a, b))
+        return out
+
+    def apply(self, image: np.ndarray, rng: np.random.Generator | None = None, speckle: bool = True,
+              pool: Executor | None = None) -> np.ndarray:
+        """The device's output for a range-compensated image.
+
+        Parameters
+        ----------
+        image : (n_range_bins, n_beams) float array
+            The renderer's total image with ``l(r) = 1``.
+        rng : numpy Generator, optional
+            Chooses the speckle and noise fields of this frame (ignored with ``speckle=False``).
+        speckle : bool
+            ``False``: the expected output (no speckle or noise draws).
+        pool : Executor, optional
+            A worker thread: the rows are split between it and the caller.
+
+        Returns
+        -------
+        (n_range_bins, n_beams) float32 ndarray in device units (integers for integer data types).
+        """
+        m = self.mean_image(image, pool)
+        if _stage is None:
+            return self.combine_reference(m, None if not speckle else self.draws(rng or np.random.default_rng()), speckle)
+        out = np.empty_like(m)
+        expected = not speckle
+        ds, dn = self.draws(rng if rng is not None else np.random.default_rng()) if speckle else (None, None)
+        sf = self._speckle_f if self._speckle_f is not None else self._dummy
+        nf = self._noise_f if self._noise_f is not None else self._dummy
+        t = self.expected_output
+        args = (
+            m, self.echo_gain, self.bang, self.tvg, np.float32(self.noise_power),
+            sf, ds.row if ds else 0, ds.beam if ds else 0, self._speckle_f is not None and speckle,
+            nf, dn.row if dn else 0, dn.beam if dn else 0, self._noise_f is not None and speckle,
+            self._comp, self._lo_db, self._inv_span, self._inv_ceiling, self._gamma, self._fs, self._quantise,
+            t.table, t.lo_db, t.step_db, expected, out,
+        )
+        if speckle:
+            n_r = m.shape[0]
+            # Field f starts at row f * 2 n_r of the stacked pool.
+            args = list(args)
+            if self._speckle_f is not None:
+                args[6] = ds.row + ds.field * 2 * n_r
+            if self._noise_f is not None:
+                args[10] = dn.row + dn.field * 2 * n_r
+            args = tuple(args)
+        self._rows(pool, m.shape[0], lambda a, b: _stage.combine(*args, a, b))
+        return out
+
+    # NumPy twins (the reference the compiled loops are tested against) -------------------------
+
+    def mean_image_reference(self, image: np.ndarray) -> np.ndarray:
+        x = np.asarray(image, dtype=np.float64) * self.column_factor[None, :]
+        kb, kr = self.beam_leakage, self.range_spread
+        hb, hr = len(kb) // 2, len(kr) // 2
+        xb = np.pad(x, ((0, 0), (hb, hb)))
+        t = sum(kb[m] * xb[:, m:m + x.shape[1]] for m in range(len(kb))) * self._norm_b[None, :]
+        tr = np.pad(t, ((hr, hr), (0, 0)))
+        out = sum(kr[m] * tr[m:m + x.shape[0], :] for m in range(len(kr))) * self._norm_r[:, None]
+        return out.astype(np.float32)
+
+    def fields(self, draws) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The (n_range_bins, n_beams) complex speckle and noise fields of a frame's draws."""
+        ds, dn = draws
+        f = None if self.pool.speckle is None else self.pool.window(self.pool.speckle, ds)
+        w = None if self.pool.noise is None else self.pool.window(self.pool.noise, dn)
+        return f, w
+
+    def received_power(self, mean: np.ndarray, draws, speckle: bool = True) -> np.ndarray:
+        """``P = t(r) |sqrt(mu) F + sqrt(N) W|^2`` (or ``t (mu + N)`` without draws), uPa^2."""
+        mu = self.echo_gain[:, None].astype(np.float64) * mean + self.bang[:, None]
+        t = self.tvg[:, None].astype(np.float64)
+        if not speckle:
+            return t * (mu + self.noise_power)
+        f, w = self.fields(draws)
+        a = np.sqrt(np.maximum(mu, 0.0)) * (1.0 if f is None else f)
+        if w is not None:
+            a = a + math.sqrt(self.noise_power) * w
+        return t * np.abs(a) ** 2
+
+    def combine_reference(self, mean: np.ndarray, draws, speckle: bool = True) -> np.ndarray:
+        p = self.received_power(mean, draws, speckle)
+        if not speckle:
+            return self.expected_output(p)
+        return output.compress(p, self.spec.output)
+
+    def reference(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """A frame formed without the pool: fresh scatterers filtered through the point-spreads.
+
+        ``a = PSF * (sqrt(g X') w) + sqrt(N) W`` with X' the image after the beam's
+        column factor, w and W drawn afresh (slow; for tests and for scenes with sharp edges).
+        """
+        x = np.asarray(image, dtype=np.float64) * self.column_factor[None, :]
+        mu = self.echo_gain[:, None] * x + self.bang[:, None]
+        w = speckle_mod.scatterer_amplitudes(rng, x.shape, self.spec.speckle) if self.spec.speckle else 1.0
+        a = speckle_mod.filter_field(np.sqrt(mu) * w, self.range_amplitude, self.beam_amplitude, circular=False)
+        if self.spec.noise is not None:
+            a = a + math.sqrt(self.noise_power) * speckle_mod.complex_gaussian(rng, x.shape)
+        return output.compress(self.tvg[:, None] * np.abs(a) ** 2, self.spec.output)
+
+    # Helpers ------------------------------------------------------------------------------------
+
+    def _buffers(self, shape) -> tuple[np.ndarray, np.ndarray]:
+        if self._work is None or self._work[0].shape != shape:
+            self._work = (np.empty(shape, np.float32), np.empty(shape, np.float32))
+        return self._work[0], np.empty(shape, np.float32)
+
+    @staticmethod
+    def _rows(pool: Executor | None, n: int, fn) -> None:
+        """Run ``fn(r0, r1)`` over all rows: half on the pool's worker, half here."""
+        if pool is None or n < 64:
+            fn(0, n)
+            return
+        half = n // 2
+        future = pool.submit(fn, half, n)
+        fn(0, half)
+        future.result()

@@ -1,0 +1,113 @@
+"""The device's output chain: compression, saturation, quantisation; and its expected value.
+
+A received power P (uPa^2, after TVG and gain) becomes a device value: ``log`` maps the level
+``10 log10 P`` linearly between ``floor_db`` and ``ceiling_db``; ``gamma`` maps
+``(P / P_ceiling) ** gamma``; ``linear`` maps ``P / P_ceiling``; then values are clipped to
+``[0, full scale]`` (saturation) and rounded (integer data types).
+
+The expected output of a pixel whose mean power is mu is ``E[out(mu S)]`` with S the speckle's
+unit-mean intensity law: it is a function of mu alone, tabulated once per sensor
+(:class:`ExpectedOutput`) so that ``render(..., speckle=False)`` costs a table look-up per pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..config.sensor import OutputSpec
+
+# Levels of the expected-output table: every 0.05 dB over the compressed window, widened.
+TABLE_STEP_DB = 0.05
+TABLE_MARGIN_DB = 60.0
+# Quantiles of the speckle intensity averaged over (midpoints of equal-probability slices).
+QUANTILES = 4096
+
+
+def compress(power: np.ndarray, spec: OutputSpec | None) -> np.ndarray:
+    """Device values of received powers (NumPy reference of the compiled kernel).
+
+    Parameters
+    ----------
+    power : (...) array, uPa^2
+    spec : OutputSpec or None
+        ``None``: the power itself (float32).
+
+    Returns
+    -------
+    (...) float32 ndarray
+    """
+    p = np.asarray(power, dtype=np.float64)
+    if spec is None:
+        return p.astype(np.float32)
+    fs = spec.full_scale
+    if spec.compression == "log":
+        level = 10.0 * np.log10(np.maximum(p, 1e-30))
+        v = (level - spec.floor_db) / (spec.ceiling_db - spec.floor_db) * fs
+    elif spec.compression == "gamma":
+        v = fs * (np.maximum(p, 0.0) / 10.0 ** (spec.ceiling_db / 10.0)) ** spec.gamma
+    else:
+        v = fs * p / 10.0 ** (spec.ceiling_db / 10.0)
+    v = np.clip(v, 0.0, fs)
+    if spec.dtype != "float32":
+        v = np.floor(v + 0.5)
+    return v.astype(np.float32)
+
+
+def level_window_db(spec: OutputSpec | None) -> tuple[float, float]:
+    """Levels (dB re 1 uPa^2) between which the output changes, widened by the table margin."""
+    if spec is None:
+        return -100.0, 300.0
+    if spec.compression == "log":
+        lo, hi = spec.floor_db, spec.ceiling_db
+    else:
+        # Below the level that maps to half a quantisation step (or 1e-6 of full scale) the output is 0.
+        fs = spec.full_scale
+        step = 0.5 / fs if spec.dtype != "float32" else 1e-6
+        lo = spec.ceiling_db + 10.0 * np.log10(step) / (spec.gamma if spec.compression == "gamma" else 1.0)
+        hi = spec.ceiling_db
+    return float(lo) - TABLE_MARGIN_DB, float(hi) + TABLE_MARGIN_DB
+
+
+class ExpectedOutput:
+    """``E[out(mu S)]`` tabulated over the level ``10 log10 mu`` (dB re 1 uPa^2).
+
+    Parameters
+    ----------
+    spec : OutputSpec or None
+    speckle_quantiles : (QUANTILES,) array or None
+        Sorted samples of the unit-mean speckle intensity S at equal-probability midpoints;
+        ``None``: S = 1 (no speckle: the output of the mean power).
+    """
+
+    def __init__(self, spec: OutputSpec | None, speckle_quantiles: np.ndarray | None) -> None:
+        self.lo_db, hi = level_window_db(spec)
+        n = int(np.ceil((hi - self.lo_db) / TABLE_STEP_DB)) + 1
+        self.step_db = TABLE_STEP_DB
+        levels = self.lo_db + np.arange(n) * TABLE_STEP_DB
+        mu = 10.0 ** (levels / 10.0)
+        s = np.ones(1) if speckle_quantiles is None else np.asarray(speckle_quantiles, dtype=float)
+        table = np.empty(n)
+        for start in range(0, n, 256):  # bounded temporaries
+            chunk = mu[start:start + 256, None] * s[None, :]
+            table[start:start + 256] = compress(chunk, spec).astype(np.float64).mean(axis=1)
+        self.table = table.astype(np.float32)
+
+    def __call__(self, mean_power: np.ndarray) -> np.ndarray:
+        """Expected device values of pixels with these mean powers (uPa^2)."""
+        level = 10.0 * np.log10(np.maximum(np.asarray(mean_power, dtype=np.float64), 1e-30))
+        x = (level - self.lo_db) / self.step_db
+        return np.interp(x, np.arange(len(self.table)), self.table).astype(np.float32)
+
+
+def exponential_quantiles(n: int = QUANTILES) -> np.ndarray:
+    """Midpoint quantiles of the unit-mean exponential law (fully developed speckle intensity)."""
+    u = (np.arange(n) + 0.5) / n
+    q = -np.log1p(-u)
+    return q / q.mean()
+
+
+def empirical_quantiles(samples: np.ndarray, n: int = QUANTILES) -> np.ndarray:
+    """Midpoint quantiles of samples, rescaled to unit mean."""
+    s = np.sort(np.asarray(samples, dtype=float).ravel())
+    q = s[((np.arange(n) + 0.5) / n * len(s)).astype(int)]
+    return q / q.mean()

@@ -1,0 +1,146 @@
+"""Beam patterns of line arrays (and Gaussian or measured ones), as power gains.
+
+A line array of length L with aperture weighting ``w(x)``, ``x`` in [-1/2, 1/2], has the
+one-way amplitude response ``A(u) = sum w(x) exp(2 pi i u x) / sum w(x)`` at
+``u = (L / lambda) sin(theta)``; uniform weighting (``rect``) gives ``sinc(u)``: -3 dB at
+``u = 0.443``, first sidelobe -13.3 dB. Windows lower the sidelobes and widen the main lobe.
+Instead of L / lambda, the pattern is specified by its -3 dB full width as it acts: two-way
+(transmit x receive, the same aperture) in elevation, one-way (receive) in azimuth.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+from scipy import optimize, signal
+
+from ..config.sensor import MAX_KERNEL_HALF_WIDTH, PatternSpec
+from ..errors import ConfigError
+
+APERTURE_SAMPLES = 512  # midpoint samples of the aperture weighting: far more than any sidelobe needs
+LEAKAGE_WIDTHS = 8.0  # default reach of the azimuth leakage, in -3 dB beam widths
+
+# Weightings as functions of the position x in [-1/2, 1/2] along the aperture.
+_COSINE_WINDOWS = {"rect": (1.0,), "hann": (0.5, 0.5), "hamming": (0.54, 0.46), "blackman": (0.42, 0.5, 0.08)}
+
+
+def aperture_positions() -> np.ndarray:
+    """(APERTURE_SAMPLES,) midpoints of equal cells of the unit aperture: its length is exactly 1."""
+    n = APERTURE_SAMPLES
+    return (np.arange(n) + 0.5) / n - 0.5
+
+
+@functools.lru_cache(maxsize=32)
+def aperture_weights(window: str, sidelobe_db: float | None = None) -> np.ndarray:
+    """(APERTURE_SAMPLES,) weighting of the aperture at :func:`aperture_positions`, peak about 1."""
+    x = aperture_positions()
+    if window == "taylor":
+        return np.asarray(signal.windows.taylor(len(x), nbar=5, sll=float(sidelobe_db), norm=True, sym=True), float)
+    coeffs = _COSINE_WINDOWS[window]
+    return sum(c * np.cos(2.0 * np.pi * k * x) for k, c in enumerate(coeffs))
+
+
+def array_amplitude(u: np.ndarray, window: str = "rect", sidelobe_db: float | None = None) -> np.ndarray:
+    """One-way amplitude response ``A(u)`` (real: the weighting is symmetric), ``A(0) = 1``.
+
+    Parameters
+    ----------
+    u : (...) array
+        ``(L / lambda) sin(theta)``.
+    """
+    w = aperture_weights(window, sidelobe_db)
+    x = aperture_positions()
+    u = np.asarray(u, dtype=float)
+    out = np.cos(2.0 * np.pi * u.reshape(-1, 1) * x[None, :]) @ w / w.sum()
+    return out.reshape(u.shape)
+
+
+@functools.lru_cache(maxsize=32)
+def half_power_u(window: str, sidelobe_db: float | None, ways: int) -> float:
+    """u at which the ``ways``-way power ``A(u)^(2 ways)`` falls to one half."""
+    f = lambda u: float(array_amplitude(np.array([u]), window, sidelobe_db)[0]) ** (2 * ways) - 0.5
+    return float(optimize.brentq(f, 1e-6, 2.0))
+
+
+def _read_table(path: str) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        rows = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
+    except OSError as exc:
+        raise ConfigError("table", f"cannot read the pattern table {path!r}: {exc.strerror or exc}") from None
+    except ValueError as exc:
+        raise ConfigError("table", f"{path!r} must hold rows 'angle_deg, gain_db' of numbers: {exc}") from None
+    if rows.shape[1] != 2 or len(rows) < 2 or not np.isfinite(rows).all():
+        raise ConfigError("table", f"{path!r} must hold at least two rows 'angle_deg, gain_db' of finite numbers")
+    order = np.argsort(rows[:, 0])
+    angle, gain = rows[order, 0], rows[order, 1]
+    if np.any(np.diff(angle) <= 0):
+        raise ConfigError("table", f"{path!r}: angles must be distinct")
+    return angle, gain
+
+
+def pattern_gain(angle_rad: np.ndarray, spec: PatternSpec, default_width_deg: float, ways: int) -> np.ndarray:
+    """Power gain (1 on axis) of a pattern at angles off its axis, as the pattern acts.
+
+    Parameters
+    ----------
+    angle_rad : (...) array
+        Angles from the beam axis, radians.
+    spec : PatternSpec
+    default_width_deg : float
+        -3 dB full width when ``spec.width_deg`` is not given.
+    ways : {1, 2}
+        2: transmit x receive through the same aperture (elevation); 1: receive only.
+
+    Returns
+    -------
+    (...) float64 ndarray in [0, 1]: ``|A(u)|^(2 ways)``; -3 dB at half the width.
+    """
+    a = np.asarray(angle_rad, dtype=float)
+    width = math.radians(spec.width_deg if spec.width_deg is not None else default_width_deg)
+    if spec.shape == "gaussian":
+        return np.exp(-math.log(2.0) * (2.0 * a / width) ** 2)
+    if spec.shape == "table":
+        angle, gain_db = _read_table(spec.table)
+        # Outside the table: its last value (a measured pattern's far sidelobe level).
+        return 10.0 ** (np.interp(np.degrees(a), angle, gain_db) / 10.0)
+    u3 = half_power_u(spec.window, spec.sidelobe_db, ways)
+    scale = u3 / math.sin(width / 2.0)  # L / lambda
+    amp = array_amplitude(scale * np.sin(a), spec.window, spec.sidelobe_db)
+    return amp ** (2 * ways)
+
+
+def azimuth_kernels(spec: PatternSpec, beam_spacing_deg: float, default_width_deg: float,
+                    oversample: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """Across-beam kernels of the receive azimuth pattern, on beams ``-K..K`` (K = leakage_beams).
+
+    Returns
+    -------
+    leakage : (2K + 1,) float64 ndarray, sums to 1
+        Power leaking from an echo in beam j into beam j + m: the pattern averaged over the
+        width of the echo's beam (its position inside the beam is not known).
+    amplitude : (2K + 1,) float64 ndarray, squares sum to 1
+        The pattern's amplitude at beam offsets m: the filter that gives white scatterer
+        amplitudes the correlation across beams of the beamformer's output.
+    """
+    width = spec.width_deg if spec.width_deg is not None else default_width_deg
+    k = spec.leakage_beams
+    if k is None:
+        k = min(max(int(math.ceil(LEAKAGE_WIDTHS * width / beam_spacing_deg)), 1), MAX_KERNEL_HALF_WIDTH)
+    m = np.arange(-k, k + 1, dtype=float)
+    sub = (np.arange(oversample) + 0.5) / oversample - 0.5
+    offsets = np.radians((m[:, None] + sub[None, :]) * beam_spacing_deg)
+    leakage = pattern_gain(offsets, spec, default_width_deg, ways=1).mean(axis=1)
+    leakage /= leakage.sum()
+    amp = np.sqrt(pattern_gain(np.radians(m * beam_spacing_deg), spec, default_width_deg, ways=1))
+    if spec.shape == "line":  # keep the sign of the sidelobes (the amplitude is real and symmetric)
+        amp = _signed_line_amplitude(np.radians(m * beam_spacing_deg), spec, default_width_deg)
+    amp = amp / np.sqrt(np.sum(amp * amp))
+    return leakage, amp
+
+
+def _signed_line_amplitude(a: np.ndarray, spec: PatternSpec, default_width_deg: float) -> np.ndarray:
+    width = math.radians(spec.width_deg if spec.width_deg is not None else default_width_deg)
+    scale = half_power_u(spec.window, spec.sidelobe_db, 1) / math.sin(width / 2.0)
+    return array_amplitude(scale * np.sin(a), spec.window, spec.sidelobe_db)

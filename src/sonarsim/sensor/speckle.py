@@ -1,0 +1,139 @@
+"""Coherent speckle and receiver noise as complex fields on the polar grid.
+
+Each resolution cell's echo is a coherent sum of many scatterers: a complex Gaussian
+amplitude (Goodman's fully developed speckle: Rayleigh magnitude, exponential intensity).
+Passing white complex amplitudes through the range point-spread (the pulse) and the azimuth
+point-spread (the receive beam) gives speckle its grain: its correlation lengths follow the
+resolution cell. For few scatterers per cell, a gamma-distributed texture of shape nu
+modulates the scatterers' power: the intensity becomes K-distributed.
+
+Filtering a fresh field for every frame would cost more than the whole sensor stage may take,
+so a :class:`SpecklePool` filters a few independent fields once per sonar (circularly, so each
+is stationary) and a frame reads one of them from a random cyclic offset: for a locally uniform
+scene, ``PSF * (sqrt(mean) w) = sqrt(mean) (PSF * w)`` exactly, which is what the fast path
+computes (:func:`sonarsim.sensor.model.SensorModel.reference` filters afresh, for comparison).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config.sensor import SpeckleSpec
+
+POOL_FIELDS = 4
+# Bytes a pool may take (the fields are stored twice as wide, for contiguous cyclic reads).
+MAX_POOL_BYTES = 1 << 30
+
+
+def complex_gaussian(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    """Unit-power circular complex Gaussian samples: ``E|z|^2 = 1``."""
+    z = rng.standard_normal(shape + (2,), dtype=np.float32)
+    return (z[..., 0] + 1j * z[..., 1]).astype(np.complex64) * np.float32(np.sqrt(0.5))
+
+
+def scatterer_amplitudes(rng: np.random.Generator, shape: tuple[int, int], spec: SpeckleSpec | None) -> np.ndarray:
+    """White complex amplitudes of unit mean power; K-model: times the root of a gamma texture."""
+    w = complex_gaussian(rng, shape)
+    if spec is not None and spec.model == "k":
+        texture = rng.gamma(spec.k_shape, 1.0 / spec.k_shape, size=shape).astype(np.float32)
+        w = w * np.sqrt(texture)
+    return w
+
+
+def filter_field(w: np.ndarray, range_amplitude: np.ndarray, beam_amplitude: np.ndarray,
+                 circular: bool = True) -> np.ndarray:
+    """Convolve a complex field with the range and across-beam amplitude kernels.
+
+    Parameters
+    ----------
+    w : (n_range_bins, n_beams) complex array
+    range_amplitude, beam_amplitude : (odd,) float arrays, centred
+    circular : bool
+        Wrap around the edges (a stationary field) rather than pad with zeros.
+    """
+    out = w.astype(np.complex64)
+    for axis, kernel in ((0, range_amplitude), (1, beam_amplitude)):
+        if len(kernel) == 1:
+            out = out * np.float32(kernel[0])
+            continue
+        half = len(kernel) // 2
+        acc = np.zeros_like(out)
+        for m, k in enumerate(kernel):
+            shift = m - half  # out[i] += k[m] * w[i + shift]
+            if k == 0:
+                continue
+            if circular:
+                acc += np.float32(k) * np.roll(out, -shift, axis=axis)
+            else:
+                src = [slice(None)] * 2
+                dst = [slice(None)] * 2
+                n = out.shape[axis]
+                if shift >= 0:
+                    src[axis], dst[axis] = slice(shift, n), slice(0, n - shift)
+                else:
+                    src[axis], dst[axis] = slice(0, n + shift), slice(-shift, n)
+                acc[tuple(dst)] += np.float32(k) * out[tuple(src)]
+        out = acc
+    return out
+
+
+@dataclass(frozen=True)
+class FieldDraw:
+    """Which pool field a frame reads, and from which cyclic offset (rows, beams)."""
+
+    field: int
+    row: int
+    beam: int
+
+
+class SpecklePool:
+    """A few independent filtered fields (speckle) and white fields (noise) of one grid.
+
+    Parameters
+    ----------
+    shape : (n_range_bins, n_beams)
+    range_amplitude, beam_amplitude : (odd,) arrays
+        The point-spread kernels (squares summing to 1: unit-power output).
+    spec : SpeckleSpec or None
+        ``None``: no speckle fields (the echo amplitude is deterministic).
+    noise : bool
+        Also hold white noise fields.
+    seed : int
+        The pool is a function of the seed: renders are reproducible.
+    """
+
+    def __init__(self, shape: tuple[int, int], range_amplitude: np.ndarray, beam_amplitude: np.ndarray,
+                 spec: SpeckleSpec | None, noise: bool, seed: int, n_fields: int = POOL_FIELDS) -> None:
+        n_r, n_b = shape
+        n_kinds = int(spec is not None) + int(noise)
+        need = n_kinds * n_fields * n_r * 2 * n_b * 8
+        if need > MAX_POOL_BYTES:
+            raise MemoryError(f"the speckle and noise fields of a {n_r} x {n_b} image would take {need / 2**20:.0f} MiB "
+                              f"(at most {MAX_POOL_BYTES / 2**20:.0f} MiB)")
+        rng = np.random.default_rng([int(seed), 0x5BEC])
+        self.shape = shape
+        self.n_fields = n_fields
+        self.speckle = None
+        self.noise = None
+        if spec is not None:
+            fields = [filter_field(scatterer_amplitudes(rng, shape, spec), range_amplitude, beam_amplitude)
+                      for _ in range(n_fields)]
+            self.speckle = self._doubled(fields)
+        if noise:
+            self.noise = self._doubled([complex_gaussian(rng, shape) for _ in range(n_fields)])
+
+    @staticmethod
+    def _doubled(fields: list[np.ndarray]) -> np.ndarray:
+        """(n_fields, 2 n_r, 2 n_b) complex64: each field tiled twice in both axes."""
+        return np.ascontiguousarray(np.stack([np.tile(f, (2, 2)) for f in fields]))
+
+    def draw(self, rng: np.random.Generator) -> FieldDraw:
+        n_r, n_b = self.shape
+        return FieldDraw(int(rng.integers(self.n_fields)), int(rng.integers(n_r)), int(rng.integers(n_b)))
+
+    def window(self, fields: np.ndarray, d: FieldDraw) -> np.ndarray:
+        """The (n_r, n_b) field a draw selects (a view)."""
+        n_r, n_b = self.shape
+        return fields[d.field, d.row:d.row + n_r, d.beam:d.beam + n_b]
