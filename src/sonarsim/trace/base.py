@@ -28,11 +28,15 @@ class Hits:
         Index of the mesh hit, in the order the meshes were given; -1 for no hit.
     normal : (n, 3) float32 ndarray
         Geometric normal of the triangle hit, unit length, either orientation; 0 for no hit.
+    texel : (n,) float32 ndarray or None
+        Brightness in [0, 1] of the texture at the hit (1 on untextured meshes and for no hit);
+        None: the scene has no textures (see :mod:`sonarsim.scene.textures`).
     """
 
     distance: np.ndarray
     mesh_id: np.ndarray
     normal: np.ndarray
+    texel: np.ndarray | None = None
 
     @classmethod
     def misses(cls, n: int) -> "Hits":
