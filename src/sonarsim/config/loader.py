@@ -322,6 +322,11 @@ def parse_object(d: Any, index: int, base_dir: Path | None) -> ObjectSpec:
     if "pose" in d:
         kw["pose"] = parse_pose(d["pose"], f"{where}.pose")
     kw.update(_material_of(d, where, texture_allowed=True))
+    if "mesh" in kw and kw.get("material") is not None and kw["material"].texture:
+        try:
+            load_mesh_file(kw["mesh"], texture=True)
+        except MeshFileError as exc:
+            raise ConfigError(f"{where}.material.texture", str(exc)) from None
     return _prefixed(where, ObjectSpec, **kw)
 
 

@@ -34,6 +34,7 @@ from ..paths.engine import (
 )
 from ..paths.planes import ChainTable, PlaneSet
 from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
+from ..scene.textures import with_textures
 from ..trace import available_cores, make_caster
 from ..trace.surfaces import trace
 from . import compiled
@@ -100,7 +101,7 @@ class Simulator:
             # in the plane) keeps mirror geometry and coincident faces from making echoes.
             self.meshes = [clip_to_water(m, plane.point_m, plane.normal) for m in self.meshes]
         self._warn_about_planes()
-        self.caster = make_caster(backend, self.meshes, self.scene.render.threads)
+        self.caster = with_textures(make_caster(backend, self.meshes, self.scene.render.threads), self.meshes)
         self._mirrored_caster = None
         threads = self.scene.render.threads or available_cores()
         # One worker: the second core of the compiled path (tasks run in order on it).
@@ -167,7 +168,7 @@ class Simulator:
         if self._mirrored_caster is None:
             g = self.scene.ground.as_plane()
             mirrored = self.meshes + [mirror_across_plane(m, g.point_m, g.normal) for m in self.meshes]
-            self._mirrored_caster = make_caster(self.backend, mirrored, self.scene.render.threads)
+            self._mirrored_caster = with_textures(make_caster(self.backend, mirrored, self.scene.render.threads), mirrored)
         return self._mirrored_caster
 
     def _intensity(self, fan: RayFan, hits) -> np.ndarray:
