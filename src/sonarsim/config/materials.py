@@ -21,6 +21,13 @@ paper's units (per ray: the ray's footprint is not part of ``f``):
     incidence for ``s <= 1/2`` (rms slope up to about 27 degrees), the range allowed: rougher
     surfaces are no longer "smooth objects" and the single-facet picture fails.
 
+A note on units: a ray of elevation width ``dphi`` meets an area that grows as
+``1 / cos(alpha)``, and ``f`` does not include that footprint. A backscattering cross-section
+per unit area and solid angle ``sigma(alpha)`` (the quantity of Mackenzie's measurements) gives
+``f = sigma / cos(alpha)``: the paper's ``rho cos(alpha)`` is ``sigma = rho cos^2(alpha)`` per
+unit area, Lambert's form, while ``lambert`` here, ``mu cos^2(alpha)`` per ray as specified, is
+``sigma = mu cos^3(alpha)`` per unit area. Compare ``mu`` with measured values with this in mind.
+
 A texture (``texture: true``, objects with a textured mesh only) scales the diffuse part
 (``albedo`` or ``mu``) by the brightness in [0, 1] of the texel the ray meets; the specular lobe
 is a property of the surface's slopes and is not scaled.
