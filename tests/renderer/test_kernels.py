@@ -553,3 +553,26 @@ def test_trace_leg_ties_and_planes_at_the_reach(first):
 
 def _dot_like_kernel(org, n):
     return org[:, 0] * n[0] + org[:, 1] * n[1] + org[:, 2] * n[2]
+
+
+def test_law_tables_of_the_wrong_size_are_refused():
+    # The kernels read the tables without bounds checks: their sizes are checked on entry.
+    rng = np.random.default_rng(8)
+    n = 20
+    planes = PlaneSet((), np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0))
+    table = ChainTable(planes, np.zeros(3), 2)
+    hit_mesh = np.zeros(n, np.int32)
+    args = lambda law, lobe, texel: (
+        np.arange(n, dtype=np.intp), np.ones(n, np.float32), hit_mesh, _unit(rng, n).astype(np.float32),
+        np.zeros((1, 3)), _unit(rng, n), np.zeros(1), np.ones(1), np.zeros(1, np.int32), planes.normal,
+        planes.offset, np.zeros(0, np.uint8), planes.specular, 4.0, np.array([0.0, 0.5]), np.ones(n), True, True,
+        False, table.children, 1, np.empty(n), np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 3)),
+        np.empty(n), np.empty(n), np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.intp), 1,
+        np.empty(n, np.intp), np.empty((n, 3)), np.empty((n, 3), np.float32), np.empty((n, 3)),
+        np.empty((n, 3), np.float32), np.empty(n), np.empty(n), np.empty(n, np.int32), law, lobe, texel)
+    ok = (np.array([0, 1], np.int32), np.zeros((2, 2)), np.ones(n, np.float32))
+    K.trace_leg(*args(*ok))
+    for bad in ((np.array([0], np.int32), np.zeros((2, 2)), None), (ok[0], np.zeros((3, 2)), None),
+                (ok[0], None, None), (None, None, np.ones(n - 1, np.float32))):
+        with pytest.raises(ValueError):
+            K.trace_leg(*args(*bad))

@@ -209,7 +209,6 @@ class _Planes:
         self.normal /= np.maximum(np.linalg.norm(self.normal, axis=1, keepdims=True), 1e-300)
         point = np.array([p.point_m for p in specs], dtype=float).reshape(-1, 3)
         self.offset = np.sum(self.normal * point, axis=1)
-        self.albedo = np.array([p.albedo for p in specs], dtype=float)
         self.specular = np.array([p.specular for p in specs], dtype=float)
 
     def __len__(self) -> int:

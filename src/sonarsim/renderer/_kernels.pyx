@@ -48,13 +48,17 @@ cdef inline double scatter(double w, double coef, int law, const double* lobe, d
 
 
 cdef class _Laws:
-    """Pointers to the optional law tables of a kernel call (None: every surface Lambertian)."""
+    """Pointers to the optional law tables of a kernel call (None: every surface Lambertian).
+
+    ``n_ids``: rows of ``albedo_by_id`` (the tables must have as many); ``n_rows``: hits in the
+    call (``hit_texel`` must cover them). Checked here: the kernels read without bounds checks.
+    """
     cdef const int* law
     cdef const double* lobe
     cdef const float* texel
     cdef object keep
 
-    def __cinit__(self, law_by_id, lobe_by_id, hit_texel):
+    def __cinit__(self, law_by_id, lobe_by_id, hit_texel, Py_ssize_t n_ids, Py_ssize_t n_rows):
         cdef const int[::1] lv
         cdef const double[:, ::1] bv
         cdef const float[::1] tv
@@ -62,14 +66,20 @@ cdef class _Laws:
         self.lobe = NULL
         self.texel = NULL
         self.keep = (law_by_id, lobe_by_id, hit_texel)
+        if (law_by_id is None) != (lobe_by_id is None):
+            raise ValueError("give both law_by_id and lobe_by_id, or neither")
         if law_by_id is not None:
             lv = law_by_id
             bv = lobe_by_id
-            if lv.shape[0] and bv.shape[0]:
+            if lv.shape[0] != n_ids or bv.shape[0] != n_ids or bv.shape[1] != 2:
+                raise ValueError(f"law tables of {lv.shape[0]} and {bv.shape[0]} x {bv.shape[1]} rows for {n_ids} surfaces")
+            if n_ids:
                 self.law = &lv[0]
                 self.lobe = &bv[0, 0]
         if hit_texel is not None:
             tv = hit_texel
+            if tv.shape[0] < n_rows:
+                raise ValueError(f"hit_texel has {tv.shape[0]} rows for {n_rows} hits")
             if tv.shape[0]:
                 self.texel = &tv[0]
 
@@ -132,7 +142,7 @@ def primary(const float[::1] hit_distance, const int[::1] hit_mesh, const float[
     cdef double dd, tg, dx, dy, dz, nx, ny, nz, c, r, t_min = INFINITY
     cdef float px, py, pz, cosf
     cdef int s, m
-    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel)
+    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], n)
     with nogil:
         for i in range(n):
             dx = dirs[i, 0]
@@ -241,7 +251,7 @@ def mirror_paths(const Py_ssize_t[::1] g_index, const double[::1] g_t, const flo
     cdef int m, sv
     cdef Py_ssize_t b
     cdef double rad2deg = 180.0 / M_PI
-    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel)
+    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], n_g)
     with nogil:
         for j in range(n_g):
             m = hit_mesh[j]
@@ -506,7 +516,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     cdef bint overflow = False
     cdef Py_ssize_t n_live = 0
     cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
-    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel)
+    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], m)
     with nogil:
         for k in range(m):
             i = ray[k]
