@@ -168,3 +168,17 @@ def test_python_callers_get_the_same_checks():
     # The ground as a plane carries its law (and the plane's default albedo beside it).
     plane = GroundSpec(material=Material("lambert", mu=0.01)).as_plane()
     assert plane.backscatter == Material("lambert", mu=0.01)
+
+
+def test_the_example_scene_loads_renders_and_round_trips():
+    from pathlib import Path
+
+    import sonarsim
+
+    path = Path(__file__).resolve().parents[2] / "examples" / "materials.yaml"
+    scene = load_scene(path)
+    assert [o.backscatter.law for o in scene.objects] == ["rough", "lambertian"]
+    assert scene.ground.backscatter.law == "lambert" and scene.planes[0].backscatter.law == "rough"
+    img = sonarsim.render(scene)
+    assert img.components["ground"].any() and img.components["object"].any()
+    assert load_scene(img.config).to_dict() == img.config
