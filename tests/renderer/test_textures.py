@@ -172,3 +172,9 @@ def test_scene_files_with_a_textured_mesh(tmp_path):
     with pytest.raises(ConfigError) as info:
         sonarsim.load_scene(str(tmp_path / "bad.yaml"))
     assert info.value.key == "objects[0].material.texture" and "no texture" in str(info.value)
+
+
+def test_an_in_memory_mesh_without_a_texture_asked_for_one_names_the_object():
+    bare = trimesh.Trimesh(vertices=textured_quad().vertices, faces=textured_quad().faces)
+    with pytest.raises(sonarsim.MeshFileError, match="'wall'.*no texture"):
+        sonarsim.Simulator(wall_scene(Material(texture=True), mesh=bare))
