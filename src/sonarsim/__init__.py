@@ -11,6 +11,7 @@ grid, fan) -> :mod:`~sonarsim.io` (files, real recordings) -> :mod:`~sonarsim.an
 """
 
 from .config.loader import load_scene
+from .config.materials import Material
 from .config.scene import GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene
 from .config.sonar import SonarConfig
 from .core.transforms import Pose
@@ -22,7 +23,7 @@ from .renderer.simulator import Simulator, render
 __version__ = "0.1.0"
 
 __all__ = [
-    "ConfigError", "GroundSpec", "MeshFileError", "ObjectSpec", "PlaneSpec", "Pose", "RayMaps", "RenderSettings",
+    "ConfigError", "GroundSpec", "Material", "MeshFileError", "ObjectSpec", "PlaneSpec", "Pose", "RayMaps", "RenderSettings",
     "Scene", "Simulator", "SonarConfig", "SonarImage", "SonarsimError", "load_scene", "read", "read_frames",
     "render",
 ]

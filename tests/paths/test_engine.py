@@ -32,7 +32,7 @@ def former_fast_method(sim: sonarsim.Simulator) -> dict[str, np.ndarray]:
     origin, directions = pose.translation, fan.directions @ pose.rotation.T
     reach = sonar.range_max_m * RANGE_MARGIN * MULTIPATH_REACH
     hits = trace(sim.caster, origin, directions, ground, reach)
-    albedo = sim._albedo  # [none, ground, objects...]: the same table with the ground alone
+    albedo = sim._laws.coefficient  # [none, ground, objects...]: the same table with the ground alone
     intensity = lambertian_intensity(fan.weight, hits.cos_incidence, albedo[hits.surface_id + 1], hits.distance_m,
                                      render.tvg)
     cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None

@@ -89,6 +89,7 @@ from sonarsim.paths import engine  # noqa: E402
 from sonarsim.paths.planes import ChainTable, PlaneSet, apply  # noqa: E402
 from sonarsim.renderer import _kernels as K  # noqa: E402  (skipped above when not built)
 from sonarsim.trace.base import Hits  # noqa: E402
+from sonarsim.core.radiometry import SurfaceLaws  # noqa: E402
 
 
 def _unit(rng, n):
@@ -126,8 +127,10 @@ def _table(planes, origin, rng, n_chains=6, capacity=64):
     return table
 
 
-def _trace_both(rng, *, first, reflect, tvg, n=600, m=None, capacity=64, at_reach=True):
-    """Run ``trace_leg`` and ``engine.trace_generation`` on the same random generation."""
+def _trace_both(rng, *, first, reflect, tvg, n=600, m=None, capacity=64, at_reach=True, laws=False):
+    """Run ``trace_leg`` and ``engine.trace_generation`` on the same random generation.
+
+    ``laws``: random backscatter laws per surface and a random texture brightness per hit."""
     origin = rng.normal(size=3)
     planes = _planes(rng, origin)
     n_planes, n_objects = len(planes), 3
@@ -166,6 +169,15 @@ def _trace_both(rng, *, first, reflect, tvg, n=600, m=None, capacity=64, at_reac
     albedo_by_id[-1] = 0.0  # an object with zero albedo: reached, reflects nothing, scatters nothing
     weight = rng.uniform(0.0, 1e-3, n)
     n_surfaces = n_planes + n_objects
+    law_args, table_laws, texel = (), albedo_by_id, None
+    if laws:
+        codes = np.concatenate([[0], rng.integers(0, 3, n_surfaces)]).astype(np.int32)
+        codes[[1, n_planes + 1]] = (1, 2)  # the floor follows Lambert's law, the first object is rough
+        lobe = np.column_stack([rng.uniform(0.0, 3.0, n_surfaces + 1), rng.uniform(0.01, 0.5, n_surfaces + 1)])
+        lobe[codes != 2] = 0.0
+        texel = rng.uniform(0.0, 1.0, k).astype(np.float32)
+        law_args = (codes, lobe, texel)
+        table_laws = SurfaceLaws(albedo_by_id, codes, lobe)
 
     # The kernel, as compiled.py calls it (grow the chain table and redo on overflow).
     kt = copy.deepcopy(table)
@@ -182,7 +194,7 @@ def _trace_both(rng, *, first, reflect, tvg, n=600, m=None, capacity=64, at_reac
             ray, hit_dist, hit_mesh, hit_normal, org, dirs, before, atten, chain, planes.normal, planes.offset,
             active.astype(np.uint8), planes.specular, reach, albedo_by_id, weight, tvg, first, reflect,
             kt.children, len(kt), kd[0], kd[1], kd[2], kd[3], kd[4], kd[5], kd[6], key,
-            live, n_surfaces, *nx)
+            live, n_surfaces, *nx, *law_args)
         kt.sync(n_chains)
         if not overflow:
             break
@@ -193,8 +205,8 @@ def _trace_both(rng, *, first, reflect, tvg, n=600, m=None, capacity=64, at_reac
     td = dense()
     leg = engine.Leg(1, *td)
     rays = engine.Rays(ray, org, dirs, before, atten, chain)
-    nxt, tlive = engine.trace_generation(rays, Hits(hit_dist, hit_mesh, hit_normal), planes, active, reach,
-                                         albedo_by_id, weight, tvg, first, reflect, tt, leg)
+    nxt, tlive = engine.trace_generation(rays, Hits(hit_dist, hit_mesh, hit_normal, texel), planes, active, reach,
+                                         table_laws, weight, tvg, first, reflect, tt, leg)
     kernel = dict(zip(("distance", "sid", "point", "normal", "intensity", "atten", "chain"), kd))
     kernel.update(key=key, live=live[:n_live], ray=nx[0][:n_next], origin=nx[1][:n_next],
                   origin32=nx[2][:n_next], direction=nx[3][:n_next], direction32=nx[4][:n_next],
@@ -232,6 +244,20 @@ def test_trace_leg_equals_trace_generation(first, tvg, reflect, seed):
     assert (sid == -1).any() and ((sid >= 0) & (sid < 4)).any() and (sid >= 4).any()
     assert (len(kernel["ray"]) > 0) == reflect
     assert len(kernel["live"]) < np.count_nonzero(sid >= 0)  # zero albedo: reached, not live
+
+
+@pytest.mark.parametrize("first", [True, False])
+@pytest.mark.parametrize("tvg", [True, False])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_trace_leg_equals_trace_generation_under_every_law(first, tvg, seed):
+    kernel, twin, _ = _trace_both(np.random.default_rng(10 + seed), first=first, reflect=True, tvg=tvg, laws=True)
+    ki, ti = kernel.pop("intensity"), twin.pop("intensity")
+    _assert_same(kernel, twin)
+    # The same operations in the same order; libm's exp and NumPy's may differ in the last bit.
+    np.testing.assert_allclose(ki, ti, rtol=1e-14, atol=0)
+    plain, _, _ = _trace_both(np.random.default_rng(10 + seed), first=first, reflect=True, tvg=tvg)
+    reached = np.isfinite(ki) & (kernel["sid"] >= 0)
+    assert np.any(ki[reached] != plain["intensity"][reached])  # the laws did something
 
 
 def test_trace_leg_edge_rows():
@@ -527,3 +553,26 @@ def test_trace_leg_ties_and_planes_at_the_reach(first):
 
 def _dot_like_kernel(org, n):
     return org[:, 0] * n[0] + org[:, 1] * n[1] + org[:, 2] * n[2]
+
+
+def test_law_tables_of_the_wrong_size_are_refused():
+    # The kernels read the tables without bounds checks: their sizes are checked on entry.
+    rng = np.random.default_rng(8)
+    n = 20
+    planes = PlaneSet((), np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0))
+    table = ChainTable(planes, np.zeros(3), 2)
+    hit_mesh = np.zeros(n, np.int32)
+    args = lambda law, lobe, texel: (
+        np.arange(n, dtype=np.intp), np.ones(n, np.float32), hit_mesh, _unit(rng, n).astype(np.float32),
+        np.zeros((1, 3)), _unit(rng, n), np.zeros(1), np.ones(1), np.zeros(1, np.int32), planes.normal,
+        planes.offset, np.zeros(0, np.uint8), planes.specular, 4.0, np.array([0.0, 0.5]), np.ones(n), True, True,
+        False, table.children, 1, np.empty(n), np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 3)),
+        np.empty(n), np.empty(n), np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.intp), 1,
+        np.empty(n, np.intp), np.empty((n, 3)), np.empty((n, 3), np.float32), np.empty((n, 3)),
+        np.empty((n, 3), np.float32), np.empty(n), np.empty(n), np.empty(n, np.int32), law, lobe, texel)
+    ok = (np.array([0, 1], np.int32), np.zeros((2, 2)), np.ones(n, np.float32))
+    K.trace_leg(*args(*ok))
+    for bad in ((np.array([0], np.int32), np.zeros((2, 2)), None), (ok[0], np.zeros((3, 2)), None),
+                (ok[0], None, None), (None, None, np.ones(n - 1, np.float32))):
+        with pytest.raises(ValueError):
+            K.trace_leg(*args(*bad))

@@ -60,3 +60,44 @@ def test_multithreaded_embree_equals_single_thread():
     b = sonarsim.render(doc)
     np.testing.assert_array_equal(a.rays.distance_m, b.rays.distance_m)
     np.testing.assert_array_equal(a.polar, b.polar)
+
+
+def _hit_rays(rng, n=3000):
+    origins = np.tile([0.0, 0.0, 1.0], (n, 1)) + rng.normal(0, 0.05, (n, 3))
+    target = np.column_stack([rng.uniform(2, 4, n), rng.uniform(-1, 1, n), rng.uniform(0, 0.6, n)])
+    d = target - origins
+    return origins, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def test_both_backends_report_the_same_triangle_and_barycentric_coordinates():
+    # What a texture lookup needs: the triangle hit within its mesh and (u, v) on it, with
+    # p = (1 - u - v) a + u b + v c, the hit point itself.
+    scene = sonarsim.load_scene(SCENE)
+    meshes = [object_mesh_world(o) for o in scene.objects]
+    origins, d = _hit_rays(np.random.default_rng(1))
+    hits = {name: make_caster(name, meshes).intersect(origins, d, 10.0, with_uv=True) for name in ("embree", "numpy")}
+    a, b = hits["embree"], hits["numpy"]
+    hit = (a.mesh_id == b.mesh_id) & (b.mesh_id >= 0)
+    assert hit.mean() > 0.2
+    same = hit & (a.primitive_id == b.primitive_id)
+    assert same.sum() > 0.998 * hit.sum()  # rays across a shared edge may go either way
+    np.testing.assert_allclose(a.barycentric[same], b.barycentric[same], atol=1e-4)  # float32 on slim triangles
+    for h in (a, b):
+        assert h.primitive_id.dtype == np.int32 and h.barycentric.dtype == np.float32
+        assert np.all(h.primitive_id[h.mesh_id < 0] == -1) and np.all(h.barycentric[h.mesh_id < 0] == 0)
+        k = np.flatnonzero(h.mesh_id >= 0)
+        corners = np.stack([meshes[m].triangles[f] for m, f in zip(h.mesh_id[k], h.primitive_id[k])])
+        u, v = h.barycentric[k, 0:1].astype(float), h.barycentric[k, 1:2].astype(float)
+        p = (1 - u - v) * corners[:, 0] + u * corners[:, 1] + v * corners[:, 2]
+        np.testing.assert_allclose(p, origins[k] + d[k] * h.distance[k, None], atol=5e-5)
+    # Without with_uv, neither backend spends anything on them.
+    plain = make_caster("embree", meshes).intersect(origins, d, 10.0)
+    assert plain.primitive_id is None and plain.barycentric is None
+    np.testing.assert_array_equal(plain.distance, a.distance)
+
+
+def test_with_uv_on_an_empty_scene_and_no_rays():
+    for name in ("embree", "numpy"):
+        caster = make_caster(name, [])
+        h = caster.intersect(np.zeros((3, 3)), np.tile([1.0, 0, 0], (3, 1)), 5.0, with_uv=True)
+        assert np.all(h.primitive_id == -1) and h.barycentric.shape == (3, 2)

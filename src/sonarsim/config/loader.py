@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import ConfigError, MeshFileError, SonarsimError
 from ..scene.meshes import load_mesh_file
+from .materials import LAWS, Material, mu_from_db
 from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor
 from .scene import GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene
@@ -31,9 +32,10 @@ SONAR_KEYS = (
 )
 POSE_KEYS = ("position_m", "rpy_deg", "quat_xyzw")
 RENDER_KEYS = tuple(RenderSettings.__dataclass_fields__)
-GROUND_KEYS = ("height_m", "albedo", "specular")
-PLANE_KEYS = ("name", "point_m", "normal", "albedo", "specular")
-OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "pose", "scale", "albedo")
+GROUND_KEYS = ("height_m", "albedo", "specular", "material")
+PLANE_KEYS = ("name", "point_m", "normal", "albedo", "specular", "material")
+OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "pose", "scale", "albedo", "material")
+MATERIAL_KEYS = ("law", "albedo", "mu", "mu_db", "specular_strength", "roughness", "texture")
 
 
 # Typed getters ---------------------------------------------------------------------------
@@ -199,6 +201,45 @@ def parse_sonar_section(d: Any, base_dir: Path | None) -> tuple[SonarConfig, Pos
     return sonar, pose
 
 
+def parse_material(d: Any, where: str, texture_allowed: bool) -> Material:
+    """A ``material`` mapping: ``{law, albedo | mu | mu_db, specular_strength, roughness, texture}``.
+
+    ``where`` is the key of the mapping (``objects[0].material``); ``texture`` only where
+    ``texture_allowed`` (objects).
+    """
+    keys = MATERIAL_KEYS if texture_allowed else tuple(k for k in MATERIAL_KEYS if k != "texture")
+    _check_keys(d, keys, where)
+    kw: dict[str, Any] = {}
+    if "law" in d:
+        kw["law"] = _string(d["law"], f"{where}.law")
+        if kw["law"] not in LAWS:
+            raise ConfigError(f"{where}.law", f"unknown law {kw['law']!r}; allowed: {', '.join(LAWS)}")
+    if "mu" in d and "mu_db" in d:
+        raise ConfigError(f"{where}.mu_db", "give either mu (linear) or mu_db, not both")
+    for key in ("albedo", "mu", "specular_strength", "roughness"):
+        if key in d:
+            kw[key] = _number(d[key], f"{where}.{key}")
+    if "mu_db" in d:
+        mu_db = _number(d["mu_db"], f"{where}.mu_db")
+        if mu_db > 0:
+            raise ConfigError(f"{where}.mu_db", f"must be <= 0 dB (mu <= 1), got {mu_db}")
+        if kw.get("law", "lambertian") != "lambert":
+            raise ConfigError(f"{where}.mu_db", f"not used by the law {kw.get('law', 'lambertian')!r}")
+        kw["mu"] = mu_from_db(mu_db)
+    if "texture" in d:
+        kw["texture"] = _boolean(d["texture"], f"{where}.texture")
+    return _prefixed(where, Material, **kw)
+
+
+def _material_of(d: Mapping, where: str, texture_allowed: bool) -> dict[str, Any]:
+    """``{'material': Material}`` from ``d['material']`` (empty without one); refuses ``albedo`` beside it."""
+    if "material" not in d:
+        return {}
+    if "albedo" in d:
+        raise ConfigError(f"{where}.albedo", "give either albedo (the Lambertian shorthand) or material, not both")
+    return {"material": parse_material(d["material"], f"{where}.material", texture_allowed)}
+
+
 def parse_render(d: Any) -> RenderSettings:
     _check_keys(d, RENDER_KEYS, "render")
     kw: dict[str, Any] = {}
@@ -232,7 +273,8 @@ def parse_ground(d: Any) -> GroundSpec | None:
     if d is None:
         return None
     _check_keys(d, GROUND_KEYS, "ground")
-    kw = {key: _number(value, f"ground.{key}") for key, value in d.items()}
+    kw = {key: _number(value, f"ground.{key}") for key, value in d.items() if key != "material"}
+    kw.update(_material_of(d, "ground", texture_allowed=False))
     return _prefixed("ground", GroundSpec, **kw)
 
 
@@ -251,6 +293,7 @@ def parse_plane(d: Any, index: int) -> PlaneSpec:
     for key in ("albedo", "specular"):
         if key in d:
             kw[key] = _number(d[key], f"{where}.{key}")
+    kw.update(_material_of(d, where, texture_allowed=False))
     return _prefixed(where, PlaneSpec, **kw)
 
 
@@ -279,6 +322,12 @@ def parse_object(d: Any, index: int, base_dir: Path | None) -> ObjectSpec:
         kw["scale"] = _vector(s, f"{where}.scale", 3) if isinstance(s, (list, tuple)) else _number(s, f"{where}.scale")
     if "pose" in d:
         kw["pose"] = parse_pose(d["pose"], f"{where}.pose")
+    kw.update(_material_of(d, where, texture_allowed=True))
+    if "mesh" in kw and kw.get("material") is not None and kw["material"].texture:
+        try:
+            load_mesh_file(kw["mesh"], texture=True)
+        except MeshFileError as exc:
+            raise ConfigError(f"{where}.material.texture", str(exc)) from None
     return _prefixed(where, ObjectSpec, **kw)
 
 

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
+from .materials import Material
 from .sensor import SensorSpec
 from .sonar import SonarConfig
 from ..core.transforms import Pose
@@ -34,6 +35,19 @@ MAX_ORDER_LIMIT = 9
 def _check_unit_interval(key: str, value: float) -> None:
     if not (np.isfinite(value) and 0.0 <= value <= 1.0):
         raise ConfigError(key, f"must be within [0, 1], got {value}")
+
+
+def _check_material(spec, prefix: str = "", texture_allowed: bool = False) -> None:
+    """``material`` is a Material, given instead of a non-default ``albedo`` (its shorthand)."""
+    material = spec.material
+    if material is None:
+        return
+    if not isinstance(material, Material):
+        raise ConfigError(f"{prefix}material", f"must be a Material, got {type(material).__name__}")
+    if spec.albedo != type(spec).__dataclass_fields__["albedo"].default:
+        raise ConfigError(f"{prefix}albedo", "give either albedo (the Lambertian shorthand) or material, not both")
+    if material.texture and not texture_allowed:
+        raise ConfigError(f"{prefix}material.texture", "only objects (with a textured mesh) have a texture")
 
 
 @dataclass(frozen=True)
@@ -57,7 +71,10 @@ class ObjectSpec:
     scale : float or (3,) tuple of float
         Scale applied in object coordinates before the pose.
     albedo : float
-        Diffuse albedo rho in [0, 1] (paper: concrete 0.8, smooth plastic 0.4).
+        Diffuse albedo rho in [0, 1] (paper: concrete 0.8, smooth plastic 0.4): shorthand for
+        the Lambertian ``material``, used when ``material`` is None.
+    material : Material or None
+        The backscatter law (:mod:`sonarsim.config.materials`); give it or ``albedo``, not both.
     """
 
     name: str
@@ -69,6 +86,7 @@ class ObjectSpec:
     pose: Pose = field(default_factory=Pose)
     scale: float | tuple[float, float, float] = 1.0
     albedo: float = 0.8
+    material: Material | None = None
 
     def __post_init__(self) -> None:
         if (self.primitive is None) == (self.mesh is None):
@@ -98,6 +116,14 @@ class ObjectSpec:
         if scale.size not in (1, 3) or not np.all(np.isfinite(scale) & (scale > 0)):
             raise ConfigError("scale", f"must be a positive number or three positive numbers, got {self.scale}")
         _check_unit_interval("albedo", self.albedo)
+        _check_material(self, texture_allowed=True)
+        if self.material is not None and self.material.texture and self.primitive is not None:
+            raise ConfigError("material.texture", "a primitive has no texture; give a `mesh` with one")
+
+    @property
+    def backscatter(self) -> Material:
+        """The backscatter law: ``material``, or the Lambertian law of ``albedo``."""
+        return self.material if self.material is not None else Material.lambertian(self.albedo)
 
     def to_dict(self) -> dict:
         out: dict = {"name": self.name}
@@ -113,7 +139,10 @@ class ObjectSpec:
             out["mesh"] = "<in-memory mesh>"
         out["pose"] = self.pose.to_dict()
         out["scale"] = list(self.scale) if isinstance(self.scale, tuple) else self.scale
-        out["albedo"] = self.albedo
+        if self.material is None:
+            out["albedo"] = self.albedo
+        else:
+            out["material"] = self.material.to_dict()
         return out
 
 
@@ -126,28 +155,42 @@ class GroundSpec:
     height_m : float
         Height of the plane in the world frame, metres.
     albedo : float
-        Diffuse albedo in [0, 1]: the direct ground echo.
+        Diffuse albedo in [0, 1]: the direct ground echo (shorthand for the Lambertian
+        ``material``, used when ``material`` is None).
     specular : float
         Specular reflectance R in [0, 1] that drives the multipath (double bounces scale by R,
         triple by R**2).
+    material : Material or None
+        The backscatter law of the direct ground echo (e.g. Lambert's law); give it or
+        ``albedo``, not both.
     """
 
     height_m: float = 0.0
     albedo: float = 0.8
     specular: float = 1.0
+    material: Material | None = None
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.height_m):
             raise ConfigError("ground.height_m", f"must be a finite number, got {self.height_m}")
         _check_unit_interval("ground.albedo", self.albedo)
         _check_unit_interval("ground.specular", self.specular)
+        _check_material(self, "ground.")
+
+    @property
+    def backscatter(self) -> Material:
+        """The backscatter law: ``material``, or the Lambertian law of ``albedo``."""
+        return self.material if self.material is not None else Material.lambertian(self.albedo)
 
     def to_dict(self) -> dict:
+        if self.material is not None:
+            return {"height_m": self.height_m, "material": self.material.to_dict(), "specular": self.specular}
         return {"height_m": self.height_m, "albedo": self.albedo, "specular": self.specular}
 
     def as_plane(self) -> "PlaneSpec":
         """The same ground as a general reflecting plane named ``ground``."""
-        return PlaneSpec("ground", (0.0, 0.0, self.height_m), (0.0, 0.0, 1.0), self.albedo, self.specular)
+        albedo = self.albedo if self.material is None else PlaneSpec.__dataclass_fields__["albedo"].default
+        return PlaneSpec("ground", (0.0, 0.0, self.height_m), (0.0, 0.0, 1.0), albedo, self.specular, self.material)
 
 
 @dataclass(frozen=True)
@@ -166,9 +209,12 @@ class PlaneSpec:
         Normal pointing into the water (normalised on construction; the water is the side it
         points to). A horizontal floor has ``[0, 0, 1]``, the water surface ``[0, 0, -1]``.
     albedo : float
-        Diffuse albedo in [0, 1]: the plane's own direct echo (0 for the water surface).
+        Diffuse albedo in [0, 1]: the plane's own direct echo (0 for the water surface);
+        shorthand for the Lambertian ``material``, used when ``material`` is None.
     specular : float
         Specular reflectance R in [0, 1]: each reflection off the plane scales a path by R.
+    material : Material or None
+        The backscatter law of the plane's direct echo; give it or ``albedo``, not both.
     """
 
     name: str
@@ -176,6 +222,7 @@ class PlaneSpec:
     normal: tuple[float, float, float] = (0.0, 0.0, 1.0)
     albedo: float = 0.0
     specular: float = 1.0
+    material: Material | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not PLANE_NAME.match(self.name) or self.name in RESERVED_PLANE_NAMES:
@@ -199,6 +246,12 @@ class PlaneSpec:
         object.__setattr__(self, "normal", tuple(float(v) for v in normal / length))
         _check_unit_interval("albedo", self.albedo)
         _check_unit_interval("specular", self.specular)
+        _check_material(self)
+
+    @property
+    def backscatter(self) -> Material:
+        """The backscatter law: ``material``, or the Lambertian law of ``albedo``."""
+        return self.material if self.material is not None else Material.lambertian(self.albedo)
 
     @property
     def offset_m(self) -> float:
@@ -219,10 +272,13 @@ class PlaneSpec:
         return np.asarray(points, dtype=float) @ np.asarray(self.normal) - self.offset_m
 
     def to_dict(self) -> dict:
-        return {
-            "name": self.name, "point_m": list(self.point_m), "normal": list(self.normal),
-            "albedo": self.albedo, "specular": self.specular,
-        }
+        out = {"name": self.name, "point_m": list(self.point_m), "normal": list(self.normal)}
+        if self.material is None:
+            out["albedo"] = self.albedo
+        else:
+            out["material"] = self.material.to_dict()
+        out["specular"] = self.specular
+        return out
 
 
 @dataclass(frozen=True)

@@ -1,13 +1,152 @@
 """Radiometry: the backscattered energy a ray carries (paper Eq. 3-6).
 
-Objects are Lambertian: a ray hitting a surface of albedo rho at incidence alpha returns
-``beta * l(r) * rho * cos(alpha) * dphi``, where ``beta * dphi`` is the ray's weight (beam
-pattern times the elevation interval it stands for) and ``l(r)`` the range compensation.
+A ray hitting a surface at incidence alpha returns ``beta * l(r) * f(alpha) * dphi``, where
+``beta * dphi`` is the ray's weight (beam pattern times the elevation interval it stands for),
+``l(r)`` the range compensation and ``f`` the surface's backscatter law
+(:mod:`sonarsim.config.materials`): the paper's Lambertian ``rho * cos(alpha)`` by default,
+Lambert's ``mu * cos(alpha)**2``, or a diffuse part plus a specular lobe.
+
+:class:`SurfaceLaws` holds the laws of a scene's surfaces by surface id, as the compiled
+kernels take them (a law code and its parameters per surface); :func:`backscatter` is their
+NumPy twin.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Sequence
+
 import numpy as np
+
+from ..config.materials import LAMBERT, LAMBERTIAN, ROUGH, Material
+
+
+@dataclass(frozen=True)
+class SurfaceLaws:
+    """Backscatter laws indexed by surface id + 1 (row 0: nothing hit; it scatters nothing).
+
+    Attributes
+    ----------
+    coefficient : (n_surfaces + 1,) float64 ndarray
+        The diffuse coefficient: ``albedo`` (lambertian, rough) or ``mu`` (lambert).
+    law : (n_surfaces + 1,) int32 ndarray
+        Law code (:data:`~sonarsim.config.materials.LAMBERTIAN`, ``LAMBERT``, ``ROUGH``).
+    lobe : (n_surfaces + 1, 2) float64 ndarray
+        ``(specular_strength, roughness)`` of the rough law's lobe (0 for the others).
+    """
+
+    coefficient: np.ndarray
+    law: np.ndarray
+    lobe: np.ndarray
+
+    @classmethod
+    def of(cls, materials: "Sequence[Material] | np.ndarray | SurfaceLaws") -> "SurfaceLaws":
+        """From the surfaces' materials in surface-id order (row 0 is added), or pass a table
+        through; a plain float array is the Lambertian albedo by surface id + 1 (row 0 included)."""
+        if isinstance(materials, SurfaceLaws):
+            return materials
+        if isinstance(materials, np.ndarray):
+            n = len(materials)
+            return cls(np.asarray(materials, dtype=np.float64), np.zeros(n, np.int32), np.zeros((n, 2)))
+        mats = list(materials)
+        coefficient = np.array([0.0] + [m.coefficient for m in mats], dtype=np.float64)
+        law = np.array([LAMBERTIAN] + [m.code for m in mats], dtype=np.int32)
+        lobe = np.array([(0.0, 0.0)] + [m.lobe for m in mats], dtype=np.float64).reshape(-1, 2)
+        return cls(coefficient, law, lobe)
+
+    def __len__(self) -> int:
+        return len(self.coefficient)
+
+    @property
+    def lambertian_only(self) -> bool:
+        """Every surface follows the paper's law (the kernels' fast case)."""
+        return not np.any(self.law != LAMBERTIAN)
+
+    def concat(self, other: "SurfaceLaws", skip: int = 0) -> "SurfaceLaws":
+        """This table followed by ``other``'s rows from ``skip`` on (mirror images of surfaces)."""
+        return SurfaceLaws(np.concatenate([self.coefficient, other.coefficient[skip:]]),
+                           np.concatenate([self.law, other.law[skip:]]),
+                           np.concatenate([self.lobe, other.lobe[skip:]]))
+
+
+def specular_lobe(cos_incidence: np.ndarray, roughness: np.ndarray) -> np.ndarray:
+    """The Kirchhoff lobe ``exp(-tan(alpha)**2 / (2 s**2)) / cos(alpha)**4``, 1 at normal incidence.
+
+    Parameters
+    ----------
+    cos_incidence : (...) float array
+        cos(alpha), in [0, 1].
+    roughness : (...) float array
+        Rms facet slope s > 0 (dimensionless).
+
+    Returns
+    -------
+    (...) float64 ndarray; 0 at grazing incidence (cos(alpha) = 0).
+    """
+    c = np.asarray(cos_incidence, dtype=np.float64)
+    s = np.asarray(roughness, dtype=np.float64)
+    c2 = c * c
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        t2 = (1.0 - c2) / c2
+        out = np.exp(-t2 / (2.0 * s * s)) / (c2 * c2)
+    return np.where((c2 > 0) & (s > 0), out, 0.0)
+
+
+def backscatter(
+    weight: np.ndarray,
+    cos_incidence: np.ndarray,
+    laws: SurfaceLaws,
+    index: np.ndarray,
+    distance_m: np.ndarray,
+    tvg: bool,
+    texel: np.ndarray | None = None,
+) -> np.ndarray:
+    """Per-ray backscatter ``beta * l(r) * f(alpha) * dphi`` under each surface's law.
+
+    The NumPy twin of the kernels' law (same operations in the same order: the Lambertian
+    case is exactly :func:`lambertian_intensity`).
+
+    Parameters
+    ----------
+    weight : (...) float array
+        Ray weight ``beta(theta, phi) * dphi`` (radians).
+    cos_incidence : (...) float array
+        cos(alpha) in [0, 1].
+    laws : SurfaceLaws
+    index : (...) int array
+        Surface id + 1 of each ray's hit (0: nothing).
+    distance_m : (...) float array
+        Range of the hit, metres (``inf`` where nothing is hit).
+    tvg : bool
+        ``True``: ``l(r) = 1``; ``False``: ``l(r) = 1 / r**2``.
+    texel : (...) float array, optional
+        Brightness in [0, 1] scaling the diffuse coefficient (a texture); default 1.
+
+    Returns
+    -------
+    (...) float64 ndarray: the intensity map I_f (0 where nothing is hit).
+    """
+    index = np.asarray(index)
+    coefficient = laws.coefficient[index]
+    if texel is not None:
+        coefficient = coefficient * np.asarray(texel, dtype=np.float64)
+    if laws.lambertian_only:
+        return lambertian_intensity(weight, cos_incidence, coefficient, distance_m, tvg)
+    law = laws.law[index]
+    w = np.asarray(weight, dtype=np.float64)
+    c = np.asarray(cos_incidence).astype(np.float64)
+    diffuse = w * coefficient * c
+    lobe = laws.lobe[index]
+    out = np.where(law == LAMBERT, diffuse * c, diffuse)
+    rough = law == ROUGH
+    if np.any(rough):
+        out = np.where(rough, w * (coefficient * c + lobe[..., 0] * specular_lobe(c, lobe[..., 1])), out)
+    hit = np.isfinite(distance_m)
+    out = np.where(hit, out, 0.0)
+    if not tvg:
+        r = np.where(hit, distance_m, 1.0)
+        out = out / np.maximum(r, 1e-6) ** 2
+    return out
 
 
 def lambertian_intensity(

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.radiometry import lambertian_intensity
+from ..core.radiometry import SurfaceLaws, backscatter
 from ..renderer.formation import RayEnergy, accumulate, continuity, form_image
 from ..config.scene import RenderSettings
 from ..config.sonar import SonarConfig
@@ -86,7 +86,7 @@ def fast_mirror_paths(
     primary: SurfaceHits,
     ground_height_m: float,
     weight: np.ndarray,
-    albedo_by_id: np.ndarray,
+    laws: SurfaceLaws | np.ndarray,
     tvg: bool,
     max_distance_m: float,
 ) -> MirrorPaths:
@@ -105,8 +105,8 @@ def fast_mirror_paths(
     ground_height_m : float
     weight : (...) float array
         Ray weights (beam pattern x dphi), see :class:`sonarsim.core.rays.RayFan`.
-    albedo_by_id : (n_objects + 2,) float array
-        Albedo indexed by ``surface_id + 1``.
+    laws : SurfaceLaws or (n_objects + 2,) float array
+        Backscatter laws indexed by ``surface_id + 1`` (an array: the Lambertian albedo).
     tvg : bool
     max_distance_m : float
         Longest unfolded path OA' worth following, metres.
@@ -137,7 +137,8 @@ def fast_mirror_paths(
     cos_inc = np.abs(np.einsum("ij,ij->i", normal, d_ref[ok]))
     dist[idx] = oa_virtual
     sid[idx] = sid_ok
-    inten[idx] = lambertian_intensity(weight[idx], cos_inc, albedo_by_id[sid_ok + 1], oa_virtual, tvg)
+    texel = hits.texel[ok] if hits.texel is not None else None
+    inten[idx] = backscatter(weight[idx], cos_inc, SurfaceLaws.of(laws), sid_ok + 1, oa_virtual, tvg, texel)
     pv[idx] = np.asarray(origin, float) + d[ok] * oa_virtual[:, None]
     nv[idx] = mirror_z(normal, is_direction=True)
     pr[idx] = a_real
@@ -241,7 +242,7 @@ def render_paper(
     render: RenderSettings,
     ground,
     weight: np.ndarray,
-    albedo_by_id: np.ndarray,
+    laws: SurfaceLaws | np.ndarray,
     n_objects: int,
     max_distance_m: float,
 ) -> dict[str, np.ndarray]:
@@ -259,17 +260,18 @@ def render_paper(
     beam = np.arange(n_beams)[:, None, None]
     geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, n_beams)
 
-    def single_bounce(caster, with_ground, albedo):
+    def single_bounce(caster, with_ground, laws):
         hits = trace(caster, origin, directions, ground if with_ground else None, max_distance_m)
-        i_f = lambertian_intensity(weight, hits.cos_incidence, albedo[hits.surface_id + 1], hits.distance_m, render.tvg)
+        i_f = backscatter(weight, hits.cos_incidence, laws, hits.surface_id + 1, hits.distance_m, render.tvg,
+                          hits.texel)
         cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None
         return hits, i_f, form_image(hits.distance_m, i_f, beam, *geometry, continuous=cont)[0]
 
-    _, _, i_a_og = single_bounce(objects_caster, True, albedo_by_id)  # S1
-    hits_o, i_f_o, i_a_o = single_bounce(objects_caster, False, albedo_by_id)  # S2
-    # Mirror k has surface id n_objects + k + 1 and the albedo of object k.
-    albedo_oo = np.concatenate([albedo_by_id, albedo_by_id[2:]])
-    hits_oo, i_f_oo, i_a_oo = single_bounce(mirrored_caster, False, albedo_oo)  # S3
+    laws = SurfaceLaws.of(laws)
+    _, _, i_a_og = single_bounce(objects_caster, True, laws)  # S1
+    hits_o, i_f_o, i_a_o = single_bounce(objects_caster, False, laws)  # S2
+    # Mirror k has surface id n_objects + k + 1 and the law of object k.
+    hits_oo, i_f_oo, i_a_oo = single_bounce(mirrored_caster, False, laws.concat(laws, 2))  # S3
     out = {"object": i_a_o, "ground": i_a_og - i_a_o}
     i_a_mirror = i_a_oo - i_a_o  # Eq. 8: case 4
     i_f_mirror = i_f_oo - i_f_o  # Eq. 10

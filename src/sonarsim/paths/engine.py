@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config.sonar import SonarConfig
-from ..core.radiometry import lambertian_intensity
+from ..core.radiometry import SurfaceLaws, backscatter
 from ..image.grid import beam_index
 from ..core.transforms import Pose
 from ..renderer.formation import RayEnergy, accumulate, continuity
@@ -294,7 +294,7 @@ def trace_generation(
     planes: PlaneSet,
     active: np.ndarray,
     reach_m: float,
-    albedo_by_id: np.ndarray,
+    laws: SurfaceLaws | np.ndarray,
     weight: np.ndarray,
     tvg: bool,
     first: bool,
@@ -319,8 +319,8 @@ def trace_generation(
         Planes the sonar faces.
     reach_m : float
         Longest receive leg followed, metres.
-    albedo_by_id : (n_surfaces + 1,) float array
-        Diffuse albedo by surface id + 1.
+    laws : SurfaceLaws or (n_surfaces + 1,) float array
+        Backscatter laws by surface id + 1 (an array: the Lambertian albedo).
     weight : (n,) float array
         Weight ``beta dphi`` of each fan ray.
     tvg : bool
@@ -380,7 +380,10 @@ def trace_generation(
         cos = np.abs(_rowdot(normal.astype(np.float32), dd.astype(np.float32))).astype(np.float64)
     else:
         cos = np.abs(_rowdot(normal, dd))
-    intensity = lambertian_intensity(np.asarray(weight)[r], cos, albedo_by_id[sid + 1], total, tvg)
+    texel = None
+    if hits.texel is not None:  # a texture scales the objects' diffuse coefficient, not the planes'
+        texel = np.where(sid >= n_planes, hits.texel[k], np.float32(1.0))
+    intensity = backscatter(np.asarray(weight)[r], cos, SurfaceLaws.of(laws), sid + 1, total, tvg, texel)
     atten = np.broadcast_to(rays.atten, (m,))[k]
     chain = np.broadcast_to(rays.chain, (m,))[k]
     leg.distance[r] = total
@@ -605,7 +608,7 @@ def trace_legs(
     origin: np.ndarray,
     directions: np.ndarray,
     weight: np.ndarray,
-    albedo_by_id: np.ndarray,
+    laws: SurfaceLaws | np.ndarray,
     tvg: bool,
     reach_m: float,
     n_generations: int,
@@ -626,8 +629,8 @@ def trace_legs(
         Unit ray directions in the world frame.
     weight : (n,) float array
         Ray weights ``beta dphi``.
-    albedo_by_id : (P + n_objects + 1,) float array
-        Diffuse albedo indexed by surface id + 1.
+    laws : SurfaceLaws or (P + n_objects + 1,) float array
+        Backscatter laws indexed by surface id + 1 (an array: the Lambertian albedo).
     tvg : bool
     reach_m : float
         Longest receive leg followed, metres.
@@ -650,7 +653,7 @@ def trace_legs(
         legs.append(leg)
         limit = float(reach_m - rays.before.min())
         hits = caster.intersect(rays.origin32, rays.direction32, limit)
-        rays, _ = trace_generation(rays, hits, planes, active, reach_m, albedo_by_id, weight, tvg, first,
+        rays, _ = trace_generation(rays, hits, planes, active, reach_m, laws, weight, tvg, first,
                                    g + 1 < n_generations, table, leg)
     return legs
 

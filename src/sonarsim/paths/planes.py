@@ -37,7 +37,8 @@ class PlaneSet:
     offset : (P,) float64 ndarray
         ``n . x`` on each plane, metres; the water is ``n . x > offset``.
     albedo, specular : (P,) float64 ndarray
-        Diffuse albedo and specular reflectance R.
+        Diffuse coefficient of the plane's backscatter law (the albedo, or Lambert's mu) and
+        specular reflectance R.
     """
 
     names: tuple[str, ...]
@@ -54,7 +55,7 @@ class PlaneSet:
             names=tuple(p.name for p in planes),
             normal=normal,
             offset=np.array([p.offset_m for p in planes], dtype=float),
-            albedo=np.array([p.albedo for p in planes], dtype=float),
+            albedo=np.array([p.backscatter.coefficient for p in planes], dtype=float),
             specular=np.array([p.specular for p in planes], dtype=float),
         )
 

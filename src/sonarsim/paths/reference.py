@@ -209,7 +209,6 @@ class _Planes:
         self.normal /= np.maximum(np.linalg.norm(self.normal, axis=1, keepdims=True), 1e-300)
         point = np.array([p.point_m for p in specs], dtype=float).reshape(-1, 3)
         self.offset = np.sum(self.normal * point, axis=1)
-        self.albedo = np.array([p.albedo for p in specs], dtype=float)
         self.specular = np.array([p.specular for p in specs], dtype=float)
 
     def __len__(self) -> int:
@@ -228,7 +227,8 @@ def _receive_legs(sim, planes: _Planes, active: np.ndarray, origin: np.ndarray, 
     ``followed``: the set of chains some ray travelled along (whether or not it met anything).
     """
     n_planes = len(planes)
-    object_albedo = np.array([o.albedo for o in sim.scene.objects], dtype=float)
+    # Surface id s: plane s, then object s - P.
+    materials = [p.backscatter for p in sim.scene.reflecting_planes] + [o.backscatter for o in sim.scene.objects]
     n = len(directions)
     ray = np.arange(n)
     start = np.repeat(origin[None, :], n, axis=0)
@@ -267,9 +267,12 @@ def _receive_legs(sim, planes: _Planes, active: np.ndarray, origin: np.ndarray, 
         a = start[k] + t[k, None] * d[k]
         cos = np.abs(np.sum(nrm[k] * d[k], axis=1))
         s = sid[k]
-        albedo = np.where(s < n_planes, planes.albedo[np.minimum(s, max(n_planes - 1, 0))] if n_planes else 0.0,
-                          object_albedo[np.maximum(s - n_planes, 0)] if len(object_albedo) else 0.0)
-        w = weight[ray[k]] * albedo * cos
+        texel = np.ones(len(k)) if hits.texel is None else np.where(s >= n_planes, hits.texel[k], 1.0)
+        law = np.zeros(len(k))
+        for q in np.unique(s):
+            on = s == q
+            law[on] = materials[q].evaluate(cos[on], texel[on])
+        w = weight[ray[k]] * law
         if not tvg:
             w = w / length[k] ** 2
         events["ray"].append(ray[k])

@@ -14,7 +14,7 @@ All arrays are flat (C-contiguous) views of the ray fan ``(n_beams, n_azimuth, n
 Nothing here allocates; the caller owns every array.
 """
 
-from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, isfinite, INFINITY, NAN
+from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, exp, isfinite, INFINITY, NAN
 from libc.math cimport M_PI
 cimport cython
 
@@ -26,6 +26,73 @@ cdef double CONTINUITY_SINE = 0.5
 cdef double MIN_SPREAD_BINS = 1e-6
 cdef double SURFACE_OFFSET_M = 1e-5
 cdef double WATER_TOLERANCE_M = 1e-7
+# Law codes (sonarsim.config.materials).
+cdef int LAMBERTIAN = 0
+cdef int LAMBERT = 1
+
+
+cdef inline double scatter(double w, double coef, int law, const double* lobe, double c) noexcept nogil:
+    """Backscatter of a ray of weight ``w`` at cos(alpha) ``c`` under a law (twin:
+    ``core.radiometry.backscatter``, operation for operation). ``lobe``: (strength, roughness)."""
+    cdef double c2, c4, s
+    if law == LAMBERTIAN:
+        return w * coef * c
+    if law == LAMBERT:
+        return w * coef * c * c
+    c2 = c * c
+    c4 = c2 * c2
+    s = lobe[1]
+    if c4 > 0 and s > 0:
+        return w * (coef * c + lobe[0] * (exp(-((1.0 - c2) / c2) / (2.0 * s * s)) / c4))
+    return w * (coef * c + lobe[0] * 0.0)
+
+
+cdef class _Laws:
+    """Pointers to the optional law tables of a kernel call (None: every surface Lambertian).
+
+    ``n_ids``: rows of ``albedo_by_id`` (the tables must have as many); ``n_rows``: hits in the
+    call (``hit_texel`` must cover them). Checked here: the kernels read without bounds checks.
+    """
+    cdef const int* law
+    cdef const double* lobe
+    cdef const float* texel
+    cdef object keep
+
+    def __cinit__(self, law_by_id, lobe_by_id, hit_texel, Py_ssize_t n_ids, Py_ssize_t n_rows):
+        cdef const int[::1] lv
+        cdef const double[:, ::1] bv
+        cdef const float[::1] tv
+        self.law = NULL
+        self.lobe = NULL
+        self.texel = NULL
+        self.keep = (law_by_id, lobe_by_id, hit_texel)
+        if (law_by_id is None) != (lobe_by_id is None):
+            raise ValueError("give both law_by_id and lobe_by_id, or neither")
+        if law_by_id is not None:
+            lv = law_by_id
+            bv = lobe_by_id
+            if lv.shape[0] != n_ids or bv.shape[0] != n_ids or bv.shape[1] != 2:
+                raise ValueError(f"law tables of {lv.shape[0]} and {bv.shape[0]} x {bv.shape[1]} rows for {n_ids} surfaces")
+            if n_ids:
+                self.law = &lv[0]
+                self.lobe = &bv[0, 0]
+        if hit_texel is not None:
+            tv = hit_texel
+            if tv.shape[0] < n_rows:
+                raise ValueError(f"hit_texel has {tv.shape[0]} rows for {n_rows} hits")
+            if tv.shape[0]:
+                self.texel = &tv[0]
+
+
+cdef inline double diffuse_weight(_Laws laws, const double[::1] albedo_by_id, Py_ssize_t index, Py_ssize_t row,
+                                  bint on_mesh, double w, double c) noexcept nogil:
+    """``w * f(alpha)`` of surface ``index`` (surface id + 1) for the hit of row ``row``."""
+    cdef double coef = albedo_by_id[index]
+    if on_mesh and laws.texel != NULL:
+        coef = coef * laws.texel[row]
+    if laws.law == NULL:
+        return w * coef * c
+    return scatter(w, coef, laws.law[index], laws.lobe + 2 * index, c)
 
 
 def embree_hits(const float[::1] tfar, const int[::1] geom_id, const float[:, ::1] ng,
@@ -58,10 +125,14 @@ def primary(const float[::1] hit_distance, const int[::1] hit_mesh, const float[
             const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
             double[::1] dist, int[::1] sid, float[:, ::1] point, float[:, ::1] normal,
             double[::1] intensity, signed char[::1] label,
-            Py_ssize_t[::1] g_index, double[::1] g_t, float[:, ::1] g_start, float[:, ::1] g_dir):
+            Py_ssize_t[::1] g_index, double[::1] g_t, float[:, ::1] g_start, float[:, ::1] g_dir,
+            law_by_id=None, lobe_by_id=None, hit_texel=None):
     """Objects (from the caster) and the analytic ground -> closest surface, I_f, labels.
 
     Also lists the rays that reach the ground (for the secondary, reflected rays).
+    ``law_by_id`` (int32) and ``lobe_by_id`` ((n, 2) float64) give each surface's backscatter law
+    (:class:`sonarsim.core.radiometry.SurfaceLaws`; None: Lambertian, ``albedo_by_id`` its
+    albedo); ``hit_texel`` (float32 per hit, optional) scales the objects' diffuse coefficient.
 
     Returns
     -------
@@ -71,6 +142,7 @@ def primary(const float[::1] hit_distance, const int[::1] hit_mesh, const float[
     cdef double dd, tg, dx, dy, dz, nx, ny, nz, c, r, t_min = INFINITY
     cdef float px, py, pz, cosf
     cdef int s, m
+    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], n)
     with nogil:
         for i in range(n):
             dx = dirs[i, 0]
@@ -113,7 +185,7 @@ def primary(const float[::1] hit_distance, const int[::1] hit_mesh, const float[
             point[i, 1] = <float>(oy + dy * dd)
             point[i, 2] = <float>(oz + dz * dd)
             cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
-            c = weight[i] * albedo_by_id[s + 1] * cosf
+            c = diffuse_weight(laws, albedo_by_id, s + 1, i, s > 0, weight[i], cosf)
             if not tvg:
                 r = dd if dd > 1e-6 else 1e-6
                 c = c / (r * r)
@@ -163,8 +235,12 @@ def mirror_paths(const Py_ssize_t[::1] g_index, const double[::1] g_t, const flo
                  double specular,
                  double[::1] tri_dist, double[::1] tri_energy, double[:, ::1] v_point,
                  double[:, ::1] v_normal, int[::1] v_sid,
-                 double[::1] r23, double[::1] e23, int[::1] beam_a):
+                 double[::1] r23, double[::1] e23, int[::1] beam_a,
+                 law_by_id=None, lobe_by_id=None, hit_texel=None):
     """Reflected rays that reached an object -> case 4 (triple) and cases 2/3 (double).
+
+    ``law_by_id``, ``lobe_by_id``, ``hit_texel``: as for :func:`primary` (``hit_texel`` per
+    reflected ray).
 
     Output arrays must come filled with "nothing" (inf, 0, NaN, -1); only reached rays are set.
     ``e23`` is R x I_f where A lies in the field of view and range window, else 0.
@@ -175,6 +251,7 @@ def mirror_paths(const Py_ssize_t[::1] g_index, const double[::1] g_t, const flo
     cdef int m, sv
     cdef Py_ssize_t b
     cdef double rad2deg = 180.0 / M_PI
+    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], n_g)
     with nogil:
         for j in range(n_g):
             m = hit_mesh[j]
@@ -195,7 +272,7 @@ def mirror_paths(const Py_ssize_t[::1] g_index, const double[::1] g_t, const flo
             sv = m + 1
             # cos of the reflected ray (dx, dy, -dz) with the object's normal.
             c = fabs(nx * dx + ny * dy - nz * dz)
-            c = weight[i] * albedo_by_id[sv + 1] * c
+            c = diffuse_weight(laws, albedo_by_id, sv + 1, j, True, weight[i], c)
             if not tvg:
                 r = oa_v if oa_v > 1e-6 else 1e-6
                 c = c / (r * r)
@@ -411,7 +488,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
               int[::1] key, Py_ssize_t[::1] live, int n_surfaces,
               Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
               double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
-              double[::1] nx_atten, int[::1] nx_chain):
+              double[::1] nx_atten, int[::1] nx_chain, law_by_id=None, lobe_by_id=None, hit_texel=None):
     """One generation of receive legs: closest of objects and active planes, diffuse weight,
     and the specular reflection of the rays that meet a plane (twin: ``engine.trace_legs``).
 
@@ -423,6 +500,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     continuity of range splatting). The first generation does not write ``atten_out``,
     ``chain_out`` and ``key``: they are 1, 0 and ``sid`` there. ``live`` lists, in row order, the rays that scatter some
     energy. ``children[c, p]`` is the chain ``c + (p,)`` (-1: new, numbered from ``n_chains``).
+    ``law_by_id``, ``lobe_by_id``, ``hit_texel`` (per row): as for :func:`primary`.
 
     Returns
     -------
@@ -438,6 +516,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     cdef bint overflow = False
     cdef Py_ssize_t n_live = 0
     cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
+    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], m)
     with nogil:
         for k in range(m):
             i = ray[k]
@@ -498,7 +577,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
                 py = oy + dy * t
                 pz = oz + dz * t
                 c = fabs(nx * dx + ny * dy + nz * dz)
-            c = weight[i] * albedo_by_id[s + 1] * c
+            c = diffuse_weight(laws, albedo_by_id, s + 1, k, s >= P, weight[i], c)
             if not tvg:
                 r = total if total > 1e-6 else 1e-6
                 c = c / (r * r)

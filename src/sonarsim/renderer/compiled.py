@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..paths.engine import Leg
+from ..core.radiometry import SurfaceLaws
 
 from ..core.rays import RayFan
 from ..config.scene import GroundSpec, RenderSettings
@@ -39,6 +40,14 @@ BATCH_CUTS = (0.3, 0.65)
 DIRECT_SHARE = 0.7
 # Share of a frame's reflected rays cast on the other core while this one forms the direct image.
 OTHER_CORE_SHARE = 0.65
+
+
+def _law_args(laws: SurfaceLaws, hits) -> tuple:
+    """The kernels' optional law arguments: ``(law_by_id, lobe_by_id, hit_texel)``, None where
+    not needed (Lambertian surfaces, no texture: the paper's arithmetic exactly)."""
+    if laws.lambertian_only:
+        return None, None, hits.texel
+    return laws.law, laws.lobe, hits.texel
 
 
 class Workspace:
@@ -92,7 +101,7 @@ def render_fast(
     fan: RayFan,
     ground: GroundSpec | None,
     render: RenderSettings,
-    albedo_by_id: np.ndarray,
+    laws: SurfaceLaws | np.ndarray,
     reach_m: float,
     multipath: bool,
     work: Workspace,
@@ -107,7 +116,8 @@ def render_fast(
     sonar, pose, fan, render : the sonar's intrinsics, its pose (world frame), its rays (sonar
         frame), the settings
     ground : GroundSpec or None
-    albedo_by_id : (n_objects + 2,) float64 ndarray, indexed by surface id + 1
+    laws : SurfaceLaws or (n_objects + 2,) float64 ndarray
+        Backscatter laws indexed by surface id + 1 (an array: Lambertian albedo).
     reach_m : float
         Longest path followed, metres.
     multipath : bool
@@ -120,6 +130,8 @@ def render_fast(
     pool : concurrent.futures.ThreadPoolExecutor with one worker, optional
         The other core: casts the reflected rays and forms half of the direct image.
     """
+    laws = SurfaceLaws.of(laws)
+    albedo_by_id = laws.coefficient
     origin = pose.translation
     d64 = work.d64
     _kernels.rotate(fan.directions.reshape(-1, 3), np.ascontiguousarray(pose.rotation),
@@ -131,7 +143,7 @@ def render_fast(
         hits.distance, hits.mesh_id, hits.normal, d64, origin[0], origin[1], origin[2],
         has_ground, ground.height_m if has_ground else 0.0, reach_m, albedo_by_id, weight, render.tvg,
         work.dist, work.sid, work.point, work.normal, work.intensity, work.label,
-        work.g_index, work.g_t, work.g_start, work.g_dir,
+        work.g_index, work.g_t, work.g_start, work.g_dir, *_law_args(laws, hits),
     )
     n_el = fan.shape[2]
     geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
@@ -194,7 +206,7 @@ def render_fast(
             edges, half_el, sonar.range_min_m, sonar.range_max_m,
             reach_m, albedo_by_id, weight, render.tvg, ground.specular,
             work.tri_dist, work.tri_energy, work.v_point, work.v_normal, work.v_sid,
-            work.r23, work.e23, work.beam_a,
+            work.r23, work.e23, work.beam_a, *_law_args(laws, hits2),
         )
         if pipelined:
             echoes((col_cuts[k], col_cuts[k + 1]))
@@ -233,7 +245,9 @@ class _LegTracer:
     """Receive legs generation by generation (the state between two calls of the kernel)."""
 
     def __init__(self, caster, planes, active, pose: Pose, fan: RayFan, work: Workspace, weight: np.ndarray,
-                 albedo_by_id: np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> None:
+                 laws: SurfaceLaws | np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> None:
+        self.laws = SurfaceLaws.of(laws)
+        albedo_by_id = self.laws.coefficient
         self.n_surfaces = len(albedo_by_id) - 1  # planes and objects
         self.caster, self.planes, self.work, self.weight = caster, planes, work, weight
         self.albedo, self.tvg, self.reach, self.n_gen, self.table = albedo_by_id, tvg, reach_m, n_generations, table
@@ -294,7 +308,7 @@ class _LegTracer:
                     self.active, self.planes.specular, self.reach, self.albedo, self.weight, self.tvg, g == 0,
                     g + 1 < self.n_gen, table.children, len(table), leg.distance, leg.sid, leg.point,
                     leg.normal, leg.intensity, leg.atten, leg.chain, leg.keys, live[n_live:], self.n_surfaces,
-                    *(x[n_next:] for x in nx),
+                    *(x[n_next:] for x in nx), *_law_args(self.laws, hits),
                 )
                 table.sync(n_chains)
                 if not overflow:
@@ -316,18 +330,18 @@ class _LegTracer:
 
 
 def trace_legs(caster, planes, active, pose: Pose, fan: RayFan, work: Workspace, weight: np.ndarray,
-               albedo_by_id: np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> list:
+               laws: SurfaceLaws | np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> list:
     """Receive legs with the compiled kernel (twin: :func:`sonarsim.paths.engine.trace_legs`).
 
     The first generation's rays are ``work``'s fan rotated to ``pose`` (see :func:`rotate`);
     they leave from ``pose``'s position.
     """
-    return _LegTracer(caster, planes, active, pose, fan, work, weight, albedo_by_id, tvg, reach_m, n_generations,
+    return _LegTracer(caster, planes, active, pose, fan, work, weight, laws, tvg, reach_m, n_generations,
                       table).rest()
 
 
 def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: RayFan, work: Workspace,
-                 weight: np.ndarray, albedo_by_id: np.ndarray, render: RenderSettings, reach_m: float,
+                 weight: np.ndarray, laws: SurfaceLaws | np.ndarray, render: RenderSettings, reach_m: float,
                  n_generations: int, table, view, n_surfaces: int, stack: np.ndarray, pool=None,
                  occlusion=None) -> tuple[list, list]:
     """The whole compiled frame: receive legs, paths, and the image stack (float32, zeroed).
@@ -346,7 +360,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
     per_beam = fan.n_rays // sonar.n_beams
     geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
     spread, n_el = render.range_splat, fan.shape[2]
-    tracer = _LegTracer(caster, planes, active, pose, fan, work, weight, albedo_by_id, render.tvg, reach_m,
+    tracer = _LegTracer(caster, planes, active, pose, fan, work, weight, laws, render.tvg, reach_m,
                         n_generations, table)
     first = tracer.step()
     legs = [first] if first is not None else []

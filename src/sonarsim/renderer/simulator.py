@@ -21,7 +21,7 @@ from ..config.loader import load_scene, parse_pose
 from ..config.scene import Scene, sonar_section
 from ..config.sonar import SonarConfig
 from ..core.memory import keep_freed_memory
-from ..core.radiometry import lambertian_intensity
+from ..core.radiometry import SurfaceLaws, backscatter
 from ..core.rays import RayFan, make_ray_fan
 from ..core.transforms import Pose
 from ..errors import ConfigError
@@ -35,6 +35,7 @@ from ..paths.engine import (
 from ..paths.planes import ChainTable, PlaneSet
 from ..sensor.model import SensorModel
 from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
+from ..scene.textures import with_textures
 from ..trace import available_cores, make_caster
 from ..trace.surfaces import trace
 from . import compiled
@@ -101,13 +102,14 @@ class Simulator:
             # in the plane) keeps mirror geometry and coincident faces from making echoes.
             self.meshes = [clip_to_water(m, plane.point_m, plane.normal) for m in self.meshes]
         self._warn_about_planes()
-        self.caster = make_caster(backend, self.meshes, self.scene.render.threads)
+        self.caster = with_textures(make_caster(backend, self.meshes, self.scene.render.threads), self.meshes)
         self._mirrored_caster = None
         threads = self.scene.render.threads or available_cores()
         # One worker: the second core of the compiled path (tasks run in order on it).
         self._pool = ThreadPoolExecutor(1) if threads > 1 else None
-        # Albedo by surface id + 1: index 0 is "no hit", p + 1 plane p, P + k + 1 object k.
-        self._albedo = np.concatenate([[0.0], self.planes.albedo, [o.albedo for o in self.scene.objects]])
+        # Backscatter laws by surface id + 1: index 0 is "no hit", p + 1 plane p, P + k + 1 object k.
+        self._laws = SurfaceLaws.of([p.backscatter for p in self.scene.reflecting_planes]
+                                    + [o.backscatter for o in self.scene.objects])
         self._rng = np.random.default_rng(self.scene.render.seed)  # speckle, frame after frame
         self._fans: dict[SonarConfig, RayFan] = {}  # by intrinsics: every pose shares the fan
         self._sensor_models: dict[SonarConfig, SensorModel] = {}
@@ -192,12 +194,12 @@ class Simulator:
         if self._mirrored_caster is None:
             g = self.scene.ground.as_plane()
             mirrored = self.meshes + [mirror_across_plane(m, g.point_m, g.normal) for m in self.meshes]
-            self._mirrored_caster = make_caster(self.backend, mirrored, self.scene.render.threads)
+            self._mirrored_caster = with_textures(make_caster(self.backend, mirrored, self.scene.render.threads), mirrored)
         return self._mirrored_caster
 
     def _intensity(self, fan: RayFan, hits) -> np.ndarray:
-        albedo = self._albedo[hits.surface_id + 1]
-        return lambertian_intensity(fan.weight, hits.cos_incidence, albedo, hits.distance_m, self.scene.render.tvg)
+        return backscatter(fan.weight, hits.cos_incidence, self._laws, hits.surface_id + 1, hits.distance_m,
+                           self.scene.render.tvg, hits.texel)
 
     # The ways to form the image stack; each returns (stack, legs, path sets, chain table).
 
@@ -208,7 +210,7 @@ class Simulator:
         hits = trace(self.caster, origin, directions, ground, reach)
         images = render_paper(
             self.caster, self.mirrored_caster(), origin, directions, sonar, pose, self.scene.render, ground,
-            fan.weight, self._albedo, len(self.meshes), reach,
+            fan.weight, self._laws, len(self.meshes), reach,
         )
         # Rows of the orders formed (a ground alone makes no path beyond order 3).
         stack = np.zeros((stack_rows(self.scene.render.max_order), sonar.n_range_bins, sonar.n_beams), np.float32)
@@ -230,7 +232,7 @@ class Simulator:
         if self._work is None or self._work.n != fan.n_rays:
             self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, fan.n_rays // sonar.n_beams)
         stack = np.zeros((stack_rows(3), sonar.n_range_bins, sonar.n_beams), dtype=np.float32)
-        compiled.render_fast(self.caster, sonar, pose, fan, self.scene.ground, self.scene.render, self._albedo, reach,
+        compiled.render_fast(self.caster, sonar, pose, fan, self.scene.ground, self.scene.render, self._laws, reach,
                              multipath, self._work, stack, pool=self._pool)
         w = self._work
         leg = Leg(0, w.dist, w.sid, w.point, w.normal, w.intensity, w.ones, w.zeros_i32)
@@ -259,12 +261,12 @@ class Simulator:
                 self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, per_beam)
             stack = np.zeros((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
             legs, sets = compiled.render_paths(
-                self.caster, self.planes, active, sonar, pose, fan, self._work, weight, self._albedo, render, reach,
+                self.caster, self.planes, active, sonar, pose, fan, self._work, weight, self._laws, render, reach,
                 n_generations, table, view, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
             )
         else:
             directions = (fan.directions @ pose.rotation.T).reshape(-1, 3)
-            legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._albedo,
+            legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._laws,
                               render.tvg, reach, n_generations, table)
             sets = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam)
             if occlusion is not None:

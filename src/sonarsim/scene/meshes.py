@@ -2,6 +2,8 @@
 
 Primitives are built with trimesh; mesh files are anything trimesh loads (OBJ, STL, PLY,
 GLB/glTF, OFF). Multi-part files (a trimesh Scene) are flattened with their transforms.
+An object whose material asks for its texture (``material: {texture: true}``) keeps the mesh's
+UV coordinates and the brightness of its texture image (see :mod:`sonarsim.scene.textures`).
 """
 
 from __future__ import annotations
@@ -30,10 +32,16 @@ class TriangleMesh:
     ----------
     vertices : (n_vertices, 3) float64 ndarray, metres
     faces : (n_faces, 3) int32 ndarray, indices into ``vertices``
+    uv : (n_vertices, 2) float64 ndarray or None
+        Texture coordinates of each vertex (u right, v up the image), with ``texture``.
+    texture : (height, width) float32 ndarray or None
+        Brightness in [0, 1] of the texture image, row 0 at the image's top.
     """
 
     vertices: np.ndarray
     faces: np.ndarray
+    uv: np.ndarray | None = None
+    texture: np.ndarray | None = None
 
     @property
     def triangles(self) -> np.ndarray:
@@ -41,8 +49,27 @@ class TriangleMesh:
         return self.vertices[self.faces]
 
 
+def _texture_of(mesh, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(uv, brightness)`` of a trimesh mesh's texture; MeshFileError naming ``where`` without one."""
+    from .textures import brightness
+
+    visual = getattr(mesh, "visual", None)
+    uv = getattr(visual, "uv", None)
+    material = getattr(visual, "material", None)
+    image = getattr(material, "image", None)
+    if image is None:
+        image = getattr(material, "baseColorTexture", None)
+    if uv is None or image is None:
+        raise MeshFileError(f"{where}: the mesh has no texture (UV coordinates and a texture image)")
+    uv = np.asarray(uv, dtype=float)
+    if uv.shape != (len(mesh.vertices), 2) or not np.all(np.isfinite(uv)):
+        raise MeshFileError(f"{where}: the mesh's UV coordinates do not match its vertices")
+    uv.setflags(write=False)
+    return uv, brightness(image)
+
+
 @functools.lru_cache(maxsize=32)
-def _load_mesh_file_cached(path: str, mtime_ns: int, size: int) -> TriangleMesh:
+def _load_mesh_file_cached(path: str, mtime_ns: int, size: int, texture: bool = False) -> TriangleMesh:
     import trimesh
 
     try:
@@ -59,11 +86,15 @@ def _load_mesh_file_cached(path: str, mtime_ns: int, size: int) -> TriangleMesh:
         raise MeshFileError(f"{path}: the mesh has non-finite vertex coordinates")
     vertices.setflags(write=False)
     faces.setflags(write=False)
+    if texture:
+        return TriangleMesh(vertices, faces, *_texture_of(loaded, path))
     return TriangleMesh(vertices, faces)
 
 
-def load_mesh_file(path: str | os.PathLike) -> TriangleMesh:
+def load_mesh_file(path: str | os.PathLike, texture: bool = False) -> TriangleMesh:
     """Read a mesh file into object coordinates, cached by path and modification time.
+
+    With ``texture``, also its UV coordinates and texture brightness (an error without them).
 
     Raises
     ------
@@ -76,7 +107,7 @@ def load_mesh_file(path: str | os.PathLike) -> TriangleMesh:
     st = p.stat()
     if st.st_size == 0:
         raise MeshFileError(f"{p}: the mesh file is empty")
-    return _load_mesh_file_cached(str(p.resolve()), st.st_mtime_ns, st.st_size)
+    return _load_mesh_file_cached(str(p.resolve()), st.st_mtime_ns, st.st_size, texture)
 
 
 def object_mesh_local(obj: ObjectSpec) -> TriangleMesh:
@@ -92,9 +123,10 @@ def object_mesh_local(obj: ObjectSpec) -> TriangleMesh:
     elif isinstance(obj.mesh, trimesh.Trimesh):
         if len(obj.mesh.faces) == 0:
             raise MeshFileError(f"object {obj.name!r}: the in-memory mesh is empty")
-        return TriangleMesh(np.asarray(obj.mesh.vertices, float), np.asarray(obj.mesh.faces, np.int32))
+        textured = _texture_of(obj.mesh, f"object {obj.name!r}") if obj.backscatter.texture else ()
+        return TriangleMesh(np.asarray(obj.mesh.vertices, float), np.asarray(obj.mesh.faces, np.int32), *textured)
     else:
-        return load_mesh_file(obj.mesh)
+        return load_mesh_file(obj.mesh, texture=obj.backscatter.texture)
     return TriangleMesh(np.asarray(m.vertices, float), np.asarray(m.faces, np.int32))
 
 
@@ -103,7 +135,7 @@ def object_mesh_world(obj: ObjectSpec) -> TriangleMesh:
     local = object_mesh_local(obj)
     scale = np.broadcast_to(np.asarray(obj.scale, dtype=float), (3,))
     v = (local.vertices * scale) @ obj.pose.rotation.T + obj.pose.translation
-    return TriangleMesh(v, np.ascontiguousarray(local.faces, dtype=np.int32))
+    return TriangleMesh(v, np.ascontiguousarray(local.faces, dtype=np.int32), local.uv, local.texture)
 
 
 def clip_to_water(mesh: TriangleMesh, point_m, normal) -> TriangleMesh:
@@ -133,14 +165,16 @@ def clip_to_water(mesh: TriangleMesh, point_m, normal) -> TriangleMesh:
     crossing = keep & np.any(th < -tol, axis=1)
     faces = mesh.faces[keep & ~crossing]
     if not crossing.any():
-        return TriangleMesh(mesh.vertices, np.ascontiguousarray(faces, dtype=np.int32))
+        return TriangleMesh(mesh.vertices, np.ascontiguousarray(faces, dtype=np.int32), mesh.uv, mesh.texture)
     from trimesh.intersections import slice_faces_plane
 
-    cut_v, cut_f, _ = slice_faces_plane(mesh.vertices, mesh.faces[crossing], n, p)
+    # The cut faces' new corners get texture coordinates interpolated along the cut edges.
+    cut_v, cut_f, cut_uv = slice_faces_plane(mesh.vertices, mesh.faces[crossing], n, p, uv=mesh.uv)
     n0 = len(mesh.vertices)
     verts = np.concatenate([mesh.vertices, np.asarray(cut_v, float)])
     faces = np.concatenate([faces, np.asarray(cut_f, np.int32) + n0]) if len(cut_f) else faces
-    return TriangleMesh(verts, np.ascontiguousarray(faces, dtype=np.int32))
+    uv = None if mesh.uv is None else np.concatenate([mesh.uv, np.asarray(cut_uv, float).reshape(-1, 2)])
+    return TriangleMesh(verts, np.ascontiguousarray(faces, dtype=np.int32), uv, mesh.texture)
 
 
 def mirror_across_plane(mesh: TriangleMesh, point_m, normal) -> TriangleMesh:
@@ -154,4 +188,4 @@ def mirror_across_plane(mesh: TriangleMesh, point_m, normal) -> TriangleMesh:
     n = np.asarray(normal, dtype=float)
     h = mesh.vertices @ n - float(n @ np.asarray(point_m, dtype=float))
     v = mesh.vertices - 2.0 * h[:, None] * n
-    return TriangleMesh(v, np.ascontiguousarray(mesh.faces[:, ::-1]))
+    return TriangleMesh(v, np.ascontiguousarray(mesh.faces[:, ::-1]), mesh.uv, mesh.texture)

@@ -28,18 +28,31 @@ class Hits:
         Index of the mesh hit, in the order the meshes were given; -1 for no hit.
     normal : (n, 3) float32 ndarray
         Geometric normal of the triangle hit, unit length, either orientation; 0 for no hit.
+    texel : (n,) float32 ndarray or None
+        Brightness in [0, 1] of the texture at the hit (1 on untextured meshes and for no hit);
+        None: the scene has no textures (see :mod:`sonarsim.scene.textures`).
+    primitive_id : (n,) int32 ndarray or None
+        Triangle hit, an index into its mesh's faces (-1 for no hit); asked for with ``with_uv``.
+    barycentric : (n, 2) float32 ndarray or None
+        ``(u, v)`` of the hit on that triangle, ``p = (1 - u - v) a + u b + v c`` for its corners
+        ``a, b, c`` (Embree's convention; 0 for no hit); asked for with ``with_uv``.
     """
 
     distance: np.ndarray
     mesh_id: np.ndarray
     normal: np.ndarray
+    texel: np.ndarray | None = None
+    primitive_id: np.ndarray | None = None
+    barycentric: np.ndarray | None = None
 
     @classmethod
-    def misses(cls, n: int) -> "Hits":
+    def misses(cls, n: int, with_uv: bool = False) -> "Hits":
+        uv = dict(primitive_id=np.full(n, -1, dtype=np.int32), barycentric=np.zeros((n, 2), dtype=np.float32))
         return cls(
             distance=np.full(n, np.inf, dtype=np.float32),
             mesh_id=np.full(n, -1, dtype=np.int32),
             normal=np.zeros((n, 3), dtype=np.float32),
+            **(uv if with_uv else {}),
         )
 
 
@@ -51,7 +64,7 @@ class RayCaster(Protocol):
     def __init__(self, meshes: Sequence[TriangleMesh], threads: int | None = None) -> None: ...
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, max_distance: float,
-                  threads: int | None = None) -> Hits:
+                  threads: int | None = None, with_uv: bool = False) -> Hits:
         """Closest hits.
 
         Parameters
@@ -63,6 +76,9 @@ class RayCaster(Protocol):
         threads : int, optional
             Use at most this many threads (default: the caster's own count), e.g. 1 when the
             other core has work of its own.
+        with_uv : bool
+            Also report the triangle hit and the barycentric coordinates of the hit
+            (``Hits.primitive_id``, ``Hits.barycentric``: what a texture lookup needs).
         """
         ...
 

@@ -8,6 +8,7 @@ per-call overhead and its multi-hit machinery, 3-5x faster here.
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
@@ -104,7 +105,8 @@ class EmbreeCaster:
     def _run(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray) -> dict:
         return self._scene.run(origins, directions, dists=tfar, output=1)
 
-    def cast_raw(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray, threads: int | None = None) -> dict:
+    def cast_raw(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray, threads: int | None = None,
+                 with_uv: bool = False) -> dict:
         """Embree's own answer for contiguous float32 rays, over the thread pool.
 
         This is the bare ray-casting cost that benchmarks compare a whole frame against.
@@ -116,10 +118,13 @@ class EmbreeCaster:
             Per-ray maximum distance.
         threads : int, optional
             At most this many threads (default: the caster's).
+        with_uv : bool
+            Also keep ``primID`` and the barycentric ``u``, ``v`` of each hit.
 
         Returns
         -------
-        dict with ``tfar`` (n,), ``geomID`` (n,), ``Ng`` (n, 3) as embreex returns them.
+        dict with ``tfar`` (n,), ``geomID`` (n,), ``Ng`` (n, 3) as embreex returns them (and
+        ``primID``, ``u``, ``v`` with ``with_uv``).
         """
         o, d, n = origins, directions, len(directions)
         n_chunks = min(threads or self.threads, self.threads, max(1, n // MIN_RAYS_PER_CHUNK))
@@ -133,22 +138,31 @@ class EmbreeCaster:
                     zip(bounds[:-1], bounds[1:]),
                 )
             )
-            res = {k: np.concatenate([p[k] for p in parts]) for k in ("tfar", "geomID", "Ng")}
+            keys = ("tfar", "geomID", "Ng") + (("primID", "u", "v") if with_uv else ())
+            res = {k: np.concatenate([p[k] for p in parts]) for k in keys}
         return res
 
     def intersect(self, origins: np.ndarray, directions: np.ndarray, max_distance: float,
-                  threads: int | None = None) -> Hits:
+                  threads: int | None = None, with_uv: bool = False) -> Hits:
         n = len(directions)
         if self._scene is None or n == 0:
-            return Hits.misses(n)
+            return Hits.misses(n, with_uv)
         o = np.ascontiguousarray(np.broadcast_to(origins, (n, 3)), dtype=np.float32)
         d = np.ascontiguousarray(directions, dtype=np.float32)
-        res = self.cast_raw(o, d, np.full(n, max_distance, dtype=np.float32), threads)
+        tfar = np.full(n, max_distance, dtype=np.float32)
+        res = self.cast_raw(o, d, tfar, threads, with_uv=True) if with_uv else self.cast_raw(o, d, tfar, threads)
         if _kernels is not None:
             hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty((n, 3), np.float32))
             _kernels.embree_hits(res["tfar"], res["geomID"], res["Ng"], self._ids, hits.distance, hits.mesh_id, hits.normal)
+        else:
+            hits = embree_hits(res["tfar"], res["geomID"], res["Ng"], self._ids)
+        if not with_uv:
             return hits
-        return embree_hits(res["tfar"], res["geomID"], res["Ng"], self._ids)
+        miss = hits.mesh_id < 0
+        prim = np.where(miss, -1, res["primID"]).astype(np.int32)
+        bary = np.column_stack([res["u"], res["v"]]).astype(np.float32)
+        bary[miss] = 0.0
+        return replace(hits, primitive_id=prim, barycentric=bary)
 
     def close(self) -> None:
         if getattr(self, "_pool", None) is not None:

@@ -38,6 +38,9 @@ class SurfaceHits:
         Unit normal of the surface hit (0 for none).
     cos_incidence : (...) float32 ndarray
         ``|n . d|``: cosine of the angle between the ray and the normal (0 for none).
+    texel : (...) float32 ndarray or None
+        Texture brightness at object hits (1 elsewhere); None: no textures (see
+        :attr:`sonarsim.trace.base.Hits.texel`).
     """
 
     distance_m: np.ndarray
@@ -45,6 +48,7 @@ class SurfaceHits:
     point: np.ndarray
     normal: np.ndarray
     cos_incidence: np.ndarray
+    texel: np.ndarray | None = None
 
 
 def ground_distance(origins: np.ndarray, directions: np.ndarray, height_m: float) -> np.ndarray:
@@ -96,15 +100,18 @@ def trace(
     sid = hits.mesh_id.reshape(shape) + np.int32(1)  # -1 (none) becomes 0: fixed below
     sid[sid == 0] = NO_HIT
     normal = hits.normal.reshape(shape + (3,))
+    texel = None if hits.texel is None else hits.texel.reshape(shape).copy()
     if ground is not None:
         tg = ground_distance(o, d, ground.height_m)
         on_ground = (tg < dist) & (tg <= max_distance_m)
         dist[on_ground] = tg[on_ground]
         sid[on_ground] = GROUND_ID
         normal[on_ground] = (0.0, 0.0, 1.0)
+        if texel is not None:
+            texel[on_ground] = 1.0
     hit = sid != NO_HIT
     # Points in float32, like the ray caster: 0.3 micrometres at 5 m.
     point = (o + d * np.where(hit, dist, 0.0)[..., None]).astype(np.float32)
     point[~hit] = np.nan
     cos_inc = np.abs(np.einsum("...k,...k->...", normal, d.astype(np.float32, copy=False)))
-    return SurfaceHits(distance_m=dist, surface_id=sid, point=point, normal=normal, cos_incidence=cos_inc)
+    return SurfaceHits(distance_m=dist, surface_id=sid, point=point, normal=normal, cos_incidence=cos_inc, texel=texel)
