@@ -10,7 +10,7 @@ receives, ``sigma / r^2`` summed over the bin):
    (:func:`~sonarsim.sensor.acoustics.echo_level_offset_db`);
 3. speckle and noise are complex amplitudes: ``a = sqrt(mu) F + sqrt(N) W``, F the speckle
    field (unit power, filtered by the pulse and the beam: its grain is the resolution cell), W
-   white receiver noise;
+   receiver noise (unit power, through the same beamformer and receiver band);
 4. TVG and gain: ``P = t(r) |a|^2``, ``10 log10 t = spreading log10 r + 2 alpha r + gain``;
 5. the output chain: compression, saturation, quantisation (:mod:`~sonarsim.sensor.output`).
 
@@ -60,9 +60,12 @@ class SensorModel:
         The image's intrinsics (range bins, beams, frequency).
     seed : int
         Seed of the speckle and noise pool (the scene's ``render.seed``).
+    fields : bool
+        Build the speckle and noise fields; ``False``: only the expected output is available
+        (``apply(..., speckle=False)``), which is what a calibration evaluates many times.
     """
 
-    def __init__(self, spec: SensorSpec, sonar: SonarConfig, seed: int = 0) -> None:
+    def __init__(self, spec: SensorSpec, sonar: SonarConfig, seed: int = 0, fields: bool = True) -> None:
         self.spec = spec
         self.sonar = sonar
         self.seed = int(seed)
@@ -97,15 +100,19 @@ class SensorModel:
         self._norm_b = _edge_norm(self.beam_leakage, sonar.n_beams)
         self._norm_r = _edge_norm(self.range_spread, sonar.n_range_bins)
         shape = (sonar.n_range_bins, sonar.n_beams)
-        self.pool = speckle_mod.SpecklePool(shape, self.range_amplitude, self.beam_amplitude, spec.speckle,
-                                            spec.noise is not None, self.seed)
-        if spec.speckle is None:
-            quantiles = None
-        elif spec.speckle.model == "rayleigh":
-            quantiles = output.exponential_quantiles()
-        else:
+        self.pool = speckle_mod.SpecklePool(shape, self.range_amplitude, self.beam_amplitude,
+                                            spec.speckle if fields else None, fields and spec.noise is not None,
+                                            self.seed)
+        if spec.speckle is None or spec.speckle.model == "rayleigh":
+            self.expected_output = output.expected_output(spec.output, spec.speckle is not None)
+        elif self.pool.speckle is not None:
             quantiles = output.empirical_quantiles(np.abs(self.pool.speckle[:, : shape[0], : shape[1]]) ** 2)
-        self.expected_output = output.ExpectedOutput(spec.output, quantiles)
+            self.expected_output = output.ExpectedOutput(spec.output, quantiles)
+        else:  # K speckle without its fields: its law from a field drawn for the purpose
+            f = speckle_mod.filter_field(speckle_mod.scatterer_amplitudes(np.random.default_rng(self.seed), shape,
+                                                                          spec.speckle),
+                                         self.range_amplitude, self.beam_amplitude)
+            self.expected_output = output.ExpectedOutput(spec.output, output.empirical_quantiles(np.abs(f) ** 2))
         out = spec.output
         self._comp = COMPRESSION_CODES[None if out is None else out.compression]
         self._fs = 1.0 if out is None else out.full_scale
@@ -268,7 +275,9 @@ class SensorModel:
         w = speckle_mod.scatterer_amplitudes(rng, x.shape, self.spec.speckle) if self.spec.speckle else 1.0
         a = speckle_mod.filter_field(np.sqrt(mu) * w, self.range_amplitude, self.beam_amplitude, circular=False)
         if self.spec.noise is not None:
-            a = a + math.sqrt(self.noise_power) * speckle_mod.complex_gaussian(rng, x.shape)
+            n = speckle_mod.filter_field(speckle_mod.complex_gaussian(rng, x.shape), self.range_amplitude,
+                                         self.beam_amplitude, circular=False)
+            a = a + math.sqrt(self.noise_power) * n
         return output.compress(self.tvg[:, None] * np.abs(a) ** 2, self.spec.output)
 
     # Helpers ------------------------------------------------------------------------------------

@@ -12,6 +12,8 @@ unit-mean intensity law: it is a function of mu alone, tabulated once per sensor
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ..config.sensor import OutputSpec
@@ -97,6 +99,12 @@ class ExpectedOutput:
         level = 10.0 * np.log10(np.maximum(np.asarray(mean_power, dtype=np.float64), 1e-30))
         x = (level - self.lo_db) / self.step_db
         return np.interp(x, np.arange(len(self.table)), self.table).astype(np.float32)
+
+
+@functools.lru_cache(maxsize=16)
+def expected_output(spec: OutputSpec | None, speckled: bool) -> ExpectedOutput:
+    """The (cached) table of an output chain for fully developed speckle (or none)."""
+    return ExpectedOutput(spec, exponential_quantiles() if speckled else None)
 
 
 def exponential_quantiles(n: int = QUANTILES) -> np.ndarray:

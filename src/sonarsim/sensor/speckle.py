@@ -122,7 +122,10 @@ class SpecklePool:
                       for _ in range(n_fields)]
             self.speckle = self._doubled(fields)
         if noise:
-            self.noise = self._doubled([complex_gaussian(rng, shape) for _ in range(n_fields)])
+            # Element noise reaches each beam through the beamformer: it is correlated across
+            # beams like the speckle (and band-limited like the pulse).
+            self.noise = self._doubled([filter_field(complex_gaussian(rng, shape), range_amplitude, beam_amplitude)
+                                        for _ in range(n_fields)])
 
     @staticmethod
     def _doubled(fields: list[np.ndarray]) -> np.ndarray:
