@@ -10,6 +10,11 @@ Measures, in one run on this machine:
 * for each, the bare ray-casting time of the very rays the frame cast (Embree alone, same
   threads), replayed outside the renderer, and the ratio frame time / bare casting time;
 * ``method: paper`` (Algorithm 2 literally) on (a), and the speed-up of the default over it;
+* the sensor stage (issue: at most 1 ms per 128 x 1288 frame): (a) without a sensor, with
+  ``sensor: {preset: aris3000-1800, elevation_pattern: false}`` (the same rays: the difference
+  is the stage) and with ``speckle=False``; the stage alone (``SensorModel.apply`` on the
+  frame's total, with speckle and expected); and the full preset, whose elevation pattern
+  widens the rays' span to 42 degrees (its cost is in ray casting);
 * peak memory (Python heap via tracemalloc, and the process's peak resident set);
 * sweeps: frame time against the number of rays, the number of triangles, the number of
   reflecting planes (order 3) and the path order (six planes).
@@ -155,6 +160,70 @@ def measure(name: str, scene, repeats: int) -> dict:
     }
 
 
+def interleaved(fns: dict, repeats: int, block: int = 5) -> dict:
+    """Median seconds of each callable, run in alternating blocks (as :func:`measure` does)."""
+    times: dict = {name: [] for name in fns}
+    for _ in range(max(1, repeats // block)):
+        for name, fn in fns.items():
+            for _ in range(block):
+                t = time.perf_counter()
+                fn()
+                times[name].append(time.perf_counter() - t)
+    return {name: statistics.median(ts) for name, ts in times.items()}
+
+
+SENSOR_PRESET = "aris3000-1800"
+
+
+def measure_sensor(demo: dict, repeats: int) -> dict:
+    """Cost of the sensor stage on the demo tank: frames with and without it, and the stage alone.
+
+    With ``elevation_pattern: false`` the sensor casts the very rays of the scene without one,
+    so the difference in frame time is the stage's; the stage is also timed alone, as the
+    renderer calls it (``SensorModel.apply`` on the frame's total, rows split with its worker).
+    The full preset's elevation pattern casts rays over a wider span: reported as a frame time.
+    """
+    with_sensor = copy.deepcopy(demo)
+    with_sensor["sensor"] = {"preset": SENSOR_PRESET, "elevation_pattern": False}
+    full = copy.deepcopy(demo)
+    full["sensor"] = {"preset": SENSOR_PRESET}
+    plain_sim, sensor_sim, full_sim = (sonarsim.Simulator(doc) for doc in (demo, with_sensor, full))
+    for sim in (plain_sim, sensor_sim, full_sim):
+        for _ in range(3):
+            sim.render(keep_rays=False)
+    total = np.array(sensor_sim.render(keep_rays=False, speckle=False).components["total"])
+    model = sensor_sim.sensor_model()
+    rng = np.random.default_rng(0)
+    pool = sensor_sim._pool
+    for _ in range(3):
+        model.apply(total, rng, True, pool=pool)
+        model.apply(total, rng, False, pool=pool)
+    t = interleaved({
+        "frame_no_sensor": lambda: plain_sim.render(keep_rays=False),
+        "frame_sensor": lambda: sensor_sim.render(keep_rays=False),
+        "frame_sensor_expected": lambda: sensor_sim.render(keep_rays=False, speckle=False),
+        "stage": lambda: model.apply(total, rng, True, pool=pool),
+        "stage_expected": lambda: model.apply(total, rng, False, pool=pool),
+        "frame_full_preset": lambda: full_sim.render(keep_rays=False),
+    }, repeats)
+    s = sensor_sim.scene.sonar
+    out = {
+        "preset": SENSOR_PRESET,
+        "image": f"{s.n_range_bins} x {s.n_beams}",
+        "primary_rays": sensor_sim.ray_fan(s).n_rays,
+        "primary_rays_full_preset": full_sim.ray_fan(full_sim.scene.sonar).n_rays,
+        "elevation_span_deg_full_preset": full_sim.sensor_model().elevation_span_deg(),
+    }
+    out.update({f"{k}_ms": 1e3 * v for k, v in t.items()})
+    out["frame_added_ms"] = out["frame_sensor_ms"] - out["frame_no_sensor_ms"]
+    out["frame_added_expected_ms"] = out["frame_sensor_expected_ms"] - out["frame_no_sensor_ms"]
+    out["stage_fraction_of_frame"] = t["stage"] / t["frame_sensor"]
+    out["stage_expected_fraction_of_frame"] = t["stage_expected"] / t["frame_sensor_expected"]
+    for sim in (plain_sim, sensor_sim, full_sim):
+        sim.close()
+    return out
+
+
 def peak_memory(scene) -> dict:
     tracemalloc.start()
     sim = sonarsim.Simulator(scene)
@@ -207,6 +276,9 @@ def main(argv=None) -> int:
     results["cases"].append(res_paper)
     results["speedup_fast_over_paper"] = res_paper["frame_ms"] / results["cases"][0]["frame_ms"]
 
+    results["sensor"] = measure_sensor(demo, 2 * repeats)  # sub-millisecond stage: more samples, cheap
+    print("  measured the sensor stage", file=sys.stderr)
+
     results["peak_memory_b"] = peak_memory(scene_with_mesh(n_mesh))
 
     # Sweeps: cost against rays (elevation samples) and against triangles.
@@ -250,6 +322,15 @@ def main(argv=None) -> int:
         print(f"{c['case']:<42} {c['image']:>11} {c['triangles']:>10,} {c['rays_per_frame']:>8,} "
               f"{c['frame_ms']:>9.2f} {c['fps']:>7.1f} {c['bare_cast_ms']:>8.2f} {c['frame_over_cast']:>10.2f}")
     print(f"speed-up of method fast over method paper: {results['speedup_fast_over_paper']:.2f}x")
+    r = results["sensor"]
+    print(f"sensor stage ({r['preset']}, {r['image']}, {r['primary_rays']:,} rays; medians, ms):")
+    print(f"  frame without a sensor {r['frame_no_sensor_ms']:.2f}; with the sensor, elevation_pattern false: "
+          f"{r['frame_sensor_ms']:.2f} (+{r['frame_added_ms']:.2f}), speckle=False {r['frame_sensor_expected_ms']:.2f} "
+          f"(+{r['frame_added_expected_ms']:.2f})")
+    print(f"  stage alone: {r['stage_ms']:.3f} ({100 * r['stage_fraction_of_frame']:.1f} % of the frame), "
+          f"expected output {r['stage_expected_ms']:.3f} ({100 * r['stage_expected_fraction_of_frame']:.1f} %)")
+    print(f"  full preset (elevation span {r['elevation_span_deg_full_preset']:g} deg, "
+          f"{r['primary_rays_full_preset']:,} rays): frame {r['frame_full_preset_ms']:.2f}")
     m = results["peak_memory_b"]
     print(f"peak memory, case b: Python heap {m['python_heap_peak_mb']:.0f} MB, process RSS {m['process_peak_rss_mb']:.0f} MB")
     print("\nrays per frame -> frame ms (bare cast ms)")

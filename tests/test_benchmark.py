@@ -25,6 +25,15 @@ def test_benchmark_runs_at_tiny_sizes(tmp_path):
         assert c["frame_over_cast"] == c["frame_ms"] / c["bare_cast_ms"]
     assert res["speedup_fast_over_paper"] > 0
     assert res["peak_memory_b"]["process_peak_rss_mb"] > 0
+    # The sensor stage: frames with and without it, the stage alone, the full preset's wider span.
+    sensor = res["sensor"]
+    for key in ("frame_no_sensor_ms", "frame_sensor_ms", "frame_sensor_expected_ms", "stage_ms", "stage_expected_ms",
+                "frame_full_preset_ms"):
+        assert sensor[key] > 0, key
+    assert sensor["stage_fraction_of_frame"] == sensor["stage_ms"] / sensor["frame_sensor_ms"]
+    assert sensor["elevation_span_deg_full_preset"] == 42.0
+    assert sensor["primary_rays_full_preset"] >= sensor["primary_rays"] > 0
+    assert "sensor stage" in proc.stdout
     assert len(res["sweep_rays"]) >= 2 and len(res["sweep_triangles"]) >= 2
     # The sweeps really vary what they claim to.
     rays = [r["rays_per_frame"] for r in res["sweep_rays"]]

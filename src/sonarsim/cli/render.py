@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .argtypes import finite_float, positive_float
+from .argtypes import finite_float, frame_index, positive_float
 
 __all__ = ["add_image_options", "add_render_options", "add_render_parser", "cmd_render", "options_named",
            "render_and_write"]
@@ -68,6 +68,14 @@ def add_render_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("scene", help="scene file (YAML or JSON)")
     p.add_argument("--out", required=True, help="output folder (created if missing)")
     add_render_options(p)
+    g = p.add_argument_group("sensor")
+    g.add_argument("--no-speckle", action="store_true",
+                   help="no random draws: with a sensor section, its expected (mean) output; without, the "
+                   "noise-free total even when render.speckle is on")
+    g.add_argument("--frame", type=frame_index, default=None, metavar="N",
+                   help="frame index: speckle and noise are drawn from (render.seed, N), as frame N of a "
+                   "sequence would be (default: the first frame of the simulator's own generator; "
+                   "sensor.speckle.anchor: world draws from the pose instead)")
     add_image_options(p)
     p.set_defaults(func=cmd_render)
     return p
@@ -122,7 +130,9 @@ def render_and_write(scene, out: Path, args):
     t0 = time.perf_counter()
     sim = Simulator(scene, backend=args.backend)
     t1 = time.perf_counter()
-    image = sim.render()
+    # ``demo`` has neither option: its render draws as configured.
+    image = sim.render(speckle=False if getattr(args, "no_speckle", False) else None,
+                       frame=getattr(args, "frame", None))
     t2 = time.perf_counter()
     s = image.sonar
     _log(f"scene built in {t1 - t0:.3f} s; rendered {s.n_range_bins} x {s.n_beams} image "
