@@ -32,17 +32,17 @@ def test_gamma_for_contrast_inverts_the_closed_form():
 
 
 def test_calibration_recovers_gain_noise_and_elevation_width_of_a_synthetic_recording():
-    truth = {**STARTING_SENSOR, "gain_db": 20.0, "noise": {"level_db": 95.0}, "bang": False,
+    truth = {**STARTING_SENSOR, "gain_db": 20.0, "noise": {"level_db": 100.0}, "bang": False,
              "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 16.0, "span_deg": 60.0},
              "azimuth_pattern": {"shape": "gaussian", "width_deg": 1.2},
              "output": {"compression": "gamma", "gamma": 0.3, "ceiling_db": 160.0, "dtype": "uint8"}}
     real = sonarsim.render(floor_scene(truth))  # a speckled 8-bit frame
-    start = {**truth, "gain_db": 8.0, "noise": {"level_db": 85.0},
+    start = {**truth, "gain_db": 8.0, "noise": {"level_db": 90.0},
              "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 10.0}}
     scene = sonarsim.load_scene(floor_scene(start))
     res = calibrate(real, scene, free=(), max_iterations=300)
     assert res.values["gain_db"] == pytest.approx(20.0, abs=1.5)
-    assert res.values["noise_db"] == pytest.approx(95.0, abs=3.0)
+    assert res.values["noise_db"] == pytest.approx(100.0, abs=3.0)
     assert res.values["elevation_width_deg"] == pytest.approx(16.0, abs=1.5)
     assert res.scene.sensor.output.gamma == pytest.approx(0.3, abs=0.05)
     assert res.values["azimuth_width_deg"] == pytest.approx(1.2, rel=0.25)

@@ -23,25 +23,28 @@ def test_each_law_is_its_formula_at_known_angles():
     c = np.cos(alpha)
     lam, lmb, rough, _ = MATERIALS
     np.testing.assert_allclose(lam.evaluate(c), 0.6 * c, rtol=1e-15)
-    np.testing.assert_allclose(lmb.evaluate(c), 0.002 * c**2, rtol=1e-15)
-    # cos(60 deg) = 1/2: Lambert's law is a quarter of mu, the paper's half of rho.
-    assert lmb.evaluate(0.5) == pytest.approx(0.0005) and lam.evaluate(0.5) == pytest.approx(0.3)
-    lobe = 2.0 * np.exp(-np.tan(alpha) ** 2 / (2 * 0.15**2)) / np.cos(alpha) ** 4
+    # Per unit area sigma = mu cos^2; a ray's footprint grows as 1 / cos: per ray mu cos.
+    np.testing.assert_allclose(lmb.evaluate(c) * c, 0.002 * c**2, rtol=1e-15)
+    # cos(60 deg) = 1/2: per unit area Lambert's law is a quarter of mu, per ray a half.
+    assert lmb.evaluate(0.5) == pytest.approx(0.001) and lam.evaluate(0.5) == pytest.approx(0.3)
+    lobe = 2.0 * np.exp(-np.tan(alpha) ** 2 / (2 * 0.15**2)) / np.cos(alpha) ** 4 / np.cos(alpha)
     np.testing.assert_allclose(rough.evaluate(c), 0.3 * c + lobe, rtol=1e-12)
     assert rough.evaluate(1.0) == pytest.approx(0.3 + 2.0)
     assert rough.evaluate(0.0) == 0.0 and lmb.evaluate(0.0) == 0.0
 
 
-def test_lambert_over_lambertian_is_mu_over_rho_times_cos():
+def test_lambert_over_lambertian_is_mu_over_rho_at_every_angle():
+    # The paper's rho cos per ray is Lambert's law per unit area: the same angular law.
     c = np.cos(np.radians(np.linspace(0.0, 89.0, 50)))
     ratio = Material("lambert", mu=0.01).evaluate(c) / Material.lambertian(0.5).evaluate(c)
-    np.testing.assert_allclose(ratio, 0.02 * c, rtol=1e-14)
+    np.testing.assert_allclose(ratio, 0.02, rtol=1e-14)
 
 
 @pytest.mark.parametrize("s", [0.02, 0.1, 0.3, MAX_ROUGHNESS])
 def test_the_lobe_peaks_at_normal_incidence(s):
     alpha = np.radians(np.linspace(0.0, 89.9, 2000))
-    lobe = specular_lobe(np.cos(alpha), np.full(alpha.shape, s))
+    # Per unit area: the per-ray lobe times the footprint's cos(alpha).
+    lobe = specular_lobe(np.cos(alpha), np.full(alpha.shape, s)) * np.cos(alpha)
     assert lobe[0] == 1.0
     assert np.all(np.diff(lobe) <= 1e-12)  # falls monotonically away from normal incidence
     assert lobe[-1] < 1e-6
@@ -54,7 +57,7 @@ def test_the_lobe_peaks_at_normal_incidence(s):
 def test_rougher_than_allowed_would_peak_off_normal():
     # Why roughness stops at 1/2: the slope density no longer beats the 1/cos^4 Jacobian.
     c = np.cos(np.radians([0.0, 20.0]))
-    lobe = specular_lobe(c, np.full(2, 0.8))
+    lobe = specular_lobe(c, np.full(2, 0.8)) * c  # per unit area
     assert lobe[1] > lobe[0]
 
 

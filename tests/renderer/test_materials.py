@@ -39,7 +39,7 @@ def test_wall_matches_the_integral_of_the_law(law):
     theta = np.radians(img.azimuth_deg)
     a = math.radians(elev) / 2
     if law == "lambert":
-        expected = 0.01 * np.cos(theta) ** 2 * (a + math.sin(a) * math.cos(a))  # closed form
+        expected = 0.01 * np.cos(theta) * 2 * math.sin(a)  # closed form: mu cos(alpha) per ray
     else:
         phi = np.linspace(-a, a, 20001)
         f = Material(**LAWS[law]).evaluate(np.cos(phi)[None, :] * np.cos(theta)[:, None])
@@ -91,8 +91,8 @@ def test_the_rough_lobe_peaks_at_normal_incidence():
 
 
 def test_lambert_floor_against_lambertian_floor_ray_by_ray():
-    # The floor z = 0 seen from height h: cos(alpha) = h / r. Lambert's mu cos^2 over the paper's
-    # rho cos is (mu / rho) h / r on every ray.
+    # Lambert's law per unit area (mu cos^2) is the paper's rho cos per ray with rho = mu: on
+    # every ray of a floor the ratio is mu / rho, whatever the incidence.
     h, mu, rho = 1.0, 0.01, 0.5
     base = {
         "sonar": sonar_dict(pose={"position_m": [0.0, 0.0, h], "rpy_deg": [0.0, 25.0, 0.0]}),
@@ -107,7 +107,7 @@ def test_lambert_floor_against_lambertian_floor_ray_by_ray():
     assert hit.sum() > 1000
     np.testing.assert_array_equal(r, lmb.rays.distance_m)
     ratio = lmb.rays.intensity[hit] / lam.rays.intensity[hit]
-    np.testing.assert_allclose(ratio, mu / rho * h / r[hit], rtol=2e-5)
+    np.testing.assert_allclose(ratio, mu / rho, rtol=2e-5)
 
 
 def test_material_lambertian_is_the_albedo_shorthand_bit_for_bit():

@@ -1,17 +1,22 @@
 """Materials: the backscatter law of a surface (an object, a plane, the ground).
 
-A ray of weight ``w = beta(theta, phi) * dphi`` that meets a surface at incidence ``alpha``
-(the angle between the ray and the surface normal) scatters ``w * l(r) * f(alpha)`` back to the
-sonar (paper Eq. 3-6), where ``f`` is the surface's backscatter law, dimensionless, in the
-paper's units (per ray: the ray's footprint is not part of ``f``):
+A law is a backscattering cross-section per unit area and unit solid angle, ``sigma(alpha)``
+(dimensionless; ``10 log10 sigma`` is the backscattering strength, the quantity sea-bed
+measurements report), at incidence ``alpha`` (the angle between the ray and the surface
+normal). A ray of weight ``w = beta(theta, phi) * dphi`` meets an area that grows as
+``1 / cos(alpha)`` (``dA = r^2 dOmega / cos(alpha)``), so it carries
+``w * l(r) * f(alpha)`` with ``f = sigma / cos(alpha)`` (paper Eq. 3-6 with ``f = rho cos``):
 
 ``lambertian`` (the paper's, the default)
-    ``f = albedo * cos(alpha)``.
+    ``sigma = albedo * cos(alpha)**2``, i.e. ``f = albedo * cos(alpha)``: the paper's
+    ``rho cos(alpha)`` per ray is Lambert's law per unit area.
 ``lambert`` (Lambert's law for sea beds, Mackenzie 1961)
-    ``f = mu * cos(alpha)**2``; ``mu`` linear, or ``mu_db = 10 log10(mu)`` (Mackenzie measured
-    about -27 dB at 24 kHz in deep water; sandy and muddy beds range over roughly -40 to -15 dB).
+    ``sigma = mu * cos(alpha)**2``, i.e. ``f = mu * cos(alpha)``: the same angular law as the
+    paper's, given by the measured parameter ``mu`` (linear) or ``mu_db = 10 log10(mu)``
+    (Mackenzie measured about -27 dB at 24 kHz in deep water; sandy and muddy beds range over
+    roughly -40 to -15 dB). With ``mu = albedo`` the two laws give the same image.
 ``rough`` (a rough surface: a diffuse part and a specular lobe, for smooth objects)
-    ``f = albedo * cos(alpha) + specular_strength * exp(-tan(alpha)**2 / (2 s**2)) / cos(alpha)**4``
+    ``sigma = albedo * cos(alpha)**2 + specular_strength * exp(-tan(alpha)**2 / (2 s**2)) / cos(alpha)**4``
     with ``s = roughness``. The lobe is the Kirchhoff (geometric-optics, facet) backscatter of
     a surface whose facet slopes are Gaussian with rms slope ``s`` along each axis: only facets
     facing the sonar reflect back, their density falls as ``exp(-tan^2 / 2 s^2)``, and the
@@ -21,12 +26,8 @@ paper's units (per ray: the ray's footprint is not part of ``f``):
     incidence for ``s <= 1/2`` (rms slope up to about 27 degrees), the range allowed: rougher
     surfaces are no longer "smooth objects" and the single-facet picture fails.
 
-A note on units: a ray of elevation width ``dphi`` meets an area that grows as
-``1 / cos(alpha)``, and ``f`` does not include that footprint. A backscattering cross-section
-per unit area and solid angle ``sigma(alpha)`` (the quantity of Mackenzie's measurements) gives
-``f = sigma / cos(alpha)``: the paper's ``rho cos(alpha)`` is ``sigma = rho cos^2(alpha)`` per
-unit area, Lambert's form, while ``lambert`` here, ``mu cos^2(alpha)`` per ray as specified, is
-``sigma = mu cos^3(alpha)`` per unit area. Compare ``mu`` with measured values with this in mind.
+The sensor stage (:mod:`sonarsim.sensor`) reads the image formed with these laws as
+``sigma / r^2`` summed over each bin, so its target strengths are those of the laws' sigma.
 
 A texture (``texture: true``, objects with a textured mesh only) scales the diffuse part
 (``albedo`` or ``mu``) by the brightness in [0, 1] of the texel the ray meets; the specular lobe
@@ -136,7 +137,8 @@ class Material:
         return (float(self.specular_strength), float(self.roughness))
 
     def evaluate(self, cos_incidence, texel=None) -> np.ndarray:
-        """The law ``f(alpha)`` itself, from its formula (the reference the renderer is tested against).
+        """The per-ray law ``f(alpha) = sigma(alpha) / cos(alpha)``, from its formula (the reference
+        the renderer is tested against).
 
         Parameters
         ----------
@@ -151,14 +153,12 @@ class Material:
         """
         c = np.clip(np.asarray(cos_incidence, dtype=np.float64), 0.0, 1.0)
         coef = self.coefficient * (1.0 if texel is None else np.asarray(texel, dtype=np.float64))
-        if self.law == "lambertian":
+        if self.law in ("lambertian", "lambert"):
             return coef * c
-        if self.law == "lambert":
-            return coef * c**2
         strength, s = self.lobe
         alpha = np.arccos(c)
         with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-            lobe = np.exp(-np.tan(alpha) ** 2 / (2.0 * s**2)) / np.cos(alpha) ** 4
+            lobe = np.exp(-np.tan(alpha) ** 2 / (2.0 * s**2)) / np.cos(alpha) ** 5
         return coef * c + strength * np.where(c > 0, np.nan_to_num(lobe, nan=0.0, posinf=0.0), 0.0)
 
     def to_dict(self) -> dict:

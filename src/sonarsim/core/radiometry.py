@@ -18,7 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..config.materials import LAMBERT, LAMBERTIAN, ROUGH, Material
+from ..config.materials import LAMBERTIAN, ROUGH, Material
 
 
 @dataclass(frozen=True)
@@ -70,7 +70,9 @@ class SurfaceLaws:
 
 
 def specular_lobe(cos_incidence: np.ndarray, roughness: np.ndarray) -> np.ndarray:
-    """The Kirchhoff lobe ``exp(-tan(alpha)**2 / (2 s**2)) / cos(alpha)**4``, 1 at normal incidence.
+    """The Kirchhoff lobe per ray, ``exp(-tan(alpha)**2 / (2 s**2)) / cos(alpha)**5``, 1 at normal incidence.
+
+    (Per unit area the lobe falls as ``1 / cos^4``; a ray's footprint adds ``1 / cos``.)
 
     Parameters
     ----------
@@ -88,7 +90,7 @@ def specular_lobe(cos_incidence: np.ndarray, roughness: np.ndarray) -> np.ndarra
     c2 = c * c
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         t2 = (1.0 - c2) / c2
-        out = np.exp(-t2 / (2.0 * s * s)) / (c2 * c2)
+        out = np.exp(-t2 / (2.0 * s * s)) / (c2 * c2 * c)
     return np.where((c2 > 0) & (s > 0), out, 0.0)
 
 
@@ -137,7 +139,7 @@ def backscatter(
     c = np.asarray(cos_incidence).astype(np.float64)
     diffuse = w * coefficient * c
     lobe = laws.lobe[index]
-    out = np.where(law == LAMBERT, diffuse * c, diffuse)
+    out = diffuse  # lambertian and lambert: the same per-ray form (see config.materials)
     rough = law == ROUGH
     if np.any(rough):
         out = np.where(rough, w * (coefficient * c + lobe[..., 0] * specular_lobe(c, lobe[..., 1])), out)

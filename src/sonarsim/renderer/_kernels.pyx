@@ -37,13 +37,13 @@ cdef inline double scatter(double w, double coef, int law, const double* lobe, d
     cdef double c2, c4, s
     if law == LAMBERTIAN:
         return w * coef * c
-    if law == LAMBERT:
-        return w * coef * c * c
+    if law == LAMBERT:  # Lambert's law per unit area, mu cos^2: per ray mu cos, the paper's form
+        return w * coef * c
     c2 = c * c
     c4 = c2 * c2
     s = lobe[1]
-    if c4 > 0 and s > 0:
-        return w * (coef * c + lobe[0] * (exp(-((1.0 - c2) / c2) / (2.0 * s * s)) / c4))
+    if c4 > 0 and s > 0:  # the lobe per unit area over cos(alpha): per ray
+        return w * (coef * c + lobe[0] * (exp(-((1.0 - c2) / c2) / (2.0 * s * s)) / (c4 * c)))
     return w * (coef * c + lobe[0] * 0.0)
 
 

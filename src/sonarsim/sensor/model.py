@@ -6,7 +6,7 @@ receives, ``sigma / r^2`` summed over the bin):
 1. the receive beams' azimuth sidelobes leak each beam's echo into its neighbours, and the
    pulse spreads it over neighbouring range bins: ``M = K_range * (K_beams * X)`` (powers);
 2. the sonar equation makes it an echo power at the receiver: ``mu = g(r) M + bang(r)``,
-   ``10 log10 g = SL - 20 log10 r - 2 alpha r + 10 log10(dtheta / pi) + TS_offset``
+   ``10 log10 g = SL - 20 log10 r - 2 alpha r + 10 log10(dtheta) + TS_offset``
    (:func:`~sonarsim.sensor.acoustics.echo_level_offset_db`);
 3. speckle and noise are complex amplitudes: ``a = sqrt(mu) F + sqrt(N) W``, F the speckle
    field (unit power, filtered by the pulse and the beam: its grain is the resolution cell), W
@@ -83,9 +83,9 @@ class SensorModel:
             self.bang = np.zeros(len(r), np.float32)
         else:
             self.bang = (10.0 ** (spec.bang.level_db / 10.0) * np.exp(-r / spec.bang.length_m)).astype(np.float32)
-        # The image holds backscatter per radian of elevation, summed over each beam's width:
-        # its beam width (radians) over pi completes sigma / r^2 (a Lambertian rho = pi mu).
-        self.column_factor = (np.radians(sonar.effective_beam_width_deg()) / math.pi).astype(np.float32)
+        # The image holds backscatter per radian of elevation (sigma / cos(alpha) dphi per ray,
+        # see config.materials); times each beam's width in radians it is sigma / r^2.
+        self.column_factor = np.radians(sonar.effective_beam_width_deg()).astype(np.float32)
         spacing = float(np.median(np.abs(np.diff(sonar.azimuth_deg)))) if sonar.n_beams > 1 else 1.0
         default_width = float(np.median(sonar.effective_beam_width_deg()))
         if spec.azimuth_pattern is None:
