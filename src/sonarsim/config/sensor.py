@@ -162,8 +162,9 @@ class PatternSpec:
         ``table`` only: the CSV file (relative to the scene file), angle_deg and gain_db
         columns, gain 0 dB on axis.
     leakage_beams : int or None
-        Azimuth only: how many beams either side a beam's sidelobes reach. Default: eight
-        -3 dB widths (a uniform array's sidelobes are then below -28 dB), at most 256.
+        Azimuth only: how many beams either side a beam's sidelobes reach. Default: as far as
+        the leakage stays above -40 dB of the main beam, at most eight -3 dB widths (a uniform
+        array's sidelobes are then below -28 dB) and 256 beams.
     """
 
     shape: str = "line"

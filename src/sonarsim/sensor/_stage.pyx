@@ -135,7 +135,16 @@ def combine(const float[:, ::1] mean, const float[::1] echo_gain, const float[::
                         frac = x - k
                         out[i, j] = table[k] + frac * (table[k + 1] - table[k])
                 continue
-            if has_speckle:
+            if has_speckle and has_noise:
+                f = &speckle[s_row + i, 2 * s_beam]
+                w = &noise[n_row + i, 2 * n_beam]
+                for j in range(n_b):
+                    mu = g * mean[i, j] + b
+                    s = sqrtf(mu if mu > TINY else 0.0)
+                    re = s * f[2 * j] + sn * w[2 * j]
+                    im = s * f[2 * j + 1] + sn * w[2 * j + 1]
+                    p[j] = re * re + im * im
+            elif has_speckle:
                 f = &speckle[s_row + i, 2 * s_beam]
                 for j in range(n_b):
                     mu = g * mean[i, j] + b
@@ -143,14 +152,6 @@ def combine(const float[:, ::1] mean, const float[::1] echo_gain, const float[::
                     re = s * f[2 * j]
                     im = s * f[2 * j + 1]
                     p[j] = re * re + im * im
-                if has_noise:
-                    w = &noise[n_row + i, 2 * n_beam]
-                    for j in range(n_b):
-                        mu = g * mean[i, j] + b
-                        s = sqrtf(mu if mu > TINY else 0.0)
-                        re = s * f[2 * j] + sn * w[2 * j]
-                        im = s * f[2 * j + 1] + sn * w[2 * j + 1]
-                        p[j] = re * re + im * im
             elif has_noise:
                 w = &noise[n_row + i, 2 * n_beam]
                 for j in range(n_b):

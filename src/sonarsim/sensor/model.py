@@ -175,6 +175,8 @@ class SensorModel:
         x = np.ascontiguousarray(image, dtype=np.float32)
         if _stage is None:
             return self.mean_image_reference(x)
+        if len(self._kb) == 1 and len(self._kr) == 1:  # no leakage, no pulse: the beam's width only
+            return x * (self.column_factor * self._kb[0])[None, :]
         tmp, out = self._buffers(x.shape)
         self._rows(pool, x.shape[0], lambda a, b: _stage.blur_beams(x, self.column_factor, self._kb, self._norm_b, tmp, a, b))
         self._rows(pool, x.shape[0], lambda a, b: _stage.blur_range(tmp, self._kr, self._norm_r, out, a, b))

@@ -20,7 +20,8 @@ from ..config.sensor import MAX_KERNEL_HALF_WIDTH, PatternSpec
 from ..errors import ConfigError
 
 APERTURE_SAMPLES = 512  # midpoint samples of the aperture weighting: far more than any sidelobe needs
-LEAKAGE_WIDTHS = 8.0  # default reach of the azimuth leakage, in -3 dB beam widths
+LEAKAGE_WIDTHS = 8.0  # default reach of the azimuth leakage, in -3 dB beam widths, at most
+LEAKAGE_FLOOR = 1e-4  # ... and no farther than its power stays above this fraction of the peak (-40 dB)
 
 # Weightings as functions of the position x in [-1/2, 1/2] along the aperture.
 _COSINE_WINDOWS = {"rect": (1.0,), "hann": (0.5, 0.5), "hamming": (0.54, 0.46), "blackman": (0.42, 0.5, 0.08)}
@@ -132,6 +133,13 @@ def azimuth_kernels(spec: PatternSpec, beam_spacing_deg: float, default_width_de
     sub = (np.arange(oversample) + 0.5) / oversample - 0.5
     offsets = np.radians((m[:, None] + sub[None, :]) * beam_spacing_deg)
     leakage = pattern_gain(offsets, spec, default_width_deg, ways=1).mean(axis=1)
+    if spec.leakage_beams is None:
+        # Beyond where every beam's leakage is below LEAKAGE_FLOOR of the main beam, stop:
+        # a window's fast-falling sidelobes need fewer beams than a uniform array's.
+        strong = np.flatnonzero(leakage > LEAKAGE_FLOOR * leakage.max())
+        reach = int(np.abs(m[strong]).max())
+        keep = slice(k - reach, k + reach + 1)
+        leakage, m = leakage[keep], m[keep]
     leakage /= leakage.sum()
     amp = np.sqrt(pattern_gain(np.radians(m * beam_spacing_deg), spec, default_width_deg, ways=1))
     if spec.shape == "line":  # keep the sign of the sidelobes (the amplitude is real and symmetric)
