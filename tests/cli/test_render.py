@@ -67,3 +67,20 @@ def test_demo_with_a_lower_max_order_writes_every_figure(tmp_path, capsys):
         for name in ("ground_echo.png", "tank.yaml", "multipath.png"):
             assert (out / name).is_file(), (order, name)
         assert yaml.safe_load((out / "tank.yaml").read_text())["render"]["max_order"] == int(order)
+
+
+def test_demo_shows_the_tank_as_an_aris_3000_records_it(demo_dir: Path) -> None:  # noqa: F811
+    import sonarsim
+
+    doc = yaml.safe_load((demo_dir / "scene_aris3000.yaml").read_text())
+    assert doc["sensor"] == {"preset": "aris3000-1800"}
+    img = sonarsim.render(doc)
+    # The scene file renders 8-bit frames: integers with a floor echo mid-scale, not saturated.
+    assert np.all(img.polar == np.round(img.polar)) and img.polar.max() <= 255
+    lit = img.components["total"] > np.percentile(img.components["total"], 90)
+    assert 80 < np.median(img.polar[lit]) < 230
+    with Image.open(demo_dir / "aris3000.png") as im:
+        im.load()
+        a = np.asarray(im)
+    thirds = np.array_split(a[40:], 3, axis=1)  # under the titles: ideal | recorded | expected
+    assert all(((t > 100) & (t < 255)).sum() > 1000 for t in thirds)

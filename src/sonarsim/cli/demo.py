@@ -109,7 +109,8 @@ def add_demo_parser(subparsers: Any) -> argparse.ArgumentParser:
                               "polar.png, fan.png, render.npz and ground_echo.png (fan views of single, single + triple "
                               "and all bounces side by side, as in the paper's Fig. 9) into --out; then a tank with a water "
                               "surface and walls: tank.yaml and multipath.png (all paths, direct echoes, the surface's and "
-                              "the walls' ghosts).")
+                              "the walls' ghosts); then the first scene as an ARIS 3000 records it (sensor model: beam "
+                              "patterns, speckle, noise, TVG, 8-bit output): scene_aris3000.yaml and aris3000.png.")
     p.add_argument("--out", default="sonarsim-demo", help="output folder (default: ./sonarsim-demo)")
     add_render_options(p)
     add_image_options(p)
@@ -168,3 +169,17 @@ def cmd_demo(args) -> None:
     write_png(out / "multipath.png", figure)
     _log(f"wrote {out / 'tank.yaml'} and {out / 'multipath.png'} "
          "(fan views: all paths | direct echoes | via the water surface | via a wall)")
+
+    # The demo scene once more, through the sensor model of an ARIS 3000 at 1.8 MHz.
+    from ..io.figures import sensor_comparison
+
+    aris = {**doc, "sensor": {"preset": "aris3000-1800"}}
+    with options_named(args):
+        aris_scene = scene_from_dict(aris)
+    with atomic_write(out / "scene_aris3000.yaml", "w") as f:
+        yaml.safe_dump(aris, f, sort_keys=False)
+    with Simulator(aris_scene, backend=args.backend) as sim:
+        recorded, expected = sim.render(), sim.render(speckle=False)
+    write_png(out / "aris3000.png", sensor_comparison(recorded, expected, "an ARIS 3000", 255.0, args.pixel_size))
+    _log(f"wrote {out / 'scene_aris3000.yaml'} and {out / 'aris3000.png'} "
+         "(fan views: ideal | as an ARIS 3000 records it, 8-bit | its expected output)")

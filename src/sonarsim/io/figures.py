@@ -111,3 +111,63 @@ def multipath_comparison(image, pixel_size_m: float | None = None, mapping: str 
         canvas.paste(Image.fromarray(tile), (x, y + title_px))
         draw.text((x + 6, y + 4), title, fill=0, font=font)
     return np.asarray(canvas)
+
+
+def labelled_row(tiles: list[np.ndarray], titles: list[str], gap_px: int = 10, title_px: int = 30) -> np.ndarray:
+    """uint8 tiles of one height side by side, each under its title (white background)."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    h = max(t.shape[0] for t in tiles)
+    try:
+        font = ImageFont.load_default(size=max(10, title_px * 2 // 3))
+    except (OSError, TypeError):  # Pillow without FreeType: the small bitmap font
+        font = ImageFont.load_default()
+    width = sum(t.shape[1] for t in tiles) + gap_px * (len(tiles) - 1)
+    canvas = Image.new("L", (width, h + title_px), 255)
+    draw = ImageDraw.Draw(canvas)
+    x = 0
+    for tile, title in zip(tiles, titles):
+        canvas.paste(Image.fromarray(tile), (x, title_px))
+        draw.text((x + 6, 4), title, fill=0, font=font)
+        x += tile.shape[1] + gap_px
+    return np.asarray(canvas)
+
+
+def device_tile(polar: np.ndarray, image, full_scale: float, pixel_size_m: float | None = None) -> np.ndarray:
+    """Fan view of an image in a device's units, shown as they are (0..full scale -> 0..255)."""
+    from ..image.fan import FanMapper
+
+    s = image.sonar
+    fan = FanMapper(s.n_range_bins, s.range_min_m, s.range_max_m, image.azimuth_deg, pixel_size_m)(
+        np.asarray(polar, dtype=np.float64))
+    tile = np.clip(fan.image / full_scale * 255.0, 0, 255).astype(np.uint8)
+    tile[~fan.mask] = OUTSIDE_FAN_GREY
+    return tile
+
+
+def sensor_comparison(recorded, expected, device: str, full_scale: float, pixel_size_m: float | None = None,
+                      dynamic_range_db: float = 40.0) -> np.ndarray:
+    """The renderer's ideal image | as the device records it | the device's expected output.
+
+    Parameters
+    ----------
+    recorded : SonarImage
+        A render with a sensor (``polar`` in device units; ``components["total"]`` ideal).
+    expected : SonarImage
+        The same frame with ``speckle=False``.
+    device : str
+        Its name, for the titles.
+    full_scale : float
+        The device's largest value (255 for 8-bit).
+    """
+    from ..image.fan import FanMapper
+
+    s = recorded.sonar
+    fan = FanMapper(s.n_range_bins, s.range_min_m, s.range_max_m, recorded.azimuth_deg, pixel_size_m)(
+        np.asarray(recorded.components["total"], dtype=np.float64))
+    ideal = to_uint8(fan.image, "db", 0.0, dynamic_range_db, mask=fan.mask)
+    ideal[~fan.mask] = OUTSIDE_FAN_GREY
+    tiles = [ideal, device_tile(recorded.polar, recorded, full_scale, pixel_size_m),
+             device_tile(expected.polar, expected, full_scale, pixel_size_m)]
+    return labelled_row(tiles, ["ideal (the paper's model, dB)", f"as {device} records it",
+                                f"{device}: expected (no speckle)"])
