@@ -11,7 +11,7 @@ Measures, in one run on this machine:
   threads), replayed outside the renderer, and the ratio frame time / bare casting time;
 * ``method: paper`` (Algorithm 2 literally) on (a), and the speed-up of the default over it;
 * the sensor stage (issue: at most 1 ms per 128 x 1288 frame): (a) without a sensor, with
-  ``sensor: {preset: aris3000-1800, elevation_pattern: false}`` (the same rays: the difference
+  ``sensor: {preset: aris3000-64, elevation_pattern: false}`` (the same rays: the difference
   is the stage) and with ``speckle=False``; the stage alone (``SensorModel.apply`` on the
   frame's total, with speckle and expected); and the full preset, whose elevation pattern
   widens the rays' span to 42 degrees (its cost is in ray casting);
@@ -172,7 +172,7 @@ def interleaved(fns: dict, repeats: int, block: int = 5) -> dict:
     return {name: statistics.median(ts) for name, ts in times.items()}
 
 
-SENSOR_PRESET = "aris3000-1800"
+SENSOR_PRESET = "aris3000-64"
 
 
 def measure_sensor(demo: dict, repeats: int) -> dict:

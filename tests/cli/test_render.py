@@ -73,7 +73,7 @@ def test_demo_shows_the_tank_as_an_aris_3000_records_it(demo_dir: Path) -> None:
     import sonarsim
 
     doc = yaml.safe_load((demo_dir / "scene_aris3000.yaml").read_text())
-    assert doc["sensor"] == {"preset": "aris3000-1800"}
+    assert doc["sensor"] == {"preset": "aris3000-128"}
     img = sonarsim.render(doc)
     # The scene file renders 8-bit frames: integers with a floor echo mid-scale, not saturated.
     assert np.all(img.polar == np.round(img.polar)) and img.polar.max() <= 255

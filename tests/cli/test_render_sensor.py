@@ -32,7 +32,7 @@ def _render(scene: Path, out: Path, *options: str) -> np.ndarray:
 
 
 def test_no_speckle_writes_the_sensors_expected_output(tmp_path, capsys):
-    scene = _scene(tmp_path, sensor={"preset": "aris3000-1800"})
+    scene = _scene(tmp_path, sensor={"preset": "aris3000-64"})
     a = _render(scene, tmp_path / "a", "--no-speckle")
     b = _render(scene, tmp_path / "b", "--no-speckle")
     np.testing.assert_array_equal(a, b)
@@ -46,7 +46,7 @@ def test_no_speckle_writes_the_sensors_expected_output(tmp_path, capsys):
 
 
 def test_without_no_speckle_a_sensor_writes_device_counts(tmp_path, capsys):
-    scene = _scene(tmp_path, sensor={"preset": "aris3000-1800"})
+    scene = _scene(tmp_path, sensor={"preset": "aris3000-64"})
     p = _render(scene, tmp_path / "s")
     assert p.min() >= 0 and p.max() <= 255 and (p > 0).any()
     np.testing.assert_array_equal(p, np.round(p))
@@ -55,7 +55,7 @@ def test_without_no_speckle_a_sensor_writes_device_counts(tmp_path, capsys):
 
 def test_frame_draws_the_frames_speckle(tmp_path, capsys):
     # Frame-anchored speckle: the frame index (with render.seed) chooses the draws.
-    scene = _scene(tmp_path, sensor={"preset": "aris3000-1800", "speckle": {"anchor": "frame"}})
+    scene = _scene(tmp_path, sensor={"preset": "aris3000-64", "speckle": {"anchor": "frame"}})
     f3 = _render(scene, tmp_path / "f3", "--frame", "3")
     np.testing.assert_array_equal(f3, _render(scene, tmp_path / "f3b", "--frame", "3"))
     assert not np.array_equal(f3, _render(scene, tmp_path / "f4", "--frame", "4"))

@@ -231,7 +231,7 @@ def test_config_errors_name_the_key(tmp_path):
 
 
 def test_sensor_section_round_trips_and_presets_merge():
-    spec = parse_sensor({"preset": "aris3000-1800", "noise": {"level_db": 50}, "bang": False})
+    spec = parse_sensor({"preset": "aris3000-64", "noise": {"level_db": 50}, "bang": False})
     assert spec.noise.level_db == 50 and spec.bang is None and spec.speckle is not None
     from dataclasses import replace
     assert parse_sensor(spec.to_dict()) == replace(spec, preset=None)

@@ -97,7 +97,7 @@ def test_pool_speckle_matches_fresh_scatterers_on_a_uniform_scene():
 
 # Compiled loops against their NumPy twins --------------------------------------------------
 
-FULL = {"preset": "aris3000-1800"}
+FULL = {"preset": "aris3000-64"}
 
 
 @pytest.fixture(scope="module")
@@ -191,7 +191,7 @@ def tank(sensor=None, **render):
 
 def test_sensor_leaves_the_components_as_noise_free_ground_truth():
     plain = sonarsim.render(tank())
-    sensed = sonarsim.render(tank({"preset": "aris3000-1800", "elevation_pattern": False}))
+    sensed = sonarsim.render(tank({"preset": "aris3000-64", "elevation_pattern": False}))
     for k in ("object", "ground", "double", "triple", "total"):
         np.testing.assert_array_equal(plain.components[k], sensed.components[k])
     assert not np.array_equal(sensed.polar, plain.polar)
@@ -199,17 +199,17 @@ def test_sensor_leaves_the_components_as_noise_free_ground_truth():
 
 
 def test_frames_are_reproducible_by_index_and_differ_between_indices():
-    sim = sonarsim.Simulator(tank({"preset": "aris3000-1800", "speckle": {"anchor": "frame"}}))
+    sim = sonarsim.Simulator(tank({"preset": "aris3000-64", "speckle": {"anchor": "frame"}}))
     a, b = sim.render(frame=7).polar, sim.render(frame=8).polar
     assert np.array_equal(sim.render(frame=7).polar, a)
     assert np.corrcoef(a.ravel(), b.ravel())[0, 1] < 0.99
-    other = sonarsim.Simulator(tank({"preset": "aris3000-1800", "speckle": {"anchor": "frame"}}))
+    other = sonarsim.Simulator(tank({"preset": "aris3000-64", "speckle": {"anchor": "frame"}}))
     other.render(frame=1)
     assert np.array_equal(other.render(frame=7).polar, a)  # whoever renders it, in any order
 
 
 def test_world_anchored_speckle_is_still_for_a_still_sonar_and_decorrelates_when_it_moves():
-    sim = sonarsim.Simulator(tank({"preset": "aris3000-1800"}))
+    sim = sonarsim.Simulator(tank({"preset": "aris3000-64"}))
     pose = {"position_m": [0, 0, 1.0], "rpy_deg": [0, 25, 0]}
     moved = {"position_m": [0.05, 0, 1.0], "rpy_deg": [0, 25, 0]}
     a, b, c = sim.render(pose).polar, sim.render(pose).polar, sim.render(moved).polar
@@ -221,7 +221,7 @@ def test_world_anchored_speckle_is_still_for_a_still_sonar_and_decorrelates_when
 
 
 def test_no_speckle_gives_the_expected_output_deterministically():
-    sim = sonarsim.Simulator(tank({"preset": "aris3000-1800"}))
+    sim = sonarsim.Simulator(tank({"preset": "aris3000-64"}))
     e1, e2 = sim.render(speckle=False).polar, sim.render(speckle=False, frame=3).polar
     np.testing.assert_array_equal(e1, e2)
     assert not np.all(e1 == np.round(e1))  # an expectation, not a quantised draw
@@ -244,9 +244,9 @@ def test_elevation_sidelobes_return_floor_echo_beyond_the_nominal_aperture():
 
 def test_sensor_scene_errors_name_the_key():
     with pytest.raises(ConfigError, match="render.tvg"):
-        sonarsim.load_scene(tank({"preset": "aris3000-1800"}, tvg=False))
+        sonarsim.load_scene(tank({"preset": "aris3000-64"}, tvg=False))
     with pytest.raises(ConfigError, match="render.speckle"):
-        sonarsim.load_scene(tank({"preset": "aris3000-1800"}, speckle=True))
+        sonarsim.load_scene(tank({"preset": "aris3000-64"}, speckle=True))
     with pytest.raises(ConfigError, match="sensor.absorption"):
         d = tank({"absorption": {"model": "francois-garrison"}})
         d["sonar"].pop("frequency_khz")

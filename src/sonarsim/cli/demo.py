@@ -173,7 +173,7 @@ def cmd_demo(args) -> None:
     # The demo scene once more, through the sensor model of an ARIS 3000 at 1.8 MHz.
     from ..io.figures import sensor_comparison
 
-    aris = {**doc, "sensor": {"preset": "aris3000-1800"}}
+    aris = {**doc, "sensor": {"preset": "aris3000-128"}}
     with options_named(args):
         aris_scene = scene_from_dict(aris)
     with atomic_write(out / "scene_aris3000.yaml", "w") as f:

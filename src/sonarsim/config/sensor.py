@@ -489,33 +489,40 @@ def parse_sensor(d: Any, base_dir: Path | None = None) -> SensorSpec | None:
         raise ConfigError(f"sensor.{exc.key}", exc.detail) from None
 
 
-#: Sensor presets: read-only ``sensor`` sections. ``oculus-m1200d-2100`` was calibrated with
-#: ``sonarsim calibrate`` against the real ping in the project's test data (see the README);
-#: the others are our choices from the manufacturers' published figures (frequency, beam
-#: widths, 8-bit output), with levels that put a concrete floor mid-scale.
+def _device(frequency_khz: float, elevation_deg: float, beam_deg: float, pulse_us: float, dtype: str = "uint8",
+            source_level_db: float = 182.0, window: str = "hann") -> Mapping[str, Any]:
+    """A device's ``sensor`` section from its published figures (the rest: our choices, below)."""
+    full = {"uint8": 90.0, "uint16": 120.0}[dtype]  # dB of dynamic range the output spans
+    return MappingProxyType({
+        "source_level_db": source_level_db, "frequency_khz": frequency_khz,
+        "absorption": {"model": "francois-garrison", "temperature_c": 15.0, "salinity_psu": 0.0, "depth_m": 2.0},
+        "tvg": {"spreading": 20.0, "absorption": True},
+        "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": elevation_deg,
+                              "span_deg": min(3.0 * elevation_deg, 60.0)},
+        "azimuth_pattern": {"shape": "line", "window": window, "width_deg": beam_deg},
+        "pulse": {"kind": "cw", "length_us": pulse_us},
+        "speckle": {"model": "rayleigh", "anchor": "world"},
+        "noise": {"level_db": 58.0},
+        "bang": {"level_db": 110.0, "length_m": 0.03},
+        "output": {"compression": "log", "floor_db": 60.0, "ceiling_db": 60.0 + full, "dtype": dtype},
+    })
+
+
+#: Sensor presets, named after the sonar presets they go with (``sonar: {preset: X}`` and
+#: ``sensor: {preset: X}``): carrier frequency, -3 dB elevation and azimuth widths from the
+#: manufacturers' published figures (the sonar presets' ``frequency_khz``, ``elevation_fov_deg``
+#: and ``beam_width_deg``), output data type as the devices record it; the pulse lengths, levels
+#: (source level, noise, bang, compression window: a concrete floor at mid-scale, a noise
+#: floor just visible) and windows are our choices, to be calibrated against a recording with
+#: ``sonarsim calibrate`` (see the README).
 SENSOR_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({
-    "aris3000-1800": MappingProxyType({
-        "source_level_db": 182.0, "frequency_khz": 1800.0,
-        "absorption": {"model": "francois-garrison", "temperature_c": 15.0, "salinity_psu": 0.0, "depth_m": 2.0},
-        "tvg": {"spreading": 20.0, "absorption": True},
-        "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 14.0, "span_deg": 42.0},
-        "azimuth_pattern": {"shape": "line", "window": "hann", "width_deg": 0.3},
-        "pulse": {"kind": "cw", "length_us": 8.0},
-        "speckle": {"model": "rayleigh", "anchor": "world"},
-        "noise": {"level_db": 58.0},
-        "bang": {"level_db": 110.0, "length_m": 0.03},
-        "output": {"compression": "log", "floor_db": 60.0, "ceiling_db": 150.0, "dtype": "uint8"},
-    }),
-    "aris3000-3000": MappingProxyType({
-        "source_level_db": 182.0, "frequency_khz": 3000.0,
-        "absorption": {"model": "francois-garrison", "temperature_c": 15.0, "salinity_psu": 0.0, "depth_m": 2.0},
-        "tvg": {"spreading": 20.0, "absorption": True},
-        "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 14.0, "span_deg": 42.0},
-        "azimuth_pattern": {"shape": "line", "window": "hann", "width_deg": 0.2},
-        "pulse": {"kind": "cw", "length_us": 6.0},
-        "speckle": {"model": "rayleigh", "anchor": "world"},
-        "noise": {"level_db": 58.0},
-        "bang": {"level_db": 110.0, "length_m": 0.03},
-        "output": {"compression": "log", "floor_db": 60.0, "ceiling_db": 150.0, "dtype": "uint8"},
-    }),
+    "aris3000-128": _device(3000.0, 14.0, 0.236, 6.0),
+    "aris3000-64": _device(1800.0, 14.0, 0.472, 8.0),
+    "didson300": _device(1800.0, 14.0, 0.3, 8.0),
+    "oculus-m750d-lf": _device(750.0, 20.0, 1.0, 20.0),
+    "oculus-m750d-hf": _device(1200.0, 12.0, 0.6, 12.0),
+    "oculus-m1200d-lf": _device(1200.0, 20.0, 0.6, 12.0),
+    "oculus-m1200d-hf": _device(2100.0, 12.0, 0.4, 6.0),
+    "blueview-p900-130": _device(900.0, 20.0, 1.0, 15.0, dtype="uint16"),
+    "gemini-720i": _device(720.0, 20.0, 1.0, 20.0),
 })
