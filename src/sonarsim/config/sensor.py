@@ -502,7 +502,7 @@ def _device(frequency_khz: float, elevation_deg: float, beam_deg: float, pulse_u
         "azimuth_pattern": {"shape": "line", "window": window, "width_deg": beam_deg},
         "pulse": {"kind": "cw", "length_us": pulse_us},
         "speckle": {"model": "rayleigh", "anchor": "world"},
-        "noise": {"level_db": 58.0},
+        "noise": {"level_db": 42.0},
         "bang": {"level_db": 110.0, "length_m": 0.03},
         "output": {"compression": "log", "floor_db": 60.0, "ceiling_db": 60.0 + full, "dtype": dtype},
     })
