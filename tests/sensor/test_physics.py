@@ -223,7 +223,8 @@ def test_config_errors_name_the_key(tmp_path):
            ({"azimuth_pattern": {"leakage_beams": 10000}}, "sensor.azimuth_pattern.leakage_beams"),
            ({"azimuth_pattern": {"span_deg": 30}}, "sensor.azimuth_pattern.span_deg"),
            ({"elevation_pattern": {"shape": "table"}}, "sensor.elevation_pattern.table"),
-           ({"pulse": {"kind": "chirp"}}, "sensor.pulse.bandwidth_khz")]
+           ({"pulse": {"kind": "chirp"}}, "sensor.pulse.bandwidth_khz"),
+           ({"elevation_pattern": {"shape": "table", "table": "missing.csv"}}, "sensor.elevation_pattern.table")]
     for doc, key in bad:
         with pytest.raises(ConfigError) as e:
             parse_sensor(doc)
@@ -235,3 +236,20 @@ def test_sensor_section_round_trips_and_presets_merge():
     assert spec.noise.level_db == 50 and spec.bang is None and spec.speckle is not None
     from dataclasses import replace
     assert parse_sensor(spec.to_dict()) == replace(spec, preset=None)
+
+
+def test_hostile_sizes_are_refused_before_allocating():
+    from sonarsim.errors import ConfigError
+    from sonarsim.sensor.speckle import SpecklePool
+
+    with pytest.raises(ConfigError, match="sensor.speckle"):
+        SpecklePool((100000, 4096), np.ones(1), np.ones(1), None, True, 0)
+    with pytest.raises(ConfigError, match="gamma"):
+        OutputSpec(compression="gamma", gamma=1e-6)
+    with pytest.raises(ConfigError, match="ceiling_db"):
+        OutputSpec(ceiling_db=1e9)
+    with pytest.raises(ConfigError, match="sensor.pulse"):
+        SensorModel(parse_sensor({"pulse": {"kind": "cw", "length_us": 1e6}}), small_sonar())
+    # The widest allowed output window still makes a bounded table.
+    e = output.ExpectedOutput(OutputSpec(compression="log", floor_db=-100, ceiling_db=400), output.exponential_quantiles(64))
+    assert len(e.table) <= output.MAX_TABLE_LEVELS + 1

@@ -328,9 +328,12 @@ class OutputSpec:
     def __post_init__(self) -> None:
         _choice("compression", self.compression, COMPRESSIONS)
         g = _positive("gamma", self.gamma)
-        if g > 4:
-            raise ConfigError("gamma", f"must be in (0, 4], got {g}")
+        if not 0.05 <= g <= 4:
+            raise ConfigError("gamma", f"must be in [0.05, 4], got {g}")
         lo, hi = _finite("floor_db", self.floor_db), _finite("ceiling_db", self.ceiling_db)
+        for key, v in (("floor_db", lo), ("ceiling_db", hi)):
+            if not -100.0 <= v <= 400.0:
+                raise ConfigError(key, f"must be within [-100, 400] dB re 1 uPa^2, got {v}")
         if self.compression == "log" and hi <= lo:
             raise ConfigError("ceiling_db", f"must exceed floor_db ({lo}), got {hi}")
         _choice("dtype", self.dtype, tuple(DTYPES))
@@ -437,6 +440,9 @@ def _parse_sub(name: str, value: Any, key: str, base_dir: Path | None):
         p = Path(t)
         if not p.is_absolute() and base_dir is not None:
             p = base_dir / p
+        if not p.is_file():
+            raise ConfigError(f"{key}.table", f"pattern table {str(p)!r} not found (a CSV of angle_deg, gain_db rows; "
+                              "relative to the scene file)")
         kw["table"] = str(p)
     try:
         return cls(**kw)

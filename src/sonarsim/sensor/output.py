@@ -21,6 +21,7 @@ from ..config.sensor import OutputSpec
 # Levels of the expected-output table: every 0.05 dB over the compressed window, widened.
 TABLE_STEP_DB = 0.05
 TABLE_MARGIN_DB = 60.0
+MAX_TABLE_LEVELS = 8192
 # Quantiles of the speckle intensity averaged over (midpoints of equal-probability slices).
 QUANTILES = 4096
 
@@ -83,9 +84,10 @@ class ExpectedOutput:
 
     def __init__(self, spec: OutputSpec | None, speckle_quantiles: np.ndarray | None) -> None:
         self.lo_db, hi = level_window_db(spec)
-        n = int(np.ceil((hi - self.lo_db) / TABLE_STEP_DB)) + 1
-        self.step_db = TABLE_STEP_DB
-        levels = self.lo_db + np.arange(n) * TABLE_STEP_DB
+        # Bounded size: coarser steps for very wide windows (the table is smooth in the level).
+        self.step_db = max(TABLE_STEP_DB, (hi - self.lo_db) / MAX_TABLE_LEVELS)
+        n = int(np.ceil((hi - self.lo_db) / self.step_db)) + 1
+        levels = self.lo_db + np.arange(n) * self.step_db
         mu = 10.0 ** (levels / 10.0)
         s = np.ones(1) if speckle_quantiles is None else np.asarray(speckle_quantiles, dtype=float)
         table = np.empty(n)

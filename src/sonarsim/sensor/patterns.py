@@ -69,15 +69,15 @@ def _read_table(path: str) -> tuple[np.ndarray, np.ndarray]:
     try:
         rows = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
     except OSError as exc:
-        raise ConfigError("table", f"cannot read the pattern table {path!r}: {exc.strerror or exc}") from None
+        raise ConfigError("sensor pattern table", f"cannot read the pattern table {path!r}: {exc.strerror or exc}") from None
     except ValueError as exc:
-        raise ConfigError("table", f"{path!r} must hold rows 'angle_deg, gain_db' of numbers: {exc}") from None
+        raise ConfigError("sensor pattern table", f"{path!r} must hold rows 'angle_deg, gain_db' of numbers: {exc}") from None
     if rows.shape[1] != 2 or len(rows) < 2 or not np.isfinite(rows).all():
-        raise ConfigError("table", f"{path!r} must hold at least two rows 'angle_deg, gain_db' of finite numbers")
+        raise ConfigError("sensor pattern table", f"{path!r} must hold at least two rows 'angle_deg, gain_db' of finite numbers")
     order = np.argsort(rows[:, 0])
     angle, gain = rows[order, 0], rows[order, 1]
     if np.any(np.diff(angle) <= 0):
-        raise ConfigError("table", f"{path!r}: angles must be distinct")
+        raise ConfigError("sensor pattern table", f"{path!r}: angles must be distinct")
     return angle, gain
 
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config.sensor import SpeckleSpec
+from ..errors import ConfigError
 
 POOL_FIELDS = 4
 # Bytes a pool may take (the fields are stored twice as wide, for contiguous cyclic reads).
@@ -110,8 +111,9 @@ class SpecklePool:
         n_kinds = int(spec is not None) + int(noise)
         need = n_kinds * n_fields * n_r * 2 * n_b * 8
         if need > MAX_POOL_BYTES:
-            raise MemoryError(f"the speckle and noise fields of a {n_r} x {n_b} image would take {need / 2**20:.0f} MiB "
-                              f"(at most {MAX_POOL_BYTES / 2**20:.0f} MiB)")
+            raise ConfigError("sensor.speckle", f"the speckle and noise fields of a {n_r} x {n_b} image would take "
+                              f"{need / 2**20:.0f} MiB (at most {MAX_POOL_BYTES / 2**20:.0f} MiB): use fewer range "
+                              "bins or beams")
         rng = np.random.default_rng([int(seed), 0x5BEC])
         self.shape = shape
         self.n_fields = n_fields
