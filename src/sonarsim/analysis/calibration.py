@@ -63,6 +63,11 @@ BOUNDS = {
     "roll": (-90.0, 90.0, 1.0), "pitch": (-90.0, 90.0, 1.0), "yaw": (-180.0, 180.0, 1.0),
 }
 
+#: The least elevation span (degrees) the rays cover while calibrating: the pattern's sidelobes
+#: light the floor well outside the main lobe (on the real Oculus ping, the echo beyond the floor
+#: band and before it, 17-20 degrees off the axis), and a span of three -3 dB widths misses it.
+MIN_SPAN_DEG = 60.0
+
 #: Weight of the water column's mean profile in the cost (see :func:`calibrate`).
 WATER_WEIGHT = 1.0
 
@@ -72,7 +77,7 @@ STARTING_SENSOR = {
     "source_level_db": 180.0,
     "absorption": {"model": "francois-garrison", "temperature_c": 15.0, "salinity_psu": 0.0, "depth_m": 1.0},
     "tvg": {"spreading": 20.0, "absorption": True},
-    "elevation_pattern": {"shape": "line", "window": "rect"},
+    "elevation_pattern": {"shape": "line", "window": "rect", "span_deg": MIN_SPAN_DEG},
     "azimuth_pattern": {"shape": "gaussian"},
     "speckle": {"model": "rayleigh", "anchor": "world"},
     "noise": {"level_db": 60.0, "after_tvg_db": 100.0},
@@ -120,7 +125,7 @@ def with_values(spec: SensorSpec, v: dict[str, float]) -> SensorSpec:
     el = spec.elevation_pattern
     if el is not None:
         width = v["elevation_width_deg"]
-        span = min(max(el.span_deg or 0.0, 3.0 * width), 170.0)
+        span = min(max(el.span_deg or 0.0, 3.0 * width, MIN_SPAN_DEG), 170.0)
         el = replace(el, width_deg=float(width), span_deg=float(span))
     v = {k: float(x) for k, x in v.items()}
     return replace(spec, gain_db=v["gain_db"], elevation_pattern=el,
