@@ -144,10 +144,11 @@ def test_calibrate_command_writes_a_scene_that_renders_in_the_recordings_units(t
     scene_file.write_text(yaml.safe_dump(doc))
     out = tmp_path / "out" / "calibrated.yaml"
     rc = main(["calibrate", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--out", str(out),
-               "--max-iterations", "120", "--json", str(tmp_path / "fig.json")])
+               "--max-iterations", "120", "--json", str(tmp_path / "fig.json"), "--evaluate-frames", "0"])
     assert rc == 0
     printed = capsys.readouterr().out
     assert "PSNR" in printed and "KS" in printed and "water" in printed and "lit" in printed
+    assert "frame 0 (held out)" in printed
     again = sonarsim.render(sonarsim.load_scene(out))
     assert again.polar.shape == real.polar.shape
     assert again.polar.max() <= 255 and np.array_equal(again.polar, np.round(again.polar))
@@ -156,6 +157,10 @@ def test_calibrate_command_writes_a_scene_that_renders_in_the_recordings_units(t
     assert psnr > 20
     figures = json.loads((tmp_path / "fig.json").read_text())
     assert figures["calibrated"]["regions"]["lit"]["ks"] < 0.2
+    assert figures["held_out"]["0"]["psnr_db"] == pytest.approx(figures["calibrated"]["psnr_db"])
+    for key in ("ks", "wasserstein", "contrast_a", "contrast_b", "grain_range_b", "grain_beams_b",
+                "range_profile_db_real", "beam_profile_db_model"):
+        assert key in figures["calibrated"]["regions"]["water"], key
     picture = Image.open(tmp_path / "out" / "calibrated_calibrated.png")
     assert picture.mode == "RGB" and picture.size[0] > 1.5 * picture.size[1]  # three fans side by side
 
@@ -174,3 +179,12 @@ def test_calibrate_command_rejects_a_bad_parameter_without_traceback(tmp_path, c
     rc = main(["calibrate", str(tmp_path / "missing.npz"), "--scene", str(scene_file), "--out", str(tmp_path / "c.yaml")])
     err = capsys.readouterr().err
     assert rc == 2 and "missing.npz" in err and "Traceback" not in err
+    rc = main(["calibrate", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--out", str(tmp_path / "c.yaml"),
+               "--evaluate-frames", "3"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--evaluate-frames" in err and "Traceback" not in err
+    assert not (tmp_path / "c.yaml").exists()
+    with pytest.raises(SystemExit):
+        main(["calibrate", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--out", str(tmp_path / "c.yaml"),
+              "--evaluate-frames", "one"])
+    assert "--evaluate-frames" in capsys.readouterr().err

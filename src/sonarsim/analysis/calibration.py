@@ -12,15 +12,17 @@ Parameters:
   lifts it with range), ``noise_after_tvg_db`` (the digitiser's noise, after the TVG: a floor
   at every range), ``bang_db`` and ``bang_length_m`` (the transmit bang),
   ``elevation_width_deg`` (the two-way -3 dB width of the elevation pattern, whose sidelobes
-  light the floor beyond it);
+  light the floor before and beyond the band: the rays cover at least :data:`MIN_SPAN_DEG`);
 * the TVG's spreading law, a discrete choice (20, 30 or 40 log r): the search runs for each
   and keeps the best. The real Oculus ping is fitted with 40 log r: its water column rises by
   about 20 dB per decade where the floor of noise after the TVG still shows (below 0.3 m) and
   by 40 beyond the floor band, where the noise before the TVG dominates;
-* pose: any of x, y, z, roll, pitch, yaw named free. A pose fitted on the floor band first
-  (:func:`sonarsim.analysis.fitting.fit_pose` with ``domain="band"``) is the better start, and
-  left fixed it gives the more plausible model: with the pose free the simplex trades the pose
-  against the elevation pattern.
+* pose: any of x, y, z, roll, pitch, yaw named free, fitted with the sensor after the
+  sensor alone has been fitted at the scene's pose (fitting them together from the start lets
+  the simplex trade the pose against the elevation pattern: a 0.7 m height and 51 degree
+  pitch on the real ping). Start from a pose fitted on the floor band
+  (:func:`sonarsim.analysis.fitting.fit_pose` with ``domain="band"``): on the real ping it
+  then moves by about 1 cm and 0.5 degree.
 
 The output is gamma-compressed: for fully developed speckle the contrast of ``P ** gamma`` is
 ``sqrt(Gamma(1 + 2 gamma) / Gamma(1 + gamma)^2 - 1)`` whatever the level, so gamma is set from
