@@ -95,6 +95,23 @@ def test_noise_after_the_tvg_is_a_floor_at_every_range():
     assert np.allclose(p, 1e10, rtol=1e-5)
 
 
+def test_evaluate_scores_an_image_against_itself_as_identical_and_a_shift_by_its_size():
+    rng = np.random.default_rng(3)
+    x = np.zeros((120, 40))
+    x[60:90] = 100.0
+    x = np.round(x * rng.exponential(size=x.shape) ** 0.3 + 5 * rng.exponential(size=x.shape) ** 0.3)
+    same = evaluate(x, x, x)
+    assert same["psnr_db"] == float("inf") and same["mse"] == 0 and same["ssim"] == pytest.approx(1.0)
+    for name in ("lit", "water"):
+        st = same["regions"][name]
+        assert st["pixels"] > 0 and st["ks"] == 0 and st["wasserstein"] == 0
+        assert st["contrast_a"] == st["contrast_b"] and st["range_profile_db_real"] == st["range_profile_db_model"]
+    shifted = evaluate(x, x + 10, x + 10)
+    assert shifted["mse"] == pytest.approx(100.0)
+    assert shifted["psnr_db"] == pytest.approx(10 * np.log10(255 ** 2 / 100.0))
+    assert shifted["regions"]["lit"]["wasserstein"] == pytest.approx(10.0)
+
+
 def test_real_oculus_calibration_on_ping_one_holds_on_pings_two_and_three(shared_data):
     from sonarsim.io.readers import read_frames
 
