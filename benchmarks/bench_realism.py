@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -100,8 +101,11 @@ def main(argv=None) -> int:
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     from sonarsim.io.output import atomic_write
 
+    text = json.dumps(out, indent=1, default=lambda x: float(x) if np.isscalar(x) else str(x))
+    # Lists of numbers (the profiles) on one line each.
+    text = re.sub(r"\[\s+([^\[\]{}]*?)\s+\]", lambda m: "[" + " ".join(m.group(1).split()) + "]", text)
     with atomic_write(Path(args.json), "w") as f:
-        json.dump(out, f, indent=1, default=lambda x: float(x) if np.isscalar(x) else str(x))
+        f.write(text + "\n")
     print(f"bench_realism: wrote {args.json}", file=sys.stderr)
     return 0
 
