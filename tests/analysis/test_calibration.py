@@ -84,6 +84,15 @@ def test_calibration_recovers_a_40_log_r_tvg_and_the_noise_after_it():
     assert res.psnr_db > res.psnr_start_db + 3
 
 
+def test_a_sensor_without_tvg_is_calibrated_without_one():
+    sensor = {**STARTING_SENSOR, "tvg": False, "gain_db": 80.0}
+    real = sonarsim.render(floor_scene(sensor))
+    res = calibrate(real, sonarsim.load_scene(floor_scene({**sensor, "gain_db": 70.0})), max_iterations=60,
+                    fit_grain=False)
+    assert res.scene.sensor.tvg is None and res.values["tvg_spreading"] == 0.0
+    assert res.psnr_db > res.psnr_start_db
+
+
 def test_noise_after_the_tvg_is_a_floor_at_every_range():
     from sonarsim.sensor.model import SensorModel
 

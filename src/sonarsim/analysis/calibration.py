@@ -264,7 +264,7 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
             c += water_weight * float(np.mean(d ** 2))
         return c
 
-    laws = [spec.tvg.spreading] if spreading is None or spec.tvg is None else list(spreading)
+    laws = [None] if spreading is None or spec.tvg is None else list(spreading)
     c0 = cost(np.zeros(len(names)))
 
     def search(active: np.ndarray, u0: np.ndarray):
@@ -287,7 +287,7 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
     sensor_idx = np.array([i for i, n in enumerate(names) if n not in free])
     best = None
     for law in laws:
-        spec = replace(spec, tvg=replace(spec.tvg, spreading=float(law))) if spec.tvg is not None else spec
+        spec = spec if law is None else replace(spec, tvg=replace(spec.tvg, spreading=float(law)))
         u, c = search(sensor_idx, np.zeros(len(names)))
         if best is None or c < best[1]:
             best = (u, c, spec)
