@@ -45,3 +45,14 @@ def test_benchmark_runs_at_tiny_sizes(tmp_path):
     # More planes and a higher order cast more rays (reflected ones) in the same tank.
     assert res["sweep_planes"][1]["rays_per_frame"] > res["sweep_planes"][0]["rays_per_frame"]
     assert res["sweep_order"][1]["rays_per_frame"] > res["sweep_order"][0]["rays_per_frame"]
+
+
+def test_realism_benchmark_skips_cleanly_without_the_data(tmp_path):
+    out = tmp_path / "realism.json"
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "bench_realism.py"), "--data", str(tmp_path / "absent.raw"),
+         "--json", str(out)], capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "skipped" in proc.stderr and "absent.raw" in proc.stderr and "Traceback" not in proc.stderr
+    assert not out.exists()

@@ -10,7 +10,7 @@ import pytest
 
 import sonarsim
 from sonarsim.analysis import realism
-from sonarsim.analysis.calibration import STARTING_SENSOR, calibrate, gamma_for_contrast
+from sonarsim.analysis.calibration import STARTING_SENSOR, calibrate, evaluate, gamma_for_contrast
 from sonarsim.config.sensor import parse_sensor
 from tests.conftest import sonar_dict
 
@@ -31,46 +31,186 @@ def test_gamma_for_contrast_inverts_the_closed_form():
         assert gamma_for_contrast(c) == pytest.approx(g, rel=1e-6)
 
 
-def test_calibration_recovers_gain_noise_and_elevation_width_of_a_synthetic_recording():
-    truth = {**STARTING_SENSOR, "gain_db": 20.0, "noise": {"level_db": 100.0}, "bang": False,
+def test_calibration_recovers_gain_noise_tvg_law_and_elevation_width_of_a_synthetic_recording():
+    truth = {**STARTING_SENSOR, "gain_db": 20.0, "noise": {"level_db": 100.0, "after_tvg_db": 110.0}, "bang": False,
+             "tvg": {"spreading": 20.0, "absorption": True},
              "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 16.0, "span_deg": 60.0},
              "azimuth_pattern": {"shape": "gaussian", "width_deg": 1.2},
              "output": {"compression": "gamma", "gamma": 0.3, "ceiling_db": 160.0, "dtype": "uint8"}}
     real = sonarsim.render(floor_scene(truth))  # a speckled 8-bit frame
-    start = {**truth, "gain_db": 8.0, "noise": {"level_db": 90.0},
+    start = {**truth, "gain_db": 8.0, "noise": {"level_db": 90.0, "after_tvg_db": 100.0},
+             "tvg": {"spreading": 40.0, "absorption": True},
              "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 10.0}}
     scene = sonarsim.load_scene(floor_scene(start))
     res = calibrate(real, scene, free=(), max_iterations=300)
+    assert res.values["tvg_spreading"] == 20.0
     assert res.values["gain_db"] == pytest.approx(20.0, abs=1.5)
     assert res.values["noise_db"] == pytest.approx(100.0, abs=3.0)
+    # The noise after the TVG (110 dB) is below the noise before it at every range here: it is
+    # not identified (the real ping's near water column is what identifies it).
     assert res.values["elevation_width_deg"] == pytest.approx(16.0, abs=1.5)
     assert res.scene.sensor.output.gamma == pytest.approx(0.3, abs=0.05)
     assert res.values["azimuth_width_deg"] == pytest.approx(1.2, rel=0.25)
     assert res.psnr_db > res.psnr_start_db + 3
-    # The calibrated scene renders frames in the recording's units.
+    # The calibrated scene renders frames in the recording's units, on its grid.
     again = sonarsim.render(res.scene)
     assert again.polar.shape == real.polar.shape and again.polar.max() <= 255
+    assert np.array_equal(again.polar, np.round(again.polar))
+
+
+def test_calibration_recovers_a_40_log_r_tvg_and_the_noise_after_it():
+    # Like the real Oculus ping: 40 log r, the near ranges set by the noise after the TVG, the
+    # far ones by the noise before it.
+    truth = {**STARTING_SENSOR, "gain_db": 30.0, "noise": {"level_db": 90.0, "after_tvg_db": 110.0}, "bang": False,
+             "tvg": {"spreading": 40.0, "absorption": True},
+             "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 10.0, "span_deg": 60.0},
+             "azimuth_pattern": {"shape": "gaussian", "width_deg": 1.2},
+             "output": {"compression": "gamma", "gamma": 0.3, "ceiling_db": 160.0, "dtype": "uint8"}}
+    real = sonarsim.render(floor_scene(truth))
+    start = {**truth, "gain_db": 20.0, "noise": {"level_db": 80.0, "after_tvg_db": 100.0},
+             "tvg": {"spreading": 20.0, "absorption": True},
+             "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 14.0}}
+    res = calibrate(real, sonarsim.load_scene(floor_scene(start)), free=(), max_iterations=300)
+    # Measured: 40 log r; gain 29.6 dB, noise 83.2 dB, after the TVG 105.3 dB (with gamma
+    # 0.277 for 0.3: the same counts), width 9.8 deg.
+    assert res.values["tvg_spreading"] == 40.0
+    assert res.values["gain_db"] == pytest.approx(30.0, abs=1.5)
+    assert res.values["noise_db"] == pytest.approx(90.0, abs=3.0)
+    assert res.values["noise_after_tvg_db"] == pytest.approx(110.0, abs=6.0)
+    assert res.values["elevation_width_deg"] == pytest.approx(10.0, abs=1.0)
+    # The near ranges' level in counts (the noise after the TVG alone there) is the truth's.
+    want = sonarsim.render(floor_scene(truth), speckle=False).polar
+    assert res.expected.polar[:40].mean() == pytest.approx(want[:40].mean(), abs=0.5)
+    assert res.psnr_db > res.psnr_start_db + 3
+
+
+def test_a_sensor_without_tvg_is_calibrated_without_one():
+    sensor = {**STARTING_SENSOR, "tvg": False, "gain_db": 80.0}
+    real = sonarsim.render(floor_scene(sensor))
+    res = calibrate(real, sonarsim.load_scene(floor_scene({**sensor, "gain_db": 70.0})), max_iterations=60,
+                    fit_grain=False)
+    assert res.scene.sensor.tvg is None and res.values["tvg_spreading"] == 0.0
+    assert res.psnr_db > res.psnr_start_db
+
+
+def test_noise_after_the_tvg_is_a_floor_at_every_range():
+    from sonarsim.sensor.model import SensorModel
+
+    spec = parse_sensor({"tvg": {"spreading": 40.0, "absorption": False}, "gain_db": 10.0,
+                         "noise": {"level_db": -200.0, "after_tvg_db": 100.0}, "bang": False})
+    sonar = sonarsim.load_scene(floor_scene({})).sonar
+    m = SensorModel(spec, sonar, fields=False)
+    p = m.received_power(np.zeros((sonar.n_range_bins, sonar.n_beams)), None, speckle=False)
+    assert np.allclose(p, 1e10, rtol=1e-5)
+
+
+def test_evaluate_scores_an_image_against_itself_as_identical_and_a_shift_by_its_size():
+    rng = np.random.default_rng(3)
+    x = np.zeros((120, 40))
+    x[60:90] = 100.0
+    x = np.round(x * rng.exponential(size=x.shape) ** 0.3 + 5 * rng.exponential(size=x.shape) ** 0.3)
+    same = evaluate(x, x, x)
+    assert same["psnr_db"] == float("inf") and same["mse"] == 0 and same["ssim"] == pytest.approx(1.0)
+    for name in ("lit", "water"):
+        st = same["regions"][name]
+        assert st["pixels"] > 0 and st["ks"] == 0 and st["wasserstein"] == 0
+        assert st["contrast_a"] == st["contrast_b"] and st["range_profile_db_real"] == st["range_profile_db_model"]
+    shifted = evaluate(x, x + 10, x + 10)
+    assert shifted["mse"] == pytest.approx(100.0)
+    assert shifted["psnr_db"] == pytest.approx(10 * np.log10(255 ** 2 / 100.0))
+    assert shifted["regions"]["lit"]["wasserstein"] == pytest.approx(10.0)
 
 
 def test_real_oculus_calibration_on_ping_one_holds_on_pings_two_and_three(shared_data):
     from sonarsim.io.readers import read_frames
 
     pings = list(read_frames(shared_data / "real" / "oculus" / "three_pings_8bit.raw"))
+    # The pose the floor band gives (fitting.fit_pose(..., domain="band"): z 0.416 m, pitch
+    # 28.8 deg, roll 1.4 deg) is the start; the sensor is fitted there, then with the pose.
     scene = sonarsim.load_scene({
         "sonar": {"preset": "oculus-m1200d-hf", "pose": {"position_m": [0, 0, 0.416], "rpy_deg": [1.4, 28.8, 0]}},
         "render": {"bounces": [1]}, "ground": {"height_m": 0, "albedo": 0.8}})
     res = calibrate(pings[0], scene, free=("z", "pitch", "roll"), max_iterations=250)
+    # Measured: z 0.426 m, pitch 28.3 deg, roll 1.3 deg; elevation width 7.0 deg.
+    assert res.scene.sonar_pose.position_m[2] == pytest.approx(0.416, abs=0.03)
+    assert res.scene.sonar_pose.rpy_deg[1] == pytest.approx(28.8, abs=2.0)
+    assert res.values["tvg_spreading"] == 40.0
     e = res.expected.polar
-    sim = sonarsim.Simulator(replace(res.scene, sonar=res.expected.sonar))
-    speckled = sim.render(res.scene.sonar_pose).polar
+    speckled = sonarsim.Simulator(res.scene).render(res.scene.sonar_pose).polar
     for p in pings[1:]:
-        # Measured: 18.40 and 18.43 dB (from 11.6 dB at the start; the paper's model: 13.3).
-        psnr = 10 * np.log10(255 ** 2 / np.mean((e - p.polar) ** 2))
-        assert psnr > 18.0
-        lit = realism.auto_regions(p.polar)["lit"]
-        st = realism.region_statistics(p.polar, speckled, lit)
-        # Measured: KS 0.05, contrast 0.278 vs 0.286, grain 0.59 vs 0.66 bins, 1.45 vs 1.45 beams.
-        assert st["ks"] < 0.1
-        assert st["contrast_b"] == pytest.approx(st["contrast_a"], rel=0.15)
-        assert st["grain_range_b"] == pytest.approx(st["grain_range_a"], rel=0.25)
-        assert st["grain_beams_b"] == pytest.approx(st["grain_beams_a"], rel=0.25)
+        ev = evaluate(p.polar, e, speckled)
+        # The issue's targets (item 5). Measured: 19.24 and 19.26 dB (from 11.6 at the start;
+        # the paper's model: 13.3).
+        assert ev["psnr_db"] >= 19.0
+        for name in ("lit", "water"):
+            st = ev["regions"][name]
+            # Measured, real vs model: lit KS 0.043-0.044, contrast 0.286 vs 0.277, grain 0.65
+            # vs 0.59 bins, 1.45 vs 1.44 beams; water KS 0.089-0.096, contrast 0.309 vs 0.282,
+            # grain 0.69 vs 0.59 bins, 1.57 vs 1.47 beams.
+            assert st["ks"] < 0.1
+            assert st["contrast_b"] == pytest.approx(st["contrast_a"], rel=0.15)
+            assert st["grain_range_b"] == pytest.approx(st["grain_range_a"], rel=0.25)
+            assert st["grain_beams_b"] == pytest.approx(st["grain_beams_a"], rel=0.25)
+
+
+def test_calibrate_command_writes_a_scene_that_renders_in_the_recordings_units(tmp_path, capsys):
+    import json
+
+    import yaml
+    from PIL import Image
+
+    from sonarsim.cli.main import main
+
+    truth = {**STARTING_SENSOR, "gain_db": 20.0, "noise": {"level_db": 95.0}, "bang": False,
+             "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 16.0, "span_deg": 60.0}}
+    real = sonarsim.render(floor_scene(truth))
+    real.save_npz(tmp_path / "real.npz")
+    doc = floor_scene({**truth, "gain_db": 8.0})
+    scene_file = tmp_path / "scene.yaml"
+    scene_file.write_text(yaml.safe_dump(doc))
+    out = tmp_path / "out" / "calibrated.yaml"
+    rc = main(["calibrate", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--out", str(out),
+               "--max-iterations", "120", "--json", str(tmp_path / "fig.json"), "--evaluate-frames", "0"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "PSNR" in printed and "KS" in printed and "water" in printed and "lit" in printed
+    assert "frame 0 (held out)" in printed
+    again = sonarsim.render(sonarsim.load_scene(out))
+    assert again.polar.shape == real.polar.shape
+    assert again.polar.max() <= 255 and np.array_equal(again.polar, np.round(again.polar))
+    psnr = 10 * np.log10(255 ** 2 / np.mean((sonarsim.render(sonarsim.load_scene(out), speckle=False).polar
+                                             - real.polar) ** 2))
+    assert psnr > 20
+    figures = json.loads((tmp_path / "fig.json").read_text())
+    assert figures["calibrated"]["regions"]["lit"]["ks"] < 0.2
+    assert figures["held_out"]["0"]["psnr_db"] == pytest.approx(figures["calibrated"]["psnr_db"])
+    for key in ("ks", "wasserstein", "contrast_a", "contrast_b", "grain_range_b", "grain_beams_b",
+                "range_profile_db_real", "beam_profile_db_model"):
+        assert key in figures["calibrated"]["regions"]["water"], key
+    picture = Image.open(tmp_path / "out" / "calibrated_calibrated.png")
+    assert picture.mode == "RGB" and picture.size[0] > 1.5 * picture.size[1]  # three fans side by side
+
+
+def test_calibrate_command_rejects_a_bad_parameter_without_traceback(tmp_path, capsys):
+    from sonarsim.cli.main import main
+
+    sonarsim.render(floor_scene(STARTING_SENSOR)).save_npz(tmp_path / "real.npz")
+    scene_file = tmp_path / "scene.json"
+    scene_file.write_text('{"sonar": {"preset": "oculus-m1200d-hf", "pose": {"position_m": [0, 0, 0.4]}}, "ground": {}}')
+    rc = main(["calibrate", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--free", "depth",
+               "--out", str(tmp_path / "c.yaml")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "depth" in err and "Traceback" not in err
+    assert not (tmp_path / "c.yaml").exists()
+    rc = main(["calibrate", str(tmp_path / "missing.npz"), "--scene", str(scene_file), "--out", str(tmp_path / "c.yaml")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "missing.npz" in err and "Traceback" not in err
+    rc = main(["calibrate", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--out", str(tmp_path / "c.yaml"),
+               "--evaluate-frames", "3"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--evaluate-frames" in err and "Traceback" not in err
+    assert not (tmp_path / "c.yaml").exists()
+    with pytest.raises(SystemExit):
+        main(["calibrate", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--out", str(tmp_path / "c.yaml"),
+              "--evaluate-frames", "one"])
+    assert "--evaluate-frames" in capsys.readouterr().err

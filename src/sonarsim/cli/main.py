@@ -21,6 +21,7 @@ def _log(msg: str) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The ``sonarsim`` parser: one sub-command per module of :mod:`sonarsim.cli`."""
+    from .calibrate import add_calibrate_parser
     from .compare import add_compare_parser
     from .demo import add_demo_parser
     from .fit import add_fit_parser
@@ -41,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_show_parser(sub)
     add_compare_parser(sub)
     add_fit_parser(sub)
+    add_calibrate_parser(sub)
     return parser
 
 

@@ -274,12 +274,19 @@ class NoiseSpec:
     ----------
     level_db : float
         Noise power at the receiver input, dB re 1 uPa^2 (the level an echo must exceed).
+    after_tvg_db : float or None
+        Noise added after the TVG and gain (the digitiser's), dB re 1 uPa^2 on the output's
+        scale (that of ``output.ceiling_db``): a floor the TVG does not lift, which sets the
+        darkest ranges of a device with a steep TVG. ``None``: none.
     """
 
     level_db: float = 40.0
+    after_tvg_db: float | None = None
 
     def __post_init__(self) -> None:
         _finite("level_db", self.level_db)
+        if self.after_tvg_db is not None:
+            _finite("after_tvg_db", self.after_tvg_db)
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,8 @@ receives, ``sigma / r^2`` summed over the bin):
 
 1. the receive beams' azimuth sidelobes leak each beam's echo into its neighbours, and the
    pulse spreads it over neighbouring range bins: ``M = K_range * (K_beams * X)`` (powers);
-2. the sonar equation makes it an echo power at the receiver: ``mu = g(r) M + bang(r)``,
+2. the sonar equation makes it an echo power at the receiver: ``mu = g(r) M + bang(r)``
+   (``bang`` also carries the noise added after the TVG, ``N_a / t(r)``),
    ``10 log10 g = SL - 20 log10 r - 2 alpha r + 10 log10(dtheta) + TS_offset``
    (:func:`~sonarsim.sensor.acoustics.echo_level_offset_db`);
 3. speckle and noise are complex amplitudes: ``a = sqrt(mu) F + sqrt(N) W``, F the speckle
@@ -83,6 +84,12 @@ class SensorModel:
             self.bang = np.zeros(len(r), np.float32)
         else:
             self.bang = (10.0 ** (spec.bang.level_db / 10.0) * np.exp(-r / spec.bang.length_m)).astype(np.float32)
+        if spec.noise is not None and spec.noise.after_tvg_db is not None:
+            # Noise after the TVG, referred to the receiver: its power over t(r). A sum of
+            # complex Gaussians is one, so it joins the echo's speckled power (its intensity is
+            # exponential, of the right mean; only its correlation with the echo is not modelled).
+            floor = 10.0 ** (spec.noise.after_tvg_db / 10.0) / self.tvg.astype(np.float64)
+            self.bang = (self.bang + floor).astype(np.float32)
         # The image holds backscatter per radian of elevation (sigma / cos(alpha) dphi per ray,
         # see config.materials); times each beam's width in radians it is sigma / r^2.
         self.column_factor = np.radians(sonar.effective_beam_width_deg()).astype(np.float32)

@@ -1,0 +1,154 @@
+"""``sonarsim calibrate``: fit the sensor model (and pose parameters) to a real recording.
+
+Writes a scene that ``sonarsim render`` turns into frames in the recording's units (the
+user's scene document with the recording's grid, the calibrated ``sensor`` section and pose),
+prints the realism figures of the calibrated frame (and of held-out frames) and writes a
+side-by-side picture: real | expected render | speckled render.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from .argtypes import frame_index
+from ..errors import ConfigError, SonarsimError
+
+
+def frame_list(text: str) -> tuple[int, ...]:
+    """``"1,2"`` -> frame numbers >= 0."""
+    out = []
+    for t in text.split(","):
+        t = t.strip()
+        if t:
+            out.append(frame_index(t))
+    if not out:
+        raise argparse.ArgumentTypeError(f"expected frame numbers separated by commas, got {text!r}")
+    return tuple(out)
+
+
+def add_calibrate_parser(sub) -> argparse.ArgumentParser:
+    """Add the ``calibrate`` sub-command to an argparse sub-parser collection."""
+    p = sub.add_parser(
+        "calibrate", help="fit the sensor model (and pose parameters) to a real recording",
+        description="Fit the sensor parameters (gain, TVG law, noise before and after the TVG, bang, "
+        "elevation width, gamma, azimuth width) and the pose parameters named by --free so that the "
+        "scene's expected render matches a frame of a recording. Writes the calibrated scene to --out "
+        "(it renders frames in the recording's units), prints the realism figures, and writes a "
+        "side-by-side picture (real | expected | speckled) next to it.",
+    )
+    p.add_argument("real", help="real recording (.aris, Oculus .raw) or a sonarsim render.npz")
+    p.add_argument("--scene", required=True, help="scene file (YAML or JSON); its pose (and sensor, if any) is the start")
+    p.add_argument("--out", required=True, help="where to write the calibrated scene (YAML)")
+    p.add_argument("--frame", type=frame_index, default=0, help="frame of the recording to calibrate on (default: 0)")
+    p.add_argument("--free", default="", help="pose parameters to fit as well, from x,y,z,roll,pitch,yaw (default: none)")
+    p.add_argument("--evaluate-frames", type=frame_list, default=(), metavar="N,M",
+                   help="held-out frames of the recording to report the figures for")
+    p.add_argument("--max-iterations", type=int, default=400, help="budget of each simplex search (default: 400)")
+    p.add_argument("--image", default=None, help="side-by-side PNG (default: next to --out, *_calibrated.png)")
+    p.add_argument("--json", default=None, help="also write the figures as JSON to this file")
+    p.set_defaults(func=cmd_calibrate)
+    return p
+
+
+def calibrated_document(scene_path: Path, out_path: Path, scene) -> dict:
+    """The user's scene document with the recording's grid, the calibrated sensor and pose."""
+    from .fit import _fitted_document
+
+    doc = _fitted_document(scene_path, out_path, scene.sonar_pose)
+    sonar = scene.sonar.to_dict()
+    sonar.pop("pose", None)
+    sonar.pop("preset", None)
+    new = {k: v for k, v in sonar.items() if v is not None}
+    new["pose"] = doc["sonar"]["pose"]
+    doc["sonar"] = new
+    doc["sensor"] = scene.sensor.to_dict()
+    render = doc.setdefault("render", {})
+    if isinstance(render, dict):
+        render["speckle"] = False  # speckle is the sensor's
+    return copy.deepcopy(doc)
+
+
+def side_by_side(real, expected, speckled, peak: float, gap_px: int = 8) -> np.ndarray:
+    """RGB picture: the real fan | the expected render's | the speckled render's, on one scale.
+
+    Returns
+    -------
+    (H, 3 W + 2 gap_px, 3) uint8 ndarray
+    """
+    from ..io.output import to_uint8
+
+    pixel = max(real.sonar.range_resolution_m, real.sonar.range_max_m / 1000.0)
+    panels = []
+    for img in (real, expected, speckled):
+        fan = img.fan(pixel_size_m=pixel)
+        g = to_uint8(np.asarray(fan.image, dtype=float), "linear", reference=peak, mask=fan.mask)
+        panels.append(np.repeat(g[..., None], 3, axis=2))
+    h = max(p.shape[0] for p in panels)
+    gap = np.full((h, gap_px, 3), 255, dtype=np.uint8)
+    out = []
+    for i, p in enumerate(panels):
+        if i:
+            out.append(gap)
+        out.append(np.pad(p, ((0, h - p.shape[0]), (0, 0), (0, 0))))
+    return np.concatenate(out, axis=1)
+
+
+def cmd_calibrate(args) -> None:
+    import json
+
+    import yaml
+
+    from ..analysis.calibration import calibrate, evaluate, format_evaluation, parse_free_parameters
+    from ..analysis.comparison import load_image
+    from ..config.loader import load_scene
+    from ..io.output import atomic_write, write_png
+    from ..renderer.simulator import Simulator
+    from .fit import _load_real
+
+    if args.max_iterations < 1:
+        raise ConfigError("--max-iterations", f"must be at least 1, got {args.max_iterations}")
+    free = parse_free_parameters(args.free)
+    real = _load_real(args.real, args.frame)
+    held_out = []
+    for n in args.evaluate_frames:
+        try:
+            held_out.append((n, load_image(args.real, frame=n)))
+        except (SonarsimError, IndexError, ValueError) as exc:
+            raise SonarsimError(f"--evaluate-frames: {args.real}: no frame {n} ({exc})") from None
+    scene = load_scene(args.scene)
+    res = calibrate(real, scene, free=free, max_iterations=args.max_iterations)
+    peak = res.scene.sensor.output.full_scale
+    with Simulator(res.scene) as sim:
+        speckled = sim.render(res.scene.sonar_pose, keep_rays=False)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    doc = calibrated_document(Path(args.scene), out, res.scene)
+    with atomic_write(out, "w") as f:
+        yaml.safe_dump(doc, f, sort_keys=False)
+    image_path = Path(args.image) if args.image else out.with_name(out.stem + "_calibrated.png")
+    write_png(image_path, side_by_side(real, res.expected, speckled, peak))
+
+    for name, value in res.values.items():
+        print(f"{name:20s} {value:10.4f}")
+    print(f"PSNR of the expected render on frame {args.frame}: {res.psnr_start_db:.2f} -> {res.psnr_db:.2f} dB "
+          f"({res.renders} renders)")
+    figures = {"frame": args.frame, "values": res.values,
+               "calibrated": evaluate(real.polar, res.expected.polar, speckled.polar, peak)}
+    print(format_evaluation(figures["calibrated"], f"frame {args.frame} (calibrated): "))
+    figures["held_out"] = {}
+    for n, img in held_out:
+        if np.asarray(img.polar).shape != res.expected.polar.shape:
+            raise SonarsimError(f"--evaluate-frames: frame {n} of {args.real} has another grid than frame {args.frame}")
+        ev = evaluate(img.polar, res.expected.polar, speckled.polar, peak)
+        figures["held_out"][str(n)] = ev
+        print(format_evaluation(ev, f"frame {n} (held out): "))
+    if args.json:
+        with atomic_write(Path(args.json), "w") as f:
+            json.dump(figures, f, indent=1, default=float)
+    print(f"sonarsim: wrote {out} and {image_path}", file=sys.stderr)
