@@ -187,8 +187,10 @@ def test_calibrate_command_writes_a_scene_that_renders_in_the_recordings_units(t
     for key in ("ks", "wasserstein", "contrast_a", "contrast_b", "grain_range_b", "grain_beams_b",
                 "range_profile_db_real", "beam_profile_db_model"):
         assert key in figures["calibrated"]["regions"]["water"], key
-    picture = Image.open(tmp_path / "out" / "calibrated_calibrated.png")
-    assert picture.mode == "RGB" and picture.size[0] > 1.5 * picture.size[1]  # three fans side by side
+    picture = Image.open(tmp_path / "out" / "calibrated.png")
+    assert picture.size[0] > picture.size[1]  # three narrow fans side by side, under titles
+    thirds = np.array_split(np.asarray(picture)[40:], 3, axis=1)
+    assert all(((t > 60) & (t < 255)).sum() > 500 for t in thirds)
 
 
 def test_calibrate_command_rejects_a_bad_parameter_without_traceback(tmp_path, capsys):

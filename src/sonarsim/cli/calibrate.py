@@ -50,7 +50,7 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--evaluate-frames", type=frame_list, default=(), metavar="N,M",
                    help="held-out frames of the recording to report the figures for")
     p.add_argument("--max-iterations", type=int, default=400, help="budget of each simplex search (default: 400)")
-    p.add_argument("--image", default=None, help="side-by-side PNG (default: next to --out, *_calibrated.png)")
+    p.add_argument("--image", default=None, help="side-by-side PNG (default: --out with .png for .yaml)")
     p.add_argument("--json", default=None, help="also write the figures as JSON to this file")
     p.set_defaults(func=cmd_calibrate)
     return p
@@ -74,29 +74,20 @@ def calibrated_document(scene_path: Path, out_path: Path, scene) -> dict:
     return copy.deepcopy(doc)
 
 
-def side_by_side(real, expected, speckled, peak: float, gap_px: int = 8) -> np.ndarray:
-    """RGB picture: the real fan | the expected render's | the speckled render's, on one scale.
+def side_by_side(real, expected, speckled, peak: float, frame: int = 0) -> np.ndarray:
+    """Titled picture: the real fan | the expected render's | the speckled render's, in the
+    recording's units on one scale (0..peak -> black..white).
 
     Returns
     -------
-    (H, 3 W + 2 gap_px, 3) uint8 ndarray
+    (H, 3 W + 2 gaps) uint8 ndarray
     """
-    from ..io.output import to_uint8
+    from ..io.figures import device_tile, labelled_row
 
     pixel = max(real.sonar.range_resolution_m, real.sonar.range_max_m / 1000.0)
-    panels = []
-    for img in (real, expected, speckled):
-        fan = img.fan(pixel_size_m=pixel)
-        g = to_uint8(np.asarray(fan.image, dtype=float), "linear", reference=peak, mask=fan.mask)
-        panels.append(np.repeat(g[..., None], 3, axis=2))
-    h = max(p.shape[0] for p in panels)
-    gap = np.full((h, gap_px, 3), 255, dtype=np.uint8)
-    out = []
-    for i, p in enumerate(panels):
-        if i:
-            out.append(gap)
-        out.append(np.pad(p, ((0, h - p.shape[0]), (0, 0), (0, 0))))
-    return np.concatenate(out, axis=1)
+    tiles = [device_tile(img.polar, img, peak, pixel) for img in (real, expected, speckled)]
+    return labelled_row(tiles, [f"real (frame {frame})", "calibrated model: expected (no speckle)",
+                                "calibrated model: speckled frame"])
 
 
 def cmd_calibrate(args) -> None:
@@ -131,8 +122,8 @@ def cmd_calibrate(args) -> None:
     doc = calibrated_document(Path(args.scene), out, res.scene)
     with atomic_write(out, "w") as f:
         yaml.safe_dump(doc, f, sort_keys=False)
-    image_path = Path(args.image) if args.image else out.with_name(out.stem + "_calibrated.png")
-    write_png(image_path, side_by_side(real, res.expected, speckled, peak))
+    image_path = Path(args.image) if args.image else out.with_suffix(".png")
+    write_png(image_path, side_by_side(real, res.expected, speckled, peak, args.frame))
 
     for name, value in res.values.items():
         print(f"{name:20s} {value:10.4f}")
