@@ -53,7 +53,7 @@ from ..errors import ConfigError
 from ..image.result import SonarImage
 from ..renderer.simulator import Simulator
 from . import realism
-from .fitting import PARAMETERS, pose_values
+from .fitting import PARAMETERS, parse_free, pose_values
 
 SENSOR_PARAMETERS = ("gain_db", "noise_db", "noise_after_tvg_db", "bang_db", "bang_length_m",
                      "elevation_width_deg")
@@ -104,14 +104,8 @@ def gamma_for_contrast(contrast: float) -> float:
 
 
 def parse_free_parameters(text: str | Sequence[str]) -> tuple[str, ...]:
-    """``"z,pitch"`` -> pose parameters to fit; unknown names are errors naming what is allowed."""
-    names = [t.strip() for t in (text.split(",") if isinstance(text, str) else text) if t.strip()]
-    for n in names:
-        if n not in PARAMETERS:
-            raise ConfigError("free", f"unknown pose parameter {n!r}; allowed: {', '.join(PARAMETERS)}")
-    if len(set(names)) != len(names):
-        raise ConfigError("free", f"a parameter is named twice in {names}")
-    return tuple(names)
+    """``"z,pitch"`` -> pose parameters to fit (possibly none); unknown names are errors."""
+    return parse_free(text, allow_none=True)
 
 
 def sensor_values(spec: SensorSpec, sonar_elevation_deg: float) -> dict[str, float]:

@@ -39,10 +39,13 @@ STEPS = {"x": 0.05, "y": 0.05, "z": 0.05, "roll": 2.0, "pitch": 2.0, "yaw": 2.0}
 DEFAULT_SMOOTHING = ((8.0, 4.0), (4.0, 2.0), (2.0, 1.0))
 
 
-def parse_free(text: str | Sequence[str]) -> tuple[str, ...]:
-    """``"z,pitch"`` or ``["z", "pitch"]`` -> ``("z", "pitch")``; unknown names are errors."""
+def parse_free(text: str | Sequence[str], allow_none: bool = False) -> tuple[str, ...]:
+    """``"z,pitch"`` or ``["z", "pitch"]`` -> ``("z", "pitch")``; unknown names are errors.
+
+    ``allow_none``: an empty list is allowed (a calibration may fit no pose parameter).
+    """
     names = [t.strip() for t in (text.split(",") if isinstance(text, str) else text) if t.strip()]
-    if not names:
+    if not names and not allow_none:
         raise ConfigError("free", f"name at least one pose parameter: {', '.join(PARAMETERS)}")
     for n in names:
         if n not in PARAMETERS:
