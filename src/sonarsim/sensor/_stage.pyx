@@ -2,9 +2,10 @@
 """Compiled per-pixel loops of the sensor stage (NumPy twins in :mod:`sonarsim.sensor.model`).
 
 ``blur_beams`` and ``blur_range``: the mean image through the azimuth leakage and the pulse's
-range spread. ``combine``: echo + bang + noise amplitudes -> power -> TVG and gain -> device
-values (or, with no fields, the tabulated expected value). Each works on rows ``[r0, r1)``
-without the GIL, so that the caller can run row blocks on several threads.
+range spread (``SensorModel.mean_image``). ``frame``: the same, then per row echo + bang +
+noise amplitudes -> power -> TVG and gain -> device values (or the tabulated expected value),
+without a full-frame intermediate. Each works on rows ``[r0, r1)`` without the GIL, so that
+the caller can run row blocks on several threads.
 """
 
 from libc.math cimport logf, expf, sqrtf, floorf
@@ -94,77 +95,162 @@ cdef void _compress_row(float *p, float *out, Py_ssize_t n, int comp, float lo_d
             out[j] = <float> (<int> (out[j] + 0.5))
 
 
-def combine(const float[:, ::1] mean, const float[::1] echo_gain, const float[::1] bang, const float[::1] tvg,
-            float noise_power, const float[:, ::1] speckle, Py_ssize_t s_row, Py_ssize_t s_beam, bint has_speckle,
-            const float[:, ::1] noise, Py_ssize_t n_row, Py_ssize_t n_beam, bint has_noise,
-            int comp, float lo_db, float inv_span, float inv_ceiling, float gamma, float fs, bint quantise,
-            const float[::1] table, float table_lo_db, float table_step_db, bint expected,
-            float[:, ::1] out, Py_ssize_t r0, Py_ssize_t r1):
-    """Rows r0..r1 of the device values of one frame.
+cdef struct Chain:
+    # What turns a row of the mean image into device values (see ``frame``).
+    const float *echo_gain
+    const float *bang
+    const float *tvg
+    float noise_power
+    const float *speckle   # row 0 of the frame's speckle window, or NULL
+    Py_ssize_t speckle_stride
+    const float *noise     # row 0 of the frame's noise window, or NULL
+    Py_ssize_t noise_stride
+    int comp
+    float lo_db, inv_span, inv_ceiling, gamma, fs
+    bint quantise
+    const float *table
+    Py_ssize_t n_table
+    float table_lo_db, table_step_db
+    bint expected
 
-    Per pixel: ``mu = echo_gain[i] mean + bang[i]``; with ``expected``:
-    ``table(10 log10(tvg[i] (mu + N)))``; else
-    ``P = tvg[i] |sqrt(mu) F + sqrt(N) W|^2`` (F = 1 without speckle, W = 0 without noise) and
-    the compression of P. ``speckle`` and ``noise`` are complex fields stored as float pairs;
-    the frame reads them from the given row and beam offsets.
+
+cdef void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain *c, float *p,
+                       float *out) noexcept nogil:
+    """Device values of row ``i`` whose mean image is ``m`` (``p``: scratch of ``n_b`` floats).
+
+    Per pixel: ``mu = echo_gain[i] m + bang[i]``; with ``expected``:
+    ``table(10 log10(tvg[i] (mu + N)))``; else ``P = tvg[i] |sqrt(mu) F + sqrt(N) W|^2``
+    (F = 1 without speckle, W = 0 without noise) and the compression of P.
     """
-    cdef Py_ssize_t n_b = mean.shape[1], n_t = table.shape[0]
-    cdef Py_ssize_t i, j, k
-    cdef float g, b, t, mu, re, im, s, sn = sqrtf(noise_power), x, frac, inv_step = 1.0 / table_step_db
+    cdef Py_ssize_t j, k, n_t = c.n_table
+    cdef float g = c.echo_gain[i], b = c.bang[i], t = c.tvg[i], mu, re, im, s, x, frac
+    # Locals, not the struct's fields, in the loops: the compiler then knows nothing aliases them.
+    cdef float noise_power = c.noise_power, sn = sqrtf(c.noise_power), inv_step = 1.0 / c.table_step_db
+    cdef float lo = c.table_lo_db, top = <float> (n_t - 1)
+    cdef const float *table = c.table
     cdef const float *f
     cdef const float *w
-    cdef float *p = <float *> malloc(n_b * sizeof(float))
-    if p == NULL:
-        raise MemoryError()
-    with nogil:
-        for i in range(r0, r1):
-            g, b, t = echo_gain[i], bang[i], tvg[i]
-            if expected:
-                for j in range(n_b):
-                    x = t * (g * mean[i, j] + b + noise_power)
-                    x = x if x > 1e-30 else 1e-30
-                    p[j] = (DB_PER_LN * logf(x) - table_lo_db) * inv_step
-                for j in range(n_b):
-                    x = p[j]
-                    if x <= 0.0:
-                        out[i, j] = table[0]
-                    elif x >= n_t - 1:
-                        out[i, j] = table[n_t - 1]
-                    else:
-                        k = <Py_ssize_t> x
-                        frac = x - k
-                        out[i, j] = table[k] + frac * (table[k + 1] - table[k])
-                continue
-            if has_speckle and has_noise:
-                f = &speckle[s_row + i, 2 * s_beam]
-                w = &noise[n_row + i, 2 * n_beam]
-                for j in range(n_b):
-                    mu = g * mean[i, j] + b
-                    s = sqrtf(mu if mu > TINY else 0.0)
-                    re = s * f[2 * j] + sn * w[2 * j]
-                    im = s * f[2 * j + 1] + sn * w[2 * j + 1]
-                    p[j] = re * re + im * im
-            elif has_speckle:
-                f = &speckle[s_row + i, 2 * s_beam]
-                for j in range(n_b):
-                    mu = g * mean[i, j] + b
-                    s = sqrtf(mu if mu > TINY else 0.0)
-                    re = s * f[2 * j]
-                    im = s * f[2 * j + 1]
-                    p[j] = re * re + im * im
-            elif has_noise:
-                w = &noise[n_row + i, 2 * n_beam]
-                for j in range(n_b):
-                    mu = g * mean[i, j] + b
-                    s = sqrtf(mu if mu > TINY else 0.0)
-                    re = s + sn * w[2 * j]
-                    im = sn * w[2 * j + 1]
-                    p[j] = re * re + im * im
+    if c.expected:
+        for j in range(n_b):
+            x = t * (g * m[j] + b + noise_power)
+            x = x if x > 1e-30 else 1e-30
+            x = (DB_PER_LN * logf(x) - lo) * inv_step
+            x = x if x > 0.0 else 0.0
+            p[j] = x if x < top else top
+        for j in range(n_b):
+            x = p[j]
+            k = <Py_ssize_t> x
+            if k >= n_t - 1:
+                out[j] = table[n_t - 1]
             else:
-                for j in range(n_b):
-                    mu = g * mean[i, j] + b
-                    p[j] = mu if mu > TINY else 0.0
+                frac = x - k
+                out[j] = table[k] + frac * (table[k + 1] - table[k])
+        return
+    if c.speckle != NULL and c.noise != NULL:
+        f = c.speckle + i * c.speckle_stride
+        w = c.noise + i * c.noise_stride
+        for j in range(n_b):
+            mu = g * m[j] + b
+            s = sqrtf(mu if mu > TINY else 0.0)
+            re = s * f[2 * j] + sn * w[2 * j]
+            im = s * f[2 * j + 1] + sn * w[2 * j + 1]
+            p[j] = re * re + im * im
+    elif c.speckle != NULL:
+        f = c.speckle + i * c.speckle_stride
+        for j in range(n_b):
+            mu = g * m[j] + b
+            s = sqrtf(mu if mu > TINY else 0.0)
+            re = s * f[2 * j]
+            im = s * f[2 * j + 1]
+            p[j] = re * re + im * im
+    elif c.noise != NULL:
+        w = c.noise + i * c.noise_stride
+        for j in range(n_b):
+            mu = g * m[j] + b
+            s = sqrtf(mu if mu > TINY else 0.0)
+            re = s + sn * w[2 * j]
+            im = sn * w[2 * j + 1]
+            p[j] = re * re + im * im
+    else:
+        for j in range(n_b):
+            mu = g * m[j] + b
+            p[j] = mu if mu > TINY else 0.0
+    for j in range(n_b):
+        p[j] = t * p[j]
+    _compress_row(p, out, n_b, c.comp, c.lo_db, c.inv_span, c.inv_ceiling, c.gamma, c.fs, c.quantise)
+
+
+cdef Chain _chain(const float[::1] echo_gain, const float[::1] bang, const float[::1] tvg, float noise_power,
+                  const float[:, ::1] speckle, Py_ssize_t s_row, Py_ssize_t s_beam, bint has_speckle,
+                  const float[:, ::1] noise, Py_ssize_t n_row, Py_ssize_t n_beam, bint has_noise,
+                  int comp, float lo_db, float inv_span, float inv_ceiling, float gamma, float fs, bint quantise,
+                  const float[::1] table, float table_lo_db, float table_step_db, bint expected):
+    cdef Chain c
+    c.echo_gain, c.bang, c.tvg, c.noise_power = &echo_gain[0], &bang[0], &tvg[0], noise_power
+    c.speckle = &speckle[s_row, 2 * s_beam] if has_speckle else NULL
+    c.speckle_stride = speckle.shape[1]
+    c.noise = &noise[n_row, 2 * n_beam] if has_noise else NULL
+    c.noise_stride = noise.shape[1]
+    c.comp, c.lo_db, c.inv_span, c.inv_ceiling, c.gamma, c.fs, c.quantise = (
+        comp, lo_db, inv_span, inv_ceiling, gamma, fs, quantise)
+    c.table, c.n_table, c.table_lo_db, c.table_step_db, c.expected = (
+        &table[0], table.shape[0], table_lo_db, table_step_db, expected)
+    return c
+
+
+def frame(const float[:, ::1] x, const float[::1] column_factor, const float[::1] kb, const float[::1] norm_b,
+          const float[::1] kr, const float[::1] norm_r, const float[::1] echo_gain, const float[::1] bang,
+          const float[::1] tvg, float noise_power, const float[:, ::1] speckle, Py_ssize_t s_row, Py_ssize_t s_beam,
+          bint has_speckle, const float[:, ::1] noise, Py_ssize_t n_row, Py_ssize_t n_beam, bint has_noise,
+          int comp, float lo_db, float inv_span, float inv_ceiling, float gamma, float fs, bint quantise,
+          const float[::1] table, float table_lo_db, float table_step_db, bint expected,
+          float[:, ::1] out, Py_ssize_t r0, Py_ssize_t r1):
+    """Rows r0..r1 of a frame's device values from its image, in one pass: ``blur_beams`` on the
+    rows needed (the block and the range kernel's halo), then row by row ``blur_range`` and the
+    chain of :func:`_combine_row`, without a full-frame intermediate (one call per worker and
+    frame). ``speckle`` and ``noise`` are complex fields stored as float pairs; the frame reads
+    them from the given row and beam offsets."""
+    cdef Py_ssize_t n_r = x.shape[0], n_b = x.shape[1]
+    cdef Py_ssize_t kb_len = kb.shape[0], hb = kb_len // 2, kr_len = kr.shape[0], hr = kr_len // 2
+    cdef Py_ssize_t a = r0 - hr if r0 - hr > 0 else 0
+    cdef Py_ssize_t e = r1 + hr if r1 + hr < n_r else n_r
+    cdef Py_ssize_t i, j, m, ii
+    cdef float k
+    cdef Chain c = _chain(echo_gain, bang, tvg, noise_power, speckle, s_row, s_beam, has_speckle, noise, n_row,
+                          n_beam, has_noise, comp, lo_db, inv_span, inv_ceiling, gamma, fs, quantise, table,
+                          table_lo_db, table_step_db, expected)
+    cdef float *tmp = <float *> malloc(((e - a) * n_b + n_b + 2 * hb + 2 * n_b) * sizeof(float))
+    if tmp == NULL:
+        raise MemoryError()
+    cdef float *pad = tmp + (e - a) * n_b
+    cdef float *row = pad + n_b + 2 * hb
+    cdef float *p = row + n_b
+    cdef float *t
+    with nogil:
+        memset(pad, 0, (n_b + 2 * hb) * sizeof(float))
+        for i in range(a, e):  # across beams
+            t = tmp + (i - a) * n_b
             for j in range(n_b):
-                p[j] = t * p[j]
-            _compress_row(p, &out[i, 0], n_b, comp, lo_db, inv_span, inv_ceiling, gamma, fs, quantise)
-    free(p)
+                pad[hb + j] = x[i, j] * column_factor[j]
+                t[j] = 0.0
+            for m in range(kb_len):
+                k = kb[m]
+                for j in range(n_b):
+                    t[j] += k * pad[j + m]
+            for j in range(n_b):
+                t[j] *= norm_b[j]
+        for i in range(r0, r1):  # along range, then the chain
+            for j in range(n_b):
+                row[j] = 0.0
+            for m in range(kr_len):
+                ii = i + m - hr
+                if ii < 0 or ii >= n_r:
+                    continue
+                k = kr[m]
+                t = tmp + (ii - a) * n_b
+                for j in range(n_b):
+                    row[j] += k * t[j]
+            for j in range(n_b):
+                row[j] *= norm_r[i]
+            _combine_row(row, i, n_b, &c, p, &out[i, 0])
+    free(tmp)

@@ -208,32 +208,27 @@ class SensorModel:
         -------
         (n_range_bins, n_beams) float32 ndarray in device units (integers for integer data types).
         """
-        m = self.mean_image(image, pool)
+        x = np.ascontiguousarray(image, dtype=np.float32)
         if _stage is None:
-            return self.combine_reference(m, None if not speckle else self.draws(rng or np.random.default_rng()), speckle)
-        out = np.empty_like(m)
-        expected = not speckle
+            m = self.mean_image_reference(x)
+            draws = None if not speckle else self.draws(rng or np.random.default_rng())
+            return self.combine_reference(m, draws, speckle)
+        out = np.empty_like(x)
         ds, dn = self.draws(rng if rng is not None else np.random.default_rng()) if speckle else (None, None)
         sf = self._speckle_f if self._speckle_f is not None else self._dummy
         nf = self._noise_f if self._noise_f is not None else self._dummy
+        n_r = x.shape[0]
         t = self.expected_output
+        # Field f of a pool starts at row f * 2 n_range_bins of its 2-D float view.
         args = (
-            m, self.echo_gain, self.bang, self.tvg, np.float32(self.noise_power),
-            sf, ds.row if ds else 0, ds.beam if ds else 0, self._speckle_f is not None and speckle,
-            nf, dn.row if dn else 0, dn.beam if dn else 0, self._noise_f is not None and speckle,
+            x, self.column_factor, self._kb, self._norm_b, self._kr, self._norm_r,
+            self.echo_gain, self.bang, self.tvg, np.float32(self.noise_power),
+            sf, ds.row + ds.field * 2 * n_r if ds else 0, ds.beam if ds else 0, self._speckle_f is not None and speckle,
+            nf, dn.row + dn.field * 2 * n_r if dn else 0, dn.beam if dn else 0, self._noise_f is not None and speckle,
             self._comp, self._lo_db, self._inv_span, self._inv_ceiling, self._gamma, self._fs, self._quantise,
-            t.table, t.lo_db, t.step_db, expected, out,
+            t.table, t.lo_db, t.step_db, not speckle, out,
         )
-        if speckle:
-            n_r = m.shape[0]
-            # Field f starts at row f * 2 n_r of the stacked pool.
-            args = list(args)
-            if self._speckle_f is not None:
-                args[6] = ds.row + ds.field * 2 * n_r
-            if self._noise_f is not None:
-                args[10] = dn.row + dn.field * 2 * n_r
-            args = tuple(args)
-        self._rows(pool, m.shape[0], lambda a, b: _stage.combine(*args, a, b))
+        self._rows(pool, n_r, lambda a, b: _stage.frame(*args, a, b))
         return out
 
     # NumPy twins (the reference the compiled loops are tested against) -------------------------
