@@ -172,7 +172,7 @@ def interleaved(fns: dict, repeats: int, block: int = 5) -> dict:
     return {name: statistics.median(ts) for name, ts in times.items()}
 
 
-SENSOR_PRESET = "aris3000-64"
+SENSOR_PRESET = "aris3000-128"  # the demo sonar is the ARIS 3000 at 3 MHz
 
 
 def measure_sensor(demo: dict, repeats: int) -> dict:
