@@ -209,14 +209,18 @@ def test_frames_are_reproducible_by_index_and_differ_between_indices():
 
 
 def test_world_anchored_speckle_is_still_for_a_still_sonar_and_decorrelates_when_it_moves():
-    sim = sonarsim.Simulator(tank({"preset": "aris3000-64"}))
+    sim = sonarsim.Simulator(tank({"preset": "aris3000-64", "noise": {"level_db": 75.0}}))
     pose = {"position_m": [0, 0, 1.0], "rpy_deg": [0, 25, 0]}
     moved = {"position_m": [0.05, 0, 1.0], "rpy_deg": [0, 25, 0]}
-    a, b, c = sim.render(pose).polar, sim.render(pose).polar, sim.render(moved).polar
-    assert np.array_equal(a, b)
-    lit = a > 40
-    ra = a - sim.render(pose, speckle=False).polar
-    rc = c - sim.render(moved, speckle=False).polar
+    a, b, c = sim.render(pose, frame=0).polar, sim.render(pose, frame=1).polar, sim.render(moved, frame=0).polar
+    mean_a, mean_c = sim.render(pose, speckle=False).polar, sim.render(moved, speckle=False).polar
+    lit = mean_a > 150  # echo far above the noise
+    ra, rb, rc = a - mean_a, b - mean_a, c - mean_c
+    # Still sonar: the same speckle, the receiver noise drawn anew (frames differ where it shows).
+    assert np.corrcoef(ra[lit], rb[lit])[0, 1] > 0.9
+    dark = (mean_a > 5) & (mean_a < 60)
+    assert dark.sum() > 100 and np.corrcoef(ra[dark], rb[dark])[0, 1] < 0.5
+    # Moved by 5 cm: new speckle.
     assert abs(np.corrcoef(ra[lit], rc[lit])[0, 1]) < 0.2
 
 
@@ -251,3 +255,38 @@ def test_sensor_scene_errors_name_the_key():
         d = tank({"absorption": {"model": "francois-garrison"}})
         d["sonar"].pop("frequency_khz")
         sonarsim.render(d)
+
+
+@pytest.mark.parametrize("sensor", [
+    {"output": {"compression": "gamma", "gamma": 0.05, "ceiling_db": 150.0, "dtype": "uint8"}},
+    {"output": {"compression": "gamma", "gamma": 0.3, "ceiling_db": 150.0, "dtype": "float32"},
+     "speckle": {"model": "k", "k_shape": 1.5}, "noise": {"level_db": 60.0, "after_tvg_db": 110.0}},
+])
+def test_gamma_k_and_after_tvg_noise_twins_agree_with_exact_zeros(sensor):
+    sonar = small_sonar(frequency_khz=1800.0)
+    m = SensorModel(parse_sensor({"preset": "aris3000-64", **sensor}), sonar, seed=5)
+    x = scene_like(m.pool.shape)
+    fast = m.apply(x, np.random.default_rng(2))
+    ref = m.combine_reference(m.mean_image_reference(x), m.draws(np.random.default_rng(2)))
+    tol = 1.0 if sensor["output"]["dtype"] == "uint8" else 1e-4
+    assert np.abs(fast - ref).max() <= tol and (np.abs(fast - ref) > 1e-4).mean() < 1e-3
+    np.testing.assert_allclose(m.apply(x, speckle=False),
+                               m.combine_reference(m.mean_image_reference(x), None, speckle=False), atol=2e-3)
+
+
+def test_no_power_gives_no_output_under_gamma():
+    m, x = uniform_model(output={"compression": "gamma", "gamma": 0.05, "ceiling_db": 0.0, "dtype": "uint8"})
+    assert not m.apply(np.zeros_like(x)).any()
+
+
+def test_apply_refuses_an_image_of_another_grid():
+    m, x = uniform_model()
+    with pytest.raises(ValueError, match="shape"):
+        m.apply(np.zeros((x.shape[0] * 2, x.shape[1]), np.float32))
+
+
+def test_bad_sensor_presets_and_k_shape_are_config_errors():
+    with pytest.raises(ConfigError, match="sensor.preset"):
+        parse_sensor({"preset": ["a"]})
+    with pytest.raises(ConfigError, match="sensor.speckle.k_shape"):
+        parse_sensor({"speckle": {"model": "k", "k_shape": 1e-300}})

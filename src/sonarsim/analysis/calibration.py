@@ -49,7 +49,7 @@ from scipy import optimize
 from ..config.scene import Scene
 from ..config.sensor import SensorSpec, parse_sensor
 from ..core.transforms import Pose
-from ..errors import ConfigError
+from ..errors import ConfigError, SonarsimError
 from ..image.result import SonarImage
 from ..renderer.simulator import Simulator
 from . import realism
@@ -88,6 +88,8 @@ STARTING_SENSOR = {
 }
 
 
+# Speckle contrasts gamma can explain: gamma from 0.05 to 2 (exponential speckle compressed).
+MIN_CONTRAST, MAX_CONTRAST = 0.062, 2.2
 # Passes correcting gamma by the speckled model's contrast, and when to stop.
 GAMMA_PASSES = 2
 GAMMA_TOLERANCE = 0.02
@@ -199,7 +201,14 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
         raise ConfigError("sensor.output", "calibration fits a gamma-compressed output (compression: gamma)")
     target = np.asarray(real.polar, dtype=np.float64)
     lit = realism.auto_regions(target)["lit"]
-    contrast = realism.speckle_contrast(target, lit)
+    try:
+        contrast = realism.speckle_contrast(target, lit)
+    except ValueError as exc:
+        raise SonarsimError(f"the recording has no speckle to calibrate on in its bright band: {exc}") from None
+    if not MIN_CONTRAST <= contrast <= MAX_CONTRAST:
+        raise SonarsimError(f"the recording's speckle contrast in its bright band is {contrast:.3g}; calibration "
+                            f"needs {MIN_CONTRAST}-{MAX_CONTRAST} (a speckled frame in the device's units, not a "
+                            "noise-free render)")
     spec = replace(spec, output=replace(spec.output, gamma=gamma_for_contrast(contrast)))
     peak = spec.output.full_scale
     pose0 = scene.sonar_pose

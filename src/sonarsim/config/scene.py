@@ -377,6 +377,8 @@ class RenderSettings:
             raise ConfigError(
                 "render.double_beam", f"unknown choice {self.double_beam!r}; allowed: {', '.join(DOUBLE_BEAMS)}"
             )
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ConfigError("render.seed", f"must be a non-negative integer, got {self.seed!r}")
         if self.threads is not None and (isinstance(self.threads, bool) or self.threads < 1):
             raise ConfigError("render.threads", f"must be a positive integer or null, got {self.threads!r}")
 

@@ -262,7 +262,8 @@ class SpeckleSpec:
 
     def __post_init__(self) -> None:
         _choice("model", self.model, SPECKLE_MODELS)
-        _positive("k_shape", self.k_shape)
+        if _positive("k_shape", self.k_shape) < 0.1:
+            raise ConfigError("k_shape", f"must be at least 0.1 (effective scatterers per cell), got {self.k_shape}")
         _choice("anchor", self.anchor, SPECKLE_ANCHORS)
 
 
@@ -477,7 +478,7 @@ def parse_sensor(d: Any, base_dir: Path | None = None) -> SensorSpec | None:
     merged: dict[str, Any] = {}
     preset = d.get("preset")
     if preset is not None:
-        if preset not in SENSOR_PRESETS:
+        if not isinstance(preset, str) or preset not in SENSOR_PRESETS:
             raise ConfigError("sensor.preset", f"unknown sensor preset {preset!r}; allowed: {', '.join(SENSOR_PRESETS)}")
         merged.update(SENSOR_PRESETS[preset])
     for k, v in d.items():

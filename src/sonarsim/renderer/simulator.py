@@ -33,7 +33,7 @@ from ..paths.engine import (
     trace_legs,
 )
 from ..paths.planes import ChainTable, PlaneSet
-from ..sensor.model import SensorModel
+from ..sensor.model import FRAME_STREAM, SensorModel
 from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
 from ..scene.textures import with_textures
 from ..trace import available_cores, make_caster
@@ -353,12 +353,13 @@ class Simulator:
             paths = functools.partial(self._signature_images, sonar, fan, legs, sets, table)
         components = frame_components(stack, render.bounces, render.max_order, paths)
         total = components["total"]
-        rng = self._rng if frame is None else np.random.default_rng([int(render.seed), int(frame)])
+        rng = self._rng if frame is None else np.random.default_rng([int(render.seed), FRAME_STREAM, int(frame)])
         model = self.sensor_model(image_sonar)
         if model is not None:
+            speckle_rng = rng
             if self.scene.sensor.speckle is not None and self.scene.sensor.speckle.anchor == "world":
-                rng = model.anchored_rng(pose.position_m, pose.rpy_deg)
-            total = model.apply(total, rng, speckle is not False, pool=self._pool)
+                speckle_rng = model.anchored_rng(pose.position_m, pose.rpy_deg)  # still sonar, still speckle
+            total = model.apply(total, speckle_rng, speckle is not False, pool=self._pool, noise_rng=rng)
         elif render.speckle and speckle is not False:
             total = (total * rng.exponential(1.0, total.shape)).astype(np.float32)
         rays = None

@@ -78,10 +78,9 @@ cdef void _compress_row(float *p, float *out, Py_ssize_t n, int comp, float lo_d
             v = v if v > 1e-30 else 1e-30
             out[j] = (DB_PER_LN * logf(v) - lo_db) * scale
     elif comp == 2:
-        for j in range(n):
+        for j in range(n):  # no power, no output (the twin's 0 ** gamma)
             v = p[j] * inv_ceiling
-            v = v if v > 1e-30 else 1e-30
-            out[j] = fs * expf(gamma * logf(v))
+            out[j] = fs * expf(gamma * logf(v if v > 1e-30 else 1e-30)) if v > 1e-30 else 0.0
     else:
         scale = fs * inv_ceiling
         for j in range(n):
@@ -100,7 +99,7 @@ cdef struct Chain:
     const float *echo_gain
     const float *bang
     const float *tvg
-    float noise_power
+    const float *noise_power  # per row: the receiver's, plus the after-TVG noise referred to it
     const float *speckle   # row 0 of the frame's speckle window, or NULL
     Py_ssize_t speckle_stride
     const float *noise     # row 0 of the frame's noise window, or NULL
@@ -125,7 +124,7 @@ cdef void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain
     cdef Py_ssize_t j, k, n_t = c.n_table
     cdef float g = c.echo_gain[i], b = c.bang[i], t = c.tvg[i], mu, re, im, s, x, frac
     # Locals, not the struct's fields, in the loops: the compiler then knows nothing aliases them.
-    cdef float noise_power = c.noise_power, sn = sqrtf(c.noise_power), inv_step = 1.0 / c.table_step_db
+    cdef float noise_power = c.noise_power[i], sn = sqrtf(c.noise_power[i]), inv_step = 1.0 / c.table_step_db
     cdef float lo = c.table_lo_db, top = <float> (n_t - 1)
     cdef const float *table = c.table
     cdef const float *f
@@ -180,13 +179,13 @@ cdef void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain
     _compress_row(p, out, n_b, c.comp, c.lo_db, c.inv_span, c.inv_ceiling, c.gamma, c.fs, c.quantise)
 
 
-cdef Chain _chain(const float[::1] echo_gain, const float[::1] bang, const float[::1] tvg, float noise_power,
+cdef Chain _chain(const float[::1] echo_gain, const float[::1] bang, const float[::1] tvg, const float[::1] noise_power,
                   const float[:, ::1] speckle, Py_ssize_t s_row, Py_ssize_t s_beam, bint has_speckle,
                   const float[:, ::1] noise, Py_ssize_t n_row, Py_ssize_t n_beam, bint has_noise,
                   int comp, float lo_db, float inv_span, float inv_ceiling, float gamma, float fs, bint quantise,
                   const float[::1] table, float table_lo_db, float table_step_db, bint expected):
     cdef Chain c
-    c.echo_gain, c.bang, c.tvg, c.noise_power = &echo_gain[0], &bang[0], &tvg[0], noise_power
+    c.echo_gain, c.bang, c.tvg, c.noise_power = &echo_gain[0], &bang[0], &tvg[0], &noise_power[0]
     c.speckle = &speckle[s_row, 2 * s_beam] if has_speckle else NULL
     c.speckle_stride = speckle.shape[1]
     c.noise = &noise[n_row, 2 * n_beam] if has_noise else NULL
@@ -200,7 +199,7 @@ cdef Chain _chain(const float[::1] echo_gain, const float[::1] bang, const float
 
 def frame(const float[:, ::1] x, const float[::1] column_factor, const float[::1] kb, const float[::1] norm_b,
           const float[::1] kr, const float[::1] norm_r, const float[::1] echo_gain, const float[::1] bang,
-          const float[::1] tvg, float noise_power, const float[:, ::1] speckle, Py_ssize_t s_row, Py_ssize_t s_beam,
+          const float[::1] tvg, const float[::1] noise_power, const float[:, ::1] speckle, Py_ssize_t s_row, Py_ssize_t s_beam,
           bint has_speckle, const float[:, ::1] noise, Py_ssize_t n_row, Py_ssize_t n_beam, bint has_noise,
           int comp, float lo_db, float inv_span, float inv_ceiling, float gamma, float fs, bint quantise,
           const float[::1] table, float table_lo_db, float table_step_db, bint expected,

@@ -40,6 +40,8 @@ except ImportError:  # pragma: no cover - a source checkout without the extensio
     _stage = None
 
 COMPRESSION_CODES = {None: 0, "log": 1, "gamma": 2, "linear": 3}
+# Streams of a seed's generators (numpy SeedSequence entropy [seed, stream, ...]): no two collide.
+FRAME_STREAM, POOL_STREAM, WORLD_STREAM = 1, 2, 3
 # A sensor's elevation span defaults to this many -3 dB widths.
 DEFAULT_SPAN_WIDTHS = 3.0
 
@@ -84,12 +86,13 @@ class SensorModel:
             self.bang = np.zeros(len(r), np.float32)
         else:
             self.bang = (10.0 ** (spec.bang.level_db / 10.0) * np.exp(-r / spec.bang.length_m)).astype(np.float32)
+        # Noise power per range bin, referred to the receiver: the receiver's, plus the noise
+        # added after the TVG over t(r) (a floor the TVG does not lift). Both are complex
+        # Gaussian and independent of the echo: one noise term of their summed power.
+        noise_row = np.full(len(r), self.noise_power)
         if spec.noise is not None and spec.noise.after_tvg_db is not None:
-            # Noise after the TVG, referred to the receiver: its power over t(r). A sum of
-            # complex Gaussians is one, so it joins the echo's speckled power (its intensity is
-            # exponential, of the right mean; only its correlation with the echo is not modelled).
-            floor = 10.0 ** (spec.noise.after_tvg_db / 10.0) / self.tvg.astype(np.float64)
-            self.bang = (self.bang + floor).astype(np.float32)
+            noise_row = noise_row + 10.0 ** (spec.noise.after_tvg_db / 10.0) / self.tvg.astype(np.float64)
+        self.noise_row = noise_row.astype(np.float32)
         # The image holds backscatter per radian of elevation (sigma / cos(alpha) dphi per ray,
         # see config.materials); times each beam's width in radians it is sigma / r^2.
         self.column_factor = np.radians(sonar.effective_beam_width_deg()).astype(np.float32)
@@ -161,9 +164,12 @@ class SensorModel:
 
     # Per frame ---------------------------------------------------------------------------------
 
-    def draws(self, rng: np.random.Generator) -> tuple[speckle_mod.FieldDraw, speckle_mod.FieldDraw]:
-        """The speckle and noise fields a frame reads (from the frame's generator)."""
-        return self.pool.draw(rng), self.pool.draw(rng)
+    def draws(self, rng: np.random.Generator, noise_rng: np.random.Generator | None = None
+              ) -> tuple[speckle_mod.FieldDraw, speckle_mod.FieldDraw]:
+        """The speckle and noise fields a frame reads: the speckle's from ``rng`` (the frame's, or
+        the pose's when anchored to the world), the noise's from ``noise_rng`` (default ``rng``):
+        receiver noise is new in every frame even when the speckle is still."""
+        return self.pool.draw(rng), self.pool.draw(noise_rng if noise_rng is not None else rng)
 
     def anchored_rng(self, position_m, rpy_deg) -> np.random.Generator:
         """A generator that is a function of the pose quantised to half a resolution cell.
@@ -175,7 +181,7 @@ class SensorModel:
         spacing = float(np.median(np.abs(np.diff(self.sonar.azimuth_deg)))) if self.sonar.n_beams > 1 else 1.0
         q = np.concatenate([np.floor(np.asarray(position_m, float) / dr), np.floor(np.asarray(rpy_deg, float) / (spacing / 2))])
         key = hashlib.blake2b(q.astype(np.int64).tobytes(), digest_size=8).digest()
-        return np.random.default_rng([self.seed, int.from_bytes(key, "little")])
+        return np.random.default_rng([self.seed, WORLD_STREAM, int.from_bytes(key, "little")])
 
     def mean_image(self, image: np.ndarray, pool: Executor | None = None) -> np.ndarray:
         """``M``: the image through the azimuth leakage and the range spread (float32, same shape)."""
@@ -190,7 +196,7 @@ class SensorModel:
         return out
 
     def apply(self, image: np.ndarray, rng: np.random.Generator | None = None, speckle: bool = True,
-              pool: Executor | None = None) -> np.ndarray:
+              pool: Executor | None = None, noise_rng: np.random.Generator | None = None) -> np.ndarray:
         """The device's output for a range-compensated image.
 
         Parameters
@@ -198,11 +204,14 @@ class SensorModel:
         image : (n_range_bins, n_beams) float array
             The renderer's total image with ``l(r) = 1``.
         rng : numpy Generator, optional
-            Chooses the speckle and noise fields of this frame (ignored with ``speckle=False``).
+            Chooses the speckle and noise fields of this frame (ignored with ``speckle=False``);
+            default: frame 0 of the sensor's seed.
         speckle : bool
             ``False``: the expected output (no speckle or noise draws).
         pool : Executor, optional
             A worker thread: the rows are split between it and the caller.
+        noise_rng : numpy Generator, optional
+            Chooses the noise field instead of ``rng`` (the frame's, when the speckle is the pose's).
 
         Returns
         -------
@@ -211,10 +220,12 @@ class SensorModel:
         x = np.ascontiguousarray(image, dtype=np.float32)
         if _stage is None:
             m = self.mean_image_reference(x)
-            draws = None if not speckle else self.draws(rng or np.random.default_rng())
+            draws = None if not speckle else self.draws(rng or self._default_rng(), noise_rng)
             return self.combine_reference(m, draws, speckle)
         out = np.empty_like(x)
-        ds, dn = self.draws(rng if rng is not None else np.random.default_rng()) if speckle else (None, None)
+        if x.shape != self.pool.shape:
+            raise ValueError(f"image of shape {x.shape}; this sensor's sonar forms {self.pool.shape}")
+        ds, dn = self.draws(rng if rng is not None else self._default_rng(), noise_rng) if speckle else (None, None)
         sf = self._speckle_f if self._speckle_f is not None else self._dummy
         nf = self._noise_f if self._noise_f is not None else self._dummy
         n_r = x.shape[0]
@@ -222,7 +233,7 @@ class SensorModel:
         # Field f of a pool starts at row f * 2 n_range_bins of its 2-D float view.
         args = (
             x, self.column_factor, self._kb, self._norm_b, self._kr, self._norm_r,
-            self.echo_gain, self.bang, self.tvg, np.float32(self.noise_power),
+            self.echo_gain, self.bang, self.tvg, self.noise_row,
             sf, ds.row + ds.field * 2 * n_r if ds else 0, ds.beam if ds else 0, self._speckle_f is not None and speckle,
             nf, dn.row + dn.field * 2 * n_r if dn else 0, dn.beam if dn else 0, self._noise_f is not None and speckle,
             self._comp, self._lo_db, self._inv_span, self._inv_ceiling, self._gamma, self._fs, self._quantise,
@@ -230,6 +241,10 @@ class SensorModel:
         )
         self._rows(pool, n_r, lambda a, b: _stage.frame(*args, a, b))
         return out
+
+    def _default_rng(self) -> np.random.Generator:
+        """Without a generator: the first frame of the sensor's seed (reproducible)."""
+        return np.random.default_rng([self.seed, FRAME_STREAM, 0])
 
     # NumPy twins (the reference the compiled loops are tested against) -------------------------
 
@@ -255,11 +270,11 @@ class SensorModel:
         mu = self.echo_gain[:, None].astype(np.float64) * mean + self.bang[:, None]
         t = self.tvg[:, None].astype(np.float64)
         if not speckle:
-            return t * (mu + self.noise_power)
+            return t * (mu + self.noise_row[:, None])
         f, w = self.fields(draws)
         a = np.sqrt(np.maximum(mu, 0.0)) * (1.0 if f is None else f)
         if w is not None:
-            a = a + math.sqrt(self.noise_power) * w
+            a = a + np.sqrt(self.noise_row[:, None].astype(np.float64)) * w
         return t * np.abs(a) ** 2
 
     def combine_reference(self, mean: np.ndarray, draws, speckle: bool = True) -> np.ndarray:
@@ -281,7 +296,7 @@ class SensorModel:
         if self.spec.noise is not None:
             n = speckle_mod.filter_field(speckle_mod.complex_gaussian(rng, x.shape), self.range_amplitude,
                                          self.beam_amplitude, circular=False)
-            a = a + math.sqrt(self.noise_power) * n
+            a = a + np.sqrt(self.noise_row[:, None].astype(np.float64)) * n
         return output.compress(self.tvg[:, None] * np.abs(a) ** 2, self.spec.output)
 
     # Helpers ------------------------------------------------------------------------------------

@@ -24,6 +24,7 @@ from ..config.sensor import SpeckleSpec
 from ..errors import ConfigError
 
 POOL_FIELDS = 4
+POOL_STREAM = 2  # the pool's generator: [seed, 2] (frames use [seed, 1, frame]; see sensor.model)
 # Bytes a pool may take (the fields are stored twice as wide, for contiguous cyclic reads).
 MAX_POOL_BYTES = 1 << 30
 
@@ -109,12 +110,13 @@ class SpecklePool:
                  spec: SpeckleSpec | None, noise: bool, seed: int, n_fields: int = POOL_FIELDS) -> None:
         n_r, n_b = shape
         n_kinds = int(spec is not None) + int(noise)
-        need = n_kinds * n_fields * n_r * 2 * n_b * 8
+        # Each field is stored tiled 2 x 2 (complex64), and built from a field and its tile.
+        need = n_kinds * n_fields * (2 * n_r) * (2 * n_b) * 8 + 3 * n_r * n_b * 8
         if need > MAX_POOL_BYTES:
             raise ConfigError("sensor.speckle", f"the speckle and noise fields of a {n_r} x {n_b} image would take "
                               f"{need / 2**20:.0f} MiB (at most {MAX_POOL_BYTES / 2**20:.0f} MiB): use fewer range "
                               "bins or beams")
-        rng = np.random.default_rng([int(seed), 0x5BEC])
+        rng = np.random.default_rng([int(seed), POOL_STREAM])
         self.shape = shape
         self.n_fields = n_fields
         self.speckle = None
