@@ -71,7 +71,7 @@ BOUNDS = {
 MIN_SPAN_DEG = 60.0
 
 #: Weight of the water column's mean profile in the cost (see :func:`calibrate`).
-WATER_WEIGHT = 1.0
+WATER_WEIGHT = 5.0
 
 #: The starting sensor when the scene has none: an 8-bit device with log compression, 20 log r
 #: TVG and absorption in fresh water, a uniform line array in elevation, Gaussian receive beams.

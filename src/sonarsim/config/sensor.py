@@ -537,17 +537,18 @@ SENSOR_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({
     "oculus-m750d-hf": _device(1200.0, 12.0, 0.6, 12.0),
     "oculus-m1200d-lf": _device(1200.0, 20.0, 0.6, 12.0),
     # Calibrated (``sonarsim calibrate``, benchmarks/bench_realism.py) on the first real ping
-    # of an M1200d at 2.1 MHz over a tank floor; scores 19.2 dB PSNR on the two held-out pings.
+    # of an M1200d at 2.1 MHz over a tank floor (pose z 0.433 m, pitch 29.06, roll 1.42 deg);
+    # scores 19.2 dB PSNR on the two held-out pings.
     "oculus-m1200d-hf": MappingProxyType({
-        "source_level_db": 180.0, "frequency_khz": 2100.0, "gain_db": 30.57,
+        "source_level_db": 180.0, "frequency_khz": 2100.0, "gain_db": 30.11,
         "absorption": {"model": "francois-garrison", "temperature_c": 15.0, "salinity_psu": 0.0, "depth_m": 1.0},
         "tvg": {"spreading": 40.0, "absorption": True},
-        "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 7.24, "span_deg": 60.0},
+        "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 7.48, "span_deg": 60.0},
         "azimuth_pattern": {"shape": "gaussian", "width_deg": 0.423},
         "speckle": {"model": "rayleigh", "anchor": "world"},
-        "noise": {"level_db": 91.51, "after_tvg_db": 108.24},
-        "bang": {"level_db": 130.77, "length_m": 0.0051},
-        "output": {"compression": "gamma", "gamma": 0.262, "floor_db": 60.0, "ceiling_db": 160.0, "dtype": "uint8"},
+        "noise": {"level_db": 92.46, "after_tvg_db": 107.83},
+        "bang": {"level_db": 90.33, "length_m": 0.0087},
+        "output": {"compression": "gamma", "gamma": 0.2616, "floor_db": 60.0, "ceiling_db": 160.0, "dtype": "uint8"},
     }),
     "blueview-p900-130": _device(900.0, 20.0, 1.0, 15.0, dtype="uint16"),
     "gemini-720i": _device(720.0, 20.0, 1.0, 20.0),
