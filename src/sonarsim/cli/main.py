@@ -33,6 +33,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="sonarsim",
         description="Simulate 2D forward-looking sonar images (with ground echoes) from 3D scenes.",
     )
+    from .. import __version__
+
+    parser.add_argument("--version", action="version", version=f"sonarsim {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     add_render_parser(sub)

@@ -373,24 +373,86 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
         raise
 
 
+# A scene file is a few kilobytes; anything far larger is not one (and is not read whole).
+MAX_SCENE_BYTES = 16 * 2**20
+
+
+def _unique_pairs(pairs, where: str):
+    """A JSON object's pairs as a dict, refusing a key given twice (JSON would keep the last)."""
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise SonarsimError(f"{where}: the key {k!r} is given twice in one mapping")
+        out[k] = v
+    return out
+
+
+def _strict_yaml_loader(where: str):
+    """A safe YAML loader that refuses a key given twice in one mapping (YAML keeps the last)."""
+    import yaml
+
+    class Strict(yaml.SafeLoader):
+        pass
+
+    def mapping(loader, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = loader.construct_object(key_node, deep=deep)
+            try:
+                duplicate = key in seen
+            except TypeError:  # an unhashable key: the base constructor says so
+                break
+            if duplicate:
+                raise SonarsimError(f"{where}: the key {key!r} is given twice in one mapping "
+                                    f"(line {key_node.start_mark.line + 1})")
+            seen.add(key)
+        return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
+
+    Strict.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
+                           lambda loader, node: mapping(loader, node))
+    Strict.construct_mapping = lambda self, node, deep=False: mapping(self, node, deep)
+    return Strict
+
+
 def read_document(path: str | os.PathLike) -> Any:
-    """Parse a YAML or JSON file (JSON by a ``.json`` suffix, YAML otherwise)."""
+    """Parse a YAML or JSON file (JSON by a ``.json`` suffix, YAML otherwise).
+
+    Raises
+    ------
+    SonarsimError
+        The file is missing, a directory or device, larger than :data:`MAX_SCENE_BYTES`, not
+        UTF-8 text, nested too deeply, not valid YAML/JSON, or gives a key twice in one mapping.
+    """
     import yaml
 
     p = Path(path)
-    if not p.is_file():
+    if p.is_dir():
+        raise SonarsimError(f"{p}: is a directory, not a scene file (YAML or JSON)")
+    if not p.exists():
         raise SonarsimError(f"{p}: scene file not found")
-    text = p.read_text(encoding="utf-8")
+    if not p.is_file():
+        raise SonarsimError(f"{p}: not a regular file (a device or pipe?); give a scene file (YAML or JSON)")
+    size = p.stat().st_size
+    if size > MAX_SCENE_BYTES:
+        raise SonarsimError(f"{p}: {size / 2**20:.0f} MiB is not a scene file (at most {MAX_SCENE_BYTES // 2**20} MiB)")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise SonarsimError(f"{p}: not UTF-8 text (byte {exc.start}): a scene file is YAML or JSON text") from None
+    except OSError as exc:
+        raise SonarsimError(f"{p}: cannot read the scene file: {exc.strerror or exc}") from None
     try:
         if p.suffix.lower() == ".json":
-            return json.loads(text)
-        return yaml.safe_load(text)
+            return json.loads(text, object_pairs_hook=lambda pairs: _unique_pairs(pairs, str(p)))
+        return yaml.load(text, Loader=_strict_yaml_loader(str(p)))  # noqa: S506 - a SafeLoader subclass
     except json.JSONDecodeError as exc:
         raise SonarsimError(f"{p}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         raise SonarsimError(f"{p}: invalid YAML{where}: {getattr(exc, 'problem', exc)}") from None
+    except RecursionError:
+        raise SonarsimError(f"{p}: nested too deeply to be a scene file") from None
 
 
 def load_scene(scene: str | os.PathLike | Mapping | Scene) -> Scene:

@@ -105,6 +105,10 @@ class SonarConfig:
                 "sonar.n_range_bins", f"must be a positive integer, got {self.n_range_bins}"
             )
         object.__setattr__(self, "n_range_bins", int(self.n_range_bins))
+        if self.frequency_khz is not None and not (np.isfinite(self.frequency_khz)
+                                                   and 1.0 <= self.frequency_khz <= 1e5):
+            raise ConfigError("sonar.frequency_khz",
+                              f"must be within [1, 100000] kHz (sonars run at tens of kHz to a few MHz), got {self.frequency_khz}")
         if self.beam_width_deg is not None and not 0.0 < self.beam_width_deg < 90.0:
             raise ConfigError(
                 "sonar.beam_width_deg", f"must be in (0, 90) degrees, got {self.beam_width_deg}"

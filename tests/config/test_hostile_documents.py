@@ -1,0 +1,59 @@
+"""Hostile scene documents (issue 11): each ends in one clear error naming the file or key."""
+
+from __future__ import annotations
+
+import pytest
+
+import sonarsim
+from sonarsim.cli.main import main
+from sonarsim.config.loader import MAX_SCENE_BYTES, read_document
+from sonarsim.errors import ConfigError, SonarsimError
+
+
+@pytest.mark.parametrize("name, content, message", [
+    ("dup.yaml", "sonar: {n_beams: 4}\nground: {}\nsonar: {n_beams: 8}\n", "'sonar' is given twice"),
+    ("dupinner.yaml", "sonar: {n_beams: 4, n_beams: 8}\n", "'n_beams' is given twice"),
+    ("dup.json", '{"sonar": {}, "sonar": {}}', "'sonar' is given twice"),
+    ("latin1.yaml", "sonar: {name: caf\xe9}\n".encode("latin-1"), "not UTF-8"),
+    ("binary.yaml", bytes(range(256)), "not UTF-8"),
+    ("deep.yaml", "a: " + "[" * 20000 + "]" * 20000 + "\n", "nested too deeply"),
+    ("deep.json", '{"a": ' + "[" * 100000 + "]" * 100000 + "}", "nested too deeply"),
+])
+def test_malformed_documents_name_the_file_and_the_problem(tmp_path, name, content, message):
+    p = tmp_path / name
+    p.write_bytes(content if isinstance(content, bytes) else content.encode())
+    with pytest.raises(SonarsimError, match=message) as e:
+        read_document(p)
+    assert str(p) in str(e.value)
+
+
+def test_directories_devices_and_huge_files_are_not_scene_files(tmp_path):
+    with pytest.raises(SonarsimError, match="is a directory"):
+        read_document(tmp_path)
+    with pytest.raises(SonarsimError, match="not a regular file"):
+        read_document("/dev/zero")
+    big = tmp_path / "big.yaml"
+    with open(big, "wb") as f:
+        f.truncate(MAX_SCENE_BYTES + 1)
+    with pytest.raises(SonarsimError, match="is not a scene file"):
+        read_document(big)
+
+
+def test_the_cli_says_one_line_and_exits_2(tmp_path, capsys):
+    p = tmp_path / "dup.yaml"
+    p.write_text("sonar: {preset: aris3000-128}\nsonar: {preset: aris3000-64}\n")
+    assert main(["render", str(p), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "given twice" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("value", [-5.0, 0.0, 1e9, float("inf")])
+def test_impossible_frequencies_are_refused(value):
+    with pytest.raises(ConfigError, match="sonar.frequency_khz"):
+        sonarsim.load_scene({"sonar": {"preset": "aris3000-128", "frequency_khz": value}})
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0 and capsys.readouterr().out.strip() == f"sonarsim {sonarsim.__version__}"
