@@ -57,3 +57,44 @@ def test_version(capsys):
     with pytest.raises(SystemExit) as e:
         main(["--version"])
     assert e.value.code == 0 and capsys.readouterr().out.strip() == f"sonarsim {sonarsim.__version__}"
+
+
+@pytest.mark.parametrize("where, value, key", [
+    ("sonar_pose", {"position_m": [1e300, 0, 0]}, "sonar.pose.position_m"),
+    ("sonar_pose", {"rpy_deg": [0, 1e300, 0]}, "sonar.pose.rpy_deg"),
+    ("object", {"primitive": "sphere", "radius_m": 1e30}, "objects[0].radius_m"),
+    ("object", {"primitive": "box", "size_m": [1, 1, 1e9]}, "objects[0].size_m"),
+    ("object", {"primitive": "box", "size_m": [1, 1, 1], "scale": 1e12}, "objects[0].scale"),
+    ("object", {"primitive": "box", "size_m": [1, 1, 1], "pose": {"position_m": [0, 0, 1e7]}},
+     "objects[0].pose.position_m"),
+])
+def test_absurd_sizes_and_places_are_refused(where, value, key):
+    doc = {"sonar": {"preset": "aris3000-128"}}
+    if where == "sonar_pose":
+        doc["sonar"]["pose"] = value
+    else:
+        doc["objects"] = [{"name": "o", **value}]
+    with pytest.raises(ConfigError) as e:
+        sonarsim.load_scene(doc)
+    assert e.value.key == key
+
+
+def test_mesh_files_that_are_not_meshes_say_so(tmp_path):
+    import numpy as np
+    from sonarsim.errors import MeshFileError
+    from sonarsim.scene.meshes import load_mesh_file
+
+    with pytest.raises(MeshFileError, match="is a directory"):
+        load_mesh_file(tmp_path)
+    with pytest.raises(MeshFileError, match="not a regular file"):
+        load_mesh_file("/dev/zero")
+    for suffix in (".stl", ".obj"):
+        junk = tmp_path / f"junk{suffix}"
+        junk.write_bytes(np.random.default_rng(0).bytes(4096))
+        with pytest.raises(MeshFileError) as e:
+            load_mesh_file(junk)
+        assert str(junk) in str(e.value) and "charset" not in str(e.value)
+    flat = tmp_path / "flat.obj"
+    flat.write_text("v 1 1 1\nv 1 1 1\nv 1 1 1\nf 1 2 3\n")
+    with pytest.raises(MeshFileError, match="degenerate"):
+        load_mesh_file(flat)

@@ -38,6 +38,11 @@ OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "p
 MATERIAL_KEYS = ("law", "albedo", "mu", "mu_db", "specular_strength", "roughness", "texture")
 
 
+# Plausibility bounds: a sonar scene spans kilometres at most; an angle beyond two turns is a typo.
+MAX_COORDINATE_M = 1e6
+MAX_ANGLE_DEG = 720.0
+
+
 # Typed getters ---------------------------------------------------------------------------
 
 def _check_keys(d: Any, allowed: tuple[str, ...], where: str) -> Mapping:
@@ -98,6 +103,8 @@ def parse_pose(d: Any, where: str) -> Pose:
     """A pose mapping ``{position_m, rpy_deg | quat_xyzw}``; missing parts are zero."""
     _check_keys(d, POSE_KEYS, where)
     position = _vector(d.get("position_m", [0.0, 0.0, 0.0]), f"{where}.position_m", 3)
+    if max(abs(v) for v in position) > MAX_COORDINATE_M:
+        raise ConfigError(f"{where}.position_m", f"must lie within {MAX_COORDINATE_M:g} m of the origin, got {list(position)}")
     if "rpy_deg" in d and "quat_xyzw" in d:
         raise ConfigError(f"{where}.quat_xyzw", "give either rpy_deg or quat_xyzw, not both")
     if "quat_xyzw" in d:
@@ -105,7 +112,10 @@ def parse_pose(d: Any, where: str) -> Pose:
         if np.linalg.norm(q) < 1e-9:
             raise ConfigError(f"{where}.quat_xyzw", "must not be the zero quaternion")
         return Pose.from_quaternion(position, q)
-    return Pose(position, _vector(d.get("rpy_deg", [0.0, 0.0, 0.0]), f"{where}.rpy_deg", 3))
+    rpy = _vector(d.get("rpy_deg", [0.0, 0.0, 0.0]), f"{where}.rpy_deg", 3)
+    if max(abs(v) for v in rpy) > MAX_ANGLE_DEG:
+        raise ConfigError(f"{where}.rpy_deg", f"angles must lie within +-{MAX_ANGLE_DEG:g} degrees, got {list(rpy)}")
+    return Pose(position, rpy)
 
 
 def parse_sonar(d: Any, base_dir: Path | None) -> SonarConfig:

@@ -30,6 +30,8 @@ PLANE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 RESERVED_PLANE_NAMES = ("objects", "O")
 # Path orders beyond this cost more than they show (R**order of an echo that is already faint).
 MAX_ORDER_LIMIT = 9
+# Objects larger than this are not objects of a sonar scene (a typo or a unit mistake).
+MAX_LENGTH_M = 1e4
 
 
 def _check_unit_interval(key: str, value: float) -> None:
@@ -105,16 +107,17 @@ class ObjectSpec:
                     raise ConfigError(key, f"not used by a {self.primitive}; allowed: {', '.join(needed[self.primitive])}")
             if self.size_m is not None:
                 size = tuple(float(v) for v in self.size_m)
-                if len(size) != 3 or not all(np.isfinite(v) and v > 0 for v in size):
+                if len(size) != 3 or not all(np.isfinite(v) and 0 < v <= MAX_LENGTH_M for v in size):
                     raise ConfigError("size_m", f"must be three positive lengths in metres, got {self.size_m}")
                 object.__setattr__(self, "size_m", size)
             for key in ("radius_m", "height_m"):
                 v = getattr(self, key)
-                if v is not None and not (np.isfinite(v) and v > 0):
-                    raise ConfigError(key, f"must be a positive length in metres, got {v}")
+                if v is not None and not (np.isfinite(v) and 0 < v <= MAX_LENGTH_M):
+                    raise ConfigError(key, f"must be a positive length in metres, at most {MAX_LENGTH_M:g}, got {v}")
         scale = np.atleast_1d(np.asarray(self.scale, dtype=float))
-        if scale.size not in (1, 3) or not np.all(np.isfinite(scale) & (scale > 0)):
-            raise ConfigError("scale", f"must be a positive number or three positive numbers, got {self.scale}")
+        if scale.size not in (1, 3) or not np.all(np.isfinite(scale) & (scale > 0) & (scale <= MAX_LENGTH_M)):
+            raise ConfigError("scale", f"must be a positive number or three positive numbers, at most {MAX_LENGTH_M:g}, "
+                              f"got {self.scale}")
         _check_unit_interval("albedo", self.albedo)
         _check_material(self, texture_allowed=True)
         if self.material is not None and self.material.texture and self.primitive is not None:

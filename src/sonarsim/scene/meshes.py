@@ -74,6 +74,8 @@ def _load_mesh_file_cached(path: str, mtime_ns: int, size: int, texture: bool = 
 
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
+    except ImportError:  # trimesh reaching for an optional text decoder: the bytes are not a mesh it knows
+        raise MeshFileError(f"{path}: not a mesh file trimesh can read (OBJ, STL, PLY, GLB/glTF, OFF)") from None
     except Exception as exc:  # trimesh raises many types for unreadable files
         raise MeshFileError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
     if not isinstance(loaded, trimesh.Trimesh):
@@ -84,6 +86,11 @@ def _load_mesh_file_cached(path: str, mtime_ns: int, size: int, texture: bool = 
         raise MeshFileError(f"{path}: the mesh is empty (no triangles)")
     if not np.all(np.isfinite(vertices)):
         raise MeshFileError(f"{path}: the mesh has non-finite vertex coordinates")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise MeshFileError(f"{path}: faces refer to vertices that do not exist")
+    v = vertices[faces]
+    if not np.any(np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1) > 0):
+        raise MeshFileError(f"{path}: every triangle of the mesh is degenerate (zero area)")
     vertices.setflags(write=False)
     faces.setflags(write=False)
     if texture:
@@ -102,8 +109,12 @@ def load_mesh_file(path: str | os.PathLike, texture: bool = False) -> TriangleMe
         The file is missing, unreadable, or holds no triangles; the message names the file.
     """
     p = Path(path)
-    if not p.is_file():
+    if p.is_dir():
+        raise MeshFileError(f"{p}: is a directory, not a mesh file")
+    if not p.exists():
         raise MeshFileError(f"{p}: mesh file not found")
+    if not p.is_file():
+        raise MeshFileError(f"{p}: not a regular file (a device or pipe?); give a mesh file")
     st = p.stat()
     if st.st_size == 0:
         raise MeshFileError(f"{p}: the mesh file is empty")
