@@ -98,3 +98,49 @@ def test_mesh_files_that_are_not_meshes_say_so(tmp_path):
     flat.write_text("v 1 1 1\nv 1 1 1\nv 1 1 1\nf 1 2 3\n")
     with pytest.raises(MeshFileError, match="degenerate"):
         load_mesh_file(flat)
+
+
+@pytest.mark.parametrize("sonar, key", [
+    ({"n_beams": 128, "azimuth_fov_deg": 30, "n_range_bins": 10**9}, "sonar.n_range_bins"),
+    ({"n_beams": 128, "azimuth_fov_deg": 30, "range_resolution_m": 1e-9}, "sonar.n_range_bins"),
+    ({"n_beams": 10**6, "azimuth_fov_deg": 30, "n_range_bins": 1000}, "sonar.n_range_bins"),
+])
+def test_sizes_beyond_the_memory_budget_are_refused_before_allocating(sonar, key):
+    doc = {"sonar": {"elevation_fov_deg": 14, "range_min_m": 0.5, "range_max_m": 5.0, **sonar}}
+    with pytest.raises(ConfigError, match="memory budget") as e:
+        sonarsim.load_scene(doc)
+    assert e.value.key == key
+
+
+def test_ray_counts_and_fan_pixels_are_checked_against_the_budget():
+    doc = {"sonar": {"preset": "aris3000-128"}, "render": {"elevation_samples": 10**9}}
+    with pytest.raises(ConfigError, match="render.elevation_samples"):
+        sonarsim.render(doc)
+    img = sonarsim.render({"sonar": {"preset": "aris3000-128"}, "render": {"elevation_samples": 8}})
+    with pytest.raises(ConfigError, match="pixel_size_m"):
+        img.fan(pixel_size_m=1e-6)
+
+
+def test_the_budget_can_be_raised_or_lowered(monkeypatch, capsys, tmp_path):
+    from sonarsim.core import memory
+
+    monkeypatch.setenv(memory.ENV_VAR, "2M")
+    with pytest.raises(ConfigError, match="memory budget of"):
+        sonarsim.load_scene({"sonar": {"preset": "aris3000-128"}})
+    monkeypatch.delenv(memory.ENV_VAR)
+    sonarsim.load_scene({"sonar": {"preset": "aris3000-128"}})
+    scene = tmp_path / "s.yaml"
+    scene.write_text("sonar: {preset: aris3000-128}\n")
+    try:
+        assert main(["--max-memory", "2M", "render", str(scene), "--out", str(tmp_path / "o")]) == 2
+    finally:
+        memory.set_memory_budget(None)
+    assert "--max-memory" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--max-memory", "lots", "presets"])
+
+
+def test_beam_tables_that_are_devices_are_refused(tmp_path):
+    with pytest.raises(ConfigError, match="directory or device"):
+        sonarsim.load_scene({"sonar": {"n_beams": 4, "beam_angles_file": "/dev/zero", "elevation_fov_deg": 14,
+                                       "range_min_m": 0.5, "range_max_m": 5, "n_range_bins": 100}})

@@ -19,6 +19,15 @@ def _log(msg: str) -> None:
     print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
 
 
+def _memory_size(text: str) -> int:
+    from ..core.memory import parse_size
+
+    try:
+        return parse_size(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``sonarsim`` parser: one sub-command per module of :mod:`sonarsim.cli`."""
     from .calibrate import add_calibrate_parser
@@ -36,6 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
 
     parser.add_argument("--version", action="version", version=f"sonarsim {__version__}")
+    parser.add_argument("--max-memory", type=_memory_size, default=None, metavar="SIZE",
+                        help="memory budget that sizes are checked against before allocating, e.g. 4G "
+                        "(default: $SONARSIM_MAX_MEMORY, else 8 GiB or 80%% of the machine's memory)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     add_render_parser(sub)
@@ -53,6 +65,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``sonarsim`` command; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    from ..core.memory import set_memory_budget
+
+    set_memory_budget(args.max_memory)
     try:
         args.func(args)
     except SonarsimError as exc:

@@ -387,6 +387,7 @@ def sine_spaced_beam_angles_deg(aperture_deg: float, n_beams: int) -> np.ndarray
 # --------------------------------------------------------------------------------------------
 
 _CELL_SPLIT = re.compile(r"[,;\s]+")
+MAX_TABLE_BYTES = 2**20  # a beam table has hundreds of rows
 
 
 def beam_angles_from_table(
@@ -424,8 +425,14 @@ def beam_angles_from_table(
         (two beams at the same angle, or a table out of order). The error names the file.
     """
     source = os.fspath(path)
+    p = Path(source)
+    if p.exists() and not p.is_file():
+        raise ConfigError(key, "beam-angle table is a directory or device, not a file", source=source)
+    if p.is_file() and p.stat().st_size > MAX_TABLE_BYTES:
+        raise ConfigError(key, f"beam-angle table of {p.stat().st_size} bytes; a table of beams is at most "
+                          f"{MAX_TABLE_BYTES // 2**20} MiB", source=source)
     try:
-        text = Path(source).read_text(encoding="utf-8")
+        text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(key, "beam-angle table not found", source=source) from None
     except (OSError, UnicodeDecodeError) as exc:

@@ -15,7 +15,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..core.memory import require
 from ..errors import ConfigError
+
+IMAGES_PER_FRAME = 40
 from ..image.grid import PolarGrid, beam_edges_deg
 
 __all__ = ["SonarConfig", "beam_edges_deg", "uniform_beam_angles_deg"]
@@ -105,6 +108,9 @@ class SonarConfig:
                 "sonar.n_range_bins", f"must be a positive integer, got {self.n_range_bins}"
             )
         object.__setattr__(self, "n_range_bins", int(self.n_range_bins))
+        # A frame holds a few dozen images of this size (path orders, components, sensor).
+        require(float(self.n_range_bins) * a.size * 4 * IMAGES_PER_FRAME,
+                f"images of {self.n_range_bins} range bins x {a.size} beams", "sonar.n_range_bins")
         if self.frequency_khz is not None and not (np.isfinite(self.frequency_khz)
                                                    and 1.0 <= self.frequency_khz <= 1e5):
             raise ConfigError("sonar.frequency_khz",

@@ -37,3 +37,73 @@ def keep_freed_memory(top_pad_bytes: int = TOP_PAD_BYTES) -> bool:
     mallopt.restype = ctypes.c_int
     _done = bool(mallopt(M_TOP_PAD, int(top_pad_bytes)))
     return _done
+
+
+# The memory budget ------------------------------------------------------------------------
+#
+# Sizes a user controls (range bins, beams, rays per beam, fan pixel size, speckle fields) are
+# checked against a budget before anything is allocated, so that a typo (n_range_bins: 1e9)
+# ends in a clear error instead of a MemoryError traceback or a machine swapping.
+
+ENV_VAR = "SONARSIM_MAX_MEMORY"
+DEFAULT_BUDGET_BYTES = 8 * 2**30
+_UNITS = {"": 1, "b": 1, "k": 2**10, "kb": 2**10, "kib": 2**10, "m": 2**20, "mb": 2**20, "mib": 2**20,
+          "g": 2**30, "gb": 2**30, "gib": 2**30, "t": 2**40, "tb": 2**40, "tib": 2**40}
+_budget_override: int | None = None
+
+
+def parse_size(text: str) -> int:
+    """``"4G"``, ``"512 MiB"``, ``"1e9"`` -> bytes. Raises ValueError naming what is allowed."""
+    import re
+
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*([a-zA-Z]*)\s*", str(text))
+    if not m or m.group(2).lower() not in _UNITS:
+        raise ValueError(f"a memory size is a number with an optional unit (K, M, G, T), e.g. 4G; got {text!r}")
+    value = float(m.group(1)) * _UNITS[m.group(2).lower()]
+    if not value >= 2**20:
+        raise ValueError(f"a memory budget below 1 MiB cannot render anything; got {text!r}")
+    return int(value)
+
+
+def set_memory_budget(nbytes: int | None) -> None:
+    """Set the budget for this process (``None``: back to the environment's or the default)."""
+    global _budget_override
+    _budget_override = None if nbytes is None else int(nbytes)
+
+
+def memory_budget() -> int:
+    """Bytes a single allocation plan may use: ``set_memory_budget``, else ``$SONARSIM_MAX_MEMORY``,
+    else 8 GiB or 80 % of the machine's memory, whichever is less."""
+    import os
+
+    from ..errors import SonarsimError
+
+    if _budget_override is not None:
+        return _budget_override
+    env = os.environ.get(ENV_VAR)
+    if env:
+        try:
+            return parse_size(env)
+        except ValueError as exc:
+            raise SonarsimError(f"{ENV_VAR}: {exc}") from None
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        total = DEFAULT_BUDGET_BYTES
+    return int(min(DEFAULT_BUDGET_BYTES, 0.8 * total))
+
+
+def require(nbytes: float, what: str, key: str) -> None:
+    """Refuse a plan that would need more than the budget, naming the key that sets its size.
+
+    Raises
+    ------
+    ConfigError
+        ``key``: what would be allocated, how much, the budget, and how to raise it.
+    """
+    from ..errors import ConfigError
+
+    budget = memory_budget()
+    if nbytes > budget:
+        raise ConfigError(key, f"{what} would need {nbytes / 2**30:.3g} GiB, more than the memory budget of "
+                          f"{budget / 2**30:.3g} GiB (raise it with --max-memory or ${ENV_VAR})")

@@ -15,7 +15,9 @@ import numpy as np
 
 from ..config.scene import RenderSettings
 from ..config.sonar import SonarConfig
+from .memory import require
 
+BYTES_PER_RAY = 600
 AUTO_MIN_SAMPLES = 32
 AUTO_MAX_SAMPLES = 1024
 
@@ -78,6 +80,10 @@ def make_ray_fan(sonar: SonarConfig, render: RenderSettings, elevation_gain=None
     """
     n_el = auto_elevation_samples(sonar) if render.elevation_samples == "auto" else int(render.elevation_samples)
     n_az = int(render.azimuth_samples)
+    # Every ray costs its direction and weight here, and its legs' hits, points and normals
+    # per frame: about this many bytes in all.
+    require(float(sonar.n_beams) * n_az * n_el * BYTES_PER_RAY, f"{sonar.n_beams} beams x {n_az} x {n_el} rays",
+            "render.elevation_samples" if render.elevation_samples != "auto" else "sonar.n_beams")
     half_el = math.radians(sonar.elevation_fov_deg) / 2.0
     dphi = 2.0 * half_el / n_el
     phi = -half_el + (np.arange(n_el) + 0.5) * dphi

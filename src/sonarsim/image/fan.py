@@ -276,6 +276,12 @@ def _fan_geometry(grid: PolarGrid, pixel_size_m: float) -> FanGeometry:
         )
 
     n_rows = _cells(rmax, p)
+    n_cols_estimate = 2 * _cells(rmax * math.sin(math.radians(half_fov)), p)
+    from ..core.memory import require
+
+    # The scan-conversion tables hold about a dozen float64 values per pixel.
+    require(float(n_rows) * n_cols_estimate * 100, f"a fan image of {n_rows} x {n_cols_estimate} pixels",
+            "pixel_size_m")
     # The widest lateral extent of a sector of radius rmax whose edges are within +-90 deg is
     # reached on its far arc at the edge with the largest |angle|.
     half_cols = _cells(rmax * math.sin(math.radians(half_fov)), p)

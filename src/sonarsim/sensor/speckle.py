@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config.sensor import SpeckleSpec
+from ..core.memory import require
 from ..errors import ConfigError
 
 POOL_FIELDS = 4
@@ -116,6 +117,7 @@ class SpecklePool:
             raise ConfigError("sensor.speckle", f"the speckle and noise fields of a {n_r} x {n_b} image would take "
                               f"{need / 2**20:.0f} MiB (at most {MAX_POOL_BYTES / 2**20:.0f} MiB): use fewer range "
                               "bins or beams")
+        require(need, f"the speckle and noise fields of a {n_r} x {n_b} image", "sensor.speckle")
         rng = np.random.default_rng([int(seed), POOL_STREAM])
         self.shape = shape
         self.n_fields = n_fields
