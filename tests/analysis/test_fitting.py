@@ -140,3 +140,18 @@ def test_real_oculus_floor_fit_reproduces_the_onset_curve(shared_data):
     # most of it in the left third, where the real band starts farther than a flat floor allows.
     assert 0.35 < res.values["z"] < 0.48 and 24.0 < res.values["pitch"] < 33.0
     assert res.onset_rms_m < 0.08 and res.cost < res.cost_start
+
+
+def test_fit_refuses_a_recording_outside_the_scenes_window_and_a_scene_that_never_echoes():
+    from dataclasses import replace
+
+    from sonarsim.errors import SonarsimError
+
+    scene = floor_scene(0.4, 28.0, 0.0)
+    real = sonarsim.render(scene)
+    other = replace(scene, sonar=replace(scene.sonar, range_min_m=30.0, range_max_m=40.0))
+    with pytest.raises(SonarsimError, match="share 0 %"):
+        fit_pose(real, other, free=("z", "pitch"), domain="band", max_renders=4)
+    empty = replace(scene, ground=None)  # no floor, no objects: nothing ever echoes
+    with pytest.raises(SonarsimError, match="no pose at which the scene echoes"):
+        fit_pose(real, empty, free=("z",), domain="band", max_renders=4)

@@ -25,7 +25,7 @@ from typing import Sequence
 import numpy as np
 from scipy import ndimage, optimize
 
-from ..errors import ConfigError
+from ..errors import ConfigError, SonarsimError
 from ..config.scene import Scene
 from ..image.result import SonarImage
 from ..renderer.simulator import Simulator
@@ -186,6 +186,30 @@ class FitResult:
 DOMAINS = ("edges", "band")
 
 
+def check_overlap(real: SonarImage, scene: Scene) -> None:
+    """Refuse a recording whose window the scene's sonar hardly covers (as ``compare`` does).
+
+    Fitting and calibration render on the recording's grid; a recording of another range window
+    or fan is another sonar setting (or another scene), and nothing there can be fitted.
+
+    Raises
+    ------
+    SonarsimError
+        Less than :data:`~sonarsim.analysis.comparison.MIN_OVERLAP` of the recording's area is shared.
+    """
+    from .comparison import MIN_OVERLAP, _overlap_fraction
+
+    overlap = _overlap_fraction(real.sonar.grid, scene.sonar.grid)
+    if overlap < MIN_OVERLAP:
+        g, h = real.sonar.grid, scene.sonar.grid
+        raise SonarsimError(
+            f"the recording covers {g.range_min_m:.3g}-{g.range_max_m:.3g} m over {g.right_edge_deg:.3g} to "
+            f"{g.left_edge_deg:.3g} deg, the scene's sonar {h.range_min_m:.3g}-{h.range_max_m:.3g} m over "
+            f"{h.right_edge_deg:.3g} to {h.left_edge_deg:.3g} deg: they share {100 * overlap:.0f} % of the "
+            f"recording's area (at least {100 * MIN_OVERLAP:.0f} % is needed); give the scene the recording's "
+            "sonar settings")
+
+
 def fit_pose(
     real: SonarImage,
     scene: Scene,
@@ -219,6 +243,7 @@ def fit_pose(
     free = parse_free(free)
     if domain not in DOMAINS:
         raise ConfigError("domain", f"unknown domain {domain!r}; allowed: {', '.join(DOMAINS)}")
+    check_overlap(real, scene)
     sim = simulator if simulator is not None else Simulator(scene)
     # The intrinsics of every render (fixed); only the pose varies.
     geometry = replace(real.sonar, elevation_fov_deg=scene.sonar.elevation_fov_deg)
@@ -267,6 +292,10 @@ def fit_pose(
     fitted = render_at(x)
     values = dict(start, **dict(zip(free, map(float, x))))
     pose = pose_from_values(values)
+    if not np.any(fitted.polar > 0) or not np.isfinite(final_cost(fitted)):
+        raise SonarsimError("the fit found no pose at which the scene echoes inside the recording's window "
+                            f"(started at {', '.join(f'{k} {start[k]:.4g}' for k in free)}): nothing to compare; "
+                            "check the scene, its sonar settings and the starting pose")
     return FitResult(
         pose=pose, scene=scene.with_pose(pose), free=free, domain=domain, start=start, values=values,
         cost_start=cost_start, cost=final_cost(fitted), onset_rms_m=onset_rms(fitted), renders=renders,
