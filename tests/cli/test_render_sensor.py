@@ -82,3 +82,35 @@ def test_bad_frame_is_named(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "--frame" in err and "Traceback" not in err
     assert not (tmp_path / "o").exists()
+
+
+def test_seed_and_sensor_switches_on_the_command_line(tmp_path, capsys):
+    import numpy as np
+    import yaml
+
+    from sonarsim.cli.main import main
+
+    scene = tmp_path / "s.yaml"
+    scene.write_text(yaml.safe_dump({"sonar": {"preset": "aris3000-128", "n_range_bins": 300},
+                                     "ground": {"height_m": -1.0}, "render": {"elevation_samples": 16}}))
+
+    def run(*opts):
+        out = tmp_path / ("o" + "_".join(o.replace("-", "") for o in opts))
+        assert main(["render", str(scene), "--out", str(out), *opts]) == 0
+        with np.load(out / "render.npz") as z:
+            return z["polar"].copy(), z["total"].copy()
+
+    ideal, total = run()
+    a, _ = run("--sensor", "aris3000-128", "--seed", "1")
+    b, _ = run("--sensor", "aris3000-128", "--seed", "1")
+    c, _ = run("--sensor", "aris3000-128", "--seed", "2", "--frame", "0")
+    d, _ = run("--sensor", "aris3000-128", "--seed", "1", "--frame", "0")
+    np.testing.assert_array_equal(ideal, total)  # no sensor: the noise-free image
+    assert np.array_equal(a, b) and np.all(a == np.round(a)) and a.max() <= 255
+    assert not np.array_equal(c, d)  # another seed, other draws
+    none, _ = run("--sensor", "none")
+    np.testing.assert_array_equal(none, total)
+    capsys.readouterr()
+    assert main(["render", str(scene), "--out", str(tmp_path / "x"), "--sensor", "nope"]) == 2
+    err = capsys.readouterr().err
+    assert "--sensor" in err and "Traceback" not in err

@@ -134,6 +134,8 @@ def cmd_demo(args) -> None:
             doc["render"].pop("bounces", None)  # every order up to the new maximum
     if args.elevation_samples is not None:
         doc["render"]["elevation_samples"] = args.elevation_samples
+    if args.seed is not None:
+        doc["render"]["seed"] = args.seed
     with options_named(args):
         scene = scene_from_dict(doc)
     out = Path(args.out)
@@ -158,6 +160,8 @@ def cmd_demo(args) -> None:
         tank["render"]["bounces"] = list(args.bounces)
     if args.elevation_samples is not None:
         tank["render"]["elevation_samples"] = args.elevation_samples
+    if args.seed is not None:
+        tank["render"]["seed"] = args.seed
     with options_named(args):
         tank_scene = scene_from_dict(tank)
     with atomic_write(out / "tank.yaml", "w") as f:

@@ -57,6 +57,8 @@ def add_render_options(p: argparse.ArgumentParser) -> None:
                    help="longest path formed, in surface interactions (overrides render.max_order)")
     g.add_argument("--elevation-samples", type=int, default=None, metavar="N",
                    help="rays per beam across the elevation aperture (overrides render.elevation_samples)")
+    g.add_argument("--seed", type=int, default=None, metavar="N",
+                   help="seed of every random draw (speckle, noise; overrides render.seed)")
     g.add_argument("--backend", choices=("embree", "numpy"), default="embree",
                    help="ray-casting engine (numpy: slow reference)")
 
@@ -69,6 +71,9 @@ def add_render_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output folder (created if missing)")
     add_render_options(p)
     g = p.add_argument_group("sensor")
+    g.add_argument("--sensor", default=None, metavar="PRESET",
+                   help="device model: a sensor preset (named like the sonar presets, e.g. aris3000-128; "
+                   "replaces the scene's sensor section) or 'none' (the noise-free image)")
     g.add_argument("--no-speckle", action="store_true",
                    help="no random draws: with a sensor section, its expected (mean) output; without, the "
                    "noise-free total even when render.speckle is on")
@@ -94,18 +99,25 @@ def override_render(scene, args):
             changes["bounces"] = None  # every order up to the new maximum
     if args.elevation_samples is not None:
         changes["elevation_samples"] = args.elevation_samples
-    if not changes:
+    if getattr(args, "seed", None) is not None:
+        changes["seed"] = args.seed
+    sensor = getattr(args, "sensor", None)
+    if not changes and sensor is None:
         return scene
     from ..config.loader import _prefixed
     from ..config.scene import RenderSettings
+    from ..config.sensor import parse_sensor
 
     with options_named(args):
         render = _prefixed("render", RenderSettings, **{**scene.render.__dict__, **changes})
-    return replace(scene, render=render)
+        if sensor is None:
+            return replace(scene, render=render)
+        return replace(scene, render=render, sensor=None if sensor == "none" else parse_sensor({"preset": sensor}))
 
 
 # Scene keys that a command-line option can set: an error in their value names the option.
-OPTION_OF_KEY = {"render.bounces": "--bounces", "render.max_order": "--max-order"}
+OPTION_OF_KEY = {"render.bounces": "--bounces", "render.max_order": "--max-order", "render.seed": "--seed",
+                 "sensor.preset": "--sensor"}
 
 
 @contextlib.contextmanager
