@@ -38,7 +38,6 @@ receive beams is set so that the speckle grain across beams matches the recordin
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, replace
 from typing import Sequence

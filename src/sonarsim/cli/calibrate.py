@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import copy
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np

@@ -8,7 +8,7 @@ without a full-frame intermediate. Each works on rows ``[r0, r1)`` without the G
 the caller can run row blocks on several threads.
 """
 
-from libc.math cimport logf, expf, sqrtf, floorf
+from libc.math cimport logf, expf, sqrtf
 from libc.stdlib cimport malloc, free
 from libc.string cimport memset
 

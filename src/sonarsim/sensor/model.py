@@ -24,7 +24,6 @@ the renderer casts them over ``span_deg`` weighted by the two-way pattern
 from __future__ import annotations
 
 import hashlib
-import math
 from concurrent.futures import Executor
 from dataclasses import replace
 
@@ -138,6 +137,7 @@ class SensorModel:
         self._speckle_f, self._noise_f = flat(self.pool.speckle), flat(self.pool.noise)
         self._dummy = np.zeros((1, 2), np.float32)
         self._work: tuple[np.ndarray, np.ndarray] | None = None
+        self._traced: SonarConfig | None = None
 
     # The elevation pattern (used by the renderer when it makes the rays) ---------------------
 
@@ -150,8 +150,18 @@ class SensorModel:
         return p.span_deg if p.span_deg is not None else min(DEFAULT_SPAN_WIDTHS * width, 170.0)
 
     def trace_sonar(self, sonar: SonarConfig | None = None) -> SonarConfig:
-        """The sonar the renderer traces: the image's, with the elevation aperture widened to the span."""
-        sonar = sonar if sonar is not None else self.sonar
+        """The sonar the renderer traces: the image's, with the elevation aperture widened to the span.
+
+        Formed once per model: the renderer asks every frame, and building a ``SonarConfig``
+        (validation, beam edges) costs a third of a millisecond.
+        """
+        if sonar is None or sonar is self.sonar or sonar == self.sonar:
+            if self._traced is None:
+                self._traced = self._widen(self.sonar)
+            return self._traced
+        return self._widen(sonar)
+
+    def _widen(self, sonar: SonarConfig) -> SonarConfig:
         span = self.elevation_span_deg()
         return sonar if span == sonar.elevation_fov_deg else replace(sonar, elevation_fov_deg=span)
 

@@ -22,12 +22,9 @@ import numpy as np
 
 from ..config.sensor import SpeckleSpec
 from ..core.memory import require
-from ..errors import ConfigError
 
 POOL_FIELDS = 4
 POOL_STREAM = 2  # the pool's generator: [seed, 2] (frames use [seed, 1, frame]; see sensor.model)
-# Bytes a pool may take (the fields are stored twice as wide, for contiguous cyclic reads).
-MAX_POOL_BYTES = 1 << 30
 
 
 def complex_gaussian(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
@@ -113,10 +110,6 @@ class SpecklePool:
         n_kinds = int(spec is not None) + int(noise)
         # Each field is stored tiled 2 x 2 (complex64), and built from a field and its tile.
         need = n_kinds * n_fields * (2 * n_r) * (2 * n_b) * 8 + 3 * n_r * n_b * 8
-        if need > MAX_POOL_BYTES:
-            raise ConfigError("sensor.speckle", f"the speckle and noise fields of a {n_r} x {n_b} image would take "
-                              f"{need / 2**20:.0f} MiB (at most {MAX_POOL_BYTES / 2**20:.0f} MiB): use fewer range "
-                              "bins or beams")
         require(need, f"the speckle and noise fields of a {n_r} x {n_b} image", "sensor.speckle")
         rng = np.random.default_rng([int(seed), POOL_STREAM])
         self.shape = shape
