@@ -75,12 +75,12 @@ cdef void _compress_row(float *p, float *out, Py_ssize_t n, int comp, float lo_d
         scale = inv_span * fs
         for j in range(n):
             v = p[j]
-            v = v if v > 1e-30 else 1e-30
+            v = v if v > TINY else TINY
             out[j] = (DB_PER_LN * logf(v) - lo_db) * scale
     elif comp == 2:
         for j in range(n):  # no power, no output (the twin's 0 ** gamma)
             v = p[j] * inv_ceiling
-            out[j] = fs * expf(gamma * logf(v if v > 1e-30 else 1e-30)) if v > 1e-30 else 0.0
+            out[j] = fs * expf(gamma * logf(v if v > TINY else TINY)) if v > TINY else 0.0
     else:
         scale = fs * inv_ceiling
         for j in range(n):
@@ -94,16 +94,30 @@ cdef void _compress_row(float *p, float *out, Py_ssize_t n, int comp, float lo_d
             out[j] = <float> (<int> (out[j] + 0.5))
 
 
+ctypedef signed char part_t  # a pool field's stored real or imaginary part (sensor.speckle)
+
+
+cdef struct Field:
+    # A frame's window into a quantised pool field (``SpecklePool``): rows of ``2 n_b`` real
+    # parts then ``2 n_b`` imaginary parts; row ``i`` of the window is stored row
+    # ``first + (row + i) mod n_rows``, its beams start at ``beam``.
+    const part_t *data
+    Py_ssize_t first, row, n_rows, stride, beam, n_b
+    float scale
+
+
+cdef inline const part_t *_field_row(const Field *f, Py_ssize_t i) noexcept nogil:
+    return f.data + (f.first + (f.row + i) % f.n_rows) * f.stride + f.beam
+
+
 cdef struct Chain:
     # What turns a row of the mean image into device values (see ``frame``).
     const float *echo_gain
     const float *bang
     const float *tvg
     const float *noise_power  # per row: the receiver's, plus the after-TVG noise referred to it
-    const float *speckle   # row 0 of the frame's speckle window, or NULL
-    Py_ssize_t speckle_stride
-    const float *noise     # row 0 of the frame's noise window, or NULL
-    Py_ssize_t noise_stride
+    Field speckle  # data NULL: no speckle
+    Field noise    # data NULL: no noise
     int comp
     float lo_db, inv_span, inv_ceiling, gamma, fs
     bint quantise
@@ -124,15 +138,18 @@ cdef void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain
     cdef Py_ssize_t j, k, n_t = c.n_table
     cdef float g = c.echo_gain[i], b = c.bang[i], t = c.tvg[i], mu, re, im, s, x, frac
     # Locals, not the struct's fields, in the loops: the compiler then knows nothing aliases them.
-    cdef float noise_power = c.noise_power[i], sn = sqrtf(c.noise_power[i]), inv_step = 1.0 / c.table_step_db
+    cdef float noise_power = c.noise_power[i], inv_step = 1.0 / c.table_step_db
+    cdef float sn = sqrtf(c.noise_power[i]) * c.noise.scale
     cdef float lo = c.table_lo_db, top = <float> (n_t - 1)
     cdef const float *table = c.table
-    cdef const float *f
-    cdef const float *w
+    cdef const part_t *fr
+    cdef const part_t *fi
+    cdef const part_t *wr
+    cdef const part_t *wi
     if c.expected:
         for j in range(n_b):
             x = t * (g * m[j] + b + noise_power)
-            x = x if x > 1e-30 else 1e-30
+            x = x if x > TINY else TINY
             x = (DB_PER_LN * logf(x) - lo) * inv_step
             x = x if x > 0.0 else 0.0
             p[j] = x if x < top else top
@@ -145,30 +162,35 @@ cdef void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain
                 frac = x - k
                 out[j] = table[k] + frac * (table[k + 1] - table[k])
         return
-    if c.speckle != NULL and c.noise != NULL:
-        f = c.speckle + i * c.speckle_stride
-        w = c.noise + i * c.noise_stride
+    if c.speckle.data != NULL:
+        # sqrt(mu) * scale * stored = sqrt(mu scale^2) * stored: the step folds into the gains.
+        g = g * c.speckle.scale * c.speckle.scale
+        b = b * c.speckle.scale * c.speckle.scale
+        fr = _field_row(&c.speckle, i)
+        fi = fr + 2 * c.speckle.n_b
+    if c.noise.data != NULL:
+        wr = _field_row(&c.noise, i)
+        wi = wr + 2 * c.noise.n_b
+    if c.speckle.data != NULL and c.noise.data != NULL:
         for j in range(n_b):
             mu = g * m[j] + b
             s = sqrtf(mu if mu > TINY else 0.0)
-            re = s * f[2 * j] + sn * w[2 * j]
-            im = s * f[2 * j + 1] + sn * w[2 * j + 1]
+            re = s * <float> fr[j] + sn * <float> wr[j]
+            im = s * <float> fi[j] + sn * <float> wi[j]
             p[j] = re * re + im * im
-    elif c.speckle != NULL:
-        f = c.speckle + i * c.speckle_stride
+    elif c.speckle.data != NULL:
         for j in range(n_b):
             mu = g * m[j] + b
             s = sqrtf(mu if mu > TINY else 0.0)
-            re = s * f[2 * j]
-            im = s * f[2 * j + 1]
+            re = s * <float> fr[j]
+            im = s * <float> fi[j]
             p[j] = re * re + im * im
-    elif c.noise != NULL:
-        w = c.noise + i * c.noise_stride
+    elif c.noise.data != NULL:
         for j in range(n_b):
             mu = g * m[j] + b
             s = sqrtf(mu if mu > TINY else 0.0)
-            re = s + sn * w[2 * j]
-            im = sn * w[2 * j + 1]
+            re = s + sn * <float> wr[j]
+            im = sn * <float> wi[j]
             p[j] = re * re + im * im
     else:
         for j in range(n_b):
@@ -179,17 +201,27 @@ cdef void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain
     _compress_row(p, out, n_b, c.comp, c.lo_db, c.inv_span, c.inv_ceiling, c.gamma, c.fs, c.quantise)
 
 
+cdef Field _field(const part_t[:, :, :, ::1] pool, Py_ssize_t field, Py_ssize_t row, Py_ssize_t beam,
+                  float scale, bint used):
+    cdef Field f
+    f.data = &pool[0, 0, 0, 0] if used else NULL
+    f.n_rows = pool.shape[1]
+    f.first = field * pool.shape[1]
+    f.row = row
+    f.stride = 2 * pool.shape[3]
+    f.beam = beam
+    f.n_b = pool.shape[3] // 2
+    f.scale = scale if used else 0.0
+    return f
+
+
 cdef Chain _chain(const float[::1] echo_gain, const float[::1] bang, const float[::1] tvg, const float[::1] noise_power,
-                  const float[:, ::1] speckle, Py_ssize_t s_row, Py_ssize_t s_beam, bint has_speckle,
-                  const float[:, ::1] noise, Py_ssize_t n_row, Py_ssize_t n_beam, bint has_noise,
+                  Field speckle, Field noise,
                   int comp, float lo_db, float inv_span, float inv_ceiling, float gamma, float fs, bint quantise,
                   const float[::1] table, float table_lo_db, float table_step_db, bint expected):
     cdef Chain c
     c.echo_gain, c.bang, c.tvg, c.noise_power = &echo_gain[0], &bang[0], &tvg[0], &noise_power[0]
-    c.speckle = &speckle[s_row, 2 * s_beam] if has_speckle else NULL
-    c.speckle_stride = speckle.shape[1]
-    c.noise = &noise[n_row, 2 * n_beam] if has_noise else NULL
-    c.noise_stride = noise.shape[1]
+    c.speckle, c.noise = speckle, noise
     c.comp, c.lo_db, c.inv_span, c.inv_ceiling, c.gamma, c.fs, c.quantise = (
         comp, lo_db, inv_span, inv_ceiling, gamma, fs, quantise)
     c.table, c.n_table, c.table_lo_db, c.table_step_db, c.expected = (
@@ -199,24 +231,30 @@ cdef Chain _chain(const float[::1] echo_gain, const float[::1] bang, const float
 
 def frame(const float[:, ::1] x, const float[::1] column_factor, const float[::1] kb, const float[::1] norm_b,
           const float[::1] kr, const float[::1] norm_r, const float[::1] echo_gain, const float[::1] bang,
-          const float[::1] tvg, const float[::1] noise_power, const float[:, ::1] speckle, Py_ssize_t s_row, Py_ssize_t s_beam,
-          bint has_speckle, const float[:, ::1] noise, Py_ssize_t n_row, Py_ssize_t n_beam, bint has_noise,
+          const float[::1] tvg, const float[::1] noise_power,
+          const part_t[:, :, :, ::1] speckle, Py_ssize_t s_field, Py_ssize_t s_row, Py_ssize_t s_beam, float s_scale,
+          bint has_speckle,
+          const part_t[:, :, :, ::1] noise, Py_ssize_t n_field, Py_ssize_t n_row, Py_ssize_t n_beam, float n_scale,
+          bint has_noise,
           int comp, float lo_db, float inv_span, float inv_ceiling, float gamma, float fs, bint quantise,
           const float[::1] table, float table_lo_db, float table_step_db, bint expected,
           float[:, ::1] out, Py_ssize_t r0, Py_ssize_t r1):
     """Rows r0..r1 of a frame's device values from its image, in one pass: ``blur_beams`` on the
     rows needed (the block and the range kernel's halo), then row by row ``blur_range`` and the
     chain of :func:`_combine_row`, without a full-frame intermediate (one call per worker and
-    frame). ``speckle`` and ``noise`` are complex fields stored as float pairs; the frame reads
-    them from the given row and beam offsets."""
+    frame). ``speckle`` and ``noise`` are a pool's quantised fields (``SpecklePool.speckle``:
+    (n_fields, n_r, 2, 2 n_b) int8, one step worth ``*_scale``); the frame reads field
+    ``*_field`` cyclically from the given row and beam offsets."""
     cdef Py_ssize_t n_r = x.shape[0], n_b = x.shape[1]
     cdef Py_ssize_t kb_len = kb.shape[0], hb = kb_len // 2, kr_len = kr.shape[0], hr = kr_len // 2
     cdef Py_ssize_t a = r0 - hr if r0 - hr > 0 else 0
     cdef Py_ssize_t e = r1 + hr if r1 + hr < n_r else n_r
     cdef Py_ssize_t i, j, m, ii
     cdef float k
-    cdef Chain c = _chain(echo_gain, bang, tvg, noise_power, speckle, s_row, s_beam, has_speckle, noise, n_row,
-                          n_beam, has_noise, comp, lo_db, inv_span, inv_ceiling, gamma, fs, quantise, table,
+    cdef Chain c = _chain(echo_gain, bang, tvg, noise_power,
+                          _field(speckle, s_field, s_row, s_beam, s_scale, has_speckle),
+                          _field(noise, n_field, n_row, n_beam, n_scale, has_noise),
+                          comp, lo_db, inv_span, inv_ceiling, gamma, fs, quantise, table,
                           table_lo_db, table_step_db, expected)
     cdef float *tmp = <float *> malloc(((e - a) * n_b + n_b + 2 * hb + 2 * n_b) * sizeof(float))
     if tmp == NULL:

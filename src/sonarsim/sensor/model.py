@@ -96,6 +96,8 @@ class SensorModel:
         # see config.materials); times each beam's width in radians it is sigma / r^2.
         self.column_factor = np.radians(sonar.effective_beam_width_deg()).astype(np.float32)
         spacing = float(np.median(np.abs(np.diff(sonar.azimuth_deg)))) if sonar.n_beams > 1 else 1.0
+        # The cell a pose is quantised to for world-anchored speckle (see anchored_rng).
+        self._anchor_cell = np.array([sonar.range_resolution_m / 2.0] * 3 + [spacing / 2.0] * 3)
         default_width = float(np.median(sonar.effective_beam_width_deg()))
         if spec.azimuth_pattern is None:
             self.beam_leakage, self.beam_amplitude = np.ones(1), np.ones(1)
@@ -115,7 +117,8 @@ class SensorModel:
         if spec.speckle is None or spec.speckle.model == "rayleigh":
             self.expected_output = output.expected_output(spec.output, spec.speckle is not None)
         elif self.pool.speckle is not None:
-            quantiles = output.empirical_quantiles(np.abs(self.pool.speckle[:, : shape[0], : shape[1]]) ** 2)
+            quantiles = output.empirical_quantiles(np.abs(np.stack([self.pool.field("speckle", k)
+                                                                    for k in range(self.pool.n_fields)])) ** 2)
             self.expected_output = output.ExpectedOutput(spec.output, quantiles)
         else:  # K speckle without its fields: its law from a field drawn for the purpose
             f = speckle_mod.filter_field(speckle_mod.scatterer_amplitudes(np.random.default_rng(self.seed), shape,
@@ -132,10 +135,7 @@ class SensorModel:
         self._inv_span = 1.0 / (hi - lo) if out is not None and out.compression == "log" else 0.0
         self._inv_ceiling = 0.0 if out is None else 10.0 ** (-out.ceiling_db / 10.0)
         self._gamma = 1.0 if out is None else out.gamma
-        # The pools as 2-D float32 (re, im pairs): field f starts at row f * 2 n_range_bins.
-        flat = lambda a: None if a is None else a.view(np.float32).reshape(-1, a.shape[2] * 2)
-        self._speckle_f, self._noise_f = flat(self.pool.speckle), flat(self.pool.noise)
-        self._dummy = np.zeros((1, 2), np.float32)
+        self._dummy = np.zeros((1, 1, 2, 2), np.int8)  # stands for an absent pool field
         self._work: tuple[np.ndarray, np.ndarray] | None = None
         self._traced: SonarConfig | None = None
 
@@ -187,9 +187,8 @@ class SensorModel:
         A still sonar reads the same fields frame after frame (still speckle); moving by more
         than half a range bin, or turning by more than half a beam, reads other fields.
         """
-        dr = self.sonar.range_resolution_m / 2.0
-        spacing = float(np.median(np.abs(np.diff(self.sonar.azimuth_deg)))) if self.sonar.n_beams > 1 else 1.0
-        q = np.concatenate([np.floor(np.asarray(position_m, float) / dr), np.floor(np.asarray(rpy_deg, float) / (spacing / 2))])
+        pose = np.concatenate([np.asarray(position_m, float), np.asarray(rpy_deg, float)])
+        q = np.floor(pose / self._anchor_cell)
         key = hashlib.blake2b(q.astype(np.int64).tobytes(), digest_size=8).digest()
         return np.random.default_rng([self.seed, WORLD_STREAM, int.from_bytes(key, "little")])
 
@@ -236,16 +235,18 @@ class SensorModel:
         if x.shape != self.pool.shape:
             raise ValueError(f"image of shape {x.shape}; this sensor's sonar forms {self.pool.shape}")
         ds, dn = self.draws(rng if rng is not None else self._default_rng(), noise_rng) if speckle else (None, None)
-        sf = self._speckle_f if self._speckle_f is not None else self._dummy
-        nf = self._noise_f if self._noise_f is not None else self._dummy
+        p = self.pool
+        sf = p.speckle if p.speckle is not None else self._dummy
+        nf = p.noise if p.noise is not None else self._dummy
         n_r = x.shape[0]
         t = self.expected_output
-        # Field f of a pool starts at row f * 2 n_range_bins of its 2-D float view.
         args = (
             x, self.column_factor, self._kb, self._norm_b, self._kr, self._norm_r,
             self.echo_gain, self.bang, self.tvg, self.noise_row,
-            sf, ds.row + ds.field * 2 * n_r if ds else 0, ds.beam if ds else 0, self._speckle_f is not None and speckle,
-            nf, dn.row + dn.field * 2 * n_r if dn else 0, dn.beam if dn else 0, self._noise_f is not None and speckle,
+            sf, ds.field if ds else 0, ds.row if ds else 0, ds.beam if ds else 0, p.speckle_scale,
+            p.speckle is not None and speckle,
+            nf, dn.field if dn else 0, dn.row if dn else 0, dn.beam if dn else 0, p.noise_scale,
+            p.noise is not None and speckle,
             self._comp, self._lo_db, self._inv_span, self._inv_ceiling, self._gamma, self._fs, self._quantise,
             t.table, t.lo_db, t.step_db, not speckle, out,
         )
@@ -271,8 +272,8 @@ class SensorModel:
     def fields(self, draws) -> tuple[np.ndarray | None, np.ndarray | None]:
         """The (n_range_bins, n_beams) complex speckle and noise fields of a frame's draws."""
         ds, dn = draws
-        f = None if self.pool.speckle is None else self.pool.window(self.pool.speckle, ds)
-        w = None if self.pool.noise is None else self.pool.window(self.pool.noise, dn)
+        f = None if self.pool.speckle is None else self.pool.window("speckle", ds)
+        w = None if self.pool.noise is None else self.pool.window("noise", dn)
         return f, w
 
     def received_power(self, mean: np.ndarray, draws, speckle: bool = True) -> np.ndarray:
