@@ -3,10 +3,11 @@
 * ``sonarsim.renderer._kernels``: the per-ray kernels (NumPy twins remain as the reference).
   ``-fno-tree-slp-vectorize``: gcc 12's SLP vectorizer drops the float32 rounding of a point
   that ``trace_leg`` rounds on purpose (as the caster reports it); the kernel twin tests catch it.
-* ``sonarsim.sensor._stage``: the sensor stage's per-pixel loops. On x86-64 Linux with glibc,
-  ``-ffast-math`` lets gcc call glibc's vectorised ``logf``/``expf`` (libmvec) in the output
-  chain (the stage then stays well under a millisecond per frame); ``-mrecip=none`` keeps
-  square roots exact. Elsewhere the loops are built with plain ``-O3`` (same results, slower).
+* ``sonarsim.sensor._stage``: the sensor stage's per-pixel loops. Its logarithm is inlined
+  (vectorised everywhere); on x86-64 Linux with glibc, ``-ffast-math`` lets gcc also call
+  glibc's vectorised ``expf`` (libmvec) in the gamma compression and vectorise the sums;
+  ``-mrecip=none`` keeps square roots exact. Elsewhere the loops are built with plain ``-O3``
+  (same results, slower).
 """
 
 import platform

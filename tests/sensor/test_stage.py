@@ -290,3 +290,20 @@ def test_bad_sensor_presets_and_k_shape_are_config_errors():
         parse_sensor({"preset": ["a"]})
     with pytest.raises(ConfigError, match="sensor.speckle.k_shape"):
         parse_sensor({"speckle": {"model": "k", "k_shape": 1e-300}})
+
+
+def test_the_stages_inlined_logarithm_is_within_float_rounding_of_numpys():
+    _stage = pytest.importorskip("sonarsim.sensor._stage")
+    # Every binade from the stage's floor (1e-30) to 1e30, densely, and the range-reduction's
+    # seams (2/3 and 4/3 of each power of two).
+    x = np.concatenate([np.logspace(-30, 30, 1_000_001), 2.0 ** np.arange(-99, 99)[:, None] * [2 / 3, 4 / 3]],
+                       axis=None).astype(np.float32)
+    out = np.empty_like(x)
+    _stage.ln(x, out)
+    exact = np.log(x.astype(np.float64))
+    # Absolute error in ln is relative error in power: 2e-7 is 1e-6 dB; beyond it, only the two
+    # float32 roundings at the size of ln x (e ln 2 and the sum: an ulp of ln x, 7.6e-6 near
+    # ln x = +-69, with half an ulp to spare).
+    ulp = np.spacing(np.abs(exact).astype(np.float32)).astype(np.float64)
+    assert np.all(np.abs(out - exact) <= 2e-7 + 1.5 * ulp)
+    assert np.median(np.abs(out - exact)) < 2e-6
