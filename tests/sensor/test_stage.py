@@ -307,3 +307,40 @@ def test_the_stages_inlined_logarithm_is_within_float_rounding_of_numpys():
     ulp = np.spacing(np.abs(exact).astype(np.float32)).astype(np.float64)
     assert np.all(np.abs(out - exact) <= 2e-7 + 1.5 * ulp)
     assert np.median(np.abs(out - exact)) < 2e-6
+
+
+def _builds():
+    base = pytest.importorskip("sonarsim.sensor._stage")
+    builds = [base]
+    if base.has_avx2_fma():
+        from sonarsim.sensor import _stage_avx2
+        builds.append(_stage_avx2)
+    return builds
+
+
+def test_both_builds_of_the_stage_equal_the_numpy_twin(full_model, monkeypatch):
+    # The AVX2/FMA build rounds differently (fused multiply-adds): each build against the
+    # reference, and both builds against each other, to the rounding of a quantisation tie.
+    from sonarsim.sensor import model as model_mod
+    x = scene_like(full_model.pool.shape)
+    ref = full_model.combine_reference(full_model.mean_image_reference(x), full_model.draws(np.random.default_rng(4)))
+    outs = []
+    for build in _builds():
+        monkeypatch.setattr(model_mod, "_stage", build)
+        fast = full_model.apply(x, np.random.default_rng(4))
+        diff = np.abs(fast - ref)
+        assert diff.max() <= 1.0 and (diff > 0).mean() < 1e-3, build.__name__
+        np.testing.assert_allclose(full_model.apply(x, speckle=False),
+                                   full_model.combine_reference(full_model.mean_image_reference(x), None, speckle=False),
+                                   atol=2e-3)
+        outs.append(fast)
+    assert all((np.abs(o - outs[0]) > 0).mean() < 1e-3 for o in outs)
+
+
+def test_the_baseline_build_can_be_forced(monkeypatch):
+    from sonarsim.sensor import model as model_mod
+    monkeypatch.setenv("SONARSIM_SIMD", "baseline")
+    assert model_mod._choose_stage().__name__ == "sonarsim.sensor._stage"
+    monkeypatch.delenv("SONARSIM_SIMD")
+    expected = "sonarsim.sensor._stage_avx2" if _builds()[0].has_avx2_fma() else "sonarsim.sensor._stage"
+    assert model_mod._choose_stage().__name__ == expected

@@ -24,6 +24,7 @@ the renderer casts them over ``span_deg`` weighted by the two-way pattern
 from __future__ import annotations
 
 import hashlib
+import os
 from concurrent.futures import Executor
 from dataclasses import replace
 
@@ -34,9 +35,28 @@ from ..config.sonar import SonarConfig
 from . import acoustics, output, patterns, pulse, speckle as speckle_mod
 
 try:  # the compiled loops; the NumPy twins below are the reference
-    from . import _stage
+    from . import _stage as _stage_baseline
 except ImportError:  # pragma: no cover - a source checkout without the extension built
-    _stage = None
+    _stage_baseline = None
+
+
+def _choose_stage():
+    """The compiled stage for this processor: the AVX2/FMA build where it runs, else the baseline.
+
+    ``SONARSIM_SIMD=baseline`` forces the baseline build (to compare the two, or to rule one out).
+    """
+    if _stage_baseline is None or os.environ.get("SONARSIM_SIMD", "").lower() == "baseline":
+        return _stage_baseline
+    if _stage_baseline.has_avx2_fma():
+        try:
+            from . import _stage_avx2
+            return _stage_avx2
+        except ImportError:  # pragma: no cover - built without it (not x86-64)
+            pass
+    return _stage_baseline
+
+
+_stage = _choose_stage()
 
 COMPRESSION_CODES = {None: 0, "log": 1, "gamma": 2, "linear": 3}
 # Streams of a seed's generators (numpy SeedSequence entropy [seed, stream, ...]): no two collide.
