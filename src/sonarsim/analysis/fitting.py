@@ -477,10 +477,11 @@ def fit_pose(
 
     x0 = np.array([start[n] for n in free])
     start_image = render_at(x0)
+    chosen, why = choose_domain(real, scene, start_image)
     if domain == "auto":
-        domain, reason = choose_domain(real, scene, start_image)
-    else:
-        reason = "asked for"
+        domain, reason = chosen, why
+    else:  # the rule's opinion costs nothing: say when it differs
+        reason = "asked for" if chosen == domain else f"asked for (auto would choose {chosen}: {why})"
     real_onset, real_end = floor_band_m(real)
 
     def onset_rms(image: SonarImage) -> float:
