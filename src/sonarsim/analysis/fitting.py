@@ -156,6 +156,8 @@ MIN_EDGE_CORRELATION = 0.2
 # span: 0.064 m (3 %) on the real floor ping; beyond a tenth of the window the two bands are
 # different echoes, not one echo slightly displaced.
 MAX_BAND_RMS_FRACTION = 0.1
+# A cost this low (either domain) is a perfect match: a search that stays put there is done.
+PERFECT_COST = 1e-6
 # A parameter that moves farther than the recording's far range (metres) or than this (degrees)
 # from the start has run away along a flat or misleading cost, not converged.
 MAX_ANGLE_MOVE_DEG = 90.0
@@ -304,7 +306,8 @@ def choose_domain(real: SonarImage, scene: Scene, start: SonarImage) -> tuple[st
 
     * the scene has exactly one reflecting plane (``ground`` or one entry of ``planes``);
     * at the start pose its objects carry at most :data:`MAX_OBJECT_SHARE` of the single-bounce
-      echo inside the recording's window;
+      echo inside the recording's window, and some of it if it has objects (objects out of
+      view at the start may still be in the recording);
     * the recording, and the render at the start pose (where anything echoes), show both edges
       of a band in at least :data:`MIN_BAND_BEAMS` of their beams.
 
@@ -332,7 +335,11 @@ def choose_domain(real: SonarImage, scene: Scene, start: SonarImage) -> tuple[st
                          "nearest plane's band for the floor's")
     obj = float(np.sum(start.components["object"], dtype=float))
     plane = float(np.sum(start.components["ground"], dtype=float))
-    share = obj / (obj + plane) if obj + plane > 0 else (1.0 if scene.objects else 0.0)
+    share = obj / (obj + plane) if obj + plane > 0 else 0.0
+    if scene.objects and obj == 0:
+        # Out of view at the start is no evidence that the recording does not show them.
+        return "edges", (f"the scene has {len(scene.objects)} object(s), none echoing at the start pose: edges "
+                         "sees them once they come into view (--domain band fits the floor alone)")
     if share > MAX_OBJECT_SHARE:
         return "edges", (f"objects carry {100 * share:.0f} % of the echo at the start pose (band needs at most "
                          f"{100 * MAX_OBJECT_SHARE:.0f} %): their edges fix the pose")
@@ -366,7 +373,8 @@ def fit_problems(real: SonarImage, result: FitResult) -> tuple[str, ...]:
       :data:`MIN_EDGE_CORRELATION`;
     * (``band``) the RMS band-edge difference exceeds :data:`MAX_BAND_RMS_FRACTION` of the
       recording's range span;
-    * the search ended at a higher cost than it started;
+    * the search ended at a higher cost than it started, or at the start's cost when that was
+      not already a perfect match (above :data:`PERFECT_COST`): it never found a way downhill;
     * a free parameter moved farther from the start than the recording's far range (x, y, z)
       or :data:`MAX_ANGLE_MOVE_DEG` (angles): it ran away.
 
@@ -399,6 +407,8 @@ def fit_problems(real: SonarImage, result: FitResult) -> tuple[str, ...]:
                    f"{result.edge_correlation:.2f}, at least {MIN_EDGE_CORRELATION:g} is needed)")
     if np.isfinite(result.cost) and result.cost > result.cost_start:
         out.append(f"the search ended worse than it started (cost {result.cost_start:.4g} -> {result.cost:.4g})")
+    elif np.isfinite(result.cost) and result.cost == result.cost_start and result.cost > PERFECT_COST:
+        out.append(f"the search found nothing better than the start (cost {result.cost:.4g})")
     for name in result.free:
         moved = abs(result.values[name] - result.start[name])
         limit = MAX_ANGLE_MOVE_DEG if UNITS[name] == "deg" else real.sonar.range_max_m

@@ -30,8 +30,8 @@ EXIT_CODES = """exit status:
      whose range window or fan the scene's sonar does not cover
   3  the fit found no meaningful pose (nothing written): nothing echoes at the fitted
      pose, the render's echo does not line up with the recording's, the band edges
-     differ by more than a tenth of the range window, the search ended worse than it
-     started, or a free parameter ran away; the message says which, and what to try"""
+     differ by more than a tenth of the range window, the search found nothing better
+     than the start, or a free parameter ran away; the message says which, and what to try"""
 
 
 def _render_budget(text: str) -> int:
