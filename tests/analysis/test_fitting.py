@@ -172,6 +172,10 @@ def test_auto_fits_the_real_oculus_floor_ping_in_the_band_domain(shared_data):
     # Measured: z 0.413 m, pitch 28.6 deg, near-edge RMS 0.068 m (the edges domain: 0.118 m).
     assert 0.39 < res.values["z"] < 0.44 and 27.0 < res.values["pitch"] < 30.5
     assert res.onset_rms_m < 0.08 and res.meaningful
+    # Fitted again from there, the search converges onto its start (the band cost is flat between
+    # range bins): a minimum already, not a search that found no way downhill.
+    again = fit_pose(real, res.scene)
+    assert again.meaningful and abs(again.values["z"] - res.values["z"]) < 0.005
 
 
 def tank_without_multipath():
@@ -269,7 +273,9 @@ def test_fit_problems_name_each_condition():
     assert problems(edge_correlation=0.19) == (
         "the render's echo does not line up with the recording's (edge correlation 0.19, at least 0.2 is needed)",)
     assert problems(cost=0.05, cost_start=0.04) == ("the search ended worse than it started (cost 0.04 -> 0.05)",)
-    assert problems(cost=0.05, cost_start=0.05) == ("the search found nothing better than the start (cost 0.05)",)
+    assert problems(cost=0.05, cost_start=0.05, converged=False) == (
+        "the search found nothing better than the start before the render budget ran out (cost 0.05)",)
+    assert problems(cost=0.05, cost_start=0.05, converged=True) == ()  # the start was a minimum already
     ran = dict(good.values, z=0.4 + 2.5, pitch=28.0 - 91.0)  # far range 2.0 m; 90 deg
     assert problems(values=ran) == ("z ran away by 2.5 m (more than 2)", "pitch ran away by 91 deg (more than 90)")
     assert problems(values=dict(good.values, z=0.4 + 1.9, pitch=28.0 + 89.0)) == ()

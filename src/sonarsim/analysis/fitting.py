@@ -373,8 +373,10 @@ def fit_problems(real: SonarImage, result: FitResult) -> tuple[str, ...]:
       :data:`MIN_EDGE_CORRELATION`;
     * (``band``) the RMS band-edge difference exceeds :data:`MAX_BAND_RMS_FRACTION` of the
       recording's range span;
-    * the search ended at a higher cost than it started, or at the start's cost when that was
-      not already a perfect match (above :data:`PERFECT_COST`): it never found a way downhill;
+    * the search ended at a higher cost than it started; or at the start's cost, above
+      :data:`PERFECT_COST`, stopped by the render budget: it never found a way downhill. (A
+      search that converged onto its start is not a problem: the start was already a minimum,
+      as when a fitted scene is fitted again; the band cost is flat between range bins.);
     * a free parameter moved farther from the start than the recording's far range (x, y, z)
       or :data:`MAX_ANGLE_MOVE_DEG` (angles): it ran away.
 
@@ -407,8 +409,10 @@ def fit_problems(real: SonarImage, result: FitResult) -> tuple[str, ...]:
                    f"{result.edge_correlation:.2f}, at least {MIN_EDGE_CORRELATION:g} is needed)")
     if np.isfinite(result.cost) and result.cost > result.cost_start:
         out.append(f"the search ended worse than it started (cost {result.cost_start:.4g} -> {result.cost:.4g})")
-    elif np.isfinite(result.cost) and result.cost == result.cost_start and result.cost > PERFECT_COST:
-        out.append(f"the search found nothing better than the start (cost {result.cost:.4g})")
+    elif (np.isfinite(result.cost) and result.cost == result.cost_start and result.cost > PERFECT_COST
+          and not result.converged):
+        out.append(f"the search found nothing better than the start before the render budget ran out "
+                   f"(cost {result.cost:.4g})")
     for name in result.free:
         moved = abs(result.values[name] - result.start[name])
         limit = MAX_ANGLE_MOVE_DEG if UNITS[name] == "deg" else real.sonar.range_max_m

@@ -30,8 +30,9 @@ EXIT_CODES = """exit status:
      whose range window or fan the scene's sonar does not cover
   3  the fit found no meaningful pose (nothing written): nothing echoes at the fitted
      pose, the render's echo does not line up with the recording's, the band edges
-     differ by more than a tenth of the range window, the search found nothing better
-     than the start, or a free parameter ran away; the message says which, and what to try"""
+     differ by more than a tenth of the range window, the search ended worse than it
+     started (or used its budget without finding anything better), or a free parameter
+     ran away; the message says which, and what to try"""
 
 
 def _render_budget(text: str) -> int:
@@ -173,10 +174,11 @@ def _log(msg: str) -> None:
     print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
 
 
-def _what_to_try(args, domain: str) -> str:
-    other = "band" if domain == "edges" else "edges"
-    return (f"try a starting pose nearer the recording's (sonar.pose in {args.scene}), fewer --free parameters, "
-            f"or --domain {other}")
+def _what_to_try(args, result) -> str:
+    other = "band" if result.domain == "edges" else "edges"
+    budget = "" if result.converged else f"a larger --max-renders (the search used all {args.max_renders}), "
+    return (f"try a starting pose nearer the recording's (sonar.pose in {args.scene}), {budget}fewer --free "
+            f"parameters, or --domain {other}")
 
 
 def cmd_fit(args) -> None:
@@ -214,7 +216,7 @@ def cmd_fit(args) -> None:
     print(f"floor band residual over {len(onset_r)} beams: near edge RMS {result.onset_rms_m:.4f} m, far edge RMS {end_rms:.4f} m")
     if result.problems:
         _log(f"error: {args.real}: the fit found no meaningful pose: {'; '.join(result.problems)}; nothing written; "
-             + _what_to_try(args, result.domain))
+             + _what_to_try(args, result))
         raise SystemExit(EXIT_NO_FIT)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -223,4 +225,5 @@ def cmd_fit(args) -> None:
         yaml.safe_dump(doc, f, sort_keys=False)
     image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
     write_png(image_path, side_by_side(real, result.image))
-    print(f"sonarsim: wrote {out} and {image_path}", file=sys.stderr)
+    if not quiet:
+        print(f"sonarsim: wrote {out} and {image_path}", file=sys.stderr)
