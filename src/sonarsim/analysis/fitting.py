@@ -13,8 +13,14 @@ shadow) depend on the pose. Two comparison domains:
   edge alone lets height and tilt trade off), and they are far less sensitive to speckle and
   to the unmodelled brightness of the floor beyond the aperture than whole images are.
 
+``auto`` (the default) chooses between them from the scene and the recording
+(:func:`choose_domain`): ``band`` where the scene's echo is one floor band, ``edges`` otherwise.
+
 The real-time renderer makes each evaluation cheap; a derivative-free simplex search (scipy's
-Nelder-Mead) does the rest.
+Nelder-Mead) does the rest. A simplex ends somewhere whether or not that means anything:
+:func:`fit_problems` lists the signs that it does not (an echo that does not line up with the
+recording's, band edges a window's tenth apart, a search that found no way downhill, a
+parameter that ran away), and ``sonarsim fit`` exits with status 3 on any of them.
 """
 
 from __future__ import annotations

@@ -13,11 +13,16 @@ import copy
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .argtypes import frame_index
+from .main import _log
 from ..errors import SonarsimError
+
+if TYPE_CHECKING:
+    from ..analysis.fitting import FitProgress, FitResult
 
 # Exit status of a fit that ran but found no meaningful pose (bad input is 2, as everywhere).
 EXIT_NO_FIT = 3
@@ -145,13 +150,13 @@ class _Progress:
         self.pending = False
 
     @staticmethod
-    def line(p) -> str:
+    def line(p: FitProgress) -> str:
         what = "band-edge RMS" if p.stage == "band" else "1 - edge correlation"
         unit = " m" if p.stage == "band" else ""
         return (f"sonarsim: fit ({p.stage}): {p.renders}/{p.budget} renders, best {what} {p.best_cost:.4g}{unit}, "
                 f"{p.elapsed_s:.1f} s")
 
-    def __call__(self, p) -> None:
+    def __call__(self, p: FitProgress) -> None:
         now = time.monotonic()
         if now - self.last < PROGRESS_INTERVAL_S:
             return
@@ -164,17 +169,14 @@ class _Progress:
         self.stream.flush()
 
     def close(self) -> None:
-        if self.pending:  # end the status line before anything else is written
+        """End the status line (terminal) so that what follows starts on its own."""
+        if self.pending:
             self.stream.write("\n")
             self.stream.flush()
             self.pending = False
 
 
-def _log(msg: str) -> None:
-    print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
-
-
-def _what_to_try(args, result) -> str:
+def _what_to_try(args: argparse.Namespace, result: FitResult) -> str:
     other = "band" if result.domain == "edges" else "edges"
     budget = "" if result.converged else f"a larger --max-renders (the search used all {args.max_renders}), "
     return (f"try a starting pose nearer the recording's (sonar.pose in {args.scene}), {budget}fewer --free "
@@ -195,13 +197,13 @@ def cmd_fit(args) -> None:
     try:
         result = fit_pose(real, scene, free=args.free, domain=args.domain, max_renders=args.max_renders,
                           progress=progress)
-    except FitError as exc:
-        if progress is not None:
-            progress.close()
+    except FitError as exc:  # it ran, and found nothing: not bad input
         _log(f"error: {exc}")
         raise SystemExit(EXIT_NO_FIT) from None
+    finally:
+        if progress is not None:  # end a status line before anything else is written
+            progress.close()
     if progress is not None:
-        progress.close()
         _log(f"fit: {result.renders} renders; domain {result.domain}: {result.domain_reason}")
         if not result.converged:
             _log(f"note: the search stopped at the render budget (--max-renders {args.max_renders}) before "
