@@ -1,4 +1,5 @@
-"""Pose fitting: recover a known pose from a noisy synthetic image; band-edge detection."""
+"""Pose fitting: recover a known pose from a noisy synthetic image; band-edge detection; the
+choice of domain, the progress reports and the conditions that make a fit meaningless."""
 
 from __future__ import annotations
 
@@ -12,7 +13,9 @@ import pytest
 import sonarsim
 from sonarsim.cli.demo import demo_scene_dict
 from sonarsim.errors import ConfigError
-from sonarsim.analysis.fitting import fit_pose, floor_band_m, parse_free
+from sonarsim.analysis.fitting import (
+    MIN_EDGE_CORRELATION, FitError, choose_domain, fit_pose, fit_problems, floor_band_m, parse_free,
+)
 from sonarsim.core.transforms import Pose
 
 
@@ -28,7 +31,9 @@ def test_edge_domain_fit_recovers_height_and_tilt_from_a_perturbed_start():
     scene = sonarsim.load_scene(demo_scene_dict())  # sonar at z = 1 m, pitch 20 deg
     real = noisy(sonarsim.render(scene))
     start = scene.with_pose(Pose((0.0, 0.0, 1.08), (0.0, 23.0, 0.0)))
-    res = fit_pose(real, start, free=("z", "pitch"))
+    res = fit_pose(real, start, free=("z", "pitch"))  # domain auto: the objects' edges
+    assert res.domain == "edges" and "objects carry" in res.domain_reason
+    assert res.meaningful and res.edge_correlation > 0.9
     assert abs(res.values["z"] - 1.0) < 0.005
     assert abs(res.values["pitch"] - 20.0) < 0.1
     assert res.cost < res.cost_start
@@ -155,3 +160,122 @@ def test_fit_refuses_a_recording_outside_the_scenes_window_and_a_scene_that_neve
     empty = replace(scene, ground=None)  # no floor, no objects: nothing ever echoes
     with pytest.raises(SonarsimError, match="no pose at which the scene echoes"):
         fit_pose(real, empty, free=("z",), domain="band", max_renders=4)
+
+
+def test_auto_fits_the_real_oculus_floor_ping_in_the_band_domain(shared_data):
+    from sonarsim.io.readers import read
+
+    real = read(shared_data / "real" / "oculus" / "one_ping_8bit.raw")
+    scene = sonarsim.load_scene(Path(__file__).resolve().parents[2] / "examples" / "oculus_floor.yaml")
+    res = fit_pose(real, scene)  # the command's defaults: z and pitch, domain auto
+    assert res.domain == "band" and "one floor band" in res.domain_reason
+    # Measured: z 0.413 m, pitch 28.6 deg, near-edge RMS 0.068 m (the edges domain: 0.118 m).
+    assert 0.39 < res.values["z"] < 0.44 and 27.0 < res.values["pitch"] < 30.5
+    assert res.onset_rms_m < 0.08 and res.meaningful
+    # Fitted again from there, the search converges onto its start (the band cost is flat between
+    # range bins): a minimum already, not a search that found no way downhill.
+    again = fit_pose(real, res.scene)
+    assert again.meaningful and abs(again.values["z"] - res.values["z"]) < 0.005
+
+
+def tank_without_multipath():
+    from sonarsim.cli.demo import tank_scene_dict
+
+    return sonarsim.load_scene(dict(tank_scene_dict(), render={"bounces": [1]}))
+
+
+@pytest.mark.parametrize("make, domain, why", [
+    (lambda: floor_scene(0.4, 28.0, 0.0), "band", "one floor band (objects 0 %"),
+    (lambda: sonarsim.load_scene(demo_scene_dict()), "edges", "objects carry"),
+    (lambda: sonarsim.load_scene(dict(demo_scene_dict(), ground=None)), "edges", "no floor"),
+    (tank_without_multipath, "edges", "5 reflecting planes"),
+    # The demo's objects out of view: the sonar looks up, over them.
+    (lambda: sonarsim.load_scene(demo_scene_dict()).with_pose(Pose((0.0, 0.0, 1.0), (0.0, -40.0, 0.0))),
+     "edges", "none echoing at the start pose"),
+])
+def test_auto_domain_rule(make, domain, why):
+    scene = make()
+    start = sonarsim.render(scene)
+    chosen, reason = choose_domain(start, scene, start)  # the render as its own recording
+    assert chosen == domain and why in reason
+
+
+def test_auto_domain_wants_a_band_in_the_recording():
+    scene = floor_scene(0.4, 28.0, 0.0)
+    start = sonarsim.render(scene)
+    flat = replace(start, polar=np.ones_like(start.polar))  # no rise anywhere: no band
+    domain, why = choose_domain(flat, scene, start)
+    assert domain == "edges" and "the recording shows a band in 0 %" in why
+
+
+def test_an_explicit_domain_is_used_and_the_rule_says_when_it_disagrees():
+    scene = floor_scene(0.4, 28.0, 0.0)
+    real = sonarsim.render(scene)
+    res = fit_pose(real, scene, domain="edges", max_renders=3)
+    assert res.domain == "edges" and res.domain_reason.startswith("asked for (auto would choose band")
+    assert fit_pose(real, scene, domain="band", max_renders=3).domain_reason == "asked for"
+
+
+def test_progress_is_reported_after_every_render():
+    reports = []
+    real = sonarsim.render(floor_scene(0.40, 28.0, 0.0))
+    res = fit_pose(real, floor_scene(0.37, 26.0, 0.0), domain="band", max_renders=15, progress=reports.append)
+    assert [p.renders for p in reports] == list(range(2, 2 + len(reports)))  # render 1: the start
+    assert res.renders == len(reports) + 2  # and the fitted pose
+    assert {p.stage for p in reports} == {"band"} and {p.budget for p in reports} == {15}
+    best = [p.best_cost for p in reports]
+    assert best == sorted(best, reverse=True) and best[-1] < best[0]
+    assert all(b >= a for a, b in zip([p.elapsed_s for p in reports], [p.elapsed_s for p in reports][1:]))
+    stages = []
+    fit_pose(real, floor_scene(0.37, 26.0, 0.0), domain="edges", max_renders=9,
+             progress=lambda p: stages.append(p.stage))
+    assert sorted(set(stages)) == ["edges 1/3", "edges 2/3", "edges 3/3"]
+
+
+def test_a_render_budget_below_one_is_refused():
+    scene = floor_scene(0.4, 28.0, 0.0)
+    with pytest.raises(ConfigError, match="max_renders: the render budget is 0"):
+        fit_pose(sonarsim.render(scene), scene, max_renders=0)
+
+
+def test_a_start_far_from_the_recordings_pose_gives_a_meaningless_fit():
+    real = sonarsim.render(floor_scene(0.40, 28.0, 0.0))
+    res = fit_pose(real, floor_scene(1.5, 60.0, 0.0), domain="band", max_renders=30)
+    assert not res.meaningful
+    assert any("does not line up" in p for p in res.problems) and res.edge_correlation < MIN_EDGE_CORRELATION
+    with pytest.raises(FitError, match="no pose at which the scene echoes"):  # looking up: no floor, flat cost
+        fit_pose(real, floor_scene(0.40, -40.0, 0.0), domain="edges", max_renders=9)
+
+
+def test_a_recording_of_noise_gives_a_meaningless_fit():
+    real = sonarsim.render(floor_scene(0.40, 28.0, 0.0))
+    rng = np.random.default_rng(0)
+    noise = replace(real, polar=rng.exponential(1.0, real.polar.shape).astype(np.float32), components={})
+    res = fit_pose(noise, floor_scene(0.40, 28.0, 0.0), max_renders=20)
+    assert not res.meaningful and any("does not line up" in p for p in res.problems)
+
+
+def test_fit_problems_name_each_condition():
+    real = sonarsim.render(floor_scene(0.40, 28.0, 0.0))
+    good = fit_pose(real, floor_scene(0.40, 28.0, 0.0), domain="band", max_renders=3)
+    assert good.problems == () and good.cost == 0.0 and good.edge_correlation > 0.99
+
+    def problems(**changes):
+        return fit_problems(real, replace(good, **changes))
+
+    assert (real.sonar.range_min_m, real.sonar.range_max_m) == (0.1, 2.0)  # the preset's window: 1.9 m
+    assert problems(cost=float("nan"), cost_start=float("nan")) == ("the cost at the fitted pose is nan",)
+    assert problems(cost=1e3, cost_start=2e3) == ("no beam shows a band in both the recording and the render",)
+    # Just above a tenth of the window, with the start worse still: only the size is wrong.
+    assert problems(cost=0.191, cost_start=1.0) == (
+        "the band edges differ by 0.191 m RMS (at most 0.1 of the 1.9 m window, 0.19 m, is a fit)",)
+    assert problems(cost=0.189, cost_start=1.0) == ()
+    assert problems(edge_correlation=0.19) == (
+        "the render's echo does not line up with the recording's (edge correlation 0.19, at least 0.2 is needed)",)
+    assert problems(cost=0.05, cost_start=0.04) == ("the search ended worse than it started (cost 0.04 -> 0.05)",)
+    assert problems(cost=0.05, cost_start=0.05, converged=False) == (
+        "the search found nothing better than the start before the render budget ran out (cost 0.05)",)
+    assert problems(cost=0.05, cost_start=0.05, converged=True) == ()  # the start was a minimum already
+    ran = dict(good.values, z=0.4 + 2.5, pitch=28.0 - 91.0)  # far range 2.0 m; 90 deg
+    assert problems(values=ran) == ("z ran away by 2.5 m (more than 2)", "pitch ran away by 91 deg (more than 90)")
+    assert problems(values=dict(good.values, z=0.4 + 1.9, pitch=28.0 + 89.0)) == ()

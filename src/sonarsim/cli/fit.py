@@ -2,7 +2,8 @@
 
 Writes the scene with the fitted pose (the user's own scene document, only ``sonar.pose``
 changed) and a side-by-side picture: the real image with the fitted floor-band edges drawn
-on it, and the render at the fitted pose.
+on it, and the render at the fitted pose. A fit that :func:`~sonarsim.analysis.fitting.fit_problems`
+finds meaningless writes nothing and ends with exit status 3.
 """
 
 from __future__ import annotations
@@ -10,12 +11,44 @@ from __future__ import annotations
 import argparse
 import copy
 import sys
+import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .argtypes import frame_index
+from .main import _log
 from ..errors import SonarsimError
+
+if TYPE_CHECKING:
+    from ..analysis.fitting import FitProgress, FitResult
+
+# Exit status of a fit that ran but found no meaningful pose (bad input is 2, as everywhere).
+EXIT_NO_FIT = 3
+# Least time between two progress reports on stderr.
+PROGRESS_INTERVAL_S = 1.0
+
+EXIT_CODES = """exit status:
+  0  fitted: the scene with the fitted pose and the picture are written
+  2  bad input: an unreadable recording or scene, an unknown parameter, a recording
+     whose range window or fan the scene's sonar does not cover
+  3  the fit found no meaningful pose (nothing written): nothing echoes at the fitted
+     pose, the render's echo does not line up with the recording's, the band edges
+     differ by more than a tenth of the range window, the search ended worse than it
+     started (or used its budget without finding anything better), or a free parameter
+     ran away; the message says which, and what to try"""
+
+
+def _render_budget(text: str) -> int:
+    """A number of renders >= 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of renders >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a number of renders >= 1, got {text!r}")
+    return value
 
 
 def add_fit_parser(sub) -> argparse.ArgumentParser:
@@ -24,16 +57,20 @@ def add_fit_parser(sub) -> argparse.ArgumentParser:
         "fit", help="fit the sonar pose of a scene to a real recording",
         description="Find the sonar pose parameters (--free) that make the rendered scene match a real "
         "image, starting from the scene's pose. Writes the scene with the fitted pose to --out and a "
-        "side-by-side picture (real | fitted) next to it.",
+        "side-by-side picture (real | fitted) next to it. Progress goes to stderr (--quiet: none).",
+        epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("real", help="real recording (.aris, Oculus .raw) or a sonarsim render.npz")
     p.add_argument("--scene", required=True, help="scene file (YAML or JSON); its sonar pose is the start")
     p.add_argument("--free", default="z,pitch", help="pose parameters to fit, from x,y,z,roll,pitch,yaw (default: z,pitch)")
     p.add_argument("--out", required=True, help="where to write the fitted scene (YAML)")
     p.add_argument("--frame", type=frame_index, default=0, help="frame of the recording (default: 0)")
-    p.add_argument("--domain", choices=("edges", "band"), default="edges",
-                   help="compare edge maps of whole images (default), or the near and far edges of the floor band")
-    p.add_argument("--max-renders", type=int, default=600, help="render budget of the search (default: 600)")
+    p.add_argument("--domain", choices=("auto", "edges", "band"), default="auto",
+                   help="compare edge maps of whole images (edges), or the near and far edges of the floor band "
+                   "(band); auto (default): band for a scene whose echo is one floor band, edges otherwise "
+                   "(the choice and its reason go to stderr)")
+    p.add_argument("--max-renders", type=_render_budget, default=600, help="render budget of the search (default: 600)")
+    p.add_argument("--quiet", action="store_true", help="no progress or notes on stderr (errors still)")
     p.add_argument("--image", default=None, help="side-by-side PNG (default: next to --out, *_fit.png)")
     p.set_defaults(func=cmd_fit)
     return p
@@ -102,23 +139,75 @@ def side_by_side(real, fitted, gap_px: int = 8) -> np.ndarray:
     return np.concatenate([pad(left), gap, pad(right)], axis=1)
 
 
+class _Progress:
+    """Progress of the search on stderr, at most once per :data:`PROGRESS_INTERVAL_S`: a status
+    line rewritten in place (``\r``) on a terminal, whole lines elsewhere (logs)."""
+
+    def __init__(self, stream=None) -> None:
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.last = float("-inf")
+        self.pending = False
+
+    @staticmethod
+    def line(p: FitProgress) -> str:
+        what = "band-edge RMS" if p.stage == "band" else "1 - edge correlation"
+        unit = " m" if p.stage == "band" else ""
+        return (f"sonarsim: fit ({p.stage}): {p.renders}/{p.budget} renders, best {what} {p.best_cost:.4g}{unit}, "
+                f"{p.elapsed_s:.1f} s")
+
+    def __call__(self, p: FitProgress) -> None:
+        now = time.monotonic()
+        if now - self.last < PROGRESS_INTERVAL_S:
+            return
+        self.last = now
+        if self.tty:
+            self.stream.write("\r" + self.line(p) + "\033[K")
+            self.pending = True
+        else:
+            self.stream.write(self.line(p) + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        """End the status line (terminal) so that what follows starts on its own."""
+        if self.pending:
+            self.stream.write("\n")
+            self.stream.flush()
+            self.pending = False
+
+
+def _what_to_try(args: argparse.Namespace, result: FitResult) -> str:
+    other = "band" if result.domain == "edges" else "edges"
+    budget = "" if result.converged else f"a larger --max-renders (the search used all {args.max_renders}), "
+    return (f"try a starting pose nearer the recording's (sonar.pose in {args.scene}), {budget}fewer --free "
+            f"parameters, or --domain {other}")
+
+
 def cmd_fit(args) -> None:
     import yaml
 
-    from ..analysis.fitting import UNITS, fit_pose, floor_band_m
+    from ..analysis.fitting import UNITS, FitError, fit_pose, floor_band_m
     from ..config.loader import load_scene
     from ..io.output import atomic_write, write_png
 
     real = _load_real(args.real, args.frame)
     scene = load_scene(args.scene)
-    result = fit_pose(real, scene, free=args.free, domain=args.domain, max_renders=args.max_renders)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    doc = _fitted_document(Path(args.scene), out, result.pose)
-    with atomic_write(out, "w") as f:
-        yaml.safe_dump(doc, f, sort_keys=False)
-    image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
-    write_png(image_path, side_by_side(real, result.image))
+    quiet = getattr(args, "quiet", False)
+    progress = None if quiet else _Progress()
+    try:
+        result = fit_pose(real, scene, free=args.free, domain=args.domain, max_renders=args.max_renders,
+                          progress=progress)
+    except FitError as exc:  # it ran, and found nothing: not bad input
+        _log(f"error: {exc}")
+        raise SystemExit(EXIT_NO_FIT) from None
+    finally:
+        if progress is not None:  # end a status line before anything else is written
+            progress.close()
+    if progress is not None:
+        _log(f"fit: {result.renders} renders; domain {result.domain}: {result.domain_reason}")
+        if not result.converged:
+            _log(f"note: the search stopped at the render budget (--max-renders {args.max_renders}) before "
+                 "converging; a larger budget may improve the fit")
     onset_r, end_r = floor_band_m(real)
     onset_s, end_s = floor_band_m(result.image)
     end_rms = float(np.sqrt(np.nanmean((end_s - end_r) ** 2))) if np.isfinite(end_s - end_r).any() else float("nan")
@@ -127,4 +216,16 @@ def cmd_fit(args) -> None:
     what = "1 - edge correlation" if result.domain == "edges" else "band-edge RMS, m"
     print(f"cost ({what}): {result.cost_start:.4f} -> {result.cost:.4f} in {result.renders} renders")
     print(f"floor band residual over {len(onset_r)} beams: near edge RMS {result.onset_rms_m:.4f} m, far edge RMS {end_rms:.4f} m")
-    print(f"sonarsim: wrote {out} and {image_path}", file=sys.stderr)
+    if result.problems:
+        _log(f"error: {args.real}: the fit found no meaningful pose: {'; '.join(result.problems)}; nothing written; "
+             + _what_to_try(args, result))
+        raise SystemExit(EXIT_NO_FIT)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    doc = _fitted_document(Path(args.scene), out, result.pose)
+    with atomic_write(out, "w") as f:
+        yaml.safe_dump(doc, f, sort_keys=False)
+    image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
+    write_png(image_path, side_by_side(real, result.image))
+    if not quiet:
+        print(f"sonarsim: wrote {out} and {image_path}", file=sys.stderr)

@@ -1,0 +1,142 @@
+"""``sonarsim fit`` on the command line: the domain it chooses and says, progress on stderr,
+exit status 3 (and nothing written) on a fit that means nothing, the exit codes in --help."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+import sonarsim
+from sonarsim.cli import fit as fit_cli
+from sonarsim.cli.main import main
+
+FLOOR = {"preset": "oculus-m1200d-hf"}
+
+
+def floor_doc(z: float, pitch: float) -> dict:
+    return {"sonar": dict(FLOOR, pose={"position_m": [0, 0, z], "rpy_deg": [0, pitch, 0]}),
+            "ground": {"albedo": 0.8}, "render": {"bounces": [1]}}
+
+
+@pytest.fixture
+def floor_case(tmp_path):
+    """A floor recorded at z 0.40 m, pitch 28 deg (noise-free), and a scene file to start from."""
+    sonarsim.render(sonarsim.load_scene(floor_doc(0.40, 28.0))).save_npz(tmp_path / "real.npz")
+
+    def scene(z: float, pitch: float) -> Path:
+        path = tmp_path / f"scene_{z}_{pitch}.yaml"
+        path.write_text(yaml.safe_dump(floor_doc(z, pitch)))
+        return path
+
+    return tmp_path / "real.npz", scene
+
+
+def run(argv) -> int:
+    """main's status, or the status of the SystemExit it lets through (argparse: 2; fit: 3)."""
+    try:
+        return main([str(a) for a in argv])
+    except SystemExit as exc:
+        return exc.code
+
+
+def test_help_lists_the_exit_statuses(capsys):
+    assert run(["fit", "--help"]) == 0
+    out = capsys.readouterr().out
+    assert "exit status:" in out and "  2  bad input" in out
+    assert "  3  the fit found no meaningful pose (nothing written)" in out
+    assert "{auto,edges,band}" in out and "--quiet" in out
+
+
+def test_auto_says_which_domain_and_progress_goes_to_stderr(floor_case, tmp_path, capsys, monkeypatch):
+    real, scene = floor_case
+    monkeypatch.setattr(fit_cli, "PROGRESS_INTERVAL_S", 0.0)  # every render reported
+    out = tmp_path / "fitted.yaml"
+    assert run(["fit", real, "--scene", scene(0.37, 26.0), "--max-renders", 40, "--out", out]) == 0
+    err = capsys.readouterr().err.splitlines()
+    progress = [line for line in err if line.startswith("sonarsim: fit (band): ")]
+    assert len(progress) >= 20 and progress[0].startswith("sonarsim: fit (band): 2/40 renders, best band-edge RMS")
+    assert progress[-1].endswith(" s") and "Traceback" not in "\n".join(err)
+    assert any(line.startswith("sonarsim: fit: ") and "domain band: the scene's echo is one floor band" in line
+               for line in err)
+    fitted = sonarsim.load_scene(out).sonar_pose
+    assert abs(fitted.position_m[2] - 0.40) < 0.01 and abs(fitted.rpy_deg[1] - 28.0) < 1.0
+
+
+def test_quiet_silences_progress_and_notes(floor_case, tmp_path, capsys, monkeypatch):
+    real, scene = floor_case
+    monkeypatch.setattr(fit_cli, "PROGRESS_INTERVAL_S", 0.0)
+    out = tmp_path / "fitted.yaml"
+    assert run(["fit", real, "--scene", scene(0.37, 26.0), "--max-renders", 40, "--quiet", "--out", out]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == "" and "near edge RMS" in captured.out and out.exists()
+
+
+def test_a_terminal_gets_one_status_line_rewritten_in_place():
+    import io
+
+    from sonarsim.analysis.fitting import FitProgress
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    stream = Terminal()
+    show = fit_cli._Progress(stream)
+    show(FitProgress(5, 600, "edges 2/3", 0.75, 1.25))
+    show(FitProgress(6, 600, "edges 2/3", 0.74, 1.30))  # within the interval: not shown
+    show.close()
+    assert stream.getvalue() == ("\rsonarsim: fit (edges 2/3): 5/600 renders, best 1 - edge correlation 0.75, "
+                                 "1.2 s\033[K\n")
+
+
+def assert_one_line_exit_3(status, err, *, says):
+    assert status == 3
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("sonarsim: error: ") and "Traceback" not in err
+    for text in says:
+        assert text in lines[0]
+
+
+def test_a_far_start_exits_3_and_writes_nothing(floor_case, tmp_path, capsys):
+    real, scene = floor_case
+    out = tmp_path / "out" / "fitted.yaml"
+    status = run(["fit", real, "--scene", scene(1.5, 60.0), "--max-renders", 30, "--quiet", "--out", out])
+    captured = capsys.readouterr()
+    assert_one_line_exit_3(status, captured.err, says=(
+        "real.npz: the fit found no meaningful pose: the render's echo does not line up with the recording's",
+        "nothing written; try a starting pose nearer the recording's", "--domain edges"))
+    assert "z " in captured.out  # what it found is still shown
+    assert not out.exists() and not (tmp_path / "out" / "fitted_fit.png").exists()
+
+
+def test_a_pose_where_nothing_echoes_exits_3(floor_case, tmp_path, capsys):
+    real, scene = floor_case  # pitched 40 deg up: the floor is never seen
+    status = run(["fit", real, "--scene", scene(0.4, -40.0), "--domain", "edges", "--max-renders", 6,
+                  "--out", tmp_path / "f.yaml"])
+    err = capsys.readouterr().err
+    assert status == 3 and "no pose at which the scene echoes" in err and "Traceback" not in err
+    assert not (tmp_path / "f.yaml").exists()
+
+
+def test_a_recording_of_noise_exits_3(floor_case, tmp_path, capsys):
+    real, scene = floor_case
+    image = sonarsim.render(sonarsim.load_scene(floor_doc(0.40, 28.0)))  # its grid, exponential noise in it
+    rng = np.random.default_rng(1)
+    replace(image, polar=rng.exponential(1.0, image.polar.shape).astype(np.float32),
+            components={}).save_npz(tmp_path / "noise.npz")
+    status = run(["fit", tmp_path / "noise.npz", "--scene", scene(0.4, 28.0), "--max-renders", 20, "--quiet",
+                  "--out", tmp_path / "f.yaml"])
+    assert_one_line_exit_3(status, capsys.readouterr().err, says=("noise.npz: the fit found no meaningful pose",))
+    assert not (tmp_path / "f.yaml").exists()
+
+
+@pytest.mark.parametrize("budget", ["0", "-3", "many"])
+def test_a_bad_render_budget_is_bad_input(floor_case, tmp_path, capsys, budget):
+    real, scene = floor_case
+    status = run(["fit", real, "--scene", scene(0.4, 28.0), "--max-renders", budget, "--out", tmp_path / "f.yaml"])
+    err = capsys.readouterr().err
+    assert status == 2 and f"--max-renders: expected a number of renders >= 1, got '{budget}'" in err
