@@ -165,8 +165,11 @@ class SpecklePool:
         return out, scale
 
     def draw(self, rng: np.random.Generator) -> FieldDraw:
-        field, row, beam = rng.integers(0, (self.n_fields, *self.shape)).tolist()  # one call: per frame
-        return FieldDraw(field, row, beam)
+        # One raw 64-bit draw split three ways (per frame: a Generator call costs ~10 us; the
+        # modulo bias of 64 random bits over a few million cells is below 1e-12).
+        n_r, n_b = self.shape
+        x = int(rng.bit_generator.random_raw())
+        return FieldDraw(x % self.n_fields, (x // self.n_fields) % n_r, (x // (self.n_fields * n_r)) % n_b)
 
     def field(self, kind: str, index: int) -> np.ndarray:
         """Field ``index`` of ``kind`` (``"speckle"`` or ``"noise"``), (n_r, n_b) complex64."""
