@@ -109,16 +109,19 @@ def cmd_fit(args) -> None:
     from ..config.loader import load_scene
     from ..io.output import atomic_write, write_png
 
+    out = Path(args.out)
+    image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
+    # Both outputs checked before the search, which can take minutes (sonarsim.io.run_record).
+    run = OutputRun(record_beside(out), {out: "--out", image_path: "--image"},
+                    command=getattr(args, "command_line", None))
     real = _load_real(args.real, args.frame)
     scene = load_scene(args.scene)
     result = fit_pose(real, scene, free=args.free, domain=args.domain, max_renders=args.max_renders)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     doc = _fitted_document(Path(args.scene), out, result.pose)
-    with atomic_write(out, "w") as f:
-        yaml.safe_dump(doc, f, sort_keys=False)
-    image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
-    write_png(image_path, side_by_side(real, result.image))
+    with run:
+        with atomic_write(out, "w") as f:
+            yaml.safe_dump(doc, f, sort_keys=False)
+        write_png(image_path, side_by_side(real, result.image))
     onset_r, end_r = floor_band_m(real)
     onset_s, end_s = floor_band_m(result.image)
     end_rms = float(np.sqrt(np.nanmean((end_s - end_r) ** 2))) if np.isfinite(end_s - end_r).any() else float("nan")
