@@ -108,6 +108,7 @@ def cmd_fit(args) -> None:
     from ..analysis.fitting import UNITS, fit_pose, floor_band_m
     from ..config.loader import load_scene
     from ..io.output import atomic_write, write_png
+    from ..io.run_record import OutputRun, record_beside
 
     out = Path(args.out)
     image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
