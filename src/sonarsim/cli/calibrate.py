@@ -106,9 +106,9 @@ def cmd_calibrate(args) -> None:
         raise ConfigError("--max-iterations", f"must be at least 1, got {args.max_iterations}")
     out = Path(args.out)
     image_path = Path(args.image) if args.image else out.with_suffix(".png")
-    outputs = {out: "--out", image_path: "--image"}
+    outputs = [(out, "--out"), (image_path, "--image")]
     if args.json:
-        outputs[Path(args.json)] = "--json"
+        outputs.append((Path(args.json), "--json"))
     # Every output checked before the calibration, which can take minutes (sonarsim.io.run_record).
     run = OutputRun(record_beside(out), outputs, command=getattr(args, "command_line", None))
     free = parse_free_parameters(args.free)

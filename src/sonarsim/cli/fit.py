@@ -113,7 +113,7 @@ def cmd_fit(args) -> None:
     out = Path(args.out)
     image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
     # Both outputs checked before the search, which can take minutes (sonarsim.io.run_record).
-    run = OutputRun(record_beside(out), {out: "--out", image_path: "--image"},
+    run = OutputRun(record_beside(out), [(out, "--out"), (image_path, "--image")],
                     command=getattr(args, "command_line", None))
     real = _load_real(args.real, args.frame)
     scene = load_scene(args.scene)

@@ -44,7 +44,7 @@ import socket
 import stat
 import sys
 import tempfile
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, Callable
 
@@ -176,9 +176,9 @@ class OutputRun:
     record : str or os.PathLike
         Where the record goes: ``OUT / RECORD_NAME`` for a folder of outputs, or
         :func:`record_beside` of a single main output file.
-    files : Mapping[path, str] or Iterable[path]
-        The files the command will write, each with the option that named it (a mapping), or
-        all named by ``option``. :meth:`add` plans more once they are known.
+    files : Iterable of path or of (path, str)
+        The files the command will write, each alone (named by ``option``) or with the option
+        that named it. :meth:`add` plans more once they are known.
     option : str
         Option named in errors about the record's folder and about files given without one.
     command : Sequence[str], optional
@@ -196,7 +196,7 @@ class OutputRun:
     def __init__(
         self,
         record: PathLike,
-        files: Mapping[PathLike, str] | Iterable[PathLike],
+        files: Iterable[PathLike | tuple[PathLike, str]],
         *,
         option: str = "--out",
         command: Sequence[str] | None = None,
@@ -210,7 +210,8 @@ class OutputRun:
         self._files: dict[Path, str] = {}
         self._started = ""
         self._active = False
-        pairs = files.items() if isinstance(files, Mapping) else ((f, option) for f in files)
+        # Pairs rather than a mapping, so that two options naming one file both arrive here.
+        pairs = [f if isinstance(f, tuple) else (f, option) for f in files]
         # The record's folder is shown as the user typed it when it is what --out named.
         _check_folder(self.folder, option, self.folder)
         for path, opt in pairs:
@@ -219,13 +220,13 @@ class OutputRun:
 
     @classmethod
     def for_folder(cls, folder: PathLike, names: Iterable[str], *, option: str = "--out",
-                   command: Sequence[str] | None = None) -> "OutputRun":
+                   command: Sequence[str] | None = None, log: Callable[[str], None] | None = None) -> "OutputRun":
         """The run of a command that writes the files ``names`` into the folder ``folder``.
 
         Its record is ``folder / RECORD_NAME``; see the class for the checks and parameters.
         """
         out = Path(folder)
-        return cls(out / RECORD_NAME, [out / n for n in names], option=option, command=command)
+        return cls(out / RECORD_NAME, [out / n for n in names], option=option, command=command, log=log)
 
     # ------------------------------------------------------------------ planning
 
