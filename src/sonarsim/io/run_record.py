@@ -128,7 +128,11 @@ def _log(msg: str) -> None:
 
 
 def _check_folder(folder: Path, option: str, shown: PathLike) -> None:
-    """``folder`` is, or can be created as, a writable folder; else :class:`OutputError`."""
+    """``folder`` is, or can be created as, a writable folder; else :class:`OutputError`.
+
+    ``shown`` is what the user named: the folder itself, or an output file inside it.
+    """
+    itself = Path(shown) == folder
     existing = folder
     while not os.path.lexists(existing):
         if existing.parent == existing:
@@ -137,16 +141,20 @@ def _check_folder(folder: Path, option: str, shown: PathLike) -> None:
     try:
         is_dir = existing.is_dir()
     except OSError as exc:  # e.g. a symbolic link loop, a path that is too long
-        raise OutputError(option, shown, f"cannot use this folder: {exc.strerror or exc}") from None
+        raise OutputError(option, shown, f"cannot use this path: {exc.strerror or exc}") from None
     if not is_dir:
-        if existing == folder:
+        if existing == folder and itself:
             raise OutputError(option, shown, "is a file, not a folder (allowed: a folder, or a path where one "
                                              "can be created)")
-        raise OutputError(option, shown, f"cannot create this folder: {existing} is a file, not a folder")
+        what = "this folder" if itself else "its folder"
+        raise OutputError(option, shown, f"cannot create {what}: {existing} is a file, not a folder")
     try:
         fd, probe = tempfile.mkstemp(prefix=temp_prefix("write-probe"), suffix=".tmp", dir=existing)
     except OSError as exc:
-        what = "cannot write into this folder" if existing == folder else f"cannot create this folder in {existing}"
+        if existing == folder:
+            what = "cannot write into this folder" if itself else f"cannot write into its folder {folder}"
+        else:
+            what = f"cannot create {'this' if itself else 'its'} folder in {existing}"
         raise OutputError(option, shown, f"{what}: {exc.strerror or exc}") from None
     os.close(fd)
     os.unlink(probe)
@@ -186,6 +194,9 @@ class OutputRun:
     log : callable, optional
         Receives one-line notes (files removed as stale, or kept because changed); default:
         ``sonarsim: ...`` on stderr.
+    folder_named : bool
+        Whether ``option`` named the record's folder itself (``render --out DIR``) rather than
+        files in it (``fit --out FILE``); errors about the folder name what the user gave.
 
     Raises
     ------
@@ -201,6 +212,7 @@ class OutputRun:
         option: str = "--out",
         command: Sequence[str] | None = None,
         log: Callable[[str], None] | None = None,
+        folder_named: bool = False,
     ) -> None:
         self.record = Path(record)
         self.folder = self.record.parent
@@ -211,11 +223,13 @@ class OutputRun:
         self._started = ""
         self._active = False
         # Pairs rather than a mapping, so that two options naming one file both arrive here.
-        pairs = [f if isinstance(f, tuple) else (f, option) for f in files]
-        # The record's folder is shown as the user typed it when it is what --out named.
-        _check_folder(self.folder, option, self.folder)
+        pairs = [(Path(f[0]), f[1]) if isinstance(f, tuple) else (Path(f), option) for f in files]
+        # Errors about the record's folder name what the user gave: the folder (``--out DIR``)
+        # or, for a single output file (``fit --out FILE``), that file.
+        shown, shown_option = next(((p, o) for p, o in pairs if self._here(p)), (self.folder, option))
+        _check_folder(self.folder, shown_option, shown if not folder_named else self.folder)
         for path, opt in pairs:
-            self._plan(Path(path), opt, check_folder=True)
+            self._plan(path, opt, check_folder=True)
         self._check_not_in_use()
 
     @classmethod
@@ -226,7 +240,8 @@ class OutputRun:
         Its record is ``folder / RECORD_NAME``; see the class for the checks and parameters.
         """
         out = Path(folder)
-        return cls(out / RECORD_NAME, [out / n for n in names], option=option, command=command, log=log)
+        return cls(out / RECORD_NAME, [out / n for n in names], option=option, command=command, log=log,
+                   folder_named=True)
 
     # ------------------------------------------------------------------ planning
 
@@ -234,6 +249,10 @@ class OutputRun:
     def files(self) -> list[Path]:
         """The files this run writes, in the order planned."""
         return list(self._files)
+
+    def _here(self, path: Path) -> bool:
+        """Whether ``path`` lies directly in the record's folder."""
+        return Path(os.path.abspath(path)).parent == Path(os.path.abspath(self.folder))
 
     def _plan(self, path: Path, option: str, check_folder: bool) -> None:
         key = Path(os.path.abspath(path))
@@ -245,8 +264,8 @@ class OutputRun:
         if key == Path(os.path.abspath(self.record)):
             raise OutputError(option, path, f"is the name of sonarsim's run record ({self.record.name}); choose "
                                             "another name")
-        if check_folder and key.parent != Path(os.path.abspath(self.folder)):
-            _check_folder(path.parent, option, path.parent)
+        if check_folder and not self._here(path):
+            _check_folder(path.parent, option, path)
         _check_file(path, option)
         self._files[key] = option
 
