@@ -234,6 +234,16 @@ def test_unwritable_out_is_found_before_a_large_render(tmp_path: Path, big_scene
                            "file, not a folder\n")
 
 
+def test_show_of_a_bad_recording_leaves_no_folder(capsys, tmp_path: Path) -> None:
+    # Regression: show used to create the folder and write polar.png before failing.
+    garbage = tmp_path / "garbage.raw"
+    garbage.write_bytes(b"\x00\x01garbage" * 10)
+    out = tmp_path / "out"
+    code, err = run_main(capsys, "show", garbage, "--out", out)
+    assert code == cli.EXIT_BAD_INPUT and "garbage.raw" in err and "Traceback" not in err
+    assert not out.exists()
+
+
 # --------------------------------------------------------------------------- interrupted runs
 
 
@@ -253,14 +263,15 @@ def test_ctrl_c_while_writing_in_process(capsys, monkeypatch, tmp_path: Path, ti
 
     monkeypatch.setattr(output, "write_png", second_write_interrupted)
     out = tmp_path / "out"
+    handler = signal.getsignal(signal.SIGTERM)
     code, err = run_main(capsys, "render", tiny_scene, "--out", out)
+    assert signal.getsignal(signal.SIGTERM) == handler  # main's own handler only while it runs
     assert code == 130
     assert err.splitlines()[-1] == (f"sonarsim: interrupted by Ctrl-C (SIGINT); {out / RECORD_NAME} records the run "
                                     "as interrupted")
     assert sorted(os.listdir(out)) == ["polar.png", RECORD_NAME]
     doc = read_record(out / RECORD_NAME)
     assert doc["status"] == "interrupted" and [e["name"] for e in doc["files"]] == list(RENDER_FILES)
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL or callable(signal.getsignal(signal.SIGTERM))
 
 
 def test_failed_write_is_recorded_as_failed(capsys, monkeypatch, tmp_path: Path, tiny_scene: Path) -> None:
@@ -286,15 +297,15 @@ def _start_big_render(big_scene: Path, out: Path) -> subprocess.Popen:
         assert proc.poll() is None, proc.communicate()
         assert time.monotonic() < deadline, "the render did not start writing in 120 s"
         time.sleep(0.02)
-    time.sleep(0.3)  # into the component images
+    time.sleep(0.1)  # into the component images
     assert proc.poll() is None, "the render finished before it could be interrupted; make BIG_SCENE larger"
     return proc
 
 
-@pytest.mark.parametrize("signum, code, name", [(signal.SIGINT, 130, "Ctrl-C (SIGINT)"),
-                                                (signal.SIGTERM, 143, "SIGTERM")])
-def test_a_signal_while_writing_stops_cleanly(tmp_path: Path, big_scene: Path, signum, code: int,
-                                              name: str) -> None:
+@pytest.mark.parametrize("signum, code, name, error", [(signal.SIGINT, 130, "Ctrl-C (SIGINT)", "KeyboardInterrupt"),
+                                                       (signal.SIGTERM, 143, "SIGTERM", "SIGTERM")])
+def test_a_signal_while_writing_stops_cleanly(tmp_path: Path, big_scene: Path, signum, code: int, name: str,
+                                              error: str) -> None:
     out = tmp_path / "out"
     proc = _start_big_render(big_scene, out)
     proc.send_signal(signum)
@@ -304,7 +315,7 @@ def test_a_signal_while_writing_stops_cleanly(tmp_path: Path, big_scene: Path, s
     assert err.splitlines()[-1] == f"sonarsim: interrupted by {name}; {out / RECORD_NAME} records the run as interrupted"
     assert temp_files(out) == []
     doc = read_record(out / RECORD_NAME)
-    assert doc["status"] == "interrupted" and doc["error"] in ("", "SIGTERM", "KeyboardInterrupt")
+    assert doc["status"] == "interrupted" and doc["error"] == error
     # Every file there is one the record lists (so the next run can clear it), and it is
     # incomplete: the npz, written last, is not there.
     assert set(os.listdir(out)) - {RECORD_NAME} <= {e["name"] for e in doc["files"]}
