@@ -9,7 +9,6 @@ of an earlier run beside its own. Killed runs (SIGKILL) are cleaned up by the ne
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import signal
 import subprocess

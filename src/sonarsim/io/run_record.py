@@ -226,10 +226,13 @@ class OutputRun:
         pairs = [(Path(f[0]), f[1]) if isinstance(f, tuple) else (Path(f), option) for f in files]
         # Errors about the record's folder name what the user gave: the folder (``--out DIR``)
         # or, for a single output file (``fit --out FILE``), that file.
-        shown, shown_option = next(((p, o) for p, o in pairs if self._here(p)), (self.folder, option))
-        _check_folder(self.folder, shown_option, shown if not folder_named else self.folder)
+        shown: Path = self.folder
+        shown_option = option
+        if not folder_named:
+            shown, shown_option = next(((p, o) for p, o in pairs if self._here(p)), (shown, shown_option))
+        _check_folder(self.folder, shown_option, shown)
         for path, opt in pairs:
-            self._plan(path, opt, check_folder=True)
+            self._plan(path, opt)
         self._check_not_in_use()
 
     @classmethod
@@ -254,7 +257,7 @@ class OutputRun:
         """Whether ``path`` lies directly in the record's folder."""
         return Path(os.path.abspath(path)).parent == Path(os.path.abspath(self.folder))
 
-    def _plan(self, path: Path, option: str, check_folder: bool) -> None:
+    def _plan(self, path: Path, option: str) -> None:
         key = Path(os.path.abspath(path))
         if key in self._files:
             if self._files[key] != option:
@@ -264,7 +267,7 @@ class OutputRun:
         if key == Path(os.path.abspath(self.record)):
             raise OutputError(option, path, f"is the name of sonarsim's run record ({self.record.name}); choose "
                                             "another name")
-        if check_folder and not self._here(path):
+        if not self._here(path):
             _check_folder(path.parent, option, path)
         _check_file(path, option)
         self._files[key] = option
@@ -281,7 +284,7 @@ class OutputRun:
             ``path``, to write to.
         """
         target = Path(path)
-        self._plan(target, option or self.option, check_folder=True)
+        self._plan(target, option or self.option)
         if self._active:
             self._write_record("running")
         return target
