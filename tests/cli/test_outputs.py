@@ -273,6 +273,35 @@ def test_ctrl_c_while_writing_in_process(capsys, monkeypatch, tmp_path: Path, ti
     assert doc["status"] == "interrupted" and [e["name"] for e in doc["files"]] == list(RENDER_FILES)
 
 
+@pytest.mark.parametrize("signum, code", [(signal.SIGTERM, 143), (signal.SIGHUP, 129)])
+def test_stop_signals_in_process(capsys, monkeypatch, tmp_path: Path, tiny_scene: Path, signum, code: int) -> None:
+    from sonarsim.io import output
+
+    real_write_png = output.write_png
+
+    def signalled(path, image):
+        real_write_png(path, image)
+        os.kill(os.getpid(), signum)  # main turns it into an exception at the next step
+        time.sleep(5)  # never reached in full
+
+    monkeypatch.setattr(output, "write_png", signalled)
+    out = tmp_path / "out"
+    t0 = time.perf_counter()
+    code_, err = run_main(capsys, "render", tiny_scene, "--out", out)
+    assert code_ == code and time.perf_counter() - t0 < 4.0
+    name = signal.Signals(signum).name
+    assert err.splitlines()[-1] == f"sonarsim: interrupted by {name}; {out / RECORD_NAME} records the run as interrupted"
+    assert sorted(os.listdir(out)) == ["polar.png", RECORD_NAME]
+    assert read_record(out / RECORD_NAME)["error"] == name
+
+
+def test_a_folder_named_like_the_record_is_refused(capsys, tmp_path: Path, tiny_scene: Path) -> None:
+    (tmp_path / "out" / RECORD_NAME).mkdir(parents=True)
+    code, err = run_main(capsys, "render", tiny_scene, "--out", tmp_path / "out")
+    assert code == cli.EXIT_BAD_INPUT
+    assert err.startswith(f"sonarsim: error: --out {tmp_path / 'out' / RECORD_NAME}: is a folder")
+
+
 def test_failed_write_is_recorded_as_failed(capsys, monkeypatch, tmp_path: Path, tiny_scene: Path) -> None:
     def disk_full(*args, **kwargs):
         raise OSError(28, "No space left on device")

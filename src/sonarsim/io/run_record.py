@@ -190,7 +190,7 @@ class OutputRun:
     option : str
         Option named in errors about the record's folder and about files given without one.
     command : Sequence[str], optional
-        The command line, stored in the record. Default: ``sonarsim`` and :data:`sys.argv`.
+        The command line, stored in the record (``null`` there when not given).
     log : callable, optional
         Receives one-line notes (files removed as stale, or kept because changed); default:
         ``sonarsim: ...`` on stderr.
@@ -217,7 +217,8 @@ class OutputRun:
         self.record = Path(record)
         self.folder = self.record.parent
         self.option = option
-        self.command = list(command) if command is not None else ["sonarsim", *sys.argv[1:]]
+        # Not guessed from sys.argv: called from Python (or from pytest), that is someone else's.
+        self.command = list(command) if command is not None else None
         self._log = log or _log
         self._files: dict[Path, str] = {}
         self._started = ""
@@ -231,6 +232,7 @@ class OutputRun:
         if not folder_named:
             shown, shown_option = next(((p, o) for p, o in pairs if self._here(p)), (shown, shown_option))
         _check_folder(self.folder, shown_option, shown)
+        _check_file(self.record, shown_option)  # the record is an output too
         for path, opt in pairs:
             self._plan(path, opt)
         self._check_not_in_use()
