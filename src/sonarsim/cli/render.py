@@ -185,7 +185,6 @@ def render_and_write(scene, out: Path, args, run=None):
 
 def cmd_render(args) -> None:
     from ..config.loader import load_scene
-
     from ..io.run_record import OutputRun
 
     out = Path(args.out)

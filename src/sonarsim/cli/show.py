@@ -84,8 +84,10 @@ def cmd_show(args: argparse.Namespace) -> None:
     RecordingError
         For an unreadable recording or a frame out of range (a SonarsimError: the CLI prints
         it on one line and exits with status 2).
+    OutputError
+        If --out cannot be written; checked before the recording is read.
     OSError
-        If the recording cannot be opened or the output folder cannot be written.
+        If the recording cannot be opened, or a write fails (e.g. a full disk).
     """
     from ..io.output import to_uint8, write_png
     from ..io.readers import RecordingError, open_recording
