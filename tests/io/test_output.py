@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import os
+import re
 import stat
+import subprocess
+import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -191,6 +195,86 @@ def test_atomic_write_bad_mode(tmp_path: Path) -> None:
         with atomic_write(tmp_path / "e", "a"):
             pass
     assert os.listdir(tmp_path) == []
+
+
+def test_atomic_write_temp_name_carries_the_pid(tmp_path: Path) -> None:
+    with atomic_write(tmp_path / "polar.png") as fh:
+        fh.write(b"x")
+        (temp,) = os.listdir(tmp_path)
+    assert re.fullmatch(rf"\.polar\.png\.sonarsim-{os.getpid()}-[A-Za-z0-9_]{{8}}\.tmp", temp)
+    # A name too long for the prefix is shortened in the temporary name only (255-byte limit).
+    long_name = "n" * 250
+    with atomic_write(tmp_path / long_name) as fh:
+        fh.write(b"x")
+    assert (tmp_path / long_name).read_bytes() == b"x"
+
+
+@pytest.mark.parametrize("stop", [KeyboardInterrupt, SystemExit])
+def test_atomic_write_ctrl_c_leaves_nothing(tmp_path: Path, stop: type) -> None:
+    (tmp_path / "b.bin").write_bytes(b"old")
+    with pytest.raises(stop):
+        with atomic_write(tmp_path / "b.bin") as fh:
+            fh.write(b"partial")
+            raise stop()
+    assert os.listdir(tmp_path) == ["b.bin"] and (tmp_path / "b.bin").read_bytes() == b"old"
+
+
+def test_atomic_write_errors_name_the_destination(tmp_path: Path, monkeypatch) -> None:
+    # A disk that fills up: the error raised inside the block names no file at all.
+    with pytest.raises(OSError) as info:
+        with atomic_write(tmp_path / "full.bin"):
+            raise OSError(28, "No space left on device")
+    assert info.value.errno == 28 and info.value.filename == str(tmp_path / "full.bin")
+    # A folder where the file should go: os.replace names the temporary file first.
+    (tmp_path / "dir.png").mkdir()
+    with pytest.raises(IsADirectoryError) as info:
+        with atomic_write(tmp_path / "dir.png") as fh:
+            fh.write(b"x")
+    assert info.value.filename == str(tmp_path / "dir.png") and ".tmp" not in str(info.value)
+    # A folder that refuses new files (as root, permission bits do not; simulate it).
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(tmp_path / ".x.sonarsim-1-abc.tmp"))
+
+    monkeypatch.setattr(output.tempfile, "mkstemp", refuse)
+    with pytest.raises(PermissionError) as info:
+        with atomic_write(tmp_path / "x"):
+            pass
+    assert info.value.filename == str(tmp_path / "x")
+    assert sorted(os.listdir(tmp_path)) == ["dir.png"]
+
+
+def _dead_pid() -> int:
+    """The PID of a process that has exited (and been reaped)."""
+    proc = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                          check=True)
+    return int(proc.stdout)
+
+
+def test_remove_abandoned_temp_files(tmp_path: Path) -> None:
+    dead = _dead_pid()
+    names = {
+        f".fan.png.sonarsim-{dead}-abcd1234.tmp": True,  # killed run: removed
+        f".render.npz.sonarsim-{dead}-x_9Q0000.tmp": True,
+        f".fan.png.sonarsim-{os.getpid()}-abcd1234.tmp": False,  # live process: kept
+        ".fan.png.abcd1234.tmp": False,  # old style, but new
+        ".polar.png.abcd1234.tmp": True,  # old style, old, and a name that the run writes
+        ".other.png.abcd1234.tmp": False,  # old style, old, but not a name of this run
+        f".fan.png.sonarsim-{dead}-abcd1234.tmpx": False,
+        f"fan.png.sonarsim-{dead}-abcd1234.tmp": False,  # not hidden: not ours
+        ".bashrc": False,
+        "fan.png": False,
+    }
+    for name in names:
+        (tmp_path / name).write_bytes(b"")
+    hour_ago = time.time() - 7200
+    for name in (".polar.png.abcd1234.tmp", ".other.png.abcd1234.tmp"):
+        os.utime(tmp_path / name, (hour_ago, hour_ago))
+    (tmp_path / f".sub.sonarsim-{dead}-abcd1234.tmp").mkdir()  # not a file: kept
+    removed = output.remove_abandoned_temp_files(tmp_path, ["polar.png", "fan.png"])
+    assert removed == sorted(n for n, gone in names.items() if gone)
+    assert sorted(os.listdir(tmp_path)) == sorted([n for n, gone in names.items() if not gone]
+                                                  + [f".sub.sonarsim-{dead}-abcd1234.tmp"])
+    assert output.remove_abandoned_temp_files(tmp_path / "missing") == []
 
 
 # --------------------------------------------------------------------------- NPZ

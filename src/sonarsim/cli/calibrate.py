@@ -98,11 +98,19 @@ def cmd_calibrate(args) -> None:
     from ..analysis.comparison import load_image
     from ..config.loader import load_scene
     from ..io.output import atomic_write, write_png
+    from ..io.run_record import OutputRun, record_beside
     from ..renderer.simulator import Simulator
     from .fit import _load_real
 
     if args.max_iterations < 1:
         raise ConfigError("--max-iterations", f"must be at least 1, got {args.max_iterations}")
+    out = Path(args.out)
+    image_path = Path(args.image) if args.image else out.with_suffix(".png")
+    outputs = [(out, "--out"), (image_path, "--image")]
+    if args.json:
+        outputs.append((Path(args.json), "--json"))
+    # Every output checked before the calibration, which can take minutes (sonarsim.io.run_record).
+    run = OutputRun(record_beside(out), outputs, command=getattr(args, "command_line", None))
     free = parse_free_parameters(args.free)
     real = _load_real(args.real, args.frame)
     held_out = []
@@ -116,29 +124,29 @@ def cmd_calibrate(args) -> None:
     peak = res.scene.sensor.output.full_scale
     with Simulator(res.scene) as sim:
         speckled = sim.render(res.scene.sonar_pose, keep_rays=False)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     doc = calibrated_document(Path(args.scene), out, res.scene)
-    with atomic_write(out, "w") as f:
-        yaml.safe_dump(doc, f, sort_keys=False)
-    image_path = Path(args.image) if args.image else out.with_suffix(".png")
-    write_png(image_path, side_by_side(real, res.expected, speckled, peak, args.frame))
+
+    figures = {"frame": args.frame, "values": res.values,
+               "calibrated": evaluate(real.polar, res.expected.polar, speckled.polar, peak), "held_out": {}}
+    for n, img in held_out:
+        if np.asarray(img.polar).shape != res.expected.polar.shape:
+            raise SonarsimError(f"--evaluate-frames: frame {n} of {args.real} has another grid than frame {args.frame}")
+        figures["held_out"][str(n)] = evaluate(img.polar, res.expected.polar, speckled.polar, peak)
+    # Everything is computed before the first file is written: a refused held-out frame
+    # leaves no calibrated scene behind.
+    with run:
+        with atomic_write(out, "w") as f:
+            yaml.safe_dump(doc, f, sort_keys=False)
+        write_png(image_path, side_by_side(real, res.expected, speckled, peak, args.frame))
+        if args.json:
+            with atomic_write(Path(args.json), "w") as f:
+                json.dump(figures, f, indent=1, default=float)
 
     for name, value in res.values.items():
         print(f"{name:20s} {value:10.4f}")
     print(f"PSNR of the expected render on frame {args.frame}: {res.psnr_start_db:.2f} -> {res.psnr_db:.2f} dB "
           f"({res.renders} renders)")
-    figures = {"frame": args.frame, "values": res.values,
-               "calibrated": evaluate(real.polar, res.expected.polar, speckled.polar, peak)}
     print(format_evaluation(figures["calibrated"], f"frame {args.frame} (calibrated): "))
-    figures["held_out"] = {}
-    for n, img in held_out:
-        if np.asarray(img.polar).shape != res.expected.polar.shape:
-            raise SonarsimError(f"--evaluate-frames: frame {n} of {args.real} has another grid than frame {args.frame}")
-        ev = evaluate(img.polar, res.expected.polar, speckled.polar, peak)
-        figures["held_out"][str(n)] = ev
+    for n, ev in figures["held_out"].items():
         print(format_evaluation(ev, f"frame {n} (held out): "))
-    if args.json:
-        with atomic_write(Path(args.json), "w") as f:
-            json.dump(figures, f, indent=1, default=float)
     print(f"sonarsim: wrote {out} and {image_path}", file=sys.stderr)

@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .render import _log, add_image_options, add_render_options, options_named, render_and_write
+from .render import RENDER_FILES, _log, add_image_options, add_render_options, options_named, render_and_write
 
 __all__ = ["add_demo_parser", "cmd_demo", "demo_scene_dict", "tank_scene_dict"]
 
@@ -110,7 +110,8 @@ def add_demo_parser(subparsers: Any) -> argparse.ArgumentParser:
                               "and all bounces side by side, as in the paper's Fig. 9) into --out; then a tank with a water "
                               "surface and walls: tank.yaml and multipath.png (all paths, direct echoes, the surface's and "
                               "the walls' ghosts); then the first scene as an ARIS 3000 records it (sensor model: beam "
-                              "patterns, speckle, noise, TVG, 8-bit output): scene_aris3000.yaml and aris3000.png.")
+                              "patterns, speckle, noise, TVG, 8-bit output): scene_aris3000.yaml and aris3000.png; "
+                              "last, sonarsim-run.json, the run's record.")
     p.add_argument("--out", default="sonarsim-demo", help="output folder (default: ./sonarsim-demo)")
     add_render_options(p)
     add_image_options(p)
@@ -118,12 +119,18 @@ def add_demo_parser(subparsers: Any) -> argparse.ArgumentParser:
     return p
 
 
+#: Every file ``demo`` writes into --out (--components adds per-component images).
+DEMO_FILES = ("scene.yaml", *RENDER_FILES, "ground_echo.png", "tank.yaml", "multipath.png", "scene_aris3000.yaml",
+              "aris3000.png")
+
+
 def cmd_demo(args) -> None:
-    import yaml
-
     from ..config.loader import scene_from_dict
-    from ..io.output import atomic_write
+    from ..io.run_record import OutputRun
 
+    out = Path(args.out)
+    # The output folder first, then the three scenes, all before the first render.
+    run = OutputRun.for_folder(out, DEMO_FILES, command=getattr(args, "command_line", None))
     doc = demo_scene_dict()
     # The scene.yaml written must reproduce this render, command-line overrides included.
     if args.bounces is not None:
@@ -138,19 +145,6 @@ def cmd_demo(args) -> None:
         doc["render"]["seed"] = args.seed
     with options_named(args):
         scene = scene_from_dict(doc)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_write(out / "scene.yaml", "w") as f:
-        yaml.safe_dump(doc, f, sort_keys=False)
-    image = render_and_write(scene, out, args)
-    from ..io.figures import bounce_comparison
-    from ..io.output import write_png
-
-    write_png(out / "ground_echo.png", bounce_comparison(image, args.pixel_size, args.mapping, args.gain_db, args.dynamic_range_db))
-    _log(f"wrote {out / 'ground_echo.png'} (fan views: single | single + triple | all bounces)")
-
-    from ..io.figures import multipath_comparison
-    from ..renderer.simulator import Simulator
 
     tank = tank_scene_dict()
     # The command line's render options apply to the tank too (its scene file says so).
@@ -164,9 +158,33 @@ def cmd_demo(args) -> None:
         tank["render"]["seed"] = args.seed
     with options_named(args):
         tank_scene = scene_from_dict(tank)
+
+    # The demo scene once more, through the sensor model of an ARIS 3000 at 1.8 MHz.
+    aris = {**doc, "sensor": {"preset": "aris3000-128"}}
+    with options_named(args):
+        aris_scene = scene_from_dict(aris)
+
+    with run:
+        _demo_files(args, out, run, (doc, scene), (tank, tank_scene), (aris, aris_scene))
+
+
+def _demo_files(args, out: Path, run, demo, tank, aris) -> None:
+    """Render the demo's three scenes and write their files; each scene is (document, Scene)."""
+    import yaml
+
+    from ..io.figures import bounce_comparison, multipath_comparison, sensor_comparison
+    from ..io.output import atomic_write, write_png
+    from ..renderer.simulator import Simulator
+
+    with atomic_write(out / "scene.yaml", "w") as f:
+        yaml.safe_dump(demo[0], f, sort_keys=False)
+    image = render_and_write(demo[1], out, args, run)
+    write_png(out / "ground_echo.png", bounce_comparison(image, args.pixel_size, args.mapping, args.gain_db, args.dynamic_range_db))
+    _log(f"wrote {out / 'ground_echo.png'} (fan views: single | single + triple | all bounces)")
+
     with atomic_write(out / "tank.yaml", "w") as f:
-        yaml.safe_dump(tank, f, sort_keys=False)
-    with Simulator(tank_scene, backend=args.backend) as sim:
+        yaml.safe_dump(tank[0], f, sort_keys=False)
+    with Simulator(tank[1], backend=args.backend) as sim:
         tank_image = sim.render()
     figure = multipath_comparison(tank_image, mapping=args.mapping, gain_db=args.gain_db,
                                   dynamic_range_db=args.dynamic_range_db)
@@ -174,15 +192,9 @@ def cmd_demo(args) -> None:
     _log(f"wrote {out / 'tank.yaml'} and {out / 'multipath.png'} "
          "(fan views: all paths | direct echoes | via the water surface | via a wall)")
 
-    # The demo scene once more, through the sensor model of an ARIS 3000 at 1.8 MHz.
-    from ..io.figures import sensor_comparison
-
-    aris = {**doc, "sensor": {"preset": "aris3000-128"}}
-    with options_named(args):
-        aris_scene = scene_from_dict(aris)
     with atomic_write(out / "scene_aris3000.yaml", "w") as f:
-        yaml.safe_dump(aris, f, sort_keys=False)
-    with Simulator(aris_scene, backend=args.backend) as sim:
+        yaml.safe_dump(aris[0], f, sort_keys=False)
+    with Simulator(aris[1], backend=args.backend) as sim:
         recorded, expected = sim.render(), sim.render(speckle=False)
     write_png(out / "aris3000.png", sensor_comparison(recorded, expected, "an ARIS 3000", 255.0, args.pixel_size))
     _log(f"wrote {out / 'scene_aris3000.yaml'} and {out / 'aris3000.png'} "

@@ -189,7 +189,13 @@ def cmd_fit(args) -> None:
     from ..analysis.fitting import UNITS, FitError, fit_pose, floor_band_m
     from ..config.loader import load_scene
     from ..io.output import atomic_write, write_png
+    from ..io.run_record import OutputRun, record_beside
 
+    out = Path(args.out)
+    image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
+    # Both outputs checked before the search, which can take minutes (sonarsim.io.run_record).
+    run = OutputRun(record_beside(out), [(out, "--out"), (image_path, "--image")],
+                    command=getattr(args, "command_line", None))
     real = _load_real(args.real, args.frame)
     scene = load_scene(args.scene)
     quiet = getattr(args, "quiet", False)
@@ -220,12 +226,10 @@ def cmd_fit(args) -> None:
         _log(f"error: {args.real}: the fit found no meaningful pose: {'; '.join(result.problems)}; nothing written; "
              + _what_to_try(args, result))
         raise SystemExit(EXIT_NO_FIT)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     doc = _fitted_document(Path(args.scene), out, result.pose)
-    with atomic_write(out, "w") as f:
-        yaml.safe_dump(doc, f, sort_keys=False)
-    image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
-    write_png(image_path, side_by_side(real, result.image))
+    with run:
+        with atomic_write(out, "w") as f:
+            yaml.safe_dump(doc, f, sort_keys=False)
+        write_png(image_path, side_by_side(real, result.image))
     if not quiet:
         print(f"sonarsim: wrote {out} and {image_path}", file=sys.stderr)

@@ -1,18 +1,55 @@
 """Command-line interface: a thin layer over the library; one module per command.
 
 Results go to files; progress and timing go to stderr. Bad input ends with a one-line message
-naming the key or file, exit status 2, and no traceback.
+naming the key or file, exit status 2, and no traceback. Ctrl-C, SIGTERM and SIGHUP end the
+command cleanly (temporary files removed, the run recorded as interrupted) with a one-line
+message and exit status 128 + the signal's number (130, 143, 129).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
-from typing import Sequence
+from typing import Iterator, Sequence
 
 from ..errors import SonarsimError
 
 EXIT_BAD_INPUT = 2
+
+# Signals that stop a command the way Ctrl-C does: unwinding, so that every ``finally`` and
+# ``atomic_write`` cleans up, instead of dying on the spot and leaving temporary files.
+_STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+class Terminated(KeyboardInterrupt):
+    """A stop signal (SIGTERM, SIGHUP) turned into an exception; a KeyboardInterrupt, so code
+    that cleans up after Ctrl-C cleans up after it too."""
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        super().__init__(signal.Signals(signum).name)
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise Terminated(signum)
+
+
+@contextlib.contextmanager
+def _stop_signals_raise() -> Iterator[None]:
+    """Turn SIGTERM and SIGHUP into :class:`Terminated` for the duration of the block."""
+    previous = {}
+    try:
+        for signum in _STOP_SIGNALS:
+            previous[signum] = signal.signal(signum, _raise_terminated)
+    except ValueError:  # not the main thread (e.g. main() called from a worker thread)
+        pass
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 def _log(msg: str) -> None:
@@ -64,22 +101,30 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``sonarsim`` command; returns the exit status."""
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    # Stored in each run's record (sonarsim.io.run_record), so a folder says what made it.
+    args.command_line = ["sonarsim", *map(str, argv)]
     from ..core.memory import set_memory_budget
 
     set_memory_budget(args.max_memory)
     try:
-        args.func(args)
+        with _stop_signals_raise():
+            args.func(args)
     except SonarsimError as exc:
         _log(f"error: {exc}")
         return EXIT_BAD_INPUT
-    except OSError as exc:  # e.g. an output folder that cannot be written
-        # A failed rename names the temporary file first; the user wants the destination.
+    except OSError as exc:  # e.g. a disk that filled up while writing
+        # atomic_write names the destination, never its temporary file.
         name = exc.filename2 or exc.filename or ""
-        _log(f"error: {name}: {exc.strerror or exc}")
+        _log(f"error: {name}: {exc.strerror or exc}" if name else f"error: {exc.strerror or exc}")
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        return 130
+    except KeyboardInterrupt as exc:
+        signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
+        what = "Ctrl-C (SIGINT)" if signum == signal.SIGINT else signal.Signals(signum).name
+        notes = "; ".join(getattr(exc, "__notes__", []))
+        _log(f"interrupted by {what}; {notes or 'nothing was written'}")
+        return 128 + int(signum)
     return 0
 
 

@@ -14,8 +14,8 @@ from typing import Any
 
 from .argtypes import finite_float, frame_index, positive_float
 
-__all__ = ["add_image_options", "add_render_options", "add_render_parser", "cmd_render", "options_named",
-           "render_and_write"]
+__all__ = ["RENDER_FILES", "add_image_options", "add_render_options", "add_render_parser", "cmd_render",
+           "options_named", "render_and_write"]
 
 
 def _log(msg: str) -> None:
@@ -66,7 +66,9 @@ def add_render_options(p: argparse.ArgumentParser) -> None:
 def add_render_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``render`` sub-command to an ``add_subparsers()`` object; sets ``func=cmd_render``."""
     p = subparsers.add_parser("render", help="render a scene file to polar.png, fan.png and render.npz",
-                              description="Render a YAML/JSON scene file. Writes polar.png, fan.png and render.npz into --out.")
+                              description="Render a YAML/JSON scene file. Writes polar.png, fan.png and render.npz into --out, "
+                              "then sonarsim-run.json, the run's record (status complete, each file's sha256). "
+                              "Files an earlier run listed there and this one does not write are removed.")
     p.add_argument("scene", help="scene file (YAML or JSON)")
     p.add_argument("--out", required=True, help="output folder (created if missing)")
     add_render_options(p)
@@ -134,8 +136,16 @@ def options_named(args):
         raise ConfigError(option, exc.detail) from None
 
 
-def render_and_write(scene, out: Path, args):
-    """Render ``scene`` once and write polar.png, fan.png and render.npz into ``out``."""
+#: The files ``render`` writes into --out (and ``demo`` among others); --components adds more.
+RENDER_FILES = ("polar.png", "fan.png", "render.npz")
+
+
+def render_and_write(scene, out: Path, args, run=None):
+    """Render ``scene`` once and write polar.png, fan.png and render.npz into ``out``.
+
+    ``run`` (an entered :class:`~sonarsim.io.run_record.OutputRun`) learns the names of the
+    per-component images before they are written.
+    """
     from ..io.output import to_uint8, write_png
     from ..renderer.simulator import Simulator
 
@@ -153,10 +163,15 @@ def render_and_write(scene, out: Path, args):
 
     def write(name: str, polar, label: str) -> None:
         # The polar PNG shows far range at the top, like the fan, so both read the same way.
-        write_png(out / f"polar{name}.png", to_uint8(polar[::-1], args.mapping, args.gain_db, args.dynamic_range_db))
+        polar_png = to_uint8(polar[::-1], args.mapping, args.gain_db, args.dynamic_range_db)
         fan = image.fan(pixel_size_m=args.pixel_size, component=label)
-        write_png(out / f"fan{name}.png",
-                  to_uint8(fan.image, args.mapping, args.gain_db, args.dynamic_range_db, mask=fan.mask))
+        fan_png = to_uint8(fan.image, args.mapping, args.gain_db, args.dynamic_range_db, mask=fan.mask)
+        # Both images are made before either is written: a failure leaves neither.
+        for kind, png in (("polar", polar_png), ("fan", fan_png)):
+            path = out / f"{kind}{name}.png"
+            if run is not None:
+                run.add(path)
+            write_png(path, png)
 
     write("", image.polar, None)
     if args.components:
@@ -170,6 +185,11 @@ def render_and_write(scene, out: Path, args):
 
 def cmd_render(args) -> None:
     from ..config.loader import load_scene
+    from ..io.run_record import OutputRun
 
+    out = Path(args.out)
+    # Checked before the scene is even read: a render must not be lost to an unwritable --out.
+    run = OutputRun.for_folder(out, RENDER_FILES, command=getattr(args, "command_line", None))
     scene = override_render(load_scene(args.scene), args)
-    render_and_write(scene, Path(args.out), args)
+    with run:
+        render_and_write(scene, out, args, run)

@@ -51,7 +51,7 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
         help="write polar.png and fan.png of one frame of a real recording (ARIS, Oculus)",
         description="Read one frame of a real sonar recording - an ARIS .aris file or Oculus "
         "simple-ping-result messages (.raw), recognised by content - and write polar.png "
-        "(range up, left-most beam on the left) and fan.png into --out.",
+        "(range up, left-most beam on the left) and fan.png into --out, then sonarsim-run.json, the run's record.",
     )
     p.add_argument("recording", metavar="FILE", help="the recording (.aris, or Oculus .raw messages)")
     p.add_argument("--frame", type=int, default=0, metavar="N",
@@ -84,12 +84,18 @@ def cmd_show(args: argparse.Namespace) -> None:
     RecordingError
         For an unreadable recording or a frame out of range (a SonarsimError: the CLI prints
         it on one line and exits with status 2).
+    OutputError
+        If --out cannot be written; checked before the recording is read.
     OSError
-        If the recording cannot be opened or the output folder cannot be written.
+        If the recording cannot be opened, or a write fails (e.g. a full disk).
     """
     from ..io.output import to_uint8, write_png
     from ..io.readers import RecordingError, open_recording
+    from ..io.run_record import OutputRun
 
+    out = Path(args.out)
+    # Checked before the recording is read; nothing is written until both images exist.
+    run = OutputRun.for_folder(out, ("polar.png", "fan.png"), command=getattr(args, "command_line", None))
     t0 = time.perf_counter()
     with open_recording(args.recording) as recording:
         image = recording.read(args.frame)
@@ -109,16 +115,17 @@ def cmd_show(args: argparse.Namespace) -> None:
     # Full scale of 8-bit data is 255 whatever the frame holds (see the module notes).
     bits = cfg["header"].get("bits_per_value", 8)
     reference = 255.0 if bits == 8 else None
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
 
     def png(values, mask=None):
         return to_uint8(values, args.mapping, args.gain_db, args.dynamic_range_db,
                         reference=reference, mask=mask)
 
     # Far range at the top of the polar PNG, like the fan, so both read the same way.
-    write_png(out / "polar.png", png(image.polar[::-1]))
+    polar_png = png(image.polar[::-1])
     fan = image.fan(pixel_size_m=args.pixel_size)
-    write_png(out / "fan.png", png(fan.image, fan.mask))
+    fan_png = png(fan.image, fan.mask)
+    with run:
+        write_png(out / "polar.png", polar_png)
+        write_png(out / "fan.png", fan_png)
     _log(f"wrote {out / 'polar.png'} and {out / 'fan.png'} ({fan.shape[1]} x {fan.shape[0]} px) "
          f"in {time.perf_counter() - t1:.3f} s")

@@ -3,8 +3,13 @@
 Every file is written atomically: the data goes to a temporary file in the destination's
 directory, which then replaces the destination with :func:`os.replace`. A reader (e.g. a
 viewer polling the output folder while the simulator renders) therefore sees either the old
-file or the complete new one, never a partial file, and a failed write leaves nothing
-behind.
+file or the complete new one, never a partial file, and a failed or interrupted write
+(exception, Ctrl-C) leaves nothing behind.
+
+Temporary files are named ``.NAME.sonarsim-PID-XXXXXXXX.tmp`` (:func:`temp_prefix`): only a
+process killed outright (SIGKILL, power loss) can leave one, and the PID in the name lets a
+later run tell it from the file of a run still in progress and remove it
+(:func:`remove_abandoned_temp_files`).
 """
 
 from __future__ import annotations
@@ -13,9 +18,11 @@ import contextlib
 import json
 import math
 import os
+import re
 import stat
 import tempfile
-from collections.abc import Iterator, Mapping
+import time
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any
 
@@ -27,6 +34,8 @@ __all__ = [
     "MAPPINGS",
     "atomic_write",
     "read_npz",
+    "remove_abandoned_temp_files",
+    "temp_prefix",
     "to_uint8",
     "write_npz",
     "write_png",
@@ -166,6 +175,111 @@ def _current_umask() -> int:
     return old
 
 
+#: What marks a temporary file of :func:`atomic_write` (between the name and the PID).
+TEMP_MARK = ".sonarsim-"
+
+# .NAME.sonarsim-PID-RANDOM.tmp; NAME may itself contain dots and dashes.
+_TEMP_RE = re.compile(r"^\.(?P<name>.+)\.sonarsim-(?P<pid>[0-9]+)-[A-Za-z0-9_]+\.tmp$")
+
+# Temporary files of sonarsim versions before the PID was in the name: .NAME.XXXXXXXX.tmp
+# (tempfile.mkstemp's 8 random characters). Removed only for names a run writes, and only
+# when old enough that no older sonarsim can still be writing them.
+_LEGACY_TEMP_RE = re.compile(r"^\.(?P<name>.+)\.[a-z0-9_]{8}\.tmp$")
+_LEGACY_TEMP_AGE_S = 3600.0
+
+# Room for the prefix in a 255-byte file name; a longer destination name is shortened in the
+# temporary name only.
+_TEMP_NAME_KEEP = 120
+
+
+def temp_prefix(name: str) -> str:
+    """The start of the name of :func:`atomic_write`'s temporary file for destination ``name``.
+
+    Parameters
+    ----------
+    name : str
+        The destination's file name (no folder).
+
+    Returns
+    -------
+    str
+        ``".NAME.sonarsim-PID-"``; :func:`tempfile.mkstemp` appends random characters and
+        ``".tmp"``.
+    """
+    return f".{name[:_TEMP_NAME_KEEP]}{TEMP_MARK}{os.getpid()}-"
+
+
+def _pid_alive(pid: int) -> bool:
+    """Whether a process with this PID exists (on this machine); True when unsure."""
+    if os.name != "posix" or pid <= 0:
+        # Elsewhere os.kill(pid, 0) would not be a harmless probe.
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # PermissionError: it exists, under another user
+        return True
+    return True
+
+
+def remove_abandoned_temp_files(folder: PathLike, names: Iterable[str] = ()) -> list[str]:
+    """Remove temporary files that killed sonarsim processes left in ``folder``.
+
+    A file counts as abandoned when its name is ``.NAME.sonarsim-PID-XXXXXXXX.tmp`` and no
+    process ``PID`` exists; files of live processes (another render writing into the same
+    folder) are left alone. Temporary files of older sonarsim versions (``.NAME.XXXXXXXX.tmp``,
+    no PID) are removed only for a NAME in ``names`` and when over an hour old.
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The folder to clean; a missing folder holds nothing to clean.
+    names : iterable of str
+        Destination names whose old-style temporary files may be removed.
+
+    Returns
+    -------
+    list of str
+        The names of the removed files, sorted.
+    """
+    wanted = set(names)
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except (FileNotFoundError, NotADirectoryError):
+        return []
+    now = time.time()
+    for entry in entries:
+        if not (entry.name.startswith(".") and entry.name.endswith(".tmp")):
+            continue
+        match = _TEMP_RE.match(entry.name)
+        try:
+            if not entry.is_file(follow_symlinks=False):
+                continue
+            if match:
+                if _pid_alive(int(match["pid"])):
+                    continue
+            else:
+                legacy = _LEGACY_TEMP_RE.match(entry.name)
+                if not (legacy and legacy["name"] in wanted
+                        and now - entry.stat(follow_symlinks=False).st_mtime > _LEGACY_TEMP_AGE_S):
+                    continue
+            os.unlink(entry.path)
+        except FileNotFoundError:  # its process finished (or another run cleaned) meanwhile
+            continue
+        removed.append(entry.name)
+    return sorted(removed)
+
+
+def _naming(exc: OSError, target: Path) -> OSError:
+    """``exc`` about ``target`` instead of a temporary file (the user never named that file)."""
+    try:
+        return type(exc)(exc.errno, exc.strerror or str(exc), os.fspath(target))
+    except TypeError:  # a subclass with another constructor
+        return OSError(exc.errno, exc.strerror or str(exc), os.fspath(target))
+
+
 @contextlib.contextmanager
 def atomic_write(path: PathLike, mode: str = "wb", *, fsync: bool = False) -> Iterator[IO[Any]]:
     """Open a temporary file that replaces ``path`` only if the ``with`` block succeeds.
@@ -174,7 +288,8 @@ def atomic_write(path: PathLike, mode: str = "wb", *, fsync: bool = False) -> It
     atomic rename on the same file system) and is removed if the block raises; an existing
     ``path`` is then left untouched. The new file gets the permissions of the file it
     replaces, or ``0o666 & ~umask`` for a new file, as a plain ``open`` would give it (the
-    temporary file itself is created private).
+    temporary file itself is created private). Errors about the temporary file (permission,
+    disk full, a folder where the destination should be) name ``path``.
 
     Parameters
     ----------
@@ -197,7 +312,10 @@ def atomic_write(path: PathLike, mode: str = "wb", *, fsync: bool = False) -> It
         raise ValueError(f"mode must be 'wb' or 'w', got {mode!r}")
     target = Path(path)
     directory = target.parent
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=directory)
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=temp_prefix(target.name), suffix=".tmp", dir=directory)
+    except OSError as exc:
+        raise _naming(exc, target) from None
     try:
         if mode == "w":
             handle: IO[Any] = os.fdopen(fd, "w", encoding="utf-8", newline="\n")
@@ -219,10 +337,13 @@ def atomic_write(path: PathLike, mode: str = "wb", *, fsync: bool = False) -> It
             file_mode = 0o666 & ~_current_umask()
         os.chmod(tmp_name, file_mode)
         os.replace(tmp_name, target)
-    except BaseException:
-        # BaseException so that Ctrl-C during a long write also leaves no temp file.
+    except BaseException as exc:
+        # BaseException so that Ctrl-C (or SIGTERM, which the CLI turns into an exception)
+        # during a long write also leaves no temp file.
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp_name)
+        if isinstance(exc, OSError) and exc.filename in (None, tmp_name):
+            raise _naming(exc, target) from exc
         raise
 
 
