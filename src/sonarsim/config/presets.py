@@ -30,7 +30,7 @@ from typing import Mapping, Union
 
 import numpy as np
 
-from sonarsim.errors import ConfigError
+from sonarsim.errors import ConfigError, shown
 
 __all__ = [
     "SONAR_KEYS",
@@ -480,7 +480,7 @@ def beam_angles_from_table(
             angles[i] = float(cells[column])
         except ValueError:
             raise ConfigError(
-                key, f"line {number}: {cells[column]!r} is not a number", source=source
+                key, f"line {number}: {shown(cells[column])} is not a number", source=source
             ) from None
 
     if not np.all(np.isfinite(angles)) or np.any(np.abs(angles) >= 90.0):
@@ -763,5 +763,5 @@ def get_preset(name: str) -> Preset:
     except (KeyError, TypeError):
         raise ConfigError(
             "sonar.preset",
-            f"unknown preset {name!r}; known presets: {', '.join(PRESETS)}",
+            f"unknown preset {shown(name)}; known presets: {', '.join(PRESETS)}",
         ) from None

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, key_text, shown
 
 ABSORPTION_MODELS = ("francois-garrison", "ainslie-mccolm", "constant")
 TVG_SPREADING = (0.0, 20.0, 30.0, 40.0)
@@ -55,21 +56,22 @@ MAX_KERNEL_HALF_WIDTH = 256
 
 
 def _finite(key: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) or not math.isfinite(value):
-        raise ConfigError(key, f"must be a finite number, got {value!r}")
+    if (isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer))
+            or (isinstance(value, int) and abs(value) > sys.float_info.max) or not math.isfinite(value)):
+        raise ConfigError(key, f"must be a finite number, got {shown(value)}")
     return float(value)
 
 
 def _positive(key: str, value: Any) -> float:
     v = _finite(key, value)
     if v <= 0:
-        raise ConfigError(key, f"must be positive, got {value!r}")
+        raise ConfigError(key, f"must be positive, got {shown(value)}")
     return v
 
 
 def _choice(key: str, value: Any, allowed) -> Any:
     if value not in allowed:
-        raise ConfigError(key, f"unknown value {value!r}; allowed: {', '.join(map(str, allowed))}")
+        raise ConfigError(key, f"unknown value {shown(value)}; allowed: {', '.join(map(str, allowed))}")
     return value
 
 
@@ -103,7 +105,7 @@ class AbsorptionSpec:
             if _finite("db_per_m", self.db_per_m) < 0:
                 raise ConfigError("db_per_m", f"must be >= 0, got {self.db_per_m}")
         elif self.db_per_m is not None:
-            raise ConfigError("db_per_m", f"only with model: constant (model {self.model!r} computes alpha)")
+            raise ConfigError("db_per_m", f"only with model: constant (model {shown(self.model)} computes alpha)")
         t = _finite("temperature_c", self.temperature_c)
         if not -2.0 <= t <= 40.0:
             raise ConfigError("temperature_c", f"must be within [-2, 40] degC (the formulas' range), got {t}")
@@ -136,7 +138,7 @@ class TvgSpec:
     def __post_init__(self) -> None:
         _choice("spreading", _finite("spreading", self.spreading), TVG_SPREADING)
         if not isinstance(self.absorption, bool):
-            raise ConfigError("absorption", f"must be true or false, got {self.absorption!r}")
+            raise ConfigError("absorption", f"must be true or false, got {shown(self.absorption)}")
 
 
 @dataclass(frozen=True)
@@ -184,7 +186,7 @@ class PatternSpec:
                 raise ConfigError("width_deg", f"must be below 180 degrees, got {w}")
         if self.window == "taylor":
             if self.sidelobe_db is None or _finite("sidelobe_db", self.sidelobe_db) <= 13.3:
-                raise ConfigError("sidelobe_db", f"window taylor needs sidelobe_db > 13.3 (dB below the main lobe), got {self.sidelobe_db!r}")
+                raise ConfigError("sidelobe_db", f"window taylor needs sidelobe_db > 13.3 (dB below the main lobe), got {shown(self.sidelobe_db)}")
         elif self.sidelobe_db is not None:
             raise ConfigError("sidelobe_db", "only with window: taylor (the other windows fix their sidelobes)")
         if self.span_deg is not None:
@@ -196,7 +198,7 @@ class PatternSpec:
         lb = self.leakage_beams
         if lb is not None and (isinstance(lb, bool) or not isinstance(lb, (int, np.integer))
                                or not 0 <= lb <= MAX_KERNEL_HALF_WIDTH):
-            raise ConfigError("leakage_beams", f"must be an integer in [0, {MAX_KERNEL_HALF_WIDTH}], got {lb!r}")
+            raise ConfigError("leakage_beams", f"must be an integer in [0, {MAX_KERNEL_HALF_WIDTH}], got {shown(lb)}")
 
 
 @dataclass(frozen=True)
@@ -436,20 +438,20 @@ def _parse_sub(name: str, value: Any, key: str, base_dir: Path | None):
         return cls()
     allowed = tuple(f.name for f in dataclasses.fields(cls))
     if not isinstance(value, Mapping):
-        raise ConfigError(key, f"must be false or a mapping with keys from: {', '.join(allowed)}; got {value!r}")
+        raise ConfigError(key, f"must be false or a mapping with keys from: {', '.join(allowed)}; got {shown(value)}")
     for k in value:
         if k not in allowed:
-            raise ConfigError(f"{key}.{k}", f"unknown key; allowed keys of {key}: {', '.join(allowed)}")
+            raise ConfigError(f"{key}.{key_text(k)}", f"unknown key; allowed keys of {key}: {', '.join(allowed)}")
     kw = dict(value)
     if name.endswith("_pattern") and kw.get("table") is not None:
         t = kw["table"]
         if not isinstance(t, str) or not t:
-            raise ConfigError(f"{key}.table", f"must be a file name, got {t!r}")
+            raise ConfigError(f"{key}.table", f"must be a file name, got {shown(t)}")
         p = Path(t)
         if not p.is_absolute() and base_dir is not None:
             p = base_dir / p
         if not p.is_file():
-            raise ConfigError(f"{key}.table", f"pattern table {str(p)!r} not found (a CSV of angle_deg, gain_db rows; "
+            raise ConfigError(f"{key}.table", f"pattern table {shown(str(p))} not found (a CSV of angle_deg, gain_db rows; "
                               "relative to the scene file)")
         kw["table"] = str(p)
     try:
@@ -471,15 +473,15 @@ def parse_sensor(d: Any, base_dir: Path | None = None) -> SensorSpec | None:
     if d is None or d is False:
         return None
     if not isinstance(d, Mapping):
-        raise ConfigError("sensor", f"must be a mapping with keys from: {', '.join(SENSOR_KEYS)}; got {d!r}")
+        raise ConfigError("sensor", f"must be a mapping with keys from: {', '.join(SENSOR_KEYS)}; got {shown(d)}")
     for k in d:
         if k not in SENSOR_KEYS:
-            raise ConfigError(f"sensor.{k}", f"unknown key; allowed keys of sensor: {', '.join(SENSOR_KEYS)}")
+            raise ConfigError(f"sensor.{key_text(k)}", f"unknown key; allowed keys of sensor: {', '.join(SENSOR_KEYS)}")
     merged: dict[str, Any] = {}
     preset = d.get("preset")
     if preset is not None:
         if not isinstance(preset, str) or preset not in SENSOR_PRESETS:
-            raise ConfigError("sensor.preset", f"unknown sensor preset {preset!r}; allowed: {', '.join(SENSOR_PRESETS)}")
+            raise ConfigError("sensor.preset", f"unknown sensor preset {shown(preset)}; allowed: {', '.join(SENSOR_PRESETS)}")
         merged.update(SENSOR_PRESETS[preset])
     for k, v in d.items():
         if k in _SUBSPECS and isinstance(v, Mapping) and isinstance(merged.get(k), Mapping):

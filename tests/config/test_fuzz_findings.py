@@ -1,0 +1,96 @@
+"""Regression tests for what fuzzing the scene loader found (issue 11 item 6; tests/fuzz/).
+
+Each case once ended in another exception than the documented error, or in a message that was
+not one readable line.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+import sonarsim
+from sonarsim.config.loader import read_document
+from sonarsim.errors import ConfigError, SonarsimError, key_text, shown
+
+PRESET = {"preset": "aris3000-128"}
+
+
+def test_an_integer_beyond_a_float_is_not_a_finite_number():
+    # YAML reads 400 digits as one int; math.isfinite raised OverflowError on it.
+    with pytest.raises(ConfigError, match="must be a finite number") as e:
+        sonarsim.load_scene({"sonar": {**PRESET, "pose": {"rpy_deg": [0, 0, 10**400]}}})
+    assert e.value.key == "sonar.pose.rpy_deg[2]"
+    with pytest.raises(ConfigError, match="must be a finite number") as e:
+        sonarsim.load_scene({"sonar": PRESET, "sensor": {"gain_db": -(10**400)}})
+    assert e.value.key == "sensor.gain_db"
+
+
+def test_a_range_resolution_too_fine_to_count_is_refused():
+    # (range_max - range_min) / resolution overflowed to inf and int(round(inf)) raised.
+    with pytest.raises(ConfigError, match="coarser resolution") as e:
+        sonarsim.load_scene({"sonar": {**PRESET, "range_max_m": 1e5, "range_resolution_m": 1e-310}})
+    assert e.value.key == "sonar.range_resolution_m"
+
+
+def test_a_ground_beyond_the_scene_extent_is_refused_when_loaded():
+    # It was accepted, and the plane it stands for (as_plane) failed later naming "point_m".
+    with pytest.raises(ConfigError, match="1e6 m") as e:
+        sonarsim.load_scene({"sonar": PRESET, "ground": {"height_m": 1e30}})
+    assert e.value.key == "ground.height_m"
+    scene = sonarsim.load_scene({"sonar": PRESET, "ground": {"height_m": -1e6}})
+    assert scene.reflecting_planes[0].point_m == (0.0, 0.0, -1e6)
+
+
+def test_a_plane_name_ending_in_a_newline_is_refused():
+    # PLANE_NAME.match allowed "floor\n" ($ matches before a final newline).
+    plane = {"name": "floor\n", "point_m": [0, 0, 0], "normal": [0, 0, 1]}
+    with pytest.raises(ConfigError, match="must start with a letter") as e:
+        sonarsim.load_scene({"sonar": PRESET, "planes": [plane]})
+    assert e.value.key == "planes[0].name"
+
+
+@pytest.mark.parametrize("doc, key", [
+    ({"sonar": {**PRESET, "pose": {"position_m": [0.5] * 100000}}}, "sonar.pose.position_m"),
+    ({"sonar": PRESET, "objects": [{"name": "x" * 100000, "primitive": "cone"}]}, "objects[0].primitive"),
+    ({"sonar": PRESET, "objects": [{"name": "o", "primitive": "x" * 100000}]}, "objects[0].primitive"),
+    ({"sonar": PRESET, "render": {"bounces": [1] * 10000 + [7]}}, "render.bounces"),
+    ({"sonar": PRESET, "sensor": {"noise": "n" * 100000}}, "sensor.noise"),
+    ({"sonar": {**PRESET, "x" * 100000: 1}}, None),
+    ({"sonar": {**PRESET, "range_max_m\nrange_min_m": 1}}, None),
+])
+def test_messages_show_huge_values_and_odd_keys_in_one_short_line(doc, key):
+    with pytest.raises(ConfigError) as e:
+        sonarsim.load_scene(doc)
+    msg = str(e.value)
+    assert len(msg) < 1000 and "\n" not in msg
+    if key is not None:
+        assert e.value.key == key
+    else:
+        assert "unknown key" in msg and e.value.key.startswith("sonar.")
+
+
+def test_deeply_nested_values_are_shown_without_recursing():
+    value: object = 1.0
+    for _ in range(5000):  # repr() of this raises RecursionError
+        value = [value]
+    with pytest.raises(ConfigError, match=r"got \[\[\[\[\.\.\.\]\]\]\]") as e:
+        sonarsim.load_scene({"sonar": {**PRESET, "pose": {"rpy_deg": value}}})
+    assert e.value.key == "sonar.pose.rpy_deg"
+
+
+def test_shown_and_key_text():
+    assert shown("x" * 1000).endswith("(1000 characters)") and len(shown("x" * 1000)) < 120
+    assert shown(list(range(50))) == "[0, 1, 2, 3, 4, 5, ...] (50 items)"
+    assert shown(0.5) == "0.5" and shown("auto") == "'auto'"
+    assert key_text("n_beams") == "n_beams"
+    assert key_text("a\nb") == "'a\\nb'" and key_text(3) == "3" and key_text("") == "''"
+
+
+@pytest.mark.parametrize("content", [b"sonar: {preset: aris3000-128}\x1d\n", b"sonar:\n  preset: \x0e\n"])
+def test_a_control_character_in_yaml_is_one_line_naming_the_file(tmp_path, content):
+    # yaml's reader error has no problem_mark and its str() spans two lines.
+    p = tmp_path / "ctrl.yaml"
+    p.write_bytes(content)
+    with pytest.raises(SonarsimError, match="invalid YAML at line") as e:
+        read_document(p)
+    assert str(p) in str(e.value) and "\n" not in str(e.value) and "#x00" in str(e.value)
