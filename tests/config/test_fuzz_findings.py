@@ -94,3 +94,40 @@ def test_a_control_character_in_yaml_is_one_line_naming_the_file(tmp_path, conte
     with pytest.raises(SonarsimError, match="invalid YAML at line") as e:
         read_document(p)
     assert str(p) in str(e.value) and "\n" not in str(e.value) and "#x00" in str(e.value)
+
+
+def test_a_normal_whose_squares_overflow_is_still_a_unit_normal():
+    # np.linalg.norm of [-1, 1e300, 0] was inf, and the plane's normal became (0, 0, 0).
+    plane = {"name": "wall", "point_m": [5, 0, 0], "normal": [-1, 1e300, 0]}
+    scene = sonarsim.load_scene({"sonar": PRESET, "planes": [plane]})
+    assert scene.planes[0].normal == pytest.approx((0.0, 1.0, 0.0))
+    with pytest.raises(ConfigError, match="zero vector") as e:
+        sonarsim.load_scene({"sonar": PRESET, "planes": [{**plane, "normal": [0, 1e-20, 0]}]})
+    assert e.value.key == "planes[0].normal"
+
+
+def test_a_quaternion_whose_squares_overflow_is_the_rotation_it_names():
+    # It was silently the identity (divided by an infinite norm).
+    big = sonarsim.load_scene({"sonar": {**PRESET, "pose": {"quat_xyzw": [0, 0, 1e300, 1e300]}}})
+    unit = sonarsim.load_scene({"sonar": {**PRESET, "pose": {"quat_xyzw": [0, 0, 1, 1]}}})
+    assert big.sonar_pose.rpy_deg == pytest.approx((0.0, 0.0, 90.0))
+    assert big.sonar_pose == unit.sonar_pose
+
+
+@pytest.mark.parametrize("doc, key", [
+    ({"sonar": {**PRESET, "beam_angles_file": "b" * 5000}}, "sonar.beam_angles_file"),
+    ({"sonar": PRESET, "sensor": {"azimuth_pattern": {"shape": "table", "table": "t" * 5000}}},
+     "sensor.azimuth_pattern.table"),
+    ({"sonar": PRESET, "objects": [{"name": "o", "mesh": "m" * 5000 + ".stl"}]}, "objects[0].mesh"),
+])
+def test_a_file_name_too_long_for_the_system_is_refused_naming_the_key(doc, key):
+    # os.stat raised OSError (ENAMETOOLONG), which Path.exists/is_file do not swallow.
+    with pytest.raises(ConfigError, match="File name too long") as e:
+        sonarsim.load_scene(doc)
+    assert e.value.key == key and len(str(e.value)) < 500
+
+
+def test_a_scene_file_name_too_long_is_refused_in_one_short_line(tmp_path):
+    with pytest.raises(SonarsimError, match="cannot read the scene file: File name too long") as e:
+        sonarsim.load_scene(tmp_path / ("s" * 5000 + ".yaml"))
+    assert len(str(e.value)) < 500 and f"({len(str(tmp_path)) + 5006} characters)" in str(e.value)

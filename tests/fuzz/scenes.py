@@ -31,6 +31,7 @@ import math
 import signal
 import time
 import tracemalloc
+import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -527,6 +528,9 @@ def check_case(case: Case, workdir: Path, budget: int = FUZZ_BUDGET_BYTES, trace
     if trace_memory:
         tracemalloc.start()
     t0 = time.perf_counter()
+    caught = warnings.catch_warnings(record=True)
+    seen = caught.__enter__()
+    warnings.simplefilter("always")
     try:
         scene = None
         try:
@@ -561,6 +565,7 @@ def check_case(case: Case, workdir: Path, budget: int = FUZZ_BUDGET_BYTES, trace
                 except Exception as exc:  # noqa: BLE001
                     out.failure = f"render: {type(exc).__name__}: {str(exc)[:300]}"
     finally:
+        caught.__exit__(None, None, None)
         out.seconds = time.perf_counter() - t0
         if trace_memory:
             out.peak_bytes = tracemalloc.get_traced_memory()[1]
@@ -568,6 +573,13 @@ def check_case(case: Case, workdir: Path, budget: int = FUZZ_BUDGET_BYTES, trace
         set_memory_budget(None)
         if path is not None:
             path.unlink(missing_ok=True)
+    # An overflow or an invalid value on the way is how silent nonsense starts (a quaternion of
+    # 1e300 once became the identity): NumPy's RuntimeWarnings fail the case. UserWarnings
+    # (objects that cannot echo) are the library talking to the user.
+    numeric = [w for w in seen if issubclass(w.category, RuntimeWarning)]
+    if out.failure is None and numeric:
+        w = numeric[0]
+        out.failure = f"{w.category.__name__} at {Path(w.filename).name}:{w.lineno}: {w.message}"
     if out.failure is None and out.peak_bytes > budget:
         out.failure = f"traced allocations peaked at {out.peak_bytes / 2**20:.1f} MiB, beyond the {budget / 2**20:.0f} MiB budget"
     return out

@@ -113,7 +113,7 @@ def parse_pose(d: Any, where: str) -> Pose:
         raise ConfigError(f"{where}.quat_xyzw", "give either rpy_deg or quat_xyzw, not both")
     if "quat_xyzw" in d:
         q = _vector(d["quat_xyzw"], f"{where}.quat_xyzw", 4)
-        if np.linalg.norm(q) < 1e-9:
+        if math.hypot(*q) < 1e-9:  # hypot: the squares of 1e300 overflow
             raise ConfigError(f"{where}.quat_xyzw", "must not be the zero quaternion")
         return Pose.from_quaternion(position, q)
     rpy = _vector(d.get("rpy_deg", [0.0, 0.0, 0.0]), f"{where}.rpy_deg", 3)
@@ -445,13 +445,16 @@ def read_document(path: str | os.PathLike) -> Any:
     import yaml
 
     p = Path(path)
-    if p.is_dir():
-        raise SonarsimError(f"{p}: is a directory, not a scene file (YAML or JSON)")
-    if not p.exists():
-        raise SonarsimError(f"{p}: scene file not found")
-    if not p.is_file():
-        raise SonarsimError(f"{p}: not a regular file (a device or pipe?); give a scene file (YAML or JSON)")
-    size = p.stat().st_size
+    try:
+        if p.is_dir():
+            raise SonarsimError(f"{p}: is a directory, not a scene file (YAML or JSON)")
+        if not p.exists():
+            raise SonarsimError(f"{p}: scene file not found")
+        if not p.is_file():
+            raise SonarsimError(f"{p}: not a regular file (a device or pipe?); give a scene file (YAML or JSON)")
+        size = p.stat().st_size
+    except OSError as exc:  # a name too long, a folder that cannot be searched
+        raise SonarsimError(f"{shown(str(p))}: cannot read the scene file: {exc.strerror or exc}") from None
     if size > MAX_SCENE_BYTES:
         raise SonarsimError(f"{p}: {size / 2**20:.0f} MiB is not a scene file (at most {MAX_SCENE_BYTES // 2**20} MiB)")
     try:

@@ -426,11 +426,14 @@ def beam_angles_from_table(
     """
     source = os.fspath(path)
     p = Path(source)
-    if p.exists() and not p.is_file():
-        raise ConfigError(key, "beam-angle table is a directory or device, not a file", source=source)
-    if p.is_file() and p.stat().st_size > MAX_TABLE_BYTES:
-        raise ConfigError(key, f"beam-angle table of {p.stat().st_size} bytes; a table of beams is at most "
-                          f"{MAX_TABLE_BYTES // 2**20} MiB", source=source)
+    try:
+        if p.exists() and not p.is_file():
+            raise ConfigError(key, "beam-angle table is a directory or device, not a file", source=source)
+        if p.is_file() and p.stat().st_size > MAX_TABLE_BYTES:
+            raise ConfigError(key, f"beam-angle table of {p.stat().st_size} bytes; a table of beams is at most "
+                              f"{MAX_TABLE_BYTES // 2**20} MiB", source=source)
+    except OSError as exc:  # a name too long, a folder that cannot be searched
+        raise ConfigError(key, f"cannot read beam-angle table: {exc.strerror or exc}", source=shown(source)) from None
     try:
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:

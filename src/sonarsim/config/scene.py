@@ -8,6 +8,7 @@ turns YAML/JSON/dicts into them and rejects unknown keys and wrong types.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -247,7 +248,9 @@ class PlaneSpec:
         normal = np.asarray(self.normal, dtype=float).ravel()
         if normal.size != 3 or not np.all(np.isfinite(normal)):
             raise ConfigError("normal", f"must be three finite numbers, got {self.normal}")
-        length = float(np.linalg.norm(normal))
+        # hypot, not the root of the sum of squares: those of [1, 1e300, 0] overflow, and the
+        # normal divided by an infinite length was the zero vector.
+        length = math.hypot(*normal)
         if not length > 1e-9 * max(1.0, float(np.abs(normal).max())):
             raise ConfigError("normal", f"must not be the zero vector, got {self.normal}")
         object.__setattr__(self, "point_m", tuple(float(v) for v in point))

@@ -450,7 +450,11 @@ def _parse_sub(name: str, value: Any, key: str, base_dir: Path | None):
         p = Path(t)
         if not p.is_absolute() and base_dir is not None:
             p = base_dir / p
-        if not p.is_file():
+        try:
+            found = p.is_file()
+        except OSError as exc:  # a name too long, a folder that cannot be searched
+            raise ConfigError(f"{key}.table", f"cannot read the pattern table {shown(str(p))}: {exc.strerror or exc}") from None
+        if not found:
             raise ConfigError(f"{key}.table", f"pattern table {shown(str(p))} not found (a CSV of angle_deg, gain_db rows; "
                               "relative to the scene file)")
         kw["table"] = str(p)
