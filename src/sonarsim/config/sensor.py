@@ -53,6 +53,19 @@ DTYPES = {"uint8": 255.0, "uint16": 65535.0, "float32": None}
 
 # Sizes checked before allocating: a kernel wider than this many beams or range bins is a typo.
 MAX_KERNEL_HALF_WIDTH = 256
+# A Taylor window's sidelobe level: beyond 13.3 dB (the uniform array's), and no deeper than this
+# (no array gets near it; near 6000 dB the window's own arithmetic overflows).
+MIN_SIDELOBE_DB, MAX_SIDELOBE_DB = 13.3, 200.0
+
+
+def _check_sidelobe(window: str, sidelobe_db: Any) -> None:
+    """``sidelobe_db`` is given exactly for a Taylor window, within (13.3, 200] dB."""
+    if window == "taylor":
+        if sidelobe_db is None or not MIN_SIDELOBE_DB < _finite("sidelobe_db", sidelobe_db) <= MAX_SIDELOBE_DB:
+            raise ConfigError("sidelobe_db", f"window taylor needs sidelobe_db in ({MIN_SIDELOBE_DB:g}, "
+                              f"{MAX_SIDELOBE_DB:g}] (dB below the main lobe), got {shown(sidelobe_db)}")
+    elif sidelobe_db is not None:
+        raise ConfigError("sidelobe_db", "only with window: taylor (the other windows fix their sidelobes)")
 
 
 def _finite(key: str, value: Any) -> float:
@@ -156,7 +169,7 @@ class PatternSpec:
         azimuth). Default: the sonar's ``elevation_fov_deg`` / beam width.
     window : {'rect', 'hann', 'hamming', 'blackman', 'taylor'}
     sidelobe_db : float or None
-        ``taylor`` only: the sidelobe level below the main lobe, dB (> 13).
+        ``taylor`` only: the sidelobe level below the main lobe, dB, in (13.3, 200].
     span_deg : float or None
         Elevation only: rays are cast over this full span (wider than the -3 dB width so that
         sidelobes see what the main lobe misses). Default: three times ``width_deg``.
@@ -184,11 +197,7 @@ class PatternSpec:
             w = _positive("width_deg", self.width_deg)
             if w >= 180:
                 raise ConfigError("width_deg", f"must be below 180 degrees, got {w}")
-        if self.window == "taylor":
-            if self.sidelobe_db is None or _finite("sidelobe_db", self.sidelobe_db) <= 13.3:
-                raise ConfigError("sidelobe_db", f"window taylor needs sidelobe_db > 13.3 (dB below the main lobe), got {shown(self.sidelobe_db)}")
-        elif self.sidelobe_db is not None:
-            raise ConfigError("sidelobe_db", "only with window: taylor (the other windows fix their sidelobes)")
+        _check_sidelobe(self.window, self.sidelobe_db)
         if self.span_deg is not None:
             s = _positive("span_deg", self.span_deg)
             if s > 170:
@@ -233,11 +242,7 @@ class PulseSpec:
             _positive("bandwidth_khz", self.bandwidth_khz)
         elif self.bandwidth_khz is not None:
             raise ConfigError("bandwidth_khz", "only with kind: chirp")
-        if self.window == "taylor":
-            if self.sidelobe_db is None or _finite("sidelobe_db", self.sidelobe_db) <= 13.3:
-                raise ConfigError("sidelobe_db", "window taylor needs sidelobe_db > 13.3")
-        elif self.sidelobe_db is not None:
-            raise ConfigError("sidelobe_db", "only with window: taylor")
+        _check_sidelobe(self.window, self.sidelobe_db)
 
 
 @dataclass(frozen=True)
