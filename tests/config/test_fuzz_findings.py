@@ -6,6 +6,7 @@ not one readable line.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 import sonarsim
@@ -131,3 +132,36 @@ def test_a_scene_file_name_too_long_is_refused_in_one_short_line(tmp_path):
     with pytest.raises(SonarsimError, match="cannot read the scene file: File name too long") as e:
         sonarsim.load_scene(tmp_path / ("s" * 5000 + ".yaml"))
     assert len(str(e.value)) < 500 and f"({len(str(tmp_path)) + 5006} characters)" in str(e.value)
+
+
+@pytest.mark.parametrize("key, value", [
+    ("sensor.elevation_pattern.sidelobe_db", 1e300), ("sensor.pulse.sidelobe_db", 6200.0),
+    ("sensor.gain_db", 1e300), ("sensor.noise.level_db", 1e9), ("sensor.bang.level_db", 500.0),
+    ("sensor.absorption.db_per_m", 1e300), ("sensor.source_level_db", -1e30), ("sensor.target_strength_db", 1e4),
+])
+def test_sensor_levels_that_overflowed_the_render_are_refused_when_loaded(key, value):
+    # Each rendered as inf (RuntimeWarning) or raised OverflowError in 10 ** (L / 10).
+    sensor = {"preset": "oculus-m1200d-hf", "elevation_pattern": {"window": "taylor", "sidelobe_db": 30.0},
+              "pulse": {"kind": "cw", "length_us": 10.0, "window": "taylor", "sidelobe_db": 30.0},
+              "absorption": {"model": "constant", "db_per_m": 0.5}, "noise": {"level_db": 90.0},
+              "bang": {"level_db": 90.0, "length_m": 0.01}}
+    parts = key.split(".")[1:]
+    section = sensor
+    for p in parts[:-1]:
+        section = section[p]
+    section[parts[-1]] = value
+    with pytest.raises(ConfigError, match="must be within|sidelobe_db in") as e:
+        sonarsim.load_scene({"sonar": {"preset": "oculus-m1200d-hf"}, "sensor": sensor})
+    assert e.value.key == key
+
+
+def test_levels_that_overflow_together_are_refused_before_rendering():
+    # Each key within its range; a steep absorption over a long window, lifted back by the TVG,
+    # reached 1e4 dB and the image was inf without a word.
+    doc = {"sonar": {"preset": "oculus-m1200d-hf", "range_max_m": 40.0},
+           "sensor": {"preset": "oculus-m1200d-hf", "absorption": {"model": "constant", "db_per_m": 200.0}}}
+    with pytest.raises(ConfigError, match="the sonar equation reaches") as e:
+        sonarsim.render(doc)
+    assert e.value.key == "sensor" and "shorten sonar.range_max_m" in str(e.value)
+    doc["sensor"]["absorption"]["db_per_m"] = 2.0
+    assert np.isfinite(sonarsim.render(doc, speckle=False).polar).all()

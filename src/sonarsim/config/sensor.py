@@ -56,6 +56,18 @@ MAX_KERNEL_HALF_WIDTH = 256
 # A Taylor window's sidelobe level: beyond 13.3 dB (the uniform array's), and no deeper than this
 # (no array gets near it; near 6000 dB the window's own arithmetic overflows).
 MIN_SIDELOBE_DB, MAX_SIDELOBE_DB = 13.3, 200.0
+# Levels and gains, dB: the sensor stage forms powers (10 ** (L / 10)) in float32, which holds
+# about 385 dB. Sonars transmit 180-230 dB re 1 uPa at 1 m; anything beyond these is a typo.
+LEVEL_RANGE_DB = (-100.0, 300.0)
+GAIN_RANGE_DB = (-200.0, 200.0)
+MAX_ABSORPTION_DB_PER_M = 1000.0
+
+
+def _within(key: str, value: Any, bounds: tuple[float, float], unit: str = "dB") -> float:
+    v = _finite(key, value)
+    if not bounds[0] <= v <= bounds[1]:
+        raise ConfigError(key, f"must be within [{bounds[0]:g}, {bounds[1]:g}] {unit}, got {v:g}")
+    return v
 
 
 def _check_sidelobe(window: str, sidelobe_db: Any) -> None:
@@ -98,7 +110,7 @@ class AbsorptionSpec:
         Francois & Garrison (1982, JASA 72: boric acid, MgSO4, pure water) or Ainslie &
         McColm (1998, JASA 103) at the sonar's ``frequency_khz``; ``constant``: ``db_per_m``.
     db_per_m : float or None
-        alpha for ``constant``.
+        alpha for ``constant``, within [0, 1000] dB/m.
     temperature_c, salinity_psu, depth_m, ph : float
         Water properties (fresh water: salinity 0).
     """
@@ -115,8 +127,7 @@ class AbsorptionSpec:
         if self.model == "constant":
             if self.db_per_m is None:
                 raise ConfigError("db_per_m", "required with model: constant (alpha in dB/m)")
-            if _finite("db_per_m", self.db_per_m) < 0:
-                raise ConfigError("db_per_m", f"must be >= 0, got {self.db_per_m}")
+            _within("db_per_m", self.db_per_m, (0.0, MAX_ABSORPTION_DB_PER_M), "dB/m")
         elif self.db_per_m is not None:
             raise ConfigError("db_per_m", f"only with model: constant (model {shown(self.model)} computes alpha)")
         t = _finite("temperature_c", self.temperature_c)
@@ -281,20 +292,21 @@ class NoiseSpec:
     Attributes
     ----------
     level_db : float
-        Noise power at the receiver input, dB re 1 uPa^2 (the level an echo must exceed).
+        Noise power at the receiver input, dB re 1 uPa^2 (the level an echo must exceed),
+        within [-100, 300].
     after_tvg_db : float or None
         Noise added after the TVG and gain (the digitiser's), dB re 1 uPa^2 on the output's
         scale (that of ``output.ceiling_db``): a floor the TVG does not lift, which sets the
-        darkest ranges of a device with a steep TVG. ``None``: none.
+        darkest ranges of a device with a steep TVG, within [-100, 300]. ``None``: none.
     """
 
     level_db: float = 40.0
     after_tvg_db: float | None = None
 
     def __post_init__(self) -> None:
-        _finite("level_db", self.level_db)
+        _within("level_db", self.level_db, LEVEL_RANGE_DB)
         if self.after_tvg_db is not None:
-            _finite("after_tvg_db", self.after_tvg_db)
+            _within("after_tvg_db", self.after_tvg_db, LEVEL_RANGE_DB)
 
 
 @dataclass(frozen=True)
@@ -304,7 +316,7 @@ class BangSpec:
     Attributes
     ----------
     level_db : float
-        Its level at range 0, dB re 1 uPa^2 at the receiver (before TVG).
+        Its level at range 0, dB re 1 uPa^2 at the receiver (before TVG), within [-100, 300].
     length_m : float
         Range over which it decays by 1/e (in power).
     """
@@ -313,7 +325,7 @@ class BangSpec:
     length_m: float = 0.02
 
     def __post_init__(self) -> None:
-        _finite("level_db", self.level_db)
+        _within("level_db", self.level_db, LEVEL_RANGE_DB)
         _positive("length_m", self.length_m)
 
 
@@ -372,15 +384,16 @@ class SensorSpec:
     Attributes
     ----------
     source_level_db : float
-        SL, dB re 1 uPa at 1 m.
+        SL, dB re 1 uPa at 1 m, within [-100, 300].
     target_strength_db : float
-        Offset added to the target strength the scene's materials give (calibration).
+        Offset added to the target strength the scene's materials give (calibration), within
+        [-200, 200] dB.
     sound_speed_m_s : float
         For the pulse's range extent and the absorption formulas.
     frequency_khz : float or None
         Carrier; default the sonar's ``frequency_khz``. Needed by the absorption formulas.
     gain_db : float
-        Receiver gain, added after TVG.
+        Receiver gain, added after TVG, within [-200, 200] dB.
     absorption, tvg, elevation_pattern, azimuth_pattern, pulse, speckle, noise, bang, output
         The effects; ``None``: off. Without ``output`` the output is the received power after
         TVG and gain, float32, uPa^2.
@@ -405,14 +418,14 @@ class SensorSpec:
     preset: str | None = None
 
     def __post_init__(self) -> None:
-        _finite("source_level_db", self.source_level_db)
-        _finite("target_strength_db", self.target_strength_db)
+        _within("source_level_db", self.source_level_db, LEVEL_RANGE_DB)
+        _within("target_strength_db", self.target_strength_db, GAIN_RANGE_DB)
         c = _positive("sound_speed_m_s", self.sound_speed_m_s)
         if not 1300 <= c <= 1700:
             raise ConfigError("sound_speed_m_s", f"must be within [1300, 1700] m/s, got {c}")
         if self.frequency_khz is not None:
             _positive("frequency_khz", self.frequency_khz)
-        _finite("gain_db", self.gain_db)
+        _within("gain_db", self.gain_db, GAIN_RANGE_DB)
         if self.elevation_pattern is not None and self.elevation_pattern.leakage_beams is not None:
             raise ConfigError("elevation_pattern.leakage_beams", "only for the azimuth pattern")
         if self.azimuth_pattern is not None and self.azimuth_pattern.span_deg is not None:
