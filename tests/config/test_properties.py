@@ -116,7 +116,7 @@ RANGES = [
     ("objects.0.material.specular_strength", st.floats(0, 1e6), beyond(0, None)),
     ("sensor.sound_speed_m_s", closed(1300, 1700), beyond(1300, 1700)),
     ("sensor.gain_db", closed(-200, 200), beyond(-200, 200)),
-    ("sensor.source_level_db", closed(-100, 300), beyond(-100, 300)),
+    ("sensor.source_level_db", closed(-300, 300), beyond(-300, 300)),
     ("sensor.absorption.temperature_c", closed(-2, 40), beyond(-2, 40)),
     ("sensor.absorption.salinity_psu", closed(0, 45), beyond(0, 45)),
     ("sensor.absorption.depth_m", closed(0, 11000), beyond(0, 11000)),

@@ -58,7 +58,7 @@ MAX_KERNEL_HALF_WIDTH = 256
 MIN_SIDELOBE_DB, MAX_SIDELOBE_DB = 13.3, 200.0
 # Levels and gains, dB: the sensor stage forms powers (10 ** (L / 10)) in float32, which holds
 # about 385 dB. Sonars transmit 180-230 dB re 1 uPa at 1 m; anything beyond these is a typo.
-LEVEL_RANGE_DB = (-100.0, 300.0)
+LEVEL_RANGE_DB = (-300.0, 300.0)
 GAIN_RANGE_DB = (-200.0, 200.0)
 MAX_ABSORPTION_DB_PER_M = 1000.0
 
@@ -293,11 +293,11 @@ class NoiseSpec:
     ----------
     level_db : float
         Noise power at the receiver input, dB re 1 uPa^2 (the level an echo must exceed),
-        within [-100, 300].
+        within [-300, 300].
     after_tvg_db : float or None
         Noise added after the TVG and gain (the digitiser's), dB re 1 uPa^2 on the output's
         scale (that of ``output.ceiling_db``): a floor the TVG does not lift, which sets the
-        darkest ranges of a device with a steep TVG, within [-100, 300]. ``None``: none.
+        darkest ranges of a device with a steep TVG, within [-300, 300]. ``None``: none.
     """
 
     level_db: float = 40.0
@@ -316,7 +316,7 @@ class BangSpec:
     Attributes
     ----------
     level_db : float
-        Its level at range 0, dB re 1 uPa^2 at the receiver (before TVG), within [-100, 300].
+        Its level at range 0, dB re 1 uPa^2 at the receiver (before TVG), within [-300, 300].
     length_m : float
         Range over which it decays by 1/e (in power).
     """
@@ -384,7 +384,7 @@ class SensorSpec:
     Attributes
     ----------
     source_level_db : float
-        SL, dB re 1 uPa at 1 m, within [-100, 300].
+        SL, dB re 1 uPa at 1 m, within [-300, 300].
     target_strength_db : float
         Offset added to the target strength the scene's materials give (calibration), within
         [-200, 200] dB.
