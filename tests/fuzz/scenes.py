@@ -287,8 +287,9 @@ def mutate_text(data: bytes, rng: np.random.Generator) -> tuple[bytes, list[str]
         elif op == 1:  # truncate
             del b[at:]
             done.append(f"truncated at {at}")
-        elif op == 2:  # insert random bytes (often not UTF-8)
-            b[at:at] = rng.bytes(int(rng.integers(1, 8)))
+        elif op == 2:  # insert random bytes: any (often not UTF-8), or printable ASCII
+            n = int(rng.integers(1, 8))
+            b[at:at] = rng.bytes(n) if rng.random() < 0.3 else bytes(rng.integers(32, 127, n).astype(np.uint8))
             done.append(f"inserted bytes at {at}")
         elif op == 3:  # insert YAML/JSON syntax
             tok = [b":", b"-", b"[", b"]", b"{", b"}", b",", b"&a", b"*a", b"!!python/object:os.system", b"<<: *a",
@@ -545,9 +546,8 @@ def check_case(case: Case, workdir: Path, budget: int = FUZZ_BUDGET_BYTES, trace
             out.failure = f"RecursionError: {exc}"
         except Exception as exc:  # noqa: BLE001 - classifying every exception is the point
             out.failure = check_error(exc, case, path)
-            out.error_key = getattr(exc, "key", None) if getattr(exc, "key", None) else type(exc).__name__
-            if getattr(exc, "key", None):
-                out.error_key = _generic_key(exc.key)
+            key = getattr(exc, "key", None)
+            out.error_key = _generic_key(key) if key else _kind_of_file_error(exc, path)
         if scene is not None:
             out.accepted = True
             try:
@@ -583,6 +583,18 @@ def check_case(case: Case, workdir: Path, budget: int = FUZZ_BUDGET_BYTES, trace
     if out.failure is None and out.peak_bytes > budget:
         out.failure = f"traced allocations peaked at {out.peak_bytes / 2**20:.1f} MiB, beyond the {budget / 2**20:.0f} MiB budget"
     return out
+
+
+def _kind_of_file_error(exc: BaseException, path: Path | None) -> str:
+    """``file: invalid YAML``, ``file: not UTF-8 text``, ...: a refusal naming no key, counted by kind."""
+    import re
+
+    msg = str(exc)
+    if path is not None and msg.startswith(f"{path}: "):
+        msg = msg[len(str(path)) + 2:]
+    msg = re.sub(r"'[^']*'|(?<![\w-])\d+(?![\w-])", "_", msg)
+    kind = re.split(r" at |:|\(|;", msg, maxsplit=1)[0].strip()
+    return f"{'file' if path is not None else 'document'}: {kind}"
 
 
 def _generic_key(key: str) -> str:
