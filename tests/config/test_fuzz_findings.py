@@ -165,3 +165,19 @@ def test_levels_that_overflow_together_are_refused_before_rendering():
     assert e.value.key == "sensor" and "shorten sonar.range_max_m" in str(e.value)
     doc["sensor"]["absorption"]["db_per_m"] = 2.0
     assert np.isfinite(sonarsim.render(doc, speckle=False).polar).all()
+
+
+@pytest.mark.parametrize("sonar", [
+    {"n_beams": 10**9, "azimuth_fov_deg": 30, "n_range_bins": 100},  # took 8 GB and 40 s for the beam table
+    {"n_beams": 2**64 + 1, "azimuth_fov_deg": 30, "n_range_bins": 100},  # ValueError: maximum allowed size
+    {"n_beams": 4, "azimuth_fov_deg": 30, "n_range_bins": 10**400},  # OverflowError in float()
+    {"beam_angles_deg": [3.0, 2.0, 1.0], "n_range_bins": 2**70},
+])
+def test_absurd_beam_and_bin_counts_are_refused_before_allocating(sonar):
+    import time
+
+    t0 = time.perf_counter()
+    with pytest.raises(ConfigError, match="memory budget") as e:
+        sonarsim.load_scene({"sonar": {"elevation_fov_deg": 14, "range_min_m": 0.5, "range_max_m": 5.0, **sonar}})
+    assert e.value.key == "sonar.n_range_bins" and time.perf_counter() - t0 < 1.0
+    assert len(str(e.value)) < 400
