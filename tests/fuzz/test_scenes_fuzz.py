@@ -160,6 +160,5 @@ def test_the_cli_renders_or_says_one_line_and_exits_2(tmp_path):
             errors = [line for line in proc.stderr.splitlines() if "error" in line]
             assert len(errors) == 1 and str(scene) in errors[0], (case.describe(), proc.stderr)
             assert not out_dir.exists() or not any(out_dir.iterdir()), "a refused scene left files behind"
-    # A loaded scene may still be refused at render time (by the 64 MiB budget): at least one
-    # case of each kind must show the promise kept.
-    assert statuses.count(2) >= 4 and len(statuses) == 6
+    # A loaded scene may still be refused at render time (by the 64 MiB budget); these two render.
+    assert statuses == [0, 0, 2, 2, 2, 2]
