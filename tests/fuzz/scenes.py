@@ -435,13 +435,13 @@ def check_error(exc: BaseException, case: Case, path: Path | None) -> str | None
 def check_scene(scene, budget: int) -> str | None:
     """Why an accepted scene is implausible (None: it is plausible).
 
-    Every number finite and in its documented range, the pose a rigid transform within the
-    scene's extent, the images of one frame and the ray fan within ``budget``.
+    Every number finite and in its documented range, the poses rigid transforms within the
+    scene's extent, the images of one frame within ``budget`` (the ray fan is checked when
+    rendering: a sample of the accepted scenes is rendered).
     """
-    from sonarsim.config.loader import MAX_ANGLE_DEG, MAX_COORDINATE_M
-    from sonarsim.config.scene import MAX_LENGTH_M, MAX_ORDER_LIMIT
+    from sonarsim.config.scene import MAX_COORDINATE_M, MAX_LENGTH_M, MAX_ORDER_LIMIT
     from sonarsim.config.sonar import IMAGES_PER_FRAME
-    from sonarsim.core.rays import BYTES_PER_RAY, auto_elevation_samples
+    from sonarsim.core.rays import auto_elevation_samples
 
     s = scene.sonar
     a = np.asarray(s.beam_angles_deg)
@@ -485,7 +485,6 @@ def check_scene(scene, budget: int) -> str | None:
     n_el = auto_elevation_samples(s) if r.elevation_samples == "auto" else int(r.elevation_samples)
     if n_el < 1 or r.azimuth_samples < 1:
         problems.append(f"samples {n_el} x {r.azimuth_samples}")
-    del MAX_ANGLE_DEG  # angles are bounded through the rotation; the range is the parser's concern
     return "; ".join(problems) or None
 
 
@@ -525,7 +524,6 @@ def check_case(case: Case, workdir: Path, budget: int = FUZZ_BUDGET_BYTES, trace
     trace_memory : bool
         Trace Python and NumPy allocations (slower) and fail a case whose peak exceeds that.
     """
-    from sonarsim.config.loader import load_scene, scene_from_dict
     from sonarsim.core.memory import set_memory_budget
 
     out = Outcome(case)
@@ -537,43 +535,11 @@ def check_case(case: Case, workdir: Path, budget: int = FUZZ_BUDGET_BYTES, trace
     if trace_memory:
         tracemalloc.start()
     t0 = time.perf_counter()
-    caught = warnings.catch_warnings(record=True)
-    seen = caught.__enter__()
-    warnings.simplefilter("always")
     try:
-        scene = None
-        try:
-            with time_limit(LOAD_TIME_LIMIT_S):
-                if path is not None:
-                    scene = load_scene(path)
-                else:
-                    scene = scene_from_dict(case.doc, base_dir=EXAMPLES)
-        except CaseTimeout as exc:
-            out.failure = f"load {exc}"
-        except RecursionError as exc:
-            out.failure = f"RecursionError: {exc}"
-        except Exception as exc:  # noqa: BLE001 - classifying every exception is the point
-            out.failure = check_error(exc, case, path)
-            key = getattr(exc, "key", None)
-            out.error_key = _generic_key(key) if key else _kind_of_file_error(exc, path)
-        if scene is not None:
-            out.accepted = True
-            try:
-                out.failure = check_scene(scene, budget)
-            except Exception as exc:  # noqa: BLE001 - a scene whose own properties fail
-                out.failure = f"accepted scene fails on use: {type(exc).__name__}: {str(exc)[:300]}"
-            if out.failure is None and case.render:
-                try:
-                    with time_limit(RENDER_TIME_LIMIT_S):
-                        out.rendered, key, out.failure = _render_check(scene, budget)
-                    if key:
-                        out.error_key = _generic_key(key)
-                except CaseTimeout as exc:
-                    out.failure = f"render {exc}"
-                except Exception as exc:  # noqa: BLE001
-                    out.failure = f"render: {type(exc).__name__}: {str(exc)[:300]}"
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            _load_and_render(case, path, budget, out)
     finally:
-        caught.__exit__(None, None, None)
         out.seconds = time.perf_counter() - t0
         if trace_memory:
             out.peak_bytes = tracemalloc.get_traced_memory()[1]
@@ -592,6 +558,41 @@ def check_case(case: Case, workdir: Path, budget: int = FUZZ_BUDGET_BYTES, trace
         out.failure = (f"traced allocations peaked at {out.peak_bytes / 2**20:.1f} MiB, beyond {PEAK_BUDGETS} x the "
                        f"{budget / 2**20:.0f} MiB budget")
     return out
+
+
+def _load_and_render(case: Case, path: Path | None, budget: int, out: Outcome) -> None:
+    """Load the case (from ``path``, or its document), check what comes back, render if asked;
+    records the outcome in ``out``."""
+    from sonarsim.config.loader import load_scene, scene_from_dict
+
+    scene = None
+    try:
+        with time_limit(LOAD_TIME_LIMIT_S):
+            scene = load_scene(path) if path is not None else scene_from_dict(case.doc, base_dir=EXAMPLES)
+    except CaseTimeout as exc:
+        out.failure = f"load {exc}"
+    except Exception as exc:  # noqa: BLE001 - classifying every exception is the point
+        out.failure = check_error(exc, case, path)
+        key = getattr(exc, "key", None)
+        out.error_key = _generic_key(key) if key else _kind_of_file_error(exc, path)
+    if scene is None:
+        return
+    out.accepted = True
+    try:
+        out.failure = check_scene(scene, budget)
+    except Exception as exc:  # noqa: BLE001 - a scene whose own properties fail
+        out.failure = f"accepted scene fails on use: {type(exc).__name__}: {str(exc)[:300]}"
+    if out.failure is not None or not case.render:
+        return
+    try:
+        with time_limit(RENDER_TIME_LIMIT_S):
+            out.rendered, key, out.failure = _render_check(scene, budget)
+        if key:
+            out.error_key = _generic_key(key)
+    except CaseTimeout as exc:
+        out.failure = f"render {exc}"
+    except Exception as exc:  # noqa: BLE001
+        out.failure = f"render: {type(exc).__name__}: {str(exc)[:300]}"
 
 
 def _kind_of_file_error(exc: BaseException, path: Path | None) -> str:
