@@ -36,3 +36,50 @@ class ConfigError(SonarsimError, ValueError):
 
 class MeshFileError(SonarsimError):
     """A mesh file is missing, unreadable or empty."""
+
+
+# How a user's value appears in a message: a scene file may hold a 100,000-character string, a
+# list of a million numbers or a list nested a thousand deep, and the message must stay one
+# readable line (and repr of the deep list would itself fail).
+_SHOWN_LIMIT = 80
+
+
+def shown(value: object, limit: int = _SHOWN_LIMIT) -> str:
+    """``repr(value)`` abbreviated for an error message: one line of at most about ``limit`` characters.
+
+    Parameters
+    ----------
+    value : object
+        A value from the user's input (any size, any nesting).
+    limit : int
+        Characters kept; longer representations end in ``...``.
+
+    Returns
+    -------
+    str
+        E.g. ``[0.0, 0.0, -1.0, 0.0, ...]`` or ``'xxxxxxxx...'`` (100000 characters).
+    """
+    import reprlib
+
+    r = reprlib.Repr()
+    r.maxlevel, r.maxlist, r.maxtuple, r.maxdict, r.maxset = 3, 6, 6, 4, 4
+    r.maxstring, r.maxother, r.maxlong = limit, limit, 40
+    try:
+        text = r.repr(value)
+    except Exception:  # noqa: BLE001 - a value whose repr fails is still shown by its type
+        text = f"<{type(value).__name__}>"
+    if len(text) > limit:
+        text = text[: limit - 3] + "..."
+    if isinstance(value, str) and len(value) > limit:
+        text += f" ({len(value)} characters)"
+    elif isinstance(value, (list, tuple)) and len(value) > r.maxlist:
+        text += f" ({len(value)} items)"
+    return text
+
+
+def key_text(key: object) -> str:
+    """A mapping key as it appears in an error's key path: as written when it is a short,
+    printable string, else :func:`shown` (a key may be a number, hold a newline, or be huge)."""
+    if isinstance(key, str) and key.isprintable() and 0 < len(key) <= _SHOWN_LIMIT:
+        return key
+    return shown(key)

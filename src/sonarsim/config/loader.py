@@ -9,18 +9,19 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, MeshFileError, SonarsimError
+from ..errors import ConfigError, MeshFileError, SonarsimError, key_text, shown
 from ..scene.meshes import load_mesh_file
 from .materials import LAWS, Material, mu_from_db
 from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor
-from .scene import GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene
+from .scene import MAX_COORDINATE_M, GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene
 from .sonar import SonarConfig, beam_edges_deg
 from ..core.transforms import Pose
 
@@ -38,8 +39,8 @@ OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "p
 MATERIAL_KEYS = ("law", "albedo", "mu", "mu_db", "specular_strength", "roughness", "texture")
 
 
-# Plausibility bounds: a sonar scene spans kilometres at most; an angle beyond two turns is a typo.
-MAX_COORDINATE_M = 1e6
+# Plausibility bounds: a sonar scene spans kilometres at most (MAX_COORDINATE_M, from
+# config.scene); an angle beyond two turns is a typo.
 MAX_ANGLE_DEG = 720.0
 
 
@@ -51,40 +52,43 @@ def _check_keys(d: Any, allowed: tuple[str, ...], where: str) -> Mapping:
     for key in d:
         if key not in allowed:
             raise ConfigError(
-                f"{where}.{key}" if where else str(key),
+                f"{where}.{key_text(key)}" if where else key_text(key),
                 f"unknown key; allowed keys{' of ' + where if where else ''}: {', '.join(allowed)}",
             )
     return d
 
 
 def _number(value: Any, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ConfigError(key, f"must be a finite number, got {value!r}")
+    # An integer beyond a float's range (YAML reads 1000 digits as one) is not finite either:
+    # math.isfinite would raise OverflowError on it.
+    if (isinstance(value, bool) or not isinstance(value, (int, float))
+            or (isinstance(value, int) and abs(value) > sys.float_info.max) or not math.isfinite(value)):
+        raise ConfigError(key, f"must be a finite number, got {shown(value)}")
     return float(value)
 
 
 def _integer(value: Any, key: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
-        raise ConfigError(key, f"must be an integer, got {value!r}")
+        raise ConfigError(key, f"must be an integer, got {shown(value)}")
     return int(value)
 
 
 def _vector(value: Any, key: str, n: int | None) -> tuple[float, ...]:
     if not isinstance(value, (list, tuple)) or (n is not None and len(value) != n):
         what = f"a list of {n} numbers" if n is not None else "a list of numbers"
-        raise ConfigError(key, f"must be {what}, got {value!r}")
+        raise ConfigError(key, f"must be {what}, got {shown(value)}")
     return tuple(_number(v, f"{key}[{i}]") for i, v in enumerate(value))
 
 
 def _string(value: Any, key: str) -> str:
     if not isinstance(value, str) or not value:
-        raise ConfigError(key, f"must be a non-empty string, got {value!r}")
+        raise ConfigError(key, f"must be a non-empty string, got {shown(value)}")
     return value
 
 
 def _boolean(value: Any, key: str) -> bool:
     if not isinstance(value, bool):
-        raise ConfigError(key, f"must be true or false, got {value!r}")
+        raise ConfigError(key, f"must be true or false, got {shown(value)}")
     return value
 
 
@@ -109,7 +113,7 @@ def parse_pose(d: Any, where: str) -> Pose:
         raise ConfigError(f"{where}.quat_xyzw", "give either rpy_deg or quat_xyzw, not both")
     if "quat_xyzw" in d:
         q = _vector(d["quat_xyzw"], f"{where}.quat_xyzw", 4)
-        if np.linalg.norm(q) < 1e-9:
+        if math.hypot(*q) < 1e-9:  # hypot: the squares of 1e300 overflow
             raise ConfigError(f"{where}.quat_xyzw", "must not be the zero quaternion")
         return Pose.from_quaternion(position, q)
     rpy = _vector(d.get("rpy_deg", [0.0, 0.0, 0.0]), f"{where}.rpy_deg", 3)
@@ -182,7 +186,12 @@ def parse_sonar_section(d: Any, base_dir: Path | None) -> tuple[SonarConfig, Pos
         res = get("range_resolution_m", _number)
         if res <= 0:
             raise ConfigError("sonar.range_resolution_m", f"must be > 0 metres, got {res}")
-        n_bins = max(1, int(round((r_max - r_min) / res)))
+        n_bins_float = (r_max - r_min) / res
+        if not math.isfinite(n_bins_float):  # 1e300 metres over 1e-300 metres a bin
+            raise ConfigError("sonar.range_resolution_m",
+                              f"{res:g} m gives {n_bins_float} range bins over {r_min:g} to {r_max:g} m; "
+                              "give a coarser resolution")
+        n_bins = max(1, int(round(n_bins_float)))
     else:
         n_bins = get("n_range_bins", _integer)
         if n_bins < 1:
@@ -223,7 +232,7 @@ def parse_material(d: Any, where: str, texture_allowed: bool) -> Material:
     if "law" in d:
         kw["law"] = _string(d["law"], f"{where}.law")
         if kw["law"] not in LAWS:
-            raise ConfigError(f"{where}.law", f"unknown law {kw['law']!r}; allowed: {', '.join(LAWS)}")
+            raise ConfigError(f"{where}.law", f"unknown law {shown(kw['law'])}; allowed: {', '.join(LAWS)}")
     if "mu" in d and "mu_db" in d:
         raise ConfigError(f"{where}.mu_db", "give either mu (linear) or mu_db, not both")
     for key in ("albedo", "mu", "specular_strength", "roughness"):
@@ -234,7 +243,7 @@ def parse_material(d: Any, where: str, texture_allowed: bool) -> Material:
         if mu_db > 0:
             raise ConfigError(f"{where}.mu_db", f"must be <= 0 dB (mu <= 1), got {mu_db}")
         if kw.get("law", "lambertian") != "lambert":
-            raise ConfigError(f"{where}.mu_db", f"not used by the law {kw.get('law', 'lambertian')!r}")
+            raise ConfigError(f"{where}.mu_db", f"not used by the law {shown(kw.get('law', 'lambertian'))}")
         kw["mu"] = mu_from_db(mu_db)
     if "texture" in d:
         kw["texture"] = _boolean(d["texture"], f"{where}.texture")
@@ -257,7 +266,7 @@ def parse_render(d: Any) -> RenderSettings:
         k = f"render.{key}"
         if key == "elevation_samples":
             if isinstance(value, str) and value != "auto" or isinstance(value, bool) or not isinstance(value, (str, int)):
-                raise ConfigError(k, f"must be 'auto' or a positive integer, got {value!r}")
+                raise ConfigError(k, f"must be 'auto' or a positive integer, got {shown(value)}")
             kw[key] = value
         elif key in ("azimuth_samples", "seed", "max_order"):
             kw[key] = _integer(value, k)
@@ -272,7 +281,7 @@ def parse_render(d: Any) -> RenderSettings:
                 kw[key] = None
                 continue
             if not isinstance(value, (list, tuple)):
-                raise ConfigError(k, f"must be a list of path orders (1 single, 2 double, 3 triple, ...), got {value!r}")
+                raise ConfigError(k, f"must be a list of path orders (1 single, 2 double, 3 triple, ...), got {shown(value)}")
             kw[key] = tuple(_integer(v, f"{k}[{i}]") for i, v in enumerate(value))
         else:
             kw[key] = _string(value, k)
@@ -392,7 +401,7 @@ def _unique_pairs(pairs, where: str):
     out = {}
     for k, v in pairs:
         if k in out:
-            raise SonarsimError(f"{where}: the key {k!r} is given twice in one mapping")
+            raise SonarsimError(f"{where}: the key {shown(k)} is given twice in one mapping")
         out[k] = v
     return out
 
@@ -413,7 +422,7 @@ def _strict_yaml_loader(where: str):
             except TypeError:  # an unhashable key: the base constructor says so
                 break
             if duplicate:
-                raise SonarsimError(f"{where}: the key {key!r} is given twice in one mapping "
+                raise SonarsimError(f"{where}: the key {shown(key)} is given twice in one mapping "
                                     f"(line {key_node.start_mark.line + 1})")
             seen.add(key)
         return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
@@ -436,13 +445,16 @@ def read_document(path: str | os.PathLike) -> Any:
     import yaml
 
     p = Path(path)
-    if p.is_dir():
-        raise SonarsimError(f"{p}: is a directory, not a scene file (YAML or JSON)")
-    if not p.exists():
-        raise SonarsimError(f"{p}: scene file not found")
-    if not p.is_file():
-        raise SonarsimError(f"{p}: not a regular file (a device or pipe?); give a scene file (YAML or JSON)")
-    size = p.stat().st_size
+    try:
+        if p.is_dir():
+            raise SonarsimError(f"{p}: is a directory, not a scene file (YAML or JSON)")
+        if not p.exists():
+            raise SonarsimError(f"{p}: scene file not found")
+        if not p.is_file():
+            raise SonarsimError(f"{p}: not a regular file (a device or pipe?); give a scene file (YAML or JSON)")
+        size = p.stat().st_size
+    except OSError as exc:  # a name too long, a folder that cannot be searched
+        raise SonarsimError(f"{shown(str(p))}: cannot read the scene file: {exc.strerror or exc}") from None
     if size > MAX_SCENE_BYTES:
         raise SonarsimError(f"{p}: {size / 2**20:.0f} MiB is not a scene file (at most {MAX_SCENE_BYTES // 2**20} MiB)")
     try:
@@ -460,7 +472,14 @@ def read_document(path: str | os.PathLike) -> Any:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise SonarsimError(f"{p}: invalid YAML{where}: {getattr(exc, 'problem', exc)}") from None
+        # A reader error (a control character) has no mark and its str() spans two lines.
+        problem = getattr(exc, "problem", None) or getattr(exc, "reason", None) or str(exc)
+        if isinstance(getattr(exc, "position", None), int) and not where:
+            line = text.count("\n", 0, exc.position) + 1
+            where = f" at line {line}, column {exc.position - (text.rfind(chr(10), 0, exc.position) + 1) + 1}"
+            if isinstance(getattr(exc, "character", None), int):
+                problem = f"{problem} (character #x{exc.character:04x})"
+        raise SonarsimError(f"{p}: invalid YAML{where}: {' '.join(str(problem).split())}") from None
     except RecursionError:
         raise SonarsimError(f"{p}: nested too deeply to be a scene file") from None
 

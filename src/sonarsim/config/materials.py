@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, shown
 
 LAWS = ("lambertian", "lambert", "rough")
 # Law codes of the compiled kernels (index into LAWS).
@@ -84,18 +84,18 @@ class Material:
 
     def __post_init__(self) -> None:
         if self.law not in LAWS:
-            raise ConfigError("law", f"unknown law {self.law!r}; allowed: {', '.join(LAWS)}")
+            raise ConfigError("law", f"unknown law {shown(self.law)}; allowed: {', '.join(LAWS)}")
         used = LAW_KEYS[self.law]
         for key in ("albedo", "mu", "specular_strength", "roughness"):
             value = getattr(self, key)
             if value is None:
                 if key in REQUIRED_KEYS[self.law]:
-                    raise ConfigError(key, f"required by the law {self.law!r}")
+                    raise ConfigError(key, f"required by the law {shown(self.law)}")
                 continue
             if key not in used:
-                raise ConfigError(key, f"not used by the law {self.law!r}; its parameters: {', '.join(used)}")
+                raise ConfigError(key, f"not used by the law {shown(self.law)}; its parameters: {', '.join(used)}")
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ConfigError(key, f"must be a finite number, got {value!r}")
+                raise ConfigError(key, f"must be a finite number, got {shown(value)}")
             object.__setattr__(self, key, float(value))
         for key in ("albedo", "mu"):
             v = getattr(self, key)
@@ -110,7 +110,7 @@ class Material:
                 f"incidence), got {self.roughness}",
             )
         if not isinstance(self.texture, bool):
-            raise ConfigError("texture", f"must be true or false, got {self.texture!r}")
+            raise ConfigError("texture", f"must be true or false, got {shown(self.texture)}")
 
     @classmethod
     def lambertian(cls, albedo: float) -> "Material":

@@ -30,7 +30,7 @@ from typing import Mapping, Union
 
 import numpy as np
 
-from sonarsim.errors import ConfigError
+from sonarsim.errors import ConfigError, shown
 
 __all__ = [
     "SONAR_KEYS",
@@ -426,11 +426,14 @@ def beam_angles_from_table(
     """
     source = os.fspath(path)
     p = Path(source)
-    if p.exists() and not p.is_file():
-        raise ConfigError(key, "beam-angle table is a directory or device, not a file", source=source)
-    if p.is_file() and p.stat().st_size > MAX_TABLE_BYTES:
-        raise ConfigError(key, f"beam-angle table of {p.stat().st_size} bytes; a table of beams is at most "
-                          f"{MAX_TABLE_BYTES // 2**20} MiB", source=source)
+    try:
+        if p.exists() and not p.is_file():
+            raise ConfigError(key, "beam-angle table is a directory or device, not a file", source=source)
+        if p.is_file() and p.stat().st_size > MAX_TABLE_BYTES:
+            raise ConfigError(key, f"beam-angle table of {p.stat().st_size} bytes; a table of beams is at most "
+                              f"{MAX_TABLE_BYTES // 2**20} MiB", source=source)
+    except OSError as exc:  # a name too long, a folder that cannot be searched
+        raise ConfigError(key, f"cannot read beam-angle table: {exc.strerror or exc}", source=shown(source)) from None
     try:
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
@@ -480,7 +483,7 @@ def beam_angles_from_table(
             angles[i] = float(cells[column])
         except ValueError:
             raise ConfigError(
-                key, f"line {number}: {cells[column]!r} is not a number", source=source
+                key, f"line {number}: {shown(cells[column])} is not a number", source=source
             ) from None
 
     if not np.all(np.isfinite(angles)) or np.any(np.abs(angles) >= 90.0):
@@ -763,5 +766,5 @@ def get_preset(name: str) -> Preset:
     except (KeyError, TypeError):
         raise ConfigError(
             "sonar.preset",
-            f"unknown preset {name!r}; known presets: {', '.join(PRESETS)}",
+            f"unknown preset {shown(name)}; known presets: {', '.join(PRESETS)}",
         ) from None

@@ -8,6 +8,7 @@ turns YAML/JSON/dicts into them and rejects unknown keys and wrong types.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -15,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, shown
 from .materials import Material
 from .sensor import SensorSpec
 from .sonar import SonarConfig
@@ -32,6 +33,8 @@ RESERVED_PLANE_NAMES = ("objects", "O")
 MAX_ORDER_LIMIT = 9
 # Objects larger than this are not objects of a sonar scene (a typo or a unit mistake).
 MAX_LENGTH_M = 1e4
+# A sonar scene spans kilometres at most: points and planes farther out than this are typos.
+MAX_COORDINATE_M = 1e6
 
 
 def _check_unit_interval(key: str, value: float) -> None:
@@ -96,7 +99,7 @@ class ObjectSpec:
         if self.primitive is not None:
             if self.primitive not in PRIMITIVES:
                 raise ConfigError(
-                    "primitive", f"unknown primitive {self.primitive!r}; allowed: {', '.join(PRIMITIVES)}"
+                    "primitive", f"unknown primitive {shown(self.primitive)}; allowed: {', '.join(PRIMITIVES)}"
                 )
             needed = {"box": ("size_m",), "sphere": ("radius_m",), "cylinder": ("radius_m", "height_m")}
             for key in needed[self.primitive]:
@@ -176,6 +179,9 @@ class GroundSpec:
     def __post_init__(self) -> None:
         if not np.isfinite(self.height_m):
             raise ConfigError("ground.height_m", f"must be a finite number, got {self.height_m}")
+        # The ground is also a plane (as_plane), which must lie within the scene's extent.
+        if abs(self.height_m) > MAX_COORDINATE_M:
+            raise ConfigError("ground.height_m", f"must lie within 1e6 m of the origin, got {self.height_m}")
         _check_unit_interval("ground.albedo", self.albedo)
         _check_unit_interval("ground.specular", self.specular)
         _check_material(self, "ground.")
@@ -228,21 +234,23 @@ class PlaneSpec:
     material: Material | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not PLANE_NAME.match(self.name) or self.name in RESERVED_PLANE_NAMES:
+        if not isinstance(self.name, str) or not PLANE_NAME.fullmatch(self.name) or self.name in RESERVED_PLANE_NAMES:
             raise ConfigError(
                 "name",
                 f"must start with a letter and hold only letters, digits and _ (not "
-                f"{' or '.join(RESERVED_PLANE_NAMES)}), got {self.name!r}",
+                f"{' or '.join(RESERVED_PLANE_NAMES)}), got {shown(self.name)}",
             )
         point = np.asarray(self.point_m, dtype=float).ravel()
         if point.size != 3 or not np.all(np.isfinite(point)):
             raise ConfigError("point_m", f"must be three finite coordinates in metres, got {self.point_m}")
-        if np.abs(point).max() > 1e6:
+        if np.abs(point).max() > MAX_COORDINATE_M:
             raise ConfigError("point_m", f"must lie within 1e6 m of the origin, got {self.point_m}")
         normal = np.asarray(self.normal, dtype=float).ravel()
         if normal.size != 3 or not np.all(np.isfinite(normal)):
             raise ConfigError("normal", f"must be three finite numbers, got {self.normal}")
-        length = float(np.linalg.norm(normal))
+        # hypot, not the root of the sum of squares: those of [1, 1e300, 0] overflow, and the
+        # normal divided by an infinite length was the zero vector.
+        length = math.hypot(*normal)
         if not length > 1e-9 * max(1.0, float(np.abs(normal).max())):
             raise ConfigError("normal", f"must not be the zero vector, got {self.normal}")
         object.__setattr__(self, "point_m", tuple(float(v) for v in point))
@@ -354,36 +362,36 @@ class RenderSettings:
     def __post_init__(self) -> None:
         es = self.elevation_samples
         if es != "auto" and (isinstance(es, bool) or not isinstance(es, (int, np.integer)) or es < 1):
-            raise ConfigError("render.elevation_samples", f"must be 'auto' or a positive integer, got {es!r}")
+            raise ConfigError("render.elevation_samples", f"must be 'auto' or a positive integer, got {shown(es)}")
         az = self.azimuth_samples
         if isinstance(az, bool) or not isinstance(az, (int, np.integer)) or az < 1:
-            raise ConfigError("render.azimuth_samples", f"must be a positive integer, got {az!r}")
+            raise ConfigError("render.azimuth_samples", f"must be a positive integer, got {shown(az)}")
         mo = self.max_order
         if isinstance(mo, bool) or not isinstance(mo, (int, np.integer)) or not 1 <= mo <= MAX_ORDER_LIMIT:
-            raise ConfigError("render.max_order", f"must be an integer from 1 to {MAX_ORDER_LIMIT}, got {mo!r}")
+            raise ConfigError("render.max_order", f"must be an integer from 1 to {MAX_ORDER_LIMIT}, got {shown(mo)}")
         object.__setattr__(self, "max_order", int(mo))
         orders = list(range(1, int(mo) + 1))
         bounces = tuple(orders) if self.bounces is None else tuple(sorted(set(int(b) for b in self.bounces)))
         if not bounces or any(b not in orders for b in bounces):
             raise ConfigError(
                 "render.bounces",
-                f"must be a non-empty subset of the orders up to render.max_order, {orders}, got {list(self.bounces)}",
+                f"must be a non-empty subset of the orders up to render.max_order, {orders}, got {shown(list(self.bounces))}",
             )
         object.__setattr__(self, "bounces", bounces)
         if self.method not in METHODS:
-            raise ConfigError("render.method", f"unknown method {self.method!r}; allowed: {', '.join(METHODS)}")
+            raise ConfigError("render.method", f"unknown method {shown(self.method)}; allowed: {', '.join(METHODS)}")
         if self.beam_pattern not in BEAM_PATTERNS:
             raise ConfigError(
-                "render.beam_pattern", f"unknown pattern {self.beam_pattern!r}; allowed: {', '.join(BEAM_PATTERNS)}"
+                "render.beam_pattern", f"unknown pattern {shown(self.beam_pattern)}; allowed: {', '.join(BEAM_PATTERNS)}"
             )
         if self.double_beam not in DOUBLE_BEAMS:
             raise ConfigError(
-                "render.double_beam", f"unknown choice {self.double_beam!r}; allowed: {', '.join(DOUBLE_BEAMS)}"
+                "render.double_beam", f"unknown choice {shown(self.double_beam)}; allowed: {', '.join(DOUBLE_BEAMS)}"
             )
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
-            raise ConfigError("render.seed", f"must be a non-negative integer, got {self.seed!r}")
+            raise ConfigError("render.seed", f"must be a non-negative integer, got {shown(self.seed)}")
         if self.threads is not None and (isinstance(self.threads, bool) or self.threads < 1):
-            raise ConfigError("render.threads", f"must be a positive integer or null, got {self.threads!r}")
+            raise ConfigError("render.threads", f"must be a positive integer or null, got {shown(self.threads)}")
 
     def to_dict(self) -> dict:
         return {
@@ -444,13 +452,13 @@ class Scene:
         names = [o.name for o in self.objects]
         for i, name in enumerate(names):
             if name in names[:i]:
-                raise ConfigError(f"objects[{i}].name", f"duplicate object name {name!r}; names must be unique")
+                raise ConfigError(f"objects[{i}].name", f"duplicate object name {shown(name)}; names must be unique")
         taken = ["ground"] if self.ground is not None else []
         for i, plane in enumerate(self.planes):
             if plane.name in taken:
                 earlier = [p.name for p in self.planes[:i]]
                 why = "names must be unique" if plane.name in earlier else "the ground: section is the plane 'ground'"
-                raise ConfigError(f"planes[{i}].name", f"duplicate plane name {plane.name!r}; {why}")
+                raise ConfigError(f"planes[{i}].name", f"duplicate plane name {shown(plane.name)}; {why}")
             taken.append(plane.name)
         if self.render.method == "paper" and self.render.double_beam == "separate":
             raise ConfigError(
@@ -536,6 +544,6 @@ def check_sonar_position(planes: tuple[PlaneSpec, ...], position_m, key: str) ->
         if abs(d) < ON_PLANE_TOLERANCE_M:
             raise ConfigError(
                 key,
-                f"the sonar at {list(position_m)} lies on the plane {plane.name!r} (distance {d:.2g} m); "
+                f"the sonar at {list(position_m)} lies on the plane {shown(plane.name)} (distance {d:.2g} m); "
                 f"move it at least {ON_PLANE_TOLERANCE_M:g} m to either side",
             )

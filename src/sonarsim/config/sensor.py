@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, key_text, shown
 
 ABSORPTION_MODELS = ("francois-garrison", "ainslie-mccolm", "constant")
 TVG_SPREADING = (0.0, 20.0, 30.0, 40.0)
@@ -52,24 +53,50 @@ DTYPES = {"uint8": 255.0, "uint16": 65535.0, "float32": None}
 
 # Sizes checked before allocating: a kernel wider than this many beams or range bins is a typo.
 MAX_KERNEL_HALF_WIDTH = 256
+# A Taylor window's sidelobe level: beyond 13.3 dB (the uniform array's), and no deeper than this
+# (no array gets near it; near 6000 dB the window's own arithmetic overflows).
+MIN_SIDELOBE_DB, MAX_SIDELOBE_DB = 13.3, 200.0
+# Levels and gains, dB: the sensor stage forms powers (10 ** (L / 10)) in float32, which holds
+# about 385 dB. Sonars transmit 180-230 dB re 1 uPa at 1 m; anything beyond these is a typo.
+LEVEL_RANGE_DB = (-300.0, 300.0)
+GAIN_RANGE_DB = (-200.0, 200.0)
+MAX_ABSORPTION_DB_PER_M = 1000.0
+
+
+def _within(key: str, value: Any, bounds: tuple[float, float], unit: str = "dB") -> float:
+    v = _finite(key, value)
+    if not bounds[0] <= v <= bounds[1]:
+        raise ConfigError(key, f"must be within [{bounds[0]:g}, {bounds[1]:g}] {unit}, got {v:g}")
+    return v
+
+
+def _check_sidelobe(window: str, sidelobe_db: Any) -> None:
+    """``sidelobe_db`` is given exactly for a Taylor window, within (13.3, 200] dB."""
+    if window == "taylor":
+        if sidelobe_db is None or not MIN_SIDELOBE_DB < _finite("sidelobe_db", sidelobe_db) <= MAX_SIDELOBE_DB:
+            raise ConfigError("sidelobe_db", f"window taylor needs sidelobe_db in ({MIN_SIDELOBE_DB:g}, "
+                              f"{MAX_SIDELOBE_DB:g}] (dB below the main lobe), got {shown(sidelobe_db)}")
+    elif sidelobe_db is not None:
+        raise ConfigError("sidelobe_db", "only with window: taylor (the other windows fix their sidelobes)")
 
 
 def _finite(key: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) or not math.isfinite(value):
-        raise ConfigError(key, f"must be a finite number, got {value!r}")
+    if (isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer))
+            or (isinstance(value, int) and abs(value) > sys.float_info.max) or not math.isfinite(value)):
+        raise ConfigError(key, f"must be a finite number, got {shown(value)}")
     return float(value)
 
 
 def _positive(key: str, value: Any) -> float:
     v = _finite(key, value)
     if v <= 0:
-        raise ConfigError(key, f"must be positive, got {value!r}")
+        raise ConfigError(key, f"must be positive, got {shown(value)}")
     return v
 
 
 def _choice(key: str, value: Any, allowed) -> Any:
     if value not in allowed:
-        raise ConfigError(key, f"unknown value {value!r}; allowed: {', '.join(map(str, allowed))}")
+        raise ConfigError(key, f"unknown value {shown(value)}; allowed: {', '.join(map(str, allowed))}")
     return value
 
 
@@ -83,7 +110,7 @@ class AbsorptionSpec:
         Francois & Garrison (1982, JASA 72: boric acid, MgSO4, pure water) or Ainslie &
         McColm (1998, JASA 103) at the sonar's ``frequency_khz``; ``constant``: ``db_per_m``.
     db_per_m : float or None
-        alpha for ``constant``.
+        alpha for ``constant``, within [0, 1000] dB/m.
     temperature_c, salinity_psu, depth_m, ph : float
         Water properties (fresh water: salinity 0).
     """
@@ -100,10 +127,9 @@ class AbsorptionSpec:
         if self.model == "constant":
             if self.db_per_m is None:
                 raise ConfigError("db_per_m", "required with model: constant (alpha in dB/m)")
-            if _finite("db_per_m", self.db_per_m) < 0:
-                raise ConfigError("db_per_m", f"must be >= 0, got {self.db_per_m}")
+            _within("db_per_m", self.db_per_m, (0.0, MAX_ABSORPTION_DB_PER_M), "dB/m")
         elif self.db_per_m is not None:
-            raise ConfigError("db_per_m", f"only with model: constant (model {self.model!r} computes alpha)")
+            raise ConfigError("db_per_m", f"only with model: constant (model {shown(self.model)} computes alpha)")
         t = _finite("temperature_c", self.temperature_c)
         if not -2.0 <= t <= 40.0:
             raise ConfigError("temperature_c", f"must be within [-2, 40] degC (the formulas' range), got {t}")
@@ -136,7 +162,7 @@ class TvgSpec:
     def __post_init__(self) -> None:
         _choice("spreading", _finite("spreading", self.spreading), TVG_SPREADING)
         if not isinstance(self.absorption, bool):
-            raise ConfigError("absorption", f"must be true or false, got {self.absorption!r}")
+            raise ConfigError("absorption", f"must be true or false, got {shown(self.absorption)}")
 
 
 @dataclass(frozen=True)
@@ -154,7 +180,7 @@ class PatternSpec:
         azimuth). Default: the sonar's ``elevation_fov_deg`` / beam width.
     window : {'rect', 'hann', 'hamming', 'blackman', 'taylor'}
     sidelobe_db : float or None
-        ``taylor`` only: the sidelobe level below the main lobe, dB (> 13).
+        ``taylor`` only: the sidelobe level below the main lobe, dB, in (13.3, 200].
     span_deg : float or None
         Elevation only: rays are cast over this full span (wider than the -3 dB width so that
         sidelobes see what the main lobe misses). Default: three times ``width_deg``.
@@ -182,11 +208,7 @@ class PatternSpec:
             w = _positive("width_deg", self.width_deg)
             if w >= 180:
                 raise ConfigError("width_deg", f"must be below 180 degrees, got {w}")
-        if self.window == "taylor":
-            if self.sidelobe_db is None or _finite("sidelobe_db", self.sidelobe_db) <= 13.3:
-                raise ConfigError("sidelobe_db", f"window taylor needs sidelobe_db > 13.3 (dB below the main lobe), got {self.sidelobe_db!r}")
-        elif self.sidelobe_db is not None:
-            raise ConfigError("sidelobe_db", "only with window: taylor (the other windows fix their sidelobes)")
+        _check_sidelobe(self.window, self.sidelobe_db)
         if self.span_deg is not None:
             s = _positive("span_deg", self.span_deg)
             if s > 170:
@@ -196,7 +218,7 @@ class PatternSpec:
         lb = self.leakage_beams
         if lb is not None and (isinstance(lb, bool) or not isinstance(lb, (int, np.integer))
                                or not 0 <= lb <= MAX_KERNEL_HALF_WIDTH):
-            raise ConfigError("leakage_beams", f"must be an integer in [0, {MAX_KERNEL_HALF_WIDTH}], got {lb!r}")
+            raise ConfigError("leakage_beams", f"must be an integer in [0, {MAX_KERNEL_HALF_WIDTH}], got {shown(lb)}")
 
 
 @dataclass(frozen=True)
@@ -231,11 +253,7 @@ class PulseSpec:
             _positive("bandwidth_khz", self.bandwidth_khz)
         elif self.bandwidth_khz is not None:
             raise ConfigError("bandwidth_khz", "only with kind: chirp")
-        if self.window == "taylor":
-            if self.sidelobe_db is None or _finite("sidelobe_db", self.sidelobe_db) <= 13.3:
-                raise ConfigError("sidelobe_db", "window taylor needs sidelobe_db > 13.3")
-        elif self.sidelobe_db is not None:
-            raise ConfigError("sidelobe_db", "only with window: taylor")
+        _check_sidelobe(self.window, self.sidelobe_db)
 
 
 @dataclass(frozen=True)
@@ -274,20 +292,21 @@ class NoiseSpec:
     Attributes
     ----------
     level_db : float
-        Noise power at the receiver input, dB re 1 uPa^2 (the level an echo must exceed).
+        Noise power at the receiver input, dB re 1 uPa^2 (the level an echo must exceed),
+        within [-300, 300].
     after_tvg_db : float or None
         Noise added after the TVG and gain (the digitiser's), dB re 1 uPa^2 on the output's
         scale (that of ``output.ceiling_db``): a floor the TVG does not lift, which sets the
-        darkest ranges of a device with a steep TVG. ``None``: none.
+        darkest ranges of a device with a steep TVG, within [-300, 300]. ``None``: none.
     """
 
     level_db: float = 40.0
     after_tvg_db: float | None = None
 
     def __post_init__(self) -> None:
-        _finite("level_db", self.level_db)
+        _within("level_db", self.level_db, LEVEL_RANGE_DB)
         if self.after_tvg_db is not None:
-            _finite("after_tvg_db", self.after_tvg_db)
+            _within("after_tvg_db", self.after_tvg_db, LEVEL_RANGE_DB)
 
 
 @dataclass(frozen=True)
@@ -297,7 +316,7 @@ class BangSpec:
     Attributes
     ----------
     level_db : float
-        Its level at range 0, dB re 1 uPa^2 at the receiver (before TVG).
+        Its level at range 0, dB re 1 uPa^2 at the receiver (before TVG), within [-300, 300].
     length_m : float
         Range over which it decays by 1/e (in power).
     """
@@ -306,7 +325,7 @@ class BangSpec:
     length_m: float = 0.02
 
     def __post_init__(self) -> None:
-        _finite("level_db", self.level_db)
+        _within("level_db", self.level_db, LEVEL_RANGE_DB)
         _positive("length_m", self.length_m)
 
 
@@ -365,15 +384,16 @@ class SensorSpec:
     Attributes
     ----------
     source_level_db : float
-        SL, dB re 1 uPa at 1 m.
+        SL, dB re 1 uPa at 1 m, within [-300, 300].
     target_strength_db : float
-        Offset added to the target strength the scene's materials give (calibration).
+        Offset added to the target strength the scene's materials give (calibration), within
+        [-200, 200] dB.
     sound_speed_m_s : float
         For the pulse's range extent and the absorption formulas.
     frequency_khz : float or None
         Carrier; default the sonar's ``frequency_khz``. Needed by the absorption formulas.
     gain_db : float
-        Receiver gain, added after TVG.
+        Receiver gain, added after TVG, within [-200, 200] dB.
     absorption, tvg, elevation_pattern, azimuth_pattern, pulse, speckle, noise, bang, output
         The effects; ``None``: off. Without ``output`` the output is the received power after
         TVG and gain, float32, uPa^2.
@@ -398,14 +418,14 @@ class SensorSpec:
     preset: str | None = None
 
     def __post_init__(self) -> None:
-        _finite("source_level_db", self.source_level_db)
-        _finite("target_strength_db", self.target_strength_db)
+        _within("source_level_db", self.source_level_db, LEVEL_RANGE_DB)
+        _within("target_strength_db", self.target_strength_db, GAIN_RANGE_DB)
         c = _positive("sound_speed_m_s", self.sound_speed_m_s)
         if not 1300 <= c <= 1700:
             raise ConfigError("sound_speed_m_s", f"must be within [1300, 1700] m/s, got {c}")
         if self.frequency_khz is not None:
             _positive("frequency_khz", self.frequency_khz)
-        _finite("gain_db", self.gain_db)
+        _within("gain_db", self.gain_db, GAIN_RANGE_DB)
         if self.elevation_pattern is not None and self.elevation_pattern.leakage_beams is not None:
             raise ConfigError("elevation_pattern.leakage_beams", "only for the azimuth pattern")
         if self.azimuth_pattern is not None and self.azimuth_pattern.span_deg is not None:
@@ -436,20 +456,24 @@ def _parse_sub(name: str, value: Any, key: str, base_dir: Path | None):
         return cls()
     allowed = tuple(f.name for f in dataclasses.fields(cls))
     if not isinstance(value, Mapping):
-        raise ConfigError(key, f"must be false or a mapping with keys from: {', '.join(allowed)}; got {value!r}")
+        raise ConfigError(key, f"must be false or a mapping with keys from: {', '.join(allowed)}; got {shown(value)}")
     for k in value:
         if k not in allowed:
-            raise ConfigError(f"{key}.{k}", f"unknown key; allowed keys of {key}: {', '.join(allowed)}")
+            raise ConfigError(f"{key}.{key_text(k)}", f"unknown key; allowed keys of {key}: {', '.join(allowed)}")
     kw = dict(value)
     if name.endswith("_pattern") and kw.get("table") is not None:
         t = kw["table"]
         if not isinstance(t, str) or not t:
-            raise ConfigError(f"{key}.table", f"must be a file name, got {t!r}")
+            raise ConfigError(f"{key}.table", f"must be a file name, got {shown(t)}")
         p = Path(t)
         if not p.is_absolute() and base_dir is not None:
             p = base_dir / p
-        if not p.is_file():
-            raise ConfigError(f"{key}.table", f"pattern table {str(p)!r} not found (a CSV of angle_deg, gain_db rows; "
+        try:
+            found = p.is_file()
+        except OSError as exc:  # a name too long, a folder that cannot be searched
+            raise ConfigError(f"{key}.table", f"cannot read the pattern table {shown(str(p))}: {exc.strerror or exc}") from None
+        if not found:
+            raise ConfigError(f"{key}.table", f"pattern table {shown(str(p))} not found (a CSV of angle_deg, gain_db rows; "
                               "relative to the scene file)")
         kw["table"] = str(p)
     try:
@@ -471,15 +495,15 @@ def parse_sensor(d: Any, base_dir: Path | None = None) -> SensorSpec | None:
     if d is None or d is False:
         return None
     if not isinstance(d, Mapping):
-        raise ConfigError("sensor", f"must be a mapping with keys from: {', '.join(SENSOR_KEYS)}; got {d!r}")
+        raise ConfigError("sensor", f"must be a mapping with keys from: {', '.join(SENSOR_KEYS)}; got {shown(d)}")
     for k in d:
         if k not in SENSOR_KEYS:
-            raise ConfigError(f"sensor.{k}", f"unknown key; allowed keys of sensor: {', '.join(SENSOR_KEYS)}")
+            raise ConfigError(f"sensor.{key_text(k)}", f"unknown key; allowed keys of sensor: {', '.join(SENSOR_KEYS)}")
     merged: dict[str, Any] = {}
     preset = d.get("preset")
     if preset is not None:
         if not isinstance(preset, str) or preset not in SENSOR_PRESETS:
-            raise ConfigError("sensor.preset", f"unknown sensor preset {preset!r}; allowed: {', '.join(SENSOR_PRESETS)}")
+            raise ConfigError("sensor.preset", f"unknown sensor preset {shown(preset)}; allowed: {', '.join(SENSOR_PRESETS)}")
         merged.update(SENSOR_PRESETS[preset])
     for k, v in d.items():
         if k in _SUBSPECS and isinstance(v, Mapping) and isinstance(merged.get(k), Mapping):

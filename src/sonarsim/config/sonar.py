@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.memory import require
-from ..errors import ConfigError
+from ..errors import ConfigError, shown
 
 IMAGES_PER_FRAME = 40
 from ..image.grid import PolarGrid, beam_edges_deg
@@ -34,6 +34,20 @@ def uniform_beam_angles_deg(n_beams: int, azimuth_fov_deg: float) -> np.ndarray:
     """
     j = np.arange(n_beams)
     return azimuth_fov_deg / 2.0 - (j + 0.5) * azimuth_fov_deg / n_beams
+
+
+def _require_images(n_range_bins: int, n_beams: int) -> None:
+    """Check the images of one frame against the memory budget (before allocating them).
+
+    Raises
+    ------
+    ConfigError
+        ``sonar.n_range_bins``: the images would need more than the budget.
+    """
+    # A frame holds a few dozen images of this size (path orders, components, sensor). Exact
+    # integers: float() of a 400-digit n_range_bins raises OverflowError.
+    require(int(n_range_bins) * int(n_beams) * 4 * IMAGES_PER_FRAME,
+            f"images of {shown(n_range_bins)} range bins x {shown(n_beams)} beams", "sonar.n_range_bins")
 
 
 @dataclass(frozen=True)
@@ -108,9 +122,7 @@ class SonarConfig:
                 "sonar.n_range_bins", f"must be a positive integer, got {self.n_range_bins}"
             )
         object.__setattr__(self, "n_range_bins", int(self.n_range_bins))
-        # A frame holds a few dozen images of this size (path orders, components, sensor).
-        require(float(self.n_range_bins) * a.size * 4 * IMAGES_PER_FRAME,
-                f"images of {self.n_range_bins} range bins x {a.size} beams", "sonar.n_range_bins")
+        _require_images(self.n_range_bins, a.size)
         if self.frequency_khz is not None and not (np.isfinite(self.frequency_khz)
                                                    and 1.0 <= self.frequency_khz <= 1e5):
             raise ConfigError("sonar.frequency_khz",
@@ -138,6 +150,9 @@ class SonarConfig:
         """Equal beams spanning ``azimuth_fov_deg`` edge to edge."""
         if int(n_beams) != n_beams or n_beams < 1:
             raise ConfigError("sonar.n_beams", f"must be a positive integer, got {n_beams}")
+        # Before the beam table is built: n_beams 10**12 would allocate 8 TB for it.
+        if int(n_range_bins) == n_range_bins and n_range_bins >= 1:
+            _require_images(int(n_range_bins), int(n_beams))
         if not 0.0 < azimuth_fov_deg < 180.0:
             raise ConfigError(
                 "sonar.azimuth_fov_deg", f"must be in (0, 180) degrees, got {azimuth_fov_deg}"

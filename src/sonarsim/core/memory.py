@@ -105,5 +105,9 @@ def require(nbytes: float, what: str, key: str) -> None:
 
     budget = memory_budget()
     if nbytes > budget:
-        raise ConfigError(key, f"{what} would need {nbytes / 2**30:.3g} GiB, more than the memory budget of "
+        try:
+            need = f"{nbytes / 2**30:.3g} GiB"
+        except OverflowError:  # an exact integer beyond a float (a 400-digit size)
+            need = f"about 1e{len(str(int(nbytes))) - 10} GiB"
+        raise ConfigError(key, f"{what} would need {need}, more than the memory budget of "
                           f"{budget / 2**30:.3g} GiB (raise it with --max-memory or ${ENV_VAR})")

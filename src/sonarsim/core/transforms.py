@@ -7,6 +7,8 @@ pitch turns the body's x axis (the sonar's acoustic axis) DOWN.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -36,7 +38,10 @@ def quat_to_matrix(quat_xyzw: np.ndarray) -> np.ndarray:
 
     The quaternion is normalised first; a zero quaternion is the caller's error.
     """
-    x, y, z, w = np.asarray(quat_xyzw, dtype=float) / np.linalg.norm(quat_xyzw)
+    q = np.asarray(quat_xyzw, dtype=float)
+    # hypot, not np.linalg.norm: the squares of (1e300, 1e300, 0, 0) overflow, and the
+    # quaternion divided by an infinite norm was silently the identity.
+    x, y, z, w = q / math.hypot(*q)
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],

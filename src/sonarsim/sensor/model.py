@@ -72,6 +72,45 @@ def _edge_norm(kernel: np.ndarray, n: int) -> np.ndarray:
     return (1.0 / inside).astype(np.float32)
 
 
+# The stage forms powers in float32 (at most about 385 dB): the levels it multiplies must stay
+# below this, with 15 dB (x30) of room for the image's own values and the speckle's tail.
+MAX_LEVEL_DB = 370.0
+
+
+def _check_levels(echo_gain_db: np.ndarray, tvg_db: np.ndarray, spec: SensorSpec, sonar: SonarConfig,
+                  alpha_db_per_m: float) -> None:
+    """Refuse a sensor whose levels over the range window leave what float32 holds.
+
+    Each key is bounded on its own (config.sensor); together they can still overflow: the
+    absorption (up to hundreds of dB/m at a high frequency) over a long range window, a TVG
+    that lifts it back, a gain on top. The image would be inf or nan without a word.
+
+    Raises
+    ------
+    ConfigError
+        ``sensor``: the level reached, where, and what sets it.
+    """
+    from ..errors import ConfigError
+
+    levels = [echo_gain_db]
+    if spec.noise is not None:
+        levels.append(np.full_like(tvg_db, spec.noise.level_db))
+    if spec.bang is not None:
+        levels.append(np.full_like(tvg_db, spec.bang.level_db))
+    peak = np.max(levels, axis=0) + tvg_db
+    worst = int(np.argmax(np.abs(peak)))
+    low = spec.noise is not None and spec.noise.after_tvg_db is not None and float(np.min(tvg_db)) < -MAX_LEVEL_DB
+    if not np.all(np.isfinite(peak)) or float(np.abs(peak[worst])) > MAX_LEVEL_DB or low:
+        where = float(sonar.range_m[worst])
+        raise ConfigError(
+            "sensor",
+            f"the sonar equation reaches {float(peak[worst]):.4g} dB at {where:.4g} m (absorption "
+            f"{alpha_db_per_m:.3g} dB/m each way, TVG {float(tvg_db[worst]):.4g} dB with gain_db): beyond the "
+            f"+-{MAX_LEVEL_DB:g} dB the sensor stage can hold; shorten sonar.range_max_m, or lower the "
+            "absorption, the frequency or the gain",
+        )
+
+
 class SensorModel:
     """A sensor spec made concrete for one sonar: its tables, kernels and speckle pool.
 
@@ -98,6 +137,7 @@ class SensorModel:
         self.echo_gain_db = acoustics.echo_level_offset_db(r, spec.source_level_db, self.alpha_db_per_m,
                                                            spec.target_strength_db)
         self.tvg_db = acoustics.tvg_db(r, spec.tvg, self.alpha_db_per_m) + spec.gain_db
+        _check_levels(self.echo_gain_db, self.tvg_db, spec, sonar, self.alpha_db_per_m)
         self.echo_gain = (10.0 ** (self.echo_gain_db / 10.0)).astype(np.float32)
         self.tvg = (10.0 ** (self.tvg_db / 10.0)).astype(np.float32)
         self.noise_power = 0.0 if spec.noise is None else 10.0 ** (spec.noise.level_db / 10.0)
