@@ -190,22 +190,38 @@ def check_within(
         )
 
 
-def require_memory(source: str, where: str, field: str, nbytes: float, what: str) -> None:
+def require_frame_memory(
+    source: str, where: str, field: str, n_rows: int, n_beams: int, read_bytes: int
+) -> None:
     """Refuse a frame whose arrays would exceed the memory budget (:mod:`sonarsim.core.memory`).
 
-    The header's counts are checked against the file's size before this, so only a huge but
-    consistent frame gets here; the budget keeps it from ending in a ``MemoryError``.
+    A frame costs ``read_bytes`` per value while it is decoded, and then what its
+    :class:`~sonarsim.config.sonar.SonarConfig` plans for the images made from it (a few dozen
+    float32 images of the same size, ``IMAGES_PER_FRAME``): checking both here, before the
+    samples are read, names the header field at fault rather than ``sonar.n_range_bins``.
+
+    Parameters
+    ----------
+    source, where, field : str
+        Error context; ``field`` is the count that sets the size.
+    n_rows, n_beams : int
+        The frame's range samples and beams.
+    read_bytes : int
+        Bytes held per value while decoding (raw and float32 copies).
 
     Raises
     ------
     RecordingError
-        Naming ``field`` (the count that sets the size), the size and the budget.
+        Naming ``field``, the size and the budget (and how to raise it).
     """
+    from ...config.sonar import IMAGES_PER_FRAME
     from ...core.memory import require
     from ...errors import ConfigError
 
+    values = float(n_rows) * n_beams
     try:
-        require(nbytes, what, field)
+        require(values * (read_bytes + 4 * IMAGES_PER_FRAME),
+                f"a frame of {n_rows} x {n_beams} values and its images", field)
     except ConfigError as exc:
         raise RecordingError(source, exc.detail, where, field) from None
 

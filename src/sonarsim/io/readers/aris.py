@@ -60,7 +60,7 @@ from ._common import (
     check_within,
     frame_index,
     read_at,
-    require_memory,
+    require_frame_memory,
 )
 
 __all__ = [
@@ -397,9 +397,8 @@ class ArisRecording(Recording):
             f"SamplePeriod {h['SamplePeriod']} us at SoundSpeed {c:.6g} m/s",
         )
         end = start + n_samples * dr
-        require_memory(
-            self._source, where, "SamplesPerBeam", n_samples * n_beams * _BYTES_PER_SAMPLE_READ,
-            f"a frame of {n_samples} samples x {n_beams} beams",
+        require_frame_memory(
+            self._source, where, "SamplesPerBeam", n_samples, n_beams, _BYTES_PER_SAMPLE_READ
         )
         offset = FILE_HEADER_SIZE + k * self._frame_size + FRAME_HEADER_SIZE
         raw = read_at(

@@ -72,7 +72,7 @@ from ._common import (
     check_within,
     frame_index,
     read_at,
-    require_memory,
+    require_frame_memory,
 )
 
 __all__ = [
@@ -433,10 +433,7 @@ class OculusRecording(Recording):
         azimuth = -bearings
         order = np.arange(n_beams) if n_beams == 1 or steps[0] > 0 else np.arange(n_beams)[::-1]
 
-        require_memory(
-            src, where, "nRanges", n_ranges * n_beams * _BYTES_PER_VALUE_READ,
-            f"a ping of {n_ranges} ranges x {n_beams} beams",
-        )
+        require_frame_memory(src, where, "nRanges", n_ranges, n_beams, _BYTES_PER_VALUE_READ)
         rows = np.frombuffer(data, dtype=np.uint8, count=expected, offset=image_at)
         rows = rows.reshape(n_ranges, row_bytes)
         if gain:
