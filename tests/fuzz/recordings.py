@@ -118,6 +118,14 @@ def oculus_fields(data: bytes) -> list[Field]:
 
 _INT_BITS = {"B": 8, "h": 16, "H": 16, "I": 32, "Q": 64}
 
+#: Fields that set a frame's geometry or where its data lie (both formats).
+GEOMETRY_FIELDS = frozenset({
+    "Version", "PingMode", "SamplePeriod", "SampleStartDelay", "SamplesPerBeam", "SoundSpeed",
+    "LargeLens", "TheSystemType", "FrequencyHiLow", "ReorderedSamples",
+    "oculusId", "msgId", "msgVersion", "payloadSize", "masterMode", "flags", "frequency",
+    "dataSize", "rangeResolution", "nRanges", "nBeams", "imageOffset", "imageSize",
+})
+
 
 def extreme_value(code: str, old: float, rng: random.Random) -> float:
     """A hostile value for a field of struct format ``code`` whose current value is ``old``."""
@@ -144,7 +152,11 @@ def overwrite_field(data: bytearray, field: Field, rng: random.Random) -> str:
         return f"field {name} (absent)"
     (old,) = struct.unpack_from(fmt, data, offset)
     value = extreme_value(code, old, rng)
-    struct.pack_into(fmt, data, offset, value)
+    try:
+        struct.pack_into(fmt, data, offset, value)
+    except OverflowError:  # old * 1e6 beyond float32: what a float32 overflow gives
+        value = math.copysign(math.inf, value)
+        struct.pack_into(fmt, data, offset, value)
     return f"field {name}={value!r}"
 
 
@@ -168,10 +180,16 @@ def mutate(data: bytes, kind: str, rng: random.Random) -> tuple[bytes, list[str]
         if n == 0:
             break
         if op == "field":
-            # One field in seven is a bearing (there are hundreds of them: drawn uniformly, they
-            # would crowd out the few fields that set the geometry).
-            pool = [f for f in fields if ("bearing" in f[0]) == (rng.random() < 1 / 7)] or fields
-            done.append(overwrite_field(out, rng.choice(pool), rng))
+            # Half the overwrites hit a field the geometry or layout comes from, one in ten a
+            # bearing (there are hundreds: drawn uniformly, they would crowd out the rest).
+            u = rng.random()
+            if u < 0.5:
+                pool = [f for f in fields if f[0].split(".")[-1] in GEOMETRY_FIELDS]
+            elif u < 0.6:
+                pool = [f for f in fields if "bearing" in f[0]]
+            else:
+                pool = fields
+            done.append(overwrite_field(out, rng.choice(pool or fields), rng))
         elif op == "bits":
             # Half the flips land in the first 2 KiB (the headers), half anywhere.
             for _ in range(rng.randint(1, 8)):
