@@ -390,8 +390,8 @@ def test_aris_limits_message_names_value_and_allowed_range(tmp_path):
     with pytest.raises(RecordingError) as err:
         readers.read(path)
     assert str(err.value) == (
-        f"{path}: frame 0: SamplePeriod: 4294967295 us is outside 1-400 us (ARIS sonars use "
-        "4-100 us)"
+        f"{path}: frame 0: SamplePeriod: 4294967295 us is outside the allowed 1 to 400 us "
+        "(ARIS sonars use 4-100 us)"
     )
 
 
@@ -603,8 +603,8 @@ def test_oculus_limits_message_names_value_and_allowed_range(tmp_path):
     with pytest.raises(RecordingError) as err:
         readers.read(path)
     assert str(err.value) == (
-        f"{path}: ping 0 (message 0, byte 0): rangeResolution: 1e-300 m is outside 5e-05-1 m "
-        "(Oculus range lines are a few millimetres to decimetres long)"
+        f"{path}: ping 0 (message 0, byte 0): rangeResolution: 1e-300 m is outside the allowed "
+        "5e-05 to 1 m (Oculus range lines are a few millimetres to decimetres long)"
     )
 
 
@@ -625,7 +625,7 @@ def test_oculus_too_many_beams(tmp_path):
     struct.pack_into("<H", msg, 108, 4096)
     path = tmp_path / "beams.raw"
     path.write_bytes(bytes(msg))
-    with pytest.raises(RecordingError, match=r"nBeams: 4096 is outside 1-2048"):
+    with pytest.raises(RecordingError, match=r"nBeams: 4096 is outside the allowed 1 to 2048 \(Oculus sonars form 256 or 512 beams\)"):
         readers.read(path)
 
 

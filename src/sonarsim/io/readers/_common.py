@@ -180,13 +180,14 @@ def check_within(
     Raises
     ------
     RecordingError
-        ``"<file>: <where>: <field>: 4294967295 us is outside 1-400 us (...)"``.
+        ``"<file>: <where>: <field>: 4294967295 us is outside the allowed 1 to 400 us (...)"``.
     """
     lo, hi = limits
     if not (math.isfinite(value) and lo <= value <= hi):
         u = f" {unit}" if unit else ""
         raise RecordingError(
-            source, f"{value!r}{u} is outside {lo:g}-{hi:g}{u} ({what})", where, field
+            source, f"{value!r}{u} is outside the allowed {lo:g} to {hi:g}{u} ({what})", where,
+            field,
         )
 
 

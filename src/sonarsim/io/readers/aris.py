@@ -39,6 +39,11 @@ model: 3.0 / 1.8 MHz (ARIS 3000, Integration SDK), 1.8 / 1.1 MHz (ARIS 1800), 1.
 (ARIS 1200, as commonly quoted; not confirmed from a Sound Metrics document here); it is
 informational only.
 
+Header values no ARIS produces are refused with a :class:`RecordingError` naming the field,
+the value and the allowed interval (``SAMPLES_PER_BEAM_LIMITS``, ``SAMPLE_PERIOD_US_LIMITS``,
+``SAMPLE_START_DELAY_US_LIMITS``, ``SOUND_SPEED_LIMITS``, ``WINDOW_END_MAX_M``: Sound Metrics'
+device limits with a margin of about 4).
+
 Frames are read one at a time with seeks: ARIS files reach gigabytes. The frame count comes
 from the file size (the SDK advises against trusting the file header's ``FrameCount``).
 """

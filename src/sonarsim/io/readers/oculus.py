@@ -51,6 +51,11 @@ low-frequency mode, the M3000d). An M750d in high-frequency mode and an M1200d i
 low-frequency mode both ping at about 1.2 MHz; ``masterMode`` (2 = high frequency) tells them
 apart.
 
+Header values no Oculus produces are refused with a :class:`RecordingError` naming the field,
+the value and the allowed interval (``RANGE_RESOLUTION_M_LIMITS``, ``RANGE_MAX_M``,
+``N_BEAMS_LIMITS``, ``FREQUENCY_HZ_LIMITS``); the bearing table must be strictly monotonic and
+within +-90 deg.
+
 Values wider than 24 bits lose precision in the float32 image (float32 has a 24-bit mantissa).
 """
 
@@ -358,7 +363,7 @@ class OculusRecording(Recording):
             raise RecordingError(src, "is 0: the ping has no beams", where, "nBeams")
         if n_ranges == 0:
             raise RecordingError(src, "is 0: the ping has no range lines", where, "nRanges")
-        check_within(src, where, "nBeams", n_beams, N_BEAMS_LIMITS, "", "Oculus sonars form 256 or 512")
+        check_within(src, where, "nBeams", n_beams, N_BEAMS_LIMITS, "", "Oculus sonars form 256 or 512 beams")
         if h["dataSize"] not in _BYTES_PER_VALUE:
             raise RecordingError(
                 src,
