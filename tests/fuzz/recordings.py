@@ -408,6 +408,9 @@ def check_file(path: Path, kind: str, budget_bytes: int, time_limit_s: float = 5
     return outcome
 
 
+_IMPOSSIBLE = "gives an impossible sonar"
+
+
 def _check(path: Path, kind: str) -> Outcome:
     def fail(why: str) -> Outcome:
         return Outcome("failure", None, 0, 0.0, 0, why)
@@ -415,6 +418,10 @@ def _check(path: Path, kind: str) -> Outcome:
     iterated, it_error = _iterate(path)
     if it_error is not None and not isinstance(it_error, RecordingError):
         return fail(f"read_frames raised {type(it_error).__name__}: {it_error}")
+    if it_error is not None and _IMPOSSIBLE in str(it_error):
+        # The readers wrap SonarConfig's own refusal defensively; reaching it means their
+        # checks let an impossible field through without naming it.
+        return fail(f"a reader check missed what SonarConfig refused: {it_error}")
     j = len(iterated)
     # read(path, k) for every frame iteration gave, the frame where it stopped, and one more.
     for k in range(j + 2):

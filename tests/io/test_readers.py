@@ -639,6 +639,23 @@ def test_oculus_bearing_table_out_of_order_is_refused(tmp_path):
     assert "beams 1 and 2 (1 and 0 deg) reverse the order of the table" in str(err.value)
 
 
+@pytest.mark.parametrize("bearings", [[-3000, -1000, 1000, 8900], [8950]], ids=["wide-last-gap", "lone-beam"])
+def test_oculus_fan_edges_beyond_90_deg_are_refused(tmp_path, bearings):
+    # Found by fuzzing: centres inside +-90 deg passed, the fan's outer edge (half a spacing
+    # beyond, here 128.5 deg; a lone beam is 1 deg wide) did not, and the ping ended in "gives
+    # an impossible sonar" from SonarConfig instead of naming the bearings.
+    path = tmp_path / "wide.raw"
+    path.write_bytes(oculus_message(bright_image(6, len(bearings), []), np.array(bearings)))
+    with pytest.raises(RecordingError, match=r"ping 0 .*: bearings: the fan's outer beam edges lie at bearings") as err:
+        readers.read(path)
+    assert "impossible sonar" not in str(err.value)
+    if len(bearings) > 1:
+        assert "bearings -40 and 128.5 deg" in str(err.value)
+    ok = [-3000, -1000, 1000, 3000] if len(bearings) > 1 else [8900]
+    path.write_bytes(oculus_message(bright_image(6, len(ok), []), np.array(ok)))
+    assert readers.read(path).polar.shape == (6, len(ok))
+
+
 def test_oculus_ping_beyond_the_memory_budget_is_refused(tmp_path):
     from sonarsim.core.memory import set_memory_budget
 

@@ -70,6 +70,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import ConfigError
+from ...image.grid import beam_edges_deg
 from ._common import (
     Recording,
     RecordingError,
@@ -437,6 +438,18 @@ class OculusRecording(Recording):
         # Positive bearing = starboard; sonarsim's azimuth is positive to port.
         azimuth = -bearings
         order = np.arange(n_beams) if n_beams == 1 or steps[0] > 0 else np.arange(n_beams)[::-1]
+        # The outer beams reach half a spacing beyond their centres: the whole fan, not only the
+        # centres, must lie inside +-90 deg (found by fuzzing: a last bearing overwritten with
+        # 89 deg passed the check above and failed later, in SonarConfig).
+        edges = beam_edges_deg(azimuth[order])
+        if np.max(np.abs(edges)) >= 90.0:
+            raise RecordingError(
+                src,
+                f"the fan's outer beam edges lie at bearings {-edges[0]:.4g} and {-edges[-1]:.4g} "
+                "deg (half a beam spacing beyond the outer bearings); a fan must lie inside "
+                "+-90 deg",
+                where, "bearings",
+            )
 
         require_frame_memory(src, where, "nRanges", n_ranges, n_beams, _BYTES_PER_VALUE_READ)
         rows = np.frombuffer(data, dtype=np.uint8, count=expected, offset=image_at)
