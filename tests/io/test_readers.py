@@ -362,6 +362,14 @@ def test_aris_corrupt_signatures(tmp_path):
         ({"system_type": 1, "large_lens": 1, "ping_mode": 9}, "PingMode"),  # no ARIS 3000 telephoto table
         ({"system_type": 2, "ping_mode": 3}, "PingMode"),  # no ARIS 1200 x 96 table
         ({"reordered": 0}, "ReorderedSamples"),
+        # Issue 11: values no ARIS produces, which read "successfully" as windows of 6e9 m.
+        ({"sample_period_us": 0xFFFFFFFF}, "SamplePeriod"),
+        ({"sample_period_us": 0x7FFFFFFF}, "SamplePeriod"),
+        ({"sample_period_us": 401}, "SamplePeriod"),
+        ({"start_delay_us": 0xFFFFFFFF}, "SampleStartDelay"),
+        ({"start_delay_us": 240_001}, "SampleStartDelay"),
+        ({"samples_per_beam": 16_001}, "SamplesPerBeam"),
+        ({"sound_speed": 1e30}, "SoundSpeed"),
     ],
 )
 def test_aris_impossible_header_values(tmp_path, kw, field):
@@ -374,6 +382,55 @@ def test_aris_impossible_header_values(tmp_path, kw, field):
     message = str(err.value)
     assert str(path) in message and "frame 0" in message and field in message
     assert isinstance(err.value, SonarsimError) and err.value.field == field
+
+
+def test_aris_limits_message_names_value_and_allowed_range(tmp_path):
+    path = tmp_path / "far.aris"
+    path.write_bytes(aris_file_header() + aris_frame_header(sample_period_us=0xFFFFFFFF) + bytes(4800))
+    with pytest.raises(RecordingError) as err:
+        readers.read(path)
+    assert str(err.value) == (
+        f"{path}: frame 0: SamplePeriod: 4294967295 us is outside the allowed 1 to 400 us "
+        "(ARIS sonars use 4-100 us)"
+    )
+
+
+def test_aris_limits_accept_their_bounds(tmp_path):
+    # The extremes of every limit still read (a limit must not refuse what it names allowed).
+    path = write_aris(tmp_path / "edge.aris", [({"sample_period_us": 400, "start_delay_us": 240_000,
+                                                  "sound_speed": 2000.0, "samples_per_beam": 100}, [])])
+    image = readers.read(path)
+    assert image.sonar.range_min_m == pytest.approx(240.0)
+    assert image.sonar.range_max_m == pytest.approx(240.0 + 100 * 0.4)
+    path = write_aris(tmp_path / "near.aris", [({"sample_period_us": 1, "start_delay_us": 0}, [])])
+    assert readers.read(path).sonar.range_max_m == pytest.approx(100 * 1e-6 * 750.0)
+
+
+def test_aris_window_beyond_any_aris_is_refused(tmp_path):
+    # Every field within its limits, but 2000 samples of 400 us at 2000 m/s reach 800 m.
+    path = write_aris(tmp_path / "long.aris", [({"sample_period_us": 400, "sound_speed": 2000.0,
+                                                  "samples_per_beam": 2000}, [])])
+    with pytest.raises(RecordingError) as err:
+        readers.read(path)
+    assert err.value.field == "SamplePeriod" and err.value.where == "frame 0"
+    assert "range window of 2-802 m" in str(err.value) and "no farther than 400 m" in str(err.value)
+    assert "SamplesPerBeam 2000 x SamplePeriod 400 us" in str(err.value)
+
+
+def test_aris_frame_beyond_the_memory_budget_is_refused(tmp_path):
+    from sonarsim.core.memory import set_memory_budget
+
+    path = write_aris(tmp_path / "big.aris", [({"samples_per_beam": 2000}, [])])
+    set_memory_budget(2000 * 48 * (5 + 160) - 1)  # a byte short: samples, float32 image, 40 images
+    try:
+        with pytest.raises(RecordingError, match=r"frame 0: SamplesPerBeam: .*memory budget"):
+            readers.read(path)
+        with pytest.raises(RecordingError, match="memory budget"):
+            list(readers.read_frames(path))
+        set_memory_budget(2000 * 48 * (5 + 160))
+        assert readers.read(path).polar.shape == (2000, 48)
+    finally:
+        set_memory_budget(None)
 
 
 def test_aris_frames_of_different_sizes_are_refused(tmp_path):
@@ -393,6 +450,9 @@ def test_aris_file_without_frames(tmp_path):
     assert readers.n_frames(path) == 0
     with pytest.raises(RecordingError, match="no frames"):
         readers.read(path)
+    # Iteration fails as read(0) does, rather than yielding nothing (issue 11).
+    with pytest.raises(RecordingError, match="no frames"):
+        list(readers.read_frames(path))
 
 
 # ------------------------------------------------------------------------------------------
@@ -514,6 +574,13 @@ def test_oculus_elevation_assumptions():
         ({"data_size": 5}, "dataSize"),
         ({"range_resolution": 0.0}, "rangeResolution"),
         ({"range_resolution": float("nan")}, "rangeResolution"),
+        # Issue 11: values no Oculus produces.
+        ({"range_resolution": 1e-300}, "rangeResolution"),
+        ({"range_resolution": 1e300}, "rangeResolution"),
+        ({"range_resolution": -0.01}, "rangeResolution"),
+        ({"frequency": float("nan")}, "frequency"),
+        ({"frequency": 0.0}, "frequency"),
+        ({"frequency": 1e300}, "frequency"),
     ],
 )
 def test_oculus_impossible_header_values(tmp_path, kw, field):
@@ -528,6 +595,79 @@ def test_oculus_impossible_header_values(tmp_path, kw, field):
         readers.read(path)
     message = str(err.value)
     assert str(path) in message and "ping 0" in message and field in message
+
+
+def test_oculus_limits_message_names_value_and_allowed_range(tmp_path):
+    path = tmp_path / "tiny.raw"
+    path.write_bytes(oculus_message(bright_image(6, 4, []), ascending_bearings(4), range_resolution=1e-300))
+    with pytest.raises(RecordingError) as err:
+        readers.read(path)
+    assert str(err.value) == (
+        f"{path}: ping 0 (message 0, byte 0): rangeResolution: 1e-300 m is outside the allowed "
+        "5e-05 to 1 m (Oculus range lines are a few millimetres to decimetres long)"
+    )
+
+
+def test_oculus_window_beyond_any_oculus_is_refused(tmp_path):
+    # 600 lines of 0.9 m: each field plausible, the 540 m window not.
+    path = tmp_path / "far.raw"
+    path.write_bytes(oculus_message(bright_image(600, 4, []), ascending_bearings(4), range_resolution=0.9))
+    with pytest.raises(RecordingError, match=r"rangeResolution: gives a range window of 0-540 m "
+                       r"\(nRanges 600 x rangeResolution 0.9 m\), but these sonars record no farther "
+                       r"than 500 m"):
+        readers.read(path)
+    path.write_bytes(oculus_message(bright_image(500, 4, []), ascending_bearings(4), range_resolution=0.9))
+    assert readers.read(path).sonar.range_max_m == pytest.approx(450.0)
+
+
+def test_oculus_too_many_beams(tmp_path):
+    msg = bytearray(oculus_message(bright_image(6, 4, []), ascending_bearings(4)))
+    struct.pack_into("<H", msg, 108, 4096)
+    path = tmp_path / "beams.raw"
+    path.write_bytes(bytes(msg))
+    with pytest.raises(RecordingError, match=r"nBeams: 4096 is outside the allowed 1 to 2048 \(Oculus sonars form 256 or 512 beams\)"):
+        readers.read(path)
+
+
+def test_oculus_bearing_table_out_of_order_is_refused(tmp_path):
+    # Previously sorted into place; a real table ascends or descends, so this one is corrupt.
+    path = tmp_path / "shuffled.raw"
+    path.write_bytes(oculus_message(bright_image(6, 4, []), np.array([-100, 100, 0, 200])))
+    with pytest.raises(RecordingError) as err:
+        readers.read(path)
+    assert err.value.field == "bearings"
+    assert "beams 1 and 2 (1 and 0 deg) reverse the order of the table" in str(err.value)
+
+
+@pytest.mark.parametrize("bearings", [[-3000, -1000, 1000, 8900], [8950]], ids=["wide-last-gap", "lone-beam"])
+def test_oculus_fan_edges_beyond_90_deg_are_refused(tmp_path, bearings):
+    # Found by fuzzing: centres inside +-90 deg passed, the fan's outer edge (half a spacing
+    # beyond, here 128.5 deg; a lone beam is 1 deg wide) did not, and the ping ended in "gives
+    # an impossible sonar" from SonarConfig instead of naming the bearings.
+    path = tmp_path / "wide.raw"
+    path.write_bytes(oculus_message(bright_image(6, len(bearings), []), np.array(bearings)))
+    with pytest.raises(RecordingError, match=r"ping 0 .*: bearings: the fan's outer beam edges lie at bearings") as err:
+        readers.read(path)
+    assert "impossible sonar" not in str(err.value)
+    if len(bearings) > 1:
+        assert "bearings -40 and 128.5 deg" in str(err.value)
+    ok = [-3000, -1000, 1000, 3000] if len(bearings) > 1 else [8900]
+    path.write_bytes(oculus_message(bright_image(6, len(ok), []), np.array(ok)))
+    assert readers.read(path).polar.shape == (6, len(ok))
+
+
+def test_oculus_ping_beyond_the_memory_budget_is_refused(tmp_path):
+    from sonarsim.core.memory import set_memory_budget
+
+    path = tmp_path / "big.raw"
+    path.write_bytes(oculus_message(bright_image(300, 64, []), ascending_bearings(64)))
+    set_memory_budget(300 * 64 * (8 + 160) - 1)
+    try:
+        with pytest.raises(RecordingError, match=r"ping 0 .*: nRanges: .*memory budget"):
+            readers.read(path)
+    finally:
+        set_memory_budget(None)
+    assert readers.read(path).polar.shape == (300, 64)
 
 
 def test_oculus_zero_beams(tmp_path):
@@ -589,6 +729,10 @@ def test_oculus_file_without_pings(tmp_path):
     assert readers.n_frames(path) == 0
     with pytest.raises(RecordingError, match="no simple ping result"):
         readers.read(path)
+    # Iteration fails as read(0) does, rather than yielding nothing (issue 11: a changed
+    # message id made read raise but read_frames stop silently).
+    with pytest.raises(RecordingError, match="no simple ping result"):
+        list(readers.read_frames(path))
 
 
 # ------------------------------------------------------------------------------------------

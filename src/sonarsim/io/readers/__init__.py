@@ -16,7 +16,16 @@ Supported, recognised from the file's first bytes (never from its name):
 
 Every problem with a file's content raises :class:`RecordingError` (a
 :class:`~sonarsim.errors.SonarsimError`) naming the file, the frame or message and the field.
-A file that cannot be opened raises the usual :class:`OSError`.
+That includes header values no real sonar produces: each field the geometry comes from (sound
+speed, sample period and delay, range resolution, range window, counts of beams and samples,
+beam tables) is checked against limits that are module constants of the format's reader
+(real devices' ranges with a wide margin), and a frame is checked against the memory budget
+(:mod:`sonarsim.core.memory`) before it is read. A file that cannot be opened raises the usual
+:class:`OSError`.
+
+``read`` and ``read_frames`` agree on what is an error: iterating fails at frame ``k``, with
+the same error, exactly when ``read(path, k)`` fails for the first time (after the last frame,
+iteration just ends; a file without any frame raises, as ``read(path, 0)`` does).
 
 Examples
 --------
@@ -157,7 +166,9 @@ def read_frames(path: PathLike) -> Iterator:
     """Every frame of a recording, in order, read one at a time (the file stays open meanwhile).
 
     The file is opened and recognised at once (a foreign file raises here, not at the first
-    ``next``). A truncated last frame raises :class:`RecordingError` after the complete frames.
+    ``next``). A truncated last frame raises :class:`RecordingError` after the complete frames;
+    a frame that :func:`read` refuses raises the same error when iteration reaches it, and a
+    file without frames raises at the first ``next`` (never an empty iteration).
     """
     return _frames(open_recording(path))
 

@@ -109,13 +109,122 @@ def read_at(
 
 
 def check_range_window(
-    source: str, where: str, field: str, start_m: float, length_m: float
+    source: str,
+    where: str,
+    field: str,
+    start_m: float,
+    length_m: float,
+    end_max_m: float,
+    derivation: str = "",
 ) -> None:
-    """Refuse non-finite or negative range windows before they reach :class:`SonarConfig`."""
+    """Refuse a range window that no sonar records, before it reaches :class:`SonarConfig`.
+
+    Parameters
+    ----------
+    source, where : str
+        Error context (file name; frame or ping).
+    field : str
+        The header field named in the error (the one that sets the window's far end).
+    start_m, length_m : float
+        The window, in metres.
+    end_max_m : float
+        The farthest window end the format's sonars can produce (the reader's limit).
+    derivation : str, optional
+        How the window follows from the header, appended to the message in parentheses.
+
+    Raises
+    ------
+    RecordingError
+        A non-finite or negative start, a non-finite or non-positive length, or an end beyond
+        ``end_max_m``.
+    """
+    how = f" ({derivation})" if derivation else ""
     if not (math.isfinite(start_m) and start_m >= 0.0):
-        raise RecordingError(source, f"gives a window start of {start_m!r} m", where, field)
+        raise RecordingError(source, f"gives a window start of {start_m!r} m{how}", where, field)
     if not (math.isfinite(length_m) and length_m > 0.0):
-        raise RecordingError(source, f"gives a window length of {length_m!r} m", where, field)
+        raise RecordingError(source, f"gives a window length of {length_m!r} m{how}", where, field)
+    end_m = start_m + length_m
+    if not end_m <= end_max_m:
+        raise RecordingError(
+            source,
+            f"gives a range window of {start_m:.6g}-{end_m:.6g} m{how}, but these sonars record "
+            f"no farther than {end_max_m:g} m",
+            where, field,
+        )
+
+
+def check_within(
+    source: str,
+    where: str,
+    field: str,
+    value: float,
+    limits: tuple[float, float],
+    unit: str,
+    what: str,
+) -> None:
+    """Refuse a header value outside the interval real devices produce.
+
+    Parameters
+    ----------
+    source, where, field : str
+        Error context (file name; frame or ping; header field).
+    value : float
+        The decoded value (NaN and infinities are refused too).
+    limits : (float, float)
+        Inclusive interval allowed.
+    unit : str
+        Unit shown after the numbers ("us", "m", "" for counts).
+    what : str
+        What the interval is, e.g. ``"the sample periods ARIS sonars use"``.
+
+    Raises
+    ------
+    RecordingError
+        ``"<file>: <where>: <field>: 4294967295 us is outside the allowed 1 to 400 us (...)"``.
+    """
+    lo, hi = limits
+    if not (math.isfinite(value) and lo <= value <= hi):
+        u = f" {unit}" if unit else ""
+        raise RecordingError(
+            source, f"{value!r}{u} is outside the allowed {lo:g} to {hi:g}{u} ({what})", where,
+            field,
+        )
+
+
+def require_frame_memory(
+    source: str, where: str, field: str, n_rows: int, n_beams: int, read_bytes: int
+) -> None:
+    """Refuse a frame whose arrays would exceed the memory budget (:mod:`sonarsim.core.memory`).
+
+    A frame costs ``read_bytes`` per value while it is decoded, and then what its
+    :class:`~sonarsim.config.sonar.SonarConfig` plans for the images made from it (a few dozen
+    float32 images of the same size, ``IMAGES_PER_FRAME``): checking both here, before the
+    samples are read, names the header field at fault rather than ``sonar.n_range_bins``.
+
+    Parameters
+    ----------
+    source, where, field : str
+        Error context; ``field`` is the count that sets the size.
+    n_rows, n_beams : int
+        The frame's range samples and beams.
+    read_bytes : int
+        Bytes held per value while decoding (raw and float32 copies).
+
+    Raises
+    ------
+    RecordingError
+        Naming ``field``, the size and the budget (and how to raise it).
+    """
+    from ...config.sonar import IMAGES_PER_FRAME
+    from ...core.memory import require
+    from ...errors import ConfigError
+
+    values = float(n_rows) * n_beams
+    try:
+        require(values * (read_bytes + 4 * IMAGES_PER_FRAME),
+                f"a frame of {n_rows} x {n_beams} values and its images", field)
+    except ConfigError as exc:
+        raise RecordingError(source, exc.detail, where, field) from None
 
 
 class Recording:

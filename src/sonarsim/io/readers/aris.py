@@ -39,6 +39,11 @@ model: 3.0 / 1.8 MHz (ARIS 3000, Integration SDK), 1.8 / 1.1 MHz (ARIS 1800), 1.
 (ARIS 1200, as commonly quoted; not confirmed from a Sound Metrics document here); it is
 informational only.
 
+Header values no ARIS produces are refused with a :class:`RecordingError` naming the field,
+the value and the allowed interval (``SAMPLES_PER_BEAM_LIMITS``, ``SAMPLE_PERIOD_US_LIMITS``,
+``SAMPLE_START_DELAY_US_LIMITS``, ``SOUND_SPEED_LIMITS``, ``WINDOW_END_MAX_M``: Sound Metrics'
+device limits with a margin of about 4).
+
 Frames are read one at a time with seeks: ARIS files reach gigabytes. The frame count comes
 from the file size (the SDK advises against trusting the file header's ``FrameCount``).
 """
@@ -53,14 +58,27 @@ from typing import Any
 import numpy as np
 
 from ...errors import ConfigError
-from ._common import Recording, RecordingError, check_range_window, frame_index, read_at
+from ._common import (
+    Recording,
+    RecordingError,
+    check_range_window,
+    check_within,
+    frame_index,
+    read_at,
+    require_frame_memory,
+)
 
 __all__ = [
     "ARIS_SIGNATURE",
     "FILE_HEADER_SIZE",
     "FRAME_HEADER_SIZE",
     "PING_MODE_BEAMS",
+    "SAMPLES_PER_BEAM_LIMITS",
+    "SAMPLE_PERIOD_US_LIMITS",
+    "SAMPLE_START_DELAY_US_LIMITS",
+    "SOUND_SPEED_LIMITS",
     "SYSTEM_TYPES",
+    "WINDOW_END_MAX_M",
     "ArisRecording",
 ]
 
@@ -89,8 +107,27 @@ SYSTEM_TYPES: dict[int, tuple[str, str, tuple[float, float]]] = {
 #: Elevation aperture assumed for every ARIS (see the module notes).
 ELEVATION_FOV_DEG = 14.0
 
-# Sound speeds outside this interval (m/s) mean a corrupt header, not water.
-_SOUND_SPEED_LIMITS = (1000.0, 2000.0)
+# Physical plausibility of the frame-header fields the geometry comes from. Sound Metrics'
+# own acoustic-settings limits (ARIS Integration SDK, ``SystemConfiguration``) are 200-4000
+# samples per beam, sample periods of 4-100 us, sample start delays of 930-60000 us and
+# windows ending at 20 m (ARIS 3000), 50 m (ARIS 1800) or 100 m (ARIS 1200). The limits here
+# leave about a factor of 4 on every side, so that other firmware, DIDSON-derived settings or
+# hand-made test files are not refused, while a corrupt field (0xFFFFFFFF us, a window of
+# 6e9 m) is. The lower bounds of 1 keep files with short frames (tests, crops) readable.
+
+#: Sound speeds (m/s) outside this interval mean a corrupt header, not water (1400-1560 m/s in
+#: fresh to salt water, 0-35 degC).
+SOUND_SPEED_LIMITS = (1000.0, 2000.0)
+#: ``SamplesPerBeam`` allowed (device: 200-4000).
+SAMPLES_PER_BEAM_LIMITS = (1, 16_000)
+#: ``SamplePeriod`` allowed, microseconds (device: 4-100 us).
+SAMPLE_PERIOD_US_LIMITS = (1, 400)
+#: ``SampleStartDelay`` allowed, microseconds (device: 930-60000 us; 0 is harmless: 0 m).
+SAMPLE_START_DELAY_US_LIMITS = (0, 240_000)
+#: Farthest window end, metres (device: 100 m, the ARIS 1200's longest window).
+WINDOW_END_MAX_M = 400.0
+#: Bytes held per sample while a frame is read: the uint8 samples and the float32 image.
+_BYTES_PER_SAMPLE_READ = 1 + 4
 
 # (name, byte offset, struct format) of the frame-header fields decoded into the image's
 # ``config["header"]``: the geometry, and what users ask for next (time, sonar state, the
@@ -261,8 +298,14 @@ class ArisRecording(Recording):
             raise RecordingError(self._source, "is 0: the frame has no samples", where, "SamplesPerBeam")
         if h["SamplePeriod"] == 0:
             raise RecordingError(self._source, "is 0 us: no range axis", where, "SamplePeriod")
+        for name, limits, unit, what in (
+            ("SamplesPerBeam", SAMPLES_PER_BEAM_LIMITS, "", "ARIS sonars record 200-4000"),
+            ("SamplePeriod", SAMPLE_PERIOD_US_LIMITS, "us", "ARIS sonars use 4-100 us"),
+            ("SampleStartDelay", SAMPLE_START_DELAY_US_LIMITS, "us", "ARIS sonars use 930-60000 us"),
+        ):
+            check_within(self._source, where, name, h[name], limits, unit, what)
         c = h["SoundSpeed"]
-        lo, hi = _SOUND_SPEED_LIMITS
+        lo, hi = SOUND_SPEED_LIMITS
         if not (math.isfinite(c) and lo <= c <= hi):
             raise RecordingError(
                 self._source, f"{c!r} m/s is not a speed of sound in water ({lo:g}-{hi:g} m/s)",
@@ -348,6 +391,20 @@ class ArisRecording(Recording):
                     where, name,
                 )
         n_samples, n_beams = self._n_samples, self._n_beams
+        # The window first: a frame with an impossible range axis is refused before its
+        # samples are read.
+        c = h["SoundSpeed"]
+        start = h["SampleStartDelay"] * 1e-6 * c / 2.0
+        dr = h["SamplePeriod"] * 1e-6 * c / 2.0
+        check_range_window(
+            self._source, where, "SamplePeriod", start, n_samples * dr, WINDOW_END_MAX_M,
+            f"SampleStartDelay {h['SampleStartDelay']} us + SamplesPerBeam {n_samples} x "
+            f"SamplePeriod {h['SamplePeriod']} us at SoundSpeed {c:.6g} m/s",
+        )
+        end = start + n_samples * dr
+        require_frame_memory(
+            self._source, where, "SamplesPerBeam", n_samples, n_beams, _BYTES_PER_SAMPLE_READ
+        )
         offset = FILE_HEADER_SIZE + k * self._frame_size + FRAME_HEADER_SIZE
         raw = read_at(
             self._handle, offset, n_samples * n_beams, self._file_size, self._source, where,
@@ -356,12 +413,6 @@ class ArisRecording(Recording):
         # data[sample, beam], beam 0 right-most -> flip so column 0 is the left-most beam.
         samples = np.frombuffer(raw, dtype=np.uint8).reshape(n_samples, n_beams)[:, ::-1]
         polar = np.ascontiguousarray(samples, dtype=np.float32)
-
-        c = h["SoundSpeed"]
-        start = h["SampleStartDelay"] * 1e-6 * c / 2.0
-        dr = h["SamplePeriod"] * 1e-6 * c / 2.0
-        check_range_window(self._source, where, "SampleStartDelay", start, n_samples * dr)
-        end = start + n_samples * dr
 
         model, fit_key, (hf_khz, lf_khz) = SYSTEM_TYPES[h["TheSystemType"]]
         telephoto = h["LargeLens"] == 1
@@ -419,8 +470,12 @@ class ArisRecording(Recording):
             ) from None
 
     def __iter__(self) -> Iterator:
-        """Every frame in order; a truncated last frame raises after the complete ones."""
+        """Every frame in order; a truncated last frame raises after the complete ones.
+
+        Iteration fails exactly where :meth:`read` fails: a file without frames raises (as
+        ``read(0)`` does) rather than yielding nothing.
+        """
         for k in range(self._n_frames):
             yield self.read(k)
-        if self._tail:
-            self._check_frame(self._n_frames)  # raises the truncation error
+        if self._tail or self._n_frames == 0:
+            self._check_frame(self._n_frames)  # raises: truncated frame, or no frames at all

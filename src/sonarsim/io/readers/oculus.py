@@ -51,6 +51,11 @@ low-frequency mode, the M3000d). An M750d in high-frequency mode and an M1200d i
 low-frequency mode both ping at about 1.2 MHz; ``masterMode`` (2 = high frequency) tells them
 apart.
 
+Header values no Oculus produces are refused with a :class:`RecordingError` naming the field,
+the value and the allowed interval (``RANGE_RESOLUTION_M_LIMITS``, ``RANGE_MAX_M``,
+``N_BEAMS_LIMITS``, ``FREQUENCY_HZ_LIMITS``); the bearing table must be strictly monotonic and
+within +-90 deg.
+
 Values wider than 24 bits lose precision in the float32 image (float32 has a 24-bit mantissa).
 """
 
@@ -65,9 +70,27 @@ from typing import Any
 import numpy as np
 
 from ...errors import ConfigError
-from ._common import Recording, RecordingError, frame_index, read_at
+from ...image.grid import beam_edges_deg
+from ._common import (
+    Recording,
+    RecordingError,
+    check_range_window,
+    check_within,
+    frame_index,
+    read_at,
+    require_frame_memory,
+)
 
-__all__ = ["MESSAGE_HEADER_SIZE", "OCULUS_ID", "SIMPLE_PING_RESULT", "OculusRecording"]
+__all__ = [
+    "FREQUENCY_HZ_LIMITS",
+    "MESSAGE_HEADER_SIZE",
+    "N_BEAMS_LIMITS",
+    "OCULUS_ID",
+    "RANGE_MAX_M",
+    "RANGE_RESOLUTION_M_LIMITS",
+    "SIMPLE_PING_RESULT",
+    "OculusRecording",
+]
 
 #: ``oculusId`` of every Oculus message (bytes ``53 4f``, "SO").
 OCULUS_ID = 0x4F53
@@ -102,6 +125,25 @@ _LAYOUTS = {
 _BYTES_PER_VALUE = {0: 1, 1: 2, 2: 3, 3: 4}  # DataSizeType: 8, 16, 24, 32 bit
 _FLAG_SEND_GAIN = 0x04
 _GAIN_BYTES = 4
+
+# Physical plausibility of the fields the geometry comes from. Blueprint Subsea's multibeam
+# imaging sonars as their data sheets are commonly quoted: the M750d pings at 750 kHz / 1.2 MHz
+# and reaches 120 m, the M1200d pings at 1.2 / 2.1 MHz, the M3000d at 1.2 / 3.0 MHz (30 m at
+# most); all form 256 or 512 beams over at most 130 deg; the real M1200d recording in the test
+# data has 703 range lines of 2.84 mm. The limits leave a wide margin (about 4x), so that other
+# models and modes are not refused, while a corrupt field (1e-300 m, 6e9 m) is.
+
+#: ``rangeResolution`` allowed, metres (a few mm at short range; 120 m over a few hundred
+#: range lines is a few decimetres).
+RANGE_RESOLUTION_M_LIMITS = (5e-5, 1.0)
+#: Farthest window end (``nRanges * rangeResolution``), metres (device: 120 m).
+RANGE_MAX_M = 500.0
+#: ``nBeams`` allowed (device: 256 or 512).
+N_BEAMS_LIMITS = (1, 2048)
+#: ``frequency`` allowed, Hz (device: 750 kHz-3 MHz); it sets the assumed elevation aperture.
+FREQUENCY_HZ_LIMITS = (150e3, 12e6)
+# Bytes per value held while a ping is decoded: up to 4 widened bytes and the float32 image.
+_BYTES_PER_VALUE_READ = 4 + 4
 
 
 def elevation_fov_deg(frequency_hz: float, master_mode: int) -> float:
@@ -322,6 +364,7 @@ class OculusRecording(Recording):
             raise RecordingError(src, "is 0: the ping has no beams", where, "nBeams")
         if n_ranges == 0:
             raise RecordingError(src, "is 0: the ping has no range lines", where, "nRanges")
+        check_within(src, where, "nBeams", n_beams, N_BEAMS_LIMITS, "", "Oculus sonars form 256 or 512 beams")
         if h["dataSize"] not in _BYTES_PER_VALUE:
             raise RecordingError(
                 src,
@@ -330,8 +373,19 @@ class OculusRecording(Recording):
             )
         bpv = _BYTES_PER_VALUE[h["dataSize"]]
         dr = h["rangeResolution"]
-        if not (math.isfinite(dr) and 0.0 < dr < 1.0):
-            raise RecordingError(src, f"{dr!r} m is not a range resolution", where, "rangeResolution")
+        check_within(
+            src, where, "rangeResolution", dr, RANGE_RESOLUTION_M_LIMITS, "m",
+            "Oculus range lines are a few millimetres to decimetres long",
+        )
+        check_range_window(
+            src, where, "rangeResolution", 0.0, n_ranges * dr, RANGE_MAX_M,
+            f"nRanges {n_ranges} x rangeResolution {dr:.6g} m",
+        )
+        frequency_hz = h["frequency"]
+        check_within(
+            src, where, "frequency", frequency_hz, FREQUENCY_HZ_LIMITS, "Hz",
+            "Oculus sonars ping at 750 kHz-3 MHz",
+        )
 
         bearings_end = bearings_at + 2 * n_beams
         if bearings_end > len(data):
@@ -368,15 +422,36 @@ class OculusRecording(Recording):
                 src, f"bearings reach {np.abs(bearings).max():g} deg (|bearing| < 90 expected)",
                 where, "bearings",
             )
+        # A sonar's beams are formed in order across the fan: a table that is not strictly
+        # ascending or descending is corrupt, not a beam order to sort out.
+        steps = np.diff(bearings)
+        if n_beams > 1 and not (np.all(steps > 0) or np.all(steps < 0)):
+            i = int(np.flatnonzero(steps == 0)[0] if np.any(steps == 0)
+                    else np.flatnonzero(np.sign(steps) != np.sign(steps[0]))[0])
+            what = "share a bearing" if steps[i] == 0 else "reverse the order of the table"
+            raise RecordingError(
+                src,
+                f"beams {i} and {i + 1} ({bearings[i]:g} and {bearings[i + 1]:g} deg) {what}; "
+                "the beam table must be strictly monotonic",
+                where, "bearings",
+            )
         # Positive bearing = starboard; sonarsim's azimuth is positive to port.
         azimuth = -bearings
-        order = np.argsort(-azimuth, kind="stable")  # left-most (largest azimuth) first
-        if n_beams > 1 and not np.all(np.diff(azimuth[order]) < 0):
+        order = np.arange(n_beams) if n_beams == 1 or steps[0] > 0 else np.arange(n_beams)[::-1]
+        # The outer beams reach half a spacing beyond their centres: the whole fan, not only the
+        # centres, must lie inside +-90 deg (found by fuzzing: a last bearing overwritten with
+        # 89 deg passed the check above and failed later, in SonarConfig).
+        edges = beam_edges_deg(azimuth[order])
+        if np.max(np.abs(edges)) >= 90.0:
             raise RecordingError(
-                src, "two beams share a bearing; the beam table must be strictly monotonic",
+                src,
+                f"the fan's outer beam edges lie at bearings {-edges[0]:.4g} and {-edges[-1]:.4g} "
+                "deg (half a beam spacing beyond the outer bearings); a fan must lie inside "
+                "+-90 deg",
                 where, "bearings",
             )
 
+        require_frame_memory(src, where, "nRanges", n_ranges, n_beams, _BYTES_PER_VALUE_READ)
         rows = np.frombuffer(data, dtype=np.uint8, count=expected, offset=image_at)
         rows = rows.reshape(n_ranges, row_bytes)
         if gain:
@@ -385,7 +460,6 @@ class OculusRecording(Recording):
         values = _unpack_values(rows, n_ranges, n_beams, bpv)
         polar = np.ascontiguousarray(values[:, order], dtype=np.float32)
 
-        frequency_hz = h["frequency"]
         elevation = elevation_fov_deg(frequency_hz, h["masterMode"])
         try:
             sonar = SonarConfig(
@@ -394,7 +468,7 @@ class OculusRecording(Recording):
                 range_min_m=0.0,
                 range_max_m=n_ranges * dr,
                 n_range_bins=n_ranges,
-                frequency_khz=frequency_hz / 1e3 if math.isfinite(frequency_hz) and frequency_hz > 0 else None,
+                frequency_khz=frequency_hz / 1e3,
             )
         except ConfigError as exc:
             raise RecordingError(src, f"gives an impossible sonar: {exc}", where) from exc
@@ -419,7 +493,11 @@ class OculusRecording(Recording):
         )
 
     def __iter__(self) -> Iterator:
-        """Every ping in order; a cut last message raises after the complete ones."""
+        """Every ping in order; a cut last message raises after the complete ones.
+
+        Iteration fails exactly where :meth:`read` fails: a file without simple ping results
+        raises (as ``read(0)`` does) rather than yielding nothing.
+        """
         k = 0
         while True:
             self._scan_to(k + 1)
@@ -427,8 +505,8 @@ class OculusRecording(Recording):
                 break
             yield self.read(k)
             k += 1
-        if self._tail_error is not None:
-            self._message_for(k)  # raises the truncation error
+        if self._tail_error is not None or k == 0:
+            self._message_for(k)  # raises: the cut message, or no ping at all
 
 
 def _unpack_values(rows: np.ndarray, n_ranges: int, n_beams: int, bpv: int) -> np.ndarray:

@@ -1,0 +1,180 @@
+"""Fuzzing the recording readers with seeded mutations of the real recordings.
+
+The generator and the per-case check live in :mod:`tests.fuzz.recordings` (shared with
+``benchmarks/fuzz_recordings.py``, which runs the same check for 100,000 cases). A failure
+prints the seed, the case number and its mutations: ``cases(seed, index + 1)`` regenerates it.
+"""
+
+from __future__ import annotations
+
+import collections
+import os
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from sonarsim.core.memory import set_memory_budget
+from sonarsim.io import readers
+
+from . import recordings as fuzz
+
+pytestmark = pytest.mark.skipif(
+    not all(p.is_file() for p in fuzz.SOURCES.values()), reason="../shared/data is absent"
+)
+
+SEED = 20261123
+N_CASES = 5000
+# Small (the default is up to 8 GiB), yet above what the real recordings plan for: 29 MB for
+# an Oculus ping of 703 x 256 values (SonarConfig plans 40 float32 images per frame), 15 MB
+# for an ARIS frame; what they allocate while read is far less (the tracemalloc peaks).
+BUDGET_BYTES = 64 * 2**20
+TRACE_EVERY = 10  # tracemalloc slows a case four-fold: measure every tenth
+
+
+@pytest.fixture
+def small_budget():
+    set_memory_budget(BUDGET_BYTES)
+    yield BUDGET_BYTES
+    set_memory_budget(None)
+
+
+def run_cases(tmp_path: Path, seed: int, n: int, budget: int):
+    """Check ``n`` cases.
+
+    Returns
+    -------
+    (Counter of (kind, field), Counter of (source, kind), failures, slowest seconds)
+    """
+    counts: collections.Counter = collections.Counter()
+    by_source: collections.Counter = collections.Counter()
+    failures = []
+    slowest = 0.0
+    path = tmp_path / "case.bin"
+    for case in fuzz.cases(seed, n):
+        path.unlink(missing_ok=True)  # a new file: truncating one in place is ten times slower
+        path.write_bytes(case.data)
+        kind = "aris" if case.source == "aris" else "oculus"
+        outcome = fuzz.check_file(path, kind, budget, time_limit_s=5.0,
+                                  trace_memory=case.index % TRACE_EVERY == 0)
+        counts[outcome.kind, outcome.field] += 1
+        by_source[case.source, outcome.kind] += 1
+        slowest = max(slowest, outcome.seconds)
+        if outcome.failure:
+            failures.append(f"case {case.index} ({case.source}; {', '.join(case.mutations)}): "
+                            f"{outcome.failure}")
+    return counts, by_source, failures, slowest
+
+
+def test_mutated_recordings_end_in_recording_error_or_plausible_images(tmp_path, small_budget):
+    counts, by_source, failures, slowest = run_cases(tmp_path, SEED, N_CASES, small_budget)
+    assert not failures, f"{len(failures)} of {N_CASES} cases failed (seed {SEED}):\n" + "\n".join(failures[:20])
+    # The mutations must exercise both ends: files still read, and refusals of many kinds
+    # (a generator that only ever truncated would pass the check above trivially).
+    kinds = collections.Counter(kind for kind, _ in counts.elements())
+    assert kinds["ok"] > N_CASES // 10 and kinds["refused"] + kinds["partial"] > N_CASES // 3
+    for source in fuzz.SOURCES:  # every recording is still read when its mutation is harmless
+        assert by_source[source, "ok"] > N_CASES // 30, by_source
+    fields = {field for (kind, field) in counts if kind != "ok"}
+    for geometry in ("SamplePeriod", "SamplesPerBeam", "SoundSpeed", "rangeResolution", "nBeams",
+                     "bearings", "truncated", "payloadSize"):
+        assert geometry in fields, f"no case was refused for {geometry}: {sorted(fields)}"
+    assert slowest < 5.0
+
+
+def test_the_check_catches_a_silent_stop(tmp_path, monkeypatch):
+    # The regression the issue found (read raises, read_frames yields nothing), reintroduced
+    # on purpose: the check must report it, or the fuzz test above proves nothing.
+    path = tmp_path / "logs.raw"
+    data = bytearray(fuzz.SOURCES["oculus1"].read_bytes())
+    data[6] = 0x80  # msgId: no longer a simple ping result
+    path.write_bytes(bytes(data))
+    assert fuzz.check_file(path, "oculus", BUDGET_BYTES).failure is None
+    monkeypatch.setattr(readers, "read_frames", lambda p: iter(()))
+    failure = fuzz.check_file(path, "oculus", BUDGET_BYTES).failure
+    assert failure and "stopped silently at frame 0" in failure
+
+
+def test_the_check_catches_an_implausible_window(tmp_path, monkeypatch):
+    # The other regression the issue found: a SamplePeriod of 0x7FFFFFFF us read "successfully"
+    # as a window of 3e9 m. With the reader's limits switched off on purpose, the check must
+    # catch the window itself.
+    from sonarsim.io.readers import aris as aris_reader
+
+    path = tmp_path / "far.aris"
+    data = bytearray(fuzz.SOURCES["aris"].read_bytes())
+    data[1024 + 452:1024 + 456] = (0x7FFFFFFF).to_bytes(4, "little")  # frame 0 SamplePeriod
+    path.write_bytes(bytes(data))
+    outcome = fuzz.check_file(path, "aris", BUDGET_BYTES)
+    assert outcome.failure is None and (outcome.kind, outcome.field) == ("refused", "SamplePeriod")
+    monkeypatch.setattr(aris_reader, "check_within", lambda *a, **k: None)
+    monkeypatch.setattr(aris_reader, "check_range_window", lambda *a, **k: None)
+    failure = fuzz.check_file(path, "aris", BUDGET_BYTES).failure
+    assert failure and "implausible geometry: range window" in failure
+
+
+def test_cases_are_reproducible():
+    a = [(c.source, c.mutations, c.data) for c in fuzz.cases(7, 20)]
+    b = [(c.source, c.mutations, c.data) for c in fuzz.cases(7, 20)]
+    assert a == b and len({m for _, m, _ in a}) > 10
+
+
+# ------------------------------------------------------------------------------------------
+# The command line: a handful of mutated files through ``sonarsim show``
+# ------------------------------------------------------------------------------------------
+
+
+def _cli_cases() -> list[tuple[str, str, bytes]]:
+    """(name, kind, bytes): chosen mutations, then seeded ones."""
+    aris = fuzz.SOURCES["aris"].read_bytes()
+    oculus = fuzz.SOURCES["oculus3"].read_bytes()
+    one = fuzz.SOURCES["oculus1"].read_bytes()
+
+    def put(data: bytes, offset: int, fmt: str, value) -> bytes:
+        out = bytearray(data)
+        struct.pack_into(fmt, out, offset, value)
+        return bytes(out)
+
+    chosen = [
+        ("aris-sample-period", "aris", put(aris, 1024 + 452, "<I", 0xFFFFFFFF)),
+        ("aris-start-delay", "aris", put(aris, 1024 + 476, "<I", 0xFFFFFFFF)),
+        ("oculus-resolution", "oculus", put(oculus, 98, "<d", 1e-300)),
+        ("oculus-msg-id", "oculus", put(one, 6, "<H", 0x80)),  # the file's only ping
+        ("oculus-cut", "oculus", oculus[:300_000]),  # in ping 1: ping 0 is shown
+        ("aris-frame-copied", "aris", aris[:1024] + aris[1024:1024 + 97_024] + aris[1024:]),
+    ]
+    seeded = [(f"seeded-{c.index}", "aris" if c.source == "aris" else "oculus", c.data)
+              for c in fuzz.cases(SEED + 1, 1)]
+    return chosen + seeded
+
+
+def test_show_on_mutated_files_exits_0_or_2_with_one_line(tmp_path):
+    exe = Path(sys.executable).with_name("sonarsim")
+    command = [str(exe)] if exe.is_file() else [sys.executable, "-m", "sonarsim.cli.main"]
+    env = dict(os.environ, SONARSIM_MAX_MEMORY="256M")
+    runs = []
+    for name, _kind, data in _cli_cases():
+        path = tmp_path / f"{name}.bin"
+        path.write_bytes(data)
+        out = tmp_path / f"{name}-out"
+        proc = subprocess.Popen([*command, "show", str(path), "--out", str(out)], env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        runs.append((name, out, proc))
+    codes = {}
+    for name, out, proc in runs:
+        stdout, stderr = proc.communicate(timeout=120)
+        codes[name] = proc.returncode
+        assert proc.returncode in (0, 2), f"{name}: exit {proc.returncode}\n{stderr}"
+        assert "Traceback" not in stderr + stdout, f"{name}:\n{stderr}"
+        if proc.returncode == 2:
+            lines = stderr.strip().splitlines()
+            assert len(lines) == 1 and str(out.parent) in lines[0], f"{name}: {stderr!r}"
+            left = sorted(p.name for p in out.rglob("*")) if out.exists() else []
+            assert left == [], f"{name}: failed but left {left} in {out}"
+        else:
+            assert (out / "polar.png").is_file() and (out / "fan.png").is_file()
+    # The chosen ones end as designed: refused (2) for impossible fields, shown (0) otherwise.
+    assert [codes[n] for n in ("aris-sample-period", "aris-start-delay", "oculus-resolution",
+                               "oculus-msg-id", "oculus-cut", "aris-frame-copied")] == [2, 2, 2, 2, 0, 0]
