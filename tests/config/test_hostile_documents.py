@@ -144,3 +144,21 @@ def test_beam_tables_that_are_devices_are_refused(tmp_path):
     with pytest.raises(ConfigError, match="directory or device"):
         sonarsim.load_scene({"sonar": {"n_beams": 4, "beam_angles_file": "/dev/zero", "elevation_fov_deg": 14,
                                        "range_min_m": 0.5, "range_max_m": 5, "n_range_bins": 100}})
+
+
+def test_a_frames_images_rays_and_speckle_fields_must_fit_the_budget_together(monkeypatch):
+    from sonarsim.core import memory
+
+    doc = {"sonar": {"preset": "aris3000-128"}, "render": {"elevation_samples": 16, "azimuth_samples": 1},
+           "sensor": {"preset": "aris3000-128"}}
+    images = 1288 * 128 * 4 * 40                   # 40 float32 images of the frame
+    rays = 128 * 1 * 16 * 600                      # 600 bytes per ray
+    fields = 2 * 4 * 1288 * 4 * 128 + 3 * 1288 * 128 * 8  # speckle + noise pools, and one field being made
+    assert images < 30 * 2**20 < images + rays + fields < 36 * 2**20
+    monkeypatch.setenv(memory.ENV_VAR, "30M")     # each part fits alone, not all three
+    with pytest.raises(ConfigError, match="at once") as e:
+        sonarsim.render(doc)
+    assert e.value.key == "sonar.n_range_bins"     # the largest part
+    assert f"{(images + rays + fields) / 2**30:.3g} GiB" in str(e.value)
+    monkeypatch.setenv(memory.ENV_VAR, "36M")
+    assert sonarsim.render(doc).polar.shape == (1288, 128)

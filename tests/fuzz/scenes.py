@@ -52,10 +52,10 @@ FUZZ_BUDGET_BYTES = 64 * 2**20
 LOAD_TIME_LIMIT_S = 5.0
 RENDER_TIME_LIMIT_S = 30.0
 
-#: The budget bounds each allocation plan (a frame's images, the ray fan, the speckle pool), and a
-#: render holds a few of them at once: a case's traced peak may reach this many budgets. What it
-#: catches is an allocation that no check sized at all (a beam table of n_beams 10**9 took 8 GB).
-PEAK_BUDGETS = 2
+#: A frame's images, rays and speckle fields are checked together against the budget
+#: (``Simulator.require_frame_memory``), so a case's traced peak stays within the budget. What
+#: this catches is an allocation no check sized (a beam table of n_beams 10**9 took 8 GB).
+PEAK_BUDGETS = 1
 
 #: Messages longer than this are not a one-line message a person reads.
 MAX_MESSAGE_CHARS = 2000

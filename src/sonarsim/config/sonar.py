@@ -46,8 +46,13 @@ def _require_images(n_range_bins: int, n_beams: int) -> None:
     """
     # A frame holds a few dozen images of this size (path orders, components, sensor). Exact
     # integers: float() of a 400-digit n_range_bins raises OverflowError.
-    require(int(n_range_bins) * int(n_beams) * 4 * IMAGES_PER_FRAME,
+    require(image_bytes(n_range_bins, n_beams),
             f"images of {shown(n_range_bins)} range bins x {shown(n_beams)} beams", "sonar.n_range_bins")
+
+
+def image_bytes(n_range_bins: int, n_beams: int) -> int:
+    """Bytes the images of one frame may take (``IMAGES_PER_FRAME`` float32 images)."""
+    return int(n_range_bins) * int(n_beams) * 4 * IMAGES_PER_FRAME
 
 
 @dataclass(frozen=True)

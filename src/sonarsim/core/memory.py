@@ -111,3 +111,31 @@ def require(nbytes: float, what: str, key: str) -> None:
             need = f"about 1e{len(str(int(nbytes))) - 10} GiB"
         raise ConfigError(key, f"{what} would need {need}, more than the memory budget of "
                           f"{budget / 2**30:.3g} GiB (raise it with --max-memory or ${ENV_VAR})")
+
+
+def require_together(parts: list[tuple[float, str, str]], what: str) -> None:
+    """Refuse plans that fit the budget one by one but not together (held at the same time).
+
+    Parameters
+    ----------
+    parts : list of (nbytes, description, key)
+        What one frame holds at once (its images, its rays, the sensor's fields), each with the
+        key that sets its size.
+    what : str
+        What holds them, for the message (e.g. ``"a frame"``).
+
+    Raises
+    ------
+    ConfigError
+        Naming the key of the largest part, and every part's share.
+    """
+    from ..errors import ConfigError
+
+    total = sum(float(n) for n, _, _ in parts)
+    budget = memory_budget()
+    if total <= budget:
+        return
+    largest = max(parts, key=lambda p: float(p[0]))
+    shares = ", ".join(f"{d} {float(n) / 2**30:.3g} GiB" for n, d, _ in parts if n)
+    raise ConfigError(largest[2], f"{what} would hold {total / 2**30:.3g} GiB at once ({shares}), more than the "
+                      f"memory budget of {budget / 2**30:.3g} GiB (raise it with --max-memory or ${ENV_VAR})")

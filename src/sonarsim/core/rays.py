@@ -66,6 +66,24 @@ class RayFan:
         return int(self.weight.size)
 
 
+def samples_per_beam(sonar: SonarConfig, render: RenderSettings) -> tuple[int, int]:
+    """``(n_azimuth_samples, n_elevation_samples)`` of each beam's rays."""
+    n_el = auto_elevation_samples(sonar) if render.elevation_samples == "auto" else int(render.elevation_samples)
+    return int(render.azimuth_samples), n_el
+
+
+def ray_bytes(sonar: SonarConfig, render: RenderSettings) -> float:
+    """Bytes a frame's rays take: each its direction and weight here, and its legs' hits,
+    points and normals per frame (``BYTES_PER_RAY`` in all)."""
+    n_az, n_el = samples_per_beam(sonar, render)
+    return float(sonar.n_beams) * n_az * n_el * BYTES_PER_RAY
+
+
+def ray_size_key(render: RenderSettings) -> str:
+    """The scene key to name when there are too many rays."""
+    return "render.elevation_samples" if render.elevation_samples != "auto" else "sonar.n_beams"
+
+
 def make_ray_fan(sonar: SonarConfig, render: RenderSettings, elevation_gain=None) -> RayFan:
     """Sample every beam over its azimuth width and the elevation aperture.
 
@@ -78,12 +96,8 @@ def make_ray_fan(sonar: SonarConfig, render: RenderSettings, elevation_gain=None
         ``(n,) elevation (rad) -> (n,) power gain``: a sensor's two-way elevation pattern,
         multiplied into the weights (the sonar's aperture is then the span it acts over).
     """
-    n_el = auto_elevation_samples(sonar) if render.elevation_samples == "auto" else int(render.elevation_samples)
-    n_az = int(render.azimuth_samples)
-    # Every ray costs its direction and weight here, and its legs' hits, points and normals
-    # per frame: about this many bytes in all.
-    require(float(sonar.n_beams) * n_az * n_el * BYTES_PER_RAY, f"{sonar.n_beams} beams x {n_az} x {n_el} rays",
-            "render.elevation_samples" if render.elevation_samples != "auto" else "sonar.n_beams")
+    n_az, n_el = samples_per_beam(sonar, render)
+    require(ray_bytes(sonar, render), f"{sonar.n_beams} beams x {n_az} x {n_el} rays", ray_size_key(render))
     half_el = math.radians(sonar.elevation_fov_deg) / 2.0
     dphi = 2.0 * half_el / n_el
     phi = -half_el + (np.arange(n_el) + 0.5) * dphi

@@ -13,16 +13,17 @@ import time
 import warnings
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from ..config.loader import load_scene, parse_pose
 from ..config.scene import Scene, sonar_section
-from ..config.sonar import SonarConfig
-from ..core.memory import keep_freed_memory
+from ..config.sonar import SonarConfig, image_bytes
+from ..core.memory import keep_freed_memory, require_together
 from ..core.radiometry import SurfaceLaws, backscatter
-from ..core.rays import RayFan, make_ray_fan
+from ..core.rays import RayFan, make_ray_fan, ray_bytes, ray_size_key
 from ..core.transforms import Pose
 from ..errors import ConfigError
 from ..image.result import RayMaps, SonarImage
@@ -33,7 +34,8 @@ from ..paths.engine import (
     trace_legs,
 )
 from ..paths.planes import ChainTable, PlaneSet
-from ..sensor.model import FRAME_STREAM, SensorModel
+from ..sensor.model import FRAME_STREAM, SensorModel, elevation_span_deg
+from ..sensor.speckle import pool_bytes
 from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
 from ..scene.textures import with_textures
 from ..trace import available_cores, make_caster
@@ -161,9 +163,33 @@ class Simulator:
         sonar = sonar if sonar is not None else self.scene.sonar
         model = self._sensor_models.get(sonar)
         if model is None:
+            self.require_frame_memory(sonar)
             model = SensorModel(self.scene.sensor, sonar, self.scene.render.seed)
             self._sensor_models = {sonar: model}  # like the fans: one sonar at a time
         return model
+
+    def require_frame_memory(self, sonar: SonarConfig) -> None:
+        """Check what a frame of this sonar holds at once against the memory budget, before any
+        of it is allocated: its images, its rays (over a sensor's elevation span) and the
+        sensor's speckle and noise fields. Each is also checked alone where it is made; here
+        their sum (a scene whose parts each fit could still not fit together).
+
+        Raises
+        ------
+        ConfigError
+            Naming the key of the largest part.
+        """
+        spec, render = self.scene.sensor, self.scene.render
+        traced = sonar
+        parts = [(image_bytes(sonar.n_range_bins, sonar.n_beams), "images", "sonar.n_range_bins")]
+        if spec is not None:
+            span = elevation_span_deg(spec, sonar)
+            if span != sonar.elevation_fov_deg:
+                traced = replace(sonar, elevation_fov_deg=span)
+            parts.append((pool_bytes((sonar.n_range_bins, sonar.n_beams), spec.speckle is not None,
+                                     spec.noise is not None), "speckle and noise fields", "sensor.speckle"))
+        parts.insert(1, (ray_bytes(traced, render), "rays", ray_size_key(render)))
+        require_together(parts, f"a frame of {sonar.n_range_bins} x {sonar.n_beams}")
 
     def traced_sonar(self, sonar: SonarConfig) -> SonarConfig:
         """The sonar whose rays are cast: with a sensor's elevation pattern, over its wider span."""
@@ -180,6 +206,7 @@ class Simulator:
             return self._last_fan[1]
         fan = self._fans.get(sonar)
         if fan is None:
+            self.require_frame_memory(sonar)
             model = self.sensor_model(sonar)
             if model is None:
                 fan = make_ray_fan(sonar, self.scene.render)

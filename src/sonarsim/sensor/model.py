@@ -111,6 +111,16 @@ def _check_levels(echo_gain_db: np.ndarray, tvg_db: np.ndarray, spec: SensorSpec
         )
 
 
+def elevation_span_deg(spec: SensorSpec, sonar: SonarConfig) -> float:
+    """The full elevation span (degrees) a sensor's rays are cast over: its elevation pattern's
+    ``span_deg`` (default 3 -3 dB widths, at most 170), or the sonar's aperture without one."""
+    p = spec.elevation_pattern
+    if p is None:
+        return sonar.elevation_fov_deg
+    width = p.width_deg if p.width_deg is not None else sonar.elevation_fov_deg
+    return p.span_deg if p.span_deg is not None else min(DEFAULT_SPAN_WIDTHS * width, 170.0)
+
+
 class SensorModel:
     """A sensor spec made concrete for one sonar: its tables, kernels and speckle pool.
 
@@ -203,11 +213,7 @@ class SensorModel:
 
     def elevation_span_deg(self) -> float:
         """The full elevation span rays are cast over (the sonar's aperture without a pattern)."""
-        p = self.spec.elevation_pattern
-        if p is None:
-            return self.sonar.elevation_fov_deg
-        width = p.width_deg if p.width_deg is not None else self.sonar.elevation_fov_deg
-        return p.span_deg if p.span_deg is not None else min(DEFAULT_SPAN_WIDTHS * width, 170.0)
+        return elevation_span_deg(self.spec, self.sonar)
 
     def trace_sonar(self, sonar: SonarConfig | None = None) -> SonarConfig:
         """The sonar the renderer traces: the image's, with the elevation aperture widened to the span.

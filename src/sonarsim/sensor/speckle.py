@@ -82,6 +82,17 @@ def filter_field(w: np.ndarray, range_amplitude: np.ndarray, beam_amplitude: np.
     return out
 
 
+def pool_bytes(shape: tuple[int, int], speckle: bool, noise: bool, n_fields: int = POOL_FIELDS) -> int:
+    """Bytes a :class:`SpecklePool` takes: the stored fields (one byte per part, beams twice),
+    and while one field is made its complex samples, their filtered copy and the filter's
+    accumulator."""
+    n_r, n_b = int(shape[0]), int(shape[1])
+    n_kinds = int(speckle) + int(noise)
+    if n_kinds == 0:
+        return 0
+    return n_kinds * n_fields * n_r * 4 * n_b + 3 * n_r * n_b * 8
+
+
 @dataclass(frozen=True)
 class FieldDraw:
     """Which pool field a frame reads, and from which cyclic offset (rows, beams)."""
@@ -123,11 +134,8 @@ class SpecklePool:
     def __init__(self, shape: tuple[int, int], range_amplitude: np.ndarray, beam_amplitude: np.ndarray,
                  spec: SpeckleSpec | None, noise: bool, seed: int, n_fields: int = POOL_FIELDS) -> None:
         n_r, n_b = shape
-        n_kinds = int(spec is not None) + int(noise)
-        # The stored fields (one byte per part, beams twice), and while one field is made
-        # its complex samples, their filtered copy and the filter's accumulator.
-        need = n_kinds * n_fields * n_r * 4 * n_b + 3 * n_r * n_b * 8
-        require(need, f"the speckle and noise fields of a {n_r} x {n_b} image", "sensor.speckle")
+        require(pool_bytes(shape, spec is not None, noise, n_fields),
+                f"the speckle and noise fields of a {n_r} x {n_b} image", "sensor.speckle")
         rng = np.random.default_rng([int(seed), POOL_STREAM])
         self.shape = shape
         self.n_fields = n_fields
