@@ -58,6 +58,7 @@ it; opening a :class:`BagWriter` without it raises :class:`~sonarsim.errors.Sona
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import re
@@ -201,6 +202,9 @@ class BagFrameIds:
 
 # One frame ----------------------------------------------------------------------------------
 
+# builtin_interfaces/Time holds int32 seconds.
+_MAX_STAMP_NS = 2**31 * 1_000_000_000
+
 
 def _array(key: str, value: Any, dtype: Any, ndim: int) -> np.ndarray:
     """``value`` as a read-only ``dtype`` array of ``ndim`` dimensions with finite values."""
@@ -214,7 +218,10 @@ def _array(key: str, value: Any, dtype: Any, ndim: int) -> np.ndarray:
 
 
 def _per_beam(key: str, value: Any, n_beams: int) -> np.ndarray:
-    a = np.array(value, dtype=np.float64)
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(f"bag_frame.{key}", f"must be an angle in degrees or one per beam, got {value!r}") from None
     if a.ndim == 0:
         a = np.full(n_beams, float(a))
     if a.shape != (n_beams,) or not np.all(np.isfinite(a)) or not np.all(a > 0.0):
@@ -276,8 +283,9 @@ class BagFrame:
     def __post_init__(self) -> None:
         put = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731 - frozen
         if isinstance(self.stamp_ns, (bool, np.bool_)) or not isinstance(self.stamp_ns, (int, np.integer)) \
-                or not 0 <= int(self.stamp_ns) < 2**63:
-            raise ConfigError("bag_frame.stamp_ns", f"must be an integer number of nanoseconds >= 0, got {self.stamp_ns!r}")
+                or not 0 <= int(self.stamp_ns) < _MAX_STAMP_NS:
+            raise ConfigError("bag_frame.stamp_ns",
+                              f"must be an integer number of nanoseconds in [0, 2**31 s), got {self.stamp_ns!r}")
         put("stamp_ns", int(self.stamp_ns))
         if not isinstance(self.pose, Pose):
             raise ConfigError("bag_frame.pose", f"must be a sonarsim Pose, got {type(self.pose).__name__}")
@@ -405,7 +413,7 @@ def frame_from_image(
         range_m=image.range_m,
         azimuth_deg=image.azimuth_deg,
         tx_beamwidth_deg=image.sonar.elevation_fov_deg,
-        rx_beamwidth_deg=image.sonar.effective_beam_width_deg,
+        rx_beamwidth_deg=image.sonar.effective_beam_width_deg(),
         frequency_hz=frequency_hz,
         sound_speed_m_s=sound_speed_m_s,
         fan=fan_image,
@@ -417,8 +425,13 @@ def frame_from_image(
 # The writer ---------------------------------------------------------------------------------
 
 
+@functools.lru_cache(maxsize=1)
 def _import_rosbags() -> tuple[Any, Any, Any]:
-    """``(Writer, StoragePlugin, typestore)``, or a SonarsimError naming the extra."""
+    """``(Writer, StoragePlugin, typestore)``, or a SonarsimError naming the extra.
+
+    Cached: building the typestore compiles the message classes (tens of milliseconds), and
+    writers only read it.
+    """
     try:
         from rosbags.rosbag2 import StoragePlugin, Writer
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
