@@ -3,13 +3,13 @@ ROS 2 decoder, the message conventions against hand-computed vectors, a real ren
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import signal
 import subprocess
 import sys
 import textwrap
-import time
 
 import numpy as np
 import pytest
@@ -176,8 +176,10 @@ def test_every_field_reads_back_with_rosbags(tmp_path, storage):
 def test_uint8_image_and_optional_messages(tmp_path):
     # A device model's 8-bit output: DTYPE_UINT8, one byte per cell; no fan, no points.
     frames = [synthetic_frame(i, dtype=np.uint8, fan=None, points_world=None, points_object=None) for i in range(2)]
-    topics = read_bag(write_bag(tmp_path / "bag", "sqlite3", frames))
-    assert sorted(topics) == ["/sonar/image", "/sonar/pose", "/tf"]
+    path = write_bag(tmp_path / "bag", "sqlite3", frames)
+    with rosbags_highlevel.AnyReader([path]) as reader:  # no empty /sonar/fan or /sonar/points
+        assert sorted(c.topic for c in reader.connections) == ["/sonar/image", "/sonar/pose", "/tf"]
+    topics = read_bag(path)
     img = topics["/sonar/image"][1][2]
     assert img.image.dtype == 0
     np.testing.assert_array_equal(np.asarray(img.image.data), frames[1].polar.reshape(-1))
@@ -345,3 +347,16 @@ def test_frame_ids_must_be_distinct_ros_names():
         BagFrameIds(world="a", sonar="a")
     with pytest.raises(ConfigError, match="frame name"):
         BagFrameIds(world="my world")
+
+
+def test_an_image_without_pose_cannot_make_a_frame():
+    image = sonarsim.render({"sonar": sonar_dict(n_range_bins=20, n_beams=8), "render": {"elevation_samples": 4}})
+    frame_from_image(image, stamp_ns=0)  # a render carries its pose
+    with pytest.raises(SonarsimError, match="pose"):
+        frame_from_image(dataclasses.replace(image, pose=None), stamp_ns=0)
+
+
+def test_a_bag_without_frames_is_a_valid_empty_bag(tmp_path):
+    path = write_bag(tmp_path / "rosbag", "mcap", [])
+    with rosbags_highlevel.AnyReader([path]) as reader:
+        assert reader.message_count == 0 and reader.connections == []

@@ -2,15 +2,15 @@
 
 A bag written by :class:`BagWriter` holds, per frame (all messages share the frame's stamp):
 
-============== ===================================== ===============================================
-topic          type                                  content
-============== ===================================== ===============================================
-/sonar/image   marine_acoustic_msgs/ProjectedSonarImage  the polar image (see the conventions below)
-/sonar/fan     sensor_msgs/Image                     the fan image (optional): ``mono8`` or ``32FC1``
-/sonar/pose    geometry_msgs/PoseStamped             the sonar's pose in the world frame
-/tf            tf2_msgs/TFMessage                    world -> sonar (the pose) and sonar -> sonar_image
-/sonar/points  sensor_msgs/PointCloud2               ground-truth points (optional): x, y, z, object
-============== ===================================== ===============================================
+============== ======================================== ==============================================
+topic          type                                     content
+============== ======================================== ==============================================
+/sonar/image   marine_acoustic_msgs/ProjectedSonarImage the polar image (see the conventions below)
+/sonar/fan     sensor_msgs/Image                        the fan image (optional): mono8 or 32FC1
+/sonar/pose    geometry_msgs/PoseStamped                the sonar's pose in the world frame
+/tf            tf2_msgs/TFMessage                       world -> sonar (the pose), sonar -> sonar_image
+/sonar/points  sensor_msgs/PointCloud2                  ground-truth points (optional): x, y, z, object
+============== ======================================== ==============================================
 
 Frames (names configurable with :class:`BagFrameIds`)
 -----------------------------------------------------
@@ -64,10 +64,10 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
+from types import MappingProxyType, TracebackType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -95,13 +95,13 @@ __all__ = [
 BAG_STORAGES = ("mcap", "sqlite3")
 
 #: Topic of each message of a frame.
-TOPICS: Mapping[str, str] = {
+TOPICS: Mapping[str, str] = MappingProxyType({
     "image": "/sonar/image",
     "fan": "/sonar/fan",
     "pose": "/sonar/pose",
     "tf": "/tf",
     "points": "/sonar/points",
-}
+})
 
 _S = math.sqrt(0.5)
 #: Rotation of the ``sonar_image`` frame (Z forward, X up) relative to the ``sonar`` frame
@@ -161,6 +161,14 @@ _FAN_ENCODINGS: dict[np.dtype, str] = {np.dtype(np.uint8): "mono8", np.dtype(np.
 # sensor_msgs/PointField datatypes.
 _POINTFIELD_FLOAT32 = 7
 _POINTFIELD_INT32 = 5
+# Message type of each topic (keys of TOPICS).
+_MSGTYPES = {
+    "image": "marine_acoustic_msgs/msg/ProjectedSonarImage",
+    "fan": "sensor_msgs/msg/Image",
+    "pose": "geometry_msgs/msg/PoseStamped",
+    "tf": "tf2_msgs/msg/TFMessage",
+    "points": "sensor_msgs/msg/PointCloud2",
+}
 # One point of /sonar/points: x, y, z (float32, world frame, metres) and object id (int32).
 _POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("object", "<i4")])
 
@@ -515,20 +523,11 @@ class BagWriter:
             writer.open()
             self._writer = writer
             self._typestore = typestore
-            msgtypes = {
-                "image": "marine_acoustic_msgs/msg/ProjectedSonarImage",
-                "fan": "sensor_msgs/msg/Image",
-                "pose": "geometry_msgs/msg/PoseStamped",
-                "tf": "tf2_msgs/msg/TFMessage",
-                "points": "sensor_msgs/msg/PointCloud2",
-            }
-            for key, msgtype in msgtypes.items():
-                self._connections[key] = (writer.add_connection(TOPICS[key], msgtype, typestore=typestore), msgtype)
             for name in ("builtin_interfaces/msg/Time", "std_msgs/msg/Header", "geometry_msgs/msg/Vector3",
                          "geometry_msgs/msg/Point", "geometry_msgs/msg/Quaternion", "geometry_msgs/msg/Pose",
                          "geometry_msgs/msg/Transform", "geometry_msgs/msg/TransformStamped",
                          "sensor_msgs/msg/PointField", "marine_acoustic_msgs/msg/PingInfo",
-                         "marine_acoustic_msgs/msg/SonarImageData", *msgtypes.values()):
+                         "marine_acoustic_msgs/msg/SonarImageData", *_MSGTYPES.values()):
                 self._types[name] = typestore.types[name]
         except BaseException:
             self._discard()
@@ -607,8 +606,12 @@ class BagWriter:
             messages.append(("points", self._points_msg(frame)))
         try:
             for key, msg in messages:
-                connection, msgtype = self._connections[key]
-                self._writer.write(connection, frame.stamp_ns, self._typestore.serialize_cdr(msg, msgtype))
+                if key not in self._connections:
+                    # Added at first use, so that a bag without fans or points lists no such topic.
+                    self._connections[key] = self._writer.add_connection(TOPICS[key], _MSGTYPES[key],
+                                                                         typestore=self._typestore)
+                self._writer.write(self._connections[key], frame.stamp_ns,
+                                   self._typestore.serialize_cdr(msg, _MSGTYPES[key]))
         except OSError as exc:  # a full disk: the caller's with block discards the bag
             raise SonarsimError(f"{self.path}: cannot write the bag: {exc.strerror or exc}") from None
         self._last_stamp = frame.stamp_ns
