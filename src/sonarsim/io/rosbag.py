@@ -1,0 +1,742 @@
+"""ROS 2 bags of rendered frames, written with the pure-Python ``rosbags`` library (no ROS install).
+
+A bag written by :class:`BagWriter` holds, per frame (all messages share the frame's stamp):
+
+============== ======================================== ==============================================
+topic          type                                     content
+============== ======================================== ==============================================
+/sonar/image   marine_acoustic_msgs/ProjectedSonarImage the polar image (see the conventions below)
+/sonar/fan     sensor_msgs/Image                        the fan image (optional): mono8 or 32FC1
+/sonar/pose    geometry_msgs/PoseStamped                the sonar's pose in the world frame
+/tf            tf2_msgs/TFMessage                       world -> sonar (the pose), sonar -> sonar_image
+/sonar/points  sensor_msgs/PointCloud2                  ground-truth points (optional): x, y, z, object
+============== ======================================== ==============================================
+
+Frames (names configurable with :class:`BagFrameIds`)
+-----------------------------------------------------
+``world``
+    The scene's world frame (right-handed, z up).
+``sonar``
+    sonarsim's sonar frame (DESIGN.md section 1, ROS REP-103): x forward along the acoustic
+    axis, y to the sonar's left, z up. ``/sonar/pose`` and the ``world -> sonar`` transform are
+    exactly :class:`~sonarsim.core.transforms.Pose` (sonar-to-world).
+``sonar_image``
+    The frame of ``ProjectedSonarImage``: Z forward in the fan plane, X up, so Y = Z x X points
+    to the sonar's RIGHT. It is the ``sonar`` frame rotated by 180 degrees about
+    (x + z) / sqrt(2) (:data:`SONAR_TO_IMAGE_QUAT_XYZW`); ``/tf`` carries that constant transform
+    in every message (rather than once on ``/tf_static``, whose latching needs QoS settings that
+    bag players do not all honour).
+
+Conventions of ``ProjectedSonarImage`` (peers get both wrong)
+--------------------------------------------------------------
+* Beam directions: unit vectors in the ``sonar_image`` frame. A beam at azimuth theta (positive
+  to the sonar's LEFT, as everywhere in sonarsim) has direction
+  ``(x, y, z) = (0, -sin theta, cos theta)``; a consumer recovers theta = atan2(-y, z). The
+  left-most beam (column 0 of sonarsim's polar image, theta > 0) therefore has y < 0.
+  Beams are written in sonarsim's order, left-most first (not reversed).
+* Data order: ``image.data`` is range-major, ``index = range_bin * beam_count + beam``, which
+  is sonarsim's polar layout ``(n_range_bins, n_beams)`` in C order: ``data[0:beam_count]`` is
+  the NEAREST range bin. Bytes are little-endian (``is_bigendian = False``); ``dtype`` is the
+  message's constant for the array's type (``DTYPE_FLOAT32 = 8`` for float32 images,
+  ``DTYPE_UINT8 = 0`` for a device model's 8-bit output).
+* ``ranges``: range-bin centres, metres, nearest first. ``ping_info.frequency`` in Hz (0 when
+  unknown), ``sound_speed`` in m/s, ``tx_beamwidths`` / ``rx_beamwidths`` one per beam in
+  radians. sonarsim writes the transmit beamwidth as the elevation aperture (the fan's
+  vertical extent, which the transmitter sets) and the receive beamwidth as each beam's
+  azimuth width (what the receive beamformer sets); see :func:`frame_from_image`.
+* ``header.stamp``: the frame's transmit time.
+
+Files: ``BagWriter(path)`` writes the bag into a temporary folder next to ``path`` and renames it
+to ``path`` only when the ``with`` block ends without error; a killed or failed run leaves no
+bag under the final name (at most a hidden ``.NAME.sonarsim-PID-XXXX.tmp`` folder, which
+:func:`remove_abandoned_bags` clears once that process is gone). ``rosbags`` cannot append to
+a bag, so a resumed run rewrites the whole bag.
+
+``rosbags`` is optional: ``pip install 'sonarsim[ros]'``. Importing this module works without
+it; opening a :class:`BagWriter` without it raises :class:`~sonarsim.errors.SonarsimError`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import re
+import shutil
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType, TracebackType
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..core.transforms import Pose
+from ..errors import ConfigError, SonarsimError
+from .output import TEMP_MARK, temp_prefix
+
+if TYPE_CHECKING:
+    from ..image.result import SonarImage
+
+__all__ = [
+    "BAG_STORAGES",
+    "SONAR_TO_IMAGE_QUAT_XYZW",
+    "TOPICS",
+    "BagFrame",
+    "BagFrameIds",
+    "BagWriter",
+    "beam_directions",
+    "frame_from_image",
+    "remove_abandoned_bags",
+]
+
+#: Storage plugins a bag can be written with (``--rosbag mcap`` or ``--rosbag sqlite3``).
+BAG_STORAGES = ("mcap", "sqlite3")
+
+#: Topic of each message of a frame.
+TOPICS: Mapping[str, str] = MappingProxyType({
+    "image": "/sonar/image",
+    "fan": "/sonar/fan",
+    "pose": "/sonar/pose",
+    "tf": "/tf",
+    "points": "/sonar/points",
+})
+
+_S = math.sqrt(0.5)
+#: Rotation of the ``sonar_image`` frame (Z forward, X up) relative to the ``sonar`` frame
+#: (x forward, y left, z up): 180 degrees about (x + z) / sqrt(2), i.e. the matrix
+#: ``[[0, 0, 1], [0, -1, 0], [1, 0, 0]]`` (symmetric, its own inverse).
+SONAR_TO_IMAGE_QUAT_XYZW = (_S, 0.0, _S, 0.0)
+
+_EXTRA_HINT = "install the ROS extra: pip install 'sonarsim[ros]'"
+
+# Message definitions written from the field lists of marine_acoustic_msgs (BSD-3,
+# apl-ocean-engineering/marine_msgs); only the fields matter to the wire format and the type
+# hash, so these carry our own comments.
+_MSG_DEFS: dict[str, str] = {
+    "marine_acoustic_msgs/msg/PingInfo": """
+# Acoustic settings of one ping.
+float32 frequency      # carrier, Hz
+float32 sound_speed    # m/s
+float32[] tx_beamwidths  # radians, one per beam
+float32[] rx_beamwidths  # radians, one per beam
+""",
+    "marine_acoustic_msgs/msg/SonarImageData": """
+# Element types of data
+uint32 DTYPE_UINT8=0
+uint32 DTYPE_INT8=1
+uint32 DTYPE_UINT16=2
+uint32 DTYPE_INT16=3
+uint32 DTYPE_UINT32=4
+uint32 DTYPE_INT32=5
+uint32 DTYPE_UINT64=6
+uint32 DTYPE_INT64=7
+uint32 DTYPE_FLOAT32=8
+uint32 DTYPE_FLOAT64=9
+
+bool is_bigendian
+uint32 dtype
+uint32 beam_count
+uint8[] data           # range-major: index = range_bin * beam_count + beam
+""",
+    "marine_acoustic_msgs/msg/ProjectedSonarImage": """
+# A sonar image whose beams are given as directions in the header's frame (Z forward, X up).
+std_msgs/Header header
+PingInfo ping_info
+geometry_msgs/Vector3[] beam_directions
+float32[] ranges       # range-bin centres, metres
+SonarImageData image
+""",
+}
+
+# numpy type -> SonarImageData.dtype constant.
+_SONAR_DTYPES: dict[np.dtype, int] = {
+    np.dtype(np.uint8): 0, np.dtype(np.int8): 1, np.dtype(np.uint16): 2, np.dtype(np.int16): 3,
+    np.dtype(np.uint32): 4, np.dtype(np.int32): 5, np.dtype(np.uint64): 6, np.dtype(np.int64): 7,
+    np.dtype(np.float32): 8, np.dtype(np.float64): 9,
+}
+# sensor_msgs/Image encodings of the fan image.
+_FAN_ENCODINGS: dict[np.dtype, str] = {np.dtype(np.uint8): "mono8", np.dtype(np.float32): "32FC1"}
+# sensor_msgs/PointField datatypes.
+_POINTFIELD_FLOAT32 = 7
+_POINTFIELD_INT32 = 5
+# Message type of each topic (keys of TOPICS).
+_MSGTYPES = {
+    "image": "marine_acoustic_msgs/msg/ProjectedSonarImage",
+    "fan": "sensor_msgs/msg/Image",
+    "pose": "geometry_msgs/msg/PoseStamped",
+    "tf": "tf2_msgs/msg/TFMessage",
+    "points": "sensor_msgs/msg/PointCloud2",
+}
+# One point of /sonar/points: x, y, z (float32, world frame, metres) and object id (int32).
+_POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("object", "<i4")])
+
+
+# Frames -------------------------------------------------------------------------------------
+
+_FRAME_ID_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_/]*$")
+
+
+@dataclass(frozen=True)
+class BagFrameIds:
+    """Names of the coordinate frames in a bag (``header.frame_id`` and the TF tree).
+
+    Attributes
+    ----------
+    world : str
+        The world frame (``"world"``; ``"map"`` for stacks that expect it).
+    sonar : str
+        sonarsim's sonar frame (x forward, y left, z up): the pose's child frame.
+    image : str
+        The ``ProjectedSonarImage`` frame (Z forward, X up), a child of ``sonar``.
+    """
+
+    world: str = "world"
+    sonar: str = "sonar"
+    image: str = "sonar_image"
+
+    def __post_init__(self) -> None:
+        names = {"world": self.world, "sonar": self.sonar, "image": self.image}
+        for key, name in names.items():
+            if not isinstance(name, str) or not _FRAME_ID_RE.match(name):
+                raise ConfigError(
+                    f"rosbag.frame_ids.{key}",
+                    f"must be a ROS frame name (a letter or '_', then letters, digits, '_' or '/'), got {name!r}",
+                )
+        if len(set(names.values())) != 3:
+            raise ConfigError("rosbag.frame_ids", f"the three frames must have distinct names, got {names}")
+
+
+# One frame ----------------------------------------------------------------------------------
+
+# builtin_interfaces/Time holds int32 seconds.
+_MAX_STAMP_NS = 2**31 * 1_000_000_000
+
+
+def _array(key: str, value: Any, dtype: Any, ndim: int) -> np.ndarray:
+    """``value`` as a read-only ``dtype`` array of ``ndim`` dimensions with finite values."""
+    a = np.array(value, dtype=dtype)  # a copy: the frame must not change under the writer
+    if a.ndim != ndim:
+        raise ConfigError(f"bag_frame.{key}", f"must be {ndim}-D, got shape {a.shape}")
+    if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+        raise ConfigError(f"bag_frame.{key}", "must be finite numbers")
+    a.setflags(write=False)
+    return a
+
+
+def _per_beam(key: str, value: Any, n_beams: int) -> np.ndarray:
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ConfigError(f"bag_frame.{key}", f"must be an angle in degrees or one per beam, got {value!r}") from None
+    if a.ndim == 0:
+        a = np.full(n_beams, float(a))
+    if a.shape != (n_beams,) or not np.all(np.isfinite(a)) or not np.all(a > 0.0):
+        raise ConfigError(f"bag_frame.{key}",
+                          f"must be a positive angle in degrees or one per beam ({n_beams}), got shape {a.shape}")
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class BagFrame:
+    """Everything one frame of a bag holds. Validated and copied on construction.
+
+    Attributes
+    ----------
+    stamp_ns : int
+        Transmit time, nanoseconds since the epoch (or since the start of the run); >= 0.
+        Every message of the frame carries it, as header stamp and as bag time.
+    pose : Pose
+        The sonar's pose in the world frame (sonar-to-world, sonar frame x forward, y left,
+        z up).
+    polar : (n_range_bins, n_beams) ndarray
+        The polar image, row 0 the nearest range bin, column 0 the left-most beam. Any of the
+        message's types (uint8 to float64); float32 for a rendered image, uint8 for a device
+        model's output.
+    range_m : (n_range_bins,) float ndarray
+        Range-bin centres, metres, ascending.
+    azimuth_deg : (n_beams,) float ndarray
+        Beam centres, DEGREES, positive to the sonar's left, left-most first (descending).
+    tx_beamwidth_deg, rx_beamwidth_deg : float or (n_beams,) float ndarray
+        Transmit and receive beamwidths, degrees (positive): one value for all beams or one
+        per beam. Written in radians, one per beam.
+    frequency_hz : float
+        Carrier frequency, Hz; 0 when unknown.
+    sound_speed_m_s : float
+        Sound speed, m/s (> 0).
+    fan : (height, width) uint8 or float32 ndarray, optional
+        The fan image (apex at the bottom centre, far range on row 0, the sonar's left on the
+        left), written on ``/sonar/fan``.
+    points_world : (n, 3) float32 ndarray, optional
+        Ground-truth points in view, world frame, metres. Given with ``points_object``.
+    points_object : (n,) int32 ndarray, optional
+        Object id of each point (the NPZ's ``points_object``).
+    """
+
+    stamp_ns: int
+    pose: Pose
+    polar: np.ndarray
+    range_m: np.ndarray
+    azimuth_deg: np.ndarray
+    tx_beamwidth_deg: Any
+    rx_beamwidth_deg: Any
+    frequency_hz: float
+    sound_speed_m_s: float
+    fan: np.ndarray | None = None
+    points_world: np.ndarray | None = None
+    points_object: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        put = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731 - frozen
+        if isinstance(self.stamp_ns, (bool, np.bool_)) or not isinstance(self.stamp_ns, (int, np.integer)) \
+                or not 0 <= int(self.stamp_ns) < _MAX_STAMP_NS:
+            raise ConfigError("bag_frame.stamp_ns",
+                              f"must be an integer number of nanoseconds in [0, 2**31 s), got {self.stamp_ns!r}")
+        put("stamp_ns", int(self.stamp_ns))
+        if not isinstance(self.pose, Pose):
+            raise ConfigError("bag_frame.pose", f"must be a sonarsim Pose, got {type(self.pose).__name__}")
+        polar = np.asarray(self.polar)
+        if polar.dtype not in _SONAR_DTYPES:
+            raise ConfigError("bag_frame.polar",
+                              f"dtype must be one of {sorted(str(d) for d in _SONAR_DTYPES)}, got {polar.dtype}")
+        polar = _array("polar", polar, polar.dtype.newbyteorder("<"), 2)
+        n_ranges, n_beams = polar.shape
+        if n_ranges < 1 or n_beams < 1:
+            raise ConfigError("bag_frame.polar", f"must hold at least one cell, got shape {polar.shape}")
+        put("polar", polar)
+        rng = _array("range_m", self.range_m, np.float64, 1)
+        if rng.shape != (n_ranges,) or not np.all(np.diff(rng) > 0) or rng[0] < 0:
+            raise ConfigError("bag_frame.range_m",
+                              f"must be {n_ranges} ascending ranges >= 0 (one per row of polar), got shape {rng.shape}")
+        put("range_m", rng)
+        az = _array("azimuth_deg", self.azimuth_deg, np.float64, 1)
+        if az.shape != (n_beams,) or not np.all(np.diff(az) < 0) or not np.all(np.abs(az) < 180.0):
+            raise ConfigError("bag_frame.azimuth_deg",
+                              f"must be {n_beams} descending angles in (-180, 180) degrees, left-most beam first "
+                              f"(one per column of polar), got shape {az.shape}")
+        put("azimuth_deg", az)
+        put("tx_beamwidth_deg", _per_beam("tx_beamwidth_deg", self.tx_beamwidth_deg, n_beams))
+        put("rx_beamwidth_deg", _per_beam("rx_beamwidth_deg", self.rx_beamwidth_deg, n_beams))
+        f = float(self.frequency_hz)
+        if not (math.isfinite(f) and f >= 0.0):
+            raise ConfigError("bag_frame.frequency_hz", f"must be >= 0 Hz (0: unknown), got {self.frequency_hz!r}")
+        put("frequency_hz", f)
+        c = float(self.sound_speed_m_s)
+        if not (math.isfinite(c) and c > 0.0):
+            raise ConfigError("bag_frame.sound_speed_m_s", f"must be > 0 m/s, got {self.sound_speed_m_s!r}")
+        put("sound_speed_m_s", c)
+        if self.fan is not None:
+            fan = np.asarray(self.fan)
+            if fan.dtype not in _FAN_ENCODINGS:
+                raise ConfigError("bag_frame.fan", f"dtype must be uint8 or float32, got {fan.dtype}")
+            put("fan", _array("fan", fan, fan.dtype.newbyteorder("<"), 2))
+        if (self.points_world is None) != (self.points_object is None):
+            raise ConfigError("bag_frame.points_object", "give points_world and points_object together, or neither")
+        if self.points_world is not None:
+            pts = _array("points_world", self.points_world, np.float32, 2)
+            obj = np.asarray(self.points_object)
+            if obj.dtype.kind not in "iu" or (obj.size and (obj.min() < -2**31 or obj.max() >= 2**31)):
+                raise ConfigError("bag_frame.points_object", f"must be int32 object ids, got dtype {obj.dtype}")
+            obj = _array("points_object", obj, np.int32, 1)
+            if pts.shape[1:] != (3,) or obj.shape != (pts.shape[0],):
+                raise ConfigError("bag_frame.points_world",
+                                  f"must be (n, 3) with points_object (n,), got {pts.shape} and {obj.shape}")
+            put("points_world", pts)
+            put("points_object", obj)
+
+    @property
+    def n_beams(self) -> int:
+        """Number of beams (columns of :attr:`polar`)."""
+        return int(self.polar.shape[1])
+
+
+def beam_directions(azimuth_deg: np.ndarray) -> np.ndarray:
+    """Beam unit vectors in the ``ProjectedSonarImage`` frame (Z forward, X up, Y right).
+
+    Parameters
+    ----------
+    azimuth_deg : (n_beams,) array_like, degrees
+        Beam azimuths, positive to the sonar's left.
+
+    Returns
+    -------
+    (n_beams, 3) float64 ndarray
+        ``(0, -sin theta, cos theta)`` per beam: a beam to the left has y < 0.
+    """
+    theta = np.radians(np.asarray(azimuth_deg, dtype=np.float64))
+    return np.stack([np.zeros_like(theta), -np.sin(theta), np.cos(theta)], axis=-1)
+
+
+def frame_from_image(
+    image: SonarImage,
+    stamp_ns: int,
+    *,
+    fan: bool | np.ndarray | None = None,
+    points_world: np.ndarray | None = None,
+    points_object: np.ndarray | None = None,
+    frequency_hz: float | None = None,
+    sound_speed_m_s: float | None = None,
+) -> BagFrame:
+    """A :class:`BagFrame` of a rendered :class:`~sonarsim.image.result.SonarImage`.
+
+    Parameters
+    ----------
+    image : SonarImage
+        Must carry its pose (renders do; real recordings do not).
+    stamp_ns : int
+        Transmit time, nanoseconds.
+    fan : bool or (height, width) ndarray, optional
+        ``True``: the image's default fan (:meth:`SonarImage.fan`); an array: that fan image.
+    points_world, points_object : ndarray, optional
+        Ground-truth points, (n, 3) float32 world frame and (n,) int32 object ids.
+    frequency_hz : float, optional
+        Default: the sensor section's ``frequency_khz``, else the sonar's, else 0 (unknown).
+    sound_speed_m_s : float, optional
+        Default: the sensor section's ``sound_speed_m_s``, else the sensor model's default.
+
+    Returns
+    -------
+    BagFrame
+        Transmit beamwidth = the sonar's elevation aperture, receive beamwidth = each beam's
+        azimuth width (:meth:`SonarConfig.effective_beam_width_deg`).
+    """
+    from ..config.sensor import SensorSpec
+
+    if image.pose is None:
+        raise SonarsimError("a bag frame needs the sonar's pose; this image has none (a real recording?)")
+    sensor = image.config.get("sensor") if isinstance(image.config, Mapping) else None
+    sensor = sensor if isinstance(sensor, Mapping) else {}
+    if frequency_hz is None:
+        khz = sensor.get("frequency_khz") or image.sonar.frequency_khz
+        frequency_hz = 1000.0 * float(khz) if khz else 0.0
+    if sound_speed_m_s is None:
+        sound_speed_m_s = float(sensor.get("sound_speed_m_s") or SensorSpec().sound_speed_m_s)
+    fan_image = image.fan().image if fan is True else (None if fan is False else fan)
+    return BagFrame(
+        stamp_ns=stamp_ns,
+        pose=image.pose,
+        polar=image.polar,
+        range_m=image.range_m,
+        azimuth_deg=image.azimuth_deg,
+        tx_beamwidth_deg=image.sonar.elevation_fov_deg,
+        rx_beamwidth_deg=image.sonar.effective_beam_width_deg(),
+        frequency_hz=frequency_hz,
+        sound_speed_m_s=sound_speed_m_s,
+        fan=fan_image,
+        points_world=points_world,
+        points_object=points_object,
+    )
+
+
+# The writer ---------------------------------------------------------------------------------
+
+
+@functools.lru_cache(maxsize=1)
+def _import_rosbags() -> tuple[Any, Any, Any]:
+    """``(Writer, StoragePlugin, typestore)``, or a SonarsimError naming the extra.
+
+    Cached: building the typestore compiles the message classes (tens of milliseconds), and
+    writers only read it.
+    """
+    try:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    except ImportError as exc:
+        raise SonarsimError(f"writing ROS 2 bags needs the 'rosbags' library ({exc}); {_EXTRA_HINT}") from None
+    # Humble's definitions of the std/geometry/sensor/tf2 messages, which later distributions
+    # kept unchanged; the marine_acoustic_msgs are not in any store and are added here.
+    typestore = get_typestore(Stores.ROS2_HUMBLE)
+    types: dict[str, Any] = {}
+    for name, text in _MSG_DEFS.items():
+        types.update(get_types_from_msg(text, name))
+    typestore.register(types)
+    return Writer, StoragePlugin, typestore
+
+
+class BagWriter:
+    """Write frames to a ROS 2 bag (a folder), atomically. Use as a context manager.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The bag folder to create (e.g. ``DIR/rosbag``); it must not exist, its parent must.
+    storage : {"mcap", "sqlite3"}
+        Storage plugin: one ``.mcap`` or ``.db3`` file inside the folder, with
+        ``metadata.yaml`` (rosbag2 format version 9).
+    frame_ids : BagFrameIds, optional
+        Names of the world, sonar and image frames.
+
+    Examples
+    --------
+    >>> with BagWriter(out / "rosbag", storage="mcap") as bag:   # doctest: +SKIP
+    ...     for i, image in enumerate(images):
+    ...         bag.write_frame(frame_from_image(image, stamp_ns=i * 100_000_000, fan=True))
+
+    Notes
+    -----
+    Frames are written in call order; give them ascending stamps. Nothing appears at
+    ``path`` until the ``with`` block (or :meth:`close`) ends without error; on error, or
+    :meth:`abort`, the partial bag is deleted.
+    """
+
+    def __init__(self, path: str | os.PathLike, storage: str = "mcap", frame_ids: BagFrameIds | None = None) -> None:
+        if storage not in BAG_STORAGES:
+            raise ConfigError("rosbag", f"storage must be one of {', '.join(BAG_STORAGES)}, got {storage!r}")
+        self.path = Path(path)
+        self.storage = storage
+        self.frame_ids = frame_ids if frame_ids is not None else BagFrameIds()
+        if not isinstance(self.frame_ids, BagFrameIds):
+            raise ConfigError("rosbag.frame_ids", f"must be a BagFrameIds, got {type(frame_ids).__name__}")
+        self.frames_written = 0
+        self._writer: Any = None
+        self._tmp_dir: Path | None = None
+        self._connections: dict[str, Any] = {}
+        self._types: dict[str, type] = {}
+        self._typestore: Any = None
+        self._last_stamp = -1
+
+    # Life cycle ------------------------------------------------------------------------
+
+    def open(self) -> BagWriter:
+        """Create the temporary bag and its connections (done by ``with``)."""
+        if self._writer is not None:
+            raise SonarsimError(f"{self.path}: the bag is already open")
+        writer_cls, plugins, typestore = _import_rosbags()
+        if self.path.exists() or self.path.is_symlink():
+            raise SonarsimError(f"{self.path}: exists already; a bag is written only to a new folder "
+                                "(remove it or choose another)")
+        parent = self.path.parent
+        if not parent.is_dir():
+            raise SonarsimError(f"{parent}: no such folder (the bag's folder is created, not its parent)")
+        try:
+            tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(self.path.name), suffix=".tmp", dir=parent))
+        except OSError as exc:
+            raise SonarsimError(f"{self.path}: cannot write here: {exc.strerror or exc}") from None
+        self._tmp_dir = tmp
+        try:
+            plugin = plugins.MCAP if self.storage == "mcap" else plugins.SQLITE3
+            # Inside the temporary folder under the final name: the storage file is named
+            # after its folder (rosbag/rosbag.mcap), and metadata.yaml lists it by that name.
+            writer = writer_cls(tmp / self.path.name, version=9, storage_plugin=plugin)
+            writer.open()
+            self._writer = writer
+            self._typestore = typestore
+            for name in ("builtin_interfaces/msg/Time", "std_msgs/msg/Header", "geometry_msgs/msg/Vector3",
+                         "geometry_msgs/msg/Point", "geometry_msgs/msg/Quaternion", "geometry_msgs/msg/Pose",
+                         "geometry_msgs/msg/Transform", "geometry_msgs/msg/TransformStamped",
+                         "sensor_msgs/msg/PointField", "marine_acoustic_msgs/msg/PingInfo",
+                         "marine_acoustic_msgs/msg/SonarImageData", *_MSGTYPES.values()):
+                self._types[name] = typestore.types[name]
+        except BaseException:
+            self._discard()
+            raise
+        return self
+
+    def close(self) -> Path:
+        """Finish the bag and move it to :attr:`path` (done by ``with`` on success).
+
+        Returns
+        -------
+        pathlib.Path
+            The bag folder.
+        """
+        if self._writer is None:
+            raise SonarsimError(f"{self.path}: the bag is not open")
+        writer, self._writer = self._writer, None
+        try:
+            writer.close()
+            os.rename(self._tmp_dir / self.path.name, self.path)
+        except BaseException as exc:
+            self._discard()
+            if isinstance(exc, OSError):
+                raise SonarsimError(f"{self.path}: cannot finish the bag: {exc.strerror or exc}") from None
+            raise
+        shutil.rmtree(self._tmp_dir, ignore_errors=True)
+        self._tmp_dir = None
+        return self.path
+
+    def abort(self) -> None:
+        """Drop the partial bag; nothing is left at :attr:`path` or in the temporary folder."""
+        self._discard()
+
+    def _discard(self) -> None:
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            try:
+                writer.abort()
+            except Exception:  # noqa: BLE001 - the folder goes anyway
+                pass
+        if self._tmp_dir is not None:
+            shutil.rmtree(self._tmp_dir, ignore_errors=True)
+            self._tmp_dir = None
+
+    def __enter__(self) -> BagWriter:
+        return self.open()
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        if exc_type is None:
+            self.close()
+        else:  # also KeyboardInterrupt and the CLI's SIGTERM exception: no partial bag
+            self._discard()
+
+    # Messages --------------------------------------------------------------------------
+
+    def write_frame(self, frame: BagFrame) -> None:
+        """Write one frame's messages (image, fan, pose, TF, points), all stamped ``frame.stamp_ns``.
+
+        Parameters
+        ----------
+        frame : BagFrame
+            Its stamp must not be earlier than the previous frame's.
+        """
+        if self._writer is None:
+            raise SonarsimError(f"{self.path}: the bag is not open (use 'with BagWriter(...) as bag')")
+        if not isinstance(frame, BagFrame):
+            raise ConfigError("bag_frame", f"must be a BagFrame, got {type(frame).__name__}")
+        if frame.stamp_ns < self._last_stamp:
+            raise ConfigError("bag_frame.stamp_ns",
+                              f"frames must come in time order: {frame.stamp_ns} after {self._last_stamp}")
+        messages = [("image", self._image_msg(frame)), ("pose", self._pose_msg(frame)), ("tf", self._tf_msg(frame))]
+        if frame.fan is not None:
+            messages.insert(1, ("fan", self._fan_msg(frame)))
+        if frame.points_world is not None:
+            messages.append(("points", self._points_msg(frame)))
+        try:
+            for key, msg in messages:
+                if key not in self._connections:
+                    # Added at first use, so that a bag without fans or points lists no such topic.
+                    self._connections[key] = self._writer.add_connection(TOPICS[key], _MSGTYPES[key],
+                                                                         typestore=self._typestore)
+                self._writer.write(self._connections[key], frame.stamp_ns,
+                                   self._typestore.serialize_cdr(msg, _MSGTYPES[key]))
+        except OSError as exc:  # a full disk: the caller's with block discards the bag
+            raise SonarsimError(f"{self.path}: cannot write the bag: {exc.strerror or exc}") from None
+        self._last_stamp = frame.stamp_ns
+        self.frames_written += 1
+
+    def _header(self, stamp_ns: int, frame_id: str) -> Any:
+        t = self._types
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        return t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
+                                        frame_id=frame_id)
+
+    def _image_msg(self, frame: BagFrame) -> Any:
+        t = self._types
+        vec = t["geometry_msgs/msg/Vector3"]
+        dirs = beam_directions(frame.azimuth_deg)
+        ping = t["marine_acoustic_msgs/msg/PingInfo"](
+            frequency=frame.frequency_hz,
+            sound_speed=frame.sound_speed_m_s,
+            tx_beamwidths=np.radians(frame.tx_beamwidth_deg).astype(np.float32),
+            rx_beamwidths=np.radians(frame.rx_beamwidth_deg).astype(np.float32),
+        )
+        # C order of (n_range_bins, n_beams) is the message's range-major order; frame.polar
+        # is little-endian already (BagFrame), so this is a view, not a copy.
+        data = np.ascontiguousarray(frame.polar).reshape(-1).view(np.uint8)
+        image = t["marine_acoustic_msgs/msg/SonarImageData"](
+            is_bigendian=False, dtype=_SONAR_DTYPES[frame.polar.dtype.newbyteorder("=")],
+            beam_count=frame.n_beams, data=data,
+        )
+        return t["marine_acoustic_msgs/msg/ProjectedSonarImage"](
+            header=self._header(frame.stamp_ns, self.frame_ids.image),
+            ping_info=ping,
+            beam_directions=[vec(x=float(x), y=float(y), z=float(z)) for x, y, z in dirs],
+            ranges=frame.range_m.astype(np.float32),
+            image=image,
+        )
+
+    def _fan_msg(self, frame: BagFrame) -> Any:
+        fan = np.ascontiguousarray(frame.fan)
+        height, width = fan.shape
+        return self._types["sensor_msgs/msg/Image"](
+            header=self._header(frame.stamp_ns, self.frame_ids.sonar),
+            height=height, width=width,
+            encoding=_FAN_ENCODINGS[fan.dtype.newbyteorder("=")],
+            is_bigendian=0, step=width * fan.dtype.itemsize,
+            data=fan.reshape(-1).view(np.uint8),
+        )
+
+    def _pose_parts(self, frame: BagFrame) -> tuple[Any, Any]:
+        t = self._types
+        x, y, z = frame.pose.position_m
+        qx, qy, qz, qw = frame.pose.quat_xyzw
+        return (t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
+                t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))
+
+    def _pose_msg(self, frame: BagFrame) -> Any:
+        t = self._types
+        position, rotation = self._pose_parts(frame)
+        pose = t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=position.x, y=position.y, z=position.z), orientation=rotation)
+        return t["geometry_msgs/msg/PoseStamped"](header=self._header(frame.stamp_ns, self.frame_ids.world), pose=pose)
+
+    def _tf_msg(self, frame: BagFrame) -> Any:
+        t = self._types
+        stamped, transform = t["geometry_msgs/msg/TransformStamped"], t["geometry_msgs/msg/Transform"]
+        position, rotation = self._pose_parts(frame)
+        qx, qy, qz, qw = SONAR_TO_IMAGE_QUAT_XYZW
+        return t["tf2_msgs/msg/TFMessage"](transforms=[
+            stamped(header=self._header(frame.stamp_ns, self.frame_ids.world), child_frame_id=self.frame_ids.sonar,
+                    transform=transform(translation=position, rotation=rotation)),
+            stamped(header=self._header(frame.stamp_ns, self.frame_ids.sonar), child_frame_id=self.frame_ids.image,
+                    transform=transform(translation=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                                        rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))),
+        ])
+
+    def _points_msg(self, frame: BagFrame) -> Any:
+        t = self._types
+        n = frame.points_world.shape[0]
+        cloud = np.empty(n, dtype=_POINT_DTYPE)
+        cloud["x"], cloud["y"], cloud["z"] = frame.points_world.T
+        cloud["object"] = frame.points_object
+        field = t["sensor_msgs/msg/PointField"]
+        fields = [field(name=name, offset=_POINT_DTYPE.fields[name][1],
+                        datatype=_POINTFIELD_INT32 if name == "object" else _POINTFIELD_FLOAT32, count=1)
+                  for name in _POINT_DTYPE.names]
+        return t["sensor_msgs/msg/PointCloud2"](
+            header=self._header(frame.stamp_ns, self.frame_ids.world),
+            height=1, width=n, fields=fields, is_bigendian=False,
+            point_step=_POINT_DTYPE.itemsize, row_step=_POINT_DTYPE.itemsize * n,
+            data=cloud.view(np.uint8), is_dense=True,  # BagFrame admits only finite points
+        )
+
+
+# Leftovers of killed runs -------------------------------------------------------------------
+
+_TEMP_DIR_RE = re.compile(r"^\.(?P<name>.+)" + re.escape(TEMP_MARK) + r"(?P<pid>[0-9]+)-[A-Za-z0-9_]+\.tmp$")
+
+
+def remove_abandoned_bags(folder: str | os.PathLike) -> list[str]:
+    """Remove the temporary bag folders that killed :class:`BagWriter` runs left in ``folder``.
+
+    A folder counts as abandoned when its name is ``.NAME.sonarsim-PID-XXXX.tmp`` and no process
+    ``PID`` exists (bags being written by live processes are left alone).
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        Where the bags are written (the parent of ``DIR/rosbag``); a missing folder holds none.
+
+    Returns
+    -------
+    list of str
+        The names of the removed folders, sorted.
+    """
+    from .output import _pid_alive  # the same liveness test as atomic_write's leftovers
+
+    try:
+        entries = list(os.scandir(folder))
+    except (FileNotFoundError, NotADirectoryError):
+        return []
+    removed = []
+    for entry in entries:
+        match = _TEMP_DIR_RE.match(entry.name)
+        if not match or not entry.is_dir(follow_symlinks=False) or _pid_alive(int(match["pid"])):
+            continue
+        shutil.rmtree(entry.path, ignore_errors=True)
+        removed.append(entry.name)
+    return sorted(removed)
+
