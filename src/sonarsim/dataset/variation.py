@@ -94,9 +94,9 @@ class Choice:
 
 
 def _pair(value: Any, key: str, what: str) -> tuple[float, float]:
-    a, b = _vector(value, key, 2) if isinstance(value, (list, tuple)) else (None, None)
-    if a is None:
-        raise ConfigError(key, f"must be [{what}], got {shown(value)}")
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise ConfigError(key, f"must be [{what}], two numbers, got {shown(value)}")
+    a, b = _vector(value, key, 2)
     return a, b
 
 
