@@ -211,7 +211,11 @@ def _check_variation(scenario: Scenario) -> None:
             if key.startswith("objects["):
                 i = int(key[len("objects["):key.index("]")])
                 if i < len(origins):
-                    key = origins[i] + key[key.index("]") + 1:]
+                    rest = key[key.index("]") + 1:]
+                    origin = origins[i]
+                    if rest == ".name" and ".pool[" in origin:  # the group names its objects
+                        origin = origin[:origin.index(".pool[")]
+                    key = origin + rest
             elif key.split(".")[0].split("[")[0] in ("ground", "planes", "sensor"):
                 key = f"variation.{key}"
             what = {"low": " (every distribution at its low end)", "high": " (every distribution at its high end)",
