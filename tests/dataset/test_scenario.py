@@ -202,6 +202,10 @@ def test_paths_are_relative_to_the_scenario_file(tmp_path):
     ({**VARIED, "variation": {"objects": [{"pool": [{"primitive": "sphere", "radius_m": 0.1},
                                                     {"primitive": "cone"}]}]}},
      "variation.objects[0].pool[1].primitive"),
+    ({**VARIED, "variation": {"objects": [{"count": 1, "pool": [{"primitive": "sphere", "radius_m": 0.1},
+                                                                {"primitive": "sphere", "radius_m": 0.1, "albedo": 7},
+                                                                {"primitive": "sphere", "radius_m": 0.2}]}]}},
+     "variation.objects[0].pool[1].albedo"),
     ({**VARIED, "variation": {"objects": [{"pool": [{"mesh": "nowhere.obj"}]}]}}, "variation.objects[0].pool[0].mesh"),
     ({**VARIED, "scene": {**SCENE, "objects": [{**SCENE["objects"][0], "name": "rock_0"}]},
       "variation": {"objects": [{"name": "rock", "pool": [{"primitive": "sphere", "radius_m": 0.1}]}]}},
@@ -239,3 +243,19 @@ def test_a_scenario_object_is_frozen():
     assert isinstance(s, Scenario)
     with pytest.raises(AttributeError):
         s.seed = 3
+
+
+def test_scenarios_and_frames_travel_to_workers():
+    """Workers (processes, Ray) receive the scenario or its frames pickled; a frame's scene
+    document is plain data (it survives YAML and JSON unchanged)."""
+    import pickle
+
+    for doc in (VARIED, {**VARIED, "trajectory": {"generate": {
+            "kind": "orbit", "centre_m": [2.5, 0, 0.15], "radius_m": 2.0, "z_m": 1.0, "frames": 5}}}):
+        s = load_scenario(doc)
+        copy = pickle.loads(pickle.dumps(s))
+        assert [copy.frame(k) for k in range(s.n_frames)] == list(s.frames())
+        f = s.frame(3)
+        assert pickle.loads(pickle.dumps(f)) == f
+        assert yaml.safe_load(yaml.safe_dump(f.scene)) == f.scene
+        assert json.loads(json.dumps(f.scene)) == f.scene

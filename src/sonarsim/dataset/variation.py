@@ -269,7 +269,8 @@ class Variation:
         rng : numpy.random.Generator
             The frame's generator (draws in the order of the module docs).
         side : {'low', 'high'}, optional
-            Instead of drawing, put every distribution at that end (:func:`probe`).
+            Instead of drawing, put every distribution at that end (:func:`probe`) and every
+            pool entry in the scene at least once (to check that they all make valid scenes).
 
         Returns
         -------
@@ -289,7 +290,8 @@ class Variation:
             if isinstance(count, bool) or not isinstance(count, int) or not 0 <= count <= MAX_OBJECTS_PER_GROUP:
                 raise ConfigError(f"variation.objects[{g}].count",
                                   f"must give an integer in [0, {MAX_OBJECTS_PER_GROUP}], got {shown(count)}")
-            for i in range(count):
+            # Probing puts every pool entry in the scene at least once, whatever the count.
+            for i in range(count if side is None else max(count, len(group.pool))):
                 if side is None:
                     p = None if group.weights is None else np.asarray(group.weights) / sum(group.weights)
                     j = int(rng.choice(len(group.pool), p=p))
