@@ -55,7 +55,7 @@ def test_frames_in_reverse_order_equal_frames_in_order():
     forward = [s.frame(k) for k in range(s.n_frames)]
     backward = [s.frame(k) for k in reversed(range(s.n_frames))][::-1]
     assert forward == backward
-    assert [frame_json(f) for f in forward] == [frame_json(f) for f in load_scenario(VARIED).frames()]
+    assert [frame_json(f) for f in forward] == [frame_json(f) for f in load_scenario(VARIED).frame_specs()]
 
 
 def test_frames_in_a_fresh_process_are_the_same(tmp_path):
@@ -77,7 +77,7 @@ def test_frames_in_a_fresh_process_are_the_same(tmp_path):
 
 def test_different_frames_and_seeds_differ():
     s = load_scenario(VARIED)
-    frames = list(s.frames())
+    frames = list(s.frame_specs())
     assert len({f.seed for f in frames}) == len(frames)
     assert len({f.pose for f in frames}) == len(frames)
     assert len({json.dumps(f.scene, sort_keys=True) for f in frames}) == len(frames)
@@ -100,7 +100,7 @@ def test_the_scenario_seed_becomes_the_render_seed_and_static_frames_share_a_doc
     s = load_scenario({"scene": SCENE, "seed": 4, "trajectory": {"generate": {
         "kind": "orbit", "centre_m": [2.5, 0, 0.15], "radius_m": 2.0, "z_m": 1.0, "frames": 6}}})
     assert s.scene["render"]["seed"] == 4 and SCENE["render"]["seed"] == 999
-    frames = list(s.frames())
+    frames = list(s.frame_specs())
     assert len({f.scene_key for f in frames}) == 1
     assert len({f.pose for f in frames}) == 6
     assert frames[2].time_s == 2.0
@@ -131,7 +131,7 @@ def test_a_frame_renders_the_same_alone_or_after_others():
     s = load_scenario({"scene": doc, "seed": 21, "trajectory": {"generate": {
         "kind": "orbit", "centre_m": [2.5, 0, 0.15], "radius_m": 2.0, "z_m": 1.0, "frames": 4, "sweep_deg": 40,
         "start_deg": 160}}})
-    frames = list(s.frames())
+    frames = list(s.frame_specs())
     with sonarsim.Simulator(frames[0].load_scene()) as sim:
         in_order = [f.render(sim, keep_rays=False).polar for f in frames]
     with sonarsim.Simulator(frames[3].scene) as sim:
@@ -254,7 +254,7 @@ def test_scenarios_and_frames_travel_to_workers():
             "kind": "orbit", "centre_m": [2.5, 0, 0.15], "radius_m": 2.0, "z_m": 1.0, "frames": 5}}}):
         s = load_scenario(doc)
         copy = pickle.loads(pickle.dumps(s))
-        assert [copy.frame(k) for k in range(s.n_frames)] == list(s.frames())
+        assert [copy.frame(k) for k in range(s.n_frames)] == list(s.frame_specs())
         f = s.frame(3)
         assert pickle.loads(pickle.dumps(f)) == f
         assert yaml.safe_load(yaml.safe_dump(f.scene)) == f.scene

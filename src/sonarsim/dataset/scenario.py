@@ -27,7 +27,7 @@ import copy
 import hashlib
 import json
 import os
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -190,7 +190,7 @@ class Scenario:
         doc, _ = self.variation.apply(self.scene, rng)
         return FrameSpec(k, seed, self.trajectory.time_s(k), pose, doc, self.base_dir)
 
-    def frames(self, start: int = 0, stop: int | None = None):
+    def frame_specs(self, start: int = 0, stop: int | None = None) -> Iterator[FrameSpec]:
         """Iterate over :meth:`frame` for ``k`` in ``[start, stop)`` (default: all)."""
         stop = self.n_frames if stop is None else min(stop, self.n_frames)
         for k in range(start, stop):
