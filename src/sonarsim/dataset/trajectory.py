@@ -1,0 +1,650 @@
+"""Sonar trajectories for datasets: poses read from files or generated, one per ping.
+
+A trajectory is a sequence of timestamped sonar poses (sonar-to-world, DESIGN.md section 1:
+``R = Rz(yaw) Ry(pitch) Rx(roll)``, x forward, positive pitch looks down). Sources:
+
+- files: CSV with the header ``t,x,y,z,roll_deg,pitch_deg,yaw_deg``, or TUM
+  (``t x y z qx qy qz qw`` per line, quaternion in ROS order x, y, z, w; ``#`` comments);
+  optionally resampled to a ping rate (linear in position, slerp in orientation);
+- generators: a lawnmower survey, an orbit looking at a point, random poses within bounds
+  looking at a target point or region (with a pitch/yaw jitter).
+
+File and generated trajectories are arrays (:class:`Trajectory`); random poses are drawn per
+frame (:class:`RandomPoses`) from the frame's own generator, so that no frame depends on another.
+Both answer ``n_frames``, ``time_s(k)`` and ``pose(k, rng)``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from ..config.loader import _check_keys, _integer, _number, _string, _vector
+from ..config.scene import MAX_COORDINATE_M
+from ..core.memory import require
+from ..core.transforms import Pose
+from ..errors import ConfigError, shown
+
+__all__ = [
+    "CSV_HEADER", "TRAJECTORY_KEYS", "GENERATORS", "PoseSource", "RandomPoses", "Trajectory", "look_at", "look_at_rpy_deg",
+    "lawnmower", "orbit", "parse_trajectory", "read_csv_trajectory", "read_trajectory", "read_tum_trajectory",
+]
+
+#: The header a CSV trajectory must start with (exactly these columns, in this order).
+CSV_HEADER = ("t", "x", "y", "z", "roll_deg", "pitch_deg", "yaw_deg")
+TRAJECTORY_KEYS = ("file", "format", "rate_hz", "generate")
+FORMATS = ("csv", "tum")
+GENERATORS = ("lawnmower", "orbit", "random")
+GENERATE_KEYS = {
+    "lawnmower": ("kind", "area_m", "spacing_m", "z_m", "speed_m_s", "pitch_deg", "legs_along"),
+    "orbit": ("kind", "centre_m", "radius_m", "z_m", "frames", "start_deg", "sweep_deg", "roll_deg"),
+    "random": ("kind", "frames", "bounds_m", "look_at_m", "look_at_bounds_m", "jitter_deg", "roll_deg"),
+}
+# What one pose costs in memory while a trajectory is built: time, position, quaternion and the
+# interpolation's temporaries (scipy's Rotation holds a few copies), as float64.
+_BYTES_PER_POSE = 8 * 8 * 4
+# Reading a file holds each row as Python floats (about 8 objects of ~30 bytes); a row is at
+# least 14 characters ("0,0,0,0,0,0,0\n"), so a file of S bytes may hold S / 14 rows.
+_BYTES_PER_FILE_BYTE = 8 * 32 // 14 + 1
+# Random poses redraw a position that coincides with its target (no direction to look along).
+_MAX_REDRAWS = 100
+
+
+# Orientation helpers --------------------------------------------------------------------
+
+def look_at_rpy_deg(position_m: Any, target_m: Any, roll_deg: float = 0.0) -> tuple[float, float, float]:
+    """Roll, pitch, yaw (degrees) that point the sonar's x axis from ``position_m`` at ``target_m``.
+
+    Parameters
+    ----------
+    position_m, target_m : (3,) array_like, metres, world frame
+    roll_deg : float
+        Roll about the acoustic axis (0: the fan plane contains the horizontal).
+
+    Returns
+    -------
+    (roll, pitch, yaw) : tuple of float, degrees
+        ``yaw = atan2(dy, dx)``; ``pitch = atan2(-dz, hypot(dx, dy))``: positive when the
+        target lies below (positive pitch looks down). A target straight above or below gives
+        pitch -90 / 90 and yaw 0.
+
+    Raises
+    ------
+    ValueError
+        The two points coincide (no direction to look along).
+    """
+    d = np.asarray(target_m, dtype=float) - np.asarray(position_m, dtype=float)
+    horizontal = math.hypot(d[0], d[1])
+    if horizontal == 0.0 and d[2] == 0.0:
+        raise ValueError("look-at target coincides with the position")
+    yaw = math.degrees(math.atan2(d[1], d[0])) if horizontal > 0 else 0.0
+    pitch = math.degrees(math.atan2(-d[2], horizontal))
+    return float(roll_deg), pitch, yaw
+
+
+def look_at(position_m: Any, target_m: Any, roll_deg: float = 0.0) -> Pose:
+    """The sonar pose at ``position_m`` whose acoustic axis (x) points at ``target_m``.
+
+    See :func:`look_at_rpy_deg` for the angles.
+    """
+    return Pose(tuple(float(v) for v in position_m), look_at_rpy_deg(position_m, target_m, roll_deg))
+
+
+def _quats_from_rpy_deg(rpy_deg: np.ndarray) -> np.ndarray:
+    """(n, 3) roll, pitch, yaw in degrees -> (n, 4) unit quaternions (x, y, z, w)."""
+    from scipy.spatial.transform import Rotation
+
+    # Extrinsic x-y-z (lower case in scipy) is R = Rz(yaw) Ry(pitch) Rx(roll), DESIGN.md section 1.
+    return Rotation.from_euler("xyz", rpy_deg, degrees=True).as_quat()
+
+
+# Trajectories ---------------------------------------------------------------------------
+
+class PoseSource(Protocol):
+    """What a scenario needs of a trajectory: frame count, timestamps and poses by frame index."""
+
+    @property
+    def n_frames(self) -> int: ...
+
+    def time_s(self, k: int) -> float: ...
+
+    def pose(self, k: int, rng: np.random.Generator | None = None) -> Pose: ...
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """Timestamped sonar poses, held as arrays (read-only).
+
+    Attributes
+    ----------
+    times_s : (n,) float64 ndarray
+        Strictly increasing timestamps, seconds.
+    positions_m : (n, 3) float64 ndarray
+        Sonar positions in the world frame, metres.
+    quats_xyzw : (n, 4) float64 ndarray
+        Unit quaternions (x, y, z, w) of the sonar-to-world rotations.
+    rpy_deg : (n, 3) float64 ndarray or None
+        The roll, pitch, yaw the poses were given with (CSV files, generators), returned
+        exactly by :meth:`pose`; ``None`` where only quaternions are known.
+    """
+
+    times_s: np.ndarray
+    positions_m: np.ndarray
+    quats_xyzw: np.ndarray
+    rpy_deg: np.ndarray | None = field(default=None)
+
+    def __post_init__(self) -> None:
+        t = np.array(self.times_s, dtype=np.float64)
+        p = np.array(self.positions_m, dtype=np.float64).reshape(-1, 3)
+        q = np.array(self.quats_xyzw, dtype=np.float64).reshape(-1, 4)
+        rpy = None if self.rpy_deg is None else np.array(self.rpy_deg, dtype=np.float64).reshape(-1, 3)
+        n = len(t)
+        if t.ndim != 1 or len(p) != n or len(q) != n or (rpy is not None and len(rpy) != n):
+            raise ValueError("times, positions, quaternions (and angles) must have one row per pose")
+        if n == 0:
+            raise ValueError("a trajectory needs at least one pose")
+        if n > 1 and not np.all(np.diff(t) > 0):
+            raise ValueError("trajectory times must be strictly increasing")
+        norms = np.linalg.norm(q, axis=1)
+        if not np.all(norms > 1e-9):
+            raise ValueError("a trajectory quaternion is zero")
+        q = q / norms[:, None]
+        for name, a in (("times_s", t), ("positions_m", p), ("quats_xyzw", q), ("rpy_deg", rpy)):
+            if a is not None:
+                a.setflags(write=False)
+                object.__setattr__(self, name, a)
+
+    @property
+    def n_frames(self) -> int:
+        """Number of poses."""
+        return len(self.times_s)
+
+    def time_s(self, k: int) -> float:
+        """Timestamp of pose ``k``, seconds."""
+        return float(self.times_s[k])
+
+    def pose(self, k: int, rng: np.random.Generator | None = None) -> Pose:
+        """Pose ``k`` (``rng`` is unused: these poses are fixed)."""
+        position = tuple(float(v) for v in self.positions_m[k])
+        if self.rpy_deg is not None:
+            return Pose(position, tuple(float(v) for v in self.rpy_deg[k]))
+        return Pose.from_quaternion(position, self.quats_xyzw[k])
+
+    def resampled(self, rate_hz: float, key: str = "trajectory.rate_hz") -> "Trajectory":
+        """The trajectory at a ping rate: times ``t0 + i / rate_hz`` up to the last timestamp.
+
+        Positions are interpolated linearly, orientations by spherical linear interpolation
+        (slerp) between the two neighbouring poses.
+
+        Parameters
+        ----------
+        rate_hz : float
+            Pings per second, > 0.
+        key : str
+            Key named in errors (the rate's place in the scenario file).
+
+        Raises
+        ------
+        ConfigError
+            ``rate_hz`` is not positive, or gives more poses than the memory budget holds.
+        """
+        from scipy.spatial.transform import Rotation, Slerp
+
+        if not rate_hz > 0 or not math.isfinite(rate_hz):
+            raise ConfigError(key, f"must be a positive number of pings per second, got {shown(rate_hz)}")
+        duration = float(self.times_s[-1] - self.times_s[0])
+        # The 1e-9 keeps a last sample that lands on the final timestamp up to round-off.
+        n_float = math.floor(duration * rate_hz * (1 + 1e-12) + 1e-9) + 1
+        require(n_float * _BYTES_PER_POSE, f"{n_float:.3g} poses at {rate_hz:g} Hz over {duration:g} s", key)
+        n = int(n_float)
+        t = self.times_s[0] + np.arange(n) / rate_hz
+        t = np.minimum(t, self.times_s[-1])  # round-off past the end would be an extrapolation
+        positions = np.column_stack([np.interp(t, self.times_s, self.positions_m[:, i]) for i in range(3)])
+        if self.n_frames == 1:
+            quats = np.repeat(self.quats_xyzw, n, axis=0)
+        else:
+            quats = Slerp(self.times_s, Rotation.from_quat(self.quats_xyzw))(t).as_quat()
+        return Trajectory(t, positions, quats)
+
+
+@dataclass(frozen=True)
+class RandomPoses:
+    """Poses drawn per frame: positions uniform in a box, looking at a target point or region.
+
+    Frame ``k``'s pose comes from that frame's generator only (see :meth:`pose`), so any frame
+    can be drawn alone, in any order, by any process.
+
+    Attributes
+    ----------
+    frames : int
+        Number of frames.
+    bounds_m : ((3,), (3,)) tuple of float
+        Lower and upper corners of the box the positions are drawn from (uniform), metres.
+    target_bounds_m : ((3,), (3,)) tuple of float
+        Lower and upper corners of the target region (equal corners: a target point).
+    jitter_deg : (2,) tuple of float
+        Half-widths of the uniform jitter added to the look-at pitch and yaw, degrees (>= 0).
+    roll_deg : float
+        Roll of every pose, degrees.
+    rate_hz : float
+        Ping rate: frame ``k`` is at time ``k / rate_hz``.
+    """
+
+    frames: int
+    bounds_m: tuple[tuple[float, float, float], tuple[float, float, float]]
+    target_bounds_m: tuple[tuple[float, float, float], tuple[float, float, float]]
+    jitter_deg: tuple[float, float] = (0.0, 0.0)
+    roll_deg: float = 0.0
+    rate_hz: float = 1.0
+
+    @property
+    def n_frames(self) -> int:
+        return self.frames
+
+    def time_s(self, k: int) -> float:
+        return k / self.rate_hz
+
+    def pose(self, k: int, rng: np.random.Generator | None = None) -> Pose:
+        """Draw frame ``k``'s pose from ``rng`` (the frame's generator; required).
+
+        Draws, in this order: position (3 uniforms), target (3 uniforms), pitch and yaw jitter
+        (2 uniforms in [-1, 1] scaled by ``jitter_deg``); a position that coincides with its
+        target is drawn again.
+        """
+        if rng is None:
+            raise ValueError("random poses need the frame's generator")
+        lo, hi = np.array(self.bounds_m[0]), np.array(self.bounds_m[1])
+        tlo, thi = np.array(self.target_bounds_m[0]), np.array(self.target_bounds_m[1])
+        for _ in range(_MAX_REDRAWS):
+            position = rng.uniform(lo, hi)
+            target = rng.uniform(tlo, thi)
+            jitter = rng.uniform(-1.0, 1.0, 2) * np.asarray(self.jitter_deg)
+            if np.linalg.norm(target - position) > 1e-6:
+                roll, pitch, yaw = look_at_rpy_deg(position, target, self.roll_deg)
+                return Pose(tuple(float(v) for v in position), (roll, pitch + float(jitter[0]), yaw + float(jitter[1])))
+        raise ConfigError("trajectory.generate.look_at_bounds_m", "the positions keep coinciding with their targets")
+
+
+# Generators -----------------------------------------------------------------------------
+
+def orbit(centre_m: Any, radius_m: float, z_m: float, frames: int, rate_hz: float = 1.0, start_deg: float = 0.0,
+          sweep_deg: float = 360.0, roll_deg: float = 0.0) -> Trajectory:
+    """Poses on a horizontal circle around ``centre_m``, each looking at ``centre_m``.
+
+    Parameters
+    ----------
+    centre_m : (3,) array_like, metres
+        The point orbited and looked at.
+    radius_m : float
+        Horizontal distance from the centre, > 0.
+    z_m : float
+        World height of the sonar, metres.
+    frames : int
+        Number of poses, >= 1.
+    rate_hz : float
+        Ping rate: pose ``i`` at time ``i / rate_hz``.
+    start_deg, sweep_deg : float
+        Angle of the first position around the centre (0: on the +x side, 90: on the +y side)
+        and the angle swept, counter-clockwise when positive. A full turn (|sweep| = 360)
+        spaces the frames by sweep / frames (the last does not repeat the first); a partial
+        sweep includes both ends.
+    roll_deg : float
+        Roll of every pose.
+
+    Returns
+    -------
+    Trajectory
+        Pose ``i`` at ``centre + radius (cos a_i, sin a_i)`` and height ``z_m``, yaw
+        ``a_i + 180`` degrees (facing the centre), pitch looking at the centre's height.
+    """
+    centre = np.asarray(centre_m, dtype=float)
+    full = abs(abs(sweep_deg) - 360.0) < 1e-9
+    steps = frames if full else max(frames - 1, 1)
+    a = np.radians(start_deg + sweep_deg * np.arange(frames) / steps)
+    positions = np.column_stack([centre[0] + radius_m * np.cos(a), centre[1] + radius_m * np.sin(a),
+                                 np.full(frames, float(z_m))])
+    rpy = np.array([look_at_rpy_deg(p, centre, roll_deg) for p in positions])
+    return Trajectory(np.arange(frames) / rate_hz, positions, _quats_from_rpy_deg(rpy), rpy)
+
+
+def lawnmower(area_m: Any, spacing_m: float, z_m: float, speed_m_s: float, rate_hz: float, pitch_deg: float = 0.0,
+              legs_along: str = "x", key: str = "trajectory.generate") -> Trajectory:
+    """A lawnmower (boustrophedon) survey of a rectangle, sampled at a ping rate.
+
+    Legs run parallel to the x axis (``legs_along='x'``) or the y axis, from the first corner of
+    ``area_m`` towards the second: the first leg starts at ``area_m[0]``, the legs are
+    ``spacing_m`` apart (the last within the area), and each turn is a straight crossing of
+    ``spacing_m`` at the end of a leg. The sonar looks along its direction of motion (yaw of
+    the leg or crossing it is on; at a corner it already faces the next segment), pitched by
+    ``pitch_deg`` (positive: down), at constant speed.
+
+    Parameters
+    ----------
+    area_m : ((2,), (2,)) array_like
+        Start corner ``(x0, y0)`` and opposite corner ``(x1, y1)``, metres.
+    spacing_m : float
+        Distance between legs, > 0.
+    z_m : float
+        World height of the sonar, metres.
+    speed_m_s, rate_hz : float
+        Speed along the path and ping rate (> 0): pose ``i`` is ``i * speed / rate`` metres
+        along the path, at time ``i / rate``.
+    pitch_deg : float
+    legs_along : {'x', 'y'}
+    key : str
+        Key named in errors.
+
+    Returns
+    -------
+    Trajectory
+
+    Raises
+    ------
+    ConfigError
+        Too many legs or poses for the memory budget.
+    """
+    (x0, y0), (x1, y1) = np.asarray(area_m, dtype=float)
+    along = (x0, x1) if legs_along == "x" else (y0, y1)
+    across = (y0, y1) if legs_along == "x" else (x0, x1)
+    width = abs(across[1] - across[0])
+    n_legs_float = math.floor(width / spacing_m + 1e-9) + 1
+    require(n_legs_float * 2 * 3 * 8 * 4, f"{n_legs_float:.3g} legs {spacing_m:g} m apart", f"{key}.spacing_m")
+    n_legs = int(n_legs_float)
+    sign = 1.0 if across[1] >= across[0] else -1.0
+    offsets = across[0] + sign * spacing_m * np.arange(n_legs)
+    ends = np.where(np.arange(n_legs) % 2 == 0, along[1], along[0])
+    starts = np.where(np.arange(n_legs) % 2 == 0, along[0], along[1])
+    # Waypoints (along, across): start and end of each leg; consecutive legs joined by a crossing.
+    a_coord = np.column_stack([starts, ends]).ravel()
+    c_coord = np.repeat(offsets, 2)
+    xy = np.column_stack([a_coord, c_coord]) if legs_along == "x" else np.column_stack([c_coord, a_coord])
+    seg = np.diff(xy, axis=0)
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    keep = length > 0  # a zero-length leg (area of zero width along the legs) has no heading
+    if not keep.any():
+        raise ConfigError(f"{key}.area_m", "the area has no extent to survey (its corners coincide)")
+    xy = np.vstack([xy[:1], xy[1:][keep]])
+    seg, length = seg[keep], length[keep]
+    cum = np.concatenate([[0.0], np.cumsum(length)])
+    total = float(cum[-1])
+    n_float = math.floor(total / speed_m_s * rate_hz * (1 + 1e-12) + 1e-9) + 1
+    require(n_float * _BYTES_PER_POSE, f"{n_float:.3g} poses over {total:g} m at {speed_m_s:g} m/s and {rate_hz:g} Hz",
+            f"{key}.speed_m_s")
+    n = int(n_float)
+    s = np.minimum(np.arange(n) * (speed_m_s / rate_hz), total)
+    x = np.interp(s, cum, xy[:, 0])
+    y = np.interp(s, cum, xy[:, 1])
+    which = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+    yaw = np.degrees(np.arctan2(seg[which, 1], seg[which, 0]))
+    rpy = np.column_stack([np.zeros(n), np.full(n, float(pitch_deg)), yaw])
+    positions = np.column_stack([x, y, np.full(n, float(z_m))])
+    return Trajectory(np.arange(n) / rate_hz, positions, _quats_from_rpy_deg(rpy), rpy)
+
+
+# Files ----------------------------------------------------------------------------------
+
+def _file_rows(path: Path, key: str) -> list[tuple[int, str]]:
+    """Non-blank, non-comment lines of a trajectory file with their 1-based line numbers."""
+    try:
+        if path.is_dir():
+            raise ConfigError(key, f"{path} is a directory, not a trajectory file")
+        if not path.is_file():
+            raise ConfigError(key, f"{path}: trajectory file not found" if not path.exists()
+                              else f"{path}: not a regular file")
+        size = path.stat().st_size
+    except OSError as exc:
+        raise ConfigError(key, f"{shown(str(path))}: cannot read the trajectory file: {exc.strerror or exc}") from None
+    require(size * _BYTES_PER_FILE_BYTE, f"reading the trajectory file {path} ({size / 2**20:.3g} MiB)", key)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(key, f"{path}: not UTF-8 text (byte {exc.start})") from None
+    except OSError as exc:
+        raise ConfigError(key, f"{path}: cannot read the trajectory file: {exc.strerror or exc}") from None
+    rows = []
+    for i, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if stripped and not stripped.startswith("#"):
+            rows.append((i, stripped))
+    if not rows:
+        raise ConfigError(key, f"{path}: the trajectory file has no poses")
+    return rows
+
+
+def _numbers(fields: list[str], n: int, path: Path, line: int, key: str, what: str) -> list[float]:
+    if len(fields) != n:
+        raise ConfigError(key, f"{path}: line {line}: expected {n} values ({what}), got {len(fields)}")
+    out = []
+    for name, text in zip(what.split(), fields):
+        try:
+            v = float(text)
+        except ValueError:
+            raise ConfigError(key, f"{path}: line {line}: {name} is not a number: {shown(text)}") from None
+        if not math.isfinite(v):
+            raise ConfigError(key, f"{path}: line {line}: {name} must be finite, got {shown(text)}")
+        out.append(v)
+    return out
+
+
+def _check_rows(path: Path, lines: list[int], t: np.ndarray, p: np.ndarray, key: str) -> None:
+    """Times strictly increasing and positions within the scene's plausible extent, naming the line."""
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if len(bad):
+        i = int(bad[0]) + 1
+        raise ConfigError(key, f"{path}: line {lines[i]}: time {t[i]:g} s does not follow the previous "
+                          f"{t[i - 1]:g} s (times must increase strictly)")
+    far = np.flatnonzero(np.abs(p).max(axis=1) > MAX_COORDINATE_M)
+    if len(far):
+        i = int(far[0])
+        raise ConfigError(key, f"{path}: line {lines[i]}: position {p[i].tolist()} lies beyond "
+                          f"{MAX_COORDINATE_M:g} m of the origin")
+
+
+def read_csv_trajectory(path: str | os.PathLike, key: str = "trajectory.file") -> Trajectory:
+    """Read a CSV trajectory: the header ``t,x,y,z,roll_deg,pitch_deg,yaw_deg``, then one pose a row.
+
+    ``t`` in seconds (strictly increasing), position in metres (world frame), angles in degrees
+    (DESIGN.md section 1). Blank lines and lines starting with ``#`` are skipped; spaces
+    around values are allowed.
+
+    Raises
+    ------
+    ConfigError
+        ``key``, with the file and line: a missing or different header, a row without 7
+        numbers, times not increasing, a directory or missing file, no rows.
+    """
+    p = Path(path)
+    rows = _file_rows(p, key)
+    header_line, header = rows[0]
+    names = tuple(h.strip() for h in header.split(","))
+    if names != CSV_HEADER:
+        raise ConfigError(key, f"{p}: line {header_line}: the header must be exactly {','.join(CSV_HEADER)}, "
+                          f"got {shown(header)}")
+    if len(rows) == 1:
+        raise ConfigError(key, f"{p}: the trajectory file has a header but no poses")
+    values = np.array([_numbers(text.split(","), 7, p, line, key, " ".join(CSV_HEADER)) for line, text in rows[1:]])
+    lines = [line for line, _ in rows[1:]]
+    _check_rows(p, lines, values[:, 0], values[:, 1:4], key)
+    angles = values[:, 4:7]
+    big = np.flatnonzero(np.abs(angles).max(axis=1) > 720.0)
+    if len(big):
+        raise ConfigError(key, f"{p}: line {lines[int(big[0])]}: angles must lie within +-720 degrees")
+    return Trajectory(values[:, 0], values[:, 1:4], _quats_from_rpy_deg(angles), angles)
+
+
+def read_tum_trajectory(path: str | os.PathLike, key: str = "trajectory.file") -> Trajectory:
+    """Read a TUM trajectory: ``t x y z qx qy qz qw`` per line (whitespace-separated).
+
+    The quaternion is in ROS order (x, y, z, w), scalar last, and is normalised; ``#`` starts a
+    comment line.
+
+    Raises
+    ------
+    ConfigError
+        ``key``, with the file and line: a row without 8 numbers, a zero quaternion, times not
+        increasing, a directory or missing file, no rows.
+    """
+    p = Path(path)
+    rows = _file_rows(p, key)
+    values = np.array([_numbers(text.split(), 8, p, line, key, "t x y z qx qy qz qw") for line, text in rows])
+    lines = [line for line, _ in rows]
+    _check_rows(p, lines, values[:, 0], values[:, 1:4], key)
+    norms = np.array([math.hypot(*q) for q in values[:, 4:8]])
+    zero = np.flatnonzero(~(norms > 1e-9) | ~np.isfinite(norms))
+    if len(zero):
+        raise ConfigError(key, f"{p}: line {lines[int(zero[0])]}: the quaternion must not be zero")
+    return Trajectory(values[:, 0], values[:, 1:4], values[:, 4:8] / norms[:, None])
+
+
+def read_trajectory(path: str | os.PathLike, fmt: str | None = None, key: str = "trajectory.file") -> Trajectory:
+    """Read a trajectory file, CSV or TUM.
+
+    ``fmt`` ``None`` guesses: CSV when the name ends in ``.csv`` or the first line that is not a
+    comment starts with ``t,``; TUM otherwise.
+    """
+    p = Path(path)
+    if fmt is None:
+        fmt = "csv"
+        if p.suffix.lower() != ".csv":
+            rows = _file_rows(p, key)
+            fmt = "csv" if rows[0][1].replace(" ", "").startswith("t,") else "tum"
+    return read_csv_trajectory(p, key) if fmt == "csv" else read_tum_trajectory(p, key)
+
+
+# The scenario's ``trajectory`` section --------------------------------------------------
+
+def _positive(value: Any, key: str) -> float:
+    v = _number(value, key)
+    if v <= 0:
+        raise ConfigError(key, f"must be > 0, got {shown(value)}")
+    return v
+
+
+def _corners(value: Any, key: str, n: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise ConfigError(key, f"must be two corners [[{', '.join('lo' for _ in range(n))}], "
+                          f"[{', '.join('hi' for _ in range(n))}]], got {shown(value)}")
+    lo = _vector(value[0], f"{key}[0]", n)
+    hi = _vector(value[1], f"{key}[1]", n)
+    for v in (*lo, *hi):
+        if abs(v) > MAX_COORDINATE_M:
+            raise ConfigError(key, f"must lie within {MAX_COORDINATE_M:g} m of the origin, got {shown(value)}")
+    return lo, hi
+
+
+def _frames(d: Mapping, key: str) -> int:
+    if "frames" not in d:
+        raise ConfigError(f"{key}.frames", "required: the number of frames to generate")
+    n = _integer(d["frames"], f"{key}.frames")
+    if n < 1:
+        raise ConfigError(f"{key}.frames", f"must be at least 1, got {n}")
+    require(n * _BYTES_PER_POSE, f"{n} poses", f"{key}.frames")
+    return n
+
+
+def _angle(d: Mapping, name: str, key: str, default: float = 0.0) -> float:
+    v = _number(d.get(name, default), f"{key}.{name}")
+    if abs(v) > 720.0:
+        raise ConfigError(f"{key}.{name}", f"must lie within +-720 degrees, got {shown(v)}")
+    return v
+
+
+def _coordinate(d: Mapping, name: str, key: str) -> float:
+    if name not in d:
+        raise ConfigError(f"{key}.{name}", "required")
+    v = _number(d[name], f"{key}.{name}")
+    if abs(v) > MAX_COORDINATE_M:
+        raise ConfigError(f"{key}.{name}", f"must lie within {MAX_COORDINATE_M:g} m of the origin, got {shown(v)}")
+    return v
+
+
+def _required(d: Mapping, name: str, key: str) -> Any:
+    if name not in d:
+        raise ConfigError(f"{key}.{name}", "required")
+    return d[name]
+
+
+def _parse_generate(d: Any, rate_hz: float | None, key: str = "trajectory.generate") -> PoseSource:
+    if not isinstance(d, Mapping):
+        raise ConfigError(key, f"must be a mapping with a `kind` ({', '.join(GENERATORS)}), got {shown(d)}")
+    kind = _string(_required(d, "kind", key), f"{key}.kind")
+    if kind not in GENERATORS:
+        raise ConfigError(f"{key}.kind", f"unknown generator {shown(kind)}; allowed: {', '.join(GENERATORS)}")
+    _check_keys(d, GENERATE_KEYS[kind], key)
+    if kind == "orbit":
+        centre = _vector(_required(d, "centre_m", key), f"{key}.centre_m", 3)
+        sweep = _angle(d, "sweep_deg", key, 360.0)
+        if sweep == 0 or abs(sweep) > 360.0:
+            raise ConfigError(f"{key}.sweep_deg", f"must be non-zero and within +-360 degrees, got {sweep:g}")
+        return orbit(centre, _positive(_required(d, "radius_m", key), f"{key}.radius_m"), _coordinate(d, "z_m", key),
+                     _frames(d, key), rate_hz or 1.0, _angle(d, "start_deg", key), sweep, _angle(d, "roll_deg", key))
+    if kind == "lawnmower":
+        if rate_hz is None:
+            raise ConfigError("trajectory.rate_hz", "required with a lawnmower: the ping rate that, with the speed, "
+                              "spaces the poses along the path")
+        legs_along = _string(d.get("legs_along", "x"), f"{key}.legs_along")
+        if legs_along not in ("x", "y"):
+            raise ConfigError(f"{key}.legs_along", f"must be 'x' or 'y', got {shown(legs_along)}")
+        area = _corners(_required(d, "area_m", key), f"{key}.area_m", 2)
+        return lawnmower(area, _positive(_required(d, "spacing_m", key), f"{key}.spacing_m"), _coordinate(d, "z_m", key),
+                         _positive(_required(d, "speed_m_s", key), f"{key}.speed_m_s"), rate_hz,
+                         _angle(d, "pitch_deg", key), legs_along, key)
+    # random
+    frames = _integer(_required(d, "frames", key), f"{key}.frames")
+    if frames < 1:
+        raise ConfigError(f"{key}.frames", f"must be at least 1, got {frames}")
+    bounds = _corners(_required(d, "bounds_m", key), f"{key}.bounds_m", 3)
+    if ("look_at_m" in d) == ("look_at_bounds_m" in d):
+        raise ConfigError(f"{key}.look_at_m", "give exactly one of look_at_m (a point) and look_at_bounds_m (a box)")
+    if "look_at_m" in d:
+        point = _vector(d["look_at_m"], f"{key}.look_at_m", 3)
+        target = (point, point)
+    else:
+        target = _corners(d["look_at_bounds_m"], f"{key}.look_at_bounds_m", 3)
+    for name, (lo, hi) in (("bounds_m", bounds), ("look_at_bounds_m", target)):
+        if any(a > b for a, b in zip(lo, hi)):
+            raise ConfigError(f"{key}.{name}", f"the first corner must be the lower one on every axis, got {[lo, hi]}")
+    jitter = _vector(d.get("jitter_deg", [0.0, 0.0]), f"{key}.jitter_deg", 2)
+    if any(not 0 <= j <= 180 for j in jitter):
+        raise ConfigError(f"{key}.jitter_deg", f"pitch and yaw jitter must lie in [0, 180] degrees, got {list(jitter)}")
+    return RandomPoses(frames, bounds, target, jitter, _angle(d, "roll_deg", key), rate_hz or 1.0)
+
+
+def parse_trajectory(d: Any, base_dir: Path | None) -> PoseSource:
+    """The scenario's ``trajectory`` section.
+
+    Keys: ``file`` (CSV or TUM; relative to ``base_dir``) with an optional ``format``
+    (``csv`` | ``tum``; guessed otherwise), or ``generate`` (a mapping with ``kind``:
+    ``lawnmower`` | ``orbit`` | ``random``); ``rate_hz`` resamples a file's poses to that ping
+    rate (optional), and is the ping rate of the generators (required for ``lawnmower``,
+    1 Hz by default for the others).
+    """
+    _check_keys(d, TRAJECTORY_KEYS, "trajectory")
+    if ("file" in d) == ("generate" in d):
+        raise ConfigError("trajectory", "give exactly one of `file` (a CSV or TUM trajectory) and `generate`")
+    rate_hz = None
+    if "rate_hz" in d:
+        rate_hz = _number(d["rate_hz"], "trajectory.rate_hz")
+        if rate_hz <= 0:
+            raise ConfigError("trajectory.rate_hz", f"must be a positive number of pings per second, got {shown(rate_hz)}")
+    if "generate" in d:
+        if "format" in d:
+            raise ConfigError("trajectory.format", "only with `file`")
+        return _parse_generate(d["generate"], rate_hz)
+    path = Path(_string(d["file"], "trajectory.file"))
+    if base_dir is not None and not path.is_absolute():
+        path = base_dir / path
+    fmt = None
+    if "format" in d:
+        fmt = _string(d["format"], "trajectory.format")
+        if fmt not in FORMATS:
+            raise ConfigError("trajectory.format", f"unknown format {shown(fmt)}; allowed: {', '.join(FORMATS)}")
+    trajectory = read_trajectory(path, fmt)
+    return trajectory.resampled(rate_hz) if rate_hz is not None else trajectory
+
