@@ -1,0 +1,220 @@
+"""Rendering a scenario's frames: one simulator per scene, each frame from its FrameSpec alone.
+
+:func:`frames` is the in-memory side of a dataset (training loops, notebooks): it yields
+:class:`Frame` objects (the rendered :class:`~sonarsim.image.result.SonarImage` and the
+:class:`~sonarsim.dataset.scenario.FrameSpec` it came from) without writing anything.
+:func:`sonarsim.dataset.generate` renders the same frames through the same
+:func:`render_frame`, so a frame from :func:`frames` equals the one in the dataset's NPZ.
+
+Ground truth (``labels=True``) comes from the renderer (``Simulator.render(..., labels=True)``,
+:mod:`sonarsim.image.labels`) where it is available; :func:`frame_arrays` is the one place
+that turns a rendered frame into the named arrays of a dataset file.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import os
+from collections import OrderedDict
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .scenario import FrameSpec, Scenario, load_scenario
+
+if TYPE_CHECKING:
+    from ..image.result import SonarImage
+    from ..renderer.simulator import Simulator
+
+__all__ = ["Frame", "SimulatorCache", "as_scenario", "frame_arrays", "frames", "labels_supported", "render_frame"]
+
+# Simulators kept per process: frames that vary their scene each get their own key, and a
+# simulator holds its meshes and ray-casting structures; a few cover a scenario that cycles
+# through a handful of scenes without letting memory grow with the frame count.
+DEFAULT_CACHE_SIZE = 4
+
+
+@functools.lru_cache(maxsize=1)
+def labels_supported() -> bool:
+    """Whether this sonarsim's renderer can attach ground truth (``render(..., labels=True)``)."""
+    from ..renderer.simulator import Simulator
+
+    return "labels" in inspect.signature(Simulator.render).parameters
+
+
+def as_scenario(scenario: Scenario | str | os.PathLike | Mapping, frames: int | None = None) -> Scenario:
+    """A :class:`Scenario` from a loaded scenario, a scenario file or its document.
+
+    Parameters
+    ----------
+    scenario : Scenario, path or mapping
+        What :func:`~sonarsim.dataset.load_scenario` accepts, or a scenario already loaded.
+    frames : int, optional
+        Cap on the number of frames (``--frames N``).
+    """
+    if isinstance(scenario, Scenario):
+        return scenario.capped(frames) if frames is not None else scenario
+    return load_scenario(scenario, frames=frames)
+
+
+class SimulatorCache:
+    """Simulators by :attr:`FrameSpec.scene_key`, built once and kept between frames.
+
+    Parameters
+    ----------
+    threads : int, optional
+        Ray-casting threads of each simulator; ``None``: the scene's ``render.threads``.
+        A worker process of :func:`sonarsim.dataset.generate` sets it to its share of the
+        cores. Threads change how fast a frame renders, never what it holds.
+    max_size : int
+        Simulators kept; the least recently used one is closed beyond that.
+    backend : {"embree", "numpy"}
+        Ray-casting engine.
+    """
+
+    def __init__(self, threads: int | None = None, max_size: int = DEFAULT_CACHE_SIZE,
+                 backend: str = "embree") -> None:
+        self.threads = threads
+        self.max_size = max(1, int(max_size))
+        self.backend = backend
+        self._sims: OrderedDict[str, Simulator] = OrderedDict()
+        self.built = 0  # simulators built so far (tests check the reuse)
+
+    def get(self, spec: FrameSpec) -> Simulator:
+        """The simulator of ``spec``'s scene (built at first use)."""
+        from ..renderer.simulator import Simulator
+
+        key = spec.scene_key
+        sim = self._sims.get(key)
+        if sim is not None:
+            self._sims.move_to_end(key)
+            return sim
+        scene = spec.load_scene()
+        if self.threads is not None:
+            scene = replace(scene, render=replace(scene.render, threads=int(self.threads)))
+        sim = Simulator(scene, backend=self.backend)
+        self.built += 1
+        self._sims[key] = sim
+        while len(self._sims) > self.max_size:
+            _, old = self._sims.popitem(last=False)
+            old.close()
+        return sim
+
+    def close(self) -> None:
+        """Close every simulator (their worker threads stop)."""
+        while self._sims:
+            _, sim = self._sims.popitem()
+            sim.close()
+
+    def __enter__(self) -> SimulatorCache:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def render_frame(spec: FrameSpec, cache: SimulatorCache, labels: bool = True) -> SonarImage:
+    """Render one frame from its spec alone (pose, seed, scene), without per-ray maps.
+
+    Parameters
+    ----------
+    spec : FrameSpec
+    cache : SimulatorCache
+        Where the frame's simulator comes from.
+    labels : bool
+        Ask the renderer for ground truth; ignored by a renderer without it
+        (:func:`labels_supported`).
+
+    Returns
+    -------
+    SonarImage
+        The frame; its draws (speckle, noise) come from ``(render.seed, spec.index)``.
+    """
+    kwargs: dict[str, Any] = {"keep_rays": False}
+    if labels and labels_supported():
+        kwargs["labels"] = True
+    return spec.render(cache.get(spec), **kwargs)
+
+
+def frame_arrays(image: SonarImage) -> dict[str, np.ndarray]:
+    """The named arrays of a rendered frame, as a dataset's NPZ holds them.
+
+    ``polar`` (n_range_bins, n_beams) float32, ``range_m`` (n_range_bins,) metres,
+    ``azimuth_deg`` (n_beams,) degrees, one image per component (``object``, ``ground``,
+    ``total``, ...), and with ground truth its arrays (``instance`` int32 like ``polar``,
+    ``elevation_deg`` float32, ``points_world`` (n, 3) float32, ``points_object`` (n,) int32,
+    ``boxes_polar``, ...; see :mod:`sonarsim.image.labels`).
+
+    This is the one place that knows where labels live on a rendered image.
+    """
+    out = dict(image.arrays())
+    labels = getattr(image, "labels", None)
+    if labels is not None:
+        # Renderers whose arrays() already include the labels give the same names again.
+        for name, value in labels.arrays().items():
+            out.setdefault(name, value)
+    return out
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One rendered frame of a scenario.
+
+    Attributes
+    ----------
+    spec : FrameSpec
+        What was rendered (index, seed, time, pose, scene).
+    image : SonarImage
+        The rendered image, with ``labels`` when the renderer provides them.
+    """
+
+    spec: FrameSpec
+    image: Any
+
+    @property
+    def index(self) -> int:
+        """The frame index ``k``."""
+        return self.spec.index
+
+    @property
+    def labels(self) -> Any:
+        """The frame's ground truth, or ``None`` (renderer without labels, or ``labels=False``)."""
+        return getattr(self.image, "labels", None)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """:func:`frame_arrays` of the image: what the dataset's NPZ holds."""
+        return frame_arrays(self.image)
+
+
+def frames(scenario: Scenario | str | os.PathLike | Mapping, start: int = 0, stop: int | None = None,
+           labels: bool = True, threads: int | None = None) -> Iterator[Frame]:
+    """Render a scenario's frames ``start .. stop - 1`` in order, without writing anything.
+
+    Each frame is rendered from its :class:`FrameSpec` alone (a simulator is built once per
+    scene and kept), so frame ``k`` is the same here, in :func:`sonarsim.dataset.generate`'s
+    files, and whatever frames were rendered before it.
+
+    Parameters
+    ----------
+    scenario : Scenario, path or mapping
+        A loaded scenario, or what :func:`~sonarsim.dataset.load_scenario` reads.
+    start, stop : int
+        Frame range; ``stop=None``: to the scenario's last frame. Clipped to the scenario.
+    labels : bool
+        With ground truth (``frame.labels``) where the renderer provides it.
+    threads : int, optional
+        Ray-casting threads per simulator (default: the scene's ``render.threads``).
+
+    Yields
+    ------
+    Frame
+    """
+    scenario = as_scenario(scenario)
+    if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:
+        raise ValueError(f"start must be a frame index >= 0, got {start!r}")
+    with SimulatorCache(threads=threads) as cache:
+        for spec in scenario.frame_specs(int(start), stop):
+            yield Frame(spec, render_frame(spec, cache, labels))

@@ -1,0 +1,217 @@
+"""A dataset folder's manifest (``manifest.jsonl``) and identity (``dataset.json``).
+
+``manifest.jsonl`` holds one JSON object per finished frame, one per line::
+
+    {"frame": 3, "time_s": 1.5, "seed": 8431..., "pose": {"position_m": [...], "rpy_deg": [...]},
+     "spec_sha256": "...", "files": ["frames/000003.npz"], "bytes": {"frames/000003.npz": 912345},
+     "sha256": {"frames/000003.npz": "..."}, "boxes": [...], "check": "..."}
+
+``files`` are relative to the dataset folder; ``bytes`` and ``sha256`` give each file's size and
+checksum; ``spec_sha256`` is :func:`spec_digest` of the frame's :class:`FrameSpec` (index, seed,
+time, pose, scene), so a line made by another scenario is recognised; ``check`` is the sha256 of
+the line's other keys (canonical JSON: sorted keys, no spaces), so a damaged line is recognised
+even when it still parses. ``boxes`` (with ground truth): per object that dominates some cells,
+``{"id", "name", "polar": [bin_min, beam_min, bin_max, beam_max], "fan": [row_min, col_min,
+row_max, col_max]}``, inclusive pixel indices.
+
+While frames are being made, lines are appended in the order frames finish, each written with
+one ``write`` and flushed to disk (``fsync``) before the next frame is committed; a run killed
+mid-line leaves a torn last line, which does not parse and is dropped. When all frames are done,
+the manifest is rewritten in frame order (temporary file and rename), so a finished manifest
+is the same whatever the number of workers and the order they finished in.
+
+``dataset.json`` holds the dataset's fingerprint: the sha256 of the options that shape its
+files and of every frame's :func:`spec_digest` in order (:class:`Fingerprint`). A later run in
+the same folder must have the same fingerprint (or extend the same frames further).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import IO, Any
+
+from .scenario import FrameSpec
+
+__all__ = [
+    "INFO_NAME",
+    "MANIFEST_NAME",
+    "Fingerprint",
+    "ManifestAppender",
+    "canonical_json",
+    "file_digest",
+    "read_manifest",
+    "seal_record",
+    "spec_digest",
+    "verify_record",
+]
+
+#: The manifest's name in a dataset folder.
+MANIFEST_NAME = "manifest.jsonl"
+#: The dataset's identity (fingerprint, options, frame count) in a dataset folder.
+INFO_NAME = "dataset.json"
+#: Layout version of the files, part of the fingerprint.
+DATASET_FORMAT = 1
+
+
+def canonical_json(value: Any) -> str:
+    """JSON with sorted keys and no spaces: equal values give equal text (and digests)."""
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def spec_digest(spec: FrameSpec) -> str:
+    """sha256 (hex) of everything that makes frame ``spec.index``: index, seed, time, pose, scene.
+
+    The pose enters as its 4 x 4 matrix, exactly (JSON writes floats so that they read back
+    bit for bit).
+    """
+    doc = {"index": spec.index, "seed": spec.seed, "time_s": spec.time_s,
+           "pose": spec.pose.matrix().tolist(), "scene_key": spec.scene_key}
+    return hashlib.sha256(canonical_json(doc).encode()).hexdigest()
+
+
+def file_digest(path: str | os.PathLike) -> tuple[int, str]:
+    """Size in bytes and sha256 (hex) of a file, read in 1 MiB pieces."""
+    digest = hashlib.sha256()
+    size = 0
+    with open(path, "rb") as handle:
+        while chunk := handle.read(1 << 20):
+            digest.update(chunk)
+            size += len(chunk)
+    return size, digest.hexdigest()
+
+
+class Fingerprint:
+    """The running sha256 of a dataset's options and its frames' spec digests, in frame order.
+
+    ``Fingerprint(options)``, then :meth:`add` each frame's :func:`spec_digest` in order;
+    :meth:`at` gives the fingerprint of the first ``n`` frames (so that a dataset asked for
+    more frames can be recognised as the same dataset, extended).
+    """
+
+    def __init__(self, options: Mapping[str, Any]) -> None:
+        self._hash = hashlib.sha256(canonical_json({"format": DATASET_FORMAT, "options": dict(options)}).encode())
+        self._at: list[str] = [self._hash.hexdigest()]
+
+    def add(self, digest: str) -> None:
+        """Append the next frame's spec digest."""
+        self._hash.update(digest.encode())
+        self._at.append(self._hash.hexdigest())
+
+    def at(self, n: int) -> str | None:
+        """Fingerprint of the first ``n`` frames; ``None`` beyond the frames added."""
+        return self._at[n] if 0 <= n < len(self._at) else None
+
+    @property
+    def value(self) -> str:
+        """Fingerprint of every frame added."""
+        return self._at[-1]
+
+
+def seal_record(record: Mapping[str, Any]) -> dict[str, Any]:
+    """``record`` with its ``check``: the sha256 of its canonical JSON (without ``check``)."""
+    body = {k: v for k, v in record.items() if k != "check"}
+    return {**body, "check": hashlib.sha256(canonical_json(body).encode()).hexdigest()}
+
+
+def verify_record(record: Any, folder: Path, expected_digest: str | None, expected_files: Sequence[str]) -> bool:
+    """Whether a manifest line can be trusted: sealed, of this frame's spec, files intact.
+
+    Parameters
+    ----------
+    record : Any
+        The parsed line.
+    folder : Path
+        The dataset folder its ``files`` are relative to.
+    expected_digest : str or None
+        :func:`spec_digest` of the scenario's frame ``record["frame"]``; ``None``: the frame is
+        not part of this dataset.
+    expected_files : sequence of str
+        The files this run makes for that frame (other options, other files: redone).
+
+    Notes
+    -----
+    Every file is read in full and hashed: a manifest is never trusted on its own word.
+    """
+    if not isinstance(record, dict) or expected_digest is None:
+        return False
+    try:
+        if seal_record(record)["check"] != record.get("check"):
+            return False
+    except (TypeError, ValueError):  # NaN or other values canonical JSON refuses
+        return False
+    if record.get("spec_sha256") != expected_digest or record.get("files") != list(expected_files):
+        return False
+    sizes, sums = record.get("bytes"), record.get("sha256")
+    if not isinstance(sizes, dict) or not isinstance(sums, dict):
+        return False
+    for name in expected_files:
+        try:
+            if file_digest(folder / name) != (sizes.get(name), sums.get(name)):
+                return False
+        except OSError:
+            return False
+    return True
+
+
+def read_manifest(path: Path) -> list[Any]:
+    """The parsed lines of a manifest; lines that are not JSON (a torn last line) are dropped.
+
+    A missing manifest has no lines.
+    """
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return []
+    out = []
+    for line in data.split(b"\n"):
+        if not line.strip():
+            continue
+        try:
+            out.append(json.loads(line))
+        except (UnicodeDecodeError, ValueError):
+            continue
+    return out
+
+
+class ManifestAppender:
+    """Append sealed records to a manifest, one durable line per frame.
+
+    Each record is written with a single ``write`` of the whole line, then flushed and
+    ``fsync``-ed, so that a line is on disk before the next frame is committed; a kill leaves
+    at most one torn last line (:func:`read_manifest` drops it).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._handle: IO[bytes] | None = open(path, "ab")
+
+    def append(self, record: Mapping[str, Any]) -> None:
+        """Write one record (sealed with :func:`seal_record`) as a line."""
+        assert self._handle is not None, "the manifest is closed"
+        self._handle.write((canonical_json(seal_record(record)) + "\n").encode())
+        self._handle.flush()
+        os.fsync(self._handle.fileno())
+
+    def close(self) -> None:
+        if self._handle is not None:
+            self._handle.close()
+            self._handle = None
+
+    def __enter__(self) -> ManifestAppender:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def write_manifest(path: Path, records: Iterable[Mapping[str, Any]]) -> None:
+    """Replace the manifest with ``records`` (sealed), atomically and durably."""
+    from ..io.output import atomic_write
+
+    with atomic_write(path, "w", fsync=True) as handle:
+        for record in records:
+            handle.write(canonical_json(seal_record(record)) + "\n")

@@ -1,0 +1,122 @@
+"""Rendering and encoding a dataset's frames, in this process or in N worker processes.
+
+The work is cut into tasks of a few frames (batches). A worker process builds each scene's
+simulator once (:class:`~sonarsim.dataset.frames.SimulatorCache`) and keeps it between tasks;
+it renders, encodes the frame's files (NPZ, PNG bytes) and their checksums, and sends them back
+to the single writer in the parent (:func:`sonarsim.dataset.generate`), which only writes
+bytes. Results arrive in the order tasks finish; what a frame holds depends only on the
+scenario and its index, never on the worker or the order.
+
+Processes are started with ``spawn`` (not ``fork``): the parent may hold threads (ray-casting
+pools, the progress bar's monitor) that a forked child would inherit half-way.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import os
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+from .frames import SimulatorCache, render_frame
+from .scenario import Scenario
+
+__all__ = ["available_cores", "batches", "encoded_frames", "render_batch"]
+
+# Per worker process: the scenario and options it was started with, and its simulators.
+_STATE: dict[str, Any] = {}
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def batches(indices: Sequence[int], size: int) -> list[list[int]]:
+    """``indices`` cut into consecutive runs of at most ``size`` (>= 1)."""
+    size = max(1, int(size))
+    return [list(indices[i:i + size]) for i in range(0, len(indices), size)]
+
+
+def _init_worker(scenario: Scenario, options: Any, width: int, threads: int | None) -> None:
+    _STATE.update(scenario=scenario, options=options, width=width, cache=SimulatorCache(threads=threads))
+
+
+def render_batch(indices: Sequence[int], scenario: Scenario | None = None, options: Any = None,
+                 width: int | None = None, cache: SimulatorCache | None = None) -> list[Any]:
+    """Render and encode frames ``indices``: a list of :class:`~sonarsim.dataset.writer.EncodedFrame`.
+
+    In a worker process the arguments after ``indices`` come from its start-up state.
+    """
+    from .writer import encode_frame
+
+    scenario = scenario if scenario is not None else _STATE["scenario"]
+    options = options if options is not None else _STATE["options"]
+    width = width if width is not None else _STATE["width"]
+    cache = cache if cache is not None else _STATE["cache"]
+    out = []
+    for k in indices:
+        spec = scenario.frame(k)
+        out.append(encode_frame(spec, render_frame(spec, cache, options.labels), options, width))
+    return out
+
+
+def encoded_frames(scenario: Scenario, indices: Sequence[int], options: Any, width: int, workers: int = 1,
+                   threads: int | None = None, batch_size: int | None = None) -> Iterator[Any]:
+    """Render and encode ``indices``, yielding each frame's result as soon as its task is done.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    indices : sequence of int
+        Frames to make.
+    options : DatasetOptions
+    width : int
+        Digits of the frame numbers in file names.
+    workers : int
+        1: in this process, frame after frame; N > 1: N worker processes.
+    threads : int, optional
+        Ray-casting threads per simulator; default: the cores divided among the workers.
+    batch_size : int, optional
+        Frames per task; default: small enough that every worker gets several tasks.
+
+    Yields
+    ------
+    EncodedFrame
+        In the order tasks finish (by index within a task).
+    """
+    if threads is None:
+        threads = max(1, available_cores() // workers)
+    if workers <= 1:
+        with SimulatorCache(threads=threads) as cache:
+            for k in indices:
+                yield from render_batch([k], scenario, options, width, cache)
+        return
+    if batch_size is None:
+        batch_size = max(1, min(8, len(indices) // (4 * workers)))
+    tasks = batches(indices, batch_size)
+    context = multiprocessing.get_context("spawn")
+    pool = cf.ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker,
+                                  initargs=(scenario, options, width, threads))
+    try:
+        pending: set[cf.Future] = set()
+        queue = iter(tasks)
+        # A bounded number of tasks in flight: results are consumed as they come, and a stop
+        # (Ctrl-C, an error) leaves little queued work to cancel.
+        for task in queue:
+            pending.add(pool.submit(render_batch, task))
+            if len(pending) >= 2 * workers:
+                break
+        while pending:
+            done, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+            for future in done:
+                task = next(queue, None)
+                if task is not None:
+                    pending.add(pool.submit(render_batch, task))
+                yield from future.result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)

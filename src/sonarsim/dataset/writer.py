@@ -1,0 +1,509 @@
+"""``generate``: a scenario's frames written to a dataset folder, resumably.
+
+A dataset folder ``DIR`` holds::
+
+    DIR/dataset.json          the dataset's fingerprint and options (manifest module)
+    DIR/manifest.jsonl        one line per frame: pose, seed, files, sizes, sha256 (manifest module)
+    DIR/frames/000000.npz     per frame: polar, range_m, azimuth_deg, components, labels
+    DIR/frames/000000_polar.png, 000000_fan.png   with "png" in formats (far range at the top)
+    DIR/coco.json             with ground truth: the objects' boxes in the fan images (coco module)
+    DIR/rosbag/               with rosbag="mcap" or "sqlite3": the ROS 2 bag (sonarsim.io.rosbag)
+    DIR/sonarsim-run.json     the run's record (sonarsim.io.run_record)
+
+Resuming. Started again on the same folder with the same scenario and options, ``generate``
+keeps every frame whose manifest line verifies (the line's own checksum, the frame's spec, each
+file's size and sha256, all read in full) and makes the others; a torn or damaged line, a
+missing or changed file, is redone, never trusted. Frame files are written atomically
+(temporary file and rename) before their manifest line, so a kill at any moment leaves complete
+files or none. A folder made with another scenario or other options is refused before anything
+is touched (its fingerprint, ``dataset.json``); asking for more frames of the same scenario
+extends it. When all frames are done the manifest is rewritten in frame order, then
+``coco.json`` and the bag are written from the finished frames (``rosbags`` cannot append, so a
+resumed run writes the whole bag again). The NPZ files hold no timestamps (their zip entries
+carry a fixed date), so the finished folder equals an uninterrupted run's bit for bit, whatever
+the number of workers, except the bag's metadata times and the run record.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+import zipfile
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError, SonarsimError, shown
+from .frames import as_scenario, frame_arrays, labels_supported
+from .manifest import (
+    INFO_NAME,
+    MANIFEST_NAME,
+    Fingerprint,
+    ManifestAppender,
+    canonical_json,
+    read_manifest,
+    spec_digest,
+    verify_record,
+    write_manifest,
+)
+from .scenario import FrameSpec, Scenario
+
+__all__ = ["FORMATS", "DatasetOptions", "DatasetSummary", "EncodedFrame", "encode_frame", "frame_files",
+           "generate", "npz_bytes"]
+
+#: File formats per frame: ``npz`` (always) and ``png`` (polar and fan images, 8-bit dB).
+FORMATS = ("npz", "png")
+#: Name of the frames' folder inside a dataset folder.
+FRAMES_DIR = "frames"
+#: Name of the COCO file and of the bag folder inside a dataset folder.
+COCO_NAME = "coco.json"
+BAG_NAME = "rosbag"
+# Display mapping of the PNGs and of the bag's 8-bit fan (the `render` command's defaults).
+_DYNAMIC_RANGE_DB = 40.0
+# A fixed zip-entry date (the earliest zip can hold): NPZ bytes depend on the arrays alone.
+_ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+
+
+@dataclass(frozen=True)
+class DatasetOptions:
+    """What shapes a dataset's files (part of its fingerprint). Validated on construction.
+
+    Attributes
+    ----------
+    labels : bool
+        Ask the renderer for ground truth (stored in the NPZs, boxes in the manifest and
+        ``coco.json``). False, or a renderer without labels: images only.
+    formats : tuple of str
+        Subset of :data:`FORMATS`; ``npz`` is always written.
+    rosbag : {None, "mcap", "sqlite3"}
+        Write ``DIR/rosbag`` with this storage.
+    """
+
+    labels: bool = True
+    formats: tuple[str, ...] = ("npz",)
+    rosbag: str | None = None
+
+    def __post_init__(self) -> None:
+        from ..io.rosbag import BAG_STORAGES
+
+        formats = (self.formats,) if isinstance(self.formats, str) else tuple(self.formats)
+        bad = [f for f in formats if f not in FORMATS]
+        if bad:
+            raise ConfigError("formats", f"allowed: {', '.join(FORMATS)}; got {shown(bad[0])}")
+        object.__setattr__(self, "formats", tuple(f for f in FORMATS if f in formats or f == "npz"))
+        if self.rosbag is not None and self.rosbag not in BAG_STORAGES:
+            raise ConfigError("rosbag", f"allowed: {', '.join(BAG_STORAGES)} (or none); got {shown(self.rosbag)}")
+        # What this renderer can do: a dataset asked for labels on a renderer without them is
+        # an image-only dataset, and says so in its fingerprint.
+        object.__setattr__(self, "labels", bool(self.labels) and labels_supported())
+
+    def document(self) -> dict[str, Any]:
+        """The options as JSON (``dataset.json`` and the fingerprint)."""
+        return {"labels": self.labels, "formats": list(self.formats), "rosbag": self.rosbag}
+
+
+def frame_files(k: int, width: int, options: DatasetOptions) -> list[str]:
+    """Files of frame ``k``, relative to the dataset folder, in manifest order."""
+    stem = f"{FRAMES_DIR}/{k:0{width}d}"
+    names = [f"{stem}.npz"]
+    if "png" in options.formats:
+        names += [f"{stem}_polar.png", f"{stem}_fan.png"]
+    return names
+
+
+def npz_bytes(arrays: Mapping[str, np.ndarray], config: Mapping[str, Any]) -> bytes:
+    """A compressed NPZ of ``arrays`` and ``config`` (as :func:`sonarsim.io.output.write_npz`
+    stores it), whose bytes depend on the content alone: every zip entry has a fixed date.
+
+    ``numpy.savez_compressed`` stamps each entry with the current time, so two runs would
+    write different files for the same frame; :func:`sonarsim.io.output.read_npz` and
+    ``numpy.load`` read these files alike.
+    """
+    from ..io.output import CONFIG_KEY, _json_default
+
+    buffer = io.BytesIO()
+    payload = dict(arrays)
+    payload[CONFIG_KEY] = np.array(json.dumps(dict(config), sort_keys=True, default=_json_default), dtype=np.str_)
+    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        for name, value in payload.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_DATE)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            info.external_attr = 0o644 << 16
+            with archive.open(info, "w", force_zip64=True) as entry:
+                np.lib.format.write_array(entry, np.asanyarray(value), allow_pickle=False)
+    return buffer.getvalue()
+
+
+def _png_bytes(image_uint8: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(image_uint8)).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+@dataclass(frozen=True)
+class EncodedFrame:
+    """A frame ready to be written: its files' bytes and its manifest record (unsealed).
+
+    Attributes
+    ----------
+    index : int
+    files : tuple of (str, bytes)
+        Relative path and content of each file, in :func:`frame_files` order.
+    record : dict
+        The manifest line (see :mod:`sonarsim.dataset.manifest`), with sizes and checksums.
+    seconds : dict
+        ``render`` and ``encode`` times of the frame, seconds (not part of the record).
+    """
+
+    index: int
+    files: tuple[tuple[str, bytes], ...]
+    record: dict
+    seconds: dict = field(default_factory=dict)
+
+
+def _boxes(spec: FrameSpec, image: Any) -> tuple[list[dict], list[int] | None]:
+    """The objects' boxes of a frame with labels (polar and fan pixels), and the fan's shape."""
+    labels = getattr(image, "labels", None)
+    if labels is None:
+        return [], None
+    fan = image.fan_labels()
+    n_objects = len(spec.scene.get("objects") or [])  # ids 0..K-1 are objects, then planes
+    polar, fan_boxes = np.asarray(labels.boxes_polar), np.asarray(fan.boxes)
+    out = [{"id": k, "name": str(labels.ids[k]), "polar": [int(v) for v in polar[k]],
+            "fan": [int(v) for v in fan_boxes[k]]}
+           for k in range(min(n_objects, len(polar))) if polar[k][0] >= 0]
+    return out, [int(v) for v in fan.instance.shape]
+
+
+def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: int) -> EncodedFrame:
+    """Encode a rendered frame's files and manifest record (done in the worker that rendered it).
+
+    Parameters
+    ----------
+    spec : FrameSpec
+        The frame rendered.
+    image : SonarImage
+        Its render (:func:`~sonarsim.dataset.frames.render_frame`).
+    options : DatasetOptions
+    width : int
+        Digits of the frame number in file names.
+    """
+    from ..io.output import to_uint8
+
+    t0 = time.perf_counter()
+    arrays = frame_arrays(image)
+    config = dict(image.config)
+    # A worker renders with its share of the cores: the scene's own setting goes in the file,
+    # so that a frame's bytes do not depend on the number of workers.
+    render = dict(config.get("render") or {})
+    render["threads"] = (spec.scene.get("render") or {}).get("threads")
+    config["render"] = render
+    config["dataset"] = {"frame": spec.index, "seed": spec.seed, "time_s": spec.time_s}
+    names = frame_files(spec.index, width, options)
+    contents = [npz_bytes(arrays, config)]
+    if "png" in options.formats:
+        contents.append(_png_bytes(to_uint8(image.polar[::-1], "db", 0.0, _DYNAMIC_RANGE_DB)))
+        fan = image.fan()
+        contents.append(_png_bytes(to_uint8(fan.image, "db", 0.0, _DYNAMIC_RANGE_DB, mask=fan.mask)))
+    record: dict[str, Any] = {
+        "frame": spec.index,
+        "time_s": spec.time_s,
+        "seed": spec.seed,
+        "pose": {"position_m": list(spec.pose.position_m), "rpy_deg": list(spec.pose.rpy_deg)},
+        "spec_sha256": spec_digest(spec),
+        "files": names,
+        "bytes": {n: len(c) for n, c in zip(names, contents)},
+        "sha256": {n: hashlib.sha256(c).hexdigest() for n, c in zip(names, contents)},
+    }
+    if options.labels:
+        record["boxes"], record["fan_shape"] = _boxes(spec, image)
+    return EncodedFrame(spec.index, tuple(zip(names, contents)), record,
+                        {"encode": time.perf_counter() - t0, **getattr(image, "timing", {})})
+
+
+@dataclass(frozen=True)
+class DatasetSummary:
+    """What :func:`generate` did.
+
+    Attributes
+    ----------
+    out : Path
+        The dataset folder.
+    n_frames : int
+        Frames in the dataset.
+    rendered : int
+        Frames made by this run.
+    reused : int
+        Frames of an earlier run that verified and were kept.
+    seconds : float
+        Wall time of this run.
+    manifest : Path
+    coco : Path or None
+        ``coco.json`` (datasets with ground truth).
+    rosbag : Path or None
+        The bag folder.
+    fingerprint : str
+        The dataset's fingerprint (``dataset.json``).
+    """
+
+    out: Path
+    n_frames: int
+    rendered: int
+    reused: int
+    seconds: float
+    manifest: Path
+    coco: Path | None
+    rosbag: Path | None
+    fingerprint: str
+
+    @property
+    def frames_per_s(self) -> float:
+        """Frames made by this run per second of wall time."""
+        return self.rendered / self.seconds if self.seconds > 0 else 0.0
+
+
+def _positive_int(value: Any, key: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ConfigError(key, f"must be a positive integer, got {shown(value)}")
+    return int(value)
+
+
+def _check_identity(info_path: Path, fingerprint: Fingerprint, n: int, out: Path) -> None:
+    """Refuse a folder that holds another dataset (another scenario or other options)."""
+    try:
+        doc = json.loads(info_path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return
+    except (OSError, ValueError) as exc:
+        raise SonarsimError(f"{info_path}: not a readable sonarsim dataset description ({exc}); this folder "
+                            "holds something else: choose another --out or remove it") from None
+    stored_n = doc.get("n_frames") if isinstance(doc, dict) else None
+    stored = doc.get("fingerprint") if isinstance(doc, dict) else None
+    if isinstance(stored_n, int) and stored == fingerprint.at(stored_n) and stored_n <= n:
+        return  # the same dataset, or the same one asked for more frames
+    what = "another dataset (made from another scenario or with other options"
+    if isinstance(stored_n, int) and stored_n > n:
+        what += f", or of {stored_n} frames where this run asks for {n}"
+    raise SonarsimError(f"{out}: holds {what}: {INFO_NAME} differs); a dataset folder is resumed only with the "
+                        "same scenario and options. Choose another --out, or remove it")
+
+
+def _write_files(out: Path, encoded: EncodedFrame) -> None:
+    from ..io.output import atomic_write
+
+    for name, content in encoded.files:
+        try:
+            with atomic_write(out / name, "wb") as handle:
+                handle.write(content)
+        except OSError as exc:
+            raise SonarsimError(f"{out / name}: cannot write: {exc.strerror or exc} (no partial file is left; "
+                                "frames written so far are kept: run the same command again to resume)") from None
+
+
+def _bag_frame(out: Path, record: Mapping[str, Any]) -> Any:
+    """The bag frame of a finished frame, from its NPZ (and its manifest record's time)."""
+    from ..config.loader import parse_sonar_section
+    from ..image.result import SonarImage
+    from ..io.output import read_npz, to_uint8
+    from ..io.rosbag import frame_from_image
+
+    arrays, config = read_npz(out / record["files"][0])
+    sonar, pose = parse_sonar_section(config["sonar"], None)
+    image = SonarImage(polar=arrays["polar"], range_m=arrays["range_m"], azimuth_deg=arrays["azimuth_deg"],
+                       components={}, sonar=sonar, pose=pose, config=config)
+    fan = image.fan()
+    # 8-bit fan: what image viewers (rqt, Foxglove) show without a colour map.
+    fan_u8 = to_uint8(fan.image, "db", 0.0, _DYNAMIC_RANGE_DB, mask=fan.mask)
+    points = {}
+    if "points_world" in arrays and "points_object" in arrays:
+        points = {"points_world": arrays["points_world"], "points_object": arrays["points_object"]}
+    return frame_from_image(image, int(round(float(record["time_s"]) * 1e9)), fan=fan_u8, **points)
+
+
+def _write_bag(out: Path, records: Sequence[Mapping[str, Any]], storage: str) -> Path:
+    """Write ``out/rosbag`` from the finished frames, in frame order, replacing an older bag."""
+    from ..io.output import temp_prefix
+    from ..io.rosbag import BagWriter, remove_abandoned_bags
+
+    remove_abandoned_bags(out)
+    path = out / BAG_NAME
+    if path.exists() or path.is_symlink():
+        # Out of the final name first (one rename), then deleted: a kill meanwhile leaves a
+        # hidden temporary folder that remove_abandoned_bags clears, never a half-deleted bag.
+        old = Path(tempfile.mkdtemp(prefix=temp_prefix(BAG_NAME), suffix=".tmp", dir=out))
+        os.rename(path, old / BAG_NAME) if path.is_dir() and not path.is_symlink() else os.unlink(path)
+        shutil.rmtree(old, ignore_errors=True)
+    with BagWriter(path, storage=storage) as bag:
+        for record in records:
+            bag.write_frame(_bag_frame(out, record))
+    return path
+
+
+def generate(
+    scenario: Scenario | str | os.PathLike | Mapping,
+    out: str | os.PathLike,
+    frames: int | None = None,
+    workers: int = 1,
+    formats: Iterable[str] = ("npz",),
+    rosbag: str | None = None,
+    labels: bool = True,
+    progress: bool = True,
+    threads: int | None = None,
+    batch_size: int | None = None,
+    command: Sequence[str] | None = None,
+    log: Callable[[str], None] | None = None,
+) -> DatasetSummary:
+    """Render a scenario's frames into the dataset folder ``out`` (resumable; see the module docs).
+
+    Parameters
+    ----------
+    scenario : Scenario, path or mapping
+        A loaded scenario, or a scenario file or document (:func:`load_scenario`).
+    out : path
+        The dataset folder (created if missing).
+    frames : int, optional
+        Cap on the number of frames (``--frames N``); default all the scenario's.
+    workers : int
+        Processes that render (1: this one).
+    formats : iterable of str
+        :data:`FORMATS`: ``"npz"`` (always), ``"png"`` (polar and fan PNGs).
+    rosbag : {None, "mcap", "sqlite3"}
+        Also write ``out/rosbag`` (needs ``pip install 'sonarsim[ros]'``).
+    labels : bool
+        With ground truth, where the renderer provides it.
+    progress : bool
+        A progress bar on stderr (frames, rate, time left; needs ``tqdm``).
+    threads : int, optional
+        Ray-casting threads per worker; default the cores divided among the workers. The
+        frames do not depend on it.
+    batch_size : int, optional
+        Frames per task sent to a worker.
+    command : sequence of str, optional
+        The command line, stored in the run record.
+    log : callable, optional
+        Receives one-line notes (default: ``sonarsim: ...`` on stderr).
+
+    Returns
+    -------
+    DatasetSummary
+
+    Raises
+    ------
+    ConfigError
+        Bad options (naming the key).
+    SonarsimError
+        An unwritable folder, a full disk (no half-written frame is left; run again to
+        resume), a folder that holds another dataset, or ``rosbags`` missing for a bag.
+    """
+    from ..io.output import atomic_write, remove_abandoned_temp_files
+    from ..io.run_record import OutputRun
+    from .coco import coco_from_records
+    from .workers import encoded_frames
+
+    t_start = time.perf_counter()
+    workers = _positive_int(workers, "workers")
+    if threads is not None:
+        threads = _positive_int(threads, "threads")
+    if batch_size is not None:
+        batch_size = _positive_int(batch_size, "batch_size")
+    options = DatasetOptions(labels=labels, formats=tuple(formats), rosbag=rosbag)
+    if options.rosbag is not None:
+        from ..io.rosbag import _import_rosbags
+
+        _import_rosbags()  # a missing extra fails now, not after hours of rendering
+    scenario = as_scenario(scenario, frames)
+    n = scenario.n_frames
+    width = max(6, len(str(n - 1)))
+    out = Path(out)
+    say = log or (lambda msg: print(f"sonarsim: {msg}", file=sys.stderr, flush=True))
+
+    # Every frame's spec digest: the fingerprint, and what each manifest line must match.
+    fingerprint = Fingerprint(options.document())
+    digests = []
+    for spec in scenario.frame_specs():
+        digests.append(spec_digest(spec))
+        fingerprint.add(digests[-1])
+
+    names = [INFO_NAME, MANIFEST_NAME] + ([COCO_NAME] if options.labels else [])
+    run = OutputRun.for_folder(out, names, command=command, log=say)
+    _check_identity(out / INFO_NAME, fingerprint, n, out)
+    with run:
+        frames_dir = out / FRAMES_DIR
+        try:
+            frames_dir.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise SonarsimError(f"{frames_dir}: cannot create: {exc.strerror or exc}") from None
+        remove_abandoned_temp_files(frames_dir)
+        info = {"sonarsim_dataset": 1, "fingerprint": fingerprint.value, "n_frames": n,
+                "options": options.document(), "scenario": scenario.source, "description": scenario.description,
+                "seed": scenario.seed}
+        with atomic_write(out / INFO_NAME, "w", fsync=True) as handle:
+            handle.write(json.dumps(info, indent=1, sort_keys=True) + "\n")
+
+        # Trust nothing: each line is checked (seal, spec, every file read and hashed).
+        manifest_path = out / MANIFEST_NAME
+        kept: dict[int, dict] = {}
+        for record in read_manifest(manifest_path):
+            k = record.get("frame") if isinstance(record, dict) else None
+            if isinstance(k, int) and not isinstance(k, bool) and 0 <= k < n and k not in kept and verify_record(
+                    record, out, digests[k], frame_files(k, width, options)):
+                kept[k] = {key: v for key, v in record.items() if key != "check"}
+        # Only verified lines stay (a torn or damaged line would confuse readers meanwhile).
+        write_manifest(manifest_path, [kept[k] for k in sorted(kept)])
+        todo = [k for k in range(n) if k not in kept]
+        if kept:
+            say(f"{out}: {len(kept)} of {n} frames verified and kept; making {len(todo)}")
+
+        bar = _progress_bar(n, len(kept), progress)
+        records = dict(kept)
+        try:
+            with ManifestAppender(manifest_path) as manifest:
+                for encoded in encoded_frames(scenario, todo, options, width, workers, threads, batch_size):
+                    _write_files(out, encoded)  # files first: a line always names complete files
+                    manifest.append(encoded.record)
+                    records[encoded.index] = encoded.record
+                    bar.update(1)
+        finally:
+            bar.close()
+        ordered = [records[k] for k in range(n)]
+        write_manifest(manifest_path, ordered)
+        coco_path = None
+        if options.labels:
+            coco_path = out / COCO_NAME
+            doc = coco_from_records(ordered, image_file="png" if "png" in options.formats else "npz")
+            with atomic_write(coco_path, "w") as handle:
+                handle.write(canonical_json(doc) + "\n")
+        bag_path = _write_bag(out, ordered, options.rosbag) if options.rosbag else None
+    return DatasetSummary(out, n, len(todo), len(kept), time.perf_counter() - t_start, manifest_path,
+                          coco_path, bag_path, fingerprint.value)
+
+
+class _NoBar:
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _progress_bar(total: int, done: int, enabled: bool) -> Any:
+    """A tqdm bar on stderr (frames, rate, time left), or one that shows nothing."""
+    if not enabled:
+        return _NoBar()
+    try:
+        from tqdm import tqdm
+    except ImportError:  # pragma: no cover - tqdm is a dependency
+        return _NoBar()
+    return tqdm(total=total, initial=done, unit="frame", file=sys.stderr, dynamic_ncols=True,
+                desc="sonarsim dataset", smoothing=0.1)
