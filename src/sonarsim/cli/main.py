@@ -69,6 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     """The ``sonarsim`` parser: one sub-command per module of :mod:`sonarsim.cli`."""
     from .calibrate import add_calibrate_parser
     from .compare import add_compare_parser
+    from .dataset import add_dataset_parser
     from .demo import add_demo_parser
     from .fit import add_fit_parser
     from .presets import add_presets_parser
@@ -90,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_render_parser(sub)
     add_demo_parser(sub)
     add_presets_parser(sub)
+    add_dataset_parser(sub)
     # Real data: reading recordings, comparing images, fitting the pose.
     add_show_parser(sub)
     add_compare_parser(sub)

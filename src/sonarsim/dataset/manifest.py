@@ -43,6 +43,7 @@ __all__ = [
     "ManifestAppender",
     "canonical_json",
     "file_digest",
+    "frame_header",
     "read_manifest",
     "seal_record",
     "spec_digest",
@@ -117,8 +118,22 @@ def seal_record(record: Mapping[str, Any]) -> dict[str, Any]:
     return {**body, "check": hashlib.sha256(canonical_json(body).encode()).hexdigest()}
 
 
-def verify_record(record: Any, folder: Path, expected_digest: str | None, expected_files: Sequence[str]) -> bool:
-    """Whether a manifest line can be trusted: sealed, of this frame's spec, files intact.
+def frame_header(spec: FrameSpec, files: Sequence[str]) -> dict[str, Any]:
+    """The part of frame ``spec.index``'s manifest line that follows from its spec and options:
+    ``frame``, ``time_s``, ``seed``, ``pose`` (``position_m``, ``rpy_deg``), ``spec_sha256``,
+    ``files``."""
+    return {
+        "frame": spec.index,
+        "time_s": spec.time_s,
+        "seed": spec.seed,
+        "pose": {"position_m": list(spec.pose.position_m), "rpy_deg": list(spec.pose.rpy_deg)},
+        "spec_sha256": spec_digest(spec),
+        "files": list(files),
+    }
+
+
+def verify_record(record: Any, folder: Path, expected: Mapping[str, Any] | None) -> bool:
+    """Whether a manifest line can be trusted: sealed, this frame's, its files intact.
 
     Parameters
     ----------
@@ -126,29 +141,28 @@ def verify_record(record: Any, folder: Path, expected_digest: str | None, expect
         The parsed line.
     folder : Path
         The dataset folder its ``files`` are relative to.
-    expected_digest : str or None
-        :func:`spec_digest` of the scenario's frame ``record["frame"]``; ``None``: the frame is
-        not part of this dataset.
-    expected_files : sequence of str
-        The files this run makes for that frame (other options, other files: redone).
+    expected : mapping or None
+        :func:`frame_header` of the frame this run would make at ``record["frame"]`` (its
+        files under this run's options); ``None``: the frame is not part of this dataset.
 
     Notes
     -----
     Every file is read in full and hashed: a manifest is never trusted on its own word.
+    The seal (``check``) detects damage to the other keys (``boxes``); it is no signature.
     """
-    if not isinstance(record, dict) or expected_digest is None:
+    if not isinstance(record, dict) or expected is None:
         return False
     try:
         if seal_record(record)["check"] != record.get("check"):
             return False
     except (TypeError, ValueError):  # NaN or other values canonical JSON refuses
         return False
-    if record.get("spec_sha256") != expected_digest or record.get("files") != list(expected_files):
+    if any(record.get(key) != value for key, value in expected.items()):
         return False
     sizes, sums = record.get("bytes"), record.get("sha256")
     if not isinstance(sizes, dict) or not isinstance(sums, dict):
         return False
-    for name in expected_files:
+    for name in expected["files"]:
         try:
             if file_digest(folder / name) != (sizes.get(name), sums.get(name)):
                 return False

@@ -50,8 +50,8 @@ from .manifest import (
     Fingerprint,
     ManifestAppender,
     canonical_json,
+    frame_header,
     read_manifest,
-    spec_digest,
     verify_record,
     write_manifest,
 )
@@ -217,12 +217,7 @@ def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: in
         fan = image.fan()
         contents.append(_png_bytes(to_uint8(fan.image, "db", 0.0, _DYNAMIC_RANGE_DB, mask=fan.mask)))
     record: dict[str, Any] = {
-        "frame": spec.index,
-        "time_s": spec.time_s,
-        "seed": spec.seed,
-        "pose": {"position_m": list(spec.pose.position_m), "rpy_deg": list(spec.pose.rpy_deg)},
-        "spec_sha256": spec_digest(spec),
-        "files": names,
+        **frame_header(spec, names),
         "bytes": {n: len(c) for n, c in zip(names, contents)},
         "sha256": {n: hashlib.sha256(c).hexdigest() for n, c in zip(names, contents)},
     }
@@ -430,10 +425,11 @@ def generate(
 
     # Every frame's spec digest: the fingerprint, and what each manifest line must match.
     fingerprint = Fingerprint(options.document())
-    digests = []
+    # (and the header of its manifest line: what each line must match to be kept).
+    expected = []
     for spec in scenario.frame_specs():
-        digests.append(spec_digest(spec))
-        fingerprint.add(digests[-1])
+        expected.append(frame_header(spec, frame_files(spec.index, width, options)))
+        fingerprint.add(expected[-1]["spec_sha256"])
 
     names = [INFO_NAME, MANIFEST_NAME] + ([COCO_NAME] if options.labels else [])
     run = OutputRun.for_folder(out, names, command=command, log=say)
@@ -457,7 +453,7 @@ def generate(
         for record in read_manifest(manifest_path):
             k = record.get("frame") if isinstance(record, dict) else None
             if isinstance(k, int) and not isinstance(k, bool) and 0 <= k < n and k not in kept and verify_record(
-                    record, out, digests[k], frame_files(k, width, options)):
+                    record, out, expected[k]):
                 kept[k] = {key: v for key, v in record.items() if key != "check"}
         # Only verified lines stay (a torn or damaged line would confuse readers meanwhile).
         write_manifest(manifest_path, [kept[k] for k in sorted(kept)])

@@ -1,0 +1,88 @@
+"""The ``sonarsim dataset`` command: a scenario's frames written to a resumable dataset folder.
+
+A thin layer over :func:`sonarsim.dataset.generate` (see :mod:`sonarsim.dataset.writer` for
+the folder's layout and how a run resumes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+__all__ = ["add_dataset_parser", "cmd_dataset"]
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}")
+    return value
+
+
+def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add the ``dataset`` sub-command; sets ``func=cmd_dataset``."""
+    p = subparsers.add_parser(
+        "dataset", help="render a scenario's frames into a dataset folder (NPZ, manifest, COCO, ROS 2 bag)",
+        description="Render every frame of a scenario file into --out: frames/NNNNNN.npz (image, components, "
+        "labels), manifest.jsonl (pose, seed, files, sha256 per frame), dataset.json, coco.json (object boxes, "
+        "with labels) and optionally PNGs and a ROS 2 bag. Killed and started again with the same command, it "
+        "keeps the frames that verify and makes the rest; a folder of another scenario or other options is "
+        "refused.")
+    p.add_argument("scenario", help="scenario file (YAML or JSON)")
+    p.add_argument("--out", required=True, help="dataset folder (created if missing; resumed if it holds this dataset)")
+    p.add_argument("--frames", type=_positive_int, default=None, metavar="N",
+                   help="make at most the first N frames (default: all the scenario's)")
+    p.add_argument("--workers", type=_positive_int, default=1, metavar="N",
+                   help="render in N processes (default 1); the frames are the same whatever N")
+    p.add_argument("--rosbag", choices=("mcap", "sqlite3"), default=None,
+                   help="also write a ROS 2 bag into OUT/rosbag with this storage (needs sonarsim[ros])")
+    p.add_argument("--png", action="store_true", help="also write each frame's polar and fan images as PNG")
+    p.add_argument("--seed", type=_seed, default=None, metavar="S",
+                   help="replace the scenario's seed (every frame's draws come from it and the frame index)")
+    p.add_argument("--no-labels", action="store_true", help="images only, without ground truth")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=cmd_dataset)
+    return p
+
+
+def cmd_dataset(args: argparse.Namespace) -> None:
+    from ..dataset import generate, load_scenario
+    from ..dataset.scenario import MAX_SEED
+    from ..errors import ConfigError
+
+    scenario = load_scenario(args.scenario, frames=args.frames)
+    if args.seed is not None:
+        if args.seed > MAX_SEED:
+            raise ConfigError("--seed", f"must be below 2**128, got {args.seed}")
+        scenario = scenario.with_seed(args.seed) if hasattr(scenario, "with_seed") else _with_seed(scenario, args.seed)
+    summary = generate(
+        scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
+        rosbag=args.rosbag, labels=not args.no_labels, progress=not args.no_progress,
+        command=getattr(args, "command_line", None),
+    )
+    rate = f" ({summary.frames_per_s:.2f} frames/s)" if summary.rendered else ""
+    print(f"sonarsim: {summary.out}: {summary.n_frames} frames ({summary.rendered} made, {summary.reused} kept) "
+          f"in {summary.seconds:.1f} s{rate}", file=sys.stderr, flush=True)
+
+
+def _with_seed(scenario: Any, seed: int) -> Any:
+    """The scenario with another seed: its frames' draws and the renderer's (``render.seed``)."""
+    from dataclasses import replace
+
+    scene = dict(scenario.scene)
+    scene["render"] = {**(scene.get("render") or {}), "seed": seed}
+    return replace(scenario, seed=seed, scene=scene)

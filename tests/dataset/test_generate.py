@@ -1,0 +1,360 @@
+"""Datasets written by sonarsim.dataset.generate and frames from sonarsim.dataset.frames: the
+same frames bit for bit whatever the workers, the order or the interruptions (SIGKILL at random
+moments), damaged files and manifest lines redone, other scenarios refused, full disks."""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import sonarsim.dataset as ds
+from sonarsim.dataset import frames, generate, load_scenario
+from sonarsim.dataset.coco import category_of, coco_from_records
+from sonarsim.dataset.frames import SimulatorCache, labels_supported, render_frame
+from sonarsim.dataset.manifest import (
+    Fingerprint,
+    ManifestAppender,
+    read_manifest,
+    seal_record,
+    spec_digest,
+    verify_record,
+)
+from sonarsim.dataset.writer import npz_bytes
+from sonarsim.errors import ConfigError, SonarsimError
+from sonarsim.io.output import read_npz
+
+from .test_scenario import SCENE, VARIED
+
+REPO = Path(__file__).resolve().parents[2]
+
+# The same scene for every frame (one simulator), poses on a circle around the block.
+ORBIT = {
+    "scene": SCENE,
+    "seed": 5,
+    "trajectory": {"rate_hz": 4.0, "generate": {"kind": "orbit", "centre_m": [2.5, 0.0, 0.15], "radius_m": 2.0,
+                                                "z_m": 1.0, "frames": 10}},
+}
+
+
+def folder_bytes(folder: Path, skip=("sonarsim-run.json",)) -> dict[str, bytes]:
+    """Every file under ``folder`` except the bag and the run record, by relative path."""
+    out = {}
+    for path in sorted(folder.rglob("*")):
+        rel = path.relative_to(folder).as_posix()
+        if path.is_file() and rel not in skip and not rel.startswith("rosbag"):
+            out[rel] = path.read_bytes()
+    return out
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> dict[str, bytes]:
+    """An uninterrupted single-process run of VARIED with PNGs."""
+    out = tmp_path_factory.mktemp("ref") / "ds"
+    summary = generate(VARIED, out, formats=("npz", "png"), progress=False)
+    assert summary.rendered == summary.n_frames == 12 and summary.reused == 0
+    return folder_bytes(out)
+
+
+# frames(): rendering from the spec alone ---------------------------------------------------
+
+def test_frames_yields_each_frame_as_rendered_alone_and_in_the_dataset(tmp_path, reference):
+    all_frames = list(frames(VARIED))
+    assert [f.index for f in all_frames] == list(range(12))
+    late = list(frames(VARIED, start=7, stop=9))  # a fresh process state: no earlier frames rendered
+    assert [f.index for f in late] == [7, 8]
+    for f in late:
+        np.testing.assert_array_equal(f.image.polar, all_frames[f.index].image.polar)
+    arrays, config = read_npz(_npz(tmp_path, reference, 8))
+    np.testing.assert_array_equal(arrays["polar"], all_frames[8].image.polar)
+    np.testing.assert_array_equal(arrays["range_m"], all_frames[8].image.range_m)
+    assert config["dataset"] == {"frame": 8, "seed": all_frames[8].spec.seed, "time_s": all_frames[8].spec.time_s}
+    assert not any(k.startswith("rays_") for k in arrays)  # per-ray maps are not part of a dataset
+
+
+def _npz(tmp_path: Path, files: dict[str, bytes], k: int) -> Path:
+    path = tmp_path / f"{k}.npz"
+    path.write_bytes(files[f"frames/{k:06d}.npz"])
+    return path
+
+
+def test_frames_carry_labels_when_the_renderer_has_them():
+    frame = next(frames(ORBIT, stop=1))
+    if not labels_supported():
+        pytest.skip("this renderer has no labels yet (render(..., labels=True))")
+    arrays = frame.arrays()
+    assert arrays["instance"].dtype == np.int32 and arrays["instance"].shape == frame.image.polar.shape
+    assert arrays["elevation_deg"].dtype == np.float32
+    assert arrays["points_world"].shape[1:] == (3,) and arrays["points_object"].dtype == np.int32
+    # Where the image has energy, a cell has an instance; the block (id 0) is seen from the orbit.
+    assert 0 in np.unique(arrays["instance"])
+
+
+def test_simulators_are_built_once_per_scene():
+    scenario = load_scenario(ORBIT)
+    with SimulatorCache(threads=1) as cache:
+        for spec in scenario.frame_specs(stop=4):
+            render_frame(spec, cache, labels=False)
+        assert cache.built == 1  # nothing varies: one scene, one simulator
+    varied = load_scenario(VARIED)
+    with SimulatorCache(threads=1, max_size=2) as cache:
+        for spec in varied.frame_specs(stop=3):
+            render_frame(spec, cache, labels=False)
+        assert cache.built == 3 and len(cache._sims) == 2  # every frame its own scene; two kept
+
+
+# The files ---------------------------------------------------------------------------------
+
+def test_dataset_layout_and_manifest(tmp_path, reference):
+    scenario = load_scenario(VARIED)
+    lines = [json.loads(line) for line in reference["manifest.jsonl"].decode().splitlines()]
+    assert [r["frame"] for r in lines] == list(range(12))
+    for record in lines:
+        spec = scenario.frame(record["frame"])
+        assert record["seed"] == spec.seed and record["time_s"] == spec.time_s
+        assert record["pose"] == {"position_m": list(spec.pose.position_m), "rpy_deg": list(spec.pose.rpy_deg)}
+        assert record["spec_sha256"] == spec_digest(spec)
+        k = record["frame"]
+        assert record["files"] == [f"frames/{k:06d}.npz", f"frames/{k:06d}_polar.png", f"frames/{k:06d}_fan.png"]
+        for name in record["files"]:
+            assert record["bytes"][name] == len(reference[name])
+            assert record["sha256"][name] == hashlib.sha256(reference[name]).hexdigest()
+        assert seal_record(record)["check"] == record["check"]
+    info = json.loads(reference["dataset.json"])
+    assert info["n_frames"] == 12 and info["options"]["formats"] == ["npz", "png"]
+    assert set(reference) == {"dataset.json", "manifest.jsonl", *(f for r in lines for f in r["files"])} | (
+        {"coco.json"} if labels_supported() else set())
+
+
+def test_npz_bytes_depend_on_the_content_alone(tmp_path):
+    arrays = {"polar": np.arange(12, dtype=np.float32).reshape(3, 4), "ids": np.array(["a", "bc"])}
+    first = npz_bytes(arrays, {"k": 1})
+    time.sleep(2.1)  # zip dates have a 2-second resolution
+    assert npz_bytes(arrays, {"k": 1}) == first
+    assert npz_bytes({**arrays, "polar": arrays["polar"] + 1}, {"k": 1}) != first
+    path = tmp_path / "a.npz"
+    path.write_bytes(first)
+    back, config = read_npz(path)
+    assert config == {"k": 1}
+    np.testing.assert_array_equal(back["polar"], arrays["polar"])
+    np.testing.assert_array_equal(back["ids"], arrays["ids"])
+
+
+def test_a_second_run_equals_the_first_bit_for_bit(tmp_path, reference):
+    generate(VARIED, tmp_path / "ds", formats=("npz", "png"), progress=False)
+    assert folder_bytes(tmp_path / "ds") == reference
+
+
+def test_two_workers_give_the_same_files_as_one(tmp_path, reference):
+    summary = generate(VARIED, tmp_path / "ds", formats=("npz", "png"), workers=2, batch_size=2, progress=False)
+    assert summary.rendered == 12
+    assert folder_bytes(tmp_path / "ds") == reference
+
+
+# Resuming ----------------------------------------------------------------------------------
+
+def test_rerun_keeps_verified_frames_and_redoes_damaged_ones(tmp_path, reference):
+    out = tmp_path / "ds"
+    for name, content in reference.items():
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_bytes(content)
+    # Damage: a flipped byte in frame 2's NPZ, frame 5's fan PNG deleted, frame 7's line edited
+    # (still valid JSON, its check no longer matches), frame 9's line with a forged check, and
+    # a torn last line (frame 11's, cut in the middle).
+    npz = out / "frames/000002.npz"
+    data = bytearray(npz.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    npz.write_bytes(bytes(data))
+    (out / "frames/000005_fan.png").unlink()
+    lines = reference["manifest.jsonl"].decode().splitlines()
+    r7 = json.loads(lines[7])
+    r7["seed"] += 1
+    lines[7] = json.dumps(r7)
+    r9 = json.loads(lines[9])
+    r9["pose"]["position_m"][0] += 1e-9
+    lines[9] = json.dumps(seal_record(r9))  # sealed, but not this scenario's frame 9
+    lines[11] = lines[11][: len(lines[11]) // 2]
+    (out / "manifest.jsonl").write_text("\n".join(lines))
+    summary = generate(VARIED, out, formats=("npz", "png"), progress=False)
+    assert (summary.rendered, summary.reused) == (5, 7)
+    assert folder_bytes(out) == reference
+
+
+def test_killed_at_random_moments_and_resumed_equals_an_uninterrupted_run(tmp_path, reference):
+    out = tmp_path / "ds"
+    code = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(REPO)!r})
+        from tests.dataset.test_scenario import VARIED
+        from sonarsim.dataset import generate
+        print("ready", flush=True)
+        generate(VARIED, {str(out)!r}, formats=("npz", "png"), progress=False, log=lambda m: None)
+    """)
+    rng = np.random.default_rng(2026)
+    partial = 0
+    for attempt in range(6):
+        proc = subprocess.Popen([sys.executable, "-c", code], cwd=REPO, stdout=subprocess.PIPE)
+        assert proc.stdout.readline() == b"ready\n"  # imports done
+        # The whole run (checks, 12 frames, manifest, COCO) takes about 0.4 s from here, the
+        # first frame 0.15 s of it: each kill leaves a few more frames done.
+        time.sleep(float(rng.uniform(0.1, 0.3)))
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        n_lines = len(read_manifest(out / "manifest.jsonl"))
+        partial += 0 < n_lines < 12
+    assert partial >= 2, "no kill landed while frames were being made; the test proves nothing"
+    summary = generate(VARIED, out, formats=("npz", "png"), progress=False)
+    assert summary.rendered + summary.reused == 12
+    assert folder_bytes(out) == reference
+    assert not [p for p in out.rglob("*.tmp")]  # no temporary file left behind
+
+
+def test_another_scenario_or_other_options_are_refused_and_more_frames_extend(tmp_path):
+    out = tmp_path / "ds"
+    generate(ORBIT, out, frames=4, progress=False)
+    before = folder_bytes(out)
+    for kwargs in ({"scenario": {**ORBIT, "seed": 6}}, {"formats": ("npz", "png")}, {"frames": 3}):
+        args = {"scenario": ORBIT, "frames": 4, **kwargs}
+        with pytest.raises(SonarsimError, match="holds another dataset"):
+            generate(args.pop("scenario"), out, progress=False, **args)
+        assert folder_bytes(out) == before  # refused before anything was touched
+    summary = generate(ORBIT, out, frames=6, progress=False)
+    assert (summary.rendered, summary.reused) == (2, 4)
+    fresh = tmp_path / "fresh"
+    generate(ORBIT, fresh, frames=6, progress=False)
+    assert folder_bytes(out) == folder_bytes(fresh)
+
+
+def test_a_full_disk_stops_with_a_clear_message_and_no_half_written_frame(tmp_path, monkeypatch):
+    import sonarsim.io.output as output
+
+    out = tmp_path / "ds"
+    real_replace = os.replace
+    calls = {"n": 0}
+
+    def full_disk(src, dst):
+        if str(dst).endswith("000003.npz"):
+            raise OSError(errno.ENOSPC, "No space left on device", src)
+        calls["n"] += 1
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(output.os, "replace", full_disk)
+    with pytest.raises(SonarsimError, match=r"000003\.npz: cannot write: No space left on device.*resume"):
+        generate(ORBIT, out, progress=False)
+    monkeypatch.undo()
+    assert not [p for p in out.rglob("*.tmp")]
+    assert sorted(p.name for p in (out / "frames").iterdir()) == [f"{k:06d}.npz" for k in range(3)]
+    assert [r["frame"] for r in read_manifest(out / "manifest.jsonl")] == [0, 1, 2]
+    summary = generate(ORBIT, out, progress=False)
+    assert (summary.rendered, summary.reused) == (7, 3)
+    generate(ORBIT, tmp_path / "fresh", progress=False)
+    assert folder_bytes(out) == folder_bytes(tmp_path / "fresh")
+
+
+def test_bad_options_name_their_key(tmp_path):
+    for kwargs, key in (({"workers": 0}, "workers"), ({"formats": ("npz", "tiff")}, "formats"),
+                        ({"rosbag": "bag"}, "rosbag"), ({"frames": 0}, "frames")):
+        with pytest.raises(ConfigError) as info:
+            generate(ORBIT, tmp_path / "ds", progress=False, **kwargs)
+        assert info.value.key == key
+    assert not (tmp_path / "ds").exists()
+
+
+def test_an_output_path_that_is_a_file_is_refused(tmp_path):
+    (tmp_path / "ds").write_text("not a folder")
+    with pytest.raises(SonarsimError, match="is a file"):
+        generate(ORBIT, tmp_path / "ds", progress=False)
+
+
+# Manifest pieces ---------------------------------------------------------------------------
+
+def test_manifest_lines_verify_only_when_everything_matches(tmp_path):
+    (tmp_path / "f.bin").write_bytes(b"abc")
+    header = {"frame": 0, "spec_sha256": "s", "files": ["f.bin"]}
+    record = seal_record({**header, "bytes": {"f.bin": 3}, "sha256": {"f.bin": hashlib.sha256(b"abc").hexdigest()}})
+    assert verify_record(record, tmp_path, header)
+    assert not verify_record(record, tmp_path, {**header, "spec_sha256": "t"})  # another frame spec
+    assert not verify_record(record, tmp_path, {**header, "files": ["f.bin", "g.png"]})  # other options
+    assert not verify_record(record, tmp_path, None)
+    assert not verify_record({**record, "frame": 1}, tmp_path, {**header, "frame": 1})  # check broken
+    (tmp_path / "f.bin").write_bytes(b"abd")
+    assert not verify_record(record, tmp_path, header)
+    path = tmp_path / "m.jsonl"
+    with ManifestAppender(path) as m:
+        m.append({"frame": 0})
+        m.append({"frame": 1})
+    with open(path, "ab") as handle:
+        handle.write(b'{"frame": 2, "fi')  # a torn last line
+    assert [r["frame"] for r in read_manifest(path)] == [0, 1]
+
+
+def test_fingerprint_of_a_prefix():
+    a, b = Fingerprint({"x": 1}), Fingerprint({"x": 1})
+    for d in ("d0", "d1", "d2"):
+        a.add(d)
+    b.add("d0")
+    assert a.at(1) == b.value and a.at(3) == a.value and a.at(4) is None
+    assert Fingerprint({"x": 2}).at(0) != a.at(0)
+
+
+def test_coco_boxes_from_records():
+    records = [
+        {"frame": 0, "files": ["frames/000000.npz", "frames/000000_polar.png", "frames/000000_fan.png"],
+         "fan_shape": [50, 80], "time_s": 0.0,
+         "boxes": [{"id": 0, "name": "block", "polar": [1, 2, 3, 4], "fan": [10, 20, 14, 29]},
+                   {"id": 1, "name": "rock_0", "polar": [1, 1, 1, 1], "fan": [-1, -1, -1, -1]}]},
+        {"frame": 1, "files": ["frames/000001.npz"], "fan_shape": [50, 80], "time_s": 0.5,
+         "boxes": [{"id": 2, "name": "rock_12", "polar": [0, 0, 0, 0], "fan": [0, 0, 0, 0]}]},
+    ]
+    doc = coco_from_records(records, image_file="png")
+    assert [i["file_name"] for i in doc["images"]] == ["frames/000000_fan.png", "frames/000001.npz"]
+    assert doc["images"][0]["width"] == 80 and doc["images"][0]["height"] == 50
+    assert [a["bbox"] for a in doc["annotations"]] == [[20, 10, 10, 5], [0, 0, 1, 1]]
+    assert [a["area"] for a in doc["annotations"]] == [50, 1]
+    assert doc["categories"] == [{"id": 1, "name": "block"}, {"id": 2, "name": "rock"}]
+    assert [category_of(n) for n in ("rock_3", "rock", "pipe_a", "_7")] == ["rock", "rock", "pipe_a", "_7"]
+
+
+def test_coco_file_of_a_labelled_dataset(tmp_path):
+    if not labels_supported():
+        pytest.skip("this renderer has no labels yet (render(..., labels=True))")
+    summary = generate(ORBIT, tmp_path / "ds", frames=3, progress=False)
+    doc = json.loads(summary.coco.read_text())
+    assert [i["id"] for i in doc["images"]] == [0, 1, 2]
+    assert doc["categories"] == [{"id": 1, "name": "block"}]
+    assert len(doc["annotations"]) == 3  # the block is seen in every frame of the orbit
+
+
+# The bag -----------------------------------------------------------------------------------
+
+def test_bag_holds_every_frame_in_order_and_is_rewritten_on_resume(tmp_path):
+    highlevel = pytest.importorskip("rosbags.highlevel")
+    out = tmp_path / "ds"
+    generate(ORBIT, out, frames=3, rosbag="mcap", progress=False)
+    summary = generate(ORBIT, out, frames=5, rosbag="mcap", progress=False)
+    assert summary.rosbag == out / "rosbag"
+    scenario = load_scenario(ORBIT)
+    stamps, polars = [], []
+    with highlevel.AnyReader([summary.rosbag]) as reader:
+        for conn, t, raw in reader.messages():
+            if conn.topic == "/sonar/image":
+                msg = reader.deserialize(raw, conn.msgtype)
+                stamps.append(t)
+                polars.append(np.frombuffer(bytes(msg.image.data), np.float32).reshape(-1, msg.image.beam_count))
+            if conn.topic == "/sonar/fan":
+                assert reader.deserialize(raw, conn.msgtype).encoding == "mono8"
+    assert stamps == [round(scenario.frame(k).time_s * 1e9) for k in range(5)]
+    for k, polar in enumerate(polars):
+        arrays, _ = read_npz(out / f"frames/{k:06d}.npz")
+        np.testing.assert_array_equal(polar, arrays["polar"])
+    assert not [p for p in out.iterdir() if p.name.endswith(".tmp")]
