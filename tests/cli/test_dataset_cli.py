@@ -1,0 +1,74 @@
+"""The `sonarsim dataset` command: its files, resuming, one-line errors with exit status 2."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+
+from sonarsim.cli.main import main
+from sonarsim.dataset.manifest import read_manifest
+
+from tests.dataset.test_scenario import VARIED
+
+
+@pytest.fixture()
+def scenario_file(tmp_path):
+    path = tmp_path / "scenario.yaml"
+    path.write_text(yaml.safe_dump(VARIED))
+    return path
+
+
+def test_dataset_command_writes_resumes_and_records(tmp_path, scenario_file, capsys):
+    out = tmp_path / "ds"
+    assert main(["dataset", str(scenario_file), "--out", str(out), "--frames", "3", "--png"]) == 0
+    err = capsys.readouterr().err
+    assert "frame" in err and "3 frames (3 made, 0 kept)" in err  # the bar and the summary, on stderr
+    assert [r["frame"] for r in read_manifest(out / "manifest.jsonl")] == [0, 1, 2]
+    assert (out / "frames" / "000002_fan.png").is_file()
+    record = json.loads((out / "sonarsim-run.json").read_text())
+    assert record["status"] == "complete"
+    assert record["command"][:2] == ["sonarsim", "dataset"]
+    assert main(["dataset", str(scenario_file), "--out", str(out), "--frames", "5", "--png", "--no-progress"]) == 0
+    assert "5 frames (2 made, 3 kept)" in capsys.readouterr().err
+
+
+def test_seed_option_makes_another_dataset(tmp_path, scenario_file, capsys):
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert main(["dataset", str(scenario_file), "--out", str(a), "--frames", "2", "--no-progress"]) == 0
+    assert main(["dataset", str(scenario_file), "--out", str(b), "--frames", "2", "--seed", "12",
+                 "--no-progress"]) == 0
+    seeds_a = [r["seed"] for r in read_manifest(a / "manifest.jsonl")]
+    seeds_b = [r["seed"] for r in read_manifest(b / "manifest.jsonl")]
+    assert seeds_a != seeds_b
+    # The same folder with another seed: refused in one line, exit status 2.
+    capsys.readouterr()
+    assert main(["dataset", str(scenario_file), "--out", str(a), "--frames", "2", "--seed", "12"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("sonarsim: error:") and "holds another dataset" in err and "\n" not in err
+
+
+def test_bad_input_exits_2_with_one_line(tmp_path, scenario_file, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({**VARIED, "seed": -1}))
+    assert main(["dataset", str(bad), "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "seed" in err and "\n" not in err
+    assert main(["dataset", str(tmp_path / "missing.yaml"), "--out", str(tmp_path / "x")]) == 2
+    (tmp_path / "file").write_text("")
+    capsys.readouterr()
+    assert main(["dataset", str(scenario_file), "--out", str(tmp_path / "file")]) == 2
+    assert "--out" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:
+        main(["dataset", str(scenario_file), "--out", str(tmp_path / "x"), "--workers", "0"])
+    assert info.value.code == 2
+
+
+def test_rosbag_option_writes_the_bag(tmp_path, scenario_file):
+    pytest.importorskip("rosbags")
+    out = tmp_path / "ds"
+    assert main(["dataset", str(scenario_file), "--out", str(out), "--frames", "2", "--rosbag", "sqlite3",
+                 "--no-progress"]) == 0
+    assert (out / "rosbag" / "metadata.yaml").is_file()
+    assert list((out / "rosbag").glob("*.db3"))
