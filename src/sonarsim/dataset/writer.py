@@ -71,6 +71,9 @@ BAG_NAME = "rosbag"
 _DYNAMIC_RANGE_DB = 40.0
 # A fixed zip-entry date (the earliest zip can hold): NPZ bytes depend on the arrays alone.
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
+# Deflate level 1: on a 128 x 1288 frame (13 float32 images, 7.3 MB) 19 ms and 0.51 MB, against
+# 33 ms and 0.45 MB at numpy's default level 6; writing must not cost more than rendering.
+_ZIP_LEVEL = 1
 
 
 @dataclass(frozen=True)
@@ -133,10 +136,11 @@ def npz_bytes(arrays: Mapping[str, np.ndarray], config: Mapping[str, Any]) -> by
     buffer = io.BytesIO()
     payload = dict(arrays)
     payload[CONFIG_KEY] = np.array(json.dumps(dict(config), sort_keys=True, default=_json_default), dtype=np.str_)
-    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=_ZIP_LEVEL) as archive:
         for name, value in payload.items():
             info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_DATE)
             info.compress_type = zipfile.ZIP_DEFLATED
+            info._compresslevel = _ZIP_LEVEL  # what ZipFile.open(str) sets; a ZipInfo must be told
             info.external_attr = 0o644 << 16
             with archive.open(info, "w", force_zip64=True) as entry:
                 np.lib.format.write_array(entry, np.asanyarray(value), allow_pickle=False)

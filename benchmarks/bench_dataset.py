@@ -1,0 +1,77 @@
+"""Dataset throughput (issue 12 item 5): labelled frames/s of the demo tank at 128 x 1288, all bounces.
+
+An orbit of the demo tank's objects (the demo scene: ARIS 3000 preset, 128 beams x 1288 bins,
+all bounces), measured in one run on this machine:
+
+* render only: :func:`sonarsim.dataset.frames` (labels where the renderer has them), one
+  ray-casting thread, nothing written;
+* ``generate`` with 1 worker (one thread) and with 2 workers (one thread each), NPZ files and
+  manifest written; the rates include the workers' start-up (spawned processes import sonarsim);
+* the cost of writing (and labels) relative to render time: ``1 worker time / render time - 1``
+  (target <= 30 %), and the 2-worker speed-up (target >= 1.7x).
+
+Usage::
+
+    python benchmarks/bench_dataset.py [--frames 16] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.dataset import frames, generate, load_scenario
+from sonarsim.dataset.frames import labels_supported
+
+
+def scenario_doc(n: int) -> dict:
+    """The demo tank seen from ``n`` points of a circle around its objects."""
+    scene = demo_scene_dict()
+    return {
+        "scene": scene,
+        "seed": 1,
+        "trajectory": {"rate_hz": 2.0, "generate": {"kind": "orbit", "centre_m": [3.15, 0.0, 0.2], "radius_m": 2.8,
+                                                    "z_m": 1.0, "frames": n, "sweep_deg": 60.0, "start_deg": 150.0}},
+    }
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--frames", type=int, default=16)
+    p.add_argument("--json", default=None)
+    args = p.parse_args(argv)
+    scenario = load_scenario(scenario_doc(args.frames))
+    sonar = scenario.frame(0).load_scene().sonar
+    print(f"{args.frames} frames, {sonar.n_beams} beams x {sonar.n_range_bins} bins, labels: {labels_supported()}")
+    it = frames(scenario, labels=True, threads=1)
+    next(it)  # the simulator is built on the first frame: not part of the rate
+    t0 = time.perf_counter()
+    n_rendered = sum(1 for _ in it)
+    render_s = (time.perf_counter() - t0) / n_rendered
+    results = {"frames": args.frames, "labels": labels_supported(), "render_only_frames_per_s": 1.0 / render_s}
+    tmp = Path(tempfile.mkdtemp(prefix="bench-dataset-"))
+    try:
+        for workers in (1, 2):
+            out = tmp / f"w{workers}"
+            summary = generate(scenario, out, workers=workers, threads=1, progress=False, log=lambda m: None)
+            results[f"generate_{workers}_worker_frames_per_s"] = summary.frames_per_s
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    one = results["generate_1_worker_frames_per_s"]
+    results["writing_overhead_vs_render"] = (1.0 / one) / render_s - 1.0
+    results["speedup_2_workers"] = results["generate_2_worker_frames_per_s"] / one
+    for key, value in results.items():
+        print(f"{key}: {value:.3f}" if isinstance(value, float) else f"{key}: {value}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
