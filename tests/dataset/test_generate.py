@@ -358,3 +358,16 @@ def test_bag_holds_every_frame_in_order_and_is_rewritten_on_resume(tmp_path):
         arrays, _ = read_npz(out / f"frames/{k:06d}.npz")
         np.testing.assert_array_equal(polar, arrays["polar"])
     assert not [p for p in out.iterdir() if p.name.endswith(".tmp")]
+
+
+def test_torch_example_imports_without_torch_and_makes_samples():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("dataset_torch", REPO / "examples" / "dataset_torch.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)  # torch is imported only by main()
+    frame = next(frames(ORBIT, stop=1))
+    image, target = module.to_sample(frame.arrays())
+    assert image.shape == (1, *frame.image.polar.shape) and image.dtype == np.float32
+    assert np.isfinite(image).all()
+    assert ("instance" in target) == labels_supported()
