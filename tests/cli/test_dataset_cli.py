@@ -72,3 +72,31 @@ def test_rosbag_option_writes_the_bag(tmp_path, scenario_file):
                  "--no-progress"]) == 0
     assert (out / "rosbag" / "metadata.yaml").is_file()
     assert list((out / "rosbag").glob("*.db3"))
+
+
+def test_ray_option(tmp_path, scenario_file, capsys):
+    ray = pytest.importorskip("ray")
+    out = tmp_path / "ds"
+    try:
+        assert main(["dataset", str(scenario_file), "--out", str(out), "--frames", "3", "--ray", "local",
+                     "--workers", "2", "--no-progress"]) == 0
+    finally:
+        ray.shutdown()
+    assert [r["frame"] for r in read_manifest(out / "manifest.jsonl")] == [0, 1, 2]
+
+
+def test_ray_missing_is_one_line(tmp_path, scenario_file, capsys, monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_ray(name, *args, **kwargs):
+        if name == "ray":
+            raise ImportError("No module named 'ray'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_ray)
+    assert main(["dataset", str(scenario_file), "--out", str(tmp_path / "ds"), "--ray", "auto"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "sonarsim[ray]" in err and "\n" not in err
+    assert not (tmp_path / "ds").exists()

@@ -376,3 +376,14 @@ def test_torch_example_imports_without_torch_and_makes_samples():
     assert image.shape == (1, *frame.image.polar.shape) and image.dtype == np.float32
     assert np.isfinite(image).all()
     assert ("instance" in target) == labels_supported()
+
+
+def test_ray_gives_the_same_files_as_local_processes(tmp_path, reference):
+    ray = pytest.importorskip("ray")
+    try:
+        summary = generate(VARIED, tmp_path / "ds", formats=("npz", "png"), ray="local", workers=2, batch_size=2,
+                           progress=False)
+    finally:
+        ray.shutdown()
+    assert summary.rendered == 12
+    assert folder_bytes(tmp_path / "ds") == reference

@@ -46,8 +46,12 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="dataset folder (created if missing; resumed if it holds this dataset)")
     p.add_argument("--frames", type=_positive_int, default=None, metavar="N",
                    help="make at most the first N frames (default: all the scenario's)")
-    p.add_argument("--workers", type=_positive_int, default=1, metavar="N",
-                   help="render in N processes (default 1); the frames are the same whatever N")
+    p.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+                   help="render in N processes (default 1), or with --ray N actors (default: the cluster's CPUs); "
+                   "the frames are the same whatever N")
+    p.add_argument("--ray", default=None, metavar="ADDRESS",
+                   help="render on a Ray cluster: its address, 'auto' (the cluster this machine belongs to) or "
+                   "'local' (a new Ray instance here); needs sonarsim[ray]")
     p.add_argument("--rosbag", choices=("mcap", "sqlite3"), default=None,
                    help="also write a ROS 2 bag into OUT/rosbag with this storage (needs sonarsim[ros])")
     p.add_argument("--png", action="store_true", help="also write each frame's polar and fan images as PNG")
@@ -71,7 +75,7 @@ def cmd_dataset(args: argparse.Namespace) -> None:
         scenario = scenario.with_seed(args.seed) if hasattr(scenario, "with_seed") else _with_seed(scenario, args.seed)
     summary = generate(
         scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
-        rosbag=args.rosbag, labels=not args.no_labels, progress=not args.no_progress,
+        rosbag=args.rosbag, ray=args.ray, labels=not args.no_labels, progress=not args.no_progress,
         command=getattr(args, "command_line", None),
     )
     rate = f" ({summary.frames_per_s:.2f} frames/s)" if summary.rendered else ""

@@ -22,7 +22,10 @@ from typing import Any
 from .frames import SimulatorCache, render_frame
 from .scenario import Scenario
 
-__all__ = ["available_cores", "batches", "encoded_frames", "render_batch"]
+__all__ = ["RAY_HINT", "available_cores", "batches", "encoded_frames", "encoded_frames_ray", "render_batch"]
+
+#: What to install for ``--ray``.
+RAY_HINT = "install the Ray extra: pip install 'sonarsim[ray]'"
 
 # Per worker process: the scenario and options it was started with, and its simulators.
 _STATE: dict[str, Any] = {}
@@ -120,3 +123,83 @@ def encoded_frames(scenario: Scenario, indices: Sequence[int], options: Any, wid
                 yield from future.result()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _import_ray() -> Any:
+    """The ``ray`` module, or a SonarsimError naming the extra."""
+    from ..errors import SonarsimError
+
+    try:
+        import ray
+    except ImportError as exc:
+        raise SonarsimError(f"--ray needs the 'ray' library ({exc}); {RAY_HINT}") from None
+    return ray
+
+
+class _RayRenderer:
+    """A Ray actor: one scenario, its simulators kept between tasks (as a worker process)."""
+
+    def __init__(self, scenario: Scenario, options: Any, width: int, threads: int | None) -> None:
+        self.scenario, self.options, self.width = scenario, options, width
+        self.cache = SimulatorCache(threads=threads)
+
+    def render(self, indices: Sequence[int]) -> list[Any]:
+        return render_batch(indices, self.scenario, self.options, self.width, self.cache)
+
+
+def encoded_frames_ray(scenario: Scenario, indices: Sequence[int], options: Any, width: int, address: str,
+                       workers: int | None = None, threads: int | None = None,
+                       batch_size: int | None = None) -> Iterator[Any]:
+    """As :func:`encoded_frames`, on a Ray cluster: ``workers`` actors, results streamed back.
+
+    Parameters
+    ----------
+    address : str
+        The cluster (``ray.init(address=...)``: ``"auto"`` for the cluster this machine belongs
+        to, ``"ray://host:10001"``, ...), or ``"local"``: a new Ray instance on this machine.
+    workers : int, optional
+        Actors (one CPU each); default: the cluster's CPUs.
+    threads : int, optional
+        Ray-casting threads per actor (default 1: one actor per CPU).
+
+    Notes
+    -----
+    Ray is started here if it is not running in this process yet, and left running (a later
+    call reuses it); ``ray.shutdown()`` ends it.
+    """
+    ray = _import_ray()
+    if not ray.is_initialized():
+        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+        if address != "local":
+            kwargs["address"] = address
+        ray.init(**kwargs)
+    if workers is None:
+        workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
+    if batch_size is None:
+        batch_size = max(1, min(8, len(indices) // (4 * workers)))
+    actor_cls = ray.remote(num_cpus=1)(_RayRenderer)
+    scenario_ref = ray.put(scenario)
+    actors = [actor_cls.remote(scenario_ref, options, width, threads or 1) for _ in range(workers)]
+    queue = iter(batches(indices, batch_size))
+    pending: dict[Any, Any] = {}
+    try:
+        # Two tasks per actor in flight: an actor never waits for the writer, and the writer
+        # gets results as they finish (ray.wait), not in submission order.
+        for actor in actors:
+            for _ in range(2):
+                task = next(queue, None)
+                if task is not None:
+                    pending[actor.render.remote(task)] = actor
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            ref = done[0]
+            actor = pending.pop(ref)
+            task = next(queue, None)
+            if task is not None:
+                pending[actor.render.remote(task)] = actor
+            yield from ray.get(ref)
+    finally:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        for actor in actors:
+            ray.kill(actor)

@@ -353,13 +353,14 @@ def generate(
     scenario: Scenario | str | os.PathLike | Mapping,
     out: str | os.PathLike,
     frames: int | None = None,
-    workers: int = 1,
+    workers: int | None = None,
     formats: Iterable[str] = ("npz",),
     rosbag: str | None = None,
     labels: bool = True,
     progress: bool = True,
     threads: int | None = None,
     batch_size: int | None = None,
+    ray: str | None = None,
     command: Sequence[str] | None = None,
     log: Callable[[str], None] | None = None,
 ) -> DatasetSummary:
@@ -373,8 +374,9 @@ def generate(
         The dataset folder (created if missing).
     frames : int, optional
         Cap on the number of frames (``--frames N``); default all the scenario's.
-    workers : int
-        Processes that render (1: this one).
+    workers : int, optional
+        Processes that render (1: this one); with ``ray``, Ray actors (default: the
+        cluster's CPUs).
     formats : iterable of str
         :data:`FORMATS`: ``"npz"`` (always), ``"png"`` (polar and fan PNGs).
     rosbag : {None, "mcap", "sqlite3"}
@@ -388,6 +390,10 @@ def generate(
         frames do not depend on it.
     batch_size : int, optional
         Frames per task sent to a worker.
+    ray : str, optional
+        Render on a Ray cluster instead of local processes: its address (``"auto"``,
+        ``"ray://host:10001"``) or ``"local"`` (a new instance on this machine). Needs
+        ``pip install 'sonarsim[ray]'``. The frames are the same as local ones.
     command : sequence of str, optional
         The command line, stored in the run record.
     log : callable, optional
@@ -408,10 +414,17 @@ def generate(
     from ..io.output import atomic_write, remove_abandoned_temp_files
     from ..io.run_record import OutputRun
     from .coco import coco_from_records
-    from .workers import encoded_frames
+    from .workers import encoded_frames, encoded_frames_ray
 
     t_start = time.perf_counter()
-    workers = _positive_int(workers, "workers")
+    if workers is not None:
+        workers = _positive_int(workers, "workers")
+    if ray is not None:
+        if not isinstance(ray, str) or not ray:
+            raise ConfigError("ray", f"must be a cluster address, 'auto' or 'local', got {shown(ray)}")
+        from .workers import _import_ray
+
+        _import_ray()  # a missing extra fails now, not after the folder was prepared
     if threads is not None:
         threads = _positive_int(threads, "threads")
     if batch_size is not None:
@@ -469,7 +482,13 @@ def generate(
         records = dict(kept)
         try:
             with ManifestAppender(manifest_path) as manifest:
-                for encoded in encoded_frames(scenario, todo, options, width, workers, threads, batch_size):
+                if not todo:
+                    produced = iter(())
+                elif ray is not None:
+                    produced = encoded_frames_ray(scenario, todo, options, width, ray, workers, threads, batch_size)
+                else:
+                    produced = encoded_frames(scenario, todo, options, width, workers or 1, threads, batch_size)
+                for encoded in produced:
                     _write_files(out, encoded)  # files first: a line always names complete files
                     manifest.append(encoded.record)
                     records[encoded.index] = encoded.record
