@@ -5,8 +5,11 @@ all bounces), measured in one run on this machine:
 
 * render only: :func:`sonarsim.dataset.frames` (labels where the renderer has them), one
   ray-casting thread, nothing written;
-* ``generate`` with 1 worker (one thread) and with 2 workers (one thread each), NPZ files and
-  manifest written; the rates include the workers' start-up (spawned processes import sonarsim);
+* ``generate`` with 1 worker (one thread) and with 2 workers (one thread each), NPZ files,
+  manifest and COCO written: the rate over the whole run (with the workers' start-up: spawned
+  processes import sonarsim and build their simulator) and the steady rate (from the moment
+  the ``2 * workers``-th frame is written to the last);
+* with Ray installed, the same on a local Ray instance (2 actors);
 * the cost of writing (and labels) relative to render time: ``1 worker time / render time - 1``
   (target <= 30 %), and the 2-worker speed-up (target >= 1.7x).
 
@@ -57,15 +60,29 @@ def main(argv=None) -> int:
     results = {"frames": args.frames, "labels": labels_supported(), "render_only_frames_per_s": 1.0 / render_s}
     tmp = Path(tempfile.mkdtemp(prefix="bench-dataset-"))
     try:
-        for workers in (1, 2):
-            out = tmp / f"w{workers}"
-            summary = generate(scenario, out, workers=workers, threads=1, progress=False, log=lambda m: None)
-            results[f"generate_{workers}_worker_frames_per_s"] = summary.frames_per_s
+        runs = [(f"generate_{w}_worker", {"workers": w}) for w in (1, 2)]
+        try:
+            import ray
+
+            runs.append(("ray_local_2_actors", {"workers": 2, "ray": "local"}))
+        except ImportError:
+            ray = None
+        for name, kwargs in runs:
+            stamps = []
+            summary = generate(scenario, tmp / name, threads=1, progress=False, log=lambda m: None,
+                               on_frame=lambda k: stamps.append(time.perf_counter()), **kwargs)
+            warm = 2 * kwargs["workers"]
+            results[f"{name}_frames_per_s"] = summary.frames_per_s
+            results[f"{name}_steady_frames_per_s"] = (len(stamps) - warm) / (stamps[-1] - stamps[warm - 1])
+        if ray is not None:
+            ray.shutdown()
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    one = results["generate_1_worker_frames_per_s"]
+    one = results["generate_1_worker_steady_frames_per_s"]
     results["writing_overhead_vs_render"] = (1.0 / one) / render_s - 1.0
-    results["speedup_2_workers"] = results["generate_2_worker_frames_per_s"] / one
+    results["speedup_2_workers_steady"] = results["generate_2_worker_steady_frames_per_s"] / one
+    results["speedup_2_workers_whole_run"] = (results["generate_2_worker_frames_per_s"]
+                                              / results["generate_1_worker_frames_per_s"])
     for key, value in results.items():
         print(f"{key}: {value:.3f}" if isinstance(value, float) else f"{key}: {value}")
     if args.json:

@@ -387,3 +387,32 @@ def test_ray_gives_the_same_files_as_local_processes(tmp_path, reference):
         ray.shutdown()
     assert summary.rendered == 12
     assert folder_bytes(tmp_path / "ds") == reference
+
+
+def test_fan_boxes_equal_the_boxes_of_the_resampled_instance_map():
+    from sonarsim.dataset.coco import fan_boxes
+
+    frame = next(frames(ORBIT, stop=1))
+    image = frame.image
+    rng = np.random.default_rng(3)
+    # A random map: ids in blobs and single cells, many ids absent; checked against boxes of
+    # the map resampled pixel by pixel (nearest), computed independently here.
+    instance = np.full(image.polar.shape, -1, np.int32)
+    for k in range(6):
+        r, b = rng.integers(0, instance.shape[0] - 8), rng.integers(0, instance.shape[1] - 3)
+        instance[r:r + rng.integers(1, 8), b:b + rng.integers(1, 3)] = k
+    instance[rng.integers(0, instance.shape[0]), 0] = 7
+    from sonarsim.image.fan import FanMapper
+
+    nearest = FanMapper.from_grid(image.sonar.grid, None, "nearest")
+    fan_ids = nearest(instance.astype(np.float32) + 1).image.astype(np.int64) - 1
+    expected = np.full((9, 4), -1)
+    for k in range(9):
+        rows, cols = np.nonzero(fan_ids == k)
+        if rows.size:
+            expected[k] = [rows.min(), cols.min(), rows.max(), cols.max()]
+    np.testing.assert_array_equal(fan_boxes(instance, image.sonar.grid, 9), expected)
+    assert (expected[:8, 0] >= 0).sum() >= 6 and expected[8, 0] == -1
+    if frame.labels is not None:
+        np.testing.assert_array_equal(fan_boxes(frame.labels.instance["total"], image.sonar.grid,
+                                                len(frame.labels.ids)), image.fan_labels().boxes)

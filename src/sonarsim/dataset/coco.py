@@ -11,11 +11,14 @@ name, so all rocks are one category. Planes (the ground, walls) are not objects 
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-__all__ = ["category_of", "coco_from_records"]
+import numpy as np
+
+__all__ = ["category_of", "coco_from_records", "fan_boxes"]
 
 _NUMBERED = re.compile(r"^(?P<base>.+)_[0-9]+$")
 
@@ -70,3 +73,67 @@ def coco_from_records(records: Iterable[Mapping[str, Any]], fan_shape: tuple[int
         "annotations": annotations,
         "categories": [{"id": cid, "name": name} for name, cid in categories.items()],
     }
+
+
+@functools.lru_cache(maxsize=8)
+def _cell_extents(grid: Any, pixel_size_m: float | None) -> np.ndarray:
+    """Per polar cell, the inclusive box ``[row_min, col_min, row_max, col_max]`` of the fan
+    pixels whose nearest cell it is (the fan of :meth:`SonarImage.fan`); -1 for a cell that no
+    pixel samples. (n_range_bins * n_beams, 4) int32, built once per grid."""
+    from ..image.fan import FanMapper
+
+    nearest = FanMapper.from_grid(grid, pixel_size_m, "nearest")
+    n_cells = int(np.prod(nearest.polar_shape))
+    # Cell index + 1 per pixel (float32 holds integers below 2**24 exactly); 0 outside the fan.
+    cell = nearest(np.arange(1, n_cells + 1, dtype=np.float32).reshape(nearest.polar_shape)).image
+    rows, cols = np.nonzero(cell)
+    owner = cell[rows, cols].astype(np.int64) - 1
+    out = np.full((n_cells, 4), -1, np.int64)
+    big = np.iinfo(np.int64).max
+    lo = np.full((n_cells, 2), big, np.int64)
+    hi = np.full((n_cells, 2), -1, np.int64)
+    np.minimum.at(lo, (owner, 0), rows)
+    np.minimum.at(lo, (owner, 1), cols)
+    np.maximum.at(hi, (owner, 0), rows)
+    np.maximum.at(hi, (owner, 1), cols)
+    seen = hi[:, 0] >= 0
+    out[seen] = np.concatenate([lo[seen], hi[seen]], axis=1)
+    return out.astype(np.int32)
+
+
+def fan_boxes(instance: np.ndarray, grid: Any, n_ids: int, pixel_size_m: float | None = None) -> np.ndarray:
+    """Boxes of each id in the fan image, from the polar instance map alone.
+
+    Equal to the boxes of the instance map resampled to the fan by nearest neighbour
+    (:meth:`SonarImage.fan_labels`), without resampling it: the pixels of an id are those whose
+    nearest cell holds the id, so its box spans the boxes of its cells' pixels
+    (:func:`_cell_extents`, built once per grid). About 1 ms for 128 x 1288 cells, against
+    tens of ms for the resampling.
+
+    Parameters
+    ----------
+    instance : (n_range_bins, n_beams) int array
+        Ids, -1 none.
+    grid : PolarGrid
+        The image's grid (``image.sonar.grid``).
+    n_ids : int
+    pixel_size_m : float, optional
+        Fan pixel size; default the range resolution (as :meth:`SonarImage.fan`).
+
+    Returns
+    -------
+    (n_ids, 4) int32 ndarray
+        ``[row_min, col_min, row_max, col_max]`` inclusive fan pixels; -1 for an id with no pixel.
+    """
+    extents = _cell_extents(grid, pixel_size_m)
+    ids = np.asarray(instance).reshape(-1)
+    keep = (ids >= 0) & (ids < n_ids) & (extents[:, 0] >= 0)
+    ids, ext = ids[keep].astype(np.intp), extents[keep].astype(np.int64)
+    big = np.iinfo(np.int64).max
+    lo = np.full((n_ids, 2), big, np.int64)
+    hi = np.full((n_ids, 2), -1, np.int64)
+    np.minimum.at(lo, ids, ext[:, :2])
+    np.maximum.at(hi, ids, ext[:, 2:])
+    out = np.concatenate([lo, hi], axis=1)
+    out[hi[:, 0] < 0] = -1
+    return out.astype(np.int32)

@@ -178,16 +178,20 @@ class EncodedFrame:
 
 def _boxes(spec: FrameSpec, image: Any) -> tuple[list[dict], list[int] | None]:
     """The objects' boxes of a frame with labels (polar and fan pixels), and the fan's shape."""
+    from ..image.result import _fan_mapper
+    from .coco import fan_boxes
+
     labels = getattr(image, "labels", None)
     if labels is None:
         return [], None
-    fan = image.fan_labels()
     n_objects = len(spec.scene.get("objects") or [])  # ids 0..K-1 are objects, then planes
-    polar, fan_boxes = np.asarray(labels.boxes_polar), np.asarray(fan.boxes)
+    polar = np.asarray(labels.boxes_polar)
+    # The boxes of SonarImage.fan_labels(), without resampling the maps (a test compares them).
+    fan = fan_boxes(labels.instance["total"], image.sonar.grid, len(labels.ids))
     out = [{"id": k, "name": str(labels.ids[k]), "polar": [int(v) for v in polar[k]],
-            "fan": [int(v) for v in fan_boxes[k]]}
+            "fan": [int(v) for v in fan[k]]}
            for k in range(min(n_objects, len(polar))) if polar[k][0] >= 0]
-    return out, [int(v) for v in fan.instance.shape]
+    return out, [int(v) for v in _fan_mapper(image.sonar.grid, None, "nearest").shape]
 
 
 def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: int) -> EncodedFrame:
@@ -363,6 +367,7 @@ def generate(
     ray: str | None = None,
     command: Sequence[str] | None = None,
     log: Callable[[str], None] | None = None,
+    on_frame: Callable[[int], None] | None = None,
 ) -> DatasetSummary:
     """Render a scenario's frames into the dataset folder ``out`` (resumable; see the module docs).
 
@@ -398,6 +403,9 @@ def generate(
         The command line, stored in the run record.
     log : callable, optional
         Receives one-line notes (default: ``sonarsim: ...`` on stderr).
+    on_frame : callable, optional
+        Called with each frame's index once its files and manifest line are written (in the
+        order frames finish): progress for callers that show their own.
 
     Returns
     -------
@@ -493,6 +501,8 @@ def generate(
                     manifest.append(encoded.record)
                     records[encoded.index] = encoded.record
                     bar.update(1)
+                    if on_frame is not None:
+                        on_frame(encoded.index)
         finally:
             bar.close()
         ordered = [records[k] for k in range(n)]
