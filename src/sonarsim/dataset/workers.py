@@ -120,7 +120,14 @@ def encoded_frames(scenario: Scenario, indices: Sequence[int], options: Any, wid
                 task = next(queue, None)
                 if task is not None:
                     pending.add(pool.submit(render_batch, task))
-                yield from future.result()
+                try:
+                    result = future.result()
+                except cf.process.BrokenProcessPool:
+                    from ..errors import SonarsimError
+
+                    raise SonarsimError("a worker process died (killed, or out of memory: try fewer --workers); "
+                                        "the frames written so far are kept: run again to resume") from None
+                yield from result
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
 
