@@ -416,3 +416,32 @@ def test_fan_boxes_equal_the_boxes_of_the_resampled_instance_map():
     if frame.labels is not None:
         np.testing.assert_array_equal(fan_boxes(frame.labels.instance["total"], image.sonar.grid,
                                                 len(frame.labels.ids)), image.fan_labels().boxes)
+
+
+def test_killing_a_run_with_workers_leaves_no_process_and_resumes(tmp_path, reference):
+    out = tmp_path / "ds"
+    code = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(REPO)!r})
+        from tests.dataset.test_scenario import VARIED
+        from sonarsim.dataset import generate
+        generate(VARIED, {str(out)!r}, formats=("npz", "png"), workers=2, batch_size=1, progress=False,
+                 log=lambda m: None)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", code], cwd=REPO)
+    deadline = time.monotonic() + 60.0
+    while len(read_manifest(out / "manifest.jsonl")) < 2 and proc.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.002)
+    children = subprocess.run(["ps", "-o", "pid=", "--ppid", str(proc.pid)], capture_output=True,
+                              text=True).stdout.split()
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert 0 < len(read_manifest(out / "manifest.jsonl")) < 12
+    deadline = time.monotonic() + 10.0
+    while any(Path(f"/proc/{pid}").exists() for pid in children):
+        assert time.monotonic() < deadline, "worker processes outlived their killed parent"
+        time.sleep(0.1)
+    summary = generate(VARIED, out, formats=("npz", "png"), workers=2, progress=False)
+    assert summary.reused >= 2
+    assert folder_bytes(out) == reference

@@ -16,6 +16,8 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing
 import os
+import threading
+import time
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -45,8 +47,17 @@ def batches(indices: Sequence[int], size: int) -> list[list[int]]:
     return [list(indices[i:i + size]) for i in range(0, len(indices), size)]
 
 
+def _exit_with_parent(parent: int) -> None:
+    """End this worker once its parent is gone (SIGKILL leaves no one to shut the pool down,
+    and an idle worker would wait for tasks forever: it holds its task queue's write end too)."""
+    while os.getppid() == parent:
+        time.sleep(0.5)
+    os._exit(1)
+
+
 def _init_worker(scenario: Scenario, options: Any, width: int, threads: int | None) -> None:
     _STATE.update(scenario=scenario, options=options, width=width, cache=SimulatorCache(threads=threads))
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True).start()
 
 
 def render_batch(indices: Sequence[int], scenario: Scenario | None = None, options: Any = None,
