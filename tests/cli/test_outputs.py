@@ -26,18 +26,7 @@ from sonarsim.cli.demo import DEMO_FILES
 from sonarsim.cli.render import RENDER_FILES
 from sonarsim.io.run_record import RECORD_NAME, read_record, record_beside
 
-# 8 beams x 50 bins: renders and writes in well under a second.
-TINY_SCENE = {
-    "sonar": {
-        "n_beams": 8, "azimuth_fov_deg": 20.0, "elevation_fov_deg": 10.0,
-        "range_min_m": 0.5, "range_max_m": 3.0, "n_range_bins": 50,
-        "pose": {"position_m": [0.0, 0.0, 1.0], "rpy_deg": [0.0, 20.0, 0.0]},
-    },
-    "render": {"elevation_samples": 8},
-    "ground": {"height_m": 0.0, "albedo": 0.5, "specular": 0.5},
-    "objects": [{"name": "block", "primitive": "box", "size_m": [0.3, 0.3, 0.3],
-                 "pose": {"position_m": [2.0, 0.0, 0.15]}}],
-}
+from tests.cli.test_cli import TINY_SCENE  # 8 beams x 50 bins: renders and writes in well under a second
 
 # 512 beams x 3000 bins up to order 3: the render takes a fraction of a second, but with
 # --components writing its 22 images (3000 x 3000 px fans) takes 5-15 s, long enough to be

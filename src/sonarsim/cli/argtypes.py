@@ -28,12 +28,17 @@ def finite_float(text: str) -> float:
     return value
 
 
-def frame_index(text: str) -> int:
-    """A frame number >= 0."""
+def integer_at_least(text: str, minimum: int, what: str) -> int:
+    """``text`` as an integer >= ``minimum``; the error says ``expected a {what} >= {minimum}``."""
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a frame number >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a frame number >= 0, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected a {what} >= {minimum}, got {text!r}") from None
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"expected a {what} >= {minimum}, got {text!r}")
     return value
+
+
+def frame_index(text: str) -> int:
+    """A frame number >= 0."""
+    return integer_at_least(text, 0, "frame number")

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .argtypes import frame_index
+from .argtypes import frame_index, integer_at_least
 from .main import _log
 from ..errors import SonarsimError
 
@@ -42,13 +42,7 @@ EXIT_CODES = """exit status:
 
 def _render_budget(text: str) -> int:
     """A number of renders >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of renders >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a number of renders >= 1, got {text!r}")
-    return value
+    return integer_at_least(text, 1, "number of renders")
 
 
 def add_fit_parser(sub) -> argparse.ArgumentParser:
