@@ -107,3 +107,12 @@ def test_a_budget_beyond_the_machine_ends_in_one_line_not_a_memory_error(scene, 
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1
     assert "out of memory" in err and "1.02e+04 GiB" in err and "--max-memory" in err
+
+
+@pytest.mark.parametrize("pixel", ["5e-324", "1e-300", "1e300"])
+def test_compare_refuses_extreme_pixel_sizes_in_one_line(tmp_path, capsys, pixel):
+    sonarsim.render(SCENE).save_npz(tmp_path / "a.npz")
+    a = str(tmp_path / "a.npz")
+    assert main(["compare", a, a, "--pixel-size", pixel]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "pixel" in err

@@ -221,8 +221,9 @@ def _resample_polar(polar: np.ndarray, src: PolarGrid, dst: PolarGrid) -> tuple[
 def _fan_pixels(geom: PolarGrid, pixel_size_m: float) -> float:
     """Size of the fan image of ``geom`` (as :func:`sonarsim.image.fan.fan_geometry` lays it out)."""
     half_fov = math.radians(max(abs(geom.left_edge_deg), abs(geom.right_edge_deg)))
-    rows = math.ceil(geom.range_max_m / pixel_size_m)
-    return rows * 2.0 * math.ceil(geom.range_max_m * math.sin(half_fov) / pixel_size_m)
+    # In floats: a pixel of 5e-324 m makes the ratio infinite, which no integer (math.ceil) holds.
+    rows = max(1.0, geom.range_max_m / pixel_size_m)
+    return rows * 2.0 * max(1.0, geom.range_max_m * math.sin(half_fov) / pixel_size_m)
 
 
 def _fan(polar: np.ndarray, geom: PolarGrid, pixel_size_m: float):
