@@ -21,7 +21,7 @@ from typing import Any, Mapping
 import numpy as np
 from scipy import ndimage
 
-from ..errors import SonarsimError
+from ..errors import SonarsimError, shown
 from ..image.grid import PolarGrid, sector_area_m2
 from .metrics import NORMALIZATIONS, mse, normalize_255, psnr, ssim_map, ssim_support
 
@@ -651,11 +651,18 @@ def _load_npz(p: Path, name: str, component: str | None):
     if missing:
         raise SonarsimError(f"{name}: not a sonarsim image: no {', '.join(missing)} array(s)")
     key = "polar" if component is None else component
-    if key not in arrays or np.ndim(arrays[key]) != 2:
+    if key in arrays and np.ndim(arrays[key]) != 2:
+        raise SonarsimError(f"{name}: {key!r} has shape {np.shape(arrays[key])}; an image has 2 dimensions "
+                            "(range bins x beams)")
+    if key not in arrays:
         stored = sorted(k for k, v in arrays.items() if np.ndim(v) == 2 and np.shape(v) == np.shape(arrays["polar"]))
         raise SonarsimError(
-            f"{name}: no image {key!r}; the file holds {', '.join(stored)}"
+            f"{name}: no image {key!r}; the file holds {', '.join(stored) or 'none'}"
         )
+    # Real numbers only: strings, complex values or booleans are no sonar image or axis.
+    for k in (key, "range_m", "azimuth_deg"):
+        if arrays[k].dtype.kind not in "iuf":
+            raise SonarsimError(f"{name}: {k!r} holds {arrays[k].dtype} values; a sonarsim image holds real numbers")
     polar = np.asarray(arrays[key], dtype=np.float32)
     range_m = np.asarray(arrays["range_m"], dtype=np.float64).ravel()
     azimuth = np.asarray(arrays["azimuth_deg"], dtype=np.float64).ravel()
@@ -679,6 +686,9 @@ def _load_npz(p: Path, name: str, component: str | None):
         except SonarsimError:
             pass  # the pose plays no part in a comparison; a bad one must not block it
     elevation = s.get("elevation_fov_deg", 14.0)
+    if isinstance(elevation, bool) or not isinstance(elevation, (int, float)):
+        raise SonarsimError(f"{name}: config_json sonar.elevation_fov_deg is {shown(elevation)}; allowed: a number "
+                            "of degrees in (0, 180)")
     try:
         sonar = SonarConfig(
             beam_angles_deg=tuple(azimuth),
