@@ -88,3 +88,66 @@ def test_a_tampered_npz_still_compares_when_only_its_config_is_odd(tmp_path, arr
     # A large but flat configuration is no reason to refuse the image.
     path = _save(tmp_path / "x.npz", arrays, json.dumps({"note": "a" * 1_000_000}))
     assert load_image(path).polar.shape == (50, 8)
+
+
+def _png_header_only(path, width, height):
+    """A PNG whose header declares ``width`` x ``height`` grey pixels and whose data is a stub."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 100))
+                     + chunk(b"IEND", b""))
+    return path
+
+
+def test_pngs_beyond_the_budget_or_pillows_limit_are_one_line(tmp_path, arrays, monkeypatch, capsys):
+    from PIL import Image
+
+    from sonarsim.core import memory
+
+    # 10^10 pixels: Pillow's own decompression-bomb error (was a traceback).
+    bomb = _png_header_only(tmp_path / "bomb.png", 100000, 100000)
+    with pytest.raises(SonarsimError, match="bomb.png: too large a PNG"):
+        load_image(bomb)
+    # Within Pillow's limit but beyond the budget: refused before decoding (a pair of 12000 x
+    # 12000 PNGs peaked at 20.6 GB while the budget was 8 GiB).
+    monkeypatch.setenv(memory.ENV_VAR, "2M")
+    big = tmp_path / "big.png"
+    Image.fromarray(np.zeros((200, 200), np.uint8)).save(big)
+    with pytest.raises(SonarsimError, match=r"comparing .*big.png, a PNG of 200 x 200 pixels, would need") as e:
+        load_image(big)
+    assert "cannot read" not in str(e.value)
+    monkeypatch.delenv(memory.ENV_VAR)
+    assert load_image(big).polar.shape == (200, 200)
+
+
+def test_compare_images_checks_the_budget_for_arrays_given_directly(monkeypatch):
+    from sonarsim.analysis.comparison import PlainImage, compare_images
+    from sonarsim.core import memory
+
+    a = PlainImage(polar=np.ones((200, 200), np.float32))
+    monkeypatch.setenv(memory.ENV_VAR, "2M")
+    with pytest.raises(SonarsimError, match=r"comparing images of 200 x 200 and 200 x 200 pixels would need"):
+        compare_images(a, a)
+    monkeypatch.delenv(memory.ENV_VAR)
+    assert compare_images(a, a)["polar"]["mse"] == 0.0
+
+
+def test_regions_declaring_terabytes_are_refused_before_allocating(tmp_path, arrays, capsys):
+    from sonarsim.analysis.comparison import load_region
+
+    npy = tmp_path / "r.npy"
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "|b1", "fortran_order": False, "shape": (10**7, 10**7)})
+    npy.write_bytes(header.getvalue() + b"\0" * 100)
+    with pytest.raises(SonarsimError, match=r"r.npy, an array of shape \(10000000, 10000000\), would need"):
+        load_region(npy)
+    with pytest.raises(SonarsimError, match="too large a PNG"):
+        load_region(_png_header_only(tmp_path / "r.png", 100000, 100000))
+    a = _save(tmp_path / "a.npz", arrays)
+    assert main(["compare", str(a), str(a), "--region", f"x={npy}"]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1

@@ -41,6 +41,10 @@ MIN_OVERLAP = 0.5
 #: size are alive at once, so a pixel size typed in millimetres instead of metres must fail
 #: with a message, not exhaust the memory.
 MAX_FAN_PIXELS = 50_000_000
+# Peak memory of a comparison per pixel of the larger polar image: the float64 copies, SSIM's
+# filtered maps and the regions' masks. Measured: 20.6 GB peak for two 12000 x 12000 PNGs
+# (143 bytes a pixel).
+BYTES_PER_COMPARED_PIXEL = 160
 
 # Geometry of two images is "the same" when their axes agree to these tolerances (metres,
 # degrees): far below any bin or beam width, far above float round-off of a saved file.
@@ -370,6 +374,10 @@ def compare_images(
     else:
         name_a, name_b = _name(a, "image A"), _name(b, "image B")
     pa, pb = _polar_of(a, name_a), _polar_of(b, name_b)
+    from ..core.memory import require
+
+    require(float(max(pa.size, pb.size)) * BYTES_PER_COMPARED_PIXEL,
+            f"comparing images of {pa.shape[0]} x {pa.shape[1]} and {pb.shape[0]} x {pb.shape[1]} pixels", "")
     ga, gb = _geometry_of(a, pa, name_a), _geometry_of(b, pb, name_b)
     given = _given_regions(regions, pa.shape, name_a)
     info: dict[str, Any] = {
@@ -483,6 +491,22 @@ _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 _NPY_MAGIC = b"\x93NUMPY"
 
 
+def _check_npy_size(path: str | os.PathLike, name: str) -> None:
+    """Refuse a ``.npy`` file whose header declares more than the memory budget (NumPy would
+    allocate it before reading: a 100-byte file can ask for terabytes)."""
+    from ..core.memory import require
+
+    try:
+        with open(path, "rb") as handle:
+            version = np.lib.format.read_magic(handle)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            shape, _, dtype = read_header(handle)
+    except (OSError, ValueError) as exc:
+        raise SonarsimError(f"{name}: cannot read the .npy array: {exc}") from None
+    require(float(math.prod(shape)) * dtype.itemsize, f"the region {name}, an array of shape {shape},", "")
+
+
 def load_region(path: str | os.PathLike) -> np.ndarray:
     """Read a region (a mask on a polar grid) from a file, for ``compare_images(regions=...)``.
 
@@ -514,6 +538,7 @@ def load_region(path: str | os.PathLike) -> np.ndarray:
     except OSError as exc:
         raise SonarsimError(f"{name}: cannot read: {exc.strerror or exc}") from None
     if head.startswith(_NPY_MAGIC):
+        _check_npy_size(path, name)
         try:
             arr = np.load(path, allow_pickle=False)
         except (OSError, ValueError, EOFError) as exc:
@@ -526,15 +551,17 @@ def load_region(path: str | os.PathLike) -> np.ndarray:
             )
         return arr != 0
     if head.startswith(_PNG_MAGIC):
-        from PIL import Image, UnidentifiedImageError
+        from PIL import UnidentifiedImageError
 
         try:
-            with Image.open(path) as im:
+            with _open_png(path, name, "the region") as im:
                 im.load()
                 if im.mode in ("1", "L", "I", "I;16", "I;16B", "I;16L", "F"):
                     arr = np.asarray(im)
                 else:
                     arr = np.asarray(im.convert("RGB")).any(axis=2)
+        except SonarsimError:  # the budget's refusal (a ValueError too) says enough
+            raise
         except (OSError, UnidentifiedImageError, ValueError) as exc:
             raise SonarsimError(f"{name}: cannot read the PNG: {exc}") from None
         return np.ascontiguousarray(arr[::-1] != 0)
@@ -622,16 +649,48 @@ def load_image(path: str | os.PathLike, frame: int | None = None, component: str
     return readers.read(p, 0 if frame is None else int(frame))
 
 
-def _load_png(p: Path, name: str) -> PlainImage:
+def _open_png(path: str | os.PathLike, name: str, what: str):
+    """``Image.open(path)`` whose size is checked against the memory budget before its pixels
+    are decoded (``what`` and :data:`BYTES_PER_COMPARED_PIXEL` a pixel); SonarsimError naming
+    ``name`` for a file Pillow cannot read or refuses as a decompression bomb."""
+    import warnings
+
     from PIL import Image, UnidentifiedImageError
 
+    from ..core.memory import require
+
     try:
-        with Image.open(p) as im:
+        # Our memory budget decides what is too large, so Pillow's decompression-bomb warning
+        # (at 89 Mpx) is not shown; its error (at 179 Mpx, whatever the budget) is one line.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            im = Image.open(path)
+    except Image.DecompressionBombError as exc:
+        raise SonarsimError(f"{name}: too large a PNG to read: {exc}") from None
+    except (OSError, UnidentifiedImageError, ValueError) as exc:
+        raise SonarsimError(f"{name}: cannot read the PNG: {exc}") from None
+    width, height = im.size
+    try:
+        require(float(width) * height * BYTES_PER_COMPARED_PIXEL, f"{what} {name}, a PNG of {width} x {height} "
+                "pixels,", "")
+    except SonarsimError:
+        im.close()
+        raise
+    return im
+
+
+def _load_png(p: Path, name: str) -> PlainImage:
+    from PIL import UnidentifiedImageError
+
+    try:
+        with _open_png(p, name, "comparing") as im:
             im.load()
             if im.mode in ("I", "I;16", "I;16B", "I;16L", "F"):
                 arr = np.asarray(im)
             else:
                 arr = np.asarray(im.convert("L"))
+    except SonarsimError:  # the budget's refusal (a ValueError too) says enough
+        raise
     except (OSError, UnidentifiedImageError, ValueError) as exc:
         raise SonarsimError(f"{name}: cannot read the PNG: {exc}") from None
     polar = np.ascontiguousarray(arr[::-1], dtype=np.float32)
