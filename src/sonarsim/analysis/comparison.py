@@ -529,7 +529,11 @@ def load_region(path: str | os.PathLike) -> np.ndarray:
         Naming the file: missing or unreadable, neither format, not 2-D, not boolean or
         integer.
     """
+    from ..errors import check_input_file
+
     name = os.fspath(path)
+    if os.path.lexists(path):  # a FIFO would block the open below for ever (missing: "no such file")
+        check_input_file(path, "region file (.npy or PNG)")
     try:
         with open(path, "rb") as handle:
             head = handle.read(8)
@@ -618,6 +622,10 @@ def load_image(path: str | os.PathLike, frame: int | None = None, component: str
         isinstance(frame, (bool, np.bool_)) or not isinstance(frame, (int, np.integer)) or frame < 0
     ):
         raise SonarsimError(f"{name}: frame must be an integer >= 0, got {frame!r}")
+    from ..errors import check_input_file
+
+    if os.path.lexists(p):  # a FIFO would block the open below for ever (missing: "no such file")
+        check_input_file(p, "image file (NPZ, PNG or recording)")
     try:
         with open(p, "rb") as handle:
             head = handle.read(8)

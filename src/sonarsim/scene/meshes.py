@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import MeshFileError, shown
+from ..errors import MeshFileError, SonarsimError, check_input_file, shown
 from ..config.scene import ObjectSpec
 
 # Sphere tessellation: subdivision 4 gives 5120 faces, with facet normals within about 2 degrees
@@ -110,15 +110,9 @@ def load_mesh_file(path: str | os.PathLike, texture: bool = False) -> TriangleMe
     """
     p = Path(path)
     try:
-        if p.is_dir():
-            raise MeshFileError(f"{p}: is a directory, not a mesh file")
-        if not p.exists():
-            raise MeshFileError(f"{p}: mesh file not found")
-        if not p.is_file():
-            raise MeshFileError(f"{p}: not a regular file (a device or pipe?); give a mesh file")
-        st = p.stat()
-    except OSError as exc:  # a name too long, a folder that cannot be searched
-        raise MeshFileError(f"{shown(str(p))}: cannot read the mesh file: {exc.strerror or exc}") from None
+        st = check_input_file(p, "mesh file")
+    except SonarsimError as exc:
+        raise MeshFileError(str(exc)) from None
     if st.st_size == 0:
         raise MeshFileError(f"{p}: the mesh file is empty")
     return _load_mesh_file_cached(str(p.resolve()), st.st_mtime_ns, st.st_size, texture)
