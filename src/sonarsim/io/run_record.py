@@ -223,6 +223,10 @@ class OutputRun:
         self._files: dict[Path, str] = {}
         self._started = ""
         self._active = False
+        # (size, mtime_ns) of each planned file that existed before this run, stored in the
+        # records of an unfinished run: a file still as it was then was not written by this
+        # run, so a later run must not remove it as this run's.
+        self._before: dict[Path, list[int]] = {}
         # Pairs rather than a mapping, so that two options naming one file both arrive here.
         pairs = [(Path(f[0]), f[1]) if isinstance(f, tuple) else (Path(f), option) for f in files]
         # Errors about the record's folder name what the user gave: the folder (``--out DIR``)
@@ -273,6 +277,10 @@ class OutputRun:
             _check_folder(path.parent, option, path)
         _check_file(path, option)
         self._files[key] = option
+        with contextlib.suppress(OSError):
+            st = os.lstat(key)
+            if stat.S_ISREG(st.st_mode):
+                self._before[key] = [st.st_size, st.st_mtime_ns]
 
     def add(self, path: PathLike, option: str | None = None) -> Path:
         """Plan one more file (e.g. a per-component image known only after rendering).
@@ -308,6 +316,8 @@ class OutputRun:
         entry: dict[str, Any] = {"name": path.name} if path.parent == folder else {"path": str(path)}
         if with_checksum:
             entry["bytes"], entry["sha256"] = _sha256(path)
+        elif path in self._before:
+            entry["before"] = self._before[path]
         return entry
 
     def _write_record(self, status: str, extra: Sequence[dict[str, Any]] = (), error: str | None = None) -> None:
@@ -345,11 +355,11 @@ class OutputRun:
             if (not isinstance(name, str) or not name or name in (".", "..") or "/" in name or os.sep in name
                     or name == self.record.name or (folder / name) in self._files):
                 continue
-            stale.append({k: entry[k] for k in ("name", "bytes", "sha256") if k in entry})
+            stale.append({k: entry[k] for k in ("name", "bytes", "sha256", "before") if k in entry})
         return stale
 
     def _remove_stale(self, stale: Sequence[dict[str, Any]]) -> None:
-        removed, kept = [], []
+        removed, kept, never = [], [], []
         for entry in stale:
             path = self.folder / entry["name"]
             try:
@@ -358,6 +368,12 @@ class OutputRun:
                 if "sha256" in entry and (entry.get("bytes"), entry["sha256"]) != _sha256(path):
                     kept.append(entry["name"])  # changed since sonarsim wrote it: the user's now
                     continue
+                if "sha256" not in entry and isinstance(entry.get("before"), list):
+                    st = os.lstat(path)
+                    if entry["before"] == [st.st_size, st.st_mtime_ns]:
+                        # An unfinished run planned it but never replaced it: not sonarsim's.
+                        never.append(entry["name"])
+                        continue
                 os.unlink(path)
             except FileNotFoundError:
                 continue
@@ -367,6 +383,9 @@ class OutputRun:
                       f"write: {', '.join(sorted(removed))}")
         if kept:
             self._log(f"kept {', '.join(sorted(kept))} in {self.folder}: listed by an earlier run but changed since")
+        if never:
+            self._log(f"kept {', '.join(sorted(never))} in {self.folder}: an unfinished earlier run meant to replace "
+                      "it but never did")
 
     # ------------------------------------------------------------------ the run
 
