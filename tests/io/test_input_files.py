@@ -75,3 +75,17 @@ def test_a_mesh_that_is_a_link_loop_is_not_called_missing(tmp_path, odd):
         load_mesh_file(loop)
     with pytest.raises(SonarsimError, match="not a regular file"):
         sonarsim.load_scene({**SCENE, "objects": [{"name": "m", "mesh": str(fifo)}]})
+
+
+def test_a_mesh_file_beyond_the_budget_is_refused_before_reading(tmp_path):
+    # A sparse 10 GB file: read whole, it ended in "cannot read mesh (MemoryError: )" after
+    # filling memory.
+    from sonarsim.errors import MeshFileError
+    from sonarsim.scene.meshes import load_mesh_file
+
+    huge = tmp_path / "huge.stl"
+    with open(huge, "wb") as f:
+        f.truncate(10 * 2**30)
+    with pytest.raises(MeshFileError, match=r"huge.stl: reading a mesh file of 1.024e\+04 MiB would need 40 GiB, "
+                                            "more than the memory budget"):
+        load_mesh_file(huge)

@@ -98,6 +98,11 @@ def _load_mesh_file_cached(path: str, mtime_ns: int, size: int, texture: bool = 
     return TriangleMesh(vertices, faces)
 
 
+# Memory a mesh file takes to load, per byte of the file (an estimate: the bytes read, the
+# parsed vertex and face arrays, and trimesh's processed copies).
+MESH_BYTES_PER_FILE_BYTE = 4
+
+
 def load_mesh_file(path: str | os.PathLike, texture: bool = False) -> TriangleMesh:
     """Read a mesh file into object coordinates, cached by path and modification time.
 
@@ -115,6 +120,15 @@ def load_mesh_file(path: str | os.PathLike, texture: bool = False) -> TriangleMe
         raise MeshFileError(str(exc)) from None
     if st.st_size == 0:
         raise MeshFileError(f"{p}: the mesh file is empty")
+    from ..core.memory import require
+
+    try:
+        # The whole file is read and parsed (a 10 GB file of zeros ended in a MemoryError after
+        # reading until memory ran out); its arrays and trimesh's copies take a few times its size.
+        require(float(st.st_size) * MESH_BYTES_PER_FILE_BYTE, f"reading a mesh file of {st.st_size / 2**20:.4g} MiB",
+                "")
+    except SonarsimError as exc:
+        raise MeshFileError(f"{p}: {exc}") from None
     return _load_mesh_file_cached(str(p.resolve()), st.st_mtime_ns, st.st_size, texture)
 
 
