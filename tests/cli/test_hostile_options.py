@@ -116,3 +116,13 @@ def test_compare_refuses_extreme_pixel_sizes_in_one_line(tmp_path, capsys, pixel
     assert main(["compare", a, a, "--pixel-size", pixel]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "pixel" in err
+
+
+@pytest.mark.parametrize("command", ["fit", "calibrate"])
+@pytest.mark.parametrize("free, message", [("z,z", "a parameter is named twice"), ("z2", "unknown pose parameter 'z2'")])
+def test_free_parameter_errors_name_the_option(tmp_path, capsys, command, free, message):
+    real = tmp_path / "missing.aris"  # --free is checked before the recording is read
+    assert main([command, str(real), "--scene", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "f.yaml"),
+                 "--free", free]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("sonarsim: error: --free: ") and message in err
