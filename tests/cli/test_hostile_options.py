@@ -126,3 +126,20 @@ def test_free_parameter_errors_name_the_option(tmp_path, capsys, command, free, 
                  "--free", free]) == 2
     err = capsys.readouterr().err
     assert err.startswith("sonarsim: error: --free: ") and message in err
+
+
+@pytest.mark.parametrize("argv", [
+    ["fit", "{rec}", "--scene", "{scene}", "--out", "{tmp}/f.yaml", "--image", "{rec}"],
+    ["calibrate", "{rec}", "--scene", "{scene}", "--out", "{rec}"],
+    ["show", "{tmp}/polar.png", "--out", "{tmp}"],
+])
+def test_outputs_that_are_the_recording_are_refused(tmp_path, scene, capsys, argv):
+    # fit --image REC wrote its PNG over the real recording (exit 0).
+    rec = tmp_path / "rec.npz"
+    sonarsim.render(SCENE).save_npz(rec)
+    (tmp_path / "polar.png").write_bytes(rec.read_bytes())
+    before = {p: p.read_bytes() for p in (rec, tmp_path / "polar.png")}
+    assert main([a.format(rec=rec, scene=scene, tmp=tmp_path) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert "is the recording" in err and "never writes over its inputs" in err
+    assert {p: p.read_bytes() for p in before} == before

@@ -111,6 +111,7 @@ def cmd_calibrate(args) -> None:
         outputs.append((Path(args.json), "--json"))
     # Every output checked before the calibration, which can take minutes (sonarsim.io.run_record).
     run = OutputRun(record_beside(out), outputs, command=getattr(args, "command_line", None))
+    run.protect([(args.real, "the recording")])
     free = free_parameters(args.free, allow_none=True)
     real = _load_real(args.real, args.frame)
     held_out = []

@@ -206,7 +206,7 @@ def cmd_fit(args) -> None:
     image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
     # Both outputs checked before the search, which can take minutes (sonarsim.io.run_record).
     run = OutputRun(record_beside(out), [(out, "--out"), (image_path, "--image")],
-                    command=getattr(args, "command_line", None))
+                    command=getattr(args, "command_line", None)).protect([(args.real, "the recording")])
     free_parameters(args.free, allow_none=False)  # before the recording is read
     real = _load_real(args.real, args.frame)
     scene = load_scene(args.scene)

@@ -241,6 +241,28 @@ class OutputRun:
             self._plan(path, opt)
         self._check_not_in_use()
 
+    def protect(self, inputs: Iterable[tuple[PathLike, str]]) -> "OutputRun":
+        """Refuse outputs that are one of the command's input files (``fit --image REC.raw``
+        wrote a PNG over the recording), each input given with what it is (``"the recording"``).
+
+        Returns
+        -------
+        OutputRun
+            ``self``, so that it chains after the constructor.
+
+        Raises
+        ------
+        OutputError
+            Naming the option and the path of the output that is an input.
+        """
+        for source, what in inputs:
+            for path, option in [(self.record, self.option), *self._files.items()]:
+                with contextlib.suppress(OSError, ValueError):
+                    if os.path.samefile(path, source):
+                        raise OutputError(option, path, f"is {what} ({os.fspath(source)}); sonarsim never writes over "
+                                                        "its inputs: choose another path")
+        return self
+
     @classmethod
     def for_folder(cls, folder: PathLike, names: Iterable[str], *, option: str = "--out",
                    command: Sequence[str] | None = None, log: Callable[[str], None] | None = None) -> "OutputRun":
