@@ -143,3 +143,10 @@ def test_outputs_that_are_the_recording_are_refused(tmp_path, scene, capsys, arg
     err = capsys.readouterr().err
     assert "is the recording" in err and "never writes over its inputs" in err
     assert {p: p.read_bytes() for p in before} == before
+
+
+def test_an_output_name_too_long_for_the_file_system_names_the_option(scene, tmp_path, capsys):
+    out = tmp_path / ("a" * 300)
+    assert main(["render", str(scene), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("sonarsim: error: --out ") and "File name too long" in err and len(err) < 300

@@ -48,7 +48,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, Callable
 
-from ..errors import SonarsimError
+from ..errors import SonarsimError, shown
 from .output import _pid_alive, atomic_write, remove_abandoned_temp_files, temp_prefix
 
 __all__ = ["RECORD_NAME", "STATUSES", "OutputError", "OutputRun", "read_record", "record_beside"]
@@ -168,6 +168,8 @@ def _check_file(path: Path, option: str) -> None:
         return
     except NotADirectoryError:  # a parent is a file; the folder check says so
         return
+    except OSError as exc:  # a name too long for the file system, a symbolic link loop
+        raise OutputError(option, shown(os.fspath(path)), f"cannot use this path: {exc.strerror or exc}") from None
     if stat.S_ISDIR(mode):
         raise OutputError(option, path, "is a folder; this command writes a file of that name there (allowed: a "
                                         "missing or regular file; move the folder away or choose another path)")
