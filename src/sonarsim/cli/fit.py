@@ -70,6 +70,17 @@ def add_fit_parser(sub) -> argparse.ArgumentParser:
     return p
 
 
+def free_parameters(text: str, allow_none: bool) -> tuple[str, ...]:
+    """``--free`` parsed; an error names the option (the library's key is ``free``)."""
+    from ..analysis.fitting import parse_free
+    from ..errors import ConfigError
+
+    try:
+        return parse_free(text, allow_none=allow_none)
+    except ConfigError as exc:
+        raise ConfigError("--free", exc.detail) from None
+
+
 def _load_real(path: str, frame: int):
     from ..analysis.comparison import load_image
 
@@ -189,7 +200,8 @@ def cmd_fit(args) -> None:
     image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
     # Both outputs checked before the search, which can take minutes (sonarsim.io.run_record).
     run = OutputRun(record_beside(out), [(out, "--out"), (image_path, "--image")],
-                    command=getattr(args, "command_line", None))
+                    command=getattr(args, "command_line", None)).protect([(args.real, "the recording")])
+    free_parameters(args.free, allow_none=False)  # before the recording is read
     real = _load_real(args.real, args.frame)
     scene = load_scene(args.scene)
     quiet = getattr(args, "quiet", False)

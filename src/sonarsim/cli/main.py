@@ -119,6 +119,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         name = exc.filename2 or exc.filename or ""
         _log(f"error: {name}: {exc.strerror or exc}" if name else f"error: {exc.strerror or exc}")
         return EXIT_BAD_INPUT
+    except MemoryError as exc:
+        # Sizes are checked against the budget first; this happens only when the budget was
+        # raised beyond what the machine can give (--max-memory 10T), so say that, in one line.
+        from ..core.memory import memory_budget
+
+        _log(f"error: out of memory ({exc or 'MemoryError'}) within the memory budget of "
+             f"{memory_budget() / 2**30:.3g} GiB; this machine cannot give that much: lower the sizes "
+             "or --max-memory / $SONARSIM_MAX_MEMORY")
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
         signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
         what = "Ctrl-C (SIGINT)" if signum == signal.SIGINT else signal.Signals(signum).name

@@ -119,7 +119,8 @@ def override_render(scene, args):
 
 # Scene keys that a command-line option can set: an error in their value names the option.
 OPTION_OF_KEY = {"render.bounces": "--bounces", "render.max_order": "--max-order", "render.seed": "--seed",
-                 "sensor.preset": "--sensor"}
+                 "render.elevation_samples": "--elevation-samples", "sensor.preset": "--sensor",
+                 "pixel_size_m": "--pixel-size"}
 
 
 @contextlib.contextmanager
@@ -134,6 +135,18 @@ def options_named(args):
         if option is None or getattr(args, option[2:].replace("-", "_"), None) is None:
             raise
         raise ConfigError(option, exc.detail) from None
+
+
+def check_pixel_size(scenes, args) -> None:
+    """Refuse ``--pixel-size`` for the scenes' fans (too long, or beyond the memory budget)
+    before anything is rendered or written, naming the option."""
+    from ..image.fan import check_fan_size
+
+    if getattr(args, "pixel_size", None) is None:
+        return
+    with options_named(args):
+        for scene in scenes:
+            check_fan_size(scene.sonar.grid, args.pixel_size)
 
 
 #: The files ``render`` writes into --out (and ``demo`` among others); --components adds more.
@@ -191,5 +204,6 @@ def cmd_render(args) -> None:
     # Checked before the scene is even read: a render must not be lost to an unwritable --out.
     run = OutputRun.for_folder(out, RENDER_FILES, command=getattr(args, "command_line", None))
     scene = override_render(load_scene(args.scene), args)
+    check_pixel_size([scene], args)
     with run:
         render_and_write(scene, out, args, run)

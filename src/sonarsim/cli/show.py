@@ -96,6 +96,7 @@ def cmd_show(args: argparse.Namespace) -> None:
     out = Path(args.out)
     # Checked before the recording is read; nothing is written until both images exist.
     run = OutputRun.for_folder(out, ("polar.png", "fan.png"), command=getattr(args, "command_line", None))
+    run.protect([(args.recording, "the recording")])
     t0 = time.perf_counter()
     with open_recording(args.recording) as recording:
         image = recording.read(args.frame)

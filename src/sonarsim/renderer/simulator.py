@@ -188,7 +188,7 @@ class Simulator:
                 traced = replace(sonar, elevation_fov_deg=span)
             parts.append((pool_bytes((sonar.n_range_bins, sonar.n_beams), spec.speckle is not None,
                                      spec.noise is not None), "speckle and noise fields", "sensor.speckle"))
-        parts.insert(1, (ray_bytes(traced, render), "rays", ray_size_key(render)))
+        parts.insert(1, (ray_bytes(traced, render), "rays", ray_size_key(traced, render)))
         require_together(parts, f"a frame of {sonar.n_range_bins} x {sonar.n_beams}")
 
     def traced_sonar(self, sonar: SonarConfig) -> SonarConfig:
