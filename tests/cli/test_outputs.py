@@ -357,3 +357,20 @@ def test_sigkill_leftovers_are_cleaned_by_the_next_run(capsys, tmp_path: Path, b
     assert sorted(os.listdir(out)) == sorted([*RENDER_FILES, RECORD_NAME, "notes.txt", alive.name])
     alive.unlink()
     check_record(out, out / RECORD_NAME, list(RENDER_FILES), others=("notes.txt",))
+
+
+@pytest.mark.parametrize("delay_s", [0.15, 0.4, 0.8])
+def test_ctrl_c_while_the_command_starts_says_one_line(tmp_path: Path, big_scene: Path, delay_s: float) -> None:
+    # The first second of a command is imports (the renderer, Embree, SciPy), parsing and
+    # loading the scene: Ctrl-C there must end like Ctrl-C later (the package imports lazily
+    # so that the command's handler is in place from its first line).
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "sonarsim", "render", big_scene, "--out", out],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(delay_s)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert "Traceback" not in err, err
+    assert proc.returncode == 130, err
+    assert err.splitlines()[-1].startswith("sonarsim: interrupted by Ctrl-C (SIGINT)")
+    assert temp_files(out) == [] if out.exists() else True

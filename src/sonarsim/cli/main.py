@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 import sys
 from typing import Iterator, Sequence
@@ -100,9 +101,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``sonarsim`` command; returns the exit status."""
-    parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = parser.parse_args(argv)
+    try:  # building the parser imports the commands' modules: Ctrl-C may come in that time
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt:
+        _log("interrupted by Ctrl-C (SIGINT); nothing was written")
+        return 128 + int(signal.SIGINT)
     # Stored in each run's record (sonarsim.io.run_record), so a folder says what made it.
     args.command_line = ["sonarsim", *map(str, argv)]
     from ..core.memory import set_memory_budget
@@ -137,5 +141,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def console_main() -> None:
+    """The ``sonarsim`` executable (and ``python -m sonarsim``): :func:`main`, then exit.
+
+    A command stopped by a signal exits at once with 128 + its number, after flushing its
+    output: the interpreter's own shutdown, which may still see the interrupt that the command
+    handled (one that arrived during an import), would otherwise end the process by SIGINT.
+    """
+    code = main()
+    if code >= 128:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    console_main()
