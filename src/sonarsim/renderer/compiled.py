@@ -422,3 +422,16 @@ def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, 
             keys[s.gen] = leg.key(n_surfaces)
         _kernels.splat_events(leg.point, leg.normal, keys[s.gen], s.ray, s.distance, s.energy, s.beam, s.label,
                               1.0, spread, n_elevation, *geometry, flat)
+
+
+def splat_labelled(points: np.ndarray, normals: np.ndarray, key: np.ndarray, ray: np.ndarray, distance: np.ndarray,
+                   energy: np.ndarray, beam: np.ndarray, label: np.ndarray, spread: bool, n_elevation: int,
+                   geometry: tuple, out: np.ndarray) -> None:
+    """One path set into ``out`` (flat float32, labels x bins x beams) with its own labels.
+
+    ``_kernels.splat_events`` (twin: :func:`sonarsim.paths.engine.splat_set`) with ``label``
+    (m,) int8 chosen by the caller (the ground truth's surface ids) and ``energy`` (m,)
+    float64 in place of the set's.
+    """
+    _kernels.splat_events(points, normals, key, ray, distance, energy, beam, label, 1.0, spread, n_elevation,
+                          *geometry, out)

@@ -42,6 +42,7 @@ from ..trace import available_cores, make_caster
 from ..trace.surfaces import trace
 from . import compiled
 from .components import component_table, frame_components, stack_rows
+from .ground_truth import frame_labels
 
 # Rays are cast this far past the range window so that range splatting sees the neighbour of a
 # ray that ends just inside it.
@@ -317,7 +318,7 @@ class Simulator:
         return out
 
     def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True,
-               speckle: bool | None = None, frame: int | None = None) -> SonarImage:
+               speckle: bool | None = None, frame: int | None = None, labels: bool = False) -> SonarImage:
         """Render one image.
 
         Parameters
@@ -338,6 +339,13 @@ class Simulator:
             ``(render.seed, frame)``, so that a frame is the same whoever renders it and in
             whatever order. Default: the simulator's own generator, frame after frame.
             (``sensor.speckle.anchor: world`` draws from the pose instead.)
+        labels : bool
+            Attach the frame's ground truth (:class:`~sonarsim.image.labels.Labels`: instance
+            maps, elevation per cell, points in view, boxes) as ``labels``. Labels come from
+            the general path engine's paths, so a frame that would take a specialised route
+            (the ground alone at order 3) takes the general one, which forms the same image
+            (the tests compare them); with ``method: paper`` the image is still Algorithm 2's
+            and the general engine runs once more for the labels.
 
         Returns
         -------
@@ -367,11 +375,20 @@ class Simulator:
         if render.method == "paper" and multipath and self._ground_only:
             stack, legs, sets, table = self._render_paper(sonar, pose, fan, reach)
         elif (self.specialise_ground and self.kernels == "compiled" and self._ground_only and render.max_order == 3
-              and render.double_beam != "separate"):
+              and render.double_beam != "separate" and not labels):
             stack, legs, sets, table = self._render_ground_compiled(sonar, pose, fan, reach, multipath)
         else:
             stack, legs, sets, table = self._render_paths(sonar, pose, fan, reach, active,
                                                           render.max_order if multipath else 1)
+        truth = None
+        t2 = time.perf_counter()
+        if labels:
+            if sets is None:  # Algorithm 2 forms no paths: the general engine's, for the labels only
+                _, legs, sets, _ = self._render_paths(sonar, pose, fan, reach, active,
+                                                      render.max_order if multipath else 1)
+            truth = frame_labels(sets, legs, fan, image_sonar, tuple(o.name for o in self.scene.objects),
+                                 tuple(p.name for p in self.scene.reflecting_planes), render.max_order,
+                                 render.bounces, render.range_splat, self.kernels)
         t3 = time.perf_counter()
         if sets is None:  # ground only: its four images are the four ground-only signatures
             rows = {c.name: stack[c.rows[0]] for c in component_table(render.max_order) if len(c.rows) == 1}
@@ -402,10 +419,11 @@ class Simulator:
         sonar = image_sonar
         config = {**self._config, "sonar": sonar_section(sonar, pose)}
         t4 = time.perf_counter()
-        self.last_timing = {"setup": t1 - t0, "render": t3 - t1, "assemble": t4 - t3, "total": t4 - t0}
+        self.last_timing = {"setup": t1 - t0, "render": t2 - t1, "labels": t3 - t2, "assemble": t4 - t3,
+                            "total": t4 - t0}
         return SonarImage(
             polar=total, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg,
-            components=components, sonar=sonar, pose=pose, rays=rays, config=config,
+            components=components, sonar=sonar, pose=pose, rays=rays, config=config, labels=truth,
         )
 
 
