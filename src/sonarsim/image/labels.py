@@ -177,17 +177,13 @@ def boxes_of(instance: np.ndarray, n_ids: int) -> np.ndarray:
         Per id ``[row_min, col_min, row_max, col_max]``; -1 for an id absent from the map.
     """
     h, w = instance.shape
-    rows, cols = np.nonzero(instance >= 0)
-    ids = instance[rows, cols]
-    big = np.iinfo(np.int32).max
-    lo_r = np.full(n_ids, big, np.int64)
-    lo_c = np.full(n_ids, big, np.int64)
-    hi_r = np.full(n_ids, -1, np.int64)
-    hi_c = np.full(n_ids, -1, np.int64)
-    np.minimum.at(lo_r, ids, rows)
-    np.minimum.at(lo_c, ids, cols)
-    np.maximum.at(hi_r, ids, rows)
-    np.maximum.at(hi_c, ids, cols)
-    out = np.stack([lo_r, lo_c, hi_r, hi_c], axis=1)
-    out[hi_r < 0] = -1
+    flat = instance.reshape(-1)
+    cells = np.flatnonzero(flat >= 0)
+    ids = flat[cells].astype(np.int64)
+    # Which ids occur in each row and each column: two bincounts over the labelled cells.
+    rows = np.bincount(cells // w * n_ids + ids, minlength=h * n_ids).reshape(h, n_ids) > 0
+    cols = np.bincount(cells % w * n_ids + ids, minlength=w * n_ids).reshape(w, n_ids) > 0
+    out = np.stack([rows.argmax(axis=0), cols.argmax(axis=0),
+                    h - 1 - rows[::-1].argmax(axis=0), w - 1 - cols[::-1].argmax(axis=0)], axis=1)
+    out[~rows.any(axis=0)] = -1
     return out.astype(np.int32)

@@ -1,22 +1,18 @@
 """Ground truth of a frame from its paths: :class:`~sonarsim.image.labels.Labels`.
 
-Formed from the frame's receive legs and path sets (:mod:`sonarsim.paths.engine`), with the
-same deposit as the image (``splat_events``, or its NumPy twin ``splat_set``), so that each
-label map has a value exactly where its component's image has energy:
+Formed from the frame's receive legs and path sets (:mod:`sonarsim.paths.engine`) with the
+image's own range cells (the neighbours and cells of ``splat_events``), so that each label map
+has a value exactly where its component's image has energy. One pass per path set
+(``_kernels.splat_truth``, or its NumPy twin :func:`splat_truth`) adds:
 
-* per path order, one energy image per id (``(n_ids, n_range_bins, n_beams)``): the path's
-  surface id is the splat's label. The instance map of a component is the argmax over ids of
-  the energy of its orders (``object`` and ``ground``: order 1 restricted to objects or planes);
-* the energy-weighted mean elevation: two more deposits of the total's paths, their energy and
-  their energy times (elevation + 90 degrees) (positive, so that no path drops out of the
-  splat's neighbour test, which skips paths without energy), divided;
-* the least and greatest elevation per cell: each path's range cell (as
-  :func:`~sonarsim.renderer.formation.accumulate` spreads it) expanded into the bins it
-  overlaps, then ``np.minimum.at`` / ``np.maximum.at`` (NumPy for both kernels);
-* the points: each path's scatterer, surface, image row and cell.
+* each path's energy to the image of its surface id, one stack ``(n_ids, n_range_bins,
+  n_beams)`` per path order; a component's instance map is the id of largest energy over its
+  orders (``object`` and ``ground``: order 1 restricted to objects or planes);
+* for the paths of the total, their energy and energy x arrival elevation (the weighted
+  mean) and the least and greatest elevation of every cell their range cell overlaps.
 
-Only arrays per path and per cell: no Python loop per ray, one per path set (a handful per
-frame).
+The points are each path's scatterer, surface, image row and cell. No Python loop per ray:
+one per path set (a handful per frame) and one per id.
 """
 
 from __future__ import annotations
@@ -27,16 +23,10 @@ from ..config.sonar import SonarConfig
 from ..core.memory import require
 from ..core.rays import RayFan
 from ..image.labels import Labels, boxes_of
-from ..paths.engine import Leg, PathSet, set_continuity, splat_set
+from ..paths.engine import Leg, PathSet, set_continuity
+from . import compiled
 from .components import component_table, order_name
 from .formation import RayEnergy, expand_cells, range_cells
-from . import compiled
-
-# Elevations are shifted by this before weighting so that every weight is positive.
-ELEVATION_SHIFT_DEG = 90.0
-
-# The compiled deposit takes labels as int8.
-INT8_LABELS = 127
 
 
 def point_component_names(max_order: int) -> tuple[str, ...]:
@@ -56,8 +46,73 @@ def surface_ids(sid: np.ndarray, n_planes: int, n_objects: int) -> np.ndarray:
     return np.where(sid < 0, -1, np.where(sid >= n_planes, sid - n_planes, sid + n_objects)).astype(np.int32)
 
 
-class _Deposit:
-    """Splats path sets into float images with the frame's kernel (compiled or its NumPy twin)."""
+def splat_truth(points: np.ndarray, normals: np.ndarray, key: np.ndarray, ray: np.ndarray, distance: np.ndarray,
+                energy: np.ndarray, beam: np.ndarray, ident: np.ndarray, elevation: np.ndarray, spread: bool,
+                n_elevation: int, range_min_m: float, range_resolution_m: float, n_range_bins: int, n_beams: int,
+                out: np.ndarray, moments: bool, total: np.ndarray, weight: np.ndarray, weighted: np.ndarray,
+                el_min: np.ndarray, el_max: np.ndarray, continuous: np.ndarray | None = None) -> None:
+    """Ground truth of one compact path set, in place (twin of ``_kernels.splat_truth``).
+
+    The set is made dense over the fan and cut into range cells as
+    :func:`~sonarsim.renderer.formation.accumulate` cuts it (:func:`range_cells`,
+    :func:`expand_cells`).
+
+    Parameters
+    ----------
+    points, normals : (n, 3) float64 arrays
+        The leg's scatterers and normals, dense over the fan's ``n`` rays.
+    key : (n,) int array
+        :meth:`Leg.key`.
+    ray, distance, energy, beam : (m,) arrays
+        The path set (:class:`~sonarsim.paths.engine.PathSet`), rays ascending.
+    ident : (m,) int array
+        Label id of each path's scatterer (:func:`surface_ids`).
+    elevation : (m,) float array
+        Arrival elevation of each path, degrees.
+    spread : bool
+    n_elevation : int
+    range_min_m, range_resolution_m : float
+    n_range_bins, n_beams : int
+    out : (n_ids * n_range_bins * n_beams,) float array
+        Receives each path's energy in the image of its id.
+    moments : bool
+        The set's paths enter the total: also add to ``total`` (like ``out``), ``weight``
+        (energy), ``weighted`` (energy x elevation), ``el_min`` and ``el_max`` (running
+        extremes over the bins each cell overlaps), the last four ``(n_range_bins * n_beams,)``.
+    continuous : optional
+        :func:`~sonarsim.paths.engine.set_continuity` of the leg, when already formed.
+    """
+    n = len(key)
+    dist = np.full(n, np.inf)
+    e = np.zeros(n)
+    b = np.zeros(n, dtype=np.int64)
+    where = np.full(n, -1, dtype=np.intp)
+    dist[ray], e[ray], b[ray], where[ray] = distance, energy, beam, np.arange(len(ray))
+    shape = (-1, n_elevation)
+    cont = None
+    if spread:
+        cont = continuous if continuous is not None else set_continuity(points, normals, key, n_elevation)
+    cells = RayEnergy(dist.reshape(shape), e.reshape(shape), b.reshape(shape), 0, cont)
+    lo, hi, density, column = range_cells(cells, range_min_m, range_resolution_m, n_range_bins, n_beams)
+    owner, bins, overlap = expand_cells(lo, hi, n_range_bins)
+    cell = column[owner] + bins * n_beams
+    path = where[owner]
+    part = density[owner] * overlap
+    plane = n_range_bins * n_beams
+    size = len(out)
+    by_id = np.bincount(np.asarray(ident)[path] * plane + cell, weights=part, minlength=size).astype(out.dtype)
+    out += by_id
+    if moments:
+        total += by_id
+        el = np.asarray(elevation, dtype=np.float64)[path]
+        weight += np.bincount(cell, weights=part, minlength=plane)
+        weighted += np.bincount(cell, weights=part * el, minlength=plane)
+        np.minimum.at(el_min, cell, el)
+        np.maximum.at(el_max, cell, el)
+
+
+class _Truth:
+    """The per-set pass of :func:`frame_labels` with the frame's kernel (compiled or its twin)."""
 
     def __init__(self, legs: list[Leg], n_surfaces: int, n_elevation: int, geometry: tuple, spread: bool,
                  kernels: str) -> None:
@@ -66,50 +121,17 @@ class _Deposit:
         self.keys = {leg.gen: leg.key(n_surfaces) for leg in legs}
         self._cont: dict = {}
 
-    def __call__(self, s: PathSet, energy: np.ndarray, label: np.ndarray, out: np.ndarray) -> None:
-        """Add the paths of ``s`` with ``energy`` (m,) into ``out[label]`` (out: (L, bins, beams))."""
+    def __call__(self, s: PathSet, ident: np.ndarray, elevation: np.ndarray, out: np.ndarray, moments: bool,
+                 acc: tuple) -> None:
         leg = self.legs[s.gen]
-        n_labels = out.shape[0]
+        args = (leg.point, leg.normal, self.keys[s.gen], s.ray, s.distance, s.energy, s.beam, ident, elevation,
+                self.spread, self.n_el, *self.geometry, out.reshape(-1), moments, *acc)
         if self.compiled:
-            flat = out.reshape(-1)
-            energy = np.ascontiguousarray(energy, dtype=np.float64)
-            for base in range(0, n_labels, INT8_LABELS):  # int8 labels: ids in chunks of 127
-                k = np.flatnonzero((label >= base) & (label < base + INT8_LABELS))
-                if not len(k):
-                    continue
-                whole = len(k) == len(label)
-                pick = (lambda a: a) if whole else (lambda a: np.ascontiguousarray(a[k]))
-                part = flat[base * self.geometry[2] * self.geometry[3]:]
-                compiled.splat_labelled(leg.point, leg.normal, self.keys[s.gen], pick(s.ray), pick(s.distance),
-                                        pick(energy), pick(s.beam), (pick(label) - base).astype(np.int8),
-                                        self.spread, self.n_el, self.geometry, part)
+            compiled.splat_truth(*args)
             return
         if self.spread and s.gen not in self._cont:
             self._cont[s.gen] = set_continuity(leg.point, leg.normal, self.keys[s.gen], self.n_el)
-        out += splat_set(leg.point, leg.normal, self.keys[s.gen], s.ray, s.distance, energy, s.beam, label, 1.0,
-                         self.spread, self.n_el, *self.geometry, n_labels, continuous=self._cont.get(s.gen))
-
-    def cells(self, s: PathSet) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The cells each path of ``s`` covers: (path index, flat cell ``bin * n_beams + beam``)."""
-        leg = self.legs[s.gen]
-        n = len(leg.distance)
-        dist = np.full(n, np.inf)
-        e = np.zeros(n)
-        beam = np.zeros(n, dtype=np.int64)
-        dist[s.ray], e[s.ray], beam[s.ray] = s.distance, s.energy, s.beam
-        shape = (-1, self.n_el)
-        cont = None
-        if self.spread:
-            if s.gen not in self._cont:
-                self._cont[s.gen] = set_continuity(leg.point, leg.normal, self.keys[s.gen], self.n_el)
-            cont = self._cont[s.gen]
-        rays = RayEnergy(dist.reshape(shape), e.reshape(shape), beam.reshape(shape), 0, cont)
-        lo, hi, _, column = range_cells(rays, *self.geometry)
-        owner, bins, _ = expand_cells(lo, hi, self.geometry[2])
-        # Dense ray -> index of the path in the set.
-        where = np.full(n, -1, dtype=np.intp)
-        where[s.ray] = np.arange(len(s.ray))
-        return where[owner], column[owner] + bins * self.geometry[3]
+        splat_truth(*args, continuous=self._cont.get(s.gen))
 
 
 def frame_labels(
@@ -123,6 +145,7 @@ def frame_labels(
     bounces: tuple[int, ...],
     spread: bool,
     kernels: str,
+    rows: tuple[int, int] | None = None,
 ) -> Labels:
     """The :class:`~sonarsim.image.labels.Labels` of a frame from its paths.
 
@@ -145,6 +168,10 @@ def frame_labels(
         ``render.range_splat``.
     kernels : {'compiled', 'numpy'}
         The deposit used (the twins give the same labels to float32 round-off).
+    rows : (int, int), optional
+        ``[first, end)`` range bins outside which no path deposits energy (the image's lit
+        rows, :func:`lit_rows`): the per-id maps are formed over these rows only, the rest of
+        every map is "nothing". Default: the whole window.
 
     Returns
     -------
@@ -153,15 +180,19 @@ def frame_labels(
     n_obj, n_pl = len(object_names), len(plane_names)
     n_ids = n_obj + n_pl
     n_r, n_b = sonar.n_range_bins, sonar.n_beams
-    geometry = (sonar.range_min_m, sonar.range_resolution_m, n_r, n_b)
-    require((max_order * n_ids + 2) * n_r * n_b * 4.0, f"label maps of {n_ids} surfaces x {max_order} orders",
+    r0, r1 = (0, n_r) if rows is None else (int(rows[0]), int(rows[1]))
+    n_w = max(r1 - r0, 0)
+    # The sub-window [r0, r1): its cells are the whole window's, shifted (no energy beyond it).
+    dr, range_min_m = sonar.range_resolution_m, sonar.range_min_m  # (properties: computed on each access)
+    geometry = (range_min_m + r0 * dr, dr, n_w, n_b)
+    require((max_order * n_ids * 4.0 + 4 * 8.0) * n_w * n_b, f"label maps of {n_ids} surfaces x {max_order} orders",
             "objects")
-    deposit = _Deposit(legs, n_obj + n_pl, fan.shape[2], geometry, spread, kernels)
-    dtype = np.float32 if deposit.compiled else np.float64
-    energy = np.zeros((max_order, n_ids, n_r, n_b), dtype)  # per order, per id
-    moments = np.zeros((2, n_r, n_b), dtype)  # the total's energy and energy x shifted elevation
-    el_min = np.full(n_r * n_b, np.inf)
-    el_max = np.full(n_r * n_b, -np.inf)
+    truth = _Truth(legs, n_obj + n_pl, fan.shape[2], geometry, spread, kernels)
+    # float32 like the image stack the compiled kernels form (same deposits, same zeros).
+    # Rows 0 .. max_order - 1 per order, the last the total.
+    energy = np.zeros((max_order + 1, n_ids, n_w, n_b), np.float32 if truth.compiled else np.float64)
+    # The total's energy and energy x elevation, and the running extremes, per cell.
+    acc = (np.zeros(n_w * n_b), np.zeros(n_w * n_b), np.full(n_w * n_b, np.inf), np.full(n_w * n_b, -np.inf))
     elevation_deg = np.degrees(fan.elevation_rad)
     n_el = fan.shape[2]
     points, ids_out, rows_out, cells_out = [], [], [], []
@@ -170,42 +201,47 @@ def frame_labels(
             continue
         ident = surface_ids(legs[s.gen].sid[s.ray], n_pl, n_obj)
         order = max(int(s.label[0]), 1)  # rows 0 (objects) and 1 (planes) are order 1
-        deposit(s, s.energy, ident, energy[order - 1])
-        if order in bounces:
-            el = elevation_deg[s.ray % n_el]
-            zeros = np.zeros(len(s.ray), np.int32)
-            deposit(s, s.energy, zeros, moments[0:1])
-            deposit(s, s.energy * (el + ELEVATION_SHIFT_DEG), zeros, moments[1:2])
-            path, cell = deposit.cells(s)
-            np.minimum.at(el_min, cell, el[path])
-            np.maximum.at(el_max, cell, el[path])
-        b = np.floor((s.distance - sonar.range_min_m) / sonar.range_resolution_m)
+        if n_w:
+            truth(s, ident, elevation_deg[s.ray % n_el], energy[order - 1], order in bounces,
+                  (energy[-1].reshape(-1),) + acc)
+        b = np.floor((s.distance - range_min_m) / dr)
         keep = (b >= 0) & (b < n_r) & (s.energy != 0)
         points.append(legs[s.gen].point[s.ray[keep]])
         ids_out.append(ident[keep])
         rows_out.append(s.label[keep])
         cells_out.append(np.stack([b[keep], s.beam[keep]], axis=1))
 
-    instance = {}
+    pick = compiled.dominant if truth.compiled else dominant
+    obj, obj_top = pick(energy[0, :n_obj], 0)
+    gnd, gnd_top = pick(energy[0, n_obj:], n_obj)
+    window = {}
     for comp in component_table(max_order):
         if comp.name == "object":
-            instance[comp.name] = _dominant(energy[0, :n_obj], 0)
+            window[comp.name] = obj
         elif comp.name == "ground":
-            instance[comp.name] = _dominant(energy[0, n_obj:], n_obj)
+            window[comp.name] = gnd
+        elif comp.name == "single":  # the stronger of the two; a tie goes to the object (lower id)
+            window[comp.name] = np.where(gnd_top > obj_top, gnd, obj)
         elif comp.name == "total":
-            orders = [k for k in bounces if k <= max_order]
-            total = energy[orders[0] - 1].copy() if orders else np.zeros((n_ids, n_r, n_b), dtype)
-            for k in orders[1:]:
-                total += energy[k - 1]
-            instance["total"] = _dominant(total, 0)
+            window[comp.name] = pick(energy[-1], 0)[0]
         else:
-            instance[comp.name] = _dominant(energy[comp.order - 1], 0)
+            window[comp.name] = pick(energy[comp.order - 1], 0)[0]
+    instance = {}
+    for name, m in window.items():
+        instance[name] = np.full((n_r, n_b), -1, np.int32)
+        instance[name][r0:r1] = m
+    boxes = boxes_of(window["total"], n_ids)  # on the lit rows; shifted to the window's bins below
+    boxes[boxes[:, 0] >= 0, 0::2] += r0
 
+    weight, weighted, el_min, el_max = acc
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(moments[0] > 0, moments[1] / moments[0] - ELEVATION_SHIFT_DEG, np.nan)
+        mean = weighted / weight  # NaN where nothing lands (0 / 0)
     seen = np.isfinite(el_min)
-    el_min = np.where(seen, el_min, np.nan).reshape(n_r, n_b)
-    el_max = np.where(seen, el_max, np.nan).reshape(n_r, n_b)
+    maps = []
+    for v in (mean, np.where(seen, el_min, np.nan), np.where(seen, el_max, np.nan)):
+        full = np.full((n_r, n_b), np.nan, np.float32)
+        full[r0:r1] = v.reshape(n_w, n_b)
+        maps.append(full)
 
     def cat(parts, shape, dt):
         return np.concatenate(parts).astype(dt) if parts else np.zeros(shape, dt)
@@ -213,22 +249,51 @@ def frame_labels(
     return Labels(
         ids=tuple(object_names) + tuple(plane_names),
         instance=instance,
-        elevation_deg=mean.astype(np.float32),
-        elevation_min_deg=el_min.astype(np.float32),
-        elevation_max_deg=el_max.astype(np.float32),
+        elevation_deg=maps[0],
+        elevation_min_deg=maps[1],
+        elevation_max_deg=maps[2],
         points_world=cat(points, (0, 3), np.float32),
         points_object=cat(ids_out, (0,), np.int32),
         points_component=cat(rows_out, (0,), np.int8),
         points_cell=cat(cells_out, (0, 2), np.int32),
         point_components=point_component_names(max_order),
-        boxes_polar=boxes_of(instance["total"], n_ids),
+        boxes_polar=boxes,
     )
 
 
-def _dominant(energy: np.ndarray, offset: int) -> np.ndarray:
-    """(n_r, n_b) int32: ``offset +`` the index of the largest of ``energy`` (m, n_r, n_b); -1 where all are 0."""
-    if not len(energy):
-        return np.full(energy.shape[1:], -1, np.int32)
-    best = np.argmax(energy, axis=0)
-    some = np.take_along_axis(energy, best[None], axis=0)[0] > 0
-    return np.where(some, best + offset, -1).astype(np.int32)
+def dominant(energy: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
+    """The id of largest energy in each cell, and that energy (twin of ``_kernels.dominant``).
+
+    Parameters
+    ----------
+    energy : (m, n_r, n_b) float array
+        Energy per id (``offset + index``) and cell.
+
+    Returns
+    -------
+    best : (n_r, n_b) int32 ndarray
+        ``offset +`` the index of the largest energy; -1 where all are 0. Ties go to the
+        lower id.
+    top : (n_r, n_b) ndarray
+        The largest energy (0 where none).
+
+    A running maximum over the ids (a few passes over contiguous images): ``argmax(axis=0)``
+    is a strided reduction several times slower.
+    """
+    best = np.full(energy.shape[1:], -1, np.int32)
+    top = np.zeros(energy.shape[1:], energy.dtype)
+    for k in range(len(energy)):
+        win = np.greater(energy[k], top)  # strict: zero energy never wins, a tie keeps the lower id
+        np.copyto(best, np.int32(k + offset), where=win)
+        np.maximum(top, energy[k], out=top)
+    return best, top
+
+
+def lit_rows(stack: np.ndarray) -> tuple[int, int]:
+    """``[first, end)`` of the range bins where an image stack ``(rows, n_r, n_b)`` has energy.
+
+    The labels deposit each path's energy in the cells the image gave it, so no label has
+    energy outside these bins; ``(0, 0)`` for a dark frame.
+    """
+    lit = np.flatnonzero(stack.any(axis=(0, 2)))
+    return (int(lit[0]), int(lit[-1]) + 1) if len(lit) else (0, 0)

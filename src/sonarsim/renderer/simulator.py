@@ -42,7 +42,7 @@ from ..trace import available_cores, make_caster
 from ..trace.surfaces import trace
 from . import compiled
 from .components import component_table, frame_components, stack_rows
-from .ground_truth import frame_labels
+from .ground_truth import frame_labels, lit_rows
 
 # Rays are cast this far past the range window so that range splatting sees the neighbour of a
 # ray that ends just inside it.
@@ -383,12 +383,13 @@ class Simulator:
         truth = None
         t2 = time.perf_counter()
         if labels:
+            lit = stack
             if sets is None:  # Algorithm 2 forms no paths: the general engine's, for the labels only
-                _, legs, sets, _ = self._render_paths(sonar, pose, fan, reach, active,
-                                                      render.max_order if multipath else 1)
+                lit, legs, sets, _ = self._render_paths(sonar, pose, fan, reach, active,
+                                                        render.max_order if multipath else 1)
             truth = frame_labels(sets, legs, fan, image_sonar, tuple(o.name for o in self.scene.objects),
                                  tuple(p.name for p in self.scene.reflecting_planes), render.max_order,
-                                 render.bounces, render.range_splat, self.kernels)
+                                 render.bounces, render.range_splat, self.kernels, lit_rows(lit))
         t3 = time.perf_counter()
         if sets is None:  # ground only: its four images are the four ground-only signatures
             rows = {c.name: stack[c.rows[0]] for c in component_table(render.max_order) if len(c.rows) == 1}
