@@ -183,6 +183,8 @@ def boxes_of(instance: np.ndarray, n_ids: int) -> np.ndarray:
     # Which ids occur in each row and each column: two bincounts over the labelled cells.
     rows = np.bincount(cells // w * n_ids + ids, minlength=h * n_ids).reshape(h, n_ids) > 0
     cols = np.bincount(cells % w * n_ids + ids, minlength=w * n_ids).reshape(w, n_ids) > 0
+    if not h or not w:
+        return np.full((n_ids, 4), -1, np.int32)
     out = np.stack([rows.argmax(axis=0), cols.argmax(axis=0),
                     h - 1 - rows[::-1].argmax(axis=0), w - 1 - cols[::-1].argmax(axis=0)], axis=1)
     out[~rows.any(axis=0)] = -1

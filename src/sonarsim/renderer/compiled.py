@@ -443,5 +443,5 @@ def dominant(energy: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
     shape = energy.shape[1:]
     best = np.empty(shape, np.int32)
     top = np.empty(shape, np.float32)
-    _kernels.dominant(energy.reshape(len(energy), -1), offset, best.reshape(-1), top.reshape(-1))
+    _kernels.dominant(energy.reshape(len(energy), best.size), offset, best.reshape(-1), top.reshape(-1))
     return best, top
