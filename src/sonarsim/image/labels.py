@@ -177,14 +177,13 @@ def boxes_of(instance: np.ndarray, n_ids: int) -> np.ndarray:
         Per id ``[row_min, col_min, row_max, col_max]``; -1 for an id absent from the map.
     """
     h, w = instance.shape
-    flat = instance.reshape(-1)
-    cells = np.flatnonzero(flat >= 0)
-    ids = flat[cells].astype(np.int64)
-    # Which ids occur in each row and each column: two bincounts over the labelled cells.
-    rows = np.bincount(cells // w * n_ids + ids, minlength=h * n_ids).reshape(h, n_ids) > 0
-    cols = np.bincount(cells % w * n_ids + ids, minlength=w * n_ids).reshape(w, n_ids) > 0
     if not h or not w:
         return np.full((n_ids, 4), -1, np.int32)
+    # Which ids occur in each row and each column (id + 1: 0 is "nothing"), by two bincounts.
+    code = instance.astype(np.int64) + 1
+    m = n_ids + 1
+    rows = np.bincount((code + (np.arange(h) * m)[:, None]).reshape(-1), minlength=h * m).reshape(h, m)[:, 1:] > 0
+    cols = np.bincount((code + np.arange(w) * m).reshape(-1), minlength=w * m).reshape(w, m)[:, 1:] > 0
     out = np.stack([rows.argmax(axis=0), cols.argmax(axis=0),
                     h - 1 - rows[::-1].argmax(axis=0), w - 1 - cols[::-1].argmax(axis=0)], axis=1)
     out[~rows.any(axis=0)] = -1

@@ -830,8 +830,8 @@ def splat_truth(const double[:, ::1] points, const double[:, ::1] normals, const
     to ``out`` (ids x bins x beams, flat) at its id ``ident[k]``. With ``moments`` (a path of
     the total), also: to ``total`` (ids x bins x beams) likewise, its energy into ``weight``
     and energy x ``elevation[k]`` into ``weighted`` (bins x beams),
-    and ``elevation[k]`` into the running ``el_min`` / ``el_max`` of every bin its cell
-    overlaps.
+    and ``elevation[k]`` into the running ``el_min`` / ``el_max`` (NaN: none yet) of every bin
+    its cell overlaps.
     """
     cdef Py_ssize_t k, b, cell, m = ray.shape[0], plane = n_range_bins * n_beams
     cdef bint c_dn = False, c_up
@@ -854,9 +854,10 @@ def splat_truth(const double[:, ::1] points, const double[:, ::1] normals, const
                         whole[ident[k] * plane + cell] += <float>part
                         weight[cell] += part
                         weighted[cell] += part * el
-                        if el < el_min[cell]:
+                        # "not >=": NaN (nothing yet) gives way to any elevation (as np.fmin).
+                        if not el >= el_min[cell]:
                             el_min[cell] = el
-                        if el > el_max[cell]:
+                        if not el <= el_max[cell]:
                             el_max[cell] = el
             c_dn = c_up
             x_dn = x

@@ -78,7 +78,7 @@ def splat_truth(points: np.ndarray, normals: np.ndarray, key: np.ndarray, ray: n
     moments : bool
         The set's paths enter the total: also add to ``total`` (like ``out``), ``weight``
         (energy), ``weighted`` (energy x elevation), ``el_min`` and ``el_max`` (running
-        extremes over the bins each cell overlaps), the last four ``(n_range_bins * n_beams,)``.
+        extremes over the bins each cell overlaps, NaN where none yet), the last four ``(n_range_bins * n_beams,)``.
     continuous : optional
         :func:`~sonarsim.paths.engine.set_continuity` of the leg, when already formed.
     """
@@ -107,8 +107,8 @@ def splat_truth(points: np.ndarray, normals: np.ndarray, key: np.ndarray, ray: n
         el = np.asarray(elevation, dtype=np.float64)[path]
         weight += np.bincount(cell, weights=part, minlength=plane)
         weighted += np.bincount(cell, weights=part * el, minlength=plane)
-        np.minimum.at(el_min, cell, el)
-        np.maximum.at(el_max, cell, el)
+        np.fmin.at(el_min, cell, el)  # fmin: NaN (nothing yet) gives way to any elevation
+        np.fmax.at(el_max, cell, el)
 
 
 class _Truth:
@@ -192,7 +192,7 @@ def frame_labels(
     # Rows 0 .. max_order - 1 per order, the last the total.
     energy = np.zeros((max_order + 1, n_ids, n_w, n_b), np.float32 if truth.compiled else np.float64)
     # The total's energy and energy x elevation, and the running extremes, per cell.
-    acc = (np.zeros(n_w * n_b), np.zeros(n_w * n_b), np.full(n_w * n_b, np.inf), np.full(n_w * n_b, -np.inf))
+    acc = (np.zeros(n_w * n_b), np.zeros(n_w * n_b), np.full(n_w * n_b, np.nan), np.full(n_w * n_b, np.nan))
     elevation_deg = np.degrees(fan.elevation_rad)
     n_el = fan.shape[2]
     points, ids_out, rows_out, cells_out = [], [], [], []
@@ -234,14 +234,11 @@ def frame_labels(
     boxes[boxes[:, 0] >= 0, 0::2] += r0
 
     weight, weighted, el_min, el_max = acc
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = weighted / weight  # NaN where nothing lands (0 / 0)
-    seen = np.isfinite(el_min)
-    maps = []
-    for v in (mean, np.where(seen, el_min, np.nan), np.where(seen, el_max, np.nan)):
-        full = np.full((n_r, n_b), np.nan, np.float32)
-        full[r0:r1] = v.reshape(n_w, n_b)
-        maps.append(full)
+    maps = [np.full((n_r, n_b), np.nan, np.float32) for _ in range(3)]
+    with np.errstate(invalid="ignore", divide="ignore"):  # NaN where nothing lands (0 / 0)
+        np.divide(weighted, weight, out=maps[0][r0:r1].reshape(-1), casting="same_kind")
+    maps[1][r0:r1] = el_min.reshape(n_w, n_b)
+    maps[2][r0:r1] = el_max.reshape(n_w, n_b)
 
     def cat(parts, shape, dt):
         return np.concatenate(parts).astype(dt) if parts else np.zeros(shape, dt)
