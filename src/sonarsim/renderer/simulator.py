@@ -429,11 +429,11 @@ class Simulator:
 
 
 def render(scene: Any, pose: Any = None, backend: str = "embree", speckle: bool | None = None,
-           frame: int | None = None) -> SonarImage:
+           frame: int | None = None, labels: bool = False) -> SonarImage:
     """Load (if needed) and render a scene once. For many poses, use :class:`Simulator`.
 
-    ``speckle=False``: the expected output, without speckle and noise draws (see
-    :meth:`Simulator.render`).
+    ``speckle=False``: the expected output, without speckle and noise draws; ``labels=True``:
+    with the frame's ground truth (see :meth:`Simulator.render`).
     """
     with Simulator(scene, backend=backend) as sim:
-        return sim.render(pose=pose, speckle=speckle, frame=frame)
+        return sim.render(pose=pose, speckle=speckle, frame=frame, labels=labels)
