@@ -390,3 +390,27 @@ def test_dominant_kernel_equals_its_twin():
     assert best[5, 5] == 9 and (best[:3] == -1).all()
     want = np.where(e.max(axis=0) > 0, e.argmax(axis=0) + 7, -1)
     np.testing.assert_array_equal(best, want)
+
+
+@pytest.mark.parametrize("double_beam", ["paper", "split"])
+def test_a_tank_with_walls_and_a_surface_labels_every_component(double_beam):
+    """Five planes, order 3: ids name the planes after the objects; each component's map is set
+    where its image has energy, in both kernels."""
+    from sonarsim.cli.demo import tank_scene_dict
+
+    doc = tank_scene_dict()
+    doc["render"].update(elevation_samples=40, double_beam=double_beam)
+    maps = {}
+    for kernels in ("compiled", "numpy") if compiled.AVAILABLE else ("numpy",):
+        with Simulator(doc, kernels=kernels) as sim:
+            img = sim.render(speckle=False, labels=True)
+        lab = img.labels
+        assert lab.ids == ("buoy", "post", "block", "ground", "surface", "far_wall", "left_wall", "right_wall")
+        for name, inst in lab.instance.items():
+            np.testing.assert_array_equal(inst >= 0, img.components[name] > 0, err_msg=f"{kernels} {name}")
+        assert set(np.unique(lab.instance["ground"])) <= {-1, 3, 4, 5, 6, 7}
+        assert (lab.instance["triple"] >= 0).any()
+        maps[kernels] = lab
+    if len(maps) == 2:
+        for name in maps["compiled"].instance:
+            assert np.mean(maps["compiled"].instance[name] == maps["numpy"].instance[name]) > 0.999, name
