@@ -188,6 +188,7 @@ def frame_labels(
     require((max_order * n_ids * 4.0 + 4 * 8.0) * n_w * n_b, f"label maps of {n_ids} surfaces x {max_order} orders",
             "objects")
     truth = _Truth(legs, n_obj + n_pl, fan.shape[2], geometry, spread, kernels)
+    lut = surface_ids(np.arange(n_pl + n_obj), n_pl, n_obj)  # surface id -> label id, one gather per set
     # float32 like the image stack the compiled kernels form (same deposits, same zeros).
     # Rows 0 .. max_order - 1 per order, the last the total.
     energy = np.zeros((max_order + 1, n_ids, n_w, n_b), np.float32 if truth.compiled else np.float64)
@@ -199,7 +200,7 @@ def frame_labels(
     for s in sets:
         if not len(s.ray):
             continue
-        ident = surface_ids(legs[s.gen].sid[s.ray], n_pl, n_obj)
+        ident = lut[legs[s.gen].sid[s.ray]]
         order = max(int(s.label[0]), 1)  # rows 0 (objects) and 1 (planes) are order 1
         if n_w:
             truth(s, ident, elevation_deg[s.ray % n_el], energy[order - 1], order in bounces,
@@ -209,7 +210,7 @@ def frame_labels(
         points.append(legs[s.gen].point[s.ray[keep]])
         ids_out.append(ident[keep])
         rows_out.append(s.label[keep])
-        cells_out.append(np.stack([b[keep], s.beam[keep]], axis=1))
+        cells_out.append(np.stack([b[keep].astype(np.int32), s.beam[keep]], axis=1))
 
     pick = compiled.dominant if truth.compiled else dominant
     obj, obj_top = pick(energy[0, :n_obj], 0)
