@@ -414,3 +414,19 @@ def test_a_tank_with_walls_and_a_surface_labels_every_component(double_beam):
     if len(maps) == 2:
         for name in maps["compiled"].instance:
             assert np.mean(maps["compiled"].instance[name] == maps["numpy"].instance[name]) > 0.999, name
+
+
+def test_total_only_labels_equal_the_full_labels_less_the_components():
+    from sonarsim.errors import ConfigError
+
+    with Simulator(demo_scene_dict()) as sim:
+        full = sim.render(speckle=False, labels=True).labels
+        total = sim.render(speckle=False, labels="total").labels
+        with pytest.raises(ConfigError, match="labels"):
+            sim.render(labels="some")
+    assert list(total.instance) == ["total"]
+    np.testing.assert_array_equal(total.instance["total"], full.instance["total"])
+    for name in ("elevation_deg", "elevation_min_deg", "elevation_max_deg", "points_world", "points_cell",
+                 "points_object", "points_component", "boxes_polar"):
+        np.testing.assert_array_equal(getattr(total, name), getattr(full, name), err_msg=name)
+    assert "instance" in total.arrays() and "instance_double" not in total.arrays()

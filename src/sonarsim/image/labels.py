@@ -75,8 +75,9 @@ class Labels:
     instance : mapping of str to (n_range_bins, n_beams) int32 ndarray
         Per component (``object``, ``ground``, ``single``, ``double``, ``triple``, ...,
         ``total``, the names of :mod:`sonarsim.renderer.components`): in each cell, the id
-        that brings the most energy to that component's image; -1 where the component has no
-        energy. ``ground`` covers every plane's direct echo.
+        that brings the most energy to that component's image (ties: the lower id); -1 where
+        the component has no energy. ``ground`` covers every plane's direct echo. Rendered
+        with ``labels='total'``: ``total`` only.
     elevation_deg : (n_range_bins, n_beams) float32 ndarray
         Energy-weighted mean arrival elevation (sonar frame, degrees, up positive) of the
         paths of the total in each cell; NaN where nothing lands.

@@ -827,7 +827,7 @@ def splat_truth(const double[:, ::1] points, const double[:, ::1] normals, const
     """Ground truth of one compact path set (twin: ``renderer.ground_truth.splat_truth``).
 
     The cells of ``splat_events`` (same neighbours, same range cells); each path's energy goes
-    to ``out`` (ids x bins x beams, flat) at its id ``ident[k]``. With ``moments`` (a path of
+    to ``out`` (ids x bins x beams, flat; empty: not formed) at its id ``ident[k]``. With ``moments`` (a path of
     the total), also: to ``total`` (ids x bins x beams) likewise, its energy into ``weight``
     and energy x ``elevation[k]`` into ``weighted`` (bins x beams),
     and ``elevation[k]`` into the running ``el_min`` / ``el_max`` (NaN: none yet) of every bin
@@ -837,8 +837,9 @@ def splat_truth(const double[:, ::1] points, const double[:, ::1] normals, const
     cdef bint c_dn = False, c_up
     cdef double x, x_dn = 0.0, x_up, lo, hi, density, part, el
     cdef double nb = <double>n_range_bins
-    cdef float* base = &out[0]
-    cdef float* whole = &total[0]
+    cdef bint by_order = out.shape[0] > 0
+    cdef float* base = &out[0] if by_order else NULL
+    cdef float* whole = &total[0] if moments else NULL
     with nogil:
         for k in range(m):
             c_up = spread and neighbours(points, normals, key, ray, energy, k, n_elevation)
@@ -849,7 +850,8 @@ def splat_truth(const double[:, ::1] points, const double[:, ::1] normals, const
                 for b in range(<Py_ssize_t>lo, bin_end(hi)):
                     part = density * ((hi if hi < b + 1.0 else b + 1.0) - (lo if lo > b else <double>b))
                     cell = b * n_beams + beam[k]
-                    base[ident[k] * plane + cell] += <float>part
+                    if by_order:
+                        base[ident[k] * plane + cell] += <float>part
                     if moments:
                         whole[ident[k] * plane + cell] += <float>part
                         weight[cell] += part

@@ -73,8 +73,8 @@ def splat_truth(points: np.ndarray, normals: np.ndarray, key: np.ndarray, ray: n
     n_elevation : int
     range_min_m, range_resolution_m : float
     n_range_bins, n_beams : int
-    out : (n_ids * n_range_bins * n_beams,) float array
-        Receives each path's energy in the image of its id.
+    out : (n_ids * n_range_bins * n_beams,) or (0,) float array
+        Receives each path's energy in the image of its id (empty: not formed).
     moments : bool
         The set's paths enter the total: also add to ``total`` (like ``out``), ``weight``
         (energy), ``weighted`` (energy x elevation), ``el_min`` and ``el_max`` (running
@@ -99,9 +99,11 @@ def splat_truth(points: np.ndarray, normals: np.ndarray, key: np.ndarray, ray: n
     path = where[owner]
     part = density[owner] * overlap
     plane = n_range_bins * n_beams
-    size = len(out)
-    by_id = np.bincount(np.asarray(ident)[path] * plane + cell, weights=part, minlength=size).astype(out.dtype)
-    out += by_id
+    if len(out) or moments:
+        by_id = np.bincount(np.asarray(ident)[path] * plane + cell, weights=part,
+                            minlength=len(out) or len(total)).astype(total.dtype)
+        if len(out):
+            out += by_id
     if moments:
         total += by_id
         el = np.asarray(elevation, dtype=np.float64)[path]
@@ -146,6 +148,7 @@ def frame_labels(
     spread: bool,
     kernels: str,
     rows: tuple[int, int] | None = None,
+    components: bool = True,
 ) -> Labels:
     """The :class:`~sonarsim.image.labels.Labels` of a frame from its paths.
 
@@ -172,6 +175,9 @@ def frame_labels(
         ``[first, end)`` range bins outside which no path deposits energy (the image's lit
         rows, :func:`lit_rows`): the per-id maps are formed over these rows only, the rest of
         every map is "nothing". Default: the whole window.
+    components : bool
+        Form the instance map of every component; ``False``: of the total only (no per-order
+        energy images: two thirds of the cost on the demo tank).
 
     Returns
     -------
@@ -190,8 +196,10 @@ def frame_labels(
     truth = _Truth(legs, n_obj + n_pl, fan.shape[2], geometry, spread, kernels)
     lut = surface_ids(np.arange(n_pl + n_obj), n_pl, n_obj)  # surface id -> label id, one gather per set
     # float32 like the image stack the compiled kernels form (same deposits, same zeros).
-    # Rows 0 .. max_order - 1 per order, the last the total.
-    energy = np.zeros((max_order + 1, n_ids, n_w, n_b), np.float32 if truth.compiled else np.float64)
+    # Rows 0 .. max_order - 1 per order (when the components' maps are formed), the last the total.
+    energy = np.zeros((max_order + 1 if components else 1, n_ids, n_w, n_b),
+                      np.float32 if truth.compiled else np.float64)
+    no_order = energy[:0].reshape(-1)
     # The total's energy and energy x elevation, and the running extremes, per cell.
     acc = (np.zeros(n_w * n_b), np.zeros(n_w * n_b), np.full(n_w * n_b, np.nan), np.full(n_w * n_b, np.nan))
     elevation_deg = np.degrees(fan.elevation_rad)
@@ -202,9 +210,9 @@ def frame_labels(
             continue
         ident = lut[legs[s.gen].sid[s.ray]]
         order = max(int(s.label[0]), 1)  # rows 0 (objects) and 1 (planes) are order 1
-        if n_w:
-            truth(s, ident, elevation_deg[s.ray % n_el], energy[order - 1], order in bounces,
-                  (energy[-1].reshape(-1),) + acc)
+        if n_w and (components or order in bounces):
+            truth(s, ident, elevation_deg[s.ray % n_el], energy[order - 1] if components else no_order,
+                  order in bounces, (energy[-1].reshape(-1),) + acc)
         b = np.floor((s.distance - range_min_m) / dr)
         keep = (b >= 0) & (b < n_r) & (s.energy != 0)
         points.append(legs[s.gen].point[s.ray[keep]])
@@ -213,20 +221,20 @@ def frame_labels(
         cells_out.append(np.stack([b[keep].astype(np.int32), s.beam[keep]], axis=1))
 
     pick = compiled.dominant if truth.compiled else dominant
-    obj, obj_top = pick(energy[0, :n_obj], 0)
-    gnd, gnd_top = pick(energy[0, n_obj:], n_obj)
     window = {}
-    for comp in component_table(max_order):
+    if components:
+        obj, obj_top = pick(energy[0, :n_obj], 0)
+        gnd, gnd_top = pick(energy[0, n_obj:], n_obj)
+    for comp in component_table(max_order) if components else ():
         if comp.name == "object":
             window[comp.name] = obj
         elif comp.name == "ground":
             window[comp.name] = gnd
         elif comp.name == "single":  # the stronger of the two; a tie goes to the object (lower id)
             window[comp.name] = np.where(gnd_top > obj_top, gnd, obj)
-        elif comp.name == "total":
-            window[comp.name] = pick(energy[-1], 0)[0]
-        else:
+        elif comp.name != "total":
             window[comp.name] = pick(energy[comp.order - 1], 0)[0]
+    window["total"] = pick(energy[-1], 0)[0]  # last, as in the component table
     instance = {}
     for name, m in window.items():
         instance[name] = np.full((n_r, n_b), -1, np.int32)
