@@ -150,3 +150,18 @@ def test_an_output_name_too_long_for_the_file_system_names_the_option(scene, tmp
     assert main(["render", str(scene), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("sonarsim: error: --out ") and "File name too long" in err and len(err) < 300
+
+
+@pytest.mark.parametrize("option, value", [("--gain-db", "1e308"), ("--gain-db", "-500"), ("--gain-db", "nan"),
+                                           ("--dynamic-range-db", "1e-320"), ("--dynamic-range-db", "0"),
+                                           ("--dynamic-range-db", "1e9")])
+@pytest.mark.parametrize("command", ["render", "show"])
+def test_display_levels_beyond_any_picture_are_refused(scene, tmp_path, capsys, command, option, value):
+    # 1e308 dB of gain made an all-white picture (exit 0); 1e-320 dB of range a NumPy warning.
+    source = scene if command == "render" else "../shared/data/real/oculus/one_ping_8bit.raw"
+    with pytest.raises(SystemExit) as e:
+        main([command, str(source), "--out", str(tmp_path / "o"), option, value])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert option in err and "expected a number of dB from" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .argtypes import finite_float, frame_index, positive_float
+from .argtypes import display_gain_db, display_range_db, frame_index, positive_float
 
 __all__ = ["RENDER_FILES", "add_image_options", "add_render_options", "add_render_parser", "cmd_render",
            "options_named", "render_and_write"]
@@ -40,8 +40,8 @@ def add_image_options(p: argparse.ArgumentParser) -> None:
                    help="fan image pixel size in metres (default: the range resolution)")
     g.add_argument("--mapping", choices=("db", "linear"), default="db",
                    help="PNG intensity mapping: dB window below the maximum, or linear (default: db)")
-    g.add_argument("--gain-db", type=finite_float, default=0.0, help="display gain in dB (default: 0)")
-    g.add_argument("--dynamic-range-db", type=positive_float, default=40.0,
+    g.add_argument("--gain-db", type=display_gain_db, default=0.0, help="display gain in dB (default: 0)")
+    g.add_argument("--dynamic-range-db", type=display_range_db, default=40.0,
                    help="width of the dB window shown (default: 40)")
     g.add_argument("--components", action="store_true",
                    help="also write one polar and one fan PNG per component (object, ground, single, double, ..., "
