@@ -10,20 +10,55 @@ grid, fan) -> :mod:`~sonarsim.io` (files, real recordings) -> :mod:`~sonarsim.an
 (metrics, comparison, pose fitting); :mod:`~sonarsim.cli` is a thin layer on top.
 """
 
-from .config.loader import load_scene
-from .config.materials import Material
-from .config.scene import GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene
-from .config.sonar import SonarConfig
-from .core.transforms import Pose
-from .errors import ConfigError, MeshFileError, SonarsimError
-from .image import RayMaps, SonarImage
-from .io.readers import read, read_frames
-from .renderer.simulator import Simulator, render
+import importlib
+from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "ConfigError", "GroundSpec", "Material", "MeshFileError", "ObjectSpec", "PlaneSpec", "Pose", "RayMaps", "RenderSettings",
-    "Scene", "Simulator", "SonarConfig", "SonarImage", "SonarsimError", "load_scene", "read", "read_frames",
-    "render",
-]
+# Public names and the modules that define them. They are imported on first use (PEP 562), so
+# that ``import sonarsim`` (and the ``sonarsim`` command's start) does not load the renderer,
+# Embree and SciPy before it needs them: the command catches Ctrl-C from its first line, which
+# a second of imports before ``main`` runs would not allow.
+_EXPORTS = {
+    "load_scene": ".config.loader",
+    "Material": ".config.materials",
+    "GroundSpec": ".config.scene", "ObjectSpec": ".config.scene", "PlaneSpec": ".config.scene",
+    "RenderSettings": ".config.scene", "Scene": ".config.scene",
+    "SonarConfig": ".config.sonar",
+    "Pose": ".core.transforms",
+    "ConfigError": ".errors", "MeshFileError": ".errors", "SonarsimError": ".errors",
+    "RayMaps": ".image", "SonarImage": ".image",
+    "read": ".io.readers", "read_frames": ".io.readers",
+    "Simulator": ".renderer.simulator", "render": ".renderer.simulator",
+}
+
+__all__ = sorted(_EXPORTS)
+_SUBPACKAGES = ("analysis", "cli", "config", "core", "dataset", "errors", "image", "io", "paths", "renderer",
+                "scene", "sensor", "trace")
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        if name in _SUBPACKAGES:  # ``sonarsim.io.output`` after a bare ``import sonarsim``
+            return importlib.import_module(f".{name}", __name__)
+        raise AttributeError(f"module 'sonarsim' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value  # the next access is a plain attribute
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
+
+
+if TYPE_CHECKING:  # what type checkers and IDEs see
+    from .config.loader import load_scene
+    from .config.materials import Material
+    from .config.scene import GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene
+    from .config.sonar import SonarConfig
+    from .core.transforms import Pose
+    from .errors import ConfigError, MeshFileError, SonarsimError
+    from .image import RayMaps, SonarImage
+    from .io.readers import read, read_frames
+    from .renderer.simulator import Simulator, render

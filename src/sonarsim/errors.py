@@ -6,6 +6,8 @@ message and exits non-zero without a traceback. Programming errors stay ordinary
 
 from __future__ import annotations
 
+import os
+
 
 class SonarsimError(Exception):
     """Base class of the errors caused by bad input (files, keys, values)."""
@@ -83,3 +85,47 @@ def key_text(key: object) -> str:
     if isinstance(key, str) and key.isprintable() and 0 < len(key) <= _SHOWN_LIMIT:
         return key
     return shown(key)
+
+
+def check_input_file(path: str | os.PathLike, what: str) -> os.stat_result:
+    """Stat an input file before opening it, so that what is not a readable regular file ends
+    in one clear message instead of a hang or a misleading one.
+
+    Opening a FIFO blocks until someone writes to it, and ``Path.exists`` calls a symbolic
+    link loop "not found"; both are told apart here.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file the user named.
+    what : str
+        What it should be, for the messages: ``"scene file"``, ``"mesh file"``, ``"recording"``.
+
+    Returns
+    -------
+    os.stat_result
+        The file's status (size, modification time).
+
+    Raises
+    ------
+    SonarsimError
+        ``PATH: WHAT not found``, ``PATH: is a directory, not a WHAT``, ``PATH: not a regular
+        file (a device or pipe?); give a WHAT`` or ``PATH: cannot read the WHAT: REASON`` (a
+        symbolic link loop, a name too long, a folder that cannot be searched).
+    """
+    import stat
+
+    name = os.fspath(path)
+    try:
+        st = os.stat(name)
+    except FileNotFoundError:
+        raise SonarsimError(f"{name}: {what} not found") from None
+    except OSError as exc:
+        raise SonarsimError(f"{key_text(name)}: cannot read the {what}: {exc.strerror or exc}") from None
+    except ValueError as exc:  # an embedded NUL character
+        raise SonarsimError(f"{key_text(name)}: cannot read the {what}: {exc}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise SonarsimError(f"{name}: is a directory, not a {what}")
+    if not stat.S_ISREG(st.st_mode):
+        raise SonarsimError(f"{name}: not a regular file (a device or pipe?); give a {what}")
+    return st

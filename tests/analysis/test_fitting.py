@@ -279,3 +279,13 @@ def test_fit_problems_name_each_condition():
     ran = dict(good.values, z=0.4 + 2.5, pitch=28.0 - 91.0)  # far range 2.0 m; 90 deg
     assert problems(values=ran) == ("z ran away by 2.5 m (more than 2)", "pitch ran away by 91 deg (more than 90)")
     assert problems(values=dict(good.values, z=0.4 + 1.9, pitch=28.0 + 89.0)) == ()
+
+
+def test_the_overlap_refusal_names_the_recording(shared_data):
+    from sonarsim.analysis.fitting import check_overlap
+    from sonarsim.errors import SonarsimError
+
+    path = shared_data / "real" / "aris" / "sample.aris"
+    with pytest.raises(SonarsimError, match="share 0 %") as e:
+        check_overlap(sonarsim.read(path, 0), sonarsim.load_scene(Path(__file__).parents[2] / "examples" / "oculus_floor.yaml"))
+    assert str(e.value).startswith(str(path))

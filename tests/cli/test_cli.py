@@ -246,7 +246,7 @@ def _bad_cases(tmp_path: Path, tiny_scene: Path) -> dict:
         "bounces-4": (["render", tiny_scene, "--out", out, "--bounces", "4"], ["--bounces"]),
         "bounces-text": (["render", tiny_scene, "--out", out, "--bounces", "one"], ["--bounces"]),
         "elevation-samples-0": (["render", tiny_scene, "--out", out, "--elevation-samples", "0"],
-                                ["render.elevation_samples"]),
+                                ["--elevation-samples"]),
         "demo-bounces": (["demo", "--out", out, "--bounces", "1,4"], ["--bounces"]),
         "out-under-file": (["render", tiny_scene, "--out", a_file / "child"], ["a_file.txt"]),
         "out-is-file": (["render", tiny_scene, "--out", a_file], ["a_file.txt"]),

@@ -26,18 +26,7 @@ from sonarsim.cli.demo import DEMO_FILES
 from sonarsim.cli.render import RENDER_FILES
 from sonarsim.io.run_record import RECORD_NAME, read_record, record_beside
 
-# 8 beams x 50 bins: renders and writes in well under a second.
-TINY_SCENE = {
-    "sonar": {
-        "n_beams": 8, "azimuth_fov_deg": 20.0, "elevation_fov_deg": 10.0,
-        "range_min_m": 0.5, "range_max_m": 3.0, "n_range_bins": 50,
-        "pose": {"position_m": [0.0, 0.0, 1.0], "rpy_deg": [0.0, 20.0, 0.0]},
-    },
-    "render": {"elevation_samples": 8},
-    "ground": {"height_m": 0.0, "albedo": 0.5, "specular": 0.5},
-    "objects": [{"name": "block", "primitive": "box", "size_m": [0.3, 0.3, 0.3],
-                 "pose": {"position_m": [2.0, 0.0, 0.15]}}],
-}
+from tests.cli.test_cli import TINY_SCENE  # 8 beams x 50 bins: renders and writes in well under a second
 
 # 512 beams x 3000 bins up to order 3: the render takes a fraction of a second, but with
 # --components writing its 22 images (3000 x 3000 px fans) takes 5-15 s, long enough to be
@@ -368,3 +357,20 @@ def test_sigkill_leftovers_are_cleaned_by_the_next_run(capsys, tmp_path: Path, b
     assert sorted(os.listdir(out)) == sorted([*RENDER_FILES, RECORD_NAME, "notes.txt", alive.name])
     alive.unlink()
     check_record(out, out / RECORD_NAME, list(RENDER_FILES), others=("notes.txt",))
+
+
+@pytest.mark.parametrize("delay_s", [0.15, 0.4, 0.8])
+def test_ctrl_c_while_the_command_starts_says_one_line(tmp_path: Path, big_scene: Path, delay_s: float) -> None:
+    # The first second of a command is imports (the renderer, Embree, SciPy), parsing and
+    # loading the scene: Ctrl-C there must end like Ctrl-C later (the package imports lazily
+    # so that the command's handler is in place from its first line).
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "sonarsim", "render", big_scene, "--out", out],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(delay_s)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert "Traceback" not in err, err
+    assert proc.returncode == 130, err
+    assert err.splitlines()[-1].startswith("sonarsim: interrupted by Ctrl-C (SIGINT)")
+    assert temp_files(out) == [] if out.exists() else True

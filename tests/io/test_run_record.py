@@ -203,3 +203,36 @@ def test_files_outside_the_record_folder_are_listed_by_path(tmp_path: Path) -> N
         write(image, b"p")
     files = read_record(record_beside(out))["files"]
     assert [e.get("name") or e.get("path") for e in files] == ["fit.yaml", str(image)]
+
+
+@pytest.mark.parametrize("stop", [KeyboardInterrupt, "killed"])
+def test_a_users_file_that_an_unfinished_run_planned_but_never_replaced_is_kept(tmp_path: Path, stop) -> None:
+    # `sonarsim demo --out mywork` over the user's own tank.yaml, stopped before it wrote
+    # tank.yaml: its record lists tank.yaml (without a checksum), and the next run in the folder
+    # removed the user's file as a stale file of that run.
+    (tmp_path / "tank.yaml").write_text("my own tank\n")
+    run = OutputRun.for_folder(tmp_path, ["polar.png", "tank.yaml"], log=lambda msg: None)
+    if stop == "killed":  # SIGKILL: the record stays "running"
+        run.__enter__()
+        write(tmp_path / "polar.png")
+    else:
+        with pytest.raises(KeyboardInterrupt), run:
+            write(tmp_path / "polar.png")
+            raise KeyboardInterrupt
+    assert read_record(tmp_path / RECORD_NAME)["status"] in ("running", "interrupted")
+    notes: list[str] = []
+    with OutputRun.for_folder(tmp_path, ["fan.png"], log=notes.append):
+        write(tmp_path / "fan.png")
+    assert (tmp_path / "tank.yaml").read_text() == "my own tank\n"
+    assert not (tmp_path / "polar.png").exists()  # that one the unfinished run did write
+    assert any("kept tank.yaml" in n for n in notes) and any("removed 1 file(s)" in n for n in notes)
+
+
+def test_a_file_an_unfinished_run_did_replace_is_removed_as_its_own(tmp_path: Path) -> None:
+    (tmp_path / "tank.yaml").write_text("my own tank\n")
+    with pytest.raises(KeyboardInterrupt), OutputRun.for_folder(tmp_path, ["tank.yaml", "x.png"], log=lambda m: None):
+        write(tmp_path / "tank.yaml", b"sonar: {}\n")
+        raise KeyboardInterrupt
+    with OutputRun.for_folder(tmp_path, ["fan.png"], log=lambda m: None):
+        write(tmp_path / "fan.png")
+    assert not (tmp_path / "tank.yaml").exists()

@@ -21,7 +21,7 @@ from typing import Any, Mapping
 import numpy as np
 from scipy import ndimage
 
-from ..errors import SonarsimError
+from ..errors import SonarsimError, shown
 from ..image.grid import PolarGrid, sector_area_m2
 from .metrics import NORMALIZATIONS, mse, normalize_255, psnr, ssim_map, ssim_support
 
@@ -41,6 +41,10 @@ MIN_OVERLAP = 0.5
 #: size are alive at once, so a pixel size typed in millimetres instead of metres must fail
 #: with a message, not exhaust the memory.
 MAX_FAN_PIXELS = 50_000_000
+# Peak memory of a comparison per pixel of the larger polar image: the float64 copies, SSIM's
+# filtered maps and the regions' masks. Measured: 20.6 GB peak for two 12000 x 12000 PNGs
+# (143 bytes a pixel).
+BYTES_PER_COMPARED_PIXEL = 160
 
 # Geometry of two images is "the same" when their axes agree to these tolerances (metres,
 # degrees): far below any bin or beam width, far above float round-off of a saved file.
@@ -221,8 +225,9 @@ def _resample_polar(polar: np.ndarray, src: PolarGrid, dst: PolarGrid) -> tuple[
 def _fan_pixels(geom: PolarGrid, pixel_size_m: float) -> float:
     """Size of the fan image of ``geom`` (as :func:`sonarsim.image.fan.fan_geometry` lays it out)."""
     half_fov = math.radians(max(abs(geom.left_edge_deg), abs(geom.right_edge_deg)))
-    rows = math.ceil(geom.range_max_m / pixel_size_m)
-    return rows * 2.0 * math.ceil(geom.range_max_m * math.sin(half_fov) / pixel_size_m)
+    # In floats: a pixel of 5e-324 m makes the ratio infinite, which no integer (math.ceil) holds.
+    rows = max(1.0, geom.range_max_m / pixel_size_m)
+    return rows * 2.0 * max(1.0, geom.range_max_m * math.sin(half_fov) / pixel_size_m)
 
 
 def _fan(polar: np.ndarray, geom: PolarGrid, pixel_size_m: float):
@@ -369,6 +374,10 @@ def compare_images(
     else:
         name_a, name_b = _name(a, "image A"), _name(b, "image B")
     pa, pb = _polar_of(a, name_a), _polar_of(b, name_b)
+    from ..core.memory import require
+
+    require(float(max(pa.size, pb.size)) * BYTES_PER_COMPARED_PIXEL,
+            f"comparing images of {pa.shape[0]} x {pa.shape[1]} and {pb.shape[0]} x {pb.shape[1]} pixels", "")
     ga, gb = _geometry_of(a, pa, name_a), _geometry_of(b, pb, name_b)
     given = _given_regions(regions, pa.shape, name_a)
     info: dict[str, Any] = {
@@ -482,6 +491,22 @@ _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 _NPY_MAGIC = b"\x93NUMPY"
 
 
+def _check_npy_size(path: str | os.PathLike, name: str) -> None:
+    """Refuse a ``.npy`` file whose header declares more than the memory budget (NumPy would
+    allocate it before reading: a 100-byte file can ask for terabytes)."""
+    from ..core.memory import require
+
+    try:
+        with open(path, "rb") as handle:
+            version = np.lib.format.read_magic(handle)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            shape, _, dtype = read_header(handle)
+    except (OSError, ValueError) as exc:
+        raise SonarsimError(f"{name}: cannot read the .npy array: {exc}") from None
+    require(float(math.prod(shape)) * dtype.itemsize, f"the region {name}, an array of shape {shape},", "")
+
+
 def load_region(path: str | os.PathLike) -> np.ndarray:
     """Read a region (a mask on a polar grid) from a file, for ``compare_images(regions=...)``.
 
@@ -504,7 +529,11 @@ def load_region(path: str | os.PathLike) -> np.ndarray:
         Naming the file: missing or unreadable, neither format, not 2-D, not boolean or
         integer.
     """
+    from ..errors import check_input_file
+
     name = os.fspath(path)
+    if os.path.lexists(path):  # a FIFO would block the open below for ever (missing: "no such file")
+        check_input_file(path, "region file (.npy or PNG)")
     try:
         with open(path, "rb") as handle:
             head = handle.read(8)
@@ -513,6 +542,7 @@ def load_region(path: str | os.PathLike) -> np.ndarray:
     except OSError as exc:
         raise SonarsimError(f"{name}: cannot read: {exc.strerror or exc}") from None
     if head.startswith(_NPY_MAGIC):
+        _check_npy_size(path, name)
         try:
             arr = np.load(path, allow_pickle=False)
         except (OSError, ValueError, EOFError) as exc:
@@ -525,15 +555,17 @@ def load_region(path: str | os.PathLike) -> np.ndarray:
             )
         return arr != 0
     if head.startswith(_PNG_MAGIC):
-        from PIL import Image, UnidentifiedImageError
+        from PIL import UnidentifiedImageError
 
         try:
-            with Image.open(path) as im:
+            with _open_png(path, name, "the region") as im:
                 im.load()
                 if im.mode in ("1", "L", "I", "I;16", "I;16B", "I;16L", "F"):
                     arr = np.asarray(im)
                 else:
                     arr = np.asarray(im.convert("RGB")).any(axis=2)
+        except SonarsimError:  # the budget's refusal (a ValueError too) says enough
+            raise
         except (OSError, UnidentifiedImageError, ValueError) as exc:
             raise SonarsimError(f"{name}: cannot read the PNG: {exc}") from None
         return np.ascontiguousarray(arr[::-1] != 0)
@@ -590,6 +622,10 @@ def load_image(path: str | os.PathLike, frame: int | None = None, component: str
         isinstance(frame, (bool, np.bool_)) or not isinstance(frame, (int, np.integer)) or frame < 0
     ):
         raise SonarsimError(f"{name}: frame must be an integer >= 0, got {frame!r}")
+    from ..errors import check_input_file
+
+    if os.path.lexists(p):  # a FIFO would block the open below for ever (missing: "no such file")
+        check_input_file(p, "image file (NPZ, PNG or recording)")
     try:
         with open(p, "rb") as handle:
             head = handle.read(8)
@@ -621,16 +657,48 @@ def load_image(path: str | os.PathLike, frame: int | None = None, component: str
     return readers.read(p, 0 if frame is None else int(frame))
 
 
-def _load_png(p: Path, name: str) -> PlainImage:
+def _open_png(path: str | os.PathLike, name: str, what: str):
+    """``Image.open(path)`` whose size is checked against the memory budget before its pixels
+    are decoded (``what`` and :data:`BYTES_PER_COMPARED_PIXEL` a pixel); SonarsimError naming
+    ``name`` for a file Pillow cannot read or refuses as a decompression bomb."""
+    import warnings
+
     from PIL import Image, UnidentifiedImageError
 
+    from ..core.memory import require
+
     try:
-        with Image.open(p) as im:
+        # Our memory budget decides what is too large, so Pillow's decompression-bomb warning
+        # (at 89 Mpx) is not shown; its error (at 179 Mpx, whatever the budget) is one line.
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            im = Image.open(path)
+    except Image.DecompressionBombError as exc:
+        raise SonarsimError(f"{name}: too large a PNG to read: {exc}") from None
+    except (OSError, UnidentifiedImageError, ValueError) as exc:
+        raise SonarsimError(f"{name}: cannot read the PNG: {exc}") from None
+    width, height = im.size
+    try:
+        require(float(width) * height * BYTES_PER_COMPARED_PIXEL, f"{what} {name}, a PNG of {width} x {height} "
+                "pixels,", "")
+    except SonarsimError:
+        im.close()
+        raise
+    return im
+
+
+def _load_png(p: Path, name: str) -> PlainImage:
+    from PIL import UnidentifiedImageError
+
+    try:
+        with _open_png(p, name, "comparing") as im:
             im.load()
             if im.mode in ("I", "I;16", "I;16B", "I;16L", "F"):
                 arr = np.asarray(im)
             else:
                 arr = np.asarray(im.convert("L"))
+    except SonarsimError:  # the budget's refusal (a ValueError too) says enough
+        raise
     except (OSError, UnidentifiedImageError, ValueError) as exc:
         raise SonarsimError(f"{name}: cannot read the PNG: {exc}") from None
     polar = np.ascontiguousarray(arr[::-1], dtype=np.float32)
@@ -650,11 +718,18 @@ def _load_npz(p: Path, name: str, component: str | None):
     if missing:
         raise SonarsimError(f"{name}: not a sonarsim image: no {', '.join(missing)} array(s)")
     key = "polar" if component is None else component
-    if key not in arrays or np.ndim(arrays[key]) != 2:
+    if key in arrays and np.ndim(arrays[key]) != 2:
+        raise SonarsimError(f"{name}: {key!r} has shape {np.shape(arrays[key])}; an image has 2 dimensions "
+                            "(range bins x beams)")
+    if key not in arrays:
         stored = sorted(k for k, v in arrays.items() if np.ndim(v) == 2 and np.shape(v) == np.shape(arrays["polar"]))
         raise SonarsimError(
-            f"{name}: no image {key!r}; the file holds {', '.join(stored)}"
+            f"{name}: no image {key!r}; the file holds {', '.join(stored) or 'none'}"
         )
+    # Real numbers only: strings, complex values or booleans are no sonar image or axis.
+    for k in (key, "range_m", "azimuth_deg"):
+        if arrays[k].dtype.kind not in "iuf":
+            raise SonarsimError(f"{name}: {k!r} holds {arrays[k].dtype} values; a sonarsim image holds real numbers")
     polar = np.asarray(arrays[key], dtype=np.float32)
     range_m = np.asarray(arrays["range_m"], dtype=np.float64).ravel()
     azimuth = np.asarray(arrays["azimuth_deg"], dtype=np.float64).ravel()
@@ -678,6 +753,9 @@ def _load_npz(p: Path, name: str, component: str | None):
         except SonarsimError:
             pass  # the pose plays no part in a comparison; a bad one must not block it
     elevation = s.get("elevation_fov_deg", 14.0)
+    if isinstance(elevation, bool) or not isinstance(elevation, (int, float)):
+        raise SonarsimError(f"{name}: config_json sonar.elevation_fov_deg is {shown(elevation)}; allowed: a number "
+                            "of degrees in (0, 180)")
     try:
         sonar = SonarConfig(
             beam_angles_deg=tuple(azimuth),

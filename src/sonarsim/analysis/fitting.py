@@ -285,8 +285,9 @@ def check_overlap(real: SonarImage, scene: Scene) -> None:
     overlap = _overlap_fraction(real.sonar.grid, scene.sonar.grid)
     if overlap < MIN_OVERLAP:
         g, h = real.sonar.grid, scene.sonar.grid
+        source = real.config.get("source") if isinstance(real.config, dict) else None
         raise SonarsimError(
-            f"the recording covers {g.range_min_m:.3g}-{g.range_max_m:.3g} m over {g.right_edge_deg:.3g} to "
+            (f"{source}: " if source else "") + f"the recording covers {g.range_min_m:.3g}-{g.range_max_m:.3g} m over {g.right_edge_deg:.3g} to "
             f"{g.left_edge_deg:.3g} deg, the scene's sonar {h.range_min_m:.3g}-{h.range_max_m:.3g} m over "
             f"{h.right_edge_deg:.3g} to {h.left_edge_deg:.3g} deg: they share {100 * overlap:.0f} % of the "
             f"recording's area (at least {100 * MIN_OVERLAP:.0f} % is needed); give the scene the recording's "

@@ -94,13 +94,13 @@ def cmd_calibrate(args) -> None:
 
     import yaml
 
-    from ..analysis.calibration import calibrate, evaluate, format_evaluation, parse_free_parameters
+    from ..analysis.calibration import calibrate, evaluate, format_evaluation
     from ..analysis.comparison import load_image
     from ..config.loader import load_scene
     from ..io.output import atomic_write, write_png
     from ..io.run_record import OutputRun, record_beside
     from ..renderer.simulator import Simulator
-    from .fit import _load_real
+    from .fit import _load_real, free_parameters
 
     if args.max_iterations < 1:
         raise ConfigError("--max-iterations", f"must be at least 1, got {args.max_iterations}")
@@ -111,7 +111,8 @@ def cmd_calibrate(args) -> None:
         outputs.append((Path(args.json), "--json"))
     # Every output checked before the calibration, which can take minutes (sonarsim.io.run_record).
     run = OutputRun(record_beside(out), outputs, command=getattr(args, "command_line", None))
-    free = parse_free_parameters(args.free)
+    run.protect([(args.real, "the recording")])
+    free = free_parameters(args.free, allow_none=True)
     real = _load_real(args.real, args.frame)
     held_out = []
     for n in args.evaluate_frames:

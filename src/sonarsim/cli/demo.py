@@ -11,7 +11,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .render import RENDER_FILES, _log, add_image_options, add_render_options, options_named, render_and_write
+from .render import (RENDER_FILES, _log, add_image_options, add_render_options, check_pixel_size, options_named,
+                     render_and_write)
 
 __all__ = ["add_demo_parser", "cmd_demo", "demo_scene_dict", "tank_scene_dict"]
 
@@ -164,6 +165,7 @@ def cmd_demo(args) -> None:
     with options_named(args):
         aris_scene = scene_from_dict(aris)
 
+    check_pixel_size([scene], args)  # the tank's figure keeps its own pixel size
     with run:
         _demo_files(args, out, run, (doc, scene), (tank, tank_scene), (aris, aris_scene))
 

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .argtypes import frame_index
+from .argtypes import frame_index, integer_at_least
 from .main import _log
 from ..errors import SonarsimError
 
@@ -42,13 +42,7 @@ EXIT_CODES = """exit status:
 
 def _render_budget(text: str) -> int:
     """A number of renders >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number of renders >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a number of renders >= 1, got {text!r}")
-    return value
+    return integer_at_least(text, 1, "number of renders")
 
 
 def add_fit_parser(sub) -> argparse.ArgumentParser:
@@ -74,6 +68,17 @@ def add_fit_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--image", default=None, help="side-by-side PNG (default: next to --out, *_fit.png)")
     p.set_defaults(func=cmd_fit)
     return p
+
+
+def free_parameters(text: str, allow_none: bool) -> tuple[str, ...]:
+    """``--free`` parsed; an error names the option (the library's key is ``free``)."""
+    from ..analysis.fitting import parse_free
+    from ..errors import ConfigError
+
+    try:
+        return parse_free(text, allow_none=allow_none)
+    except ConfigError as exc:
+        raise ConfigError("--free", exc.detail) from None
 
 
 def _load_real(path: str, frame: int):
@@ -195,7 +200,8 @@ def cmd_fit(args) -> None:
     image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
     # Both outputs checked before the search, which can take minutes (sonarsim.io.run_record).
     run = OutputRun(record_beside(out), [(out, "--out"), (image_path, "--image")],
-                    command=getattr(args, "command_line", None))
+                    command=getattr(args, "command_line", None)).protect([(args.real, "the recording")])
+    free_parameters(args.free, allow_none=False)  # before the recording is read
     real = _load_real(args.real, args.frame)
     scene = load_scene(args.scene)
     quiet = getattr(args, "quiet", False)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 import sys
 from typing import Iterator, Sequence
@@ -102,9 +103,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``sonarsim`` command; returns the exit status."""
-    parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = parser.parse_args(argv)
+    try:  # building the parser imports the commands' modules: Ctrl-C may come in that time
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt:
+        _log("interrupted by Ctrl-C (SIGINT); nothing was written")
+        return 128 + int(signal.SIGINT)
     # Stored in each run's record (sonarsim.io.run_record), so a folder says what made it.
     args.command_line = ["sonarsim", *map(str, argv)]
     from ..core.memory import set_memory_budget
@@ -121,6 +125,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         name = exc.filename2 or exc.filename or ""
         _log(f"error: {name}: {exc.strerror or exc}" if name else f"error: {exc.strerror or exc}")
         return EXIT_BAD_INPUT
+    except MemoryError as exc:
+        # Sizes are checked against the budget first; this happens only when the budget was
+        # raised beyond what the machine can give (--max-memory 10T), so say that, in one line.
+        from ..core.memory import memory_budget
+
+        _log(f"error: out of memory ({exc or 'MemoryError'}) within the memory budget of "
+             f"{memory_budget() / 2**30:.3g} GiB; this machine cannot give that much: lower the sizes "
+             "or --max-memory / $SONARSIM_MAX_MEMORY")
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
         signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
         what = "Ctrl-C (SIGINT)" if signum == signal.SIGINT else signal.Signals(signum).name
@@ -130,5 +143,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+def console_main() -> None:
+    """The ``sonarsim`` executable (and ``python -m sonarsim``): :func:`main`, then exit.
+
+    A command stopped by a signal exits at once with 128 + its number, after flushing its
+    output: the interpreter's own shutdown, which may still see the interrupt that the command
+    handled (one that arrived during an import), would otherwise end the process by SIGINT.
+    """
+    code = main()
+    if code >= 128:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    console_main()

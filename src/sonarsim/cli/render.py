@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from .argtypes import finite_float, frame_index, positive_float
+from .argtypes import display_gain_db, display_range_db, frame_index, positive_float
 
 __all__ = ["RENDER_FILES", "add_image_options", "add_render_options", "add_render_parser", "cmd_render",
            "options_named", "render_and_write"]
@@ -40,8 +40,8 @@ def add_image_options(p: argparse.ArgumentParser) -> None:
                    help="fan image pixel size in metres (default: the range resolution)")
     g.add_argument("--mapping", choices=("db", "linear"), default="db",
                    help="PNG intensity mapping: dB window below the maximum, or linear (default: db)")
-    g.add_argument("--gain-db", type=finite_float, default=0.0, help="display gain in dB (default: 0)")
-    g.add_argument("--dynamic-range-db", type=positive_float, default=40.0,
+    g.add_argument("--gain-db", type=display_gain_db, default=0.0, help="display gain in dB (default: 0)")
+    g.add_argument("--dynamic-range-db", type=display_range_db, default=40.0,
                    help="width of the dB window shown (default: 40)")
     g.add_argument("--components", action="store_true",
                    help="also write one polar and one fan PNG per component (object, ground, single, double, ..., "
@@ -119,7 +119,8 @@ def override_render(scene, args):
 
 # Scene keys that a command-line option can set: an error in their value names the option.
 OPTION_OF_KEY = {"render.bounces": "--bounces", "render.max_order": "--max-order", "render.seed": "--seed",
-                 "sensor.preset": "--sensor"}
+                 "render.elevation_samples": "--elevation-samples", "sensor.preset": "--sensor",
+                 "pixel_size_m": "--pixel-size"}
 
 
 @contextlib.contextmanager
@@ -134,6 +135,18 @@ def options_named(args):
         if option is None or getattr(args, option[2:].replace("-", "_"), None) is None:
             raise
         raise ConfigError(option, exc.detail) from None
+
+
+def check_pixel_size(scenes, args) -> None:
+    """Refuse ``--pixel-size`` for the scenes' fans (too long, or beyond the memory budget)
+    before anything is rendered or written, naming the option."""
+    from ..image.fan import check_fan_size
+
+    if getattr(args, "pixel_size", None) is None:
+        return
+    with options_named(args):
+        for scene in scenes:
+            check_fan_size(scene.sonar.grid, args.pixel_size)
 
 
 #: The files ``render`` writes into --out (and ``demo`` among others); --components adds more.
@@ -191,5 +204,6 @@ def cmd_render(args) -> None:
     # Checked before the scene is even read: a render must not be lost to an unwritable --out.
     run = OutputRun.for_folder(out, RENDER_FILES, command=getattr(args, "command_line", None))
     scene = override_render(load_scene(args.scene), args)
+    check_pixel_size([scene], args)
     with run:
         render_and_write(scene, out, args, run)

@@ -23,7 +23,7 @@ import sys
 import time
 from pathlib import Path
 
-from .argtypes import finite_float, positive_float
+from .argtypes import display_gain_db, display_range_db, positive_float
 
 __all__ = ["add_show_parser", "cmd_show"]
 
@@ -63,8 +63,8 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--mapping", choices=("db", "linear"), default="linear",
                    help="PNG intensity mapping (default: linear, which shows the recorded "
                    "8-bit values as they are; db compresses them a second time)")
-    g.add_argument("--gain-db", type=finite_float, default=0.0, metavar="DB", help="display gain in dB (default: 0)")
-    g.add_argument("--dynamic-range-db", type=positive_float, default=40.0, metavar="DB",
+    g.add_argument("--gain-db", type=display_gain_db, default=0.0, metavar="DB", help="display gain in dB (default: 0)")
+    g.add_argument("--dynamic-range-db", type=display_range_db, default=40.0, metavar="DB",
                    help="width of the dB window shown with --mapping db (default: 40)")
     p.set_defaults(func=cmd_show)
     return p
@@ -96,6 +96,7 @@ def cmd_show(args: argparse.Namespace) -> None:
     out = Path(args.out)
     # Checked before the recording is read; nothing is written until both images exist.
     run = OutputRun.for_folder(out, ("polar.png", "fan.png"), command=getattr(args, "command_line", None))
+    run.protect([(args.recording, "the recording")])
     t0 = time.perf_counter()
     with open_recording(args.recording) as recording:
         image = recording.read(args.frame)

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, MeshFileError, SonarsimError, key_text, shown
+from ..errors import ConfigError, MeshFileError, SonarsimError, check_input_file, key_text, shown
 from ..scene.meshes import load_mesh_file
 from .materials import LAWS, Material, mu_from_db
 from .presets import beam_angles_from_table, get_preset
@@ -445,16 +445,7 @@ def read_document(path: str | os.PathLike) -> Any:
     import yaml
 
     p = Path(path)
-    try:
-        if p.is_dir():
-            raise SonarsimError(f"{p}: is a directory, not a scene file (YAML or JSON)")
-        if not p.exists():
-            raise SonarsimError(f"{p}: scene file not found")
-        if not p.is_file():
-            raise SonarsimError(f"{p}: not a regular file (a device or pipe?); give a scene file (YAML or JSON)")
-        size = p.stat().st_size
-    except OSError as exc:  # a name too long, a folder that cannot be searched
-        raise SonarsimError(f"{shown(str(p))}: cannot read the scene file: {exc.strerror or exc}") from None
+    size = check_input_file(p, "scene file").st_size
     if size > MAX_SCENE_BYTES:
         raise SonarsimError(f"{p}: {size / 2**20:.0f} MiB is not a scene file (at most {MAX_SCENE_BYTES // 2**20} MiB)")
     try:

@@ -475,6 +475,10 @@ class Scene:
             if self.sensor.elevation_pattern is not None and self.render.beam_pattern != "uniform":
                 raise ConfigError("render.beam_pattern", "the sensor's elevation_pattern is the beam pattern; "
                                   "leave render.beam_pattern uniform")
+        # The rays are counted now, so that a command refuses them before its run starts.
+        from ..core.rays import check_ray_budget
+
+        check_ray_budget(self.sonar, self.render)
         if self.render.method == "paper" and self.planes:
             raise ConfigError(
                 "render.method",

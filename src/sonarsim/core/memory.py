@@ -47,6 +47,8 @@ def keep_freed_memory(top_pad_bytes: int = TOP_PAD_BYTES) -> bool:
 
 ENV_VAR = "SONARSIM_MAX_MEMORY"
 DEFAULT_BUDGET_BYTES = 8 * 2**30
+# The largest budget accepted: far beyond any machine, yet a finite integer.
+MAX_BUDGET_BYTES = 2**60
 _UNITS = {"": 1, "b": 1, "k": 2**10, "kb": 2**10, "kib": 2**10, "m": 2**20, "mb": 2**20, "mib": 2**20,
           "g": 2**30, "gb": 2**30, "gib": 2**30, "t": 2**40, "tb": 2**40, "tib": 2**40}
 _budget_override: int | None = None
@@ -62,6 +64,9 @@ def parse_size(text: str) -> int:
     value = float(m.group(1)) * _UNITS[m.group(2).lower()]
     if not value >= 2**20:
         raise ValueError(f"a memory budget below 1 MiB cannot render anything; got {text!r}")
+    # A budget is a number of bytes: 1e400 reads as an infinite float, which no integer holds.
+    if not value <= MAX_BUDGET_BYTES:
+        raise ValueError(f"a memory budget above 1 EiB (2**60 bytes) is no budget; got {text!r}")
     return int(value)
 
 
@@ -109,6 +114,8 @@ def require(nbytes: float, what: str, key: str) -> None:
             need = f"{nbytes / 2**30:.3g} GiB"
         except OverflowError:  # an exact integer beyond a float (a 400-digit size)
             need = f"about 1e{len(str(int(nbytes))) - 10} GiB"
+        if need == "inf GiB":  # a float size that overflowed while being counted
+            need = "more than 1e300 GiB"
         raise ConfigError(key, f"{what} would need {need}, more than the memory budget of "
                           f"{budget / 2**30:.3g} GiB (raise it with --max-memory or ${ENV_VAR})")
 

@@ -34,6 +34,56 @@ def auto_elevation_samples(sonar: SonarConfig) -> int:
     return int(min(max(n, AUTO_MIN_SAMPLES), AUTO_MAX_SAMPLES))
 
 
+def samples_per_beam(sonar: SonarConfig, render: RenderSettings) -> tuple[int, int]:
+    """``(n_azimuth_samples, n_elevation_samples)`` of each beam's rays."""
+    n_el = auto_elevation_samples(sonar) if render.elevation_samples == "auto" else int(render.elevation_samples)
+    return int(render.azimuth_samples), n_el
+
+
+def ray_bytes(sonar: SonarConfig, render: RenderSettings) -> float:
+    """Bytes a frame's rays take: each its direction and weight here, and its legs' hits,
+    points and normals per frame (``BYTES_PER_RAY`` in all)."""
+    n_az, n_el = samples_per_beam(sonar, render)
+    return float(sonar.n_beams) * n_az * n_el * BYTES_PER_RAY
+
+
+def ray_size_key(sonar: SonarConfig, render: RenderSettings) -> str:
+    """The key to name when there are too many rays: the largest factor of the count
+    (``azimuth_samples: 1e9`` with 8 elevation samples is about ``render.azimuth_samples``)."""
+    n_az, n_el = samples_per_beam(sonar, render)
+    auto = render.elevation_samples == "auto"
+    factors = [(sonar.n_beams, "sonar.n_beams"), (n_az, "render.azimuth_samples"),
+               (n_el, "sonar.n_beams" if auto else "render.elevation_samples")]
+    return max(factors, key=lambda f: f[0])[1]
+
+
+def check_ray_budget(sonar: SonarConfig, render: RenderSettings) -> tuple[int, int]:
+    """Refuse a ray fan beyond the memory budget, naming the key that makes it large.
+
+    Nothing is allocated: :class:`~sonarsim.config.scene.Scene` calls it when a scene is
+    built, so that a command refuses ``elevation_samples: 1e9`` before it starts its run.
+
+    Parameters
+    ----------
+    sonar : SonarConfig
+    render : RenderSettings
+
+    Returns
+    -------
+    n_azimuth_samples, n_elevation_samples : int
+        Rays per beam across its width and across the elevation aperture.
+
+    Raises
+    ------
+    ConfigError
+        Keyed by the largest factor of the count: ``render.elevation_samples``,
+        ``render.azimuth_samples`` or ``sonar.n_beams``.
+    """
+    n_az, n_el = samples_per_beam(sonar, render)
+    require(ray_bytes(sonar, render), f"{sonar.n_beams} beams x {n_az} x {n_el} rays", ray_size_key(sonar, render))
+    return n_az, n_el
+
+
 @dataclass(frozen=True)
 class RayFan:
     """The rays of one sonar configuration, in the sonar frame.
@@ -66,24 +116,6 @@ class RayFan:
         return int(self.weight.size)
 
 
-def samples_per_beam(sonar: SonarConfig, render: RenderSettings) -> tuple[int, int]:
-    """``(n_azimuth_samples, n_elevation_samples)`` of each beam's rays."""
-    n_el = auto_elevation_samples(sonar) if render.elevation_samples == "auto" else int(render.elevation_samples)
-    return int(render.azimuth_samples), n_el
-
-
-def ray_bytes(sonar: SonarConfig, render: RenderSettings) -> float:
-    """Bytes a frame's rays take: each its direction and weight here, and its legs' hits,
-    points and normals per frame (``BYTES_PER_RAY`` in all)."""
-    n_az, n_el = samples_per_beam(sonar, render)
-    return float(sonar.n_beams) * n_az * n_el * BYTES_PER_RAY
-
-
-def ray_size_key(render: RenderSettings) -> str:
-    """The scene key to name when there are too many rays."""
-    return "render.elevation_samples" if render.elevation_samples != "auto" else "sonar.n_beams"
-
-
 def make_ray_fan(sonar: SonarConfig, render: RenderSettings, elevation_gain=None) -> RayFan:
     """Sample every beam over its azimuth width and the elevation aperture.
 
@@ -96,8 +128,7 @@ def make_ray_fan(sonar: SonarConfig, render: RenderSettings, elevation_gain=None
         ``(n,) elevation (rad) -> (n,) power gain``: a sensor's two-way elevation pattern,
         multiplied into the weights (the sonar's aperture is then the span it acts over).
     """
-    n_az, n_el = samples_per_beam(sonar, render)
-    require(ray_bytes(sonar, render), f"{sonar.n_beams} beams x {n_az} x {n_el} rays", ray_size_key(render))
+    n_az, n_el = check_ray_budget(sonar, render)
     half_el = math.radians(sonar.elevation_fov_deg) / 2.0
     dphi = 2.0 * half_el / n_el
     phi = -half_el + (np.arange(n_el) + 0.5) * dphi

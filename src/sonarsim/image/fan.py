@@ -40,6 +40,7 @@ __all__ = [
     "FanGeometry",
     "FanMapper",
     "beam_edges_deg",
+    "check_fan_size",
     "fan_geometry",
     "polar_to_fan",
     "INTERPOLATIONS",
@@ -197,6 +198,45 @@ def _cells(length: float, size: float) -> int:
     return max(1, math.ceil(round(length / size, 9)))
 
 
+def check_fan_size(grid: PolarGrid, pixel_size_m: float) -> None:
+    """Refuse a fan pixel size that would draw nothing or need more than the memory budget.
+
+    Cheap (nothing is allocated), so that a command can check its ``--pixel-size`` before a
+    long render rather than after it.
+
+    Parameters
+    ----------
+    grid : PolarGrid
+        The polar image's grid (e.g. ``SonarConfig.grid``).
+    pixel_size_m : float
+        Edge length of a fan pixel, metres.
+
+    Raises
+    ------
+    ConfigError
+        Key ``pixel_size_m``: a pixel longer than the range window, or a fan image whose
+        scan-conversion tables exceed :func:`sonarsim.core.memory.memory_budget`.
+    ValueError
+        For a pixel size that is not a finite number > 0.
+    """
+    from ..core.memory import require
+    from ..errors import ConfigError
+
+    p = _check_pixel_size(pixel_size_m)
+    rmin, rmax = grid.range_min_m, grid.range_max_m
+    half_fov = max(abs(grid.left_edge_deg), abs(grid.right_edge_deg))
+    # A pixel longer than the range window draws the whole image as one or two pixels.
+    if p > rmax - rmin:
+        raise ConfigError("pixel_size_m", f"{p:g} m is longer than the range window ({rmin:g}-{rmax:g} m), so the "
+                          f"fan image would show nothing; allowed: up to {rmax - rmin:g} m")
+    # Counted in floats: a tiny pixel (1e-300 m, 5e-324 m) makes counts of hundreds of digits,
+    # or an infinite ratio that no integer holds.
+    rows_f = rmax / p
+    cols_f = 2.0 * max(1.0, rmax * math.sin(math.radians(min(half_fov, 90.0))) / p)
+    # The scan-conversion tables hold about a dozen float64 values per pixel.
+    require(rows_f * cols_f * 100, f"a fan image of {rows_f:.3g} x {cols_f:.3g} pixels", "pixel_size_m")
+
+
 def beam_edges_deg(
     azimuth_deg: np.ndarray, single_beam_width_deg: float | None = None
 ) -> tuple[float, float]:
@@ -275,13 +315,8 @@ def _fan_geometry(grid: PolarGrid, pixel_size_m: float) -> FanGeometry:
             "degrees because the fan image only covers the half-plane in front of the sonar"
         )
 
+    check_fan_size(grid, p)
     n_rows = _cells(rmax, p)
-    n_cols_estimate = 2 * _cells(rmax * math.sin(math.radians(half_fov)), p)
-    from ..core.memory import require
-
-    # The scan-conversion tables hold about a dozen float64 values per pixel.
-    require(float(n_rows) * n_cols_estimate * 100, f"a fan image of {n_rows} x {n_cols_estimate} pixels",
-            "pixel_size_m")
     # The widest lateral extent of a sector of radius rmax whose edges are within +-90 deg is
     # reached on its far arc at the edge with the largest |angle|.
     half_cols = _cells(rmax * math.sin(math.radians(half_fov)), p)

@@ -16,6 +16,7 @@ import numpy as np
 from ..core.transforms import Pose
 from .fan import FanMapper
 from .grid import PolarGrid
+from .labels import FanLabels, Labels
 
 if TYPE_CHECKING:  # the sonar module builds its grid from this package
     from ..config.sonar import SonarConfig
@@ -77,6 +78,9 @@ class SonarImage:
         Per-ray distance and intensity maps (D_f, I_f) and surface labels.
     config : dict
         The full scene configuration, in scene-file form.
+    labels : Labels or None
+        The frame's ground truth (``Simulator.render(..., labels=True)``; see
+        :mod:`sonarsim.image.labels`); ``None`` otherwise and for recordings.
     """
 
     polar: np.ndarray
@@ -87,6 +91,7 @@ class SonarImage:
     pose: Pose | None = None
     rays: RayMaps | None = None
     config: dict = field(default_factory=dict)
+    labels: Labels | None = None
 
     @property
     def grid(self) -> PolarGrid:
@@ -112,8 +117,29 @@ class SonarImage:
         img = self.polar if component is None else self.components[component]
         return _fan_mapper(self.sonar.grid, pixel_size_m, interpolation)(img)
 
+    def fan_labels(self, pixel_size_m: float | None = None) -> FanLabels:
+        """The labels resampled to the fan image of :meth:`fan` (nearest neighbour).
+
+        Parameters
+        ----------
+        pixel_size_m : float, optional
+            Pixel edge, metres; default the range resolution (as :meth:`fan`).
+
+        Raises
+        ------
+        ValueError
+            The image has no labels (render with ``labels=True``).
+        """
+        if self.labels is None:
+            raise ValueError("this image has no labels: render it with labels=True")
+        return self.labels.fan(_fan_mapper(self.sonar.grid, pixel_size_m, "nearest"))
+
     def arrays(self) -> dict[str, np.ndarray]:
-        """Everything as named arrays (what the NPZ file holds, less the configuration)."""
+        """Everything as named arrays (what the NPZ file holds, less the configuration).
+
+        With labels, their arrays too (:meth:`sonarsim.image.labels.Labels.arrays`: ``instance``,
+        ``elevation_deg``, ``points_world``, ``points_object``, ...).
+        """
         out = {"polar": self.polar, "range_m": self.range_m, "azimuth_deg": self.azimuth_deg}
         out.update(self.components)
         if self.rays is not None:
@@ -124,6 +150,11 @@ class SonarImage:
                 rays_azimuth_deg=self.rays.azimuth_deg,
                 rays_elevation_deg=self.rays.elevation_deg,
             )
+        if self.labels is not None:
+            clash = set(out) & set(self.labels.arrays())
+            if clash:  # a path-signature name cannot take these forms, but say so if it ever does
+                raise ValueError(f"label arrays would overwrite {sorted(clash)}")
+            out.update(self.labels.arrays())
         return out
 
     def save_npz(self, path) -> None:

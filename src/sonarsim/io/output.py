@@ -442,6 +442,27 @@ def write_npz(
         np.savez_compressed(handle, **payload)
 
 
+def _check_npz_sizes(archive: Any, path: PathLike) -> None:
+    """Refuse an NPZ whose arrays, as their headers declare them, exceed the memory budget.
+
+    An NPZ is a zip of ``.npy`` files; NumPy allocates what a header declares before reading
+    the data, and zeros compress a thousandfold, so a 5 MB file can ask for 5 GB or 4 TB.
+    """
+    from ..core.memory import require
+
+    total = 0.0
+    for info in archive.infolist():
+        declared = float(info.file_size)  # what the zip says the member unpacks to
+        with contextlib.suppress(Exception), archive.open(info) as member:
+            version = np.lib.format.read_magic(member)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            shape, _, dtype = read_header(member)
+            declared = max(declared, float(math.prod(shape)) * dtype.itemsize)
+        total += declared
+    require(total, "its arrays", "")
+
+
 def read_npz(path: PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """Read a file written by :func:`write_npz`.
 
@@ -468,12 +489,18 @@ def read_npz(path: PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
             raise ValueError(
                 f"{os.fspath(path)}: no {CONFIG_KEY!r} entry; not written by write_npz"
             )
+        _check_npz_sizes(archive.zip, path)
         arrays = {name: archive[name] for name in archive.files if name != CONFIG_KEY}
         text = archive[CONFIG_KEY]
+    if text.dtype.kind != "U" or text.ndim != 0:
+        raise ValueError(f"{os.fspath(path)}: {CONFIG_KEY!r} is not a JSON text but a {text.dtype} array of shape "
+                         f"{text.shape}")
     try:
         config = json.loads(str(text[()]))
     except json.JSONDecodeError as exc:
         raise ValueError(f"{os.fspath(path)}: {CONFIG_KEY!r} is not valid JSON: {exc}") from exc
+    except RecursionError:  # [[[[... 100,000 deep
+        raise ValueError(f"{os.fspath(path)}: {CONFIG_KEY!r} is nested too deeply to be a configuration") from None
     if not isinstance(config, dict):
         raise ValueError(f"{os.fspath(path)}: {CONFIG_KEY!r} is not a JSON object")
     return arrays, config

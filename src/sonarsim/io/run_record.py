@@ -48,7 +48,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, Callable
 
-from ..errors import SonarsimError
+from ..errors import SonarsimError, shown
 from .output import _pid_alive, atomic_write, remove_abandoned_temp_files, temp_prefix
 
 __all__ = ["RECORD_NAME", "STATUSES", "OutputError", "OutputRun", "read_record", "record_beside"]
@@ -168,6 +168,8 @@ def _check_file(path: Path, option: str) -> None:
         return
     except NotADirectoryError:  # a parent is a file; the folder check says so
         return
+    except OSError as exc:  # a name too long for the file system, a symbolic link loop
+        raise OutputError(option, shown(os.fspath(path)), f"cannot use this path: {exc.strerror or exc}") from None
     if stat.S_ISDIR(mode):
         raise OutputError(option, path, "is a folder; this command writes a file of that name there (allowed: a "
                                         "missing or regular file; move the folder away or choose another path)")
@@ -223,6 +225,10 @@ class OutputRun:
         self._files: dict[Path, str] = {}
         self._started = ""
         self._active = False
+        # (size, mtime_ns) of each planned file that existed before this run, stored in the
+        # records of an unfinished run: a file still as it was then was not written by this
+        # run, so a later run must not remove it as this run's.
+        self._before: dict[Path, list[int]] = {}
         # Pairs rather than a mapping, so that two options naming one file both arrive here.
         pairs = [(Path(f[0]), f[1]) if isinstance(f, tuple) else (Path(f), option) for f in files]
         # Errors about the record's folder name what the user gave: the folder (``--out DIR``)
@@ -236,6 +242,28 @@ class OutputRun:
         for path, opt in pairs:
             self._plan(path, opt)
         self._check_not_in_use()
+
+    def protect(self, inputs: Iterable[tuple[PathLike, str]]) -> "OutputRun":
+        """Refuse outputs that are one of the command's input files (``fit --image REC.raw``
+        wrote a PNG over the recording), each input given with what it is (``"the recording"``).
+
+        Returns
+        -------
+        OutputRun
+            ``self``, so that it chains after the constructor.
+
+        Raises
+        ------
+        OutputError
+            Naming the option and the path of the output that is an input.
+        """
+        for source, what in inputs:
+            for path, option in [(self.record, self.option), *self._files.items()]:
+                with contextlib.suppress(OSError, ValueError):
+                    if os.path.samefile(path, source):
+                        raise OutputError(option, path, f"is {what} ({os.fspath(source)}); sonarsim never writes over "
+                                                        "its inputs: choose another path")
+        return self
 
     @classmethod
     def for_folder(cls, folder: PathLike, names: Iterable[str], *, option: str = "--out",
@@ -273,6 +301,10 @@ class OutputRun:
             _check_folder(path.parent, option, path)
         _check_file(path, option)
         self._files[key] = option
+        with contextlib.suppress(OSError):
+            st = os.lstat(key)
+            if stat.S_ISREG(st.st_mode):
+                self._before[key] = [st.st_size, st.st_mtime_ns]
 
     def add(self, path: PathLike, option: str | None = None) -> Path:
         """Plan one more file (e.g. a per-component image known only after rendering).
@@ -308,6 +340,8 @@ class OutputRun:
         entry: dict[str, Any] = {"name": path.name} if path.parent == folder else {"path": str(path)}
         if with_checksum:
             entry["bytes"], entry["sha256"] = _sha256(path)
+        elif path in self._before:
+            entry["before"] = self._before[path]
         return entry
 
     def _write_record(self, status: str, extra: Sequence[dict[str, Any]] = (), error: str | None = None) -> None:
@@ -345,11 +379,11 @@ class OutputRun:
             if (not isinstance(name, str) or not name or name in (".", "..") or "/" in name or os.sep in name
                     or name == self.record.name or (folder / name) in self._files):
                 continue
-            stale.append({k: entry[k] for k in ("name", "bytes", "sha256") if k in entry})
+            stale.append({k: entry[k] for k in ("name", "bytes", "sha256", "before") if k in entry})
         return stale
 
     def _remove_stale(self, stale: Sequence[dict[str, Any]]) -> None:
-        removed, kept = [], []
+        removed, kept, never = [], [], []
         for entry in stale:
             path = self.folder / entry["name"]
             try:
@@ -358,6 +392,12 @@ class OutputRun:
                 if "sha256" in entry and (entry.get("bytes"), entry["sha256"]) != _sha256(path):
                     kept.append(entry["name"])  # changed since sonarsim wrote it: the user's now
                     continue
+                if "sha256" not in entry and isinstance(entry.get("before"), list):
+                    st = os.lstat(path)
+                    if entry["before"] == [st.st_size, st.st_mtime_ns]:
+                        # An unfinished run planned it but never replaced it: not sonarsim's.
+                        never.append(entry["name"])
+                        continue
                 os.unlink(path)
             except FileNotFoundError:
                 continue
@@ -367,6 +407,9 @@ class OutputRun:
                       f"write: {', '.join(sorted(removed))}")
         if kept:
             self._log(f"kept {', '.join(sorted(kept))} in {self.folder}: listed by an earlier run but changed since")
+        if never:
+            self._log(f"kept {', '.join(sorted(never))} in {self.folder}: an unfinished earlier run meant to replace "
+                      "it but never did")
 
     # ------------------------------------------------------------------ the run
 

@@ -318,15 +318,11 @@ cdef inline double ffloor(double v) noexcept nogil:
     return t - 1.0 if t > v else t
 
 
-cdef inline void deposit(double x, double x_dn, double x_up, bint c_dn, bint c_up, double energy,
-                         float* column, Py_ssize_t stride, double nb) noexcept nogil:
-    """Spread one ray's energy over its range cell (see render.formation._segments) into ``column``.
-
-    ``column`` points at bin 0 of the ray's (label, beam) image column, whose bins are
-    ``stride`` floats apart; x are in bins.
-    """
-    cdef double lower = x, upper = x, lo, hi, width, density, m_dn = 0.0, m_up = 0.0, ov
-    cdef Py_ssize_t b, b1
+cdef inline bint range_cell(double x, double x_dn, double x_up, bint c_dn, bint c_up, double energy, double nb,
+                            double* lo_out, double* hi_out, double* density_out) noexcept nogil:
+    """One ray's range cell in bins, clipped to the window, and its energy per bin (see
+    render.formation._segments and expand_cells); False when nothing of it lies in the window."""
+    cdef double lower = x, upper = x, lo, hi, width, density, m_dn = 0.0, m_up = 0.0
     if c_dn:
         m_dn = 0.5 * (x + x_dn)
     if c_up:
@@ -351,14 +347,54 @@ cdef inline void deposit(double x, double x_dn, double x_up, bint c_dn, bint c_u
         lo = 0.0
     if hi > nb:
         hi = nb
-    if not hi > lo:
-        return
-    b1 = <Py_ssize_t>hi  # 0 <= lo < hi here: truncation is floor, and ceil is one more
+    lo_out[0] = lo
+    hi_out[0] = hi
+    density_out[0] = density
+    return hi > lo
+
+
+cdef inline Py_ssize_t bin_end(double hi) noexcept nogil:
+    """ceil(hi) for 0 < hi (truncation is floor, and ceil is one more)."""
+    cdef Py_ssize_t b1 = <Py_ssize_t>hi
     if b1 < hi:
         b1 += 1
-    for b in range(<Py_ssize_t>lo, b1):
+    return b1
+
+
+cdef inline void deposit(double x, double x_dn, double x_up, bint c_dn, bint c_up, double energy,
+                         float* column, Py_ssize_t stride, double nb) noexcept nogil:
+    """Spread one ray's energy over its range cell (see render.formation._segments) into ``column``.
+
+    ``column`` points at bin 0 of the ray's (label, beam) image column, whose bins are
+    ``stride`` floats apart; x are in bins.
+    """
+    cdef double lo, hi, density, ov
+    cdef Py_ssize_t b
+    if not range_cell(x, x_dn, x_up, c_dn, c_up, energy, nb, &lo, &hi, &density):
+        return
+    for b in range(<Py_ssize_t>lo, bin_end(hi)):
         ov = (hi if hi < b + 1.0 else b + 1.0) - (lo if lo > b else <double>b)
         column[b * stride] += <float>(density * ov)
+
+
+cdef inline bint neighbours(const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
+                            const Py_ssize_t[::1] ray, const double[::1] energy, Py_ssize_t k,
+                            Py_ssize_t n_elevation) noexcept nogil:
+    """Whether path k + 1 of a compact set is path k's upper neighbour on one continuous
+    surface (see ``splat_events``). A path without energy is no neighbour (as in
+    formation.accumulate)."""
+    cdef Py_ssize_t i = ray[k], m = ray.shape[0]
+    cdef double cx, cy, cz, off0, off1, limit
+    if not (k + 1 < m and ray[k + 1] == i + 1 and (i + 1) % n_elevation != 0
+            and key[i] >= 0 and key[i + 1] == key[i] and energy[k] != 0 and energy[k + 1] != 0):
+        return False
+    cx = points[i + 1, 0] - points[i, 0]
+    cy = points[i + 1, 1] - points[i, 1]
+    cz = points[i + 1, 2] - points[i, 2]
+    off0 = cx * normals[i, 0] + cy * normals[i, 1] + cz * normals[i, 2]
+    off1 = cx * normals[i + 1, 0] + cy * normals[i + 1, 1] + cz * normals[i + 1, 2]
+    limit = CONTINUITY_SINE * CONTINUITY_SINE * (cx * cx + cy * cy + cz * cz)
+    return off0 * off0 <= limit and off1 * off1 <= limit
 
 
 cdef inline bint alive(const double[::1] distance, const double[::1] energy, Py_ssize_t i) noexcept nogil:
@@ -765,28 +801,84 @@ def splat_events(const double[:, ::1] points, const double[:, ::1] normals, cons
     between their scatterers lies within the continuity angle of both normals. Each path's
     energy is ``scale * energy``.
     """
-    cdef Py_ssize_t k, i, m = ray.shape[0]
+    cdef Py_ssize_t k, m = ray.shape[0]
     cdef bint c_dn = False, c_up
-    cdef double x, x_dn = 0.0, x_up, cx, cy, cz, off0, off1, limit
+    cdef double x, x_dn = 0.0, x_up
     cdef double nb = <double>n_range_bins
     cdef float* base = &out[0]
     with nogil:
         for k in range(m):
-            i = ray[k]
-            c_up = False
-            # A path without energy is no neighbour (as in formation.accumulate).
-            if spread and k + 1 < m and ray[k + 1] == i + 1 and (i + 1) % n_elevation != 0 \
-                    and key[i] >= 0 and key[i + 1] == key[i] and energy[k] != 0 and energy[k + 1] != 0:
-                cx = points[i + 1, 0] - points[i, 0]
-                cy = points[i + 1, 1] - points[i, 1]
-                cz = points[i + 1, 2] - points[i, 2]
-                off0 = cx * normals[i, 0] + cy * normals[i, 1] + cz * normals[i, 2]
-                off1 = cx * normals[i + 1, 0] + cy * normals[i + 1, 1] + cz * normals[i + 1, 2]
-                limit = CONTINUITY_SINE * CONTINUITY_SINE * (cx * cx + cy * cy + cz * cz)
-                c_up = off0 * off0 <= limit and off1 * off1 <= limit
+            c_up = spread and neighbours(points, normals, key, ray, energy, k, n_elevation)
             x = (distance[k] - range_min) / dr
             x_up = (distance[k + 1] - range_min) / dr if c_up else 0.0
             deposit(x, x_dn, x_up, c_dn, c_up, scale * energy[k],
                     base + <Py_ssize_t>label[k] * n_range_bins * n_beams + beam[k], n_beams, nb)
             c_dn = c_up
             x_dn = x
+
+
+def splat_truth(const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
+                const Py_ssize_t[::1] ray, const double[::1] distance, const double[::1] energy,
+                const int[::1] beam, const int[::1] ident, const double[::1] elevation,
+                bint spread, Py_ssize_t n_elevation, double range_min, double dr,
+                Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out, bint moments,
+                float[::1] total, double[::1] weight, double[::1] weighted, double[::1] el_min,
+                double[::1] el_max):
+    """Ground truth of one compact path set (twin: ``renderer.ground_truth.splat_truth``).
+
+    The cells of ``splat_events`` (same neighbours, same range cells); each path's energy goes
+    to ``out`` (ids x bins x beams, flat; empty: not formed) at its id ``ident[k]``. With ``moments`` (a path of
+    the total), also: to ``total`` (ids x bins x beams) likewise, its energy into ``weight``
+    and energy x ``elevation[k]`` into ``weighted`` (bins x beams),
+    and ``elevation[k]`` into the running ``el_min`` / ``el_max`` (NaN: none yet) of every bin
+    its cell overlaps.
+    """
+    cdef Py_ssize_t k, b, cell, m = ray.shape[0], plane = n_range_bins * n_beams
+    cdef bint c_dn = False, c_up
+    cdef double x, x_dn = 0.0, x_up, lo, hi, density, part, el
+    cdef double nb = <double>n_range_bins
+    cdef bint by_order = out.shape[0] > 0
+    cdef float* base = &out[0] if by_order else NULL
+    cdef float* whole = &total[0] if moments else NULL
+    with nogil:
+        for k in range(m):
+            c_up = spread and neighbours(points, normals, key, ray, energy, k, n_elevation)
+            x = (distance[k] - range_min) / dr
+            x_up = (distance[k + 1] - range_min) / dr if c_up else 0.0
+            if range_cell(x, x_dn, x_up, c_dn, c_up, energy[k], nb, &lo, &hi, &density):
+                el = elevation[k]
+                for b in range(<Py_ssize_t>lo, bin_end(hi)):
+                    part = density * ((hi if hi < b + 1.0 else b + 1.0) - (lo if lo > b else <double>b))
+                    cell = b * n_beams + beam[k]
+                    if by_order:
+                        base[ident[k] * plane + cell] += <float>part
+                    if moments:
+                        whole[ident[k] * plane + cell] += <float>part
+                        weight[cell] += part
+                        weighted[cell] += part * el
+                        # "not >=": NaN (nothing yet) gives way to any elevation (as np.fmin).
+                        if not el >= el_min[cell]:
+                            el_min[cell] = el
+                        if not el <= el_max[cell]:
+                            el_max[cell] = el
+            c_dn = c_up
+            x_dn = x
+
+
+def dominant(const float[:, ::1] energy, int offset, int[::1] best, float[::1] top):
+    """Per cell, the index (+ ``offset``) of the largest of ``energy`` (ids x cells), -1 where
+    all are 0 (ties: the lower id), and that energy (twin: ``renderer.ground_truth._dominant``)."""
+    cdef Py_ssize_t c, k, m = energy.shape[0], n = energy.shape[1]
+    cdef int b
+    cdef float t, v
+    with nogil:
+        for c in range(n):
+            b = -1
+            t = 0.0
+            for k in range(m):
+                v = energy[k, c]
+                if v > t:
+                    t = v
+                    b = <int>k + offset
+            best[c] = b
+            top[c] = t

@@ -151,12 +151,36 @@ def accumulate(
     """
     parts = [_segments(r, range_min_m, range_resolution_m, n_range_bins, n_beams) for r in rays]
     lo, hi, density, column = (np.concatenate(p) for p in zip(*parts))
-    # Clip the cells to the window (the energy outside it is lost, as it should be) and expand
-    # each into the bins it overlaps: count 0 drops a cell.
+    owner, bins, overlap = expand_cells(lo, hi, n_range_bins)
+    index = column[owner] + bins * n_beams
+    shape = (n_labels, n_range_bins, n_beams)
+    return np.bincount(index, weights=density[owner] * overlap, minlength=np.prod(shape)).reshape(shape)
+
+
+def expand_cells(lo: np.ndarray, hi: np.ndarray, n_range_bins: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Expand range cells into the bins they overlap, clipped to the window.
+
+    Parameters
+    ----------
+    lo, hi : (m,) float arrays
+        Cells in fractional bins (``lo <= hi``); an empty cell, or one outside
+        ``[0, n_range_bins)``, expands to nothing (the energy outside the window is lost, as
+        it should be).
+    n_range_bins : int
+
+    Returns
+    -------
+    owner : (t,) intp ndarray
+        The cell of each expanded slot, ascending.
+    bins : (t,) intp ndarray
+        Its range bin.
+    overlap : (t,) float64 ndarray
+        Length of the cell inside the bin, in bins.
+    """
     lo = np.clip(lo, 0.0, n_range_bins)
     hi = np.clip(hi, 0.0, n_range_bins)
     live = np.flatnonzero(hi > lo)
-    lo, hi, density = lo[live], hi[live], density[live]
+    lo, hi = lo[live], hi[live]
     first = np.floor(lo)
     count = (np.ceil(hi) - first).astype(np.intp)
     start = np.cumsum(count) - count
@@ -168,9 +192,23 @@ def accumulate(
     owner = np.cumsum(marks)
     bins = first[owner] + (np.arange(total) - start[owner])
     overlap = np.minimum(hi[owner], bins + 1.0) - np.maximum(lo[owner], bins)
-    index = column[live][owner] + bins.astype(np.intp) * n_beams
-    shape = (n_labels, n_range_bins, n_beams)
-    return np.bincount(index, weights=density[owner] * overlap, minlength=np.prod(shape)).reshape(shape)
+    return live[owner], bins.astype(np.intp), overlap
+
+
+def range_cells(rays: RayEnergy, range_min_m: float, range_resolution_m: float, n_range_bins: int,
+                n_beams: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The range cell each ray's energy covers, as :func:`accumulate` spreads it.
+
+    Returns
+    -------
+    lo, hi : (n,) float64 ndarray
+        The cell in fractional bins, flat over the rays (``lo == hi``: no energy).
+    density : (n,) float64 ndarray
+        Energy per bin.
+    column : (n,) int64 ndarray
+        ``label * n_range_bins * n_beams + beam``.
+    """
+    return _segments(rays, range_min_m, range_resolution_m, n_range_bins, n_beams)
 
 
 def form_image(

@@ -42,6 +42,7 @@ from ..trace import available_cores, make_caster
 from ..trace.surfaces import trace
 from . import compiled
 from .components import component_table, frame_components, stack_rows
+from .ground_truth import frame_labels, lit_rows
 
 # Rays are cast this far past the range window so that range splatting sees the neighbour of a
 # ray that ends just inside it.
@@ -188,7 +189,7 @@ class Simulator:
                 traced = replace(sonar, elevation_fov_deg=span)
             parts.append((pool_bytes((sonar.n_range_bins, sonar.n_beams), spec.speckle is not None,
                                      spec.noise is not None), "speckle and noise fields", "sensor.speckle"))
-        parts.insert(1, (ray_bytes(traced, render), "rays", ray_size_key(render)))
+        parts.insert(1, (ray_bytes(traced, render), "rays", ray_size_key(traced, render)))
         require_together(parts, f"a frame of {sonar.n_range_bins} x {sonar.n_beams}")
 
     def traced_sonar(self, sonar: SonarConfig) -> SonarConfig:
@@ -317,7 +318,7 @@ class Simulator:
         return out
 
     def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True,
-               speckle: bool | None = None, frame: int | None = None) -> SonarImage:
+               speckle: bool | None = None, frame: int | None = None, labels: bool | str = False) -> SonarImage:
         """Render one image.
 
         Parameters
@@ -338,6 +339,15 @@ class Simulator:
             ``(render.seed, frame)``, so that a frame is the same whoever renders it and in
             whatever order. Default: the simulator's own generator, frame after frame.
             (``sensor.speckle.anchor: world`` draws from the pose instead.)
+        labels : bool or {'all', 'total'}
+            Attach the frame's ground truth (:class:`~sonarsim.image.labels.Labels`: instance
+            maps, elevation per cell, points in view, boxes) as ``labels``. ``True`` or
+            ``'all'``: an instance map per component; ``'total'``: of the total only (two thirds
+            of the cost on the demo tank; everything else is the same). Labels come from
+            the general path engine's paths, so a frame that would take a specialised route
+            (the ground alone at order 3) takes the general one, which forms the same image
+            (the tests compare them); with ``method: paper`` the image is still Algorithm 2's
+            and the general engine runs once more for the labels.
 
         Returns
         -------
@@ -350,6 +360,8 @@ class Simulator:
             The sonar lies on one of the scene's planes.
         """
         t0 = time.perf_counter()
+        if labels not in (False, True, "all", "total"):
+            raise ConfigError("labels", f"unknown labels {labels!r}; allowed: False, True, 'all', 'total'")
         sonar = sonar if sonar is not None else self.scene.sonar
         pose_given = pose is not None
         pose = as_pose(pose) if pose_given else self.scene.sonar_pose
@@ -367,11 +379,22 @@ class Simulator:
         if render.method == "paper" and multipath and self._ground_only:
             stack, legs, sets, table = self._render_paper(sonar, pose, fan, reach)
         elif (self.specialise_ground and self.kernels == "compiled" and self._ground_only and render.max_order == 3
-              and render.double_beam != "separate"):
+              and render.double_beam != "separate" and not labels):
             stack, legs, sets, table = self._render_ground_compiled(sonar, pose, fan, reach, multipath)
         else:
             stack, legs, sets, table = self._render_paths(sonar, pose, fan, reach, active,
                                                           render.max_order if multipath else 1)
+        truth = None
+        t2 = time.perf_counter()
+        if labels:
+            lit = stack
+            if sets is None:  # Algorithm 2 forms no paths: the general engine's, for the labels only
+                lit, legs, sets, _ = self._render_paths(sonar, pose, fan, reach, active,
+                                                        render.max_order if multipath else 1)
+            truth = frame_labels(sets, legs, fan, image_sonar, tuple(o.name for o in self.scene.objects),
+                                 tuple(p.name for p in self.scene.reflecting_planes), render.max_order,
+                                 render.bounces, render.range_splat, self.kernels, lit_rows(lit),
+                                 components=labels != "total")
         t3 = time.perf_counter()
         if sets is None:  # ground only: its four images are the four ground-only signatures
             rows = {c.name: stack[c.rows[0]] for c in component_table(render.max_order) if len(c.rows) == 1}
@@ -402,19 +425,20 @@ class Simulator:
         sonar = image_sonar
         config = {**self._config, "sonar": sonar_section(sonar, pose)}
         t4 = time.perf_counter()
-        self.last_timing = {"setup": t1 - t0, "render": t3 - t1, "assemble": t4 - t3, "total": t4 - t0}
+        self.last_timing = {"setup": t1 - t0, "render": t2 - t1, "labels": t3 - t2, "assemble": t4 - t3,
+                            "total": t4 - t0}
         return SonarImage(
             polar=total, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg,
-            components=components, sonar=sonar, pose=pose, rays=rays, config=config,
+            components=components, sonar=sonar, pose=pose, rays=rays, config=config, labels=truth,
         )
 
 
 def render(scene: Any, pose: Any = None, backend: str = "embree", speckle: bool | None = None,
-           frame: int | None = None) -> SonarImage:
+           frame: int | None = None, labels: bool | str = False) -> SonarImage:
     """Load (if needed) and render a scene once. For many poses, use :class:`Simulator`.
 
-    ``speckle=False``: the expected output, without speckle and noise draws (see
-    :meth:`Simulator.render`).
+    ``speckle=False``: the expected output, without speckle and noise draws; ``labels=True``:
+    with the frame's ground truth (see :meth:`Simulator.render`).
     """
     with Simulator(scene, backend=backend) as sim:
-        return sim.render(pose=pose, speckle=speckle, frame=frame)
+        return sim.render(pose=pose, speckle=speckle, frame=frame, labels=labels)

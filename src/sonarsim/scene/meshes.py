@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import MeshFileError, shown
+from ..errors import MeshFileError, SonarsimError, check_input_file, shown
 from ..config.scene import ObjectSpec
 
 # Sphere tessellation: subdivision 4 gives 5120 faces, with facet normals within about 2 degrees
@@ -98,6 +98,11 @@ def _load_mesh_file_cached(path: str, mtime_ns: int, size: int, texture: bool = 
     return TriangleMesh(vertices, faces)
 
 
+# Memory a mesh file takes to load, per byte of the file (an estimate: the bytes read, the
+# parsed vertex and face arrays, and trimesh's processed copies).
+MESH_BYTES_PER_FILE_BYTE = 4
+
+
 def load_mesh_file(path: str | os.PathLike, texture: bool = False) -> TriangleMesh:
     """Read a mesh file into object coordinates, cached by path and modification time.
 
@@ -110,17 +115,20 @@ def load_mesh_file(path: str | os.PathLike, texture: bool = False) -> TriangleMe
     """
     p = Path(path)
     try:
-        if p.is_dir():
-            raise MeshFileError(f"{p}: is a directory, not a mesh file")
-        if not p.exists():
-            raise MeshFileError(f"{p}: mesh file not found")
-        if not p.is_file():
-            raise MeshFileError(f"{p}: not a regular file (a device or pipe?); give a mesh file")
-        st = p.stat()
-    except OSError as exc:  # a name too long, a folder that cannot be searched
-        raise MeshFileError(f"{shown(str(p))}: cannot read the mesh file: {exc.strerror or exc}") from None
+        st = check_input_file(p, "mesh file")
+    except SonarsimError as exc:
+        raise MeshFileError(str(exc)) from None
     if st.st_size == 0:
         raise MeshFileError(f"{p}: the mesh file is empty")
+    from ..core.memory import require
+
+    try:
+        # The whole file is read and parsed (a 10 GB file of zeros ended in a MemoryError after
+        # reading until memory ran out); its arrays and trimesh's copies take a few times its size.
+        require(float(st.st_size) * MESH_BYTES_PER_FILE_BYTE, f"reading a mesh file of {st.st_size / 2**20:.4g} MiB",
+                "")
+    except SonarsimError as exc:
+        raise MeshFileError(f"{p}: {exc}") from None
     return _load_mesh_file_cached(str(p.resolve()), st.st_mtime_ns, st.st_size, texture)
 
 

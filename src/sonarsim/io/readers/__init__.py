@@ -41,6 +41,7 @@ import os
 from collections.abc import Iterator
 from typing import Union
 
+from ...errors import SonarsimError
 from ._common import RecordingError
 from .aris import ARIS_SIGNATURE, ArisRecording
 from .oculus import OCULUS_ID, OculusRecording
@@ -92,9 +93,18 @@ def detect_format(path: PathLike) -> str:
     OSError
         If the file cannot be read.
     """
+    from ...errors import check_input_file
+
+    source = os.fspath(path)
+    # A FIFO would block the open below for ever. A missing or unreadable file is left to
+    # open(), whose OSError (FileNotFoundError, ...) callers of the readers expect.
+    if os.path.lexists(source):
+        try:
+            check_input_file(path, "recording")
+        except SonarsimError as exc:
+            raise RecordingError(source, str(exc).split(": ", 1)[-1]) from None
     with open(path, "rb") as handle:
         head = handle.read(16)
-    source = os.fspath(path)
     if not head:
         raise RecordingError(source, "the file is empty")
     if len(head) >= 4:

@@ -1,0 +1,305 @@
+"""Ground truth of a frame from its paths: :class:`~sonarsim.image.labels.Labels`.
+
+Formed from the frame's receive legs and path sets (:mod:`sonarsim.paths.engine`) with the
+image's own range cells (the neighbours and cells of ``splat_events``), so that each label map
+has a value exactly where its component's image has energy. One pass per path set
+(``_kernels.splat_truth``, or its NumPy twin :func:`splat_truth`) adds:
+
+* each path's energy to the image of its surface id, one stack ``(n_ids, n_range_bins,
+  n_beams)`` per path order; a component's instance map is the id of largest energy over its
+  orders (``object`` and ``ground``: order 1 restricted to objects or planes);
+* for the paths of the total, their energy and energy x arrival elevation (the weighted
+  mean) and the least and greatest elevation of every cell their range cell overlaps.
+
+The points are each path's scatterer, surface, image row and cell. No Python loop per ray:
+one per path set (a handful per frame) and one per id.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..config.sonar import SonarConfig
+from ..core.memory import require
+from ..core.rays import RayFan
+from ..image.labels import Labels, boxes_of
+from ..paths.engine import Leg, PathSet, set_continuity
+from . import compiled
+from .components import component_table, order_name
+from .formation import RayEnergy, expand_cells, range_cells
+
+
+def point_component_names(max_order: int) -> tuple[str, ...]:
+    """Names of the image rows, by row: ``object``, ``ground``, then one per order >= 2."""
+    return ("object", "ground") + tuple(order_name(k) for k in range(2, max_order + 1))
+
+
+def surface_ids(sid: np.ndarray, n_planes: int, n_objects: int) -> np.ndarray:
+    """Label ids of surface ids: objects ``0 .. K-1``, planes ``K .. K+P-1``, -1 none.
+
+    Parameters
+    ----------
+    sid : int array
+        Surface ids of the path engine: planes ``0 .. P-1``, object ``k`` at ``P + k``.
+    """
+    sid = np.asarray(sid)
+    return np.where(sid < 0, -1, np.where(sid >= n_planes, sid - n_planes, sid + n_objects)).astype(np.int32)
+
+
+def splat_truth(points: np.ndarray, normals: np.ndarray, key: np.ndarray, ray: np.ndarray, distance: np.ndarray,
+                energy: np.ndarray, beam: np.ndarray, ident: np.ndarray, elevation: np.ndarray, spread: bool,
+                n_elevation: int, range_min_m: float, range_resolution_m: float, n_range_bins: int, n_beams: int,
+                out: np.ndarray, moments: bool, total: np.ndarray, weight: np.ndarray, weighted: np.ndarray,
+                el_min: np.ndarray, el_max: np.ndarray, continuous: np.ndarray | None = None) -> None:
+    """Ground truth of one compact path set, in place (twin of ``_kernels.splat_truth``).
+
+    The set is made dense over the fan and cut into range cells as
+    :func:`~sonarsim.renderer.formation.accumulate` cuts it (:func:`range_cells`,
+    :func:`expand_cells`).
+
+    Parameters
+    ----------
+    points, normals : (n, 3) float64 arrays
+        The leg's scatterers and normals, dense over the fan's ``n`` rays.
+    key : (n,) int array
+        :meth:`Leg.key`.
+    ray, distance, energy, beam : (m,) arrays
+        The path set (:class:`~sonarsim.paths.engine.PathSet`), rays ascending.
+    ident : (m,) int array
+        Label id of each path's scatterer (:func:`surface_ids`).
+    elevation : (m,) float array
+        Arrival elevation of each path, degrees.
+    spread : bool
+    n_elevation : int
+    range_min_m, range_resolution_m : float
+    n_range_bins, n_beams : int
+    out : (n_ids * n_range_bins * n_beams,) or (0,) float array
+        Receives each path's energy in the image of its id (empty: not formed).
+    moments : bool
+        The set's paths enter the total: also add to ``total`` (like ``out``), ``weight``
+        (energy), ``weighted`` (energy x elevation), ``el_min`` and ``el_max`` (running
+        extremes over the bins each cell overlaps, NaN where none yet), the last four ``(n_range_bins * n_beams,)``.
+    continuous : optional
+        :func:`~sonarsim.paths.engine.set_continuity` of the leg, when already formed.
+    """
+    n = len(key)
+    dist = np.full(n, np.inf)
+    e = np.zeros(n)
+    b = np.zeros(n, dtype=np.int64)
+    where = np.full(n, -1, dtype=np.intp)
+    dist[ray], e[ray], b[ray], where[ray] = distance, energy, beam, np.arange(len(ray))
+    shape = (-1, n_elevation)
+    cont = None
+    if spread:
+        cont = continuous if continuous is not None else set_continuity(points, normals, key, n_elevation)
+    cells = RayEnergy(dist.reshape(shape), e.reshape(shape), b.reshape(shape), 0, cont)
+    lo, hi, density, column = range_cells(cells, range_min_m, range_resolution_m, n_range_bins, n_beams)
+    owner, bins, overlap = expand_cells(lo, hi, n_range_bins)
+    cell = column[owner] + bins * n_beams
+    path = where[owner]
+    part = density[owner] * overlap
+    plane = n_range_bins * n_beams
+    if len(out) or moments:
+        by_id = np.bincount(np.asarray(ident)[path] * plane + cell, weights=part,
+                            minlength=len(out) or len(total)).astype(total.dtype)
+        if len(out):
+            out += by_id
+    if moments:
+        total += by_id
+        el = np.asarray(elevation, dtype=np.float64)[path]
+        weight += np.bincount(cell, weights=part, minlength=plane)
+        weighted += np.bincount(cell, weights=part * el, minlength=plane)
+        np.fmin.at(el_min, cell, el)  # fmin: NaN (nothing yet) gives way to any elevation
+        np.fmax.at(el_max, cell, el)
+
+
+class _Truth:
+    """The per-set pass of :func:`frame_labels` with the frame's kernel (compiled or its twin)."""
+
+    def __init__(self, legs: list[Leg], n_surfaces: int, n_elevation: int, geometry: tuple, spread: bool,
+                 kernels: str) -> None:
+        self.legs, self.n_el, self.geometry, self.spread = legs, n_elevation, geometry, spread
+        self.compiled = kernels == "compiled" and compiled.AVAILABLE
+        self.keys = {leg.gen: leg.key(n_surfaces) for leg in legs}
+        self._cont: dict = {}
+
+    def __call__(self, s: PathSet, ident: np.ndarray, elevation: np.ndarray, out: np.ndarray, moments: bool,
+                 acc: tuple) -> None:
+        leg = self.legs[s.gen]
+        args = (leg.point, leg.normal, self.keys[s.gen], s.ray, s.distance, s.energy, s.beam, ident, elevation,
+                self.spread, self.n_el, *self.geometry, out.reshape(-1), moments, *acc)
+        if self.compiled:
+            compiled.splat_truth(*args)
+            return
+        if self.spread and s.gen not in self._cont:
+            self._cont[s.gen] = set_continuity(leg.point, leg.normal, self.keys[s.gen], self.n_el)
+        splat_truth(*args, continuous=self._cont.get(s.gen))
+
+
+def frame_labels(
+    sets: list[PathSet],
+    legs: list[Leg],
+    fan: RayFan,
+    sonar: SonarConfig,
+    object_names: tuple[str, ...],
+    plane_names: tuple[str, ...],
+    max_order: int,
+    bounces: tuple[int, ...],
+    spread: bool,
+    kernels: str,
+    rows: tuple[int, int] | None = None,
+    components: bool = True,
+) -> Labels:
+    """The :class:`~sonarsim.image.labels.Labels` of a frame from its paths.
+
+    Parameters
+    ----------
+    sets : list of PathSet
+        Every path set of the frame (as the image was formed from them).
+    legs : list of Leg
+        Its receive legs (``legs[s.gen]`` for each set).
+    fan : RayFan
+        The rays the legs were traced along (their elevations are the arrival elevations).
+    sonar : SonarConfig
+        The image's grid: range window, bins, beams.
+    object_names, plane_names : tuple of str
+        Surfaces: object ``k`` is surface ``P + k``, plane ``p`` surface ``p``.
+    max_order : int
+    bounces : tuple of int
+        Orders of the total.
+    spread : bool
+        ``render.range_splat``.
+    kernels : {'compiled', 'numpy'}
+        The deposit used (the twins give the same labels to float32 round-off).
+    rows : (int, int), optional
+        ``[first, end)`` range bins outside which no path deposits energy (the image's lit
+        rows, :func:`lit_rows`): the per-id maps are formed over these rows only, the rest of
+        every map is "nothing". Default: the whole window.
+    components : bool
+        Form the instance map of every component; ``False``: of the total only (no per-order
+        energy images: two thirds of the cost on the demo tank).
+
+    Returns
+    -------
+    Labels
+    """
+    n_obj, n_pl = len(object_names), len(plane_names)
+    n_ids = n_obj + n_pl
+    n_r, n_b = sonar.n_range_bins, sonar.n_beams
+    r0, r1 = (0, n_r) if rows is None else (int(rows[0]), int(rows[1]))
+    n_w = max(r1 - r0, 0)
+    # The sub-window [r0, r1): its cells are the whole window's, shifted (no energy beyond it).
+    dr, range_min_m = sonar.range_resolution_m, sonar.range_min_m  # (properties: computed on each access)
+    geometry = (range_min_m + r0 * dr, dr, n_w, n_b)
+    require((max_order * n_ids * 4.0 + 4 * 8.0) * n_w * n_b, f"label maps of {n_ids} surfaces x {max_order} orders",
+            "objects")
+    truth = _Truth(legs, n_obj + n_pl, fan.shape[2], geometry, spread, kernels)
+    lut = surface_ids(np.arange(n_pl + n_obj), n_pl, n_obj)  # surface id -> label id, one gather per set
+    # float32 like the image stack the compiled kernels form (same deposits, same zeros).
+    # Rows 0 .. max_order - 1 per order (when the components' maps are formed), the last the total.
+    energy = np.zeros((max_order + 1 if components else 1, n_ids, n_w, n_b),
+                      np.float32 if truth.compiled else np.float64)
+    no_order = energy[:0].reshape(-1)
+    # The total's energy and energy x elevation, and the running extremes, per cell.
+    acc = (np.zeros(n_w * n_b), np.zeros(n_w * n_b), np.full(n_w * n_b, np.nan), np.full(n_w * n_b, np.nan))
+    elevation_deg = np.degrees(fan.elevation_rad)
+    n_el = fan.shape[2]
+    points, ids_out, rows_out, cells_out = [], [], [], []
+    for s in sets:
+        if not len(s.ray):
+            continue
+        ident = lut[legs[s.gen].sid[s.ray]]
+        order = max(int(s.label[0]), 1)  # rows 0 (objects) and 1 (planes) are order 1
+        if n_w and (components or order in bounces):
+            truth(s, ident, elevation_deg[s.ray % n_el], energy[order - 1] if components else no_order,
+                  order in bounces, (energy[-1].reshape(-1),) + acc)
+        b = np.floor((s.distance - range_min_m) / dr)
+        keep = (b >= 0) & (b < n_r) & (s.energy != 0)
+        points.append(legs[s.gen].point[s.ray[keep]])
+        ids_out.append(ident[keep])
+        rows_out.append(s.label[keep])
+        cells_out.append(np.stack([b[keep].astype(np.int32), s.beam[keep]], axis=1))
+
+    pick = compiled.dominant if truth.compiled else dominant
+    window = {}
+    if components:
+        obj, obj_top = pick(energy[0, :n_obj], 0)
+        gnd, gnd_top = pick(energy[0, n_obj:], n_obj)
+    for comp in component_table(max_order) if components else ():
+        if comp.name == "object":
+            window[comp.name] = obj
+        elif comp.name == "ground":
+            window[comp.name] = gnd
+        elif comp.name == "single":  # the stronger of the two; a tie goes to the object (lower id)
+            window[comp.name] = np.where(gnd_top > obj_top, gnd, obj)
+        elif comp.name != "total":
+            window[comp.name] = pick(energy[comp.order - 1], 0)[0]
+    window["total"] = pick(energy[-1], 0)[0]  # last, as in the component table
+    instance = {}
+    for name, m in window.items():
+        instance[name] = np.full((n_r, n_b), -1, np.int32)
+        instance[name][r0:r1] = m
+    boxes = boxes_of(window["total"], n_ids)  # on the lit rows; shifted to the window's bins below
+    boxes[boxes[:, 0] >= 0, 0::2] += r0
+
+    weight, weighted, el_min, el_max = acc
+    maps = [np.full((n_r, n_b), np.nan, np.float32) for _ in range(3)]
+    with np.errstate(invalid="ignore", divide="ignore"):  # NaN where nothing lands (0 / 0)
+        np.divide(weighted, weight, out=maps[0][r0:r1].reshape(-1), casting="same_kind")
+    maps[1][r0:r1] = el_min.reshape(n_w, n_b)
+    maps[2][r0:r1] = el_max.reshape(n_w, n_b)
+
+    def cat(parts, shape, dt):
+        return np.concatenate(parts).astype(dt) if parts else np.zeros(shape, dt)
+
+    return Labels(
+        ids=tuple(object_names) + tuple(plane_names),
+        instance=instance,
+        elevation_deg=maps[0],
+        elevation_min_deg=maps[1],
+        elevation_max_deg=maps[2],
+        points_world=cat(points, (0, 3), np.float32),
+        points_object=cat(ids_out, (0,), np.int32),
+        points_component=cat(rows_out, (0,), np.int8),
+        points_cell=cat(cells_out, (0, 2), np.int32),
+        point_components=point_component_names(max_order),
+        boxes_polar=boxes,
+    )
+
+
+def dominant(energy: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
+    """The id of largest energy in each cell, and that energy (twin of ``_kernels.dominant``).
+
+    Parameters
+    ----------
+    energy : (m, n_r, n_b) float array
+        Energy per id (``offset + index``) and cell.
+
+    Returns
+    -------
+    best : (n_r, n_b) int32 ndarray
+        ``offset +`` the index of the largest energy; -1 where all are 0. Ties go to the
+        lower id.
+    top : (n_r, n_b) ndarray
+        The largest energy (0 where none).
+
+    A running maximum over the ids (a few passes over contiguous images): ``argmax(axis=0)``
+    is a strided reduction several times slower.
+    """
+    best = np.full(energy.shape[1:], -1, np.int32)
+    top = np.zeros(energy.shape[1:], energy.dtype)
+    for k in range(len(energy)):
+        win = np.greater(energy[k], top)  # strict: zero energy never wins, a tie keeps the lower id
+        np.copyto(best, np.int32(k + offset), where=win)
+        np.maximum(top, energy[k], out=top)
+    return best, top
+
+
+def lit_rows(stack: np.ndarray) -> tuple[int, int]:
+    """``[first, end)`` of the range bins where an image stack ``(rows, n_r, n_b)`` has energy.
+
+    The labels deposit each path's energy in the cells the image gave it, so no label has
+    energy outside these bins; ``(0, 0)`` for a dark frame.
+    """
+    lit = np.flatnonzero(stack.any(axis=(0, 2)))
+    return (int(lit[0]), int(lit[-1]) + 1) if len(lit) else (0, 0)
