@@ -10,27 +10,17 @@ import argparse
 import sys
 from typing import Any
 
+from .argtypes import integer_at_least
+
 __all__ = ["add_dataset_parser", "cmd_dataset"]
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}")
-    return value
+def _count(text: str) -> int:
+    return integer_at_least(text, 1, "count")
 
 
 def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}")
-    return value
+    return integer_at_least(text, 0, "seed")
 
 
 def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -44,9 +34,9 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
         "refused.")
     p.add_argument("scenario", help="scenario file (YAML or JSON)")
     p.add_argument("--out", required=True, help="dataset folder (created if missing; resumed if it holds this dataset)")
-    p.add_argument("--frames", type=_positive_int, default=None, metavar="N",
+    p.add_argument("--frames", type=_count, default=None, metavar="N",
                    help="make at most the first N frames (default: all the scenario's)")
-    p.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+    p.add_argument("--workers", type=_count, default=None, metavar="N",
                    help="render in N processes (default 1), or with --ray N actors (default: the cluster's CPUs); "
                    "the frames are the same whatever N")
     p.add_argument("--ray", default=None, metavar="ADDRESS",
@@ -72,7 +62,7 @@ def cmd_dataset(args: argparse.Namespace) -> None:
     if args.seed is not None:
         if args.seed > MAX_SEED:
             raise ConfigError("--seed", f"must be below 2**128, got {args.seed}")
-        scenario = scenario.with_seed(args.seed) if hasattr(scenario, "with_seed") else _with_seed(scenario, args.seed)
+        scenario = _with_seed(scenario, args.seed)
     summary = generate(
         scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
         rosbag=args.rosbag, ray=args.ray, labels=not args.no_labels, progress=not args.no_progress,
