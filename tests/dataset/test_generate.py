@@ -268,7 +268,7 @@ def test_a_full_disk_stops_with_a_clear_message_and_no_half_written_frame(tmp_pa
 
 def test_bad_options_name_their_key(tmp_path):
     for kwargs, key in (({"workers": 0}, "workers"), ({"formats": ("npz", "tiff")}, "formats"),
-                        ({"rosbag": "bag"}, "rosbag"), ({"frames": 0}, "frames")):
+                        ({"rosbag": "bag"}, "rosbag"), ({"frames": 0}, "frames"), ({"labels": "some"}, "labels")):
         with pytest.raises(ConfigError) as info:
             generate(ORBIT, tmp_path / "ds", progress=False, **kwargs)
         assert info.value.key == key
@@ -445,3 +445,21 @@ def test_killing_a_run_with_workers_leaves_no_process_and_resumes(tmp_path, refe
     summary = generate(VARIED, out, formats=("npz", "png"), workers=2, progress=False)
     assert summary.reused >= 2
     assert folder_bytes(out) == reference
+
+
+def test_label_modes(tmp_path):
+    if not labels_supported():
+        pytest.skip("this renderer has no labels yet (render(..., labels=True))")
+    names = {}
+    for mode in ("all", "total", "none"):
+        generate(ORBIT, tmp_path / mode, frames=1, labels=mode, progress=False)
+        arrays, _ = read_npz(tmp_path / mode / "frames/000000.npz")
+        names[mode] = set(arrays)
+        assert (tmp_path / mode / "coco.json").exists() == (mode != "none")
+    assert {"instance", "elevation_deg", "points_world", "points_object", "instance_object"} <= names["all"]
+    assert {"instance", "elevation_deg", "points_world", "points_object"} <= names["total"]
+    assert "instance_object" not in names["total"] and "instance" not in names["none"]
+    all_arrays, _ = read_npz(tmp_path / "all" / "frames/000000.npz")
+    total_arrays, _ = read_npz(tmp_path / "total" / "frames/000000.npz")
+    for name in ("polar", "instance", "elevation_deg", "points_world"):
+        np.testing.assert_array_equal(all_arrays[name], total_arrays[name])

@@ -47,7 +47,9 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--png", action="store_true", help="also write each frame's polar and fan images as PNG")
     p.add_argument("--seed", type=_seed, default=None, metavar="S",
                    help="replace the scenario's seed (every frame's draws come from it and the frame index)")
-    p.add_argument("--no-labels", action="store_true", help="images only, without ground truth")
+    p.add_argument("--labels", choices=("all", "total", "none"), default="all",
+                   help="ground truth in each NPZ: an instance map per component (all, the default), of the total "
+                   "only (total: cheaper; elevation, points and boxes alike), or none")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=cmd_dataset)
     return p
@@ -65,7 +67,7 @@ def cmd_dataset(args: argparse.Namespace) -> None:
         scenario = _with_seed(scenario, args.seed)
     summary = generate(
         scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
-        rosbag=args.rosbag, ray=args.ray, labels=not args.no_labels, progress=not args.no_progress,
+        rosbag=args.rosbag, ray=args.ray, labels=args.labels, progress=not args.no_progress,
         command=getattr(args, "command_line", None),
     )
     rate = f" ({summary.frames_per_s:.2f} frames/s)" if summary.rendered else ""

@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from ..image.result import SonarImage
     from ..renderer.simulator import Simulator
 
-__all__ = ["Frame", "SimulatorCache", "as_scenario", "frame_arrays", "frames", "labels_supported", "render_frame"]
+__all__ = ["LABEL_MODES", "Frame", "SimulatorCache", "as_scenario", "frame_arrays", "frames", "label_mode", "labels_supported", "render_frame"]
 
 # Simulators kept per process: frames that vary their scene each get their own key, and a
 # simulator holds its meshes and ray-casting structures; a few cover a scenario that cycles
@@ -116,7 +116,29 @@ class SimulatorCache:
         self.close()
 
 
-def render_frame(spec: FrameSpec, cache: SimulatorCache, labels: bool = True) -> SonarImage:
+#: Ground-truth modes: ``"all"`` (an instance map per component), ``"total"`` (of the total
+#: only; the rest of the labels alike, for about two thirds of the cost), ``"none"``.
+LABEL_MODES = ("all", "total", "none")
+
+
+def label_mode(labels: bool | str) -> str:
+    """``labels`` as one of :data:`LABEL_MODES` (``True``: ``"all"``, ``False``: ``"none"``).
+
+    Raises
+    ------
+    ConfigError
+        Any other value.
+    """
+    from ..errors import ConfigError, shown
+
+    if labels is True or labels is False:
+        return "all" if labels else "none"
+    if labels not in LABEL_MODES:
+        raise ConfigError("labels", f"allowed: True, False, {', '.join(map(repr, LABEL_MODES))}; got {shown(labels)}")
+    return str(labels)
+
+
+def render_frame(spec: FrameSpec, cache: SimulatorCache, labels: bool | str = True) -> SonarImage:
     """Render one frame from its spec alone (pose, seed, scene), without per-ray maps.
 
     Parameters
@@ -124,9 +146,9 @@ def render_frame(spec: FrameSpec, cache: SimulatorCache, labels: bool = True) ->
     spec : FrameSpec
     cache : SimulatorCache
         Where the frame's simulator comes from.
-    labels : bool
-        Ask the renderer for ground truth; ignored by a renderer without it
-        (:func:`labels_supported`).
+    labels : bool or {"all", "total", "none"}
+        Ask the renderer for ground truth (:func:`label_mode`); ignored by a renderer without
+        it (:func:`labels_supported`).
 
     Returns
     -------
@@ -134,8 +156,9 @@ def render_frame(spec: FrameSpec, cache: SimulatorCache, labels: bool = True) ->
         The frame; its draws (speckle, noise) come from ``(render.seed, spec.index)``.
     """
     kwargs: dict[str, Any] = {"keep_rays": False}
-    if labels and labels_supported():
-        kwargs["labels"] = True
+    mode = label_mode(labels)
+    if mode != "none" and labels_supported():
+        kwargs["labels"] = mode
     return spec.render(cache.get(spec), **kwargs)
 
 
@@ -190,7 +213,7 @@ class Frame:
 
 
 def frames(scenario: Scenario | str | os.PathLike | Mapping, start: int = 0, stop: int | None = None,
-           labels: bool = True, threads: int | None = None) -> Iterator[Frame]:
+           labels: bool | str = True, threads: int | None = None) -> Iterator[Frame]:
     """Render a scenario's frames ``start .. stop - 1`` in order, without writing anything.
 
     Each frame is rendered from its :class:`FrameSpec` alone (a simulator is built once per
@@ -203,8 +226,8 @@ def frames(scenario: Scenario | str | os.PathLike | Mapping, start: int = 0, sto
         A loaded scenario, or what :func:`~sonarsim.dataset.load_scenario` reads.
     start, stop : int
         Frame range; ``stop=None``: to the scenario's last frame. Clipped to the scenario.
-    labels : bool
-        With ground truth (``frame.labels``) where the renderer provides it.
+    labels : bool or {"all", "total", "none"}
+        With ground truth (``frame.labels``) where the renderer provides it (:func:`label_mode`).
     threads : int, optional
         Ray-casting threads per simulator (default: the scene's ``render.threads``).
 
@@ -213,6 +236,7 @@ def frames(scenario: Scenario | str | os.PathLike | Mapping, start: int = 0, sto
     Frame
     """
     scenario = as_scenario(scenario)
+    label_mode(labels)  # a bad value fails here, not at the first frame
     if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or start < 0:
         raise ValueError(f"start must be a frame index >= 0, got {start!r}")
     with SimulatorCache(threads=threads) as cache:

@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, SonarsimError, shown
-from .frames import as_scenario, frame_arrays, labels_supported
+from .frames import as_scenario, frame_arrays, label_mode, labels_supported
 from .manifest import (
     INFO_NAME,
     MANIFEST_NAME,
@@ -82,16 +82,18 @@ class DatasetOptions:
 
     Attributes
     ----------
-    labels : bool
-        Ask the renderer for ground truth (stored in the NPZs, boxes in the manifest and
-        ``coco.json``). False, or a renderer without labels: images only.
+    labels : {"all", "total", "none"}
+        Ground truth from the renderer (stored in the NPZs, boxes in the manifest and
+        ``coco.json``): an instance map per component, of the total only, or none
+        (:func:`~sonarsim.dataset.frames.label_mode`; ``True``/``False`` are taken for
+        ``"all"``/``"none"``). A renderer without labels: ``"none"``.
     formats : tuple of str
         Subset of :data:`FORMATS`; ``npz`` is always written.
     rosbag : {None, "mcap", "sqlite3"}
         Write ``DIR/rosbag`` with this storage.
     """
 
-    labels: bool = True
+    labels: bool | str = "all"
     formats: tuple[str, ...] = ("npz",)
     rosbag: str | None = None
 
@@ -107,7 +109,8 @@ class DatasetOptions:
             raise ConfigError("rosbag", f"allowed: {', '.join(BAG_STORAGES)} (or none); got {shown(self.rosbag)}")
         # What this renderer can do: a dataset asked for labels on a renderer without them is
         # an image-only dataset, and says so in its fingerprint.
-        object.__setattr__(self, "labels", bool(self.labels) and labels_supported())
+        mode = label_mode(self.labels)
+        object.__setattr__(self, "labels", mode if labels_supported() else "none")
 
     def document(self) -> dict[str, Any]:
         """The options as JSON (``dataset.json`` and the fingerprint)."""
@@ -229,7 +232,7 @@ def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: in
         "bytes": {n: len(c) for n, c in zip(names, contents)},
         "sha256": {n: hashlib.sha256(c).hexdigest() for n, c in zip(names, contents)},
     }
-    if options.labels:
+    if options.labels != "none":
         record["boxes"], record["fan_shape"] = _boxes(spec, image)
     return EncodedFrame(spec.index, tuple(zip(names, contents)), record,
                         {"encode": time.perf_counter() - t0, **getattr(image, "timing", {})})
@@ -360,7 +363,7 @@ def generate(
     workers: int | None = None,
     formats: Iterable[str] = ("npz",),
     rosbag: str | None = None,
-    labels: bool = True,
+    labels: bool | str = True,
     progress: bool = True,
     threads: int | None = None,
     batch_size: int | None = None,
@@ -386,8 +389,10 @@ def generate(
         :data:`FORMATS`: ``"npz"`` (always), ``"png"`` (polar and fan PNGs).
     rosbag : {None, "mcap", "sqlite3"}
         Also write ``out/rosbag`` (needs ``pip install 'sonarsim[ros]'``).
-    labels : bool
-        With ground truth, where the renderer provides it.
+    labels : bool or {"all", "total", "none"}
+        Ground truth, where the renderer provides it: an instance map per component
+        (``True``, ``"all"``), of the total only (``"total"``: cheaper, the rest alike), or
+        none (``False``, ``"none"``).
     progress : bool
         A progress bar on stderr (frames, rate, time left; needs ``tqdm``).
     threads : int, optional
@@ -456,7 +461,7 @@ def generate(
         expected.append(frame_header(spec, frame_files(spec.index, width, options)))
         fingerprint.add(expected[-1]["spec_sha256"])
 
-    names = [INFO_NAME, MANIFEST_NAME] + ([COCO_NAME] if options.labels else [])
+    names = [INFO_NAME, MANIFEST_NAME] + ([COCO_NAME] if options.labels != "none" else [])
     run = OutputRun.for_folder(out, names, command=command, log=say)
     _check_identity(out / INFO_NAME, fingerprint, n, out)
     with run:
@@ -508,7 +513,7 @@ def generate(
         ordered = [records[k] for k in range(n)]
         write_manifest(manifest_path, ordered)
         coco_path = None
-        if options.labels:
+        if options.labels != "none":
             coco_path = out / COCO_NAME
             doc = coco_from_records(ordered, image_file="png" if "png" in options.formats else "npz")
             with atomic_write(coco_path, "w") as handle:
