@@ -50,7 +50,9 @@ def continuity(points: np.ndarray, normals: np.ndarray, surface_id: np.ndarray) 
     -------
     (..., n - 1) bool ndarray: entry k is True when rays k and k+1 are on one surface.
     """
-    with np.errstate(invalid="ignore"):  # rays without a hit have NaN or no points
+    # Rays without a hit have NaN or far-away (float32 max) points: their chords are NaN or
+    # overflow to inf, and compare False below, as they should.
+    with np.errstate(invalid="ignore", over="ignore"):
         chord = points[..., 1:, :] - points[..., :-1, :]
         length = np.sqrt(np.einsum("...k,...k->...", chord, chord))
         off0 = np.abs(np.einsum("...k,...k->...", chord, normals[..., :-1, :]))
