@@ -259,3 +259,17 @@ def test_scenarios_and_frames_travel_to_workers():
         assert pickle.loads(pickle.dumps(f)) == f
         assert yaml.safe_load(yaml.safe_dump(f.scene)) == f.scene
         assert json.loads(json.dumps(f.scene)) == f.scene
+
+
+def test_another_seed_changes_every_draw_and_the_renderers_seed():
+    from tests.dataset.test_examples import EXAMPLES
+
+    sc = load_scenario(EXAMPLES / "orbit_tank.yaml")
+    other = sc.with_seed(sc.seed + 1)
+    assert other.seed == sc.seed + 1 and other.scene["render"]["seed"] == sc.seed + 1
+    assert sc.scene["render"]["seed"] == sc.seed  # the original is untouched
+    assert other.frame(3).seed != sc.frame(3).seed
+    assert other.frame(3).scene["ground"]["albedo"] != sc.frame(3).scene["ground"]["albedo"]
+    for bad in (-1, 2**128, 1.5, True):
+        with pytest.raises(ConfigError, match="seed"):
+            sc.with_seed(bad)

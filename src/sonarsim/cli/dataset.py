@@ -64,7 +64,7 @@ def cmd_dataset(args: argparse.Namespace) -> None:
     if args.seed is not None:
         if args.seed > MAX_SEED:
             raise ConfigError("--seed", f"must be below 2**128, got {args.seed}")
-        scenario = _with_seed(scenario, args.seed)
+        scenario = scenario.with_seed(args.seed)
     summary = generate(
         scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
         rosbag=args.rosbag, ray=args.ray, labels=args.labels, progress=not args.no_progress,
@@ -73,12 +73,3 @@ def cmd_dataset(args: argparse.Namespace) -> None:
     rate = f" ({summary.frames_per_s:.2f} frames/s)" if summary.rendered else ""
     print(f"sonarsim: {summary.out}: {summary.n_frames} frames ({summary.rendered} made, {summary.reused} kept) "
           f"in {summary.seconds:.1f} s{rate}", file=sys.stderr, flush=True)
-
-
-def _with_seed(scenario: Any, seed: int) -> Any:
-    """The scenario with another seed: its frames' draws and the renderer's (``render.seed``)."""
-    from dataclasses import replace
-
-    scene = dict(scenario.scene)
-    scene["render"] = {**(scene.get("render") or {}), "seed": seed}
-    return replace(scenario, seed=seed, scene=scene)

@@ -153,6 +153,21 @@ class Scenario:
     def __len__(self) -> int:
         return self.n_frames
 
+    def with_seed(self, seed: int) -> "Scenario":
+        """The same scenario under another seed: its frames' draws and the renderer's
+        (``render.seed``) both follow it.
+
+        Raises
+        ------
+        ConfigError
+            ``seed`` not an integer in [0, 2**128).
+        """
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
+            raise ConfigError("seed", f"must be an integer in [0, 2**128), got {shown(seed)}")
+        scene = dict(self.scene)
+        scene["render"] = {**(scene.get("render") or {}), "seed": int(seed)}
+        return replace(self, seed=int(seed), scene=scene)
+
     def capped(self, frames: int | None) -> "Scenario":
         """The same scenario with at most ``frames`` frames (``None``: no cap); frames keep their
         indices and contents.
