@@ -34,6 +34,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
+from ..io.output import file_digest
 from .scenario import FrameSpec
 
 __all__ = [
@@ -42,7 +43,6 @@ __all__ = [
     "Fingerprint",
     "ManifestAppender",
     "canonical_json",
-    "file_digest",
     "frame_header",
     "read_manifest",
     "seal_record",
@@ -72,17 +72,6 @@ def spec_digest(spec: FrameSpec) -> str:
     doc = {"index": spec.index, "seed": spec.seed, "time_s": spec.time_s,
            "pose": spec.pose.matrix().tolist(), "scene_key": spec.scene_key}
     return hashlib.sha256(canonical_json(doc).encode()).hexdigest()
-
-
-def file_digest(path: str | os.PathLike) -> tuple[int, str]:
-    """Size in bytes and sha256 (hex) of a file, read in 1 MiB pieces."""
-    digest = hashlib.sha256()
-    size = 0
-    with open(path, "rb") as handle:
-        while chunk := handle.read(1 << 20):
-            digest.update(chunk)
-            size += len(chunk)
-    return size, digest.hexdigest()
 
 
 class Fingerprint:

@@ -15,6 +15,7 @@ later run tell it from the file of a run still in progress and remove it
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import math
 import os
@@ -504,3 +505,14 @@ def read_npz(path: PathLike) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     if not isinstance(config, dict):
         raise ValueError(f"{os.fspath(path)}: {CONFIG_KEY!r} is not a JSON object")
     return arrays, config
+
+
+def file_digest(path: PathLike) -> tuple[int, str]:
+    """Size in bytes and sha256 (hex) of a file, read in 1 MiB pieces."""
+    digest = hashlib.sha256()
+    size = 0
+    with open(path, "rb") as handle:
+        while chunk := handle.read(1 << 20):
+            digest.update(chunk)
+            size += len(chunk)
+    return size, digest.hexdigest()

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
-import hashlib
 import json
 import os
 import socket
@@ -49,7 +48,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..errors import SonarsimError, shown
-from .output import _pid_alive, atomic_write, remove_abandoned_temp_files, temp_prefix
+from .output import _pid_alive, atomic_write, file_digest, remove_abandoned_temp_files, temp_prefix
 
 __all__ = ["RECORD_NAME", "STATUSES", "OutputError", "OutputRun", "read_record", "record_beside"]
 
@@ -110,17 +109,6 @@ def read_record(path: PathLike) -> dict[str, Any] | None:
 
 def _utc_now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-
-
-def _sha256(path: Path) -> tuple[int, str]:
-    """Size in bytes and sha256 (hex) of a file."""
-    digest = hashlib.sha256()
-    size = 0
-    with open(path, "rb") as handle:
-        while chunk := handle.read(1 << 20):
-            digest.update(chunk)
-            size += len(chunk)
-    return size, digest.hexdigest()
 
 
 def _log(msg: str) -> None:
@@ -339,7 +327,7 @@ class OutputRun:
         folder = Path(os.path.abspath(self.folder))
         entry: dict[str, Any] = {"name": path.name} if path.parent == folder else {"path": str(path)}
         if with_checksum:
-            entry["bytes"], entry["sha256"] = _sha256(path)
+            entry["bytes"], entry["sha256"] = file_digest(path)
         elif path in self._before:
             entry["before"] = self._before[path]
         return entry
@@ -389,7 +377,7 @@ class OutputRun:
             try:
                 if not stat.S_ISREG(os.lstat(path).st_mode):
                     continue
-                if "sha256" in entry and (entry.get("bytes"), entry["sha256"]) != _sha256(path):
+                if "sha256" in entry and (entry.get("bytes"), entry["sha256"]) != file_digest(path):
                     kept.append(entry["name"])  # changed since sonarsim wrote it: the user's now
                     continue
                 if "sha256" not in entry and isinstance(entry.get("before"), list):

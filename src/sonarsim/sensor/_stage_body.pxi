@@ -2,7 +2,7 @@
 # and, on x86-64, ``_stage_avx2`` (AVX2 and FMA; twice as fast). sonarsim.sensor.model picks the
 # second where the processor has them. Included by both .pyx files; edit here.
 
-from libc.math cimport logf, expf, sqrtf
+from libc.math cimport expf, sqrtf
 from libc.stdlib cimport malloc, free
 from libc.string cimport memcpy, memset
 from libc.stdint cimport int32_t
@@ -20,24 +20,14 @@ cdef float L4 = 0.19794965, L5 = -0.16412768, L6 = 0.17111619, L7 = -0.15403341
 def blur_beams(const float[:, ::1] x, const float[::1] column_factor, const float[::1] kb,
                const float[::1] norm_b, float[:, ::1] out, Py_ssize_t r0, Py_ssize_t r1):
     """Rows r0..r1 of ``out = norm_b * sum_m kb[m] (x * column_factor)[:, j + m - K]`` (zero outside)."""
-    cdef Py_ssize_t n_b = x.shape[1], kb_len = kb.shape[0], hb = kb_len // 2
-    cdef Py_ssize_t i, j, m
-    cdef float k
+    cdef Py_ssize_t n_b = x.shape[1], hb = kb.shape[0] // 2, i
     cdef float *pad = <float *> malloc((n_b + 2 * hb) * sizeof(float))
     if pad == NULL:
         raise MemoryError()
     with nogil:
         memset(pad, 0, (n_b + 2 * hb) * sizeof(float))
         for i in range(r0, r1):
-            for j in range(n_b):
-                pad[hb + j] = x[i, j] * column_factor[j]
-                out[i, j] = 0.0
-            for m in range(kb_len):
-                k = kb[m]
-                for j in range(n_b):
-                    out[i, j] += k * pad[j + m]
-            for j in range(n_b):
-                out[i, j] *= norm_b[j]
+            _blur_beams_row(x, i, column_factor, kb, norm_b, pad, &out[i, 0])
     free(pad)
 
 
