@@ -16,6 +16,7 @@ import pytest
 from PIL import Image
 
 from sonarsim.io import output
+from sonarsim.io import npz
 from sonarsim.io.output import atomic_write, read_npz, to_uint8, write_npz, write_png
 
 # --------------------------------------------------------------------------- to_uint8
@@ -325,11 +326,10 @@ def test_npz_path_used_as_given(tmp_path: Path) -> None:
 
 
 def test_npz_failure_leaves_no_partial_or_temp_file(tmp_path: Path, monkeypatch) -> None:
-    def broken_savez(file, *args, **kwargs):
-        file.write(b"PK\x03\x04 half a zip")
+    def broken_encoder(payload, *args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr(np, "savez_compressed", broken_savez)
+    monkeypatch.setattr(npz, "encode_npz", broken_encoder)
     target = tmp_path / "run.npz"
     with pytest.raises(OSError, match="disk full"):
         write_npz(target, {"a": np.ones(3)}, {"k": 1})
@@ -339,7 +339,7 @@ def test_npz_failure_leaves_no_partial_or_temp_file(tmp_path: Path, monkeypatch)
     monkeypatch.undo()
     write_npz(target, {"a": np.ones(3)}, {"k": 1})
     before = target.read_bytes()
-    monkeypatch.setattr(np, "savez_compressed", broken_savez)
+    monkeypatch.setattr(npz, "encode_npz", broken_encoder)
     with pytest.raises(OSError):
         write_npz(target, {"a": np.zeros(5)}, {"k": 2})
     assert os.listdir(tmp_path) == ["run.npz"]

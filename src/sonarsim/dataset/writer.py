@@ -34,7 +34,6 @@ import shutil
 import sys
 import tempfile
 import time
-import zipfile
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -69,14 +68,9 @@ COCO_NAME = "coco.json"
 BAG_NAME = "rosbag"
 # Display mapping of the PNGs and of the bag's 8-bit fan (the `render` command's defaults).
 _DYNAMIC_RANGE_DB = 40.0
-# A fixed zip-entry date (the earliest zip can hold): NPZ bytes depend on the arrays alone.
-_ZIP_DATE = (1980, 1, 1, 0, 0, 0)
-# Deflate level 1: on a 128 x 1288 frame (13 float32 images, 7.3 MB) 19 ms and 0.51 MB, against
-# 33 ms and 0.45 MB at numpy's default level 6; writing must not cost more than rendering.
-_ZIP_LEVEL = 1
 # Entries stored without compression: float coordinates and axes, which deflate shrinks by
-# 1.3x at most and which took a sixth of a frame's encoding (points_world: 6.8 of 41 ms on the
-# demo orbit); every image and label map compresses 6-150x and is deflated.
+# 1.3x at most (points_world: 0.6 ms of a frame's encoding for nothing); every image and label
+# map compresses 6-150x and is deflated.
 _STORED_ENTRIES = frozenset({"points_world", "range_m", "azimuth_deg"})
 
 
@@ -131,30 +125,18 @@ def frame_files(k: int, width: int, options: DatasetOptions) -> list[str]:
 
 
 def npz_bytes(arrays: Mapping[str, np.ndarray], config: Mapping[str, Any]) -> bytes:
-    """A compressed NPZ of ``arrays`` and ``config`` (as :func:`sonarsim.io.output.write_npz`
-    stores it), whose bytes depend on the content alone: every zip entry has a fixed date.
+    """The NPZ of ``arrays`` and ``config`` (as :func:`sonarsim.io.output.write_npz` stores
+    them), whose bytes depend on the content alone (:func:`sonarsim.io.npz.encode_npz`: fixed
+    entry dates, ISA-L deflate; float coordinates and axes stored).
 
     ``numpy.savez_compressed`` stamps each entry with the current time, so two runs would
     write different files for the same frame; :func:`sonarsim.io.output.read_npz` and
     ``numpy.load`` read these files alike.
     """
-    from ..io.output import CONFIG_KEY, _json_default
+    from ..io.npz import encode_npz
+    from ..io.output import npz_payload
 
-    buffer = io.BytesIO()
-    payload = dict(arrays)
-    payload[CONFIG_KEY] = np.array(json.dumps(dict(config), sort_keys=True, default=_json_default), dtype=np.str_)
-    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=_ZIP_LEVEL) as archive:
-        for name, value in payload.items():
-            info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_DATE)
-            if name in _STORED_ENTRIES:
-                info.compress_type = zipfile.ZIP_STORED
-            else:
-                info.compress_type = zipfile.ZIP_DEFLATED
-                info._compresslevel = _ZIP_LEVEL  # what ZipFile.open(str) sets; a ZipInfo must be told
-            info.external_attr = 0o644 << 16
-            with archive.open(info, "w", force_zip64=True) as entry:
-                np.lib.format.write_array(entry, np.asanyarray(value), allow_pickle=False)
-    return buffer.getvalue()
+    return encode_npz(npz_payload(arrays, config), stored=_STORED_ENTRIES)
 
 
 def _png_bytes(image_uint8: np.ndarray) -> bytes:

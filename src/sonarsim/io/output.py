@@ -34,6 +34,7 @@ __all__ = [
     "CONFIG_KEY",
     "MAPPINGS",
     "atomic_write",
+    "npz_payload",
     "read_npz",
     "remove_abandoned_temp_files",
     "temp_prefix",
@@ -396,6 +397,9 @@ def write_npz(
 ) -> None:
     """Save arrays and the configuration that produced them to a compressed ``.npz``, atomically.
 
+    The archive is deflated by :func:`sonarsim.io.npz.encode_npz` (ISA-L, fixed entry dates:
+    the same arrays give the same bytes); ``numpy.load`` reads it like any NPZ.
+
     The configuration is stored as JSON text in a 0-d unicode array under :data:`CONFIG_KEY`
     (``"config_json"``), so the file loads with ``allow_pickle=False``. JSON has no tuples,
     so tuples come back as lists; numpy scalars/arrays and paths are stored as plain numbers,
@@ -419,6 +423,23 @@ def write_npz(
         array, or a configuration that cannot be serialised. Checked before any file is
         touched.
     """
+    from . import npz
+
+    payload = npz_payload(arrays, config)
+    with atomic_write(path, "wb") as handle:
+        # Looked up on the module at call time on purpose (tests replace it to simulate failures).
+        handle.write(npz.encode_npz(payload))
+
+
+def npz_payload(arrays: Mapping[str, np.ndarray], config: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    """The entries of a :func:`write_npz` file: ``arrays`` checked, and the configuration as
+    JSON under :data:`CONFIG_KEY` (sorted keys: the same configuration, the same bytes).
+
+    Raises
+    ------
+    ValueError
+        As :func:`write_npz`.
+    """
     if not isinstance(config, Mapping):
         raise ValueError(f"config must be a mapping, got {type(config).__name__}")
     payload: dict[str, np.ndarray] = {}
@@ -438,9 +459,7 @@ def write_npz(
     except (TypeError, ValueError) as exc:
         raise ValueError(f"config is not JSON-serialisable: {exc}") from exc
     payload[CONFIG_KEY] = np.array(text, dtype=np.str_)
-    with atomic_write(path, "wb") as handle:
-        # Looked up on np at call time on purpose (tests replace it to simulate failures).
-        np.savez_compressed(handle, **payload)
+    return payload
 
 
 def _check_npz_sizes(archive: Any, path: PathLike) -> None:
