@@ -322,7 +322,9 @@ def test_failed_npz_write_leaves_nothing(capsys, monkeypatch, tmp_path: Path, ti
     def disk_full(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(np, "savez_compressed", disk_full)
+    from sonarsim.io import npz
+
+    monkeypatch.setattr(npz, "encode_npz", disk_full)
     out = tmp_path / "out"
     code, _, err = run_main(capsys, "render", tiny_scene, "--out", out)
     assert code == cli.EXIT_BAD_INPUT

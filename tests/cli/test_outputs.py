@@ -295,7 +295,9 @@ def test_failed_write_is_recorded_as_failed(capsys, monkeypatch, tmp_path: Path,
     def disk_full(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(np, "savez_compressed", disk_full)
+    from sonarsim.io import npz
+
+    monkeypatch.setattr(npz, "encode_npz", disk_full)
     out = tmp_path / "out"
     code, err = run_main(capsys, "render", tiny_scene, "--out", out)
     assert code == cli.EXIT_BAD_INPUT

@@ -418,6 +418,17 @@ def test_fan_boxes_equal_the_boxes_of_the_resampled_instance_map():
                                                 len(frame.labels.ids)), image.fan_labels().boxes)
 
 
+def descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` (children, grandchildren, ...)."""
+    table = subprocess.run(["ps", "-e", "-o", "pid=,ppid="], capture_output=True, text=True).stdout.split()
+    parent = dict(zip(map(int, table[0::2]), map(int, table[1::2])))
+    out, frontier = [], {pid}
+    while frontier:
+        frontier = {p for p, q in parent.items() if q in frontier}
+        out += sorted(frontier)
+    return out
+
+
 def test_killing_a_run_with_workers_leaves_no_process_and_resumes(tmp_path, reference):
     out = tmp_path / "ds"
     code = textwrap.dedent(f"""
@@ -433,8 +444,8 @@ def test_killing_a_run_with_workers_leaves_no_process_and_resumes(tmp_path, refe
     while len(read_manifest(out / "manifest.jsonl")) < 2 and proc.poll() is None:
         assert time.monotonic() < deadline
         time.sleep(0.002)
-    children = subprocess.run(["ps", "-o", "pid=", "--ppid", str(proc.pid)], capture_output=True,
-                              text=True).stdout.split()
+    children = descendants(proc.pid)  # the workers, the fork server they come from, ...
+    assert len(children) >= 2
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert 0 < len(read_manifest(out / "manifest.jsonl")) < 12
@@ -463,3 +474,25 @@ def test_label_modes(tmp_path):
     total_arrays, _ = read_npz(tmp_path / "total" / "frames/000000.npz")
     for name in ("polar", "instance", "elevation_deg", "points_world"):
         np.testing.assert_array_equal(all_arrays[name], total_arrays[name])
+
+
+def test_path_signature_images_are_stored_only_on_request(tmp_path):
+    arrays = {}
+    for signatures in (False, True):
+        generate(ORBIT, tmp_path / str(signatures), frames=1, signatures=signatures, progress=False)
+        arrays[signatures], _ = read_npz(tmp_path / str(signatures) / "frames/000000.npz")
+    (frame,) = list(frames(ORBIT, stop=1))
+    table = frame.image.components.table
+    assert {"object", "ground", "single", "double", "triple", "total"} <= set(table)
+    signature_names = set(frame.image.components.signatures)
+    assert signature_names and not signature_names & set(arrays[False])  # the ground's bounces, by name
+    assert set(arrays[True]) == set(arrays[False]) | signature_names
+    for name in table:
+        np.testing.assert_array_equal(arrays[False][name], frame.image.components[name])
+    for name in signature_names:
+        np.testing.assert_array_equal(arrays[True][name], frame.image.components[name])
+    assert set(frame.arrays(signatures=True)) == set(arrays[True])
+    info = json.loads((tmp_path / "True" / "dataset.json").read_text())
+    assert info["options"]["signatures"] is True
+    with pytest.raises(ConfigError, match="signatures"):
+        generate(ORBIT, tmp_path / "bad", frames=1, signatures="yes", progress=False)

@@ -50,6 +50,9 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--labels", choices=("all", "total", "none"), default="all",
                    help="ground truth in each NPZ: an instance map per component (all, the default), of the total "
                    "only (total: cheaper; elevation, points and boxes alike), or none")
+    p.add_argument("--signatures", action="store_true",
+                   help="also store one image per path signature (which planes each echo bounced off); the "
+                   "components (object, ground, single, double, ..., total) are always stored")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=cmd_dataset)
     return p
@@ -67,7 +70,8 @@ def cmd_dataset(args: argparse.Namespace) -> None:
         scenario = scenario.with_seed(args.seed)
     summary = generate(
         scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
-        rosbag=args.rosbag, ray=args.ray, labels=args.labels, progress=not args.no_progress,
+        rosbag=args.rosbag, ray=args.ray, labels=args.labels, signatures=args.signatures,
+        progress=not args.no_progress,
         command=getattr(args, "command_line", None),
     )
     rate = f" ({summary.frames_per_s:.2f} frames/s)" if summary.rendered else ""

@@ -162,18 +162,34 @@ def render_frame(spec: FrameSpec, cache: SimulatorCache, labels: bool | str = Tr
     return spec.render(cache.get(spec), **kwargs)
 
 
-def frame_arrays(image: SonarImage) -> dict[str, np.ndarray]:
+def frame_arrays(image: SonarImage, signatures: bool = False) -> dict[str, np.ndarray]:
     """The named arrays of a rendered frame, as a dataset's NPZ holds them.
 
     ``polar`` (n_range_bins, n_beams) float32, ``range_m`` (n_range_bins,) metres,
-    ``azimuth_deg`` (n_beams,) degrees, one image per component (``object``, ``ground``,
-    ``total``, ...), and with ground truth its arrays (``instance`` int32 like ``polar``,
-    ``elevation_deg`` float32, ``points_world`` (n, 3) float32, ``points_object`` (n,) int32,
-    ``boxes_polar``, ...; see :mod:`sonarsim.image.labels`).
+    ``azimuth_deg`` (n_beams,) degrees, one image per component of the table (``object``,
+    ``ground``, ``single``, ``double``, ..., ``total``), and with ground truth its arrays
+    (``instance`` int32 like ``polar``, ``elevation_deg`` float32, ``points_world`` (n, 3)
+    float32, ``points_object`` (n,) int32, ``boxes_polar``, ...; see
+    :mod:`sonarsim.image.labels`).
+
+    Parameters
+    ----------
+    image : SonarImage
+    signatures : bool
+        Also one image per path signature (``O-[objects]-ground-O``, ...). They cost a pass
+        over the frame's paths each time (twice the labelled render on the demo tank) and,
+        with the ground as the only mirror, repeat the table's images; with tank walls or a
+        water surface they tell the bounces apart.
 
     This is the one place that knows where labels live on a rendered image.
     """
-    out = dict(image.arrays())
+    components = image.components
+    names = getattr(components, "table", None)
+    if signatures or names is None:  # (a plain mapping of components: all of them)
+        out = dict(image.arrays())
+    else:
+        out = {"polar": image.polar, "range_m": image.range_m, "azimuth_deg": image.azimuth_deg}
+        out.update((name, components[name]) for name in names)
     labels = getattr(image, "labels", None)
     if labels is not None:
         # Renderers whose arrays() already include the labels give the same names again.
@@ -207,9 +223,10 @@ class Frame:
         """The frame's ground truth, or ``None`` (renderer without labels, or ``labels=False``)."""
         return getattr(self.image, "labels", None)
 
-    def arrays(self) -> dict[str, np.ndarray]:
-        """:func:`frame_arrays` of the image: what the dataset's NPZ holds."""
-        return frame_arrays(self.image)
+    def arrays(self, signatures: bool = False) -> dict[str, np.ndarray]:
+        """:func:`frame_arrays` of the image: what the dataset's NPZ holds (made with the same
+        ``signatures``)."""
+        return frame_arrays(self.image, signatures)
 
 
 def frames(scenario: Scenario | str | os.PathLike | Mapping, start: int = 0, stop: int | None = None,

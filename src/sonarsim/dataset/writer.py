@@ -5,6 +5,7 @@ A dataset folder ``DIR`` holds::
     DIR/dataset.json          the dataset's fingerprint and options (manifest module)
     DIR/manifest.jsonl        one line per frame: pose, seed, files, sizes, sha256 (manifest module)
     DIR/frames/000000.npz     per frame: polar, range_m, azimuth_deg, components, labels
+                              (path-signature images with signatures=True)
     DIR/frames/000000_polar.png, 000000_fan.png   with "png" in formats (far range at the top)
     DIR/coco.json             with ground truth: the objects' boxes in the fan images (coco module)
     DIR/rosbag/               with rosbag="mcap" or "sqlite3": the ROS 2 bag (sonarsim.io.rosbag)
@@ -89,11 +90,16 @@ class DatasetOptions:
         Subset of :data:`FORMATS`; ``npz`` is always written.
     rosbag : {None, "mcap", "sqlite3"}
         Write ``DIR/rosbag`` with this storage.
+    signatures : bool
+        Also store one image per path signature in the NPZs
+        (:func:`~sonarsim.dataset.frames.frame_arrays`); the component table's images are
+        always stored.
     """
 
     labels: bool | str = "all"
     formats: tuple[str, ...] = ("npz",)
     rosbag: str | None = None
+    signatures: bool = False
 
     def __post_init__(self) -> None:
         from ..io.rosbag import BAG_STORAGES
@@ -109,10 +115,13 @@ class DatasetOptions:
         # an image-only dataset, and says so in its fingerprint.
         mode = label_mode(self.labels)
         object.__setattr__(self, "labels", mode if labels_supported() else "none")
+        if not isinstance(self.signatures, bool):
+            raise ConfigError("signatures", f"must be true or false, got {shown(self.signatures)}")
 
     def document(self) -> dict[str, Any]:
         """The options as JSON (``dataset.json`` and the fingerprint)."""
-        return {"labels": self.labels, "formats": list(self.formats), "rosbag": self.rosbag}
+        return {"labels": self.labels, "formats": list(self.formats), "rosbag": self.rosbag,
+                "signatures": self.signatures}
 
 
 def frame_files(k: int, width: int, options: DatasetOptions) -> list[str]:
@@ -202,7 +211,7 @@ def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: in
     from ..io.output import to_uint8
 
     t0 = time.perf_counter()
-    arrays = frame_arrays(image)
+    arrays = frame_arrays(image, options.signatures)
     config = dict(image.config)
     # A worker renders with its share of the cores: the scene's own setting goes in the file,
     # so that a frame's bytes do not depend on the number of workers.
@@ -353,6 +362,7 @@ def generate(
     formats: Iterable[str] = ("npz",),
     rosbag: str | None = None,
     labels: bool | str = True,
+    signatures: bool = False,
     progress: bool = True,
     threads: int | None = None,
     batch_size: int | None = None,
@@ -382,6 +392,8 @@ def generate(
         Ground truth, where the renderer provides it: an instance map per component
         (``True``, ``"all"``), of the total only (``"total"``: cheaper, the rest alike), or
         none (``False``, ``"none"``).
+    signatures : bool
+        Also store one image per path signature (:class:`DatasetOptions`).
     progress : bool
         A progress bar on stderr (frames, rate, time left; needs ``tqdm``).
     threads : int, optional
@@ -431,7 +443,7 @@ def generate(
         threads = _positive_int(threads, "threads")
     if batch_size is not None:
         batch_size = _positive_int(batch_size, "batch_size")
-    options = DatasetOptions(labels=labels, formats=tuple(formats), rosbag=rosbag)
+    options = DatasetOptions(labels=labels, formats=tuple(formats), rosbag=rosbag, signatures=signatures)
     if options.rosbag is not None:
         from ..io.rosbag import _import_rosbags
 

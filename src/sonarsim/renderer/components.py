@@ -165,6 +165,12 @@ class Components(Mapping):
         return len(self._images) + len(self._formed())
 
     @property
+    def table(self) -> tuple[str, ...]:
+        """Names of the component table's images (``object``, ``ground``, ..., ``total``), in
+        table order: what listing them costs nothing beyond the sums of rows."""
+        return tuple(self._images)
+
+    @property
     def signatures(self) -> tuple[str, ...]:
         """Names of the path-signature components of the frame."""
         return tuple(self._formed())
