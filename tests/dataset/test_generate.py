@@ -496,3 +496,27 @@ def test_path_signature_images_are_stored_only_on_request(tmp_path):
     assert info["options"]["signatures"] is True
     with pytest.raises(ConfigError, match="signatures"):
         generate(ORBIT, tmp_path / "bad", frames=1, signatures="yes", progress=False)
+
+
+def test_fan_box_reduction_compiled_equals_its_numpy_twin():
+    from sonarsim.dataset.coco import _id_extents
+    from sonarsim.renderer import compiled
+
+    if not compiled.AVAILABLE:
+        pytest.skip("compiled kernels not built")
+    rng = np.random.default_rng(8)
+    n = 5000
+    ids = rng.integers(-2, 9, n).astype(np.int32)  # -1 none, ids 0..6 and two beyond n_ids
+    lo = rng.integers(0, 400, (n, 2))
+    extents = np.concatenate([lo, lo + rng.integers(0, 5, (n, 2))], axis=1).astype(np.int32)
+    extents[rng.random(n) < 0.2] = -1  # cells no fan pixel samples
+    ids[:40] = 3  # an id whose first cells have no box
+    extents[:40] = -1
+    ours = compiled.id_extents(ids, extents, 7)
+    np.testing.assert_array_equal(ours, _id_extents(ids, extents, 7))
+    k = 3  # by hand
+    mine = extents[(ids == k) & (extents[:, 0] >= 0)]
+    np.testing.assert_array_equal(ours[k], [*mine[:, :2].min(axis=0), *mine[:, 2:].max(axis=0)])
+    sparse = np.full(n, 5, np.int32)
+    sparse[7] = 2
+    assert (compiled.id_extents(sparse, extents, 7)[[0, 1, 3, 4, 6]] == -1).all()

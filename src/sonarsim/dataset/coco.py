@@ -107,8 +107,8 @@ def fan_boxes(instance: np.ndarray, grid: Any, n_ids: int, pixel_size_m: float |
     Equal to the boxes of the instance map resampled to the fan by nearest neighbour
     (:meth:`SonarImage.fan_labels`), without resampling it: the pixels of an id are those whose
     nearest cell holds the id, so its box spans the boxes of its cells' pixels
-    (:func:`_cell_extents`, built once per grid). About 1 ms for 128 x 1288 cells, against
-    tens of ms for the resampling.
+    (:func:`_cell_extents`, built once per grid). 0.2 ms for 128 x 1288 cells (compiled; 4 ms
+    for its NumPy twin), against tens of ms for the resampling.
 
     Parameters
     ----------
@@ -126,7 +126,15 @@ def fan_boxes(instance: np.ndarray, grid: Any, n_ids: int, pixel_size_m: float |
         ``[row_min, col_min, row_max, col_max]`` inclusive fan pixels; -1 for an id with no pixel.
     """
     extents = _cell_extents(grid, pixel_size_m)
-    ids = np.asarray(instance).reshape(-1)
+    from ..renderer import compiled
+
+    if compiled.AVAILABLE:  # one pass over the cells (the reduction below: 4 ms on 128 x 1288)
+        return compiled.id_extents(instance, extents, n_ids)
+    return _id_extents(np.asarray(instance).reshape(-1), extents, n_ids)
+
+
+def _id_extents(ids: np.ndarray, extents: np.ndarray, n_ids: int) -> np.ndarray:
+    """NumPy twin of ``compiled.id_extents`` (the union of the cells' boxes per id)."""
     keep = (ids >= 0) & (ids < n_ids) & (extents[:, 0] >= 0)
     ids, ext = ids[keep].astype(np.intp), extents[keep].astype(np.int64)
     big = np.iinfo(np.int64).max

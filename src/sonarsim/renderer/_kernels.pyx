@@ -882,3 +882,31 @@ def dominant(const float[:, ::1] energy, int offset, int[::1] best, float[::1] t
                     b = <int>k + offset
             best[c] = b
             top[c] = t
+
+
+def id_extents(const int[::1] ids, const int[:, ::1] extents, int[:, ::1] out):
+    """Per id, the union of the boxes ``extents[c]`` (``[row_min, col_min, row_max, col_max]``,
+    inclusive; ``row_min < 0``: no box) of the cells ``c`` holding it (twin:
+    ``dataset.coco.fan_boxes``' reduction). ``out`` (n_ids, 4) must hold -1; ids outside
+    ``0 .. n_ids - 1`` are skipped."""
+    cdef Py_ssize_t c, n = ids.shape[0], n_ids = out.shape[0]
+    cdef int k
+    with nogil:
+        for c in range(n):
+            k = ids[c]
+            if k < 0 or k >= n_ids or extents[c, 0] < 0:
+                continue
+            if out[k, 0] < 0:
+                out[k, 0] = extents[c, 0]
+                out[k, 1] = extents[c, 1]
+                out[k, 2] = extents[c, 2]
+                out[k, 3] = extents[c, 3]
+                continue
+            if extents[c, 0] < out[k, 0]:
+                out[k, 0] = extents[c, 0]
+            if extents[c, 1] < out[k, 1]:
+                out[k, 1] = extents[c, 1]
+            if extents[c, 2] > out[k, 2]:
+                out[k, 2] = extents[c, 2]
+            if extents[c, 3] > out[k, 3]:
+                out[k, 3] = extents[c, 3]

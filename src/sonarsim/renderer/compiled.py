@@ -445,3 +445,13 @@ def dominant(energy: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
     top = np.empty(shape, np.float32)
     _kernels.dominant(energy.reshape(len(energy), best.size), offset, best.reshape(-1), top.reshape(-1))
     return best, top
+
+
+def id_extents(ids: np.ndarray, extents: np.ndarray, n_ids: int) -> np.ndarray:
+    """``_kernels.id_extents``: per id ``0 .. n_ids - 1``, the union of the inclusive boxes
+    ``extents`` (n, 4) of the cells whose id ``ids`` (n,) it is; -1 rows for absent ids."""
+    out = np.full((n_ids, 4), -1, np.int32)
+    _kernels.id_extents(np.ascontiguousarray(ids, np.int32).reshape(-1), np.ascontiguousarray(extents, np.int32),
+                        out)
+    return out
+
