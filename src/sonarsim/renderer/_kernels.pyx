@@ -955,8 +955,9 @@ cdef class LabelMaps:
     table : (capacity, n_ids) float32, uninitialised
         A row for every cell of every map (each becomes mixed at most once); only the rows of
         mixed cells are touched.
-    weight, weighted : (n_rows, n_beams) float64, uninitialised
-        The total's energy and energy x elevation (degrees) per cell.
+    moments : (n_rows, n_beams, 2) float64, uninitialised
+        The total's energy and energy x elevation (degrees) per cell, side by side: the
+        final division reads one cache line per cell (it waits on memory, not arithmetic).
     el_min, el_max : (n_rows, n_beams) float32, NaN filled
         Windows of the outputs: least and greatest elevation of the total's paths, degrees.
     lut : (n_surfaces,) int32
@@ -979,8 +980,7 @@ cdef class LabelMaps:
     cdef int[:, :, ::1] reached
     cdef Py_ssize_t[::1] n_reached
     cdef float[:, ::1] table
-    cdef double[:, ::1] weight
-    cdef double[:, ::1] weighted
+    cdef double[:, :, ::1] moments
     cdef float[:, ::1] el_min
     cdef float[:, ::1] el_max
     cdef const int[::1] lut
@@ -996,7 +996,7 @@ cdef class LabelMaps:
 
     def __init__(self, int[:, :, :] state, float[:, :, ::1] first, int[:, :, ::1] reached,
                  Py_ssize_t[::1] n_reached, float[:, ::1] table,
-                 double[:, ::1] weight, double[:, ::1] weighted, float[:, ::1] el_min, float[:, ::1] el_max,
+                 double[:, :, ::1] moments, float[:, ::1] el_min, float[:, ::1] el_max,
                  const int[::1] lut, const double[::1] elevation_rows, bint spread, double range_min, double dr,
                  double image_range_min, Py_ssize_t n_image_rows,
                  float[:, ::1] p_world, int[::1] p_object, signed char[::1] p_component, int[:, ::1] p_cell):
@@ -1011,9 +1011,8 @@ cdef class LabelMaps:
         if (first.shape[0] != self.n_maps or first.shape[1] != self.n_rows or first.shape[2] != self.n_beams
                 or reached.shape[0] != self.n_maps or reached.shape[1] != n_cells or reached.shape[2] != 2
                 or n_reached.shape[0] != self.n_maps
-                or weight.shape[0] != self.n_rows or weighted.shape[0] != self.n_rows
+                or moments.shape[0] != self.n_rows or moments.shape[1] != self.n_beams or moments.shape[2] != 2
                 or el_min.shape[0] != self.n_rows or el_max.shape[0] != self.n_rows
-                or weight.shape[1] != self.n_beams or weighted.shape[1] != self.n_beams
                 or el_min.shape[1] != self.n_beams or el_max.shape[1] != self.n_beams):
             raise ValueError("label maps of different shapes")
         if table.shape[0] < self.n_maps * n_cells:
@@ -1029,7 +1028,7 @@ cdef class LabelMaps:
         self.state, self.first, self.reached, self.table = state, first, reached, table
         self.n_reached = n_reached
         self.n_reached[:] = 0
-        self.weight, self.weighted, self.el_min, self.el_max = weight, weighted, el_min, el_max
+        self.moments, self.el_min, self.el_max = moments, el_min, el_max
         self.lut, self.elevation_rows = lut, elevation_rows
         self.n_elevation = elevation_rows.shape[0]
         self.spread, self.range_min, self.dr = spread, range_min, dr
@@ -1065,8 +1064,7 @@ cdef class LabelMaps:
         cdef float* total_first = NULL
         cdef int* total_reached = NULL
         cdef float* table = &self.table[0, 0] if self.table.shape[0] > 0 and n_ids > 0 else NULL
-        cdef double* weight = NULL
-        cdef double* weighted = NULL
+        cdef double* mom = NULL
         cdef float* el_min = NULL
         cdef float* el_max = NULL
         cdef const int* lut = &self.lut[0] if n_lut > 0 else NULL
@@ -1089,8 +1087,7 @@ cdef class LabelMaps:
             total_first = &self.first[self.n_maps - 1, 0, 0]
             total_reached = &self.reached[self.n_maps - 1, 0, 0]
             n_total = self.n_reached[self.n_maps - 1]
-            weight = &self.weight[0, 0]
-            weighted = &self.weighted[0, 0]
+            mom = &self.moments[0, 0, 0]
             el_min = &self.el_min[0, 0]
             el_max = &self.el_max[0, 0]
         with nogil:
@@ -1122,13 +1119,13 @@ cdef class LabelMaps:
                             if moments:
                                 if add_to_map(total_state, total_first, table, n_ids, &n_slots, total_reached,
                                               &n_total, cell, b, beam[k], ident, pf):
-                                    weight[cell] = part  # first reached: the moments start here
-                                    weighted[cell] = part * el
+                                    mom[2 * cell] = part  # first reached: the moments start here
+                                    mom[2 * cell + 1] = part * el
                                     el_min[cell] = elf
                                     el_max[cell] = elf
                                 else:
-                                    weight[cell] += part
-                                    weighted[cell] += part * el
+                                    mom[2 * cell] += part
+                                    mom[2 * cell + 1] += part * el
                                     # Equal values are equal bits (one elevation per fan row).
                                     el_min[cell] = el_min[cell] if el_min[cell] < elf else elf
                                     el_max[cell] = el_max[cell] if el_max[cell] > elf else elf
@@ -1178,8 +1175,7 @@ cdef class LabelMaps:
         cdef int* o_out = NULL
         cdef int* g_out = NULL
         cdef float* el_out = NULL
-        cdef const double* weight = NULL
-        cdef const double* weighted = NULL
+        cdef const double* mom = NULL
         cdef int* box = NULL
         if boxes.shape[0] != n_ids or boxes.shape[1] != 4:
             raise ValueError("boxes of the wrong shape")
@@ -1190,8 +1186,7 @@ cdef class LabelMaps:
         if self.n_rows * n_b == 0:
             return
         el_out = &elevation[0, 0]
-        weight = &self.weight[0, 0]
-        weighted = &self.weighted[0, 0]
+        mom = &self.moments[0, 0, 0]
         if n_ids > 0:
             box = &boxes[0, 0]
         if split:
@@ -1227,7 +1222,7 @@ cdef class LabelMaps:
                         o_out[cell] = obj
                         g_out[cell] = gnd
                     if last:
-                        el_out[cell] = <float>(weighted[cell] / weight[cell])
+                        el_out[cell] = <float>(mom[2 * cell + 1] / mom[2 * cell])
                         if best >= 0:
                             r += <int>row_offset
                             if box[4 * best] < 0:
