@@ -425,28 +425,6 @@ def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, 
 
 
 
-def splat_truth(points, normals, key, ray, distance, energy, beam, ident, elevation, spread: bool, n_elevation: int,
-                range_min_m: float, range_resolution_m: float, n_range_bins: int, n_beams: int, out: np.ndarray,
-                moments: bool, total: np.ndarray, weight: np.ndarray, weighted: np.ndarray, el_min: np.ndarray,
-                el_max: np.ndarray) -> None:
-    """``_kernels.splat_truth`` with the arguments of its twin
-    :func:`sonarsim.renderer.ground_truth.splat_truth` (``out`` float32)."""
-    _kernels.splat_truth(points, normals, key, ray, distance, energy, beam, np.ascontiguousarray(ident, np.int32),
-                         np.ascontiguousarray(elevation, np.float64), spread, n_elevation, range_min_m,
-                         range_resolution_m, n_range_bins, n_beams, out, moments, total, weight, weighted, el_min,
-                         el_max)
-
-
-def dominant(energy: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
-    """``_kernels.dominant`` with the arguments and results of its twin
-    :func:`sonarsim.renderer.ground_truth.dominant` (``energy`` float32)."""
-    shape = energy.shape[1:]
-    best = np.empty(shape, np.int32)
-    top = np.empty(shape, np.float32)
-    _kernels.dominant(energy.reshape(len(energy), best.size), offset, best.reshape(-1), top.reshape(-1))
-    return best, top
-
-
 def frame_truth(sets, legs, n_surfaces: int, lut: np.ndarray, elevation_deg: np.ndarray, n_objects: int,
                 geometry: tuple, rows: tuple[int, int], max_order: int, bounces: tuple[int, ...], spread: bool,
                 components: bool) -> tuple:

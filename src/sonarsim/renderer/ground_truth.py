@@ -2,14 +2,20 @@
 
 Formed from the frame's receive legs and path sets (:mod:`sonarsim.paths.engine`) with the
 image's own range cells (the neighbours and cells of ``splat_events``), so that each label map
-has a value exactly where its component's image has energy. One pass per path set
-(``_kernels.splat_truth``, or its NumPy twin :func:`splat_truth`) adds:
+has a value exactly where its component's image has energy. Per path set:
 
-* each path's energy to the image of its surface id, one stack ``(n_ids, n_range_bins,
-  n_beams)`` per path order; a component's instance map is the id of largest energy over its
-  orders (``object`` and ``ground``: order 1 restricted to objects or planes);
+* each path's energy goes to its surface id in the map of its order and, for the paths of the
+  total, in the total's map; a map's value in a cell is the id of largest energy (``object``
+  and ``ground``: order 1 restricted to objects or planes);
 * for the paths of the total, their energy and energy x arrival elevation (the weighted
   mean) and the least and greatest elevation of every cell their range cell overlaps.
+
+Two routes give the same labels. The NumPy route (:func:`splat_truth`, then :func:`dominant`)
+forms a dense energy stack ``(n_ids, n_range_bins, n_beams)`` per order and is the reference.
+The compiled route (:func:`sonarsim.renderer.compiled.frame_truth`) never forms them: a cell
+keeps the first id that deposits and its float32 sum, and only a cell where a second id
+arrives gets a row of per-id sums; the same float32 additions in the same order, so the same
+dominant ids, ties included, at a fraction of the memory traffic.
 
 The points are each path's scatterer, surface, image row and cell. No Python loop per ray:
 one per path set (a handful per frame) and one per id.
@@ -197,8 +203,8 @@ def frame_labels(
             bounces, spread, components)
     else:
         orders, obj, gnd, total, maps, boxes, points = _frame_truth(
-            sets, legs, fan, lut, elevation_deg, n_obj, (range_min_m, dr, n_r, n_b), (r0, r1), max_order, bounces,
-            spread, components)
+            sets, legs, n_obj + n_pl, lut, elevation_deg, n_obj, (range_min_m, dr, n_r, n_b), (r0, r1), max_order,
+            bounces, spread, components)
     instance = {}
     for comp in component_table(max_order) if components else ():
         if comp.name == "object":
@@ -223,9 +229,9 @@ def frame_labels(
     )
 
 
-def _frame_truth(sets: list[PathSet], legs: list[Leg], fan: RayFan, lut: np.ndarray, elevation_deg: np.ndarray,
-                 n_obj: int, geometry: tuple, rows: tuple[int, int], max_order: int, bounces: tuple[int, ...],
-                 spread: bool, components: bool) -> tuple:
+def _frame_truth(sets: list[PathSet], legs: list[Leg], n_surfaces: int, lut: np.ndarray,
+                 elevation_deg: np.ndarray, n_obj: int, geometry: tuple, rows: tuple[int, int], max_order: int,
+                 bounces: tuple[int, ...], spread: bool, components: bool) -> tuple:
     """The NumPy route of :func:`frame_labels` (twin of :func:`compiled.frame_truth`, whose
     arguments and results it takes): a dense float64 energy stack ``(ids, rows, beams)`` per
     order and for the total, then :func:`dominant` of each."""
@@ -233,14 +239,14 @@ def _frame_truth(sets: list[PathSet], legs: list[Leg], fan: RayFan, lut: np.ndar
     r0, r1 = rows
     n_w = max(r1 - r0, 0)
     n_ids = len(lut)
+    n_el = len(elevation_deg)
     # The sub-window [r0, r1): its cells are the whole window's, shifted (no energy beyond it).
-    truth = _Truth(legs, n_ids, fan.shape[2], (range_min_m + r0 * dr, dr, n_w, n_b), spread)
+    truth = _Truth(legs, n_surfaces, n_el, (range_min_m + r0 * dr, dr, n_w, n_b), spread)
     # Rows 0 .. max_order - 1 per order (when the components' maps are formed), the last the total.
     energy = np.zeros((max_order + 1 if components else 1, n_ids, n_w, n_b))
     no_order = energy[:0].reshape(-1)
     # The total's energy and energy x elevation, and the running extremes, per cell.
     acc = (np.zeros(n_w * n_b), np.zeros(n_w * n_b), np.full(n_w * n_b, np.nan), np.full(n_w * n_b, np.nan))
-    n_el = fan.shape[2]
     points, ids_out, rows_out, cells_out = [], [], [], []
     for s in sets:
         if not len(s.ray):
