@@ -429,8 +429,8 @@ def frame_truth(sets, legs, n_surfaces: int, lut: np.ndarray, elevation_deg: np.
                 geometry: tuple, rows: tuple[int, int], max_order: int, bounces: tuple[int, ...], spread: bool,
                 components: bool) -> tuple:
     """The label maps and points of a frame with ``_kernels.LabelMaps``: one pass per path set,
-    then one over the reached cells (twin: the NumPy route of
-    :func:`sonarsim.renderer.ground_truth.frame_labels`, dense stacks and ``dominant``).
+    then one over the reached cells (twin: ``sonarsim.renderer.ground_truth._frame_truth``,
+    which takes the same arguments: dense stacks and ``dominant``).
 
     Parameters
     ----------

@@ -171,14 +171,15 @@ def frame_labels(
     spread : bool
         ``render.range_splat``.
     kernels : {'compiled', 'numpy'}
-        The deposit used (the twins give the same labels to float32 round-off).
+        The route (see the module docstring): the compiled one sums float32 as the image
+        stack does, the NumPy one float64, so a near tie may go either way between them.
     rows : (int, int), optional
         ``[first, end)`` range bins outside which no path deposits energy (the image's lit
-        rows, :func:`lit_rows`): the per-id maps are formed over these rows only, the rest of
-        every map is "nothing". Default: the whole window.
+        rows, :func:`lit_rows`): paths deposit in these rows only, the rest of every map is
+        "nothing". Default: the whole window.
     components : bool
         Form the instance map of every component; ``False``: of the total only (no per-order
-        energy images: two thirds of the cost on the demo tank).
+        maps: about two thirds of the time on the demo tank).
 
     Returns
     -------
