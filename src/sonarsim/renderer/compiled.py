@@ -484,10 +484,9 @@ def frame_truth(sets, legs, n_surfaces: int, lut: np.ndarray, elevation_deg: np.
     # and a row of the table only for a cell where a second id arrives (so none is filled).
     truth = _kernels.LabelMaps(
         instance[:, r0:r1], np.empty((n_maps, n_w, n_b), np.float32), np.empty((n_maps, n_w * n_b, 2), np.int32),
-        np.zeros(n_maps, np.intp),        np.empty((n_maps * n_w * n_b, n_ids), np.float32),
-        np.empty((n_w, n_b, 2)), elevation[1, r0:r1], elevation[2, r0:r1],
-        np.ascontiguousarray(lut, np.int32), np.ascontiguousarray(elevation_deg, np.float64), spread, range_min_m + r0 * dr, dr, range_min_m, n_r,
-        *points)
+        np.zeros(n_maps, np.intp), np.empty((n_maps * n_w * n_b, n_ids), np.float32), np.empty((n_w, n_b, 2)),
+        elevation[1, r0:r1], elevation[2, r0:r1], np.ascontiguousarray(lut, np.int32),
+        np.ascontiguousarray(elevation_deg, np.float64), spread, range_min_m + r0 * dr, dr, range_min_m, n_r, *points)
     keys = {}
     for s in sets:
         if not len(s.ray):
