@@ -15,7 +15,8 @@ from sonarsim import Simulator
 from sonarsim.cli.demo import demo_scene_dict
 from sonarsim.image.fan import FanMapper
 from sonarsim.renderer import compiled
-from sonarsim.renderer.ground_truth import dominant, surface_ids
+from sonarsim.paths.engine import Leg, PathSet
+from sonarsim.renderer.ground_truth import _frame_truth, dominant, lit_rows, surface_ids
 
 N_BEAMS = 33  # odd: beam 16 is centred on the acoustic axis
 
@@ -376,20 +377,184 @@ def test_compiled_labels_equal_the_numpy_twins():
     np.testing.assert_array_equal(la.points_cell[order], lb.points_cell[order_b])
 
 
-@pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled kernels not built")
-def test_dominant_kernel_equals_its_twin():
+def test_dominant_is_the_argmax_with_ties_to_the_lower_id():
     rng = np.random.default_rng(3)
     e = rng.uniform(0.0, 1.0, (6, 40, 30)).astype(np.float32)
     e[rng.uniform(size=e.shape) < 0.6] = 0.0
     e[:, :3] = 0.0  # rows with nothing
     e[2, 5, 5] = e[4, 5, 5] = 2.0  # a tie goes to the lower id
-    best, top = compiled.dominant(e, 7)
-    best_np, top_np = dominant(e, 7)
-    np.testing.assert_array_equal(best, best_np)
-    np.testing.assert_array_equal(top, top_np)
+    best, top = dominant(e, 7)
     assert best[5, 5] == 9 and (best[:3] == -1).all()
-    want = np.where(e.max(axis=0) > 0, e.argmax(axis=0) + 7, -1)
-    np.testing.assert_array_equal(best, want)
+    np.testing.assert_array_equal(best, np.where(e.max(axis=0) > 0, e.argmax(axis=0) + 7, -1))
+    np.testing.assert_array_equal(top, e.max(axis=0))
+
+
+# A hand-made frame for the two routes of frame_labels (compiled.frame_truth and its NumPy twin
+# ground_truth._frame_truth): range bins of 0.5 m from 1 m, 3 beams, a fan of 6 columns of 4
+# elevation rows. Surfaces: plane 0, objects 1 and 2 (label ids: objects 0, 1, the plane 2).
+N_EL, N_COLS = 4, 6
+GRID = (1.0, 0.5, 8, 3)  # range_min_m, range_resolution_m, n_range_bins, n_beams
+ELEVATION_DEG = np.array([-3.0, -1.0, 1.0, 3.0])
+
+
+def _leg(gen, sid, rng):
+    n = N_EL * N_COLS
+    points = rng.normal(0.0, 1.0, (n, 3))
+    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+    return Leg(gen, np.full(n, 2.0), np.asarray(sid, np.int32), points, normals, np.ones(n), np.ones(n),
+               np.zeros(n, np.int32))
+
+
+def _set(gen, rows):
+    """rows: (ray, range_m, energy, beam, label) per path, rays ascending."""
+    ray, dist, energy, beam, label = zip(*rows)
+    return PathSet(gen, -1, np.array(ray, np.intp), np.array(dist), np.array(energy), np.array(beam, np.int32),
+                   np.array(label, np.int8))
+
+
+def _hand_made_frame():
+    rng = np.random.default_rng(7)
+    # Surface of each ray of each generation (rays of one path set are distinct).
+    legs = [_leg(0, rng.integers(0, 3, N_EL * N_COLS), rng), _leg(1, rng.integers(0, 3, N_EL * N_COLS), rng)]
+    legs[0].sid[:12] = [1, 2, 2, 1, 2, 1, 1, 0, 1, 0, 2, 0]
+    legs[1].sid[:4] = [2, 1, 1, 2]
+    # Bin b holds [1 + 0.5 b, 1.5 + 0.5 b): 2.1 m is bin 2, 2.6 m bin 3, ...; no range splat.
+    order1 = _set(0, [
+        (0, 2.1, 1.0, 0, 0), (1, 2.2, 1.0, 0, 0),  # (2, 0): ids 0 and 1 tie -> 0
+        (2, 2.6, 0.5, 1, 0), (3, 2.7, 0.25, 1, 0), (4, 2.8, 0.25, 1, 0),  # (3, 1): 1 has 0.75, 0 has 0.25
+        (5, 3.1, 0.0, 2, 0),  # (4, 2): only a path without energy: nothing, but its elevation counts
+        (6, 3.6, 0.0, 0, 0), (7, 3.7, 0.5, 0, 1),  # (5, 0): a zero-energy object, then the plane
+        (8, 4.1, 0.5, 1, 0), (9, 4.2, 0.5, 1, 1),  # (6, 1): an object and the plane tie -> object
+        (10, 9.0, 1.0, 2, 0),  # beyond the window: no cell, no point
+        (11, 1.2, 0.25, 2, 1),  # (0, 2): the plane alone
+    ])
+    order2 = _set(1, [(0, 2.3, 4.0, 0, 2), (1, 4.3, 0.125, 1, 2)])  # (2, 0): id 1 with 4; (6, 1): id 0
+    order3 = _set(1, [(2, 2.9, 1.0, 1, 3), (3, 2.9, 0.0, 1, 3)])  # (3, 1): id 0 with 1, id 1 with 0
+    return [order1, order2, order3], legs
+
+
+def _both(sets, legs, rows=(0, 8), bounces=(1, 2, 3), components=True, spread=False, n_obj=2, n_pl=1, grid=GRID,
+          elevation=ELEVATION_DEG):
+    lut = surface_ids(np.arange(n_obj + n_pl), n_pl, n_obj)
+    args = (sets, legs, n_obj + n_pl, lut, elevation, n_obj, grid, rows, 3, bounces, spread, components)
+    return compiled.frame_truth(*args), _frame_truth(*args)
+
+
+def _assert_routes_agree(kernel, twin, exact=True):
+    names = ("orders", "objects", "planes", "total", "elevation", "boxes")
+    for name, a, b in zip(names, kernel[:6], twin[:6]):
+        if a is None or b is None:
+            assert a is None and b is None, name
+        elif name == "elevation":
+            assert a.dtype == b.dtype == np.float32
+            np.testing.assert_array_equal(a[1:], b[1:], err_msg="least and greatest elevation")
+            # The mean: float64 sums in either route, in another order in the twin.
+            np.testing.assert_allclose(a[0], b[0], rtol=0 if exact else 1e-6, atol=0, err_msg="mean elevation")
+        else:
+            assert a.dtype == b.dtype, name
+            np.testing.assert_array_equal(a, b, err_msg=name)
+    for a, b in zip(kernel[6], twin[6]):
+        assert a.dtype == b.dtype
+        np.testing.assert_array_equal(a, b, err_msg="points")
+
+
+@pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled kernels not built")
+@pytest.mark.parametrize("bounces", [(1, 2, 3), (1, 2)])
+@pytest.mark.parametrize("components", [True, False])
+def test_compiled_label_maps_equal_the_numpy_twin_on_hand_made_paths(bounces, components):
+    """Energies that float32 and float64 sum exactly: the two routes agree bit for bit, and
+    with the values worked out by hand (mixed cells, ties, zero-energy paths, three orders)."""
+    sets, legs = _hand_made_frame()
+    kernel, twin = _both(sets, legs, bounces=bounces, components=components)
+    # Known difference, older than the compiled route's rewrite (kept: the compiled labels are
+    # unchanged): the kernels give a path without energy a range cell, whose elevation enters
+    # the extremes; the NumPy range cells give it none. (4, 2) has only such a path, (5, 0)
+    # one at 1 degree beside the plane's at 3.
+    assert kernel[4][1, 4, 2] == kernel[4][2, 4, 2] == -1.0 and np.isnan(twin[4][1:, 4, 2]).all()
+    assert kernel[4][1, 5, 0] == 1.0 and twin[4][1, 5, 0] == 3.0 and kernel[4][2, 5, 0] == twin[4][2, 5, 0] == 3.0
+    twin[4][1:, 4, 2], twin[4][1, 5, 0] = -1.0, 1.0
+    _assert_routes_agree(kernel, twin)
+    orders, objects, planes, total, elevation, boxes, points = kernel
+    expect = {(2, 0): 1, (3, 1): 1 if bounces == (1, 2) else 0, (4, 2): -1, (5, 0): 2, (6, 1): 0,
+              (0, 2): 2}
+    # (6, 1): the object (0.5, id 0) ties the plane in order 1 and order 2 adds 0.125 to id 0.
+    for cell, want in expect.items():
+        assert total[cell] == want, cell
+    assert (total >= 0).sum() == 5
+    if components:
+        single, double, triple = orders
+        assert single[2, 0] == 0 and single[3, 1] == 1 and single[5, 0] == 2 and single[6, 1] == 0
+        assert single[4, 2] == -1 and single[0, 2] == 2
+        assert objects[5, 0] == -1 and planes[5, 0] == 2  # a zero-energy object never wins
+        assert objects[6, 1] == 0 and planes[6, 1] == 2
+        assert double[2, 0] == 1 and double[6, 1] == 0 and (double >= 0).sum() == 2
+        assert triple[3, 1] == 0 and (triple >= 0).sum() == 1
+    else:
+        assert len(orders) == 0 and objects is None
+    assert np.isnan(elevation[0, 4, 2])  # one path without energy: no mean (0 / 0)
+    # (2, 0): rays 0 and 1 (-3 and -1 degrees, energy 1 each) and ray 0 of generation 1 (-3, 4).
+    assert elevation[0, 2, 0] == np.float32((-3.0 - 1.0 - 12.0) / 6.0)
+    assert elevation[1, 2, 0] == -3.0 and elevation[2, 2, 0] == -1.0
+    np.testing.assert_array_equal(boxes[2], [0, 0, 5, 2])  # the plane: (0, 2) and (5, 0)
+    assert len(points[0]) == 9 + 2 + 1  # every path with energy inside the image
+
+
+@pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled kernels not built")
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_compiled_label_maps_equal_the_numpy_twin_on_random_paths(seed):
+    """Many ids, spread range cells, a sub-window of rows: float32 against float64 sums, so the
+    means agree to round-off and the ids exactly (no near tie in these draws)."""
+    rng = np.random.default_rng(100 + seed)
+    n_obj, n_pl, n_el, n_cols = 5, 2, 8, 30
+    n = n_el * n_cols
+    legs = []
+    for gen in range(2):
+        step = rng.uniform(0.01, 0.05, n)
+        points = np.cumsum(step)[:, None] * np.array([1.0, 0.2, 0.1]) + rng.normal(0, 1e-4, (n, 3))
+        normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+        sid = np.repeat(rng.integers(0, n_obj + n_pl, n // 4), 4).astype(np.int32)
+        legs.append(Leg(gen, np.full(n, 2.0), sid, points, normals, np.ones(n), np.ones(n), np.zeros(n, np.int32)))
+    sets = []
+    for gen, label in ((0, 0), (0, 1), (1, 2), (1, 3), (1, 2)):
+        ray = np.flatnonzero(rng.random(n) < 0.6).astype(np.intp)
+        m = len(ray)
+        energy = rng.uniform(0.1, 1.0, m)  # (paths without energy: the hand-made test)
+        lab = np.full(m, label, np.int8)
+        if label < 2:
+            lab[:] = np.where(legs[gen].sid[ray] >= n_pl, 0, 1)
+        sets.append(PathSet(gen, -1, ray, rng.uniform(0.5, 3.4, m), energy, rng.integers(0, 6, m).astype(np.int32),
+                            lab))
+    grid = (0.6, 0.05, 60, 6)
+    el = np.linspace(-10.0, 10.0, n_el)
+    for rows in ((0, 60), (7, 52)):
+        kernel, twin = _both(sets, legs, rows=rows, spread=True, n_obj=n_obj, n_pl=n_pl, grid=grid, elevation=el)
+        _assert_routes_agree(kernel, twin, exact=False)
+        assert (kernel[3] >= 0).sum() > 100 and set(kernel[3].ravel()) >= set(range(n_obj + n_pl))
+
+
+@pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled kernels not built")
+def test_compiled_label_maps_on_an_empty_window_and_no_paths():
+    sets, legs = _hand_made_frame()
+    for rows, s in (((0, 0), sets), ((0, 8), [])):
+        kernel, twin = _both(s, legs, rows=rows)
+        _assert_routes_agree(kernel, twin)
+        assert (kernel[3] == -1).all() and np.isnan(kernel[4]).all()
+
+
+@pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled kernels not built")
+def test_lit_rows_kernel_equals_its_twin():
+    rng = np.random.default_rng(5)
+    stack = np.zeros((4, 50, 7), np.float32)
+    assert lit_rows(stack) == lit_rows(stack, "numpy") == (0, 0)
+    stack[2, 13, 6] = 1e-30
+    stack[0, 40, 0] = 2.0
+    stack[1, 45, 3] = -0.0  # not lit, as in ndarray.any
+    assert lit_rows(stack) == lit_rows(stack, "numpy") == (13, 41)
+    stack[3, 47, 2] = np.nan  # lit, as in ndarray.any
+    assert lit_rows(stack) == lit_rows(stack, "numpy") == (13, 48)
+    for _ in range(20):
+        s = np.where(rng.random((3, 30, 5)) < 0.01, rng.random((3, 30, 5)), 0).astype(np.float32)
+        assert lit_rows(s) == lit_rows(s, "numpy")
 
 
 @pytest.mark.parametrize("double_beam", ["paper", "split"])

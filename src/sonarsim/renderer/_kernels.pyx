@@ -817,71 +817,397 @@ def splat_events(const double[:, ::1] points, const double[:, ::1] normals, cons
             x_dn = x
 
 
-def splat_truth(const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
-                const Py_ssize_t[::1] ray, const double[::1] distance, const double[::1] energy,
-                const int[::1] beam, const int[::1] ident, const double[::1] elevation,
-                bint spread, Py_ssize_t n_elevation, double range_min, double dr,
-                Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out, bint moments,
-                float[::1] total, double[::1] weight, double[::1] weighted, double[::1] el_min,
-                double[::1] el_max):
-    """Ground truth of one compact path set (twin: ``renderer.ground_truth.splat_truth``).
+cdef inline bint add_to_map(int* state, float* first, float* table, Py_ssize_t n_ids, Py_ssize_t* n_slots,
+                            int* reached, Py_ssize_t* n_reached, Py_ssize_t cell, Py_ssize_t row, int beam,
+                            int ident, float part) noexcept nogil:
+    """Add ``part`` of id ``ident`` to one cell of a dominance map; True when it is the cell's
+    first deposit.
 
-    The cells of ``splat_events`` (same neighbours, same range cells); each path's energy goes
-    to ``out`` (ids x bins x beams, flat; empty: not formed) at its id ``ident[k]``. With ``moments`` (a path of
-    the total), also: to ``total`` (ids x bins x beams) likewise, its energy into ``weight``
-    and energy x ``elevation[k]`` into ``weighted`` (bins x beams),
-    and ``elevation[k]`` into the running ``el_min`` / ``el_max`` (NaN: none yet) of every bin
-    its cell overlaps.
+    A cell holds -1 (nothing yet), the one id that has deposited in it so far (with that id's
+    sum in ``first``), or ``-2 - slot`` once a second id deposits: from then on row ``slot`` of
+    ``table`` (slots x ids) holds every id's sum. Each id's sum is the one a dense float32
+    (ids x cells) stack would hold -- the same float32 additions in the same order from 0 --
+    so the dominant id is the same, ties included, without forming the stack. A cell's first
+    deposit appends its ``(row, beam)`` to ``reached`` (pairs), so that only the reached cells
+    are resolved.
     """
-    cdef Py_ssize_t k, b, cell, m = ray.shape[0], plane = n_range_bins * n_beams
-    cdef bint c_dn = False, c_up
-    cdef double x, x_dn = 0.0, x_up, lo, hi, density, part, el
-    cdef double nb = <double>n_range_bins
-    cdef bint by_order = out.shape[0] > 0
-    cdef float* base = &out[0] if by_order else NULL
-    cdef float* whole = &total[0] if moments else NULL
-    with nogil:
-        for k in range(m):
-            c_up = spread and neighbours(points, normals, key, ray, energy, k, n_elevation)
-            x = (distance[k] - range_min) / dr
-            x_up = (distance[k + 1] - range_min) / dr if c_up else 0.0
-            if range_cell(x, x_dn, x_up, c_dn, c_up, energy[k], nb, &lo, &hi, &density):
-                el = elevation[k]
-                for b in range(<Py_ssize_t>lo, bin_end(hi)):
-                    part = density * ((hi if hi < b + 1.0 else b + 1.0) - (lo if lo > b else <double>b))
-                    cell = b * n_beams + beam[k]
-                    if by_order:
-                        base[ident[k] * plane + cell] += <float>part
-                    if moments:
-                        whole[ident[k] * plane + cell] += <float>part
-                        weight[cell] += part
-                        weighted[cell] += part * el
-                        # "not >=": NaN (nothing yet) gives way to any elevation (as np.fmin).
-                        if not el >= el_min[cell]:
-                            el_min[cell] = el
-                        if not el <= el_max[cell]:
-                            el_max[cell] = el
-            c_dn = c_up
-            x_dn = x
+    cdef int s = state[cell]
+    cdef float* row_sums
+    cdef Py_ssize_t j
+    if s == ident:
+        first[cell] += part
+        return False
+    if s == -1:
+        state[cell] = ident
+        first[cell] = part
+        reached[2 * n_reached[0]] = <int>row
+        reached[2 * n_reached[0] + 1] = beam
+        n_reached[0] += 1
+        return True
+    if s >= 0:  # a second id: the cell is mixed
+        row_sums = table + n_slots[0] * n_ids
+        for j in range(n_ids):
+            row_sums[j] = 0.0
+        row_sums[s] = first[cell]
+        row_sums[ident] = part
+        state[cell] = <int>(-2 - n_slots[0])
+        n_slots[0] += 1
+    else:
+        table[(-2 - <Py_ssize_t>s) * n_ids + ident] += part
+    return False
 
 
-def dominant(const float[:, ::1] energy, int offset, int[::1] best, float[::1] top):
-    """Per cell, the index (+ ``offset``) of the largest of ``energy`` (ids x cells), -1 where
-    all are 0 (ties: the lower id), and that energy (twin: ``renderer.ground_truth._dominant``)."""
-    cdef Py_ssize_t c, k, m = energy.shape[0], n = energy.shape[1]
-    cdef int b
-    cdef float t, v
-    with nogil:
-        for c in range(n):
-            b = -1
-            t = 0.0
+cdef inline int strongest(const float* row, Py_ssize_t begin, Py_ssize_t end, float* top) noexcept nogil:
+    """Index in ``[begin, end)`` of the largest positive ``row`` entry (ties: the lower), -1 none."""
+    cdef Py_ssize_t k
+    cdef int best = -1
+    cdef float t = 0.0
+    for k in range(begin, end):
+        if row[k] > t:  # strict: zero never wins, a tie keeps the lower id
+            t = row[k]
+            best = <int>k
+    top[0] = t
+    return best
+
+
+cdef class LabelMaps:
+    """Instance maps, elevation moments and points of one frame, formed set by set (twin:
+    ``renderer.ground_truth._frame_truth``: dense stacks, ``splat_truth`` and ``dominant``).
+
+    Parameters
+    ----------
+    state : (n_maps, n_rows, n_beams) int32, -1 filled
+        The window (lit rows) of the frame's instance maps, each map's window C-contiguous:
+        the orders 1 .. n_maps - 1, then the total (or the total alone). The dominance state
+        of :func:`add_to_map` is kept in them and resolved to ids by :meth:`finish`.
+    first : (n_maps, n_rows, n_beams) float32, uninitialised
+    reached : (n_maps, n_rows * n_beams, 2) int32, uninitialised
+        Each map's reached cells, ``(row, beam)``, in the order first reached.
+    n_reached : (n_maps,) intp
+        Their numbers (set to 0 here).
+    table : (capacity, n_ids) float32, uninitialised
+        A row for every cell of every map (each becomes mixed at most once); only the rows of
+        mixed cells are touched.
+    moments : (n_rows, n_beams, 2) float64, uninitialised
+        The total's energy and energy x elevation (degrees) per cell, side by side: the
+        final division reads one cache line per cell (it waits on memory, not arithmetic).
+    el_min, el_max : (n_rows, n_beams) float32, NaN filled
+        Windows of the outputs: least and greatest elevation of the total's paths, degrees.
+    lut : (n_surfaces,) int32
+        Label id (``0 .. n_ids - 1``) of each surface id.
+    elevation_rows : (n_elevation,) float64
+        Arrival elevation of each elevation row of the fan, degrees.
+    spread : bool
+    range_min, dr : float
+        The window's first range, metres, and the bin size, metres.
+    image_range_min : float, metres
+    n_image_rows : int
+        The whole image's range bins (the points are kept on it, not on the window).
+    p_world, p_object, p_component, p_cell : (n, 3) float32, (n,) int32, (n,) int8, (n, 2) int32
+        Receive the points; ``n`` at least the number of paths of the frame.
+
+    The uninitialised scratch is written where a cell is first reached, and read only there.
+    """
+    cdef int[:, :, :] state
+    cdef float[:, :, ::1] first
+    cdef int[:, :, ::1] reached
+    cdef Py_ssize_t[::1] n_reached
+    cdef float[:, ::1] table
+    cdef double[:, :, ::1] moments
+    cdef float[:, ::1] el_min
+    cdef float[:, ::1] el_max
+    cdef const int[::1] lut
+    cdef const double[::1] elevation_rows
+    cdef float[:, ::1] p_world
+    cdef int[::1] p_object
+    cdef signed char[::1] p_component
+    cdef int[:, ::1] p_cell
+    cdef double range_min, dr, image_range_min
+    cdef Py_ssize_t n_maps, n_rows, n_beams, n_image_rows, n_elevation, n_ids
+    cdef bint spread
+    cdef readonly Py_ssize_t n_slots, n_points
+
+    def __init__(self, int[:, :, :] state, float[:, :, ::1] first, int[:, :, ::1] reached,
+                 Py_ssize_t[::1] n_reached, float[:, ::1] table,
+                 double[:, :, ::1] moments, float[:, ::1] el_min, float[:, ::1] el_max,
+                 const int[::1] lut, const double[::1] elevation_rows, bint spread, double range_min, double dr,
+                 double image_range_min, Py_ssize_t n_image_rows,
+                 float[:, ::1] p_world, int[::1] p_object, signed char[::1] p_component, int[:, ::1] p_cell):
+        cdef Py_ssize_t k, n_cells
+        self.n_maps, self.n_rows, self.n_beams = state.shape[0], state.shape[1], state.shape[2]
+        n_cells = self.n_rows * self.n_beams
+        self.n_ids = table.shape[1]
+        if self.n_maps < 1:
+            raise ValueError("no map of the total")
+        if state.strides[2] != sizeof(int) or state.strides[1] != self.n_beams * sizeof(int):
+            raise ValueError("each map's window must be C-contiguous")
+        if (first.shape[0] != self.n_maps or first.shape[1] != self.n_rows or first.shape[2] != self.n_beams
+                or reached.shape[0] != self.n_maps or reached.shape[1] != n_cells or reached.shape[2] != 2
+                or n_reached.shape[0] != self.n_maps
+                or moments.shape[0] != self.n_rows or moments.shape[1] != self.n_beams or moments.shape[2] != 2
+                or el_min.shape[0] != self.n_rows or el_max.shape[0] != self.n_rows
+                or el_min.shape[1] != self.n_beams or el_max.shape[1] != self.n_beams):
+            raise ValueError("label maps of different shapes")
+        if table.shape[0] < self.n_maps * n_cells:
+            raise ValueError(f"a table of {table.shape[0]} rows for {self.n_maps * n_cells} cells")
+        for k in range(lut.shape[0]):
+            if not 0 <= lut[k] < self.n_ids:
+                raise ValueError(f"label id {lut[k]} of surface {k} is not one of the table's {self.n_ids}")
+        if elevation_rows.shape[0] == 0:
+            raise ValueError("no elevation rows")
+        if (p_world.shape[1] != 3 or p_cell.shape[1] != 2 or p_world.shape[0] != p_object.shape[0]
+                or p_component.shape[0] != p_object.shape[0] or p_cell.shape[0] != p_object.shape[0]):
+            raise ValueError("point buffers of different lengths")
+        self.state, self.first, self.reached, self.table = state, first, reached, table
+        self.n_reached = n_reached
+        self.n_reached[:] = 0
+        self.moments, self.el_min, self.el_max = moments, el_min, el_max
+        self.lut, self.elevation_rows = lut, elevation_rows
+        self.n_elevation = elevation_rows.shape[0]
+        self.spread, self.range_min, self.dr = spread, range_min, dr
+        self.image_range_min, self.n_image_rows = image_range_min, n_image_rows
+        self.p_world, self.p_object, self.p_component, self.p_cell = p_world, p_object, p_component, p_cell
+        self.n_slots = 0
+        self.n_points = 0
+
+    def add(self, const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
+            const int[::1] sid, const Py_ssize_t[::1] ray, const double[::1] distance, const double[::1] energy,
+            const int[::1] beam, const signed char[::1] label, Py_ssize_t order_map, bint moments):
+        """One compact path set (as ``splat_truth``): its energy to map ``order_map`` (-1: none)
+        and, with ``moments``, to the total's map and the elevation moments; its points (the
+        paths with energy whose half length lies in the image) to the point buffers.
+
+        ``points``, ``normals``, ``key``, ``sid``: the receive leg, dense over the fan; ``ray``,
+        ``distance``, ``energy``, ``beam``, ``label``: the set, rays ascending.
+        """
+        cdef Py_ssize_t k, b, b_end, cell, i, m = ray.shape[0], n_lut = self.lut.shape[0]
+        cdef Py_ssize_t n_ids = self.n_ids, n_beams = self.n_beams, n_el = self.n_elevation
+        cdef Py_ssize_t n_pts = self.n_points, n_slots = self.n_slots, column = 0, column_end = 0
+        cdef Py_ssize_t n_order = 0, n_total = 0, n_cells = self.n_rows * self.n_beams
+        cdef bint c_dn = False, c_up, by_order = order_map >= 0, spread = self.spread, bad = False
+        cdef double x, x_dn = 0.0, x_up, lo, hi, density, part, el, v
+        cdef double nb = <double>self.n_rows, range_min = self.range_min, dr = self.dr
+        cdef double image_min = self.image_range_min, n_image = <double>self.n_image_rows
+        cdef float pf, elf
+        cdef int ident = 0, surface = 0
+        cdef int* order_state = NULL
+        cdef float* order_first = NULL
+        cdef int* order_reached = NULL
+        cdef int* total_state = NULL
+        cdef float* total_first = NULL
+        cdef int* total_reached = NULL
+        cdef float* table = &self.table[0, 0] if self.table.shape[0] > 0 and n_ids > 0 else NULL
+        cdef double* mom = NULL
+        cdef float* el_min = NULL
+        cdef float* el_max = NULL
+        cdef const int* lut = &self.lut[0] if n_lut > 0 else NULL
+        cdef const double* el_rows = &self.elevation_rows[0]
+        if label.shape[0] != m or distance.shape[0] != m or energy.shape[0] != m or beam.shape[0] != m:
+            raise ValueError("path set arrays of different lengths")
+        if n_pts + m > self.p_object.shape[0]:
+            raise ValueError("more paths than the point buffers hold")
+        if order_map >= self.n_maps - 1:
+            raise ValueError(f"order map {order_map} of {self.n_maps - 1}")
+        if n_cells == 0:  # an empty window: no deposit
+            by_order = moments = False
+        if by_order:
+            order_state = &self.state[order_map, 0, 0]
+            order_first = &self.first[order_map, 0, 0]
+            order_reached = &self.reached[order_map, 0, 0]
+            n_order = self.n_reached[order_map]
+        if moments:
+            total_state = &self.state[self.n_maps - 1, 0, 0]
+            total_first = &self.first[self.n_maps - 1, 0, 0]
+            total_reached = &self.reached[self.n_maps - 1, 0, 0]
+            n_total = self.n_reached[self.n_maps - 1]
+            mom = &self.moments[0, 0, 0]
+            el_min = &self.el_min[0, 0]
+            el_max = &self.el_max[0, 0]
+        with nogil:
             for k in range(m):
-                v = energy[k, c]
-                if v > t:
-                    t = v
-                    b = <int>k + offset
-            best[c] = b
-            top[c] = t
+                i = ray[k]
+                surface = sid[i]
+                if not 0 <= surface < n_lut:
+                    bad = True
+                    break
+                ident = lut[surface]
+                if by_order or moments:
+                    c_up = spread and neighbours(points, normals, key, ray, energy, k, n_el)
+                    x = (distance[k] - range_min) / dr
+                    x_up = (distance[k + 1] - range_min) / dr if c_up else 0.0
+                    if range_cell(x, x_dn, x_up, c_dn, c_up, energy[k], nb, &lo, &hi, &density):
+                        if i >= column_end:  # rays ascend: one division per column of the fan
+                            column = i - i % n_el
+                            column_end = column + n_el
+                        el = el_rows[i - column]
+                        elf = <float>el  # the outputs are float32: the extremes of the rounded values
+                        b_end = bin_end(hi)
+                        for b in range(<Py_ssize_t>lo, b_end):
+                            part = density * ((hi if hi < b + 1.0 else b + 1.0) - (lo if lo > b else <double>b))
+                            pf = <float>part
+                            cell = b * n_beams + beam[k]
+                            if by_order:
+                                add_to_map(order_state, order_first, table, n_ids, &n_slots, order_reached,
+                                           &n_order, cell, b, beam[k], ident, pf)
+                            if moments:
+                                if add_to_map(total_state, total_first, table, n_ids, &n_slots, total_reached,
+                                              &n_total, cell, b, beam[k], ident, pf):
+                                    mom[2 * cell] = part  # first reached: the moments start here
+                                    mom[2 * cell + 1] = part * el
+                                    el_min[cell] = elf
+                                    el_max[cell] = elf
+                                else:
+                                    mom[2 * cell] += part
+                                    mom[2 * cell + 1] += part * el
+                                    # Equal values are equal bits (one elevation per fan row).
+                                    el_min[cell] = el_min[cell] if el_min[cell] < elf else elf
+                                    el_max[cell] = el_max[cell] if el_max[cell] > elf else elf
+                    c_dn = c_up
+                    x_dn = x
+                # The bin floor((d - min) / dr) is in [0, n) exactly when v is: no floor() call.
+                v = (distance[k] - image_min) / dr
+                if v >= 0.0 and v < n_image and energy[k] != 0:
+                    self.p_world[n_pts, 0] = <float>points[i, 0]
+                    self.p_world[n_pts, 1] = <float>points[i, 1]
+                    self.p_world[n_pts, 2] = <float>points[i, 2]
+                    self.p_object[n_pts] = ident
+                    self.p_component[n_pts] = label[k]
+                    self.p_cell[n_pts, 0] = <int>v
+                    self.p_cell[n_pts, 1] = beam[k]
+                    n_pts += 1
+        self.n_slots = n_slots
+        self.n_points = n_pts
+        if by_order:
+            self.n_reached[order_map] = n_order
+        if moments:
+            self.n_reached[self.n_maps - 1] = n_total
+        if bad:
+            raise ValueError(f"a path on surface {surface}, not one of the {n_lut}")
+
+    def finish(self, int[:, ::1] objects, int[:, ::1] planes, int n_objects, float[:, ::1] elevation,
+               int[:, ::1] boxes, Py_ssize_t row_offset):
+        """Resolve every map's reached cells in place and write the total's mean elevation and boxes.
+
+        Each cell takes its dominant id (ties: the lower id; -1 where no id brought energy).
+        With ``objects`` / ``planes`` (windows, -1 filled; empty: not formed), map 0 (the first
+        order) also gives the dominant object and the dominant plane of each cell, and its own
+        value is the stronger of the two (a tie: the object). ``elevation`` (window, NaN
+        filled) receives weighted / weight where the total has paths (0 / 0: NaN, no weight);
+        ``boxes`` (n_ids, 4, -1 filled) the inclusive ``[row, beam, row, beam]`` extent of each
+        id's cells in the total, rows shifted by ``row_offset``.
+        """
+        cdef Py_ssize_t mp, j, cell, n, n_b = self.n_beams, n_ids = self.n_ids
+        cdef int s, best, obj, gnd, r, c
+        cdef float to, tg
+        cdef bint split = objects.shape[0] > 0, both, last
+        cdef int* st
+        cdef float* fs
+        cdef const int* cells
+        cdef const float* row
+        cdef const float* table = &self.table[0, 0] if self.table.shape[0] > 0 and n_ids > 0 else NULL
+        cdef int* o_out = NULL
+        cdef int* g_out = NULL
+        cdef float* el_out = NULL
+        cdef const double* mom = NULL
+        cdef int* box = NULL
+        if boxes.shape[0] != n_ids or boxes.shape[1] != 4:
+            raise ValueError("boxes of the wrong shape")
+        if (elevation.shape[0] != self.n_rows or elevation.shape[1] != n_b or split
+                and (objects.shape[0] != self.n_rows or planes.shape[0] != self.n_rows
+                     or objects.shape[1] != n_b or planes.shape[1] != n_b)):
+            raise ValueError("output windows of the wrong shape")
+        if self.n_rows * n_b == 0:
+            return
+        el_out = &elevation[0, 0]
+        mom = &self.moments[0, 0, 0]
+        if n_ids > 0:
+            box = &boxes[0, 0]
+        if split:
+            o_out = &objects[0, 0]
+            g_out = &planes[0, 0]
+        with nogil:
+            for mp in range(self.n_maps):
+                st = &self.state[mp, 0, 0]
+                fs = &self.first[mp, 0, 0]
+                cells = &self.reached[mp, 0, 0]
+                n = self.n_reached[mp]
+                both = split and mp == 0
+                last = mp == self.n_maps - 1
+                for j in range(n):
+                    r = cells[2 * j]
+                    c = cells[2 * j + 1]
+                    cell = r * n_b + c
+                    s = st[cell]
+                    if s >= 0:
+                        best = s if fs[cell] > 0 else -1
+                        obj = best if best < n_objects else -1
+                        gnd = best if best >= n_objects else -1
+                    else:
+                        row = table + (-2 - <Py_ssize_t>s) * n_ids
+                        if both:
+                            obj = strongest(row, 0, n_objects, &to)
+                            gnd = strongest(row, n_objects, n_ids, &tg)
+                            best = gnd if tg > to else obj
+                        else:
+                            best = strongest(row, 0, n_ids, &to)
+                    st[cell] = best
+                    if both:
+                        o_out[cell] = obj
+                        g_out[cell] = gnd
+                    if last:
+                        el_out[cell] = <float>(mom[2 * cell + 1] / mom[2 * cell])
+                        if best >= 0:
+                            r += <int>row_offset
+                            if box[4 * best] < 0:
+                                box[4 * best] = r
+                                box[4 * best + 1] = c
+                                box[4 * best + 2] = r
+                                box[4 * best + 3] = c
+                            else:
+                                box[4 * best] = r if r < box[4 * best] else box[4 * best]
+                                box[4 * best + 1] = c if c < box[4 * best + 1] else box[4 * best + 1]
+                                box[4 * best + 2] = r if r > box[4 * best + 2] else box[4 * best + 2]
+                                box[4 * best + 3] = c if c > box[4 * best + 3] else box[4 * best + 3]
+
+
+cdef inline bint row_lit(const float[:, :, ::1] stack, Py_ssize_t r, Py_ssize_t n_l, Py_ssize_t n_b) noexcept nogil:
+    """Whether range bin ``r`` of any row of the stack is not 0 (NaN counts, as in ndarray.any;
+    -0.0 does not). An OR over the bits without the sign: no branch per value, so it vectorises."""
+    cdef Py_ssize_t l, b
+    cdef unsigned int bits
+    cdef const unsigned int* values
+    for l in range(n_l):
+        values = <const unsigned int*>&stack[l, r, 0]
+        bits = 0
+        for b in range(n_b):
+            bits |= values[b] & 0x7fffffffu
+        if bits:
+            return True
+    return False
+
+
+def lit_rows(const float[:, :, ::1] stack):
+    """``[first, end)`` of the range bins where the image stack ``(rows, n_r, n_b)`` is not 0
+    (twin: ``renderer.ground_truth.lit_rows``): a scan from each end that stops at the first
+    lit bin, instead of reading the whole stack."""
+    cdef Py_ssize_t n_l = stack.shape[0], n_r = stack.shape[1], n_b = stack.shape[2], r, first = -1, end = 0
+    if n_l == 0 or n_b == 0:
+        return 0, 0
+    with nogil:
+        for r in range(n_r):
+            if row_lit(stack, r, n_l, n_b):
+                first = r
+                break
+        if first >= 0:
+            r = n_r - 1
+            while r >= first:
+                if row_lit(stack, r, n_l, n_b):
+                    end = r + 1
+                    break
+                r -= 1
+    if first < 0:
+        return 0, 0
+    return first, end
 
 
 def id_extents(const int[::1] ids, const int[:, ::1] extents, int[:, ::1] out):

@@ -425,26 +425,89 @@ def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, 
 
 
 
-def splat_truth(points, normals, key, ray, distance, energy, beam, ident, elevation, spread: bool, n_elevation: int,
-                range_min_m: float, range_resolution_m: float, n_range_bins: int, n_beams: int, out: np.ndarray,
-                moments: bool, total: np.ndarray, weight: np.ndarray, weighted: np.ndarray, el_min: np.ndarray,
-                el_max: np.ndarray) -> None:
-    """``_kernels.splat_truth`` with the arguments of its twin
-    :func:`sonarsim.renderer.ground_truth.splat_truth` (``out`` float32)."""
-    _kernels.splat_truth(points, normals, key, ray, distance, energy, beam, np.ascontiguousarray(ident, np.int32),
-                         np.ascontiguousarray(elevation, np.float64), spread, n_elevation, range_min_m,
-                         range_resolution_m, n_range_bins, n_beams, out, moments, total, weight, weighted, el_min,
-                         el_max)
+def frame_truth(sets, legs, n_surfaces: int, lut: np.ndarray, elevation_deg: np.ndarray, n_objects: int,
+                geometry: tuple, rows: tuple[int, int], max_order: int, bounces: tuple[int, ...], spread: bool,
+                components: bool) -> tuple:
+    """The label maps and points of a frame with ``_kernels.LabelMaps``: one pass per path set,
+    then one over the reached cells (twin: ``sonarsim.renderer.ground_truth._frame_truth``,
+    which takes the same arguments: dense stacks and ``dominant``).
+
+    Parameters
+    ----------
+    sets, legs : the frame's path sets and receive legs
+    n_surfaces : int
+        Planes + objects (for :meth:`Leg.key`).
+    lut : (n_surfaces,) int32 ndarray
+        Label id of each surface id.
+    elevation_deg : (n_elevation,) float64 ndarray
+        Arrival elevation of each row of the fan, degrees.
+    n_objects : int
+        Ids below it are objects, the others planes.
+    geometry : (range_min_m, range_resolution_m, n_range_bins, n_beams)
+        The image's grid.
+    rows : (int, int)
+        ``[first, end)`` of the range bins where paths may deposit (the lit rows).
+    max_order : int
+    bounces : tuple of int
+        Orders of the total.
+    spread : bool
+    components : bool
+        Also form a map per order (and the first order's objects and planes).
+
+    Returns
+    -------
+    orders : (max_order, n_range_bins, n_beams) int32 ndarray
+        Dominant id per order (order 1: objects and planes together); empty without components.
+    objects, planes : (n_range_bins, n_beams) int32 ndarrays or None
+        The first order's dominant object and dominant plane (None without components).
+    total : (n_range_bins, n_beams) int32 ndarray
+    elevation : (3, n_range_bins, n_beams) float32 ndarray
+        Mean, least and greatest arrival elevation of the total's paths, degrees, NaN none.
+    boxes : (n_ids, 4) int32 ndarray
+        Boxes of the ids in ``total`` (see :func:`sonarsim.image.labels.boxes_of`).
+    points : tuple of (n, 3) float32, (n,) int32, (n,) int8 and (n, 2) int32 ndarrays
+        World position, id, component row and (bin, beam) of each path that lands in the image.
+    """
+    range_min_m, dr, n_r, n_b = geometry
+    r0, r1 = rows
+    n_w = max(r1 - r0, 0)
+    n_ids = len(lut)
+    n_maps = max_order + 1 if components else 1  # the orders, then the total
+    # Outputs filled once; the kernel writes only the cells that paths reach.
+    instance = np.full((n_maps, n_r, n_b), -1, np.int32)
+    split = np.full((2, n_r if components else 0, n_b), -1, np.int32)
+    elevation = np.full((3, n_r, n_b), np.nan, np.float32)
+    n_paths = sum(len(s.ray) for s in sets)
+    points = (np.empty((n_paths, 3), np.float32), np.empty(n_paths, np.int32), np.empty(n_paths, np.int8),
+              np.empty((n_paths, 2), np.int32))
+    # Scratch left uninitialised: the kernel writes a cell's entries when it first reaches it,
+    # and a row of the table only for a cell where a second id arrives (so none is filled).
+    truth = _kernels.LabelMaps(
+        instance[:, r0:r1], np.empty((n_maps, n_w, n_b), np.float32), np.empty((n_maps, n_w * n_b, 2), np.int32),
+        np.zeros(n_maps, np.intp), np.empty((n_maps * n_w * n_b, n_ids), np.float32), np.empty((n_w, n_b, 2)),
+        elevation[1, r0:r1], elevation[2, r0:r1], np.ascontiguousarray(lut, np.int32),
+        np.ascontiguousarray(elevation_deg, np.float64), spread, range_min_m + r0 * dr, dr, range_min_m, n_r, *points)
+    keys = {}
+    for s in sets:
+        if not len(s.ray):
+            continue
+        leg = legs[s.gen]
+        if s.gen not in keys:
+            keys[s.gen] = leg.key(n_surfaces)
+        order = max(int(s.label[0]), 1)  # labels 0 (objects) and 1 (planes) are order 1
+        truth.add(leg.point, leg.normal, keys[s.gen], leg.sid, s.ray, s.distance, s.energy, s.beam, s.label,
+                  order - 1 if components else -1, order in bounces)
+    boxes = np.full((n_ids, 4), -1, np.int32)
+    truth.finish(split[0, r0:r1], split[1, r0:r1], n_objects, elevation[0, r0:r1], boxes, r0)
+    n = truth.n_points
+    objects, planes = (split[0], split[1]) if components else (None, None)
+    return instance[:-1], objects, planes, instance[-1], elevation, boxes, tuple(p[:n] for p in points)
 
 
-def dominant(energy: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
-    """``_kernels.dominant`` with the arguments and results of its twin
-    :func:`sonarsim.renderer.ground_truth.dominant` (``energy`` float32)."""
-    shape = energy.shape[1:]
-    best = np.empty(shape, np.int32)
-    top = np.empty(shape, np.float32)
-    _kernels.dominant(energy.reshape(len(energy), best.size), offset, best.reshape(-1), top.reshape(-1))
-    return best, top
+def lit_rows(stack: np.ndarray) -> tuple[int, int]:
+    """``_kernels.lit_rows`` (float32 C-contiguous stacks) with the result of its twin
+    :func:`sonarsim.renderer.ground_truth.lit_rows`."""
+    return _kernels.lit_rows(stack)
 
 
 def id_extents(ids: np.ndarray, extents: np.ndarray, n_ids: int) -> np.ndarray:
@@ -454,4 +517,3 @@ def id_extents(ids: np.ndarray, extents: np.ndarray, n_ids: int) -> np.ndarray:
     _kernels.id_extents(np.ascontiguousarray(ids, np.int32).reshape(-1), np.ascontiguousarray(extents, np.int32),
                         out)
     return out
-

@@ -2,14 +2,20 @@
 
 Formed from the frame's receive legs and path sets (:mod:`sonarsim.paths.engine`) with the
 image's own range cells (the neighbours and cells of ``splat_events``), so that each label map
-has a value exactly where its component's image has energy. One pass per path set
-(``_kernels.splat_truth``, or its NumPy twin :func:`splat_truth`) adds:
+has a value exactly where its component's image has energy. Per path set:
 
-* each path's energy to the image of its surface id, one stack ``(n_ids, n_range_bins,
-  n_beams)`` per path order; a component's instance map is the id of largest energy over its
-  orders (``object`` and ``ground``: order 1 restricted to objects or planes);
+* each path's energy goes to its surface id in the map of its order and, for the paths of the
+  total, in the total's map; a map's value in a cell is the id of largest energy (``object``
+  and ``ground``: order 1 restricted to objects or planes);
 * for the paths of the total, their energy and energy x arrival elevation (the weighted
   mean) and the least and greatest elevation of every cell their range cell overlaps.
+
+Two routes give the same labels. The NumPy route (:func:`splat_truth`, then :func:`dominant`)
+forms a dense energy stack ``(n_ids, n_range_bins, n_beams)`` per order and is the reference.
+The compiled route (:func:`sonarsim.renderer.compiled.frame_truth`) never forms them: a cell
+keeps the first id that deposits and its float32 sum, and only a cell where a second id
+arrives gets a row of per-id sums; the same float32 additions in the same order, so the same
+dominant ids, ties included, at a fraction of the memory traffic.
 
 The points are each path's scatterer, surface, image row and cell. No Python loop per ray:
 one per path set (a handful per frame) and one per id.
@@ -114,26 +120,21 @@ def splat_truth(points: np.ndarray, normals: np.ndarray, key: np.ndarray, ray: n
 
 
 class _Truth:
-    """The per-set pass of :func:`frame_labels` with the frame's kernel (compiled or its twin)."""
+    """The per-set pass of the NumPy route (:func:`splat_truth`), continuity formed once per leg."""
 
-    def __init__(self, legs: list[Leg], n_surfaces: int, n_elevation: int, geometry: tuple, spread: bool,
-                 kernels: str) -> None:
+    def __init__(self, legs: list[Leg], n_surfaces: int, n_elevation: int, geometry: tuple, spread: bool) -> None:
         self.legs, self.n_el, self.geometry, self.spread = legs, n_elevation, geometry, spread
-        self.compiled = kernels == "compiled" and compiled.AVAILABLE
         self.keys = {leg.gen: leg.key(n_surfaces) for leg in legs}
         self._cont: dict = {}
 
     def __call__(self, s: PathSet, ident: np.ndarray, elevation: np.ndarray, out: np.ndarray, moments: bool,
                  acc: tuple) -> None:
         leg = self.legs[s.gen]
-        args = (leg.point, leg.normal, self.keys[s.gen], s.ray, s.distance, s.energy, s.beam, ident, elevation,
-                self.spread, self.n_el, *self.geometry, out.reshape(-1), moments, *acc)
-        if self.compiled:
-            compiled.splat_truth(*args)
-            return
         if self.spread and s.gen not in self._cont:
             self._cont[s.gen] = set_continuity(leg.point, leg.normal, self.keys[s.gen], self.n_el)
-        splat_truth(*args, continuous=self._cont.get(s.gen))
+        splat_truth(leg.point, leg.normal, self.keys[s.gen], s.ray, s.distance, s.energy, s.beam, ident, elevation,
+                    self.spread, self.n_el, *self.geometry, out.reshape(-1), moments, *acc,
+                    continuous=self._cont.get(s.gen))
 
 
 def frame_labels(
@@ -170,14 +171,15 @@ def frame_labels(
     spread : bool
         ``render.range_splat``.
     kernels : {'compiled', 'numpy'}
-        The deposit used (the twins give the same labels to float32 round-off).
+        The route (see the module docstring): the compiled one sums float32 as the image
+        stack does, the NumPy one float64, so a near tie may go either way between them.
     rows : (int, int), optional
         ``[first, end)`` range bins outside which no path deposits energy (the image's lit
-        rows, :func:`lit_rows`): the per-id maps are formed over these rows only, the rest of
-        every map is "nothing". Default: the whole window.
+        rows, :func:`lit_rows`): paths deposit in these rows only, the rest of every map is
+        "nothing". Default: the whole window.
     components : bool
         Form the instance map of every component; ``False``: of the total only (no per-order
-        energy images: two thirds of the cost on the demo tank).
+        maps: about two thirds of the time on the demo tank).
 
     Returns
     -------
@@ -188,22 +190,64 @@ def frame_labels(
     n_r, n_b = sonar.n_range_bins, sonar.n_beams
     r0, r1 = (0, n_r) if rows is None else (int(rows[0]), int(rows[1]))
     n_w = max(r1 - r0, 0)
-    # The sub-window [r0, r1): its cells are the whole window's, shifted (no energy beyond it).
     dr, range_min_m = sonar.range_resolution_m, sonar.range_min_m  # (properties: computed on each access)
-    geometry = (range_min_m + r0 * dr, dr, n_w, n_b)
-    require((max_order * n_ids * 4.0 + 4 * 8.0) * n_w * n_b, f"label maps of {n_ids} surfaces x {max_order} orders",
+    n_maps = max_order + 1 if components else 1
+    # Either route: per map, at worst a row of ids per cell (dense stacks, or the compiled
+    # route's table if every cell were mixed), and four per-cell accumulators.
+    require((n_maps * n_ids * 4.0 + 4 * 8.0) * n_w * n_b, f"label maps of {n_ids} surfaces x {max_order} orders",
             "objects")
-    truth = _Truth(legs, n_obj + n_pl, fan.shape[2], geometry, spread, kernels)
     lut = surface_ids(np.arange(n_pl + n_obj), n_pl, n_obj)  # surface id -> label id, one gather per set
-    # float32 like the image stack the compiled kernels form (same deposits, same zeros).
+    elevation_deg = np.degrees(fan.elevation_rad)
+    if kernels == "compiled" and compiled.AVAILABLE:
+        orders, obj, gnd, total, maps, boxes, points = compiled.frame_truth(
+            sets, legs, n_obj + n_pl, lut, elevation_deg, n_obj, (range_min_m, dr, n_r, n_b), (r0, r1), max_order,
+            bounces, spread, components)
+    else:
+        orders, obj, gnd, total, maps, boxes, points = _frame_truth(
+            sets, legs, n_obj + n_pl, lut, elevation_deg, n_obj, (range_min_m, dr, n_r, n_b), (r0, r1), max_order,
+            bounces, spread, components)
+    instance = {}
+    for comp in component_table(max_order) if components else ():
+        if comp.name == "object":
+            instance[comp.name] = obj
+        elif comp.name == "ground":
+            instance[comp.name] = gnd
+        elif comp.name != "total":  # "single" is order 1: the stronger of object and ground
+            instance[comp.name] = orders[comp.order - 1]
+    instance["total"] = total  # last, as in the component table
+    return Labels(
+        ids=tuple(object_names) + tuple(plane_names),
+        instance=instance,
+        elevation_deg=maps[0],
+        elevation_min_deg=maps[1],
+        elevation_max_deg=maps[2],
+        points_world=points[0],
+        points_object=points[1],
+        points_component=points[2],
+        points_cell=points[3],
+        point_components=point_component_names(max_order),
+        boxes_polar=boxes,
+    )
+
+
+def _frame_truth(sets: list[PathSet], legs: list[Leg], n_surfaces: int, lut: np.ndarray,
+                 elevation_deg: np.ndarray, n_obj: int, geometry: tuple, rows: tuple[int, int], max_order: int,
+                 bounces: tuple[int, ...], spread: bool, components: bool) -> tuple:
+    """The NumPy route of :func:`frame_labels` (twin of :func:`compiled.frame_truth`, whose
+    arguments and results it takes): a dense float64 energy stack ``(ids, rows, beams)`` per
+    order and for the total, then :func:`dominant` of each."""
+    range_min_m, dr, n_r, n_b = geometry
+    r0, r1 = rows
+    n_w = max(r1 - r0, 0)
+    n_ids = len(lut)
+    n_el = len(elevation_deg)
+    # The sub-window [r0, r1): its cells are the whole window's, shifted (no energy beyond it).
+    truth = _Truth(legs, n_surfaces, n_el, (range_min_m + r0 * dr, dr, n_w, n_b), spread)
     # Rows 0 .. max_order - 1 per order (when the components' maps are formed), the last the total.
-    energy = np.zeros((max_order + 1 if components else 1, n_ids, n_w, n_b),
-                      np.float32 if truth.compiled else np.float64)
+    energy = np.zeros((max_order + 1 if components else 1, n_ids, n_w, n_b))
     no_order = energy[:0].reshape(-1)
     # The total's energy and energy x elevation, and the running extremes, per cell.
     acc = (np.zeros(n_w * n_b), np.zeros(n_w * n_b), np.full(n_w * n_b, np.nan), np.full(n_w * n_b, np.nan))
-    elevation_deg = np.degrees(fan.elevation_rad)
-    n_el = fan.shape[2]
     points, ids_out, rows_out, cells_out = [], [], [], []
     for s in sets:
         if not len(s.ray):
@@ -220,51 +264,35 @@ def frame_labels(
         rows_out.append(s.label[keep])
         cells_out.append(np.stack([b[keep].astype(np.int32), s.beam[keep]], axis=1))
 
-    pick = compiled.dominant if truth.compiled else dominant
-    window = {}
+    def full(window):  # the whole image's map: "nothing" outside the lit rows
+        out = np.full((n_r, n_b), -1, np.int32)
+        out[r0:r1] = window
+        return out
+
+    orders, obj, gnd = np.zeros((0, n_r, n_b), np.int32), None, None
     if components:
-        obj, obj_top = pick(energy[0, :n_obj], 0)
-        gnd, gnd_top = pick(energy[0, n_obj:], n_obj)
-    for comp in component_table(max_order) if components else ():
-        if comp.name == "object":
-            window[comp.name] = obj
-        elif comp.name == "ground":
-            window[comp.name] = gnd
-        elif comp.name == "single":  # the stronger of the two; a tie goes to the object (lower id)
-            window[comp.name] = np.where(gnd_top > obj_top, gnd, obj)
-        elif comp.name != "total":
-            window[comp.name] = pick(energy[comp.order - 1], 0)[0]
-    window["total"] = pick(energy[-1], 0)[0]  # last, as in the component table
-    instance = {}
-    for name, m in window.items():
-        instance[name] = np.full((n_r, n_b), -1, np.int32)
-        instance[name][r0:r1] = m
-    boxes = boxes_of(window["total"], n_ids)  # on the lit rows; shifted to the window's bins below
+        o, o_top = dominant(energy[0, :n_obj], 0)
+        g, g_top = dominant(energy[0, n_obj:], n_obj)
+        single = np.where(g_top > o_top, g, o)  # a tie goes to the object (lower id)
+        orders = np.stack([full(single)] + [full(dominant(energy[k], 0)[0]) for k in range(1, max_order)])
+        obj, gnd = full(o), full(g)
+    window = dominant(energy[-1], 0)[0]
+    boxes = boxes_of(window, n_ids)  # on the lit rows; shifted to the window's bins below
     boxes[boxes[:, 0] >= 0, 0::2] += r0
 
     weight, weighted, el_min, el_max = acc
-    maps = [np.full((n_r, n_b), np.nan, np.float32) for _ in range(3)]
+    maps = np.full((3, n_r, n_b), np.nan, np.float32)
     with np.errstate(invalid="ignore", divide="ignore"):  # NaN where nothing lands (0 / 0)
-        np.divide(weighted, weight, out=maps[0][r0:r1].reshape(-1), casting="same_kind")
-    maps[1][r0:r1] = el_min.reshape(n_w, n_b)
-    maps[2][r0:r1] = el_max.reshape(n_w, n_b)
+        np.divide(weighted, weight, out=maps[0, r0:r1].reshape(-1), casting="same_kind")
+    maps[1, r0:r1] = el_min.reshape(n_w, n_b)
+    maps[2, r0:r1] = el_max.reshape(n_w, n_b)
 
     def cat(parts, shape, dt):
         return np.concatenate(parts).astype(dt) if parts else np.zeros(shape, dt)
 
-    return Labels(
-        ids=tuple(object_names) + tuple(plane_names),
-        instance=instance,
-        elevation_deg=maps[0],
-        elevation_min_deg=maps[1],
-        elevation_max_deg=maps[2],
-        points_world=cat(points, (0, 3), np.float32),
-        points_object=cat(ids_out, (0,), np.int32),
-        points_component=cat(rows_out, (0,), np.int8),
-        points_cell=cat(cells_out, (0, 2), np.int32),
-        point_components=point_component_names(max_order),
-        boxes_polar=boxes,
-    )
+    points = (cat(points, (0, 3), np.float32), cat(ids_out, (0,), np.int32), cat(rows_out, (0,), np.int8),
+              cat(cells_out, (0, 2), np.int32))
+    return orders, obj, gnd, full(window), maps, boxes, points
 
 
 def dominant(energy: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
@@ -295,11 +323,16 @@ def dominant(energy: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
     return best, top
 
 
-def lit_rows(stack: np.ndarray) -> tuple[int, int]:
+def lit_rows(stack: np.ndarray, kernels: str = "compiled") -> tuple[int, int]:
     """``[first, end)`` of the range bins where an image stack ``(rows, n_r, n_b)`` has energy.
 
     The labels deposit each path's energy in the cells the image gave it, so no label has
-    energy outside these bins; ``(0, 0)`` for a dark frame.
+    energy outside these bins; ``(0, 0)`` for a dark frame. With ``kernels='compiled'`` (and a
+    float32 C-contiguous stack) ``_kernels.lit_rows`` scans in from both ends and stops at the
+    first lit bin; this is its twin, which reads the whole stack.
     """
+    if (kernels == "compiled" and compiled.AVAILABLE and stack.dtype == np.float32 and stack.ndim == 3
+            and stack.flags.c_contiguous):
+        return compiled.lit_rows(stack)
     lit = np.flatnonzero(stack.any(axis=(0, 2)))
     return (int(lit[0]), int(lit[-1]) + 1) if len(lit) else (0, 0)

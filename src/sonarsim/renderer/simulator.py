@@ -393,7 +393,7 @@ class Simulator:
                                                         render.max_order if multipath else 1)
             truth = frame_labels(sets, legs, fan, image_sonar, tuple(o.name for o in self.scene.objects),
                                  tuple(p.name for p in self.scene.reflecting_planes), render.max_order,
-                                 render.bounces, render.range_splat, self.kernels, lit_rows(lit),
+                                 render.bounces, render.range_splat, self.kernels, lit_rows(lit, self.kernels),
                                  components=labels != "total")
         t3 = time.perf_counter()
         if sets is None:  # ground only: its four images are the four ground-only signatures
