@@ -466,13 +466,10 @@ def test_compiled_label_maps_equal_the_numpy_twin_on_hand_made_paths(bounces, co
     with the values worked out by hand (mixed cells, ties, zero-energy paths, three orders)."""
     sets, legs = _hand_made_frame()
     kernel, twin = _both(sets, legs, bounces=bounces, components=components)
-    # Known difference, older than the compiled route's rewrite (kept: the compiled labels are
-    # unchanged): the kernels give a path without energy a range cell, whose elevation enters
-    # the extremes; the NumPy range cells give it none. (4, 2) has only such a path, (5, 0)
-    # one at 1 degree beside the plane's at 3.
-    assert kernel[4][1, 4, 2] == kernel[4][2, 4, 2] == -1.0 and np.isnan(twin[4][1:, 4, 2]).all()
-    assert kernel[4][1, 5, 0] == 1.0 and twin[4][1, 5, 0] == 3.0 and kernel[4][2, 5, 0] == twin[4][2, 5, 0] == 3.0
-    twin[4][1:, 4, 2], twin[4][1, 5, 0] = -1.0, 1.0
+    # A path without energy lands nowhere: (4, 2) has only such a path (no elevation at all),
+    # (5, 0) one at 1 degree beside the plane's at 3 (the extremes are the plane's alone).
+    assert np.isnan(kernel[4][:, 4, 2]).all() and np.isnan(twin[4][:, 4, 2]).all()
+    assert kernel[4][1, 5, 0] == twin[4][1, 5, 0] == 3.0 and kernel[4][2, 5, 0] == twin[4][2, 5, 0] == 3.0
     _assert_routes_agree(kernel, twin)
     orders, objects, planes, total, elevation, boxes, points = kernel
     expect = {(2, 0): 1, (3, 1): 1 if bounces == (1, 2) else 0, (4, 2): -1, (5, 0): 2, (6, 1): 0,

@@ -1035,7 +1035,10 @@ cdef class LabelMaps:
                     c_up = spread and neighbours(points, normals, key, ray, energy, k, n_el)
                     x = (distance[k] - range_min) / dr
                     x_up = (distance[k + 1] - range_min) / dr if c_up else 0.0
-                    if range_cell(x, x_dn, x_up, c_dn, c_up, energy[k], nb, &lo, &hi, &density):
+                    # A path without energy lands nowhere (as in the twin's range cells): it
+                    # would start a cell's elevation extremes without being part of its echo.
+                    if energy[k] != 0 and range_cell(x, x_dn, x_up, c_dn, c_up, energy[k], nb, &lo, &hi,
+                                                     &density):
                         if i >= column_end:  # rays ascend: one division per column of the fan
                             column = i - i % n_el
                             column_end = column + n_el
