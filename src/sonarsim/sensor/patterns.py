@@ -14,7 +14,6 @@ import functools
 import math
 
 import numpy as np
-from scipy import optimize, signal
 
 from ..config.sensor import MAX_KERNEL_HALF_WIDTH, PatternSpec
 from ..errors import ConfigError
@@ -38,6 +37,8 @@ def aperture_weights(window: str, sidelobe_db: float | None = None) -> np.ndarra
     """(APERTURE_SAMPLES,) weighting of the aperture at :func:`aperture_positions`, peak about 1."""
     x = aperture_positions()
     if window == "taylor":
+        from scipy import signal  # here, not at import: SciPy's signal module takes half a second
+
         return np.asarray(signal.windows.taylor(len(x), nbar=5, sll=float(sidelobe_db), norm=True, sym=True), float)
     coeffs = _COSINE_WINDOWS[window]
     return sum(c * np.cos(2.0 * np.pi * k * x) for k, c in enumerate(coeffs))
@@ -62,6 +63,8 @@ def array_amplitude(u: np.ndarray, window: str = "rect", sidelobe_db: float | No
 def half_power_u(window: str, sidelobe_db: float | None, ways: int) -> float:
     """u at which the ``ways``-way power ``A(u)^(2 ways)`` falls to one half."""
     f = lambda u: float(array_amplitude(np.array([u]), window, sidelobe_db)[0]) ** (2 * ways) - 0.5
+    from scipy import optimize
+
     return float(optimize.brentq(f, 1e-6, 2.0))
 
 
