@@ -42,6 +42,7 @@ __all__ = [
     "default_scale",
     "describe",
     "draw_fan",
+    "draw_fan_image",
     "draw_polar",
     "fan_figure",
     "figure_pixel_size",
@@ -302,15 +303,35 @@ def draw_fan(ax: Axes, image: Any, values: np.ndarray | None = None, scale: Disp
         mapper = FanMapper.from_grid(s.grid, figure_pixel_size(s, pixel_size_m))
     scale = scale or default_scale(image)
     fan = mapper(image.polar if values is None else values)
+    drawn = draw_fan_image(ax, fan, scale, (mapper.range_min_m, mapper.range_max_m, mapper.left_edge_deg,
+                                            mapper.right_edge_deg), colormap=colormap, annotate=annotate)
+    return drawn
+
+
+def draw_fan_image(ax: Axes, fan: Any, scale: DisplayScale, bounds: tuple[float, float, float, float], *,
+                   colormap: str = DEFAULT_COLORMAP, annotate: bool = True) -> dict[str, list]:
+    """Draw a :class:`~sonarsim.image.fan.FanImage` in metres on ``ax`` with its frame.
+
+    Parameters
+    ----------
+    fan : FanImage
+    scale : DisplayScale
+    bounds : (range_min_m, range_max_m, left_edge_deg, right_edge_deg)
+        The fan's window, for its outline, rings and spokes.
+
+    Returns
+    -------
+    dict
+        What :func:`sonarsim.plot.axes.draw_fan_frame` returns, plus ``"image"``: the AxesImage.
+    """
     rgb = colorize(scale.encode(fan.image, fan.mask), colormap, fan.mask, outside=OUTSIDE_FAN_RGB)
     half = fan.pixel_size_m / 2.0
     # Extent from +y (left) to -y (right): the sonar's left is on the figure's left.
     extent = (fan.y_m[0] + half, fan.y_m[-1] - half, fan.x_m[-1] - half, fan.x_m[0] + half)
     shown = ax.imshow(rgb, extent=extent, origin="upper", interpolation="antialiased", zorder=1)
     ax.set_facecolor(np.asarray(OUTSIDE_FAN_RGB) / 255.0)
-    drawn = draw_fan_frame(ax, mapper.range_min_m, mapper.range_max_m, mapper.left_edge_deg, mapper.right_edge_deg,
-                           rings=annotate, spokes=annotate, axis_labels=annotate)
-    rmax = mapper.range_max_m
+    rmin, rmax, left, right = bounds
+    drawn = draw_fan_frame(ax, rmin, rmax, left, right, rings=annotate, spokes=annotate, axis_labels=annotate)
     # Room beyond the far arc for the spokes' labels, and beside the fan for the rings'.
     ax.set_xlim(extent[0] + 0.03 * rmax, extent[1] - 0.12 * rmax)
     ax.set_ylim(0.0, max(extent[3], rmax) + 0.09 * rmax)
