@@ -369,10 +369,12 @@ def draw_polar(ax: Axes, image: Any, values: np.ndarray | None = None, scale: Di
     return mesh
 
 
-def _new_figure(figsize: tuple[float, float]) -> Figure:
+def _new_figure(figsize: tuple[float, float], layout: str = "compressed") -> Figure:
     from matplotlib.figure import Figure
 
-    return Figure(figsize=figsize, layout="compressed")
+    # "compressed" packs fixed-aspect axes (fans) tightly; panels under a figure title take
+    # "constrained", which leaves the title room above theirs.
+    return Figure(figsize=figsize, layout=layout)
 
 
 def _fan_size(sonar: Any, ncols: int = 1, nrows: int = 1, colorbar: bool = True) -> tuple[float, float]:
@@ -490,7 +492,7 @@ def panels_figure(panels: Sequence[Panel], scales: DisplayScale | Sequence[Displ
         fixed[key] = per_panel[members[0]].resolved(*(panels[k].polar for k in members))
     ncols = ncols or len(panels)
     nrows = math.ceil(len(panels) / ncols)
-    fig = _new_figure(_fan_size(panels[0].image.sonar, ncols, nrows, colorbar=True))
+    fig = _new_figure(_fan_size(panels[0].image.sonar, ncols, nrows, colorbar=True), "constrained")
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     mappers: dict[Any, Any] = {}
     for k, panel in enumerate(panels):
@@ -604,13 +606,17 @@ def comparison_figure(images: Sequence[Any], titles: Sequence[str], *, normalize
     Parameters
     ----------
     images : sequence of SonarImage
-        With geometry (``sonar``); images without it (PNG inputs) are not drawn here.
+        With geometry (``sonar``) they are drawn as fans in metres; if any has none (a PNG read
+        by :func:`~sonarsim.analysis.comparison.load_image`), all are drawn as polar images
+        over beam and range-bin indices (far range at the top).
     titles : sequence of str
 
     Returns
     -------
     matplotlib.figure.Figure
     """
+    if any(getattr(im, "sonar", None) is None for im in images):
+        return _index_comparison(images, titles, normalize=normalize, colormap=colormap, title=title)
     full = _same_counts(images)
     if full is not None:
         scale: DisplayScale | list[DisplayScale] = DisplayScale("linear", reference=full, units=_COUNTS,
@@ -623,6 +629,32 @@ def comparison_figure(images: Sequence[Any], titles: Sequence[str], *, normalize
                               reference_name="each image's maximum") for im in images]
     panels = [Panel(t, im) for t, im in zip(titles, images)]
     return panels_figure(panels, scale, title=title, colormap=colormap, pixel_size_m=pixel_size_m)
+
+
+def _index_comparison(images: Sequence[Any], titles: Sequence[str], *, normalize: str | None, colormap: str,
+                      title: str) -> Figure:
+    """Polar images without geometry side by side: beam index across, range bin up."""
+    from matplotlib.colors import Normalize
+
+    if normalize is None:
+        shared = DisplayScale("linear", reference_name="the larger maximum").resolved(*(im.polar for im in images))
+        scales = [shared] * len(images)
+    else:
+        scales = [DisplayScale("linear", reference_name="each image's maximum").resolved(im.polar) for im in images]
+    fig = _new_figure((4.0 * len(images) + 1.4, 5.2))
+    axes = fig.subplots(1, len(images), squeeze=False).ravel()
+    for ax, im, sc, name in zip(axes, images, scales, titles):
+        polar = np.asarray(im.polar)
+        rows, cols = polar.shape
+        ax.imshow(sc.encode(polar), origin="lower", aspect="auto", extent=(-0.5, cols - 0.5, -0.5, rows - 0.5),
+                  cmap=_listed(colormap), norm=Normalize(0, 255), interpolation="antialiased")
+        ax.set_xlabel("beam (index, left-most first)")
+        ax.set_ylabel("range bin (index, nearest at the bottom)")
+        ax.set_title(name, fontsize=10)
+    _colorbar(fig, list(axes), scales[-1], colormap)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return fig
 
 
 def fit_figure(real: Any, fitted: Any, *, colormap: str = DEFAULT_COLORMAP, frame: int | None = None) -> Figure:
