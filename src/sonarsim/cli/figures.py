@@ -95,6 +95,8 @@ def write_figure(args: argparse.Namespace, stem_path: Path, build: Callable[[], 
             save_figure(fig, path, close=False)
     finally:
         _close(fig)
+    if getattr(args, "quiet", False):  # fit --quiet: errors only
+        return paths
     names = ", ".join(str(p) for p in paths)
     print(f"sonarsim: wrote {names} in {time.perf_counter() - t0:.2f} s", file=sys.stderr, flush=True)
     return paths

@@ -9,6 +9,7 @@ import matplotlib until a picture is asked for.
 from __future__ import annotations
 
 import io
+import math
 import os
 from typing import TYPE_CHECKING, Any
 
@@ -154,7 +155,12 @@ def _fan_bounds(fan: Any) -> tuple[float, float, float, float]:
         return 0.0, float(fan.x_m[0]), 0.0, 0.0
     r = np.hypot(xx[inside], yy[inside])
     a = np.degrees(np.arctan2(yy[inside], xx[inside]))
-    return float(r.min()), float(r.max()), float(a.max()), float(a.min())
+    # Pixel centres lie up to half a diagonal inside the true bounds: widen by that much, so
+    # that rings and spokes on the bounds (a 5 m window's 5 m ring) are drawn.
+    d = fan.pixel_size_m / math.sqrt(2.0)
+    rmax = float(r.max()) + d
+    da = math.degrees(d / rmax)
+    return max(0.0, float(r.min()) - d), rmax, float(a.max()) + da, float(a.min()) - da
 
 
 def fan_image_figure(fan: Any, ax: Axes | None = None, *, mapping: str = "db", gain_db: float = 0.0,
