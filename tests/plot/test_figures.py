@@ -238,3 +238,28 @@ def test_save_figure_refuses_an_unknown_format(tmp_path):
     with pytest.raises(ValueError, match="'tiff'.*allowed: png, svg, pdf"):
         F.save_figure(F.fan_figure(synthetic()), tmp_path / "a.tiff")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_fit_figure_marks_the_fitted_band_on_the_real_image():
+    import sonarsim
+    from tests.conftest import block_scene_dict
+
+    image = sonarsim.render(block_scene_dict(n_range_bins=200))
+    fig = F.fit_figure(image, image, frame=2)
+    panels = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    assert [ax.get_title() for ax in panels] == ["real (frame 2), fitted floor band", "render at the fitted pose"]
+    assert [t.get_text() for t in panels[0].get_legend().get_texts()] == ["near edge", "far edge"]
+    near = panels[0].lines[-2]
+    # The band's near edge (1 m up, 20 deg down, 14 deg aperture: 1 / sin(27 deg) = 2.2 m) in metres.
+    assert np.median(np.hypot(near.get_xdata(), near.get_ydata())) == pytest.approx(1 / math.sin(math.radians(27)),
+                                                                                   abs=0.1)
+
+
+def test_calibration_figure_shows_three_panels_in_counts():
+    real = synthetic(point_target() * 180.0)
+    fig = F.calibration_figure(real, real, real, 255.0, frame=4)
+    panels = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    assert [ax.get_title() for ax in panels] == ["real (frame 4)", "calibrated model: expected (no speckle)",
+                                                 "calibrated model: speckled frame"]
+    (bar,) = colorbars(fig)
+    assert bar.get_ylabel() == "device output (counts)" and bar.get_ylim() == pytest.approx((0.0, 255.0))
