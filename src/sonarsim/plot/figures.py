@@ -384,7 +384,7 @@ def _fan_size(sonar: Any, ncols: int = 1, nrows: int = 1, colorbar: bool = True)
     chord = abs(math.sin(math.radians(edges[0])) - math.sin(math.radians(edges[-1])))
     ratio = min(2.2, max(0.5, (chord + 0.15) / 1.09))  # the axes' limits of draw_fan
     h = 4.4 if nrows == 1 else 3.4
-    return (min(18.0, ncols * (h * ratio + 0.7) + (1.4 if colorbar else 0.2)), nrows * (h + 0.8) + 0.5)
+    return (min(18.0, ncols * (h * ratio + 0.7) + (1.4 if colorbar else 0.2)), nrows * (h + 0.9) + 0.5)
 
 
 def fan_figure(image: Any, component: str | None = None, *, ax: Axes | None = None,
@@ -505,6 +505,8 @@ def panels_figure(panels: Sequence[Panel], scales: DisplayScale | Sequence[Displ
         axes[k].set_title(panel.title, fontsize=10)
         if k % ncols:  # the forward axis label once per row is enough
             axes[k].set_ylabel("")
+        if k // ncols < nrows - 1:  # and the lateral one under the last row (room for the titles)
+            axes[k].set_xlabel("")
     for ax in axes[len(panels):]:
         ax.set_visible(False)
     # One colour bar per distinct reading (label and ends): panels scaled each to its own
