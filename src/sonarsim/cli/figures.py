@@ -20,7 +20,7 @@ __all__ = ["add_figure_options", "figure_formats", "figure_names", "figure_paths
 
 
 def _formats(text: str) -> tuple[str, ...]:
-    from ..plot.figures import FIGURE_FORMATS
+    from ..plot import FIGURE_FORMATS  # no numpy: this runs while the command line is parsed
 
     values = tuple(dict.fromkeys(v.strip().lower() for v in text.split(",") if v.strip()))
     bad = [v for v in values if v not in FIGURE_FORMATS]

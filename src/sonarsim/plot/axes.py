@@ -25,6 +25,7 @@ __all__ = [
     "MAX_SPOKES",
     "azimuth_ticks_deg",
     "draw_fan_frame",
+    "fan_outline",
     "format_azimuth",
     "format_range",
     "range_rings_m",

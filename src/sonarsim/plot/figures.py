@@ -23,14 +23,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..io.output import to_uint8
+from . import FIGURE_FORMATS
 from .axes import azimuth_ticks_deg, draw_fan_frame, format_azimuth, range_rings_m
 from .style import DEFAULT_COLORMAP, OUTSIDE_FAN_RGB, colorize, colormap_lut
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
-
-    from ..image.result import SonarImage
 
 __all__ = [
     "FIGURE_FORMATS",
@@ -55,8 +54,6 @@ __all__ = [
     "sensor_figure",
 ]
 
-#: Formats :func:`save_figure` writes (``--figure-format``).
-FIGURE_FORMATS = ("png", "svg", "pdf")
 #: A fan drawn in a figure is resampled to about this many pixels along its range, whatever the
 #: range resolution: finer than any figure shows it, and a figure stays well under a second.
 FIGURE_PIXELS = 600

@@ -27,6 +27,7 @@ __all__ = [
     "fan_image_repr",
     "image_plot",
     "image_repr",
+    "image_repr_png",
     "image_save",
     "image_to_pil",
     "png_bytes",
