@@ -191,6 +191,12 @@ def test_calibrate_command_writes_a_scene_that_renders_in_the_recordings_units(t
     for key in ("ks", "wasserstein", "contrast_a", "contrast_b", "grain_range_b", "grain_beams_b",
                 "range_profile_db_real", "beam_profile_db_model"):
         assert key in figures["calibrated"]["regions"]["water"], key
+    # The annotated figure beside the picture, in the run's record.
+    from sonarsim.io.run_record import read_record, record_beside
+
+    assert (tmp_path / "out" / "calibrated_figure.png").read_bytes().startswith(b"\x89PNG")
+    listed = [e.get("name") or e.get("path") for e in read_record(record_beside(out))["files"]]
+    assert listed == ["calibrated.yaml", "calibrated.png", "calibrated_figure.png", str(tmp_path / "fig.json")]
     picture = Image.open(tmp_path / "out" / "calibrated.png")
     assert picture.size[0] > picture.size[1]  # three narrow fans side by side, under titles
     thirds = np.array_split(np.asarray(picture)[40:], 3, axis=1)

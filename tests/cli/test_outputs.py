@@ -122,7 +122,7 @@ def test_show_after_render_in_one_folder(capsys, tmp_path: Path, tiny_scene: Pat
     recording = shared_data / "real" / "oculus" / "one_ping_8bit.raw"
     code, err = run_main(capsys, "show", recording, "--out", out)
     assert code == 0, err
-    doc = check_record(out, out / RECORD_NAME, ["polar.png", "fan.png"])
+    doc = check_record(out, out / RECORD_NAME, ["polar.png", "fan.png", "fan_figure.png", "polar_figure.png"])
     assert doc["command"][:3] == ["sonarsim", "show", str(recording)]
 
 
@@ -145,14 +145,16 @@ def test_fit_keeps_its_record_beside_its_scene(capsys, tmp_path: Path, tiny_scen
     assert code == 0, err
     record = record_beside(out)
     assert record.name == "fitted.yaml.sonarsim-run.json"
-    check_record(out.parent, record, ["fitted.yaml", "fitted_fit.png"], others=("other_fit.png",))
-    # Again with the picture elsewhere: the first picture is stale, the stranger's file stays.
+    check_record(out.parent, record, ["fitted.yaml", "fitted_fit.png", "fitted_fit_figure.png"],
+                 others=("other_fit.png",))
+    # Again with the picture elsewhere: the first picture (and figure) are stale, the stranger's file stays.
     picture = tmp_path / "pictures" / "fit.png"
     code, err = run_main(capsys, *args, "--image", picture)
     assert code == 0, err
     assert sorted(os.listdir(out.parent)) == ["fitted.yaml", record.name, "other_fit.png"]
     files = read_record(record)["files"]
-    assert [e.get("name") or e.get("path") for e in files] == ["fitted.yaml", str(picture)]
+    assert [e.get("name") or e.get("path") for e in files] == ["fitted.yaml", str(picture),
+                                                                str(picture.with_name("fit_figure.png"))]
     assert files[1]["sha256"] == hashlib.sha256(picture.read_bytes()).hexdigest()
 
 

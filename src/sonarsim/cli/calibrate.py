@@ -49,8 +49,12 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--evaluate-frames", type=frame_list, default=(), metavar="N,M",
                    help="held-out frames of the recording to report the figures for")
     p.add_argument("--max-iterations", type=int, default=400, help="budget of each simplex search (default: 400)")
-    p.add_argument("--image", default=None, help="side-by-side PNG (default: --out with .png for .yaml)")
+    p.add_argument("--image", default=None, help="side-by-side PNG (default: --out with .png for .yaml); the "
+                   "annotated figure goes beside it as *_figure.png")
     p.add_argument("--json", default=None, help="also write the figures as JSON to this file")
+    from .figures import add_figure_options
+
+    add_figure_options(p)
     p.set_defaults(func=cmd_calibrate)
     return p
 
@@ -104,9 +108,13 @@ def cmd_calibrate(args) -> None:
 
     if args.max_iterations < 1:
         raise ConfigError("--max-iterations", f"must be at least 1, got {args.max_iterations}")
+    from ..plot.figures import calibration_figure
+    from .figures import figure_paths, write_figure
+
     out = Path(args.out)
     image_path = Path(args.image) if args.image else out.with_suffix(".png")
-    outputs = [(out, "--out"), (image_path, "--image")]
+    figure_stem = image_path.with_name(image_path.stem + "_figure")
+    outputs = [(out, "--out"), (image_path, "--image"), *((p, "--image") for p in figure_paths(args, figure_stem))]
     if args.json:
         outputs.append((Path(args.json), "--json"))
     # Every output checked before the calibration, which can take minutes (sonarsim.io.run_record).
@@ -139,6 +147,8 @@ def cmd_calibrate(args) -> None:
         with atomic_write(out, "w") as f:
             yaml.safe_dump(doc, f, sort_keys=False)
         write_png(image_path, side_by_side(real, res.expected, speckled, peak, args.frame))
+        write_figure(args, figure_stem, lambda: calibration_figure(real, res.expected, speckled, peak, args.frame,
+                                                                   colormap=args.colormap))
         if args.json:
             with atomic_write(Path(args.json), "w") as f:
                 json.dump(figures, f, indent=1, default=float)

@@ -87,6 +87,13 @@ def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "top as sonarsim draws polar PNGs; either on A's polar grid (A's shape)")
     p.add_argument("--json", action="store_true",
                    help="print JSON instead of a table (infinite PSNR and undefined SSIM as null)")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="also write the annotated figure compare_figure.png into DIR (A | B side by side on the "
+                   "scale the metrics see: each image over its maximum, or as stored with --normalize none; "
+                   "both in a device's counts when both are), then DIR/sonarsim-run.json")
+    from .figures import add_figure_options
+
+    add_figure_options(p)
     p.set_defaults(func=cmd_compare)
     return p
 
@@ -160,6 +167,26 @@ def _load_regions(specs: list[tuple[str, str]], shape: tuple[int, ...], path_a: 
     return regions
 
 
+def _write_figure(args: argparse.Namespace, run: Any, image_a: Any, image_b: Any, normalize: str | None) -> None:
+    """compare_figure.* in --out: A | B on the scale the metrics see."""
+    from pathlib import Path
+
+    from ..plot.figures import comparison_figure
+    from .figures import write_figure
+
+    def titled(label: str, path: str, frame: int | None, component: str | None) -> str:
+        from os.path import basename
+
+        return f"{label}: {basename(path)}" + (f" frame {frame}" if frame is not None else "") + (
+            f" [{component}]" if component else "")
+
+    titles = [titled("A", args.a, args.frame_a, args.component_a), titled("B", args.b, args.frame_b, args.component_b)]
+    with run:
+        write_figure(args, Path(args.out) / "compare_figure",
+                     lambda: comparison_figure([image_a, image_b], titles, normalize=normalize, colormap=args.colormap,
+                                               pixel_size_m=args.pixel_size, title="sonarsim compare"), run)
+
+
 def cmd_compare(args: argparse.Namespace) -> None:
     """Run ``sonarsim compare`` with parsed arguments; print the result to stdout.
 
@@ -170,7 +197,16 @@ def cmd_compare(args: argparse.Namespace) -> None:
         A, or images that cannot be compared.
     """
     from ..analysis.comparison import DOMAINS, compare_images, load_image
+    from .figures import figure_names
 
+    run = None
+    names = figure_names(args, ("compare_figure",)) if args.out else []
+    if names:
+        from ..io.run_record import OutputRun
+
+        # Checked before the images are read (sonarsim.io.run_record).
+        run = OutputRun.for_folder(args.out, names, command=getattr(args, "command_line", None))
+        run.protect([(args.a, "image A"), (args.b, "image B")])
     image_a = load_image(args.a, args.frame_a, args.component_a)
     image_b = load_image(args.b, args.frame_b, args.component_b)
     regions = _load_regions(args.region, image_a.polar.shape, args.a)
@@ -181,6 +217,8 @@ def cmd_compare(args: argparse.Namespace) -> None:
     )
     info = result["info"]
     desc_a, desc_b = _describe(image_a), _describe(image_b)
+    if run is not None:
+        _write_figure(args, run, image_a, image_b, normalize)
 
     if args.json:
         doc = {

@@ -11,8 +11,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .render import (RENDER_FILES, _log, add_image_options, add_render_options, check_pixel_size, options_named,
-                     render_and_write)
+from .render import (RENDER_FIGURES, RENDER_IMAGES, _log, add_image_options, add_render_options, check_pixel_size,
+                     options_named, render_and_write)
 
 __all__ = ["add_demo_parser", "cmd_demo", "demo_scene_dict", "tank_scene_dict"]
 
@@ -111,7 +111,10 @@ def add_demo_parser(subparsers: Any) -> argparse.ArgumentParser:
                               "and all bounces side by side, as in the paper's Fig. 9) into --out; then a tank with a water "
                               "surface and walls: tank.yaml and multipath.png (all paths, direct echoes, the surface's and "
                               "the walls' ghosts); then the first scene as an ARIS 3000 records it (sensor model: beam "
-                              "patterns, speckle, noise, TVG, 8-bit output): scene_aris3000.yaml and aris3000.png; "
+                              "patterns, speckle, noise, TVG, 8-bit output): scene_aris3000.yaml and aris3000.png. "
+                              "Beside the exact-pixel images, annotated figures (axes in metres and degrees, colour "
+                              "bar, labelled panels): fan_figure.png, polar_figure.png, ground_echo_figure.png, "
+                              "multipath_figure.png and aris3000_figure.png (--figure-format, --no-figures); "
                               "last, sonarsim-run.json, the run's record.")
     p.add_argument("--out", default="sonarsim-demo", help="output folder (default: ./sonarsim-demo)")
     add_render_options(p)
@@ -120,9 +123,13 @@ def add_demo_parser(subparsers: Any) -> argparse.ArgumentParser:
     return p
 
 
-#: Every file ``demo`` writes into --out (--components adds per-component images).
-DEMO_FILES = ("scene.yaml", *RENDER_FILES, "ground_echo.png", "tank.yaml", "multipath.png", "scene_aris3000.yaml",
-              "aris3000.png")
+#: The exact-pixel files ``demo`` writes into --out (--components adds per-component images).
+DEMO_IMAGES = ("scene.yaml", *RENDER_IMAGES, "ground_echo.png", "tank.yaml", "multipath.png", "scene_aris3000.yaml",
+               "aris3000.png")
+#: The annotated figures ``demo`` writes beside them (stems; one file per --figure-format).
+DEMO_FIGURES = (*RENDER_FIGURES, "ground_echo_figure", "multipath_figure", "aris3000_figure")
+#: Every file ``demo`` writes into --out with the default options (figures as PNG).
+DEMO_FILES = (*DEMO_IMAGES, *(f"{stem}.png" for stem in DEMO_FIGURES))
 
 
 def cmd_demo(args) -> None:
@@ -131,7 +138,10 @@ def cmd_demo(args) -> None:
 
     out = Path(args.out)
     # The output folder first, then the three scenes, all before the first render.
-    run = OutputRun.for_folder(out, DEMO_FILES, command=getattr(args, "command_line", None))
+    from .figures import figure_names
+
+    run = OutputRun.for_folder(out, [*DEMO_IMAGES, *figure_names(args, DEMO_FIGURES)],
+                               command=getattr(args, "command_line", None))
     doc = demo_scene_dict()
     # The scene.yaml written must reproduce this render, command-line overrides included.
     if args.bounces is not None:
@@ -176,13 +186,21 @@ def _demo_files(args, out: Path, run, demo, tank, aris) -> None:
 
     from ..io.figures import bounce_comparison, multipath_comparison, sensor_comparison
     from ..io.output import atomic_write, write_png
+    from ..plot.figures import ground_echo_figure, multipath_figure, sensor_figure
     from ..renderer.simulator import Simulator
+    from .figures import write_figure
+
+    # The figures take the PNGs' mapping, gain and window, and the command's colour map.
+    shown = {"mapping": args.mapping, "gain_db": args.gain_db, "dynamic_range_db": args.dynamic_range_db,
+             "colormap": args.colormap}
 
     with atomic_write(out / "scene.yaml", "w") as f:
         yaml.safe_dump(demo[0], f, sort_keys=False)
     image = render_and_write(demo[1], out, args, run)
     write_png(out / "ground_echo.png", bounce_comparison(image, args.pixel_size, args.mapping, args.gain_db, args.dynamic_range_db))
     _log(f"wrote {out / 'ground_echo.png'} (fan views: single | single + triple | all bounces)")
+    write_figure(args, out / "ground_echo_figure", lambda: ground_echo_figure(image, pixel_size_m=args.pixel_size, **shown),
+                 run)
 
     with atomic_write(out / "tank.yaml", "w") as f:
         yaml.safe_dump(tank[0], f, sort_keys=False)
@@ -193,6 +211,7 @@ def _demo_files(args, out: Path, run, demo, tank, aris) -> None:
     write_png(out / "multipath.png", figure)
     _log(f"wrote {out / 'tank.yaml'} and {out / 'multipath.png'} "
          "(fan views: all paths | direct echoes | via the water surface | via a wall)")
+    write_figure(args, out / "multipath_figure", lambda: multipath_figure(tank_image, **shown), run)
 
     with atomic_write(out / "scene_aris3000.yaml", "w") as f:
         yaml.safe_dump(aris[0], f, sort_keys=False)
@@ -201,3 +220,6 @@ def _demo_files(args, out: Path, run, demo, tank, aris) -> None:
     write_png(out / "aris3000.png", sensor_comparison(recorded, expected, "an ARIS 3000", 255.0, args.pixel_size))
     _log(f"wrote {out / 'scene_aris3000.yaml'} and {out / 'aris3000.png'} "
          "(fan views: ideal | as an ARIS 3000 records it, 8-bit | its expected output)")
+    write_figure(args, out / "aris3000_figure",
+                 lambda: sensor_figure(recorded, expected, "an ARIS 3000", dynamic_range_db=args.dynamic_range_db,
+                                       colormap=args.colormap, pixel_size_m=args.pixel_size), run)

@@ -65,7 +65,11 @@ def add_fit_parser(sub) -> argparse.ArgumentParser:
                    "(the choice and its reason go to stderr)")
     p.add_argument("--max-renders", type=_render_budget, default=600, help="render budget of the search (default: 600)")
     p.add_argument("--quiet", action="store_true", help="no progress or notes on stderr (errors still)")
-    p.add_argument("--image", default=None, help="side-by-side PNG (default: next to --out, *_fit.png)")
+    p.add_argument("--image", default=None, help="side-by-side PNG (default: next to --out, *_fit.png); the "
+                   "annotated figure goes beside it as *_fit_figure.png")
+    from .figures import add_figure_options
+
+    add_figure_options(p)
     p.set_defaults(func=cmd_fit)
     return p
 
@@ -196,10 +200,15 @@ def cmd_fit(args) -> None:
     from ..io.output import atomic_write, write_png
     from ..io.run_record import OutputRun, record_beside
 
+    from ..plot.figures import fit_figure
+    from .figures import figure_paths, write_figure
+
     out = Path(args.out)
     image_path = Path(args.image) if args.image else out.with_name(out.stem + "_fit.png")
-    # Both outputs checked before the search, which can take minutes (sonarsim.io.run_record).
-    run = OutputRun(record_beside(out), [(out, "--out"), (image_path, "--image")],
+    figure_stem = image_path.with_name(image_path.stem + "_figure")
+    figures = [(p, "--image") for p in figure_paths(args, figure_stem)]
+    # Every output checked before the search, which can take minutes (sonarsim.io.run_record).
+    run = OutputRun(record_beside(out), [(out, "--out"), (image_path, "--image"), *figures],
                     command=getattr(args, "command_line", None)).protect([(args.real, "the recording")])
     free_parameters(args.free, allow_none=False)  # before the recording is read
     real = _load_real(args.real, args.frame)
@@ -237,5 +246,8 @@ def cmd_fit(args) -> None:
         with atomic_write(out, "w") as f:
             yaml.safe_dump(doc, f, sort_keys=False)
         write_png(image_path, side_by_side(real, result.image))
+        # Planned above under --image; write_figure reports it on stderr.
+        write_figure(args, figure_stem, lambda: fit_figure(real, result.image, colormap=args.colormap,
+                                                           frame=args.frame))
     if not quiet:
         print(f"sonarsim: wrote {out} and {image_path}", file=sys.stderr)

@@ -14,7 +14,7 @@ from typing import Any
 
 from .argtypes import display_gain_db, display_range_db, frame_index, positive_float
 
-__all__ = ["RENDER_FILES", "add_image_options", "add_render_options", "add_render_parser", "cmd_render",
+__all__ = ["RENDER_FIGURES", "RENDER_FILES", "add_image_options", "add_render_options", "add_render_parser", "cmd_render",
            "options_named", "render_and_write"]
 
 
@@ -34,7 +34,9 @@ def _bounces(text: str) -> list[int]:
 
 
 def add_image_options(p: argparse.ArgumentParser) -> None:
-    """The PNG options of ``render`` and ``demo``."""
+    """The PNG and figure options of ``render`` and ``demo``."""
+    from .figures import add_figure_options
+
     g = p.add_argument_group("images")
     g.add_argument("--pixel-size", type=positive_float, default=None, metavar="M",
                    help="fan image pixel size in metres (default: the range resolution)")
@@ -46,6 +48,7 @@ def add_image_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--components", action="store_true",
                    help="also write one polar and one fan PNG per component (object, ground, single, double, ..., "
                    "and one per path signature such as O-ground-[objects]-ground-O)")
+    add_figure_options(p)
 
 
 def add_render_options(p: argparse.ArgumentParser) -> None:
@@ -67,7 +70,8 @@ def add_render_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``render`` sub-command to an ``add_subparsers()`` object; sets ``func=cmd_render``."""
     p = subparsers.add_parser("render", help="render a scene file to polar.png, fan.png and render.npz",
                               description="Render a YAML/JSON scene file. Writes polar.png, fan.png and render.npz into --out, "
-                              "then sonarsim-run.json, the run's record (status complete, each file's sha256). "
+                              "the annotated figures fan_figure.png and polar_figure.png (axes in metres and degrees, "
+                              "colour bar, title; --figure-format, --no-figures), then sonarsim-run.json, the run's record (status complete, each file's sha256). "
                               "Files an earlier run listed there and this one does not write are removed.")
     p.add_argument("scene", help="scene file (YAML or JSON)")
     p.add_argument("--out", required=True, help="output folder (created if missing)")
@@ -149,8 +153,19 @@ def check_pixel_size(scenes, args) -> None:
             check_fan_size(scene.sonar.grid, args.pixel_size)
 
 
-#: The files ``render`` writes into --out (and ``demo`` among others); --components adds more.
-RENDER_FILES = ("polar.png", "fan.png", "render.npz")
+#: The exact-pixel files ``render`` writes into --out (and ``demo`` among others); --components adds more.
+RENDER_IMAGES = ("polar.png", "fan.png", "render.npz")
+#: The annotated figures ``render`` writes beside them (stems; one file per --figure-format).
+RENDER_FIGURES = ("fan_figure", "polar_figure")
+#: Every file ``render`` writes into --out with the default options (figures as PNG).
+RENDER_FILES = (*RENDER_IMAGES, *(f"{stem}.png" for stem in RENDER_FIGURES))
+
+
+def render_files(args) -> list[str]:
+    """The files ``render`` writes into --out with these options (--components adds more)."""
+    from .figures import figure_names
+
+    return [*RENDER_IMAGES, *figure_names(args, RENDER_FIGURES)]
 
 
 def render_and_write(scene, out: Path, args, run=None):
@@ -193,7 +208,25 @@ def render_and_write(scene, out: Path, args, run=None):
                 write(f"_{key}", comp, key)
     image.save_npz(out / "render.npz")
     _log(f"wrote {out / 'polar.png'}, {out / 'fan.png'}, {out / 'render.npz'} in {time.perf_counter() - t2:.3f} s")
+    write_render_figures(image, out, args, run)
     return image
+
+
+def write_render_figures(image, out: Path, args, run=None) -> None:
+    """The annotated fan and polar figures of a render (device output in its counts, a render's
+    intensity in dB with the command's gain and window)."""
+    from ..plot.figures import default_scale, device_full_scale, fan_figure, polar_figure
+    from .figures import write_figure
+
+    # The PNG mapping applies to intensities; a device's output is shown in its counts.
+    mapping = None if device_full_scale(image) is not None else args.mapping
+    scale = default_scale(image, mapping, args.gain_db, args.dynamic_range_db)
+    colormap = getattr(args, "colormap", "inferno")
+    frame = getattr(args, "frame", None)
+    write_figure(args, out / "fan_figure", lambda: fan_figure(image, scale=scale, colormap=colormap, frame=frame,
+                                                               pixel_size_m=args.pixel_size), run)
+    write_figure(args, out / "polar_figure", lambda: polar_figure(image, scale=scale, colormap=colormap,
+                                                                   frame=frame), run)
 
 
 def cmd_render(args) -> None:
@@ -202,7 +235,7 @@ def cmd_render(args) -> None:
 
     out = Path(args.out)
     # Checked before the scene is even read: a render must not be lost to an unwritable --out.
-    run = OutputRun.for_folder(out, RENDER_FILES, command=getattr(args, "command_line", None))
+    run = OutputRun.for_folder(out, render_files(args), command=getattr(args, "command_line", None))
     scene = override_render(load_scene(args.scene), args)
     check_pixel_size([scene], args)
     with run:

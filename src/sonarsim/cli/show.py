@@ -51,7 +51,9 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
         help="write polar.png and fan.png of one frame of a real recording (ARIS, Oculus)",
         description="Read one frame of a real sonar recording - an ARIS .aris file or Oculus "
         "simple-ping-result messages (.raw), recognised by content - and write polar.png "
-        "(range up, left-most beam on the left) and fan.png into --out, then sonarsim-run.json, the run's record.",
+        "(range up, left-most beam on the left) and fan.png into --out, the annotated figures fan_figure.png and "
+        "polar_figure.png (axes in metres and degrees, colour bar in the device's counts, title; --figure-format, "
+        "--no-figures), then sonarsim-run.json, the run's record.",
     )
     p.add_argument("recording", metavar="FILE", help="the recording (.aris, or Oculus .raw messages)")
     p.add_argument("--frame", type=int, default=0, metavar="N",
@@ -66,6 +68,9 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
     g.add_argument("--gain-db", type=display_gain_db, default=0.0, metavar="DB", help="display gain in dB (default: 0)")
     g.add_argument("--dynamic-range-db", type=display_range_db, default=40.0, metavar="DB",
                    help="width of the dB window shown with --mapping db (default: 40)")
+    from .figures import add_figure_options
+
+    add_figure_options(p)
     p.set_defaults(func=cmd_show)
     return p
 
@@ -92,10 +97,13 @@ def cmd_show(args: argparse.Namespace) -> None:
     from ..io.output import to_uint8, write_png
     from ..io.readers import RecordingError, open_recording
     from ..io.run_record import OutputRun
+    from ..plot.figures import default_scale, fan_figure, polar_figure
+    from .figures import figure_names, write_figure
 
     out = Path(args.out)
     # Checked before the recording is read; nothing is written until both images exist.
-    run = OutputRun.for_folder(out, ("polar.png", "fan.png"), command=getattr(args, "command_line", None))
+    run = OutputRun.for_folder(out, ["polar.png", "fan.png", *figure_names(args, ("fan_figure", "polar_figure"))],
+                               command=getattr(args, "command_line", None))
     run.protect([(args.recording, "the recording")])
     t0 = time.perf_counter()
     with open_recording(args.recording) as recording:
@@ -125,8 +133,13 @@ def cmd_show(args: argparse.Namespace) -> None:
     polar_png = png(image.polar[::-1])
     fan = image.fan(pixel_size_m=args.pixel_size)
     fan_png = png(fan.image, fan.mask)
+    # The figures on the PNGs' scale: the device's counts against the same reference.
+    scale = default_scale(image, args.mapping, args.gain_db, args.dynamic_range_db)
     with run:
         write_png(out / "polar.png", polar_png)
         write_png(out / "fan.png", fan_png)
-    _log(f"wrote {out / 'polar.png'} and {out / 'fan.png'} ({fan.shape[1]} x {fan.shape[0]} px) "
-         f"in {time.perf_counter() - t1:.3f} s")
+        _log(f"wrote {out / 'polar.png'} and {out / 'fan.png'} ({fan.shape[1]} x {fan.shape[0]} px) "
+             f"in {time.perf_counter() - t1:.3f} s")
+        write_figure(args, out / "fan_figure", lambda: fan_figure(image, scale=scale, colormap=args.colormap,
+                                                                   pixel_size_m=args.pixel_size), run)
+        write_figure(args, out / "polar_figure", lambda: polar_figure(image, scale=scale, colormap=args.colormap), run)

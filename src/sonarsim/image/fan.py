@@ -98,6 +98,61 @@ class FanImage:
         """``(H, W)``, the image shape in pixels."""
         return (int(self.x_m.shape[0]), int(self.y_m.shape[0]))
 
+    # -- pictures (sonarsim.plot; matplotlib is imported only here) ---------------------------
+
+    def __repr__(self) -> str:
+        from ..plot.notebook import fan_image_repr
+
+        return fan_image_repr(self)
+
+    def _repr_png_(self) -> bytes:
+        """What a notebook shows: the annotated fan (dB re its maximum)."""
+        from ..plot.notebook import fan_image_figure, png_bytes
+
+        return png_bytes(fan_image_figure(self))
+
+    def plot(self, ax=None, **options):
+        """Draw the annotated fan (metres, rings, spokes, colour bar in dB re its maximum) on
+        ``ax`` (default: a new pyplot figure) and return the axes.
+
+        The window (range and edges) is taken from the pixels inside :attr:`mask`, so the
+        outline is exact within a pixel. ``options``: those of
+        :func:`sonarsim.plot.notebook.fan_image_figure` (``colormap``, ``mapping``, ...).
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        from ..plot.notebook import fan_image_figure
+
+        if ax is None:
+            import matplotlib.pyplot as plt
+
+            ax = plt.figure(figsize=(4.5, 5.0), layout="compressed").add_subplot()
+        fan_image_figure(self, ax, **options)
+        return ax
+
+    def save(self, path, **options) -> None:
+        """Write the annotated figure: PNG, SVG or PDF after the suffix of ``path``, atomically."""
+        from ..plot.figures import save_figure
+        from ..plot.notebook import fan_image_figure
+
+        save_figure(fan_image_figure(self, **options), path)
+
+    def to_pil(self, mapping: str = "db", gain_db: float = 0.0, dynamic_range_db: float = 40.0):
+        """The exact-pixel image as an 8-bit grey PIL image (0 outside the fan), through
+        :func:`sonarsim.io.output.to_uint8`.
+
+        Returns
+        -------
+        PIL.Image.Image
+        """
+        from PIL import Image
+
+        from ..io.output import to_uint8
+
+        return Image.fromarray(to_uint8(self.image, mapping, gain_db, dynamic_range_db, mask=self.mask))
+
 
 @dataclass(frozen=True, eq=False)
 class FanGeometry:

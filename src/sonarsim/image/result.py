@@ -163,6 +163,72 @@ class SonarImage:
 
         write_npz(path, self.arrays(), self.config)
 
+    # -- pictures (sonarsim.plot; matplotlib is imported only here) ---------------------------
+
+    def __repr__(self) -> str:
+        # One or two lines: the arrays' text would run to pages.
+        from ..plot.notebook import image_repr
+
+        return image_repr(self)
+
+    def _repr_png_(self) -> bytes:
+        """What a notebook shows: the small annotated fan figure."""
+        from ..plot.notebook import image_repr_png
+
+        return image_repr_png(self)
+
+    def plot(self, ax=None, *, kind: str = "fan", component: str | None = None, **options):
+        """Draw the annotated figure (fan in metres, or polar) on ``ax`` and return the axes.
+
+        Parameters
+        ----------
+        ax : matplotlib.axes.Axes, optional
+            Default: a new pyplot figure (shown by a notebook).
+        kind : {'fan', 'polar'}
+        component : str, optional
+            A key of :attr:`components` (default: the image).
+        **options
+            For :func:`sonarsim.plot.figures.fan_figure`: ``colormap`` (``"grey"`` for grey),
+            ``mapping``, ``gain_db``, ``dynamic_range_db``, ``pixel_size_m``, ``title``, ...
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        from ..plot.notebook import image_plot
+
+        return image_plot(self, ax, kind, component, **options)
+
+    def save(self, path, *, kind: str = "fan", component: str | None = None, **options) -> None:
+        """Write the annotated figure to ``path``: PNG, SVG or PDF after its suffix, atomically.
+
+        The options are those of :meth:`plot`.
+        """
+        from ..plot.notebook import image_save
+
+        image_save(self, path, kind, component, **options)
+
+    def to_pil(self, *, kind: str = "fan", component: str | None = None, **options):
+        """The exact-pixel image as a PIL image (8-bit grey, as the commands' PNGs).
+
+        Parameters
+        ----------
+        kind : {'fan', 'polar'}
+            The fan at the range resolution (0 outside it), or the polar image with far range at
+            the top.
+        component : str, optional
+        **options
+            ``mapping``, ``gain_db``, ``dynamic_range_db``, ``pixel_size_m`` (see
+            :func:`sonarsim.plot.notebook.image_to_pil`).
+
+        Returns
+        -------
+        PIL.Image.Image
+        """
+        from ..plot.notebook import image_to_pil
+
+        return image_to_pil(self, kind, component, **options)
+
 
 @functools.lru_cache(maxsize=8)
 def _fan_mapper(grid: PolarGrid, pixel_size_m: float | None, interpolation: str) -> FanMapper:

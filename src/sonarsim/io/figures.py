@@ -47,8 +47,9 @@ def bounce_comparison(image, pixel_size_m: float | None = None, mapping: str = "
     return np.concatenate([tiles[0], gap, tiles[1], gap, tiles[2]], axis=1)
 
 
-def _families(image) -> list[tuple[str, np.ndarray]]:
-    """(title, image) of a tank's path families: all, direct, via the surface, via a wall."""
+def path_families(image) -> list[tuple[str, np.ndarray]]:
+    """(title, polar image) of a tank's path families: all paths, direct echoes, paths that meet
+    the water surface, paths that meet a wall (planes named ``*surface*`` and ``*wall*``)."""
     from ..paths.engine import parse_path_name
 
     comp = image.components
@@ -93,7 +94,7 @@ def multipath_comparison(image, pixel_size_m: float | None = None, mapping: str 
 
     s = image.sonar
     mapper = FanMapper(s.n_range_bins, s.range_min_m, s.range_max_m, image.azimuth_deg, pixel_size_m)
-    panels = _families(image)
+    panels = path_families(image)
     fans = [mapper(np.asarray(img, dtype=np.float64)) for _, img in panels]
     ref = float(fans[0].image.max()) or None
     tiles = [to_uint8(f.image, mapping, gain_db, dynamic_range_db, reference=ref, mask=f.mask) for f in fans]

@@ -12,13 +12,17 @@ import functools
 
 import numpy as np
 
-__all__ = ["COLORMAPS", "DEFAULT_COLORMAP", "colorize", "colormap_lut"]
+__all__ = ["COLORMAPS", "DEFAULT_COLORMAP", "OUTSIDE_FAN_RGB", "colorize", "colormap_lut"]
 
 #: The default colour map of sonar images (matplotlib's ``inferno``: perceptually uniform,
 #: black at zero, readable in grey print).
 DEFAULT_COLORMAP = "inferno"
 #: Colour maps offered on the command line (any matplotlib name works from Python).
 COLORMAPS = ("inferno", "magma", "viridis", "cividis", "grey")
+#: Colour of the pixels outside the fan in figures: a light blue-grey, which none of
+#: :data:`COLORMAPS` contains (the grey map's greys have r = g = b), so that "outside the fan"
+#: never reads as "no echo" (dark) nor as a strong echo.
+OUTSIDE_FAN_RGB = (206, 214, 226)
 
 
 def _mpl_name(name: str) -> str:

@@ -259,3 +259,35 @@ class Recording:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    # -- pictures (sonarsim.plot; matplotlib is imported only here) ---------------------------
+
+    def __repr__(self) -> str:
+        from ...plot.notebook import recording_repr
+
+        return recording_repr(self)
+
+    def _repr_png_(self) -> bytes:
+        """What a notebook shows: the annotated fan of frame 0, in the device's counts."""
+        from ...plot.notebook import image_repr_png
+
+        return image_repr_png(self.read(0))
+
+    def plot(self, frame: int = 0, ax=None, **options):
+        """Draw frame ``frame``'s annotated figure on ``ax`` (default: a new pyplot figure);
+        ``options`` as :meth:`sonarsim.image.result.SonarImage.plot` (``kind="polar"``, ...).
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+        """
+        return self.read(frame).plot(ax, **options)
+
+    def save(self, path, frame: int = 0, **options) -> None:
+        """Write frame ``frame``'s annotated figure: PNG, SVG or PDF after the suffix of ``path``."""
+        self.read(frame).save(path, **options)
+
+    def to_pil(self, frame: int = 0, **options):
+        """Frame ``frame`` as an exact-pixel PIL image (fan, or ``kind="polar"``), in the device's
+        counts as ``sonarsim show`` writes them."""
+        return self.read(frame).to_pil(**options)
