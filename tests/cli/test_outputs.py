@@ -363,7 +363,7 @@ def test_sigkill_leftovers_are_cleaned_by_the_next_run(capsys, tmp_path: Path, b
     check_record(out, out / RECORD_NAME, list(RENDER_FILES), others=("notes.txt",))
 
 
-@pytest.mark.parametrize("delay_s", [0.15, 0.4, 0.8])
+@pytest.mark.parametrize("delay_s", [0.15, 0.4, 0.55, 0.8])
 def test_ctrl_c_while_the_command_starts_says_one_line(tmp_path: Path, big_scene: Path, delay_s: float) -> None:
     # The first second of a command is imports (the renderer, Embree, SciPy), parsing and
     # loading the scene: Ctrl-C there must end like Ctrl-C later (the package imports lazily

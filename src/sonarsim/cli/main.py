@@ -106,14 +106,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:  # building the parser imports the commands' modules: Ctrl-C may come in that time
         args = build_parser().parse_args(argv)
+        from ..core.memory import set_memory_budget  # (an import too: inside the guard)
+
+        set_memory_budget(args.max_memory)
     except KeyboardInterrupt:
         _log("interrupted by Ctrl-C (SIGINT); nothing was written")
         return 128 + int(signal.SIGINT)
     # Stored in each run's record (sonarsim.io.run_record), so a folder says what made it.
     args.command_line = ["sonarsim", *map(str, argv)]
-    from ..core.memory import set_memory_budget
-
-    set_memory_budget(args.max_memory)
     try:
         with _stop_signals_raise():
             args.func(args)

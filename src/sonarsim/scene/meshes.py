@@ -68,9 +68,24 @@ def _texture_of(mesh, where: str) -> tuple[np.ndarray, np.ndarray]:
     return uv, brightness(image)
 
 
+def _trimesh():
+    """The ``trimesh`` module, its SciPy imported first, outside trimesh's own guard.
+
+    trimesh imports SciPy inside ``try: ... except BaseException`` (an optional dependency to
+    it): a Ctrl-C during that half second would be swallowed and the command would run on
+    (or fail later on the wrapped exception). Imported here first, SciPy is already loaded
+    when trimesh asks for it, and a Ctrl-C meanwhile stops the command as it should.
+    """
+    import scipy.optimize  # noqa: F401
+    import scipy.spatial  # noqa: F401
+    import trimesh
+
+    return trimesh
+
+
 @functools.lru_cache(maxsize=32)
 def _load_mesh_file_cached(path: str, mtime_ns: int, size: int, texture: bool = False) -> TriangleMesh:
-    import trimesh
+    trimesh = _trimesh()
 
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
@@ -134,7 +149,7 @@ def load_mesh_file(path: str | os.PathLike, texture: bool = False) -> TriangleMe
 
 def object_mesh_local(obj: ObjectSpec) -> TriangleMesh:
     """The object's mesh in its own coordinates, before scale and pose."""
-    import trimesh
+    trimesh = _trimesh()
 
     if obj.primitive == "box":
         m = trimesh.creation.box(extents=obj.size_m)
