@@ -77,7 +77,13 @@ def start_server(host: str = "127.0.0.1", port: int = 8080):
     with contextlib.redirect_stdout(io.StringIO()):
         server = viser.ViserServer(host=host, port=port, verbose=False)
     server.scene.set_up_direction("+z")
-    server.gui.configure_theme(control_layout="fixed", control_width="large", show_share_button=False)
+    # The controls and images docked on the right, beside the 3D view, not floating over it.
+    main_panel = getattr(server.gui, "main_panel", None)
+    if main_panel is not None and hasattr(main_panel, "dock_right"):
+        main_panel.dock_right()
+        server.gui.configure_theme(control_width="large", show_share_button=False)
+    else:  # older viser
+        server.gui.configure_theme(control_layout="fixed", control_width="large", show_share_button=False)
     return server
 
 
