@@ -24,6 +24,8 @@ __all__ = ["add_view_parser", "cmd_view", "serve", "target_kind"]
 
 #: Suffixes of scene files: never read as recordings.
 SCENE_SUFFIXES = (".yaml", ".yml", ".json")
+#: Suffixes of recordings: a file so named that is no recording is reported as such.
+RECORDING_SUFFIXES = (".aris", ".raw", ".ddf")
 
 
 def _log(msg: str) -> None:
@@ -70,7 +72,7 @@ def target_kind(path: str) -> str:
     Raises
     ------
     SonarsimError
-        The file does not exist.
+        The file does not exist, or is named like a recording and is none (RecordingError).
     """
     from ..errors import SonarsimError
     from ..io.readers import RecordingError, detect_format
@@ -83,6 +85,8 @@ def target_kind(path: str) -> str:
     try:
         detect_format(p)
     except RecordingError:
+        if p.suffix.lower() in RECORDING_SUFFIXES:
+            raise
         return "scene"  # not a recording: loading it as a scene names what is wrong with it
     return "recording"
 
