@@ -204,10 +204,12 @@ class _Page:
 
     def _update(self) -> None:
         frame = self.session.render()
+        t0 = time.perf_counter()
         # Both images before the text: a page that shows the title shows its images.
-        self.fan_image.image = frame.fan_rgb
+        self.fan_image.image = frame.fan_rgb  # JPEG-encoded here, queued to every client
         self.polar_image.image = frame.polar_rgb
-        self.frame, self.error, self._seconds = frame, None, frame.seconds
+        self.frame, self.error = frame, None
+        self._seconds = {**frame.seconds, "send": time.perf_counter() - t0}
         self.title.content = f"**{frame.title}**"
         self._show_status(frame.notes)
 
