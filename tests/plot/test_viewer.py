@@ -222,6 +222,7 @@ def test_saved_scene_loads_and_renders_the_image_shown(tmp_path, sensor):
     loaded = load_scene(tmp_path / "saved" / "scene.yaml")
     assert loaded.sonar_pose.position_m == (0.25, -0.1, 0.9) and loaded.sonar_pose.rpy_deg == (2.0, 18.0, -7.5)
     assert loaded.render.bounces == (1, 3) and (loaded.sensor is not None) == sensor
+    assert {o.name: o.pose.position_m for o in loaded.objects}["buoy"] == (2.2, 0.35, 0.55)
     with Simulator(loaded) as sim:
         again = sim.render(frame=0)
     assert np.array_equal(again.polar, shown.image.polar)
