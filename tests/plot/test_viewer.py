@@ -200,6 +200,8 @@ def test_bad_changes_are_refused(session):
         session.set_sonar_pose((0, float("nan"), 1), (0, 0, 0))
     with pytest.raises(ConfigError, match="unknown switch"):
         session.set_options(colour="red")
+    with pytest.raises(ConfigError, match="unknown colour map 'no_such_map'; allowed: inferno"):
+        session.set_options(colormap="no_such_map")
     no_sensor = SceneSession(block_scene_dict())
     assert not no_sensor.sensor_available
     with pytest.raises(ConfigError, match="no sensor"):

@@ -52,6 +52,13 @@ POLAR_ROWS = 240
 POLAR_MIN_WIDTH = 320
 
 
+def _check_colormap(name: str) -> None:
+    try:
+        colormap_lut(name)
+    except ValueError as exc:
+        raise ConfigError("colormap", str(exc)) from None
+
+
 def component_names(max_order: int) -> tuple[str, ...]:
     """The components a frame formed up to ``max_order`` offers (``total`` first)."""
     from ...renderer.components import component_table
@@ -105,7 +112,7 @@ class ViewOptions:
         if self.component not in component_names(mo):
             raise ConfigError("component", f"unknown component {self.component!r}; allowed: "
                               f"{', '.join(component_names(mo))}")
-        colormap_lut(self.colormap)  # ValueError naming the allowed maps
+        _check_colormap(self.colormap)
         if not (math.isfinite(self.gain_db) and math.isfinite(self.dynamic_range_db) and self.dynamic_range_db > 0):
             raise ConfigError("dynamic_range_db", "gain and dynamic range must be finite, the range > 0")
 
@@ -553,7 +560,7 @@ class RecordingOptions:
     def __post_init__(self) -> None:
         from ...io.output import MAPPINGS
 
-        colormap_lut(self.colormap)
+        _check_colormap(self.colormap)
         if self.mapping not in MAPPINGS:
             raise ConfigError("mapping", f"unknown mapping {self.mapping!r}; allowed: {', '.join(MAPPINGS)}")
         if not (math.isfinite(self.gain_db) and math.isfinite(self.dynamic_range_db) and self.dynamic_range_db > 0):
