@@ -3,7 +3,7 @@ state and re-renders, saving, recordings, the update thread, and the page's API 
 
 from __future__ import annotations
 
-import threading
+import importlib.util
 import time
 from pathlib import Path
 
@@ -307,7 +307,7 @@ def test_updates_coalesce_and_serve_the_newest_state():
 # ---------------------------------------------------------------------------- the page, without a browser
 
 
-viser = pytest.importorskip("viser", reason="the viewer extra is not installed")
+needs_viser = pytest.mark.skipif(importlib.util.find_spec("viser") is None, reason="the viewer extra is not installed")
 
 
 @pytest.fixture(scope="module")
@@ -322,6 +322,7 @@ def demo_viewer():
     stop_server(server)
 
 
+@needs_viser
 def test_page_follows_the_api_and_updates_fast(demo_viewer, tmp_path):
     v = demo_viewer
     assert v.error is None and v.frame.image.polar.shape == (1288, 128)
@@ -350,6 +351,7 @@ def test_page_follows_the_api_and_updates_fast(demo_viewer, tmp_path):
     assert [f.name for f in files] == ["scene.yaml", "polar.png", "fan.png"] and "saved" in v.save_status.content
 
 
+@needs_viser
 def test_recording_page_steps_frames(shared_data):
     from sonarsim.plot.viewer.app import RecordingViewer, start_server, stop_server
 
