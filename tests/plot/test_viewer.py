@@ -90,6 +90,25 @@ def test_plane_quads_lie_in_their_planes_facing_the_water(point, normal):
         assert np.any(np.all(np.isclose(sides[:, :2], 0.0), axis=1))
 
 
+def test_tank_planes_meet_at_their_edges():
+    from sonarsim.cli.demo import tank_scene_dict
+    from sonarsim.plot.viewer.geometry import plane_face
+
+    planes = scene_from_dict(tank_scene_dict()).reflecting_planes  # floor, surface, far and side walls
+    faces = {p.name: plane_face(p, planes, np.array([3.0, 0.0, 1.0]), 10.0) for p in planes}
+    floor = faces["ground"][0]
+    # The floor stops at the side walls (y = +-2) and the far wall (x = 7.2); nothing bounds it behind.
+    assert floor[:, 1].max() == pytest.approx(2.0) and floor[:, 1].min() == pytest.approx(-2.0)
+    assert floor[:, 0].max() == pytest.approx(7.2) and floor[:, 0].min() == pytest.approx(-7.0)
+    assert np.allclose(floor[:, 2], 0.0)
+    far = faces["far_wall"][0]  # 4 m wide, 2 m high: floor to surface
+    assert np.ptp(far[:, 1]) == pytest.approx(4.0) and np.ptp(far[:, 2]) == pytest.approx(2.0)
+    for name, (v, f) in faces.items():
+        plane = next(p for p in planes if p.name == name)
+        a, b, c = v[f[0]]
+        assert np.allclose(np.cross(b - a, c - a) / np.linalg.norm(np.cross(b - a, c - a)), plane.normal), name
+
+
 def test_scene_extent():
     centre, half = scene_extent([[0, 0, 0], [4, 2, 1]], 1.0)
     assert np.allclose(centre, [2, 1, 0.5]) and half == pytest.approx(3.0)

@@ -23,7 +23,7 @@ import numpy as np
 
 from ...errors import SonarsimError
 from . import require_viser
-from .geometry import fov_segments, fov_surface, plane_quad, scene_extent
+from .geometry import fov_segments, fov_surface, plane_face, scene_extent
 from .state import (VIEWER_MAX_ORDER, RecordingSession, SceneSession, ViewFrame, component_names, rpy_from_wxyz,
                     wxyz_of)
 from ..style import COLORMAPS
@@ -283,8 +283,9 @@ class SceneViewer(_Page):
         points += [o.pose.translation for o in scene.objects]
         centre, half = scene_extent(points, 0.5 * sonar.range_max_m + 1.0)
         api.add_frame("/world", axes_length=0.3, axes_radius=0.01)
-        for plane in scene.reflecting_planes:
-            vertices, faces = plane_quad(plane, centre, half)
+        planes = scene.reflecting_planes
+        for plane in planes:
+            vertices, faces = plane_face(plane, planes, centre, half)
             water = "surface" in plane.name
             colour = (110, 160, 230) if water else ((190, 175, 140) if plane.name == "ground" else (170, 170, 175))
             api.add_mesh_simple(f"/planes/{plane.name}", vertices, faces, color=colour,

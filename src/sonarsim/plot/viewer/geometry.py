@@ -14,7 +14,7 @@ import numpy as np
 from ...config.scene import PlaneSpec
 from ...config.sonar import SonarConfig
 
-__all__ = ["fov_directions", "fov_segments", "fov_surface", "plane_quad", "scene_extent"]
+__all__ = ["clip_polygon", "fov_directions", "fov_segments", "fov_surface", "plane_face", "plane_quad", "scene_extent"]
 
 # Points per arc of the drawn field of view: smooth at a glance, a few hundred segments in all.
 ARC_POINTS = 24
@@ -152,3 +152,56 @@ def plane_quad(plane: PlaneSpec, centre_m: np.ndarray, half_size_m: float) -> tu
     vertices = np.stack([c - h * u - h * v, c + h * u - h * v, c + h * u + h * v, c - h * u + h * v])
     faces = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int32)
     return vertices, faces
+
+
+def clip_polygon(vertices: np.ndarray, plane: PlaneSpec) -> np.ndarray:
+    """The part of a convex polygon on a plane's water side (where its normal points).
+
+    Parameters
+    ----------
+    vertices : (n, 3) array_like, metres
+        The polygon's corners in order.
+    plane : PlaneSpec
+
+    Returns
+    -------
+    (m, 3) float64 ndarray
+        The clipped polygon's corners in the same order (``m`` may be 0).
+    """
+    v = np.asarray(vertices, dtype=float)
+    if len(v) == 0:
+        return v.reshape(0, 3)
+    d = plane.signed_distance_m(v)
+    out = []
+    for i in range(len(v)):  # Sutherland-Hodgman against one plane: a handful of corners
+        j = (i + 1) % len(v)
+        if d[i] >= 0:
+            out.append(v[i])
+        if (d[i] >= 0) != (d[j] >= 0):
+            t = d[i] / (d[i] - d[j])
+            out.append(v[i] + t * (v[j] - v[i]))
+    return np.asarray(out, dtype=float).reshape(-1, 3)
+
+
+def plane_face(plane: PlaneSpec, others: Sequence[PlaneSpec], centre_m: np.ndarray,
+               half_size_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """A plane drawn as the part of its square (:func:`plane_quad`) on the water side of the
+    other planes: a tank's floor, walls and surface meet at their edges instead of crossing.
+
+    Falls back to the whole square when the other planes leave nothing of it.
+
+    Returns
+    -------
+    vertices : (n, 3) float64 ndarray, metres
+    faces : (n - 2, 3) int32 ndarray
+        A fan over the convex polygon, counter-clockwise seen from the water.
+    """
+    quad, faces = plane_quad(plane, centre_m, half_size_m)
+    polygon = quad
+    for other in others:
+        if other is not plane:
+            polygon = clip_polygon(polygon, other)
+    if len(polygon) < 3:
+        return quad, faces
+    k = np.arange(1, len(polygon) - 1)
+    return polygon, np.stack([np.zeros_like(k), k, k + 1], axis=1).astype(np.int32)
