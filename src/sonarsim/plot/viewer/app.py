@@ -299,7 +299,7 @@ class SceneViewer(_Page):
             vertices = local.vertices * scale
             size = float(np.ptp(vertices, axis=0).max())
             p = self.session.object_poses[obj.name]
-            control = api.add_transform_controls(f"/objects/{obj.name}", scale=max(0.3, 1.2 * size),
+            control = api.add_transform_controls(f"/objects/{obj.name}", scale=max(0.25, 0.8 * size),
                                                  position=p.position_m, wxyz=wxyz_of(p), line_width=2.0)
             api.add_mesh_simple(f"/objects/{obj.name}/mesh", vertices, local.faces,
                                 color=OBJECT_COLOURS[k % len(OBJECT_COLOURS)])
@@ -307,7 +307,7 @@ class SceneViewer(_Page):
             control.on_update(self._object_dragged(obj.name))
             self.object_controls[obj.name] = control
         # The sonar: a small body and its field of view, under its gizmo.
-        self.sonar_control = api.add_transform_controls("/sonar", scale=0.6, position=pose.position_m,
+        self.sonar_control = api.add_transform_controls("/sonar", scale=0.45, position=pose.position_m,
                                                         wxyz=wxyz_of(pose), line_width=3.0)
         api.add_box("/sonar/body", color=SONAR_COLOUR, dimensions=(0.16, 0.1, 0.1), position=(-0.08, 0.0, 0.0))
         api.add_line_segments("/sonar/fov", fov_segments(sonar), FOV_COLOUR, thickness=2.0,
@@ -322,8 +322,9 @@ class SceneViewer(_Page):
         self.sonar_control.on_update(sonar_dragged)
         # The camera: behind and above the sonar, looking down the range window.
         look = pose.translation + forward * (sonar.range_max_m / 2)
-        eye = pose.translation - 0.6 * sonar.range_max_m * forward + np.array([0.0, 0.0, 0.5 * sonar.range_max_m])
-        eye[1] += 0.4 * sonar.range_max_m  # a little from the side, so that heights read
+        reach = sonar.range_max_m
+        eye = pose.translation - 0.35 * reach * forward + np.array([0.0, 0.3 * reach, 0.35 * reach])
+        # (behind the sonar, above it and a little to its left, so that heights read)
 
         def place_camera(client) -> None:
             client.camera.position = tuple(eye)
