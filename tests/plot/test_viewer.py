@@ -371,6 +371,36 @@ def test_page_follows_the_api_and_updates_fast(demo_viewer, tmp_path):
 
 
 @needs_viser
+def test_gizmo_drags_move_the_sonar_and_the_objects(demo_viewer):
+    """A client's gizmo messages, handed to viser's own handler (a private API: skipped if it moved)."""
+    import asyncio
+
+    from viser import _messages
+
+    from sonarsim import Pose
+
+    handler = getattr(demo_viewer.server.scene, "_handle_transform_controls_updates", None)
+    if handler is None:
+        pytest.skip("this viser has no _handle_transform_controls_updates")
+    v = demo_viewer
+    pose = Pose((0.5, -0.2, 1.2), (0.0, 15.0, 20.0))
+    asyncio.run(handler(0, _messages.TransformControlsUpdateMessage("/sonar", wxyz_of(pose), pose.position_m)))
+    assert v.wait(10)
+    assert v.session.sonar_pose == Pose((0.5, -0.2, 1.2), (0.0, 15.0, 20.0))  # rounded: exactly 15, not 14.99...
+    assert [s.value for s in v.pose_sliders] == [0.5, -0.2, 1.2, 0.0, 15.0, 20.0]
+    assert v.frame.image.pose.position_m == (0.5, -0.2, 1.2)
+    before = v.frame.image.polar
+    asyncio.run(handler(0, _messages.TransformControlsUpdateMessage("/objects/buoy", (1.0, 0.0, 0.0, 0.0),
+                                                                    (2.0, 0.0, 0.5))))
+    assert v.wait(10)
+    assert v.session.object_poses["buoy"].position_m == (2.0, 0.0, 0.5)
+    assert not np.array_equal(v.frame.image.polar, before)
+    v.set_sonar_pose((0.0, 0.0, 1.0), (0.0, 20.0, 0.0))
+    v.set_object_pose("buoy", (2.4, 0.2, 0.4), (0.0, 0.0, 0.0))
+    assert v.wait(10)
+
+
+@needs_viser
 def test_recording_page_steps_frames(shared_data):
     from sonarsim.plot.viewer.app import RecordingViewer, start_server, stop_server
 

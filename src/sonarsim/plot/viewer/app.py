@@ -102,6 +102,13 @@ def url_of(server, host: str) -> str:
     return f"http://{shown}:{server.get_port()}/"
 
 
+def _from_gizmo(position, wxyz) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """A gizmo's pose as position and roll-pitch-yaw, rounded to a micrometre and a micro-degree
+    (a drag is not finer; the scene file then reads 15.0, not 14.999999999999998)."""
+    return (tuple(round(float(v), 6) + 0.0 for v in position),
+            tuple(round(float(v), 6) + 0.0 for v in rpy_from_wxyz(wxyz)))
+
+
 class LatestOnly:
     """Runs ``job`` in a background thread on request, coalescing requests.
 
@@ -316,8 +323,7 @@ class SceneViewer(_Page):
         api.add_mesh_simple("/sonar/fov_far", vertices, faces, color=FOV_COLOUR, opacity=0.2, side="double")
 
         async def sonar_dragged(event) -> None:
-            t = event.target
-            self.set_sonar_pose(t.position, rpy_from_wxyz(t.wxyz), source="gizmo")
+            self.set_sonar_pose(*_from_gizmo(event.target.position, event.target.wxyz), source="gizmo")
 
         self.sonar_control.on_update(sonar_dragged)
         # The camera: behind and above the sonar, looking down the range window.
@@ -334,8 +340,7 @@ class SceneViewer(_Page):
 
     def _object_dragged(self, name: str):
         async def dragged(event) -> None:
-            t = event.target
-            self.set_object_pose(name, t.position, rpy_from_wxyz(t.wxyz), source="gizmo")
+            self.set_object_pose(name, *_from_gizmo(event.target.position, event.target.wxyz), source="gizmo")
         return dragged
 
     # ------------------------------------------------------------------ controls
