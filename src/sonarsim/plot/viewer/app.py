@@ -64,7 +64,19 @@ def check_port(host: str, port: int) -> None:
 
 
 def start_server(host: str = "127.0.0.1", port: int = 8080):
-    """A viser server on ``host:port`` (port 0: any free port), quiet.
+    """A viser server on ``host:port`` (port 0: any free port), quiet, its panel docked right.
+
+    Parameters
+    ----------
+    host : str
+        Address to listen on (127.0.0.1: this machine only).
+    port : int
+        Port; 0 for any free one (:func:`url_of` tells which).
+
+    Returns
+    -------
+    viser.ViserServer
+        Running; stop it with :func:`stop_server`.
 
     Raises
     ------
@@ -97,7 +109,8 @@ def stop_server(server) -> None:
 
 
 def url_of(server, host: str) -> str:
-    """The address to point the browser at."""
+    """The address to point the browser at (``http://127.0.0.1:PORT/`` for a server on all
+    addresses)."""
     shown = "127.0.0.1" if host in ("0.0.0.0", "") else ("[::1]" if host in ("::", "::1") else host)
     return f"http://{shown}:{server.get_port()}/"
 
