@@ -1,0 +1,122 @@
+"""``sonarsim view`` from the command line: its messages, the port check, Ctrl-C, recordings."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+import yaml
+
+from sonarsim.cli.main import main
+from sonarsim.cli.view import target_kind
+from sonarsim.errors import SonarsimError
+from sonarsim.plot.viewer import VIEWER_EXTRA_MESSAGE
+
+from ..conftest import block_scene_dict
+
+
+@pytest.fixture
+def scene_file(tmp_path) -> Path:
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(block_scene_dict()))
+    return path
+
+
+def test_without_the_extra_it_says_which_to_install(scene_file, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "viser", None)  # import viser -> ImportError
+    assert main(["view", str(scene_file)]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == f"sonarsim: error: {VIEWER_EXTRA_MESSAGE}"
+    assert "pip install 'sonarsim[viewer]'" in err
+
+
+def test_a_port_in_use_is_refused(scene_file, tmp_path, capsys):
+    pytest.importorskip("viser")
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        assert main(["view", str(scene_file), "--port", str(port), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert re.fullmatch(rf"sonarsim: error: --port {port}: port {port} on 127.0.0.1 is in use \(.*\); choose another "
+                        r"with --port N, or --port 0 for any free port\n", err), err
+
+
+def test_bad_targets_and_ports(tmp_path, capsys):
+    pytest.importorskip("viser")  # without it, the missing extra is said first
+    assert main(["view", str(tmp_path / "missing.yaml")]) == 2
+    assert "missing.yaml: no such file (give a scene file or a recording)" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["view", "x.yaml", "--port", "70000"])
+    assert "port number from 0" in capsys.readouterr().err
+    junk = tmp_path / "junk.raw"
+    junk.write_bytes(b"not a sonar file at all")
+    with pytest.raises(SonarsimError, match="not a recognised sonar recording"):
+        target_kind(str(junk))
+
+
+def test_targets_are_told_apart(scene_file, shared_data):
+    assert target_kind(str(scene_file)) == "scene"
+    assert target_kind(str(shared_data / "real" / "aris" / "sample.aris")) == "recording"
+    assert target_kind(str(shared_data / "real" / "oculus" / "one_ping_8bit.raw")) == "recording"
+
+
+def test_a_recording_is_served_until_stopped(shared_data, monkeypatch, capsys):
+    pytest.importorskip("viser")
+    from sonarsim.cli.main import build_parser
+    from sonarsim.cli.view import serve
+    from sonarsim.plot.viewer.app import RecordingViewer
+
+    args = build_parser().parse_args(["view", str(shared_data / "real" / "aris" / "sample.aris"), "--port", "0"])
+    stop, seen = threading.Event(), {}
+
+    def ready(viewer, url):
+        seen["viewer"], seen["url"] = viewer, url
+        assert viewer.wait(10)
+        seen["page"] = urllib.request.urlopen(url, timeout=10).read()
+        viewer.set_frame(5)
+        assert viewer.wait(10)
+        seen["title"] = viewer.frame.title
+        stop.set()
+
+    serve(args, stop=stop, ready=ready)
+    assert isinstance(seen["viewer"], RecordingViewer)
+    assert b"<html" in seen["page"].lower()
+    assert seen["title"].startswith("aris frame 6 of 6")
+    assert f"point your browser at {seen['url']}" in capsys.readouterr().err
+
+
+def test_ctrl_c_stops_it_cleanly(scene_file, tmp_path):
+    pytest.importorskip("viser")
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "sonarsim", "view", str(scene_file), "--port", "0",
+                             "--out", str(tmp_path / "out")], stderr=subprocess.PIPE, stdout=subprocess.PIPE,
+                            text=True, env=env)
+    try:
+        line = ""
+        deadline = time.monotonic() + 60
+        while "point your browser at" not in line and time.monotonic() < deadline:
+            line = proc.stderr.readline()
+            if not line and proc.poll() is not None:
+                break
+        match = re.search(r"point your browser at (http://127\.0\.0\.1:\d+/)", line)
+        assert match, line
+        assert b"<html" in urllib.request.urlopen(match.group(1), timeout=10).read().lower()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130
+    assert err.strip() == "sonarsim: interrupted by Ctrl-C (SIGINT); the viewer stopped"
+    assert "Traceback" not in out + err and out == ""
