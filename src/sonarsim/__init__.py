@@ -7,7 +7,9 @@ I/O, presets) -> :mod:`~sonarsim.core` (poses, ray fans, radiometry) -> :mod:`~s
 :mod:`~sonarsim.renderer` (the :class:`Simulator`:
 components, image formation, compiled kernels) -> :mod:`~sonarsim.image` (result types, polar
 grid, fan) -> :mod:`~sonarsim.io` (files, real recordings) -> :mod:`~sonarsim.analysis`
-(metrics, comparison, pose fitting); :mod:`~sonarsim.cli` is a thin layer on top.
+(metrics, comparison, pose fitting); beside them :mod:`~sonarsim.dataset` (scenarios, labelled
+datasets, ROS 2 bags) and :mod:`~sonarsim.plot` (annotated figures, notebook displays, the
+live viewer); :mod:`~sonarsim.cli` is a thin layer on top.
 """
 
 import importlib
@@ -28,13 +30,13 @@ _EXPORTS = {
     "Pose": ".core.transforms",
     "ConfigError": ".errors", "MeshFileError": ".errors", "SonarsimError": ".errors",
     "RayMaps": ".image", "SonarImage": ".image",
-    "read": ".io.readers", "read_frames": ".io.readers",
+    "open_recording": ".io.readers", "read": ".io.readers", "read_frames": ".io.readers",
     "Simulator": ".renderer.simulator", "render": ".renderer.simulator",
 }
 
 __all__ = sorted(_EXPORTS)
-_SUBPACKAGES = ("analysis", "cli", "config", "core", "dataset", "errors", "image", "io", "paths", "renderer",
-                "scene", "sensor", "trace")
+_SUBPACKAGES = ("analysis", "cli", "config", "core", "dataset", "errors", "image", "io", "paths", "plot",
+                "renderer", "scene", "sensor", "trace")
 
 
 def __getattr__(name: str) -> Any:
@@ -60,5 +62,5 @@ if TYPE_CHECKING:  # what type checkers and IDEs see
     from .core.transforms import Pose
     from .errors import ConfigError, MeshFileError, SonarsimError
     from .image import RayMaps, SonarImage
-    from .io.readers import read, read_frames
+    from .io.readers import open_recording, read, read_frames
     from .renderer.simulator import Simulator, render
