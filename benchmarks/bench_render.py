@@ -142,8 +142,11 @@ def measure(name: str, scene, repeats: int) -> dict:
             sim.render(keep_rays=False)
             frames.append(time.perf_counter() - t)
         for _ in range(block):
+            # Fresh rays each time: Embree writes each hit's distance back into tfar, so a
+            # replay of the same array would cast rays already cut at their hits (3-4 % faster).
+            fresh = [tfar.copy() for _, _, _, tfar in recorded]
             t = time.perf_counter()
-            for caster, o, d, tfar in recorded:
+            for (caster, o, d, _), tfar in zip(recorded, fresh):
                 caster.cast_raw(o, d, tfar)
             casts.append(time.perf_counter() - t)
     frame, cast = statistics.median(frames), statistics.median(casts)
