@@ -129,3 +129,20 @@ def check_input_file(path: str | os.PathLike, what: str) -> os.stat_result:
     if not stat.S_ISREG(st.st_mode):
         raise SonarsimError(f"{name}: not a regular file (a device or pipe?); give a {what}")
     return st
+
+
+def interrupt_of(exc: BaseException | None) -> KeyboardInterrupt | None:
+    """The ``KeyboardInterrupt`` (Ctrl-C, or a signal the CLI turns into one) behind ``exc``.
+
+    ``exc`` itself, or one in its chain of causes and contexts: a Ctrl-C that lands while
+    Python imports a compiled module surfaces as ``ImportError: initialization failed`` caused
+    by the ``KeyboardInterrupt``, and it must stop a command as a Ctrl-C does, not as a bug.
+    """
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+

@@ -378,3 +378,38 @@ def test_ctrl_c_while_the_command_starts_says_one_line(tmp_path: Path, big_scene
     assert proc.returncode == 130, err
     assert err.splitlines()[-1].startswith("sonarsim: interrupted by Ctrl-C (SIGINT)")
     assert temp_files(out) == [] if out.exists() else True
+
+
+def test_ctrl_c_during_an_import_stops_the_command_as_ctrl_c(capsys, monkeypatch, tmp_path: Path,
+                                                             tiny_scene: Path) -> None:
+    # A Ctrl-C that lands while Python initialises a compiled module surfaces as
+    # "ImportError: initialization failed" caused by the KeyboardInterrupt (seen in CI, SciPy
+    # imported at the first scene build): it must end as Ctrl-C does, not with a traceback.
+    import sonarsim.renderer.simulator as simulator
+
+    def interrupted_import(*args, **kwargs):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise ImportError("initialization failed") from exc
+
+    monkeypatch.setattr(simulator.Simulator, "__init__", interrupted_import)
+    out = tmp_path / "out"
+    code, err = run_main(capsys, "render", tiny_scene, "--out", out)
+    assert code == 130 and "Traceback" not in err
+    assert err.splitlines()[-1].startswith("sonarsim: interrupted by Ctrl-C (SIGINT)")
+    assert read_record(out / RECORD_NAME)["status"] == "interrupted"
+
+
+def test_interrupt_of_walks_causes_and_contexts() -> None:
+    from sonarsim.errors import interrupt_of
+
+    ctrl_c = KeyboardInterrupt()
+    try:
+        try:
+            raise ctrl_c
+        except KeyboardInterrupt:
+            raise ValueError("while handling it")  # context, not cause
+    except ValueError as exc:
+        assert interrupt_of(exc) is ctrl_c
+    assert interrupt_of(ValueError("plain")) is None and interrupt_of(None) is None

@@ -15,7 +15,7 @@ import signal
 import sys
 from typing import Iterator, Sequence
 
-from ..errors import SonarsimError
+from ..errors import SonarsimError, interrupt_of
 
 EXIT_BAD_INPUT = 2
 
@@ -112,6 +112,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         from ..core.memory import set_memory_budget  # (an import too: inside the guard)
 
         set_memory_budget(args.max_memory)
+    except Exception as exc:
+        if interrupt_of(exc) is None:  # (a Ctrl-C during an import can arrive as an ImportError)
+            raise
+        _log("interrupted by Ctrl-C (SIGINT); nothing was written")
+        return 128 + int(signal.SIGINT)
     except KeyboardInterrupt:
         _log("interrupted by Ctrl-C (SIGINT); nothing was written")
         return 128 + int(signal.SIGINT)
@@ -137,10 +142,15 @@ def main(argv: Sequence[str] | None = None) -> int:
              f"{memory_budget() / 2**30:.3g} GiB; this machine cannot give that much: lower the sizes "
              "or --max-memory / $SONARSIM_MAX_MEMORY")
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt as exc:
-        signum = exc.signum if isinstance(exc, Terminated) else signal.SIGINT
+    except BaseException as exc:
+        # Ctrl-C, SIGTERM/SIGHUP (Terminated), or an error caused by one: a Ctrl-C that lands
+        # while a compiled module is imported surfaces as "ImportError: initialization failed".
+        interrupt = interrupt_of(exc)
+        if interrupt is None or isinstance(exc, SystemExit):
+            raise
+        signum = interrupt.signum if isinstance(interrupt, Terminated) else signal.SIGINT
         what = "Ctrl-C (SIGINT)" if signum == signal.SIGINT else signal.Signals(signum).name
-        notes = "; ".join(getattr(exc, "__notes__", []))
+        notes = "; ".join(getattr(exc, "__notes__", []) or getattr(interrupt, "__notes__", []))
         _log(f"interrupted by {what}; {notes or 'nothing was written'}")
         return 128 + int(signum)
     return 0

@@ -47,7 +47,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, Callable
 
-from ..errors import SonarsimError, shown
+from ..errors import SonarsimError, interrupt_of, shown
 from .output import _pid_alive, atomic_write, file_digest, remove_abandoned_temp_files, temp_prefix
 
 __all__ = ["RECORD_NAME", "STATUSES", "OutputError", "OutputRun", "read_record", "record_beside"]
@@ -435,7 +435,7 @@ class OutputRun:
                 raise RuntimeError(f"planned outputs were not written: {', '.join(missing)}")
             self._write_record("complete")
             return False
-        status = "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed"
+        status = "interrupted" if interrupt_of(exc) is not None else "failed"
         message = str(exc) or type(exc).__name__
         # Best effort: a full disk must not hide the error that stopped the run.
         with contextlib.suppress(OSError):

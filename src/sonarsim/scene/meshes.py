@@ -69,17 +69,20 @@ def _texture_of(mesh, where: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _trimesh():
-    """The ``trimesh`` module, its SciPy imported first, outside trimesh's own guard.
+    """The ``trimesh`` module, imported with Ctrl-C held back (:mod:`sonarsim.core.interrupts`).
 
-    trimesh imports SciPy inside ``try: ... except BaseException`` (an optional dependency to
-    it): a Ctrl-C during that half second would be swallowed and the command would run on
-    (or fail later on the wrapped exception). Imported here first, SciPy is already loaded
-    when trimesh asks for it, and a Ctrl-C meanwhile stops the command as it should.
+    trimesh imports its optional dependencies inside ``except BaseException``: a Ctrl-C during
+    that second would be swallowed. Held back, it stops the command right after the import.
     """
-    import scipy.optimize  # noqa: F401
-    import scipy.spatial  # noqa: F401
-    import trimesh
+    import sys
 
+    module = sys.modules.get("trimesh")
+    if module is not None:
+        return module
+    from ..core.interrupts import signals_deferred
+
+    with signals_deferred():
+        import trimesh
     return trimesh
 
 
