@@ -7,8 +7,11 @@ Measures, in one run on this machine:
 * (c) the same tank seen by an Oculus M1200d (low-frequency mode, 512 beams);
 * (d) the demo tank with a water surface (floor + surface) and (e) with a water surface and
   four walls, paths up to order 3;
+* (f, g) the demo with 512 and 1024 beams, (h) with 8000 range bins, (i) the demo's sonar
+  over a 5-million-triangle seabed made from a height field (with its build time);
 * for each, the bare ray-casting time of the very rays the frame cast (Embree alone, same
-  threads), replayed outside the renderer, and the ratio frame time / bare casting time;
+  threads), replayed outside the renderer on fresh copies of the rays, and the ratio frame
+  time / bare casting time; and the time to build the simulator (meshes, Embree's tree);
 * ``method: paper`` (Algorithm 2 literally) on (a), and the speed-up of the default over it;
 * the sensor stage (issue: at most 1 ms per 128 x 1288 frame): (a) without a sensor, with
   ``sensor: {preset: aris3000-64, elevation_pattern: false}`` (the same rays: the difference
@@ -16,8 +19,11 @@ Measures, in one run on this machine:
   frame's total, with speckle and expected); and the full preset, whose elevation pattern
   widens the rays' span to 42 degrees (its cost is in ray casting);
 * peak memory (Python heap via tracemalloc, and the process's peak resident set);
-* sweeps: frame time against the number of rays, the number of triangles, the number of
-  reflecting planes (order 3) and the path order (six planes).
+* sweeps: frame time against the number of rays, beams, range bins, triangles, reflecting
+  planes (order 3) and the path order (six planes), and the cost model fitted to them (the
+  exponent of frame time against each, least squares in log-log);
+* two single-threaded worker processes rendering the demo at once against one simulator on
+  every core (frames/s). Dataset throughput: ``benchmarks/bench_dataset.py``.
 
 Usage::
 
@@ -76,6 +82,40 @@ def scene_with_mesh(n_triangles: int) -> sonarsim.Scene:
                           ground=base.ground, render=base.render)
 
 
+def terrain_mesh(n_triangles: int, size_m: tuple = (6.0, 6.0), seed: int = 0):
+    """A seabed from a height field: a regular grid of about ``n_triangles`` triangles over
+    ``x`` in [0.3, 0.3 + size_m[0]], ``y`` centred, heights 1-9 cm of smooth random relief."""
+    import trimesh
+
+    n = max(2, int(round(np.sqrt(n_triangles / 2.0)))) + 1  # 2 (n - 1)^2 triangles
+    x = np.linspace(0.3, 0.3 + size_m[0], n)
+    y = np.linspace(-size_m[1] / 2, size_m[1] / 2, n)
+    xx, yy = np.meshgrid(x, y, indexing="ij")
+    rng = np.random.default_rng(seed)
+    z = 0.05 + sum(0.01 * np.sin(k * (xx * a + yy * b) + p)
+                   for k, (a, b), p in zip((1.3, 2.9, 5.1, 9.7), rng.normal(size=(4, 2)), rng.uniform(0, 6, 4)))
+    vertices = np.column_stack([xx.ravel(), yy.ravel(), z.ravel()])
+    i = np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]
+    quads = np.stack([i, i + n, i + n + 1, i + 1], axis=-1).reshape(-1, 4)
+    faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    return trimesh.Trimesh(vertices, faces, process=False)
+
+
+def terrain_scene(n_triangles: int) -> sonarsim.Scene:
+    """The demo's sonar over a height-field seabed of ``n_triangles`` (no other objects)."""
+    base = scene_from_dict(demo_scene_dict())
+    seabed = ObjectSpec(name="seabed", mesh=terrain_mesh(n_triangles), pose=Pose((0.0, 0.0, 0.0)), albedo=0.5)
+    return sonarsim.Scene(sonar=base.sonar, sonar_pose=base.sonar_pose, objects=(seabed,), ground=base.ground,
+                          render=base.render)
+
+
+def demo_with(**sonar) -> dict:
+    """The demo tank with other sonar intrinsics (``n_beams``, ``n_range_bins``, ...)."""
+    doc = demo_scene_dict()
+    doc["sonar"].update(sonar)
+    return doc
+
+
 def oculus_scene() -> dict:
     doc = demo_scene_dict()
     doc["sonar"] = {"preset": "oculus-m1200d-lf", "range_max_m": 6.0,
@@ -84,21 +124,21 @@ def oculus_scene() -> dict:
 
 
 def record_casts(sim: sonarsim.Simulator) -> list:
-    """Every batch of rays that one frame hands to Embree, with its caster."""
-    from sonarsim.trace.embree import EmbreeCaster
-
+    """Every batch of rays that one frame hands to Embree, with its caster (whichever caster
+    class the simulator uses: each has ``cast_raw``, its bare casting)."""
+    caster_cls = type(getattr(sim.caster, "caster", sim.caster))  # (a textured scene wraps it)
     recorded = []
-    original = EmbreeCaster.cast_raw
+    original = caster_cls.cast_raw
 
-    def recording(self, origins, directions, tfar, threads=None):
+    def recording(self, origins, directions, tfar, threads=None, *args, **kwargs):
         recorded.append((self, origins.copy(), directions.copy(), tfar.copy()))
-        return original(self, origins, directions, tfar, threads)
+        return original(self, origins, directions, tfar, threads, *args, **kwargs)
 
-    EmbreeCaster.cast_raw = recording
+    caster_cls.cast_raw = recording
     try:
         sim.render(keep_rays=False)
     finally:
-        EmbreeCaster.cast_raw = original
+        caster_cls.cast_raw = original
     return recorded
 
 
@@ -129,7 +169,9 @@ def measure(name: str, scene, repeats: int) -> dict:
     is shared) hit both medians alike and their ratio holds; within a block each runs back to
     back, as in a renderer's steady state.
     """
+    t_build = time.perf_counter()
     sim = sonarsim.Simulator(scene)
+    build_s = time.perf_counter() - t_build  # meshes, clipping and the acceleration structure
     for _ in range(3):
         sim.render(keep_rays=False)
     recorded = record_casts(sim)
@@ -160,7 +202,57 @@ def measure(name: str, scene, repeats: int) -> dict:
         "fps": 1.0 / frame,
         "bare_cast_ms": 1e3 * cast,
         "frame_over_cast": frame / cast,
+        "build_s": build_s,
     }
+
+
+def _worker_rate(scene, frames: int, barrier, results) -> None:
+    sim = sonarsim.Simulator(replace_threads(scene, 1))
+    for _ in range(3):
+        sim.render(keep_rays=False)
+    barrier.wait()  # both workers render at the same time
+    t = time.perf_counter()
+    for _ in range(frames):
+        sim.render(keep_rays=False)
+    results.put(frames / (time.perf_counter() - t))
+
+
+def replace_threads(scene: sonarsim.Scene, threads: int) -> sonarsim.Scene:
+    from dataclasses import replace
+
+    return replace(scene, render=replace(scene.render, threads=threads))
+
+
+def workers_rate(scene, frames: int, workers: int = 2) -> dict:
+    """Frames/s of ``workers`` single-threaded processes rendering at once (summed), against
+    one simulator using every core, measured back to back."""
+    import multiprocessing
+
+    from sonarsim.dataset.workers import worker_context
+
+    scene = scene_from_dict(scene) if isinstance(scene, dict) else scene
+    ctx = worker_context()
+    barrier, results = ctx.Barrier(workers), ctx.Queue()
+    procs = [ctx.Process(target=_worker_rate, args=(scene, frames, barrier, results)) for _ in range(workers)]
+    for p in procs:
+        p.start()
+    rates = [results.get(timeout=600) for _ in procs]
+    for p in procs:
+        p.join()
+    sim = sonarsim.Simulator(scene)
+    for _ in range(3):
+        sim.render(keep_rays=False)
+    t = time.perf_counter()
+    for _ in range(workers * frames):
+        sim.render(keep_rays=False)
+    one = workers * frames / (time.perf_counter() - t)
+    return {"workers": workers, "single_threaded_workers_fps": float(sum(rates)),
+            "one_simulator_all_cores_fps": one, "ratio": float(sum(rates)) / one}
+
+
+def fitted_exponent(xs, ys) -> float:
+    """Slope of log y against log x (least squares): cost ~ x ** slope over the sweep."""
+    return float(np.polyfit(np.log(np.asarray(xs, float)), np.log(np.asarray(ys, float)), 1)[0])
 
 
 def interleaved(fns: dict, repeats: int, block: int = 5) -> dict:
@@ -238,6 +330,18 @@ def peak_memory(scene) -> dict:
             "process_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
+def cpu_model() -> str:
+    """The processor's model name (Linux), else the platform's machine type."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.machine()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=30)
@@ -251,19 +355,25 @@ def main(argv=None) -> int:
     if quick:
         demo["render"]["elevation_samples"] = 16
     results: dict = {
-        "machine": {"cpu_cores": os.cpu_count(), "processor": platform.processor() or platform.machine(),
+        "machine": {"cpu_cores": os.cpu_count(), "cpu_model": cpu_model(),
+                    "processor": platform.processor() or platform.machine(),
                     "python": sys.version.split()[0], "numpy": np.__version__, "sonarsim": sonarsim.__version__},
         "cases": [],
     }
     n_mesh = 2_000 if quick else 500_000
+    n_terrain = 20_000 if quick else 5_000_000
     cases = [("a: demo tank, ARIS 3000, all bounces", demo),
-             (f"b: (a) + {n_mesh:,}-triangle mesh", None),
+             (f"b: (a) + {n_mesh:,}-triangle mesh", "mesh"),
              ("c: Oculus M1200d lf, 512 beams", oculus_scene()),
              ("d: (a) + water surface, order 3", tank_scene(2)),
-             ("e: (a) + surface + 4 walls, order 3", tank_scene(6))]
+             ("e: (a) + surface + 4 walls, order 3", tank_scene(6)),
+             ("f: (a) with 512 beams", demo_with(n_beams=512)),
+             ("g: (a) with 1024 beams", demo_with(n_beams=1024)),
+             ("h: (a) with 8000 range bins", demo_with(n_range_bins=8000)),
+             (f"i: {n_terrain:,}-triangle seabed (height field)", "terrain")]
     for name, scene in cases:
-        if scene is None:
-            scene = scene_with_mesh(n_mesh)
+        if isinstance(scene, str):
+            scene = scene_with_mesh(n_mesh) if scene == "mesh" else terrain_scene(n_terrain)
             if quick:
                 from dataclasses import replace
                 scene = replace(scene, render=replace(scene.render, elevation_samples=16))
@@ -317,8 +427,37 @@ def main(argv=None) -> int:
         r = measure(f"order: {order}", doc, max(2, repeats // 3))
         sweep_order.append({k: r[k] for k in ("rays_per_frame", "frame_ms", "bare_cast_ms")} | {"max_order": order})
     results["sweep_order"] = sweep_order
+    sweep_beams = []
+    for beams in ((32, 64) if quick else (64, 128, 256, 512, 1024)):
+        doc = demo_with(n_beams=beams)
+        if quick:
+            doc["render"]["elevation_samples"] = 16
+        r = measure(f"beams: {beams}", doc, max(2, repeats // 3))
+        sweep_beams.append({k: r[k] for k in ("rays_per_frame", "frame_ms", "bare_cast_ms")} | {"beams": beams})
+    results["sweep_beams"] = sweep_beams
+    sweep_bins = []
+    for bins in ((322, 644) if quick else (322, 1288, 4000, 8000)):
+        doc = demo_with(n_range_bins=bins)
+        if quick:
+            doc["render"]["elevation_samples"] = 16
+        r = measure(f"bins: {bins}", doc, max(2, repeats // 3))
+        sweep_bins.append({k: r[k] for k in ("frame_ms", "bare_cast_ms")} | {"range_bins": bins})
+    results["sweep_bins"] = sweep_bins
+    # The cost model: frame time ~ x ** exponent along each sweep (least squares in log-log).
+    def model(rows, key):
+        return {"frame": fitted_exponent([r[key] for r in rows], [r["frame_ms"] for r in rows]),
+                "bare_cast": fitted_exponent([r[key] for r in rows], [r["bare_cast_ms"] for r in rows])}
+    results["cost_model_exponents"] = {
+        "rays (elevation samples)": model(sweep_rays, "rays_per_frame"),
+        "beams": model(sweep_beams, "beams"),
+        "range bins": model(sweep_bins, "range_bins"),
+        "triangles": model(sweep_tris, "triangles"),
+        "reflecting planes (order 3)": model(sweep_planes, "planes"),
+        "path order (6 planes)": model(sweep_order, "max_order"),
+    }
+    results["two_single_threaded_workers"] = workers_rate(demo, 10 if quick else 300)
 
-    print(f"\nsonarsim {sonarsim.__version__} on {results['machine']['cpu_cores']} cores, "
+    print(f"\nsonarsim {sonarsim.__version__} on {results['machine']['cpu_cores']} cores, {results['machine']['cpu_model']}, "
           f"{results['machine']['processor']}, Python {results['machine']['python']}, NumPy {np.__version__}")
     print(f"{'case':<42} {'image':>11} {'triangles':>10} {'rays':>8} {'frame ms':>9} {'fps':>7} {'cast ms':>8} {'frame/cast':>10}")
     for c in results["cases"]:
@@ -348,6 +487,16 @@ def main(argv=None) -> int:
     print("max_order (6 planes) -> rays cast per frame, frame ms (bare cast ms)")
     for r in sweep_order:
         print(f"  {r['max_order']:>3} -> {r['rays_per_frame']:>8,} {r['frame_ms']:7.2f} ({r['bare_cast_ms']:.2f})")
+    for label, rows, key in (("beams", sweep_beams, "beams"), ("range bins", sweep_bins, "range_bins")):
+        print(f"{label} -> frame ms (bare cast ms)")
+        for r in rows:
+            print(f"  {r[key]:>6} -> {r['frame_ms']:7.2f} ({r['bare_cast_ms']:.2f})")
+    print("cost model: frame time ~ x ** exponent (bare casting's exponent in brackets)")
+    for what, e in results["cost_model_exponents"].items():
+        print(f"  {what:<30} {e['frame']:5.2f} ({e['bare_cast']:.2f})")
+    w = results["two_single_threaded_workers"]
+    print(f"two single-threaded workers: {w['single_threaded_workers_fps']:.0f} frames/s; one simulator on every core: "
+          f"{w['one_simulator_all_cores_fps']:.0f} frames/s ({w['ratio']:.2f}x)")
     if args.json:
         tmp = args.json + ".tmp"
         with open(tmp, "w") as f:

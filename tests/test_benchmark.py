@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -19,9 +21,10 @@ def test_benchmark_runs_at_tiny_sizes(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "frame/cast" in proc.stdout
     res = json.loads(out.read_text())
-    assert [c["case"][:2] for c in res["cases"]] == ["a:", "b:", "c:", "d:", "e:", "a "]
+    assert [c["case"][:2] for c in res["cases"]] == ["a:", "b:", "c:", "d:", "e:", "f:", "g:", "h:", "i:", "a "]
+    assert res["machine"]["cpu_model"]
     for c in res["cases"]:
-        assert c["frame_ms"] > 0 and c["bare_cast_ms"] > 0 and c["rays_per_frame"] > 0
+        assert c["frame_ms"] > 0 and c["bare_cast_ms"] > 0 and c["rays_per_frame"] > 0 and c["build_s"] > 0
         assert c["frame_over_cast"] == c["frame_ms"] / c["bare_cast_ms"]
     assert res["speedup_fast_over_paper"] > 0
     assert res["peak_memory_b"]["process_peak_rss_mb"] > 0
@@ -45,6 +48,20 @@ def test_benchmark_runs_at_tiny_sizes(tmp_path):
     # More planes and a higher order cast more rays (reflected ones) in the same tank.
     assert res["sweep_planes"][1]["rays_per_frame"] > res["sweep_planes"][0]["rays_per_frame"]
     assert res["sweep_order"][1]["rays_per_frame"] > res["sweep_order"][0]["rays_per_frame"]
+    # More beams cast about proportionally more rays (primary and reflected); the big cases are
+    # what they say.
+    beams = res["sweep_beams"]
+    assert 1.8 < beams[1]["rays_per_frame"] / beams[0]["rays_per_frame"] < 2.2
+    by_case = {c["case"][:2]: c for c in res["cases"]}
+    assert 7.0 < by_case["g:"]["rays_per_frame"] / by_case["a:"]["rays_per_frame"] < 9.0
+    assert by_case["h:"]["image"].startswith("8000 x") and by_case["i:"]["triangles"] >= 20_000
+    # The cost model: one exponent per sweep, for the frame and for bare casting.
+    model = res["cost_model_exponents"]
+    assert set(model) == {"rays (elevation samples)", "beams", "range bins", "triangles",
+                          "reflecting planes (order 3)", "path order (6 planes)"}
+    assert all(np.isfinite(e["frame"]) and np.isfinite(e["bare_cast"]) for e in model.values())
+    workers = res["two_single_threaded_workers"]
+    assert workers["single_threaded_workers_fps"] > 0 and workers["one_simulator_all_cores_fps"] > 0
 
 
 def test_realism_benchmark_skips_cleanly_without_the_data(tmp_path):
