@@ -1,0 +1,186 @@
+"""Ray casting through our own binding to Embree 4's C API (:mod:`sonarsim.trace._embree4`).
+
+The Embree library is the one the embreex wheel bundles (``embreex.libs/libembree4-*.so*``),
+opened at run time. Compared with :class:`~sonarsim.trace.embree.EmbreeCaster` (embreex's
+one-ray-at-a-time ``run``): packets of 8 rays, a high-quality BVH, and the conversion to
+:class:`~sonarsim.trace.base.Hits` done per packet while it is in cache. Same interface, same
+answers (tests/trace/test_embree4.py compares the two ray by ray and frame by frame).
+"""
+
+from __future__ import annotations
+
+import glob
+import importlib.util
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import SonarsimError
+from ..scene.meshes import TriangleMesh
+from .base import Hits, available_cores
+
+# Below this many rays per thread, the thread hand-off costs more than it saves (as embree.py).
+MIN_RAYS_PER_CHUNK = 8192
+
+
+def find_library() -> str | None:
+    """Path of the Embree 4 library inside the installed embreex wheel, or None.
+
+    auditwheel puts it in ``embreex.libs/`` beside the ``embreex`` package, named
+    ``libembree4-<hash>.so.<major>``; the hash changes with every wheel, hence the pattern.
+    """
+    spec = importlib.util.find_spec("embreex")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    for package_dir in spec.submodule_search_locations:
+        libs = os.path.join(os.path.dirname(os.path.abspath(package_dir)), "embreex.libs")
+        found = sorted(glob.glob(os.path.join(libs, "libembree4*.so*")))
+        if found:
+            return found[0]
+    return None
+
+
+def load_binding():
+    """The compiled binding with Embree 4 bound, ready to build scenes.
+
+    Raises
+    ------
+    SonarsimError
+        The extension was not built, or the library cannot be found or opened.
+    """
+    try:
+        from . import _embree4
+    except ImportError as exc:
+        raise SonarsimError(f"the 'embree4' backend's extension sonarsim.trace._embree4 is not built ({exc}); "
+                            "reinstall sonarsim from source, or use backend 'embree' with SONARSIM_EMBREE=embreex") from None
+    if _embree4.loaded_path() is None:
+        path = find_library()
+        if path is None:
+            raise SonarsimError("the 'embree4' backend found no Embree 4 library: it looks for "
+                                "embreex.libs/libembree4-*.so* beside the installed embreex package "
+                                "(`pip install embreex`); set SONARSIM_EMBREE=embreex to use embreex's own caster")
+        _embree4.load(path)
+    return _embree4
+
+
+class Embree4Caster:
+    """Closest-hit queries against a static Embree 4 scene, in packets of 8 rays.
+
+    Parameters
+    ----------
+    meshes : sequence of TriangleMesh
+        World-frame meshes; a hit's ``mesh_id`` is the index in this sequence.
+    threads : int, optional
+        Worker threads; default: the number of CPU cores available to this process.
+    """
+
+    name = "embree4"
+
+    def __init__(self, meshes: Sequence[TriangleMesh], threads: int | None = None) -> None:
+        binding = load_binding()
+        self.threads = threads or available_cores()
+        self.n_meshes = len(meshes)
+        # Embree numbers the meshes it is given; empty meshes are skipped, so map back.
+        self._ids = np.array([i for i, m in enumerate(meshes) if len(m.faces)], dtype=np.int32)
+        kept = [m for m in meshes if len(m.faces)]
+        self._scene = None
+        if kept:
+            self._scene = binding.Scene(
+                [np.ascontiguousarray(m.vertices, dtype=np.float32) for m in kept],
+                [np.ascontiguousarray(m.faces, dtype=np.int32) for m in kept],
+                # The build uses Embree's own (TBB) threads: as many as we may use.
+                f"threads={self.threads}",
+            )
+        self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+
+    def _chunks(self, n: int, threads: int | None) -> np.ndarray:
+        n_chunks = min(threads or self.threads, self.threads, max(1, n // MIN_RAYS_PER_CHUNK))
+        return np.linspace(0, n, n_chunks + 1).astype(int)
+
+    def _map(self, fn, bounds: np.ndarray) -> None:
+        if len(bounds) == 2 or self._pool is None:
+            fn(bounds[0], bounds[-1])
+        else:
+            # The binding releases the GIL for the whole chunk: the pool runs them in parallel.
+            list(self._pool.map(lambda ab: fn(*ab), zip(bounds[:-1], bounds[1:])))
+
+    def cast_raw(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray, threads: int | None = None,
+                 with_uv: bool = False) -> dict:
+        """Embree's raw answer, as :meth:`EmbreeCaster.cast_raw` gives it (for benchmarks).
+
+        Parameters
+        ----------
+        origins, directions : (n, 3) float32 C-contiguous ndarrays, metres and unit vectors
+        tfar : (n,) float32 ndarray, metres
+            Per-ray maximum distance; cut to the hit distances in place, as embreex does.
+        threads : int, optional
+            At most this many threads (default: the caster's).
+        with_uv : bool
+            Not supported by the raw path (raises).
+
+        Returns
+        -------
+        dict with ``tfar`` (n,), ``geomID`` (n,) int32 (-1 for a miss), ``Ng`` (n, 3) float32.
+        """
+        if with_uv:
+            raise NotImplementedError("Embree4Caster.cast_raw gives no u, v; use intersect(..., with_uv=True)")
+        n = len(directions)
+        geom = np.full(n, -1, np.int32)
+        ng = np.zeros((n, 3), np.float32)
+        if self._scene is not None and n:
+            scene = self._scene
+            self._map(lambda a, b: scene.cast_raw(origins[a:b], directions[a:b], tfar[a:b], geom[a:b], ng[a:b]),
+                      self._chunks(n, threads))
+        return {"tfar": tfar, "geomID": geom, "Ng": ng}
+
+    def intersect(self, origins: np.ndarray, directions: np.ndarray, max_distance: float,
+                  threads: int | None = None, with_uv: bool = False) -> Hits:
+        """Closest hits (see :meth:`sonarsim.trace.base.RayCaster.intersect`).
+
+        Parameters
+        ----------
+        origins : (n, 3) or (3,) float array, metres
+        directions : (n, 3) float array, unit vectors
+        max_distance : float, metres
+        threads : int, optional
+        with_uv : bool
+            Also the triangle hit and its barycentric ``(u, v)``.
+
+        Returns
+        -------
+        Hits
+        """
+        n = len(directions)
+        if self._scene is None or n == 0:
+            return Hits.misses(n, with_uv)
+        o = np.ascontiguousarray(np.broadcast_to(origins, (n, 3)), dtype=np.float32)
+        d = np.ascontiguousarray(directions, dtype=np.float32)
+        tfar = np.full(n, max_distance, dtype=np.float32)
+        hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty((n, 3), np.float32))
+        if with_uv:
+            hits = replace(hits, primitive_id=np.empty(n, np.int32), barycentric=np.empty((n, 2), np.float32))
+        scene, ids, h = self._scene, self._ids, hits
+        if with_uv:
+            def run(a, b):
+                scene.cast(o[a:b], d[a:b], tfar[a:b], ids, h.distance[a:b], h.mesh_id[a:b], h.normal[a:b],
+                           h.primitive_id[a:b], h.barycentric[a:b])
+        else:
+            def run(a, b):
+                scene.cast(o[a:b], d[a:b], tfar[a:b], ids, h.distance[a:b], h.mesh_id[a:b], h.normal[a:b])
+        self._map(run, self._chunks(n, threads))
+        return hits
+
+    def close(self) -> None:
+        """Stop the worker threads and release Embree's scene and device."""
+        if getattr(self, "_pool", None) is not None:
+            self._pool.shutdown(wait=False)
+            self._pool = None
+        if getattr(self, "_scene", None) is not None:
+            self._scene.close()
+            self._scene = None
+
+    def __del__(self) -> None:
+        self.close()
