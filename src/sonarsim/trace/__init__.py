@@ -18,6 +18,7 @@ from ..scene.meshes import TriangleMesh
 from .base import Hits, RayCaster, available_cores
 
 logger = logging.getLogger(__name__)
+_reported: set = set()
 
 
 def _make_embreex(meshes, threads):
@@ -45,7 +46,9 @@ def _make_embree(meshes, threads):
         except SonarsimError as exc:
             if choice == "embree4":
                 raise
-            logger.info("Embree 4 binding unavailable (%s); using embreex's caster", exc)
+            if str(exc) not in _reported:  # once per reason, not per caster
+                _reported.add(str(exc))
+                logger.warning("Embree 4 binding unavailable (%s); using embreex's caster", exc)
         else:
             return _make_embree4(meshes, threads)
     return _make_embreex(meshes, threads)

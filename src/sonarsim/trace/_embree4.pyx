@@ -147,9 +147,31 @@ cdef extern from *:
         void* intersect
         float minWidthDistanceFactor
 
-# Sizes as declared, for the tests that compare them with what the library writes.
+# Sizes and offsets as declared, compared with what the library writes (embree4.verify_layout).
 RAYHIT8_SIZE = sizeof(ss_RTCRayHit8)
 RAYHIT1_SIZE = sizeof(ss_RTCRayHit)
+
+
+def _offsets8() -> dict:
+    cdef ss_RTCRayHit8 rh
+    cdef char* base = <char*>&rh
+    return {"tfar": <char*>&rh.ray.tfar[0] - base, "Ng_x": <char*>&rh.hit.Ng_x[0] - base,
+            "u": <char*>&rh.hit.u[0] - base, "v": <char*>&rh.hit.v[0] - base,
+            "primID": <char*>&rh.hit.primID[0] - base, "geomID": <char*>&rh.hit.geomID[0] - base,
+            "instID": <char*>&rh.hit.instID[0][0] - base, "instPrimID": <char*>&rh.hit.instPrimID[0][0] - base}
+
+
+def _offsets1() -> dict:
+    cdef ss_RTCRayHit rh
+    cdef char* base = <char*>&rh
+    return {"tfar": <char*>&rh.ray.tfar - base, "Ng_x": <char*>&rh.hit.Ng_x - base,
+            "u": <char*>&rh.hit.u - base, "v": <char*>&rh.hit.v - base,
+            "primID": <char*>&rh.hit.primID - base, "geomID": <char*>&rh.hit.geomID - base,
+            "instID": <char*>&rh.hit.instID[0] - base, "instPrimID": <char*>&rh.hit.instPrimID[0] - base}
+
+
+RAYHIT8_OFFSETS = _offsets8()
+RAYHIT1_OFFSETS = _offsets1()
 
 # Enumerations and constants (rtcore_common.h, rtcore_device.h, rtcore_scene.h, rtcore_buffer.h).
 cdef enum:

@@ -43,13 +43,85 @@ def find_library() -> str | None:
     return None
 
 
-def load_binding():
-    """The compiled binding with Embree 4 bound, ready to build scenes.
+# Embree 4's ray-hit structures (include/embree4/rtcore_ray.h) as the library in the embreex
+# wheel is built: with instance arrays (an ``instPrimID`` after ``instID``) and one instance
+# level. Byte offsets of the first lane of each field; a packet field is 8 lanes x 4 bytes.
+LAYOUT8 = {"tfar": 8 * 32, "Ng_x": 12 * 32, "u": 15 * 32, "v": 16 * 32, "primID": 17 * 32, "geomID": 18 * 32,
+           "instID": 19 * 32, "instPrimID": 20 * 32}
+SIZE8 = 21 * 32
+LAYOUT1 = {"tfar": 32, "Ng_x": 48, "u": 60, "v": 64, "primID": 68, "geomID": 72, "instID": 76, "instPrimID": 80}
+SIZE1 = 96
+INVALID_ID = 0xFFFFFFFF
+CANARY = 0xA5
+
+
+def _square_rays() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """8 rays straight down onto the square ``|x|, |y| <= 1, z = 0`` from 1 m above it."""
+    xy = np.linspace(-0.4, 0.4, 8)
+    o = np.column_stack([xy, xy[::-1], np.ones(8)]).astype(np.float32)
+    return o, np.tile(np.array([0, 0, -1], np.float32), (8, 1)), np.full(8, 10.0, np.float32)
+
+
+def verify_layout(binding) -> None:
+    """Check the declared ray-hit structures against what the loaded library writes.
+
+    The declared sizes and offsets must be Embree 4's (:data:`LAYOUT8`, :data:`LAYOUT1`). Then,
+    on a one-square scene, a packet of 8 and a single ray are cast into structures filled with
+    canary bytes and followed by 64 more: Embree must write ``geomID``, ``instID`` and
+    ``instPrimID`` (as invalid: no instances) where declared, leave the lanes a partial packet
+    marks inactive alone, and write nothing past the structure. A library built otherwise (no
+    instance arrays, or more instance levels) fails here instead of corrupting memory later.
 
     Raises
     ------
     SonarsimError
-        The extension was not built, or the library cannot be found or opened.
+        What differs.
+    """
+    declared = (binding.RAYHIT8_SIZE, binding.RAYHIT8_OFFSETS, binding.RAYHIT1_SIZE, binding.RAYHIT1_OFFSETS)
+    if declared != (SIZE8, LAYOUT8, SIZE1, LAYOUT1):
+        raise SonarsimError(f"the binding's ray-hit structures are not Embree 4's: declared {declared}")
+    square = binding.Scene([np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32)],
+                           [np.array([[0, 1, 2], [0, 2, 3]], np.int32)], "threads=1")
+    problems = []
+    try:
+        o, d, tfar = _square_rays()
+        for m in (8, 3):
+            raw = square.probe_packet(o, d, tfar, m)
+
+            def lanes(field, dtype=np.uint32):
+                return np.frombuffer(raw, dtype=dtype, count=8, offset=LAYOUT8[field])
+
+            if raw[SIZE8:] != bytes([CANARY]) * 64:
+                problems.append("Embree wrote past the 672-byte RTCRayHit8")
+            for field, want in (("geomID", 0), ("instID", INVALID_ID), ("instPrimID", INVALID_ID)):
+                if not np.all(lanes(field)[:m] == want):
+                    problems.append(f"packet lanes' {field} not written as expected")
+                if not np.all(lanes(field)[m:] == int.from_bytes(bytes([CANARY]) * 4, "little")):
+                    problems.append(f"inactive lanes' {field} written")
+            if not np.allclose(lanes("tfar", np.float32)[:m], 1.0):
+                problems.append("packet hit distances wrong")
+        raw = square.probe_single(0.2, -0.3, 2.0, 0.0, 0.0, -1.0, 10.0)
+        single = {f: int.from_bytes(raw[LAYOUT1[f]:LAYOUT1[f] + 4], "little") for f in ("geomID", "instID", "instPrimID")}
+        if single != {"geomID": 0, "instID": INVALID_ID, "instPrimID": INVALID_ID} or raw[SIZE1:] != bytes([CANARY]) * 64:
+            problems.append(f"single ray: {single}, bytes past the 96-byte RTCRayHit written: {raw[SIZE1:] != bytes([CANARY]) * 64}")
+    finally:
+        square.close()
+    if problems:
+        raise SonarsimError("the Embree library does not answer packets as declared "
+                            f"(instance arrays, one instance level, a valid mask per lane): {'; '.join(sorted(set(problems)))}")
+
+
+_verified: set = set()
+
+
+def load_binding():
+    """The compiled binding with Embree 4 bound and its ray-hit layout verified (once per process).
+
+    Raises
+    ------
+    SonarsimError
+        The extension was not built, the library cannot be found or opened, or it lays out ray
+        hits otherwise than declared (:func:`verify_layout`).
     """
     try:
         from . import _embree4
@@ -63,6 +135,9 @@ def load_binding():
                                 "embreex.libs/libembree4-*.so* beside the installed embreex package "
                                 "(`pip install embreex`); set SONARSIM_EMBREE=embreex to use embreex's own caster")
         _embree4.load(path)
+    if _embree4.loaded_path() not in _verified:
+        verify_layout(_embree4)
+        _verified.add(_embree4.loaded_path())
     return _embree4
 
 
@@ -87,6 +162,7 @@ class Embree4Caster:
         self._ids = np.array([i for i, m in enumerate(meshes) if len(m.faces)], dtype=np.int32)
         kept = [m for m in meshes if len(m.faces)]
         self._scene = None
+        self._closed = False
         if kept:
             self._scene = binding.Scene(
                 [np.ascontiguousarray(m.vertices, dtype=np.float32) for m in kept],
@@ -125,6 +201,8 @@ class Embree4Caster:
         -------
         dict with ``tfar`` (n,), ``geomID`` (n,) int32 (-1 for a miss), ``Ng`` (n, 3) float32.
         """
+        if self._closed:
+            raise SonarsimError("this Embree4Caster is closed")
         if with_uv:
             raise NotImplementedError("Embree4Caster.cast_raw gives no u, v; use intersect(..., with_uv=True)")
         n = len(directions)
@@ -153,6 +231,8 @@ class Embree4Caster:
         -------
         Hits
         """
+        if self._closed:
+            raise SonarsimError("this Embree4Caster is closed")
         n = len(directions)
         if self._scene is None or n == 0:
             return Hits.misses(n, with_uv)
@@ -174,7 +254,8 @@ class Embree4Caster:
         return hits
 
     def close(self) -> None:
-        """Stop the worker threads and release Embree's scene and device."""
+        """Stop the worker threads and release Embree's scene and device (idempotent)."""
+        self._closed = True
         if getattr(self, "_pool", None) is not None:
             self._pool.shutdown(wait=False)
             self._pool = None
