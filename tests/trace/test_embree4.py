@@ -70,10 +70,10 @@ def demo_frame():
     return meshes, calls
 
 
-@pytest.mark.parametrize("threads", [1, 2])
-def test_demo_frame_rays_hit_as_with_embreex(demo_frame, threads):
+@pytest.mark.parametrize("threads, coherent", [(1, True), (2, True), (1, False)])
+def test_demo_frame_rays_hit_as_with_embreex(demo_frame, threads, coherent):
     meshes, calls = demo_frame
-    new, ref = Embree4Caster(meshes, threads), EmbreeCaster(meshes, threads)
+    new, ref = Embree4Caster(meshes, threads, coherent=coherent), EmbreeCaster(meshes, threads)
     n_hits = 0
     for o, d, reach in calls:
         for with_uv in (False, True):
@@ -112,12 +112,14 @@ def random_rays(rng, meshes, n):
     return o, d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
+@pytest.mark.parametrize("coherent", [True, False])
 @pytest.mark.parametrize("n", [0, 1, 7, 8, 9, 1003, 2 * 8192 + 13])
-def test_random_rays_against_random_meshes(n):
+def test_random_rays_against_random_meshes(n, coherent):
+    # Rays in random order: the coherent traversal is slower on them but must give the same hits.
     rng = np.random.default_rng(n)
     meshes = random_scene(rng)
     o, d = random_rays(rng, meshes, n)
-    new, ref = Embree4Caster(meshes, threads=2), EmbreeCaster(meshes, threads=2)
+    new, ref = Embree4Caster(meshes, threads=2, coherent=coherent), EmbreeCaster(meshes, threads=2)
     for reach in (20.0, 1.5):  # 1.5 m: the limit cuts many rays that would hit further away
         for with_uv in (False, True):
             a = new.intersect(o, d, reach, with_uv=with_uv)

@@ -418,7 +418,7 @@ cdef void cast_chunk(void* scene, const float[:, ::1] o, const float[:, ::1] d, 
 
 
 cdef void cast_chunk_raw(void* scene, const float[:, ::1] o, const float[:, ::1] d, float[::1] tfar,
-                         int[::1] geom_id, float[:, ::1] ng) noexcept nogil:
+                         int[::1] geom_id, float[:, ::1] ng, bint coherent) noexcept nogil:
     """Embree's raw answer only (tfar written back, geomID -1 for a miss, Ng): no fused work."""
     cdef ss_RTCRayHit8 rh
     cdef ss_Valid8 valid
@@ -427,6 +427,7 @@ cdef void cast_chunk_raw(void* scene, const float[:, ::1] o, const float[:, ::1]
     cdef int m, k
     memset(&rh, 0, sizeof(rh))
     memset(&args, 0, sizeof(args))
+    args.flags = RTC_RAY_QUERY_FLAG_COHERENT if coherent else RTC_RAY_QUERY_FLAG_INCOHERENT
     args.feature_mask = RTC_FEATURE_FLAG_ALL
     start = 0
     while start < n:
@@ -455,6 +456,8 @@ cdef class Scene:
         shared with Embree (not copied) and kept alive by this object.
     config : str
         Embree device configuration, e.g. ``"threads=1"`` (it only affects the build).
+    quality : {"high", "medium", "low"}
+        BVH build quality (high: spatial splits, slower to build, faster to cast).
     """
 
     cdef void* device
@@ -469,7 +472,7 @@ cdef class Scene:
         self.error.code = 0
         self.error.message[0] = 0
 
-    def __init__(self, list vertices, list faces, str config=""):
+    def __init__(self, list vertices, list faces, str config="", str quality="high"):
         if _handle == NULL:
             raise SonarsimError("the Embree 4 library is not loaded (call sonarsim.trace._embree4.load first)")
         self._keep = []
@@ -485,7 +488,10 @@ cdef class Scene:
         self.scene = api.rtcNewScene(self.device)
         self.check("rtcNewScene")
         # Static scene: the high-quality (spatial-split) BVH costs more to build, less to cast.
-        api.rtcSetSceneBuildQuality(self.scene, RTC_BUILD_QUALITY_HIGH)
+        qualities = {"low": 0, "medium": 1, "high": RTC_BUILD_QUALITY_HIGH}
+        if quality not in qualities:
+            raise ValueError(f"quality must be one of {', '.join(qualities)}")
+        api.rtcSetSceneBuildQuality(self.scene, qualities[quality])
         # Not ROBUST, as the embreex caster: closed meshes lose no hits at this precision.
         api.rtcSetSceneFlags(self.scene, RTC_SCENE_FLAG_NONE)
         cdef void* geom
@@ -568,7 +574,7 @@ cdef class Scene:
         self.check("rtcIntersect8")
 
     def cast_raw(self, const float[:, ::1] origins, const float[:, ::1] directions, float[::1] tfar,
-                 int[::1] geom_id, float[:, ::1] ng):
+                 int[::1] geom_id, float[:, ::1] ng, bint coherent=False):
         """Embree's raw answer, as embreex gives it: ``tfar`` cut to the hits (in place), ``geom_id``
         (-1 for a miss) and the unnormalised normal ``ng`` (n, 3). For benchmarks."""
         cdef Py_ssize_t n = directions.shape[0]
@@ -579,7 +585,7 @@ cdef class Scene:
         if self.scene == NULL:
             raise SonarsimError("the Embree scene is closed")
         with nogil:
-            cast_chunk_raw(self.scene, origins, directions, tfar, geom_id, ng)
+            cast_chunk_raw(self.scene, origins, directions, tfar, geom_id, ng, coherent)
         self.check("rtcIntersect8")
 
     def probe_packet(self, const float[:, ::1] origins, const float[:, ::1] directions, const float[::1] tfar,
