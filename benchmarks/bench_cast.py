@@ -9,6 +9,7 @@ Usage::
    ``raw`` is Embree's bare answer (``cast_raw``: embreex's ``run``; the binding's packet loop
    with no hit processing), ``hits`` is :meth:`intersect`, what a frame pays (embreex: ``run`` then
    the compiled conversion to ``Hits``; the binding: the conversion fused into the packet loop).
+   ``embree4 incoherent``: the binding without Embree's coherent-packet flag.
    Every repetition casts FRESH rays: embreex writes the hit distances back into the ``tfar``
    array it is given, so replaying one array would cut the rays short at their previous hits;
    each cast gets its own copy of the limits, made before the clock starts.
@@ -110,12 +111,13 @@ def main(argv: list[str] | None = None) -> int:
     meshes, batches = frame_batches()
     n_rays = sum(len(d) for _, d, _ in batches)
     embreex, ours = EmbreeCaster(meshes, threads=2), Embree4Caster(meshes, threads=2)
+    ours_incoherent = Embree4Caster(meshes, threads=2, coherent=False)
     # The two agree on these rays (tests/trace/test_embree4.py checks it ray by ray).
     for o, d, t in batches:
         a, b = embreex.intersect(o, d, float(t[0])), ours.intersect(o, d, float(t[0]))
         assert np.array_equal(a.mesh_id, b.mesh_id)
     casters = {(name, mode, threads): (caster, mode, threads)
-               for name, caster in (("embreex", embreex), ("embree4", ours))
+               for name, caster in (("embreex", embreex), ("embree4", ours), ("embree4 incoherent", ours_incoherent))
                for mode in ("raw", "hits") for threads in (1, 2)}
     time_casts(casters, batches, 10)  # warm
     cast = time_casts(casters, batches, args.repeats)
@@ -123,12 +125,12 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"demo frame: {n_rays} rays in {len(batches)} batches; {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} CPUs; medians of {args.repeats} casts / {args.frames} frames, interleaved")
-    print(f"{'':24}{'1 thread':>10}{'2 threads':>11}")
-    for name in ("embreex", "embree4"):
+    print(f"{'':32}{'1 thread':>10}{'2 threads':>11}")
+    for name in ("embreex", "embree4", "embree4 incoherent"):
         for mode in ("raw", "hits"):
-            print(f"{name + ' cast ' + mode:24}{cast[(name, mode, 1)]:9.3f} {cast[(name, mode, 2)]:10.3f}  ms")
+            print(f"{name + ' cast ' + mode:32}{cast[(name, mode, 1)]:9.3f} {cast[(name, mode, 2)]:10.3f}  ms")
     for name in ("embreex", "embree4"):
-        print(f"{name + ' frame':24}{frame[(name, 1)]:9.3f} {frame[(name, 2)]:10.3f}  ms")
+        print(f"{name + ' frame':32}{frame[(name, 1)]:9.3f} {frame[(name, 2)]:10.3f}  ms")
     for threads in (1, 2):
         print(f"{threads} thread(s): cast raw {cast[('embreex', 'raw', threads)] / cast[('embree4', 'raw', threads)]:.2f}x, "
               f"cast to hits {cast[('embreex', 'hits', threads)] / cast[('embree4', 'hits', threads)]:.2f}x, "
