@@ -22,6 +22,8 @@ from libc.string cimport memset, memcpy
 from libc.stdint cimport uint32_t, uintptr_t
 cimport cython
 
+import numpy as np
+
 from ..errors import SonarsimError
 
 cdef extern from "<dlfcn.h>" nogil:
@@ -451,9 +453,10 @@ cdef class Scene:
     Parameters
     ----------
     vertices : list of (n_v, 3) float32 C-contiguous ndarrays, metres
+        Copied once (with the padding row Embree needs).
     faces : list of (n_f, 3) int32 C-contiguous ndarrays
-        One entry per non-empty mesh; Embree's geometry ``k`` is entry ``k``. The arrays are
-        shared with Embree (not copied) and kept alive by this object.
+        One entry per non-empty mesh; Embree's geometry ``k`` is entry ``k``. Shared with
+        Embree (not copied) and kept alive by this object.
     config : str
         Embree device configuration, e.g. ``"threads=1"`` (it only affects the build).
     quality : {"high", "medium", "low"}
@@ -498,15 +501,19 @@ cdef class Scene:
         cdef const float[:, ::1] v
         cdef const int[:, ::1] f
         for vv, ff in zip(vertices, faces):
-            v = vv
             f = ff
             if f.shape[0] == 0:
                 raise SonarsimError("empty meshes are not given to Embree")
-            self._keep += [vv, ff]
+            # Embree reads the last vertex with a 16-byte load: a shared float3 buffer needs 4
+            # bytes of padding after it (rtcSetSharedGeometryBuffer), hence one spare row.
+            arr = np.zeros((len(vv) + 1, 3), np.float32)
+            arr[:-1] = vv
+            v = arr
+            self._keep += [arr, ff]
             geom = api.rtcNewGeometry(self.device, RTC_GEOMETRY_TYPE_TRIANGLE)
             self.check("rtcNewGeometry")
             api.rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                           &v[0, 0] if v.shape[0] else NULL, 0, 12, v.shape[0])
+                                           &v[0, 0], 0, 12, v.shape[0] - 1)
             api.rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
                                            &f[0, 0], 0, 12, f.shape[0])
             api.rtcCommitGeometry(geom)

@@ -208,7 +208,7 @@ class Embree4Caster:
         dict with ``tfar`` (n,), ``geomID`` (n,) int32 (-1 for a miss), ``Ng`` (n, 3) float32.
         """
         if self._closed:
-            raise SonarsimError("this Embree4Caster is closed")
+            raise SonarsimError("this Embree4Caster is released")
         if with_uv:
             raise NotImplementedError("Embree4Caster.cast_raw gives no u, v; use intersect(..., with_uv=True)")
         n = len(directions)
@@ -239,7 +239,7 @@ class Embree4Caster:
         Hits
         """
         if self._closed:
-            raise SonarsimError("this Embree4Caster is closed")
+            raise SonarsimError("this Embree4Caster is released")
         n = len(directions)
         if self._scene is None or n == 0:
             return Hits.misses(n, with_uv)
@@ -262,14 +262,22 @@ class Embree4Caster:
         return hits
 
     def close(self) -> None:
-        """Stop the worker threads and release Embree's scene and device (idempotent)."""
-        self._closed = True
+        """Stop the worker threads; later casts run on the calling thread (as EmbreeCaster's).
+
+        A closed simulator still renders (it closes its casters), so the Embree scene stays:
+        it is released with the caster (garbage collection) or at once by :meth:`release`.
+        """
         if getattr(self, "_pool", None) is not None:
             self._pool.shutdown(wait=False)
             self._pool = None
+
+    def release(self) -> None:
+        """Stop the threads and release Embree's scene and device now; the caster is done (idempotent)."""
+        self.close()
+        self._closed = True
         if getattr(self, "_scene", None) is not None:
             self._scene.close()
             self._scene = None
 
     def __del__(self) -> None:
-        self.close()
+        self.close()  # the binding's Scene releases Embree's objects when it is collected
