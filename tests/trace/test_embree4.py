@@ -342,15 +342,3 @@ def test_close_stops_the_threads_and_release_frees_embree():
         Embree4Caster(meshes, threads=1).intersect(o[:100], d[:100], 20.0)
     gc.collect()
 
-
-def test_shared_vertex_buffers_are_padded_copies():
-    # Embree reads a float3 vertex with a 16-byte load: the binding hands it a padded copy, so
-    # the caller's arrays (and changes to them afterwards) do not matter.
-    rng = np.random.default_rng(4)
-    meshes = [TriangleMesh(m.vertices.astype(np.float32), m.faces) for m in random_scene(rng)]  # no float32 copy
-    o, d = random_rays(rng, meshes, 500)
-    caster = Embree4Caster(meshes, threads=1)
-    before = caster.intersect(o, d, 20.0)
-    for m in meshes:
-        m.vertices[:] = 0.0
-    np.testing.assert_array_equal(caster.intersect(o, d, 20.0).mesh_id, before.mesh_id)
