@@ -3,8 +3,9 @@
 
 Why a binding of our own: embreex casts one ray at a time (``rtcIntersect1``) and hands back
 Embree's raw answer, which the renderer then converts (distance, mesh index, unit normal) in a
-second pass over memory. Here rays go to Embree in packets of 8 (``rtcIntersect8``) over a scene
-built with the high-quality BVH, and each packet's hits are converted into what
+second pass over memory. Here rays go to Embree in packets of 8 (``rtcIntersect8``, flagged
+coherent by default: neighbouring rays of a sonar fan share their BVH walk) over a scene built
+with the high-quality BVH, and each packet's hits are converted into what
 :class:`sonarsim.trace.base.Hits` needs right after Embree returns, while the packet is still in
 L1 cache: the first step of fusing per-ray work with the cast (tracker issue 14, item 2).
 
@@ -18,9 +19,8 @@ Embree 4's documented API (``include/embree4/rtcore_*.h``, 4.x) for the few call
 """
 
 from libc.math cimport sqrtf, INFINITY
-from libc.string cimport memset, memcpy
-from libc.stdint cimport uint32_t, uintptr_t
-cimport cython
+from libc.string cimport memset
+from libc.stdint cimport uintptr_t
 
 import numpy as np
 
@@ -42,9 +42,10 @@ cdef extern from "<dlfcn.h>" nogil:
 # ``instID[L]`` in every hit structure, and Embree writes it on every hit (it copies the
 # instance stack of the query context, even when there are no instances). A hit declared
 # without it (as some bindings do, 80 bytes for one ray) is overrun by 4 bytes per ray, and by
-# 32 bytes per packet of 8. tests/trace/test_embree4.py checks these offsets against the
-# library itself: it fills the structure and 64 bytes after it with canary bytes, casts, and
-# requires Embree to have written instID and instPrimID where declared and nothing after.
+# 32 bytes per packet of 8. sonarsim.trace.embree4.verify_layout checks these offsets against
+# the library itself each time the binding is loaded (and tests/trace/test_embree4.py, lane by
+# lane): it fills the structure and 64 bytes after it with canary bytes, casts, and requires
+# Embree to have written instID and instPrimID where declared and nothing after.
 #
 # Packet of 8 (structure of arrays, each field 8 x 4 bytes = 32 bytes):
 #   ray: org_x org_y org_z tnear dir_x dir_y dir_z time tfar mask id flags   12 x 32 = 384
