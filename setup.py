@@ -9,6 +9,9 @@
   glibc's vectorised ``expf`` (libmvec) in the gamma compression and vectorise the sums;
   ``-mrecip=none`` keeps square roots exact. Elsewhere the loops are built with plain ``-O3``
   (same results, slower).
+* ``sonarsim.trace._embree4``: a small binding to the Embree 4 C API bundled with embreex. It
+  is not linked against Embree: it opens the library at run time (dlopen), so only ``-ldl``
+  (part of libc on recent glibc) is needed. Not built on Windows (no dlopen there).
 """
 
 import platform
@@ -38,5 +41,10 @@ setup(
                     + (["-ffast-math", "-mrecip=none"] if VECTOR_MATH else []) + simd,
                     extra_link_args=["-lmvec"] if VECTOR_MATH else [])
           for name, simd in [("_stage", [])] + ([("_stage_avx2", ["-mavx2", "-mfma"])] if X86_64 else [])],
+        *([] if IS_MSVC else [
+            Extension("sonarsim.trace._embree4", ["src/sonarsim/trace/_embree4.pyx"],
+                      extra_compile_args=flags("-O3", "-fno-math-errno", "-fno-tree-slp-vectorize"),
+                      libraries=["dl"] if sys.platform.startswith("linux") else []),
+        ]),
     ],
 )

@@ -54,6 +54,11 @@ from sonarsim.config.loader import scene_from_dict
 from sonarsim.config.scene import ObjectSpec
 from sonarsim.core.transforms import Pose
 
+# record_casts hooks embreex's caster (EmbreeCaster.cast_raw): keep that caster behind the
+# default backend here (read when a simulator is built), as when these figures were taken;
+# benchmarks/bench_cast.py compares it with the Embree 4 binding.
+os.environ.setdefault("SONARSIM_EMBREE", "embreex")
+
 
 def rock_mesh(n_triangles: int, radius: float = 0.25, seed: int = 0):
     """A bumpy closed mesh with about ``n_triangles`` faces (a UV sphere with radial noise)."""

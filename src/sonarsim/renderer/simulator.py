@@ -72,8 +72,10 @@ class Simulator:
     ----------
     scene : Scene, mapping or path
         Anything :func:`sonarsim.load_scene` accepts.
-    backend : {'embree', 'numpy'}
-        Ray-casting engine; ``numpy`` is a slow reference for tests.
+    backend : {'embree', 'embree4', 'embreex', 'numpy'}
+        Ray-casting engine. ``embree`` is Embree through sonarsim's own binding to its C API
+        (``embree4``) where that loads, else through embreex (``embreex``; the environment
+        variable ``SONARSIM_EMBREE=embreex`` forces it); ``numpy`` is a slow reference for tests.
     kernels : {'compiled', 'numpy'}
         Per-ray arithmetic of the default (fast) method: compiled loops, or the NumPy reference
         they are tested against. ``compiled`` falls back to ``numpy`` (with a warning) when the

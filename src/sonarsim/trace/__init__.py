@@ -1,33 +1,70 @@
 """Ray-casting engines behind one small interface (:class:`RayCaster`).
 
-``embree`` (default) is Intel Embree through embreex over all cores; ``numpy`` is a slow
-pure-NumPy reference for tests. Another engine (open3d, a GPU) registers a factory here.
+``embree`` (default) is Intel Embree over all cores: through our own binding to its C API
+(``embree4``, :mod:`.embree4`) where that loads, else through embreex's caster (``embreex``,
+:mod:`.embree`), which the environment variable ``SONARSIM_EMBREE=embreex`` also forces. Both
+use the Embree library bundled with embreex. ``numpy`` is a slow pure-NumPy reference for
+tests. Another engine (open3d, a GPU) registers a factory here.
 """
 
 from __future__ import annotations
 
+import logging
+import os
 from typing import Callable, Sequence
 
-from ..errors import ConfigError
+from ..errors import ConfigError, SonarsimError
 from ..scene.meshes import TriangleMesh
 from .base import Hits, RayCaster, available_cores
 
+logger = logging.getLogger(__name__)
+_reported: set = set()
 
-def _embree(meshes, threads):
+
+def _make_embreex(meshes, threads):
     from .embree import EmbreeCaster
 
     return EmbreeCaster(meshes, threads)
 
 
-def _numpy(meshes, threads):
+def _make_embree4(meshes, threads):
+    from .embree4 import Embree4Caster
+
+    return Embree4Caster(meshes, threads)
+
+
+def _make_embree(meshes, threads):
+    """Our Embree 4 binding where it loads, else embreex's caster (``SONARSIM_EMBREE=embreex`` forces it)."""
+    choice = os.environ.get("SONARSIM_EMBREE", "").strip().lower()
+    if choice not in ("", "embree4", "embreex"):
+        raise ConfigError("SONARSIM_EMBREE", f"must be 'embree4' or 'embreex', got {choice!r}")
+    if choice != "embreex":
+        from .embree4 import load_binding
+
+        try:
+            load_binding()
+        except SonarsimError as exc:
+            if choice == "embree4":
+                raise
+            if str(exc) not in _reported:  # once per reason, not per caster
+                _reported.add(str(exc))
+                logger.warning("Embree 4 binding unavailable (%s); using embreex's caster", exc)
+        else:
+            return _make_embree4(meshes, threads)
+    return _make_embreex(meshes, threads)
+
+
+def _make_numpy(meshes, threads):
     from .numpy_ref import NumpyCaster
 
     return NumpyCaster(meshes, threads)
 
 
 BACKENDS: dict[str, Callable[[Sequence[TriangleMesh], int | None], RayCaster]] = {
-    "embree": _embree,
-    "numpy": _numpy,
+    "embree": _make_embree,
+    "embree4": _make_embree4,
+    "embreex": _make_embreex,
+    "numpy": _make_numpy,
 }
 
 
