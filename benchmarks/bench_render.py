@@ -54,10 +54,9 @@ from sonarsim.config.loader import scene_from_dict
 from sonarsim.config.scene import ObjectSpec
 from sonarsim.core.transforms import Pose
 
-# record_casts hooks embreex's caster (EmbreeCaster.cast_raw): keep that caster behind the
-# default backend here (read when a simulator is built), as when these figures were taken;
-# benchmarks/bench_cast.py compares it with the Embree 4 binding.
-os.environ.setdefault("SONARSIM_EMBREE", "embreex")
+# The default backend's caster is measured (the Embree 4 binding where it loads);
+# SONARSIM_EMBREE=embreex in the environment measures embreex's. benchmarks/bench_cast.py
+# compares the two casters alone.
 
 
 def rock_mesh(n_triangles: int, radius: float = 0.25, seed: int = 0):
@@ -129,22 +128,27 @@ def oculus_scene() -> dict:
 
 
 def record_casts(sim: sonarsim.Simulator) -> list:
-    """Every batch of rays that one frame hands to Embree, with its caster (whichever caster
-    class the simulator uses: each has ``cast_raw``, its bare casting)."""
-    caster_cls = type(getattr(sim.caster, "caster", sim.caster))  # (a textured scene wraps it)
+    """Every batch of rays that one frame casts, with its caster, as ``(caster, origins,
+    directions, tfar, threads)`` ready for the caster's bare casting (``cast_raw``: Embree's
+    answer alone, no conversion to hits). Recorded at ``intersect``, which every caster has
+    (whichever the simulator uses; a textured scene wraps it)."""
+    caster_cls = type(getattr(sim.caster, "caster", sim.caster))
     recorded = []
-    original = caster_cls.cast_raw
+    original = caster_cls.intersect
 
-    def recording(self, origins, directions, tfar, threads=None, *args, **kwargs):
-        recorded.append((self, origins.copy(), directions.copy(), tfar.copy()))
-        return original(self, origins, directions, tfar, threads, *args, **kwargs)
+    def recording(self, origins, directions, max_distance, threads=None, *args, **kwargs):
+        n = len(directions)
+        o = np.ascontiguousarray(np.broadcast_to(origins, (n, 3)), dtype=np.float32)
+        d = np.ascontiguousarray(directions, dtype=np.float32)
+        recorded.append((self, o, d, np.full(n, max_distance, np.float32), threads))
+        return original(self, origins, directions, max_distance, threads, *args, **kwargs)
 
-    caster_cls.cast_raw = recording
+    caster_cls.intersect = recording
     try:
         sim.render(keep_rays=False)
     finally:
-        caster_cls.cast_raw = original
-    return recorded
+        caster_cls.intersect = original
+    return [r for r in recorded if len(r[2])]
 
 
 # Reflecting planes of the benchmark tank, in the order the planes sweep adds them (the demo
@@ -180,7 +184,7 @@ def measure(name: str, scene, repeats: int) -> dict:
     for _ in range(3):
         sim.render(keep_rays=False)
     recorded = record_casts(sim)
-    n_rays = sum(len(d) for _, _, d, _ in recorded)
+    n_rays = sum(len(d) for _, _, d, _, _ in recorded)
     frames, casts = [], []
     block = 5
     for _ in range(max(1, repeats // block)):
@@ -191,10 +195,10 @@ def measure(name: str, scene, repeats: int) -> dict:
         for _ in range(block):
             # Fresh rays each time: Embree writes each hit's distance back into tfar, so a
             # replay of the same array would cast rays already cut at their hits (3-4 % faster).
-            fresh = [tfar.copy() for _, _, _, tfar in recorded]
+            fresh = [tfar.copy() for _, _, _, tfar, _ in recorded]
             t = time.perf_counter()
-            for (caster, o, d, _), tfar in zip(recorded, fresh):
-                caster.cast_raw(o, d, tfar)
+            for (caster, o, d, _, threads), tfar in zip(recorded, fresh):
+                caster.cast_raw(o, d, tfar, threads)
             casts.append(time.perf_counter() - t)
     frame, cast = statistics.median(frames), statistics.median(casts)
     s = sim.scene.sonar
