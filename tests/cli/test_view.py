@@ -120,3 +120,30 @@ def test_ctrl_c_stops_it_cleanly(scene_file, tmp_path):
     assert proc.returncode == 130
     assert err.strip() == "sonarsim: interrupted by Ctrl-C (SIGINT); the viewer stopped"
     assert "Traceback" not in out + err and out == ""
+
+
+@pytest.mark.parametrize("host", ["192.0.2.1", "127.0.0.1:8080", "http://127.0.0.1"])
+@pytest.mark.parametrize("port", [0, 8080])
+def test_a_host_it_cannot_listen_on_is_refused_at_once_even_with_any_port(host, port):
+    # viser tries a thousand ports on any bind error, then waits forever: with --port 0 the
+    # command hung, silent, on an address of another machine (192.0.2.1: TEST-NET-1) or a
+    # host written with its port or scheme.
+    pytest.importorskip("viser")
+    from sonarsim.plot.viewer.app import check_port
+
+    t0 = time.monotonic()
+    with pytest.raises(SonarsimError) as info:
+        check_port(host, port)
+    assert time.monotonic() - t0 < 5
+    message = str(info.value)
+    assert message.startswith(f"--host {host}: cannot ")
+    assert "in use" not in message  # the address is wrong, not the port
+    assert "127.0.0.1" in message  # says what to give instead
+
+
+def test_every_address_and_loopback_names_still_pass_the_check():
+    pytest.importorskip("viser")
+    from sonarsim.plot.viewer.app import check_port
+
+    for host in ("127.0.0.1", "localhost", "0.0.0.0", ""):
+        check_port(host, 0)
