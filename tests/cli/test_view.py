@@ -147,3 +147,28 @@ def test_every_address_and_loopback_names_still_pass_the_check():
 
     for host in ("127.0.0.1", "localhost", "0.0.0.0", ""):
         check_port(host, 0)
+
+
+def test_a_second_ctrl_c_while_the_viewer_stops_still_says_it_stopped(scene_file, tmp_path, monkeypatch):
+    # An impatient user presses Ctrl-C twice; the second lands while the server thread is
+    # joined. main() prints the notes of the interrupt that reaches it: it said "nothing was
+    # written" instead of "the viewer stopped".
+    pytest.importorskip("viser")
+    from sonarsim.cli.main import build_parser
+    from sonarsim.cli.view import serve
+    from sonarsim.plot.viewer import app
+
+    real_stop = app.stop_server
+
+    def interrupted_stop(server):
+        real_stop(server)
+        raise KeyboardInterrupt  # the second Ctrl-C
+
+    def first_ctrl_c(viewer, url):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(app, "stop_server", interrupted_stop)
+    args = build_parser().parse_args(["view", str(scene_file), "--port", "0", "--out", str(tmp_path / "out")])
+    with pytest.raises(KeyboardInterrupt) as info:
+        serve(args, stop=threading.Event(), ready=first_ctrl_c)
+    assert getattr(info.value, "__notes__", []) == ["the viewer stopped"]
