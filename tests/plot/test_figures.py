@@ -164,7 +164,7 @@ def test_polar_figure_axes_far_range_up_left_beam_left():
     assert [t.get_text() for t in ax.get_yticklabels()] == ["1", "2", "3", "4", "5"]
     assert [t.get_text() for t in ax.get_xticklabels()][0] == "+15°"
     # The mesh: cell (row 100, column 4) is the target, at 11.625 deg and ~2.86 m.
-    levels = np.asarray(ax.collections[0].get_array()).reshape(200, 40)
+    levels = np.asarray(ax.images[0].get_array()).reshape(200, 40)
     assert levels[100, 4] == 255 and levels[100, 35] < 255
     assert colorbars(fig)[0].get_ylabel().startswith("echo level (dB")
 
@@ -263,3 +263,38 @@ def test_calibration_figure_shows_three_panels_in_counts():
                                                  "calibrated model: speckled frame"]
     (bar,) = colorbars(fig)
     assert bar.get_ylabel() == "device output (counts)" and bar.get_ylim() == pytest.approx((0.0, 255.0))
+
+
+def _rendered_rgb(fig) -> np.ndarray:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3]
+
+
+def _pixel(fig, ax, az_deg: float, r_m: float) -> np.ndarray:
+    """The drawn colour at a data point (azimuth, range) of polar axes."""
+    rgb = _rendered_rgb(fig)
+    x, y = ax.transData.transform((az_deg, r_m))
+    return rgb[rgb.shape[0] - 1 - int(round(y)), int(round(x))]
+
+
+def test_polar_figure_draws_unequal_beams_at_their_own_edges_as_one_image():
+    # An asymmetric lens table: beam 0 at +20 deg spans (25, 15), beam 7 at -3 deg (-2.5, -3.5).
+    table = (20.0, 10.0, 5.0, 2.0, 0.0, -1.0, -2.0, -3.0)
+    sonar = SonarConfig(beam_angles_deg=table, elevation_fov_deg=14.0, range_min_m=0.5, range_max_m=6.0,
+                        n_range_bins=300)
+    polar = np.full((300, 8), 1e-6, np.float32)
+    polar[:, 0] = 1.0  # the left-most beam bright, the others 60 dB down (black)
+    image = SonarImage(polar=polar, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg,
+                       components={"total": polar}, sonar=sonar, pose=None, config={})
+    fig = F.polar_figure(image)
+    ax = fig.axes[0]
+    assert ax.get_xlim() == pytest.approx((25.0, -3.5))
+    bright, dark = colormap_lut()[255], colormap_lut()[0]
+    assert (_pixel(fig, ax, 16.0, 3.0) == bright).all()  # inside beam 0, near its right edge at 15 deg
+    assert (_pixel(fig, ax, 14.0, 3.0) == dark).all()  # beam 1
+    assert (_pixel(fig, ax, -3.2, 3.0) == dark).all()
+    # One image, not one quadrilateral per cell: 8000 x 512 cells took seconds to draw.
+    assert len(ax.images) == 1 and not ax.collections
