@@ -414,3 +414,25 @@ def test_recording_page_steps_frames(shared_data):
     finally:
         viewer.close()
         stop_server(server)
+
+
+def test_a_finely_sampled_range_is_saved_with_a_fan_of_bounded_size(tmp_path):
+    # 3000 bins over 6 m: a fan pixel of one range bin makes a 3300 x 1100 fan, whose tables
+    # need more than a 256 MiB budget; the save button said "not saved" and wrote nothing.
+    from PIL import Image
+
+    from sonarsim.core import memory
+    from sonarsim.plot.viewer.state import SAVED_FAN_ROWS
+
+    s = SceneSession(block_scene_dict(n_beams=16, azimuth_fov_deg=20.0, range_min_m=0.5, range_max_m=6.0,
+                                      n_range_bins=3000))
+    memory.set_memory_budget(256 * 2**20)
+    try:
+        files = s.save(tmp_path / "saved")
+    finally:
+        memory.set_memory_budget(None)
+        s.close()
+    assert [f.name for f in files] == ["scene.yaml", "polar.png", "fan.png"]
+    fan = Image.open(tmp_path / "saved" / "fan.png")
+    assert SAVED_FAN_ROWS - 2 <= fan.height <= SAVED_FAN_ROWS + 2
+    assert Image.open(tmp_path / "saved" / "polar.png").size == (16, 3000)  # the polar image stays whole
