@@ -298,3 +298,13 @@ def test_polar_figure_draws_unequal_beams_at_their_own_edges_as_one_image():
     assert (_pixel(fig, ax, -3.2, 3.0) == dark).all()
     # One image, not one quadrilateral per cell: 8000 x 512 cells took seconds to draw.
     assert len(ax.images) == 1 and not ax.collections
+
+
+def test_titles_write_long_ranges_and_far_poses_without_exponents():
+    image = synthetic(rmin=100.0, rmax=1000.0, bins=50)
+    image = SonarImage(polar=image.polar, range_m=image.range_m, azimuth_deg=image.azimuth_deg,
+                       components=image.components, sonar=image.sonar,
+                       pose=Pose(position_m=(1500.0, -0.25, 12.0), rpy_deg=(0.0, 20.0, -135.0)), config=image.config)
+    title = F.describe(image)
+    assert "40 beams, 100\u20131000 m" in title  # was "100–1e+03 m"
+    assert "sonar at (1500, -0.25, 12) m, roll/pitch/yaw (0, 20, -135)\u00b0" in title

@@ -195,7 +195,11 @@ def default_scale(image: Any, mapping: str | None = None, gain_db: float = 0.0,
 
 
 def _fmt(v: float) -> str:
-    return f"{v:.3g}" if abs(v) >= 1e-3 or v == 0 else f"{v:.1e}"
+    """Three significant digits, without an exponent from 1 mm to a million (1000 m reads
+    "1000", not "1e+03"); below 1e-3 in scientific notation."""
+    if abs(v) < 1e-3 and v != 0:
+        return f"{v:.1e}"
+    return f"{float(f'{v:.3g}'):g}"
 
 
 def describe(image: Any, component: str | None = None, frame: int | None = None) -> str:
@@ -215,7 +219,7 @@ def describe(image: Any, component: str | None = None, frame: int | None = None)
     """
     s = image.sonar
     config = getattr(image, "config", None) or {}
-    window = f"{s.n_beams} beams, {s.range_min_m:.3g}\u2013{s.range_max_m:.3g} m"
+    window = f"{s.n_beams} beams, {_fmt(s.range_min_m)}\u2013{_fmt(s.range_max_m)} m"
     if "format" in config:  # a recording
         frame = config.get("frame", frame)
         source = os.path.basename(str(config.get("source", "")))
