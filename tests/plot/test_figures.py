@@ -308,3 +308,24 @@ def test_titles_write_long_ranges_and_far_poses_without_exponents():
     title = F.describe(image)
     assert "40 beams, 100\u20131000 m" in title  # was "100–1e+03 m"
     assert "sonar at (1500, -0.25, 12) m, roll/pitch/yaw (0, 20, -135)\u00b0" in title
+
+
+def test_a_dark_frame_says_so_on_its_colour_bar():
+    fig = F.fan_figure(synthetic())  # all zero
+    (bar,) = colorbars(fig)
+    assert bar.get_ylabel() == "echo level (dB re 1; no echo: nothing above 0)"  # not "re the image's maximum"
+    assert bar.get_ylim() == pytest.approx((-40.0, 0.0))
+    rgb = np.asarray(fig.axes[0].images[0].get_array()).reshape(-1, 3)
+    inside = rgb[(rgb != OUTSIDE_FAN_RGB).any(axis=1)]
+    assert len(inside) > 1000 and (inside == colormap_lut()[0]).all()  # black: no echo
+
+
+@pytest.mark.parametrize("fill", [0.0, -1.0, np.nan])
+def test_comparison_with_an_image_without_a_positive_maximum(fill):
+    # compare --out divides each image by its maximum: a negative image (values in dB, say) or
+    # an all-NaN one crashed the command with a traceback (reference -1.0 / nan).
+    real = synthetic(point_target())
+    dark = synthetic(np.full((200, 40), fill, np.float32))
+    fig = F.comparison_figure([real, dark], ["A", "B"])
+    labels = sorted(bar.get_ylabel() for bar in colorbars(fig))
+    assert labels == ["intensity / 1; no echo: nothing above 0", "intensity / each image's maximum"]

@@ -61,6 +61,8 @@ FIGURE_PIXELS = 600
 FIGURE_DPI = 120
 
 _INTENSITY, _COUNTS = "intensity", "counts"
+#: What the colour bar refers to when the image has no echo at all (nothing above zero).
+NO_ECHO_REFERENCE = "1; no echo: nothing above 0"
 
 
 @dataclass(frozen=True)
@@ -98,12 +100,17 @@ class DisplayScale:
 
     def resolved(self, *arrays: np.ndarray) -> "DisplayScale":
         """This scale with ``reference`` fixed to the largest finite value of ``arrays`` when it
-        is ``None`` (so that several panels, and the colour bar, share it)."""
+        is ``None`` (so that several panels, and the colour bar, share it); 1 when nothing is
+        above zero, with :data:`NO_ECHO_REFERENCE` as its name."""
         if self.reference is not None:
             return self
         peaks = [float(np.max(a[np.isfinite(a)])) for a in map(np.asarray, arrays) if np.isfinite(a).any()]
         peak = max(peaks, default=0.0)
-        return replace(self, reference=peak if peak > 0.0 else 1.0)
+        if peak > 0.0:
+            return replace(self, reference=peak)
+        # A dark frame (all zero, or NaN): there is no maximum to refer to; any reference shows
+        # it black, and the colour bar says why rather than "dB re the image's maximum".
+        return replace(self, reference=1.0, reference_name=NO_ECHO_REFERENCE)
 
     @property
     def limits(self) -> tuple[float, float]:
@@ -630,8 +637,8 @@ def comparison_figure(images: Sequence[Any], titles: Sequence[str], *, normalize
         scale = DisplayScale("linear", reference_name="the larger maximum")
     else:
         # One scale per image (each its own reference), all reading alike: one colour bar.
-        scale = [DisplayScale("linear", reference=float(np.nanmax(im.polar)) or 1.0,
-                              reference_name="each image's maximum") for im in images]
+        # (resolved: an image without echo, or with NaN, or below zero, has no maximum to divide by)
+        scale = [DisplayScale("linear", reference_name="each image's maximum").resolved(im.polar) for im in images]
     panels = [Panel(t, im) for t, im in zip(titles, images)]
     return panels_figure(panels, scale, title=title, colormap=colormap, pixel_size_m=pixel_size_m)
 
