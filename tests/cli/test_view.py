@@ -91,7 +91,7 @@ def test_a_recording_is_served_until_stopped(shared_data, monkeypatch, capsys):
     serve(args, stop=stop, ready=ready)
     assert isinstance(seen["viewer"], RecordingViewer)
     assert b"<html" in seen["page"].lower()
-    assert seen["title"].startswith("aris frame 6 of 6")
+    assert seen["title"].startswith("aris frame 5 of 6")
     assert f"point your browser at {seen['url']}" in capsys.readouterr().err
 
 

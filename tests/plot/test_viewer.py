@@ -284,10 +284,15 @@ def test_recording_session_steps_frames(shared_data):
     try:
         assert s.n_frames == 6
         first = s.render()
-        assert first.title.startswith("aris frame 1 of 6")
+        assert first.title.startswith("aris frame 0 of 6")
         assert s.set_frame(3) == 3 and s.version == 1
         fourth = s.render()
-        assert fourth.title.startswith("aris frame 4 of 6")
+        # Counted as the slider, --frame, sonarsim show and the figures count (it said "frame
+        # 4 of 6" beside a slider at 3: sonarsim show --frame 4 then showed the next frame).
+        assert fourth.title.startswith("aris frame 3 of 6")
+        from sonarsim.plot.figures import describe
+
+        assert "frame 3\n" in describe(fourth.image)
         assert not np.array_equal(fourth.image.polar, first.image.polar)
         assert not np.array_equal(fourth.fan_rgb, first.fan_rgb)
         with pytest.raises(ConfigError, match="from 0 to 5"):
@@ -407,9 +412,9 @@ def test_recording_page_steps_frames(shared_data):
     server = start_server("127.0.0.1", 0)
     viewer = RecordingViewer(server, RecordingSession(shared_data / "real" / "oculus" / "three_pings_8bit.raw"))
     try:
-        assert viewer.wait(10) and viewer.frame.title.startswith("oculus frame 1 of 3")
+        assert viewer.wait(10) and viewer.frame.title.startswith("oculus frame 0 of 3")
         viewer.set_frame(2)
-        assert viewer.wait(10) and viewer.frame.title.startswith("oculus frame 3 of 3")
+        assert viewer.wait(10) and viewer.frame.title.startswith("oculus frame 2 of 3")
         assert viewer.frame_slider.value == 2
     finally:
         viewer.close()

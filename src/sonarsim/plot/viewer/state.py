@@ -642,7 +642,8 @@ class RecordingSession:
             image.polar, options.mapping, options.gain_db, options.dynamic_range_db, reference, options.colormap)
         t2 = time.perf_counter()
         s = image.sonar
-        title = (f"{image.config.get('format', '?')} frame {frame + 1} of {self.n_frames} | {s.n_range_bins} ranges x "
+        # Frames counted from 0, as the slider, --frame and sonarsim show count them.
+        title = (f"{image.config.get('format', '?')} frame {frame} of {self.n_frames} | {s.n_range_bins} ranges x "
                  f"{s.n_beams} beams, {s.range_min_m:.2f}-{s.range_max_m:.2f} m, {s.azimuth_fov_deg:.1f} deg wide")
         return ViewFrame(polar_rgb, fan_rgb, title, image, {"read": t1 - t0, "display": t2 - t1})
 
