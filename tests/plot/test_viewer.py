@@ -441,3 +441,25 @@ def test_a_finely_sampled_range_is_saved_with_a_fan_of_bounded_size(tmp_path):
     fan = Image.open(tmp_path / "saved" / "fan.png")
     assert SAVED_FAN_ROWS - 2 <= fan.height <= SAVED_FAN_ROWS + 2
     assert Image.open(tmp_path / "saved" / "polar.png").size == (16, 3000)  # the polar image stays whole
+
+
+@needs_viser
+def test_a_slider_moves_only_its_own_coordinate_after_a_long_drag(demo_viewer):
+    # The sonar dragged (gizmo) beyond the x slider's range, 8 m here; then the yaw slider
+    # touched: the sonar jumped back to x = 8, the value the x slider was clipped to.
+    from types import SimpleNamespace
+
+    import asyncio
+
+    v = demo_viewer
+    try:
+        v.set_sonar_pose((12.0, 0.0, 1.0), (0.0, 20.0, 0.0), source="gizmo")
+        assert v.pose_sliders[0].max >= 12.0 and v.pose_sliders[0].value == 12.0  # the range follows
+        yaw = v.pose_sliders[5]
+        yaw.value = 10.0
+        asyncio.run(v._slider_moved(SimpleNamespace(client=object(), target=yaw)))
+        assert v.session.sonar_pose.position_m == (12.0, 0.0, 1.0)
+        assert v.session.sonar_pose.rpy_deg == pytest.approx((0.0, 20.0, 10.0))
+    finally:
+        v.set_sonar_pose((0.0, 0.0, 1.0), (0.0, 20.0, 0.0))
+        assert v.wait(10)

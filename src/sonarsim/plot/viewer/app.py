@@ -409,7 +409,12 @@ class SceneViewer(_Page):
     async def _slider_moved(self, event) -> None:
         if event.client is None:  # set by the server to follow a gizmo: nothing new
             return
-        values = [s.value for s in self.pose_sliders]
+        # Only the coordinate of the slider moved changes: the others are the session's (a
+        # slider may show a clipped value, and would pull the sonar back to it).
+        pose = self.session.sonar_pose
+        values = [*pose.position_m, *pose.rpy_deg]
+        k = next(k for k, slider in enumerate(self.pose_sliders) if slider is event.target)
+        values[k] = float(event.target.value)
         self.set_sonar_pose(values[:3], values[3:], source="slider")
 
     async def _switched(self, event) -> None:
@@ -437,7 +442,9 @@ class SceneViewer(_Page):
             self.sonar_control.position = pose.position_m
             self.sonar_control.wxyz = wxyz_of(pose)
         if source != "slider":
-            for slider, value in zip(self.pose_sliders, (*pose.position_m, *pose.rpy_deg)):
+            for k, (slider, value) in enumerate(zip(self.pose_sliders, (*pose.position_m, *pose.rpy_deg))):
+                if k < 3 and not slider.min <= value <= slider.max:  # dragged beyond: widen the range
+                    slider.min, slider.max = min(slider.min, math.floor(value)), max(slider.max, math.ceil(value))
                 slider.value = float(np.clip(value, slider.min, slider.max))
         self.request_update()
 
