@@ -329,3 +329,36 @@ def test_comparison_with_an_image_without_a_positive_maximum(fill):
     fig = F.comparison_figure([real, dark], ["A", "B"])
     labels = sorted(bar.get_ylabel() for bar in colorbars(fig))
     assert labels == ["intensity / 1; no echo: nothing above 0", "intensity / each image's maximum"]
+
+
+def test_ctrl_c_while_a_figure_is_drawn_is_delivered_after_it_as_keyboard_interrupt(tmp_path):
+    # matplotlib's C code turned a Ctrl-C that landed inside it into "ValueError: Invalid affine
+    # transformation matrix" (sonarsim demo --figure-format svg: a traceback, exit status 1). The
+    # signal is now held while the figure is drawn, then raised as KeyboardInterrupt, and the
+    # unfinished file is discarded.
+    import os
+    import signal
+
+    from matplotlib.artist import Artist
+
+    drawn = []
+
+    class Interrupting(Artist):
+        def draw(self, renderer):
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C in the middle of drawing
+            drawn.append("interrupting")
+
+    class Later(Artist):
+        zorder = 10
+
+        def draw(self, renderer):
+            drawn.append("later")
+
+    fig = F.fan_figure(synthetic(point_target()))
+    fig.axes[0].add_artist(Interrupting())
+    fig.axes[0].add_artist(Later())
+    with pytest.raises(KeyboardInterrupt):
+        F.save_figure(fig, tmp_path / "fan.svg")
+    assert drawn[0] == "interrupting" and drawn[-1] == "later"  # drawing went on to its end
+    assert os.listdir(tmp_path) == []  # no figure, no temporary file
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
