@@ -106,3 +106,14 @@ def test_compare_writes_a_figure_only_with_out(capsys, tmp_path, tiny_scene, mon
     # Matplotlib draws text as glyphs, each text's string in a comment beside them: the panels' titles.
     svg = (out / "compare_figure.svg").read_text()
     assert "A: a.npz" in svg and "B: b.npz" in svg
+
+
+def test_colormap_takes_matplotlibs_spelling_of_grey(capsys, tmp_path):
+    from sonarsim.cli.main import build_parser
+
+    for spelling in ("gray", "Grey", "GRAY"):
+        args = build_parser().parse_args(["render", "s.yaml", "--out", str(tmp_path), "--colormap", spelling])
+        assert args.colormap == "grey"
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["render", "s.yaml", "--out", str(tmp_path), "--colormap", "jet"])
+    assert "invalid choice: 'jet'" in capsys.readouterr().err

@@ -91,7 +91,7 @@ def test_a_recording_is_served_until_stopped(shared_data, monkeypatch, capsys):
     serve(args, stop=stop, ready=ready)
     assert isinstance(seen["viewer"], RecordingViewer)
     assert b"<html" in seen["page"].lower()
-    assert seen["title"].startswith("aris frame 6 of 6")
+    assert seen["title"].startswith("aris frame 5 of 6")
     assert f"point your browser at {seen['url']}" in capsys.readouterr().err
 
 
@@ -120,3 +120,55 @@ def test_ctrl_c_stops_it_cleanly(scene_file, tmp_path):
     assert proc.returncode == 130
     assert err.strip() == "sonarsim: interrupted by Ctrl-C (SIGINT); the viewer stopped"
     assert "Traceback" not in out + err and out == ""
+
+
+@pytest.mark.parametrize("host", ["192.0.2.1", "127.0.0.1:8080", "http://127.0.0.1"])
+@pytest.mark.parametrize("port", [0, 8080])
+def test_a_host_it_cannot_listen_on_is_refused_at_once_even_with_any_port(host, port):
+    # viser tries a thousand ports on any bind error, then waits forever: with --port 0 the
+    # command hung, silent, on an address of another machine (192.0.2.1: TEST-NET-1) or a
+    # host written with its port or scheme.
+    pytest.importorskip("viser")
+    from sonarsim.plot.viewer.app import check_port
+
+    t0 = time.monotonic()
+    with pytest.raises(SonarsimError) as info:
+        check_port(host, port)
+    assert time.monotonic() - t0 < 5
+    message = str(info.value)
+    assert message.startswith(f"--host {host}: cannot ")
+    assert "in use" not in message  # the address is wrong, not the port
+    assert "127.0.0.1" in message  # says what to give instead
+
+
+def test_every_address_and_loopback_names_still_pass_the_check():
+    pytest.importorskip("viser")
+    from sonarsim.plot.viewer.app import check_port
+
+    for host in ("127.0.0.1", "localhost", "0.0.0.0", ""):
+        check_port(host, 0)
+
+
+def test_a_second_ctrl_c_while_the_viewer_stops_still_says_it_stopped(scene_file, tmp_path, monkeypatch):
+    # An impatient user presses Ctrl-C twice; the second lands while the server thread is
+    # joined. main() prints the notes of the interrupt that reaches it: it said "nothing was
+    # written" instead of "the viewer stopped".
+    pytest.importorskip("viser")
+    from sonarsim.cli.main import build_parser
+    from sonarsim.cli.view import serve
+    from sonarsim.plot.viewer import app
+
+    real_stop = app.stop_server
+
+    def interrupted_stop(server):
+        real_stop(server)
+        raise KeyboardInterrupt  # the second Ctrl-C
+
+    def first_ctrl_c(viewer, url):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(app, "stop_server", interrupted_stop)
+    args = build_parser().parse_args(["view", str(scene_file), "--port", "0", "--out", str(tmp_path / "out")])
+    with pytest.raises(KeyboardInterrupt) as info:
+        serve(args, stop=threading.Event(), ready=first_ctrl_c)
+    assert getattr(info.value, "__notes__", []) == ["the viewer stopped"]

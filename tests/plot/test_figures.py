@@ -164,7 +164,7 @@ def test_polar_figure_axes_far_range_up_left_beam_left():
     assert [t.get_text() for t in ax.get_yticklabels()] == ["1", "2", "3", "4", "5"]
     assert [t.get_text() for t in ax.get_xticklabels()][0] == "+15°"
     # The mesh: cell (row 100, column 4) is the target, at 11.625 deg and ~2.86 m.
-    levels = np.asarray(ax.collections[0].get_array()).reshape(200, 40)
+    levels = np.asarray(ax.images[0].get_array()).reshape(200, 40)
     assert levels[100, 4] == 255 and levels[100, 35] < 255
     assert colorbars(fig)[0].get_ylabel().startswith("echo level (dB")
 
@@ -263,3 +263,102 @@ def test_calibration_figure_shows_three_panels_in_counts():
                                                  "calibrated model: speckled frame"]
     (bar,) = colorbars(fig)
     assert bar.get_ylabel() == "device output (counts)" and bar.get_ylim() == pytest.approx((0.0, 255.0))
+
+
+def _rendered_rgb(fig) -> np.ndarray:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return np.asarray(canvas.buffer_rgba())[..., :3]
+
+
+def _pixel(fig, ax, az_deg: float, r_m: float) -> np.ndarray:
+    """The drawn colour at a data point (azimuth, range) of polar axes."""
+    rgb = _rendered_rgb(fig)
+    x, y = ax.transData.transform((az_deg, r_m))
+    return rgb[rgb.shape[0] - 1 - int(round(y)), int(round(x))]
+
+
+def test_polar_figure_draws_unequal_beams_at_their_own_edges_as_one_image():
+    # An asymmetric lens table: beam 0 at +20 deg spans (25, 15), beam 7 at -3 deg (-2.5, -3.5).
+    table = (20.0, 10.0, 5.0, 2.0, 0.0, -1.0, -2.0, -3.0)
+    sonar = SonarConfig(beam_angles_deg=table, elevation_fov_deg=14.0, range_min_m=0.5, range_max_m=6.0,
+                        n_range_bins=300)
+    polar = np.full((300, 8), 1e-6, np.float32)
+    polar[:, 0] = 1.0  # the left-most beam bright, the others 60 dB down (black)
+    image = SonarImage(polar=polar, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg,
+                       components={"total": polar}, sonar=sonar, pose=None, config={})
+    fig = F.polar_figure(image)
+    ax = fig.axes[0]
+    assert ax.get_xlim() == pytest.approx((25.0, -3.5))
+    bright, dark = colormap_lut()[255], colormap_lut()[0]
+    assert (_pixel(fig, ax, 16.0, 3.0) == bright).all()  # inside beam 0, near its right edge at 15 deg
+    assert (_pixel(fig, ax, 14.0, 3.0) == dark).all()  # beam 1
+    assert (_pixel(fig, ax, -3.2, 3.0) == dark).all()
+    # One image, not one quadrilateral per cell: 8000 x 512 cells took seconds to draw.
+    assert len(ax.images) == 1 and not ax.collections
+
+
+def test_titles_write_long_ranges_and_far_poses_without_exponents():
+    image = synthetic(rmin=100.0, rmax=1000.0, bins=50)
+    image = SonarImage(polar=image.polar, range_m=image.range_m, azimuth_deg=image.azimuth_deg,
+                       components=image.components, sonar=image.sonar,
+                       pose=Pose(position_m=(1500.0, -0.25, 12.0), rpy_deg=(0.0, 20.0, -135.0)), config=image.config)
+    title = F.describe(image)
+    assert "40 beams, 100\u20131000 m" in title  # was "100–1e+03 m"
+    assert "sonar at (1500, -0.25, 12) m, roll/pitch/yaw (0, 20, -135)\u00b0" in title
+
+
+def test_a_dark_frame_says_so_on_its_colour_bar():
+    fig = F.fan_figure(synthetic())  # all zero
+    (bar,) = colorbars(fig)
+    assert bar.get_ylabel() == "echo level (dB re 1; no echo: nothing above 0)"  # not "re the image's maximum"
+    assert bar.get_ylim() == pytest.approx((-40.0, 0.0))
+    rgb = np.asarray(fig.axes[0].images[0].get_array()).reshape(-1, 3)
+    inside = rgb[(rgb != OUTSIDE_FAN_RGB).any(axis=1)]
+    assert len(inside) > 1000 and (inside == colormap_lut()[0]).all()  # black: no echo
+
+
+@pytest.mark.parametrize("fill", [0.0, -1.0, np.nan])
+def test_comparison_with_an_image_without_a_positive_maximum(fill):
+    # compare --out divides each image by its maximum: a negative image (values in dB, say) or
+    # an all-NaN one crashed the command with a traceback (reference -1.0 / nan).
+    real = synthetic(point_target())
+    dark = synthetic(np.full((200, 40), fill, np.float32))
+    fig = F.comparison_figure([real, dark], ["A", "B"])
+    labels = sorted(bar.get_ylabel() for bar in colorbars(fig))
+    assert labels == ["intensity / 1; no echo: nothing above 0", "intensity / each image's maximum"]
+
+
+def test_ctrl_c_while_a_figure_is_drawn_is_delivered_after_it_as_keyboard_interrupt(tmp_path):
+    # matplotlib's C code turned a Ctrl-C that landed inside it into "ValueError: Invalid affine
+    # transformation matrix" (sonarsim demo --figure-format svg: a traceback, exit status 1). The
+    # signal is now held while the figure is drawn, then raised as KeyboardInterrupt, and the
+    # unfinished file is discarded.
+    import os
+    import signal
+
+    from matplotlib.artist import Artist
+
+    drawn = []
+
+    class Interrupting(Artist):
+        def draw(self, renderer):
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C in the middle of drawing
+            drawn.append("interrupting")
+
+    class Later(Artist):
+        zorder = 10
+
+        def draw(self, renderer):
+            drawn.append("later")
+
+    fig = F.fan_figure(synthetic(point_target()))
+    fig.axes[0].add_artist(Interrupting())
+    fig.axes[0].add_artist(Later())
+    with pytest.raises(KeyboardInterrupt):
+        F.save_figure(fig, tmp_path / "fan.svg")
+    assert drawn[0] == "interrupting" and drawn[-1] == "later"  # drawing went on to its end
+    assert os.listdir(tmp_path) == []  # no figure, no temporary file
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored

@@ -284,10 +284,15 @@ def test_recording_session_steps_frames(shared_data):
     try:
         assert s.n_frames == 6
         first = s.render()
-        assert first.title.startswith("aris frame 1 of 6")
+        assert first.title.startswith("aris frame 0 of 6")
         assert s.set_frame(3) == 3 and s.version == 1
         fourth = s.render()
-        assert fourth.title.startswith("aris frame 4 of 6")
+        # Counted as the slider, --frame, sonarsim show and the figures count (it said "frame
+        # 4 of 6" beside a slider at 3: sonarsim show --frame 4 then showed the next frame).
+        assert fourth.title.startswith("aris frame 3 of 6")
+        from sonarsim.plot.figures import describe
+
+        assert "frame 3\n" in describe(fourth.image)
         assert not np.array_equal(fourth.image.polar, first.image.polar)
         assert not np.array_equal(fourth.fan_rgb, first.fan_rgb)
         with pytest.raises(ConfigError, match="from 0 to 5"):
@@ -407,10 +412,54 @@ def test_recording_page_steps_frames(shared_data):
     server = start_server("127.0.0.1", 0)
     viewer = RecordingViewer(server, RecordingSession(shared_data / "real" / "oculus" / "three_pings_8bit.raw"))
     try:
-        assert viewer.wait(10) and viewer.frame.title.startswith("oculus frame 1 of 3")
+        assert viewer.wait(10) and viewer.frame.title.startswith("oculus frame 0 of 3")
         viewer.set_frame(2)
-        assert viewer.wait(10) and viewer.frame.title.startswith("oculus frame 3 of 3")
+        assert viewer.wait(10) and viewer.frame.title.startswith("oculus frame 2 of 3")
         assert viewer.frame_slider.value == 2
     finally:
         viewer.close()
         stop_server(server)
+
+
+def test_a_finely_sampled_range_is_saved_with_a_fan_of_bounded_size(tmp_path):
+    # 3000 bins over 6 m: a fan pixel of one range bin makes a 3300 x 1100 fan, whose tables
+    # need more than a 256 MiB budget; the save button said "not saved" and wrote nothing.
+    from PIL import Image
+
+    from sonarsim.core import memory
+    from sonarsim.plot.viewer.state import SAVED_FAN_ROWS
+
+    s = SceneSession(block_scene_dict(n_beams=16, azimuth_fov_deg=20.0, range_min_m=0.5, range_max_m=6.0,
+                                      n_range_bins=3000))
+    memory.set_memory_budget(256 * 2**20)
+    try:
+        files = s.save(tmp_path / "saved")
+    finally:
+        memory.set_memory_budget(None)
+        s.close()
+    assert [f.name for f in files] == ["scene.yaml", "polar.png", "fan.png"]
+    fan = Image.open(tmp_path / "saved" / "fan.png")
+    assert SAVED_FAN_ROWS - 2 <= fan.height <= SAVED_FAN_ROWS + 2
+    assert Image.open(tmp_path / "saved" / "polar.png").size == (16, 3000)  # the polar image stays whole
+
+
+@needs_viser
+def test_a_slider_moves_only_its_own_coordinate_after_a_long_drag(demo_viewer):
+    # The sonar dragged (gizmo) beyond the x slider's range, 8 m here; then the yaw slider
+    # touched: the sonar jumped back to x = 8, the value the x slider was clipped to.
+    from types import SimpleNamespace
+
+    import asyncio
+
+    v = demo_viewer
+    try:
+        v.set_sonar_pose((12.0, 0.0, 1.0), (0.0, 20.0, 0.0), source="gizmo")
+        assert v.pose_sliders[0].max >= 12.0 and v.pose_sliders[0].value == 12.0  # the range follows
+        yaw = v.pose_sliders[5]
+        yaw.value = 10.0
+        asyncio.run(v._slider_moved(SimpleNamespace(client=object(), target=yaw)))
+        assert v.session.sonar_pose.position_m == (12.0, 0.0, 1.0)
+        assert v.session.sonar_pose.rpy_deg == pytest.approx((0.0, 20.0, 10.0))
+    finally:
+        v.set_sonar_pose((0.0, 0.0, 1.0), (0.0, 20.0, 0.0))
+        assert v.wait(10)

@@ -31,6 +31,12 @@ def _formats(text: str) -> tuple[str, ...]:
     return values
 
 
+def _colormap(text: str) -> str:
+    # matplotlib spells it "gray": accepted as the same map (and any case).
+    name = text.strip().lower()
+    return "grey" if name == "gray" else name
+
+
 def add_figure_options(p: argparse.ArgumentParser) -> None:
     """``--figure-format``, ``--colormap`` and ``--no-figures``."""
     from ..plot.style import COLORMAPS, DEFAULT_COLORMAP
@@ -38,7 +44,7 @@ def add_figure_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("figures (annotated, for people: axes in metres and degrees, colour bar, title)")
     g.add_argument("--figure-format", type=_formats, default=("png",), metavar="LIST",
                    help="formats of the figures: png, svg, pdf, or several (e.g. png,pdf) (default: png)")
-    g.add_argument("--colormap", choices=COLORMAPS, default=DEFAULT_COLORMAP,
+    g.add_argument("--colormap", type=_colormap, choices=COLORMAPS, default=DEFAULT_COLORMAP,
                    help=f"colour map of the figures (default: {DEFAULT_COLORMAP}, perceptually uniform; grey: "
                    "the device's look)")
     g.add_argument("--no-figures", action="store_true", help="write no figures, only the exact-pixel images")

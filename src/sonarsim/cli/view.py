@@ -112,6 +112,7 @@ def serve(args, stop: threading.Event | None = None, ready=None) -> None:
     ready : callable, optional
         Called with the viewer and its URL once the page is served (tests).
     """
+    from ..io.run_record import _add_note
     from ..plot.viewer import require_viser
 
     require_viser()  # first: without the extra, nothing else is worth doing
@@ -152,16 +153,18 @@ def serve(args, stop: threading.Event | None = None, ready=None) -> None:
             else:
                 stop.wait(0.1)
     except KeyboardInterrupt as exc:
-        from ..io.run_record import _add_note
-
         _add_note(exc, "the viewer stopped")
         raise
     finally:
-        if viewer is not None:
-            viewer.close()
-        else:
-            session.close()
-        stop_server(server)
+        try:
+            if viewer is not None:
+                viewer.close()
+            else:
+                session.close()
+            stop_server(server)
+        except KeyboardInterrupt as again:  # Ctrl-C twice: the second lands while stopping
+            _add_note(again, "the viewer stopped")
+            raise
 
 
 def cmd_view(args) -> None:

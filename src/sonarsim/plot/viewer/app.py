@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import errno
 import io
 import math
 import socket
@@ -39,19 +40,26 @@ OBJECT_COLOURS = ((120, 160, 220), (150, 200, 120), (220, 150, 110), (190, 140, 
 
 
 def check_port(host: str, port: int) -> None:
-    """Refuse a port that another program listens on, before the server starts.
+    """Refuse an address the server could not listen on, before the server starts: a host that
+    does not resolve or is not one of this machine's addresses, or a port another program
+    listens on.
+
+    Port 0 (any free port) is checked too: viser tries a thousand ports on any bind error and
+    then waits forever, so an address it cannot bind must be refused here.
 
     Raises
     ------
     SonarsimError
-        The port is in use (or cannot be bound), naming it and how to choose another.
+        Naming ``--host`` (cannot resolve it, not an address of this machine) or ``--port``
+        (in use), and what to do.
     """
-    if port == 0:
-        return
     try:
-        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
-    except socket.gaierror as exc:
-        raise SonarsimError(f"--host {host}: cannot resolve it ({exc.strerror or exc})") from None
+        # "" (as asyncio reads it): every address, like 0.0.0.0.
+        infos = socket.getaddrinfo(host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (socket.gaierror, UnicodeError) as exc:
+        reason = getattr(exc, "strerror", None) or exc
+        raise SonarsimError(f"--host {host}: cannot resolve it ({reason}); give a host name or an address of this "
+                            "machine without port or scheme (e.g. 127.0.0.1, localhost, 0.0.0.0)") from None
     family, _, _, _, address = infos[0]
     with socket.socket(family, socket.SOCK_STREAM) as probe:
         # As the server binds (SO_REUSEADDR): a port left in TIME_WAIT is free, a listener is not.
@@ -59,8 +67,14 @@ def check_port(host: str, port: int) -> None:
         try:
             probe.bind(address)
         except OSError as exc:
-            raise SonarsimError(f"--port {port}: port {port} on {host} is in use ({exc.strerror or exc}); "
-                                "choose another with --port N, or --port 0 for any free port") from None
+            if exc.errno == errno.EADDRINUSE:
+                raise SonarsimError(f"--port {port}: port {port} on {host} is in use ({exc.strerror or exc}); "
+                                    "choose another with --port N, or --port 0 for any free port") from None
+            if exc.errno == errno.EACCES:
+                raise SonarsimError(f"--port {port}: not allowed to listen on port {port} ({exc.strerror}); "
+                                    "choose a port above 1023 with --port N, or --port 0 for any free port") from None
+            raise SonarsimError(f"--host {host}: cannot listen on it ({exc.strerror or exc}); give an address of "
+                                "this machine (127.0.0.1: this machine only, 0.0.0.0: every address)") from None
 
 
 def start_server(host: str = "127.0.0.1", port: int = 8080):
@@ -395,7 +409,12 @@ class SceneViewer(_Page):
     async def _slider_moved(self, event) -> None:
         if event.client is None:  # set by the server to follow a gizmo: nothing new
             return
-        values = [s.value for s in self.pose_sliders]
+        # Only the coordinate of the slider moved changes: the others are the session's (a
+        # slider may show a clipped value, and would pull the sonar back to it).
+        pose = self.session.sonar_pose
+        values = [*pose.position_m, *pose.rpy_deg]
+        k = next(k for k, slider in enumerate(self.pose_sliders) if slider is event.target)
+        values[k] = float(event.target.value)
         self.set_sonar_pose(values[:3], values[3:], source="slider")
 
     async def _switched(self, event) -> None:
@@ -423,7 +442,9 @@ class SceneViewer(_Page):
             self.sonar_control.position = pose.position_m
             self.sonar_control.wxyz = wxyz_of(pose)
         if source != "slider":
-            for slider, value in zip(self.pose_sliders, (*pose.position_m, *pose.rpy_deg)):
+            for k, (slider, value) in enumerate(zip(self.pose_sliders, (*pose.position_m, *pose.rpy_deg))):
+                if k < 3 and not slider.min <= value <= slider.max:  # dragged beyond: widen the range
+                    slider.min, slider.max = min(slider.min, math.floor(value)), max(slider.max, math.ceil(value))
                 slider.value = float(np.clip(value, slider.min, slider.max))
         self.request_update()
 

@@ -48,6 +48,10 @@ VIEWER_MAX_ORDER = min(6, MAX_ORDER_LIMIT)
 # Display sizes in the page: rows of the fan image and of the polar image. The images are
 # sent as JPEG at every change; these keep a frame's encoding and transfer at a few ms.
 FAN_ROWS = 360
+# The saved fan.png has a pixel of one range bin, but at most this many rows: a finely
+# sampled range (8000 bins over 40 m) would otherwise need a fan of 8000 x 14600 pixels, more
+# memory than the budget allows, and the save button refused to save anything.
+SAVED_FAN_ROWS = 2000
 POLAR_ROWS = 240
 POLAR_MIN_WIDTH = 320
 
@@ -224,7 +228,7 @@ class DisplayMapper:
 @functools.lru_cache(maxsize=8)
 def _display_mapper(grid: PolarGrid, full: bool) -> DisplayMapper:
     """Scan-conversion tables cost more than a frame: one per grid (and size), kept."""
-    return DisplayMapper(grid, None, None, None) if full else DisplayMapper(grid)
+    return DisplayMapper(grid, SAVED_FAN_ROWS, None, None) if full else DisplayMapper(grid)
 
 
 def _pose_of(position_m: Sequence[float], rpy_deg: Sequence[float]) -> Pose:
@@ -488,7 +492,8 @@ class SceneSession:
         ----------
         full : bool
             Full-resolution images (one pixel per range bin and beam; a fan pixel of one range
-            bin), as saved; default the page's display sizes.
+            bin, coarser where the fan would be taller than ``SAVED_FAN_ROWS``), as saved;
+            default the page's display sizes.
 
         Raises
         ------
@@ -511,7 +516,7 @@ class SceneSession:
         Writes ``scene.yaml`` (loads with :func:`sonarsim.load_scene` and renders the image
         shown: ``render(frame=0)``, with ``speckle=False`` when the speckle switch is off and
         the sensor on), ``polar.png`` and ``fan.png`` (the images shown, coloured, at full
-        resolution) and the run record, each atomically (:class:`~sonarsim.io.run_record.OutputRun`).
+        resolution; the fan at most ``SAVED_FAN_ROWS`` tall) and the run record, each atomically (:class:`~sonarsim.io.run_record.OutputRun`).
 
         Returns
         -------
@@ -637,7 +642,8 @@ class RecordingSession:
             image.polar, options.mapping, options.gain_db, options.dynamic_range_db, reference, options.colormap)
         t2 = time.perf_counter()
         s = image.sonar
-        title = (f"{image.config.get('format', '?')} frame {frame + 1} of {self.n_frames} | {s.n_range_bins} ranges x "
+        # Frames counted from 0, as the slider, --frame and sonarsim show count them.
+        title = (f"{image.config.get('format', '?')} frame {frame} of {self.n_frames} | {s.n_range_bins} ranges x "
                  f"{s.n_beams} beams, {s.range_min_m:.2f}-{s.range_max_m:.2f} m, {s.azimuth_fov_deg:.1f} deg wide")
         return ViewFrame(polar_rgb, fan_rgb, title, image, {"read": t1 - t0, "display": t2 - t1})
 
