@@ -501,9 +501,12 @@ def generate(
                 elif ray is not None:
                     produced = encoded_frames_ray(scenario, todo, options, width, ray, workers, threads, batch_size)
                 else:
-                    produced = encoded_frames(scenario, todo, options, width, workers or 1, threads, batch_size)
+                    produced = encoded_frames(scenario, todo, options, width, workers or 1, threads, batch_size,
+                                              out=out)
                 for encoded in produced:
-                    _write_files(out, encoded)  # files first: a line always names complete files
+                    # Files first (here, or by the worker that made them, before it sent the
+                    # record): a line always names complete files.
+                    _write_files(out, encoded)
                     manifest.append(encoded.record)
                     records[encoded.index] = encoded.record
                     bar.update(1)
