@@ -345,3 +345,19 @@ def test_failed_rerender_leaves_only_complete_files(capsys, tmp_path: Path, tiny
     assert code == cli.EXIT_BAD_INPUT
     _assert_complete_outputs(out)
     assert set(os.listdir(out)) == set(before)
+
+
+def test_render_backend_choices_give_the_same_image(capsys, tmp_path: Path, tiny_scene: Path) -> None:
+    from sonarsim.io.output import read_npz
+
+    polar = {}
+    for backend in ("embree", "embreex"):
+        out = tmp_path / backend
+        code, _, err = run_main(capsys, "render", str(tiny_scene), "--out", str(out), "--backend", backend,
+                                "--no-figures")
+        assert code == 0, err
+        polar[backend] = read_npz(out / "render.npz")[0]["polar"]
+    np.testing.assert_allclose(polar["embree"], polar["embreex"], rtol=1e-5, atol=1e-12)
+    assert polar["embree"].max() > 0
+    code, _, err = run_main(capsys, "render", str(tiny_scene), "--out", str(tmp_path / "x"), "--backend", "optix")
+    assert code != 0 and "backend" in err and "embreex" in err

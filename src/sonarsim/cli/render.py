@@ -62,8 +62,9 @@ def add_render_options(p: argparse.ArgumentParser) -> None:
                    help="rays per beam across the elevation aperture (overrides render.elevation_samples)")
     g.add_argument("--seed", type=int, default=None, metavar="N",
                    help="seed of every random draw (speckle, noise; overrides render.seed)")
-    g.add_argument("--backend", choices=("embree", "numpy"), default="embree",
-                   help="ray-casting engine (numpy: slow reference)")
+    g.add_argument("--backend", choices=("embree", "embree4", "embreex", "numpy"), default="embree",
+                   help="ray-casting engine: embree (Embree 4 through sonarsim's binding where it loads, else "
+                   "embreex), embree4 or embreex (that one only), numpy (slow reference)")
 
 
 def add_render_parser(subparsers: Any) -> argparse.ArgumentParser:

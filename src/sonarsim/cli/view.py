@@ -60,8 +60,9 @@ def add_view_parser(subparsers) -> argparse.ArgumentParser:
                    "to the network, without any authentication)")
     p.add_argument("--out", default="sonarsim-view", metavar="DIR",
                    help="folder the save button writes into (default: ./sonarsim-view)")
-    p.add_argument("--backend", choices=("embree", "numpy"), default="embree",
-                   help="ray-casting engine (numpy: slow reference)")
+    p.add_argument("--backend", choices=("embree", "embree4", "embreex", "numpy"), default="embree",
+                   help="ray-casting engine: embree (Embree 4 through sonarsim's binding where it loads, else "
+                   "embreex), embree4 or embreex (that one only), numpy (slow reference)")
     p.set_defaults(func=cmd_view)
     return p
 
