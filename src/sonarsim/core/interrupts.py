@@ -1,10 +1,10 @@
 """Holding Ctrl-C (and the stop signals) back while a library that would swallow it runs.
 
-trimesh imports its optional dependencies (SciPy, networkx, ...) inside ``try: ... except
-BaseException``: a Ctrl-C that lands during that second of imports is caught as if the
-dependency were missing, and the command runs on (or fails later on the wrapped exception).
-:func:`signals_deferred` records such signals during the block and delivers them, to the
-handlers that were in place, as soon as it ends.
+Some libraries cannot take an exception in the middle of their work: trimesh imports its
+optional dependencies inside ``try: ... except BaseException`` (a Ctrl-C during that second is
+caught as if the dependency were missing, and the command runs on), and matplotlib's C code
+turns one raised inside it into its own error. :func:`signals_deferred` records such signals
+during the block and delivers them, to the handlers that were in place, as soon as it ends.
 """
 
 from __future__ import annotations
@@ -37,10 +37,11 @@ def signals_deferred() -> Iterator[None]:
         yield
     finally:
         for signum, handler in previous.items():
-            signal.signal(signum, handler)
+            # None: a handler set from C, not Python (it cannot be put back; the default can).
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
         for signum in dict.fromkeys(pending):  # once each
             handler = previous[signum]
             if callable(handler):
                 handler(signum, None)  # e.g. default_int_handler raises KeyboardInterrupt here
-            elif handler == signal.SIG_DFL:
+            elif handler != signal.SIG_IGN:
                 os.kill(os.getpid(), signum)  # what would have happened: now, handlers restored

@@ -13,11 +13,8 @@ left) and range up (far range at the top), as the exact-pixel PNGs do.
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
-import signal
-import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -25,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..core.interrupts import signals_deferred
 from ..io.output import to_uint8
 from . import FIGURE_FORMATS
 from .axes import azimuth_ticks_deg, draw_fan_frame, format_azimuth, range_rings_m
@@ -738,46 +736,14 @@ def save_figure(fig: Figure, path: str | os.PathLike, fmt: str | None = None, *,
     metadata = {"png": {"Software": None}, "svg": {"Date": None}, "pdf": {"CreationDate": None}}[fmt]
     # A fixed salt: SVG element ids come out the same on every run.
     with matplotlib.rc_context({"svg.hashsalt": "sonarsim"}), atomic_write(target, "wb") as handle:
-        with _stop_signals_held():  # raised here, after drawing: the unfinished file is discarded
+        # matplotlib's C code turns an exception raised inside it into its own error: a Ctrl-C
+        # landing mid-draw became 'ValueError: Invalid affine transformation matrix'. Held back,
+        # it is raised here, after drawing: the unfinished file is discarded.
+        with signals_deferred():  # raised here, after drawing: the unfinished file is discarded
             fig.savefig(handle, format=fmt, dpi=dpi, metadata=metadata)
     if close:
         _close(fig)
     return target
-
-
-#: Signals held while a figure is drawn (Ctrl-C, and those the command line turns into a stop).
-_HELD_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
-
-
-@contextlib.contextmanager
-def _stop_signals_held():
-    """Hold Ctrl-C (and SIGTERM, SIGHUP) while matplotlib draws, and deliver it afterwards.
-
-    matplotlib's C code turns an exception raised inside it into its own error: a Ctrl-C that
-    lands there (a signal handler runs Python code in the middle of a path's transform) became
-    ``ValueError: Invalid affine transformation matrix``, a traceback and a run recorded as
-    failed instead of exit status 130. Drawing a figure takes a second or two at most.
-    Outside the main thread (where handlers cannot be set) nothing is held.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught: list[int] = []
-    previous = {}
-    try:
-        for signum in _HELD_SIGNALS:
-            previous[signum] = signal.signal(signum, lambda n, _frame: caught.append(n))
-        yield
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
-        if caught:
-            signum = caught[0]
-            handler = previous.get(signum)
-            if callable(handler):
-                handler(signum, None)  # raises as it would have (KeyboardInterrupt, the CLI's stop)
-            elif handler != signal.SIG_IGN:
-                os.kill(os.getpid(), signum)
 
 
 def _close(fig: Figure) -> None:
