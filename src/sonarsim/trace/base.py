@@ -83,6 +83,21 @@ class RayCaster(Protocol):
         ...
 
 
+def nonempty_meshes(meshes: Sequence[TriangleMesh]) -> tuple[np.ndarray, list[TriangleMesh]]:
+    """The meshes with triangles, and the index of each in ``meshes``.
+
+    Embree numbers the geometries it is given and takes no empty one: a hit's geometry id ``g``
+    is mesh ``ids[g]`` of the caller's sequence.
+
+    Returns
+    -------
+    ids : (k,) int32 ndarray
+    kept : list of TriangleMesh
+    """
+    ids = np.array([i for i, m in enumerate(meshes) if len(m.faces)], dtype=np.int32)
+    return ids, [meshes[i] for i in ids]
+
+
 def available_cores() -> int:
     """CPU cores this process may run on (respects affinity masks, e.g. in containers)."""
     if hasattr(os, "sched_getaffinity"):

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import SonarsimError
 from ..scene.meshes import TriangleMesh
-from .base import Hits, available_cores
+from .base import Hits, available_cores, nonempty_meshes
 
 try:  # the same post-processing as below, as one compiled loop
     from ..renderer import _kernels
@@ -86,9 +86,7 @@ class EmbreeCaster:
         self.threads = threads or available_cores()
         self.n_meshes = len(meshes)
         self._scene = None
-        # Embree numbers the meshes it is given; empty meshes are skipped, so map back.
-        self._ids = np.array([i for i, m in enumerate(meshes) if len(m.faces)], dtype=np.int32)
-        meshes = [m for m in meshes if len(m.faces)]
+        self._ids, meshes = nonempty_meshes(meshes)
         if meshes:
             # robust=False: 15-35% faster; closed meshes lose no hits at this precision.
             self._scene = rtcore_scene.EmbreeScene(robust=False)

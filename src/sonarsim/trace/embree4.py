@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import SonarsimError
 from ..scene.meshes import TriangleMesh
-from .base import Hits, available_cores
+from .base import Hits, available_cores, nonempty_meshes
 
 # Below this many rays per thread, the thread hand-off costs more than it saves (as embree.py).
 MIN_RAYS_PER_CHUNK = 8192
@@ -164,9 +164,7 @@ class Embree4Caster:
         self.coherent = coherent
         self.threads = threads or available_cores()
         self.n_meshes = len(meshes)
-        # Embree numbers the meshes it is given; empty meshes are skipped, so map back.
-        self._ids = np.array([i for i, m in enumerate(meshes) if len(m.faces)], dtype=np.int32)
-        kept = [m for m in meshes if len(m.faces)]
+        self._ids, kept = nonempty_meshes(meshes)
         self._scene = None
         self._closed = False
         if kept:
