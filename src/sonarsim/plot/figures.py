@@ -398,6 +398,22 @@ def _fan_size(sonar: Any, ncols: int = 1, nrows: int = 1, colorbar: bool = True)
     return (min(18.0, ncols * (h * ratio + 0.7) + (1.4 if colorbar else 0.2)), nrows * (h + 0.9) + 0.5)
 
 
+def _one_panel(image: Any, component: str | None, ax: Axes | None, scale: DisplayScale | None,
+               mapping: str | None, gain_db: float, dynamic_range_db: float,
+               figsize: tuple[float, float]) -> tuple[Figure, Axes, np.ndarray | None, DisplayScale]:
+    """What a one-image figure starts from: its figure and axes (new ones unless ``ax`` is
+    given), the component's values (``None``: the image's own), and the scale resolved on them."""
+    values = None if component is None else np.asarray(image.components[component])
+    scale = (scale or default_scale(image, mapping, gain_db, dynamic_range_db)).resolved(
+        image.polar if values is None else values)
+    if ax is None:
+        fig = _new_figure(figsize)
+        ax = fig.add_subplot()
+    else:
+        fig = ax.figure
+    return fig, ax, values, scale
+
+
 def fan_figure(image: Any, component: str | None = None, *, ax: Axes | None = None,
                scale: DisplayScale | None = None, mapping: str | None = None, gain_db: float = 0.0,
                dynamic_range_db: float = 40.0, colormap: str = DEFAULT_COLORMAP,
@@ -428,14 +444,8 @@ def fan_figure(image: Any, component: str | None = None, *, ax: Axes | None = No
     -------
     matplotlib.figure.Figure
     """
-    values = None if component is None else np.asarray(image.components[component])
-    scale = (scale or default_scale(image, mapping, gain_db, dynamic_range_db)).resolved(
-        image.polar if values is None else values)
-    if ax is None:
-        fig = _new_figure(figsize or _fan_size(image.sonar))
-        ax = fig.add_subplot()
-    else:
-        fig = ax.figure
+    fig, ax, values, scale = _one_panel(image, component, ax, scale, mapping, gain_db, dynamic_range_db,
+                                        figsize or _fan_size(image.sonar))
     draw_fan(ax, image, values, scale, colormap=colormap, pixel_size_m=pixel_size_m)
     _colorbar(fig, ax, scale, colormap)
     ax.set_title(describe(image, component, frame) if title is None else title, fontsize=9)
@@ -454,14 +464,7 @@ def polar_figure(image: Any, component: str | None = None, *, ax: Axes | None = 
     -------
     matplotlib.figure.Figure
     """
-    values = None if component is None else np.asarray(image.components[component])
-    scale = (scale or default_scale(image, mapping, gain_db, dynamic_range_db)).resolved(
-        image.polar if values is None else values)
-    if ax is None:
-        fig = _new_figure(figsize)
-        ax = fig.add_subplot()
-    else:
-        fig = ax.figure
+    fig, ax, values, scale = _one_panel(image, component, ax, scale, mapping, gain_db, dynamic_range_db, figsize)
     draw_polar(ax, image, values, scale, colormap=colormap)
     _colorbar(fig, ax, scale, colormap)
     ax.set_title(describe(image, component, frame) if title is None else title, fontsize=9)
