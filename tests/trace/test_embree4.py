@@ -342,3 +342,30 @@ def test_close_stops_the_threads_and_release_frees_embree():
         Embree4Caster(meshes, threads=1).intersect(o[:100], d[:100], 20.0)
     gc.collect()
 
+
+
+IDLE_CPU = """
+import sys, time
+import sonarsim
+from sonarsim.cli.demo import demo_scene_dict
+doc = demo_scene_dict()
+doc["render"]["threads"] = int(sys.argv[1])
+sim = sonarsim.Simulator(doc)
+for _ in range(3):
+    sim.render(keep_rays=False)
+time.sleep(0.2)  # TBB's workers may spin briefly after the build; then they must sleep
+c = time.process_time()
+time.sleep(1.0)
+print(time.process_time() - c)
+"""
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_an_idle_simulator_burns_no_cpu(threads):
+    """An Embree device configured with ``threads=1`` kept a TBB worker spinning for as long as
+    it lived: a whole core burnt while the simulator sat idle, and the second core taken from a
+    second single-threaded worker. Idle, the process must use (almost) no CPU."""
+    out = subprocess.run([sys.executable, "-c", IDLE_CPU, str(threads)], capture_output=True, text=True,
+                         timeout=120, check=True)
+    assert float(out.stdout.strip().splitlines()[-1]) < 0.2
+    assert embree4.device_config(1) == "" and embree4.device_config(2) == "threads=2"

@@ -459,7 +459,8 @@ cdef class Scene:
         One entry per non-empty mesh; Embree's geometry ``k`` is entry ``k``. Shared with
         Embree (not copied) and kept alive by this object.
     config : str
-        Embree device configuration, e.g. ``"threads=1"`` (it only affects the build).
+        Embree device configuration, e.g. ``"threads=2"`` (it only affects the build; see
+        :func:`sonarsim.trace.embree4.device_config`).
     quality : {"high", "medium", "low"}
         BVH build quality (high: spatial splits, slower to build, faster to cast).
     """

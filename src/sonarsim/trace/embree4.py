@@ -81,7 +81,7 @@ def verify_layout(binding) -> None:
     if declared != (SIZE8, LAYOUT8, SIZE1, LAYOUT1):
         raise SonarsimError(f"the binding's ray-hit structures are not Embree 4's: declared {declared}")
     square = binding.Scene([np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float32)],
-                           [np.array([[0, 1, 2], [0, 2, 3]], np.int32)], "threads=1")
+                           [np.array([[0, 1, 2], [0, 2, 3]], np.int32)], device_config(1))
     problems = []
     try:
         o, d, tfar = _square_rays()
@@ -109,6 +109,18 @@ def verify_layout(binding) -> None:
     if problems:
         raise SonarsimError("the Embree library does not answer packets as declared "
                             f"(instance arrays, one instance level, a valid mask per lane): {'; '.join(sorted(set(problems)))}")
+
+
+def device_config(threads: int) -> str:
+    """Embree's device configuration for a caster of ``threads`` threads (it sets the build's).
+
+    Never ``threads=1``: with it, the bundled Embree and TBB keep one TBB worker spinning in
+    ``sched_yield`` for as long as the device lives, a whole core burnt even while idle (it made
+    two single-threaded workers share one core with two spinners). One thread leaves TBB its
+    default, so a one-thread caster's build (once, before the first frame) may use every core;
+    its casts still run on the calling thread alone.
+    """
+    return f"threads={threads}" if threads > 1 else ""
 
 
 _verified: set = set()
@@ -171,8 +183,7 @@ class Embree4Caster:
             self._scene = binding.Scene(
                 [np.ascontiguousarray(m.vertices, dtype=np.float32) for m in kept],
                 [np.ascontiguousarray(m.faces, dtype=np.int32) for m in kept],
-                # The build uses Embree's own (TBB) threads: as many as we may use.
-                f"threads={self.threads}",
+                device_config(self.threads),
             )
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
 
