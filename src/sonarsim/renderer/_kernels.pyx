@@ -119,6 +119,85 @@ def embree_hits(const float[::1] tfar, const int[::1] geom_id, const float[:, ::
                 normal[i, 2] = 0.0
 
 
+cdef (Py_ssize_t, double) primary_impl(const float[::1] hit_distance, const int[::1] hit_mesh, const float[:, ::1] hit_normal,
+            const double[:, ::1] dirs, double ox, double oy, double oz,
+            bint has_ground, double ground_h, double max_dist,
+            const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
+            double[::1] dist, int[::1] sid, float[:, ::1] point, float[:, ::1] normal,
+            double[::1] intensity, signed char[::1] label,
+            Py_ssize_t[::1] g_index, double[::1] g_t, float[:, ::1] g_start, float[:, ::1] g_dir,
+            _Laws laws, Py_ssize_t offset) noexcept nogil:
+    """The loop of :func:`primary` (also run by :class:`GroundBlocks`)."""
+    cdef Py_ssize_t i, n = hit_distance.shape[0], n_g = 0
+    cdef double dd, tg, dx, dy, dz, nx, ny, nz, c, r, t_min = INFINITY
+    cdef float px, py, pz, cosf
+    cdef int s, m
+    for i in range(n):
+        dx = dirs[i, 0]
+        dy = dirs[i, 1]
+        dz = dirs[i, 2]
+        m = hit_mesh[i]
+        if m >= 0:
+            dd = hit_distance[i]
+            s = m + 1
+            nx = hit_normal[i, 0]
+            ny = hit_normal[i, 1]
+            nz = hit_normal[i, 2]
+        else:
+            dd = INFINITY
+            s = -1
+            nx = 0.0
+            ny = 0.0
+            nz = 0.0
+        if has_ground and oz > ground_h and dz < 0:
+            tg = (ground_h - oz) / dz
+            if tg > 0 and tg < dd and tg <= max_dist:
+                dd = tg
+                s = 0
+                nx = 0.0
+                ny = 0.0
+                nz = 1.0
+        dist[i] = dd
+        sid[i] = s
+        normal[i, 0] = <float>nx
+        normal[i, 1] = <float>ny
+        normal[i, 2] = <float>nz
+        if s == -1:
+            point[i, 0] = NAN
+            point[i, 1] = NAN
+            point[i, 2] = NAN
+            intensity[i] = 0.0
+            label[i] = -1
+            continue
+        point[i, 0] = <float>(ox + dx * dd)
+        point[i, 1] = <float>(oy + dy * dd)
+        point[i, 2] = <float>(oz + dz * dd)
+        cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
+        c = diffuse_weight(laws, albedo_by_id, s + 1, i, s > 0, weight[i], cosf)
+        if not tvg:
+            r = dd if dd > 1e-6 else 1e-6
+            c = c / (r * r)
+        intensity[i] = c
+        label[i] = 0 if s > 0 else 1
+        if s == 0 and dd < max_dist:
+            # Reflect at G and start just off the plane (see paths.algorithm2.SURFACE_OFFSET_M).
+            g_index[n_g] = i + offset
+            g_t[n_g] = dd
+            g_dir[n_g, 0] = <float>dx
+            g_dir[n_g, 1] = <float>dy
+            g_dir[n_g, 2] = <float>(-dz)
+            px = point[i, 0]
+            py = point[i, 1]
+            pz = point[i, 2]
+            g_start[n_g, 0] = <float>(px + SURFACE_OFFSET_M * dx)
+            g_start[n_g, 1] = <float>(py + SURFACE_OFFSET_M * dy)
+            g_start[n_g, 2] = <float>(pz - SURFACE_OFFSET_M * dz)
+            if dd < t_min:
+                t_min = dd
+            n_g += 1
+    return n_g, t_min
+
+
 def primary(const float[::1] hit_distance, const int[::1] hit_mesh, const float[:, ::1] hit_normal,
             const double[:, ::1] dirs, double ox, double oy, double oz,
             bint has_ground, double ground_h, double max_dist,
@@ -126,10 +205,11 @@ def primary(const float[::1] hit_distance, const int[::1] hit_mesh, const float[
             double[::1] dist, int[::1] sid, float[:, ::1] point, float[:, ::1] normal,
             double[::1] intensity, signed char[::1] label,
             Py_ssize_t[::1] g_index, double[::1] g_t, float[:, ::1] g_start, float[:, ::1] g_dir,
-            law_by_id=None, lobe_by_id=None, hit_texel=None):
+            law_by_id=None, lobe_by_id=None, hit_texel=None, Py_ssize_t offset=0):
     """Objects (from the caster) and the analytic ground -> closest surface, I_f, labels.
 
-    Also lists the rays that reach the ground (for the secondary, reflected rays).
+    Also lists the rays that reach the ground (for the secondary, reflected rays), as ray
+    indices plus ``offset`` in ``g_index`` (the arrays may be a block of a frame's rays).
     ``law_by_id`` (int32) and ``lobe_by_id`` ((n, 2) float64) give each surface's backscatter law
     (:class:`sonarsim.core.radiometry.SurfaceLaws`; None: Lambertian, ``albedo_by_id`` its
     albedo); ``hit_texel`` (float32 per hit, optional) scales the objects' diffuse coefficient.
@@ -138,75 +218,13 @@ def primary(const float[::1] hit_distance, const int[::1] hit_mesh, const float[
     -------
     (n_ground, min_t_ground) : the number of ground hits within ``max_dist`` and the nearest.
     """
-    cdef Py_ssize_t i, n = hit_distance.shape[0], n_g = 0
-    cdef double dd, tg, dx, dy, dz, nx, ny, nz, c, r, t_min = INFINITY
-    cdef float px, py, pz, cosf
-    cdef int s, m
-    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], n)
+    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], hit_distance.shape[0])
+    cdef Py_ssize_t n_g
+    cdef double t_min
     with nogil:
-        for i in range(n):
-            dx = dirs[i, 0]
-            dy = dirs[i, 1]
-            dz = dirs[i, 2]
-            m = hit_mesh[i]
-            if m >= 0:
-                dd = hit_distance[i]
-                s = m + 1
-                nx = hit_normal[i, 0]
-                ny = hit_normal[i, 1]
-                nz = hit_normal[i, 2]
-            else:
-                dd = INFINITY
-                s = -1
-                nx = 0.0
-                ny = 0.0
-                nz = 0.0
-            if has_ground and oz > ground_h and dz < 0:
-                tg = (ground_h - oz) / dz
-                if tg > 0 and tg < dd and tg <= max_dist:
-                    dd = tg
-                    s = 0
-                    nx = 0.0
-                    ny = 0.0
-                    nz = 1.0
-            dist[i] = dd
-            sid[i] = s
-            normal[i, 0] = <float>nx
-            normal[i, 1] = <float>ny
-            normal[i, 2] = <float>nz
-            if s == -1:
-                point[i, 0] = NAN
-                point[i, 1] = NAN
-                point[i, 2] = NAN
-                intensity[i] = 0.0
-                label[i] = -1
-                continue
-            point[i, 0] = <float>(ox + dx * dd)
-            point[i, 1] = <float>(oy + dy * dd)
-            point[i, 2] = <float>(oz + dz * dd)
-            cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
-            c = diffuse_weight(laws, albedo_by_id, s + 1, i, s > 0, weight[i], cosf)
-            if not tvg:
-                r = dd if dd > 1e-6 else 1e-6
-                c = c / (r * r)
-            intensity[i] = c
-            label[i] = 0 if s > 0 else 1
-            if s == 0 and dd < max_dist:
-                # Reflect at G and start just off the plane (see paths.algorithm2.SURFACE_OFFSET_M).
-                g_index[n_g] = i
-                g_t[n_g] = dd
-                g_dir[n_g, 0] = <float>dx
-                g_dir[n_g, 1] = <float>dy
-                g_dir[n_g, 2] = <float>(-dz)
-                px = point[i, 0]
-                py = point[i, 1]
-                pz = point[i, 2]
-                g_start[n_g, 0] = <float>(px + SURFACE_OFFSET_M * dx)
-                g_start[n_g, 1] = <float>(py + SURFACE_OFFSET_M * dy)
-                g_start[n_g, 2] = <float>(pz - SURFACE_OFFSET_M * dz)
-                if dd < t_min:
-                    t_min = dd
-                n_g += 1
+        n_g, t_min = primary_impl(hit_distance, hit_mesh, hit_normal, dirs, ox, oy, oz, has_ground, ground_h,
+                                  max_dist, albedo_by_id, weight, tvg, dist, sid, point, normal, intensity, label,
+                                  g_index, g_t, g_start, g_dir, laws, offset)
     return n_g, t_min
 
 
@@ -224,6 +242,112 @@ cdef inline Py_ssize_t beam_of(const double[::1] edges, double az) noexcept nogi
     if lo - 1 < 0 or lo - 1 >= edges.shape[0] - 1:
         return -1
     return lo - 1
+
+
+cdef void clear_impl(Py_ssize_t begin, Py_ssize_t end, double[::1] tri_dist, double[::1] tri_energy,
+                 double[:, ::1] v_point, double[:, ::1] v_normal, int[::1] v_sid, double[::1] r23,
+                 double[::1] e23, int[::1] beam_a) noexcept nogil:
+    """The loop of :func:`clear_mirror` (also run by :class:`GroundBlocks`)."""
+    cdef Py_ssize_t i
+    if True:
+        for i in range(begin, end):
+            tri_dist[i] = INFINITY
+            tri_energy[i] = 0.0
+            v_point[i, 0] = NAN
+            v_point[i, 1] = NAN
+            v_point[i, 2] = NAN
+            v_normal[i, 0] = 0.0
+            v_normal[i, 1] = 0.0
+            v_normal[i, 2] = 0.0
+            v_sid[i] = -1
+            r23[i] = INFINITY
+            e23[i] = 0.0
+            beam_a[i] = 0
+
+
+cdef void mirror_impl(const Py_ssize_t[::1] g_index, const double[::1] g_t, const float[:, ::1] g_start,
+                 const float[::1] hit_distance, const int[::1] hit_mesh, const float[:, ::1] hit_normal,
+                 const double[:, ::1] dirs, const float[:, ::1] point,
+                 double ox, double oy, double oz, const double[:, ::1] rotation,
+                 const double[::1] edges, double half_elevation_deg, double range_min, double range_max,
+                 double max_dist, const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
+                 double specular,
+                 double[::1] tri_dist, double[::1] tri_energy, double[:, ::1] v_point,
+                 double[:, ::1] v_normal, int[::1] v_sid,
+                 double[::1] r23, double[::1] e23, int[::1] beam_a,
+                 _Laws laws) noexcept nogil:
+    """The loop of :func:`mirror_paths` (also run by :class:`GroundBlocks`)."""
+    cdef Py_ssize_t j, i, n_g = g_index.shape[0]
+    cdef double s, oa_v, nx, ny, nz, dx, dy, dz, c, ax, ay, az_, rx, ry, rz, oa, az_deg, el_deg
+    cdef double r, tg
+    cdef int m, sv
+    cdef Py_ssize_t b
+    cdef double rad2deg = 180.0 / M_PI
+    for j in range(n_g):
+        m = hit_mesh[j]
+        if m < 0:
+            continue
+        s = <double>hit_distance[j] + SURFACE_OFFSET_M
+        tg = g_t[j]
+        if tg + s > max_dist:
+            continue
+        i = g_index[j]
+        oa_v = tg + s
+        dx = dirs[i, 0]
+        dy = dirs[i, 1]
+        dz = dirs[i, 2]
+        nx = hit_normal[j, 0]
+        ny = hit_normal[j, 1]
+        nz = hit_normal[j, 2]
+        sv = m + 1
+        # cos of the reflected ray (dx, dy, -dz) with the object's normal.
+        c = fabs(nx * dx + ny * dy - nz * dz)
+        c = diffuse_weight(laws, albedo_by_id, sv + 1, j, True, weight[i], c)
+        if not tvg:
+            r = oa_v if oa_v > 1e-6 else 1e-6
+            c = c / (r * r)
+        tri_dist[i] = oa_v
+        tri_energy[i] = specular * specular * c
+        v_sid[i] = sv
+        v_point[i, 0] = ox + dx * oa_v
+        v_point[i, 1] = oy + dy * oa_v
+        v_point[i, 2] = oz + dz * oa_v
+        v_normal[i, 0] = nx
+        v_normal[i, 1] = ny
+        v_normal[i, 2] = -nz
+        # A, the real point, in the sonar frame: R^T (A - O).
+        ax = <double>point[i, 0] + dx * s - ox
+        ay = <double>point[i, 1] + dy * s - oy
+        az_ = <double>point[i, 2] - dz * s - oz
+        rx = rotation[0, 0] * ax + rotation[1, 0] * ay + rotation[2, 0] * az_
+        ry = rotation[0, 1] * ax + rotation[1, 1] * ay + rotation[2, 1] * az_
+        rz = rotation[0, 2] * ax + rotation[1, 2] * ay + rotation[2, 2] * az_
+        oa = sqrt(rx * rx + ry * ry + rz * rz)
+        # Cheapest test first: most reflected paths fail the range window or elevation.
+        if not (oa >= range_min and oa < range_max):
+            continue
+        el_deg = rz / oa
+        if el_deg > 1.0:
+            el_deg = 1.0
+        elif el_deg < -1.0:
+            el_deg = -1.0
+        el_deg = asin(el_deg) * rad2deg
+        if not fabs(el_deg) <= half_elevation_deg:
+            continue
+        az_deg = atan2(ry, rx) * rad2deg
+        b = beam_of(edges, az_deg)
+        if b >= 0:
+            r23[i] = 0.5 * (oa + oa_v)
+            e23[i] = specular * c
+            beam_a[i] = <int>b
+
+
+def clear_mirror(Py_ssize_t begin, Py_ssize_t end, double[::1] tri_dist, double[::1] tri_energy,
+                 double[:, ::1] v_point, double[:, ::1] v_normal, int[::1] v_sid, double[::1] r23,
+                 double[::1] e23, int[::1] beam_a):
+    """Fill rays ``begin:end`` of :func:`mirror_paths`' outputs with "nothing" (inf, 0, NaN, -1)."""
+    with nogil:
+        clear_impl(begin, end, tri_dist, tri_energy, v_point, v_normal, v_sid, r23, e23, beam_a)
 
 
 def mirror_paths(const Py_ssize_t[::1] g_index, const double[::1] g_t, const float[:, ::1] g_start,
@@ -245,71 +369,11 @@ def mirror_paths(const Py_ssize_t[::1] g_index, const double[::1] g_t, const flo
     Output arrays must come filled with "nothing" (inf, 0, NaN, -1); only reached rays are set.
     ``e23`` is R x I_f where A lies in the field of view and range window, else 0.
     """
-    cdef Py_ssize_t j, i, n_g = g_index.shape[0]
-    cdef double s, oa_v, nx, ny, nz, dx, dy, dz, c, ax, ay, az_, rx, ry, rz, oa, az_deg, el_deg
-    cdef double r, tg
-    cdef int m, sv
-    cdef Py_ssize_t b
-    cdef double rad2deg = 180.0 / M_PI
-    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], n_g)
+    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], g_index.shape[0])
     with nogil:
-        for j in range(n_g):
-            m = hit_mesh[j]
-            if m < 0:
-                continue
-            s = <double>hit_distance[j] + SURFACE_OFFSET_M
-            tg = g_t[j]
-            if tg + s > max_dist:
-                continue
-            i = g_index[j]
-            oa_v = tg + s
-            dx = dirs[i, 0]
-            dy = dirs[i, 1]
-            dz = dirs[i, 2]
-            nx = hit_normal[j, 0]
-            ny = hit_normal[j, 1]
-            nz = hit_normal[j, 2]
-            sv = m + 1
-            # cos of the reflected ray (dx, dy, -dz) with the object's normal.
-            c = fabs(nx * dx + ny * dy - nz * dz)
-            c = diffuse_weight(laws, albedo_by_id, sv + 1, j, True, weight[i], c)
-            if not tvg:
-                r = oa_v if oa_v > 1e-6 else 1e-6
-                c = c / (r * r)
-            tri_dist[i] = oa_v
-            tri_energy[i] = specular * specular * c
-            v_sid[i] = sv
-            v_point[i, 0] = ox + dx * oa_v
-            v_point[i, 1] = oy + dy * oa_v
-            v_point[i, 2] = oz + dz * oa_v
-            v_normal[i, 0] = nx
-            v_normal[i, 1] = ny
-            v_normal[i, 2] = -nz
-            # A, the real point, in the sonar frame: R^T (A - O).
-            ax = <double>point[i, 0] + dx * s - ox
-            ay = <double>point[i, 1] + dy * s - oy
-            az_ = <double>point[i, 2] - dz * s - oz
-            rx = rotation[0, 0] * ax + rotation[1, 0] * ay + rotation[2, 0] * az_
-            ry = rotation[0, 1] * ax + rotation[1, 1] * ay + rotation[2, 1] * az_
-            rz = rotation[0, 2] * ax + rotation[1, 2] * ay + rotation[2, 2] * az_
-            oa = sqrt(rx * rx + ry * ry + rz * rz)
-            # Cheapest test first: most reflected paths fail the range window or elevation.
-            if not (oa >= range_min and oa < range_max):
-                continue
-            el_deg = rz / oa
-            if el_deg > 1.0:
-                el_deg = 1.0
-            elif el_deg < -1.0:
-                el_deg = -1.0
-            el_deg = asin(el_deg) * rad2deg
-            if not fabs(el_deg) <= half_elevation_deg:
-                continue
-            az_deg = atan2(ry, rx) * rad2deg
-            b = beam_of(edges, az_deg)
-            if b >= 0:
-                r23[i] = 0.5 * (oa + oa_v)
-                e23[i] = specular * c
-                beam_a[i] = <int>b
+        mirror_impl(g_index, g_t, g_start, hit_distance, hit_mesh, hit_normal, dirs, point, ox, oy, oz, rotation,
+                    edges, half_elevation_deg, range_min, range_max, max_dist, albedo_by_id, weight, tvg, specular,
+                    tri_dist, tri_energy, v_point, v_normal, v_sid, r23, e23, beam_a, laws)
 
 
 cdef inline double ffloor(double v) noexcept nogil:
@@ -401,6 +465,73 @@ cdef inline bint alive(const double[::1] distance, const double[::1] energy, Py_
     return energy[i] != 0 and isfinite(distance[i])
 
 
+cdef void splat_impl(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[::1] sid,
+          const double[::1] distance, const double[::1] energy, const int[::1] beam,
+          const signed char[::1] label, int label_const,
+          const double[::1] distance2, const double[::1] energy2, const int[::1] beam2, int label2,
+          bint spread, Py_ssize_t n_elevation, double range_min, double dr,
+          Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out,
+          Py_ssize_t col_begin, Py_ssize_t col_end) noexcept nogil:
+    """The loop of :func:`splat` (also run by :class:`GroundBlocks`)."""
+    cdef Py_ssize_t n = distance.shape[0], n_cols = n // n_elevation
+    cdef Py_ssize_t col, k, i, first
+    cdef bint geo, live1, live1_up, live2, live2_up, c1_dn, c2_dn, c1_up, c2_up
+    cdef bint two = distance2.shape[0] > 0, use_label = label.shape[0] > 0
+    cdef real_t cx, cy, cz, off0, off1, limit
+    cdef int lab
+    cdef double x_dn1 = 0.0, x_dn2 = 0.0, x1, x2, x_up1, x_up2
+    cdef double nb = <double>n_range_bins
+    cdef float* base = &out[0]
+    if col_end < 0 or col_end > n_cols:
+        col_end = n_cols
+    for col in range(col_begin, col_end):
+        first = col * n_elevation
+        c1_dn = False
+        c2_dn = False
+        live1_up = alive(distance, energy, first) and (label[first] if use_label else label_const) >= 0
+        live2_up = two and alive(distance2, energy2, first)
+        for k in range(n_elevation):
+            i = first + k
+            live1 = live1_up
+            live2 = live2_up
+            geo = False
+            live1_up = False
+            live2_up = False
+            if k + 1 < n_elevation:
+                live1_up = alive(distance, energy, i + 1) and (label[i + 1] if use_label else label_const) >= 0
+                live2_up = two and alive(distance2, energy2, i + 1)
+                if spread and (live1 and live1_up or live2 and live2_up) and sid[i] >= 0 and sid[i + 1] == sid[i]:
+                    cx = points[i + 1, 0] - points[i, 0]
+                    cy = points[i + 1, 1] - points[i, 1]
+                    cz = points[i + 1, 2] - points[i, 2]
+                    # |n . chord| <= sine |chord| for both normals, squared: no square root.
+                    off0 = cx * normals[i, 0] + cy * normals[i, 1] + cz * normals[i, 2]
+                    off1 = cx * normals[i + 1, 0] + cy * normals[i + 1, 1] + cz * normals[i + 1, 2]
+                    limit = <real_t>(CONTINUITY_SINE * CONTINUITY_SINE) * (cx * cx + cy * cy + cz * cz)
+                    geo = off0 * off0 <= limit and off1 * off1 <= limit
+            if live1:
+                lab = label[i] if use_label else label_const
+                x1 = (distance[i] - range_min) / dr
+                c1_up = geo and live1_up
+                x_up1 = (distance[i + 1] - range_min) / dr if c1_up else 0.0
+                deposit(x1, x_dn1, x_up1, c1_dn, c1_up, energy[i],
+                        base + <Py_ssize_t>lab * n_range_bins * n_beams + beam[i], n_beams, nb)
+                c1_dn = c1_up
+                x_dn1 = x1
+            else:
+                c1_dn = False
+            if live2:
+                x2 = (distance2[i] - range_min) / dr
+                c2_up = geo and live2_up
+                x_up2 = (distance2[i + 1] - range_min) / dr if c2_up else 0.0
+                deposit(x2, x_dn2, x_up2, c2_dn, c2_up, energy2[i],
+                        base + <Py_ssize_t>label2 * n_range_bins * n_beams + beam2[i], n_beams, nb)
+                c2_dn = c2_up
+                x_dn2 = x2
+            else:
+                c2_dn = False
+
+
 def splat(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[::1] sid,
           const double[::1] distance, const double[::1] energy, const int[::1] beam,
           const signed char[::1] label, int label_const,
@@ -418,65 +549,29 @@ def splat(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[:
     ``col_begin:col_end`` are done (continuity runs along a column, so columns are
     independent). The GIL is released.
     """
-    cdef Py_ssize_t n = distance.shape[0], n_cols = n // n_elevation
-    cdef Py_ssize_t col, k, i, first
-    cdef bint geo, live1, live1_up, live2, live2_up, c1_dn, c2_dn, c1_up, c2_up
-    cdef bint two = distance2.shape[0] > 0, use_label = label.shape[0] > 0
-    cdef real_t cx, cy, cz, off0, off1, limit
-    cdef int lab
-    cdef double x_dn1 = 0.0, x_dn2 = 0.0, x1, x2, x_up1, x_up2
-    cdef double nb = <double>n_range_bins
-    cdef float* base = &out[0]
-    if col_end < 0 or col_end > n_cols:
-        col_end = n_cols
     with nogil:
-        for col in range(col_begin, col_end):
-            first = col * n_elevation
-            c1_dn = False
-            c2_dn = False
-            live1_up = alive(distance, energy, first) and (label[first] if use_label else label_const) >= 0
-            live2_up = two and alive(distance2, energy2, first)
-            for k in range(n_elevation):
-                i = first + k
-                live1 = live1_up
-                live2 = live2_up
-                geo = False
-                live1_up = False
-                live2_up = False
-                if k + 1 < n_elevation:
-                    live1_up = alive(distance, energy, i + 1) and (label[i + 1] if use_label else label_const) >= 0
-                    live2_up = two and alive(distance2, energy2, i + 1)
-                    if spread and (live1 and live1_up or live2 and live2_up) and sid[i] >= 0 and sid[i + 1] == sid[i]:
-                        cx = points[i + 1, 0] - points[i, 0]
-                        cy = points[i + 1, 1] - points[i, 1]
-                        cz = points[i + 1, 2] - points[i, 2]
-                        # |n . chord| <= sine |chord| for both normals, squared: no square root.
-                        off0 = cx * normals[i, 0] + cy * normals[i, 1] + cz * normals[i, 2]
-                        off1 = cx * normals[i + 1, 0] + cy * normals[i + 1, 1] + cz * normals[i + 1, 2]
-                        limit = <real_t>(CONTINUITY_SINE * CONTINUITY_SINE) * (cx * cx + cy * cy + cz * cz)
-                        geo = off0 * off0 <= limit and off1 * off1 <= limit
-                if live1:
-                    lab = label[i] if use_label else label_const
-                    x1 = (distance[i] - range_min) / dr
-                    c1_up = geo and live1_up
-                    x_up1 = (distance[i + 1] - range_min) / dr if c1_up else 0.0
-                    deposit(x1, x_dn1, x_up1, c1_dn, c1_up, energy[i],
-                            base + <Py_ssize_t>lab * n_range_bins * n_beams + beam[i], n_beams, nb)
-                    c1_dn = c1_up
-                    x_dn1 = x1
-                else:
-                    c1_dn = False
-                if live2:
-                    x2 = (distance2[i] - range_min) / dr
-                    c2_up = geo and live2_up
-                    x_up2 = (distance2[i + 1] - range_min) / dr if c2_up else 0.0
-                    deposit(x2, x_dn2, x_up2, c2_dn, c2_up, energy2[i],
-                            base + <Py_ssize_t>label2 * n_range_bins * n_beams + beam2[i], n_beams, nb)
-                    c2_dn = c2_up
-                    x_dn2 = x2
-                else:
-                    c2_dn = False
+        splat_impl(points, normals, sid, distance, energy, beam, label, label_const, distance2, energy2, beam2,
+                   label2, spread, n_elevation, range_min, dr, n_range_bins, n_beams, out, col_begin, col_end)
 
+
+cdef void rotate_impl(const double[:, ::1] dirs, const double[:, ::1] rotation, double[:, ::1] out64,
+                      float[:, ::1] out32, Py_ssize_t begin, Py_ssize_t end) noexcept nogil:
+    """Rows ``begin:end`` of :func:`rotate`'s directions (also run by :class:`GroundBlocks`)."""
+    cdef Py_ssize_t i
+    cdef double x, y, z, a, b, c
+    for i in range(begin, end):
+        x = dirs[i, 0]
+        y = dirs[i, 1]
+        z = dirs[i, 2]
+        a = rotation[0, 0] * x + rotation[0, 1] * y + rotation[0, 2] * z
+        b = rotation[1, 0] * x + rotation[1, 1] * y + rotation[1, 2] * z
+        c = rotation[2, 0] * x + rotation[2, 1] * y + rotation[2, 2] * z
+        out64[i, 0] = a
+        out64[i, 1] = b
+        out64[i, 2] = c
+        out32[i, 0] = <float>a
+        out32[i, 1] = <float>b
+        out32[i, 2] = <float>c
 
 
 def rotate(const double[:, ::1] dirs, const double[:, ::1] rotation, double ox, double oy, double oz,
@@ -484,24 +579,12 @@ def rotate(const double[:, ::1] dirs, const double[:, ::1] rotation, double ox, 
     """World-frame ray directions ``R @ d`` in float64 and float32, and the ray origins in
     float32 (both for Embree), in one pass."""
     cdef Py_ssize_t i, n = dirs.shape[0]
-    cdef double x, y, z, a, b, c
     with nogil:
         for i in range(n):
             origins32[i, 0] = <float>ox
             origins32[i, 1] = <float>oy
             origins32[i, 2] = <float>oz
-            x = dirs[i, 0]
-            y = dirs[i, 1]
-            z = dirs[i, 2]
-            a = rotation[0, 0] * x + rotation[0, 1] * y + rotation[0, 2] * z
-            b = rotation[1, 0] * x + rotation[1, 1] * y + rotation[1, 2] * z
-            c = rotation[2, 0] * x + rotation[2, 1] * y + rotation[2, 2] * z
-            out64[i, 0] = a
-            out64[i, 1] = b
-            out64[i, 2] = c
-            out32[i, 0] = <float>a
-            out32[i, 1] = <float>b
-            out32[i, 2] = <float>c
+        rotate_impl(dirs, rotation, out64, out32, 0, n)
 
 
 # General reflecting planes (sonarsim.paths.engine is the NumPy twin) ----------------------

@@ -15,6 +15,8 @@ them); kept as a specialisation until the general path is as fast on that case.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from ..paths.engine import Leg
@@ -32,12 +34,9 @@ except ImportError:  # not built (e.g. a source tree used without installing)
 
 AVAILABLE = _kernels is not None
 
-# Where the reflected rays are cut into batches, as shares of the ray columns: small first, so
-# that this core soon has echo paths to form while the other core casts the next batch.
-BATCH_CUTS = (0.3, 0.65)
-# Share of the direct image (left beams) formed on this core; the other core, busy casting,
-# forms the rest.
-DIRECT_SHARE = 0.7
+# Blocks of beams per core in the ground specialisation (render_fast): a few, so that a core
+# finishing early takes another block, but few enough that the per-block Python calls stay small.
+BLOCKS_PER_CORE = 2
 # Share of a frame's reflected rays cast on the other core while this one forms the direct image.
 OTHER_CORE_SHARE = 0.65
 
@@ -83,15 +82,36 @@ class Workspace:
         self.empty_f64 = np.empty(0)
         self.empty_i32 = np.empty(0, dtype=np.int32)
 
-    def reset_mirror(self) -> None:
-        self.tri_dist.fill(np.inf)
-        self.tri_energy.fill(0.0)
-        self.v_point.fill(np.nan)
-        self.v_normal.fill(0.0)
-        self.v_sid.fill(-1)
-        self.r23.fill(np.inf)
-        self.e23.fill(0.0)
-        self.beam_a.fill(0)
+
+def beam_blocks(n_beams: int, n_blocks: int) -> list[tuple[int, int]]:
+    """``n_blocks`` (at most ``n_beams``) contiguous ranges of beams covering ``0:n_beams``, of
+    near-equal sizes."""
+    cuts = np.linspace(0, n_beams, min(n_blocks, n_beams) + 1).round().astype(int)
+    return [(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+
+
+def on_both_cores(task, n_tasks: int, pool=None) -> None:
+    """Run ``task(0) .. task(n_tasks - 1)`` on this thread and ``pool``'s worker, each thread
+    taking the next task when it is free (kernels release the GIL; no order between tasks).
+
+    One hand-off per call: waking a sleeping thread costs more than a small task, so a frame
+    gives the other core one long list of work instead of many short ones. The other thread
+    has finished before this returns, also when a task raised.
+    """
+    claimed = itertools.count()
+
+    def drain() -> None:
+        while (k := next(claimed)) < n_tasks:  # next() on a count is atomic under the GIL
+            task(k)
+
+    if pool is None or n_tasks < 2:
+        drain()
+        return
+    other = pool.submit(drain)
+    try:
+        drain()
+    finally:
+        other.result()
 
 
 def render_fast(
@@ -128,93 +148,103 @@ def render_fast(
     out : (4, n_range_bins, n_beams) float32 C-contiguous zeroed ndarray
         Receives the images. float32 sums lose nothing here that the float32 result would keep.
     pool : concurrent.futures.ThreadPoolExecutor with one worker, optional
-        The other core: casts the reflected rays and forms half of the direct image.
+        The other core: it takes blocks of beams as this one does.
+
+    Notes
+    -----
+    The beams are cut into blocks, and each block goes whole through the pipeline on one
+    thread: rotate its rays, cast them, find the closest surfaces, splat the direct image, cast
+    the reflected rays, form the echo paths, splat the echoes. A block writes only its own
+    rays' entries and (with ``double_beam`` ``paper``) only its own beams' image columns, in ray
+    order, so the image is the same bits whichever thread took which block, and the same as on
+    one thread. The blocks that write into other beams' columns (``split``: the double bounce
+    also lands in the beam of A) and ``double_line_of_sight`` (a cast after all paths) are done
+    after the blocks, on this thread.
     """
     laws = SurfaceLaws.of(laws)
     albedo_by_id = laws.coefficient
     origin = pose.translation
-    d64 = work.d64
-    _kernels.rotate(fan.directions.reshape(-1, 3), np.ascontiguousarray(pose.rotation),
-                    origin[0], origin[1], origin[2], d64, work.d32, work.o32)
-    hits = caster.intersect(work.o32, work.d32, reach_m)
+    ox, oy, oz = float(origin[0]), float(origin[1]), float(origin[2])
+    rotation = np.ascontiguousarray(pose.rotation)
+    directions = fan.directions.reshape(-1, 3)
     weight = fan.weight.reshape(-1)
     has_ground = ground is not None
-    n_g, t_min = _kernels.primary(
-        hits.distance, hits.mesh_id, hits.normal, d64, origin[0], origin[1], origin[2],
-        has_ground, ground.height_m if has_ground else 0.0, reach_m, albedo_by_id, weight, render.tvg,
-        work.dist, work.sid, work.point, work.normal, work.intensity, work.label,
-        work.g_index, work.g_t, work.g_start, work.g_dir, *_law_args(laws, hits),
-    )
-    n_el = fan.shape[2]
+    n_beams, n_az, n_el = fan.shape
     geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
     flat_out = out.reshape(-1)
     spread = render.range_splat
+    half_el = sonar.elevation_fov_deg / 2.0
+    edges = np.ascontiguousarray(sonar.beam_edges_deg)
+    own_beam = render.double_beam == "paper"
+    pipelined = not render.double_line_of_sight  # that option casts again after all paths
+    w = work
 
     def splat(points, normals, sid, set1, set2=None, columns=(0, -1)):
         """Run the splat kernel: ``set = (distance, energy, beams, label array, label)``."""
-        d2, e2, b2, _, l2 = set2 if set2 is not None else (work.empty_f64, work.empty_f64, work.empty_i32, None, -1)
+        d2, e2, b2, _, l2 = set2 if set2 is not None else (w.empty_f64, w.empty_f64, w.empty_i32, None, -1)
         _kernels.splat(points, normals, sid, *set1, d2, e2, b2, l2, spread, n_el, *geometry, flat_out, *columns)
 
-    if not (multipath and n_g):
-        splat(work.point, work.normal, work.sid, (work.dist, work.intensity, work.beam, work.label, 0))
-        return
+    mirror = (w.v_point, w.v_normal, w.v_sid)
+    triple = (w.tri_dist, w.tri_energy, w.beam, w.no_label, 3)
 
-    mirror = (work.v_point, work.v_normal, work.v_sid)
-    triple = (work.tri_dist, work.tri_energy, work.beam, work.no_label, 3)
+    def echoes(columns, own: bool = True, other: bool = True):
+        """The echo images of ray ``columns``: into the rays' own beams and/or the beams of A."""
+        if own_beam:
+            splat(*mirror, triple, (w.r23, w.e23, w.beam, None, 2), columns=columns)
+            return
+        half = 0.5 * w.e23 if other else None
+        if own:
+            splat(*mirror, triple, (w.r23, 0.5 * w.e23, w.beam, None, 2), columns=columns)
+        if other:
+            splat(*mirror, (w.r23, half, w.beam_a, w.no_label, 2), columns=columns)  # case 2: beam of A
 
-    def echoes(columns):
-        if render.double_beam == "paper":
-            splat(*mirror, triple, (work.r23, work.e23, work.beam, None, 2), columns=columns)
-        else:
-            half = 0.5 * work.e23
-            splat(*mirror, triple, (work.r23, half, work.beam, None, 2), columns=columns)
-            splat(*mirror, (work.r23, half, work.beam_a, work.no_label, 2), columns=columns)  # case 2: beam of A
+    blocks = beam_blocks(n_beams, 1 if pool is None else BLOCKS_PER_CORE * 2)
+    echo_rays = [0] * len(blocks)
 
-    # Two cores share the rest. The other core casts the reflected rays in batches of whole ray
-    # columns and then forms the right part of the direct image; this core forms the left part,
-    # then turns each batch into echo paths and echo images as it arrives (columns are
-    # independent; the halves of the direct image and the echoes write disjoint memory).
-    reach2 = float(reach_m - t_min)
-    n_cols = fan.shape[0] * fan.shape[1]
-    col_cuts = [0, n_cols] if pool is None else [0, *(int(f * n_cols) for f in BATCH_CUTS), n_cols]
-    ray_cuts = np.searchsorted(work.g_index[:n_g], np.asarray(col_cuts) * n_el)
-    batches = [(int(a), int(b)) for a, b in zip(ray_cuts[:-1], ray_cuts[1:])]
-    pipelined = not render.double_line_of_sight  # that option casts again after all paths
-
-    def cast(ab):
-        a, b = ab
-        return caster.intersect(work.g_start[a:b], work.g_dir[a:b], reach2)
-
-    direct = (work.point, work.normal, work.sid, (work.dist, work.intensity, work.beam, work.label, 0))
-    if pool is not None:
-        # ``pool`` runs one task at a time, in order: the casts, then the right half.
-        pending = [pool.submit(cast, ab) for ab in batches]
-        split = int(DIRECT_SHARE * fan.shape[0]) * fan.shape[1]
-        right = pool.submit(splat, *direct, columns=(split, -1))
-        splat(*direct, columns=(0, split))
-    else:
-        splat(*direct)
-    work.reset_mirror()
-    half_el = sonar.elevation_fov_deg / 2.0
-    rotation = np.ascontiguousarray(pose.rotation)
-    edges = np.ascontiguousarray(sonar.beam_edges_deg)
-    for k, (a, b) in enumerate(batches):
-        hits2 = pending[k].result() if pool is not None else cast((a, b))
+    def block(k: int) -> None:
+        c0, c1 = blocks[k][0] * n_az, blocks[k][1] * n_az  # ray columns
+        a, b = c0 * n_el, c1 * n_el  # rays
+        _kernels.rotate(directions[a:b], rotation, ox, oy, oz, w.d64[a:b], w.d32[a:b], w.o32[a:b])
+        hits = caster.intersect(w.o32[a:b], w.d32[a:b], reach_m, threads=1)
+        n_g, t_min = _kernels.primary(
+            hits.distance, hits.mesh_id, hits.normal, w.d64[a:b], ox, oy, oz,
+            has_ground, ground.height_m if has_ground else 0.0, reach_m, albedo_by_id, weight[a:b], render.tvg,
+            w.dist[a:b], w.sid[a:b], w.point[a:b], w.normal[a:b], w.intensity[a:b], w.label[a:b],
+            w.g_index[a:b], w.g_t[a:b], w.g_start[a:b], w.g_dir[a:b], *_law_args(laws, hits), offset=a,
+        )
+        splat(w.point, w.normal, w.sid, (w.dist, w.intensity, w.beam, w.label, 0), columns=(c0, c1))
+        if not (multipath and n_g):
+            return
+        echo_rays[k] = n_g
+        _kernels.clear_mirror(a, b, w.tri_dist, w.tri_energy, w.v_point, w.v_normal, w.v_sid, w.r23, w.e23,
+                              w.beam_a)
+        g = slice(a, a + n_g)
+        # The block's nearest ground hit bounds its reflected rays (a hit further than the reach
+        # allows is dropped ray by ray in mirror_paths anyway: the same answer, less casting).
+        hits2 = caster.intersect(w.g_start[g], w.g_dir[g], float(reach_m - t_min), threads=1)
         _kernels.mirror_paths(
-            work.g_index[a:b], work.g_t[a:b], work.g_start[a:b], hits2.distance, hits2.mesh_id, hits2.normal,
-            d64, work.point, origin[0], origin[1], origin[2], rotation,
-            edges, half_el, sonar.range_min_m, sonar.range_max_m,
+            w.g_index[g], w.g_t[g], w.g_start[g], hits2.distance, hits2.mesh_id, hits2.normal,
+            w.d64, w.point, ox, oy, oz, rotation, edges, half_el, sonar.range_min_m, sonar.range_max_m,
             reach_m, albedo_by_id, weight, render.tvg, ground.specular,
-            work.tri_dist, work.tri_energy, work.v_point, work.v_normal, work.v_sid,
-            work.r23, work.e23, work.beam_a, *_law_args(laws, hits2),
+            w.tri_dist, w.tri_energy, w.v_point, w.v_normal, w.v_sid,
+            w.r23, w.e23, w.beam_a, *_law_args(laws, hits2),
         )
         if pipelined:
-            echoes((col_cuts[k], col_cuts[k + 1]))
+            echoes((c0, c1), other=False)
+
+    on_both_cores(block, len(blocks), pool)
+    if not any(echo_rays):
+        return
+    # Blocks without echo rays skipped clearing their share of the mirror outputs.
+    for k, (b0, b1) in enumerate(blocks):
+        if not echo_rays[k]:
+            _kernels.clear_mirror(b0 * n_az * n_el, b1 * n_az * n_el, w.tri_dist, w.tri_energy, w.v_point,
+                                  w.v_normal, w.v_sid, w.r23, w.e23, w.beam_a)
     if not pipelined:
         _drop_hidden(caster, pose, ground.height_m, work)
         echoes((0, -1))
-    if pool is not None:
-        right.result()
+    elif not own_beam:
+        echoes((0, -1), own=False)
 
 
 def _drop_hidden(caster, pose: Pose, ground_height_m: float, work: Workspace) -> None:

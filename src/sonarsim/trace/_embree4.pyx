@@ -22,6 +22,8 @@ from libc.math cimport sqrtf, INFINITY
 from libc.string cimport memset
 from libc.stdint cimport uintptr_t
 
+from sonarsim.trace.cast_abi cimport cast_rays_t
+
 import numpy as np
 
 from ..errors import SonarsimError
@@ -334,22 +336,26 @@ cdef void _on_error(void* user, int code, const char* msg) noexcept nogil:
 
 # ----- the packet loop ------------------------------------------------------------------------
 
-cdef inline void load_packet(ss_RTCRayHit8* rh, const float[:, ::1] o, const float[:, ::1] d,
-                             const float[::1] tfar, Py_ssize_t start, int m) noexcept nogil:
-    """Rays ``start .. start + m`` into lanes ``0 .. m``; the other lanes keep what they held."""
+cdef inline void load_rays(ss_RTCRayHit8* rh, const float* o, Py_ssize_t o_step, const float* d,
+                           const float* tfar, Py_ssize_t tfar_step, Py_ssize_t start, int m) noexcept nogil:
+    """Rays ``start .. start + m`` into lanes ``0 .. m``; the other lanes keep what they held.
+
+    Ray ``i`` starts at ``o + i * o_step`` (``o_step`` 3, or 0: one origin for all) along
+    ``d + 3 i``, up to ``tfar[i * tfar_step]`` (``tfar_step`` 1, or 0: one limit for all).
+    """
     cdef int k
     cdef Py_ssize_t i
     for k in range(m):
         i = start + k
-        rh.ray.org_x[k] = o[i, 0]
-        rh.ray.org_y[k] = o[i, 1]
-        rh.ray.org_z[k] = o[i, 2]
-        rh.ray.dir_x[k] = d[i, 0]
-        rh.ray.dir_y[k] = d[i, 1]
-        rh.ray.dir_z[k] = d[i, 2]
+        rh.ray.org_x[k] = o[i * o_step]
+        rh.ray.org_y[k] = o[i * o_step + 1]
+        rh.ray.org_z[k] = o[i * o_step + 2]
+        rh.ray.dir_x[k] = d[3 * i]
+        rh.ray.dir_y[k] = d[3 * i + 1]
+        rh.ray.dir_z[k] = d[3 * i + 2]
         rh.ray.tnear[k] = 0.0
         rh.ray.time[k] = 0.0
-        rh.ray.tfar[k] = tfar[i]
+        rh.ray.tfar[k] = tfar[i * tfar_step]
         rh.ray.mask[k] = 0xFFFFFFFF
         rh.ray.id[k] = 0
         rh.ray.flags[k] = 0
@@ -360,6 +366,12 @@ cdef inline void load_packet(ss_RTCRayHit8* rh, const float[:, ::1] o, const flo
         rh.hit.instPrimID[0][k] = RTC_INVALID_GEOMETRY_ID
 
 
+cdef inline void load_packet(ss_RTCRayHit8* rh, const float[:, ::1] o, const float[:, ::1] d,
+                             const float[::1] tfar, Py_ssize_t start, int m) noexcept nogil:
+    """:func:`load_rays` from (n, 3) origins and directions and (n,) limits."""
+    load_rays(rh, &o[0, 0], 3, &d[0, 0], &tfar[0], 1, start, m)
+
+
 cdef inline void packet_mask(ss_Valid8* valid, int m) noexcept nogil:
     """Lanes ``0 .. m`` active (-1), the rest inactive (0): a partial tail packet casts only its rays."""
     cdef int k
@@ -367,14 +379,20 @@ cdef inline void packet_mask(ss_Valid8* valid, int m) noexcept nogil:
         valid.v[k] = -1 if k < m else 0
 
 
-cdef void cast_chunk(void* scene, const float[:, ::1] o, const float[:, ::1] d, const float[::1] tfar,
-                     const int[::1] ids, float[::1] distance, int[::1] mesh_id, float[:, ::1] normal,
-                     int* prim, float* uv, bint coherent) noexcept nogil:
-    """Cast rays in packets of 8 and write each packet's hits at once (``prim``/``uv`` may be NULL)."""
+cdef void cast_rays(void* scene, const float* o, Py_ssize_t o_step, const float* d, const float* tfar,
+                    Py_ssize_t tfar_step, const int* ids, float* distance, int* mesh_id, float* normal,
+                    int* prim, float* uv, Py_ssize_t n, bint coherent) noexcept nogil:
+    """Cast ``n`` rays in packets of 8 and write each packet's hits at once.
+
+    The rays are as for :func:`load_rays`; ``distance`` (n), ``mesh_id`` (n) and ``normal``
+    (n x 3) receive the hits, ``prim`` (n) and ``uv`` (n x 2) too where not NULL. This is the
+    one packet loop: :meth:`Scene.cast` runs it, and the compiled kernels call it by address
+    (:func:`cast_rays_address`) to cast in the middle of their own loops.
+    """
     cdef ss_RTCRayHit8 rh
     cdef ss_Valid8 valid
     cdef ss_RTCIntersectArguments args
-    cdef Py_ssize_t n = d.shape[0], start, i
+    cdef Py_ssize_t start, i
     cdef int m, k
     cdef unsigned int g
     cdef float nx, ny, nz, inv
@@ -385,7 +403,7 @@ cdef void cast_chunk(void* scene, const float[:, ::1] o, const float[:, ::1] d, 
     start = 0
     while start < n:
         m = <int>(n - start) if n - start < 8 else 8
-        load_packet(&rh, o, d, tfar, start, m)
+        load_rays(&rh, o, o_step, d, tfar, tfar_step, start, m)
         packet_mask(&valid, m)
         api.rtcIntersect8(valid.v, scene, &rh, &args)
         # Fused: the packet is still in L1; write what Hits needs (as _kernels.embree_hits does).
@@ -400,9 +418,9 @@ cdef void cast_chunk(void* scene, const float[:, ::1] o, const float[:, ::1] d, 
                 nz = rh.hit.Ng_z[k]
                 # float32 sum and root, the reciprocal correctly rounded: as the kernel twin.
                 inv = <float>(1.0 / <double>sqrtf(nx * nx + ny * ny + nz * nz))
-                normal[i, 0] = nx * inv
-                normal[i, 1] = ny * inv
-                normal[i, 2] = nz * inv
+                normal[3 * i] = nx * inv
+                normal[3 * i + 1] = ny * inv
+                normal[3 * i + 2] = nz * inv
                 if prim != NULL:
                     prim[i] = <int>rh.hit.primID[k]
                     uv[2 * i] = rh.hit.u[k]
@@ -410,14 +428,23 @@ cdef void cast_chunk(void* scene, const float[:, ::1] o, const float[:, ::1] d, 
             else:
                 distance[i] = INFINITY
                 mesh_id[i] = -1
-                normal[i, 0] = 0.0
-                normal[i, 1] = 0.0
-                normal[i, 2] = 0.0
+                normal[3 * i] = 0.0
+                normal[3 * i + 1] = 0.0
+                normal[3 * i + 2] = 0.0
                 if prim != NULL:
                     prim[i] = -1
                     uv[2 * i] = 0.0
                     uv[2 * i + 1] = 0.0
         start += 8
+
+
+# The compiler checks that the loop has the signature the kernels call it by.
+cdef cast_rays_t _cast_rays_checked = cast_rays
+
+
+def cast_rays_address() -> int:
+    """Address of the packet loop :func:`cast_rays` (a ``cast_abi.cast_rays_t``), for the kernels."""
+    return <size_t>_cast_rays_checked
 
 
 cdef void cast_chunk_raw(void* scene, const float[:, ::1] o, const float[:, ::1] d, float[::1] tfar,
@@ -579,8 +606,16 @@ cdef class Scene:
         if self.scene == NULL:
             raise SonarsimError("the Embree scene is closed")
         with nogil:
-            cast_chunk(self.scene, origins, directions, tfar, ids, distance, mesh_id, normal, prim, uv, coherent)
+            cast_rays(self.scene, &origins[0, 0], 3, &directions[0, 0], &tfar[0], 1, &ids[0] if ids.shape[0] else NULL,
+                      &distance[0], &mesh_id[0], &normal[0, 0], prim, uv, n, coherent)
         self.check("rtcIntersect8")
+
+    def address(self) -> int:
+        """Address of the committed Embree scene, for :func:`cast_rays` called from the kernels
+        (valid while this object lives and is not closed)."""
+        if self.scene == NULL:
+            raise SonarsimError("the Embree scene is closed")
+        return <size_t>self.scene
 
     def cast_raw(self, const float[:, ::1] origins, const float[:, ::1] directions, float[::1] tfar,
                  int[::1] geom_id, float[:, ::1] ng, bint coherent=False):
