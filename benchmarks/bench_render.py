@@ -128,13 +128,23 @@ def oculus_scene() -> dict:
 
 
 def record_casts(sim: sonarsim.Simulator) -> list:
-    """Every batch of rays that one frame casts, with its caster, as ``(caster, origins,
-    directions, tfar, threads)`` ready for the caster's bare casting (``cast_raw``: Embree's
-    answer alone, no conversion to hits). Recorded at ``intersect``, which every caster has
-    (whichever the simulator uses; a textured scene wraps it)."""
+    """Every ray that one frame casts, as ``(caster, origins, directions, tfar, None)`` per
+    caster, ready for the caster's bare casting (``cast_raw``: Embree's answer alone, no
+    conversion to hits) on the frame's threads.
+
+    Recorded at ``intersect``, which every caster has (a textured scene wraps it). The ground
+    specialisation's fused blocks cast from compiled code, past ``intersect``: the recording
+    frame takes the same blocks' stages called one by one, which cast the very same rays (the
+    tests require the same bits). The batches of one caster are joined into one call, which
+    the caster spreads over its threads as evenly as one batch can be: the bare casting is
+    given every advantage of the frame's threads.
+    """
+    from sonarsim.renderer import compiled
+
     caster_cls = type(getattr(sim.caster, "caster", sim.caster))
     recorded = []
     original = caster_cls.intersect
+    fused = compiled.ground_blocks
 
     def recording(self, origins, directions, max_distance, threads=None, *args, **kwargs):
         n = len(directions)
@@ -144,11 +154,18 @@ def record_casts(sim: sonarsim.Simulator) -> list:
         return original(self, origins, directions, max_distance, threads, *args, **kwargs)
 
     caster_cls.intersect = recording
+    compiled.ground_blocks = lambda *args: None
     try:
         sim.render(keep_rays=False)
     finally:
         caster_cls.intersect = original
-    return [r for r in recorded if len(r[2])]
+        compiled.ground_blocks = fused
+    joined = []
+    for caster in dict.fromkeys(r[0] for r in recorded):
+        mine = [r for r in recorded if r[0] is caster and len(r[2])]
+        if mine:
+            joined.append((caster, *(np.concatenate([r[k] for r in mine]) for k in (1, 2, 3)), None))
+    return joined
 
 
 # Reflecting planes of the benchmark tank, in the order the planes sweep adds them (the demo

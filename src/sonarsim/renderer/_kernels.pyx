@@ -18,6 +18,8 @@ from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, exp, isfinite, INF
 from libc.math cimport M_PI
 cimport cython
 
+from sonarsim.trace.cast_abi cimport cast_rays_t
+
 ctypedef fused real_t:
     float
     double
@@ -585,6 +587,152 @@ def rotate(const double[:, ::1] dirs, const double[:, ::1] rotation, double ox, 
             origins32[i, 1] = <float>oy
             origins32[i, 2] = <float>oz
         rotate_impl(dirs, rotation, out64, out32, 0, n)
+
+
+cdef class GroundBlocks:
+    """The ground specialisation's pipeline for a block of beams in one call, casting through
+    the Embree 4 binding's packet loop (``sonarsim.trace._embree4.cast_rays``) without a return
+    to Python between the stages: rotate, cast, :func:`primary`, the direct :func:`splat`,
+    :func:`clear_mirror`, the reflected rays' cast, :func:`mirror_paths` and the echo splat
+    (own beams). The same functions' loops, in the same order, on the same arrays as
+    ``renderer.compiled.render_fast`` calls them one by one (the tests require the same bits).
+
+    Built once per workspace and fan (binding the arrays costs more than a block); each frame
+    sets the pose and the output (:meth:`frame`), then :meth:`block` runs on any thread (the
+    GIL is released; blocks of different beams touch disjoint memory).
+
+    Parameters
+    ----------
+    scene : object
+        Kept alive while this object lives (the binding's ``Scene``).
+    scene_address, cast_address : int
+        The Embree scene and the packet loop (``Scene.address()``, ``cast_rays_address()``).
+    ids : (n_geometries,) int32
+        Mesh index of each Embree geometry.
+    coherent : bool
+        Packets of neighbouring rays (as the caster's flag).
+    work : renderer.compiled.Workspace
+    directions : (n, 3) float64, the fan's rays in the sonar frame
+    weight : (n,) float64
+    albedo_by_id, law_by_id, lobe_by_id : the surfaces' laws (as :func:`primary`)
+    """
+
+    cdef object keep
+    cdef void* scene
+    cdef cast_rays_t cast
+    cdef const int[::1] ids
+    cdef bint coherent
+    cdef _Laws laws
+    cdef const double[:, ::1] fan_dirs
+    cdef const double[::1] weight, albedo
+    cdef double[:, ::1] d64
+    cdef float[:, ::1] d32, h_normal, h2_normal, point, normal, g_start, g_dir
+    cdef float[::1] h_dist, h2_dist
+    cdef int[::1] h_mesh, h2_mesh, sid, v_sid, beam, beam_a
+    cdef double[::1] dist, intensity, g_t, tri_dist, tri_energy, r23, e23
+    cdef signed char[::1] label
+    cdef Py_ssize_t[::1] g_index
+    cdef double[:, ::1] v_point, v_normal
+    cdef const signed char[::1] no_label
+    cdef const double[::1] empty_f64
+    cdef const int[::1] empty_i32
+    # Per frame.
+    cdef float[::1] out
+    cdef const double[:, ::1] rotation
+    cdef const double[::1] edges
+    cdef float origin32[3]
+    cdef double ox, oy, oz, reach, ground_h, range_min, range_max, dr, half_el, specular
+    cdef bint has_ground, tvg, multipath, spread, echoes
+    cdef Py_ssize_t n_el, n_az, n_bins, n_beams
+    cdef bint ready
+
+    def __init__(self, scene, size_t scene_address, size_t cast_address, const int[::1] ids, bint coherent,
+                 work, const double[:, ::1] directions, const double[::1] weight, const double[::1] albedo_by_id,
+                 law_by_id=None, lobe_by_id=None):
+        if scene_address == 0 or cast_address == 0:
+            raise ValueError("no Embree scene or packet loop")
+        self.keep = (scene, ids, directions, weight, albedo_by_id, law_by_id, lobe_by_id)
+        self.scene = <void*>scene_address
+        self.cast = <cast_rays_t>cast_address
+        self.ids = ids
+        self.coherent = coherent
+        self.laws = _Laws(law_by_id, lobe_by_id, None, albedo_by_id.shape[0], 0)
+        self.fan_dirs, self.weight, self.albedo = directions, weight, albedo_by_id
+        w = work
+        if w.n != directions.shape[0] or weight.shape[0] != w.n:
+            raise ValueError(f"a workspace of {w.n} rays for {directions.shape[0]} directions and {weight.shape[0]} weights")
+        self.d64, self.d32 = w.d64, w.d32
+        self.h_dist, self.h_mesh, self.h_normal = w.h_dist, w.h_mesh, w.h_normal
+        self.h2_dist, self.h2_mesh, self.h2_normal = w.h2_dist, w.h2_mesh, w.h2_normal
+        self.dist, self.sid, self.point, self.normal = w.dist, w.sid, w.point, w.normal
+        self.intensity, self.label = w.intensity, w.label
+        self.g_index, self.g_t, self.g_start, self.g_dir = w.g_index, w.g_t, w.g_start, w.g_dir
+        self.tri_dist, self.tri_energy, self.v_point, self.v_normal = w.tri_dist, w.tri_energy, w.v_point, w.v_normal
+        self.v_sid, self.r23, self.e23, self.beam_a, self.beam = w.v_sid, w.r23, w.e23, w.beam_a, w.beam
+        self.no_label, self.empty_f64, self.empty_i32 = w.no_label, w.empty_f64, w.empty_i32
+        self.ready = False
+
+    def frame(self, float[::1] out, const double[:, ::1] rotation, double ox, double oy, double oz,
+              bint has_ground, double ground_h, double reach, bint tvg, bint multipath, double specular,
+              bint spread, bint echoes, Py_ssize_t n_az, Py_ssize_t n_el, double range_min, double dr,
+              Py_ssize_t n_bins, Py_ssize_t n_beams, double range_max, double half_el, const double[::1] edges):
+        """Set the frame: the flat output stack ``(4, n_bins, n_beams)``, the pose, the settings.
+        ``echoes``: splat the echo images of each block (own beams) in :meth:`block`."""
+        if out.shape[0] != 4 * n_bins * n_beams:
+            raise ValueError("the output is not a (4, n_range_bins, n_beams) stack")
+        if self.fan_dirs.shape[0] != n_beams * n_az * n_el or self.beam.shape[0] != self.fan_dirs.shape[0]:
+            raise ValueError("the fan's shape does not match the workspace")
+        self.out, self.rotation, self.edges = out, rotation, edges
+        self.ox, self.oy, self.oz = ox, oy, oz
+        self.origin32[0], self.origin32[1], self.origin32[2] = <float>ox, <float>oy, <float>oz
+        self.has_ground, self.ground_h, self.reach, self.tvg = has_ground, ground_h, reach, tvg
+        self.multipath, self.specular, self.spread, self.echoes = multipath, specular, spread, echoes
+        self.n_az, self.n_el, self.range_min, self.dr = n_az, n_el, range_min, dr
+        self.n_bins, self.n_beams, self.range_max, self.half_el = n_bins, n_beams, range_max, half_el
+        self.ready = True
+
+    def block(self, Py_ssize_t b0, Py_ssize_t b1):
+        """Beams ``b0:b1`` through the pipeline; returns the number of reflected rays cast (0:
+        none, and the mirror outputs of the block were not cleared)."""
+        if not self.ready:
+            raise ValueError("call frame() first")
+        if not (0 <= b0 <= b1 <= self.n_beams):
+            raise ValueError(f"beams {b0}:{b1} outside 0:{self.n_beams}")
+        cdef Py_ssize_t c0 = b0 * self.n_az, c1 = b1 * self.n_az
+        cdef Py_ssize_t a = c0 * self.n_el, b = c1 * self.n_el, n_g = 0
+        cdef double t_min = INFINITY
+        cdef float reach32 = <float>self.reach, reach2
+        if b == a:
+            return 0
+        with nogil:
+            rotate_impl(self.fan_dirs, self.rotation, self.d64, self.d32, a, b)
+            self.cast(self.scene, self.origin32, 0, &self.d32[a, 0], &reach32, 0, &self.ids[0],
+                      &self.h_dist[a], &self.h_mesh[a], &self.h_normal[a, 0], NULL, NULL, b - a, self.coherent)
+            n_g, t_min = primary_impl(
+                self.h_dist[a:b], self.h_mesh[a:b], self.h_normal[a:b], self.d64[a:b], self.ox, self.oy, self.oz,
+                self.has_ground, self.ground_h, self.reach, self.albedo, self.weight[a:b], self.tvg,
+                self.dist[a:b], self.sid[a:b], self.point[a:b], self.normal[a:b], self.intensity[a:b],
+                self.label[a:b], self.g_index[a:b], self.g_t[a:b], self.g_start[a:b], self.g_dir[a:b], self.laws, a)
+            splat_impl(self.point, self.normal, self.sid, self.dist, self.intensity, self.beam, self.label, 0,
+                       self.empty_f64, self.empty_f64, self.empty_i32, -1, self.spread, self.n_el, self.range_min,
+                       self.dr, self.n_bins, self.n_beams, self.out, c0, c1)
+            if self.multipath and n_g:
+                clear_impl(a, b, self.tri_dist, self.tri_energy, self.v_point, self.v_normal, self.v_sid, self.r23,
+                           self.e23, self.beam_a)
+                reach2 = <float>(self.reach - t_min)
+                self.cast(self.scene, &self.g_start[a, 0], 3, &self.g_dir[a, 0], &reach2, 0, &self.ids[0],
+                          &self.h2_dist[a], &self.h2_mesh[a], &self.h2_normal[a, 0], NULL, NULL, n_g, self.coherent)
+                mirror_impl(self.g_index[a:a + n_g], self.g_t[a:a + n_g], self.g_start[a:a + n_g],
+                            self.h2_dist[a:a + n_g], self.h2_mesh[a:a + n_g], self.h2_normal[a:a + n_g],
+                            self.d64, self.point, self.ox, self.oy, self.oz, self.rotation, self.edges, self.half_el,
+                            self.range_min, self.range_max, self.reach, self.albedo, self.weight, self.tvg,
+                            self.specular, self.tri_dist, self.tri_energy, self.v_point, self.v_normal, self.v_sid,
+                            self.r23, self.e23, self.beam_a, self.laws)
+                if self.echoes:
+                    splat_impl(self.v_point, self.v_normal, self.v_sid, self.tri_dist, self.tri_energy, self.beam,
+                               self.no_label, 3, self.r23, self.e23, self.beam, 2, self.spread, self.n_el,
+                               self.range_min, self.dr, self.n_bins, self.n_beams, self.out, c0, c1)
+        return n_g if self.multipath else 0
 
 
 # General reflecting planes (sonarsim.paths.engine is the NumPy twin) ----------------------

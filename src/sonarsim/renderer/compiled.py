@@ -44,9 +44,10 @@ OTHER_CORE_SHARE = 0.65
 def _law_args(laws: SurfaceLaws, hits) -> tuple:
     """The kernels' optional law arguments: ``(law_by_id, lobe_by_id, hit_texel)``, None where
     not needed (Lambertian surfaces, no texture: the paper's arithmetic exactly)."""
+    texel = None if hits is None else hits.texel
     if laws.lambertian_only:
-        return None, None, hits.texel
-    return laws.law, laws.lobe, hits.texel
+        return None, None, texel
+    return laws.law, laws.lobe, texel
 
 
 class Workspace:
@@ -75,6 +76,11 @@ class Workspace:
         self.r23 = np.empty(n)
         self.e23 = np.empty(n)
         self.beam_a = np.empty(n, dtype=np.int32)
+        # The casts' hits (primary rays; reflected rays in the rows of their block).
+        self.h_dist, self.h2_dist = np.empty(n, dtype=np.float32), np.empty(n, dtype=np.float32)
+        self.h_mesh, self.h2_mesh = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
+        self.h_normal, self.h2_normal = np.empty((n, 3), dtype=np.float32), np.empty((n, 3), dtype=np.float32)
+        self.ground_blocks: tuple | None = None  # (caster, fan, laws, GroundBlocks), see ground_blocks()
         self.beam = np.repeat(np.arange(n_beams, dtype=np.int32), n_per_beam)
         self.no_label = np.empty(0, dtype=np.int8)
         self.ones = np.ones(n)  # attenuation of the first generation's legs
@@ -112,6 +118,27 @@ def on_both_cores(task, n_tasks: int, pool=None) -> None:
         drain()
     finally:
         other.result()
+
+
+def ground_blocks(caster, work: Workspace, fan: RayFan, laws: SurfaceLaws):
+    """The fused block pipeline (:class:`~sonarsim.renderer._kernels.GroundBlocks`) for this
+    caster, workspace, fan and laws, built on first use and kept on the workspace; None where
+    the caster offers no packet loop (embreex, the NumPy caster, a scene with textures, whose
+    texels are looked up in Python)."""
+    loop = getattr(type(caster), "packet_loop", None)  # on the type: a wrapper forwards attributes
+    if loop is None:
+        return None
+    cached = work.ground_blocks
+    if cached is not None and cached[0] is caster and cached[1] is fan and cached[2] is laws and not caster.released:
+        return cached[3]
+    handle = loop(caster)
+    if handle is None:
+        return None
+    law_by_id, lobe_by_id, _ = _law_args(laws, None)
+    blocks = _kernels.GroundBlocks(*handle, work, fan.directions.reshape(-1, 3), fan.weight.reshape(-1),
+                                   laws.coefficient, law_by_id, lobe_by_id)
+    work.ground_blocks = (caster, fan, laws, blocks)
+    return blocks
 
 
 def render_fast(
@@ -187,53 +214,63 @@ def render_fast(
     mirror = (w.v_point, w.v_normal, w.v_sid)
     triple = (w.tri_dist, w.tri_energy, w.beam, w.no_label, 3)
 
-    def echoes(columns, own: bool = True, other: bool = True):
-        """The echo images of ray ``columns``: into the rays' own beams and/or the beams of A."""
+    def echoes(columns):
+        """The echo images of ray ``columns``."""
         if own_beam:
             splat(*mirror, triple, (w.r23, w.e23, w.beam, None, 2), columns=columns)
             return
-        half = 0.5 * w.e23 if other else None
-        if own:
-            splat(*mirror, triple, (w.r23, 0.5 * w.e23, w.beam, None, 2), columns=columns)
-        if other:
-            splat(*mirror, (w.r23, half, w.beam_a, w.no_label, 2), columns=columns)  # case 2: beam of A
+        half = 0.5 * w.e23
+        splat(*mirror, triple, (w.r23, half, w.beam, None, 2), columns=columns)
+        splat(*mirror, (w.r23, half, w.beam_a, w.no_label, 2), columns=columns)  # case 2: beam of A
 
     blocks = beam_blocks(n_beams, 1 if pool is None else BLOCKS_PER_CORE * 2)
     echo_rays = [0] * len(blocks)
+    # The echo images go with their block where they land in the block's own beams; otherwise
+    # (``split``, ``double_line_of_sight``) after every block, on this thread.
+    echoes_in_blocks = own_beam and pipelined
+    fused = ground_blocks(caster, work, fan, laws)
 
-    def block(k: int) -> None:
-        c0, c1 = blocks[k][0] * n_az, blocks[k][1] * n_az  # ray columns
-        a, b = c0 * n_el, c1 * n_el  # rays
-        _kernels.rotate(directions[a:b], rotation, ox, oy, oz, w.d64[a:b], w.d32[a:b], w.o32[a:b])
-        hits = caster.intersect(w.o32[a:b], w.d32[a:b], reach_m, threads=1)
-        n_g, t_min = _kernels.primary(
-            hits.distance, hits.mesh_id, hits.normal, w.d64[a:b], ox, oy, oz,
-            has_ground, ground.height_m if has_ground else 0.0, reach_m, albedo_by_id, weight[a:b], render.tvg,
-            w.dist[a:b], w.sid[a:b], w.point[a:b], w.normal[a:b], w.intensity[a:b], w.label[a:b],
-            w.g_index[a:b], w.g_t[a:b], w.g_start[a:b], w.g_dir[a:b], *_law_args(laws, hits), offset=a,
-        )
-        splat(w.point, w.normal, w.sid, (w.dist, w.intensity, w.beam, w.label, 0), columns=(c0, c1))
-        if not (multipath and n_g):
-            return
-        echo_rays[k] = n_g
-        _kernels.clear_mirror(a, b, w.tri_dist, w.tri_energy, w.v_point, w.v_normal, w.v_sid, w.r23, w.e23,
-                              w.beam_a)
-        g = slice(a, a + n_g)
-        # The block's nearest ground hit bounds its reflected rays (a hit further than the reach
-        # allows is dropped ray by ray in mirror_paths anyway: the same answer, less casting).
-        hits2 = caster.intersect(w.g_start[g], w.g_dir[g], float(reach_m - t_min), threads=1)
-        _kernels.mirror_paths(
-            w.g_index[g], w.g_t[g], w.g_start[g], hits2.distance, hits2.mesh_id, hits2.normal,
-            w.d64, w.point, ox, oy, oz, rotation, edges, half_el, sonar.range_min_m, sonar.range_max_m,
-            reach_m, albedo_by_id, weight, render.tvg, ground.specular,
-            w.tri_dist, w.tri_energy, w.v_point, w.v_normal, w.v_sid,
-            w.r23, w.e23, w.beam_a, *_law_args(laws, hits2),
-        )
-        if pipelined:
-            echoes((c0, c1), other=False)
+    if fused is not None:
+        fused.frame(flat_out, rotation, ox, oy, oz, has_ground, ground.height_m if has_ground else 0.0, reach_m,
+                    render.tvg, multipath, ground.specular if has_ground else 0.0, spread, echoes_in_blocks, n_az,
+                    n_el, *geometry[:2], *geometry[2:], sonar.range_max_m, half_el, edges)
+
+        def block(k: int) -> None:
+            echo_rays[k] = fused.block(*blocks[k])
+    else:
+        def block(k: int) -> None:
+            c0, c1 = blocks[k][0] * n_az, blocks[k][1] * n_az  # ray columns
+            a, b = c0 * n_el, c1 * n_el  # rays
+            _kernels.rotate(directions[a:b], rotation, ox, oy, oz, w.d64[a:b], w.d32[a:b], w.o32[a:b])
+            hits = caster.intersect(w.o32[a:b], w.d32[a:b], reach_m, threads=1)
+            n_g, t_min = _kernels.primary(
+                hits.distance, hits.mesh_id, hits.normal, w.d64[a:b], ox, oy, oz,
+                has_ground, ground.height_m if has_ground else 0.0, reach_m, albedo_by_id, weight[a:b], render.tvg,
+                w.dist[a:b], w.sid[a:b], w.point[a:b], w.normal[a:b], w.intensity[a:b], w.label[a:b],
+                w.g_index[a:b], w.g_t[a:b], w.g_start[a:b], w.g_dir[a:b], *_law_args(laws, hits), offset=a,
+            )
+            splat(w.point, w.normal, w.sid, (w.dist, w.intensity, w.beam, w.label, 0), columns=(c0, c1))
+            if not (multipath and n_g):
+                return
+            echo_rays[k] = n_g
+            _kernels.clear_mirror(a, b, w.tri_dist, w.tri_energy, w.v_point, w.v_normal, w.v_sid, w.r23, w.e23,
+                                  w.beam_a)
+            g = slice(a, a + n_g)
+            # The block's nearest ground hit bounds its reflected rays (a hit further than the
+            # reach allows is dropped ray by ray in mirror_paths anyway: the same answer).
+            hits2 = caster.intersect(w.g_start[g], w.g_dir[g], float(reach_m - t_min), threads=1)
+            _kernels.mirror_paths(
+                w.g_index[g], w.g_t[g], w.g_start[g], hits2.distance, hits2.mesh_id, hits2.normal,
+                w.d64, w.point, ox, oy, oz, rotation, edges, half_el, sonar.range_min_m, sonar.range_max_m,
+                reach_m, albedo_by_id, weight, render.tvg, ground.specular,
+                w.tri_dist, w.tri_energy, w.v_point, w.v_normal, w.v_sid,
+                w.r23, w.e23, w.beam_a, *_law_args(laws, hits2),
+            )
+            if echoes_in_blocks:
+                echoes((c0, c1))
 
     on_both_cores(block, len(blocks), pool)
-    if not any(echo_rays):
+    if not any(echo_rays) or echoes_in_blocks:
         return
     # Blocks without echo rays skipped clearing their share of the mirror outputs.
     for k, (b0, b1) in enumerate(blocks):
@@ -242,9 +279,7 @@ def render_fast(
                                   w.v_normal, w.v_sid, w.r23, w.e23, w.beam_a)
     if not pipelined:
         _drop_hidden(caster, pose, ground.height_m, work)
-        echoes((0, -1))
-    elif not own_beam:
-        echoes((0, -1), own=False)
+    echoes((0, -1))
 
 
 def _drop_hidden(caster, pose: Pose, ground_height_m: float, work: Workspace) -> None:

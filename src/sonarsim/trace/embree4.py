@@ -173,6 +173,7 @@ class Embree4Caster:
 
     def __init__(self, meshes: Sequence[TriangleMesh], threads: int | None = None, coherent: bool = True) -> None:
         binding = load_binding()
+        self._binding = binding
         self.coherent = coherent
         self.threads = threads or available_cores()
         self.n_meshes = len(meshes)
@@ -269,6 +270,28 @@ class Embree4Caster:
                            coherent=coherent)
         self._map(run, self._chunks(n, threads))
         return hits
+
+    def packet_loop(self) -> tuple | None:
+        """What the compiled kernels need to cast through the binding's packet loop themselves
+        (:class:`sonarsim.renderer._kernels.GroundBlocks`).
+
+        Returns
+        -------
+        (scene, scene_address, cast_address, ids, coherent) or None
+            The binding's ``Scene`` (to keep alive), its address, the address of the packet loop
+            ``cast_rays``, the mesh index of each Embree geometry and the coherence flag; None
+            when the caster has no triangles.
+        """
+        if self._closed:
+            raise SonarsimError("this Embree4Caster is released")
+        if self._scene is None:
+            return None
+        return self._scene, self._scene.address(), self._binding.cast_rays_address(), self._ids, self.coherent
+
+    @property
+    def released(self) -> bool:
+        """Whether :meth:`release` has freed the Embree scene (nothing may cast through it)."""
+        return self._closed
 
     def close(self) -> None:
         """Stop the worker threads; later casts run on the calling thread (as EmbreeCaster's).
