@@ -51,7 +51,7 @@ def _stacks(doc, threads, fused, monkeypatch):
             out = []
             for pose in POSES:
                 img = sim.render(pose=pose)
-                out.append(np.stack([img.components[k] for k in ("object", "ground", "double", "triple")]))
+                out.append(np.stack([img.components[k] for k in ("object", "ground", "double", "triple", "total")]))
                 out.append(img.rays.distance_m)
                 out.append(img.rays.intensity)
             if fused:

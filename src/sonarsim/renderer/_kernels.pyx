@@ -16,6 +16,7 @@ Nothing here allocates; the caller owns every array.
 
 from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, exp, isfinite, INFINITY, NAN
 from libc.math cimport M_PI
+from libc.string cimport memset
 cimport cython
 
 from sonarsim.trace.cast_abi cimport cast_rays_t
@@ -247,24 +248,26 @@ cdef inline Py_ssize_t beam_of(const double[::1] edges, double az) noexcept nogi
 
 
 cdef void clear_impl(Py_ssize_t begin, Py_ssize_t end, double[::1] tri_dist, double[::1] tri_energy,
-                 double[:, ::1] v_point, double[:, ::1] v_normal, int[::1] v_sid, double[::1] r23,
-                 double[::1] e23, int[::1] beam_a) noexcept nogil:
+                     double[::1] r23, double[::1] e23) noexcept nogil:
     """The loop of :func:`clear_mirror` (also run by :class:`GroundBlocks`)."""
     cdef Py_ssize_t i
-    if True:
-        for i in range(begin, end):
-            tri_dist[i] = INFINITY
-            tri_energy[i] = 0.0
-            v_point[i, 0] = NAN
-            v_point[i, 1] = NAN
-            v_point[i, 2] = NAN
-            v_normal[i, 0] = 0.0
-            v_normal[i, 1] = 0.0
-            v_normal[i, 2] = 0.0
-            v_sid[i] = -1
-            r23[i] = INFINITY
-            e23[i] = 0.0
-            beam_a[i] = 0
+    for i in range(begin, end):
+        tri_dist[i] = INFINITY
+        tri_energy[i] = 0.0
+        r23[i] = INFINITY
+        e23[i] = 0.0
+
+
+def clear_mirror(Py_ssize_t begin, Py_ssize_t end, double[::1] tri_dist, double[::1] tri_energy,
+                 double[::1] r23, double[::1] e23):
+    """Mark rays ``begin:end`` unreached in :func:`mirror_paths`' outputs: no distance (inf) and
+    no energy (0) in either set. Their points, normals, surfaces and beams of A are left as they
+    are: the splat and the line-of-sight test read those only for rays that carry energy, which
+    :func:`mirror_paths` wrote. (Clearing every field cost a third of a block's memory traffic.)"""
+    if begin < 0 or end > tri_dist.shape[0] or end > tri_energy.shape[0] or end > r23.shape[0] or end > e23.shape[0]:
+        raise ValueError(f"rays {begin}:{end} outside the arrays")
+    with nogil:
+        clear_impl(begin, end, tri_dist, tri_energy, r23, e23)
 
 
 cdef void mirror_impl(const Py_ssize_t[::1] g_index, const double[::1] g_t, const float[:, ::1] g_start,
@@ -344,14 +347,6 @@ cdef void mirror_impl(const Py_ssize_t[::1] g_index, const double[::1] g_t, cons
             beam_a[i] = <int>b
 
 
-def clear_mirror(Py_ssize_t begin, Py_ssize_t end, double[::1] tri_dist, double[::1] tri_energy,
-                 double[:, ::1] v_point, double[:, ::1] v_normal, int[::1] v_sid, double[::1] r23,
-                 double[::1] e23, int[::1] beam_a):
-    """Fill rays ``begin:end`` of :func:`mirror_paths`' outputs with "nothing" (inf, 0, NaN, -1)."""
-    with nogil:
-        clear_impl(begin, end, tri_dist, tri_energy, v_point, v_normal, v_sid, r23, e23, beam_a)
-
-
 def mirror_paths(const Py_ssize_t[::1] g_index, const double[::1] g_t, const float[:, ::1] g_start,
                  const float[::1] hit_distance, const int[::1] hit_mesh, const float[:, ::1] hit_normal,
                  const double[:, ::1] dirs, const float[:, ::1] point,
@@ -368,7 +363,8 @@ def mirror_paths(const Py_ssize_t[::1] g_index, const double[::1] g_t, const flo
     ``law_by_id``, ``lobe_by_id``, ``hit_texel``: as for :func:`primary` (``hit_texel`` per
     reflected ray).
 
-    Output arrays must come filled with "nothing" (inf, 0, NaN, -1); only reached rays are set.
+    Only reached rays are set: the others must come marked unreached (:func:`clear_mirror`:
+    distances inf, energies 0); their other fields are not read downstream.
     ``e23`` is R x I_f where A lies in the field of view and range window, else 0.
     """
     cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], g_index.shape[0])
@@ -637,7 +633,9 @@ cdef class GroundBlocks:
     cdef const double[::1] empty_f64
     cdef const int[::1] empty_i32
     # Per frame.
-    cdef float[::1] out
+    cdef float[::1] out, total
+    cdef int total_rows[4]
+    cdef int n_total_rows
     cdef const double[:, ::1] rotation
     cdef const double[::1] edges
     cdef float origin32[3]
@@ -675,11 +673,25 @@ cdef class GroundBlocks:
     def frame(self, float[::1] out, const double[:, ::1] rotation, double ox, double oy, double oz,
               bint has_ground, double ground_h, double reach, bint tvg, bint multipath, double specular,
               bint spread, bint echoes, Py_ssize_t n_az, Py_ssize_t n_el, double range_min, double dr,
-              Py_ssize_t n_bins, Py_ssize_t n_beams, double range_max, double half_el, const double[::1] edges):
+              Py_ssize_t n_bins, Py_ssize_t n_beams, double range_max, double half_el, const double[::1] edges,
+              float[::1] total=None, tuple rows=()):
         """Set the frame: the flat output stack ``(4, n_bins, n_beams)``, the pose, the settings.
-        ``echoes``: splat the echo images of each block (own beams) in :meth:`block`."""
+
+        ``echoes``: splat the echo images of each block (own beams) in :meth:`block`. Each block
+        first zeroes its beams' columns of ``out`` (which may come uninitialised). ``total``
+        (flat ``(n_bins, n_beams)``, optional): each block also sums the stack ``rows`` of its
+        beams into it, in the given order in float32 (as ``components._sum_rows``); only right
+        when nothing lands in a block's columns after it (``echoes`` of own beams).
+        """
         if out.shape[0] != 4 * n_bins * n_beams:
             raise ValueError("the output is not a (4, n_range_bins, n_beams) stack")
+        if total is not None and (total.shape[0] != n_bins * n_beams or not 0 < len(rows) <= 4
+                                  or any(not 0 <= r < 4 for r in rows)):
+            raise ValueError("the total is not (n_range_bins, n_beams), or its rows are not 1 to 4 of 0..3")
+        self.n_total_rows = len(rows) if total is not None else 0
+        for k in range(self.n_total_rows):
+            self.total_rows[k] = rows[k]
+        self.total = total
         if self.fan_dirs.shape[0] != n_beams * n_az * n_el or self.beam.shape[0] != self.fan_dirs.shape[0]:
             raise ValueError("the fan's shape does not match the workspace")
         self.out, self.rotation, self.edges = out, rotation, edges
@@ -702,9 +714,16 @@ cdef class GroundBlocks:
         cdef Py_ssize_t a = c0 * self.n_el, b = c1 * self.n_el, n_g = 0
         cdef double t_min = INFINITY
         cdef float reach32 = <float>self.reach, reach2
+        cdef Py_ssize_t plane = self.n_bins * self.n_beams, r, k, j, q
+        cdef float t
+        cdef float* o
         if b == a:
             return 0
         with nogil:
+            o = &self.out[0]
+            for r in range(4):
+                for k in range(self.n_bins):
+                    memset(o + r * plane + k * self.n_beams + b0, 0, (b1 - b0) * sizeof(float))
             rotate_impl(self.fan_dirs, self.rotation, self.d64, self.d32, a, b)
             self.cast(self.scene, self.origin32, 0, &self.d32[a, 0], &reach32, 0, &self.ids[0],
                       &self.h_dist[a], &self.h_mesh[a], &self.h_normal[a, 0], NULL, NULL, b - a, self.coherent)
@@ -717,8 +736,7 @@ cdef class GroundBlocks:
                        self.empty_f64, self.empty_f64, self.empty_i32, -1, self.spread, self.n_el, self.range_min,
                        self.dr, self.n_bins, self.n_beams, self.out, c0, c1)
             if self.multipath and n_g:
-                clear_impl(a, b, self.tri_dist, self.tri_energy, self.v_point, self.v_normal, self.v_sid, self.r23,
-                           self.e23, self.beam_a)
+                clear_impl(a, b, self.tri_dist, self.tri_energy, self.r23, self.e23)
                 reach2 = <float>(self.reach - t_min)
                 self.cast(self.scene, &self.g_start[a, 0], 3, &self.g_dir[a, 0], &reach2, 0, &self.ids[0],
                           &self.h2_dist[a], &self.h2_mesh[a], &self.h2_normal[a, 0], NULL, NULL, n_g, self.coherent)
@@ -732,6 +750,14 @@ cdef class GroundBlocks:
                     splat_impl(self.v_point, self.v_normal, self.v_sid, self.tri_dist, self.tri_energy, self.beam,
                                self.no_label, 3, self.r23, self.e23, self.beam, 2, self.spread, self.n_el,
                                self.range_min, self.dr, self.n_bins, self.n_beams, self.out, c0, c1)
+            if self.n_total_rows:
+                # The block's columns are complete and still in cache: their total now.
+                for k in range(self.n_bins):
+                    for j in range(k * self.n_beams + b0, k * self.n_beams + b1):
+                        t = o[self.total_rows[0] * plane + j]
+                        for q in range(1, self.n_total_rows):
+                            t = t + o[self.total_rows[q] * plane + j]
+                        self.total[j] = t
         return n_g if self.multipath else 0
 
 

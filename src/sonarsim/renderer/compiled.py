@@ -152,10 +152,10 @@ def render_fast(
     reach_m: float,
     multipath: bool,
     work: Workspace,
-    out: np.ndarray,
     pool=None,
-) -> None:
-    """Render the object, ground, double and triple images into ``out`` (labels 0-3).
+    sum_rows: tuple[int, ...] = (),
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Render the object, ground, double and triple images (labels 0-3).
 
     Parameters
     ----------
@@ -172,10 +172,18 @@ def render_fast(
     work : Workspace
         Receives the per-ray results (``d64``: world directions; ``dist``, ``sid``,
         ``intensity``: D_f, labels, I_f).
-    out : (4, n_range_bins, n_beams) float32 C-contiguous zeroed ndarray
-        Receives the images. float32 sums lose nothing here that the float32 result would keep.
     pool : concurrent.futures.ThreadPoolExecutor with one worker, optional
         The other core: it takes blocks of beams as this one does.
+    sum_rows : tuple of int
+        The rows whose sum is the frame's total (``components.total_rows``); the fused blocks
+        add them up while a block's columns are in cache, where nothing lands there later.
+
+    Returns
+    -------
+    stack : (4, n_range_bins, n_beams) float32 ndarray
+        The images. float32 sums lose nothing here that the float32 result would keep.
+    total : (n_range_bins, n_beams) float32 ndarray or None
+        The sum of ``sum_rows`` (as ``components._sum_rows`` adds them), or None: not formed.
 
     Notes
     -----
@@ -198,13 +206,25 @@ def render_fast(
     has_ground = ground is not None
     n_beams, n_az, n_el = fan.shape
     geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
-    flat_out = out.reshape(-1)
     spread = render.range_splat
     half_el = sonar.elevation_fov_deg / 2.0
     edges = np.ascontiguousarray(sonar.beam_edges_deg)
     own_beam = render.double_beam == "paper"
     pipelined = not render.double_line_of_sight  # that option casts again after all paths
+    # The echo images go with their block where they land in the block's own beams; otherwise
+    # (``split``, ``double_line_of_sight``) after every block, on this thread.
+    echoes_in_blocks = own_beam and pipelined
     w = work
+    fused = ground_blocks(caster, work, fan, laws)
+    shape = (4, sonar.n_range_bins, sonar.n_beams)
+    total = None
+    if fused is not None:
+        out = np.empty(shape, dtype=np.float32)  # each block zeroes its own columns
+        if sum_rows and echoes_in_blocks:
+            total = np.empty(shape[1:], dtype=np.float32)
+    else:
+        out = np.zeros(shape, dtype=np.float32)
+    flat_out = out.reshape(-1)
 
     def splat(points, normals, sid, set1, set2=None, columns=(0, -1)):
         """Run the splat kernel: ``set = (distance, energy, beams, label array, label)``."""
@@ -225,15 +245,12 @@ def render_fast(
 
     blocks = beam_blocks(n_beams, 1 if pool is None else BLOCKS_PER_CORE * 2)
     echo_rays = [0] * len(blocks)
-    # The echo images go with their block where they land in the block's own beams; otherwise
-    # (``split``, ``double_line_of_sight``) after every block, on this thread.
-    echoes_in_blocks = own_beam and pipelined
-    fused = ground_blocks(caster, work, fan, laws)
 
     if fused is not None:
         fused.frame(flat_out, rotation, ox, oy, oz, has_ground, ground.height_m if has_ground else 0.0, reach_m,
                     render.tvg, multipath, ground.specular if has_ground else 0.0, spread, echoes_in_blocks, n_az,
-                    n_el, *geometry[:2], *geometry[2:], sonar.range_max_m, half_el, edges)
+                    n_el, *geometry[:2], *geometry[2:], sonar.range_max_m, half_el, edges,
+                    None if total is None else total.reshape(-1), tuple(sum_rows) if total is not None else ())
 
         def block(k: int) -> None:
             echo_rays[k] = fused.block(*blocks[k])
@@ -253,8 +270,7 @@ def render_fast(
             if not (multipath and n_g):
                 return
             echo_rays[k] = n_g
-            _kernels.clear_mirror(a, b, w.tri_dist, w.tri_energy, w.v_point, w.v_normal, w.v_sid, w.r23, w.e23,
-                                  w.beam_a)
+            _kernels.clear_mirror(a, b, w.tri_dist, w.tri_energy, w.r23, w.e23)
             g = slice(a, a + n_g)
             # The block's nearest ground hit bounds its reflected rays (a hit further than the
             # reach allows is dropped ray by ray in mirror_paths anyway: the same answer).
@@ -271,15 +287,15 @@ def render_fast(
 
     on_both_cores(block, len(blocks), pool)
     if not any(echo_rays) or echoes_in_blocks:
-        return
+        return out, total
     # Blocks without echo rays skipped clearing their share of the mirror outputs.
     for k, (b0, b1) in enumerate(blocks):
         if not echo_rays[k]:
-            _kernels.clear_mirror(b0 * n_az * n_el, b1 * n_az * n_el, w.tri_dist, w.tri_energy, w.v_point,
-                                  w.v_normal, w.v_sid, w.r23, w.e23, w.beam_a)
+            _kernels.clear_mirror(b0 * n_az * n_el, b1 * n_az * n_el, w.tri_dist, w.tri_energy, w.r23, w.e23)
     if not pipelined:
         _drop_hidden(caster, pose, ground.height_m, work)
     echoes((0, -1))
+    return out, None
 
 
 def _drop_hidden(caster, pose: Pose, ground_height_m: float, work: Workspace) -> None:

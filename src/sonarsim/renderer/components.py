@@ -100,20 +100,27 @@ def _sum_rows(stack: np.ndarray, rows: tuple[int, ...], copy: bool) -> np.ndarra
     return acc
 
 
+def total_rows(bounces: tuple[int, ...], max_order: int) -> tuple[int, ...]:
+    """The stack rows that ``total`` sums (those of the orders in ``bounces``), ascending: the
+    order in which they are added."""
+    by_name = {c.name: c for c in component_table(max_order)}
+    return tuple(sorted(r for k in bounces for r in by_name[order_name(k)].rows))
+
+
 def frame_components(stack: np.ndarray, bounces: tuple[int, ...], max_order: int,
-                     paths: Callable[[], dict] | None = None) -> "Components":
+                     paths: Callable[[], dict] | None = None, total: np.ndarray | None = None) -> "Components":
     """The :class:`Components` of a frame: ``total`` now, the rest when first looked up.
 
     Single rows are views of ``stack``; sums of rows (``single``) and the path-signature
     images (``paths()``) are formed on first access (:func:`assemble` forms them all now).
+    ``total``: already summed (the rows of :func:`total_rows`, added in that order in float32,
+    as here), e.g. by the fused ground blocks while the rows were in cache.
     """
     table = component_table(max_order)
-    by_name = {c.name: c for c in table}
     images: dict = {}
     for comp in table:
         if comp.name == "total":
-            rows = tuple(sorted(r for k in bounces for r in by_name[order_name(k)].rows))
-            images["total"] = _sum_rows(stack, rows, copy=True)
+            images["total"] = total if total is not None else _sum_rows(stack, total_rows(bounces, max_order), copy=True)
         elif len(comp.rows) == 1:
             images[comp.name] = stack[comp.rows[0]]
         else:

@@ -41,7 +41,7 @@ from ..scene.textures import with_textures
 from ..trace import available_cores, make_caster
 from ..trace.surfaces import trace
 from . import compiled
-from .components import component_table, frame_components, stack_rows
+from .components import component_table, frame_components, stack_rows, total_rows
 from .ground_truth import frame_labels, lit_rows
 
 # Rays are cast this far past the range window so that range splatting sees the neighbour of a
@@ -231,7 +231,8 @@ class Simulator:
         return backscatter(fan.weight, hits.cos_incidence, self._laws, hits.surface_id + 1, hits.distance_m,
                            self.scene.render.tvg, hits.texel)
 
-    # The ways to form the image stack; each returns (stack, legs, path sets, chain table).
+    # The ways to form the image stack; each returns (stack, legs, path sets, chain table, total),
+    # total None where not already summed.
 
     def _render_paper(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float):
         """``method: paper``: Algorithm 2 literally (NumPy; the ground is the only plane)."""
@@ -249,7 +250,7 @@ class Simulator:
         leg = Leg(0, hits.distance_m.reshape(-1), hits.surface_id.reshape(-1), hits.point.reshape(-1, 3),
                   hits.normal.reshape(-1, 3), self._intensity(fan, hits).reshape(-1), np.ones(fan.n_rays),
                   np.zeros(fan.n_rays, np.int32))
-        return stack, [leg], None, None
+        return stack, [leg], None, None, None
 
     def _render_ground_compiled(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float, multipath: bool):
         """The paper's case (the ground alone, order 3) with kernels specialised for it.
@@ -261,12 +262,13 @@ class Simulator:
         """
         if self._work is None or self._work.n != fan.n_rays:
             self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, fan.n_rays // sonar.n_beams)
-        stack = np.zeros((stack_rows(3), sonar.n_range_bins, sonar.n_beams), dtype=np.float32)
-        compiled.render_fast(self.caster, sonar, pose, fan, self.scene.ground, self.scene.render, self._laws, reach,
-                             multipath, self._work, stack, pool=self._pool)
+        render = self.scene.render
+        stack, total = compiled.render_fast(self.caster, sonar, pose, fan, self.scene.ground, render, self._laws,
+                                            reach, multipath, self._work, pool=self._pool,
+                                            sum_rows=total_rows(render.bounces, render.max_order))
         w = self._work
         leg = Leg(0, w.dist, w.sid, w.point, w.normal, w.intensity, w.ones, w.zeros_i32)
-        return stack, [leg], None, None
+        return stack, [leg], None, None, total
 
     def _render_paths(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float, active: np.ndarray,
                       n_generations: int):
@@ -303,7 +305,7 @@ class Simulator:
                 sets = occlusion(sets, legs)
             stack = accumulate_paths(sets, legs, n_surfaces, fan.shape, geometry, rows, render.range_splat)
             stack = stack.astype(np.float32)
-        return stack, legs, sets, table
+        return stack, legs, sets, table, None
 
     def _signature_images(self, sonar: SonarConfig, fan: RayFan, legs, sets, table) -> dict[str, np.ndarray]:
         """One image per path signature (formed on demand; see :class:`Components`)."""
@@ -379,20 +381,20 @@ class Simulator:
         multipath = render.max_order > 1 and bool(mirrors.any())
         reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
         if render.method == "paper" and multipath and self._ground_only:
-            stack, legs, sets, table = self._render_paper(sonar, pose, fan, reach)
+            stack, legs, sets, table, total = self._render_paper(sonar, pose, fan, reach)
         elif (self.specialise_ground and self.kernels == "compiled" and self._ground_only and render.max_order == 3
               and render.double_beam != "separate" and not labels):
-            stack, legs, sets, table = self._render_ground_compiled(sonar, pose, fan, reach, multipath)
+            stack, legs, sets, table, total = self._render_ground_compiled(sonar, pose, fan, reach, multipath)
         else:
-            stack, legs, sets, table = self._render_paths(sonar, pose, fan, reach, active,
-                                                          render.max_order if multipath else 1)
+            stack, legs, sets, table, total = self._render_paths(sonar, pose, fan, reach, active,
+                                                                 render.max_order if multipath else 1)
         truth = None
         t2 = time.perf_counter()
         if labels:
             lit = stack
             if sets is None:  # Algorithm 2 forms no paths: the general engine's, for the labels only
-                lit, legs, sets, _ = self._render_paths(sonar, pose, fan, reach, active,
-                                                        render.max_order if multipath else 1)
+                lit, legs, sets, _, _ = self._render_paths(sonar, pose, fan, reach, active,
+                                                           render.max_order if multipath else 1)
             truth = frame_labels(sets, legs, fan, image_sonar, tuple(o.name for o in self.scene.objects),
                                  tuple(p.name for p in self.scene.reflecting_planes), render.max_order,
                                  render.bounces, render.range_splat, self.kernels, lit_rows(lit, self.kernels),
@@ -403,7 +405,7 @@ class Simulator:
             paths = functools.partial(ground_signatures, rows)
         else:
             paths = functools.partial(self._signature_images, sonar, fan, legs, sets, table)
-        components = frame_components(stack, render.bounces, render.max_order, paths)
+        components = frame_components(stack, render.bounces, render.max_order, paths, total)
         total = components["total"]
         rng = self._rng if frame is None else np.random.default_rng([int(render.seed), FRAME_STREAM, int(frame)])
         model = self.sensor_model(image_sonar)
