@@ -477,7 +477,7 @@ cdef void splat_impl(const real_t[:, ::1] points, const real_t[:, ::1] normals, 
     cdef bint two = distance2.shape[0] > 0, use_label = label.shape[0] > 0
     cdef real_t cx, cy, cz, off0, off1, limit
     cdef int lab
-    cdef double x_dn1 = 0.0, x_dn2 = 0.0, x1, x2, x_up1, x_up2
+    cdef double x_dn1 = 0.0, x_dn2 = 0.0, x1, x2, x_up1 = 0.0, x_up2 = 0.0
     cdef double nb = <double>n_range_bins
     cdef float* base = &out[0]
     if col_end < 0 or col_end > n_cols:
@@ -509,7 +509,8 @@ cdef void splat_impl(const real_t[:, ::1] points, const real_t[:, ::1] normals, 
                     geo = off0 * off0 <= limit and off1 * off1 <= limit
             if live1:
                 lab = label[i] if use_label else label_const
-                x1 = (distance[i] - range_min) / dr
+                # A continuous lower neighbour computed this ray's x as its x_up: the same value.
+                x1 = x_up1 if c1_dn else (distance[i] - range_min) / dr
                 c1_up = geo and live1_up
                 x_up1 = (distance[i + 1] - range_min) / dr if c1_up else 0.0
                 deposit(x1, x_dn1, x_up1, c1_dn, c1_up, energy[i],
@@ -519,7 +520,7 @@ cdef void splat_impl(const real_t[:, ::1] points, const real_t[:, ::1] normals, 
             else:
                 c1_dn = False
             if live2:
-                x2 = (distance2[i] - range_min) / dr
+                x2 = x_up2 if c2_dn else (distance2[i] - range_min) / dr
                 c2_up = geo and live2_up
                 x_up2 = (distance2[i + 1] - range_min) / dr if c2_up else 0.0
                 deposit(x2, x_dn2, x_up2, c2_dn, c2_up, energy2[i],
@@ -714,9 +715,10 @@ cdef class GroundBlocks:
         cdef Py_ssize_t a = c0 * self.n_el, b = c1 * self.n_el, n_g = 0
         cdef double t_min = INFINITY
         cdef float reach32 = <float>self.reach, reach2
-        cdef Py_ssize_t plane = self.n_bins * self.n_beams, r, k, j, q
-        cdef float t
+        cdef Py_ssize_t plane = self.n_bins * self.n_beams, r, k, j, q, row
         cdef float* o
+        cdef float* tot
+        cdef const float* src
         if b == a:
             return 0
         with nogil:
@@ -751,13 +753,18 @@ cdef class GroundBlocks:
                                self.no_label, 3, self.r23, self.e23, self.beam, 2, self.spread, self.n_el,
                                self.range_min, self.dr, self.n_bins, self.n_beams, self.out, c0, c1)
             if self.n_total_rows:
-                # The block's columns are complete and still in cache: their total now.
+                # The block's columns are complete and recently touched: their total now, row
+                # after row in float32 (each sum in the same order as components._sum_rows).
+                tot = &self.total[0]
                 for k in range(self.n_bins):
-                    for j in range(k * self.n_beams + b0, k * self.n_beams + b1):
-                        t = o[self.total_rows[0] * plane + j]
-                        for q in range(1, self.n_total_rows):
-                            t = t + o[self.total_rows[q] * plane + j]
-                        self.total[j] = t
+                    row = k * self.n_beams
+                    src = o + self.total_rows[0] * plane + row
+                    for j in range(b0, b1):
+                        tot[row + j] = src[j]
+                    for q in range(1, self.n_total_rows):
+                        src = o + self.total_rows[q] * plane + row
+                        for j in range(b0, b1):
+                            tot[row + j] = tot[row + j] + src[j]
         return n_g if self.multipath else 0
 
 
