@@ -104,7 +104,7 @@ class EmbreeCaster:
         return self._scene.run(origins, directions, dists=tfar, output=1)
 
     def cast_raw(self, origins: np.ndarray, directions: np.ndarray, tfar: np.ndarray, threads: int | None = None,
-                 with_uv: bool = False) -> dict:
+                 with_uv: bool = False, min_chunk: int | None = None) -> dict:
         """Embree's own answer for contiguous float32 rays, over the thread pool.
 
         This is the bare ray-casting cost that benchmarks compare a whole frame against.
@@ -118,6 +118,9 @@ class EmbreeCaster:
             At most this many threads (default: the caster's).
         with_uv : bool
             Also keep ``primID`` and the barycentric ``u``, ``v`` of each hit.
+        min_chunk : int, optional
+            Split over the threads only from this many rays per thread (default
+            :data:`MIN_RAYS_PER_CHUNK`).
 
         Returns
         -------
@@ -125,7 +128,7 @@ class EmbreeCaster:
         ``primID``, ``u``, ``v`` with ``with_uv``).
         """
         o, d, n = origins, directions, len(directions)
-        n_chunks = min(threads or self.threads, self.threads, max(1, n // MIN_RAYS_PER_CHUNK))
+        n_chunks = min(threads or self.threads, self.threads, max(1, n // (min_chunk or MIN_RAYS_PER_CHUNK)))
         if n_chunks == 1 or self._pool is None:
             res = self._run(o, d, tfar)
         else:
