@@ -247,6 +247,30 @@ cdef inline Py_ssize_t beam_of(const double[::1] edges, double az) noexcept nogi
     return lo - 1
 
 
+cdef inline Py_ssize_t beam_in_view(double x, double y, double z, double range_min, double range_max,
+                                    double half_elevation_deg, const double[::1] edges,
+                                    double* length) noexcept nogil:
+    """The beam that sees a point at ``(x, y, z)`` in the sonar frame, or -1 where it lies
+    outside the range window, the elevation aperture or the fan; ``length`` receives its
+    distance from the sonar. Cheapest test first: most candidate points fail the range window
+    or the elevation (twins: ``paths.engine.option_paths`` with ``SonarView.beam_of``, and
+    ``paths.algorithm2.ground_echo_rays``)."""
+    cdef double r = sqrt(x * x + y * y + z * z), el
+    cdef double rad2deg = 180.0 / M_PI
+    length[0] = r
+    if not (r >= range_min and r < range_max):
+        return -1
+    el = z / r
+    if el > 1.0:
+        el = 1.0
+    elif el < -1.0:
+        el = -1.0
+    el = asin(el) * rad2deg
+    if not fabs(el) <= half_elevation_deg:
+        return -1
+    return beam_of(edges, atan2(y, x) * rad2deg)
+
+
 cdef void clear_impl(Py_ssize_t begin, Py_ssize_t end, double[::1] tri_dist, double[::1] tri_energy,
                      double[::1] r23, double[::1] e23) noexcept nogil:
     """The loop of :func:`clear_mirror` (also run by :class:`GroundBlocks`)."""
@@ -283,11 +307,10 @@ cdef void mirror_impl(const Py_ssize_t[::1] g_index, const double[::1] g_t, cons
                  _Laws laws) noexcept nogil:
     """The loop of :func:`mirror_paths` (also run by :class:`GroundBlocks`)."""
     cdef Py_ssize_t j, i, n_g = g_index.shape[0]
-    cdef double s, oa_v, nx, ny, nz, dx, dy, dz, c, ax, ay, az_, rx, ry, rz, oa, az_deg, el_deg
+    cdef double s, oa_v, nx, ny, nz, dx, dy, dz, c, ax, ay, az_, rx, ry, rz, oa
     cdef double r, tg
     cdef int m, sv
     cdef Py_ssize_t b
-    cdef double rad2deg = 180.0 / M_PI
     for j in range(n_g):
         m = hit_mesh[j]
         if m < 0:
@@ -327,20 +350,7 @@ cdef void mirror_impl(const Py_ssize_t[::1] g_index, const double[::1] g_t, cons
         rx = rotation[0, 0] * ax + rotation[1, 0] * ay + rotation[2, 0] * az_
         ry = rotation[0, 1] * ax + rotation[1, 1] * ay + rotation[2, 1] * az_
         rz = rotation[0, 2] * ax + rotation[1, 2] * ay + rotation[2, 2] * az_
-        oa = sqrt(rx * rx + ry * ry + rz * rz)
-        # Cheapest test first: most reflected paths fail the range window or elevation.
-        if not (oa >= range_min and oa < range_max):
-            continue
-        el_deg = rz / oa
-        if el_deg > 1.0:
-            el_deg = 1.0
-        elif el_deg < -1.0:
-            el_deg = -1.0
-        el_deg = asin(el_deg) * rad2deg
-        if not fabs(el_deg) <= half_elevation_deg:
-            continue
-        az_deg = atan2(ry, rx) * rad2deg
-        b = beam_of(edges, az_deg)
+        b = beam_in_view(rx, ry, rz, range_min, range_max, half_elevation_deg, edges, &oa)
         if b >= 0:
             r23[i] = 0.5 * (oa + oa_v)
             e23[i] = specular * c
@@ -962,8 +972,8 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
     """
     cdef Py_ssize_t k, i, m = 0, n = live.shape[0], K = tx_planes.shape[0], j, q, P = plane_normal.shape[0]
     cdef int c, s, last = tx_planes[K - 1] if K > 0 else -1, rank_tx = rank[tx] if not same else 0
-    cdef double ax, ay, az_, ux, uy, uz, vx, vy, vz, length, el, azd, e, t, wx, wy, wz, tx_, ty, tz
-    cdef double rad2deg = 180.0 / M_PI, denom, tol
+    cdef double ax, ay, az_, ux, uy, uz, vx, vy, vz, length, t, wx, wy, wz, tx_, ty, tz
+    cdef double denom, tol
     cdef Py_ssize_t b
     cdef bint ok
     cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
@@ -994,19 +1004,7 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
             vx = rotation[0, 0] * ux + rotation[1, 0] * uy + rotation[2, 0] * uz
             vy = rotation[0, 1] * ux + rotation[1, 1] * uy + rotation[2, 1] * uz
             vz = rotation[0, 2] * ux + rotation[1, 2] * uy + rotation[2, 2] * uz
-            length = sqrt(vx * vx + vy * vy + vz * vz)
-            if not (length >= range_min and length < range_max):
-                continue
-            el = vz / length
-            if el > 1.0:
-                el = 1.0
-            elif el < -1.0:
-                el = -1.0
-            el = asin(el) * rad2deg
-            if not fabs(el) <= half_elevation_deg:
-                continue
-            azd = atan2(vy, vx) * rad2deg
-            b = beam_of(edges, azd)
+            b = beam_in_view(vx, vy, vz, range_min, range_max, half_elevation_deg, edges, &length)
             if b < 0:
                 continue
             # Walk back from A towards the sonar's images: each reflection point must lie on
