@@ -128,3 +128,28 @@ def test_a_released_caster_is_not_cast_through():
     sim.caster.release()
     with pytest.raises(SonarsimError, match="released"):
         sim.render()
+
+
+def test_a_sonar_with_as_many_rays_but_other_beams_gets_its_own_workspace():
+    """64 beams x 366 elevation rays are as many rays as the demo's 128 x 183: a workspace kept
+    for the ray count alone gave the second sonar the first one's beam of each ray."""
+    from dataclasses import replace
+
+    for doc in (demo_scene_dict(), _with_surface(demo_scene_dict())):
+        sim = sonarsim.Simulator(doc)
+        a = sim.scene.sonar
+        angles = np.linspace(max(a.beam_angles_deg), min(a.beam_angles_deg), 64)
+        b = replace(a, beam_angles_deg=tuple(angles), elevation_fov_deg=27.95)
+        assert sim.ray_fan(b).n_rays == sim.ray_fan(a).n_rays and sim.ray_fan(b).shape[0] != sim.ray_fan(a).shape[0]
+        sim.render(keep_rays=False)
+        got = sim.render(sonar=b, keep_rays=False).polar
+        with sonarsim.Simulator(doc) as fresh:
+            np.testing.assert_array_equal(got, fresh.render(sonar=b, keep_rays=False).polar)
+        sim.close()
+
+
+def _with_surface(doc):
+    doc = copy.deepcopy(doc)
+    doc["planes"] = [{"name": "surface", "point_m": [0.0, 0.0, 2.0], "normal": [0.0, 0.0, -1.0], "albedo": 0.0,
+                      "specular": 0.9}]
+    return doc

@@ -51,10 +51,25 @@ def _law_args(laws: SurfaceLaws, hits) -> tuple:
 
 
 class Workspace:
-    """Per-frame arrays, kept between frames of the same ray count (no allocation per frame)."""
+    """Per-frame arrays, kept between frames of the same fan layout (no allocation per frame)."""
+
+    @classmethod
+    def for_fan(cls, work: "Workspace | None", fan: RayFan) -> "Workspace":
+        """``work`` where it fits ``fan`` (the same rays per beam and beams), else a new one.
+
+        The ray count alone is not enough: a sonar with other beams can cast as many rays (64
+        beams x 366 elevation rays against 128 x 183), and the per-ray beam index would be the
+        other sonar's.
+        """
+        n_beams = fan.shape[0]
+        per_beam = fan.n_rays // n_beams
+        if work is not None and work.layout == (fan.n_rays, n_beams, per_beam):
+            return work
+        return cls(fan.n_rays, n_beams, per_beam)
 
     def __init__(self, n: int, n_beams: int, n_per_beam: int) -> None:
         self.n = n
+        self.layout = (n, n_beams, n_per_beam)
         self.d64 = np.empty((n, 3))
         self.d32 = np.empty((n, 3), dtype=np.float32)
         self.o32 = np.empty((n, 3), dtype=np.float32)

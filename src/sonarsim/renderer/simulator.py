@@ -260,8 +260,7 @@ class Simulator:
         reflected rays over both cores in batches and keep the ground-only demo at its frame
         rate. A specialisation to retire once the general path is as fast.
         """
-        if self._work is None or self._work.n != fan.n_rays:
-            self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, fan.n_rays // sonar.n_beams)
+        self._work = compiled.Workspace.for_fan(self._work, fan)
         render = self.scene.render
         stack, total = compiled.render_fast(self.caster, sonar, pose, fan, self.scene.ground, render, self._laws,
                                             reach, multipath, self._work, pool=self._pool,
@@ -289,8 +288,7 @@ class Simulator:
         if render.double_line_of_sight:
             occlusion = functools.partial(drop_occluded, table=table, view=view, active=active, caster=self.caster)
         if self.kernels == "compiled":
-            if self._work is None or self._work.n != fan.n_rays:
-                self._work = compiled.Workspace(fan.n_rays, sonar.n_beams, per_beam)
+            self._work = compiled.Workspace.for_fan(self._work, fan)
             stack = np.zeros((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
             legs, sets = compiled.render_paths(
                 self.caster, self.planes, active, sonar, pose, fan, self._work, weight, self._laws, render, reach,
