@@ -384,7 +384,8 @@ cdef void cast_rays(void* scene, const float* o, Py_ssize_t o_step, const float*
                     int* prim, float* uv, Py_ssize_t n, bint coherent) noexcept nogil:
     """Cast ``n`` rays in packets of 8 and write each packet's hits at once.
 
-    The rays are as for :func:`load_rays`; ``distance`` (n), ``mesh_id`` (n) and ``normal``
+    The rays are as for :func:`load_rays` (which the canary probes use; this loop loads only
+    what changes from packet to packet); ``distance`` (n), ``mesh_id`` (n) and ``normal``
     (n x 3) receive the hits, ``prim`` (n) and ``uv`` (n x 2) too where not NULL. This is the
     one packet loop: :meth:`Scene.cast` runs it, and the compiled kernels call it by address
     (:func:`cast_rays_address`) to cast in the middle of their own loops.
@@ -400,10 +401,29 @@ cdef void cast_rays(void* scene, const float* o, Py_ssize_t o_step, const float*
     memset(&args, 0, sizeof(args))
     args.flags = RTC_RAY_QUERY_FLAG_COHERENT if coherent else RTC_RAY_QUERY_FLAG_INCOHERENT
     args.feature_mask = RTC_FEATURE_FLAG_ALL
+    # Embree writes only tfar and the hit fields, and those only on a hit (rtcIntersect1(3)):
+    # what every ray shares (tnear, time, id, flags: 0; mask; a shared origin) is set once.
+    for k in range(8):
+        rh.ray.mask[k] = 0xFFFFFFFF
+        if o_step == 0:
+            rh.ray.org_x[k] = o[0]
+            rh.ray.org_y[k] = o[1]
+            rh.ray.org_z[k] = o[2]
     start = 0
     while start < n:
         m = <int>(n - start) if n - start < 8 else 8
-        load_rays(&rh, o, o_step, d, tfar, tfar_step, start, m)
+        for k in range(m):
+            i = start + k
+            if o_step != 0:
+                rh.ray.org_x[k] = o[i * o_step]
+                rh.ray.org_y[k] = o[i * o_step + 1]
+                rh.ray.org_z[k] = o[i * o_step + 2]
+            rh.ray.dir_x[k] = d[3 * i]
+            rh.ray.dir_y[k] = d[3 * i + 1]
+            rh.ray.dir_z[k] = d[3 * i + 2]
+            rh.ray.tfar[k] = tfar[i * tfar_step]
+            # A lane's hit fields keep the last hit; geomID left invalid tells a miss.
+            rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID
         packet_mask(&valid, m)
         api.rtcIntersect8(valid.v, scene, &rh, &args)
         # Fused: the packet is still in L1; write what Hits needs (as _kernels.embree_hits does).
