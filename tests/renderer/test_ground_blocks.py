@@ -125,9 +125,13 @@ def test_ground_blocks_refuse_misuse():
 def test_a_released_caster_is_not_cast_through():
     sim = sonarsim.Simulator(demo_scene_dict())
     sim.render()
+    blocks = sim._work.ground_blocks[3]
     sim.caster.release()
     with pytest.raises(SonarsimError, match="released"):
         sim.render()
+    # Nor by the fused blocks already built on it (the Embree scene is freed).
+    with pytest.raises(SonarsimError, match="closed"):
+        blocks.block(0, 4)
 
 
 def test_a_sonar_with_as_many_rays_but_other_beams_gets_its_own_workspace():

@@ -703,8 +703,9 @@ cdef class GroundBlocks:
         for k in range(self.n_total_rows):
             self.total_rows[k] = rows[k]
         self.total = total
-        if self.fan_dirs.shape[0] != n_beams * n_az * n_el or self.beam.shape[0] != self.fan_dirs.shape[0]:
-            raise ValueError("the fan's shape does not match the workspace")
+        if (self.fan_dirs.shape[0] != n_beams * n_az * n_el or self.beam.shape[0] != self.fan_dirs.shape[0]
+                or self.beam[self.beam.shape[0] - 1] != n_beams - 1):
+            raise ValueError("the fan's shape does not match the workspace (its beams, or its rays per beam)")
         self.out, self.rotation, self.edges = out, rotation, edges
         self.ox, self.oy, self.oz = ox, oy, oz
         self.origin32[0], self.origin32[1], self.origin32[2] = <float>ox, <float>oy, <float>oz
@@ -719,6 +720,7 @@ cdef class GroundBlocks:
         none, and the mirror outputs of the block were not cleared)."""
         if not self.ready:
             raise ValueError("call frame() first")
+        self.keep[0].address()  # raises once the caster released the Embree scene (no cast into freed memory)
         if not (0 <= b0 <= b1 <= self.n_beams):
             raise ValueError(f"beams {b0}:{b1} outside 0:{self.n_beams}")
         cdef Py_ssize_t c0 = b0 * self.n_az, c1 = b1 * self.n_az

@@ -8,8 +8,9 @@ trace its legs, cast the reflected rays (split over both cores while this one fo
 image), trace them, and so on up to ``max_order - 1`` reflections; then form and splat the paths.
 
 The ground alone at order 3 (:func:`render_fast`): the kernels ``primary``, ``mirror_paths``
-and ``splat`` written for the flat ground before the general engine, which pipeline the
-reflected rays in batches over both cores. Same images as the general path (the tests compare
+and ``splat`` written for the flat ground before the general engine, run over blocks of beams
+that the two cores take in turn; with the Embree 4 binding each block is one call of
+``_kernels.GroundBlocks``, which also casts. Same images as the general path (the tests compare
 them); kept as a specialisation until the general path is as fast on that case.
 """
 

@@ -81,6 +81,12 @@ class Simulator:
         they are tested against. ``compiled`` falls back to ``numpy`` (with a warning) when the
         extension is not built.
 
+    Notes
+    -----
+    A simulator is not thread-safe: it renders one frame at a time (it keeps the frame's
+    per-ray buffers and uses its own worker thread). Render from several threads with one
+    simulator each, or from several processes (:mod:`sonarsim.dataset` does).
+
     Examples
     --------
     >>> sim = Simulator("tank.yaml")                       # doctest: +SKIP
