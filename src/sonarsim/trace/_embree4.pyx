@@ -336,39 +336,53 @@ cdef void _on_error(void* user, int code, const char* msg) noexcept nogil:
 
 # ----- the packet loop ------------------------------------------------------------------------
 
+cdef inline void shared_fields(ss_RTCRayHit8* rh, const float* o, Py_ssize_t o_step) noexcept nogil:
+    """What every lane of every packet shares, set once: tnear, time, id, flags (0), the mask,
+    and the origin where all rays share one (``o_step`` 0). Embree writes only tfar and the hit
+    fields, and only on a hit (rtcIntersect1(3)), so these stay set from packet to packet."""
+    cdef int k
+    for k in range(8):
+        rh.ray.tnear[k] = 0.0
+        rh.ray.time[k] = 0.0
+        rh.ray.mask[k] = 0xFFFFFFFF
+        rh.ray.id[k] = 0
+        rh.ray.flags[k] = 0
+        if o_step == 0:
+            rh.ray.org_x[k] = o[0]
+            rh.ray.org_y[k] = o[1]
+            rh.ray.org_z[k] = o[2]
+
+
 cdef inline void load_rays(ss_RTCRayHit8* rh, const float* o, Py_ssize_t o_step, const float* d,
                            const float* tfar, Py_ssize_t tfar_step, Py_ssize_t start, int m) noexcept nogil:
-    """Rays ``start .. start + m`` into lanes ``0 .. m``; the other lanes keep what they held.
+    """Rays ``start .. start + m`` into lanes ``0 .. m`` (after :func:`shared_fields`); the
+    other lanes keep what they held.
 
-    Ray ``i`` starts at ``o + i * o_step`` (``o_step`` 3, or 0: one origin for all) along
-    ``d + 3 i``, up to ``tfar[i * tfar_step]`` (``tfar_step`` 1, or 0: one limit for all).
+    Ray ``i`` starts at ``o + i * o_step`` (``o_step`` 3, or 0: one origin for all, set by
+    :func:`shared_fields`) along ``d + 3 i``, up to ``tfar[i * tfar_step]`` (``tfar_step`` 1,
+    or 0: one limit for all). geomID is reset: a lane's hit fields keep its last hit, and
+    geomID left invalid tells a miss.
     """
     cdef int k
     cdef Py_ssize_t i
     for k in range(m):
         i = start + k
-        rh.ray.org_x[k] = o[i * o_step]
-        rh.ray.org_y[k] = o[i * o_step + 1]
-        rh.ray.org_z[k] = o[i * o_step + 2]
+        if o_step != 0:
+            rh.ray.org_x[k] = o[i * o_step]
+            rh.ray.org_y[k] = o[i * o_step + 1]
+            rh.ray.org_z[k] = o[i * o_step + 2]
         rh.ray.dir_x[k] = d[3 * i]
         rh.ray.dir_y[k] = d[3 * i + 1]
         rh.ray.dir_z[k] = d[3 * i + 2]
-        rh.ray.tnear[k] = 0.0
-        rh.ray.time[k] = 0.0
         rh.ray.tfar[k] = tfar[i * tfar_step]
-        rh.ray.mask[k] = 0xFFFFFFFF
-        rh.ray.id[k] = 0
-        rh.ray.flags[k] = 0
-        # Embree writes the hit only where it finds one: a miss is told by geomID left invalid.
         rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID
-        rh.hit.primID[k] = RTC_INVALID_GEOMETRY_ID
-        rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID
-        rh.hit.instPrimID[0][k] = RTC_INVALID_GEOMETRY_ID
 
 
 cdef inline void load_packet(ss_RTCRayHit8* rh, const float[:, ::1] o, const float[:, ::1] d,
                              const float[::1] tfar, Py_ssize_t start, int m) noexcept nogil:
-    """:func:`load_rays` from (n, 3) origins and directions and (n,) limits."""
+    """:func:`shared_fields` and :func:`load_rays` from (n, 3) origins and directions and (n,)
+    limits (the canary probe: one packet)."""
+    shared_fields(rh, &o[0, 0], 3)
     load_rays(rh, &o[0, 0], 3, &d[0, 0], &tfar[0], 1, start, m)
 
 
@@ -384,8 +398,7 @@ cdef void cast_rays(void* scene, const float* o, Py_ssize_t o_step, const float*
                     int* prim, float* uv, Py_ssize_t n, bint coherent) noexcept nogil:
     """Cast ``n`` rays in packets of 8 and write each packet's hits at once.
 
-    The rays are as for :func:`load_rays` (which the canary probes use; this loop loads only
-    what changes from packet to packet); ``distance`` (n), ``mesh_id`` (n) and ``normal``
+    The rays are as for :func:`load_rays`; ``distance`` (n), ``mesh_id`` (n) and ``normal``
     (n x 3) receive the hits, ``prim`` (n) and ``uv`` (n x 2) too where not NULL. This is the
     one packet loop: :meth:`Scene.cast` runs it, and the compiled kernels call it by address
     (:func:`cast_rays_address`) to cast in the middle of their own loops.
@@ -401,29 +414,11 @@ cdef void cast_rays(void* scene, const float* o, Py_ssize_t o_step, const float*
     memset(&args, 0, sizeof(args))
     args.flags = RTC_RAY_QUERY_FLAG_COHERENT if coherent else RTC_RAY_QUERY_FLAG_INCOHERENT
     args.feature_mask = RTC_FEATURE_FLAG_ALL
-    # Embree writes only tfar and the hit fields, and those only on a hit (rtcIntersect1(3)):
-    # what every ray shares (tnear, time, id, flags: 0; mask; a shared origin) is set once.
-    for k in range(8):
-        rh.ray.mask[k] = 0xFFFFFFFF
-        if o_step == 0:
-            rh.ray.org_x[k] = o[0]
-            rh.ray.org_y[k] = o[1]
-            rh.ray.org_z[k] = o[2]
+    shared_fields(&rh, o, o_step)
     start = 0
     while start < n:
         m = <int>(n - start) if n - start < 8 else 8
-        for k in range(m):
-            i = start + k
-            if o_step != 0:
-                rh.ray.org_x[k] = o[i * o_step]
-                rh.ray.org_y[k] = o[i * o_step + 1]
-                rh.ray.org_z[k] = o[i * o_step + 2]
-            rh.ray.dir_x[k] = d[3 * i]
-            rh.ray.dir_y[k] = d[3 * i + 1]
-            rh.ray.dir_z[k] = d[3 * i + 2]
-            rh.ray.tfar[k] = tfar[i * tfar_step]
-            # A lane's hit fields keep the last hit; geomID left invalid tells a miss.
-            rh.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID
+        load_rays(&rh, o, o_step, d, tfar, tfar_step, start, m)
         packet_mask(&valid, m)
         api.rtcIntersect8(valid.v, scene, &rh, &args)
         # Fused: the packet is still in L1; write what Hits needs (as _kernels.embree_hits does).
@@ -479,10 +474,11 @@ cdef void cast_chunk_raw(void* scene, const float[:, ::1] o, const float[:, ::1]
     memset(&args, 0, sizeof(args))
     args.flags = RTC_RAY_QUERY_FLAG_COHERENT if coherent else RTC_RAY_QUERY_FLAG_INCOHERENT
     args.feature_mask = RTC_FEATURE_FLAG_ALL
+    shared_fields(&rh, &o[0, 0], 3)
     start = 0
     while start < n:
         m = <int>(n - start) if n - start < 8 else 8
-        load_packet(&rh, o, d, tfar, start, m)
+        load_rays(&rh, &o[0, 0], 3, &d[0, 0], &tfar[0], 1, start, m)
         packet_mask(&valid, m)
         api.rtcIntersect8(valid.v, scene, &rh, &args)
         for k in range(m):
