@@ -113,6 +113,17 @@ def terrain_scene(n_triangles: int) -> sonarsim.Scene:
                           render=base.render)
 
 
+def with_elevation_samples(scene, n: int):
+    """``scene`` (a dict or a Scene) with ``render.elevation_samples = n`` (a copy)."""
+    if isinstance(scene, dict):
+        doc = copy.deepcopy(scene)
+        doc["render"]["elevation_samples"] = n
+        return doc
+    from dataclasses import replace
+
+    return replace(scene, render=replace(scene.render, elevation_samples=n))
+
+
 def demo_with(**sonar) -> dict:
     """The demo tank with other sonar intrinsics (``n_beams``, ``n_range_bins``, ...)."""
     doc = demo_scene_dict()
@@ -431,55 +442,29 @@ def main(argv=None) -> int:
 
     results["peak_memory_b"] = peak_memory(scene_with_mesh(n_mesh))
 
-    # Sweeps: cost against rays (elevation samples) and against triangles.
-    sweep_rays = []
-    for n_el in ((8, 16) if quick else (50, 100, 200, 400, 800)):
-        doc = copy.deepcopy(demo)
-        doc["render"]["elevation_samples"] = n_el
-        r = measure(f"rays: {n_el} per beam", doc, max(2, repeats // 3))
-        sweep_rays.append({k: r[k] for k in ("rays_per_frame", "frame_ms", "bare_cast_ms")} | {"elevation_samples": n_el})
-    results["sweep_rays"] = sweep_rays
-    sweep_tris = []
-    for n_tri in ((500, 2_000) if quick else (1_000, 10_000, 100_000, 500_000, 2_000_000)):
-        sc = scene_with_mesh(n_tri)
-        if quick:
-            from dataclasses import replace
-            sc = replace(sc, render=replace(sc.render, elevation_samples=16))
-        r = measure(f"mesh: {n_tri} triangles", sc, max(2, repeats // 3))
-        sweep_tris.append({k: r[k] for k in ("triangles", "frame_ms", "bare_cast_ms")})
-    results["sweep_triangles"] = sweep_tris
-    sweep_planes = []
-    for n_planes in ((1, 3) if quick else (1, 2, 3, 4, 5, 6)):
-        doc = tank_scene(n_planes)
-        if quick:
-            doc["render"]["elevation_samples"] = 16
-        r = measure(f"planes: {n_planes}", doc, max(2, repeats // 3))
-        sweep_planes.append({k: r[k] for k in ("rays_per_frame", "frame_ms", "bare_cast_ms")} | {"planes": n_planes})
-    results["sweep_planes"] = sweep_planes
-    sweep_order = []
-    for order in ((1, 3) if quick else (1, 2, 3, 4, 5)):
-        doc = tank_scene(6, order)
-        if quick:
-            doc["render"]["elevation_samples"] = 16
-        r = measure(f"order: {order}", doc, max(2, repeats // 3))
-        sweep_order.append({k: r[k] for k in ("rays_per_frame", "frame_ms", "bare_cast_ms")} | {"max_order": order})
-    results["sweep_order"] = sweep_order
-    sweep_beams = []
-    for beams in ((32, 64) if quick else (64, 128, 256, 512, 1024)):
-        doc = demo_with(n_beams=beams)
-        if quick:
-            doc["render"]["elevation_samples"] = 16
-        r = measure(f"beams: {beams}", doc, max(2, repeats // 3))
-        sweep_beams.append({k: r[k] for k in ("rays_per_frame", "frame_ms", "bare_cast_ms")} | {"beams": beams})
-    results["sweep_beams"] = sweep_beams
-    sweep_bins = []
-    for bins in ((322, 644) if quick else (322, 1288, 4000, 8000)):
-        doc = demo_with(n_range_bins=bins)
-        if quick:
-            doc["render"]["elevation_samples"] = 16
-        r = measure(f"bins: {bins}", doc, max(2, repeats // 3))
-        sweep_bins.append({k: r[k] for k in ("frame_ms", "bare_cast_ms")} | {"range_bins": bins})
-    results["sweep_bins"] = sweep_bins
+    # Sweeps: frame time against one parameter at a time (the cost model below fits them).
+    def sweep(name, key, values, scene_of, fields=("rays_per_frame", "frame_ms", "bare_cast_ms")):
+        rows = []
+        for value in values:
+            sc = scene_of(value)
+            if quick and key != "elevation_samples":
+                sc = with_elevation_samples(sc, 16)
+            r = measure(f"{name}: {value}", sc, max(2, repeats // 3))
+            rows.append({k: r[k] for k in fields} | ({} if key in fields else {key: value}))
+        return rows
+
+    sweep_rays = sweep("rays per beam", "elevation_samples", (8, 16) if quick else (50, 100, 200, 400, 800),
+                       lambda n_el: with_elevation_samples(demo, n_el))
+    sweep_tris = sweep("mesh triangles", "triangles", (500, 2_000) if quick else (1_000, 10_000, 100_000, 500_000, 2_000_000),
+                       scene_with_mesh, ("triangles", "frame_ms", "bare_cast_ms"))
+    sweep_planes = sweep("planes", "planes", (1, 3) if quick else (1, 2, 3, 4, 5, 6), tank_scene)
+    sweep_order = sweep("order", "max_order", (1, 3) if quick else (1, 2, 3, 4, 5), lambda order: tank_scene(6, order))
+    sweep_beams = sweep("beams", "beams", (32, 64) if quick else (64, 128, 256, 512, 1024),
+                        lambda beams: demo_with(n_beams=beams))
+    sweep_bins = sweep("bins", "range_bins", (322, 644) if quick else (322, 1288, 4000, 8000),
+                       lambda bins: demo_with(n_range_bins=bins), ("frame_ms", "bare_cast_ms"))
+    results.update(sweep_rays=sweep_rays, sweep_triangles=sweep_tris, sweep_planes=sweep_planes,
+                   sweep_order=sweep_order, sweep_beams=sweep_beams, sweep_bins=sweep_bins)
     # The cost model: frame time ~ x ** exponent along each sweep (least squares in log-log).
     def model(rows, key):
         return {"frame": fitted_exponent([r[key] for r in rows], [r["frame_ms"] for r in rows]),
