@@ -361,3 +361,66 @@ def test_render_backend_choices_give_the_same_image(capsys, tmp_path: Path, tiny
     assert polar["embree"].max() > 0
     code, _, err = run_main(capsys, "render", str(tiny_scene), "--out", str(tmp_path / "x"), "--backend", "optix")
     assert code != 0 and "backend" in err and "embreex" in err
+
+
+# --------------------------------------------------------------------------- warnings
+
+# The sonar at z 1 m above a surface at 0.5 m whose normal points down (away from it): the
+# simulator warns that the sonar is on the plane's dry side.
+DRY_SIDE_WARNING = ("sonarsim: warning: the sonar is on the dry side of the planes 'surface' (their normals point "
+                    "away from it): for this sonar they neither echo nor reflect, and it sees through them")
+
+
+@pytest.fixture()
+def dry_side_scene(tmp_path: Path) -> Path:
+    doc = dict(TINY_SCENE, planes=[{"name": "surface", "point_m": [0, 0, 0.5], "normal": [0, 0, -1],
+                                    "albedo": 0.0, "specular": 0.9}])
+    path = tmp_path / "dry.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def _warning_lines(stderr: str) -> list[str]:
+    """Lines of stderr that are, or look like, warnings: ours, or Python's raw ``UserWarning:``."""
+    return [line for line in stderr.splitlines() if "warning:" in line.lower()]
+
+
+def test_a_warning_is_one_sonarsim_line(tmp_path: Path, dry_side_scene: Path) -> None:
+    proc = run_cli("render", dry_side_scene, "--out", tmp_path / "out", "--no-figures")
+    assert proc.returncode == 0, proc.stderr
+    # Python's own form would add "render.py:182: UserWarning: ..." and the line of code.
+    assert _warning_lines(proc.stderr) == [DRY_SIDE_WARNING]
+    assert ".py:" not in proc.stderr and "Simulator(" not in proc.stderr
+
+
+def test_dataset_workers_warn_in_the_same_form(tmp_path: Path, dry_side_scene: Path) -> None:
+    scenario = tmp_path / "scenario.yaml"
+    scenario.write_text(yaml.safe_dump({
+        "seed": 1, "scene": dry_side_scene.name,
+        "trajectory": {"rate_hz": 2.0, "generate": {"kind": "orbit", "centre_m": [2, 0, 0], "radius_m": 1.0,
+                                                     "z_m": 1.0, "frames": 4}}}))
+    proc = run_cli("dataset", scenario, "--out", tmp_path / "ds", "--workers", "2", "--labels", "none",
+                   "--no-progress")
+    assert proc.returncode == 0, proc.stderr
+    # One line from each worker process that built the scene's simulator.
+    lines = _warning_lines(proc.stderr)
+    assert 1 <= len(lines) <= 2 and set(lines) == {DRY_SIDE_WARNING}, proc.stderr
+
+
+def test_a_logged_warning_is_one_sonarsim_line(tmp_path: Path, tiny_scene: Path) -> None:
+    # The Embree 4 binding made to fail: the ray casters' module logs its fallback.
+    script = (
+        "import sys\n"
+        "import sonarsim.trace.embree4 as embree4\n"
+        "from sonarsim.errors import SonarsimError\n"
+        "def fail():\n"
+        "    raise SonarsimError('no Embree 4 library in this test')\n"
+        "embree4.load_binding = fail\n"
+        "from sonarsim.cli.main import console_main\n"
+        f"sys.argv = ['sonarsim', 'render', {str(tiny_scene)!r}, '--out', {str(tmp_path / 'out')!r}, '--no-figures']\n"
+        "console_main()\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert _warning_lines(proc.stderr) == [
+        "sonarsim: warning: Embree 4 binding unavailable (no Embree 4 library in this test); using embreex's caster"]

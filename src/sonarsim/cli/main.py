@@ -1,7 +1,8 @@
 """Command-line interface: a thin layer over the library; one module per command.
 
 Results go to files; progress and timing go to stderr. Bad input ends with a one-line message
-naming the key or file, exit status 2, and no traceback. Ctrl-C, SIGTERM and SIGHUP end the
+naming the key or file, exit status 2, and no traceback. A warning (Python's ``warnings`` or a
+sonarsim logger's) is one line, ``sonarsim: warning: ...``. Ctrl-C, SIGTERM and SIGHUP end the
 command cleanly (temporary files removed, the run recorded as interrupted) with a one-line
 message and exit status 128 + the signal's number (130, 143, 129).
 """
@@ -10,10 +11,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import os
 import signal
 import sys
-from typing import Iterator, Sequence
+import warnings
+from typing import Iterator, Sequence, TextIO
 
 from ..errors import SonarsimError, interrupt_of
 
@@ -55,6 +58,73 @@ def _stop_signals_raise() -> Iterator[None]:
 
 def _log(msg: str) -> None:
     print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
+
+
+def _one_line(text: str) -> str:
+    """``text`` with every run of whitespace (newlines too) as one space: a message is one line."""
+    return " ".join(str(text).split())
+
+
+def show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                 file: TextIO | None = None, line: str | None = None) -> None:
+    """:func:`warnings.showwarning` for the command line: ``sonarsim: warning: MESSAGE``.
+
+    Python's own format names the source file and line that warned and repeats that line of
+    code, which says nothing to someone running a command. The category is added only when it
+    is not the plain :class:`UserWarning` sonarsim raises (e.g. a NumPy ``RuntimeWarning``),
+    where it tells what kind of problem it is.
+
+    Parameters
+    ----------
+    message, category, filename, lineno, file, line
+        As :func:`warnings.showwarning` receives them; ``file`` defaults to ``sys.stderr``
+        at the time of the warning.
+    """
+    stream = file if file is not None else sys.stderr
+    if stream is None:  # pythonw, or stderr closed by the caller: nowhere to say it
+        return
+    kind = "" if category is UserWarning else f" ({category.__name__})"
+    try:
+        stream.write(f"sonarsim: warning: {_one_line(message)}{kind}\n")
+        stream.flush()
+    except (OSError, ValueError):  # a closed or broken stderr must not end the command
+        pass
+
+
+class WarningLogHandler(logging.Handler):
+    """Log records of sonarsim's loggers as ``sonarsim: warning: MESSAGE`` (or ``error``) lines
+    on ``sys.stderr``, the same form as :func:`show_warning` gives Python warnings.
+
+    ``sys.stderr`` is looked up at each record (not kept), so a redirected stderr is honoured.
+    """
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            level = "warning" if record.levelno < logging.ERROR else "error"
+            stream = sys.stderr
+            if stream is not None:
+                stream.write(f"sonarsim: {level}: {_one_line(record.getMessage())}\n")
+                stream.flush()
+        except Exception:  # noqa: BLE001 - logging's own rule: a handler never raises
+            self.handleError(record)
+
+
+def install_warning_format() -> None:
+    """Show Python warnings and sonarsim's log warnings as one ``sonarsim: warning: ...`` line.
+
+    Done by the ``sonarsim`` executable (:func:`console_main`) only, not by :func:`main`:
+    a program or test calling :func:`main` keeps its own warning machinery (pytest records
+    warnings by the very hook this replaces).
+    """
+    warnings.showwarning = show_warning
+    logger = logging.getLogger("sonarsim")
+    if not any(isinstance(h, WarningLogHandler) for h in logger.handlers):
+        handler = WarningLogHandler(logging.WARNING)
+        logger.addHandler(handler)
+    # Without a level of its own the logger would follow the root's (WARNING unless changed);
+    # set it so that warnings are shown whatever the root logger says.
+    if logger.level == logging.NOTSET:
+        logger.setLevel(logging.WARNING)
 
 
 def _memory_size(text: str) -> int:
@@ -159,10 +229,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 def console_main() -> None:
     """The ``sonarsim`` executable (and ``python -m sonarsim``): :func:`main`, then exit.
 
+    Warnings are shown as one ``sonarsim: warning: ...`` line each (:func:`install_warning_format`).
+
     A command stopped by a signal exits at once with 128 + its number, after flushing its
     output: the interpreter's own shutdown, which may still see the interrupt that the command
     handled (one that arrived during an import), would otherwise end the process by SIGINT.
     """
+    install_warning_format()
     code = main()
     if code >= 128:
         sys.stdout.flush()

@@ -21,6 +21,7 @@ import multiprocessing
 import os
 import threading
 import time
+import warnings
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -87,8 +88,20 @@ def _exit_with_parent(parent: int) -> None:
     os._exit(1)
 
 
+def _cli_warnings() -> bool:
+    """Whether this process shows warnings in the command line's one-line form
+    (:func:`sonarsim.cli.main.install_warning_format`), which its workers should then share."""
+    return getattr(warnings.showwarning, "__module__", None) == "sonarsim.cli.main"
+
+
 def _init_worker(scenario: Scenario, options: Any, width: int, threads: int | None, parent: int,
-                 out: Any = None) -> None:
+                 out: Any = None, cli_warnings: bool = False) -> None:
+    if cli_warnings:
+        # A worker starts from the fork server, not from the command: without this its
+        # warnings (a plane facing away, say) would print in Python's raw form.
+        from ..cli.main import install_warning_format
+
+        install_warning_format()
     _STATE.update(scenario=scenario, options=options, width=width, cache=SimulatorCache(threads=threads), out=out)
     threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
 
@@ -162,7 +175,8 @@ def encoded_frames(scenario: Scenario, indices: Sequence[int], options: Any, wid
     tasks = batches(indices, batch_size)
     context = worker_context()
     pool = cf.ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker,
-                                  initargs=(scenario, options, width, threads, os.getpid(), out))
+                                  initargs=(scenario, options, width, threads, os.getpid(), out,
+                                            _cli_warnings()))
     try:
         pending: set[cf.Future] = set()
         queue = iter(tasks)
