@@ -110,6 +110,24 @@ def test_compare_through_the_main_cli_exits_2_without_traceback(capsys, npz_file
     assert "ranges" in err and "Traceback" not in err
 
 
+def test_compare_help_promises_what_out_writes(capsys, tmp_path, npz_files):
+    """compare writes one figure and no exact-pixel images: its help says so, and --out holds
+    just that figure (and the run record), or nothing with --no-figures."""
+    with pytest.raises(SystemExit):
+        _parser().parse_args(["compare", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "only the exact-pixel images" not in help_text
+    assert "compare_figure.png into DIR, compare's only image (no exact-pixel PNGs)" in help_text
+    assert "--no-figures write no figure (this command writes no other image" in help_text
+
+    out = tmp_path / "out"
+    _run(capsys, npz_files["full"], npz_files["half"], "--out", out)
+    assert sorted(p.name for p in out.iterdir()) == ["compare_figure.png", "sonarsim-run.json"]
+    quiet = tmp_path / "quiet"
+    _run(capsys, npz_files["full"], npz_files["half"], "--out", quiet, "--no-figures")
+    assert not quiet.exists() or not any(quiet.iterdir())
+
+
 def test_compare_real_oculus_pings(capsys, shared_data):
     """Real recordings through sonarsim.io.readers: a ping equals itself, and differs from the next."""
     three = shared_data / "real" / "oculus" / "three_pings_8bit.raw"

@@ -88,12 +88,13 @@ def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print JSON instead of a table (infinite PSNR and undefined SSIM as null)")
     p.add_argument("--out", default=None, metavar="DIR",
-                   help="also write the annotated figure compare_figure.png into DIR (A | B side by side on the "
-                   "scale the metrics see: each image over its maximum, or as stored with --normalize none; "
-                   "both in a device's counts when both are), then DIR/sonarsim-run.json")
+                   help="also write the annotated figure compare_figure.png into DIR, compare's only image (no "
+                   "exact-pixel PNGs): A | B side by side on the "
+                   "scale the metrics see (each image over its maximum, or as stored with --normalize none; "
+                   "both in a device's counts when both are); then DIR/sonarsim-run.json")
     from .figures import add_figure_options
 
-    add_figure_options(p)
+    add_figure_options(p, exact_pixels=False)  # compare writes its figure and nothing else
     p.set_defaults(func=cmd_compare)
     return p
 

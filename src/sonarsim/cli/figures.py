@@ -1,6 +1,8 @@
 """The annotated figures the commands write next to their exact-pixel PNGs, and their options.
 
-``render``, ``demo``, ``show``, ``compare``, ``fit`` and ``calibrate`` write figures made by
+``render``, ``demo``, ``show``, ``fit`` and ``calibrate`` write figures made by
+:mod:`sonarsim.plot.figures` beside exact-pixel PNGs; ``compare --out`` writes its figure alone
+(``compare_figure.png``). All of them write figures made by
 :mod:`sonarsim.plot.figures` (``fan_figure.png``, ``polar_figure.png``, ...). Their names are
 planned with the command's :class:`~sonarsim.io.run_record.OutputRun` before any work, from
 :func:`figure_names`, so the run's record lists them and stale ones are removed; each is
@@ -37,8 +39,17 @@ def _colormap(text: str) -> str:
     return "grey" if name == "gray" else name
 
 
-def add_figure_options(p: argparse.ArgumentParser) -> None:
-    """``--figure-format``, ``--colormap`` and ``--no-figures``."""
+def add_figure_options(p: argparse.ArgumentParser, exact_pixels: bool = True) -> None:
+    """``--figure-format``, ``--colormap`` and ``--no-figures``.
+
+    Parameters
+    ----------
+    p : argparse.ArgumentParser
+        The command's parser.
+    exact_pixels : bool
+        Whether the command also writes exact-pixel images, which ``--no-figures`` leaves; a
+        command that writes only figures (``compare``) says so in the help instead.
+    """
     from ..plot.style import COLORMAPS, DEFAULT_COLORMAP
 
     g = p.add_argument_group("figures (annotated, for people: axes in metres and degrees, colour bar, title)")
@@ -47,7 +58,9 @@ def add_figure_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--colormap", type=_colormap, choices=COLORMAPS, default=DEFAULT_COLORMAP,
                    help=f"colour map of the figures (default: {DEFAULT_COLORMAP}, perceptually uniform; grey: "
                    "the device's look)")
-    g.add_argument("--no-figures", action="store_true", help="write no figures, only the exact-pixel images")
+    g.add_argument("--no-figures", action="store_true",
+                   help="write no figures, only the exact-pixel images" if exact_pixels else
+                   "write no figure (this command writes no other image: with --no-figures, --out writes nothing)")
 
 
 def figure_formats(args: argparse.Namespace) -> tuple[str, ...]:
