@@ -449,10 +449,11 @@ class Scene:
     def __post_init__(self) -> None:
         object.__setattr__(self, "objects", tuple(self.objects))
         object.__setattr__(self, "planes", tuple(self.planes))
-        names = [o.name for o in self.objects]
-        for i, name in enumerate(names):
-            if name in names[:i]:
-                raise ConfigError(f"objects[{i}].name", f"duplicate object name {shown(name)}; names must be unique")
+        seen: set[str] = set()  # a set: 20,000 objects took 8 s with a list
+        for i, obj in enumerate(self.objects):
+            if obj.name in seen:
+                raise ConfigError(f"objects[{i}].name", f"duplicate object name {shown(obj.name)}; names must be unique")
+            seen.add(obj.name)
         taken = ["ground"] if self.ground is not None else []
         for i, plane in enumerate(self.planes):
             if plane.name in taken:

@@ -18,10 +18,16 @@ import numpy as np
 from ..errors import MeshFileError, SonarsimError, check_input_file, shown
 from ..config.scene import ObjectSpec
 
-# Sphere tessellation: subdivision 4 gives 5120 faces, with facet normals within about 2 degrees
-# of the true normal -- far below what the elevation sampling resolves.
+# Primitive tessellation. A facet may lie at most PRIMITIVE_TOLERANCE_M inside the true
+# surface: well under a tenth of the finest range bin of the devices we model (an ARIS 3000 at
+# 5 m: 3.3 mm), and below what the elevation sampling resolves. Within that, the coarsest tessellation is
+# used, up to the finest below: a sphere of 5 cm or more keeps subdivision 4 (5120 faces, facet
+# normals within about 2 degrees), a 1 cm pebble gets 320 faces instead of 5120 (a scene of
+# 20,000 pebbles was 100 million triangles).
+PRIMITIVE_TOLERANCE_M = 2e-4
 SPHERE_SUBDIVISIONS = 4
 CYLINDER_SECTIONS = 64
+MIN_CYLINDER_SECTIONS = 8
 
 
 @dataclass(frozen=True)
@@ -154,20 +160,77 @@ def object_mesh_local(obj: ObjectSpec) -> TriangleMesh:
     """The object's mesh in its own coordinates, before scale and pose."""
     trimesh = _trimesh()
 
-    if obj.primitive == "box":
-        m = trimesh.creation.box(extents=obj.size_m)
-    elif obj.primitive == "sphere":
-        m = trimesh.creation.icosphere(subdivisions=SPHERE_SUBDIVISIONS, radius=obj.radius_m)
-    elif obj.primitive == "cylinder":
-        m = trimesh.creation.cylinder(radius=obj.radius_m, height=obj.height_m, sections=CYLINDER_SECTIONS)
-    elif isinstance(obj.mesh, trimesh.Trimesh):
+    if obj.primitive is not None:
+        # The tessellation follows the size the object is drawn at (its radius times its scale).
+        largest_scale = float(np.max(np.abs(np.asarray(obj.scale, dtype=float))))
+        return primitive_mesh(obj.primitive, obj.size_m, obj.radius_m, obj.height_m, largest_scale)
+    if isinstance(obj.mesh, trimesh.Trimesh):
         if len(obj.mesh.faces) == 0:
             raise MeshFileError(f"object {obj.name!r}: the in-memory mesh is empty")
         textured = _texture_of(obj.mesh, f"object {obj.name!r}") if obj.backscatter.texture else ()
         return TriangleMesh(np.asarray(obj.mesh.vertices, float), np.asarray(obj.mesh.faces, np.int32), *textured)
+    return load_mesh_file(obj.mesh, texture=obj.backscatter.texture)
+
+
+def sphere_subdivisions(radius_m: float) -> int:
+    """Icosphere subdivision level of a sphere primitive: the coarsest whose facets lie within
+    :data:`PRIMITIVE_TOLERANCE_M` of the sphere, at most :data:`SPHERE_SUBDIVISIONS`."""
+    for level in range(SPHERE_SUBDIVISIONS):
+        if radius_m * _icosphere_sag(level) <= PRIMITIVE_TOLERANCE_M:
+            return level
+    return SPHERE_SUBDIVISIONS
+
+
+def cylinder_sections(radius_m: float) -> int:
+    """Sections of a cylinder primitive: the fewest (a power of two from
+    :data:`MIN_CYLINDER_SECTIONS`) whose chords lie within :data:`PRIMITIVE_TOLERANCE_M` of the
+    circle, at most :data:`CYLINDER_SECTIONS`."""
+    sections = MIN_CYLINDER_SECTIONS
+    while sections < CYLINDER_SECTIONS and radius_m * (1.0 - np.cos(np.pi / sections)) > PRIMITIVE_TOLERANCE_M:
+        sections *= 2
+    return sections
+
+
+@functools.lru_cache(maxsize=None)
+def _icosphere_sag(level: int) -> float:
+    """How far inside the unit sphere an icosphere's face centres lie, at most."""
+    m = _trimesh().creation.icosphere(subdivisions=level, radius=1.0)
+    return float(1.0 - np.linalg.norm(m.triangles_center, axis=1).min())
+
+
+@functools.lru_cache(maxsize=256)
+def primitive_mesh(primitive: str, size_m=None, radius_m=None, height_m=None, scale: float = 1.0) -> TriangleMesh:
+    """A primitive's mesh in object coordinates (read-only arrays, cached: a scene of many equal
+    rocks builds one).
+
+    Parameters
+    ----------
+    primitive : {"box", "sphere", "cylinder"}
+    size_m : (3,) tuple of float, metres, for a box
+    radius_m, height_m : float, metres, for a sphere (radius) or a cylinder (both)
+    scale : float
+        The largest factor the object is scaled by: the tessellation is chosen for the radius
+        times this (the mesh itself is not scaled).
+
+    Returns
+    -------
+    TriangleMesh
+        Tessellated as :func:`sphere_subdivisions` and :func:`cylinder_sections` say.
+    """
+    trimesh = _trimesh()
+    if primitive == "box":
+        m = trimesh.creation.box(extents=size_m)
+    elif primitive == "sphere":
+        m = trimesh.creation.icosphere(subdivisions=sphere_subdivisions(radius_m * scale), radius=radius_m)
+    elif primitive == "cylinder":
+        m = trimesh.creation.cylinder(radius=radius_m, height=height_m, sections=cylinder_sections(radius_m * scale))
     else:
-        return load_mesh_file(obj.mesh, texture=obj.backscatter.texture)
-    return TriangleMesh(np.asarray(m.vertices, float), np.asarray(m.faces, np.int32))
+        raise ValueError(f"unknown primitive {primitive!r}")
+    vertices = np.asarray(m.vertices, float)
+    faces = np.asarray(m.faces, np.int32)
+    vertices.setflags(write=False)
+    faces.setflags(write=False)
+    return TriangleMesh(vertices, faces)
 
 
 def object_mesh_world(obj: ObjectSpec) -> TriangleMesh:
