@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 import sonarsim
@@ -162,3 +163,52 @@ def test_a_frames_images_rays_and_speckle_fields_must_fit_the_budget_together(mo
     assert f"{(images + rays + fields) / 2**30:.3g} GiB" in str(e.value)
     monkeypatch.setenv(memory.ENV_VAR, "36M")
     assert sonarsim.render(doc).polar.shape == (1288, 128)
+
+
+# Issue 21 item 3: no hang, no traceback, no silent nonsense ---------------------------------
+
+SONAR = {"n_beams": 16, "azimuth_fov_deg": 30, "elevation_fov_deg": 14, "range_min_m": 0.5, "range_max_m": 5.0,
+         "n_range_bins": 100}
+
+
+@pytest.mark.parametrize("value", [1e308, 1e7, 10000.5])
+def test_a_range_window_beyond_kilometres_is_refused(value, tmp_path):
+    # range_max_m 1e308 rendered an axis ending in inf with every echo in row 0.
+    with pytest.raises(ConfigError, match="at most 10000 metres") as e:
+        sonarsim.load_scene({"sonar": {**SONAR, "range_max_m": value}})
+    assert e.value.key == "sonar.range_max_m"
+    p = tmp_path / "far.yaml"
+    p.write_text(f"sonar: {{preset: aris3000-128, range_max_m: {value:.6e}}}\n")  # YAML 1.1 floats need the dot
+    with pytest.raises(ConfigError) as e:
+        sonarsim.load_scene(p)
+    assert e.value.key == "sonar.range_max_m" and str(p) in str(e.value)
+
+
+def test_the_longest_window_renders_finite_axes():
+    img = sonarsim.render({"sonar": {**SONAR, "range_min_m": 9000.0, "range_max_m": 1e4, "n_range_bins": 50},
+                           "render": {"elevation_samples": 4}})
+    assert np.all(np.isfinite(img.range_m)) and img.range_m[-1] < 1e4
+
+
+@pytest.mark.parametrize("sonar, key", [
+    ({"range_min_m": 9999.99, "range_max_m": 1e4, "n_range_bins": 100_000}, "sonar.n_range_bins"),
+    ({"range_min_m": 9999.99, "range_max_m": 1e4, "n_range_bins": None, "range_resolution_m": 1e-7},
+     "sonar.range_resolution_m"),
+])
+def test_range_bins_finer_than_float32_ranges_are_refused(sonar, key):
+    doc = {**SONAR, **sonar}
+    if doc["n_range_bins"] is None:
+        del doc["n_range_bins"]
+    with pytest.raises(ConfigError, match="finer than float32 ranges") as e:
+        sonarsim.load_scene({"sonar": doc})
+    assert e.value.key == key
+
+
+@pytest.mark.parametrize("resolution", [100.0, 4.5, 2.3])
+def test_a_resolution_that_leaves_fewer_than_two_bins_is_refused(resolution):
+    # 4.5 m over a 4.5 m window was a one-bin image.
+    sonar = {k: v for k, v in SONAR.items() if k != "n_range_bins"}
+    with pytest.raises(ConfigError, match=r"at most half the range window .*= 2.25 m") as e:
+        sonarsim.load_scene({"sonar": {**sonar, "range_resolution_m": resolution}})
+    assert e.value.key == "sonar.range_resolution_m"
+    assert sonarsim.load_scene({"sonar": {**sonar, "range_resolution_m": 2.25}}).sonar.n_range_bins == 2

@@ -349,12 +349,13 @@ def test_explicit_beam_table() -> None:
 
 @pytest.mark.parametrize(
     "r_min, r_max, res",
-    [(0.5, 5.0, 0.01), (0.5, 5.0, 0.007), (1.0, 2.0, 0.3), (0.0, 10.0, 0.0125), (0.5, 5.0, 100.0)],
+    [(0.5, 5.0, 0.01), (0.5, 5.0, 0.007), (1.0, 2.0, 0.3), (0.0, 10.0, 0.0125), (0.5, 5.0, 2.25)],
 )
 def test_range_resolution_gives_rounded_bin_count(r_min: float, r_max: float, res: float) -> None:
+    # A resolution coarser than half the window is refused (issue 21; tests/config/test_hostile_documents.py).
     doc = modified(*_resolution(res), (("sonar", "range_min_m"), r_min), (("sonar", "range_max_m"), r_max))
     sonar = load_scene(doc).sonar
-    assert sonar.n_range_bins == max(1, round((r_max - r_min) / res))
+    assert sonar.n_range_bins == max(2, round((r_max - r_min) / res))
     assert sonar.range_edges_m[0] == pytest.approx(r_min)
     assert sonar.range_edges_m[-1] == pytest.approx(r_max)
 

@@ -102,7 +102,7 @@ RANGES = [
     ("sonar.azimuth_fov_deg", closed(1.0, 179.0), beyond(0, 180, True, True)),
     # A range_min_m beyond range_max_m is refused naming range_max_m ("must be greater than ...").
     ("sonar.range_min_m", closed(0, 9.99), beyond(0, None)),
-    ("sonar.range_max_m", closed(0.51, 1e4), beyond(0.5, None, lo_open=True)),
+    ("sonar.range_max_m", closed(0.51, 1e4), beyond(0.5, 1e4, lo_open=True)),
     ("sonar.frequency_khz", closed(1, 1e5), beyond(1, 1e5)),
     ("sonar.beam_width_deg", open_(0, 90), beyond(0, 90, True, True)),
     ("ground.albedo", closed(0, 1), beyond(0, 1)),

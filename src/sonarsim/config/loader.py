@@ -22,7 +22,7 @@ from .materials import LAWS, Material, mu_from_db
 from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor
 from .scene import MAX_COORDINATE_M, GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene
-from .sonar import SonarConfig, beam_edges_deg
+from .sonar import MIN_RELATIVE_BIN_WIDTH, RangeBinError, SonarConfig, beam_edges_deg, check_range_window
 from ..core.transforms import Pose
 
 TOP_KEYS = ("sonar", "render", "ground", "planes", "objects", "sensor")
@@ -182,6 +182,8 @@ def parse_sonar_section(d: Any, base_dir: Path | None) -> tuple[SonarConfig, Pos
         raise ConfigError("sonar.range_resolution_m", "give either n_range_bins or range_resolution_m, not both")
     r_min = get("range_min_m", _number)
     r_max = get("range_max_m", _number)
+    # The window first: the bins are counted from it (range_max_m 1e308 counted 1e308 bins).
+    check_range_window(r_min, r_max)
     if "range_resolution_m" in merged:
         res = get("range_resolution_m", _number)
         if res <= 0:
@@ -191,7 +193,13 @@ def parse_sonar_section(d: Any, base_dir: Path | None) -> tuple[SonarConfig, Pos
             raise ConfigError("sonar.range_resolution_m",
                               f"{res:g} m gives {n_bins_float} range bins over {r_min:g} to {r_max:g} m; "
                               "give a coarser resolution")
-        n_bins = max(1, int(round(n_bins_float)))
+        # A resolution as wide as the window made a one-bin image: a resolution is asked for to
+        # resolve something, so it must give at least two bins (n_range_bins: 1 stays possible).
+        if n_bins_float < 2:
+            raise ConfigError("sonar.range_resolution_m",
+                              f"must be at most half the range window ((range_max_m - range_min_m) / 2 = "
+                              f"{(r_max - r_min) / 2:g} m: at least two range bins), got {res:g}")
+        n_bins = int(round(n_bins_float))
     else:
         n_bins = get("n_range_bins", _integer)
         if n_bins < 1:
@@ -209,14 +217,23 @@ def parse_sonar_section(d: Any, base_dir: Path | None) -> tuple[SonarConfig, Pos
         preset=preset_name,
         **extra,
     )
-    if "beam_angles_deg" in merged:
-        angles = _vector(merged["beam_angles_deg"], "sonar.beam_angles_deg", None)
-        if "n_beams" in merged and get("n_beams", _integer) != len(angles):
-            raise ConfigError("sonar.n_beams", f"is {merged['n_beams']} but beam_angles_deg has {len(angles)} angles")
-        return SonarConfig(beam_angles_deg=angles, **common), pose
-    sonar = SonarConfig.uniform(
-        n_beams=get("n_beams", _integer), azimuth_fov_deg=get("azimuth_fov_deg", _number), **common
-    )
+    try:
+        if "beam_angles_deg" in merged:
+            angles = _vector(merged["beam_angles_deg"], "sonar.beam_angles_deg", None)
+            if "n_beams" in merged and get("n_beams", _integer) != len(angles):
+                raise ConfigError("sonar.n_beams", f"is {merged['n_beams']} but beam_angles_deg has {len(angles)} angles")
+            return SonarConfig(beam_angles_deg=angles, **common), pose
+        sonar = SonarConfig.uniform(
+            n_beams=get("n_beams", _integer), azimuth_fov_deg=get("azimuth_fov_deg", _number), **common
+        )
+    except RangeBinError as exc:
+        if "range_resolution_m" not in merged:
+            raise
+        finest = MIN_RELATIVE_BIN_WIDTH * r_max
+        raise ConfigError("sonar.range_resolution_m",
+                          f"{merged['range_resolution_m']:g} m is finer than float32 ranges resolve at {r_max:g} m; "
+                          f"allowed: {finest:.3g} m ({MIN_RELATIVE_BIN_WIDTH:g} of range_max_m) to "
+                          f"{(r_max - r_min) / 2:g} m (two bins)") from exc
     return sonar, pose
 
 

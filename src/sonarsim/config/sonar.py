@@ -11,6 +11,7 @@ sonar's left, so the list descends. Range bin ``i`` covers
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,7 +22,66 @@ from ..errors import ConfigError, shown
 IMAGES_PER_FRAME = 40
 from ..image.grid import PolarGrid, beam_edges_deg
 
-__all__ = ["SonarConfig", "beam_edges_deg", "uniform_beam_angles_deg"]
+__all__ = ["MAX_RANGE_M", "MIN_RELATIVE_BIN_WIDTH", "FREQUENCY_RANGE_KHZ", "RangeBinError", "SonarConfig",
+           "beam_edges_deg", "check_range_bins", "check_range_window", "uniform_beam_angles_deg"]
+
+# The far end of a range window. Forward-looking sonars see tens to a few hundred metres (the
+# recordings' readers accept 400-500 m); 10 km leaves room for long-range sonars while keeping
+# ranges, which the renderer holds in float32, exact to a millimetre. (Scene coordinates reach
+# farther, config.scene.MAX_COORDINATE_M: a sonar may sit anywhere in a large scene.)
+MAX_RANGE_M = 1e4
+# The narrowest range bin, relative to the window's far end: ray distances are float32 (about
+# 7 significant digits), so bins narrower than a few of their steps at the far range would
+# share out the energy by round-off (all of it in a few bins, the others empty).
+MIN_RELATIVE_BIN_WIDTH = 1e-6
+# Carrier frequencies, kHz: imaging sonars run at tens of kHz to a few MHz; this leaves a
+# margin either side. Shared by ``sonar.frequency_khz`` and ``sensor.frequency_khz``.
+FREQUENCY_RANGE_KHZ = (1.0, 1e5)
+
+
+class RangeBinError(ConfigError):
+    """The range bins are too fine to be told apart (a :class:`ConfigError` naming
+    ``sonar.n_range_bins``; the loader names ``sonar.range_resolution_m`` where that was given)."""
+
+
+def check_range_window(range_min_m: float, range_max_m: float) -> None:
+    """Refuse a range window that is not ``0 <= range_min_m < range_max_m <= MAX_RANGE_M``.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``sonar.range_min_m`` or ``sonar.range_max_m`` and the range allowed.
+    """
+    if not (np.isfinite(range_min_m) and range_min_m >= 0.0):
+        raise ConfigError("sonar.range_min_m", f"must be >= 0 metres, got {range_min_m}")
+    if not (np.isfinite(range_max_m) and range_min_m < range_max_m <= MAX_RANGE_M):
+        raise ConfigError(
+            "sonar.range_max_m",
+            f"must be greater than range_min_m ({range_min_m}) and at most {MAX_RANGE_M:g} metres "
+            f"(a sonar sees at most kilometres), got {range_max_m}",
+        )
+
+
+def check_range_bins(range_min_m: float, range_max_m: float, n_range_bins: int) -> None:
+    """Refuse range bins narrower than :data:`MIN_RELATIVE_BIN_WIDTH` of the far range.
+
+    The window must already be valid (:func:`check_range_window`).
+
+    Raises
+    ------
+    RangeBinError
+        Naming ``sonar.n_range_bins``, the bin width and the most bins the window allows.
+    """
+    width = (range_max_m - range_min_m) / n_range_bins
+    finest = MIN_RELATIVE_BIN_WIDTH * range_max_m
+    if not (math.isfinite(width) and width >= finest):
+        most = max(1, math.floor((range_max_m - range_min_m) / finest))
+        raise RangeBinError(
+            "sonar.n_range_bins",
+            f"{n_range_bins} range bins over {range_min_m:g}-{range_max_m:g} m are {width:.3g} m wide: finer "
+            f"than float32 ranges resolve at {range_max_m:g} m (at least {finest:.3g} m, "
+            f"{MIN_RELATIVE_BIN_WIDTH:g} of range_max_m); allowed: 1 to {most} bins",
+        )
 
 
 def uniform_beam_angles_deg(n_beams: int, azimuth_fov_deg: float) -> np.ndarray:
@@ -69,14 +129,16 @@ class SonarConfig:
     elevation_fov_deg : float
         Full elevation aperture E; rays span [-E/2, +E/2].
     range_min_m, range_max_m : float
-        The range window, metres.
+        The range window, metres: ``0 <= range_min_m < range_max_m <= MAX_RANGE_M`` (10 km).
     n_range_bins : int
-        Number of range bins (rows of the polar image).
+        Number of range bins (rows of the polar image), at least 1; a bin at least
+        ``MIN_RELATIVE_BIN_WIDTH * range_max_m`` wide (what float32 ranges resolve).
     beam_width_deg : float or None
         Azimuth width of one beam, used to spread rays across a beam
         (``render.azimuth_samples > 1``); ``None`` means the spacing between beam centres.
     frequency_khz : float or None
-        Informational: the carrier frequency.
+        The carrier frequency, within ``FREQUENCY_RANGE_KHZ`` (1 kHz to 100 MHz); the sensor
+        model's absorption uses it.
     preset : str or None
         Name of the preset the configuration came from, if any.
     """
@@ -115,23 +177,20 @@ class SonarConfig:
             raise ConfigError(
                 "sonar.elevation_fov_deg", f"must be in (0, 180) degrees, got {self.elevation_fov_deg}"
             )
-        if not (np.isfinite(self.range_min_m) and self.range_min_m >= 0.0):
-            raise ConfigError("sonar.range_min_m", f"must be >= 0 metres, got {self.range_min_m}")
-        if not (np.isfinite(self.range_max_m) and self.range_max_m > self.range_min_m):
-            raise ConfigError(
-                "sonar.range_max_m",
-                f"must be greater than range_min_m ({self.range_min_m}), got {self.range_max_m}",
-            )
+        check_range_window(self.range_min_m, self.range_max_m)
         if int(self.n_range_bins) != self.n_range_bins or self.n_range_bins < 1:
             raise ConfigError(
                 "sonar.n_range_bins", f"must be a positive integer, got {self.n_range_bins}"
             )
         object.__setattr__(self, "n_range_bins", int(self.n_range_bins))
         _require_images(self.n_range_bins, a.size)
+        check_range_bins(self.range_min_m, self.range_max_m, self.n_range_bins)
+        lo, hi = FREQUENCY_RANGE_KHZ
         if self.frequency_khz is not None and not (np.isfinite(self.frequency_khz)
-                                                   and 1.0 <= self.frequency_khz <= 1e5):
+                                                   and lo <= self.frequency_khz <= hi):
             raise ConfigError("sonar.frequency_khz",
-                              f"must be within [1, 100000] kHz (sonars run at tens of kHz to a few MHz), got {self.frequency_khz}")
+                              f"must be within [{lo:g}, {hi:g}] kHz (sonars run at tens of kHz to a few MHz), "
+                              f"got {self.frequency_khz}")
         if self.beam_width_deg is not None and not 0.0 < self.beam_width_deg < 90.0:
             raise ConfigError(
                 "sonar.beam_width_deg", f"must be in (0, 90) degrees, got {self.beam_width_deg}"
