@@ -6,7 +6,6 @@ This is the edge of the library: everything after it trusts the frozen dataclass
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import sys
@@ -18,6 +17,7 @@ import numpy as np
 
 from ..errors import ConfigError, MeshFileError, SonarsimError, check_input_file, key_text, shown
 from ..scene.meshes import load_mesh_file
+from .document import MAX_DOCUMENT_BYTES as MAX_SCENE_BYTES, read_document  # noqa: F401 - re-exported
 from .materials import LAWS, Material, mu_from_db
 from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor
@@ -407,89 +407,6 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
         if source and exc.source is None:
             raise ConfigError(exc.key, exc.detail, source) from None
         raise
-
-
-# A scene file is a few kilobytes; anything far larger is not one (and is not read whole).
-MAX_SCENE_BYTES = 16 * 2**20
-
-
-def _unique_pairs(pairs, where: str):
-    """A JSON object's pairs as a dict, refusing a key given twice (JSON would keep the last)."""
-    out = {}
-    for k, v in pairs:
-        if k in out:
-            raise SonarsimError(f"{where}: the key {shown(k)} is given twice in one mapping")
-        out[k] = v
-    return out
-
-
-def _strict_yaml_loader(where: str):
-    """A safe YAML loader that refuses a key given twice in one mapping (YAML keeps the last)."""
-    import yaml
-
-    class Strict(yaml.SafeLoader):
-        pass
-
-    def mapping(loader, node, deep=False):
-        seen = set()
-        for key_node, _ in node.value:
-            key = loader.construct_object(key_node, deep=deep)
-            try:
-                duplicate = key in seen
-            except TypeError:  # an unhashable key: the base constructor says so
-                break
-            if duplicate:
-                raise SonarsimError(f"{where}: the key {shown(key)} is given twice in one mapping "
-                                    f"(line {key_node.start_mark.line + 1})")
-            seen.add(key)
-        return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
-
-    Strict.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
-                           lambda loader, node: mapping(loader, node))
-    Strict.construct_mapping = lambda self, node, deep=False: mapping(self, node, deep)
-    return Strict
-
-
-def read_document(path: str | os.PathLike) -> Any:
-    """Parse a YAML or JSON file (JSON by a ``.json`` suffix, YAML otherwise).
-
-    Raises
-    ------
-    SonarsimError
-        The file is missing, a directory or device, larger than :data:`MAX_SCENE_BYTES`, not
-        UTF-8 text, nested too deeply, not valid YAML/JSON, or gives a key twice in one mapping.
-    """
-    import yaml
-
-    p = Path(path)
-    size = check_input_file(p, "scene file").st_size
-    if size > MAX_SCENE_BYTES:
-        raise SonarsimError(f"{p}: {size / 2**20:.0f} MiB is not a scene file (at most {MAX_SCENE_BYTES // 2**20} MiB)")
-    try:
-        text = p.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise SonarsimError(f"{p}: not UTF-8 text (byte {exc.start}): a scene file is YAML or JSON text") from None
-    except OSError as exc:
-        raise SonarsimError(f"{p}: cannot read the scene file: {exc.strerror or exc}") from None
-    try:
-        if p.suffix.lower() == ".json":
-            return json.loads(text, object_pairs_hook=lambda pairs: _unique_pairs(pairs, str(p)))
-        return yaml.load(text, Loader=_strict_yaml_loader(str(p)))  # noqa: S506 - a SafeLoader subclass
-    except json.JSONDecodeError as exc:
-        raise SonarsimError(f"{p}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        # A reader error (a control character) has no mark and its str() spans two lines.
-        problem = getattr(exc, "problem", None) or getattr(exc, "reason", None) or str(exc)
-        if isinstance(getattr(exc, "position", None), int) and not where:
-            line = text.count("\n", 0, exc.position) + 1
-            where = f" at line {line}, column {exc.position - (text.rfind(chr(10), 0, exc.position) + 1) + 1}"
-            if isinstance(getattr(exc, "character", None), int):
-                problem = f"{problem} (character #x{exc.character:04x})"
-        raise SonarsimError(f"{p}: invalid YAML{where}: {' '.join(str(problem).split())}") from None
-    except RecursionError:
-        raise SonarsimError(f"{p}: nested too deeply to be a scene file") from None
 
 
 def load_scene(scene: str | os.PathLike | Mapping | Scene) -> Scene:
