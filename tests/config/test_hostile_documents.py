@@ -212,3 +212,54 @@ def test_a_resolution_that_leaves_fewer_than_two_bins_is_refused(resolution):
         sonarsim.load_scene({"sonar": {**sonar, "range_resolution_m": resolution}})
     assert e.value.key == "sonar.range_resolution_m"
     assert sonarsim.load_scene({"sonar": {**sonar, "range_resolution_m": 2.25}}).sonar.n_range_bins == 2
+
+
+@pytest.mark.parametrize("sensor, key, message", [
+    ({"frequency_khz": 1e-9}, "sensor.frequency_khz", r"within \[1, 100000\] kHz"),
+    ({"frequency_khz": 1e9}, "sensor.frequency_khz", r"within \[1, 100000\] kHz"),
+    ({"pulse": {"kind": "chirp", "bandwidth_khz": 1e9}}, "sensor.pulse.bandwidth_khz", r"within \(0, 100000\] kHz"),
+    # The aris3000-128 preset's carrier is 3 MHz.
+    ({"pulse": {"kind": "chirp", "bandwidth_khz": 4000}}, "sensor.pulse.bandwidth_khz",
+     r"at most the carrier frequency \(sensor.frequency_khz"),
+    ({"pulse": {"kind": "cw", "length_us": 1e-9}}, "sensor.pulse.length_us", r"within \[0.1, 100000\] us"),
+    ({"azimuth_pattern": {"width_deg": 1e-9}}, "sensor.azimuth_pattern.width_deg", r"within \[0.01, 180\) degrees"),
+    ({"elevation_pattern": {"width_deg": 1e-9}}, "sensor.elevation_pattern.width_deg", r"within \[0.01, 180\)"),
+    ({"elevation_pattern": {"span_deg": 1e-300}}, "sensor.elevation_pattern.span_deg", r"within \[0.01, 170\]"),
+    # The preset's beams are about 0.237 degrees apart: a pattern narrower than an eighth of that aliases.
+    ({"azimuth_pattern": {"width_deg": 0.02}}, "sensor.azimuth_pattern.width_deg", "at least 0.0297 degrees"),
+])
+def test_sensor_values_beyond_physics_are_refused(sensor, key, message):
+    doc = {"sonar": {"preset": "aris3000-128"}, "sensor": {"preset": "aris3000-128", **sensor}}
+    with pytest.raises(ConfigError, match=message) as e:
+        sonarsim.load_scene(doc)
+    assert e.value.key == key
+
+
+def test_the_carrier_and_the_beam_width_may_be_the_sonars():
+    sonar = {**SONAR, "frequency_khz": 900.0}
+    chirp = {"pulse": {"kind": "chirp", "bandwidth_khz": 1000.0}}
+    with pytest.raises(ConfigError, match=r"\(0, 900\] kHz: at most the carrier frequency \(sonar.frequency_khz") as e:
+        sonarsim.load_scene({"sonar": sonar, "sensor": chirp})
+    assert e.value.key == "sensor.pulse.bandwidth_khz"
+    assert sonarsim.load_scene({"sonar": sonar, "sensor": {"pulse": {"kind": "chirp", "bandwidth_khz": 900.0}}})
+    # 16 beams over 30 degrees: 1.875 degrees apart; a beam 0.01 degree wide is the pattern's width.
+    with pytest.raises(ConfigError, match="at least 0.234 degrees") as e:
+        sonarsim.load_scene({"sonar": {**sonar, "beam_width_deg": 0.01}, "sensor": {"azimuth_pattern": True}})
+    assert e.value.key == "sonar.beam_width_deg"
+    with pytest.raises(ConfigError, match=r"within \[0.01, 90\) degrees") as e:
+        sonarsim.load_scene({"sonar": {**sonar, "beam_width_deg": 1e-9}})
+    assert e.value.key == "sonar.beam_width_deg"
+
+
+@pytest.mark.parametrize("length_us, bin_m", [(0.1, 0.0033), (1.0, 1.0)])
+def test_a_pulse_shorter_than_a_bin_stays_in_it(length_us, bin_m):
+    # Missed by every sub-sample of a bin, its kernel was 0 / 0: NaN over the whole image.
+    from sonarsim.config.sensor import PulseSpec
+    from sonarsim.sensor.pulse import range_kernels
+
+    intensity, amplitude = range_kernels(PulseSpec("cw", length_us), bin_m, 1500.0)
+    assert intensity.tolist() == [1.0] and amplitude.tolist() == [1.0]
+    img = sonarsim.render({"sonar": {**SONAR, "range_max_m": 100.0, "n_range_bins": 95},
+                           "render": {"elevation_samples": 8}, "ground": {"height_m": -1.0},
+                           "sensor": {"pulse": {"kind": "cw", "length_us": 1.0}}}, speckle=False)
+    assert np.all(np.isfinite(img.polar)) and img.polar.max() > 0

@@ -154,7 +154,7 @@ BAD_SCENES: list = [
     ("elevation-0", [(("sonar", "elevation_fov_deg"), 0.0)], "sonar.elevation_fov_deg", ["(0, 180)"]),
     ("elevation-negative", [(("sonar", "elevation_fov_deg"), -5.0)], "sonar.elevation_fov_deg", ["(0, 180)"]),
     ("elevation-180", [(("sonar", "elevation_fov_deg"), 180.0)], "sonar.elevation_fov_deg", ["(0, 180)"]),
-    ("beam-width-0", [(("sonar", "beam_width_deg"), 0.0)], "sonar.beam_width_deg", ["(0, 90)"]),
+    ("beam-width-0", [(("sonar", "beam_width_deg"), 0.0)], "sonar.beam_width_deg", ["[0.01, 90)"]),
     # ---- albedo / specular in [0, 1]
     ("object-albedo-high", [(("objects", 1, "albedo"), 1.5)], "objects[1].albedo", ["[0, 1]"]),
     ("object-albedo-negative", [(("objects", 0, "albedo"), -0.1)], "objects[0].albedo", ["[0, 1]"]),

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import ConfigError, shown
 from .materials import Material
-from .sensor import SensorSpec
+from .sensor import SensorSpec, check_azimuth_width, check_bandwidth
 from .sonar import SonarConfig
 from ..core.transforms import Pose
 
@@ -476,6 +476,13 @@ class Scene:
             if self.sensor.elevation_pattern is not None and self.render.beam_pattern != "uniform":
                 raise ConfigError("render.beam_pattern", "the sensor's elevation_pattern is the beam pattern; "
                                   "leave render.beam_pattern uniform")
+            try:  # the carrier and the beams are the sonar's: known only here
+                check_bandwidth(self.sensor, self.sonar.frequency_khz)
+                if self.sonar.n_beams > 1:
+                    check_azimuth_width(self.sensor, float(np.median(np.abs(np.diff(self.sonar.azimuth_deg)))),
+                                        float(np.median(self.sonar.effective_beam_width_deg())))
+            except ConfigError as exc:
+                raise ConfigError(exc.key if exc.key.startswith("sonar.") else f"sensor.{exc.key}", exc.detail) from None
         # The rays are counted now, so that a command refuses them before its run starts.
         from ..core.rays import check_ray_budget
 

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, key_text, shown
+from .sonar import FREQUENCY_RANGE_KHZ, MIN_BEAM_WIDTH_DEG
 
 ABSORPTION_MODELS = ("francois-garrison", "ainslie-mccolm", "constant")
 TVG_SPREADING = (0.0, 20.0, 30.0, 40.0)
@@ -61,6 +62,16 @@ MIN_SIDELOBE_DB, MAX_SIDELOBE_DB = 13.3, 200.0
 LEVEL_RANGE_DB = (-300.0, 300.0)
 GAIN_RANGE_DB = (-200.0, 200.0)
 MAX_ABSORPTION_DB_PER_M = 1000.0
+# Beam pattern widths (-3 dB, full), degrees: the narrowest beams of imaging sonars are about
+# 0.1 degree wide (an ARIS 3000's 0.24); a beam far narrower than that would need an aperture of
+# tens of metres. (1e-9 degrees was accepted and left the azimuth kernel empty.)
+PATTERN_WIDTH_RANGE_DEG = (MIN_BEAM_WIDTH_DEG, 180.0)
+# Pulse lengths, microseconds: imaging sonars transmit pulses of a few to a few hundred us.
+PULSE_LENGTH_RANGE_US = (0.1, 1e5)
+# The azimuth pattern is averaged over 16 points across each beam (sensor.patterns.azimuth_kernels):
+# a -3 dB width below two of those steps aliases its sidelobes (a 0.01-degree line pattern over
+# beams 10 degrees apart leaked half of each echo into either neighbour and kept 5 %).
+MIN_AZIMUTH_WIDTH_PER_SPACING = 1.0 / 8.0
 
 
 def _within(key: str, value: Any, bounds: tuple[float, float], unit: str = "dB") -> float:
@@ -177,13 +188,15 @@ class PatternSpec:
         ``gaussian``: no sidelobes; ``table``: measured ``(angle_deg, gain_db)`` rows in a CSV file.
     width_deg : float or None
         Full width at -3 dB of the pattern as it acts (two-way in elevation, one-way receive in
-        azimuth). Default: the sonar's ``elevation_fov_deg`` / beam width.
+        azimuth), within [0.01, 180) degrees. Default: the sonar's ``elevation_fov_deg`` / beam
+        width.
     window : {'rect', 'hann', 'hamming', 'blackman', 'taylor'}
     sidelobe_db : float or None
         ``taylor`` only: the sidelobe level below the main lobe, dB, in (13.3, 200].
     span_deg : float or None
         Elevation only: rays are cast over this full span (wider than the -3 dB width so that
-        sidelobes see what the main lobe misses). Default: three times ``width_deg``.
+        sidelobes see what the main lobe misses), within [0.01, 170] degrees. Default: three
+        times ``width_deg``.
     table : str or None
         ``table`` only: the CSV file (relative to the scene file), angle_deg and gain_db
         columns, gain 0 dB on axis.
@@ -204,15 +217,17 @@ class PatternSpec:
     def __post_init__(self) -> None:
         _choice("shape", self.shape, PATTERN_SHAPES)
         _choice("window", self.window, WINDOWS)
+        lo, hi = PATTERN_WIDTH_RANGE_DEG
         if self.width_deg is not None:
-            w = _positive("width_deg", self.width_deg)
-            if w >= 180:
-                raise ConfigError("width_deg", f"must be below 180 degrees, got {w}")
+            w = _finite("width_deg", self.width_deg)
+            if not lo <= w < hi:
+                raise ConfigError("width_deg", f"must be within [{lo:g}, {hi:g}) degrees (the -3 dB full width), "
+                                  f"got {shown(self.width_deg)}")
         _check_sidelobe(self.window, self.sidelobe_db)
         if self.span_deg is not None:
-            s = _positive("span_deg", self.span_deg)
-            if s > 170:
-                raise ConfigError("span_deg", f"must be at most 170 degrees, got {s}")
+            s = _finite("span_deg", self.span_deg)
+            if not lo <= s <= 170:
+                raise ConfigError("span_deg", f"must be within [{lo:g}, 170] degrees, got {shown(self.span_deg)}")
         if (self.shape == "table") != (self.table is not None):
             raise ConfigError("table", "give a table file exactly when shape is 'table'")
         lb = self.leakage_beams
@@ -232,7 +247,11 @@ class PulseSpec:
         ``chirp``: a linear FM sweep of ``bandwidth_khz`` after matched filtering: main lobe
         ``c / (2 B)`` wide, range sidelobes set by the spectral ``window``.
     length_us : float
+        Within [0.1, 100000] microseconds.
     bandwidth_khz : float or None
+        ``chirp`` only: within (0, 100000] kHz, and at most the carrier frequency
+        (``sensor.frequency_khz`` or ``sonar.frequency_khz``, checked by the scene): a sweep of
+        an octave about the carrier at the widest.
     window : {'rect', 'hann', 'hamming', 'blackman', 'taylor'}
     sidelobe_db : float or None
     """
@@ -245,12 +264,14 @@ class PulseSpec:
 
     def __post_init__(self) -> None:
         _choice("kind", self.kind, PULSE_KINDS)
-        _positive("length_us", self.length_us)
+        _within("length_us", self.length_us, PULSE_LENGTH_RANGE_US, "us")
         _choice("window", self.window, WINDOWS)
         if self.kind == "chirp":
             if self.bandwidth_khz is None:
                 raise ConfigError("bandwidth_khz", "required with kind: chirp")
-            _positive("bandwidth_khz", self.bandwidth_khz)
+            b = _positive("bandwidth_khz", self.bandwidth_khz)
+            if b > FREQUENCY_RANGE_KHZ[1]:
+                raise ConfigError("bandwidth_khz", f"must be within (0, {FREQUENCY_RANGE_KHZ[1]:g}] kHz, got {b:g}")
         elif self.bandwidth_khz is not None:
             raise ConfigError("bandwidth_khz", "only with kind: chirp")
         _check_sidelobe(self.window, self.sidelobe_db)
@@ -391,7 +412,8 @@ class SensorSpec:
     sound_speed_m_s : float
         For the pulse's range extent and the absorption formulas.
     frequency_khz : float or None
-        Carrier; default the sonar's ``frequency_khz``. Needed by the absorption formulas.
+        Carrier, within [1, 100000] kHz (as ``sonar.frequency_khz``); default the sonar's
+        ``frequency_khz``. Needed by the absorption formulas.
     gain_db : float
         Receiver gain, added after TVG, within [-200, 200] dB.
     absorption, tvg, elevation_pattern, azimuth_pattern, pulse, speckle, noise, bang, output
@@ -424,12 +446,17 @@ class SensorSpec:
         if not 1300 <= c <= 1700:
             raise ConfigError("sound_speed_m_s", f"must be within [1300, 1700] m/s, got {c}")
         if self.frequency_khz is not None:
-            _positive("frequency_khz", self.frequency_khz)
+            _within("frequency_khz", self.frequency_khz, FREQUENCY_RANGE_KHZ, "kHz")
         _within("gain_db", self.gain_db, GAIN_RANGE_DB)
         if self.elevation_pattern is not None and self.elevation_pattern.leakage_beams is not None:
             raise ConfigError("elevation_pattern.leakage_beams", "only for the azimuth pattern")
         if self.azimuth_pattern is not None and self.azimuth_pattern.span_deg is not None:
             raise ConfigError("azimuth_pattern.span_deg", "only for the elevation pattern")
+        check_bandwidth(self, None)
+
+    def carrier_khz(self, sonar_frequency_khz: float | None) -> float | None:
+        """The carrier frequency: ``frequency_khz``, else the sonar's (``None`` if neither)."""
+        return self.frequency_khz if self.frequency_khz is not None else sonar_frequency_khz
 
     def to_dict(self) -> dict:
         """The scene-file form (every key explicit; ``false`` for an effect that is off)."""
@@ -446,6 +473,62 @@ class SensorSpec:
 
 
 SENSOR_KEYS = tuple(f.name for f in dataclasses.fields(SensorSpec))
+
+
+def check_azimuth_width(spec: SensorSpec, beam_spacing_deg: float, beam_width_deg: float) -> None:
+    """The azimuth pattern's -3 dB width is at least :data:`MIN_AZIMUTH_WIDTH_PER_SPACING` of the
+    spacing between beams (a measured table is taken as given).
+
+    Parameters
+    ----------
+    spec : SensorSpec
+    beam_spacing_deg : float
+        The (median) spacing between the sonar's beam centres, degrees.
+    beam_width_deg : float
+        The sonar's (median) beam width: the pattern's width when it gives none.
+
+    Raises
+    ------
+    ConfigError
+        ``azimuth_pattern.width_deg`` (the caller prefixes ``sensor.``), or ``sonar.beam_width_deg``
+        when the width is the sonar's.
+    """
+    p = spec.azimuth_pattern
+    if p is None or p.shape == "table":
+        return
+    width = p.width_deg if p.width_deg is not None else beam_width_deg
+    least = MIN_AZIMUTH_WIDTH_PER_SPACING * beam_spacing_deg
+    if width < least:
+        key = "azimuth_pattern.width_deg" if p.width_deg is not None else "sonar.beam_width_deg"
+        raise ConfigError(key, f"the azimuth pattern's -3 dB width must be at least {least:.3g} degrees "
+                          f"({MIN_AZIMUTH_WIDTH_PER_SPACING:g} of the beams' spacing, {beam_spacing_deg:.3g} degrees), "
+                          f"got {width:g}")
+
+
+def check_bandwidth(spec: SensorSpec, sonar_frequency_khz: float | None) -> None:
+    """A chirp's bandwidth is at most its carrier frequency, where the carrier is known.
+
+    A linear FM sweep of B about the carrier f runs from f - B/2 to f + B/2: B = f is a sweep of
+    an octave, wider than any sonar transducer passes (and beyond 2 f it would need negative
+    frequencies); ``bandwidth_khz: 1e9`` was accepted.
+
+    Parameters
+    ----------
+    spec : SensorSpec
+    sonar_frequency_khz : float or None
+        The sonar's ``frequency_khz`` (the carrier when ``spec.frequency_khz`` is not given).
+
+    Raises
+    ------
+    ConfigError
+        ``pulse.bandwidth_khz`` (the caller prefixes ``sensor.``), naming the carrier.
+    """
+    pulse, carrier = spec.pulse, spec.carrier_khz(sonar_frequency_khz)
+    if pulse is None or pulse.kind != "chirp" or carrier is None or pulse.bandwidth_khz <= carrier:
+        return
+    which = "sensor.frequency_khz" if spec.frequency_khz is not None else "sonar.frequency_khz"
+    raise ConfigError("pulse.bandwidth_khz", f"must be within (0, {carrier:g}] kHz: at most the carrier frequency "
+                      f"({which}, a sweep of an octave), got {pulse.bandwidth_khz:g}")
 
 
 def _parse_sub(name: str, value: Any, key: str, base_dir: Path | None):

@@ -22,8 +22,8 @@ from ..errors import ConfigError, shown
 IMAGES_PER_FRAME = 40
 from ..image.grid import PolarGrid, beam_edges_deg
 
-__all__ = ["MAX_RANGE_M", "MIN_RELATIVE_BIN_WIDTH", "FREQUENCY_RANGE_KHZ", "RangeBinError", "SonarConfig",
-           "beam_edges_deg", "check_range_bins", "check_range_window", "uniform_beam_angles_deg"]
+__all__ = ["MAX_RANGE_M", "MIN_BEAM_WIDTH_DEG", "MIN_RELATIVE_BIN_WIDTH", "FREQUENCY_RANGE_KHZ", "RangeBinError",
+           "SonarConfig", "beam_edges_deg", "check_range_bins", "check_range_window", "uniform_beam_angles_deg"]
 
 # The far end of a range window. Forward-looking sonars see tens to a few hundred metres (the
 # recordings' readers accept 400-500 m); 10 km leaves room for long-range sonars while keeping
@@ -37,6 +37,8 @@ MIN_RELATIVE_BIN_WIDTH = 1e-6
 # Carrier frequencies, kHz: imaging sonars run at tens of kHz to a few MHz; this leaves a
 # margin either side. Shared by ``sonar.frequency_khz`` and ``sensor.frequency_khz``.
 FREQUENCY_RANGE_KHZ = (1.0, 1e5)
+# The narrowest beam, degrees (``beam_width_deg``, and a sensor's beam pattern widths).
+MIN_BEAM_WIDTH_DEG = 0.01
 
 
 class RangeBinError(ConfigError):
@@ -134,7 +136,7 @@ class SonarConfig:
         Number of range bins (rows of the polar image), at least 1; a bin at least
         ``MIN_RELATIVE_BIN_WIDTH * range_max_m`` wide (what float32 ranges resolve).
     beam_width_deg : float or None
-        Azimuth width of one beam, used to spread rays across a beam
+        Azimuth width of one beam, within [0.01, 90) degrees, used to spread rays across a beam
         (``render.azimuth_samples > 1``); ``None`` means the spacing between beam centres.
     frequency_khz : float or None
         The carrier frequency, within ``FREQUENCY_RANGE_KHZ`` (1 kHz to 100 MHz); the sensor
@@ -191,9 +193,11 @@ class SonarConfig:
             raise ConfigError("sonar.frequency_khz",
                               f"must be within [{lo:g}, {hi:g}] kHz (sonars run at tens of kHz to a few MHz), "
                               f"got {self.frequency_khz}")
-        if self.beam_width_deg is not None and not 0.0 < self.beam_width_deg < 90.0:
+        # As a beam pattern's width (config.sensor.PATTERN_WIDTH_RANGE_DEG): no sonar's beam is
+        # far narrower than 0.1 degree.
+        if self.beam_width_deg is not None and not MIN_BEAM_WIDTH_DEG <= self.beam_width_deg < 90.0:
             raise ConfigError(
-                "sonar.beam_width_deg", f"must be in (0, 90) degrees, got {self.beam_width_deg}"
+                "sonar.beam_width_deg", f"must be within [{MIN_BEAM_WIDTH_DEG:g}, 90) degrees, got {self.beam_width_deg}"
             )
         # Checked above with the messages of scene files; the grid cannot fail now. A lone beam
         # is 1 degree wide, as it has always been.

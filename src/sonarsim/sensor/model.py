@@ -30,8 +30,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..config.sensor import SensorSpec
+from ..config.sensor import SensorSpec, check_azimuth_width, check_bandwidth
 from ..config.sonar import SonarConfig
+from ..errors import ConfigError
 from . import acoustics, output, patterns, pulse, speckle as speckle_mod
 
 try:  # the compiled loops; the NumPy twins below are the reference
@@ -169,6 +170,12 @@ class SensorModel:
         # The cell a pose is quantised to for world-anchored speckle (see anchored_rng).
         self._anchor_cell = np.array([sonar.range_resolution_m / 2.0] * 3 + [spacing / 2.0] * 3)
         default_width = float(np.median(sonar.effective_beam_width_deg()))
+        try:  # as Scene checks its own sonar: this one may be another (Simulator.render(sonar=...))
+            check_bandwidth(spec, sonar.frequency_khz)
+            if sonar.n_beams > 1:
+                check_azimuth_width(spec, spacing, default_width)
+        except ConfigError as exc:
+            raise ConfigError(exc.key if exc.key.startswith("sonar.") else f"sensor.{exc.key}", exc.detail) from None
         if spec.azimuth_pattern is None:
             self.beam_leakage, self.beam_amplitude = np.ones(1), np.ones(1)
         else:

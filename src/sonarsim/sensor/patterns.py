@@ -127,6 +127,10 @@ def azimuth_kernels(spec: PatternSpec, beam_spacing_deg: float, default_width_de
     amplitude : (2K + 1,) float64 ndarray, squares sum to 1
         The pattern's amplitude at beam offsets m: the filter that gives white scatterer
         amplitudes the correlation across beams of the beamformer's output.
+
+    The pattern must be at least an eighth of the beam spacing wide
+    (:func:`sonarsim.config.sensor.check_azimuth_width`, checked when the scene is built and
+    by :class:`~sonarsim.sensor.model.SensorModel`): narrower, its sidelobes alias.
     """
     width = spec.width_deg if spec.width_deg is not None else default_width_deg
     k = spec.leakage_beams

@@ -45,6 +45,15 @@ def range_kernels(spec: PulseSpec | None, range_resolution_m: float,
     amplitude : (2R + 1,) float64 ndarray, squares sum to 1
         The envelope averaged over each bin: the filter that gives white scatterer amplitudes
         the correlation along range of the detected echo.
+
+    Both are ``[1]`` for a pulse shorter than two of the ``OVERSAMPLE`` sub-samples of a bin: it
+    stays within its bin.
+
+    Raises
+    ------
+    ConfigError
+        ``sensor.pulse.length_us`` (CW) or ``sensor.pulse.bandwidth_khz`` (chirp): the pulse
+        spans more than ``2 MAX_KERNEL_HALF_WIDTH + 1`` range bins.
     """
     if spec is None:
         return np.ones(1), np.ones(1)
@@ -52,8 +61,15 @@ def range_kernels(spec: PulseSpec | None, range_resolution_m: float,
         8.0 * sound_speed_m_s / (2.0 * spec.bandwidth_khz * 1e3)
     half = int(np.ceil(extent / range_resolution_m)) + 1
     if half > MAX_KERNEL_HALF_WIDTH:
-        raise ConfigError("sensor.pulse", f"the pulse spans {2 * half + 1} range bins of "
+        key = "sensor.pulse.length_us" if spec.kind == "cw" else "sensor.pulse.bandwidth_khz"
+        raise ConfigError(key, f"the pulse spans {2 * half + 1} range bins of "
                           f"{range_resolution_m * 1e3:.3g} mm; at most {2 * MAX_KERNEL_HALF_WIDTH + 1} are allowed")
+    # A pulse (a CW gate, or a chirp's compressed main lobe, about c / (2 B)) shorter than two of
+    # the sub-samples below falls within one bin: sampled, a gate narrower than them was missed by
+    # every sub-sample (0 / 0: NaN kernels) and a chirp's carrier aliased. It spreads nothing.
+    main_lobe = extent if spec.kind == "cw" else extent / 8.0
+    if main_lobe < 2.0 * range_resolution_m / OVERSAMPLE:
+        return np.ones(1), np.ones(1)
     n = np.arange(-half, half + 1, dtype=float)
     sub = (np.arange(OVERSAMPLE) + 0.5) / OVERSAMPLE - 0.5
     env = envelope((n[:, None] + sub[None, :]) * range_resolution_m, spec, sound_speed_m_s)
