@@ -15,6 +15,7 @@ from sonarsim.cli.demo import demo_scene_dict
 from sonarsim.errors import ConfigError
 from sonarsim.analysis.fitting import (
     MIN_EDGE_CORRELATION, FitError, choose_domain, fit_pose, fit_problems, floor_band_m, parse_free,
+    recording_geometry,
 )
 from sonarsim.core.transforms import Pose
 
@@ -57,12 +58,19 @@ def test_band_domain_fit_recovers_a_floor_pose_with_roll():
     assert res.onset_rms_m < 0.005
 
 
-def test_the_fit_result_scene_has_the_fitted_pose_and_the_scene_intrinsics():
-    real = sonarsim.render(floor_scene(0.40, 28.0, 0.0))
+def test_the_fit_result_scene_has_the_fitted_pose_and_the_recording_geometry():
+    # The recording on another grid than the scene's preset: 256 beams over 0.3-1.8 m.
+    recorded = floor_scene(0.40, 28.0, 0.0)
+    recorded = replace(recorded, sonar=replace(recorded.sonar, beam_angles_deg=tuple(np.linspace(30, -30, 256)),
+                                               range_min_m=0.3, range_max_m=1.8, n_range_bins=500))
+    real = sonarsim.render(recorded)
     start = floor_scene(0.37, 26.0, 0.0)
     res = fit_pose(real, start, free=("z", "pitch"), domain="band", max_renders=12)
     assert res.scene.sonar_pose == res.pose != start.sonar_pose
-    assert res.scene.sonar == start.sonar  # intrinsics untouched
+    # The recording's intrinsics (as calibrate's result has them): the scene renders the image.
+    assert res.scene.sonar == recording_geometry(real, start) == res.image.sonar
+    assert res.scene.sonar.n_beams == 256 and res.scene.sonar.range_min_m == 0.3
+    np.testing.assert_array_equal(sonarsim.render(res.scene).polar, res.image.polar)
     assert res.scene.objects == start.objects and res.scene.ground == start.ground
     assert res.image.pose == res.pose  # the render at the fitted pose
     assert res.image.sonar.beam_angles_deg == real.sonar.beam_angles_deg
@@ -99,6 +107,7 @@ def test_fit_command_writes_the_fitted_scene_and_the_side_by_side_image(tmp_path
     import yaml
     from PIL import Image
 
+    from sonarsim.analysis.comparison import load_image
     from sonarsim.cli.main import main
 
     truth = floor_scene(0.40, 28.0, 0.0)
@@ -115,7 +124,11 @@ def test_fit_command_writes_the_fitted_scene_and_the_side_by_side_image(tmp_path
     fitted = sonarsim.load_scene(out)
     assert abs(fitted.sonar_pose.position_m[2] - 0.40) < 0.01
     assert abs(fitted.sonar_pose.rpy_deg[1] - 28.0) < 1.0
-    assert yaml.safe_load(out.read_text())["sonar"]["preset"] == "oculus-m1200d-hf"  # the user's document
+    doc = yaml.safe_load(out.read_text())
+    # The user's document, its sonar written out with the recording's grid (the preset's
+    # beams and window were not the recording's; as calibrate writes it).
+    assert doc["ground"] == {"albedo": 0.8} and doc["render"] == {"bounces": [1]}
+    assert "preset" not in doc["sonar"] and fitted.sonar == load_image(tmp_path / "real.npz").sonar
     picture = Image.open(tmp_path / "out" / "fitted_fit.png")
     assert picture.mode == "RGB" and picture.size[0] > picture.size[1]
     printed = capsys.readouterr().out

@@ -140,3 +140,37 @@ def test_a_bad_render_budget_is_bad_input(floor_case, tmp_path, capsys, budget):
     status = run(["fit", real, "--scene", scene(0.4, 28.0), "--max-renders", budget, "--out", tmp_path / "f.yaml"])
     err = capsys.readouterr().err
     assert status == 2 and f"--max-renders: expected a number of renders >= 1, got '{budget}'" in err
+
+
+def test_fit_on_the_real_oculus_ping_writes_the_recording_geometry(shared_data, tmp_path, capsys):
+    """The preset of examples/oculus_floor.yaml has 512 beams over 0.1-2 m; the recording has 256
+    over 0-2 m. The written scene has the recording's beams and window (as calibrate writes
+    them), so its render and the recording compare pixel for pixel, without resampling."""
+    from sonarsim.analysis.comparison import compare_images
+
+    ping = shared_data / "real" / "oculus" / "one_ping_8bit.raw"
+    if not ping.is_file():
+        pytest.skip(f"{ping} is not present")
+    example = Path(__file__).resolve().parents[2] / "examples" / "oculus_floor.yaml"
+    out = tmp_path / "fitted.yaml"
+    assert run(["fit", ping, "--scene", example, "--free", "z,pitch,roll", "--domain", "band", "--quiet",
+                "--no-figures", "--out", out]) == 0
+    capsys.readouterr()
+    real = sonarsim.read(ping)
+    start = sonarsim.load_scene(example)
+    assert start.sonar.n_beams != real.sonar.n_beams  # what made compare resample before
+    doc = yaml.safe_load(out.read_text())
+    assert "preset" not in doc["sonar"]  # the preset's beams and window are not the recording's
+    fitted = sonarsim.load_scene(out)
+    assert fitted.sonar.n_beams == real.sonar.n_beams == 256
+    np.testing.assert_array_equal(fitted.sonar.azimuth_deg, real.sonar.azimuth_deg)
+    assert (fitted.sonar.range_min_m, fitted.sonar.range_max_m, fitted.sonar.n_range_bins) == (
+        real.sonar.range_min_m, real.sonar.range_max_m, real.sonar.n_range_bins)
+    np.testing.assert_array_equal(fitted.sonar.range_m, real.sonar.range_m)
+    assert fitted.sonar.elevation_fov_deg == start.sonar.elevation_fov_deg  # not in the recording
+    # The fitted pose, as before (README: z 0.416 m, pitch 28.8 deg).
+    assert fitted.sonar_pose.position_m[2] == pytest.approx(0.416, abs=0.01)
+    assert fitted.sonar_pose.rpy_deg[1] == pytest.approx(28.8, abs=0.5)
+    render = sonarsim.render(fitted)
+    info = compare_images(real, render)["info"]
+    assert info["resampled"] is False and info["overlap"] == 1.0

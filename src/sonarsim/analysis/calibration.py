@@ -52,7 +52,7 @@ from ..errors import ConfigError, SonarsimError
 from ..image.result import SonarImage
 from ..renderer.simulator import Simulator
 from . import realism
-from .fitting import PARAMETERS, check_overlap, parse_free, pose_values
+from .fitting import PARAMETERS, check_overlap, parse_free, pose_values, recording_geometry
 
 SENSOR_PARAMETERS = ("gain_db", "noise_db", "noise_after_tvg_db", "bang_db", "bang_length_m",
                      "elevation_width_deg")
@@ -193,9 +193,7 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
     """
     free = tuple(free)
     check_overlap(real, scene)
-    sonar = replace(real.sonar, elevation_fov_deg=scene.sonar.elevation_fov_deg)
-    if sonar.frequency_khz is None:
-        sonar = replace(sonar, frequency_khz=scene.sonar.frequency_khz)
+    sonar = recording_geometry(real, scene)  # the recording's grid, as fit_pose renders
     spec = scene.sensor if scene.sensor is not None else parse_sensor(STARTING_SENSOR)
     if spec.output is None or spec.output.compression != "gamma":
         raise ConfigError("sensor.output", "calibration fits a gamma-compressed output (compression: gamma)")

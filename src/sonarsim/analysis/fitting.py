@@ -34,6 +34,7 @@ from scipy import ndimage, optimize
 
 from ..errors import ConfigError, SonarsimError
 from ..config.scene import Scene
+from ..config.sonar import SonarConfig
 from ..image.result import SonarImage
 from ..renderer.simulator import Simulator
 from ..core.transforms import Pose
@@ -215,7 +216,8 @@ class FitResult:
     pose : Pose
         The fitted sonar pose (world frame).
     scene : Scene
-        The scene fitted, with ``pose`` as its ``sonar_pose`` (its sonar intrinsics unchanged).
+        The scene fitted, with ``pose`` as its ``sonar_pose`` and the recording's intrinsics
+        (:func:`recording_geometry`): it renders :attr:`image`, on the recording's grid.
     free : tuple of str
         The parameters that were fitted.
     domain : str
@@ -232,7 +234,8 @@ class FitResult:
         Number of images rendered.
     image : SonarImage
         The render at the fitted pose (its ``pose``), in the real image's geometry (its ``sonar``:
-        the real image's beams and range window, the scene's elevation aperture).
+        the real image's beams and range window, the scene's elevation aperture;
+        :func:`recording_geometry`).
     domain_reason : str
         Why the domain was used (the rule of :func:`choose_domain`, or "asked for").
     edge_correlation : float
@@ -292,6 +295,32 @@ def check_overlap(real: SonarImage, scene: Scene) -> None:
             f"{h.right_edge_deg:.3g} to {h.left_edge_deg:.3g} deg: they share {100 * overlap:.0f} % of the "
             f"recording's area (at least {100 * MIN_OVERLAP:.0f} % is needed); give the scene the recording's "
             "sonar settings")
+
+
+def recording_geometry(real: SonarImage, scene: Scene) -> SonarConfig:
+    """The sonar intrinsics that fitting and calibration render with: the recording's.
+
+    The recording's beams (its bearing table), range window and range bins, so that renders
+    land on its grid pixel for pixel (nothing is resampled when they are compared), with what a
+    recording does not say taken from the scene's sonar: the elevation aperture, and the
+    frequency where the recording has none. ``sonarsim fit`` and ``sonarsim calibrate`` write
+    these intrinsics into the scene files they make.
+
+    Parameters
+    ----------
+    real : SonarImage
+        The recording's frame (its ``sonar``).
+    scene : Scene
+        The scene behind it.
+
+    Returns
+    -------
+    SonarConfig
+    """
+    sonar = replace(real.sonar, elevation_fov_deg=scene.sonar.elevation_fov_deg)
+    if sonar.frequency_khz is None:
+        sonar = replace(sonar, frequency_khz=scene.sonar.frequency_khz)
+    return sonar
 
 
 def _band_beams(image: SonarImage) -> float:
@@ -483,8 +512,8 @@ def fit_pose(
         raise ConfigError("max_renders", f"the render budget is {max_renders}; it must be at least 1")
     check_overlap(real, scene)
     sim = simulator if simulator is not None else Simulator(scene)
-    # The intrinsics of every render (fixed); only the pose varies.
-    geometry = replace(real.sonar, elevation_fov_deg=scene.sonar.elevation_fov_deg)
+    # The intrinsics of every render (fixed): the recording's grid; only the pose varies.
+    geometry = recording_geometry(real, scene)
     start = pose_values(scene.sonar_pose)
     renders = 0
     began = time.monotonic()
@@ -559,7 +588,7 @@ def fit_pose(
                        f"(started at {', '.join(f'{k} {start[k]:.4g}' for k in free)}): nothing to compare; "
                        "check the scene, its sonar settings and the starting pose")
     result = FitResult(
-        pose=pose, scene=scene.with_pose(pose), free=free, domain=domain, start=start, values=values,
+        pose=pose, scene=replace(scene, sonar=geometry, sonar_pose=pose), free=free, domain=domain, start=start, values=values,
         cost_start=cost_start, cost=final_cost(fitted), onset_rms_m=onset_rms(fitted), renders=renders,
         image=fitted, domain_reason=reason, edge_correlation=edge_correlation(real, fitted),
         converged=bool(found.success),

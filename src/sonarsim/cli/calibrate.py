@@ -61,15 +61,9 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
 
 def calibrated_document(scene_path: Path, out_path: Path, scene) -> dict:
     """The user's scene document with the recording's grid, the calibrated sensor and pose."""
-    from .fit import _fitted_document
+    from .fit import recording_document
 
-    doc = _fitted_document(scene_path, out_path, scene.sonar_pose)
-    sonar = scene.sonar.to_dict()
-    sonar.pop("pose", None)
-    sonar.pop("preset", None)
-    new = {k: v for k, v in sonar.items() if v is not None}
-    new["pose"] = doc["sonar"]["pose"]
-    doc["sonar"] = new
+    doc = recording_document(scene_path, out_path, scene)  # the grid and pose, as fit writes them
     doc["sensor"] = scene.sensor.to_dict()
     render = doc.setdefault("render", {})
     if isinstance(render, dict):

@@ -1,7 +1,9 @@
 """``sonarsim fit``: find the sonar pose that makes a scene look like a real recording.
 
-Writes the scene with the fitted pose (the user's own scene document, only ``sonar.pose``
-changed) and a side-by-side picture: the real image with the fitted floor-band edges drawn
+Writes the scene with the fitted pose and the recording's geometry (the user's own scene
+document with its ``sonar`` section replaced by the recording's beams, range window and bins,
+the scene's elevation aperture, and the fitted pose; as ``sonarsim calibrate`` does) and a
+side-by-side picture: the real image with the fitted floor-band edges drawn
 on it, and the render at the fitted pose. A fit that :func:`~sonarsim.analysis.fitting.fit_problems`
 finds meaningless writes nothing and ends with exit status 3.
 """
@@ -50,7 +52,8 @@ def add_fit_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "fit", help="fit the sonar pose of a scene to a real recording",
         description="Find the sonar pose parameters (--free) that make the rendered scene match a real "
-        "image, starting from the scene's pose. Writes the scene with the fitted pose to --out and a "
+        "image, starting from the scene's pose. Writes the scene with the fitted pose and the recording's "
+        "beams, range window and bins (so that it renders on the recording's grid) to --out and a "
         "side-by-side picture (real | fitted) next to it. Progress goes to stderr (--quiet: none).",
         epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -108,6 +111,39 @@ def _fitted_document(scene_path: Path, out_path: Path, pose) -> dict:
                 obj["mesh"] = str(base / obj["mesh"])
         if isinstance(sonar.get("beam_angles_file"), str) and not Path(sonar["beam_angles_file"]).is_absolute():
             sonar["beam_angles_file"] = str(base / sonar["beam_angles_file"])
+    return doc
+
+
+def recording_document(scene_path: Path, out_path: Path, scene) -> dict:
+    """The user's scene document with ``scene``'s sonar: its intrinsics and pose.
+
+    ``scene`` is a fit's or a calibration's result, whose intrinsics are the recording's
+    (:func:`~sonarsim.analysis.fitting.recording_geometry`): the document then renders on the
+    recording's grid, so that ``compare`` sets render and recording side by side without
+    resampling. The sonar section is written out in full (beam table, range window, bins,
+    elevation aperture, frequency) and without ``preset``, whose beams and window were not the
+    recording's; the rest of the document is the user's (objects, planes, render settings).
+
+    Parameters
+    ----------
+    scene_path : Path
+        The user's scene file.
+    out_path : Path
+        Where the document goes (relative mesh and table paths are made to resolve from there).
+    scene : Scene
+        The fitted scene.
+
+    Returns
+    -------
+    dict
+    """
+    doc = _fitted_document(scene_path, out_path, scene.sonar_pose)
+    sonar = scene.sonar.to_dict()
+    sonar.pop("pose", None)
+    sonar.pop("preset", None)
+    new = {k: v for k, v in sonar.items() if v is not None}
+    new["pose"] = doc["sonar"]["pose"]
+    doc["sonar"] = new
     return doc
 
 
@@ -241,7 +277,9 @@ def cmd_fit(args) -> None:
         _log(f"error: {args.real}: the fit found no meaningful pose: {'; '.join(result.problems)}; nothing written; "
              + _what_to_try(args, result))
         raise SystemExit(EXIT_NO_FIT)
-    doc = _fitted_document(Path(args.scene), out, result.pose)
+    # The recording's beams and range window, as calibrate writes them: the scene renders on
+    # the recording's grid (the preset's 512 beams against a 256-beam recording did not).
+    doc = recording_document(Path(args.scene), out, result.scene)
     with run:
         with atomic_write(out, "w") as f:
             yaml.safe_dump(doc, f, sort_keys=False)
