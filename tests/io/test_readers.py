@@ -265,10 +265,16 @@ def test_aris_reads_one_frame_with_seeks(tmp_path, monkeypatch):
         def __getattr__(self, name):
             return getattr(self._f, name)
 
-    monkeypatch.setattr(aris_module, "open", Counting, raising=False)
+    from sonarsim.io.readers import _common
+
+    monkeypatch.setattr(_common, "open", Counting, raising=False)
     image = readers.read(path, 199)
     assert image.config["frame"] == 199
-    assert sum(read_bytes) <= 1024 + 2 * 1024 + 100 * 48
+    # The file header, the headers of frames 0-199 (frame 199 is good only if those before it
+    # are: the rule of the good frames; frame 0's is read twice, for the frame size and when
+    # checked, and frame 199's when checked and when read) and frame 199's samples: no other
+    # frame's samples.
+    assert 0 < sum(read_bytes) <= 1024 + 202 * 1024 + 100 * 48 < 200 * 100 * 48
 
 
 def test_aris_frame_out_of_range_names_valid_range(tmp_path):
@@ -719,8 +725,18 @@ def test_oculus_corrupt_second_header(tmp_path):
     path = tmp_path / "corrupt.raw"
     path.write_bytes(msgs[0] + bytes(bad))
     assert readers.read(path, 0).polar.shape == (10, 4)  # indexed lazily: ping 0 is fine
+    # The corrupt header ends the good pings (issue 21: n_frames used to refuse the file while
+    # read and read_frames gave ping 0); every reader says so alike.
+    assert readers.n_frames(path) == 1
+    with readers.open_recording(path) as recording:
+        assert recording.n_frames == 1
+        assert recording.damage.field == "oculusId" and recording.damage.where.startswith("message 1 (byte ")
     with pytest.raises(RecordingError, match=r"message 1 \(byte \d+\): oculusId"):
-        readers.n_frames(path)
+        readers.read(path, 1)
+    frames = readers.read_frames(path)
+    assert next(frames).config["frame"] == 0
+    with pytest.raises(RecordingError, match=r"message 1 \(byte \d+\): oculusId"):
+        next(frames)
 
 
 def test_oculus_file_without_pings(tmp_path):

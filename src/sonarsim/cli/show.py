@@ -87,15 +87,16 @@ def cmd_show(args: argparse.Namespace) -> None:
     Raises
     ------
     RecordingError
-        For an unreadable recording or a frame out of range (a SonarsimError: the CLI prints
-        it on one line and exits with status 2).
+        For an unreadable recording or a frame that is not among its good frames (a
+        SonarsimError: the CLI prints it on one line and exits with status 2). A recording
+        damaged after the frame shown is shown, with a note on stderr naming the damage.
     OutputError
         If --out cannot be written; checked before the recording is read.
     OSError
         If the recording cannot be opened, or a write fails (e.g. a full disk).
     """
     from ..io.output import to_uint8, write_png
-    from ..io.readers import RecordingError, open_recording
+    from ..io.readers import open_recording
     from ..io.run_record import OutputRun
     from ..plot.figures import default_scale, fan_figure, polar_figure
     from .figures import figure_names, write_figure
@@ -108,10 +109,8 @@ def cmd_show(args: argparse.Namespace) -> None:
     t0 = time.perf_counter()
     with open_recording(args.recording) as recording:
         image = recording.read(args.frame)
-        try:
-            total = str(recording.n_frames)
-        except RecordingError:  # a corrupt message after the one shown: still show it
-            total = "?"
+        # The good frames (those before any damage: the readers' common rule), and what ends them.
+        total, damage, unit = recording.n_frames, recording.damage, recording.unit
     t1 = time.perf_counter()
     s = image.sonar
     cfg = image.config
@@ -120,6 +119,10 @@ def cmd_show(args: argparse.Namespace) -> None:
         f"{s.n_range_bins} ranges x {s.n_beams} beams, {s.range_min_m:.3f}-{s.range_max_m:.3f} m, "
         f"{s.azimuth_fov_deg:.1f} deg wide, in {t1 - t0:.3f} s"
     )
+    if damage is not None:
+        what = ": ".join(part for part in (damage.where, damage.field, damage.detail) if part)
+        _log(f"note: {cfg['source']} is damaged after {unit} {total - 1}: its good {unit}s are 0 to "
+             f"{total - 1} ({what})")
 
     # Full scale of 8-bit data is 255 whatever the frame holds (see the module notes).
     bits = cfg["header"].get("bits_per_value", 8)

@@ -23,9 +23,18 @@ beam tables) is checked against limits that are module constants of the format's
 (:mod:`sonarsim.core.memory`) before it is read. A file that cannot be opened raises the usual
 :class:`OSError`.
 
-``read`` and ``read_frames`` agree on what is an error: iterating fails at frame ``k``, with
-the same error, exactly when ``read(path, k)`` fails for the first time (after the last frame,
-iteration just ends; a file without any frame raises, as ``read(path, 0)`` does).
+Damaged files. Every reader, whatever the format, follows one rule
+(:class:`~sonarsim.io.readers._common.Recording`): a recording is read from its start, and the
+first frame that cannot be read (cut short, a corrupt or impossible header, a frame of another
+size, beyond the memory budget) ends it. The frames before it are the file's good frames, the
+same everywhere: ``n_frames`` (and ``open_recording(path).n_frames``) counts them, ``read(path,
+k)`` returns them and refuses every later ``k`` (frame ``n_frames`` with its own error, later
+ones as out of range, naming the damage), iterating ``read_frames`` yields them and then
+raises that error, and ``sonarsim show`` shows them, with a note naming the damage. An open
+recording's ``damage`` is that error (``None`` when the file ends cleanly). A file whose first
+frame is already unreadable holds nothing: opening it raises (so do ``read``, ``read_frames``
+and ``n_frames``); a file that ends cleanly without any frame has ``n_frames == 0``, and
+reading it raises.
 
 Examples
 --------
@@ -136,13 +145,20 @@ def open_recording(path: PathLike) -> ArisRecording | OculusRecording:
     Returns
     -------
     ArisRecording or OculusRecording
-        With ``n_frames``, ``read(frame)`` and iteration over all frames.
+        With ``n_frames`` (the good frames), ``damage`` (why the file ends there, or None),
+        ``read(frame)`` and iteration over the good frames.
+
+    Raises
+    ------
+    RecordingError
+        Unknown content, or a first frame that cannot be read (nothing in the file is).
     """
     return FORMATS[detect_format(path)](path)
 
 
 def n_frames(path: PathLike) -> int:
-    """Number of complete frames (ARIS) or simple ping results (Oculus) in a recording."""
+    """Number of good frames (ARIS) or simple ping results (Oculus) in a recording: those before
+    the first one that cannot be read (``open_recording(path).damage`` says why it cannot)."""
     with open_recording(path) as recording:
         return recording.n_frames
 
@@ -165,8 +181,8 @@ def read(path: PathLike, frame: int = 0):
     Raises
     ------
     RecordingError
-        Unknown content, truncated or corrupt file, ``frame`` out of range (the message gives
-        the valid range).
+        Unknown content, a frame that is not among the good frames: truncated, corrupt, after
+        such a frame, or out of range (the message gives the valid range).
     """
     with open_recording(path) as recording:
         return recording.read(frame)
@@ -175,10 +191,11 @@ def read(path: PathLike, frame: int = 0):
 def read_frames(path: PathLike) -> Iterator:
     """Every frame of a recording, in order, read one at a time (the file stays open meanwhile).
 
-    The file is opened and recognised at once (a foreign file raises here, not at the first
-    ``next``). A truncated last frame raises :class:`RecordingError` after the complete frames;
-    a frame that :func:`read` refuses raises the same error when iteration reaches it, and a
-    file without frames raises at the first ``next`` (never an empty iteration).
+    The file is opened and recognised at once (a foreign file, or one whose first frame is
+    unreadable, raises here, not at the first ``next``). The good frames are yielded, then the
+    first frame that :func:`read` refuses raises the same error (a truncated last frame, a
+    corrupt header); a file without frames raises at the first ``next`` (never an empty
+    iteration).
     """
     return _frames(open_recording(path))
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import operator
 import os
+from collections.abc import Iterator
 from typing import BinaryIO
 
 from ...errors import SonarsimError
@@ -228,13 +229,44 @@ def require_frame_memory(
 
 
 class Recording:
-    """An open recording file, read on demand with seeks; subclasses index it in ``_open``.
+    """An open recording file, read on demand with seeks: the rule every format follows.
 
-    Holds the file open (closed by :meth:`close` or a ``with`` block) and closes it again if
-    ``_open`` finds the file unusable.
+    **Good frames.** A recording is read from its start, and the first frame that cannot be
+    read ends it: the frames before it are the recording's good frames, everywhere alike.
+    :attr:`n_frames` counts them; :meth:`read` returns them (and refuses every frame from the
+    first unreadable one on, naming it); iteration yields them, then raises the error that
+    ended them; :attr:`damage` is that error (``None`` for a file that ends cleanly). So a
+    file damaged at frame ``k`` (a corrupt or impossible header, a cut, frames that change
+    size) is a recording of ``k`` frames that says why it stops there, whichever way it is
+    read. A file whose very first frame is unreadable has nothing to offer and is refused
+    when opened, with that frame's error; a file that ends cleanly without any frame opens,
+    with ``n_frames == 0``, and reading it raises.
+
+    Frames are checked lazily, in order, as far as a call needs (``read(k)`` checks the
+    headers of frames ``0 .. k``, never their samples; :attr:`n_frames` and :attr:`damage`
+    check them all), and what was found is kept.
+
+    Subclasses index the file in :meth:`_open` and implement :meth:`_check` (is frame ``k``
+    there and good?), :meth:`_read` (decode a good frame) and :meth:`_no_frames` (the error
+    for a clean file without frames). The file is held open (closed by :meth:`close` or a
+    ``with`` block) and closed again if opening fails.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Raises
+    ------
+    RecordingError
+        The file is not of the subclass's format, or its first frame is unreadable.
+    OSError
+        The file cannot be opened.
     """
 
     format = ""
+    #: What one frame is called in messages, and several.
+    unit, units = "frame", "frames"
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = path
@@ -242,13 +274,134 @@ class Recording:
         self._handle = open(path, "rb")  # noqa: SIM115 (held open for seeks; close())
         try:
             self._file_size = os.fstat(self._handle.fileno()).st_size
+            self._good = 0  # frames 0 .. _good - 1 are checked and readable
+            self._ended = False  # the check reached the end: a clean end or the damage
+            self._damage: RecordingError | None = None
             self._open()
+            if self._verify_to(1) == 0 and self._damage is not None:
+                raise self._damage_error()
         except BaseException:
             self._handle.close()
             raise
 
+    # -- what a format provides --------------------------------------------------------------
+
     def _open(self) -> None:
+        """Read what the format needs to find its frames (file header, first frame's size)."""
         raise NotImplementedError
+
+    def _check(self, k: int) -> bool:
+        """Check frame ``k`` (called once per frame, in order, after frames ``0 .. k - 1``).
+
+        Returns
+        -------
+        bool
+            True if frame ``k`` exists and :meth:`_read` can decode it; False if the file ends
+            cleanly before it.
+
+        Raises
+        ------
+        RecordingError
+            Frame ``k`` is damaged: exactly the error reading it gives.
+        """
+        raise NotImplementedError
+
+    def _read(self, k: int):
+        """Decode frame ``k``, already found good by :meth:`_check`."""
+        raise NotImplementedError
+
+    def _no_frames(self, k: int) -> RecordingError:
+        """The error for frame ``k`` of a file that ends cleanly without any frame."""
+        return RecordingError(self._source, f"{self.unit} {k} requested, but the file has no {self.units}")
+
+    # -- the rule ----------------------------------------------------------------------------
+
+    def _verify_to(self, n: float) -> int:
+        """Check frames in order until ``n`` are good or the file ends; returns the good count."""
+        while self._good < n and not self._ended:
+            try:
+                more = self._check(self._good)
+            except RecordingError as exc:
+                self._damage = exc
+                self._ended = True
+                break
+            if more:
+                self._good += 1
+            else:
+                self._ended = True
+        return self._good
+
+    def _damage_error(self) -> RecordingError:
+        # A new exception each time it is raised (its traceback is the caller's), same content.
+        d = self._damage
+        assert d is not None
+        return RecordingError(d.source, d.detail, d.where, d.field)
+
+    @property
+    def n_frames(self) -> int:
+        """Number of good frames: those before the first unreadable one (see :attr:`damage`).
+
+        Checks every frame's header the first time (not their samples).
+        """
+        return self._verify_to(math.inf)
+
+    @property
+    def damage(self) -> RecordingError | None:
+        """Why the recording ends after :attr:`n_frames` frames, or ``None`` if it ends cleanly.
+
+        The :class:`RecordingError` that reading frame ``n_frames`` raises: a cut (truncated
+        last frame or message), a corrupt or impossible header, a frame of another size, a
+        frame beyond the memory budget. Its ``where``, ``field`` and ``detail`` name the frame
+        (or message), the header field and what is wrong.
+        """
+        self._verify_to(math.inf)
+        return self._damage
+
+    def __len__(self) -> int:
+        return self.n_frames
+
+    def read(self, frame: int = 0):
+        """Frame ``frame`` (0-based) as a :class:`~sonarsim.image.result.SonarImage`.
+
+        Raises
+        ------
+        RecordingError
+            ``frame`` is the first unreadable frame (its own error), lies beyond it, or is out
+            of range (the message gives the good frames, and the damage after them).
+        TypeError
+            ``frame`` is not an integer.
+        """
+        k = frame_index(frame)
+        if k >= 0 and self._verify_to(k + 1) > k:
+            return self._read(k)
+        raise self._unreadable(k)
+
+    def _unreadable(self, k: int) -> RecordingError:
+        """The error for frame ``k``, which is not among the good frames."""
+        n = self.n_frames
+        if self._damage is not None and k == n:
+            return self._damage_error()
+        if n == 0:
+            return self._no_frames(k)
+        message = f"{self.unit} {k} is out of range: the file has {n} {self.units} (valid: 0 to {n - 1})"
+        if self._damage is not None:
+            d = self._damage
+            what = ": ".join(part for part in (d.where, d.field, d.detail) if part)
+            message += f"; it is damaged after them ({what})"
+        return RecordingError(self._source, message)
+
+    def __iter__(self) -> Iterator:
+        """Every good frame in order, then the error that ends them (:attr:`damage`), if any.
+
+        Iteration fails exactly where :meth:`read` fails first: a file without frames raises
+        (as ``read(0)`` does) rather than yielding nothing.
+        """
+        k = 0
+        while self._verify_to(k + 1) > k:
+            yield self._read(k)
+            k += 1
+        if self._damage is not None or k == 0:
+            raise self._unreadable(k)
 
     def close(self) -> None:
         """Close the file."""

@@ -44,15 +44,17 @@ the value and the allowed interval (``SAMPLES_PER_BEAM_LIMITS``, ``SAMPLE_PERIOD
 ``SAMPLE_START_DELAY_US_LIMITS``, ``SOUND_SPEED_LIMITS``, ``WINDOW_END_MAX_M``: Sound Metrics'
 device limits with a margin of about 4).
 
-Frames are read one at a time with seeks: ARIS files reach gigabytes. The frame count comes
-from the file size (the SDK advises against trusting the file header's ``FrameCount``).
+Frames are read one at a time with seeks: ARIS files reach gigabytes. The frames a file
+can hold follow from its size (the SDK advises against trusting the file header's
+``FrameCount``); of those, the good ones are the frames before the first whose header is
+impossible or that is cut short (the rule of :class:`~sonarsim.io.readers._common.Recording`:
+``n_frames``, ``read``, iteration and ``damage`` agree on them).
 """
 
 from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -201,8 +203,9 @@ class ArisRecording(Recording):
     Raises
     ------
     RecordingError
-        If the file is not an ARIS DDF_05 file, or its file header or first frame header is
-        truncated or impossible.
+        If the file is not an ARIS DDF_05 file, or its file header or first frame is truncated
+        or impossible (nothing in it is readable). A damaged later frame ends the good frames
+        instead (``n_frames``, ``damage``).
     OSError
         If the file cannot be opened.
 
@@ -236,18 +239,18 @@ class ArisRecording(Recording):
         data_bytes = self._file_size - FILE_HEADER_SIZE
         if data_bytes == 0:
             self._frame_size = 0
-            self._n_frames = 0
+            self._n_complete = 0
             self._tail = 0
             return
         # Frame 0 fixes the frame size; every frame must share it (the SDK computes frame
-        # offsets the same way), which read() checks.
+        # offsets the same way), which _geometry() checks.
         self._frame_size = 0
         header = self._frame_header(0)
         self._n_beams = header["BeamCount"]
         self._n_samples = header["SamplesPerBeam"]
         self._frame_size = FRAME_HEADER_SIZE + self._n_samples * self._n_beams
-        self._n_frames, self._tail = divmod(data_bytes, self._frame_size)
-        if self._n_frames == 0:
+        self._n_complete, self._tail = divmod(data_bytes, self._frame_size)
+        if self._n_complete == 0:
             # Frame 0 itself does not fit: say which field asks for more than the file holds.
             raise RecordingError(
                 self._source,
@@ -257,14 +260,6 @@ class ArisRecording(Recording):
                 f"(truncated file or corrupt header)",
                 "frame 0", "SamplesPerBeam",
             )
-
-    @property
-    def n_frames(self) -> int:
-        """Number of complete frames (a truncated last frame is not counted)."""
-        return self._n_frames
-
-    def __len__(self) -> int:
-        return self._n_frames
 
     def _where(self, frame: int) -> str:
         return f"frame {frame}"
@@ -336,49 +331,33 @@ class ArisRecording(Recording):
 
     # -- reading --------------------------------------------------------------------------
 
-    def _check_frame(self, frame: object) -> int:
-        k = frame_index(frame)
-        if 0 <= k < self._n_frames:
-            return k
-        if k == self._n_frames and self._tail:
+    def _check(self, k: int) -> bool:
+        """Frame ``k`` is good when it is complete and its header passes :meth:`_geometry`
+        (see :class:`~sonarsim.io.readers._common.Recording`); the samples are not read."""
+        if k < self._n_complete:
+            self._geometry(k)
+            return True
+        if k == self._n_complete and self._tail:
             part = "header" if self._tail < FRAME_HEADER_SIZE else "samples"
             raise RecordingError(
                 self._source,
                 f"truncated: the file ends {self._tail} bytes into this frame, in its {part} (a "
                 f"frame is {self._frame_size} bytes: a {FRAME_HEADER_SIZE}-byte header and "
-                f"{self._n_samples} x {self._n_beams} samples); the {self._n_frames} frames "
+                f"{self._n_samples} x {self._n_beams} samples); the {self._n_complete} frames "
                 "before it are complete",
                 self._where(k),
             )
-        if self._n_frames == 0:
-            raise RecordingError(self._source, f"frame {k} requested, but the file has no frames")
-        cut = "; a truncated frame follows them" if self._tail else ""
-        raise RecordingError(
-            self._source,
-            f"frame {k} is out of range: the file has {self._n_frames} frames "
-            f"(valid: 0 to {self._n_frames - 1}){cut}",
-        )
+        return False
 
-    def read(self, frame: int = 0):
-        """Frame ``frame`` (0-based) as a :class:`~sonarsim.image.result.SonarImage`.
-
-        Returns
-        -------
-        SonarImage
-            ``polar`` float32 ``(SamplesPerBeam, BeamCount)`` of the recorded 8-bit values,
-            row 0 nearest, column 0 the left-most beam; ``config`` holds the source, format,
-            frame and the decoded frame header (plus ``model``, ``lens``, ``BeamCount``,
-            ``window_start_m``, ``window_end_m``, ``sample_length_m`` and ``file_header``).
+    def _geometry(self, k: int) -> dict[str, Any]:
+        """Frame ``k``'s checked header and what the image is built from (all but the samples).
 
         Raises
         ------
         RecordingError
-            Frame out of range, truncated, or with an impossible header.
+            An impossible header, a frame size other than frame 0's, a window beyond any ARIS,
+            a frame beyond the memory budget, or a lens without a beam table.
         """
-        from ...image.result import SonarImage
-        from ...config.sonar import SonarConfig
-
-        k = self._check_frame(frame)
         where = self._where(k)
         h = self._frame_header(k)
         for name, first in (("PingMode", self._n_beams), ("SamplesPerBeam", self._n_samples)):
@@ -401,10 +380,44 @@ class ArisRecording(Recording):
             f"SampleStartDelay {h['SampleStartDelay']} us + SamplesPerBeam {n_samples} x "
             f"SamplePeriod {h['SamplePeriod']} us at SoundSpeed {c:.6g} m/s",
         )
-        end = start + n_samples * dr
         require_frame_memory(
             self._source, where, "SamplesPerBeam", n_samples, n_beams, _BYTES_PER_SAMPLE_READ
         )
+        model, fit_key, (hf_khz, lf_khz) = SYSTEM_TYPES[h["TheSystemType"]]
+        telephoto = h["LargeLens"] == 1
+        angles = self._beam_angles(model, "ARIS-telephoto" if telephoto else fit_key, n_beams, h, where)
+        return {
+            "header": h, "where": where, "start": start, "end": start + n_samples * dr, "dr": dr,
+            "model": model, "telephoto": telephoto, "angles": angles,
+            "frequency": hf_khz if h["FrequencyHiLow"] == 1 else lf_khz,
+        }
+
+    def read(self, frame: int = 0):
+        """Frame ``frame`` (0-based) as a :class:`~sonarsim.image.result.SonarImage`.
+
+        Returns
+        -------
+        SonarImage
+            ``polar`` float32 ``(SamplesPerBeam, BeamCount)`` of the recorded 8-bit values,
+            row 0 nearest, column 0 the left-most beam; ``config`` holds the source, format,
+            frame and the decoded frame header (plus ``model``, ``lens``, ``BeamCount``,
+            ``window_start_m``, ``window_end_m``, ``sample_length_m`` and ``file_header``).
+
+        Raises
+        ------
+        RecordingError
+            Frame out of range, truncated, with an impossible header, or after such a frame
+            (see :class:`~sonarsim.io.readers._common.Recording`: the good frames).
+        """
+        return super().read(frame)
+
+    def _read(self, k: int):
+        from ...image.result import SonarImage
+        from ...config.sonar import SonarConfig
+
+        g = self._geometry(k)
+        h, where, start, end = g["header"], g["where"], g["start"], g["end"]
+        n_samples, n_beams = self._n_samples, self._n_beams
         offset = FILE_HEADER_SIZE + k * self._frame_size + FRAME_HEADER_SIZE
         raw = read_at(
             self._handle, offset, n_samples * n_beams, self._file_size, self._source, where,
@@ -413,31 +426,26 @@ class ArisRecording(Recording):
         # data[sample, beam], beam 0 right-most -> flip so column 0 is the left-most beam.
         samples = np.frombuffer(raw, dtype=np.uint8).reshape(n_samples, n_beams)[:, ::-1]
         polar = np.ascontiguousarray(samples, dtype=np.float32)
-
-        model, fit_key, (hf_khz, lf_khz) = SYSTEM_TYPES[h["TheSystemType"]]
-        telephoto = h["LargeLens"] == 1
-        angles = self._beam_angles(model, "ARIS-telephoto" if telephoto else fit_key, n_beams, h, where)
-        frequency = hf_khz if h["FrequencyHiLow"] == 1 else lf_khz
         try:
             sonar = SonarConfig(
-                beam_angles_deg=tuple(angles),
+                beam_angles_deg=tuple(g["angles"]),
                 elevation_fov_deg=ELEVATION_FOV_DEG,
                 range_min_m=start,
                 range_max_m=end,
                 n_range_bins=n_samples,
-                frequency_khz=frequency,
+                frequency_khz=g["frequency"],
             )
         except ConfigError as exc:  # defensive: the checks above should make this impossible
             raise RecordingError(self._source, f"gives an impossible sonar: {exc}", where) from exc
 
         header = dict(h)
         header.update(
-            model=model,
-            lens="telephoto" if telephoto else "standard",
+            model=g["model"],
+            lens="telephoto" if g["telephoto"] else "standard",
             window_start_m=start,
             window_end_m=end,
-            sample_length_m=dr,
-            frequency_khz=frequency,
+            sample_length_m=g["dr"],
+            frequency_khz=g["frequency"],
             bits_per_value=8,
             elevation_fov_deg_assumed=ELEVATION_FOV_DEG,
             file_header=dict(self.file_header),
@@ -468,14 +476,3 @@ class ArisRecording(Recording):
                 "1200/1800 x 48, ARIS 1800 x 96, ARIS 3000 x 64/128, telephoto lens x 48/96)",
                 where, "PingMode",
             ) from None
-
-    def __iter__(self) -> Iterator:
-        """Every frame in order; a truncated last frame raises after the complete ones.
-
-        Iteration fails exactly where :meth:`read` fails: a file without frames raises (as
-        ``read(0)`` does) rather than yielding nothing.
-        """
-        for k in range(self._n_frames):
-            yield self.read(k)
-        if self._tail or self._n_frames == 0:
-            self._check_frame(self._n_frames)  # raises: truncated frame, or no frames at all

@@ -61,9 +61,7 @@ Values wider than 24 bits lose precision in the float32 image (float32 has a 24-
 
 from __future__ import annotations
 
-import math
 import struct
-from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -180,9 +178,11 @@ class _Message:
 class OculusRecording(Recording):
     """An open file of Oculus messages; pings are read on demand with seeks.
 
-    The messages are indexed lazily (16 bytes read per message), so opening a long log and
-    reading its first ping costs nothing, and a corrupt message late in a file only matters
-    when it is reached.
+    The messages are indexed lazily (16 bytes read per message, and a ping's header and
+    bearing table when it is checked), so opening a long log and reading its first ping costs
+    little. A corrupt or cut message ends the good pings (the rule of
+    :class:`~sonarsim.io.readers._common.Recording`): ``n_frames`` counts the pings before it,
+    ``damage`` says what is wrong with it, and ``read`` and iteration stop there.
 
     Parameters
     ----------
@@ -192,7 +192,8 @@ class OculusRecording(Recording):
     Raises
     ------
     RecordingError
-        If the first message header is not an Oculus header.
+        If the first message header is not an Oculus header, or the first ping (or the message
+        before it) is unreadable.
     OSError
         If the file cannot be opened.
     """
@@ -205,7 +206,6 @@ class OculusRecording(Recording):
         self._next_offset = 0
         self._done = False
         self._tail_error: RecordingError | None = None
-        self._scan_next()  # the first header must be an Oculus one
 
     # -- indexing -------------------------------------------------------------------------
 
@@ -266,42 +266,32 @@ class OculusRecording(Recording):
         while len(self._pings) < n_pings and not self._done:
             self._scan_next()
 
-    @property
-    def n_frames(self) -> int:
-        """Number of complete simple-ping-result messages (indexes the whole file)."""
-        self._scan_to(math.inf)  # type: ignore[arg-type]
-        return len(self._pings)
-
-    def __len__(self) -> int:
-        return self.n_frames
-
     # -- reading --------------------------------------------------------------------------
 
-    def _message_for(self, frame: object) -> _Message:
-        k = frame_index(frame)
-        if k >= 0:
-            self._scan_to(k + 1)
-            if k < len(self._pings):
-                return self._pings[k]
-        n = self.n_frames
-        if k == n and self._tail_error is not None:
+    unit, units = "ping", "simple ping results"
+
+    def _check(self, k: int) -> bool:
+        """Ping ``k`` is good when its message is complete and its header and bearing table
+        pass :meth:`_layout` (see :class:`~sonarsim.io.readers._common.Recording`)."""
+        self._scan_to(k + 1)  # raises for a message header that is not an Oculus one
+        if k < len(self._pings):
+            self._layout(self._pings[k], k)
+            return True
+        if self._tail_error is not None:
+            tail = self._tail_error
             raise RecordingError(
                 self._source,
-                f"ping {k} would follow, but the last message is cut: {self._tail_error.detail}",
-                self._tail_error.where,
+                f"ping {k} would follow, but the last message is cut: {tail.detail}",
+                tail.where, tail.field,
             )
-        if n == 0:
-            kinds = sorted({f"0x{m.msg_id:02x}" for m in self._messages})
-            raise RecordingError(
-                self._source,
-                f"no simple ping result (message id 0x{SIMPLE_PING_RESULT:02x}) in the file; "
-                f"message ids found: {', '.join(kinds)}",
-            )
-        cut = "; a truncated message follows them" if self._tail_error is not None else ""
-        raise RecordingError(
+        return False
+
+    def _no_frames(self, k: int) -> RecordingError:
+        kinds = sorted({f"0x{m.msg_id:02x}" for m in self._messages})
+        return RecordingError(
             self._source,
-            f"ping {k} is out of range: the file has {n} simple ping results "
-            f"(valid: 0 to {n - 1}){cut}",
+            f"no simple ping result (message id 0x{SIMPLE_PING_RESULT:02x}) in the file; "
+            f"message ids found: {', '.join(kinds)}",
         )
 
     def read(self, frame: int = 0):
@@ -317,23 +307,24 @@ class OculusRecording(Recording):
         Raises
         ------
         RecordingError
-            Ping out of range, truncated, of an unsupported version, or with an impossible
-            header.
+            Ping out of range, truncated, of an unsupported version, with an impossible
+            header, or after such a ping (see :class:`~sonarsim.io.readers._common.Recording`:
+            the good frames).
         """
-        m = self._message_for(frame)
-        k = frame_index(frame)
-        where = f"ping {k} (message {m.index}, byte {m.offset})"
-        data = read_at(
-            self._handle, m.offset, m.size, self._file_size, self._source, where,
-            f"message ({m.size} bytes)",
-        )
-        return self._decode(data, k, where, m)
+        return super().read(frame)
 
-    def _decode(self, data: bytes, k: int, where: str, m: _Message):
-        from ...image.result import SonarImage
-        from ...config.sonar import SonarConfig
+    def _layout(self, m: _Message, k: int) -> dict[str, Any]:
+        """Ping ``k``'s checked header and bearing table, read from its message ``m``: all but
+        the image, which is read only by :meth:`_read`.
 
+        Raises
+        ------
+        RecordingError
+            An unsupported version, an impossible header or bearing table, an image that
+            does not fit the message, a ping beyond the memory budget.
+        """
         src = self._source
+        where = f"ping {k} (message {m.index}, byte {m.offset})"
         if m.version in (0, 1):
             version = 1
         elif m.version == 2:
@@ -344,14 +335,20 @@ class OculusRecording(Recording):
                 where, "msgVersion",
             )
         ping_at, ping_struct, names, bearings_at = _LAYOUTS[version]
-        if len(data) < bearings_at:
+        if m.size < bearings_at:
             raise RecordingError(
                 src,
-                f"{len(data) - MESSAGE_HEADER_SIZE} bytes is too short for a version {version} "
+                f"{m.size - MESSAGE_HEADER_SIZE} bytes is too short for a version {version} "
                 f"simple ping result ({bearings_at - MESSAGE_HEADER_SIZE} bytes before the "
                 "bearings)",
                 where, "payloadSize",
             )
+        # Only the header and the bearings are read here: checking every ping of a long log
+        # (n_frames) must not read its images.
+        data = read_at(
+            self._handle, m.offset, bearings_at, self._file_size, src, where,
+            f"ping header ({bearings_at} bytes)",
+        )
         h: dict[str, Any] = dict(zip(_FIRE_FIELDS, _FIRE.unpack_from(data, MESSAGE_HEADER_SIZE)))
         if version == 2:
             (h["extFlags"],) = _FIRE_V2_EXT.unpack_from(data, 53)
@@ -388,11 +385,11 @@ class OculusRecording(Recording):
         )
 
         bearings_end = bearings_at + 2 * n_beams
-        if bearings_end > len(data):
+        if bearings_end > m.size:
             raise RecordingError(
                 src,
                 f"{n_beams} beams need bearings up to byte {bearings_end} of the message, but it "
-                f"has {len(data)} bytes",
+                f"has {m.size} bytes",
                 where, "nBeams",
             )
         gain = bool(h["flags"] & _FLAG_SEND_GAIN)
@@ -407,16 +404,20 @@ class OculusRecording(Recording):
                 where, "imageSize",
             )
         image_at = h["imageOffset"]
-        if image_at < bearings_end or image_at + expected > len(data):
+        if image_at < bearings_end or image_at + expected > m.size:
             raise RecordingError(
                 src,
                 f"the image at bytes {image_at}-{image_at + expected - 1} does not lie between "
                 f"the bearing table (ends at byte {bearings_end}) and the end of the message "
-                f"({len(data)} bytes)",
+                f"({m.size} bytes)",
                 where, "imageOffset",
             )
 
-        bearings = np.frombuffer(data, dtype="<i2", count=n_beams, offset=bearings_at) / 100.0
+        table = read_at(
+            self._handle, m.offset + bearings_at, 2 * n_beams, self._file_size, src, where,
+            f"bearing table ({2 * n_beams} bytes)",
+        )
+        bearings = np.frombuffer(table, dtype="<i2", count=n_beams) / 100.0
         if np.any(np.abs(bearings) >= 90.0):
             raise RecordingError(
                 src, f"bearings reach {np.abs(bearings).max():g} deg (|bearing| < 90 expected)",
@@ -450,33 +451,50 @@ class OculusRecording(Recording):
                 "+-90 deg",
                 where, "bearings",
             )
-
         require_frame_memory(src, where, "nRanges", n_ranges, n_beams, _BYTES_PER_VALUE_READ)
-        rows = np.frombuffer(data, dtype=np.uint8, count=expected, offset=image_at)
-        rows = rows.reshape(n_ranges, row_bytes)
-        if gain:
+        return {
+            "header": h, "where": where, "bearings": bearings, "azimuth": azimuth, "order": order,
+            "bpv": bpv, "gain": gain, "row_bytes": row_bytes, "image_at": image_at,
+            "image_bytes": expected, "range_max_m": n_ranges * dr,
+        }
+
+    def _read(self, k: int):
+        from ...image.result import SonarImage
+        from ...config.sonar import SonarConfig
+
+        m = self._pings[k]
+        g = self._layout(m, k)
+        h, where, src = g["header"], g["where"], self._source
+        n_ranges, n_beams, bpv = h["nRanges"], h["nBeams"], g["bpv"]
+        raw = read_at(
+            self._handle, m.offset + g["image_at"], g["image_bytes"], self._file_size, src, where,
+            f"image ({g['image_bytes']} bytes)",
+        )
+        rows = np.frombuffer(raw, dtype=np.uint8).reshape(n_ranges, g["row_bytes"])
+        if g["gain"]:
             h["rowGainsRaw"] = rows[:, :_GAIN_BYTES].copy().view("<u4").ravel().tolist()
             rows = rows[:, _GAIN_BYTES:]
         values = _unpack_values(rows, n_ranges, n_beams, bpv)
+        order = g["order"]
         polar = np.ascontiguousarray(values[:, order], dtype=np.float32)
 
-        elevation = elevation_fov_deg(frequency_hz, h["masterMode"])
+        elevation = elevation_fov_deg(h["frequency"], h["masterMode"])
         try:
             sonar = SonarConfig(
-                beam_angles_deg=tuple(azimuth[order]),
+                beam_angles_deg=tuple(g["azimuth"][order]),
                 elevation_fov_deg=elevation,
                 range_min_m=0.0,
-                range_max_m=n_ranges * dr,
+                range_max_m=g["range_max_m"],
                 n_range_bins=n_ranges,
-                frequency_khz=frequency_hz / 1e3,
+                frequency_khz=h["frequency"] / 1e3,
             )
         except ConfigError as exc:
             raise RecordingError(src, f"gives an impossible sonar: {exc}", where) from exc
 
         h.update(
-            bearings_deg=bearings.tolist(),
+            bearings_deg=g["bearings"].tolist(),
             bits_per_value=8 * bpv,
-            range_max_m=n_ranges * dr,
+            range_max_m=g["range_max_m"],
             elevation_fov_deg_assumed=elevation,
             message_offset=m.offset,
             message_index=m.index,
@@ -491,22 +509,6 @@ class OculusRecording(Recording):
             rays=None,
             config={"source": src, "format": self.format, "frame": k, "header": h},
         )
-
-    def __iter__(self) -> Iterator:
-        """Every ping in order; a cut last message raises after the complete ones.
-
-        Iteration fails exactly where :meth:`read` fails: a file without simple ping results
-        raises (as ``read(0)`` does) rather than yielding nothing.
-        """
-        k = 0
-        while True:
-            self._scan_to(k + 1)
-            if k >= len(self._pings):
-                break
-            yield self.read(k)
-            k += 1
-        if self._tail_error is not None or k == 0:
-            self._message_for(k)  # raises: the cut message, or no ping at all
 
 
 def _unpack_values(rows: np.ndarray, n_ranges: int, n_beams: int, bpv: int) -> np.ndarray:
