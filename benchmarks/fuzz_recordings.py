@@ -2,9 +2,11 @@
 
 Each case is a seeded mutation of a real recording in ``../shared/data/real`` (see
 ``tests/fuzz/recordings.py``), read every way (``read(path, k)`` for every frame and
-``read_frames``) and checked: a RecordingError or images of plausible geometry, ``read`` and
-``read_frames`` agreeing, nothing slower than the per-case limit, nothing allocated beyond the
-memory budget (``tracemalloc`` peaks of every ``--trace-every``-th case).
+``read_frames``) and checked: a RecordingError or images of plausible geometry, every reader
+agreeing on the good frames (``read``, ``read_frames``, ``open_recording(path).n_frames`` and
+``damage``, ``n_frames``; and ``sonarsim show --frame 0`` on every ``--show-every``-th case),
+nothing slower than the per-case limit, nothing allocated beyond the memory budget
+(``tracemalloc`` peaks of every ``--trace-every``-th case).
 
 Usage (from the repository root)::
 
@@ -44,6 +46,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="seconds a case may take before it counts as a hang (default 5)")
     p.add_argument("--trace-every", type=int, default=10,
                    help="measure the allocation peak of every N-th case (default 10)")
+    p.add_argument("--show-every", type=int, default=100,
+                   help="run `sonarsim show --frame 0` on every N-th case, 0: never (default 100)")
     p.add_argument("--json", type=Path, default=ROOT / "benchmarks" / "fuzz_recordings.json",
                    help="where to write the summary (default benchmarks/fuzz_recordings.json)")
     args = p.parse_args(argv)
@@ -64,7 +68,9 @@ def main(argv: list[str] | None = None) -> int:
             path.write_bytes(case.data)
             kind = "aris" if case.source == "aris" else "oculus"
             traced = args.trace_every > 0 and case.index % args.trace_every == 0
-            o = fuzz.check_file(path, kind, budget, args.time_limit, trace_memory=traced)
+            shown = args.show_every > 0 and case.index % args.show_every == 0
+            o = fuzz.check_file(path, kind, budget, args.time_limit, trace_memory=traced,
+                                show_dir=Path(tmp) / "show" if shown else None)
             by_outcome[o.kind] += 1
             by_source[f"{case.source} {o.kind}"] += 1
             if o.kind in ("refused", "partial"):
@@ -90,6 +96,7 @@ def main(argv: list[str] | None = None) -> int:
         "outcomes": dict(by_outcome.most_common()),
         "refused_by_field": dict(refused_by_field.most_common()),
         "by_source": dict(sorted(by_source.items())),
+        "shown_cases": sum(1 for i in range(args.cases) if args.show_every > 0 and i % args.show_every == 0),
         "failures": len(failures),
         "failed_cases": failures[:100],
         "slowest_case": slowest,

@@ -13,9 +13,16 @@ requires that
 
 * every failure is a :class:`~sonarsim.io.readers.RecordingError` (never another exception,
   a ``MemoryError`` included);
-* ``read`` and ``read_frames`` agree: iteration yields exactly the frames ``read`` returns,
-  and stops where ``read`` first fails, with the same error class (or, after at least one
-  frame, where ``read`` says the frame is out of range);
+* every reader agrees on the good frames (issue 21): iteration yields exactly the frames
+  ``read`` returns, and stops where ``read`` first fails, with the same error class (or, after
+  at least one frame, where ``read`` says the frame is out of range); ``read`` refuses every
+  frame after that one too; ``open_recording(path).n_frames`` and ``n_frames(path)`` count the
+  frames iteration gave, and the recording's ``damage`` is the error iteration ended with
+  (``None`` when it ended cleanly); a file that ``open_recording`` refuses gave no frame, and
+  is refused with the error iteration raised;
+* with ``show_dir``, ``sonarsim show FILE --frame 0`` (in this process) shows frame 0 exactly
+  when ``read(path, 0)`` returns it, says it is frame 0 of ``n_frames`` and names the damage,
+  or exits 2 with ``read``'s error on one line;
 * every image returned has a plausible geometry: within the reader's own limits, a finite,
   non-empty range window, finite strictly descending azimuths within +-90 deg, and a ``polar``
   of the shape the header gives;
@@ -368,7 +375,7 @@ def _iterate(path: Path) -> tuple[list, BaseException | None]:
 
 
 def check_file(path: Path, kind: str, budget_bytes: int, time_limit_s: float = 5.0,
-               trace_memory: bool = False) -> Outcome:
+               trace_memory: bool = False, show_dir: Path | None = None) -> Outcome:
     """Read ``path`` every way and check the result (see the module notes).
 
     Parameters
@@ -384,6 +391,10 @@ def check_file(path: Path, kind: str, budget_bytes: int, time_limit_s: float = 5
     trace_memory : bool
         Measure the case's allocation peak with ``tracemalloc`` (started and stopped here:
         tracing slows every allocation, so a run traces only some cases).
+    show_dir : Path, optional
+        Also run ``sonarsim show`` on the case (:func:`check_show`), writing into this folder
+        (emptied after); outside the timed and traced part (it draws images, which the readers'
+        limits do not cover).
     """
     if trace_memory:
         tracemalloc.start()
@@ -405,7 +416,80 @@ def check_file(path: Path, kind: str, budget_bytes: int, time_limit_s: float = 5
             outcome.failure = f"allocated {outcome.peak_bytes} bytes, budget {budget_bytes}"
     if outcome.failure is None and outcome.seconds > time_limit_s:
         outcome.failure = f"took {outcome.seconds:.2f} s (limit {time_limit_s} s)"
+    if outcome.failure is None and show_dir is not None:
+        outcome.failure = check_show(path, show_dir)
     return outcome
+
+
+#: Memory budget of the ``show`` check: a fan image of the ARIS sample (2330 x 607 pixels and
+#: its resampling tables) needs more than the readers' 64 MiB.
+SHOW_BUDGET_BYTES = 512 * 2**20
+
+
+def check_show(path: Path, out: Path, budget_bytes: int = SHOW_BUDGET_BYTES) -> str | None:
+    """Run ``sonarsim show PATH --frame 0`` in this process; None if it agrees with the readers.
+
+    Under the same memory budget as ``show`` (``budget_bytes``, restored to the caller's after),
+    ``read(path, 0)`` and the recording's ``n_frames`` and ``damage`` are what ``show`` must
+    report: exit 0 with ``polar.png`` of frame 0's shape, "frame 0 of <n_frames>" and a note
+    naming the damage when there is one; or, when ``read(path, 0)`` raises, exit 2 with that
+    error on one line and nothing left in ``out``. The one other way to exit 2: the fan image
+    does not fit the budget (a mutated range window can ask for a huge one).
+    """
+    import contextlib
+    import io
+    import shutil
+
+    from PIL import Image
+
+    from sonarsim.cli.main import main
+    from sonarsim.core.memory import memory_budget, set_memory_budget
+
+    previous = memory_budget()
+    set_memory_budget(budget_bytes)
+    try:
+        image, error = _attempt(lambda: readers.read(path, 0))
+        n, damage = 0, None
+        if error is None:
+            with readers.open_recording(path) as recording:
+                n, damage = recording.n_frames, recording.damage
+        shutil.rmtree(out, ignore_errors=True)
+        stderr = io.StringIO()
+        with contextlib.redirect_stderr(stderr):
+            code = main(["--max-memory", str(budget_bytes), "show", str(path), "--frame", "0",
+                         "--out", str(out), "--no-figures"])
+    finally:
+        set_memory_budget(previous)
+    lines = stderr.getvalue().strip().splitlines()
+    try:
+        if code == 0:
+            if error is not None:
+                return f"show exits 0, but read(path, 0) raises: {error}"
+            if not any(f"frame 0 of {n} from" in line for line in lines):
+                return f"show does not say frame 0 of {n}: {lines}"
+            notes = [line for line in lines if "note:" in line]
+            if (damage is None) != (not notes) or (damage is not None and damage.detail not in notes[0]):
+                return f"show's note {notes} does not match the damage {damage}"
+            with Image.open(out / "polar.png") as png:
+                if png.size[::-1] != image.polar.shape:
+                    return f"show's polar.png is {png.size}, frame 0 is {image.polar.shape[::-1]}"
+            return None
+        if code != 2:
+            return f"show exits {code}: {lines}"
+        if len(lines) != 1:
+            return f"show exits 2 with {len(lines)} lines: {lines}"
+        left = sorted(p.name for p in out.rglob("*")) if out.exists() else []
+        if left:
+            return f"show failed but left {left}"
+        if error is None:
+            if "memory budget" in lines[0] and "pixel" in lines[0]:
+                return None  # the fan image, not the recording
+            return f"show exits 2 ({lines[0]}), but read(path, 0) succeeds"
+        if str(error) not in lines[0]:
+            return f"show's error ({lines[0]}) is not read's ({error})"
+        return None
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
 
 
 _IMPOSSIBLE = "gives an impossible sonar"
@@ -445,8 +529,47 @@ def _check(path: Path, kind: str) -> Outcome:
             if it_error is not None and type(it_error) is not type(error):
                 return fail(f"at frame {k} read_frames raised {type(it_error).__name__}, read "
                             f"{type(error).__name__}")
-        elif it_error is None and error is None:
+        elif error is None:  # nothing after the first unreadable frame is a good frame
             return fail(f"read_frames stopped after {j} frames, but read(path, {k}) succeeds")
+    why = _check_open(path, j, it_error)
+    if why:
+        return fail(why)
     if it_error is None:
         return Outcome("ok", None, j, 0.0, 0)
     return Outcome("partial" if j else "refused", _error_key(it_error), j, 0.0, 0)
+
+
+def _check_open(path: Path, j: int, it_error: BaseException | None) -> str | None:
+    """None if ``open_recording`` / ``n_frames`` agree with iteration (``j`` frames, then
+    ``it_error``), else what differs."""
+    opened, open_error = _attempt(lambda: readers.open_recording(path))
+    if open_error is not None:
+        if not isinstance(open_error, RecordingError):
+            return f"open_recording raised {type(open_error).__name__}: {open_error}"
+        if j:
+            return f"open_recording refuses the file ({open_error}), but read_frames gave {j} frames"
+        if str(open_error) != str(it_error):
+            return f"open_recording raised {open_error}, read_frames {it_error}"
+        counted, count_error = _attempt(lambda: readers.n_frames(path))
+        if count_error is None or str(count_error) != str(open_error):
+            return f"n_frames(path) gave {counted if count_error is None else count_error}, open_recording raised {open_error}"
+        return None
+    with opened:
+        n, n_error = _attempt(lambda: opened.n_frames)
+        damage, damage_error = _attempt(lambda: opened.damage)
+    for what, exc in (("n_frames", n_error), ("damage", damage_error)):
+        if exc is not None:
+            return f"open_recording(path).{what} raised {type(exc).__name__}: {exc}"
+    if n != j:
+        return f"open_recording(path).n_frames is {n}, but read_frames gave {j} frames"
+    counted, count_error = _attempt(lambda: readers.n_frames(path))
+    if counted != n:
+        return f"n_frames(path) gave {counted if count_error is None else count_error}, the open recording {n}"
+    if damage is None:
+        # A clean end: iteration ended without error, or a file without frames raised.
+        if it_error is not None and j:
+            return f"read_frames raised after {j} frames ({it_error}), but the recording reports no damage"
+        return None
+    if not isinstance(damage, RecordingError) or str(damage) != str(it_error):
+        return f"the recording's damage ({damage}) is not the error read_frames ended with ({it_error})"
+    return None

@@ -14,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sonarsim.core.memory import set_memory_budget
@@ -32,6 +33,7 @@ N_CASES = 5000
 # for an ARIS frame; what they allocate while read is far less (the tracemalloc peaks).
 BUDGET_BYTES = 64 * 2**20
 TRACE_EVERY = 10  # tracemalloc slows a case four-fold: measure every tenth
+SHOW_EVERY = 100  # `sonarsim show` (fan image, PNGs) costs ten cases: run it on every 100th
 
 
 @pytest.fixture
@@ -58,7 +60,8 @@ def run_cases(tmp_path: Path, seed: int, n: int, budget: int):
         path.write_bytes(case.data)
         kind = "aris" if case.source == "aris" else "oculus"
         outcome = fuzz.check_file(path, kind, budget, time_limit_s=5.0,
-                                  trace_memory=case.index % TRACE_EVERY == 0)
+                                  trace_memory=case.index % TRACE_EVERY == 0,
+                                  show_dir=tmp_path / "show" if case.index % SHOW_EVERY == 0 else None)
         counts[outcome.kind, outcome.field] += 1
         by_source[case.source, outcome.kind] += 1
         slowest = max(slowest, outcome.seconds)
@@ -111,8 +114,129 @@ def test_the_check_catches_an_implausible_window(tmp_path, monkeypatch):
     assert outcome.failure is None and (outcome.kind, outcome.field) == ("refused", "SamplePeriod")
     monkeypatch.setattr(aris_reader, "check_within", lambda *a, **k: None)
     monkeypatch.setattr(aris_reader, "check_range_window", lambda *a, **k: None)
+    # SonarConfig itself now refuses windows beyond 10 km (which the check reports as a reader
+    # check missed): 2000 us give a window to about 3 km, which only the check's own
+    # plausibility (400 m for an ARIS) catches.
+    data[1024 + 452:1024 + 456] = (2000).to_bytes(4, "little")
+    path.write_bytes(bytes(data))
     failure = fuzz.check_file(path, "aris", BUDGET_BYTES).failure
     assert failure and "implausible geometry: range window" in failure
+
+
+# ------------------------------------------------------------------------------------------
+# Issue 21: every reader agrees on the good frames of a damaged file
+# ------------------------------------------------------------------------------------------
+
+
+def _aris_frame_size(data: bytes) -> int:
+    return fuzz._aris_frame_size(data)
+
+
+def _damaged(name: str) -> tuple[str, bytes, int, str]:
+    """(source, mutated bytes, the first damaged frame, the field or word its error names)."""
+    aris = fuzz.SOURCES["aris"].read_bytes()
+    three = fuzz.SOURCES["oculus3"].read_bytes()
+    size = _aris_frame_size(aris)
+    messages = fuzz.oculus_messages(three)
+
+    def put(data: bytes, offset: int, fmt: str, value) -> bytes:
+        out = bytearray(data)
+        struct.pack_into(fmt, out, offset, value)
+        return bytes(out)
+
+    if name == "aris-sound-speed-frame3":  # an impossible header in the middle of the file
+        return "aris", put(aris, 1024 + 3 * size + 464, "<f", 1e-3), 3, "SoundSpeed"
+    if name == "aris-cut-in-frame4":  # a file cut short (a copy interrupted)
+        return "aris", aris[:1024 + 4 * size + 3000], 4, "truncated"
+    if name == "aris-frame2-changes-size":  # PingMode 9 (128 beams) after frames of 48
+        return "aris", put(aris, 1024 + 2 * size + 436, "<I", 9), 2, "PingMode"
+    if name == "oculus-garbage-header-1":  # the second message's header overwritten
+        return "oculus3", put(three, messages[1][0], "<H", 0x5C36), 1, "oculusId"
+    if name == "oculus-bearings-ping1":  # ping 1's bearing table out of order
+        bearing = messages[1][0] + 122 + 2 * 40
+        return "oculus3", put(three, bearing, "<h", 8900), 1, "bearings"
+    if name == "oculus-cut-in-ping2":
+        return "oculus3", three[:messages[2][0] + 5000], 2, "payloadSize"
+    if name == "aris-frame0-sample-period":  # nothing is readable: refused everywhere
+        return "aris", put(aris, 1024 + 452, "<I", 0xFFFFFFFF), 0, "SamplePeriod"
+    raise AssertionError(name)
+
+
+DAMAGED = ["aris-sound-speed-frame3", "aris-cut-in-frame4", "aris-frame2-changes-size",
+           "oculus-garbage-header-1", "oculus-bearings-ping1", "oculus-cut-in-ping2",
+           "aris-frame0-sample-period"]
+
+
+@pytest.mark.parametrize("name", DAMAGED)
+def test_every_reader_agrees_on_the_good_frames_of_a_damaged_recording(tmp_path, name, capsys):
+    from sonarsim.cli.main import main
+
+    source, data, bad, word = _damaged(name)
+    path = tmp_path / f"{name}.bin"
+    path.write_bytes(data)
+    original = list(readers.read_frames(fuzz.SOURCES[source]))
+    assert bad < len(original)  # the damage is inside the real recording's frames
+
+    def names_the_damage(exc):
+        return isinstance(exc, readers.RecordingError) and (exc.field == word or word in exc.detail)
+
+    if bad == 0:  # nothing readable: every reader refuses the file with the same error
+        with pytest.raises(readers.RecordingError) as opened:
+            readers.open_recording(path)
+        assert names_the_damage(opened.value)
+        for call in (lambda: readers.n_frames(path), lambda: readers.read(path, 0),
+                     lambda: list(readers.read_frames(path))):
+            with pytest.raises(readers.RecordingError) as err:
+                call()
+            assert str(err.value) == str(opened.value)
+    else:
+        with readers.open_recording(path) as recording:
+            assert recording.n_frames == len(recording) == bad
+            damage = recording.damage
+        assert names_the_damage(damage), damage
+        assert readers.n_frames(path) == bad
+        # The good frames are the real recording's frames, unchanged.
+        got = []
+        with pytest.raises(readers.RecordingError) as ended:
+            for image in readers.read_frames(path):
+                got.append(image)
+        assert str(ended.value) == str(damage)
+        assert len(got) == bad
+        for k in range(bad):
+            np.testing.assert_array_equal(readers.read(path, k).polar, original[k].polar)
+            np.testing.assert_array_equal(got[k].polar, original[k].polar)
+        with pytest.raises(readers.RecordingError) as err:
+            readers.read(path, bad)
+        assert str(err.value) == str(damage)
+        # Frames after the damage are not good frames, even where their bytes are intact.
+        for k in range(bad + 1, len(original) + 1):
+            with pytest.raises(readers.RecordingError, match=f"out of range.*valid: 0 to {bad - 1}.*damaged"):
+                readers.read(path, k)
+    # sonarsim show: frame 0 when it is good, with a note naming the damage; else exit 2.
+    capsys.readouterr()
+    code = main(["show", str(path), "--frame", "0", "--out", str(tmp_path / "out"), "--no-figures"])
+    err = capsys.readouterr().err
+    if bad:
+        assert code == 0 and f"frame 0 of {bad} from" in err
+        assert "note:" in err and word in err.split("note:", 1)[1]
+        assert (tmp_path / "out" / "polar.png").is_file()
+        assert fuzz.check_show(path, tmp_path / "again") is None
+        code = main(["show", str(path), "--frame", str(bad), "--out", str(tmp_path / "after"), "--no-figures"])
+        assert code == 2 and not (tmp_path / "after").exists()
+    else:
+        assert code == 2 and len(err.strip().splitlines()) == 1 and word in err
+
+
+def test_the_check_catches_readers_that_disagree_on_the_good_frames(tmp_path, monkeypatch):
+    # The disagreement of issue 21 reintroduced on purpose: n_frames counting frames after the
+    # damage. The check must report it, or the fuzz test above proves nothing.
+    _, data, bad, _ = _damaged("aris-sound-speed-frame3")
+    path = tmp_path / "mid.aris"
+    path.write_bytes(data)
+    assert fuzz.check_file(path, "aris", BUDGET_BYTES).failure is None
+    monkeypatch.setattr(readers.ArisRecording, "n_frames", property(lambda self: self._n_complete))
+    failure = fuzz.check_file(path, "aris", BUDGET_BYTES).failure
+    assert failure and f"n_frames is 6, but read_frames gave {bad} frames" in failure
 
 
 def test_cases_are_reproducible():
