@@ -263,3 +263,27 @@ def test_a_pulse_shorter_than_a_bin_stays_in_it(length_us, bin_m):
                            "render": {"elevation_samples": 8}, "ground": {"height_m": -1.0},
                            "sensor": {"pulse": {"kind": "cw", "length_us": 1.0}}}, speckle=False)
     assert np.all(np.isfinite(img.polar)) and img.polar.max() > 0
+
+
+@pytest.mark.parametrize("threads", [1_000_000, 257, 0, -1])
+def test_thread_counts_are_bounded(threads):
+    with pytest.raises(ConfigError, match="from 1 to 256 or null") as e:
+        sonarsim.load_scene({"sonar": SONAR, "render": {"threads": threads}})
+    assert e.value.key == "render.threads"
+    assert sonarsim.load_scene({"sonar": SONAR, "render": {"threads": 256}}).render.threads == 256
+
+
+@pytest.mark.parametrize("name, planes, ground", [
+    ("ground", [], {}),          # two ids named ground in the labels
+    ("ground", [], None),        # also the planes' direct-echo component
+    ("surface", [{"name": "surface", "point_m": [0, 0, 2], "normal": [0, 0, -1]}], {}),
+])
+def test_an_object_may_not_take_a_planes_name(name, planes, ground):
+    doc = {"sonar": SONAR, "planes": planes,
+           "objects": [{"name": "ball", "primitive": "sphere", "radius_m": 0.2, "pose": {"position_m": [2, 0, 0.5]}},
+                       {"name": name, "primitive": "sphere", "radius_m": 0.2, "pose": {"position_m": [3, 0, 0.5]}}]}
+    if ground is not None:
+        doc["ground"] = ground
+    with pytest.raises(ConfigError, match="is a reflecting plane's name") as e:
+        sonarsim.load_scene(doc)
+    assert e.value.key == "objects[1].name"

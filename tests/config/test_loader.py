@@ -213,7 +213,7 @@ BAD_SCENES: list = [
     ("elevation-samples-0", [(("render", "elevation_samples"), 0)], "render.elevation_samples",
      ["'auto' or a positive integer"]),
     ("azimuth-samples-0", [(("render", "azimuth_samples"), 0)], "render.azimuth_samples", ["positive integer"]),
-    ("threads-0", [(("render", "threads"), 0)], "render.threads", ["positive integer"]),
+    ("threads-0", [(("render", "threads"), 0)], "render.threads", ["from 1 to 256"]),
     ("unknown-double-beam", [(("render", "double_beam"), "both")], "render.double_beam", ["paper, split"]),
     ("int-double-line-of-sight", [(("render", "double_line_of_sight"), 1)], "render.double_line_of_sight",
      ["true or false"]),

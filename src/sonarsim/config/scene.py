@@ -35,6 +35,10 @@ MAX_ORDER_LIMIT = 9
 MAX_LENGTH_M = 1e4
 # A sonar scene spans kilometres at most: points and planes farther out than this are typos.
 MAX_COORDINATE_M = 1e6
+# Ray-casting threads a scene may ask for: more than the cores of large machines only costs
+# threads' memory and start-up (1,000,000 was accepted and handed to Embree); ``null`` takes
+# every core of any machine.
+MAX_THREADS = 256
 
 
 def _check_unit_interval(key: str, value: float) -> None:
@@ -62,7 +66,8 @@ class ObjectSpec:
     Attributes
     ----------
     name : str
-        Label, unique in the scene.
+        Label, unique in the scene, and neither ``ground`` nor the name of one of its planes
+        (checked by :class:`Scene`: objects and planes share the label ids).
     primitive : {'box', 'sphere', 'cylinder'} or None
         Shape, centred on the object's origin (a cylinder's axis is its z axis).
     size_m : (3,) tuple of float or None
@@ -342,7 +347,7 @@ class RenderSettings:
         Seed of the speckle: a :class:`~sonarsim.Simulator` draws frame after frame from one
         generator seeded with it, so a sequence of renders is reproducible.
     threads : int or None
-        Ray-casting threads; ``None``: all CPU cores.
+        Ray-casting threads, 1 to ``MAX_THREADS`` (256); ``None``: all CPU cores, however many.
     """
 
     elevation_samples: int | str = "auto"
@@ -390,8 +395,10 @@ class RenderSettings:
             )
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise ConfigError("render.seed", f"must be a non-negative integer, got {shown(self.seed)}")
-        if self.threads is not None and (isinstance(self.threads, bool) or self.threads < 1):
-            raise ConfigError("render.threads", f"must be a positive integer or null, got {shown(self.threads)}")
+        th = self.threads
+        if th is not None and (isinstance(th, bool) or not isinstance(th, (int, np.integer)) or not 1 <= th <= MAX_THREADS):
+            raise ConfigError("render.threads", f"must be an integer from 1 to {MAX_THREADS} or null (all cores), "
+                              f"got {shown(th)}")
 
     def to_dict(self) -> dict:
         return {
@@ -461,6 +468,14 @@ class Scene:
                 why = "names must be unique" if plane.name in earlier else "the ground: section is the plane 'ground'"
                 raise ConfigError(f"planes[{i}].name", f"duplicate plane name {shown(plane.name)}; {why}")
             taken.append(plane.name)
+        # Labels number the objects and then the planes, naming each id (Labels.ids): an object
+        # called ``ground`` gave two ids of that name. ``ground`` is refused even without a ground
+        # section: it is also the name of the planes' direct-echo component.
+        plane_names = set(taken) | {"ground"}
+        for i, obj in enumerate(self.objects):
+            if obj.name in plane_names:
+                raise ConfigError(f"objects[{i}].name", f"{shown(obj.name)} is a reflecting plane's name; an object's "
+                                  f"name must differ from 'ground' and the planes' ({', '.join(taken) or 'none'})")
         if self.render.method == "paper" and self.render.double_beam == "separate":
             raise ConfigError(
                 "render.double_beam",
