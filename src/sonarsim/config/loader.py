@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, MeshFileError, SonarsimError, check_input_file, key_text, shown
-from ..scene.meshes import load_mesh_file
+from ..scene.meshes import load_mesh_file, world_reach_m
 from .document import MAX_DOCUMENT_BYTES as MAX_SCENE_BYTES, read_document  # noqa: F401 - re-exported
 from .materials import LAWS, Material, mu_from_db
 from .presets import beam_angles_from_table, get_preset
@@ -364,7 +364,15 @@ def parse_object(d: Any, index: int, base_dir: Path | None) -> ObjectSpec:
             load_mesh_file(kw["mesh"], texture=True)
         except MeshFileError as exc:
             raise ConfigError(f"{where}.material.texture", str(exc)) from None
-    return _prefixed(where, ObjectSpec, **kw)
+    spec = _prefixed(where, ObjectSpec, **kw)
+    if spec.mesh is not None:
+        # Once scaled and posed (both checked now), the mesh must stay within the scene's extent.
+        reach = world_reach_m(load_mesh_file(spec.mesh), spec.scale, spec.pose)  # cached: read above
+        if reach > MAX_COORDINATE_M:
+            raise ConfigError(f"{where}.mesh", f"{spec.mesh}: scaled by {shown(spec.scale)} and posed at "
+                              f"{list(spec.pose.position_m)}, its vertices reach {reach:.3g} m from the origin; "
+                              f"allowed: within {MAX_COORDINATE_M:g} m (mind scale and pose)")
+    return spec
 
 
 def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: str | None = None) -> Scene:

@@ -1,9 +1,15 @@
 """Triangle meshes of the scene objects, in world coordinates.
 
-Primitives are built with trimesh; mesh files are anything trimesh loads (OBJ, STL, PLY,
-GLB/glTF, OFF). Multi-part files (a trimesh Scene) are flattened with their transforms.
-An object whose material asks for its texture (``material: {texture: true}``) keeps the mesh's
-UV coordinates and the brightness of its texture image (see :mod:`sonarsim.scene.textures`).
+Primitives are built with trimesh; mesh files are what trimesh reads triangles from, by suffix
+(:data:`MESH_SUFFIXES`: OBJ, STL, PLY, OFF, GLB/glTF). Multi-part files (a trimesh Scene) are
+flattened with their transforms. An object whose material asks for its texture
+(``material: {texture: true}``) keeps the mesh's UV coordinates and the brightness of its
+texture image (see :mod:`sonarsim.scene.textures`).
+
+Files a mesh refers to (an OBJ's material library and the images it names, a glTF's buffers
+and images) are opened only after :func:`~sonarsim.errors.check_input_file` (a pipe named there
+blocked forever); vertices must lie within ``MAX_COORDINATE_M`` of the origin, in the file and
+once scaled and posed.
 """
 
 from __future__ import annotations
@@ -16,7 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import MeshFileError, SonarsimError, check_input_file, shown
-from ..config.scene import ObjectSpec
+from ..config.scene import MAX_COORDINATE_M, ObjectSpec
+
+#: File suffixes of the mesh formats read: those trimesh reads triangles from (``.xyz``, which
+#: trimesh also knows, holds points: an OBJ named ``.xyz`` failed with "could not convert string
+#: to float: 'v'").
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
 
 # Primitive tessellation. A facet may lie at most PRIMITIVE_TOLERANCE_M inside the true
 # surface: well under a tenth of the finest range bin of the devices we model (an ARIS 3000 at
@@ -92,16 +103,64 @@ def _trimesh():
     return trimesh
 
 
+def _checked_resolver(path: str):
+    """A trimesh resolver for the files next to ``path`` that opens a file only after
+    :func:`~sonarsim.errors.check_input_file`, and records what it was asked for.
+
+    trimesh opens what a mesh refers to itself (an OBJ's ``mtllib`` and ``map_Kd``, a glTF's
+    buffers and images) and ignores most failures: an image that is a pipe blocked forever, a
+    missing material library left an OBJ with UVs on a made-up grey texture. This resolver
+    refuses what is not a regular file (recorded in ``refused``, and trimesh told it is not
+    found), and records the names it ``read`` and those ``missing``.
+    """
+    trimesh = _trimesh()
+
+    class CheckedFiles(trimesh.resolvers.FilePathResolver):
+        def __init__(self, source: str) -> None:
+            super().__init__(source)
+            self.refused: list[str] = []
+            self.missing: list[str] = []
+            self.read: list[str] = []
+
+        def get(self, name: str) -> bytes:
+            # As written, then by its base name alone (as trimesh looks for it).
+            for candidate in dict.fromkeys((name.strip(), os.path.basename(name.strip()))):
+                try:
+                    target = self.absolute(candidate)
+                except ValueError:  # a name leading out of the mesh's folder
+                    continue
+                if not os.path.lexists(target):
+                    continue
+                try:
+                    check_input_file(target, "regular file")
+                    with open(target, "rb") as f:
+                        data = f.read()
+                except (SonarsimError, OSError) as exc:
+                    self.refused.append(str(exc) if isinstance(exc, SonarsimError) else f"{target}: {exc}")
+                    raise FileNotFoundError(name) from None
+                self.read.append(name)
+                return data
+            self.missing.append(name)
+            raise FileNotFoundError(name)
+
+    return CheckedFiles(path)
+
+
 @functools.lru_cache(maxsize=32)
 def _load_mesh_file_cached(path: str, mtime_ns: int, size: int, texture: bool = False) -> TriangleMesh:
     trimesh = _trimesh()
 
+    resolver = _checked_resolver(path)
     try:
-        loaded = trimesh.load(path, force="mesh", process=False)
+        loaded = trimesh.load(path, force="mesh", process=False, resolver=resolver)
     except ImportError:  # trimesh reaching for an optional text decoder: the bytes are not a mesh it knows
         raise MeshFileError(f"{path}: not a mesh file trimesh can read (OBJ, STL, PLY, GLB/glTF, OFF)") from None
     except Exception as exc:  # trimesh raises many types for unreadable files
+        if resolver.refused:
+            raise MeshFileError(f"{path}: refers to {resolver.refused[0]}") from None
         raise MeshFileError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
+    if resolver.refused:
+        raise MeshFileError(f"{path}: refers to {resolver.refused[0]}")
     if not isinstance(loaded, trimesh.Trimesh):
         raise MeshFileError(f"{path}: no triangle mesh found in the file")
     vertices = np.asarray(loaded.vertices, dtype=float)
@@ -110,6 +169,10 @@ def _load_mesh_file_cached(path: str, mtime_ns: int, size: int, texture: bool = 
         raise MeshFileError(f"{path}: the mesh is empty (no triangles)")
     if not np.all(np.isfinite(vertices)):
         raise MeshFileError(f"{path}: the mesh has non-finite vertex coordinates")
+    reach = float(np.abs(vertices).max())
+    if reach > MAX_COORDINATE_M:  # 1e30 m: beyond any scene, and past what float32 rays can meet
+        raise MeshFileError(f"{path}: vertex coordinates reach {reach:.3g} m; allowed: within "
+                            f"{MAX_COORDINATE_M:g} m of the mesh's origin")
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise MeshFileError(f"{path}: faces refer to vertices that do not exist")
     v = vertices[faces]
@@ -118,6 +181,12 @@ def _load_mesh_file_cached(path: str, mtime_ns: int, size: int, texture: bool = 
     vertices.setflags(write=False)
     faces.setflags(write=False)
     if texture:
+        if path.lower().endswith(".obj") and not any(not n.lower().endswith(".mtl") for n in resolver.read):
+            # No image was read: trimesh would give the UVs its own 2 x 2 grey image.
+            if resolver.missing:
+                raise MeshFileError(f"{path}: texture: true needs the OBJ's material library and its texture "
+                                    f"image; {', '.join(map(repr, resolver.missing))} not found beside the mesh")
+            raise MeshFileError(f"{path}: the mesh has no texture (its material library names no map_Kd image)")
         return TriangleMesh(vertices, faces, *_texture_of(loaded, path))
     return TriangleMesh(vertices, faces)
 
@@ -135,13 +204,19 @@ def load_mesh_file(path: str | os.PathLike, texture: bool = False) -> TriangleMe
     Raises
     ------
     MeshFileError
-        The file is missing, unreadable, or holds no triangles; the message names the file.
+        The file is missing, unreadable, not of a format in :data:`MESH_SUFFIXES`, holds no
+        triangles or vertices beyond ``MAX_COORDINATE_M``, or refers to a file that is not a
+        regular file (a pipe, a device); with ``texture``, an OBJ whose material library or
+        texture image is missing. The message names the file.
     """
     p = Path(path)
     try:
         st = check_input_file(p, "mesh file")
     except SonarsimError as exc:
         raise MeshFileError(str(exc)) from None
+    if p.suffix.lower() not in MESH_SUFFIXES:
+        raise MeshFileError(f"{p}: {shown(p.suffix) if p.suffix else 'a name without a suffix'} is not a mesh format "
+                            f"sonarsim reads; allowed: {', '.join(MESH_SUFFIXES)}")
     if st.st_size == 0:
         raise MeshFileError(f"{p}: the mesh file is empty")
     from ..core.memory import require
@@ -233,11 +308,49 @@ def primitive_mesh(primitive: str, size_m=None, radius_m=None, height_m=None, sc
     return TriangleMesh(vertices, faces)
 
 
+def world_reach_m(local: TriangleMesh, scale, pose) -> float:
+    """How far from the world origin, along any axis, a mesh reaches once scaled and posed:
+    ``max |R (scale v) + t|`` over its vertices (exact).
+
+    The corners of the mesh's bounding box answer first (the box holds every vertex, and a
+    linear map takes its extremes at corners); the vertices only when a corner lies beyond
+    ``MAX_COORDINATE_M``, so that checking a 5-million-triangle mesh in every frame's scene
+    costs nothing.
+
+    Parameters
+    ----------
+    local : TriangleMesh
+        In object coordinates.
+    scale : float or (3,) float
+    pose : Pose
+        Object-to-world.
+    """
+    s = np.broadcast_to(np.asarray(scale, dtype=float), (3,))
+    lo, hi = local.vertices.min(axis=0), local.vertices.max(axis=0)
+    corners = np.array([[(lo, hi)[(k >> i) & 1][i] for i in range(3)] for k in range(8)])
+    reach = float(np.abs((corners * s) @ pose.rotation.T + pose.translation).max())
+    if reach <= MAX_COORDINATE_M:
+        return reach
+    return float(np.abs((local.vertices * s) @ pose.rotation.T + pose.translation).max())
+
+
 def object_mesh_world(obj: ObjectSpec) -> TriangleMesh:
-    """The object's mesh in world coordinates: ``R @ (scale * v) + t``."""
+    """The object's mesh in world coordinates: ``R @ (scale * v) + t``.
+
+    Raises
+    ------
+    MeshFileError
+        A mesh object reaches beyond ``MAX_COORDINATE_M`` of the origin (naming it and its file).
+    """
     local = object_mesh_local(obj)
     scale = np.broadcast_to(np.asarray(obj.scale, dtype=float), (3,))
     v = (local.vertices * scale) @ obj.pose.rotation.T + obj.pose.translation
+    # Primitives are bounded by their sizes and positions; a mesh (a file, or a Trimesh from
+    # Python, scaled up to 1e4) is not.
+    if obj.primitive is None and len(v) and np.abs(v).max() > MAX_COORDINATE_M:
+        source = f" ({obj.mesh})" if isinstance(obj.mesh, (str, Path)) else ""
+        raise MeshFileError(f"object {obj.name!r}{source}: scaled and posed, its vertices reach "
+                            f"{float(np.abs(v).max()):.3g} m from the origin; allowed: within {MAX_COORDINATE_M:g} m")
     return TriangleMesh(v, np.ascontiguousarray(local.faces, dtype=np.int32), local.uv, local.texture)
 
 
