@@ -74,6 +74,35 @@ def test_rosbag_option_writes_the_bag(tmp_path, scenario_file):
     assert list((out / "rosbag").glob("*.db3"))
 
 
+def test_start_time_option_stamps_the_bag(tmp_path, scenario_file, capsys):
+    pytest.importorskip("rosbags")
+    out = tmp_path / "ds"
+    assert main(["dataset", str(scenario_file), "--out", str(out), "--frames", "2", "--rosbag", "mcap",
+                 "--labels", "none", "--no-progress", "--start-time", "2024-05-01T14:00:00+02:00"]) == 0
+    assert f"{out / 'rosbag'}: stamped from 2024-05-01T12:00:00Z (--start-time)" in capsys.readouterr().err
+    meta = yaml.safe_load((out / "rosbag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["starting_time"]["nanoseconds_since_epoch"] == 1_714_564_800 * 10**9
+    # Without the option: the documented default, said on stderr too.
+    assert main(["dataset", str(scenario_file), "--out", str(tmp_path / "d2"), "--frames", "1", "--rosbag", "mcap",
+                 "--labels", "none", "--no-progress"]) == 0
+    assert "stamped from 2000-01-01T00:00:00Z" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--rosbag", "mcap", "--start-time", "now"], "--start-time: must be an ISO 8601 time"),
+    (["--rosbag", "mcap", "--start-time", "0"], "--start-time: must be an ISO 8601 time"),
+    (["--rosbag", "mcap", "--start-time", "2038-01-19T03:14:00Z"], "--start-time: starting at 2038-01-19T03:14:00Z"),
+    (["--start-time", "2024-05-01"], "--start-time: sets the ROS 2 bag's stamps: give --rosbag mcap or sqlite3 too"),
+])
+def test_bad_start_times_exit_2_in_one_line_before_anything_is_written(tmp_path, scenario_file, capsys, argv, message):
+    out = tmp_path / "ds"
+    # 12 frames at the random trajectory's 1 Hz: the last 11 s after a start 68 s before 2038's end.
+    assert main(["dataset", str(scenario_file), "--out", str(out), "--no-progress", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("sonarsim: error: " + message) and "\n" not in err and "Traceback" not in err
+    assert not out.exists()
+
+
 def test_ray_option(tmp_path, scenario_file, capsys):
     ray = pytest.importorskip("ray")
     out = tmp_path / "ds"

@@ -68,3 +68,4 @@ def test_track_example_is_resampled_to_its_rate():
     assert s.n_frames == 17  # 4 s at 4 Hz, both ends
     np.testing.assert_allclose([s.frame(k).time_s for k in range(3)], [0.0, 0.25, 0.5])
     np.testing.assert_allclose(s.frame(2).pose.position_m, [0.25, 0.0, 0.355])
+    assert s.start_time_ns == 1_714_564_800 * 10**9  # start_time: 2024-05-01T12:00:00Z (the bag's frame 0)

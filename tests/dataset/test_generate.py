@@ -33,6 +33,7 @@ from sonarsim.dataset.manifest import (
 from sonarsim.dataset.writer import npz_bytes
 from sonarsim.errors import ConfigError, SonarsimError
 from sonarsim.io.output import read_npz
+from sonarsim.io.rosbag import DEFAULT_START_NS
 
 from .test_scenario import SCENE, VARIED
 
@@ -358,11 +359,122 @@ def test_bag_holds_every_frame_in_order_and_is_rewritten_on_resume(tmp_path):
                 polars.append(np.frombuffer(bytes(msg.image.data), np.float32).reshape(-1, msg.image.beam_count))
             if conn.topic == "/sonar/fan":
                 assert reader.deserialize(raw, conn.msgtype).encoding == "mono8"
-    assert stamps == [round(scenario.frame(k).time_s * 1e9) for k in range(5)]
+    # From the default start (2000-01-01T00:00:00Z), as the frame times say.
+    assert stamps == [DEFAULT_START_NS + round(scenario.frame(k).time_s * 1e9) for k in range(5)]
     for k, polar in enumerate(polars):
         arrays, _ = read_npz(out / f"frames/{k:06d}.npz")
         np.testing.assert_array_equal(polar, arrays["polar"])
     assert not [p for p in out.iterdir() if p.name.endswith(".tmp")]
+
+
+# Bag time: a start the user sets (or a fixed default), every stamp and the metadata from it.
+
+
+def read_mcap(bag: Path) -> dict:
+    """Everything about time in an MCAP bag, read with the mcap library and its ROS 2 decoder
+    (independent of rosbags, which wrote it): per topic the log and publish times and the
+    decoded messages, the summary's statistics, and metadata.yaml."""
+    import yaml
+
+    mcap_reader = pytest.importorskip("mcap.reader")
+    decoder = pytest.importorskip("mcap_ros2.decoder")
+    (path,) = bag.glob("*.mcap")
+    topics: dict[str, list] = {}
+    with open(path, "rb") as handle:
+        reader = mcap_reader.make_reader(handle, decoder_factories=[decoder.DecoderFactory()])
+        for _, channel, message, msg in reader.iter_decoded_messages():
+            topics.setdefault(channel.topic, []).append((message.log_time, message.publish_time, msg))
+        statistics = reader.get_summary().statistics
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    return {"topics": topics, "statistics": statistics, "metadata": meta}
+
+
+def stamp_ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def assert_stamped(bag: Path, expected: list[int]) -> None:
+    """Every message of frame k, its header and TF stamps, bag times, metadata.yaml and the MCAP
+    summary, at ``expected[k]``."""
+    seen = read_mcap(bag)
+    topics = seen["topics"]
+    assert set(topics) == {"/sonar/image", "/sonar/fan", "/sonar/pose", "/tf"}
+    for topic, messages in topics.items():
+        assert [log for log, _, _ in messages] == expected, topic
+        assert [pub for _, pub, _ in messages] == expected, topic
+        for (log, _, msg) in messages:
+            if topic == "/tf":
+                assert [stamp_ns(t.header.stamp) for t in msg.transforms] == [log, log]
+            else:
+                assert stamp_ns(msg.header.stamp) == log, topic
+    stats = seen["statistics"]
+    assert (stats.message_start_time, stats.message_end_time) == (expected[0], expected[-1])
+    meta = seen["metadata"]
+    assert meta["starting_time"]["nanoseconds_since_epoch"] == expected[0]
+    assert meta["duration"]["nanoseconds"] == expected[-1] - expected[0]
+    assert meta["files"][0]["starting_time"]["nanoseconds_since_epoch"] == expected[0]
+    assert meta["files"][0]["duration"]["nanoseconds"] == expected[-1] - expected[0]
+
+
+def test_bag_stamps_start_at_the_scenario_start_time_and_repeat_byte_for_byte(tmp_path):
+    pytest.importorskip("rosbags")
+    # Frame times 0, 0.25, 0.5 s (rate 4 Hz); frame 0 at 2024-05-01T12:00:00.5Z.
+    scenario = {**ORBIT, "start_time": "2024-05-01T12:00:00.5Z"}
+    start = 1_714_564_800_500_000_000
+    runs = []
+    for name in ("a", "b"):
+        summary = generate(scenario, tmp_path / name, frames=3, rosbag="mcap", labels="none", progress=False)
+        assert summary.rosbag_start_ns == start
+        runs.append(summary.rosbag)
+    assert_stamped(runs[0], [start, start + 250_000_000, start + 500_000_000])
+    files = sorted(p.name for p in runs[0].iterdir())
+    assert files == ["metadata.yaml", "rosbag.mcap"]
+    for name in files:  # the same scenario, the same bag: nothing comes from the clock
+        assert (runs[0] / name).read_bytes() == (runs[1] / name).read_bytes(), name
+
+
+def test_bag_start_defaults_to_2000_and_the_argument_overrides_the_scenario(tmp_path):
+    from sonarsim.io.rosbag import DEFAULT_START_NS, DEFAULT_START_TIME
+
+    pytest.importorskip("rosbags")
+    assert DEFAULT_START_TIME == "2000-01-01T00:00:00Z" and DEFAULT_START_NS == 946_684_800 * 10**9
+    summary = generate(ORBIT, tmp_path / "default", frames=2, rosbag="mcap", labels="none", progress=False)
+    assert_stamped(summary.rosbag, [DEFAULT_START_NS, DEFAULT_START_NS + 250_000_000])
+    scenario = {**ORBIT, "start_time": "2024-05-01T12:00:00Z"}
+    summary = generate(scenario, tmp_path / "given", frames=2, rosbag="mcap", labels="none", progress=False,
+                       start_time=1_600_000_000)
+    assert_stamped(summary.rosbag, [1_600_000_000 * 10**9, 1_600_000_000 * 10**9 + 250_000_000])
+
+
+def test_bag_stamps_follow_a_track_file_whose_times_are_absolute(tmp_path):
+    """A CSV track logged in seconds since 1970: frame 0 goes to the start time, the others keep
+    their steps (not the track's own epoch added to the start)."""
+    pytest.importorskip("rosbags")
+    t0 = 1_700_000_000.0
+    lines = ["t,x,y,z,roll_deg,pitch_deg,yaw_deg"] + [f"{t0 + dt},0,{0.1 * i},1,0,20,0"
+                                                      for i, dt in enumerate((0.0, 0.1, 0.3))]
+    (tmp_path / "track.csv").write_text("\n".join(lines) + "\n")
+    scenario = {"scene": SCENE, "seed": 1, "trajectory": {"file": "track.csv"}, "start_time": 1_000_000_000}
+    summary = generate(load_scenario(scenario, base_dir=tmp_path), tmp_path / "ds", rosbag="mcap", labels="none",
+                       progress=False)
+    start = 10**18
+    # Float seconds of 1.7e9 carry about 0.2 us: the steps to within that.
+    log_times = [log for log, _, _ in read_mcap(summary.rosbag)["topics"]["/sonar/image"]]
+    assert log_times[0] == start
+    np.testing.assert_allclose(np.diff(log_times), [100_000_000, 200_000_000], atol=1000)
+
+
+def test_a_start_time_whose_last_frame_is_past_2038_is_refused_before_rendering(tmp_path):
+    pytest.importorskip("rosbags")
+    scenario = {**ORBIT, "start_time": "2038-01-19T03:14:07Z"}  # 10 frames at 4 Hz: 2.25 s later
+    with pytest.raises(ConfigError) as info:
+        generate(scenario, tmp_path / "ds", rosbag="mcap", progress=False)
+    assert info.value.key == "start_time" and "2038-01-19T03:14:07Z" in str(info.value)
+    assert not (tmp_path / "ds").exists()
+    # Without a bag the start time stamps nothing, and nothing is refused.
+    generate(scenario, tmp_path / "nobag", frames=1, labels="none", progress=False)
+    with pytest.raises(ConfigError, match="start_time"):
+        generate(ORBIT, tmp_path / "bad", rosbag="mcap", progress=False, start_time="yesterday")
 
 
 def test_torch_example_imports_without_torch_and_makes_samples():

@@ -195,6 +195,11 @@ def test_paths_are_relative_to_the_scenario_file(tmp_path):
     ({**VARIED, "scene": {**SCENE, "ground": {"albedo": 2.0}}}, "scene.ground.albedo"),
     ({**VARIED, "scene": {**SCENE, "render": [1]}}, "scene.render"),
     ({**VARIED, "description": 5}, "description"),
+    ({**VARIED, "start_time": "yesterday"}, "start_time"),
+    ({**VARIED, "start_time": 0}, "start_time"),  # tf2's "latest", not a time
+    ({**VARIED, "start_time": "2038-01-19T03:14:08Z"}, "start_time"),  # past int32 seconds
+    ({**VARIED, "start_time": True}, "start_time"),
+    ({**VARIED, "start_time": [2024, 5, 1]}, "start_time"),
     # Variations whose extremes make invalid scenes: the key in the scenario is named.
     ({**VARIED, "variation": {"ground": {"albedo": {"uniform": [0.5, 1.5]}}}}, "variation.ground.albedo"),
     ({**VARIED, "variation": {"objects": [{"pool": [{"primitive": "sphere", "radius_m": {"uniform": [-0.1, 0.1]}}]}]}},
@@ -236,6 +241,22 @@ def test_errors_in_files_name_the_file(tmp_path):
     with pytest.raises(ConfigError, match="is a directory") as info:
         load_scenario(f)
     assert info.value.key == "trajectory.file"
+
+
+def test_start_time_key_in_every_form_a_scenario_file_may_hold_it(tmp_path):
+    # ISO 8601 text (quoted), YAML's own timestamp (unquoted: a datetime), a date, seconds.
+    noon = 1_714_564_800 * 10**9  # 2024-05-01T12:00:00Z
+    for text, expected in (("'2024-05-01T12:00:00Z'", noon), ("2024-05-01T12:00:00Z", noon),
+                           ("2024-05-01T14:00:00+02:00", noon), ("2024-05-01 12:00:00", noon),
+                           ("2024-05-01", noon - 12 * 3600 * 10**9), ("1714564800.25", noon + 250_000_000)):
+        f = tmp_path / "sc.yaml"
+        f.write_text(yaml.safe_dump(VARIED) + f"start_time: {text}\n")
+        assert load_scenario(f).start_time_ns == expected, text
+    assert load_scenario(VARIED).start_time_ns is None  # the bag's default, not the clock
+    f.write_text(yaml.safe_dump(VARIED) + "start_time: soon\n")
+    with pytest.raises(ConfigError, match=r"sc\.yaml: start_time: must be an ISO 8601 time") as info:
+        load_scenario(f)
+    assert "\n" not in str(info.value) and "'soon'" in str(info.value)
 
 
 def test_a_scenario_object_is_frozen():

@@ -224,7 +224,7 @@ def test_real_render_round_trip(tmp_path):
                      "pose": {"position_m": [2.5, 0.6, 0.0], "rpy_deg": [0, 0, 0]}}],
     }
     image = sonarsim.render(scene)
-    frame = frame_from_image(image, stamp_ns=0, fan=True, frequency_hz=900e3,
+    frame = frame_from_image(image, stamp_ns=rb.DEFAULT_START_NS, fan=True, frequency_hz=900e3,
                              points_world=np.zeros((1, 3), np.float32), points_object=np.zeros(1, np.int32))
     topics = read_bag(write_bag(tmp_path / "rosbag", "mcap", [frame]))
     msg = topics["/sonar/image"][0][2]
@@ -324,6 +324,8 @@ def test_missing_rosbags_names_the_extra(tmp_path, monkeypatch):
     ({"points_world": np.zeros((3, 2))}, "points_world"),
     ({"fan": np.zeros((3, 3), np.int16)}, "fan"),
     ({"stamp_ns": -1}, "stamp_ns"),
+    ({"stamp_ns": 0}, "stamp_ns"),  # tf2 reads a zero stamp as "the latest transform"
+    ({"stamp_ns": 2**31 * 10**9}, "stamp_ns"),  # builtin_interfaces/Time: int32 seconds
     ({"stamp_ns": 1.5}, "stamp_ns"),
     ({"sound_speed_m_s": 0.0}, "sound_speed_m_s"),
     ({"pose": (0, 0, 0)}, "pose"),
@@ -351,12 +353,90 @@ def test_frame_ids_must_be_distinct_ros_names():
 
 def test_an_image_without_pose_cannot_make_a_frame():
     image = sonarsim.render({"sonar": sonar_dict(n_range_bins=20, n_beams=8), "render": {"elevation_samples": 4}})
-    frame_from_image(image, stamp_ns=0)  # a render carries its pose
+    frame_from_image(image, stamp_ns=rb.DEFAULT_START_NS)  # a render carries its pose
     with pytest.raises(SonarsimError, match="pose"):
-        frame_from_image(dataclasses.replace(image, pose=None), stamp_ns=0)
+        frame_from_image(dataclasses.replace(image, pose=None), stamp_ns=rb.DEFAULT_START_NS)
 
 
 def test_a_bag_without_frames_is_a_valid_empty_bag(tmp_path):
     path = write_bag(tmp_path / "rosbag", "mcap", [])
     with rosbags_highlevel.AnyReader([path]) as reader:
         assert reader.message_count == 0 and reader.connections == []
+
+
+# Start time -----------------------------------------------------------------------------------
+
+NOON = 1_714_564_800 * 10**9  # 2024-05-01T12:00:00Z
+
+
+@pytest.mark.parametrize("value, expected", [
+    ("2024-05-01T12:00:00Z", NOON),
+    ("2024-05-01T14:00:00+02:00", NOON),
+    ("2024-05-01T12:00:00", NOON),  # no offset: UTC, as YAML reads it
+    ("20240501T120000Z", NOON),
+    ("2024-05-01", NOON - 12 * 3600 * 10**9),
+    ("2024-05-01T12:00:00.123456789Z", NOON + 123_456_789),  # nanoseconds kept (datetime: micro)
+    ("2024-05-01T12:00:00,5Z", NOON + 500_000_000),
+    ("1714564800", NOON),
+    (" 1714564800.000000001 ", NOON + 1),
+    ("1.7145648e9", NOON),
+    (1714564800, NOON),
+    (1714564800.25, NOON + 250_000_000),
+    (np.int64(1714564800), NOON),
+    ("2038-01-19T03:14:07.999999999Z", 2**31 * 10**9 - 1),
+    ("1970-01-01T00:00:00.000000001Z", 1),
+])
+def test_start_times_in_iso_8601_or_seconds(value, expected):
+    assert rb.parse_start_time(value) == expected
+
+
+def test_start_times_from_yaml_timestamps():
+    import datetime as dt
+
+    assert rb.parse_start_time(dt.datetime(2024, 5, 1, 12)) == NOON  # naive: UTC
+    assert rb.parse_start_time(dt.datetime(2024, 5, 1, 14, tzinfo=dt.timezone(dt.timedelta(hours=2)))) == NOON
+    assert rb.parse_start_time(dt.date(2024, 5, 1)) == NOON - 12 * 3600 * 10**9
+
+
+@pytest.mark.parametrize("value", ["now", "", "yesterday", "2024-13-01", "2024-05-01T25:00:00Z", "nan", "inf",
+                                   "1e999999999", "-1", "0", 0, 0.0, -5, True, None, [2024], float("nan"),
+                                   "1970-01-01T00:00:00Z", "2038-01-19T03:14:08Z", 2**31, "x" * 1000])
+def test_bad_start_times_are_one_line_naming_the_option(value):
+    with pytest.raises(ConfigError) as info:
+        rb.parse_start_time(value, "--start-time")
+    message = str(info.value)
+    assert info.value.key == "--start-time" and "\n" not in message and len(message) < 400
+    assert "ISO 8601" in message and "seconds since 1970-01-01T00:00:00Z" in message
+
+
+def test_the_default_start_is_2000_not_zero():
+    assert rb.DEFAULT_START_NS == rb.parse_start_time(rb.DEFAULT_START_TIME) == 946_684_800 * 10**9
+    assert rb.format_stamp(rb.DEFAULT_START_NS) == "2000-01-01T00:00:00Z"
+    assert rb.format_stamp(NOON + 123_000_000) == "2024-05-01T12:00:00.123Z"
+
+
+def test_frame_stamps_start_at_the_start_and_step_as_the_times():
+    assert rb.frame_stamps(NOON, [0.0, 0.25, 0.5]) == [NOON, NOON + 250_000_000, NOON + 500_000_000]
+    # Times that do not start at zero (a track logged in seconds since 1970): frame 0 at the start.
+    assert rb.frame_stamps(NOON, [1e9 + 0.5, 1e9 + 0.75]) == [NOON, NOON + 250_000_000]
+    assert rb.frame_stamps(NOON, []) == []
+    last = 2**31 * 10**9 - 10**9  # 2038-01-19T03:14:07Z
+    assert rb.frame_stamps(last, [0.0, 0.5])[-1] == last + 500_000_000
+    with pytest.raises(ConfigError) as info:
+        rb.frame_stamps(last, [0.0, 0.5, 1.0], "--start-time")
+    assert info.value.key == "--start-time" and "the last of 3 frames (1 s later)" in str(info.value)
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_a_bag_is_byte_identical_when_written_again(tmp_path, storage):
+    """Nothing in a bag comes from the clock: the same frames, the same files."""
+    frames = [synthetic_frame(i) for i in range(3)]
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    # The same folder name in both: the storage file is named after it.
+    a = write_bag(tmp_path / "a" / "rosbag", storage, frames)
+    b = write_bag(tmp_path / "b" / "rosbag", storage, frames)
+    names = sorted(p.name for p in a.iterdir())
+    assert names == sorted(p.name for p in b.iterdir()) and "metadata.yaml" in names
+    for name in names:
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name

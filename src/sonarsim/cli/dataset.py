@@ -44,6 +44,11 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "'local' (a new Ray instance here); needs sonarsim[ray]")
     p.add_argument("--rosbag", choices=("mcap", "sqlite3"), default=None,
                    help="also write a ROS 2 bag into OUT/rosbag with this storage (needs sonarsim[ros])")
+    p.add_argument("--start-time", default=None, metavar="TIME",
+                   help="the bag's stamp of frame 0, the others following the trajectory's times: ISO 8601 "
+                   "(2024-05-01T12:00:00Z; UTC where no offset is given) or seconds since 1970 (default: the "
+                   "scenario's start_time, else 2000-01-01T00:00:00Z: fixed, so that the same scenario gives the "
+                   "same bag byte for byte; \"$(date +%%s)\" for now)")
     p.add_argument("--png", action="store_true", help="also write each frame's polar and fan images as PNG")
     p.add_argument("--seed", type=_seed, default=None, metavar="S",
                    help="replace the scenario's seed (every frame's draws come from it and the frame index)")
@@ -63,7 +68,19 @@ def cmd_dataset(args: argparse.Namespace) -> None:
     from ..dataset.scenario import MAX_SEED
     from ..errors import ConfigError
 
+    start_ns = None
+    if args.start_time is not None:  # checked before the scenario is read: it is cheap
+        from ..io.rosbag import parse_start_time
+
+        if args.rosbag is None:
+            raise ConfigError("--start-time", "sets the ROS 2 bag's stamps: give --rosbag mcap or sqlite3 too")
+        start_ns = parse_start_time(args.start_time, "--start-time")
     scenario = load_scenario(args.scenario, frames=args.frames)
+    if start_ns is not None:
+        from ..io.rosbag import frame_stamps
+
+        # The last frame's stamp too, here to name the option (generate names start_time).
+        frame_stamps(start_ns, [scenario.trajectory.time_s(k) for k in range(scenario.n_frames)], "--start-time")
     if args.seed is not None:
         if args.seed > MAX_SEED:
             raise ConfigError("--seed", f"must be below 2**128, got {args.seed}")
@@ -72,8 +89,14 @@ def cmd_dataset(args: argparse.Namespace) -> None:
         scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
         rosbag=args.rosbag, ray=args.ray, labels=args.labels, signatures=args.signatures,
         progress=not args.no_progress,
-        command=getattr(args, "command_line", None),
+        command=getattr(args, "command_line", None), start_time=args.start_time,
     )
     rate = f" ({summary.frames_per_s:.2f} frames/s)" if summary.rendered else ""
     print(f"sonarsim: {summary.out}: {summary.n_frames} frames ({summary.rendered} made, {summary.reused} kept) "
           f"in {summary.seconds:.1f} s{rate}", file=sys.stderr, flush=True)
+    if summary.rosbag is not None:
+        from ..io.rosbag import format_stamp
+
+        # Said every time: a bag stamped 2000 surprises whoever expected today.
+        print(f"sonarsim: {summary.rosbag}: stamped from {format_stamp(summary.rosbag_start_ns)} (--start-time)",
+              file=sys.stderr, flush=True)

@@ -9,6 +9,8 @@ A scenario (YAML or JSON, or the same dict from Python) holds::
       rate_hz: 10               # optional: resample to this ping rate
       # or generate: {kind: lawnmower | orbit | random, ...}
     variation: {...}            # optional: what is drawn per frame (sonarsim.dataset.variation)
+    start_time: 2024-05-01T12:00:00Z  # optional: the ROS 2 bag's stamp of frame 0 (ISO 8601 or
+                                # seconds since 1970; default 2000-01-01T00:00:00Z, never the clock)
     description: "..."          # optional, free text
 
 :meth:`Scenario.frame` gives, for frame ``k``, everything needed to render it without any
@@ -43,7 +45,7 @@ from .variation import Variation, parse_variation
 
 __all__ = ["SCENARIO_KEYS", "FrameSpec", "Scenario", "frame_seed", "load_scenario"]
 
-SCENARIO_KEYS = ("scene", "seed", "trajectory", "variation", "description")
+SCENARIO_KEYS = ("scene", "seed", "trajectory", "variation", "description", "start_time")
 # SeedSequence takes any non-negative integer; a seed beyond 2**128 is a typo, not entropy.
 MAX_SEED = 2**128 - 1
 
@@ -133,6 +135,10 @@ class Scenario:
     source : str or None
         The scenario file, for messages.
     description : str or None
+    start_time_ns : int or None
+        The ROS 2 bag's stamp of frame 0, nanoseconds since 1970 (the ``start_time`` key,
+        :func:`sonarsim.io.rosbag.parse_start_time`); later frames follow the trajectory's
+        times. ``None``: :data:`sonarsim.io.rosbag.DEFAULT_START_TIME`.
     """
 
     scene: dict = field(repr=False)
@@ -143,6 +149,7 @@ class Scenario:
     max_frames: int | None = None
     source: str | None = None
     description: str | None = None
+    start_time_ns: int | None = None
 
     @property
     def n_frames(self) -> int:
@@ -296,6 +303,11 @@ def _from_dict(d: Any, base: Path, source: str | None) -> Scenario:
     if not 0 <= seed <= MAX_SEED:
         raise ConfigError("seed", f"must be an integer in [0, 2**128), got {shown(seed)}")
     description = _string(d["description"], "description") if "description" in d else None
+    start_time_ns = None
+    if "start_time" in d:
+        from ..io.rosbag import parse_start_time
+
+        start_time_ns = parse_start_time(d["start_time"], "start_time")
     scene_doc, scene_dir = _scene_document(d["scene"], base)
     scene_doc = copy.deepcopy(dict(scene_doc))
     render = scene_doc.get("render") or {}
@@ -313,7 +325,8 @@ def _from_dict(d: Any, base: Path, source: str | None) -> Scenario:
         raise ConfigError("trajectory", f"must be a mapping with `file` or `generate`, got {shown(d['trajectory'])}")
     trajectory = parse_trajectory(d["trajectory"], base)
     variation = parse_variation(d.get("variation"), scene_doc, base)
-    return Scenario(scene_doc, seed, trajectory, variation, str(scene_dir), None, source, description)
+    return Scenario(scene_doc, seed, trajectory, variation, str(scene_dir), None, source, description,
+                    start_time_ns)
 
 
 def _scene_document(value: Any, base: Path) -> tuple[Mapping, Path]:

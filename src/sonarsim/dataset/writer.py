@@ -22,7 +22,9 @@ extends it. When all frames are done the manifest is rewritten in frame order, t
 ``coco.json`` and the bag are written from the finished frames (``rosbags`` cannot append, so a
 resumed run writes the whole bag again). The NPZ files hold no timestamps (their zip entries
 carry a fixed date), so the finished folder equals an uninterrupted run's bit for bit, whatever
-the number of workers, except the bag's metadata times and the run record.
+the number of workers, except the run record. The bag too is the same, byte for byte: its
+stamps start at a fixed time (``start_time``; by default
+:data:`~sonarsim.io.rosbag.DEFAULT_START_TIME`) and follow the frames' times.
 """
 
 from __future__ import annotations
@@ -259,6 +261,8 @@ class DatasetSummary:
         The bag folder.
     fingerprint : str
         The dataset's fingerprint (``dataset.json``).
+    rosbag_start_ns : int or None
+        The bag's first stamp, nanoseconds since 1970 (with a bag).
     """
 
     out: Path
@@ -270,6 +274,7 @@ class DatasetSummary:
     coco: Path | None
     rosbag: Path | None
     fingerprint: str
+    rosbag_start_ns: int | None = None
 
     @property
     def frames_per_s(self) -> float:
@@ -315,8 +320,8 @@ def _write_files(out: Path, encoded: EncodedFrame) -> None:
                                 "frames written so far are kept: run the same command again to resume)") from None
 
 
-def _bag_frame(out: Path, record: Mapping[str, Any]) -> Any:
-    """The bag frame of a finished frame, from its NPZ (and its manifest record's time)."""
+def _bag_frame(out: Path, record: Mapping[str, Any], stamp_ns: int) -> Any:
+    """The bag frame of a finished frame, from its NPZ, stamped ``stamp_ns``."""
     from ..config.loader import parse_sonar_section
     from ..image.result import SonarImage
     from ..io.output import read_npz, to_uint8
@@ -332,11 +337,15 @@ def _bag_frame(out: Path, record: Mapping[str, Any]) -> Any:
     points = {}
     if "points_world" in arrays and "points_object" in arrays:
         points = {"points_world": arrays["points_world"], "points_object": arrays["points_object"]}
-    return frame_from_image(image, int(round(float(record["time_s"]) * 1e9)), fan=fan_u8, **points)
+    return frame_from_image(image, stamp_ns, fan=fan_u8, **points)
 
 
-def _write_bag(out: Path, records: Sequence[Mapping[str, Any]], storage: str) -> Path:
-    """Write ``out/rosbag`` from the finished frames, in frame order, replacing an older bag."""
+def _write_bag(out: Path, records: Sequence[Mapping[str, Any]], storage: str, stamps: Sequence[int]) -> Path:
+    """Write ``out/rosbag`` from the finished frames, in frame order, replacing an older bag.
+
+    ``stamps``: each frame's stamp (:func:`~sonarsim.io.rosbag.frame_stamps` of the frames'
+    times from the start time).
+    """
     from ..io.output import temp_prefix
     from ..io.rosbag import BagWriter, remove_abandoned_bags
 
@@ -349,8 +358,8 @@ def _write_bag(out: Path, records: Sequence[Mapping[str, Any]], storage: str) ->
         os.rename(path, old / BAG_NAME) if path.is_dir() and not path.is_symlink() else os.unlink(path)
         shutil.rmtree(old, ignore_errors=True)
     with BagWriter(path, storage=storage) as bag:
-        for record in records:
-            bag.write_frame(_bag_frame(out, record))
+        for record, stamp in zip(records, stamps):
+            bag.write_frame(_bag_frame(out, record, stamp))
     return path
 
 
@@ -370,6 +379,7 @@ def generate(
     command: Sequence[str] | None = None,
     log: Callable[[str], None] | None = None,
     on_frame: Callable[[int], None] | None = None,
+    start_time: Any = None,
 ) -> DatasetSummary:
     """Render a scenario's frames into the dataset folder ``out`` (resumable; see the module docs).
 
@@ -387,7 +397,8 @@ def generate(
     formats : iterable of str
         :data:`FORMATS`: ``"npz"`` (always), ``"png"`` (polar and fan PNGs).
     rosbag : {None, "mcap", "sqlite3"}
-        Also write ``out/rosbag`` (needs ``pip install 'sonarsim[ros]'``).
+        Also write ``out/rosbag`` (needs ``pip install 'sonarsim[ros]'``): every frame's
+        messages stamped ``start_time`` plus the frame's time after frame 0's.
     labels : bool or {"all", "total", "none"}
         Ground truth, where the renderer provides it: an instance map per component
         (``True``, ``"all"``), of the total only (``"total"``: cheaper, the rest alike), or
@@ -412,6 +423,12 @@ def generate(
     on_frame : callable, optional
         Called with each frame's index once its files and manifest line are written (in the
         order frames finish): progress for callers that show their own.
+    start_time : str, float, int or datetime, optional
+        The bag's first stamp (:func:`~sonarsim.io.rosbag.parse_start_time`: ISO 8601 or
+        seconds since 1970); default the scenario's ``start_time``, else
+        :data:`~sonarsim.io.rosbag.DEFAULT_START_TIME` (2000-01-01T00:00:00Z). It shapes the
+        bag alone, not the frames or the fingerprint: the bag is written anew at the end of
+        every run, so a run with another start time re-stamps it.
 
     Returns
     -------
@@ -424,6 +441,8 @@ def generate(
     SonarsimError
         An unwritable folder, a full disk (no half-written frame is left; run again to
         resume), a folder that holds another dataset, or ``rosbags`` missing for a bag.
+        A bad ``start_time``, or one from which the last frame's stamp is past 2038-01-19
+        (ROS 2 stamps hold int32 seconds), is a ``ConfigError`` naming ``start_time``.
     """
     from ..io.output import atomic_write, remove_abandoned_temp_files
     from ..io.run_record import OutputRun
@@ -453,6 +472,22 @@ def generate(
     width = max(6, len(str(n - 1)))
     out = Path(out)
     say = log or (lambda msg: print(f"sonarsim: {msg}", file=sys.stderr, flush=True))
+
+    stamps = None
+    if options.rosbag is not None:
+        # Before anything is rendered: a start time whose last frame a ROS 2 stamp cannot hold
+        # fails now, not after hours of rendering.
+        from ..io.rosbag import DEFAULT_START_NS, frame_stamps, parse_start_time
+
+        if start_time is not None:
+            start_ns, source = parse_start_time(start_time, "start_time"), None
+        else:
+            start_ns = scenario.start_time_ns if scenario.start_time_ns is not None else DEFAULT_START_NS
+            source = scenario.source if scenario.start_time_ns is not None else None
+        try:
+            stamps = frame_stamps(start_ns, [scenario.trajectory.time_s(k) for k in range(n)], "start_time")
+        except ConfigError as exc:
+            raise ConfigError(exc.key, exc.detail, source) from None
 
     # Every frame's spec digest: the fingerprint, and what each manifest line must match.
     fingerprint = Fingerprint(options.document())
@@ -522,9 +557,9 @@ def generate(
             doc = coco_from_records(ordered, image_file="png" if "png" in options.formats else "npz")
             with atomic_write(coco_path, "w") as handle:
                 handle.write(canonical_json(doc) + "\n")
-        bag_path = _write_bag(out, ordered, options.rosbag) if options.rosbag else None
+        bag_path = _write_bag(out, ordered, options.rosbag, stamps) if options.rosbag else None
     return DatasetSummary(out, n, len(todo), len(kept), time.perf_counter() - t_start, manifest_path,
-                          coco_path, bag_path, fingerprint.value)
+                          coco_path, bag_path, fingerprint.value, stamps[0] if stamps else None)
 
 
 class _NoBar:

@@ -46,6 +46,13 @@ Conventions of ``ProjectedSonarImage`` (peers get both wrong)
   azimuth width (what the receive beamformer sets); see :func:`frame_from_image`.
 * ``header.stamp``: the frame's transmit time.
 
+Time: every message of a frame (header stamps, both TF transforms) and its bag time carry the
+frame's stamp. A dataset's bag stamps its first frame at a start time the user sets
+(:func:`parse_start_time`: ``sonarsim dataset --start-time``, a scenario's ``start_time``), by
+default :data:`DEFAULT_START_TIME` (2000-01-01T00:00:00Z: not zero, which tf2 reads as "the
+latest", and fixed, so that bags of the same scenario are byte-identical), and the others after
+it as the frame times say (:func:`frame_stamps`).
+
 Files: ``BagWriter(path)`` writes the bag into a temporary folder next to ``path`` and renames it
 to ``path`` only when the ``with`` block ends without error; a killed or failed run leaves no
 bag under the final name (at most a hidden ``.NAME.sonarsim-PID-XXXX.tmp`` folder, which
@@ -81,13 +88,18 @@ if TYPE_CHECKING:
 
 __all__ = [
     "BAG_STORAGES",
+    "DEFAULT_START_NS",
+    "DEFAULT_START_TIME",
     "SONAR_TO_IMAGE_QUAT_XYZW",
     "TOPICS",
     "BagFrame",
     "BagFrameIds",
     "BagWriter",
     "beam_directions",
+    "format_stamp",
     "frame_from_image",
+    "frame_stamps",
+    "parse_start_time",
     "remove_abandoned_bags",
 ]
 
@@ -208,10 +220,162 @@ class BagFrameIds:
             raise ConfigError("rosbag.frame_ids", f"the three frames must have distinct names, got {names}")
 
 
-# One frame ----------------------------------------------------------------------------------
+# Time ---------------------------------------------------------------------------------------
 
-# builtin_interfaces/Time holds int32 seconds.
-_MAX_STAMP_NS = 2**31 * 1_000_000_000
+_NS_PER_S = 1_000_000_000
+# builtin_interfaces/Time holds int32 seconds: stamps end before 2038-01-19T03:14:08Z.
+_MAX_STAMP_NS = 2**31 * _NS_PER_S
+
+#: The time of a bag's first frame unless the user sets one (``--start-time``, a scenario's
+#: ``start_time``). Not zero, which tf2 reads as "the latest transform" and players show as
+#: 1970; and fixed rather than the current time, so that the same scenario gives the same bag,
+#: byte for byte, whenever it is run.
+DEFAULT_START_TIME = "2000-01-01T00:00:00Z"
+#: :data:`DEFAULT_START_TIME` in nanoseconds since 1970-01-01T00:00:00Z.
+DEFAULT_START_NS = 946_684_800 * _NS_PER_S
+
+_START_TIME_HELP = ("an ISO 8601 time such as 2024-05-01T12:00:00Z (UTC where no offset is given) or a number of "
+                    "seconds since 1970-01-01T00:00:00Z, after that instant and before 2038-01-19T03:14:08Z (ROS 2 "
+                    "stamps hold int32 seconds)")
+# A number of seconds: digits, an optional fraction and exponent (what Decimal reads, but not
+# 'NaN', 'Infinity' or '1_000').
+_SECONDS_RE = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+# The fraction of the seconds of an ISO 8601 time, which datetime keeps to microseconds only.
+_ISO_FRACTION_RE = re.compile(r"(?<=\d)[.,](\d+)(?=(Z|z|[+-]\d{2}(:?\d{2})?)?$)")
+
+
+def format_stamp(stamp_ns: int) -> str:
+    """A stamp as an ISO 8601 UTC time (``2000-01-01T00:00:00Z``; nanoseconds when not zero)."""
+    import datetime as dt
+
+    sec, nsec = divmod(int(stamp_ns), _NS_PER_S)
+    text = (dt.datetime(1970, 1, 1, tzinfo=dt.timezone.utc) + dt.timedelta(seconds=sec)).strftime("%Y-%m-%dT%H:%M:%S")
+    return text + (f".{nsec:09d}".rstrip("0") if nsec else "") + "Z"
+
+
+def _seconds_ns(seconds: Any) -> int:
+    """Seconds (a Decimal) as whole nanoseconds, to the nearest."""
+    from decimal import ROUND_HALF_EVEN, Decimal
+
+    return int((Decimal(seconds) * _NS_PER_S).to_integral_value(rounding=ROUND_HALF_EVEN))
+
+
+def _datetime_ns(value: Any) -> int:
+    """A ``datetime`` (naive: UTC, as YAML reads a time without an offset) in nanoseconds."""
+    import datetime as dt
+
+    if not isinstance(value, dt.datetime):  # a date alone: its midnight, UTC
+        value = dt.datetime(value.year, value.month, value.day)
+    if value.tzinfo is None:
+        value = value.replace(tzinfo=dt.timezone.utc)
+    delta = value - dt.datetime(1970, 1, 1, tzinfo=dt.timezone.utc)
+    return (delta.days * 86_400 + delta.seconds) * _NS_PER_S + delta.microseconds * 1000
+
+
+def parse_start_time(value: Any, key: str = "start_time") -> int:
+    """The time of a bag's first frame, in nanoseconds since 1970-01-01T00:00:00Z.
+
+    Parameters
+    ----------
+    value : str, int, float, datetime.datetime or datetime.date
+        An ISO 8601 time (``"2024-05-01T12:00:00Z"``, ``"2024-05-01T14:00:00+02:00"``,
+        ``"2024-05-01"``; without an offset it is UTC, as YAML reads it; fractions of a second
+        to the nanosecond), or seconds since the epoch (a number, or its text:
+        ``"1714564800.5"``). A YAML scenario may hold an unquoted time, which YAML reads as a
+        ``datetime``.
+    key : str
+        What to name in an error: the scenario key or the command-line option.
+
+    Returns
+    -------
+    int
+        Nanoseconds, in ``(0, 2**31 s)``.
+
+    Raises
+    ------
+    ConfigError
+        Not a time, or a time outside ``(1970-01-01T00:00:00Z, 2038-01-19T03:14:08Z)``: zero is
+        tf2's "latest", and ROS 2 stamps hold int32 seconds.
+    """
+    import datetime as dt
+
+    from ..errors import shown
+
+    ns = None
+    if isinstance(value, (bool, np.bool_)):
+        pass
+    elif isinstance(value, (dt.datetime, dt.date)):
+        ns = _datetime_ns(value)
+    elif isinstance(value, (int, np.integer)):
+        ns = int(value) * _NS_PER_S
+    elif isinstance(value, (float, np.floating)):
+        # repr: the shortest text that reads back as this float, i.e. what the user wrote.
+        ns = _seconds_ns(repr(float(value))) if math.isfinite(value) else None
+    elif isinstance(value, str) and len(value) <= 100:
+        text = value.strip()
+        if _SECONDS_RE.match(text):
+            from decimal import Decimal
+
+            seconds = Decimal(text)
+            # Out of range before any arithmetic: "1e999999999" as an integer would not fit in memory.
+            ns = _seconds_ns(seconds) if seconds.adjusted() < 10 else _MAX_STAMP_NS
+        else:
+            fraction = _ISO_FRACTION_RE.search(text)
+            extra_ns = 0
+            if fraction and len(fraction.group(1)) <= 9:
+                # datetime keeps microseconds: the nanoseconds are added here.
+                digits = fraction.group(1).ljust(9, "0")
+                extra_ns = int(digits[6:])
+                text = text[:fraction.start()] + "." + digits[:6] + text[fraction.end():]
+            try:
+                ns = _datetime_ns(dt.datetime.fromisoformat(text)) + extra_ns
+            except ValueError:
+                ns = None
+    if ns is None:
+        raise ConfigError(key, f"must be {_START_TIME_HELP}; got {shown(value)}")
+    if not 0 < ns < _MAX_STAMP_NS:
+        raise ConfigError(key, f"must be {_START_TIME_HELP}; got {shown(value)}"
+                          + (" (a zero stamp means 'the latest transform' to tf2)" if ns == 0 else ""))
+    return ns
+
+
+def frame_stamps(start_ns: int, times_s: Any, key: str = "start_time") -> list[int]:
+    """The bag stamps of frames at ``times_s``: the first at ``start_ns``, the others after it
+    as the frame times say.
+
+    Parameters
+    ----------
+    start_ns : int
+        The first frame's stamp (:func:`parse_start_time`).
+    times_s : sequence of float
+        The frames' times, seconds, ascending (a trajectory's: they may start anywhere).
+    key : str
+        What to name when the last stamp is past what a ROS 2 stamp holds.
+
+    Returns
+    -------
+    list of int
+        ``start_ns + t_k - t_0`` in whole nanoseconds (each time rounded to the nanosecond
+        first, so that equal steps give equal steps).
+
+    Raises
+    ------
+    ConfigError
+        The last stamp would be at or after 2038-01-19T03:14:08Z.
+    """
+    ns = [_seconds_ns(repr(float(t))) for t in times_s]
+    if not ns:
+        return []
+    stamps = [int(start_ns) + t - ns[0] for t in ns]
+    if stamps[-1] >= _MAX_STAMP_NS:
+        span = (ns[-1] - ns[0]) / _NS_PER_S
+        raise ConfigError(key, f"starting at {format_stamp(start_ns)}, the last of {len(ns)} frames ({span:g} s later) "
+                          "would be stamped after 2038-01-19T03:14:07Z, the last second a ROS 2 stamp holds (int32 "
+                          "seconds); give an earlier start time")
+    return stamps
+
+
+# One frame ----------------------------------------------------------------------------------
 
 
 def _array(key: str, value: Any, dtype: Any, ndim: int) -> np.ndarray:
@@ -246,8 +410,10 @@ class BagFrame:
     Attributes
     ----------
     stamp_ns : int
-        Transmit time, nanoseconds since the epoch (or since the start of the run); >= 0.
-        Every message of the frame carries it, as header stamp and as bag time.
+        Transmit time, nanoseconds since 1970-01-01T00:00:00Z, in ``(0, 2**31 s)``: not zero,
+        which tf2 reads as "the latest" (:data:`DEFAULT_START_NS` plus the frame's time when
+        there is no real time: :func:`frame_stamps`). Every message of the frame carries it,
+        as header stamp, TF stamp and bag time.
     pose : Pose
         The sonar's pose in the world frame (sonar-to-world, sonar frame x forward, y left,
         z up).
@@ -291,9 +457,11 @@ class BagFrame:
     def __post_init__(self) -> None:
         put = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731 - frozen
         if isinstance(self.stamp_ns, (bool, np.bool_)) or not isinstance(self.stamp_ns, (int, np.integer)) \
-                or not 0 <= int(self.stamp_ns) < _MAX_STAMP_NS:
+                or not 0 < int(self.stamp_ns) < _MAX_STAMP_NS:
+            # Zero is refused: tf2 reads a zero stamp as "the latest transform", not a time.
             raise ConfigError("bag_frame.stamp_ns",
-                              f"must be an integer number of nanoseconds in [0, 2**31 s), got {self.stamp_ns!r}")
+                              f"must be an integer number of nanoseconds since 1970 in (0, 2**31 s), e.g. "
+                              f"DEFAULT_START_NS ({DEFAULT_START_TIME}) plus the frame's time; got {self.stamp_ns!r}")
         put("stamp_ns", int(self.stamp_ns))
         if not isinstance(self.pose, Pose):
             raise ConfigError("bag_frame.pose", f"must be a sonarsim Pose, got {type(self.pose).__name__}")
@@ -386,7 +554,7 @@ def frame_from_image(
     image : SonarImage
         Must carry its pose (renders do; real recordings do not).
     stamp_ns : int
-        Transmit time, nanoseconds.
+        Transmit time, nanoseconds since 1970 (> 0; see :class:`BagFrame`).
     fan : bool or (height, width) ndarray, optional
         ``True``: the image's default fan (:meth:`SonarImage.fan`); an array: that fan image.
     points_world, points_object : ndarray, optional
@@ -470,13 +638,16 @@ class BagWriter:
 
     Examples
     --------
+    >>> stamps = frame_stamps(DEFAULT_START_NS, [0.0, 0.1, 0.2])   # or parse_start_time("2024-05-01T12:00Z")
     >>> with BagWriter(out / "rosbag", storage="mcap") as bag:   # doctest: +SKIP
-    ...     for i, image in enumerate(images):
-    ...         bag.write_frame(frame_from_image(image, stamp_ns=i * 100_000_000, fan=True))
+    ...     for stamp, image in zip(stamps, images):
+    ...         bag.write_frame(frame_from_image(image, stamp_ns=stamp, fan=True))
 
     Notes
     -----
-    Frames are written in call order; give them ascending stamps. Nothing appears at
+    Frames are written in call order; give them ascending stamps. ``metadata.yaml``'s
+    ``starting_time`` and ``duration`` and the MCAP summary's statistics are the first and last
+    stamps written. Nothing appears at
     ``path`` until the ``with`` block (or :meth:`close`) ends without error; on error, or
     :meth:`abort`, the partial bag is deleted.
     """
