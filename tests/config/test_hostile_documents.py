@@ -287,3 +287,23 @@ def test_an_object_may_not_take_a_planes_name(name, planes, ground):
     with pytest.raises(ConfigError, match="is a reflecting plane's name") as e:
         sonarsim.load_scene(doc)
     assert e.value.key == "objects[1].name"
+
+
+def test_a_pipe_as_a_pattern_table_is_refused_not_read(tmp_path):
+    import os
+
+    from sonarsim.config.loader import scene_from_dict
+    from sonarsim.config.sensor import PatternSpec
+    from sonarsim.sensor.patterns import pattern_gain
+    from tests.fifo import no_hang
+
+    fifo = tmp_path / "pattern.csv"
+    os.mkfifo(fifo)
+    doc = {"sonar": SONAR, "sensor": {"azimuth_pattern": {"shape": "table", "table": "pattern.csv"}}}
+    with pytest.raises(ConfigError, match="not a regular file") as e:  # was "not found"
+        no_hang(lambda: scene_from_dict(doc, base_dir=tmp_path), [fifo])
+    assert e.value.key == "sensor.azimuth_pattern.table" and str(fifo) in str(e.value)
+    # Built in Python, the table is read when the gain is asked for: refused there too.
+    spec = PatternSpec(shape="table", table=str(fifo))
+    with pytest.raises(ConfigError, match="not a regular file"):
+        no_hang(lambda: pattern_gain(np.zeros(3), spec, 1.0, 1), [fifo])

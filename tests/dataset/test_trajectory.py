@@ -333,3 +333,77 @@ def test_bad_trajectory_sections_name_the_key(tmp_path, section, key):
     with pytest.raises(ConfigError) as info:
         parse_trajectory(section, tmp_path)
     assert info.value.key == key, str(info.value)
+
+
+# Issue 21 item 3: no hang, no traceback, no silent nonsense ---------------------------------
+
+SCENE = {"sonar": {"n_beams": 16, "azimuth_fov_deg": 30, "elevation_fov_deg": 14, "range_min_m": 0.5,
+                   "range_max_m": 5.0, "n_range_bins": 100}}
+
+
+def orbit_scenario(**generate):
+    return {"scene": SCENE, "seed": 0,
+            "trajectory": {"generate": {"kind": "orbit", "centre_m": [0, 0, 0], "z_m": 0.0, "frames": 4, **generate}}}
+
+
+@pytest.mark.parametrize("generate, message", [
+    ({"radius_m": 1e7}, r"within \[0.5, 1000000\] m: the orbit must stay within 1e\+06 m"),   # empty frames
+    ({"radius_m": 999_000.0, "centre_m": [5000, 0, 0]}, r"within \[0.5, 995000\] m"),
+    ({"radius_m": 1e-12}, r"within \[0.5, .*range_min_m \(0.5 m\), in its blind zone"),       # on its own target
+    ({"radius_m": 0.2, "z_m": 0.4}, r"within \[0.3, "),                       # 0.45 m from the centre
+    ({"radius_m": 0.0}, r"within \[0.5, "),
+])
+def test_an_orbit_beyond_the_scene_or_on_its_target_is_refused(generate, message):
+    from sonarsim.dataset import load_scenario
+
+    with pytest.raises(ConfigError, match=message) as e:
+        load_scenario(orbit_scenario(**generate))
+    assert e.value.key == "trajectory.generate.radius_m"
+
+
+def test_an_orbits_floor_is_a_millimetre_without_a_blind_zone_and_its_centre_is_bounded():
+    generate = {"kind": "orbit", "centre_m": [0, 0, 0], "z_m": 0.0, "frames": 2}
+    with pytest.raises(ConfigError, match=r"within \[0.001, .*sits on its own target") as e:
+        parse_trajectory({"generate": {**generate, "radius_m": 1e-12}}, None)
+    assert e.value.key == "trajectory.generate.radius_m"
+    assert parse_trajectory({"generate": {**generate, "radius_m": 0.001}}, None).n_frames == 2
+    with pytest.raises(ConfigError, match="within 1e\\+06 m of the origin") as e:
+        parse_trajectory({"generate": {**generate, "radius_m": 1.0, "centre_m": [1e300, 0, 0]}}, None)
+    assert e.value.key == "trajectory.generate.centre_m"
+
+
+def test_a_csv_track_with_a_byte_order_mark_reads(tmp_path):
+    # Spreadsheets save one; the header was refused as '\ufefft,x,...'.
+    p = tmp_path / "track.csv"
+    p.write_text("t,x,y,z,roll_deg,pitch_deg,yaw_deg\n0,0,0,1,0,10,0\n1,1,0,1,0,10,0\n", encoding="utf-8-sig")
+    assert p.read_bytes().startswith(b"\xef\xbb\xbf")
+    traj = read_trajectory(p)
+    assert traj.n_frames == 2 and traj.positions_m[1].tolist() == [1.0, 0.0, 1.0]
+
+
+def test_a_tum_quaternion_of_huge_numbers_is_a_direction_not_zero(tmp_path):
+    # The squares of 1e308 overflowed and the quaternion was called zero.
+    p = tmp_path / "track.tum"
+    p.write_text("0 0 0 1 1e308 1e308 1e308 1e308\n1 1 0 1 0 0 0 2\n")
+    traj = read_trajectory(p, "tum")
+    np.testing.assert_allclose(traj.quats_xyzw, [[0.5, 0.5, 0.5, 0.5], [0, 0, 0, 1]])
+    p.write_text("0 0 0 1 0 0 0 0\n")
+    with pytest.raises(ConfigError, match="line 1: the quaternion must not be zero"):
+        read_trajectory(p, "tum")
+    big = Trajectory(np.array([0.0]), np.zeros((1, 3)), np.full((1, 4), 1e308))
+    np.testing.assert_allclose(big.quats_xyzw, [[0.5, 0.5, 0.5, 0.5]])
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".tum", ".txt"])
+def test_a_pipe_as_a_track_is_refused_not_read(tmp_path, suffix):
+    import os
+
+    from sonarsim.dataset import load_scenario
+    from tests.fifo import no_hang
+
+    fifo = tmp_path / f"track{suffix}"
+    os.mkfifo(fifo)
+    doc = {"scene": SCENE, "seed": 0, "trajectory": {"file": fifo.name}}
+    with pytest.raises(ConfigError, match="not a regular file") as e:
+        no_hang(lambda: load_scenario(doc, base_dir=tmp_path), [fifo])
+    assert e.value.key == "trajectory.file" and str(fifo) in str(e.value)

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -39,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, key_text, shown
+from ..errors import ConfigError, SonarsimError, check_input_file, key_text, shown
 from .sonar import FREQUENCY_RANGE_KHZ, MIN_BEAM_WIDTH_DEG
 
 ABSORPTION_MODELS = ("francois-garrison", "ainslie-mccolm", "constant")
@@ -551,13 +552,13 @@ def _parse_sub(name: str, value: Any, key: str, base_dir: Path | None):
         p = Path(t)
         if not p.is_absolute() and base_dir is not None:
             p = base_dir / p
-        try:
-            found = p.is_file()
-        except OSError as exc:  # a name too long, a folder that cannot be searched
-            raise ConfigError(f"{key}.table", f"cannot read the pattern table {shown(str(p))}: {exc.strerror or exc}") from None
-        if not found:
+        if not os.path.lexists(p):
             raise ConfigError(f"{key}.table", f"pattern table {shown(str(p))} not found (a CSV of angle_deg, gain_db rows; "
                               "relative to the scene file)")
+        try:  # a pipe is refused here, not opened (it blocked the render forever)
+            check_input_file(p, "pattern table (a CSV of angle_deg, gain_db rows)")
+        except SonarsimError as exc:
+            raise ConfigError(f"{key}.table", str(exc)) from None
         kw["table"] = str(p)
     try:
         return cls(**kw)

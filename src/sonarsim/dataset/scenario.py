@@ -317,13 +317,14 @@ def _from_dict(d: Any, base: Path, source: str | None) -> Scenario:
     # (render.seed, k), so they too follow the scenario's seed alone.
     scene_doc["render"] = {**render, "seed": seed}
     try:
-        scene_from_dict(scene_doc, base_dir=scene_dir)
+        scene = scene_from_dict(scene_doc, base_dir=scene_dir)
     except ConfigError as exc:
         raise ConfigError(f"scene.{exc.key}" if exc.key else "scene", exc.detail,
                           exc.source if exc.source else None) from None
     if not isinstance(d["trajectory"], Mapping):
         raise ConfigError("trajectory", f"must be a mapping with `file` or `generate`, got {shown(d['trajectory'])}")
-    trajectory = parse_trajectory(d["trajectory"], base)
+    # An orbit's centre must lie beyond the sonar's blind zone (sonar sections are not varied).
+    trajectory = parse_trajectory(d["trajectory"], base, range_min_m=scene.sonar.range_min_m)
     variation = parse_variation(d.get("variation"), scene_doc, base)
     return Scenario(scene_doc, seed, trajectory, variation, str(scene_dir), None, source, description,
                     start_time_ns)

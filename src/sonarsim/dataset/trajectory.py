@@ -29,7 +29,7 @@ from ..config.loader import _check_keys, _integer, _number, _string, _vector
 from ..config.scene import MAX_COORDINATE_M
 from ..core.memory import require
 from ..core.transforms import Pose
-from ..errors import ConfigError, shown
+from ..errors import ConfigError, SonarsimError, check_input_file, shown
 
 __all__ = [
     "CSV_HEADER", "TRAJECTORY_KEYS", "GENERATORS", "PoseSource", "RandomPoses", "Trajectory", "look_at", "look_at_rpy_deg",
@@ -54,6 +54,10 @@ _BYTES_PER_POSE = 8 * 8 * 4
 _BYTES_PER_FILE_BYTE = 8 * 32 // 14 + 1
 # Random poses redraw a position that coincides with its target (no direction to look along).
 _MAX_REDRAWS = 100
+#: The smallest orbit radius, metres: below it the poses are one point turning on the spot (an
+#: orbit of 1e-12 m put the sonar on its own target). The scene's sonar adds its own floor: the
+#: centre must lie beyond its ``range_min_m`` (:func:`orbit_radius_range`).
+MIN_ORBIT_RADIUS_M = 1e-3
 
 
 # Orientation helpers --------------------------------------------------------------------
@@ -151,10 +155,9 @@ class Trajectory:
             raise ValueError("a trajectory needs at least one pose")
         if n > 1 and not np.all(np.diff(t) > 0):
             raise ValueError("trajectory times must be strictly increasing")
-        norms = np.linalg.norm(q, axis=1)
+        q, norms = _unit_quaternions(q)
         if not np.all(norms > 1e-9):
             raise ValueError("a trajectory quaternion is zero")
-        q = q / norms[:, None]
         for name, a in (("times_s", t), ("positions_m", p), ("quats_xyzw", q), ("rpy_deg", rpy)):
             if a is not None:
                 a.setflags(write=False)
@@ -313,6 +316,32 @@ def orbit(centre_m: Any, radius_m: float, z_m: float, frames: int, rate_hz: floa
     return Trajectory(np.arange(frames) / rate_hz, positions, _quats_from_rpy_deg(rpy), rpy)
 
 
+def orbit_radius_range(centre_m: Any, z_m: float, range_min_m: float = 0.0) -> tuple[float, float]:
+    """The radii an orbit around ``centre_m`` at height ``z_m`` may have.
+
+    Parameters
+    ----------
+    centre_m : (3,) array_like, metres
+    z_m : float
+        The sonar's height, metres.
+    range_min_m : float
+        The sonar's nearest range: the centre, which every pose looks at, must be at least this
+        far from the sonar (nearer, it lies in the blind zone before the range window).
+
+    Returns
+    -------
+    (lo, hi) : tuple of float, metres
+        ``lo``: :data:`MIN_ORBIT_RADIUS_M`, or more where the height difference alone leaves the
+        centre within ``range_min_m``; ``hi``: every position within ``MAX_COORDINATE_M`` of the
+        origin (an orbit of 1e7 m rendered empty frames from beyond the scene).
+    """
+    c = np.asarray(centre_m, dtype=float)
+    dz = float(z_m) - float(c[2])
+    lo = max(MIN_ORBIT_RADIUS_M, math.sqrt(max(float(range_min_m) ** 2 - dz * dz, 0.0)))
+    hi = MAX_COORDINATE_M - max(abs(float(c[0])), abs(float(c[1])))
+    return lo, hi
+
+
 def lawnmower(area_m: Any, spacing_m: float, z_m: float, speed_m_s: float, rate_hz: float, pitch_deg: float = 0.0,
               legs_along: str = "x", key: str = "trajectory.generate") -> Trajectory:
     """A lawnmower (boustrophedon) survey of a rectangle, sampled at a ping rate.
@@ -390,19 +419,18 @@ def lawnmower(area_m: Any, spacing_m: float, z_m: float, speed_m_s: float, rate_
 # Files ----------------------------------------------------------------------------------
 
 def _file_rows(path: Path, key: str) -> list[tuple[int, str]]:
-    """Non-blank, non-comment lines of a trajectory file with their 1-based line numbers."""
-    try:
-        if path.is_dir():
-            raise ConfigError(key, f"{path} is a directory, not a trajectory file")
-        if not path.is_file():
-            raise ConfigError(key, f"{path}: trajectory file not found" if not path.exists()
-                              else f"{path}: not a regular file")
-        size = path.stat().st_size
-    except OSError as exc:
-        raise ConfigError(key, f"{shown(str(path))}: cannot read the trajectory file: {exc.strerror or exc}") from None
+    """Non-blank, non-comment lines of a trajectory file with their 1-based line numbers.
+
+    The file is UTF-8 text; a byte-order mark before it (spreadsheets write one) is skipped.
+    """
+    try:  # missing, a directory, a pipe or a device: one message each, nothing opened
+        size = check_input_file(path, "trajectory file").st_size
+    except SonarsimError as exc:
+        raise ConfigError(key, str(exc)) from None
     require(size * _BYTES_PER_FILE_BYTE, f"reading the trajectory file {path} ({size / 2**20:.3g} MiB)", key)
     try:
-        text = path.read_text(encoding="utf-8")
+        # utf-8-sig: a CSV saved with a byte-order mark had the header '\ufefft,x,...' refused.
+        text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
         raise ConfigError(key, f"{path}: not UTF-8 text (byte {exc.start})") from None
     except OSError as exc:
@@ -495,11 +523,28 @@ def read_tum_trajectory(path: str | os.PathLike, key: str = "trajectory.file") -
     values = np.array([_numbers(text.split(), 8, p, line, key, "t x y z qx qy qz qw") for line, text in rows])
     lines = [line for line, _ in rows]
     _check_rows(p, lines, values[:, 0], values[:, 1:4], key)
-    norms = np.array([math.hypot(*q) for q in values[:, 4:8]])
-    zero = np.flatnonzero(~(norms > 1e-9) | ~np.isfinite(norms))
+    quats, norms = _unit_quaternions(values[:, 4:8])
+    zero = np.flatnonzero(~(norms > 1e-9))
     if len(zero):
         raise ConfigError(key, f"{p}: line {lines[int(zero[0])]}: the quaternion must not be zero")
-    return Trajectory(values[:, 0], values[:, 1:4], values[:, 4:8] / norms[:, None])
+    return Trajectory(values[:, 0], values[:, 1:4], quats)
+
+
+def _unit_quaternions(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of ``q`` scaled to unit length, and their lengths, without overflow.
+
+    Each row is divided by its largest magnitude before its length is taken: the squares of
+    ``1e308`` overflow (a quaternion of four 1e308 was called zero). Rows of zeros stay zeros
+    (length 0).
+    """
+    q = np.asarray(q, dtype=np.float64)
+    big = np.abs(q).max(axis=1)
+    safe = np.where(big > 0, big, 1.0)
+    scaled = q / safe[:, None]
+    length = np.sqrt(np.sum(scaled * scaled, axis=1))
+    unit = scaled / np.where(length > 0, length, 1.0)[:, None]
+    with np.errstate(over="ignore"):  # four 1e308 are 2e308 long: inf, still a direction
+        return unit, big * length
 
 
 def read_trajectory(path: str | os.PathLike, fmt: str | None = None, key: str = "trajectory.file") -> Trajectory:
@@ -570,7 +615,8 @@ def _required(d: Mapping, name: str, key: str) -> Any:
     return d[name]
 
 
-def _parse_generate(d: Any, rate_hz: float | None, key: str = "trajectory.generate") -> PoseSource:
+def _parse_generate(d: Any, rate_hz: float | None, key: str = "trajectory.generate",
+                    range_min_m: float = 0.0) -> PoseSource:
     if not isinstance(d, Mapping):
         raise ConfigError(key, f"must be a mapping with a `kind` ({', '.join(GENERATORS)}), got {shown(d)}")
     kind = _string(_required(d, "kind", key), f"{key}.kind")
@@ -579,11 +625,26 @@ def _parse_generate(d: Any, rate_hz: float | None, key: str = "trajectory.genera
     _check_keys(d, GENERATE_KEYS[kind], key)
     if kind == "orbit":
         centre = _vector(_required(d, "centre_m", key), f"{key}.centre_m", 3)
+        if max(abs(v) for v in centre) > MAX_COORDINATE_M:  # 1e300 ended in "look-at target coincides"
+            raise ConfigError(f"{key}.centre_m", f"must lie within {MAX_COORDINATE_M:g} m of the origin, "
+                              f"got {list(centre)}")
         sweep = _angle(d, "sweep_deg", key, 360.0)
         if sweep == 0 or abs(sweep) > 360.0:
             raise ConfigError(f"{key}.sweep_deg", f"must be non-zero and within +-360 degrees, got {sweep:g}")
-        return orbit(centre, _positive(_required(d, "radius_m", key), f"{key}.radius_m"), _coordinate(d, "z_m", key),
-                     _frames(d, key), rate_hz or 1.0, _angle(d, "start_deg", key), sweep, _angle(d, "roll_deg", key))
+        radius = _number(_required(d, "radius_m", key), f"{key}.radius_m")
+        z = _coordinate(d, "z_m", key)
+        lo, hi = orbit_radius_range(centre, z, range_min_m)
+        if not lo <= radius <= hi:
+            if radius > hi:
+                why = f"the orbit must stay within {MAX_COORDINATE_M:g} m of the origin"
+            elif lo > MIN_ORBIT_RADIUS_M:
+                why = (f"nearer, the centre every pose looks at lies within the sonar's range_min_m "
+                       f"({range_min_m:g} m), in its blind zone")
+            else:
+                why = f"below {MIN_ORBIT_RADIUS_M:g} m the sonar sits on its own target"
+            raise ConfigError(f"{key}.radius_m", f"must be within [{lo:.4g}, {hi:.7g}] m: {why}; got {shown(radius)}")
+        return orbit(centre, radius, z, _frames(d, key), rate_hz or 1.0, _angle(d, "start_deg", key), sweep,
+                     _angle(d, "roll_deg", key))
     if kind == "lawnmower":
         if rate_hz is None:
             raise ConfigError("trajectory.rate_hz", "required with a lawnmower: the ping rate that, with the speed, "
@@ -616,7 +677,7 @@ def _parse_generate(d: Any, rate_hz: float | None, key: str = "trajectory.genera
     return RandomPoses(frames, bounds, target, jitter, _angle(d, "roll_deg", key), rate_hz or 1.0)
 
 
-def parse_trajectory(d: Any, base_dir: Path | None) -> PoseSource:
+def parse_trajectory(d: Any, base_dir: Path | None, range_min_m: float = 0.0) -> PoseSource:
     """The scenario's ``trajectory`` section.
 
     Keys: ``file`` (CSV or TUM; relative to ``base_dir``) with an optional ``format``
@@ -624,6 +685,16 @@ def parse_trajectory(d: Any, base_dir: Path | None) -> PoseSource:
     ``lawnmower`` | ``orbit`` | ``random``); ``rate_hz`` resamples a file's poses to that ping
     rate (optional), and is the ping rate of the generators (required for ``lawnmower``,
     1 Hz by default for the others).
+
+    Parameters
+    ----------
+    d : mapping
+        The section.
+    base_dir : Path or None
+        Folder a relative ``file`` is relative to.
+    range_min_m : float
+        The scene's sonar's nearest range: an orbit's centre must lie at least this far from
+        the sonar (:func:`orbit_radius_range`).
     """
     _check_keys(d, TRAJECTORY_KEYS, "trajectory")
     if ("file" in d) == ("generate" in d):
@@ -636,7 +707,7 @@ def parse_trajectory(d: Any, base_dir: Path | None) -> PoseSource:
     if "generate" in d:
         if "format" in d:
             raise ConfigError("trajectory.format", "only with `file`")
-        return _parse_generate(d["generate"], rate_hz)
+        return _parse_generate(d["generate"], rate_hz, range_min_m=range_min_m)
     path = Path(_string(d["file"], "trajectory.file"))
     if base_dir is not None and not path.is_absolute():
         path = base_dir / path

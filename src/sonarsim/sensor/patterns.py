@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from ..config.sensor import MAX_KERNEL_HALF_WIDTH, PatternSpec
-from ..errors import ConfigError
+from ..errors import ConfigError, SonarsimError, check_input_file
 
 APERTURE_SAMPLES = 512  # midpoint samples of the aperture weighting: far more than any sidelobe needs
 LEAKAGE_WIDTHS = 8.0  # default reach of the azimuth leakage, in -3 dB beam widths, at most
@@ -69,6 +69,12 @@ def half_power_u(window: str, sidelobe_db: float | None, ways: int) -> float:
 
 
 def _read_table(path: str) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        # Checked when the scene is read; again here for a PatternSpec built in Python (a pipe
+        # given as the table would block this read forever).
+        check_input_file(path, "pattern table")
+    except SonarsimError as exc:
+        raise ConfigError("sensor pattern table", str(exc)) from None
     try:
         rows = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
     except OSError as exc:
