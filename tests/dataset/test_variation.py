@@ -178,3 +178,37 @@ def test_a_count_drawn_out_of_range_is_refused():
     with pytest.raises(ConfigError, match=r"integer in \[0") as info:
         v.apply(SCENE, None, side="high")
     assert info.value.key == "variation.objects[0].count"
+
+
+# Issue 21 item 3: weights whose sum overflows -----------------------------------------------
+
+@pytest.mark.parametrize("weights, expected", [([1e308, 1e308], [0.5, 0.5]), ([1e308, 0.0], [1.0, 0.0]),
+                                               ([5e-324, 1.5e-323], [0.25, 0.75])])
+def test_huge_or_tiny_choice_weights_are_normalised_safely(weights, expected):
+    # [1e308, 1e308] summed to inf: "ValueError: Probabilities do not sum to 1" at the first frame.
+    from sonarsim.dataset import load_scenario
+
+    t = parse_value({"choice": ["a", "b"], "weights": weights}, "x")
+    drawn = {draw(t, np.random.default_rng(k)) for k in range(40)}
+    assert drawn == {"a", "b"} if expected[1] else drawn == {"a"}
+    from sonarsim.dataset.variation import probabilities
+
+    np.testing.assert_allclose(probabilities(tuple(weights)), expected)
+    doc = {"scene": SCENE, "seed": 1,
+           "trajectory": {"generate": {"kind": "orbit", "centre_m": [3, 0, 0], "radius_m": 2.0, "z_m": 1.0,
+                                       "frames": 3}},
+           "variation": {"ground": {"albedo": {"choice": [0.2, 0.7], "weights": weights}},
+                         "objects": [{"name": "rock", "count": 2, "weights": weights,
+                                      "pool": [{"primitive": "sphere", "radius_m": 0.1,
+                                                "pose": {"position_m": [3, 0, 0.5]}},
+                                               {"primitive": "sphere", "radius_m": 0.2,
+                                                "pose": {"position_m": [3, 1, 0.5]}}]}]}}
+    scenario = load_scenario(doc)
+    assert all(f.scene["ground"]["albedo"] in (0.2, 0.7) for f in scenario.frame_specs())
+
+
+def test_weights_that_are_not_finite_or_all_zero_are_refused():
+    for weights in ([float("inf"), 1.0], [0.0, 0.0], [-1.0, 2.0]):
+        with pytest.raises(ConfigError) as e:
+            parse_value({"choice": ["a", "b"], "weights": weights}, "variation.ground.albedo")
+        assert e.value.key.startswith("variation.ground.albedo.weights")

@@ -36,6 +36,8 @@ each object the pool entry, the entry's values and the group's; then ground, pla
 from __future__ import annotations
 
 import copy
+import math
+import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,7 +48,8 @@ import numpy as np
 from ..config.loader import OBJECT_KEYS, _check_keys, _number, _string, _vector
 from ..errors import ConfigError, shown
 
-__all__ = ["DISTRIBUTIONS", "ObjectGroup", "Variation", "draw", "parse_value", "parse_variation", "probe"]
+__all__ = ["DISTRIBUTIONS", "ObjectGroup", "Variation", "draw", "parse_value", "parse_variation", "probabilities",
+           "probe"]
 
 DISTRIBUTIONS = {"uniform": ("uniform",), "normal": ("normal", "min", "max"), "randint": ("randint",),
                  "choice": ("choice", "weights")}
@@ -171,9 +174,27 @@ def parse_value(value: Any, key: str) -> Any:
 
 def _weights(value: Any, key: str, n: int) -> tuple[float, ...]:
     w = _vector(value, key, n)
-    if any(v < 0 for v in w) or sum(w) <= 0:
-        raise ConfigError(key, f"must be {n} non-negative numbers, not all zero, got {shown(value)}")
+    # max, not sum: weights of [1e308, 1e308] sum to inf (and were refused by NumPy's choice).
+    if any(v < 0 for v in w) or not max(w) > 0:
+        raise ConfigError(key, f"must be {n} non-negative finite numbers, not all zero, got {shown(value)}")
     return w
+
+
+def probabilities(weights: tuple[float, ...] | None) -> np.ndarray | None:
+    """Relative weights as probabilities summing to 1 (``None`` stays ``None``: equal).
+
+    Where their sum overflows (weights of ``[1e308, 1e308]``) or is too small to divide by
+    exactly, the weights are first divided by the largest; otherwise by their sum, as always
+    (the same draws as before for the weights that worked).
+    """
+    if weights is None:
+        return None
+    w = np.asarray(weights, dtype=np.float64)
+    total = sum(weights)  # Python's float sum: inf without a NumPy overflow warning
+    if not (math.isfinite(total) and total >= sys.float_info.min):
+        w = w / w.max()
+        total = sum(w.tolist())
+    return w / total
 
 
 def draw(template: Any, rng: np.random.Generator) -> Any:
@@ -194,8 +215,7 @@ def draw(template: Any, rng: np.random.Generator) -> Any:
     if isinstance(template, RandInt):
         return int(rng.integers(template.lo, template.hi, endpoint=True))
     if isinstance(template, Choice):
-        p = None if template.weights is None else np.asarray(template.weights) / sum(template.weights)
-        return draw(template.options[int(rng.choice(len(template.options), p=p))], rng)
+        return draw(template.options[int(rng.choice(len(template.options), p=probabilities(template.weights)))], rng)
     if isinstance(template, dict):
         return {k: draw(v, rng) for k, v in template.items()}
     if isinstance(template, list):
@@ -293,8 +313,7 @@ class Variation:
             # Probing puts every pool entry in the scene at least once, whatever the count.
             for i in range(count if side is None else max(count, len(group.pool))):
                 if side is None:
-                    p = None if group.weights is None else np.asarray(group.weights) / sum(group.weights)
-                    j = int(rng.choice(len(group.pool), p=p))
+                    j = int(rng.choice(len(group.pool), p=probabilities(group.weights)))
                 else:
                     j = (i % len(group.pool)) if side == "low" else len(group.pool) - 1 - (i % len(group.pool))
                 entry = value(group.pool[j])
