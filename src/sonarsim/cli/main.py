@@ -136,6 +136,15 @@ def _memory_size(text: str) -> int:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _seconds(text: str) -> float:
+    from ..core.memory import parse_seconds
+
+    try:
+        return parse_seconds(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``sonarsim`` parser: one sub-command per module of :mod:`sonarsim.cli`."""
     from .calibrate import add_calibrate_parser
@@ -158,6 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-memory", type=_memory_size, default=None, metavar="SIZE",
                         help="memory budget that sizes are checked against before allocating, e.g. 4G "
                         "(default: $SONARSIM_MAX_MEMORY, else 8 GiB or 80%% of the machine's memory)")
+    parser.add_argument("--max-build-time", type=_seconds, default=None, metavar="SECONDS",
+                        help="time budget that building a scene (its objects and triangles, a mesh file) is "
+                        "estimated against before it starts, e.g. 300 or 5min (default: $SONARSIM_MAX_BUILD_TIME, "
+                        "else 120 s)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     add_render_parser(sub)
@@ -179,9 +192,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:  # building the parser imports the commands' modules: Ctrl-C may come in that time
         args = build_parser().parse_args(argv)
-        from ..core.memory import set_memory_budget  # (an import too: inside the guard)
+        from ..core import memory  # (an import too: inside the guard)
 
-        set_memory_budget(args.max_memory)
+        memory.set_memory_budget(args.max_memory)
+        memory.set_time_budget(args.max_build_time)
+        # Also for the processes this command starts (dataset workers come from a fork server
+        # and do not share this process's settings, only its environment).
+        if args.max_memory is not None:
+            os.environ[memory.ENV_VAR] = str(args.max_memory)
+        if args.max_build_time is not None:
+            os.environ[memory.TIME_ENV_VAR] = str(args.max_build_time)
     except Exception as exc:
         if interrupt_of(exc) is None:  # (a Ctrl-C during an import can arrive as an ImportError)
             raise

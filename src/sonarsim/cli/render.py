@@ -233,11 +233,13 @@ def write_render_figures(image, out: Path, args, run=None) -> None:
 def cmd_render(args) -> None:
     from ..config.loader import load_scene
     from ..io.run_record import OutputRun
+    from ..scene.cost import check_scene_cost
 
     out = Path(args.out)
     # Checked before the scene is even read: a render must not be lost to an unwritable --out.
     run = OutputRun.for_folder(out, render_files(args), command=getattr(args, "command_line", None))
     scene = override_render(load_scene(args.scene), args)
     check_pixel_size([scene], args)
+    check_scene_cost(scene)  # (the simulator checks it too; here before the folder is made)
     with run:
         render_and_write(scene, out, args, run)

@@ -160,3 +160,69 @@ def require_together(parts: list[tuple[float, str, str]], what: str) -> None:
     shares = ", ".join(f"{d} {float(n) / 2**30:.3g} GiB" for n, d, _ in parts if n)
     raise ConfigError(largest[2], f"{what} would hold {total / 2**30:.3g} GiB at once ({shares}), more than the "
                       f"memory budget of {budget / 2**30:.3g} GiB (raise it with --max-memory or ${ENV_VAR})")
+
+
+# The time budget ----------------------------------------------------------------------------
+#
+# Some work grows with what a scene holds rather than with memory: building thousands of
+# objects, a ray-tracing structure of millions of triangles, parsing a large mesh file. Such
+# work is estimated from the document before it starts (with rates measured on a 2-core
+# laptop-class machine) and refused beyond this budget, so that a scene of a million pebbles
+# says so at once instead of running for an hour.
+
+TIME_ENV_VAR = "SONARSIM_MAX_BUILD_TIME"
+DEFAULT_TIME_BUDGET_S = 120.0
+_time_override: float | None = None
+
+
+def parse_seconds(text: str) -> float:
+    """``"120"``, ``"90s"``, ``"5 min"`` -> seconds. Raises ValueError naming what is allowed."""
+    import re
+
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*(s|sec|min|m|h)?\s*", str(text))
+    if not m:
+        raise ValueError(f"a time is a number of seconds with an optional unit (s, min, h), e.g. 300; got {text!r}")
+    value = float(m.group(1)) * {None: 1, "s": 1, "sec": 1, "min": 60, "m": 60, "h": 3600}[m.group(2)]
+    if not 1.0 <= value <= 7 * 24 * 3600:
+        raise ValueError(f"a build-time budget lies between 1 s and a week; got {text!r}")
+    return value
+
+
+def set_time_budget(seconds: float | None) -> None:
+    """Set the time budget for this process (``None``: back to the environment's or the default)."""
+    global _time_override
+    _time_override = None if seconds is None else float(seconds)
+
+
+def time_budget() -> float:
+    """Seconds one step of building (a scene, a mesh file) may be estimated to take:
+    ``set_time_budget``, else ``$SONARSIM_MAX_BUILD_TIME``, else 120 s."""
+    import os
+
+    from ..errors import SonarsimError
+
+    if _time_override is not None:
+        return _time_override
+    env = os.environ.get(TIME_ENV_VAR)
+    if env:
+        try:
+            return parse_seconds(env)
+        except ValueError as exc:
+            raise SonarsimError(f"{TIME_ENV_VAR}: {exc}") from None
+    return DEFAULT_TIME_BUDGET_S
+
+
+def require_time(seconds: float, what: str, key: str) -> None:
+    """Refuse work estimated to take longer than the time budget, naming the key that sets it.
+
+    Raises
+    ------
+    ConfigError
+        ``key``: what would be done, its estimated time, the budget, and how to raise it.
+    """
+    from ..errors import ConfigError
+
+    budget = time_budget()
+    if seconds > budget:
+        raise ConfigError(key, f"{what} would take about {seconds:.3g} s, more than the build-time budget of "
+                          f"{budget:g} s (raise it with --max-build-time or ${TIME_ENV_VAR})")

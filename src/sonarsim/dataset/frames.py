@@ -138,6 +138,34 @@ def label_mode(labels: bool | str) -> str:
     return str(labels)
 
 
+def require_label_memory(scenario: Scenario, labels: bool | str) -> None:
+    """Refuse, before the first frame, labels whose maps would not fit the memory budget for
+    the most objects a frame of ``scenario`` can hold (its variation at the high end).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``variation.objects`` (or ``scene.objects``), the surfaces and orders.
+    """
+    from ..config.loader import scene_from_dict
+    from ..errors import ConfigError
+    from ..renderer.ground_truth import require_label_maps
+
+    mode = label_mode(labels)
+    if mode == "none" or not labels_supported():
+        return
+    doc = scenario.probe("high")[0]
+    # The objects are counted, not built (the scenario's check built one of each kind).
+    scene = scene_from_dict({**doc, "objects": []}, base_dir=scenario.base_dir)
+    try:
+        require_label_maps(len(doc.get("objects") or []) + len(scene.reflecting_planes), scene.render.max_order,
+                           scene.sonar.n_range_bins, scene.sonar.n_beams, components=mode == "all",
+                           key="variation.objects" if scenario.variation.objects else "scene.objects")
+    except ConfigError as exc:
+        raise ConfigError(exc.key, f"{exc.detail}; or ask for fewer labels (--labels total, or none)",
+                          scenario.source) from None
+
+
 def render_frame(spec: FrameSpec, cache: SimulatorCache, labels: bool | str = True) -> SonarImage:
     """Render one frame from its spec alone (pose, seed, scene), without per-ray maps.
 

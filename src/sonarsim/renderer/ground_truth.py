@@ -137,6 +137,34 @@ class _Truth:
                     continuous=self._cont.get(s.gen))
 
 
+
+def require_label_maps(n_ids: int, max_order: int, n_rows: int, n_beams: int, components: bool = True,
+                       key: str = "objects") -> None:
+    """Refuse label maps that would not fit the memory budget, before any is made.
+
+    Parameters
+    ----------
+    n_ids : int
+        Surfaces that can be labelled (objects and planes).
+    max_order : int
+    n_rows, n_beams : int
+        The maps' window: range bins and beams.
+    components : bool
+        Maps of every component (``max_order + 1``) or of the total only.
+    key : str
+        The key named in the refusal.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``key``, the surfaces and orders, and the size against the budget.
+    """
+    n_maps = max_order + 1 if components else 1
+    # Either route: per map, at worst a row of ids per cell (dense stacks, or the compiled
+    # route's table if every cell were mixed), and four per-cell accumulators.
+    require((n_maps * n_ids * 4.0 + 4 * 8.0) * n_rows * n_beams, f"label maps of {n_ids} surfaces x {max_order} orders",
+            key)
+
 def frame_labels(
     sets: list[PathSet],
     legs: list[Leg],
@@ -191,11 +219,7 @@ def frame_labels(
     r0, r1 = (0, n_r) if rows is None else (int(rows[0]), int(rows[1]))
     n_w = max(r1 - r0, 0)
     dr, range_min_m = sonar.range_resolution_m, sonar.range_min_m  # (properties: computed on each access)
-    n_maps = max_order + 1 if components else 1
-    # Either route: per map, at worst a row of ids per cell (dense stacks, or the compiled
-    # route's table if every cell were mixed), and four per-cell accumulators.
-    require((n_maps * n_ids * 4.0 + 4 * 8.0) * n_w * n_b, f"label maps of {n_ids} surfaces x {max_order} orders",
-            "objects")
+    require_label_maps(n_ids, max_order, n_w, n_b, components)
     lut = surface_ids(np.arange(n_pl + n_obj), n_pl, n_obj)  # surface id -> label id, one gather per set
     elevation_deg = np.degrees(fan.elevation_rad)
     if kernels == "compiled" and compiled.AVAILABLE:

@@ -22,6 +22,7 @@ from ..config.loader import load_scene, parse_pose
 from ..config.scene import Scene, sonar_section
 from ..config.sonar import SonarConfig, image_bytes
 from ..core.memory import keep_freed_memory, require_together
+from ..scene.cost import check_scene_cost
 from ..core.radiometry import SurfaceLaws, backscatter
 from ..core.rays import RayFan, make_ray_fan, ray_bytes, ray_size_key
 from ..core.transforms import Pose
@@ -104,6 +105,13 @@ class Simulator:
         self._work: compiled.Workspace | None = None
         self.scene: Scene = load_scene(scene)
         self.backend = backend
+        # What the scene and a frame will hold, before any of it is built (issue 21: 20,000
+        # spheres ran for minutes into 10 GB before anything was refused).
+        try:
+            check_scene_cost(self.scene)
+            self.require_frame_memory(self.scene.sonar)
+        except ConfigError as exc:
+            raise ConfigError(exc.key, exc.detail, exc.source or self.scene.source) from None
         self.planes = PlaneSet.from_specs(self.scene.reflecting_planes)
         # The ground is the only plane: Algorithm 2 (``method: paper``) applies.
         self._ground_only = self.scene.ground is not None and not self.scene.planes
