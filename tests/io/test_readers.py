@@ -881,7 +881,7 @@ def test_show_writes_polar_and_fan(tmp_path, capsys):
     path = write_aris(tmp_path / "s.aris", [({}, [(40, 5)]), ({}, [(60, 7)])])
     out = tmp_path / "out" / "nested"
     args = show_args(str(path), "--frame", "1", "--out", str(out))
-    assert args.mapping == "linear" and args.gain_db == 0.0
+    assert args.mapping is None and args.gain_db == 0.0  # None: the image's own (linear for a recording)
     args.func(args)
     polar = np.asarray(Image.open(out / "polar.png"))
     fan = np.asarray(Image.open(out / "fan.png"))

@@ -1,4 +1,5 @@
-"""``sonarsim show``: write the polar and fan images of one frame of a real recording.
+"""``sonarsim show``: write the polar and fan images of one frame of a real recording, or of an
+image sonarsim stored (a dataset frame's NPZ, ``render.npz``).
 
 Wiring (in :mod:`sonarsim.cli.main`)::
 
@@ -13,12 +14,15 @@ image, so the default is ``linear`` with 0 dB gain against the data type's full 
 the PNG then shows exactly the recorded values, as the sonar's own software would, and frames
 of one recording keep comparable brightness. Wider data (16/24/32-bit Oculus pings) use the
 frame's maximum as full scale. ``--mapping db`` remains available (dB window below that
-reference, ``--dynamic-range-db`` wide).
+reference, ``--dynamic-range-db`` wide). A stored sonarsim image is shown as ``sonarsim render``
+shows it: a render's intensity in dB below its maximum, a sensor model's output in its counts
+(:func:`sonarsim.plot.figures.default_scale` decides, for the PNGs and the figures alike).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -48,23 +52,26 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
     """
     p = subparsers.add_parser(
         "show",
-        help="write polar.png and fan.png of one frame of a real recording (ARIS, Oculus)",
+        help="write polar.png and fan.png of one frame of a real recording (ARIS, Oculus) or a stored image (NPZ)",
         description="Read one frame of a real sonar recording - an ARIS .aris file or Oculus "
-        "simple-ping-result messages (.raw), recognised by content - and write polar.png "
+        "simple-ping-result messages (.raw), recognised by content - or an image sonarsim stored (a dataset "
+        "frame's frames/NNNNNN.npz, render.npz), and write polar.png "
         "(range up, left-most beam on the left) and fan.png into --out, the annotated figures fan_figure.png and "
         "polar_figure.png (axes in metres and degrees, colour bar in the device's counts, title; --figure-format, "
         "--no-figures), then sonarsim-run.json, the run's record.",
     )
-    p.add_argument("recording", metavar="FILE", help="the recording (.aris, or Oculus .raw messages)")
+    p.add_argument("recording", metavar="FILE",
+                   help="the recording (.aris, or Oculus .raw messages), or a sonarsim image (.npz)")
     p.add_argument("--frame", type=int, default=0, metavar="N",
-                   help="0-based frame (ARIS) or ping (Oculus) to show (default: 0)")
+                   help="0-based frame (ARIS) or ping (Oculus) to show (default: 0; an NPZ holds frame 0 only)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
     g = p.add_argument_group("images")
     g.add_argument("--pixel-size", type=positive_float, default=None, metavar="M",
                    help="fan image pixel size in metres (default: the range resolution)")
-    g.add_argument("--mapping", choices=("db", "linear"), default="linear",
-                   help="PNG intensity mapping (default: linear, which shows the recorded "
-                   "8-bit values as they are; db compresses them a second time)")
+    g.add_argument("--mapping", choices=("db", "linear"), default=None,
+                   help="PNG intensity mapping (default: linear for a recording and a sensor model's output, which "
+                   "shows the recorded 8-bit values as they are - db compresses them a second time; db for a "
+                   "render's intensity)")
     g.add_argument("--gain-db", type=display_gain_db, default=0.0, metavar="DB", help="display gain in dB (default: 0)")
     g.add_argument("--dynamic-range-db", type=display_range_db, default=40.0, metavar="DB",
                    help="width of the dB window shown with --mapping db (default: 40)")
@@ -95,7 +102,7 @@ def cmd_show(args: argparse.Namespace) -> None:
     OSError
         If the recording cannot be opened, or a write fails (e.g. a full disk).
     """
-    from ..io.output import to_uint8, write_png
+    from ..io.output import write_png
     from ..io.readers import open_recording
     from ..io.run_record import OutputRun
     from ..plot.figures import default_scale, fan_figure, polar_figure
@@ -113,31 +120,26 @@ def cmd_show(args: argparse.Namespace) -> None:
         total, damage, unit = recording.n_frames, recording.damage, recording.unit
     t1 = time.perf_counter()
     s = image.sonar
-    cfg = image.config
+    # (A stored image's config is its scene's, not a recording's source/format/frame.)
+    source = os.fspath(args.recording)
     _log(
-        f"read {cfg['format']} frame {cfg['frame']} of {total} from {cfg['source']}: "
+        f"read {recording.format} frame {image.config.get('frame', args.frame)} of {total} from {source}: "
         f"{s.n_range_bins} ranges x {s.n_beams} beams, {s.range_min_m:.3f}-{s.range_max_m:.3f} m, "
         f"{s.azimuth_fov_deg:.1f} deg wide, in {t1 - t0:.3f} s"
     )
     if damage is not None:
         what = ": ".join(part for part in (damage.where, damage.field, damage.detail) if part)
-        _log(f"note: {cfg['source']} is damaged after {unit} {total - 1}: its good {unit}s are 0 to "
+        _log(f"note: {source} is damaged after {unit} {total - 1}: its good {unit}s are 0 to "
              f"{total - 1} ({what})")
 
-    # Full scale of 8-bit data is 255 whatever the frame holds (see the module notes).
-    bits = cfg["header"].get("bits_per_value", 8)
-    reference = 255.0 if bits == 8 else None
-
-    def png(values, mask=None):
-        return to_uint8(values, args.mapping, args.gain_db, args.dynamic_range_db,
-                        reference=reference, mask=mask)
-
-    # Far range at the top of the polar PNG, like the fan, so both read the same way.
-    polar_png = png(image.polar[::-1])
-    fan = image.fan(pixel_size_m=args.pixel_size)
-    fan_png = png(fan.image, fan.mask)
-    # The figures on the PNGs' scale: the device's counts against the same reference.
+    # One scale for the PNGs and the figures: a device's counts against its full scale (255
+    # for 8-bit data whatever the frame holds, see the module notes), a render's intensity in
+    # dB below its maximum.
     scale = default_scale(image, args.mapping, args.gain_db, args.dynamic_range_db)
+    # Far range at the top of the polar PNG, like the fan, so both read the same way.
+    polar_png = scale.encode(image.polar[::-1])
+    fan = image.fan(pixel_size_m=args.pixel_size)
+    fan_png = scale.encode(fan.image, fan.mask)
     with run:
         write_png(out / "polar.png", polar_png)
         write_png(out / "fan.png", fan_png)

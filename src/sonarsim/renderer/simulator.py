@@ -37,6 +37,7 @@ from ..paths.engine import (
 from ..paths.planes import ChainTable, PlaneSet
 from ..sensor.model import FRAME_STREAM, SensorModel, elevation_span_deg
 from ..sensor.speckle import pool_bytes
+from ..scene.inside import InsideTest
 from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
 from ..scene.textures import with_textures
 from ..trace import available_cores, make_caster
@@ -122,6 +123,11 @@ class Simulator:
             self.meshes = [clip_to_water(m, plane.point_m, plane.normal) for m in self.meshes]
         self._warn_about_planes()
         self.caster = with_textures(make_caster(backend, self.meshes, self.scene.render.threads), self.meshes)
+        # A sonar inside a closed object sees only its inside: said once per object, for the
+        # scene's pose now and for each pose rendered (scene.inside: cheap outside the objects' boxes).
+        self._inside = InsideTest(self.caster, self.meshes, [o.name for o in self.scene.objects])
+        self._inside_warned: frozenset[str] = frozenset()
+        self._warn_if_inside(self.scene.sonar_pose.translation, stacklevel=3)
         self._mirrored_caster = None
         threads = self.scene.render.threads or available_cores()
         # One worker: the second core of the compiled path (tasks run in order on it).
@@ -138,6 +144,20 @@ class Simulator:
         # The paper's case (ground alone, order 3) on kernels specialised for it; False: the
         # general path engine for every frame (same images; the tests compare the two).
         self.specialise_ground = True
+
+    def _warn_if_inside(self, position: np.ndarray, stacklevel: int) -> None:
+        """Warn (once per object) when the sonar at ``position`` lies inside a closed object."""
+        if not self.meshes:
+            return
+        names = self._inside.holding(position, self._inside_warned)
+        if names:
+            self._inside_warned = self._inside_warned | frozenset(names)
+            which = ", ".join(map(repr, names))
+            warnings.warn(
+                f"the sonar at {[round(float(v), 6) for v in position]} lies inside the object{'s' * (len(names) > 1)} "
+                f"{which} (a closed surface around it): its rays end on the inside, and the image shows nothing "
+                "of the rest of the scene; move the sonar or the object", stacklevel=stacklevel,
+            )
 
     def _warn_about_planes(self) -> None:
         """Say so when the planes hide what the user probably meant to see (a normal the wrong way)."""
@@ -384,6 +404,8 @@ class Simulator:
         if len(self.planes) and np.abs(self.planes.signed_distance(pose.translation)).min() < ON_PLANE_TOLERANCE_M:
             check_sonar_position(self.scene.reflecting_planes, pose.position_m,
                                  "pose" if pose_given else "sonar.pose.position_m")
+        if pose_given:
+            self._warn_if_inside(pose.translation, stacklevel=3)
         render = self.scene.render
         fan = self.ray_fan(sonar)
         image_sonar, sonar = sonar, self.traced_sonar(sonar)  # the image's grid; the rays' aperture

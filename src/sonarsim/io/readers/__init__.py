@@ -1,4 +1,4 @@
-"""Readers of real sonar recordings into sonarsim's image type.
+"""Readers of real sonar recordings (and of sonarsim's stored frames) into sonarsim's image type.
 
 A recording becomes the same :class:`~sonarsim.image.result.SonarImage` a simulation produces, so
 that real and simulated images can be shown, compared and saved with the same code: ``polar``
@@ -12,7 +12,11 @@ Supported, recognised from the file's first bytes (never from its name):
 
 * ``"aris"``: Sound Metrics ARIS files (DDF_05), see :mod:`sonarsim.io.readers.aris`;
 * ``"oculus"``: Blueprint Subsea Oculus simple-ping-result messages (versions 1 and 2), one or
-  many back to back, as liboculus records them; see :mod:`sonarsim.io.readers.oculus`.
+  many back to back, as liboculus records them; see :mod:`sonarsim.io.readers.oculus`;
+* ``"npz"``: an image sonarsim stored (``sonarsim dataset``'s ``frames/NNNNNN.npz``, ``sonarsim
+  render``'s ``render.npz``, :meth:`SonarImage.save_npz`), read back as a one-frame recording
+  whose frame is the stored image with its sonar and pose (not a recording's ``config``: the
+  stored configuration); see :mod:`sonarsim.io.readers.npz`.
 
 Every problem with a file's content raises :class:`RecordingError` (a
 :class:`~sonarsim.errors.SonarsimError`) naming the file, the frame or message and the field.
@@ -53,11 +57,13 @@ from typing import Union
 from ...errors import SonarsimError
 from ._common import RecordingError
 from .aris import ARIS_SIGNATURE, ArisRecording
+from .npz import ZIP_SIGNATURE, NpzRecording
 from .oculus import OCULUS_ID, OculusRecording
 
 __all__ = [
     "FORMATS",
     "ArisRecording",
+    "NpzRecording",
     "OculusRecording",
     "RecordingError",
     "detect_format",
@@ -70,13 +76,12 @@ __all__ = [
 PathLike = Union[str, "os.PathLike[str]"]
 
 #: Format name -> reader class.
-FORMATS = {"aris": ArisRecording, "oculus": OculusRecording}
+FORMATS = {"aris": ArisRecording, "oculus": OculusRecording, "npz": NpzRecording}
 
 # Other files that users are likely to pass by mistake, named in the error message.
 _FOREIGN = (
     (b"\x89PNG\r\n\x1a\n", "a PNG image"),
     (b"\xff\xd8\xff", "a JPEG image"),
-    (b"PK\x03\x04", "a ZIP archive (an .npz file?)"),
     (b"\x93NUMPY", "a NumPy .npy file"),
     (b"#ROSBAG", "a ROS 1 bag (extract the sonar topic first)"),
     (b"\x89HDF", "an HDF5 file"),
@@ -93,7 +98,9 @@ def detect_format(path: PathLike) -> str:
 
     Returns
     -------
-    {"aris", "oculus"}
+    {"aris", "oculus", "npz"}
+        ``"npz"`` for any zip archive: whether it is an image sonarsim stored is found when it
+        is opened.
 
     Raises
     ------
@@ -128,23 +135,26 @@ def detect_format(path: PathLike) -> str:
             )
     if len(head) >= 2 and int.from_bytes(head[:2], "little") == OCULUS_ID:
         return "oculus"
+    if head.startswith(ZIP_SIGNATURE):
+        return "npz"
     for magic, what in _FOREIGN:
         if head.startswith(magic):
             raise RecordingError(source, f"this is {what}, not a sonar recording")
     raise RecordingError(
         source,
         f"not a recognised sonar recording (first bytes {head[:8].hex(' ')}); supported: ARIS "
-        f"(.aris, starting with {ARIS_SIGNATURE.to_bytes(4, 'little').hex(' ')}) and Oculus "
-        f"simple ping results (.raw, starting with {OCULUS_ID.to_bytes(2, 'little').hex(' ')})",
+        f"(.aris, starting with {ARIS_SIGNATURE.to_bytes(4, 'little').hex(' ')}), Oculus "
+        f"simple ping results (.raw, starting with {OCULUS_ID.to_bytes(2, 'little').hex(' ')}) "
+        "and images sonarsim stored (.npz)",
     )
 
 
-def open_recording(path: PathLike) -> ArisRecording | OculusRecording:
+def open_recording(path: PathLike) -> ArisRecording | OculusRecording | NpzRecording:
     """Open a recording for repeated reads (a context manager; close it when done).
 
     Returns
     -------
-    ArisRecording or OculusRecording
+    ArisRecording, OculusRecording or NpzRecording
         With ``n_frames`` (the good frames), ``damage`` (why the file ends there, or None),
         ``read(frame)`` and iteration over the good frames.
 
@@ -169,9 +179,11 @@ def read(path: PathLike, frame: int = 0):
     Parameters
     ----------
     path : str or os.PathLike
-        An ARIS file or a file of Oculus messages (recognised by content).
+        An ARIS file, a file of Oculus messages or an image sonarsim stored as NPZ
+        (recognised by content).
     frame : int
-        0-based frame (ARIS) or ping (Oculus; other message kinds are not counted).
+        0-based frame (ARIS) or ping (Oculus; other message kinds are not counted); 0 for an
+        NPZ, which holds one image.
 
     Returns
     -------
@@ -200,6 +212,6 @@ def read_frames(path: PathLike) -> Iterator:
     return _frames(open_recording(path))
 
 
-def _frames(recording: ArisRecording | OculusRecording) -> Iterator:
+def _frames(recording: ArisRecording | OculusRecording | NpzRecording) -> Iterator:
     with recording:
         yield from recording
