@@ -129,3 +129,38 @@ def test_ray_missing_is_one_line(tmp_path, scenario_file, capsys, monkeypatch):
     err = capsys.readouterr().err.strip()
     assert "sonarsim[ray]" in err and "\n" not in err
     assert not (tmp_path / "ds").exists()
+
+
+@pytest.mark.parametrize("coco", [None, "polar"])
+def test_coco_json_names_pngs_that_exist_without_png(tmp_path, scenario_file, capsys, coco):
+    # Issue 21: coco.json named frames/NNNNNN.npz while its boxes were in fan pixels, and no fan
+    # image existed without --png. Now it names the PNG its boxes are on, written for it.
+    from PIL import Image
+
+    from sonarsim.dataset.frames import labels_supported
+
+    if not labels_supported():
+        pytest.skip("this renderer has no labels yet (render(..., labels=True))")
+    out = tmp_path / "ds"
+    option = [] if coco is None else ["--coco", coco]
+    assert main(["dataset", str(scenario_file), "--out", str(out), "--frames", "2", "--no-progress", *option]) == 0
+    doc = json.loads((out / "coco.json").read_text())
+    kind = coco or "fan"
+    assert [i["file_name"] for i in doc["images"]] == [f"frames/{k:06d}_{kind}.png" for k in range(2)]
+    for entry in doc["images"]:
+        with Image.open(out / entry["file_name"]) as im:
+            assert im.size == (entry["width"], entry["height"])
+    for a in doc["annotations"]:  # every box within its image
+        image = doc["images"][a["image_id"]]
+        x, y, w, h = a["bbox"]
+        assert 0 <= x and 0 <= y and x + w <= image["width"] and y + h <= image["height"] and w > 0 and h > 0
+    other = "polar" if kind == "fan" else "fan"
+    assert not list((out / "frames").glob(f"*_{other}.png"))  # only the image coco.json names
+    assert json.loads((out / "dataset.json").read_text())["options"]["coco"] == kind
+
+
+def test_help_documents_the_coco_option(capsys):
+    with pytest.raises(SystemExit):
+        main(["dataset", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--coco {fan,polar}" in text and "frames/NNNNNN_polar.png" in text and "even without --png" in text

@@ -229,7 +229,8 @@ def test_another_scenario_or_other_options_are_refused_and_more_frames_extend(tm
     out = tmp_path / "ds"
     generate(ORBIT, out, frames=4, progress=False)
     before = folder_bytes(out)
-    for kwargs in ({"scenario": {**ORBIT, "seed": 6}}, {"formats": ("npz", "png")}, {"frames": 3}):
+    for kwargs in ({"scenario": {**ORBIT, "seed": 6}}, {"formats": ("npz", "png")}, {"frames": 3},
+                   {"coco": "polar"}):
         args = {"scenario": ORBIT, "frames": 4, **kwargs}
         with pytest.raises(SonarsimError, match="holds another dataset"):
             generate(args.pop("scenario"), out, progress=False, **args)
@@ -259,7 +260,10 @@ def test_a_full_disk_stops_with_a_clear_message_and_no_half_written_frame(tmp_pa
         generate(ORBIT, out, progress=False)
     monkeypatch.undo()
     assert not [p for p in out.rglob("*.tmp")]
-    assert sorted(p.name for p in (out / "frames").iterdir()) == [f"{k:06d}.npz" for k in range(3)]
+    # Frames 0-2 whole (with labels, each its NPZ and the fan PNG coco.json names), nothing of 3.
+    pngs = ["_fan.png"] if labels_supported() else []
+    assert sorted(p.name for p in (out / "frames").iterdir()) == sorted(
+        f"{k:06d}{end}" for k in range(3) for end in [".npz", *pngs])
     assert [r["frame"] for r in read_manifest(out / "manifest.jsonl")] == [0, 1, 2]
     summary = generate(ORBIT, out, progress=False)
     assert (summary.rendered, summary.reused) == (7, 3)
@@ -269,7 +273,8 @@ def test_a_full_disk_stops_with_a_clear_message_and_no_half_written_frame(tmp_pa
 
 def test_bad_options_name_their_key(tmp_path):
     for kwargs, key in (({"workers": 0}, "workers"), ({"formats": ("npz", "tiff")}, "formats"),
-                        ({"rosbag": "bag"}, "rosbag"), ({"frames": 0}, "frames"), ({"labels": "some"}, "labels")):
+                        ({"rosbag": "bag"}, "rosbag"), ({"frames": 0}, "frames"), ({"labels": "some"}, "labels"),
+                        ({"coco": "cartesian"}, "coco")):
         with pytest.raises(ConfigError) as info:
             generate(ORBIT, tmp_path / "ds", progress=False, **kwargs)
         assert info.value.key == key
@@ -316,19 +321,105 @@ def test_fingerprint_of_a_prefix():
 def test_coco_boxes_from_records():
     records = [
         {"frame": 0, "files": ["frames/000000.npz", "frames/000000_polar.png", "frames/000000_fan.png"],
-         "fan_shape": [50, 80], "time_s": 0.0,
+         "fan_shape": [50, 80], "polar_shape": [30, 16], "time_s": 0.0,
          "boxes": [{"id": 0, "name": "block", "polar": [1, 2, 3, 4], "fan": [10, 20, 14, 29]},
                    {"id": 1, "name": "rock_0", "polar": [1, 1, 1, 1], "fan": [-1, -1, -1, -1]}]},
-        {"frame": 1, "files": ["frames/000001.npz"], "fan_shape": [50, 80], "time_s": 0.5,
+        {"frame": 1, "files": ["frames/000001.npz", "frames/000001_fan.png"], "fan_shape": [50, 80],
+         "polar_shape": [30, 16], "time_s": 0.5,
          "boxes": [{"id": 2, "name": "rock_12", "polar": [0, 0, 0, 0], "fan": [0, 0, 0, 0]}]},
     ]
-    doc = coco_from_records(records, image_file="png")
-    assert [i["file_name"] for i in doc["images"]] == ["frames/000000_fan.png", "frames/000001.npz"]
+    doc = coco_from_records(records)
+    assert [i["file_name"] for i in doc["images"]] == ["frames/000000_fan.png", "frames/000001_fan.png"]
     assert doc["images"][0]["width"] == 80 and doc["images"][0]["height"] == 50
     assert [a["bbox"] for a in doc["annotations"]] == [[20, 10, 10, 5], [0, 0, 1, 1]]
     assert [a["area"] for a in doc["annotations"]] == [50, 1]
     assert doc["categories"] == [{"id": 1, "name": "block"}, {"id": 2, "name": "rock"}]
     assert [category_of(n) for n in ("rock_3", "rock", "pipe_a", "_7")] == ["rock", "rock", "pipe_a", "_7"]
+    # Polar pixels: a column per beam, row 0 the farthest of the 30 bins (bins 1-3 are rows 26-28).
+    polar = coco_from_records(records[:1], image="polar")
+    assert polar["images"][0]["file_name"] == "frames/000000_polar.png"
+    assert (polar["images"][0]["height"], polar["images"][0]["width"]) == (30, 16)
+    assert [a["bbox"] for a in polar["annotations"]] == [[2, 26, 3, 3], [1, 28, 1, 1]]
+    # A frame without the PNG asked for: no file_name that does not exist.
+    with pytest.raises(ValueError, match="frame 1: the manifest names no polar PNG"):
+        coco_from_records(records, image="polar")
+
+
+# Two objects either side of the fan's centre line, one near and one far (away from the middle
+# of the range window, so that rows counted from the wrong end would miss), seen from a few
+# nearby poses: their boxes must land on their own echoes, in the image coco.json names.
+HALF_SIZE_M = 0.15
+TWO_OBJECTS = {
+    "scene": {**SCENE, "objects": [
+        {"name": "block", "primitive": "box", "size_m": [2 * HALF_SIZE_M] * 3,
+         "pose": {"position_m": [2.0, 0.35, HALF_SIZE_M]}},
+        {"name": "ball", "primitive": "sphere", "radius_m": HALF_SIZE_M,
+         "pose": {"position_m": [3.6, -0.4, HALF_SIZE_M]}}]},
+    "seed": 3,
+    "trajectory": {"generate": {"kind": "random", "frames": 3, "bounds_m": [[-0.2, -0.2, 0.9], [0.2, 0.2, 1.1]],
+                                "look_at_m": [2.7, 0.0, 0.1], "jitter_deg": [1, 1]}},
+}
+
+
+@pytest.mark.parametrize("coco", ["fan", "polar"])
+def test_coco_names_images_that_exist_and_its_boxes_land_on_the_objects(tmp_path, coco):
+    from PIL import Image
+
+    if not labels_supported():
+        pytest.skip("this renderer has no labels yet (render(..., labels=True))")
+    out = tmp_path / "ds"
+    summary = generate(TWO_OBJECTS, out, progress=False, coco=coco)  # no --png: the PNG is written anyway
+    doc = json.loads(summary.coco.read_text())
+    rendered = {f.index: f for f in frames(TWO_OBJECTS)}
+    assert [i["id"] for i in doc["images"]] == sorted(rendered)
+    for entry in doc["images"]:
+        k = entry["id"]
+        path = out / entry["file_name"]
+        assert path.is_file() and entry["file_name"] == f"frames/{k:06d}_{coco}.png"
+        with Image.open(path) as im:
+            assert im.size == (entry["width"], entry["height"])
+            pixels = np.asarray(im)
+        image, spec = rendered[k].image, rendered[k].spec
+        # The objects' own echo (the renderer's object component, not the labels), on the
+        # named image's pixels: the fan of SonarImage.fan(), or the polar image far range up.
+        if coco == "fan":
+            fan = image.fan(component="object")
+            echo, x_m, y_m = fan.image, fan.x_m, fan.y_m
+            pixel_m = fan.pixel_size_m
+        else:
+            echo = image.components["object"][::-1]
+            pixel_m = float(image.range_m[1] - image.range_m[0])
+        # The echo comes from the faces the sonar sees, up to half the object's size from its
+        # centre: that many pixels of slack (a few; mirrored boxes would miss by tens).
+        slack = int(np.ceil(HALF_SIZE_M / pixel_m))
+        boxes = {a["object"]: a["bbox"] for a in doc["annotations"] if a["image_id"] == k}
+        assert set(boxes) == {"block", "ball"}, boxes
+        inside = np.zeros(echo.shape, bool)
+        world_to_sonar = np.linalg.inv(spec.pose.matrix())
+        for obj in spec.scene["objects"]:
+            x, y, w, h = boxes[obj["name"]]
+            inside[y:y + h, x:x + w] = True
+            # The object's centre, projected as a 2D sonar images it (range, azimuth), falls in
+            # its own box.
+            p = world_to_sonar @ np.array([*obj["pose"]["position_m"], 1.0])
+            r, azimuth = float(np.linalg.norm(p[:3])), float(np.arctan2(p[1], p[0]))
+            if coco == "fan":
+                row = int(np.argmin(np.abs(x_m - r * np.cos(azimuth))))
+                col = int(np.argmin(np.abs(y_m - r * np.sin(azimuth))))
+            else:
+                row = echo.shape[0] - 1 - int(np.argmin(np.abs(image.range_m - r)))
+                col = int(np.argmin(np.abs(image.azimuth_deg - np.degrees(azimuth))))
+            if coco == "polar":  # across beams the slack is the beams the half size spans
+                slack_cols = int(np.ceil(np.degrees(HALF_SIZE_M / r) / abs(image.azimuth_deg[0] - image.azimuth_deg[1])))
+            else:
+                slack_cols = slack
+            assert y - slack <= row < y + h + slack and x - slack_cols <= col < x + w + slack_cols, (
+                k, obj["name"], (row, col), boxes[obj["name"]])
+            # The PNG is bright there: the object's echo is drawn inside its box.
+            assert pixels[y:y + h, x:x + w].max() >= 0.8 * pixels.max()
+        # Nearly all the objects' echo energy lies inside their boxes.
+        assert echo[inside].sum() >= 0.95 * echo.sum()
+        assert boxes["block"][0] + boxes["block"][2] <= boxes["ball"][0]  # the block on the left
 
 
 def test_coco_file_of_a_labelled_dataset(tmp_path):

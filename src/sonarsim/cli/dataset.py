@@ -28,8 +28,9 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "dataset", help="render a scenario's frames into a dataset folder (NPZ, manifest, COCO, ROS 2 bag)",
         description="Render every frame of a scenario file into --out: frames/NNNNNN.npz (image, components, "
-        "labels), manifest.jsonl (pose, seed, files, sha256 per frame), dataset.json, coco.json (object boxes, "
-        "with labels) and optionally PNGs and a ROS 2 bag. Killed and started again with the same command, it "
+        "labels), manifest.jsonl (pose, seed, files, sha256 per frame), dataset.json, coco.json (with labels: "
+        "object boxes on frames/NNNNNN_fan.png, written for it, or with --coco polar on frames/NNNNNN_polar.png) "
+        "and optionally PNGs and a ROS 2 bag. Killed and started again with the same command, it "
         "keeps the frames that verify and makes the rest; a folder of another scenario or other options is "
         "refused.")
     p.add_argument("scenario", help="scenario file (YAML or JSON)")
@@ -55,6 +56,11 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--labels", choices=("all", "total", "none"), default="all",
                    help="ground truth in each NPZ: an instance map per component (all, the default), of the total "
                    "only (total: cheaper; elevation, points and boxes alike), or none")
+    p.add_argument("--coco", choices=("fan", "polar"), default="fan",
+                   help="the image each frame's entry in coco.json names, and the pixels its boxes are in: fan "
+                   "(default: frames/NNNNNN_fan.png, the fan at the range resolution, far range at the top) or polar "
+                   "(frames/NNNNNN_polar.png: a column per beam, left-most first, a row per range bin, far range at "
+                   "the top); that PNG is written with labels even without --png")
     p.add_argument("--signatures", action="store_true",
                    help="also store one image per path signature (which planes each echo bounced off); the "
                    "components (object, ground, single, double, ..., total) are always stored")
@@ -87,7 +93,7 @@ def cmd_dataset(args: argparse.Namespace) -> None:
         scenario = scenario.with_seed(args.seed)
     summary = generate(
         scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
-        rosbag=args.rosbag, ray=args.ray, labels=args.labels, signatures=args.signatures,
+        rosbag=args.rosbag, ray=args.ray, labels=args.labels, signatures=args.signatures, coco=args.coco,
         progress=not args.no_progress,
         command=getattr(args, "command_line", None), start_time=args.start_time,
     )

@@ -1,12 +1,22 @@
-"""A COCO-style JSON of the objects' boxes in a dataset's fan images, for detection users.
+"""A COCO-style JSON of the objects' boxes in a dataset's images, for detection users.
 
-One ``image`` per frame (``id`` = frame index, ``file_name`` its fan PNG when the dataset has
-PNGs, else its NPZ; ``width``/``height`` of the fan image), one ``annotation`` per object that
-dominates at least one fan pixel (``bbox`` = ``[x, y, width, height]`` in pixels: x the
-column, y the row, row 0 the far range at the top of the fan; ``area`` = width * height;
-``iscrowd`` 0) and one ``category`` per object kind. Objects that a scenario's variation adds
-are named ``<group>_<i>`` (:mod:`sonarsim.dataset.variation`); their category is the group's
-name, so all rocks are one category. Planes (the ground, walls) are not objects and get no box.
+One ``image`` per frame (``id`` = frame index, ``file_name`` the frame's PNG the boxes are
+drawn on, relative to the dataset folder; ``width``/``height`` its size in pixels), one
+``annotation`` per object that dominates at least one pixel of it (``bbox`` = ``[x, y, width,
+height]`` in pixels: x the column, y the row; ``area`` = width * height; ``iscrowd`` 0) and one
+``category`` per object kind. Objects that a scenario's variation adds are named
+``<group>_<i>`` (:mod:`sonarsim.dataset.variation`); their category is the group's name, so
+all rocks are one category. Planes (the ground, walls) are not objects and get no box.
+
+Two images, chosen by the dataset's ``coco`` option (``sonarsim dataset --coco``):
+
+* ``fan`` (default): ``frames/NNNNNN_fan.png``, the fan of :meth:`SonarImage.fan` (one pixel
+  per range resolution, the sonar at the bottom centre, row 0 the far range at the top, the
+  left-most beam on the left); an object's box spans the pixels whose nearest polar cell it
+  dominates;
+* ``polar``: ``frames/NNNNNN_polar.png``, one column per beam (column 0 the left-most) and one
+  row per range bin, row 0 the FARTHEST bin (far range at the top, as sonarsim draws polar
+  images); an object's box spans the cells it dominates.
 """
 
 from __future__ import annotations
@@ -29,36 +39,51 @@ def category_of(name: str) -> str:
     return match["base"] if match else name
 
 
-def coco_from_records(records: Iterable[Mapping[str, Any]], fan_shape: tuple[int, int] | None = None,
-                      image_file: str = "npz") -> dict[str, Any]:
+def coco_from_records(records: Iterable[Mapping[str, Any]], image: str = "fan") -> dict[str, Any]:
     """The COCO document of a dataset's manifest records (each with ``boxes``, see manifest).
 
     Parameters
     ----------
     records : iterable of mapping
-        Manifest lines in frame order.
-    fan_shape : (height, width), optional
-        Fan image size in pixels (the same for every frame of a scenario); taken from the
-        records' ``fan_shape`` when not given.
-    image_file : {"npz", "png"}
-        Which of the frame's files ``file_name`` names: its NPZ, or its fan PNG.
+        Manifest lines in frame order, each with ``files``, ``boxes`` and the image's shape
+        (``fan_shape`` or ``polar_shape``, ``[height, width]``).
+    image : {"fan", "polar"}
+        The image ``file_name`` names and the boxes are in: the frame's ``*_fan.png`` (boxes
+        from each box's ``fan`` pixels) or its ``*_polar.png`` (boxes from its ``polar`` cells,
+        rows counted from the far range, as the PNG is drawn).
 
     Returns
     -------
     dict
         ``{"info", "images", "annotations", "categories"}``; category ids start at 1 in order of
         first appearance, annotation ids at 1 in frame order.
+
+    Raises
+    ------
+    ValueError
+        ``image`` is neither, or a record lacks that PNG or the image's shape (a manifest
+        written before the COCO file named images; make the dataset again).
     """
+    if image not in ("fan", "polar"):
+        raise ValueError(f"image must be 'fan' or 'polar', got {image!r}")
     images, annotations, categories = [], [], {}
     for record in records:
         k = int(record["frame"])
-        shape = fan_shape or tuple(record.get("fan_shape") or (0, 0))
-        files = record["files"]
-        name = next((f for f in files if f.endswith("_fan.png")), None) if image_file == "png" else None
-        images.append({"id": k, "file_name": name or files[0], "height": int(shape[0]), "width": int(shape[1]),
+        name = next((f for f in record["files"] if f.endswith(f"_{image}.png")), None)
+        shape = record.get(f"{image}_shape")
+        if name is None or not shape:
+            raise ValueError(f"frame {k}: the manifest names no {image} PNG or its shape (files "
+                             f"{record['files']}); coco.json must name images that exist")
+        height, width = (int(v) for v in shape)
+        images.append({"id": k, "file_name": name, "height": height, "width": width,
                        "time_s": record.get("time_s")})
         for box in record.get("boxes") or []:
-            row0, col0, row1, col1 = (int(v) for v in box["fan"])
+            if image == "fan":
+                row0, col0, row1, col1 = (int(v) for v in box["fan"])
+            else:
+                # Cells [bin_min, beam_min, bin_max, beam_max]; the PNG's row 0 is the last bin.
+                bin0, col0, bin1, col1 = (int(v) for v in box["polar"])
+                row0, row1 = (height - 1 - bin1, height - 1 - bin0) if bin0 >= 0 else (-1, -1)
             if row0 < 0:  # dominates polar cells but no fan pixel (outside the fan's sampling)
                 continue
             category = category_of(str(box["name"]))
@@ -68,7 +93,7 @@ def coco_from_records(records: Iterable[Mapping[str, Any]], fan_shape: tuple[int
                                 "bbox": [col0, row0, w, h], "area": w * h, "iscrowd": 0,
                                 "object": str(box["name"])})
     return {
-        "info": {"description": "sonarsim dataset: object boxes in the fan images", "version": "1"},
+        "info": {"description": f"sonarsim dataset: object boxes in the {image} images", "version": "1"},
         "images": images,
         "annotations": annotations,
         "categories": [{"id": cid, "name": name} for name, cid in categories.items()],

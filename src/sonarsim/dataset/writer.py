@@ -6,8 +6,10 @@ A dataset folder ``DIR`` holds::
     DIR/manifest.jsonl        one line per frame: pose, seed, files, sizes, sha256 (manifest module)
     DIR/frames/000000.npz     per frame: polar, range_m, azimuth_deg, components, labels
                               (path-signature images with signatures=True)
-    DIR/frames/000000_polar.png, 000000_fan.png   with "png" in formats (far range at the top)
-    DIR/coco.json             with ground truth: the objects' boxes in the fan images (coco module)
+    DIR/frames/000000_polar.png, 000000_fan.png   with "png" in formats (far range at the top);
+                              with ground truth and without "png", the one coco.json names
+    DIR/coco.json             with ground truth: the objects' boxes in the frames' fan PNGs (or,
+                              with coco="polar", polar PNGs; coco module)
     DIR/rosbag/               with rosbag="mcap" or "sqlite3": the ROS 2 bag (sonarsim.io.rosbag)
     DIR/sonarsim-run.json     the run's record (sonarsim.io.run_record)
 
@@ -64,6 +66,10 @@ __all__ = ["FORMATS", "DatasetOptions", "DatasetSummary", "EncodedFrame", "encod
 
 #: File formats per frame: ``npz`` (always) and ``png`` (polar and fan images, 8-bit dB).
 FORMATS = ("npz", "png")
+#: The images ``coco.json`` names and boxes: each frame's fan PNG (boxes in fan pixels, the
+#: default) or its polar PNG (boxes in polar pixels). A dataset with ground truth always
+#: writes that PNG, so that every ``file_name`` in ``coco.json`` is a file of the dataset.
+COCO_IMAGES = ("fan", "polar")
 #: Name of the frames' folder inside a dataset folder.
 FRAMES_DIR = "frames"
 #: Name of the COCO file and of the bag folder inside a dataset folder.
@@ -96,12 +102,17 @@ class DatasetOptions:
         Also store one image per path signature in the NPZs
         (:func:`~sonarsim.dataset.frames.frame_arrays`); the component table's images are
         always stored.
+    coco : {"fan", "polar"}
+        The image of each frame that ``coco.json`` names, and whose pixels its boxes are in
+        (:data:`COCO_IMAGES`); with ground truth that PNG is written even without ``png`` in
+        ``formats``.
     """
 
     labels: bool | str = "all"
     formats: tuple[str, ...] = ("npz",)
     rosbag: str | None = None
     signatures: bool = False
+    coco: str = "fan"
 
     def __post_init__(self) -> None:
         from ..io.rosbag import BAG_STORAGES
@@ -119,20 +130,27 @@ class DatasetOptions:
         object.__setattr__(self, "labels", mode if labels_supported() else "none")
         if not isinstance(self.signatures, bool):
             raise ConfigError("signatures", f"must be true or false, got {shown(self.signatures)}")
+        if self.coco not in COCO_IMAGES:
+            raise ConfigError("coco", f"allowed: {', '.join(COCO_IMAGES)}; got {shown(self.coco)}")
 
     def document(self) -> dict[str, Any]:
         """The options as JSON (``dataset.json`` and the fingerprint)."""
         return {"labels": self.labels, "formats": list(self.formats), "rosbag": self.rosbag,
-                "signatures": self.signatures}
+                "signatures": self.signatures, "coco": self.coco}
+
+    @property
+    def pngs(self) -> tuple[str, ...]:
+        """The PNGs of each frame (``"polar"``, ``"fan"``): both with ``png`` in ``formats``;
+        otherwise, with ground truth, the one ``coco.json`` names."""
+        if "png" in self.formats:
+            return ("polar", "fan")
+        return (self.coco,) if self.labels != "none" else ()
 
 
 def frame_files(k: int, width: int, options: DatasetOptions) -> list[str]:
     """Files of frame ``k``, relative to the dataset folder, in manifest order."""
     stem = f"{FRAMES_DIR}/{k:0{width}d}"
-    names = [f"{stem}.npz"]
-    if "png" in options.formats:
-        names += [f"{stem}_polar.png", f"{stem}_fan.png"]
-    return names
+    return [f"{stem}.npz"] + [f"{stem}_{kind}.png" for kind in options.pngs]
 
 
 def npz_bytes(arrays: Mapping[str, np.ndarray], config: Mapping[str, Any]) -> bytes:
@@ -156,6 +174,17 @@ def _png_bytes(image_uint8: np.ndarray) -> bytes:
     buffer = io.BytesIO()
     Image.fromarray(np.ascontiguousarray(image_uint8)).save(buffer, format="PNG")
     return buffer.getvalue()
+
+
+def _image_png(image: Any, kind: str) -> bytes:
+    """A frame's polar or fan image as an 8-bit dB PNG (as ``sonarsim render`` draws them: the
+    far range at the top; the fan of :meth:`SonarImage.fan`, whose pixels the fan boxes are in)."""
+    from ..io.output import to_uint8
+
+    if kind == "polar":
+        return _png_bytes(to_uint8(image.polar[::-1], "db", 0.0, _DYNAMIC_RANGE_DB))
+    fan = image.fan()
+    return _png_bytes(to_uint8(fan.image, "db", 0.0, _DYNAMIC_RANGE_DB, mask=fan.mask))
 
 
 @dataclass(frozen=True)
@@ -210,8 +239,6 @@ def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: in
     width : int
         Digits of the frame number in file names.
     """
-    from ..io.output import to_uint8
-
     t0 = time.perf_counter()
     arrays = frame_arrays(image, options.signatures)
     config = dict(image.config)
@@ -222,11 +249,7 @@ def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: in
     config["render"] = render
     config["dataset"] = {"frame": spec.index, "seed": spec.seed, "time_s": spec.time_s}
     names = frame_files(spec.index, width, options)
-    contents = [npz_bytes(arrays, config)]
-    if "png" in options.formats:
-        contents.append(_png_bytes(to_uint8(image.polar[::-1], "db", 0.0, _DYNAMIC_RANGE_DB)))
-        fan = image.fan()
-        contents.append(_png_bytes(to_uint8(fan.image, "db", 0.0, _DYNAMIC_RANGE_DB, mask=fan.mask)))
+    contents = [npz_bytes(arrays, config)] + [_image_png(image, kind) for kind in options.pngs]
     record: dict[str, Any] = {
         **frame_header(spec, names),
         "bytes": {n: len(c) for n, c in zip(names, contents)},
@@ -234,6 +257,7 @@ def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: in
     }
     if options.labels != "none":
         record["boxes"], record["fan_shape"] = _boxes(spec, image)
+        record["polar_shape"] = [int(v) for v in np.shape(image.polar)]
     return EncodedFrame(spec.index, tuple(zip(names, contents)), record,
                         {"encode": time.perf_counter() - t0, **getattr(image, "timing", {})})
 
@@ -372,6 +396,7 @@ def generate(
     rosbag: str | None = None,
     labels: bool | str = True,
     signatures: bool = False,
+    coco: str = "fan",
     progress: bool = True,
     threads: int | None = None,
     batch_size: int | None = None,
@@ -405,6 +430,11 @@ def generate(
         none (``False``, ``"none"``).
     signatures : bool
         Also store one image per path signature (:class:`DatasetOptions`).
+    coco : {"fan", "polar"}
+        With ground truth, the image of each frame that ``coco.json`` names and boxes:
+        ``frames/NNNNNN_fan.png`` with the boxes in fan pixels (default), or
+        ``frames/NNNNNN_polar.png`` with the boxes in polar pixels (a column per beam, the far
+        range at the top). That PNG is written whether or not ``formats`` has ``"png"``.
     progress : bool
         A progress bar on stderr (frames, rate, time left; needs ``tqdm``).
     threads : int, optional
@@ -462,7 +492,8 @@ def generate(
         threads = _positive_int(threads, "threads")
     if batch_size is not None:
         batch_size = _positive_int(batch_size, "batch_size")
-    options = DatasetOptions(labels=labels, formats=tuple(formats), rosbag=rosbag, signatures=signatures)
+    options = DatasetOptions(labels=labels, formats=tuple(formats), rosbag=rosbag, signatures=signatures,
+                             coco=coco)
     if options.rosbag is not None:
         from ..io.rosbag import _import_rosbags
 
@@ -555,7 +586,7 @@ def generate(
         coco_path = None
         if options.labels != "none":
             coco_path = out / COCO_NAME
-            doc = coco_from_records(ordered, image_file="png" if "png" in options.formats else "npz")
+            doc = coco_from_records(ordered, image=options.coco)
             with atomic_write(coco_path, "w") as handle:
                 handle.write(canonical_json(doc) + "\n")
         bag_path = _write_bag(out, ordered, options.rosbag, stamps) if options.rosbag else None
