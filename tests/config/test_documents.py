@@ -8,7 +8,7 @@ import time
 import pytest
 
 from sonarsim.config import document
-from sonarsim.config.document import MAX_DOCUMENT_BYTES, MAX_DOCUMENT_NODES, read_document
+from sonarsim.config.document import MAX_ALIASES, MAX_DOCUMENT_BYTES, MAX_DOCUMENT_NODES, read_document
 from sonarsim.config.loader import load_scene
 from sonarsim.errors import ConfigError, SonarsimError
 
@@ -64,14 +64,22 @@ def test_a_long_document_is_refused_while_it_is_read(tmp_path):
 
 
 def test_the_largest_alias_document_is_refused_promptly(tmp_path):
-    # The worst case of the size limit: a file of nothing but aliases (libyaml composes them all
-    # before the expansion is counted). A hang guard, not a benchmark: about 1.5 s here.
+    # The worst case of the size limit: a file of nothing but aliases, counted in the text before
+    # libyaml composes them. A hang guard, not a benchmark.
     text = ("a: &a [1]\nb: [" + "*a, " * (MAX_DOCUMENT_BYTES // 4))[: MAX_DOCUMENT_BYTES - 2] + "]\n"
     p = _write(tmp_path, "aliases.yaml", text)
     t0 = time.monotonic()
-    with pytest.raises(SonarsimError, match="expands to more than"):
+    with pytest.raises(SonarsimError, match=r"aliases\.yaml: 1,048,\d+ aliases \(\*name\); a scene or scenario uses at "
+                       r"most 100,000"):
         read_document(p)
     assert time.monotonic() - t0 < 30
+    # Just within the count, the expansion decides (each alias here is a list of two values).
+    p = _write(tmp_path, "many.yaml", "a: &a [1]\nb: [" + ", ".join(["*a"] * MAX_ALIASES) + "]\n")
+    with pytest.raises(SonarsimError, match="expands to more than 500,000 values"):
+        p.write_text("a: &a [1, 2, 3, 4, 5, 6]\nb: [" + ", ".join(["*a"] * MAX_ALIASES) + "]\n")
+        read_document(p)
+    p.write_text("a: &a [1]\nb: [" + ", ".join(["*a"] * MAX_ALIASES) + "]\n")
+    assert len(read_document(p)["b"]) == MAX_ALIASES
 
 
 def test_json_documents_are_bounded_too(tmp_path):

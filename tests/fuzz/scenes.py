@@ -342,6 +342,9 @@ class Case:
     data: bytes | None = None
     suffix: str = ".yaml"
     render: bool = False
+    # Files the case's document refers to (``files`` level): name -> (kind, content), written
+    # into the case's own folder before it is loaded (see :func:`write_referenced`).
+    files: dict[str, tuple[str, bytes]] | None = None
 
     def describe(self) -> str:
         return f"case {self.index} ({self.level} of {self.seed_name}: {'; '.join(self.mutations)})"
@@ -362,6 +365,9 @@ def generate_cases(n: int, seed: int, render_every: int = 0) -> Iterator[Case]:
     rng = np.random.default_rng(seed)
     for i in range(n):
         render = bool(render_every) and i % render_every == 0
+        if rng.random() < HOSTILE_SHARE:
+            yield hostile_case(i, rng, texts, render)
+            continue
         if rng.random() < 2 / 3:
             name, doc = seeds[rng.integers(len(seeds))]
             mutated, done = mutate_document(doc, rng)
@@ -370,6 +376,126 @@ def generate_cases(n: int, seed: int, render_every: int = 0) -> Iterator[Case]:
             name, data, suffix = texts[rng.integers(len(texts))]
             mutated, done = mutate_text(data, rng)
             yield Case(i, name, "text", done, data=mutated, suffix=suffix, render=render)
+
+
+# Hostile cases (issue 21) --------------------------------------------------------------------
+#
+# What the mutations above rarely reach: scenes of thousands of objects, YAML aliases that
+# expand (bombs, recursion, merges, long runs) and files the scene refers to that are pipes,
+# devices, folders, symbolic-link loops, empty or missing (meshes, their material libraries and
+# texture images, beam tables, pattern tables).
+
+#: The share of cases that are hostile (a third each of objects, aliases, files).
+HOSTILE_SHARE = 0.06
+#: What a referenced file can be (``ok``: the intended content).
+FILE_KINDS = ("ok", "ok", "ok", "fifo", "dir", "missing", "loop", "device", "empty", "garbage")
+_SMALL_SONAR = {"preset": "aris3000-128", "n_range_bins": 128, "pose": {"position_m": [0, 0, 1], "rpy_deg": [0, 20, 0]}}
+
+
+def _png_bytes() -> bytes:
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray((np.arange(64, dtype=np.uint8).reshape(8, 8) * 4)).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def _many_objects(rng: np.random.Generator) -> tuple[dict, list[str]]:
+    # Up to 10,000: a scene of 20,000 loads in about 2 s on a quiet machine, past the 5 s limit
+    # on a loaded one (and tracing allocations triples it).
+    n = int(10 ** rng.uniform(2, 4))
+    kinds = [{"primitive": "sphere", "radius_m": 0.01}, {"primitive": "box", "size_m": [0.05, 0.05, 0.05]},
+             {"primitive": "cylinder", "radius_m": 0.02, "height_m": 0.1}, {"primitive": "sphere", "radius_m": 0.3}]
+    xyz = np.column_stack([rng.uniform(1, 4.5, n), rng.uniform(-1, 1, n), rng.uniform(0.02, 0.5, n)])
+    objects = []
+    for k in range(n):
+        obj = dict(kinds[rng.integers(len(kinds))] if k % 50 == 0 else kinds[0])
+        obj.update(name=f"o{k}", pose={"position_m": [float(v) for v in xyz[k]]})
+        objects.append(obj)
+    if rng.random() < 0.1:  # one name given twice, far down the list
+        objects[-1]["name"] = objects[int(rng.integers(n))]["name"]
+    return {"sonar": dict(_SMALL_SONAR), "ground": {}, "objects": objects}, [f"{n} objects"]
+
+
+def _alias_text(base: bytes, rng: np.random.Generator) -> tuple[bytes, list[str]]:
+    op = int(rng.integers(5))
+    if op == 0:  # a bomb: levels of aliases, each repeating the previous
+        levels, width = int(rng.integers(2, 12)), int(rng.integers(2, 12))
+        text = "b0: &b0 [x" + ", x" * (width - 1) + "]\n" + "".join(
+            f"b{i}: &b{i} [" + ", ".join([f"*b{i - 1}"] * width) + "]\n" for i in range(1, levels))
+        return base + b"\n" + text.encode(), [f"alias bomb {width}^{levels}"]
+    if op == 1:  # an anchor used inside itself
+        return base + b"\nloop: &loop {a: [1, *loop]}\n", ["recursive alias"]
+    if op == 2:  # a long run of aliases to one anchor
+        n = int(10 ** rng.uniform(2, 6))
+        return base + b"\nrun: [&r 1" + b", *r" * n + b"]\n", [f"{n} aliases"]
+    if op == 3:  # merge keys into the sonar section (valid YAML; the keys are then checked)
+        return (b"defaults: &d {range_max_m: 4.0, n_range_bins: 64}\n" + base.replace(b"sonar:\n", b"sonar:\n  <<: *d\n", 1),
+                ["merge key"])
+    # an alias of the objects list in the planes, or of the sonar as an object
+    return base.replace(b"objects:", b"objects: &objs", 1) + b"\nplanes: *objs\n", ["objects aliased as planes"]
+
+
+def _referenced_files(rng: np.random.Generator) -> tuple[dict, dict, list[str]]:
+    kinds = {name: FILE_KINDS[rng.integers(len(FILE_KINDS))] if rng.random() < 0.5 else "ok"
+             for name in ("m.obj", "m.mtl", "t.png", "beams.csv", "pattern.csv")}
+    contents = {
+        "m.obj": b"mtllib m.mtl\nusemtl a\nv 2 -0.5 0.1\nv 2 0.5 0.1\nv 2 0 0.9\nvt 0 0\nvt 1 0\nvt 0.5 1\n"
+                 b"f 1/1 2/2 3/3\n",
+        "m.mtl": b"newmtl a\nKd 1 1 1\nmap_Kd t.png\n",
+        "t.png": _png_bytes(),
+        "beams.csv": b"angle_deg\n" + b"".join(f"{a:.2f}\n".encode() for a in np.linspace(14, -14, 32)),
+        "pattern.csv": b"angle_deg,gain_db\n-30,-40\n-10,-6\n0,0\n10,-6\n30,-40\n",
+    }
+    files = {name: (kind, contents[name] if kind != "garbage" else rng.bytes(200)) for name, kind in kinds.items()}
+    sonar = dict(_SMALL_SONAR)
+    if rng.random() < 0.5:
+        sonar["beam_angles_file"] = "beams.csv"
+    doc: dict = {"sonar": sonar, "ground": {},
+                 "objects": [{"name": "m", "mesh": "m.obj", "material": {"texture": bool(rng.random() < 0.6)}}]}
+    if rng.random() < 0.4:
+        doc["sensor"] = {"preset": "oculus-m1200d-hf", "azimuth_pattern": {"shape": "table", "table": "pattern.csv"}}
+    what = [f"{name} {kind}" for name, kind in kinds.items() if kind != "ok"] or ["every file ok"]
+    return doc, files, what
+
+
+def hostile_case(index: int, rng: np.random.Generator, texts: list, render: bool) -> Case:
+    """One hostile case: many objects, aliases, or referenced files (see above)."""
+    kind = int(rng.integers(3))
+    if kind == 0:
+        doc, done = _many_objects(rng)
+        return Case(index, "many objects", "doc", done, doc=doc, render=render)
+    if kind == 1:
+        name, data, suffix = texts[rng.integers(len(texts))]
+        if suffix == ".json":
+            name, data, suffix = texts[0]
+        mutated, done = _alias_text(data, rng)
+        return Case(index, name, "text", done, data=mutated, suffix=".yaml", render=render)
+    doc, files, done = _referenced_files(rng)
+    return Case(index, "referenced files", "files", done, doc=doc, files=files, render=render)
+
+
+def write_referenced(folder: Path, files: dict[str, tuple[str, bytes]]) -> None:
+    """Make each referenced file in ``folder`` as its kind says (``missing``: not at all)."""
+    import os
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, (kind, content) in files.items():
+        path = folder / name
+        if kind in ("ok", "garbage"):
+            path.write_bytes(content)
+        elif kind == "empty":
+            path.write_bytes(b"")
+        elif kind == "fifo":
+            os.mkfifo(path)
+        elif kind == "dir":
+            path.mkdir()
+        elif kind == "loop":
+            os.symlink(name, path)  # a link to itself
+        elif kind == "device":
+            os.symlink("/dev/zero", path)
 
 
 # The check -----------------------------------------------------------------------------------
@@ -526,11 +652,17 @@ def check_case(case: Case, workdir: Path, budget: int = FUZZ_BUDGET_BYTES, trace
     """
     from sonarsim.core.memory import set_memory_budget
 
+    import shutil
+
     out = Outcome(case)
     path = None
+    folder = None
     if case.level == "text":
         path = workdir / f"case{case.index}{case.suffix}"
         path.write_bytes(case.data)
+    elif case.files is not None:
+        folder = workdir / f"case{case.index}"
+        write_referenced(folder, case.files)
     set_memory_budget(budget)
     if trace_memory:
         tracemalloc.start()
@@ -538,7 +670,7 @@ def check_case(case: Case, workdir: Path, budget: int = FUZZ_BUDGET_BYTES, trace
     try:
         with warnings.catch_warnings(record=True) as seen:
             warnings.simplefilter("always")
-            _load_and_render(case, path, budget, out)
+            _load_and_render(case, path, budget, out, folder)
     finally:
         out.seconds = time.perf_counter() - t0
         if trace_memory:
@@ -547,6 +679,8 @@ def check_case(case: Case, workdir: Path, budget: int = FUZZ_BUDGET_BYTES, trace
         set_memory_budget(None)
         if path is not None:
             path.unlink(missing_ok=True)
+        if folder is not None:
+            shutil.rmtree(folder, ignore_errors=True)
     # An overflow or an invalid value on the way is how silent nonsense starts (a quaternion of
     # 1e300 once became the identity): NumPy's RuntimeWarnings fail the case. UserWarnings
     # (objects that cannot echo) are the library talking to the user.
@@ -560,7 +694,7 @@ def check_case(case: Case, workdir: Path, budget: int = FUZZ_BUDGET_BYTES, trace
     return out
 
 
-def _load_and_render(case: Case, path: Path | None, budget: int, out: Outcome) -> None:
+def _load_and_render(case: Case, path: Path | None, budget: int, out: Outcome, folder: Path | None = None) -> None:
     """Load the case (from ``path``, or its document), check what comes back, render if asked;
     records the outcome in ``out``."""
     from sonarsim.config.loader import load_scene, scene_from_dict
@@ -568,7 +702,7 @@ def _load_and_render(case: Case, path: Path | None, budget: int, out: Outcome) -
     scene = None
     try:
         with time_limit(LOAD_TIME_LIMIT_S):
-            scene = load_scene(path) if path is not None else scene_from_dict(case.doc, base_dir=EXAMPLES)
+            scene = load_scene(path) if path is not None else scene_from_dict(case.doc, base_dir=folder or EXAMPLES)
     except CaseTimeout as exc:
         out.failure = f"load {exc}"
     except Exception as exc:  # noqa: BLE001 - classifying every exception is the point

@@ -162,3 +162,26 @@ def test_the_cli_renders_or_says_one_line_and_exits_2(tmp_path):
             assert not out_dir.exists() or not any(out_dir.iterdir()), "a refused scene left files behind"
     # A loaded scene may still be refused at render time (by the budget); these two render.
     assert statuses == [0, 0, 2, 2, 2, 2]
+
+
+def test_hostile_cases_many_objects_aliases_and_referenced_files(tmp_path):
+    # Issue 21's kinds, each a third: thousands of objects, aliases that expand, and meshes,
+    # material libraries, texture images and tables that are pipes, devices, folders, link
+    # loops, empty, garbage or missing. None may hang (5 s), trace beyond the budget or leak
+    # another exception; pipes and devices are refused naming the key that led to them.
+    rng = np.random.default_rng(21)
+    texts = [("scene.yaml", (scenes.EXAMPLES / "materials.yaml").read_bytes(), ".yaml")]
+    summary = Summary()
+    seen = set()
+    fifo_refusals = 0
+    for i in range(60):
+        case = scenes.hostile_case(i, rng, texts, render=i % 6 == 0)
+        seen.add(case.level if case.level != "doc" else "objects")
+        out = check_case(case, tmp_path, trace_memory=i % 3 == 0)
+        summary.add(out)
+        if case.files and any(kind == "fifo" for kind, _ in case.files.values()) and out.error_key:
+            fifo_refusals += 1
+    assert not summary.failures, "\n".join(summary.failures[:10])
+    assert seen == {"objects", "text", "files"}
+    assert fifo_refusals >= 2 and summary.accepted >= 5, (fifo_refusals, summary.accepted)
+    assert list(tmp_path.iterdir()) == []  # every case's files removed

@@ -29,7 +29,7 @@ from typing import Any
 
 from ..errors import SonarsimError, check_input_file, shown
 
-__all__ = ["MAX_DOCUMENT_BYTES", "MAX_DOCUMENT_NODES", "MAX_NUMBER_DIGITS", "read_document"]
+__all__ = ["MAX_ALIASES", "MAX_DOCUMENT_BYTES", "MAX_DOCUMENT_NODES", "MAX_NUMBER_DIGITS", "read_document"]
 
 # A scene or scenario file is a few kilobytes; 20,000 objects written one a line take 2 MB. At
 # most 4 MiB: libyaml composes an alias in about 1.5 microseconds, 4 MiB of them in about 1.5 s.
@@ -38,11 +38,18 @@ MAX_DOCUMENT_BYTES = 4 * 2**20
 #: expanded. 20,000 objects of a scene take about 320,000; reading them takes about 3 s here,
 #: and the variation draws of every frame walk them again.
 MAX_DOCUMENT_NODES = 500_000
+#: Aliases (``*name``) a YAML document may use: counted in the text before it is parsed, since
+#: libyaml composes every alias before the expansion can be measured (a file of 800,000 of
+#: them took seconds to refuse). Real scenes use a handful.
+MAX_ALIASES = 100_000
 #: Digits of an integer: beyond a float's range (309 digits) a number is refused anyway by the
 #: key that reads it; beyond this it is not even converted (Python's own limit is 4,300).
 MAX_NUMBER_DIGITS = 1_000
 
 _MERGE_TAG = "tag:yaml.org,2002:merge"
+# An alias as YAML writes it: an asterisk starting a token, then the anchor's name (an upper
+# bound: an asterisk so placed inside a quoted string counts too).
+_ALIAS = re.compile(r"(?:^|(?<=[\s,\[{:-]))\*[^\s,\[\]{}]+")
 
 
 def _yaml_loader(where: str):
@@ -258,6 +265,9 @@ def read_document(path: str | os.PathLike) -> Any:
                              parse_int=lambda s: _json_integer(s, str(p)))
             _count_json(doc, str(p))
             return doc
+        aliases = sum(1 for _ in _ALIAS.finditer(text))
+        if aliases > MAX_ALIASES:
+            raise SonarsimError(f"{p}: {aliases:,} aliases (*name); a scene or scenario uses at most {MAX_ALIASES:,}")
         return yaml.load(text, Loader=_yaml_loader(str(p)))  # noqa: S506 - a SafeLoader subclass
     except json.JSONDecodeError as exc:
         raise SonarsimError(f"{p}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
