@@ -43,7 +43,9 @@ def run(cases: int, seed: int, render_every: int, trace_every: int, progress: bo
         budget (about three times slower).
     """
     summary = Summary()
-    by_level = {"doc": 0, "text": 0}
+    by_level = {"doc": 0, "text": 0, "files": 0}
+    # Issue 21's hostile cases, by kind (tests/fuzz/scenes.py, hostile_case).
+    hostile = {"many objects": 0, "aliases": 0, "referenced files": 0}
     refused_at_load = 0
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="sonarsim-fuzz-") as tmp:
@@ -52,6 +54,10 @@ def run(cases: int, seed: int, render_every: int, trace_every: int, progress: bo
             out = check_case(case, Path(tmp), trace_memory=trace)
             summary.add(out)
             by_level[case.level] += 1
+            if case.seed_name in hostile:
+                hostile[case.seed_name] += 1
+            elif case.level == "text" and any("alias" in m or "merge key" in m for m in case.mutations):
+                hostile["aliases"] += 1
             refused_at_load += not out.accepted and out.failure is None
             if progress and (case.index + 1) % 10000 == 0:
                 print(f"{case.index + 1} cases, {len(summary.failures)} failures, "
@@ -63,6 +69,7 @@ def run(cases: int, seed: int, render_every: int, trace_every: int, progress: bo
         "cases": summary.cases,
         "seed": seed,
         "by_level": by_level,
+        "hostile": hostile,
         "accepted": summary.accepted,
         "rendered": summary.rendered,
         "refused_at_load": refused_at_load,
