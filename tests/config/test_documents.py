@@ -45,14 +45,32 @@ def test_a_recursive_alias_is_refused(tmp_path):
             read_document(p)
 
 
+SCENARIO = ("seed: 0\nscene:\n  " + SCENE + "trajectory: {generate: {kind: orbit, centre_m: [3, 0, 0.2], radius_m: 2.5, "
+            "z_m: 1.0, frames: 4}}\n")
+
+
 def test_a_recursive_alias_in_a_variation_is_refused_naming_the_file(tmp_path):
     from sonarsim.dataset.scenario import load_scenario
 
-    p = _write(tmp_path, "scenario.yaml", "scene: {" + SCENE.strip()[:-1].replace("sonar:", "sonar:", 1) + "}}\n"
-               if False else "seed: 0\nscene:\n  " + SCENE + "trajectory: {generate: {kind: orbit}}\n"
-               "variation:\n  sensor: &s {gain_db: {choice: [1, *s]}}\n")
+    p = _write(tmp_path, "scenario.yaml", SCENARIO + "variation:\n  sensor: &s {gain_db: {choice: [1, *s]}}\n")
     with pytest.raises(SonarsimError, match=r"scenario\.yaml: line \d+: an anchor is used inside itself"):
         load_scenario(p)
+
+
+def test_a_choice_tree_built_from_aliases_is_refused_in_a_moment(tmp_path):
+    # The audit's 747-byte scenario: a choice of choices, nine levels of eight (134 million
+    # leaves), ran past 300 s with its memory growing.
+    from sonarsim.dataset.scenario import load_scenario
+
+    tree = "{choice: [&c0 {choice: [1, 2, 3, 4, 5, 6, 7, 8]}"
+    for i in range(1, 9):
+        tree += f", &c{i} {{choice: [" + ", ".join([f"*c{i - 1}"] * 8) + "]}"
+    p = _write(tmp_path, "scenario.yaml", SCENARIO + "variation:\n  sensor:\n    gain_db: " + tree + "]}\n")
+    assert p.stat().st_size < 1000
+    t0 = time.monotonic()
+    with pytest.raises(SonarsimError, match=r"scenario\.yaml: line \d+: the document expands to more than 500,000"):
+        load_scenario(p)
+    assert time.monotonic() - t0 < 5  # a hang guard
 
 
 def test_a_long_document_is_refused_while_it_is_read(tmp_path):
