@@ -307,3 +307,36 @@ def test_a_pipe_as_a_pattern_table_is_refused_not_read(tmp_path):
     spec = PatternSpec(shape="table", table=str(fifo))
     with pytest.raises(ConfigError, match="not a regular file"):
         no_hang(lambda: pattern_gain(np.zeros(3), spec, 1.0, 1), [fifo])
+
+
+# Found by sweeping every numeric key through 0, -1, 1e-300, 1e300, inf and nan.
+
+@pytest.mark.parametrize("where, value, key, message", [
+    ("sonar", {"azimuth_fov_deg": 1e-300}, "sonar.azimuth_fov_deg", r"\[0.01, 180\) degrees"),   # every beam on one line
+    ("sonar", {"elevation_fov_deg": 1e-300}, "sonar.elevation_fov_deg", r"\[0.01, 180\) degrees"),
+    ("object", {"primitive": "sphere", "radius_m": 1e-300}, "objects[0].radius_m", r"\[1e-06, 10000\] metres"),
+    ("object", {"primitive": "box", "size_m": [1, 1e-300, 1]}, "objects[0].size_m", r"\[1e-06, 10000\]"),
+    ("object", {"primitive": "box", "size_m": [1, 1, 1], "scale": 1e-300}, "objects[0].scale", r"\[1e-06, 10000\]"),
+    ("object", {"primitive": "box", "size_m": [1, 1, 1],
+                "material": {"law": "rough", "specular_strength": 1e300, "roughness": 0.2}},
+     "objects[0].material.specular_strength", r"\[0, 1e\+06\]"),                  # an infinite image
+    ("object", {"primitive": "box", "size_m": [1, 1, 1],
+                "material": {"law": "rough", "specular_strength": 1.0, "roughness": 1e-300}},
+     "objects[0].material.roughness", r"\[0.001, 0.5\]"),                         # 0 / 0 at normal incidence
+])
+def test_tiny_and_huge_values_found_by_the_sweep_are_refused(where, value, key, message):
+    doc = {"sonar": dict(SONAR)}
+    if where == "sonar":
+        doc["sonar"].update(value)
+    else:
+        doc["objects"] = [{"name": "o", "pose": {"position_m": [3, 0, 0]}, **value}]
+    with pytest.raises(ConfigError, match=message) as e:
+        sonarsim.load_scene(doc)
+    assert e.value.key == key
+
+
+def test_the_strongest_lobe_allowed_keeps_the_image_finite():
+    doc = {"sonar": SONAR, "render": {"elevation_samples": 8},
+           "objects": [{"name": "wall", "primitive": "box", "size_m": [0.1, 4, 4], "pose": {"position_m": [3, 0, 0]},
+                        "material": {"law": "rough", "specular_strength": 1e6, "roughness": 0.001}}]}
+    assert np.all(np.isfinite(sonarsim.render(doc).polar))

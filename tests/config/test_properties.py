@@ -98,7 +98,7 @@ def loaded(scene, path: str):
 
 # (dotted path, in-range strategy, out-of-range strategy); ranges as documented in config/.
 RANGES = [
-    ("sonar.elevation_fov_deg", open_(0, 180), beyond(0, 180, True, True)),
+    ("sonar.elevation_fov_deg", st.floats(0.01, 180, exclude_max=True), beyond(0.01, 180, hi_open=True)),
     ("sonar.azimuth_fov_deg", closed(1.0, 179.0), beyond(0, 180, True, True)),
     # A range_min_m beyond range_max_m is refused naming range_max_m ("must be greater than ...").
     ("sonar.range_min_m", closed(0, 9.99), beyond(0, None)),
@@ -112,8 +112,9 @@ RANGES = [
     ("planes.0.albedo", closed(0, 1), beyond(0, 1)),
     ("objects.0.radius_m", st.floats(1e-6, 1e4), beyond(0, 1e4, lo_open=True)),
     ("objects.0.material.albedo", closed(0, 1), beyond(0, 1)),
-    ("objects.0.material.roughness", st.floats(0, 0.5, exclude_min=True), beyond(0, 0.5, lo_open=True)),
-    ("objects.0.material.specular_strength", st.floats(0, 1e6), beyond(0, None)),
+    ("objects.0.material.roughness", closed(0.001, 0.5), beyond(0.001, 0.5)),
+    ("objects.0.material.specular_strength", st.floats(0, 1e6), beyond(0, 1e6)),
+    ("objects.0.scale", closed(1e-6, 1e4), beyond(1e-6, 1e4)),
     ("sensor.sound_speed_m_s", closed(1300, 1700), beyond(1300, 1700)),
     ("sensor.gain_db", closed(-200, 200), beyond(-200, 200)),
     ("sensor.frequency_khz", closed(1, 1e5), beyond(1, 1e5)),

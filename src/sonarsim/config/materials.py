@@ -51,6 +51,12 @@ LAW_KEYS = {"lambertian": ("albedo",), "lambert": ("mu",), "rough": ("albedo", "
 REQUIRED_KEYS = {"lambertian": (), "lambert": ("mu",), "rough": ("specular_strength", "roughness")}
 # Rms slope above which the Kirchhoff lobe no longer peaks at normal incidence.
 MAX_ROUGHNESS = 0.5
+# The smoothest facets: below this the lobe is a glint narrower than the rays' spacing (and at
+# 1e-300 its exponent, -tan^2 / (2 s^2), was 0 / 0 at normal incidence: NaN).
+MIN_ROUGHNESS = 1e-3
+# The largest lobe at normal incidence (per unit area): a mirror-smooth facet's Kirchhoff peak,
+# R^2 / (2 s^2), is about 5e5 at the smoothest roughness; 1e300 made the image infinite.
+MAX_SPECULAR_STRENGTH = 1e6
 DEFAULT_ALBEDO = 0.8
 
 
@@ -66,9 +72,9 @@ class Material:
     mu : float or None
         Lambert's parameter in [0, 1], linear (``lambert``; required there).
     specular_strength : float or None
-        The lobe's value at normal incidence, >= 0 (``rough``; required there).
+        The lobe's value at normal incidence, in [0, 1e6] (``rough``; required there).
     roughness : float or None
-        Rms facet slope ``s`` (dimensionless, tan of the rms slope angle), in (0, 0.5]
+        Rms facet slope ``s`` (dimensionless, tan of the rms slope angle), in [0.001, 0.5]
         (``rough``; required there).
     texture : bool
         Scale the diffuse part by the mesh's texture (objects whose mesh has UV coordinates and
@@ -101,13 +107,14 @@ class Material:
             v = getattr(self, key)
             if v is not None and not 0.0 <= v <= 1.0:
                 raise ConfigError(key, f"must be within [0, 1], got {v}")
-        if self.specular_strength is not None and self.specular_strength < 0:
-            raise ConfigError("specular_strength", f"must be >= 0, got {self.specular_strength}")
-        if self.roughness is not None and not 0.0 < self.roughness <= MAX_ROUGHNESS:
+        if self.specular_strength is not None and not 0.0 <= self.specular_strength <= MAX_SPECULAR_STRENGTH:
+            raise ConfigError("specular_strength", f"must be within [0, {MAX_SPECULAR_STRENGTH:g}] (the lobe at normal "
+                              f"incidence), got {self.specular_strength}")
+        if self.roughness is not None and not MIN_ROUGHNESS <= self.roughness <= MAX_ROUGHNESS:
             raise ConfigError(
                 "roughness",
-                f"must be an rms slope in (0, {MAX_ROUGHNESS}] (beyond it the lobe no longer peaks at normal "
-                f"incidence), got {self.roughness}",
+                f"must be an rms slope in [{MIN_ROUGHNESS:g}, {MAX_ROUGHNESS}] (beyond it the lobe no longer peaks at "
+                f"normal incidence; below, a glint narrower than the rays sample), got {self.roughness}",
             )
         if not isinstance(self.texture, bool):
             raise ConfigError("texture", f"must be true or false, got {shown(self.texture)}")

@@ -33,6 +33,9 @@ RESERVED_PLANE_NAMES = ("objects", "O")
 MAX_ORDER_LIMIT = 9
 # Objects larger than this are not objects of a sonar scene (a typo or a unit mistake).
 MAX_LENGTH_M = 1e4
+# Nor smaller than this (a micron; also the smallest scale factor): a sphere of 1e-300 m was
+# accepted and, its vertices all equal in float32, silently invisible.
+MIN_LENGTH_M = 1e-6
 # A sonar scene spans kilometres at most: points and planes farther out than this are typos.
 MAX_COORDINATE_M = 1e6
 # Ray-casting threads a scene may ask for: more than the cores of large machines only costs
@@ -71,15 +74,15 @@ class ObjectSpec:
     primitive : {'box', 'sphere', 'cylinder'} or None
         Shape, centred on the object's origin (a cylinder's axis is its z axis).
     size_m : (3,) tuple of float or None
-        Box edge lengths along its x, y, z axes.
+        Box edge lengths along its x, y, z axes, each within [1e-6, 1e4] metres.
     radius_m, height_m : float or None
-        Sphere/cylinder radius and cylinder height.
+        Sphere/cylinder radius and cylinder height, within [1e-6, 1e4] metres.
     mesh : str, pathlib.Path or trimesh.Trimesh or None
         A mesh file (anything trimesh loads) or an in-memory mesh, in object coordinates.
     pose : Pose
         Object-to-world pose.
     scale : float or (3,) tuple of float
-        Scale applied in object coordinates before the pose.
+        Scale applied in object coordinates before the pose, within [1e-6, 1e4].
     albedo : float
         Diffuse albedo rho in [0, 1] (paper: concrete 0.8, smooth plastic 0.4): shorthand for
         the Lambertian ``material``, used when ``material`` is None.
@@ -115,16 +118,17 @@ class ObjectSpec:
                     raise ConfigError(key, f"not used by a {self.primitive}; allowed: {', '.join(needed[self.primitive])}")
             if self.size_m is not None:
                 size = tuple(float(v) for v in self.size_m)
-                if len(size) != 3 or not all(np.isfinite(v) and 0 < v <= MAX_LENGTH_M for v in size):
-                    raise ConfigError("size_m", f"must be three positive lengths in metres, got {self.size_m}")
+                if len(size) != 3 or not all(np.isfinite(v) and MIN_LENGTH_M <= v <= MAX_LENGTH_M for v in size):
+                    raise ConfigError("size_m", f"must be three lengths within [{MIN_LENGTH_M:g}, {MAX_LENGTH_M:g}] "
+                                      f"metres, got {self.size_m}")
                 object.__setattr__(self, "size_m", size)
             for key in ("radius_m", "height_m"):
                 v = getattr(self, key)
-                if v is not None and not (np.isfinite(v) and 0 < v <= MAX_LENGTH_M):
-                    raise ConfigError(key, f"must be a positive length in metres, at most {MAX_LENGTH_M:g}, got {v}")
+                if v is not None and not (np.isfinite(v) and MIN_LENGTH_M <= v <= MAX_LENGTH_M):
+                    raise ConfigError(key, f"must be a length within [{MIN_LENGTH_M:g}, {MAX_LENGTH_M:g}] metres, got {v}")
         scale = np.atleast_1d(np.asarray(self.scale, dtype=float))
-        if scale.size not in (1, 3) or not np.all(np.isfinite(scale) & (scale > 0) & (scale <= MAX_LENGTH_M)):
-            raise ConfigError("scale", f"must be a positive number or three positive numbers, at most {MAX_LENGTH_M:g}, "
+        if scale.size not in (1, 3) or not np.all(np.isfinite(scale) & (scale >= MIN_LENGTH_M) & (scale <= MAX_LENGTH_M)):
+            raise ConfigError("scale", f"must be a number or three numbers within [{MIN_LENGTH_M:g}, {MAX_LENGTH_M:g}], "
                               f"got {self.scale}")
         _check_unit_interval("albedo", self.albedo)
         _check_material(self, texture_allowed=True)

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -552,11 +551,8 @@ def _parse_sub(name: str, value: Any, key: str, base_dir: Path | None):
         p = Path(t)
         if not p.is_absolute() and base_dir is not None:
             p = base_dir / p
-        if not os.path.lexists(p):
-            raise ConfigError(f"{key}.table", f"pattern table {shown(str(p))} not found (a CSV of angle_deg, gain_db rows; "
-                              "relative to the scene file)")
-        try:  # a pipe is refused here, not opened (it blocked the render forever)
-            check_input_file(p, "pattern table (a CSV of angle_deg, gain_db rows)")
+        try:  # missing, too long a name, a directory, a pipe (it blocked the render forever): refused
+            check_input_file(p, "pattern table (a CSV of angle_deg, gain_db rows, relative to the scene file)")
         except SonarsimError as exc:
             raise ConfigError(f"{key}.table", str(exc)) from None
         kw["table"] = str(p)

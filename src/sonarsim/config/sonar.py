@@ -37,7 +37,8 @@ MIN_RELATIVE_BIN_WIDTH = 1e-6
 # Carrier frequencies, kHz: imaging sonars run at tens of kHz to a few MHz; this leaves a
 # margin either side. Shared by ``sonar.frequency_khz`` and ``sensor.frequency_khz``.
 FREQUENCY_RANGE_KHZ = (1.0, 1e5)
-# The narrowest beam, degrees (``beam_width_deg``, and a sensor's beam pattern widths).
+# The narrowest beam, degrees (``beam_width_deg``, a sensor's beam pattern widths), and the
+# narrowest fan and elevation aperture (1e-300 degrees was accepted: every ray on one line).
 MIN_BEAM_WIDTH_DEG = 0.01
 
 
@@ -129,7 +130,7 @@ class SonarConfig:
     beam_angles_deg : tuple of float, (n_beams,)
         Beam centre azimuths in degrees, left-most first (strictly descending).
     elevation_fov_deg : float
-        Full elevation aperture E; rays span [-E/2, +E/2].
+        Full elevation aperture E, within [0.01, 180) degrees; rays span [-E/2, +E/2].
     range_min_m, range_max_m : float
         The range window, metres: ``0 <= range_min_m < range_max_m <= MAX_RANGE_M`` (10 km).
     n_range_bins : int
@@ -175,9 +176,10 @@ class SonarConfig:
                 f"the fan spans {edges[0]:.3g} to {edges[-1]:.3g} deg; allowed: inside (-90, 90), "
                 "i.e. a field of view below 180 degrees",
             )
-        if not 0.0 < self.elevation_fov_deg < 180.0:
+        if not MIN_BEAM_WIDTH_DEG <= self.elevation_fov_deg < 180.0:
             raise ConfigError(
-                "sonar.elevation_fov_deg", f"must be in (0, 180) degrees, got {self.elevation_fov_deg}"
+                "sonar.elevation_fov_deg",
+                f"must be within [{MIN_BEAM_WIDTH_DEG:g}, 180) degrees, got {self.elevation_fov_deg}",
             )
         check_range_window(self.range_min_m, self.range_max_m)
         if int(self.n_range_bins) != self.n_range_bins or self.n_range_bins < 1:
@@ -221,9 +223,9 @@ class SonarConfig:
         # Before the beam table is built: n_beams 10**12 would allocate 8 TB for it.
         if int(n_range_bins) == n_range_bins and n_range_bins >= 1:
             _require_images(int(n_range_bins), int(n_beams))
-        if not 0.0 < azimuth_fov_deg < 180.0:
+        if not MIN_BEAM_WIDTH_DEG <= azimuth_fov_deg < 180.0:
             raise ConfigError(
-                "sonar.azimuth_fov_deg", f"must be in (0, 180) degrees, got {azimuth_fov_deg}"
+                "sonar.azimuth_fov_deg", f"must be within [{MIN_BEAM_WIDTH_DEG:g}, 180) degrees, got {azimuth_fov_deg}"
             )
         return cls(
             beam_angles_deg=tuple(uniform_beam_angles_deg(int(n_beams), azimuth_fov_deg)),
