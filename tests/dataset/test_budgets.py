@@ -66,3 +66,16 @@ def test_a_group_of_many_alike_objects_is_checked_in_a_moment():
     scenario = load_scenario(doc)
     assert time.monotonic() - t0 < 5
     assert len(scenario.probe("high")[0]["objects"]) == 10000
+
+
+def test_a_frame_whose_images_rays_and_sensor_fields_do_not_fit_together_is_refused_first(tmp_path):
+    # Each part fits 128 MiB alone; together (with the sensor's speckle and noise fields) not.
+    doc = _scenario(1, BOX)
+    doc["scene"]["sonar"] = {"preset": "oculus-m1200d-hf", "n_range_bins": 700,
+                             "pose": {"position_m": [0, 0, 1], "rpy_deg": [0, 20, 0]}}
+    doc["scene"]["sensor"] = {"preset": "oculus-m1200d-hf"}
+    memory.set_memory_budget(128 * 2**20)
+    with pytest.raises(ConfigError, match=r"^scene\.sonar\.n_beams: a frame of 700 x 512 would hold 0\.18\d GiB at once "
+                       r"\(images .*, rays .*, speckle and noise fields .*\), more than the memory budget"):
+        generate(doc, tmp_path / "out", labels="none", progress=False)
+    assert not (tmp_path / "out").exists()

@@ -138,25 +138,31 @@ def label_mode(labels: bool | str) -> str:
     return str(labels)
 
 
-def require_label_memory(scenario: Scenario, labels: bool | str) -> None:
-    """Refuse, before the first frame, labels whose maps would not fit the memory budget for
-    the most objects a frame of ``scenario`` can hold (its variation at the high end).
+def require_frame_memory(scenario: Scenario, labels: bool | str) -> None:
+    """Refuse, before the first frame, frames that would not fit the memory budget: their
+    images, rays and sensor fields, and their label maps for the most objects a frame of
+    ``scenario`` can hold (its variation at the high end).
 
     Raises
     ------
     ConfigError
-        Naming ``variation.objects`` (or ``scene.objects``), the surfaces and orders.
+        Naming the key (``variation.objects`` or ``scene.objects`` for the labels) and the file.
     """
     from ..config.loader import scene_from_dict
     from ..errors import ConfigError
     from ..renderer.ground_truth import require_label_maps
+    from ..renderer.simulator import require_frame_memory as require_images
 
     mode = label_mode(labels)
-    if mode == "none" or not labels_supported():
-        return
     doc = scenario.probe("high")[0]
     # The objects are counted, not built (the scenario's check built one of each kind).
     scene = scene_from_dict({**doc, "objects": []}, base_dir=scenario.base_dir)
+    try:
+        require_images(scene, scene.sonar)
+    except ConfigError as exc:
+        raise ConfigError(f"scene.{exc.key}", exc.detail, scenario.source) from None
+    if mode == "none" or not labels_supported():
+        return
     try:
         require_label_maps(len(doc.get("objects") or []) + len(scene.reflecting_planes), scene.render.max_order,
                            scene.sonar.n_range_bins, scene.sonar.n_beams, components=mode == "all",

@@ -67,6 +67,30 @@ def as_pose(pose: Any) -> Pose:
     return Pose.from_matrix(m)
 
 
+def require_frame_memory(scene: Scene, sonar: SonarConfig) -> None:
+    """Check what a frame of ``sonar`` in ``scene`` holds at once against the memory budget,
+    before any of it is allocated: its images, its rays (over a sensor's elevation span) and the
+    sensor's speckle and noise fields. Each is also checked alone where it is made; here their
+    sum (a scene whose parts each fit could still not fit together).
+
+    Raises
+    ------
+    ConfigError
+        Naming the key of the largest part.
+    """
+    spec, render = scene.sensor, scene.render
+    traced = sonar
+    parts = [(image_bytes(sonar.n_range_bins, sonar.n_beams), "images", "sonar.n_range_bins")]
+    if spec is not None:
+        span = elevation_span_deg(spec, sonar)
+        if span != sonar.elevation_fov_deg:
+            traced = replace(sonar, elevation_fov_deg=span)
+        parts.append((pool_bytes((sonar.n_range_bins, sonar.n_beams), spec.speckle is not None,
+                                 spec.noise is not None), "speckle and noise fields", "sensor.speckle"))
+    parts.insert(1, (ray_bytes(traced, render), "rays", ray_size_key(traced, render)))
+    require_together(parts, f"a frame of {sonar.n_range_bins} x {sonar.n_beams}")
+
+
 class Simulator:
     """Renders a scene from many sonar poses, building the acceleration structure once.
 
@@ -206,27 +230,8 @@ class Simulator:
         return model
 
     def require_frame_memory(self, sonar: SonarConfig) -> None:
-        """Check what a frame of this sonar holds at once against the memory budget, before any
-        of it is allocated: its images, its rays (over a sensor's elevation span) and the
-        sensor's speckle and noise fields. Each is also checked alone where it is made; here
-        their sum (a scene whose parts each fit could still not fit together).
-
-        Raises
-        ------
-        ConfigError
-            Naming the key of the largest part.
-        """
-        spec, render = self.scene.sensor, self.scene.render
-        traced = sonar
-        parts = [(image_bytes(sonar.n_range_bins, sonar.n_beams), "images", "sonar.n_range_bins")]
-        if spec is not None:
-            span = elevation_span_deg(spec, sonar)
-            if span != sonar.elevation_fov_deg:
-                traced = replace(sonar, elevation_fov_deg=span)
-            parts.append((pool_bytes((sonar.n_range_bins, sonar.n_beams), spec.speckle is not None,
-                                     spec.noise is not None), "speckle and noise fields", "sensor.speckle"))
-        parts.insert(1, (ray_bytes(traced, render), "rays", ray_size_key(traced, render)))
-        require_together(parts, f"a frame of {sonar.n_range_bins} x {sonar.n_beams}")
+        """:func:`require_frame_memory` for this simulator's scene."""
+        require_frame_memory(self.scene, sonar)
 
     def traced_sonar(self, sonar: SonarConfig) -> SonarConfig:
         """The sonar whose rays are cast: with a sensor's elevation pattern, over its wider span."""
