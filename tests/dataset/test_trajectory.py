@@ -145,11 +145,13 @@ def test_resampling_counts_stop_at_the_last_timestamp(duration, rate, n):
 
 
 def test_resampling_too_many_poses_names_the_rate():
-    tr = Trajectory([0.0, 1.0], [[0, 0, 0], [1, 0, 0]], [(0, 0, 0, 1)] * 2)
+    # A year-long track at the highest rate allowed (rates beyond 1e4 Hz are refused as such).
+    tr = Trajectory([0.0, 3.2e7], [[0, 0, 0], [1, 0, 0]], [(0, 0, 0, 1)] * 2)
     with pytest.raises(ConfigError, match="trajectory.rate_hz.*memory budget"):
-        tr.resampled(1e15)
-    with pytest.raises(ConfigError, match="trajectory.rate_hz"):
-        tr.resampled(0.0)
+        tr.resampled(1e4)
+    for rate in (0.0, 1e-300, 1e15):
+        with pytest.raises(ConfigError, match=r"trajectory.rate_hz: must be within \[0.001, 10000\] pings per second"):
+            tr.resampled(rate)
 
 
 # Random poses ----------------------------------------------------------------------------
@@ -407,3 +409,19 @@ def test_a_pipe_as_a_track_is_refused_not_read(tmp_path, suffix):
     with pytest.raises(ConfigError, match="not a regular file") as e:
         no_hang(lambda: load_scenario(doc, base_dir=tmp_path), [fifo])
     assert e.value.key == "trajectory.file" and str(fifo) in str(e.value)
+
+
+@pytest.mark.parametrize("section, key, message", [
+    ({"generate": {"kind": "orbit", "centre_m": [3, 0, 0], "radius_m": 3.0, "z_m": 1.0, "frames": 3}, "rate_hz": 1e300},
+     "trajectory.rate_hz", r"\[0.001, 10000\] pings per second"),       # every frame at the same time
+    ({"generate": {"kind": "random", "frames": 3, "bounds_m": [[0, 0, 0], [1, 1, 1]], "look_at_m": [3, 0, 0]},
+      "rate_hz": 1e-300}, "trajectory.rate_hz", r"\[0.001, 10000\]"),    # frames 1e300 s apart
+    ({"generate": {"kind": "lawnmower", "area_m": [[0, 0], [4, 2]], "spacing_m": 1.0, "z_m": 1.0, "speed_m_s": 1e300},
+      "rate_hz": 2.0}, "trajectory.generate.speed_m_s", r"\(0, 100\] m/s"),
+    ({"generate": {"kind": "random", "frames": 3, "bounds_m": [[0, 0, 0], [1, 1, 1]], "look_at_m": [1e300, 0, 0]}},
+     "trajectory.generate.look_at_m", "within 1e\\+06 m of the origin"),
+])
+def test_rates_speeds_and_targets_beyond_reason_are_refused(section, key, message):
+    with pytest.raises(ConfigError, match=message) as e:
+        parse_trajectory(section, None)
+    assert e.value.key == key

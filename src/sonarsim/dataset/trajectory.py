@@ -54,6 +54,11 @@ _BYTES_PER_POSE = 8 * 8 * 4
 _BYTES_PER_FILE_BYTE = 8 * 32 // 14 + 1
 # Random poses redraw a position that coincides with its target (no direction to look along).
 _MAX_REDRAWS = 100
+#: Ping rates, Hz: sonars ping a few to a few tens of times a second; 1e-300 Hz stamped frames
+#: 1e300 s apart, 1e300 Hz made every frame's time the same.
+RATE_RANGE_HZ = (1e-3, 1e4)
+#: The fastest survey, m/s: no vehicle a sonar rides goes faster (1e300 m/s was accepted).
+MAX_SPEED_M_S = 100.0
 #: The smallest orbit radius, metres: below it the poses are one point turning on the spot (an
 #: orbit of 1e-12 m put the sonar on its own target). The scene's sonar adds its own floor: the
 #: centre must lie beyond its ``range_min_m`` (:func:`orbit_radius_range`).
@@ -188,7 +193,7 @@ class Trajectory:
         Parameters
         ----------
         rate_hz : float
-            Pings per second, > 0.
+            Pings per second, within ``RATE_RANGE_HZ`` (0.001 to 10000).
         key : str
             Key named in errors (the rate's place in the scenario file).
 
@@ -199,8 +204,7 @@ class Trajectory:
         """
         from scipy.spatial.transform import Rotation, Slerp
 
-        if not rate_hz > 0 or not math.isfinite(rate_hz):
-            raise ConfigError(key, f"must be a positive number of pings per second, got {shown(rate_hz)}")
+        _check_rate(rate_hz, key)
         duration = float(self.times_s[-1] - self.times_s[0])
         # The 1e-9 keeps a last sample that lands on the final timestamp up to round-off.
         n_float = math.floor(duration * rate_hz * (1 + 1e-12) + 1e-9) + 1
@@ -571,6 +575,21 @@ def _positive(value: Any, key: str) -> float:
     return v
 
 
+def _check_rate(rate_hz: Any, key: str) -> float:
+    """``rate_hz`` within :data:`RATE_RANGE_HZ`, or a ConfigError naming ``key``."""
+    lo, hi = RATE_RANGE_HZ
+    if not (isinstance(rate_hz, (int, float)) and lo <= rate_hz <= hi):
+        raise ConfigError(key, f"must be within [{lo:g}, {hi:g}] pings per second, got {shown(rate_hz)}")
+    return float(rate_hz)
+
+
+def _speed(value: Any, key: str) -> float:
+    v = _positive(value, key)
+    if v > MAX_SPEED_M_S:
+        raise ConfigError(key, f"must be within (0, {MAX_SPEED_M_S:g}] m/s, got {shown(value)}")
+    return v
+
+
 def _corners(value: Any, key: str, n: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
     if not isinstance(value, (list, tuple)) or len(value) != 2:
         raise ConfigError(key, f"must be two corners [[{', '.join('lo' for _ in range(n))}], "
@@ -654,7 +673,7 @@ def _parse_generate(d: Any, rate_hz: float | None, key: str = "trajectory.genera
             raise ConfigError(f"{key}.legs_along", f"must be 'x' or 'y', got {shown(legs_along)}")
         area = _corners(_required(d, "area_m", key), f"{key}.area_m", 2)
         return lawnmower(area, _positive(_required(d, "spacing_m", key), f"{key}.spacing_m"), _coordinate(d, "z_m", key),
-                         _positive(_required(d, "speed_m_s", key), f"{key}.speed_m_s"), rate_hz,
+                         _speed(_required(d, "speed_m_s", key), f"{key}.speed_m_s"), rate_hz,
                          _angle(d, "pitch_deg", key), legs_along, key)
     # random
     frames = _integer(_required(d, "frames", key), f"{key}.frames")
@@ -665,6 +684,9 @@ def _parse_generate(d: Any, rate_hz: float | None, key: str = "trajectory.genera
         raise ConfigError(f"{key}.look_at_m", "give exactly one of look_at_m (a point) and look_at_bounds_m (a box)")
     if "look_at_m" in d:
         point = _vector(d["look_at_m"], f"{key}.look_at_m", 3)
+        if max(abs(v) for v in point) > MAX_COORDINATE_M:  # as look_at_bounds_m (1e300 was accepted)
+            raise ConfigError(f"{key}.look_at_m", f"must lie within {MAX_COORDINATE_M:g} m of the origin, "
+                              f"got {list(point)}")
         target = (point, point)
     else:
         target = _corners(d["look_at_bounds_m"], f"{key}.look_at_bounds_m", 3)
@@ -701,9 +723,7 @@ def parse_trajectory(d: Any, base_dir: Path | None, range_min_m: float = 0.0) ->
         raise ConfigError("trajectory", "give exactly one of `file` (a CSV or TUM trajectory) and `generate`")
     rate_hz = None
     if "rate_hz" in d:
-        rate_hz = _number(d["rate_hz"], "trajectory.rate_hz")
-        if rate_hz <= 0:
-            raise ConfigError("trajectory.rate_hz", f"must be a positive number of pings per second, got {shown(rate_hz)}")
+        rate_hz = _check_rate(_number(d["rate_hz"], "trajectory.rate_hz"), "trajectory.rate_hz")
     if "generate" in d:
         if "format" in d:
             raise ConfigError("trajectory.format", "only with `file`")
