@@ -340,3 +340,13 @@ def test_the_strongest_lobe_allowed_keeps_the_image_finite():
            "objects": [{"name": "wall", "primitive": "box", "size_m": [0.1, 4, 4], "pose": {"position_m": [3, 0, 0]},
                         "material": {"law": "rough", "specular_strength": 1e6, "roughness": 0.001}}]}
     assert np.all(np.isfinite(sonarsim.render(doc).polar))
+
+
+def test_a_pattern_table_with_a_byte_order_mark_reads(tmp_path):
+    from sonarsim.config.sensor import PatternSpec
+    from sonarsim.sensor.patterns import pattern_gain
+
+    table = tmp_path / "pattern.csv"
+    table.write_text("-10,-20\n0,0\n10,-20\n", encoding="utf-8-sig")   # as spreadsheets save it
+    gain = pattern_gain(np.radians([0.0, 10.0]), PatternSpec(shape="table", table=str(table)), 1.0, 1)
+    np.testing.assert_allclose(gain, [1.0, 0.01])

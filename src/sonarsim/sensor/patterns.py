@@ -76,7 +76,8 @@ def _read_table(path: str) -> tuple[np.ndarray, np.ndarray]:
     except SonarsimError as exc:
         raise ConfigError("sensor pattern table", str(exc)) from None
     try:
-        rows = np.loadtxt(path, delimiter=",", comments="#", ndmin=2)
+        # utf-8-sig: a table saved with a byte-order mark failed on '\ufeff0.5' in its first cell.
+        rows = np.loadtxt(path, delimiter=",", comments="#", ndmin=2, encoding="utf-8-sig")
     except OSError as exc:
         raise ConfigError("sensor pattern table", f"cannot read the pattern table {path!r}: {exc.strerror or exc}") from None
     except ValueError as exc:
