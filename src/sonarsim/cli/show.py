@@ -57,7 +57,7 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
         "simple-ping-result messages (.raw), recognised by content - or an image sonarsim stored (a dataset "
         "frame's frames/NNNNNN.npz, render.npz), and write polar.png "
         "(range up, left-most beam on the left) and fan.png into --out, the annotated figures fan_figure.png and "
-        "polar_figure.png (axes in metres and degrees, colour bar in the device's counts, title; --figure-format, "
+        "polar_figure.png (axes in metres and degrees, colour bar in the device's counts or a render's dB, title; --figure-format, "
         "--no-figures), then sonarsim-run.json, the run's record.",
     )
     p.add_argument("recording", metavar="FILE",
