@@ -95,21 +95,37 @@ def memory_budget() -> int:
     else 8 GiB or 80 % of the machine's memory, whichever is less."""
     import os
 
-    from ..errors import SonarsimError
-
-    if _budget_override is not None:
-        return _budget_override
-    env = os.environ.get(ENV_VAR)
-    if env:
-        try:
-            return parse_size(env)
-        except ValueError as exc:
-            raise SonarsimError(f"{ENV_VAR}: {exc}") from None
+    chosen = _chosen(_budget_override, ENV_VAR, parse_size)
+    if chosen is not None:
+        return chosen
     try:
         total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):
         total = DEFAULT_BUDGET_BYTES
     return int(min(DEFAULT_BUDGET_BYTES, 0.8 * total))
+
+
+def _chosen(override, env_var: str, parse):
+    """A budget set in this process, else the environment's (parsed), else None.
+
+    Raises
+    ------
+    SonarsimError
+        The environment variable does not parse, naming it.
+    """
+    import os
+
+    from ..errors import SonarsimError
+
+    if override is not None:
+        return override
+    env = os.environ.get(env_var)
+    if not env:
+        return None
+    try:
+        return parse(env)
+    except ValueError as exc:
+        raise SonarsimError(f"{env_var}: {exc}") from None
 
 
 def require(nbytes: float, what: str, key: str) -> None:
@@ -197,19 +213,8 @@ def set_time_budget(seconds: float | None) -> None:
 def time_budget() -> float:
     """Seconds one step of building (a scene, a mesh file) may be estimated to take:
     ``set_time_budget``, else ``$SONARSIM_MAX_BUILD_TIME``, else 120 s."""
-    import os
-
-    from ..errors import SonarsimError
-
-    if _time_override is not None:
-        return _time_override
-    env = os.environ.get(TIME_ENV_VAR)
-    if env:
-        try:
-            return parse_seconds(env)
-        except ValueError as exc:
-            raise SonarsimError(f"{TIME_ENV_VAR}: {exc}") from None
-    return DEFAULT_TIME_BUDGET_S
+    chosen = _chosen(_time_override, TIME_ENV_VAR, parse_seconds)
+    return DEFAULT_TIME_BUDGET_S if chosen is None else chosen
 
 
 def require_time(seconds: float, what: str, key: str) -> None:
