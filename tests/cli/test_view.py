@@ -95,6 +95,40 @@ def test_a_recording_is_served_until_stopped(shared_data, monkeypatch, capsys):
     assert f"point your browser at {seen['url']}" in capsys.readouterr().err
 
 
+def test_a_foreign_page_is_refused_and_the_user_told_once(scene_file, tmp_path, capsys):
+    # Any page open in the browser could connect to the viewer on 127.0.0.1 and set its
+    # controls; now the handshake is refused (403) and the command says so, once per reason.
+    pytest.importorskip("viser")
+    from websockets.exceptions import InvalidStatus
+    from websockets.sync.client import connect
+
+    from sonarsim.cli.main import build_parser
+    from sonarsim.cli.view import serve
+
+    args = build_parser().parse_args(["view", str(scene_file), "--port", "0", "--out", str(tmp_path / "out")])
+    stop, seen = threading.Event(), {}
+
+    def ready(viewer, url):
+        seen["url"] = url
+        ws_url = url.replace("http://", "ws://")
+        try:
+            for _ in range(2):
+                with pytest.raises(InvalidStatus) as info:
+                    connect(ws_url, origin="http://evil.example.com", proxy=None, open_timeout=10)
+                seen.setdefault("status", []).append(info.value.response.status_code)
+            with connect(ws_url, origin=url.rstrip("/"), proxy=None, open_timeout=10):
+                seen["own page"] = True
+        finally:
+            stop.set()
+
+    serve(args, stop=stop, ready=ready)
+    assert seen["status"] == [403, 403] and seen["own page"]
+    err = capsys.readouterr().err
+    line = (f"sonarsim: refused a connection: Origin 'http://evil.example.com' is not this viewer's page "
+            f"({seen['url'].rstrip('/')})\n")
+    assert err.count(line) == 1, err
+
+
 def test_ctrl_c_stops_it_cleanly(scene_file, tmp_path):
     pytest.importorskip("viser")
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}

@@ -8,6 +8,10 @@ and a button that saves the scene file with the current poses and the images int
 with a frame slider. The page is served on 127.0.0.1 by default; the command says where to
 point the browser and runs until Ctrl-C (exit status 130).
 
+The server takes connections only from its own page: a request whose ``Host`` header does not
+name the server (DNS rebinding) or whose ``Origin`` is another site's is refused with 403, and
+the command says so once per reason (:mod:`sonarsim.plot.viewer.guard`).
+
 Needs the ``viewer`` extra (``pip install 'sonarsim[viewer]'``).
 """
 
@@ -57,7 +61,9 @@ def add_view_parser(subparsers) -> argparse.ArgumentParser:
                    help="port of the page (default: 8080; 0: any free port)")
     p.add_argument("--host", default="127.0.0.1", metavar="H",
                    help="address to listen on (default: 127.0.0.1, this machine only; 0.0.0.0 opens the viewer "
-                   "to the network, without any authentication)")
+                   "to the network, without any authentication). Browsers are served only the page opened by a "
+                   "name of this address (127.0.0.1, localhost and [::1] for a loopback address; this machine's "
+                   "name and the address reached for 0.0.0.0) on the same port")
     p.add_argument("--out", default="sonarsim-view", metavar="DIR",
                    help="folder the save button writes into (default: ./sonarsim-view)")
     p.add_argument("--backend", choices=("embree", "embree4", "embreex", "numpy"), default="embree",
@@ -131,7 +137,7 @@ def serve(args, stop: threading.Event | None = None, ready=None) -> None:
     else:
         session = RecordingSession(args.target)
     try:
-        server = start_server(args.host, args.port)
+        server = start_server(args.host, args.port, log=_log)
     except BaseException:
         session.close()
         raise

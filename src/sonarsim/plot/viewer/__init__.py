@@ -2,8 +2,9 @@
 
 The logic (what is shown, re-rendering, saving) lives in plain Python classes that need no
 browser and no viser (:mod:`.state`, :mod:`.geometry`); :mod:`.app` wires them to a viser
-page. viser is an optional dependency (the ``viewer`` extra): :func:`require_viser` says how to
-install it when it is missing.
+page; :mod:`.guard` stands between the network and viser (connections only from the page's own
+origin and by the server's own names). viser is an optional dependency (the ``viewer`` extra): :func:`require_viser` says how to install it
+when it is missing.
 """
 
 from __future__ import annotations

@@ -1,5 +1,8 @@
 """The viser page of ``sonarsim view``: controls forwarded to the sessions of :mod:`.state`.
 
+The server is guarded (:mod:`.guard`): it serves only requests that name it in ``Host`` and
+come from its own page (``Origin``).
+
 Re-rendering runs in one background thread (:class:`LatestOnly`): every change (a gizmo drag,
 a slider, a switch) asks for an update, and requests that arrive while a frame is being
 rendered and sent collapse into one more update with the newest state, so that a fast drag
@@ -25,6 +28,7 @@ import numpy as np
 from ...errors import SonarsimError
 from . import require_viser
 from .geometry import fov_segments, fov_surface, plane_face, scene_extent
+from .guard import start_guarded_server
 from .state import (VIEWER_MAX_ORDER, RecordingSession, SceneSession, ViewFrame, component_names, rpy_from_wxyz,
                     wxyz_of)
 from ..style import COLORMAPS
@@ -77,8 +81,10 @@ def check_port(host: str, port: int) -> None:
                                 "this machine (127.0.0.1: this machine only, 0.0.0.0: every address)") from None
 
 
-def start_server(host: str = "127.0.0.1", port: int = 8080):
-    """A viser server on ``host:port`` (port 0: any free port), quiet, its panel docked right.
+def start_server(host: str = "127.0.0.1", port: int = 8080, log: Callable[[str], None] | None = None):
+    """A viser server on ``host:port`` (port 0: any free port), quiet, its panel docked right,
+    guarded (:mod:`.guard`): it serves only requests that name it in ``Host`` and come from its
+    own page (``Origin``).
 
     Parameters
     ----------
@@ -86,6 +92,9 @@ def start_server(host: str = "127.0.0.1", port: int = 8080):
         Address to listen on (127.0.0.1: this machine only).
     port : int
         Port; 0 for any free one (:func:`url_of` tells which).
+    log : callable, optional
+        Receives a line for the first refused connection of each reason (a foreign page, a
+        name the server does not know as its own).
 
     Returns
     -------
@@ -95,13 +104,12 @@ def start_server(host: str = "127.0.0.1", port: int = 8080):
     Raises
     ------
     SonarsimError
-        viser is missing (naming the extra), or the port is in use.
+        viser is missing (naming the extra), the port is in use, or this viser cannot be
+        guarded (:func:`.guard.start_guarded_server`).
     """
-    viser = require_viser()
+    require_viser()
     check_port(host, port)
-    # viser prints its own address box on stdout; the command says where to point the browser.
-    with contextlib.redirect_stdout(io.StringIO()):
-        server = viser.ViserServer(host=host, port=port, verbose=False)
+    server = start_guarded_server(host, port, log=log)
     server.scene.set_up_direction("+z")
     # The controls and images docked on the right, beside the 3D view, not floating over it.
     main_panel = getattr(server.gui, "main_panel", None)
