@@ -1,6 +1,7 @@
-"""The viewer's guard over a real WebSocket: whose connections it takes (``Origin``, ``Host``;
-issue 21 item 1). Before it, any web page open in the browser could connect to the viewer on
-127.0.0.1 and change its controls.
+"""The viewer's guard over a real WebSocket: whose connections it takes (``Origin``, ``Host``) and
+which values (issue 21 item 1). Before it, any web page open in the browser could connect to the
+viewer on 127.0.0.1, and one message setting a slider to ``1e308`` made the server close every
+later connection with 1011 until it was restarted.
 
 The wire client is :mod:`tests.fuzz.viewer` (viser's msgpack format). The rules of
 :class:`~sonarsim.plot.viewer.guard.HandshakeGuard` are tested without viser, the rest needs it.
@@ -8,13 +9,17 @@ The wire client is :mod:`tests.fuzz.viewer` (viser's msgpack format). The rules 
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
+import math
+import time
 import urllib.error
 import urllib.request
 
 import pytest
 
-from sonarsim.plot.viewer.guard import LOOPBACK_NAMES, HandshakeGuard, listen_names, normal_host, split_authority
+from sonarsim.plot.viewer.guard import (GIZMO_LIMIT_M, LOOPBACK_NAMES, TAKEN_MESSAGES, HandshakeGuard, listen_names,
+                                        normal_host, split_authority)
 
 from ..conftest import block_scene_dict
 from ..fuzz import viewer as wire
@@ -178,7 +183,7 @@ def test_the_pages_own_origin_is_accepted(page, name):
     port = page.server.get_port()
     with wire.connect(port, origin=f"http://{name}:{port}", host=f"{name}:{port}") as ws:
         state = wire.Page(wire.read_replay(ws))
-    assert state.control("max order").value == 3
+    assert state.control("max order").value == 3 and not state.problems(GIZMO_LIMIT_M)
 
 
 @needs_viser
@@ -191,23 +196,230 @@ def test_the_page_itself_is_served_only_by_its_names(page):
     assert info.value.code == 403
 
 
+def send_and_wait_for_resync(ws, frame: bytes, uuid: str, timeout: float = 5.0) -> dict | None:
+    """Send ``frame``; the message that gives the control ``uuid`` back its value (the gate's reply)."""
+    ws.send(frame)
+    return wire.wait_for(ws, lambda m: m.get("type") == "GuiUpdateMessage" and m.get("uuid") == uuid
+                         and set(m["updates"]) == {"value"}, timeout)
+
+
+BAD_SLIDER_VALUES = [1e308, -1e308, float("inf"), float("-inf"), float("nan"), 2**63, 2**64 - 1, -(2**63), "3",
+                     None, [3], {"value": 3}, True, b"3"]
+
+
+@needs_viser
+@pytest.mark.parametrize("label, in_range", [("max order", (0, 7, 2.5)), ("dB window", (9.99, 90.5, -40.0))])
+def test_a_slider_refuses_values_it_cannot_take(page, label, in_range):
+    """1e308, inf, nan, 2**63, a string, out of range, ...: refused, the state unchanged, the
+    client given the current value back; a new connection still gets the whole state."""
+    v = page
+    handle = v.max_order if label == "max order" else v.dynamic_range
+    before = (handle.value, v.session.options, v.session.version)
+    state = initial_page(v)
+    uuid = state.control(label).uuid
+    with wire.connect(v.server.get_port()) as ws, wire.connect(v.server.get_port()) as other:
+        wire.read_replay(ws)
+        wire.read_replay(other)
+        for value in [*BAD_SLIDER_VALUES, *in_range]:
+            reply = send_and_wait_for_resync(ws, wire.gui_update(uuid, value), uuid)
+            assert reply is not None, f"no reply to {value!r}"
+            assert reply["updates"]["value"] == before[0], value
+            assert (handle.value, v.session.options, v.session.version) == before, value
+        # The other client saw only the current value (restated), and is still served.
+        assert wire.wait_for(other, lambda m: m.get("uuid") == uuid and m["updates"] != {"value": before[0]},
+                             timeout=0.3) is None
+        assert other.ping().wait(5)
+    assert v.server.gui._gui_input_handle_from_uuid[uuid].value == before[0]
+    # A new connection gets the initial state, with no 1011 (the audit's failure).
+    fresh = initial_page(v)
+    assert fresh.control(label).value == before[0] and not fresh.problems(GIZMO_LIMIT_M)
+    from sonarsim.plot.viewer.guard import gate_of
+
+    assert gate_of(v.server).refused["bad value"] >= len(BAD_SLIDER_VALUES)
+
+
+@needs_viser
+def test_a_value_within_bounds_is_applied_and_reaches_the_other_clients(page):
+    v = page
+    uuid = initial_page(v).control("max order").uuid
+    try:
+        with wire.connect(v.server.get_port()) as ws, wire.connect(v.server.get_port()) as other:
+            wire.read_replay(ws)
+            wire.read_replay(other)
+            ws.send(wire.gui_update(uuid, 2))
+            seen = wire.wait_for(other, lambda m: m.get("uuid") == uuid and m["updates"].get("value") == 2)
+            assert seen is not None
+            deadline = time.monotonic() + 5
+            while v.session.options.max_order != 2 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert v.session.options.max_order == 2 and v.max_order.value == 2
+            assert v.session.options.bounces == (1, 2)
+        assert initial_page(v).control("max order").value == 2
+    finally:
+        v.set_options(max_order=3, bounces=(1, 2, 3))
+        assert v.wait(10)
+
+
+@needs_viser
+@pytest.mark.parametrize("label, value", [
+    ("speckle", 1), ("speckle", "true"), ("speckle", None), ("speckle", [True]),
+    ("component", "quadruple"), ("component", 3), ("component", "TOTAL"),
+    ("colour map", "no_such_map"),
+    ("sensor", True),  # disabled: the block scene has no sensor
+    ("save scene and images", False), ("save scene and images", "click"),
+])
+def test_checkboxes_dropdowns_and_buttons_take_only_their_values(page, label, value, tmp_path):
+    v = page
+    state = initial_page(v)
+    control = state.control(label)
+    before = (v.session.options, v.session.version)
+    v.out = tmp_path / "out"
+    with wire.connect(v.server.get_port()) as ws:
+        wire.read_replay(ws)
+        if control.kind == "button":
+            ws.send(wire.gui_update(control.uuid, value))
+            assert ws.ping().wait(5)
+            time.sleep(0.2)
+        else:
+            reply = send_and_wait_for_resync(ws, wire.gui_update(control.uuid, value), control.uuid)
+            assert reply is not None and reply["updates"]["value"] == control.value
+    assert (v.session.options, v.session.version) == before
+    assert not v.out.exists() and not v.save_status.content.startswith("saved")
+
+
+@needs_viser
+@pytest.mark.parametrize("updates", [{"min": -1e308}, {"max": 2**63}, {"disabled": False}, {"options": ["x"]},
+                                     {"value": 2, "label": "x"}, {}, {"visible": True}])
+def test_only_a_controls_value_may_be_changed(page, updates):
+    import msgspec
+
+    v = page
+    control = initial_page(v).control("max order" if "options" not in updates else "component")
+    handle = v.server.gui._gui_input_handle_from_uuid[control.uuid]
+    props = (handle.value, handle.disabled, handle.visible, handle.label)
+    with wire.connect(v.server.get_port()) as ws:
+        wire.read_replay(ws)
+        frame = msgspec.msgpack.encode({"type": "GuiUpdateMessage", "uuid": control.uuid, "updates": updates})
+        assert send_and_wait_for_resync(ws, frame, control.uuid) is not None
+    assert (handle.value, handle.disabled, handle.visible, handle.label) == props
+    assert not initial_page(v).problems(GIZMO_LIMIT_M)
+
+
+@needs_viser
+@pytest.mark.parametrize("position, wxyz", [
+    ((float("nan"), 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)),
+    ((0.0, float("inf"), 1.0), (1.0, 0.0, 0.0, 0.0)),
+    ((1e300, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)),  # slider ranges widened to 10**300: 1011 for all
+    ((2 * GIZMO_LIMIT_M, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)),
+    ((0.0, 0.0, 1.0), (0.0, 0.0, 0.0, 0.0)),
+    ((0.0, 0.0, 1.0), (2.0, 0.0, 0.0, 0.0)),
+    ((0.0, 0.0, 1.0), (float("nan"), 0.0, 0.0, 0.0)),
+    ((0.0, 0.0), (1.0, 0.0, 0.0, 0.0)),
+    ((0.0, 0.0, 1.0), (1.0, 0.0, 0.0)),
+    (("0", 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)),
+    ((True, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)),
+    ((2**64 - 1, 0.0, 1.0), (1.0, 0.0, 0.0, 0.0)),
+])
+def test_a_gizmo_refuses_poses_that_are_not_finite_or_absurd(page, position, wxyz):
+    v = page
+    pose = v.session.sonar_pose
+    with wire.connect(v.server.get_port()) as ws:
+        wire.read_replay(ws)
+        ws.send(wire.gizmo_update("/sonar", position, wxyz))
+        back = wire.wait_for(ws, lambda m: m.get("type") == "SetPositionMessage" and m.get("name") == "/sonar")
+    assert back is not None and back["position"] == list(pose.position_m)  # the sender's gizmo put back
+    assert v.session.sonar_pose == pose
+    assert all(math.isfinite(float(x)) for x in v.sonar_control.position)
+    state = initial_page(v)
+    assert not state.problems(GIZMO_LIMIT_M) and state.gizmos["/sonar"]["position"] == list(pose.position_m)
+
+
+@needs_viser
+def test_a_gizmo_drag_within_bounds_moves_the_sonar(page):
+    from sonarsim import Pose
+    from sonarsim.plot.viewer.state import wxyz_of
+
+    v = page
+    target = Pose((0.5, -0.2, 1.2), (0.0, 15.0, 20.0))
+    try:
+        with wire.connect(v.server.get_port()) as ws:
+            wire.read_replay(ws)
+            ws.send(wire.gizmo_update("/sonar", target.position_m, wxyz_of(target)))
+            deadline = time.monotonic() + 5
+            while v.session.sonar_pose.position_m != target.position_m and time.monotonic() < deadline:
+                time.sleep(0.02)
+        assert v.session.sonar_pose == target
+        assert initial_page(v).control("yaw (deg)").value == 20.0
+    finally:
+        v.set_sonar_pose((0.0, 0.0, 1.0), (0.0, 20.0, 0.0))
+        assert v.wait(10)
+
+
+@needs_viser
+@pytest.mark.parametrize("frame", [
+    {"type": "ShareUrlRequest"},  # would open a public tunnel to the viewer
+    {"type": "FileTransferStartUpload", "source_component_uuid": "x", "transfer_uuid": "y", "filename": "a",
+     "mime_type": "b", "part_count": 10**9, "size_bytes": 10**12},
+    {"type": "GuiButtonHoldMessage", "uuid": "x", "frequency": 1e9},
+    {"type": "NoSuchMessage"}, {"no": "type"}, [1, 2, 3],
+    b"\xc1", b"\x91" * 5000 + b"\xc0", b"\x91" * 100_000 + b"\xc0", "a text frame",
+    {"type": "ViewerCameraMessage", "padding": [0] * 1_000_000},  # msgpack would make a million objects
+    {"type": "GuiUpdateMessage", "uuid": "no-such-control", "updates": {"value": 1}},
+    {"type": "GuiUpdateMessage", "uuid": "x"},
+    {"type": "GuiUpdateMessage", "uuid": "x", "updates": {"value": 1}, "excluded_self_client": 3},
+    {"type": "TransformControlsUpdateMessage", "name": "/nothing", "wxyz": [1, 0, 0, 0], "position": [0, 0, 0]},
+    {"type": "ViewerCameraMessage", "wxyz": [1, 0, 0, 0], "position": [0, 0, float("nan")], "fov": 1.0,
+     "near": 0.01, "far": 100.0, "image_height": 10, "image_width": 10, "look_at": [0, 0, 0],
+     "up_direction": [0, 0, 1]},
+])
+def test_other_messages_are_dropped_and_the_connection_stays(page, frame):
+    from sonarsim.plot.viewer.guard import gate_of
+
+    v = page
+    gate = gate_of(v.server)
+    refused = sum(gate.refused.values())
+    before = (v.session.options, v.session.version, v.session.sonar_pose)
+    with wire.connect(v.server.get_port()) as ws:
+        wire.read_replay(ws)
+        ws.send(frame if isinstance(frame, (bytes, str)) else wire.encode(frame))
+        deadline = time.monotonic() + 5
+        while sum(gate.refused.values()) == refused and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert ws.ping().wait(5)  # still connected: a malformed message costs the client that message only
+    assert sum(gate.refused.values()) == refused + 1
+    assert (v.session.options, v.session.version, v.session.sonar_pose) == before
+    assert not initial_page(v).problems(GIZMO_LIMIT_M)
+
+
 # ---------------------------------------------------------------------------- what the guard relies on in viser
 
 
 @needs_viser
 def test_what_the_guard_relies_on_in_viser_is_there():
-    """A viser upgrade that changes this makes the guard fail here (and the viewer refuse to
-    start), never serve unguarded."""
+    """A viser upgrade that changes any of these makes the guard fail here (and the viewer
+    refuse to start), never serve unguarded."""
     import inspect
 
+    import viser
+    from viser import _messages
     from viser.infra import _infra
 
     from sonarsim.plot.viewer.guard import VISER_HANDLER
 
     source = inspect.getsource(_infra.WebsockServer._background_worker)
     assert "websockets.asyncio.server.serve(" in source and "process_request=" in source
-    assert "async def ws_handler(" in source
+    assert "async def ws_handler(" in source and "websocket.recv()" in inspect.getsource(_infra._message_consumer)
     assert VISER_HANDLER.startswith(_infra.WebsockServer._background_worker.__qualname__)
+    # The fields of the messages the gate takes are viser's.
+    for name, schema in TAKEN_MESSAGES.items():
+        cls = getattr(_messages, name)
+        fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+        assert set(fields) == set(schema), name
+        optional = {k for k, v in schema.items() if isinstance(v, str) and v.endswith("?")}
+        assert {k for k, f in fields.items() if f.default is not dataclasses.MISSING} == optional, name
+    for name in ("GuiSliderHandle", "GuiCheckboxHandle", "GuiDropdownHandle", "GuiButtonHandle"):
+        assert isinstance(getattr(viser, name), type)
+    assert {"on_client_connect"} <= set(dir(_infra.WebsockServer))
 
 
 @needs_viser
@@ -222,9 +434,14 @@ def test_a_viser_that_starts_its_server_otherwise_is_refused(monkeypatch):
 
 @needs_viser
 def test_a_started_viewer_has_its_checks_in_place(page):
+    from sonarsim.plot.viewer.guard import gate_of, guard_of
+
+    server = page.server
+    assert guard_of(server).names == LOOPBACK_NAMES
+    # 6 pose sliders; component, max order, 6 bounce boxes, sensor, speckle, colour map, dB window, gain; save
+    assert len(server.gui._gui_input_handle_from_uuid) == 20
+    assert set(server.scene._handle_from_transform_controls_name) == {"/objects/block", "/sonar"}
+    assert gate_of(server).server is server
     import websockets.asyncio.server as ws_server
 
-    from sonarsim.plot.viewer.guard import guard_of
-
-    assert guard_of(page.server).names == LOOPBACK_NAMES
     assert isinstance(ws_server.serve, type)  # websockets' own class, put back after the start

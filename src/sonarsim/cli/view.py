@@ -10,7 +10,8 @@ point the browser and runs until Ctrl-C (exit status 130).
 
 The server takes connections only from its own page: a request whose ``Host`` header does not
 name the server (DNS rebinding) or whose ``Origin`` is another site's is refused with 403, and
-the command says so once per reason (:mod:`sonarsim.plot.viewer.guard`).
+the command says so once per reason; the values a page sends are checked against each
+control's bounds before they are applied (:mod:`sonarsim.plot.viewer.guard`).
 
 Needs the ``viewer`` extra (``pip install 'sonarsim[viewer]'``).
 """

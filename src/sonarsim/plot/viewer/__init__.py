@@ -3,7 +3,8 @@
 The logic (what is shown, re-rendering, saving) lives in plain Python classes that need no
 browser and no viser (:mod:`.state`, :mod:`.geometry`); :mod:`.app` wires them to a viser
 page; :mod:`.guard` stands between the network and viser (connections only from the page's own
-origin and by the server's own names). viser is an optional dependency (the ``viewer`` extra): :func:`require_viser` says how to install it
+origin and by the server's own names; messages only with values the controls allow). viser is
+an optional dependency (the ``viewer`` extra): :func:`require_viser` says how to install it
 when it is missing.
 """
 

@@ -1,7 +1,8 @@
 """The viser page of ``sonarsim view``: controls forwarded to the sessions of :mod:`.state`.
 
 The server is guarded (:mod:`.guard`): it serves only requests that name it in ``Host`` and
-come from its own page (``Origin``).
+come from its own page (``Origin``), and its controls' callbacks only see values within the
+controls' bounds.
 
 Re-rendering runs in one background thread (:class:`LatestOnly`): every change (a gizmo drag,
 a slider, a switch) asks for an update, and requests that arrive while a frame is being
@@ -84,7 +85,7 @@ def check_port(host: str, port: int) -> None:
 def start_server(host: str = "127.0.0.1", port: int = 8080, log: Callable[[str], None] | None = None):
     """A viser server on ``host:port`` (port 0: any free port), quiet, its panel docked right,
     guarded (:mod:`.guard`): it serves only requests that name it in ``Host`` and come from its
-    own page (``Origin``).
+    own page (``Origin``), and passes on only messages whose values its controls allow.
 
     Parameters
     ----------
