@@ -131,6 +131,26 @@ def check_input_file(path: str | os.PathLike, what: str) -> os.stat_result:
     return st
 
 
+def regular_file_bytes(path: str | os.PathLike, what: str) -> bytes | None:
+    """The bytes of a file sonarsim itself keeps (a dataset's manifest, a run record), or None
+    when there is none; what is not a regular file (a pipe someone put there, which ``open``
+    would wait on forever) is refused.
+
+    Raises
+    ------
+    SonarsimError
+        As :func:`check_input_file`, naming the file and ``what``; or it cannot be read.
+    """
+    if not os.path.lexists(path):
+        return None
+    check_input_file(path, what)
+    try:
+        with open(path, "rb") as handle:
+            return handle.read()
+    except OSError as exc:
+        raise SonarsimError(f"{key_text(os.fspath(path))}: cannot read the {what}: {exc.strerror or exc}") from None
+
+
 def interrupt_of(exc: BaseException | None) -> KeyboardInterrupt | None:
     """The ``KeyboardInterrupt`` (Ctrl-C, or a signal the CLI turns into one) behind ``exc``.
 

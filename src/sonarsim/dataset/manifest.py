@@ -33,6 +33,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
+from ..errors import regular_file_bytes
 from ..io.output import file_digest
 from .scenario import FrameSpec
 
@@ -162,11 +163,10 @@ def verify_record(record: Any, folder: Path, expected: Mapping[str, Any] | None)
 def read_manifest(path: Path) -> list[Any]:
     """The parsed lines of a manifest; lines that are not JSON (a torn last line) are dropped.
 
-    A missing manifest has no lines.
+    A missing manifest has no lines; one that is not a regular file is refused (SonarsimError).
     """
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
+    data = regular_file_bytes(path, "dataset manifest")
+    if data is None:
         return []
     out = []
     for line in data.split(b"\n"):

@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, SonarsimError, shown
+from ..errors import ConfigError, SonarsimError, regular_file_bytes, shown
 from .frames import as_scenario, frame_arrays, label_mode, labels_supported, require_frame_memory
 from .manifest import (
     INFO_NAME,
@@ -315,9 +315,10 @@ def _positive_int(value: Any, key: str) -> int:
 def _check_identity(info_path: Path, fingerprint: Fingerprint, n: int, out: Path) -> None:
     """Refuse a folder that holds another dataset (another scenario or other options)."""
     try:
-        doc = json.loads(info_path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        return
+        data = regular_file_bytes(info_path, "dataset description")
+        if data is None:
+            return
+        doc = json.loads(data.decode("utf-8"))
     except (OSError, ValueError) as exc:
         raise SonarsimError(f"{info_path}: not a readable sonarsim dataset description ({exc}); this folder "
                             "holds something else: choose another --out or remove it") from None

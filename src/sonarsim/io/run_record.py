@@ -47,7 +47,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any, Callable
 
-from ..errors import SonarsimError, interrupt_of, shown
+from ..errors import SonarsimError, interrupt_of, regular_file_bytes, shown
 from .output import _pid_alive, atomic_write, file_digest, remove_abandoned_temp_files, temp_prefix
 
 __all__ = ["RECORD_NAME", "STATUSES", "OutputError", "OutputRun", "read_record", "record_beside"]
@@ -98,9 +98,9 @@ def record_beside(path: PathLike) -> Path:
 def read_record(path: PathLike) -> dict[str, Any] | None:
     """The record at ``path``, or None if there is none or the file is not a sonarsim record."""
     try:
-        with open(path, encoding="utf-8") as handle:
-            doc = json.load(handle)
-    except (OSError, ValueError):
+        data = regular_file_bytes(path, "run record")  # a pipe in its place is not waited on
+        doc = json.loads(data.decode("utf-8")) if data is not None else None
+    except (SonarsimError, OSError, ValueError):
         return None
     if not isinstance(doc, dict) or doc.get(_FORMAT_KEY) != _FORMAT or not isinstance(doc.get("files"), list):
         return None
