@@ -223,3 +223,49 @@ def test_the_page_draws_the_scene_and_the_images_and_follows_the_sonar():
     finally:
         viewer.close()
         stop_server(server)
+
+
+def test_what_the_page_sends_passes_the_guard():
+    """The page's own messages -- its camera, a checkbox clicked, a slider moved by the keyboard
+    -- are taken by the viewer's guard (plot/viewer/guard.py), none refused."""
+    from sonarsim.plot.viewer.app import SceneViewer, start_server, stop_server, url_of
+    from sonarsim.plot.viewer.guard import gate_of, guard_of
+    from sonarsim.plot.viewer.state import SceneSession
+
+    from ..conftest import block_scene_dict
+
+    def until(condition, timeout: float = 20.0) -> bool:
+        deadline = time.monotonic() + timeout
+        while not condition() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        return condition()
+
+    server = start_server("127.0.0.1", 0)
+    viewer = SceneViewer(server, SceneSession(block_scene_dict()), out="unused")
+    browser = None
+    try:
+        assert viewer.wait(30)
+        browser = Browser(CHROMIUM)
+        browser.call("Page.navigate", url=url_of(server, "127.0.0.1"))
+        page_images(browser, None)
+        # The checkbox's input carries the control's uuid as its id.
+        uuid = next(u for u, h in server.gui._gui_input_handle_from_uuid.items() if h is viewer.speckle)
+        browser.evaluate(f"document.getElementById({json.dumps(uuid)}).click()")
+        assert until(lambda: viewer.session.options.speckle)
+        # The "max order" slider (1 to 6), one step down with the arrow key.
+        focused = browser.evaluate("(() => { const s = Array.from(document.querySelectorAll('[role=slider]'))"
+                                   ".find(e => e.getAttribute('aria-valuemax') === '6'); s.focus();"
+                                   " return document.activeElement === s; })()")
+        assert focused
+        for kind in ("keyDown", "keyUp"):
+            browser.call("Input.dispatchKeyEvent", type=kind, key="ArrowLeft", code="ArrowLeft",
+                         windowsVirtualKeyCode=37)
+        assert until(lambda: viewer.session.options.max_order == 2)
+    finally:
+        if browser is not None:
+            browser.close()
+        viewer.close()
+        stop_server(server)
+    gate = gate_of(server)
+    assert gate.accepted["ViewerCameraMessage"] >= 1 and gate.accepted["GuiUpdateMessage"] == 2
+    assert not gate.refused and not guard_of(server).refused
