@@ -433,6 +433,24 @@ def test_a_viser_that_starts_its_server_otherwise_is_refused(monkeypatch):
 
 
 @needs_viser
+def test_a_viser_without_the_registries_the_gate_reads_is_refused(monkeypatch):
+    from viser._gui_api import GuiApi
+
+    from sonarsim.errors import SonarsimError
+    from sonarsim.plot.viewer import guard
+
+    real_init = GuiApi.__init__
+
+    def init_without_registry(self, *args, **kwargs):
+        real_init(self, *args, **kwargs)
+        del self._gui_input_handle_from_uuid  # as a viser that renamed it
+
+    monkeypatch.setattr(GuiApi, "__init__", init_without_registry)
+    with pytest.raises(SonarsimError, match="does not serve the page"):
+        guard.start_guarded_server("127.0.0.1", 0)
+
+
+@needs_viser
 def test_a_started_viewer_has_its_checks_in_place(page):
     from sonarsim.plot.viewer.guard import gate_of, guard_of
 

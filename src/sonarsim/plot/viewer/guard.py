@@ -391,8 +391,9 @@ class MessageGate:
             with self._lock:
                 self.refused[refusal.reason] += 1
             LOG.debug("refused a message: %s", refusal)
-            for message in refusal.resync:
-                self.server._websock_server.queue_message(message)
+            if self.server is not None:
+                for message in refusal.resync:
+                    self.server._websock_server.queue_message(message)
             return False
         except Exception as exc:  # noqa: BLE001 - a bug of the gate: the message is refused (fail closed)
             with self._lock:
@@ -598,8 +599,8 @@ def start_guarded_server(host: str, port: int, log: Callable[[str], None] | None
     :data:`VISER_HANDLER`, its host ``host`` -- to which it gives the guard in front of
     viser's ``process_request`` and the gate in front of the handler's ``recv``. The original
     is back when the constructor returns. If viser did not start its server through it (a
-    viser that starts it otherwise), the server is stopped and this refuses: the viewer is
-    never served unguarded. ``tests/plot/test_viewer_guard.py`` pins each of these points.
+    viser that starts it otherwise), or lacks the registries of controls and gizmos the gate
+    reads, the server is stopped and this refuses: the viewer is never served unguarded. ``tests/plot/test_viewer_guard.py`` pins each of these points.
 
     Returns
     -------
@@ -637,8 +638,14 @@ def start_guarded_server(host: str, port: int, log: Callable[[str], None] | None
                 server = viser.ViserServer(host=host, port=port, verbose=False)
         finally:
             ws_server.serve = real_serve
-    thread = getattr(getattr(server, "_websock_server", None), "_server_thread", None)
-    if thread is None or thread.ident not in hooked:
+    websock = getattr(server, "_websock_server", None)
+    thread = getattr(websock, "_server_thread", None)
+    # What the gate reads (viser's registries of the page's controls and gizmos, what viser
+    # itself dispatches to) and where it restates a value: without them it would refuse every
+    # change, and the page would not respond.
+    found = (hasattr(server.gui, "_gui_input_handle_from_uuid")
+             and hasattr(server.scene, "_handle_from_transform_controls_name") and hasattr(websock, "queue_message"))
+    if thread is None or thread.ident not in hooked or not found:
         with contextlib.redirect_stdout(io.StringIO()):
             server.stop()
         raise SonarsimError(
