@@ -221,6 +221,11 @@ def test_bad_changes_are_refused(session):
         session.set_options(colour="red")
     with pytest.raises(ConfigError, match="unknown colour map 'no_such_map'; allowed: inferno"):
         session.set_options(colormap="no_such_map")
+    for order in (0, 7, 2**63, 10**9, 2.0, True):  # at once: its components are not listed first
+        t0 = time.perf_counter()
+        with pytest.raises(ConfigError, match="max_order: must be an integer from 1 to 6"):
+            session.set_options(max_order=order)
+        assert time.perf_counter() - t0 < 1.0
     no_sensor = SceneSession(block_scene_dict())
     assert not no_sensor.sensor_available
     with pytest.raises(ConfigError, match="no sensor"):

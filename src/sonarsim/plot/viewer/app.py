@@ -437,7 +437,9 @@ class SceneViewer(_Page):
             dynamic_range_db=float(self.dynamic_range.value), gain_db=float(self.gain.value))
         if bounces:
             changes["bounces"] = bounces
-        if changes["component"] not in component_names(max_order):
+        # Its components listed only for an order the viewer offers (the list is as long as the
+        # order); any other is refused by set_options, and said on the page.
+        if 1 <= max_order <= VIEWER_MAX_ORDER and changes["component"] not in component_names(max_order):
             changes["component"] = "total"
         self.set_options(**changes)
 

@@ -63,6 +63,12 @@ def _check_colormap(name: str) -> None:
         raise ConfigError("colormap", str(exc)) from None
 
 
+def _check_max_order(mo: Any) -> None:
+    """Refuse a longest path that is not an integer the viewer offers (ConfigError naming ``max_order``)."""
+    if isinstance(mo, bool) or not isinstance(mo, (int, np.integer)) or not 1 <= mo <= VIEWER_MAX_ORDER:
+        raise ConfigError("max_order", f"must be an integer from 1 to {VIEWER_MAX_ORDER}, got {mo!r}")
+
+
 def component_names(max_order: int) -> tuple[str, ...]:
     """The components a frame formed up to ``max_order`` offers (``total`` first)."""
     from ...renderer.components import component_table
@@ -107,8 +113,7 @@ class ViewOptions:
 
     def __post_init__(self) -> None:
         mo = self.max_order
-        if isinstance(mo, bool) or not isinstance(mo, (int, np.integer)) or not 1 <= mo <= VIEWER_MAX_ORDER:
-            raise ConfigError("max_order", f"must be an integer from 1 to {VIEWER_MAX_ORDER}, got {mo!r}")
+        _check_max_order(mo)
         bounces = tuple(sorted({int(b) for b in self.bounces}))
         if not bounces or bounces[0] < 1 or bounces[-1] > mo:
             raise ConfigError("bounces", f"must be a non-empty subset of 1..{mo}, got {list(self.bounces)}")
@@ -386,6 +391,9 @@ class SceneSession:
             if "max_order" in changes and "bounces" not in changes:
                 mo = changes["max_order"]
                 if isinstance(mo, (int, np.integer)) and not isinstance(mo, bool):
+                    # Checked before its components are listed: the list is as long as the
+                    # order (max_order=2**63 took all memory before ViewOptions refused it).
+                    _check_max_order(mo)
                     changes["bounces"] = tuple(b for b in current.bounces if b <= mo) or tuple(range(1, int(mo) + 1))
                     if changes.get("component", current.component) not in component_names(int(mo)):
                         changes["component"] = "total"
