@@ -181,3 +181,14 @@ def test_absurd_beam_and_bin_counts_are_refused_before_allocating(sonar):
         sonarsim.load_scene({"sonar": {"elevation_fov_deg": 14, "range_min_m": 0.5, "range_max_m": 5.0, **sonar}})
     assert e.value.key == "sonar.n_range_bins" and time.perf_counter() - t0 < 1.0
     assert len(str(e.value)) < 400
+
+
+def test_samples_of_hundreds_of_digits_are_refused_naming_the_key():
+    # Found by the scene fuzz (seed 0, case 90066): the ray count was taken as a float and
+    # overflowed (OverflowError: int too large to convert to float) instead of being refused.
+    from sonarsim.config.loader import scene_from_dict
+    from sonarsim.errors import ConfigError
+
+    doc = {"sonar": {"preset": "aris3000-128"}, "render": {"azimuth_samples": 10**400}}
+    with pytest.raises(ConfigError, match=r"^render\.azimuth_samples: .* would need about 1e\d+ GiB, more than"):
+        scene_from_dict(doc)

@@ -40,11 +40,14 @@ def samples_per_beam(sonar: SonarConfig, render: RenderSettings) -> tuple[int, i
     return int(render.azimuth_samples), n_el
 
 
-def ray_bytes(sonar: SonarConfig, render: RenderSettings) -> float:
+def ray_bytes(sonar: SonarConfig, render: RenderSettings) -> int:
     """Bytes a frame's rays take: each its direction and weight here, and its legs' hits,
-    points and normals per frame (``BYTES_PER_RAY`` in all)."""
+    points and normals per frame (``BYTES_PER_RAY`` in all).
+
+    An exact integer: ``azimuth_samples`` of 400 digits times the beams is beyond a float
+    (OverflowError), and :func:`~sonarsim.core.memory.require` compares integers of any size."""
     n_az, n_el = samples_per_beam(sonar, render)
-    return float(sonar.n_beams) * n_az * n_el * BYTES_PER_RAY
+    return int(sonar.n_beams) * n_az * n_el * BYTES_PER_RAY
 
 
 def ray_size_key(sonar: SonarConfig, render: RenderSettings) -> str:
