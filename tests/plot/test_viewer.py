@@ -311,6 +311,28 @@ def test_recording_session_steps_frames(shared_data):
 # ---------------------------------------------------------------------------- the update thread
 
 
+def test_a_stored_render_is_shown_in_db_not_against_255_counts(tmp_path):
+    # A dataset frame or render.npz opens as a one-frame recording (issue 21); drawn against
+    # 255 counts, linearly, as a device's 8-bit output is, a render (echo intensities far below
+    # 1) was all black.
+    from sonarsim import Simulator
+    from sonarsim.plot.figures import default_scale
+
+    with Simulator(small_demo()) as sim:
+        image = sim.render()
+    path = tmp_path / "frame.npz"
+    image.save_npz(path)
+    s = RecordingSession(path)
+    try:
+        assert s.n_frames == 1 and s.options.mapping == "db"
+        shown = s.render()
+        assert default_scale(shown.image).reference is None
+        # The strongest echo at the top of the colour map (against 255 counts: all near black).
+        assert shown.polar_rgb.max() > 200 and shown.fan_rgb.max() > 200
+    finally:
+        s.close()
+
+
 def test_updates_coalesce_and_serve_the_newest_state():
     from sonarsim.plot.viewer.app import LatestOnly
 

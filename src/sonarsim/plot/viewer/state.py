@@ -607,9 +607,18 @@ class RecordingSession:
             self._recording.close()
             raise
         self.frame = 0
-        self.options = RecordingOptions()
+        # A recording is shown in its counts (linear against full scale), a stored render in dB
+        # below its maximum, as ``sonarsim show`` draws each (figures.default_scale).
+        self.options = RecordingOptions(mapping=self._scale(self._recording.read(0)).mapping
+                                        if self.n_frames else "linear")
         self.version = 0
         self._lock = threading.RLock()
+
+    @staticmethod
+    def _scale(image):
+        from ..figures import default_scale
+
+        return default_scale(image)
 
     def set_frame(self, frame: int) -> int:
         """Show another frame; returns it.
@@ -643,9 +652,9 @@ class RecordingSession:
             frame, options = self.frame, self.options
             image = self._recording.read(frame)
         t1 = time.perf_counter()
-        # Full scale of 8-bit data is 255 whatever the frame holds (as sonarsim show).
-        bits = image.config.get("header", {}).get("bits_per_value", 8)
-        reference = 255.0 if bits == 8 else None
+        # Device output against its full scale (255 for 8-bit data, whatever the frame holds),
+        # a stored render against its own maximum, as sonarsim show draws them.
+        reference = self._scale(image).reference
         polar_rgb, fan_rgb = _display_mapper(image.sonar.grid, False)(
             image.polar, options.mapping, options.gain_db, options.dynamic_range_db, reference, options.colormap)
         t2 = time.perf_counter()
