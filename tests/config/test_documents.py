@@ -132,11 +132,20 @@ def test_base_60_numbers_are_strings_not_integers(tmp_path):
 
 
 def test_merge_keys_are_honoured_and_may_be_overridden(tmp_path):
-    p = _write(tmp_path, "scene.yaml", SCENE + "common: &c {primitive: sphere, radius_m: 0.2, albedo: 0.5}\n"
-               "objects:\n  - {<<: *c, name: a}\n  - {<<: *c, name: b, albedo: 0.9}\n")
+    # The anchor in a top-level x- key (dropped once read: every other key is checked).
+    p = _write(tmp_path, "scene.yaml", "x-rock: &c {primitive: sphere, radius_m: 0.2, albedo: 0.5}\n" + SCENE +
+               "objects:\n  - {<<: *c, name: a, pose: {position_m: [2, 0, 0]}}\n"
+               "  - {<<: *c, name: b, albedo: 0.9, pose: {position_m: [3, 0, 0]}}\n")
     doc = read_document(p)
-    doc.pop("common")
-    assert doc["objects"][1] == {"primitive": "sphere", "radius_m": 0.2, "albedo": 0.9, "name": "b"}
+    assert "x-rock" not in doc
+    assert doc["objects"][1] == {"primitive": "sphere", "radius_m": 0.2, "albedo": 0.9, "name": "b",
+                                 "pose": {"position_m": [3, 0, 0]}}
+    scene = load_scene(p)
+    assert [o.backscatter.coefficient for o in scene.objects] == [0.5, 0.9]
+    # Any other unknown top-level key is still refused.
+    p = _write(tmp_path, "other.yaml", "rock: &c {primitive: sphere}\n" + SCENE)
+    with pytest.raises(ConfigError, match="rock: unknown key"):
+        load_scene(p)
     # A key given twice besides the merge is still refused.
     p = _write(tmp_path, "dup.yaml", "c: &c {x: 1}\nd: {<<: *c, y: 1, y: 2}\n")
     with pytest.raises(SonarsimError, match="the key 'y' is given twice"):

@@ -341,7 +341,7 @@ def test_coco_boxes_from_records():
     assert (polar["images"][0]["height"], polar["images"][0]["width"]) == (30, 16)
     assert [a["bbox"] for a in polar["annotations"]] == [[2, 26, 3, 3], [1, 28, 1, 1]]
     # A frame without the PNG asked for: no file_name that does not exist.
-    with pytest.raises(ValueError, match="frame 1: the manifest names no polar PNG"):
+    with pytest.raises(SonarsimError, match="frame 1: the manifest names no polar PNG"):
         coco_from_records(records, image="polar")
 
 

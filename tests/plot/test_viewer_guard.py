@@ -391,6 +391,25 @@ def test_other_messages_are_dropped_and_the_connection_stays(page, frame):
     assert not initial_page(v).problems(GIZMO_LIMIT_M)
 
 
+def test_a_message_beyond_a_mebibyte_ends_that_connection_alone(page):
+    # websockets buffers a message whole before the gate sees it: viser let it grow to 50 MB.
+    import websockets
+
+    from sonarsim.plot.viewer.guard import MAX_FRAME_BYTES
+
+    v = page
+    before = (v.session.options, v.session.version, v.session.sonar_pose)
+    with wire.connect(v.server.get_port()) as other, wire.connect(v.server.get_port()) as ws:
+        wire.read_replay(other)
+        wire.read_replay(ws)
+        with pytest.raises(websockets.exceptions.ConnectionClosedError, match="1009"):
+            ws.send(b"\x91" * (MAX_FRAME_BYTES + 1) + b"\xc0")
+            ws.recv(timeout=5)
+        assert other.ping().wait(5)  # the other page is still served
+    assert (v.session.options, v.session.version, v.session.sonar_pose) == before
+    assert not initial_page(v).problems(GIZMO_LIMIT_M)
+
+
 # ---------------------------------------------------------------------------- what the guard relies on in viser
 
 

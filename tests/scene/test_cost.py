@@ -4,6 +4,7 @@ against the memory and time budgets before anything is built."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import time
@@ -64,6 +65,7 @@ def test_twenty_thousand_large_spheres_are_refused_before_anything_is_built(budg
 
 def test_the_time_budget_refuses_what_the_memory_budget_lets_through(budgets):
     scene = scene_from_dict({"sonar": SONAR, "objects": _spheres(2_000, 0.2)})  # 10 million triangles
+    memory.set_memory_budget(8 * 2**30)  # 1.9 GiB fits
     memory.set_time_budget(10)
     with pytest.raises(ConfigError, match=r"^objects: building 2,000 objects of 10,240,000 triangles would take about "
                        r"3\d\.\d s, more than the build-time budget of 10 s \(raise it with --max-build-time"):
@@ -120,17 +122,27 @@ def test_bad_time_budgets_are_refused(text):
 
 
 def test_the_time_budget_from_the_environment_and_the_command_line(tmp_path, monkeypatch, budgets):
+    from sonarsim.cli.main import main
+
+    # The command's budgets hold for its run only (they reach its workers through the
+    # environment): an in-process call leaves neither the environment nor the budgets set.
+    monkeypatch.delenv(memory.ENV_VAR, raising=False)
+    assert main(["--max-memory", "1G", "--max-build-time", "7", "presets"]) == 0
+    assert memory.ENV_VAR not in os.environ and memory.TIME_ENV_VAR not in os.environ
+    assert memory.time_budget() == memory.DEFAULT_TIME_BUDGET_S
     monkeypatch.setenv(memory.TIME_ENV_VAR, "42")
     assert memory.time_budget() == 42.0
     monkeypatch.setenv(memory.TIME_ENV_VAR, "soon")
     with pytest.raises(sonarsim.SonarsimError, match=r"SONARSIM_MAX_BUILD_TIME: a time is"):
         memory.time_budget()
     monkeypatch.delenv(memory.TIME_ENV_VAR)
+    assert memory.time_budget() == memory.DEFAULT_TIME_BUDGET_S
     scene = tmp_path / "scene.yaml"
     import yaml
 
     scene.write_text(yaml.safe_dump({"sonar": SONAR, "objects": _spheres(2_000, 0.2)}))
-    out = subprocess.run([sys.executable, "-m", "sonarsim.cli.main", "--max-build-time", "10", "render", str(scene),
+    out = subprocess.run([sys.executable, "-m", "sonarsim.cli.main", "--max-memory", "8G", "--max-build-time", "10",
+                          "render", str(scene),
                           "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=120)
     assert out.returncode == 2, out.stderr
     assert out.stderr.strip().splitlines() == [

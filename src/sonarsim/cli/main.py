@@ -196,12 +196,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         memory.set_memory_budget(args.max_memory)
         memory.set_time_budget(args.max_build_time)
-        # Also for the processes this command starts (dataset workers come from a fork server
-        # and do not share this process's settings, only its environment).
-        if args.max_memory is not None:
-            os.environ[memory.ENV_VAR] = str(args.max_memory)
-        if args.max_build_time is not None:
-            os.environ[memory.TIME_ENV_VAR] = str(args.max_build_time)
     except Exception as exc:
         if interrupt_of(exc) is None:  # (a Ctrl-C during an import can arrive as an ImportError)
             raise
@@ -212,6 +206,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 128 + int(signal.SIGINT)
     # Stored in each run's record (sonarsim.io.run_record), so a folder says what made it.
     args.command_line = ["sonarsim", *map(str, argv)]
+    # The budgets also for the processes this command starts (dataset workers come from a fork
+    # server and share this process's environment, not its settings), for this command only:
+    # main() is called in-process too (tests, notebooks).
+    chosen = {memory.ENV_VAR: args.max_memory, memory.TIME_ENV_VAR: args.max_build_time}
+    saved = {name: os.environ.get(name) for name in chosen}
+    try:
+        for name, value in chosen.items():
+            if value is not None:
+                os.environ[name] = str(value)
+        return _run(args)
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+        memory.set_memory_budget(None)
+        memory.set_time_budget(None)
+
+
+def _run(args) -> int:
+    """Run the parsed command; returns the exit status (errors and signals as one line)."""
     try:
         with _stop_signals_raise():
             args.func(args)

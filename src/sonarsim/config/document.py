@@ -14,7 +14,8 @@ What a hostile or mistaken document can do to a plain ``yaml.safe_load``, and wh
 * **YAML 1.1's surprises.** ``1:30:00`` is the integer 5400 in YAML 1.1 (base 60): here it is
   the string it looks like, so that a key expecting a number says so; ``1e3`` and ``-.5`` are
   numbers (as in YAML 1.2 and JSON), not strings. Merge keys (``<<: *base``)
-  are honoured; a key given twice in one mapping is refused.
+  are honoured, their anchors kept in top-level ``x-...`` keys (dropped once read); a key given
+  twice in one mapping is refused.
 * **Huge integers.** Python refuses to convert more than 4,300 digits (``ValueError``); such a
   number is refused here naming its line.
 """
@@ -47,6 +48,8 @@ MAX_ALIASES = 100_000
 MAX_NUMBER_DIGITS = 1_000
 
 _MERGE_TAG = "tag:yaml.org,2002:merge"
+#: Top-level keys of a YAML document that begin so hold anchors only and are dropped once read.
+EXTENSION_PREFIX = "x-"
 # An alias as YAML writes it: an asterisk starting a token, then the anchor's name (an upper
 # bound: an asterisk so placed inside a quoted string counts too).
 _ALIAS = re.compile(r"(?:^|(?<=[\s,\[{:-]))\*[^\s,\[\]{}]+")
@@ -268,7 +271,12 @@ def read_document(path: str | os.PathLike) -> Any:
         aliases = sum(1 for _ in _ALIAS.finditer(text))
         if aliases > MAX_ALIASES:
             raise SonarsimError(f"{p}: {aliases:,} aliases (*name); a scene or scenario uses at most {MAX_ALIASES:,}")
-        return yaml.load(text, Loader=_yaml_loader(str(p)))  # noqa: S506 - a SafeLoader subclass
+        doc = yaml.load(text, Loader=_yaml_loader(str(p)))  # noqa: S506 - a SafeLoader subclass
+        if isinstance(doc, dict):
+            # Top-level keys named x-...: a place for anchors that merge keys and aliases use
+            # (as Docker Compose's extension fields), dropped here; every other key is checked.
+            doc = {k: v for k, v in doc.items() if not (isinstance(k, str) and k.startswith(EXTENSION_PREFIX))}
+        return doc
     except json.JSONDecodeError as exc:
         raise SonarsimError(f"{p}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
     except yaml.YAMLError as exc:

@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import SonarsimError
+
 __all__ = ["category_of", "coco_from_records", "fan_boxes"]
 
 _NUMBERED = re.compile(r"^(?P<base>.+)_[0-9]+$")
@@ -61,8 +63,10 @@ def coco_from_records(records: Iterable[Mapping[str, Any]], image: str = "fan") 
     Raises
     ------
     ValueError
-        ``image`` is neither, or a record lacks that PNG or the image's shape (a manifest
-        written before the COCO file named images; make the dataset again).
+        ``image`` is neither.
+    SonarsimError
+        A record lacks that PNG or the image's shape (a manifest written before the COCO file
+        named images; make the dataset again).
     """
     if image not in ("fan", "polar"):
         raise ValueError(f"image must be 'fan' or 'polar', got {image!r}")
@@ -72,7 +76,7 @@ def coco_from_records(records: Iterable[Mapping[str, Any]], image: str = "fan") 
         name = next((f for f in record["files"] if f.endswith(f"_{image}.png")), None)
         shape = record.get(f"{image}_shape")
         if name is None or not shape:
-            raise ValueError(f"frame {k}: the manifest names no {image} PNG or its shape (files "
+            raise SonarsimError(f"frame {k}: the manifest names no {image} PNG or its shape (files "
                              f"{record['files']}); coco.json must name images that exist")
         height, width = (int(v) for v in shape)
         images.append({"id": k, "file_name": name, "height": height, "width": width,

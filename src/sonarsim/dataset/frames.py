@@ -138,7 +138,7 @@ def label_mode(labels: bool | str) -> str:
     return str(labels)
 
 
-def require_frame_memory(scenario: Scenario, labels: bool | str) -> None:
+def require_dataset_memory(scenario: Scenario, labels: bool | str) -> None:
     """Refuse, before the first frame, frames that would not fit the memory budget: their
     images, rays and sensor fields, and their label maps for the most objects a frame of
     ``scenario`` can hold (its variation at the high end).
@@ -151,14 +151,14 @@ def require_frame_memory(scenario: Scenario, labels: bool | str) -> None:
     from ..config.loader import scene_from_dict
     from ..errors import ConfigError
     from ..renderer.ground_truth import require_label_maps
-    from ..renderer.simulator import require_frame_memory as require_images
+    from ..renderer.simulator import require_frame_memory
 
     mode = label_mode(labels)
     doc = scenario.probe("high")[0]
     # The objects are counted, not built (the scenario's check built one of each kind).
     scene = scene_from_dict({**doc, "objects": []}, base_dir=scenario.base_dir)
     try:
-        require_images(scene, scene.sonar)
+        require_frame_memory(scene, scene.sonar)
     except ConfigError as exc:
         raise ConfigError(f"scene.{exc.key}", exc.detail, scenario.source) from None
     if mode == "none" or not labels_supported():

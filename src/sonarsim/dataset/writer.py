@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, SonarsimError, regular_file_bytes, shown
-from .frames import as_scenario, frame_arrays, label_mode, labels_supported, require_frame_memory
+from .frames import as_scenario, frame_arrays, label_mode, labels_supported, require_dataset_memory
 from .manifest import (
     INFO_NAME,
     MANIFEST_NAME,
@@ -500,7 +500,7 @@ def generate(
 
         _import_rosbags()  # a missing extra fails now, not after hours of rendering
     scenario = as_scenario(scenario, frames)
-    require_frame_memory(scenario, options.labels)  # before the folder is touched
+    require_dataset_memory(scenario, options.labels)  # before the folder is touched
     n = scenario.n_frames
     width = max(6, len(str(n - 1)))
     out = Path(out)

@@ -327,6 +327,8 @@ def parse_start_time(value: Any, key: str = "start_time") -> int:
                 digits = fraction.group(1).ljust(9, "0")
                 extra_ns = int(digits[6:])
                 text = text[:fraction.start()] + "." + digits[:6] + text[fraction.end():]
+            if text[-1:] in ("Z", "z"):  # Python 3.10's fromisoformat reads no "Z" (3.11 does)
+                text = text[:-1] + "+00:00"
             try:
                 ns = _datetime_ns(dt.datetime.fromisoformat(text)) + extra_ns
             except ValueError:

@@ -65,6 +65,7 @@ class InsideTest:
         self._lo = np.array([b[0] for b in boxes], dtype=np.float64).reshape(-1, 3)
         self._hi = np.array([b[1] for b in boxes], dtype=np.float64).reshape(-1, 3)
         self._last: tuple[tuple, list[str]] | None = None
+        self._ignored: tuple[frozenset[str], np.ndarray] | None = None
 
     def holding(self, point, ignore: frozenset[str] = frozenset()) -> list[str]:
         """Names of the objects whose closed surface encloses ``point`` (world, metres).
@@ -77,7 +78,9 @@ class InsideTest:
         p = np.asarray(key[0], dtype=np.float64)
         inside_box = np.all((self._lo <= p) & (p <= self._hi), axis=1)
         if ignore:
-            inside_box &= np.array([name not in ignore for name in self._names], dtype=bool)
+            if self._ignored is None or self._ignored[0] != ignore:  # once per set, not per frame
+                self._ignored = (ignore, np.array([name not in ignore for name in self._names], dtype=bool))
+            inside_box &= self._ignored[1]
         out = self._parity(p, inside_box) if inside_box.any() else []
         self._last = (key, out)
         return out

@@ -43,7 +43,7 @@ ZIP_SIGNATURE = b"PK\x03\x04"
 # compressed entries (RuntimeError, NotImplementedError), odd header fields (struct.error,
 # OverflowError, KeyError).
 _ARCHIVE_ERRORS = (ValueError, OSError, EOFError, KeyError, RuntimeError, NotImplementedError,
-                   OverflowError, zipfile.BadZipFile, zlib.error, struct.error)
+                   OverflowError, MemoryError, zipfile.BadZipFile, zlib.error, struct.error)
 
 # Arrays of a frame that are labels, not echo images, though some share the image's shape and
 # dtype (Labels.arrays(): instance maps and elevation maps); per-ray maps start with "rays_".

@@ -56,6 +56,8 @@ MAX_CAMERA_PIXELS = 1 << 16
 #: Largest message a client may send (bytes). The page's messages take a few hundred; viser
 #: takes up to 50 MB, which msgpack may unpack into hundreds of millions of objects.
 MAX_MESSAGE_BYTES = 64 * 1024
+#: The largest message a client's connection survives (refused by the gate); larger ones end it.
+MAX_FRAME_BYTES = 2**20
 
 # Names by which every loopback server may be reached: a page loaded from one of them is the
 # viewer's own page, whichever of the three the user typed.
@@ -627,6 +629,11 @@ def start_guarded_server(host: str, port: int, log: Callable[[str], None] | None
         def serve(handler, *args, **kwargs):
             if getattr(handler, "__qualname__", "") == VISER_HANDLER and args[:1] == (host,):
                 kwargs["process_request"] = guard.wrap(kwargs.get("process_request"))
+                # websockets buffers a whole message before the gate sees it, and viser allows
+                # 50 MB a message: up to MAX_FRAME_BYTES the gate refuses what is over
+                # MAX_MESSAGE_BYTES and the connection stays; beyond, websockets closes that
+                # client alone (1009) without buffering it.
+                kwargs["max_size"] = MAX_FRAME_BYTES
                 handler = gate.wrap_handler(handler)
                 hooked.append(threading.get_ident())
             return real_serve(handler, *args, **kwargs)
