@@ -70,7 +70,7 @@ def test_a_choice_tree_built_from_aliases_is_refused_in_a_moment(tmp_path):
     t0 = time.monotonic()
     with pytest.raises(SonarsimError, match=r"scenario\.yaml: line \d+: the document expands to more than 500,000"):
         load_scenario(p)
-    assert time.monotonic() - t0 < 5  # a hang guard
+    assert time.monotonic() - t0 < 30  # a hang guard (6 ms here; before: past 300 s)
 
 
 def test_a_long_document_is_refused_while_it_is_read(tmp_path):

@@ -41,7 +41,7 @@ def test_label_maps_of_the_largest_frame_are_refused_before_the_folder_is_made(t
     with pytest.raises(ConfigError, match=r"^variation\.objects: label maps of 10001 surfaces x 3 orders would need "
                        r"24\.6 GiB, more than the memory budget of 8 GiB .*; or ask for fewer labels"):
         generate(doc, tmp_path / "out", labels="all", progress=False)
-    assert time.monotonic() - t0 < 5  # a hang guard: nothing was rendered
+    assert time.monotonic() - t0 < 30  # a hang guard (before: 300 s): nothing was rendered
     assert not (tmp_path / "out").exists()
     # The total's maps alone: a quarter (one map, not four), beyond a budget of 4 GiB.
     memory.set_memory_budget(4 * 2**30)
@@ -56,7 +56,7 @@ def test_objects_whose_triangles_would_not_fit_are_refused_when_the_scenario_is_
     with pytest.raises(ConfigError, match=r"^variation\.objects: building 10,000 objects of 51,200,000 triangles would "
                        r"need 9\.\d+ GiB, more than the memory budget of 8 GiB .*\(every distribution at its high end\)"):
         load_scenario(doc)
-    assert time.monotonic() - t0 < 5
+    assert time.monotonic() - t0 < 30  # a hang guard (before: minutes)
 
 
 def test_a_group_of_many_alike_objects_is_checked_in_a_moment():
@@ -64,7 +64,7 @@ def test_a_group_of_many_alike_objects_is_checked_in_a_moment():
     doc = _scenario(10000, BOX)
     t0 = time.monotonic()
     scenario = load_scenario(doc)
-    assert time.monotonic() - t0 < 5
+    assert time.monotonic() - t0 < 30  # a hang guard (about 1.7 s here)
     assert len(scenario.probe("high")[0]["objects"]) == 10000
 
 

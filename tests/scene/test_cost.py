@@ -60,7 +60,7 @@ def test_twenty_thousand_large_spheres_are_refused_before_anything_is_built(budg
     with pytest.raises(ConfigError, match=r"^objects: building 20,000 objects of 102,400,000 triangles would need "
                        r"19\.\d GiB, more than the memory budget of 8 GiB"):
         sonarsim.Simulator(scene)
-    assert time.monotonic() - t0 < 5  # a hang guard: the specs are counted, nothing is built
+    assert time.monotonic() - t0 < 30  # a hang guard (about 2 s here): the specs are counted, nothing is built
 
 
 def test_the_time_budget_refuses_what_the_memory_budget_lets_through(budgets):
