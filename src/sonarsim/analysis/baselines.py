@@ -83,15 +83,16 @@ def separable_image(reference: Any, mask: Any = None) -> np.ndarray:
 
 
 def local_mean_image(reference: Any, window: tuple[int, int] = CEILING_WINDOW) -> np.ndarray:
-    """The reference's local mean over ``window`` (range bins, beams), edges repeated.
+    """The reference's local mean over ``window`` (range bins, beams):
+    :func:`sonarsim.analysis.realism.local_mean` with the ceiling's window.
 
     Returns
     -------
     (n_range_bins, n_beams) float64 ndarray
     """
-    from scipy.ndimage import uniform_filter
+    from .realism import local_mean
 
-    return uniform_filter(_as_image(reference, "reference"), size=window, mode="nearest")
+    return local_mean(reference, window)
 
 
 def baseline_images(reference: Any, mask: Any = None) -> dict[str, np.ndarray]:
