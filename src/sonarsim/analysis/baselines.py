@@ -26,7 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from .metrics import _as_image, _as_mask
+from .metrics import _as_image
+from .realism import _region
 
 __all__ = ["CEILING_WINDOW", "baseline_images", "held_out_scores", "local_mean_image", "range_profile_image",
            "separable_image"]
@@ -54,9 +55,7 @@ def range_profile_image(reference: Any, mask: Any = None) -> np.ndarray:
     -------
     (n_range_bins, n_beams) float64 ndarray
     """
-    x = _as_image(reference, "reference")
-    m = _as_mask(mask, x.shape)
-    m = np.ones(x.shape, bool) if m is None else m
+    x, m = _region(reference, mask)
     return np.repeat(_masked_means(x, m, axis=1)[:, None], x.shape[1], axis=1)
 
 
@@ -73,9 +72,7 @@ def separable_image(reference: Any, mask: Any = None) -> np.ndarray:
     -------
     (n_range_bins, n_beams) float64 ndarray
     """
-    x = _as_image(reference, "reference")
-    m = _as_mask(mask, x.shape)
-    m = np.ones(x.shape, bool) if m is None else m
+    x, m = _region(reference, mask)
     mean = float(x[m].mean()) if m.any() else 0.0
     if mean == 0.0:
         return np.zeros(x.shape)
@@ -128,9 +125,7 @@ def held_out_scores(images: Mapping[str, Any], held_out: Sequence[Any], mask: An
     if not held_out:
         raise ValueError("no held-out frames to score on")
     frames = [_as_image(f, f"held_out[{k}]") for k, f in enumerate(held_out)]
-    shape = frames[0].shape
-    m = _as_mask(mask, shape)
-    m = np.ones(shape, bool) if m is None else m
+    m = _region(frames[0], mask)[1]
     out: dict[str, dict[str, float]] = {}
     for name, image in images.items():
         x = _as_image(image, name)
