@@ -21,7 +21,7 @@ from .document import MAX_DOCUMENT_BYTES as MAX_SCENE_BYTES, read_document  # no
 from .materials import LAWS, Material, mu_from_db
 from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor
-from .scene import MAX_COORDINATE_M, GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene
+from .scene import MAX_COORDINATE_M, GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene, TextureSpec
 from .sonar import MIN_RELATIVE_BIN_WIDTH, RangeBinError, SonarConfig, beam_edges_deg, check_range_window
 from ..core.transforms import Pose
 
@@ -33,8 +33,9 @@ SONAR_KEYS = (
 )
 POSE_KEYS = ("position_m", "rpy_deg", "quat_xyzw")
 RENDER_KEYS = tuple(RenderSettings.__dataclass_fields__)
-GROUND_KEYS = ("height_m", "albedo", "specular", "material")
-PLANE_KEYS = ("name", "point_m", "normal", "albedo", "specular", "material")
+GROUND_KEYS = ("height_m", "albedo", "specular", "material", "texture")
+PLANE_KEYS = ("name", "point_m", "normal", "albedo", "specular", "material", "texture")
+TEXTURE_KEYS = tuple(TextureSpec.__dataclass_fields__)
 OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "pose", "scale", "albedo", "material")
 MATERIAL_KEYS = ("law", "albedo", "mu", "mu_db", "specular_strength", "roughness", "texture")
 
@@ -305,12 +306,35 @@ def parse_render(d: Any) -> RenderSettings:
     return _prefixed("render", RenderSettings, **kw)
 
 
+def parse_texture(d: Any, where: str) -> TextureSpec:
+    """A plane's ``texture`` mapping: ``{std_db, correlation_m, angle_deg, seed, covariance}``."""
+    _check_keys(d, TEXTURE_KEYS, where)
+    kw: dict[str, Any] = {}
+    for key in ("std_db", "angle_deg"):
+        if key in d:
+            kw[key] = _number(d[key], f"{where}.{key}")
+    if "correlation_m" in d:
+        c = d["correlation_m"]
+        if isinstance(c, (list, tuple)):
+            kw["correlation_m"] = _vector(c, f"{where}.correlation_m", 2)
+        else:
+            kw["correlation_m"] = _number(c, f"{where}.correlation_m")
+    if "seed" in d:
+        kw["seed"] = None if d["seed"] is None else _integer(d["seed"], f"{where}.seed")
+    if "covariance" in d:
+        kw["covariance"] = _string(d["covariance"], f"{where}.covariance")
+    # TextureSpec names its keys ``texture.<key>``: put what comes before ``texture`` in front.
+    return _prefixed(where[: -len("texture")].rstrip("."), TextureSpec, **kw)
+
+
 def parse_ground(d: Any) -> GroundSpec | None:
     if d is None:
         return None
     _check_keys(d, GROUND_KEYS, "ground")
-    kw = {key: _number(value, f"ground.{key}") for key, value in d.items() if key != "material"}
+    kw = {key: _number(value, f"ground.{key}") for key, value in d.items() if key not in ("material", "texture")}
     kw.update(_material_of(d, "ground", texture_allowed=False))
+    if "texture" in d:
+        kw["texture"] = parse_texture(d["texture"], "ground.texture")
     return _prefixed("ground", GroundSpec, **kw)
 
 
@@ -330,6 +354,8 @@ def parse_plane(d: Any, index: int) -> PlaneSpec:
         if key in d:
             kw[key] = _number(d[key], f"{where}.{key}")
     kw.update(_material_of(d, where, texture_allowed=False))
+    if "texture" in d:
+        kw["texture"] = parse_texture(d["texture"], f"{where}.texture")
     return _prefixed(where, PlaneSpec, **kw)
 
 

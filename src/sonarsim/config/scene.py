@@ -29,6 +29,13 @@ DOUBLE_BEAMS = ("paper", "split", "separate")
 # Plane names become parts of component names (``O-surface-[objects]-O``): keep them plain.
 PLANE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 RESERVED_PLANE_NAMES = ("objects", "O")
+TEXTURE_COVARIANCES = ("gaussian", "exponential")
+# A reflectivity texture's spread: beyond 20 dB the log-normal's mean is carried by rare bright
+# spots that no frame samples (at 20 dB the median factor is 3e-5 of the mean).
+MAX_TEXTURE_STD_DB = 20.0
+# Correlation lengths of a sea-floor texture: from a centimetre (below, it is speckle, not
+# texture) to ten kilometres (beyond, one frame sees a uniform floor).
+MIN_CORRELATION_M, MAX_CORRELATION_M = 1e-2, 1e4
 # Path orders beyond this cost more than they show (R**order of an echo that is already faint).
 MAX_ORDER_LIMIT = 9
 # Objects larger than this are not objects of a sonar scene (a typo or a unit mistake).
@@ -60,6 +67,90 @@ def _check_material(spec, prefix: str = "", texture_allowed: bool = False) -> No
         raise ConfigError(f"{prefix}albedo", "give either albedo (the Lambertian shorthand) or material, not both")
     if material.texture and not texture_allowed:
         raise ConfigError(f"{prefix}material.texture", "only objects (with a textured mesh) have a texture")
+
+
+@dataclass(frozen=True)
+class TextureSpec:
+    """A plane's reflectivity texture: a world-anchored, log-normal random field.
+
+    The plane's backscatter is multiplied, at each point where a path scatters off it, by
+    ``F = 10 ** (std_db * g / 10) / E``: ``g`` a stationary Gaussian field of zero mean and unit
+    variance over the plane, ``E`` the normalisation that makes the mean of ``F`` exactly 1 (the
+    floor's expected level is that of the untextured plane). See
+    :mod:`sonarsim.scene.floor_texture`.
+
+    Attributes
+    ----------
+    std_db : float
+        Standard deviation of the reflectivity in dB (of ``10 log10 F``), within [0, 20]; 0 is
+        the untextured plane.
+    correlation_m : (2,) tuple of float
+        Correlation lengths of ``g`` along the field's two axes, metres, each within
+        [0.01, 1e4]: the lag at which the correlation of ``g`` falls to ``1/e``.
+    angle_deg : float
+        Direction of the first axis, degrees, counter-clockwise from the plane's first axis
+        (for the ground: the world x axis, towards y), within [-360, 360].
+    seed : int or None
+        Seed of the field (non-negative); ``None``: derived from ``render.seed`` and the plane's
+        index, so two textured planes differ.
+    covariance : {'gaussian', 'exponential'}
+        Correlation of ``g`` at lag ``h`` (metres along the axes):
+        ``exp(-|h / l|**2)`` (smooth patches) or ``exp(-|h / l|)`` (rough, patchy at every
+        scale), with ``|h / l| = hypot(h_1 / l_1, h_2 / l_2)``.
+    """
+
+    std_db: float = 0.0
+    correlation_m: tuple[float, float] = (1.0, 1.0)
+    angle_deg: float = 0.0
+    seed: int | None = None
+    covariance: str = "gaussian"
+
+    def __post_init__(self) -> None:
+        v = self.std_db
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or not (
+                math.isfinite(v) and 0.0 <= v <= MAX_TEXTURE_STD_DB):
+            raise ConfigError("texture.std_db", f"must be a number of dB within [0, {MAX_TEXTURE_STD_DB:g}] (beyond, "
+                              f"the mean is carried by rare bright spots), got {shown(v)}")
+        object.__setattr__(self, "std_db", float(v))
+        c = self.correlation_m
+        if isinstance(c, (int, float)) and not isinstance(c, bool):
+            c = (c, c)  # one length: isotropic
+        try:
+            lengths = tuple(float(x) for x in c)
+        except (TypeError, ValueError):
+            lengths = ()
+        if len(lengths) != 2 or not all(math.isfinite(x) and MIN_CORRELATION_M <= x <= MAX_CORRELATION_M for x in lengths):
+            raise ConfigError("texture.correlation_m", f"must be one or two lengths within [{MIN_CORRELATION_M:g}, "
+                              f"{MAX_CORRELATION_M:g}] metres, got {shown(self.correlation_m)}")
+        object.__setattr__(self, "correlation_m", lengths)
+        a = self.angle_deg
+        if isinstance(a, bool) or not isinstance(a, (int, float, np.floating, np.integer)) or not (
+                math.isfinite(a) and abs(a) <= 360.0):
+            raise ConfigError("texture.angle_deg", f"must be an angle within [-360, 360] degrees, got {shown(a)}")
+        object.__setattr__(self, "angle_deg", float(a))
+        s = self.seed
+        if s is not None and (isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0):
+            raise ConfigError("texture.seed", f"must be a non-negative integer or null, got {shown(s)}")
+        if self.covariance not in TEXTURE_COVARIANCES:
+            raise ConfigError("texture.covariance", f"unknown covariance {shown(self.covariance)}; allowed: "
+                              f"{', '.join(TEXTURE_COVARIANCES)}")
+
+    @property
+    def active(self) -> bool:
+        """Whether the texture changes anything (``std_db > 0``)."""
+        return self.std_db > 0.0
+
+    def to_dict(self) -> dict:
+        out: dict = {"std_db": self.std_db, "correlation_m": list(self.correlation_m), "angle_deg": self.angle_deg}
+        if self.seed is not None:
+            out["seed"] = int(self.seed)
+        out["covariance"] = self.covariance
+        return out
+
+
+def _check_texture(texture, prefix: str) -> None:
+    if texture is not None and not isinstance(texture, TextureSpec):
+        raise ConfigError(f"{prefix}texture", f"must be a TextureSpec, got {type(texture).__name__}")
 
 
 @dataclass(frozen=True)
@@ -178,12 +269,16 @@ class GroundSpec:
     material : Material or None
         The backscatter law of the direct ground echo (e.g. Lambert's law); give it or
         ``albedo``, not both.
+    texture : TextureSpec or None
+        A world-anchored reflectivity texture (patches of brighter and darker floor) scaling
+        the backscatter wherever a path scatters off the ground; ``None``: uniform.
     """
 
     height_m: float = 0.0
     albedo: float = 0.8
     specular: float = 1.0
     material: Material | None = None
+    texture: TextureSpec | None = None
 
     def __post_init__(self) -> None:
         if not np.isfinite(self.height_m):
@@ -194,6 +289,7 @@ class GroundSpec:
         _check_unit_interval("ground.albedo", self.albedo)
         _check_unit_interval("ground.specular", self.specular)
         _check_material(self, "ground.")
+        _check_texture(self.texture, "ground.")
 
     @property
     def backscatter(self) -> Material:
@@ -202,13 +298,18 @@ class GroundSpec:
 
     def to_dict(self) -> dict:
         if self.material is not None:
-            return {"height_m": self.height_m, "material": self.material.to_dict(), "specular": self.specular}
-        return {"height_m": self.height_m, "albedo": self.albedo, "specular": self.specular}
+            out = {"height_m": self.height_m, "material": self.material.to_dict(), "specular": self.specular}
+        else:
+            out = {"height_m": self.height_m, "albedo": self.albedo, "specular": self.specular}
+        if self.texture is not None:
+            out["texture"] = self.texture.to_dict()
+        return out
 
     def as_plane(self) -> "PlaneSpec":
         """The same ground as a general reflecting plane named ``ground``."""
         albedo = self.albedo if self.material is None else PlaneSpec.__dataclass_fields__["albedo"].default
-        return PlaneSpec("ground", (0.0, 0.0, self.height_m), (0.0, 0.0, 1.0), albedo, self.specular, self.material)
+        return PlaneSpec("ground", (0.0, 0.0, self.height_m), (0.0, 0.0, 1.0), albedo, self.specular, self.material,
+                         self.texture)
 
 
 @dataclass(frozen=True)
@@ -233,6 +334,9 @@ class PlaneSpec:
         Specular reflectance R in [0, 1]: each reflection off the plane scales a path by R.
     material : Material or None
         The backscatter law of the plane's direct echo; give it or ``albedo``, not both.
+    texture : TextureSpec or None
+        A world-anchored reflectivity texture over the plane (its axes:
+        :func:`sonarsim.scene.floor_texture.plane_axes`); ``None``: uniform.
     """
 
     name: str
@@ -241,6 +345,7 @@ class PlaneSpec:
     albedo: float = 0.0
     specular: float = 1.0
     material: Material | None = None
+    texture: TextureSpec | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not PLANE_NAME.fullmatch(self.name) or self.name in RESERVED_PLANE_NAMES:
@@ -267,6 +372,7 @@ class PlaneSpec:
         _check_unit_interval("albedo", self.albedo)
         _check_unit_interval("specular", self.specular)
         _check_material(self)
+        _check_texture(self.texture, "")
 
     @property
     def backscatter(self) -> Material:
@@ -298,6 +404,8 @@ class PlaneSpec:
         else:
             out["material"] = self.material.to_dict()
         out["specular"] = self.specular
+        if self.texture is not None:
+            out["texture"] = self.texture.to_dict()
         return out
 
 
