@@ -23,6 +23,7 @@ Example::
       speckle: {model: rayleigh, anchor: world}
       noise: {level_db: 50}
       bang: {level_db: 120, length_m: 0.02}
+      beam_gain: {steering_exponent: 2, std_db: 0.5}
       output: {compression: gamma, gamma: 0.3, ceiling_db: 150, dtype: uint8}
 """
 
@@ -72,6 +73,17 @@ PULSE_LENGTH_RANGE_US = (0.1, 1e5)
 # a -3 dB width below two of those steps aliases its sidelobes (a 0.01-degree line pattern over
 # beams 10 degrees apart leaked half of each echo into either neighbour and kept 5 %).
 MIN_AZIMUTH_WIDTH_PER_SPACING = 1.0 / 8.0
+# Per-beam factors, dB (stripes, a bang's pattern across beams): a channel more than 60 dB off
+# its neighbours is a dead channel, not a stripe; seeded stripes of more than 20 dB standard
+# deviation are a typo for a level.
+PER_BEAM_RANGE_DB = (-60.0, 60.0)
+PER_BEAM_STD_RANGE_DB = (0.0, 20.0)
+# The across-fan gain cos(theta)^n: the ARIS's 9 dB over 15 degrees needs n near 60; beyond a few
+# hundred the fan's edge beams are below float32's smallest power.
+STEERING_EXPONENT_RANGE = (0.0, 200.0)
+# Decay lengths and periods of the near-range effects (ringing, row noise), metres: from a tenth
+# of a millimetre (below any range cell) to the longest range window (config.sonar.MAX_RANGE_M).
+NEAR_RANGE_LENGTH_M = (1e-4, 1e4)
 
 
 def _within(key: str, value: Any, bounds: tuple[float, float], unit: str = "dB") -> float:
@@ -109,6 +121,23 @@ def _choice(key: str, value: Any, allowed) -> Any:
     if value not in allowed:
         raise ConfigError(key, f"unknown value {shown(value)}; allowed: {', '.join(map(str, allowed))}")
     return value
+
+
+def _per_beam_db(key: str, value: Any) -> tuple[float, ...] | None:
+    """A list of per-beam values in dB (left-most beam first) as a tuple, each within
+    :data:`PER_BEAM_RANGE_DB`; ``None`` stays ``None``. Its length is checked against a sonar by
+    :func:`check_beam_count` (the spec does not know the sonar)."""
+    if value is None:
+        return None
+    if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, (list, tuple, np.ndarray)):
+        raise ConfigError(key, f"must be a list of numbers in dB, one per beam (left-most first), got {shown(value)}")
+    if len(value) == 0:
+        raise ConfigError(key, "must hold one value per beam, got an empty list")
+    return tuple(_within(f"{key}[{i}]", v, PER_BEAM_RANGE_DB) for i, v in enumerate(value))
+
+
+def _length_m(key: str, value: Any) -> float:
+    return _within(key, value, NEAR_RANGE_LENGTH_M, "m")
 
 
 @dataclass(frozen=True)
@@ -319,35 +348,117 @@ class NoiseSpec:
         Noise added after the TVG and gain (the digitiser's), dB re 1 uPa^2 on the output's
         scale (that of ``output.ceiling_db``): a floor the TVG does not lift, which sets the
         darkest ranges of a device with a steep TVG, within [-300, 300]. ``None``: none.
+    common_db : float or None
+        A component common to every beam of a range bin (interference and cross-talk reaching
+        all channels alike, which the real water column shows near the sonar): its power at
+        range 0, dB re 1 uPa^2 at the receiver (before the TVG, like ``level_db``), within
+        [-300, 300]. ``None``: none.
+    common_length_m : float or None
+        The range over which the common component's power decays by 1/e, within [1e-4, 1e4] m;
+        ``None``: it does not decay. Only with ``common_db``.
     """
 
     level_db: float = 40.0
     after_tvg_db: float | None = None
+    common_db: float | None = None
+    common_length_m: float | None = None
 
     def __post_init__(self) -> None:
         _within("level_db", self.level_db, LEVEL_RANGE_DB)
         if self.after_tvg_db is not None:
             _within("after_tvg_db", self.after_tvg_db, LEVEL_RANGE_DB)
+        if self.common_db is not None:
+            _within("common_db", self.common_db, LEVEL_RANGE_DB)
+        if self.common_length_m is not None:
+            if self.common_db is None:
+                raise ConfigError("common_length_m", "only with common_db (the level of the noise common to all beams)")
+            _length_m("common_length_m", self.common_length_m)
 
 
 @dataclass(frozen=True)
 class BangSpec:
     """The transmit bang: the transducer ringing after the pulse, bright at the first ranges.
 
+    Its power is a range profile times a pattern across beams that repeats from ping to ping
+    (each channel picks up the transmission differently):
+    ``bang(r, j) = [L exp(-r / length_m) + R exp(-r / ringing_length_m) ring(r)] 10^(b_j / 10)``
+    with ``ring(r) = cos^2(pi r / ringing_period_m)`` (1 without a period) and ``b_j`` the
+    pattern in dB (:mod:`sonarsim.sensor.channels`).
+
     Attributes
     ----------
     level_db : float
-        Its level at range 0, dB re 1 uPa^2 at the receiver (before TVG), within [-300, 300].
+        L: its level at range 0, dB re 1 uPa^2 at the receiver (before TVG), within [-300, 300].
     length_m : float
         Range over which it decays by 1/e (in power).
+    ringing_db : float or None
+        R: the near-range ringing's level at range 0, dB re 1 uPa^2 at the receiver, within
+        [-300, 300]: a second, usually weaker and longer tail. ``None``: no ringing.
+    ringing_length_m : float or None
+        The ringing's 1/e decay length (power), within [1e-4, 1e4] m; required with ``ringing_db``.
+    ringing_period_m : float or None
+        The ringing's period in range, within [1e-4, 1e4] m; ``None``: a smooth tail.
+    beam_db : list of float or None
+        The pattern b_j, one value per beam (left-most first), each within [-60, 60] dB.
+    beam_std_db : float
+        A seeded pattern instead (or on top): b_j drawn normal with this standard deviation
+        (dB, within [0, 20]) from the scene's seed, less its mean over beams; 0: none.
     """
 
     level_db: float = 120.0
     length_m: float = 0.02
+    ringing_db: float | None = None
+    ringing_length_m: float | None = None
+    ringing_period_m: float | None = None
+    beam_db: tuple[float, ...] | None = None
+    beam_std_db: float = 0.0
 
     def __post_init__(self) -> None:
         _within("level_db", self.level_db, LEVEL_RANGE_DB)
         _positive("length_m", self.length_m)
+        if self.ringing_db is not None:
+            _within("ringing_db", self.ringing_db, LEVEL_RANGE_DB)
+            if self.ringing_length_m is None:
+                raise ConfigError("ringing_length_m", "required with ringing_db (the ringing's 1/e decay length, m)")
+        for key in ("ringing_length_m", "ringing_period_m"):
+            if getattr(self, key) is not None:
+                if self.ringing_db is None:
+                    raise ConfigError(key, "only with ringing_db (the ringing's level)")
+                _length_m(key, getattr(self, key))
+        object.__setattr__(self, "beam_db", _per_beam_db("beam_db", self.beam_db))
+        _within("beam_std_db", self.beam_std_db, PER_BEAM_STD_RANGE_DB)
+
+
+@dataclass(frozen=True)
+class BeamGainSpec:
+    """The receive channels' gain across the fan: steering loss and fixed per-beam stripes.
+
+    Each beam's channel multiplies everything it carries (echo, bang, noise) by a power gain
+    ``G_j = cos(theta_j)^n 10^((s_j + e_j) / 10)``: theta_j the beam's steering angle (its
+    centre, ``sonar.beam_angles_deg``), n ``steering_exponent`` (the element's directivity,
+    roughly cos^n, lowers the gain of beams steered off the axis), s_j the given ``gain_db`` and
+    e_j seeded stripes (:mod:`sonarsim.sensor.channels`).
+
+    Attributes
+    ----------
+    steering_exponent : float
+        n, within [0, 200] (0: no steering loss; the ARIS's 9 dB from centre to the edge of a
+        30-degree fan is n near 60).
+    gain_db : list of float or None
+        s_j, one value per beam (left-most first; a calibration's), each within [-60, 60] dB.
+    std_db : float
+        e_j drawn normal with this standard deviation (dB, within [0, 20]) from the scene's
+        seed, less its mean over beams (the fan's mean level stays ``gain_db``'s); 0: none.
+    """
+
+    steering_exponent: float = 0.0
+    gain_db: tuple[float, ...] | None = None
+    std_db: float = 0.0
+
+    def __post_init__(self) -> None:
+        _within("steering_exponent", self.steering_exponent, STEERING_EXPONENT_RANGE, "(dimensionless)")
+        object.__setattr__(self, "gain_db", _per_beam_db("gain_db", self.gain_db))
+        _within("std_db", self.std_db, PER_BEAM_STD_RANGE_DB)
 
 
 @dataclass(frozen=True)
@@ -395,6 +506,7 @@ class OutputSpec:
 _SUBSPECS: dict[str, type] = {
     "absorption": AbsorptionSpec, "tvg": TvgSpec, "elevation_pattern": PatternSpec, "azimuth_pattern": PatternSpec,
     "pulse": PulseSpec, "speckle": SpeckleSpec, "noise": NoiseSpec, "bang": BangSpec, "output": OutputSpec,
+    "beam_gain": BeamGainSpec,
 }
 
 
@@ -416,7 +528,7 @@ class SensorSpec:
         ``frequency_khz``. Needed by the absorption formulas.
     gain_db : float
         Receiver gain, added after TVG, within [-200, 200] dB.
-    absorption, tvg, elevation_pattern, azimuth_pattern, pulse, speckle, noise, bang, output
+    absorption, tvg, elevation_pattern, azimuth_pattern, pulse, speckle, noise, bang, output, beam_gain
         The effects; ``None``: off. Without ``output`` the output is the received power after
         TVG and gain, float32, uPa^2.
     preset : str or None
@@ -437,6 +549,7 @@ class SensorSpec:
     noise: NoiseSpec | None = None
     bang: BangSpec | None = None
     output: OutputSpec | None = None
+    beam_gain: BeamGainSpec | None = None
     preset: str | None = None
 
     def __post_init__(self) -> None:
@@ -466,7 +579,8 @@ class SensorSpec:
             if f.name == "preset":
                 continue
             if f.name in _SUBSPECS:
-                out[f.name] = False if v is None else {k: x for k, x in dataclasses.asdict(v).items() if x is not None}
+                out[f.name] = False if v is None else {k: list(x) if isinstance(x, tuple) else x
+                                                       for k, x in dataclasses.asdict(v).items() if x is not None}
             elif v is not None:
                 out[f.name] = v
         return out
@@ -503,6 +617,28 @@ def check_azimuth_width(spec: SensorSpec, beam_spacing_deg: float, beam_width_de
         raise ConfigError(key, f"the azimuth pattern's -3 dB width must be at least {least:.3g} degrees "
                           f"({MIN_AZIMUTH_WIDTH_PER_SPACING:g} of the beams' spacing, {beam_spacing_deg:.3g} degrees), "
                           f"got {width:g}")
+
+
+def check_beam_count(spec: SensorSpec, n_beams: int) -> None:
+    """Every per-beam list of the sensor has one value per beam of the sonar.
+
+    Parameters
+    ----------
+    spec : SensorSpec
+    n_beams : int
+        The sonar's beam count.
+
+    Raises
+    ------
+    ConfigError
+        ``beam_gain.gain_db`` or ``bang.beam_db`` (the caller prefixes ``sensor.``), naming the
+        count given and the count expected.
+    """
+    for key, values in (("beam_gain.gain_db", spec.beam_gain and spec.beam_gain.gain_db),
+                        ("bang.beam_db", spec.bang and spec.bang.beam_db)):
+        if values is not None and len(values) != n_beams:
+            raise ConfigError(key, f"has {len(values)} values; the sonar has {n_beams} beams: give one per beam, "
+                              "left-most first")
 
 
 def check_bandwidth(spec: SensorSpec, sonar_frequency_khz: float | None) -> None:

@@ -123,8 +123,12 @@ cdef struct Chain:
     # What turns a row of the mean image into device values (see ``frame``).
     const float *echo_gain
     const float *bang
+    const float *bang_beam    # per beam: the bang's pattern across beams
     const float *tvg
+    const float *beam_gain    # per beam: the channel's gain (steering loss, stripes)
     const float *noise_power  # per row: the receiver's, plus the after-TVG noise referred to it
+    const float *common_re    # per row: this frame's noise common to the row's beams
+    const float *common_im
     Field speckle  # data NULL: no speckle
     Field noise    # data NULL: no noise
     int comp
@@ -137,27 +141,38 @@ cdef struct Chain:
 
 
 cdef void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain *c, float *p,
-                       float *out) noexcept nogil:
-    """Device values of row ``i`` whose mean image is ``m`` (``p``: scratch of ``n_b`` floats).
+                       float *tg, float *bb, float *out) noexcept nogil:
+    """Device values of row ``i`` whose mean image is ``m`` (``p``, ``tg``, ``bb``: scratch of
+    ``n_b`` floats each).
 
-    Per pixel: ``mu = echo_gain[i] m + bang[i]``; with ``expected``:
-    ``table(10 log10(tvg[i] (mu + N)))``; else ``P = tvg[i] |sqrt(mu) F + sqrt(N) W|^2``
-    (F = 1 without speckle, W = 0 without noise) and the compression of P.
+    Per pixel: ``mu = echo_gain[i] m + bang[i] bang_beam[j]``; with ``expected``:
+    ``table(10 log10(tvg[i] beam_gain[j] (mu + N)))`` (N the row's noise power, common noise
+    included); else ``P = tvg[i] beam_gain[j] |sqrt(mu) F + sqrt(N) W + C|^2`` (F = 1 without
+    speckle, W = 0 without noise, C = common_re[i] + i common_im[i]) and the compression of P.
     """
     cdef Py_ssize_t j, k, n_t = c.n_table
     cdef float g = c.echo_gain[i], b = c.bang[i], t = c.tvg[i], mu, re, im, s, x, frac
+    cdef float cr = c.common_re[i], ci = c.common_im[i]
+    cdef const float *bang_beam = c.bang_beam
+    cdef const float *beam_gain = c.beam_gain
     # Locals, not the struct's fields, in the loops: the compiler then knows nothing aliases them.
     cdef float noise_power = c.noise_power[i], inv_step = 1.0 / c.table_step_db
     cdef float sn = sqrtf(c.noise_power[i]) * c.noise.scale
     cdef float lo = c.table_lo_db, top = <float> (n_t - 1)
     cdef const float *table = c.table
-    cdef const part_t *fr
-    cdef const part_t *fi
-    cdef const part_t *wr
-    cdef const part_t *wi
+    cdef const part_t *fr = NULL  # set below where the fields exist (the compiler cannot tell)
+    cdef const part_t *fi = NULL
+    cdef const part_t *wr = NULL
+    cdef const part_t *wi = NULL
+    # The per-beam factors folded into the row's two constants first: with factors of 1 each
+    # product is exact, so the pixel loops below round as they did before the factors existed.
+    for j in range(n_b):
+        tg[j] = t * beam_gain[j]
     if c.expected:
         for j in range(n_b):
-            x = t * (g * m[j] + b + noise_power)
+            bb[j] = b * bang_beam[j]
+        for j in range(n_b):
+            x = tg[j] * (g * m[j] + bb[j] + noise_power)
             x = x if x > TINY else TINY
             x = (DB_PER_LN * _ln(x) - lo) * inv_step
             x = x if x > 0.0 else 0.0
@@ -175,38 +190,47 @@ cdef void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain
         # sqrt(mu) * scale * stored = sqrt(mu scale^2) * stored: the step folds into the gains.
         g = g * c.speckle.scale * c.speckle.scale
         b = b * c.speckle.scale * c.speckle.scale
+    for j in range(n_b):
+        bb[j] = b * bang_beam[j]
         fr = _field_row(&c.speckle, i)
         fi = fr + 2 * c.speckle.n_b
     if c.noise.data != NULL:
         wr = _field_row(&c.noise, i)
         wi = wr + 2 * c.noise.n_b
-    if c.speckle.data != NULL and c.noise.data != NULL:
+    if c.speckle.data != NULL and c.noise.data != NULL and (cr != 0.0 or ci != 0.0):
+        for j in range(n_b):  # as below, with the noise common to the row
+            mu = g * m[j] + bb[j]
+            s = sqrtf(mu if mu > TINY else 0.0)
+            re = s * <float> fr[j] + sn * <float> wr[j] + cr
+            im = s * <float> fi[j] + sn * <float> wi[j] + ci
+            p[j] = re * re + im * im
+    elif c.speckle.data != NULL and c.noise.data != NULL:
         for j in range(n_b):
-            mu = g * m[j] + b
+            mu = g * m[j] + bb[j]
             s = sqrtf(mu if mu > TINY else 0.0)
             re = s * <float> fr[j] + sn * <float> wr[j]
             im = s * <float> fi[j] + sn * <float> wi[j]
             p[j] = re * re + im * im
     elif c.speckle.data != NULL:
         for j in range(n_b):
-            mu = g * m[j] + b
+            mu = g * m[j] + bb[j]
             s = sqrtf(mu if mu > TINY else 0.0)
             re = s * <float> fr[j]
             im = s * <float> fi[j]
             p[j] = re * re + im * im
     elif c.noise.data != NULL:
         for j in range(n_b):
-            mu = g * m[j] + b
+            mu = g * m[j] + bb[j]
             s = sqrtf(mu if mu > TINY else 0.0)
-            re = s + sn * <float> wr[j]
-            im = sn * <float> wi[j]
+            re = s + sn * <float> wr[j] + cr
+            im = sn * <float> wi[j] + ci
             p[j] = re * re + im * im
     else:
         for j in range(n_b):
-            mu = g * m[j] + b
+            mu = g * m[j] + bb[j]
             p[j] = mu if mu > TINY else 0.0
     for j in range(n_b):
-        p[j] = t * p[j]
+        p[j] = tg[j] * p[j]
     _compress_row(p, out, n_b, c.comp, c.lo_db, c.inv_span, c.inv_ceiling, c.gamma, c.fs, c.quantise)
 
 
@@ -240,12 +264,14 @@ cdef Field _field(const part_t[:, :, :, ::1] pool, Py_ssize_t field, Py_ssize_t 
     return f
 
 
-cdef Chain _chain(const float[::1] echo_gain, const float[::1] bang, const float[::1] tvg, const float[::1] noise_power,
-                  Field speckle, Field noise,
+cdef Chain _chain(const float[::1] echo_gain, const float[::1] bang, const float[::1] bang_beam, const float[::1] tvg,
+                  const float[::1] beam_gain, const float[::1] noise_power, const float[::1] common_re,
+                  const float[::1] common_im, Field speckle, Field noise,
                   int comp, float lo_db, float inv_span, float inv_ceiling, float gamma, float fs, bint quantise,
                   const float[::1] table, float table_lo_db, float table_step_db, bint expected):
     cdef Chain c
     c.echo_gain, c.bang, c.tvg, c.noise_power = &echo_gain[0], &bang[0], &tvg[0], &noise_power[0]
+    c.bang_beam, c.beam_gain, c.common_re, c.common_im = &bang_beam[0], &beam_gain[0], &common_re[0], &common_im[0]
     c.speckle, c.noise = speckle, noise
     c.comp, c.lo_db, c.inv_span, c.inv_ceiling, c.gamma, c.fs, c.quantise = (
         comp, lo_db, inv_span, inv_ceiling, gamma, fs, quantise)
@@ -256,7 +282,8 @@ cdef Chain _chain(const float[::1] echo_gain, const float[::1] bang, const float
 
 def frame(const float[:, ::1] x, const float[::1] column_factor, const float[::1] kb, const float[::1] norm_b,
           const float[::1] kr, const float[::1] norm_r, const float[::1] echo_gain, const float[::1] bang,
-          const float[::1] tvg, const float[::1] noise_power,
+          const float[::1] bang_beam, const float[::1] tvg, const float[::1] beam_gain, const float[::1] noise_power,
+          const float[::1] common_re, const float[::1] common_im,
           const part_t[:, :, :, ::1] speckle, Py_ssize_t s_field, Py_ssize_t s_row, Py_ssize_t s_beam, float s_scale,
           bint has_speckle,
           const part_t[:, :, :, ::1] noise, Py_ssize_t n_field, Py_ssize_t n_row, Py_ssize_t n_beam, float n_scale,
@@ -269,24 +296,31 @@ def frame(const float[:, ::1] x, const float[::1] column_factor, const float[::1
     :func:`_combine_row`, without a full-frame intermediate (one call per worker and
     frame). ``speckle`` and ``noise`` are a pool's quantised fields (``SpecklePool.speckle``:
     (n_fields, n_r, 2, 2 n_b) int8, one step worth ``*_scale``); the frame reads field
-    ``*_field`` cyclically from the given row and beam offsets."""
+    ``*_field`` cyclically from the given row and beam offsets. ``bang_beam`` and ``beam_gain``
+    are per beam (n_b,), ``common_re`` and ``common_im`` per row (n_r,): zeros without noise
+    common to the beams."""
+    if (bang_beam.shape[0] != x.shape[1] or beam_gain.shape[0] != x.shape[1]
+            or common_re.shape[0] != x.shape[0] or common_im.shape[0] != x.shape[0]):
+        raise ValueError("per-beam factors need one value per beam, common noise one per row")
     cdef Py_ssize_t n_r = x.shape[0], n_b = x.shape[1]
     cdef Py_ssize_t kb_len = kb.shape[0], hb = kb_len // 2, kr_len = kr.shape[0], hr = kr_len // 2
     cdef Py_ssize_t i, j, m, ii
     cdef float k
-    cdef Chain c = _chain(echo_gain, bang, tvg, noise_power,
+    cdef Chain c = _chain(echo_gain, bang, bang_beam, tvg, beam_gain, noise_power, common_re, common_im,
                           _field(speckle, s_field, s_row, s_beam, s_scale, has_speckle),
                           _field(noise, n_field, n_row, n_beam, n_scale, has_noise),
                           comp, lo_db, inv_span, inv_ceiling, gamma, fs, quantise, table,
                           table_lo_db, table_step_db, expected)
     # The rows blurred across beams that the range kernel needs, in a ring of kr_len rows:
     # a few kilobytes that stay in the first-level cache (a block of the frame would not).
-    cdef float *ring = <float *> malloc((kr_len * n_b + n_b + 2 * hb + 2 * n_b) * sizeof(float))
+    cdef float *ring = <float *> malloc((kr_len * n_b + n_b + 2 * hb + 4 * n_b) * sizeof(float))
     if ring == NULL:
         raise MemoryError()
     cdef float *pad = ring + kr_len * n_b
     cdef float *row = pad + n_b + 2 * hb
     cdef float *p = row + n_b
+    cdef float *tg = p + n_b
+    cdef float *bb = tg + n_b
     cdef float *t
     with nogil:
         memset(pad, 0, (n_b + 2 * hb) * sizeof(float))
@@ -308,7 +342,7 @@ def frame(const float[:, ::1] x, const float[::1] column_factor, const float[::1
                     row[j] += k * t[j]
             for j in range(n_b):
                 row[j] *= norm_r[i]
-            _combine_row(row, i, n_b, &c, p, &out[i, 0])
+            _combine_row(row, i, n_b, &c, p, tg, bb, &out[i, 0])
     free(ring)
 
 

@@ -5,18 +5,21 @@ receives, ``sigma / r^2`` summed over the bin):
 
 1. the receive beams' azimuth sidelobes leak each beam's echo into its neighbours, and the
    pulse spreads it over neighbouring range bins: ``M = K_range * (K_beams * X)`` (powers);
-2. the sonar equation makes it an echo power at the receiver: ``mu = g(r) M + bang(r)``
-   (``bang`` also carries the noise added after the TVG, ``N_a / t(r)``),
+2. the sonar equation makes it an echo power at the receiver: ``mu = g(r) M + bang(r) B_j``
+   (the bang's range profile times its pattern across beams, :mod:`~sonarsim.sensor.channels`),
    ``10 log10 g = SL - 20 log10 r - 2 alpha r + 10 log10(dtheta) + TS_offset``
    (:func:`~sonarsim.sensor.acoustics.echo_level_offset_db`);
-3. speckle and noise are complex amplitudes: ``a = sqrt(mu) F + sqrt(N) W``, F the speckle
-   field (unit power, filtered by the pulse and the beam: its grain is the resolution cell), W
-   receiver noise (unit power, through the same beamformer and receiver band);
-4. TVG and gain: ``P = t(r) |a|^2``, ``10 log10 t = spreading log10 r + 2 alpha r + gain``;
+3. speckle and noise are complex amplitudes: ``a = sqrt(mu) F + sqrt(N) W + sqrt(C(r)) z``, F
+   the speckle field (unit power, filtered by the pulse and the beam: its grain is the
+   resolution cell), W receiver noise (unit power, through the same beamformer and receiver
+   band; N also carries the noise added after the TVG, ``N_a / t(r)``), z one unit complex
+   Gaussian per row and frame: noise common to all beams of the row, of power C(r);
+4. the channel's gain, TVG and gain: ``P = t(r) G_j |a|^2``, G_j the across-fan gain and stripes
+   (:mod:`~sonarsim.sensor.channels`), ``10 log10 t = spreading log10 r + 2 alpha r + gain``;
 5. the output chain: compression, saturation, quantisation (:mod:`~sonarsim.sensor.output`).
 
-``speckle=False`` gives instead the expected device value ``E[out(t (mu + N) S)]`` (S the unit
-speckle intensity), tabulated over the level. The elevation pattern acts earlier, on the rays:
+``speckle=False`` gives instead the expected device value ``E[out(t G (mu + N + C) S)]`` (S the
+unit speckle intensity), tabulated over the level. The elevation pattern acts earlier, on the rays:
 the renderer casts them over ``span_deg`` weighted by the two-way pattern
 (:meth:`SensorModel.elevation_gain`).
 """
@@ -27,13 +30,14 @@ import hashlib
 import os
 from concurrent.futures import Executor
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
-from ..config.sensor import SensorSpec, check_azimuth_width, check_bandwidth
+from ..config.sensor import SensorSpec, check_azimuth_width, check_bandwidth, check_beam_count
 from ..config.sonar import SonarConfig
 from ..errors import ConfigError
-from . import acoustics, output, patterns, pulse, speckle as speckle_mod
+from . import acoustics, channels, output, patterns, pulse, speckle as speckle_mod
 
 try:  # the compiled loops; the NumPy twins below are the reference
     from . import _stage as _stage_baseline
@@ -61,7 +65,23 @@ _stage = _choose_stage()
 
 COMPRESSION_CODES = {None: 0, "log": 1, "gamma": 2, "linear": 3}
 # Streams of a seed's generators (numpy SeedSequence entropy [seed, stream, ...]): no two collide.
-FRAME_STREAM, POOL_STREAM, WORLD_STREAM = 1, 2, 3
+# BEAM_STREAM: the seeded per-beam factors, [seed, 4, k] with k one of the BEAM_DRAWS.
+FRAME_STREAM, POOL_STREAM, WORLD_STREAM, BEAM_STREAM = 1, 2, 3, 4
+BEAM_DRAWS = {"beam_gain": 0, "bang": 1}
+
+
+class FrameDraws(NamedTuple):
+    """What a frame draws: the speckle's and the noise's pool windows, and the noise common to
+    each row's beams ((n_range_bins,) complex amplitudes, sqrt(uPa^2); ``None`` without it)."""
+
+    speckle: speckle_mod.FieldDraw
+    noise: speckle_mod.FieldDraw
+    common: np.ndarray | None
+
+
+def beam_rng(seed: int, effect: str) -> np.random.Generator:
+    """The generator of a scene's seeded per-beam factors (``effect``: a key of BEAM_DRAWS)."""
+    return np.random.default_rng([int(seed), BEAM_STREAM, BEAM_DRAWS[effect]])
 # A sensor's elevation span defaults to this many -3 dB widths.
 DEFAULT_SPAN_WIDTHS = 3.0
 
@@ -79,7 +99,7 @@ MAX_LEVEL_DB = 370.0
 
 
 def _check_levels(echo_gain_db: np.ndarray, tvg_db: np.ndarray, spec: SensorSpec, sonar: SonarConfig,
-                  alpha_db_per_m: float) -> None:
+                  alpha_db_per_m: float, beam_gain_db: np.ndarray, bang_beam_db: np.ndarray) -> None:
     """Refuse a sensor whose levels over the range window leave what float32 holds.
 
     Each key is bounded on its own (config.sensor); together they can still overflow: the
@@ -96,9 +116,14 @@ def _check_levels(echo_gain_db: np.ndarray, tvg_db: np.ndarray, spec: SensorSpec
     levels = [echo_gain_db]
     if spec.noise is not None:
         levels.append(np.full_like(tvg_db, spec.noise.level_db))
+        if spec.noise.common_db is not None:
+            levels.append(np.full_like(tvg_db, spec.noise.common_db))
     if spec.bang is not None:
-        levels.append(np.full_like(tvg_db, spec.bang.level_db))
-    peak = np.max(levels, axis=0) + tvg_db
+        levels.append(np.full_like(tvg_db, spec.bang.level_db + float(np.max(bang_beam_db))))
+        if spec.bang.ringing_db is not None:
+            levels.append(np.full_like(tvg_db, spec.bang.ringing_db + float(np.max(bang_beam_db))))
+    # Each channel's gain multiplies every level of its beam: the largest one bounds them.
+    peak = np.max(levels, axis=0) + tvg_db + float(np.max(beam_gain_db))
     worst = int(np.argmax(np.abs(peak)))
     low = spec.noise is not None and spec.noise.after_tvg_db is not None and float(np.min(tvg_db)) < -MAX_LEVEL_DB
     if not np.all(np.isfinite(peak)) or float(np.abs(peak[worst])) > MAX_LEVEL_DB or low:
@@ -106,7 +131,8 @@ def _check_levels(echo_gain_db: np.ndarray, tvg_db: np.ndarray, spec: SensorSpec
         raise ConfigError(
             "sensor",
             f"the sonar equation reaches {float(peak[worst]):.4g} dB at {where:.4g} m (absorption "
-            f"{alpha_db_per_m:.3g} dB/m each way, TVG {float(tvg_db[worst]):.4g} dB with gain_db): beyond the "
+            f"{alpha_db_per_m:.3g} dB/m each way, TVG {float(tvg_db[worst]):.4g} dB with gain_db, beam gains up to "
+            f"{float(np.max(beam_gain_db)):.4g} dB): beyond the "
             f"+-{MAX_LEVEL_DB:g} dB the sensor stage can hold; shorten sonar.range_max_m, or lower the "
             "absorption, the frequency or the gain",
         )
@@ -148,14 +174,21 @@ class SensorModel:
         self.echo_gain_db = acoustics.echo_level_offset_db(r, spec.source_level_db, self.alpha_db_per_m,
                                                            spec.target_strength_db)
         self.tvg_db = acoustics.tvg_db(r, spec.tvg, self.alpha_db_per_m) + spec.gain_db
-        _check_levels(self.echo_gain_db, self.tvg_db, spec, sonar, self.alpha_db_per_m)
+        try:  # as Scene checks its own sonar: this one may be another (Simulator.render(sonar=...))
+            check_beam_count(spec, sonar.n_beams)
+        except ConfigError as exc:
+            raise ConfigError(f"sensor.{exc.key}", exc.detail) from None
+        # The channels' per-beam factors (dB, then powers): fixed for the scene's seed.
+        self.beam_gain_db = channels.beam_gain_db(spec.beam_gain, sonar.azimuth_deg, beam_rng(self.seed, "beam_gain"))
+        self.bang_beam_db = channels.bang_beam_db(spec.bang, sonar.n_beams, beam_rng(self.seed, "bang"))
+        _check_levels(self.echo_gain_db, self.tvg_db, spec, sonar, self.alpha_db_per_m, self.beam_gain_db,
+                      self.bang_beam_db)
         self.echo_gain = (10.0 ** (self.echo_gain_db / 10.0)).astype(np.float32)
         self.tvg = (10.0 ** (self.tvg_db / 10.0)).astype(np.float32)
+        self.beam_gain = (10.0 ** (self.beam_gain_db / 10.0)).astype(np.float32)
+        self.bang_beam = (10.0 ** (self.bang_beam_db / 10.0)).astype(np.float32)
         self.noise_power = 0.0 if spec.noise is None else 10.0 ** (spec.noise.level_db / 10.0)
-        if spec.bang is None:
-            self.bang = np.zeros(len(r), np.float32)
-        else:
-            self.bang = (10.0 ** (spec.bang.level_db / 10.0) * np.exp(-r / spec.bang.length_m)).astype(np.float32)
+        self.bang = channels.bang_row(spec.bang, r).astype(np.float32)
         # Noise power per range bin, referred to the receiver: the receiver's, plus the noise
         # added after the TVG over t(r) (a floor the TVG does not lift). Both are complex
         # Gaussian and independent of the echo: one noise term of their summed power.
@@ -163,6 +196,13 @@ class SensorModel:
         if spec.noise is not None and spec.noise.after_tvg_db is not None:
             noise_row = noise_row + 10.0 ** (spec.noise.after_tvg_db / 10.0) / self.tvg.astype(np.float64)
         self.noise_row = noise_row.astype(np.float32)
+        # The noise common to a row's beams: its power per row, and in the expected output
+        # (where every independent complex Gaussian term adds its power) the total.
+        self.common_power = channels.common_noise_power(spec.noise, r)
+        self._has_common = bool(np.any(self.common_power > 0))
+        self.noise_expected = ((noise_row + self.common_power).astype(np.float32) if self._has_common
+                               else self.noise_row)
+        self._no_common = np.zeros(len(r), np.float32)
         # The image holds backscatter per radian of elevation (sigma / cos(alpha) dphi per ray,
         # see config.materials); times each beam's width in radians it is sigma / r^2.
         self.column_factor = np.radians(sonar.effective_beam_width_deg()).astype(np.float32)
@@ -247,12 +287,17 @@ class SensorModel:
 
     # Per frame ---------------------------------------------------------------------------------
 
-    def draws(self, rng: np.random.Generator, noise_rng: np.random.Generator | None = None
-              ) -> tuple[speckle_mod.FieldDraw, speckle_mod.FieldDraw]:
+    def draws(self, rng: np.random.Generator, noise_rng: np.random.Generator | None = None) -> FrameDraws:
         """The speckle and noise fields a frame reads: the speckle's from ``rng`` (the frame's, or
         the pose's when anchored to the world), the noise's from ``noise_rng`` (default ``rng``):
-        receiver noise is new in every frame even when the speckle is still."""
-        return self.pool.draw(rng), self.pool.draw(noise_rng if noise_rng is not None else rng)
+        receiver noise is new in every frame even when the speckle is still. The noise common
+        to a row's beams is drawn after the noise's window, from the same generator."""
+        n_rng = noise_rng if noise_rng is not None else rng
+        ds, dn = self.pool.draw(rng), self.pool.draw(n_rng)
+        common = None
+        if self._has_common and self.pool.noise is not None:
+            common = channels.common_noise_amplitude(self.common_power, self.range_amplitude, n_rng)
+        return FrameDraws(ds, dn, common)
 
     def anchored_rng(self, position_m, rpy_deg) -> np.random.Generator:
         """A generator that is a function of the pose quantised to half a resolution cell.
@@ -307,7 +352,12 @@ class SensorModel:
         out = np.empty_like(x)
         if x.shape != self.pool.shape:
             raise ValueError(f"image of shape {x.shape}; this sensor's sonar forms {self.pool.shape}")
-        ds, dn = self.draws(rng if rng is not None else self._default_rng(), noise_rng) if speckle else (None, None)
+        ds, dn, common = (self.draws(rng if rng is not None else self._default_rng(), noise_rng) if speckle
+                          else (None, None, None))
+        if common is None:
+            common_re = common_im = self._no_common
+        else:
+            common_re, common_im = common.real.astype(np.float32), common.imag.astype(np.float32)
         p = self.pool
         sf = p.speckle if p.speckle is not None else self._dummy
         nf = p.noise if p.noise is not None else self._dummy
@@ -315,7 +365,8 @@ class SensorModel:
         t = self.expected_output
         args = (
             x, self.column_factor, self._kb, self._norm_b, self._kr, self._norm_r,
-            self.echo_gain, self.bang, self.tvg, self.noise_row,
+            self.echo_gain, self.bang, self.bang_beam, self.tvg, self.beam_gain,
+            self.noise_row if speckle else self.noise_expected, common_re, common_im,
             sf, ds.field if ds else 0, ds.row if ds else 0, ds.beam if ds else 0, p.speckle_scale,
             p.speckle is not None and speckle,
             nf, dn.field if dn else 0, dn.row if dn else 0, dn.beam if dn else 0, p.noise_scale,
@@ -344,21 +395,26 @@ class SensorModel:
 
     def fields(self, draws) -> tuple[np.ndarray | None, np.ndarray | None]:
         """The (n_range_bins, n_beams) complex speckle and noise fields of a frame's draws."""
-        ds, dn = draws
+        ds, dn = draws[:2]
         f = None if self.pool.speckle is None else self.pool.window("speckle", ds)
         w = None if self.pool.noise is None else self.pool.window("noise", dn)
         return f, w
 
     def received_power(self, mean: np.ndarray, draws, speckle: bool = True) -> np.ndarray:
-        """``P = t(r) |sqrt(mu) F + sqrt(N) W|^2`` (or ``t (mu + N)`` without draws), uPa^2."""
-        mu = self.echo_gain[:, None].astype(np.float64) * mean + self.bang[:, None]
-        t = self.tvg[:, None].astype(np.float64)
+        """``P = t(r) G_j |sqrt(mu) F + sqrt(N) W + sqrt(C) z|^2`` (or ``t G (mu + N + C)``
+        without draws), uPa^2; ``mu = g(r) M + bang(r) B_j``."""
+        mu = (self.echo_gain[:, None].astype(np.float64) * mean
+              + self.bang[:, None].astype(np.float64) * self.bang_beam[None, :])
+        t = self.tvg[:, None].astype(np.float64) * self.beam_gain[None, :]
         if not speckle:
-            return t * (mu + self.noise_row[:, None])
+            return t * (mu + self.noise_expected[:, None])
         f, w = self.fields(draws)
         a = np.sqrt(np.maximum(mu, 0.0)) * (1.0 if f is None else f)
         if w is not None:
             a = a + np.sqrt(self.noise_row[:, None].astype(np.float64)) * w
+            common = getattr(draws, "common", None)
+            if common is not None:
+                a = a + common[:, None]
         return t * np.abs(a) ** 2
 
     def combine_reference(self, mean: np.ndarray, draws, speckle: bool = True) -> np.ndarray:
@@ -374,14 +430,17 @@ class SensorModel:
         column factor, w and W drawn afresh (slow; for tests and for scenes with sharp edges).
         """
         x = np.asarray(image, dtype=np.float64) * self.column_factor[None, :]
-        mu = self.echo_gain[:, None] * x + self.bang[:, None]
+        mu = self.echo_gain[:, None] * x + self.bang[:, None] * self.bang_beam[None, :]
         w = speckle_mod.scatterer_amplitudes(rng, x.shape, self.spec.speckle) if self.spec.speckle else 1.0
         a = speckle_mod.filter_field(np.sqrt(mu) * w, self.range_amplitude, self.beam_amplitude, circular=False)
         if self.spec.noise is not None:
             n = speckle_mod.filter_field(speckle_mod.complex_gaussian(rng, x.shape), self.range_amplitude,
                                          self.beam_amplitude, circular=False)
             a = a + np.sqrt(self.noise_row[:, None].astype(np.float64)) * n
-        return output.compress(self.tvg[:, None] * np.abs(a) ** 2, self.spec.output)
+            if self._has_common:
+                a = a + channels.common_noise_amplitude(self.common_power, self.range_amplitude, rng)[:, None]
+        p = (self.tvg[:, None] * self.beam_gain[None, :]).astype(np.float64) * np.abs(a) ** 2
+        return output.compress(p, self.spec.output)
 
     # Helpers ------------------------------------------------------------------------------------
 
