@@ -245,12 +245,15 @@ def render_paper(
     laws: SurfaceLaws | np.ndarray,
     n_objects: int,
     max_distance_m: float,
+    texture=None,
 ) -> dict[str, np.ndarray]:
     """Algorithm 2 of the paper, literally: three single-bounce renders and their differences.
 
     ``mirrored_caster`` holds the objects (mesh k = object k) followed by their mirror images
     (mesh n_objects + k = mirror of object k). ``origin`` (3,) and ``directions`` (..., 3), world
-    frame, are the rays of ``sonar`` (intrinsics) at ``pose``.
+    frame, are the rays of ``sonar`` (intrinsics) at ``pose``. ``texture``: the ground's
+    :class:`~sonarsim.scene.floor_texture.ReflectivityField` (None: uniform); in Algorithm 2
+    only the direct ground echo scatters off the ground (S1's ground hits take its factor).
 
     Returns
     -------
@@ -264,6 +267,9 @@ def render_paper(
         hits = trace(caster, origin, directions, ground if with_ground else None, max_distance_m)
         i_f = backscatter(weight, hits.cos_incidence, laws, hits.surface_id + 1, hits.distance_m, render.tvg,
                           hits.texel)
+        if with_ground and texture is not None:
+            on = hits.surface_id == GROUND_ID
+            i_f[on] *= texture.factor(hits.point[on])
         cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None
         return hits, i_f, form_image(hits.distance_m, i_f, beam, *geometry, continuous=cont)[0]
 

@@ -46,6 +46,7 @@ from ..core.radiometry import SurfaceLaws, backscatter
 from ..image.grid import beam_index
 from ..core.transforms import Pose
 from ..renderer.formation import RayEnergy, accumulate, continuity
+from ..scene.floor_texture import scale_by_texture
 from ..trace.base import Hits
 from .planes import WATER_TOLERANCE_M, ChainTable, PlaneSet, apply, reflection_points
 
@@ -613,6 +614,7 @@ def trace_legs(
     reach_m: float,
     n_generations: int,
     table: ChainTable,
+    textures: tuple = (),
 ) -> list[Leg]:
     """Receive legs of the fan's rays, generation by generation (:func:`trace_generation` in a loop).
 
@@ -638,6 +640,10 @@ def trace_legs(
         1 + the most reflections followed on a receive leg.
     table : ChainTable
         Receives the chains met.
+    textures : tuple of ReflectivityField or None
+        The planes' textures (:func:`~sonarsim.scene.floor_texture.texture_fields`, by plane
+        index; empty: none): each scatterer on a textured plane takes its factor, so every path
+        formed from it does.
     """
     rays = Rays.from_sonar(origin, directions)
     n = len(rays)
@@ -655,6 +661,8 @@ def trace_legs(
         hits = caster.intersect(rays.origin32, rays.direction32, limit)
         rays, _ = trace_generation(rays, hits, planes, active, reach_m, laws, weight, tvg, first,
                                    g + 1 < n_generations, table, leg)
+        if any(f is not None for f in textures):
+            scale_by_texture(leg.intensity, leg.sid, leg.point, textures)
     return legs
 
 

@@ -18,6 +18,8 @@ that the two can be compared image by image:
   :data:`VERIFY_TOLERANCE_M` of A. The transmit length is the traced length.
 * Every path goes into the single range bin of half its length (paper Algorithm 1, no range
   splatting), in the beam of the ray it arrives along.
+* A scatter on a textured plane takes the texture's factor at its point
+  (:mod:`sonarsim.scene.floor_texture`), whatever path it belongs to.
 
 The model and its conventions (surface ids, reciprocal pairs, apertures, image rows) are those
 of :mod:`sonarsim.paths.engine` (README, "Paths over any reflecting planes"). Only
@@ -35,6 +37,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..scene.floor_texture import texture_fields
 from .engine import path_name
 
 # Reflected receive rays are cast against the objects from this far off the plane, metres (an
@@ -229,6 +232,8 @@ def _receive_legs(sim, planes: _Planes, active: np.ndarray, origin: np.ndarray, 
     n_planes = len(planes)
     # Surface id s: plane s, then object s - P.
     materials = [p.backscatter for p in sim.scene.reflecting_planes] + [o.backscatter for o in sim.scene.objects]
+    # Reflectivity textures, made here from the scene (not taken from the simulator).
+    textures = texture_fields(sim.scene.reflecting_planes, sim.scene.render.seed)
     n = len(directions)
     ray = np.arange(n)
     start = np.repeat(origin[None, :], n, axis=0)
@@ -272,6 +277,10 @@ def _receive_legs(sim, planes: _Planes, active: np.ndarray, origin: np.ndarray, 
         for q in np.unique(s):
             on = s == q
             law[on] = materials[q].evaluate(cos[on], texel[on])
+        for q, field in enumerate(textures):
+            if field is not None:
+                on = s == q
+                law[on] *= field.factor(a[on])
         w = weight[ray[k]] * law
         if not tvg:
             w = w / length[k] ** 2

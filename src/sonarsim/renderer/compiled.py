@@ -27,6 +27,7 @@ from ..core.rays import RayFan
 from ..config.scene import GroundSpec, RenderSettings
 from ..config.sonar import SonarConfig
 from ..core.transforms import Pose
+from ..scene.floor_texture import scale_by_texture
 
 try:
     from . import _kernels
@@ -342,8 +343,11 @@ class _LegTracer:
     """Receive legs generation by generation (the state between two calls of the kernel)."""
 
     def __init__(self, caster, planes, active, pose: Pose, fan: RayFan, work: Workspace, weight: np.ndarray,
-                 laws: SurfaceLaws | np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> None:
+                 laws: SurfaceLaws | np.ndarray, tvg: bool, reach_m: float, n_generations: int, table,
+                 textures: tuple = ()) -> None:
         self.laws = SurfaceLaws.of(laws)
+        # The planes' textures (by plane index), applied to each generation as the NumPy twin does.
+        self.textures = textures if any(f is not None for f in textures) else ()
         albedo_by_id = self.laws.coefficient
         self.n_surfaces = len(albedo_by_id) - 1  # planes and objects
         self.caster, self.planes, self.work, self.weight = caster, planes, work, weight
@@ -416,6 +420,8 @@ class _LegTracer:
         self.limit = float(self.reach - min_next)
         self.g += 1
         leg.live = live[:n_live]
+        if self.textures:
+            scale_by_texture(leg.intensity, leg.sid, leg.point, self.textures)
         return leg
 
     def rest(self, threads: int | None = None) -> list:
@@ -427,26 +433,28 @@ class _LegTracer:
 
 
 def trace_legs(caster, planes, active, pose: Pose, fan: RayFan, work: Workspace, weight: np.ndarray,
-               laws: SurfaceLaws | np.ndarray, tvg: bool, reach_m: float, n_generations: int, table) -> list:
+               laws: SurfaceLaws | np.ndarray, tvg: bool, reach_m: float, n_generations: int, table,
+               textures: tuple = ()) -> list:
     """Receive legs with the compiled kernel (twin: :func:`sonarsim.paths.engine.trace_legs`).
 
     The first generation's rays are ``work``'s fan rotated to ``pose`` (see :func:`rotate`);
     they leave from ``pose``'s position.
     """
     return _LegTracer(caster, planes, active, pose, fan, work, weight, laws, tvg, reach_m, n_generations,
-                      table).rest()
+                      table, textures).rest()
 
 
 def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: RayFan, work: Workspace,
                  weight: np.ndarray, laws: SurfaceLaws | np.ndarray, render: RenderSettings, reach_m: float,
                  n_generations: int, table, view, n_surfaces: int, stack: np.ndarray, pool=None,
-                 occlusion=None) -> tuple[list, list]:
+                 occlusion=None, textures: tuple = ()) -> tuple[list, list]:
     """The whole compiled frame: receive legs, paths, and the image stack (float32, zeroed).
 
     With ``pool`` (one worker, the other core), the later generations are cast and traced
     there on one thread while this core forms the direct (single-bounce) paths.
     ``occlusion(sets, legs)`` filters the other paths (``double_line_of_sight``). ``sonar`` is
-    the intrinsics, ``pose`` the sonar's pose in the world frame.
+    the intrinsics, ``pose`` the sonar's pose in the world frame. ``textures``: the planes'
+    reflectivity textures by plane index (see :func:`sonarsim.paths.engine.trace_legs`).
 
     Returns
     -------
@@ -458,7 +466,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
     geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
     spread, n_el = render.range_splat, fan.shape[2]
     tracer = _LegTracer(caster, planes, active, pose, fan, work, weight, laws, render.tvg, reach_m,
-                        n_generations, table)
+                        n_generations, table, textures)
     first = tracer.step()
     legs = [first] if first is not None else []
     direct: list = []

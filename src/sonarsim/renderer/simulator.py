@@ -39,6 +39,7 @@ from ..sensor.model import FRAME_STREAM, SensorModel, elevation_span_deg
 from ..sensor.speckle import pool_bytes
 from ..scene.inside import InsideTest
 from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
+from ..scene.floor_texture import scale_by_texture, texture_fields
 from ..scene.textures import with_textures
 from ..trace import available_cores, make_caster
 from ..trace.surfaces import trace
@@ -159,6 +160,10 @@ class Simulator:
         # Backscatter laws by surface id + 1: index 0 is "no hit", p + 1 plane p, P + k + 1 object k.
         self._laws = SurfaceLaws.of([p.backscatter for p in self.scene.reflecting_planes]
                                     + [o.backscatter for o in self.scene.objects])
+        # The planes' reflectivity textures by plane index (None: untextured), fixed for the
+        # simulator's life: anchored in the world, the same every frame.
+        self.textures = texture_fields(self.scene.reflecting_planes, self.scene.render.seed)
+        self._textured = any(f is not None for f in self.textures)
         self._rng = np.random.default_rng(self.scene.render.seed)  # speckle, frame after frame
         self._fans: dict[SonarConfig, RayFan] = {}  # by intrinsics: every pose shares the fan
         self._sensor_models: dict[SonarConfig, SensorModel] = {}
@@ -267,8 +272,12 @@ class Simulator:
         return self._mirrored_caster
 
     def _intensity(self, fan: RayFan, hits) -> np.ndarray:
-        return backscatter(fan.weight, hits.cos_incidence, self._laws, hits.surface_id + 1, hits.distance_m,
-                           self.scene.render.tvg, hits.texel)
+        out = backscatter(fan.weight, hits.cos_incidence, self._laws, hits.surface_id + 1, hits.distance_m,
+                          self.scene.render.tvg, hits.texel)
+        if self._textured:  # the ground (surface id 0) is plane 0
+            flat = out.reshape(-1)
+            scale_by_texture(flat, hits.surface_id.reshape(-1), hits.point.reshape(-1, 3), self.textures)
+        return out
 
     # The ways to form the image stack; each returns (stack, legs, path sets, chain table, total),
     # total None where not already summed.
@@ -280,7 +289,7 @@ class Simulator:
         hits = trace(self.caster, origin, directions, ground, reach)
         images = render_paper(
             self.caster, self.mirrored_caster(), origin, directions, sonar, pose, self.scene.render, ground,
-            fan.weight, self._laws, len(self.meshes), reach,
+            fan.weight, self._laws, len(self.meshes), reach, texture=self.textures[0],
         )
         # Rows of the orders formed (a ground alone makes no path beyond order 3).
         stack = np.zeros((stack_rows(self.scene.render.max_order), sonar.n_range_bins, sonar.n_beams), np.float32)
@@ -332,11 +341,12 @@ class Simulator:
             legs, sets = compiled.render_paths(
                 self.caster, self.planes, active, sonar, pose, fan, self._work, weight, self._laws, render, reach,
                 n_generations, table, view, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
+                textures=self.textures,
             )
         else:
             directions = (fan.directions @ pose.rotation.T).reshape(-1, 3)
             legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._laws,
-                              render.tvg, reach, n_generations, table)
+                              render.tvg, reach, n_generations, table, self.textures)
             sets = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam)
             if occlusion is not None:
                 sets = occlusion(sets, legs)
@@ -422,7 +432,8 @@ class Simulator:
         if render.method == "paper" and multipath and self._ground_only:
             stack, legs, sets, table, total = self._render_paper(sonar, pose, fan, reach)
         elif (self.specialise_ground and self.kernels == "compiled" and self._ground_only and render.max_order == 3
-              and render.double_beam != "separate" and not labels):
+              and render.double_beam != "separate" and not labels and not self._textured):
+            # (A textured ground takes the general engine: the specialised kernels know no texture.)
             stack, legs, sets, table, total = self._render_ground_compiled(sonar, pose, fan, reach, multipath)
         else:
             stack, legs, sets, table, total = self._render_paths(sonar, pose, fan, reach, active,
