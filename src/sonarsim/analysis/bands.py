@@ -168,7 +168,7 @@ def band_statistics(real: Any, model: Any, region: Any, n_bands: int = N_BANDS, 
         row: dict[str, Any] = {
             "band": k, "rows": [start, stop],
             # Rounded to the nanometre: a window from 0 m must not print as -2e-19 m.
-            "range_m": ([round(float(r[start] - dr / 2), 9), round(float(r[stop - 1] + dr / 2), 9)]
+            "range_m": ([round(float(r[start] - dr / 2), 9) + 0.0, round(float(r[stop - 1] + dr / 2), 9) + 0.0]
                         if range_m is not None and stop > start else None),
             "pixels": pixels, "ok": pixels >= min_pixels, "reason": None,
         }
@@ -184,12 +184,14 @@ def band_statistics(real: Any, model: Any, region: Any, n_bands: int = N_BANDS, 
         pooled = np.concatenate([f[b] for f, b in cut])
         d = realism.distribution_distances(pooled[None, :], ym[ymask][None, :])
         row.update(ks=d.ks, wasserstein=d.wasserstein, mean_real=float(pooled.mean()), mean_model=float(ym[ymask].mean()))
-        reasons = []
+        whys = {}
         for tag, (tex, why) in (("real", _texture([f for f, _ in cut], [b for _, b in cut], window)),
                                 ("model", _texture([ym], [ymask], window))):
             row.update({f"{key}_{tag}": value for key, value in tex.items()})
             if why:
-                reasons.append(f"{tag}: {why}")
+                whys[tag] = why
+        reasons = ([f"real and model: {whys['real']}"] if len(whys) == 2 and len(set(whys.values())) == 1
+                   else [f"{tag}: {why}" for tag, why in whys.items()])
         if math.isfinite(row["contrast_real"]) and row["contrast_real"] > 0:
             row["contrast_rel_diff"] = (row["contrast_model"] - row["contrast_real"]) / row["contrast_real"]
         elif not reasons:
@@ -252,7 +254,8 @@ def realism_report(real_frames: Sequence[Any], model_expected: Any, model_speckl
                    calibration_frame_index: int = 0, *, held_out: Sequence[int] | None = None, mask: Any = None,
                    regions: Mapping[str, Any] | None = None, n_bands: int = N_BANDS, range_m: Any = None,
                    data_range: float = 255.0, min_band_pixels: int = MIN_BAND_PIXELS,
-                   c2st: Mapping[str, Any] | None = None) -> dict[str, Any]:
+                   c2st: Mapping[str, Any] | None = None,
+                   frame_numbers: Sequence[int] | None = None) -> dict[str, Any]:
     """Everything a realism figure needs beside it, scored on frames held out from the calibration.
 
     The trivial images (:func:`sonarsim.analysis.baselines.baseline_images`: the calibration
@@ -301,6 +304,10 @@ def realism_report(real_frames: Sequence[Any], model_expected: Any, model_speckl
     c2st : mapping, optional
         Keyword options of ``classifier_two_sample_test`` (``patch``, ``folds``, ``seeds``,
         ``seed``, ...). Its patches lie inside ``mask``.
+    frame_numbers : sequence of int, optional
+        The recording's numbers of ``real_frames`` (default 0, 1, ...), used in the report's
+        ``calibration_frame``, ``held_out_frames`` and ``note``; ``calibration_frame_index``
+        and ``held_out`` index ``real_frames``.
 
     Returns
     -------
@@ -353,15 +360,18 @@ def realism_report(real_frames: Sequence[Any], model_expected: Any, model_speckl
             raise ValueError(f"held_out holds the calibration frame {cal}: score on the other frames")
     m = _as_mask(mask, shape)
     m = np.ones(shape, dtype=bool) if m is None else m
+    labels = list(range(n)) if frame_numbers is None else [int(k) for k in frame_numbers]
+    if len(labels) != n:
+        raise ValueError(f"frame_numbers must number the {n} real frames, got {len(labels)}")
     optimistic = held == [cal]
     scored = [frames[k] for k in held]
     if optimistic:
-        note = (f"one real frame: the baselines and the ceiling are made from frame {cal} and scored against it, "
-                "which favours them (the ceiling most: the frame's own local mean), and a model calibrated on it; "
-                "optimistic figures")
+        note = (f"one real frame: the baselines and the ceiling are made from frame {labels[cal]} and scored "
+                "against it, which favours them (the ceiling most: the frame's own local mean), and a model "
+                "calibrated on it; optimistic figures")
     else:
-        note = (f"baselines and ceiling made from frame {cal}; they and the model scored on held-out "
-                f"frame{'s' if len(held) > 1 else ''} {', '.join(map(str, held))}")
+        note = (f"baselines and ceiling made from frame {labels[cal]}; they and the model scored on held-out "
+                f"frame{'s' if len(held) > 1 else ''} {', '.join(str(labels[k]) for k in held)}")
     if model_speckled is None:
         note += "; distributions of model_expected (no speckled render given)"
 
@@ -388,7 +398,8 @@ def realism_report(real_frames: Sequence[Any], model_expected: Any, model_speckl
     except ValueError as exc:
         two = {"accuracy": _NAN, "reason": str(exc)}
     return {
-        "calibration_frame": cal, "held_out_frames": held, "optimistic": optimistic, "note": note,
+        "calibration_frame": labels[cal], "held_out_frames": [labels[k] for k in held], "optimistic": optimistic,
+        "note": note,
         "data_range": float(data_range), "scores": scores, "best_baseline": best, "margin_db": margin,
         "ceiling_margin_db": scores["ceiling"]["margin_db"], "below_baseline": below, "warning": warning,
         "bands": bands, "band_summary": {k: _band_summary(v) for k, v in bands.items()},

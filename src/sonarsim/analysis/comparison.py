@@ -3,7 +3,9 @@
 :func:`compare_images` runs the metrics of :mod:`sonarsim.analysis.metrics` (MSE, PSNR, SSIM) in the
 polar domain, on image A's grid (B resampled if the geometries differ), and in the fan-shaped
 (Cartesian) domain, on the pixels inside both fans, and with ``stats`` or ``regions`` describes
-texture and distributions per region (:mod:`sonarsim.analysis.realism`). :func:`load_image` reads
+texture and distributions per region (:mod:`sonarsim.analysis.realism`), and what the score means
+beside the trivial images, per range band and to a classifier (:mod:`sonarsim.analysis.bands`,
+issue 22). :func:`load_image` reads
 a sonarsim NPZ, a PNG, or a real recording (:mod:`sonarsim.io.readers`), recognised from the
 first bytes; :func:`load_region` reads a region mask (.npy or PNG).
 """
@@ -16,7 +18,7 @@ import os
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from scipy import ndimage
@@ -286,6 +288,8 @@ def compare_images(
     names: tuple[str, str] | None = None,
     stats: bool = False,
     regions: Mapping[str, Any] | None = None,
+    held_out: Sequence[Any] | None = None,
+    frame_numbers: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """MSE, PSNR and SSIM between two sonar images, in the polar and fan domains.
 
@@ -330,6 +334,18 @@ def compare_images(
         Each is reported after the automatic ones, restricted, like them, to A's bins inside
         B's coverage. Their names must differ from ``"all"`` and those of
         :data:`sonarsim.analysis.realism.REGIONS`.
+    held_out : sequence of SonarImage-like, optional
+        With ``stats``: other real frames of A's recording, on A's grid (implies ``stats``).
+        A is then the reference (calibration) frame and B the model, and
+        ``"realism"`` holds :func:`sonarsim.analysis.bands.realism_report` of B against them: the
+        trivial images and the ceiling made from A, scored with B (in the images' own units,
+        data range ``data_range``) on these frames, the margin over the best trivial image, the
+        statistics per range band, the beam profile and the classifier two-sample test. Without
+        held-out frames (None or empty) everything is scored against A itself, which favours
+        the trivial images made from A and a B calibrated on A: the report says so
+        (``optimistic``). B serves as both the expected and the speckled model.
+    frame_numbers : sequence of int, optional
+        The recording's numbers of A and of the ``held_out`` frames, for the report's labels.
 
     Returns
     -------
@@ -337,7 +353,8 @@ def compare_images(
         ``{domain: {"mse", "psnr", "ssim", "n_pixels", "n_ssim_pixels"}}`` for each domain
         compared (MSE in squared grey levels, PSNR in dB (``inf`` if identical), SSIM
         (NaN when no 11 x 11 window fits in the compared region), the number of compared
-        pixels and of pixels SSIM is averaged over), plus ``"info"``: ``{"normalize",
+        pixels and of pixels SSIM is averaged over); with ``stats``, ``"stats"`` (per region) and
+        ``"realism"`` (see ``held_out``); and ``"info"``: ``{"normalize",
         "resampled" (bool: B was resampled onto A's grid), "overlap" (fraction of A's coverage
         area that B covers, 1 for the same grid; None without geometry), "pixel_size_m"
         (fan pixel size, None if no fan), "skipped" ({domain: reason})}``.
@@ -380,6 +397,7 @@ def compare_images(
             f"comparing images of {pa.shape[0]} x {pa.shape[1]} and {pb.shape[0]} x {pb.shape[1]} pixels", "")
     ga, gb = _geometry_of(a, pa, name_a), _geometry_of(b, pb, name_b)
     given = _given_regions(regions, pa.shape, name_a)
+    held = _held_out_frames(held_out, pa.shape, ga, name_a)
     info: dict[str, Any] = {
         "normalize": normalize, "resampled": False, "overlap": None, "pixel_size_m": None,
         "skipped": {},
@@ -415,14 +433,21 @@ def compare_images(
 
     if "polar" in domains:
         result["polar"] = _metrics(pa, b_on_a, polar_mask, normalize, data_range)
-    if stats or given:
+    if stats or given or held:
         # Texture and distributions per region of A, in the images' own units (no renormalising:
         # compare a simulation in the device's counts with a recording).
+        from .bands import realism_report
         from .realism import auto_regions, region_statistics
 
         masks = {"all": polar_mask, **auto_regions(pa, polar_mask)}
         masks.update((name, m & polar_mask) for name, m in given.items())
         result["stats"] = {name: region_statistics(pa, b_on_a, m) for name, m in masks.items()}
+        try:
+            result["realism"] = realism_report(
+                [pa, *held], b_on_a, b_on_a, 0, mask=polar_mask, data_range=data_range,
+                range_m=None if ga is None else ga.range_m, frame_numbers=frame_numbers)
+        except ValueError as exc:
+            raise SonarsimError(f"cannot score {name_b} against {name_a}'s baselines: {exc}") from None
 
     if "fan" in domains:
         if ga is None or gb is None:
@@ -451,6 +476,22 @@ def compare_images(
 
     result["info"] = info
     return result
+
+
+def _held_out_frames(frames: Sequence[Any] | None, shape: tuple[int, int], grid: PolarGrid | None,
+                     name_a: str) -> list[np.ndarray]:
+    """``held_out`` checked: polar arrays on A's grid (a baseline is scored pixel by pixel)."""
+    out = []
+    for k, frame in enumerate(frames or ()):
+        name = _name(frame, f"held-out frame {k}")
+        polar = _polar_of(frame, name)
+        g = _geometry_of(frame, polar, name)
+        if polar.shape != shape or (grid is not None and g is not None and not _same_grid(grid, g)):
+            raise SonarsimError(
+                f"{name}: a held-out frame must lie on {name_a}'s grid ({shape[0]} range bins x {shape[1]} beams"
+                + ("" if grid is None or g is None else f"; {_differences(grid, g)}") + f"), got {polar.shape}")
+        out.append(polar.astype(np.float64))
+    return out
 
 
 def _given_regions(regions: Mapping[str, Any] | None, shape: tuple[int, int], name_a: str) -> dict[str, np.ndarray]:

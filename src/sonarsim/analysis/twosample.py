@@ -27,9 +27,11 @@ distribution) each of the ``n`` held-out predictions is a fair coin, so the accu
 standard error of ``sqrt(0.25 / n)`` (:attr:`C2STResult.null_standard_error`); an accuracy more
 than about 3 of these above 0.5 is evidence of a difference. Cross-validation on the null can
 fall slightly *below* 0.5 (a held-out patch leaves its own class under-represented in
-training), so values a little under 0.5 mean "indistinguishable" too. An accuracy near 0.5
-says only that *these* statistics do not differ: a classifier on other features might still
-separate the sets.
+training), so values a little under 0.5 mean "indistinguishable" too; copies of the same patches
+in both sets (an image against itself, or real pings whose speckle is frozen) go further below
+(0.46 for an Oculus ping against itself), since a patch's twin in training has the other label.
+An accuracy near 0.5 says only that *these* statistics do not differ: a classifier on other
+features might still separate the sets.
 
 Images are polar ``(n_range_bins, n_beams)`` arrays; any unit (counts or intensity), since every
 feature but the log mean is scale-free and the log mean's offset is learned.

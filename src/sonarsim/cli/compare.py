@@ -79,12 +79,24 @@ def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--stats", action="store_true",
                    help="also compare texture and distributions per region of A (all, lit, water, shadow), in the "
                    "images' own units: mean, speckle contrast, grain (correlation lengths), KS and Wasserstein distances, "
-                   "range-profile difference in dB")
+                   "range-profile difference in dB; and, taking A as a real frame and B as a model in its units: "
+                   "PSNR and SSIM of B beside the trivial images made from A (its range profile in every beam, its "
+                   "separable range x beam image) and the ceiling (A's 15 x 9 local mean), all scored on a held-out "
+                   "frame (--held-out), B's margin over the best trivial image (a warning when negative), "
+                   "statistics in 8 range bands of the lit region and the water column, the across-fan beam "
+                   "profile, and a classifier two-sample test (0.5 = B's patches indistinguishable from A's)")
     p.add_argument("--region", type=_region_spec, action="append", default=[], metavar="NAME=PATH",
                    help="also compare a region of your own (implies --stats; repeatable): PATH is a .npy "
                    "array (numpy.save) of booleans or integers, non-zero in the region, rows from the "
                    "nearest range bin, or a PNG whose non-zero pixels are the region, far range at the "
                    "top as sonarsim draws polar PNGs; either on A's polar grid (A's shape)")
+    p.add_argument("--held-out", type=frame_index, action="append", default=None, metavar="N",
+                   help="with --stats (implied): a frame of A's recording, other than --frame-a, on which the trivial "
+                   "images and the ceiling made from A's frame, and B, are scored (repeatable). Default: the nearest "
+                   "frame after --frame-a (else before it) that is not B's frame of the same file, when the recording "
+                   "has one; without one, "
+                   "everything is scored against A's frame itself, which favours the trivial images made from it "
+                   "(said in the output)")
     p.add_argument("--json", action="store_true",
                    help="print JSON instead of a table (infinite PSNR and undefined SSIM as null)")
     p.add_argument("--out", default=None, metavar="DIR",
@@ -168,6 +180,34 @@ def _load_regions(specs: list[tuple[str, str]], shape: tuple[int, ...], path_a: 
     return regions
 
 
+def _held_out_indices(args: argparse.Namespace) -> list[int]:
+    """Frames of A's recording to score on: --held-out, or by default the nearest frame after
+    --frame-a (else before it) that is not B's frame when B is the same recording."""
+    import os
+
+    frame_a = args.frame_a or 0
+    if args.held_out:
+        if frame_a in args.held_out:
+            raise SonarsimError(f"--held-out {frame_a}: that is A's frame (--frame-a), which the trivial images are "
+                                "made from; hold out another frame")
+        return list(dict.fromkeys(args.held_out))
+    try:
+        from ..io.readers import n_frames
+
+        count = n_frames(args.a)
+    except (SonarsimError, OSError, ImportError):
+        return []  # a PNG, or no readers: one frame, said in the output
+    try:
+        same = os.path.samefile(args.a, args.b)
+    except OSError:
+        same = False
+    # B scored on its own frame would say nothing about B.
+    taken = {frame_a, args.frame_b or 0} if same else {frame_a}
+    after = [k for k in range(frame_a + 1, count) if k not in taken]
+    before = [k for k in range(frame_a - 1, -1, -1) if k not in taken]
+    return (after or before)[:1]
+
+
 def _write_figure(args: argparse.Namespace, run: Any, image_a: Any, image_b: Any, normalize: str | None) -> None:
     """compare_figure.* in --out: A | B on the scale the metrics see."""
     from pathlib import Path
@@ -212,9 +252,12 @@ def cmd_compare(args: argparse.Namespace) -> None:
     image_b = load_image(args.b, args.frame_b, args.component_b)
     regions = _load_regions(args.region, image_a.polar.shape, args.a)
     normalize = None if args.normalize == "none" else args.normalize
+    stats = args.stats or bool(args.region) or bool(args.held_out)
+    held_numbers = _held_out_indices(args) if stats else []
+    held = [load_image(args.a, n) for n in held_numbers]
     result = compare_images(
         image_a, image_b, DOMAINS, args.pixel_size, normalize=normalize, names=(args.a, args.b),
-        stats=args.stats, regions=regions,
+        stats=stats, regions=regions, held_out=held, frame_numbers=[args.frame_a or 0, *held_numbers],
     )
     info = result["info"]
     desc_a, desc_b = _describe(image_a), _describe(image_b)
@@ -233,7 +276,10 @@ def cmd_compare(args: argparse.Namespace) -> None:
         }
         if "stats" in result:
             doc["stats"] = {r: {k: _finite_or_none(v) for k, v in st.items()} for r, st in result["stats"].items()}
+        if "realism" in result:
+            doc["realism"] = _jsonable(result["realism"])
         print(json.dumps(doc, indent=2, allow_nan=False))
+        _warn(result)
         return
 
     print(f"A: {_summary(args.a, args.frame_a, args.component_a, desc_a)}")
@@ -254,6 +300,8 @@ def cmd_compare(args: argparse.Namespace) -> None:
         print(f"(fan pixel size {info['pixel_size_m']:.4g} m)")
     for d, why in info["skipped"].items():
         print(f"sonarsim: note: {d} domain skipped: {why}", file=sys.stderr)
+    if "realism" in result:
+        _print_scores(result["realism"])
     if "stats" in result:
         print()
         print("per region of A, in the images' own units (A | B):")
@@ -267,3 +315,74 @@ def cmd_compare(args: argparse.Namespace) -> None:
             print(f"{region:<{w}} {int(st['pixels']):>8} {pair('mean', '.4g'):>17} {pair('contrast', '.3f'):>13} "
                   f"{pair('grain_range', '.2f'):>13} {pair('grain_beams', '.2f'):>13} {_fmt(st['ks'], '.3f'):>6} "
                   f"{_fmt(st['wasserstein'], '.4g'):>9} {_fmt(st['range_profile_rms_db'], '.2f'):>10}")
+    if "realism" in result:
+        _print_realism(result["realism"])
+    _warn(result)
+
+
+def _jsonable(value: Any) -> Any:
+    """A report's nested dicts and lists with strict JSON's null for NaN and infinities."""
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    return _finite_or_none(value)
+
+
+def _warn(result: dict[str, Any]) -> None:
+    warning = result.get("realism", {}).get("warning")
+    if warning:
+        print(f"sonarsim: warning: B: {warning}", file=sys.stderr)
+
+
+def _print_scores(rep: dict[str, Any]) -> None:
+    """B's PSNR and SSIM beside the trivial images' and the ceiling's (in the images' units)."""
+    print()
+    print(f"B against A's trivial images, in the images' own units (data range {rep['data_range']:g}): {rep['note']}")
+    names = {"model": "B", "range profile": "range profile", "separable": "separable", "ceiling": "ceiling"}
+    print(f"{'image':<14} {'PSNR dB':>9} {'SSIM':>8} {'margin dB':>10}")
+    for key, label in names.items():
+        sc = rep["scores"][key]
+        tag = "  (best trivial image)" if key == rep["best_baseline"] else ""
+        print(f"{label:<14} {_fmt(sc['psnr'], '.3f'):>9} {_fmt(sc['ssim'], '.4f'):>8} "
+              f"{_fmt(sc['margin_db'], '+.3f'):>10}{tag}")
+
+
+def _print_realism(rep: dict[str, Any]) -> None:
+    """The band table, the beam profile and the C2ST, compactly."""
+    print()
+    print("per range band of A's lit region and water column (A | B; rel: B's contrast / A's - 1):")
+    print(f"{'band':<8} {'range m':>13} {'pixels':>7} {'KS':>6} {'W1':>8} {'contrast':>13} {'rel':>7} "
+          f"{'grain bins':>13} {'grain beams':>13}")
+    for region, rows in rep["bands"].items():
+        for b in rows:
+            span = (f"{b['range_m'][0]:.3f}-{b['range_m'][1]:.3f}" if b["range_m"] is not None
+                    else f"rows {b['rows'][0]}-{b['rows'][1]}")
+            head = f"{region + '/' + str(b['band']):<8} {span:>13} {b['pixels']:>7}"
+            if not b["ok"]:
+                print(f"{head}  ({b['reason']})")
+                continue
+
+            def pair(key: str, spec: str) -> str:
+                return f"{_fmt(b[key + '_real'], spec)} | {_fmt(b[key + '_model'], spec)}"
+
+            print(f"{head} {_fmt(b['ks'], '.3f'):>6} {_fmt(b['wasserstein'], '.4g'):>8} {pair('contrast', '.3f'):>13} "
+                  f"{_fmt(b['contrast_rel_diff'], '+.2f'):>7} {pair('grain_range', '.2f'):>13} "
+                  f"{pair('grain_beams', '.2f'):>13}" + (f"  ({b['reason']})" if b["reason"] else ""))
+    for region, s in rep["band_summary"].items():
+        print(f"{region}: {s['bands_ok']} of {s['bands']} bands with enough pixels; worst KS {_fmt(s['max_ks'], '.3f')}, "
+              f"worst |rel| contrast {_fmt(s['max_abs_contrast_rel_diff'], '.2f')}")
+    beam = rep["beam_profile"]
+    print(f"beam profile over the lit region: B - A RMS {_fmt(beam['rms_db'], '.2f')} dB over {beam['beams']} beams"
+          + (f" ({beam['reason']})" if beam["reason"] else ""))
+    c = rep["c2st"]
+    if "reason" in c:
+        print(f"classifier two-sample test: not run ({c['reason']})")
+    else:
+        print(f"classifier two-sample test (0.5 = indistinguishable): accuracy {c['accuracy']:.3f} +- "
+              f"{c['null_standard_error']:.3f} (SE under the null; spread over {c['seeds']} seeds "
+              f"{c['seed_std']:.3f}), {c['n_tested']} patches of {c['patch'][0]} x {c['patch'][1]}, "
+              f"{c['folds']}-fold logistic regression")
+        if c["accuracy"] < 0.5 - 3 * c["null_standard_error"]:
+            # Cross-validation on copies of the same patches falls below chance (twosample's notes).
+            print("  (below chance: the two sets share (nearly) the same patches, e.g. frozen speckle)")
