@@ -12,10 +12,12 @@ import pytest
 from sonarsim.errors import ConfigError
 from sonarsim.config.presets import (
     ARIS_BEAM_ANGLE_FITS,
+    ARIS_MODES,
     PRESETS,
     SONAR_KEYS,
     Preset,
     aris_beam_angles_deg,
+    aris_preset_name,
     beam_angles_from_table,
     fit_beam_angles,
     get_preset,
@@ -30,6 +32,12 @@ OCULUS_PING = SHARED_DATA / "real" / "oculus" / "one_ping_8bit.raw"
 EXPECTED_NAMES = {
     "aris3000-128",
     "aris3000-64",
+    "aris1800-96",
+    "aris1800-48",
+    "aris1200-48",
+    "aris1800-96-telephoto",
+    "aris1800-48-telephoto",
+    "aris1200-48-telephoto",
     "didson300",
     "oculus-m750d-lf",
     "oculus-m750d-hf",
@@ -165,6 +173,55 @@ def test_aris_presets_use_the_fitted_beam_angles():
         np.testing.assert_allclose(
             preset_angles, aris_beam_angles_deg("ARIS3000", n_beams), atol=1e-6
         )
+
+
+# Every model x beam count x lens of Sound Metrics' lookup (aris-file-sdk Metrics.cs), with the
+# measured table it uses, the table's fan edge to edge (degrees, from the CSVs' centres) and the
+# lens's elevation aperture.
+ARIS_LOOKUP = [
+    ("ARIS1200", 48, False, "aris1200-48", "ARIS1800_1200_48.csv", 14.0),
+    ("ARIS1200", 48, True, "aris1200-48-telephoto", "ARIS_Telephoto_48.csv", 3.0),
+    ("ARIS1800", 48, False, "aris1800-48", "ARIS1800_1200_48.csv", 14.0),
+    ("ARIS1800", 48, True, "aris1800-48-telephoto", "ARIS_Telephoto_48.csv", 3.0),
+    ("ARIS1800", 96, False, "aris1800-96", "ARIS1800_96.csv", 14.0),
+    ("ARIS1800", 96, True, "aris1800-96-telephoto", "ARIS_Telephoto_96.csv", 3.0),
+    ("ARIS3000", 64, False, "aris3000-64", "ARIS3000_64.csv", 14.0),
+    ("ARIS3000", 128, False, "aris3000-128", "ARIS3000_128.csv", 14.0),
+]
+
+
+@pytest.mark.parametrize("model, n_beams, telephoto, name, table, elevation", ARIS_LOOKUP)
+def test_every_aris_lens_has_a_preset_with_its_table_and_aperture(model, n_beams, telephoto, name, table, elevation):
+    assert aris_preset_name(model, n_beams, telephoto) == name
+    sonar = get_preset(name).sonar
+    assert sonar["n_beams"] == n_beams and sonar["elevation_fov_deg"] == elevation
+    np.testing.assert_allclose(sonar["beam_angles_deg"], _measured_centres_left_first(table), atol=0.01)
+    assert f"{table[:-4]}" in get_preset(name).source
+
+
+def test_aris_combinations_without_a_table_have_no_preset():
+    assert aris_preset_name("ARIS 3000", 128, telephoto=True) is None  # no telephoto table for the 3000
+    assert aris_preset_name("ARIS1200", 96, telephoto=False) is None  # the 1200 has 48 beams only
+    assert len(ARIS_MODES) == len(ARIS_LOOKUP)
+
+
+@pytest.mark.parametrize("name, start, end", [
+    # SDK limits: window start >= 0.7 m; window end <= 20 m (3000), 50 m (1800), 100 m (1200).
+    ("aris3000-128", 0.7, 20.0), ("aris3000-64", 0.7, 20.0), ("aris1800-96", 0.7, 50.0),
+    ("aris1800-48", 0.7, 50.0), ("aris1200-48", 0.7, 100.0), ("aris1200-48-telephoto", 0.7, 100.0),
+])
+def test_aris_preset_windows_are_inside_the_models_limits(name, start, end):
+    sonar = get_preset(name).sonar
+    assert start <= sonar["range_min_m"] < sonar["range_max_m"] <= end
+
+
+def test_the_telephoto_lens_fan_is_half_the_standard_lens_fan():
+    # Measured tables: 15.0 deg against 27.7 deg edge to edge (ARIS 1800 / 1200, 48 beams).
+    tele = np.array(get_preset("aris1200-48-telephoto").sonar["beam_angles_deg"])
+    std = np.array(get_preset("aris1200-48").sonar["beam_angles_deg"])
+    spacing = lambda a: (a[0] - a[-1]) / (len(a) - 1)  # noqa: E731
+    assert tele[0] - tele[-1] + spacing(tele) == pytest.approx(15.0, abs=0.1)
+    assert std[0] - std[-1] + spacing(std) == pytest.approx(27.7, abs=0.15)
 
 
 def test_aris3000_fan_spans_the_published_30_degrees():

@@ -35,10 +35,10 @@ def cmd_presets(args) -> None:
     if args.json:
         print(json.dumps(rows, indent=2))
         return
-    head = f"{'name':<20} {'beams':>5} {'az fov':>7} {'el fov':>6} {'range m':>11} {'bins':>5} {'kHz':>6}  description"
+    head = f"{'name':<22} {'beams':>5} {'az fov':>7} {'el fov':>6} {'range m':>11} {'bins':>5} {'kHz':>6}  description"
     print(head)
     for r in rows:
         rng = f"{r['range_min_m']:g}-{r['range_max_m']:g}"
         khz = f"{r['frequency_khz']:g}" if r["frequency_khz"] else "-"
-        print(f"{r['name']:<20} {r['n_beams']:>5} {r['azimuth_fov_deg']:>7g} {r['elevation_fov_deg']:>6g} "
+        print(f"{r['name']:<22} {r['n_beams']:>5} {r['azimuth_fov_deg']:>7g} {r['elevation_fov_deg']:>6g} "
               f"{rng:>11} {r['n_range_bins']:>5} {khz:>6}  {r['description']}")

@@ -39,6 +39,11 @@ __all__ = [
     "get_preset",
     "BeamAngleFit",
     "ARIS_BEAM_ANGLE_FITS",
+    "ARIS_ELEVATION_FOV_DEG",
+    "ARIS_MODELS",
+    "ARIS_MODES",
+    "ArisMode",
+    "aris_preset_name",
     "aris_beam_angles_deg",
     "beam_angles_from_table",
     "fit_beam_angles",
@@ -519,60 +524,181 @@ def _angles(values: np.ndarray) -> tuple[float, ...]:
     return tuple(round(float(v), 6) for v in values)
 
 
-_ARIS_SOURCE_COMMON = (
-    "Beam count and frequencies: Sound Metrics ARIS Integration SDK (SystemConfiguration: "
-    "ARIS 3000 ping modes 6 = 64 beams and 9 = 128 beams, FrequencyHigh 3.0 MHz, "
-    "FrequencyLow 1.8 MHz, window start >= 0.7 m, window end <= 20 m, frequency crossover "
-    "5 m). Beam centres: closed-form fit of Sound Metrics' measured table {table} "
-    "(aris-file-sdk beam-width-metrics; fit max error {max_err} deg, RMS {rms_err} deg); "
-    "the fitted fan spans about 30 deg edge to edge, matching the 30 deg quoted by Sound "
-    "Metrics. beam_width_deg: mean left-to-right width of the beams in that table (the table "
-    "gives beam edges, which tile the fan; not a -3 dB figure). elevation_fov_deg 14: Sound "
-    "Metrics' published 30 x 14 deg field of view (not confirmed from a Sound Metrics document "
-    "here; the Ocean Networks Canada instrument page also gives 14 deg vertical)."
+#: Elevation (vertical) aperture of each ARIS lens, degrees.
+#:
+#: - ``standard`` 14 deg: Sound Metrics' quoted field of view of the ARIS Explorer models
+#:   ("30 x 14 deg"); secondary here: Ocean Networks Canada's ARIS 3000 instrument page (stored
+#:   public page, wiki.oceannetworks.ca "ARIS Sonar Data": "covers 28 degrees horizontally and 14
+#:   degrees vertically") -- its 28 deg horizontal is contradicted by Sound Metrics' own measured
+#:   tables (30.25 deg), the 14 deg has no contradiction. Not confirmed from a Sound Metrics
+#:   document here.
+#: - ``telephoto`` 3 deg: NOT CONFIRMED. The telephoto lens halves the horizontal fan (Sound
+#:   Metrics' measured tables ARIS_Telephoto_48 / _96 span 15.0 deg edge to edge against 27.7 deg
+#:   for the standard ARIS 1800 / 1200 lens), and it is quoted as narrowing the vertical beam to
+#:   about 3 deg; no Sound Metrics document or stored page giving the vertical figure could be
+#:   found (searches of the docs and pages corpora, 2026-11-26, returned only the 14 deg of the
+#:   standard lens). Override ``elevation_fov_deg`` when the lens's own figure is known.
+ARIS_ELEVATION_FOV_DEG: Mapping[str, float] = MappingProxyType({"standard": 14.0, "telephoto": 3.0})
+
+
+@dataclass(frozen=True)
+class ArisMode:
+    """One ARIS model x beam count x lens that Sound Metrics publishes a beam table for.
+
+    Parameters
+    ----------
+    model : str
+        Fit key of the model: ``"ARIS1200"``, ``"ARIS1800"`` or ``"ARIS3000"``.
+    n_beams : int
+        Beam count (ping modes 1-2: 48, 3-5: 96, 6-8: 64, 9-12: 128).
+    lens : {'standard', 'telephoto'}
+        The acoustic lens.
+    frequency_khz : float
+        The carrier of the preset's range window (the model's high or low frequency).
+    range_min_m, range_max_m : float
+        The preset's range window, metres (our choice, inside the model's limits; see the
+        preset's ``source``).
+    n_range_bins : int
+        Range bins of the preset.
+    """
+
+    model: str
+    n_beams: int
+    lens: str
+    frequency_khz: float
+    range_min_m: float
+    range_max_m: float
+    n_range_bins: int
+
+    @property
+    def name(self) -> str:
+        """The preset's name, e.g. ``aris1800-96`` or ``aris1800-96-telephoto``."""
+        base = f"aris{self.model[4:]}-{self.n_beams}"
+        return base + ("-telephoto" if self.lens == "telephoto" else "")
+
+    @property
+    def fit(self) -> "BeamAngleFit":
+        """The beam-angle fit of this lens and beam count."""
+        key = ("ARISTELEPHOTO" if self.lens == "telephoto" else self.model, self.n_beams)
+        return ARIS_BEAM_ANGLE_FITS[key]
+
+
+# Each ARIS model's limits (Sound Metrics' ARIS Integration SDK, SystemConfiguration, stored copy
+# of SoundMetrics/aris-integration-sdk): window start and end (m), the range beyond which ARIS
+# tools switch to the low frequency (m), ping modes; the frequencies (kHz, high / low).
+# Frequencies: ARIS 3000 3.0 / 1.8 MHz confirmed (SDK FrequencyHigh / FrequencyLow); ARIS 1800
+# 1.8 / 1.1 MHz and ARIS 1200 1.2 / 0.7 MHz as commonly quoted (not confirmed here).
+ARIS_MODELS: Mapping[str, Mapping[str, object]] = MappingProxyType({
+    "ARIS3000": MappingProxyType({"name": "ARIS Explorer 3000", "window_start_m": (0.7, 12.0),
+                                  "window_end_m": (1.3, 20.0), "crossover_m": 5.0, "khz": (3000.0, 1800.0),
+                                  "ping_modes": (6, 9)}),
+    "ARIS1800": MappingProxyType({"name": "ARIS Explorer 1800", "window_start_m": (0.7, 25.0),
+                                  "window_end_m": (1.3, 50.0), "crossover_m": 15.0, "khz": (1800.0, 1100.0),
+                                  "ping_modes": (1, 3)}),
+    "ARIS1200": MappingProxyType({"name": "ARIS Explorer 1200", "window_start_m": (0.7, 40.0),
+                                  "window_end_m": (1.3, 100.0), "crossover_m": 25.0, "khz": (1200.0, 700.0),
+                                  "ping_modes": (1,)}),
+})
+
+# The modes with a preset: every model x beam count x lens of Sound Metrics' lookup table
+# (aris-file-sdk SoundMetrics.Aris.BeamWidths Metrics.cs: ARIS 1200 x 48 and ARIS 1800 x 48 / 96
+# with either lens, ARIS 3000 x 64 / 128 with the standard lens only). Windows (our choice):
+# the high-frequency beam count from the SDK's smallest window start to the frequency crossover,
+# the low-frequency one from the crossover to the largest window end (as for the ARIS 3000,
+# whose 128 beams are its 3 MHz mode and 64 its 1.8 MHz); the ARIS 1200 has one beam count, at
+# its high frequency. Bins: about 1 cm for the 1800 and 1200 windows (the SDK's sample periods of
+# 4-40 us give 3-30 mm at 1500 m/s).
+ARIS_MODES: tuple[ArisMode, ...] = (
+    ArisMode("ARIS3000", 128, "standard", 3000.0, 0.7, 5.0, 1288),
+    ArisMode("ARIS3000", 64, "standard", 1800.0, 5.0, 20.0, 1500),
+    ArisMode("ARIS1800", 96, "standard", 1800.0, 0.7, 15.0, 1430),
+    ArisMode("ARIS1800", 48, "standard", 1100.0, 15.0, 50.0, 1750),
+    ArisMode("ARIS1200", 48, "standard", 1200.0, 0.7, 25.0, 2000),
+    ArisMode("ARIS1800", 96, "telephoto", 1800.0, 0.7, 15.0, 1430),
+    ArisMode("ARIS1800", 48, "telephoto", 1100.0, 15.0, 50.0, 1750),
+    ArisMode("ARIS1200", 48, "telephoto", 1200.0, 0.7, 25.0, 2000),
 )
+
+
+def aris_preset_name(model: str, n_beams: int, telephoto: bool) -> str | None:
+    """The preset of an ARIS model, beam count and lens, or None where there is none.
+
+    Parameters
+    ----------
+    model : str
+        ``"ARIS 3000"``, ``"aris1800"``, ... (case, spaces, hyphens and underscores ignored).
+    n_beams : int
+    telephoto : bool
+        The telephoto lens (an ARIS file's ``LargeLens`` 1).
+
+    Returns
+    -------
+    str or None
+    """
+    key, lens = _normalise_model(model), "telephoto" if telephoto else "standard"
+    for mode in ARIS_MODES:
+        if (mode.model, mode.n_beams, mode.lens) == (key, int(n_beams), lens):
+            return mode.name
+    return None
+
+
+# Beam widths: the mean left-to-right width of each measured table's beams (they tile the fan;
+# not a -3 dB figure), except ARIS_Telephoto_48, whose left/right columns do not bracket its
+# centres (widths about half the spacing): its mean centre spacing instead.
+_ARIS_BEAM_WIDTH_DEG = {
+    "ARIS3000_128.csv": 0.236, "ARIS3000_64.csv": 0.472, "ARIS1800_96.csv": 0.290,
+    "ARIS1800_1200_48.csv": 0.575, "ARIS_Telephoto_96.csv": 0.156, "ARIS_Telephoto_48.csv": 0.312,
+}
+
+
+def _aris_preset(mode: ArisMode) -> Preset:
+    facts = ARIS_MODELS[mode.model]
+    fit = mode.fit
+    high = mode.frequency_khz == facts["khz"][0]
+    lens = "telephoto lens" if mode.lens == "telephoto" else "standard lens"
+    confirmed = "confirmed (SDK FrequencyHigh / FrequencyLow)" if mode.model == "ARIS3000" else \
+        "as commonly quoted, not confirmed from a Sound Metrics document here"
+    source = (
+        f"Model limits: Sound Metrics ARIS Integration SDK SystemConfiguration ({facts['name']}: ping modes "
+        f"{', '.join(map(str, facts['ping_modes']))}; window start {facts['window_start_m'][0]:g}-"
+        f"{facts['window_start_m'][1]:g} m, window end {facts['window_end_m'][0]:g}-{facts['window_end_m'][1]:g} m, "
+        f"frequency crossover {facts['crossover_m']:g} m). Frequencies {facts['khz'][0]:g} / {facts['khz'][1]:g} kHz: "
+        f"{confirmed}. Beam centres: closed-form fit of Sound Metrics' measured table {fit.table[:-4]} "
+        f"(aris-file-sdk beam-width-metrics; fit max error {fit.max_error_deg} deg, RMS {fit.rms_error_deg} deg); "
+        f"Sound Metrics' lookup (aris-file-sdk Metrics.cs) gives this table to the {facts['name']} with "
+        f"{mode.n_beams} beams and the {lens}. beam_width_deg: mean beam width of that table (its centre spacing "
+        f"for ARIS_Telephoto_48, whose edge columns are inconsistent). elevation_fov_deg "
+        f"{ARIS_ELEVATION_FOV_DEG[mode.lens]:g}: "
+        + ("Sound Metrics' quoted 30 x 14 deg field of view (secondary: Ocean Networks Canada's instrument "
+           "page; not confirmed from a Sound Metrics document here)." if mode.lens == "standard" else
+           "NOT CONFIRMED: the telephoto lens is quoted as narrowing the vertical beam to about 3 deg, but no "
+           "document giving it could be found here; override elevation_fov_deg when it is known.")
+        + f" Range window (our choice): {mode.range_min_m:g}-{mode.range_max_m:g} m, "
+        + ("from the smallest window start to the frequency crossover" if high and mode.range_min_m < facts["crossover_m"]
+           else "from the frequency crossover to the largest window end")
+        + f", {mode.n_range_bins} bins."
+    )
+    return Preset(
+        name=mode.name,
+        description=(f"Sound Metrics {facts['name']}, {mode.frequency_khz / 1000:g} MHz "
+                     f"{'high' if high else 'low'}-frequency mode, {mode.n_beams} beams, {lens}"),
+        source=source,
+        sonar={
+            "n_beams": mode.n_beams,
+            "beam_angles_deg": _angles(fit.angles_deg()),
+            "beam_width_deg": _ARIS_BEAM_WIDTH_DEG[fit.table],
+            "elevation_fov_deg": ARIS_ELEVATION_FOV_DEG[mode.lens],
+            "range_min_m": mode.range_min_m,
+            "range_max_m": mode.range_max_m,
+            "n_range_bins": mode.n_range_bins,
+            "frequency_khz": mode.frequency_khz,
+        },
+    )
 
 
 def _build_presets() -> Mapping[str, Preset]:
     presets = [
-        Preset(
-            name="aris3000-128",
-            description="Sound Metrics ARIS Explorer 3000, 3.0 MHz identification mode, 128 beams",
-            source=_ARIS_SOURCE_COMMON.format(
-                table="ARIS3000_128", max_err=0.0054, rms_err=0.0022
-            )
-            + " Range window (our choice): 0.7 m is the smallest window start the SDK allows, "
-            "5 m the SDK's crossover above which ARIS tools switch to 1.8 MHz; 1288 range bins "
-            "is the image size used by Wang et al. (128 x 1288). Bin size 3.34 mm (the device's "
-            "sample period of 4-26 us gives 3.0-19.5 mm at 1500 m/s).",
-            sonar={
-                "n_beams": 128,
-                "beam_angles_deg": _angles(aris_beam_angles_deg("ARIS3000", 128)),
-                "beam_width_deg": 0.236,
-                "elevation_fov_deg": 14.0,
-                "range_min_m": 0.7,
-                "range_max_m": 5.0,
-                "n_range_bins": 1288,
-                "frequency_khz": 3000.0,
-            },
-        ),
-        Preset(
-            name="aris3000-64",
-            description="Sound Metrics ARIS Explorer 3000, 1.8 MHz detection mode, 64 beams",
-            source=_ARIS_SOURCE_COMMON.format(table="ARIS3000_64", max_err=0.0083, rms_err=0.0031)
-            + " Range window (our choice): from the SDK's 5 m frequency crossover to its 20 m "
-            "maximum window end; 1500 bins of 10 mm.",
-            sonar={
-                "n_beams": 64,
-                "beam_angles_deg": _angles(aris_beam_angles_deg("ARIS3000", 64)),
-                "beam_width_deg": 0.472,
-                "elevation_fov_deg": 14.0,
-                "range_min_m": 5.0,
-                "range_max_m": 20.0,
-                "n_range_bins": 1500,
-                "frequency_khz": 1800.0,
-            },
-        ),
+        *(_aris_preset(mode) for mode in ARIS_MODES),
         Preset(
             name="didson300",
             description=(
