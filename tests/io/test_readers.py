@@ -17,7 +17,7 @@ from PIL import Image
 
 from sonarsim import SonarImage, SonarsimError
 from sonarsim.io import readers
-from sonarsim.config.presets import aris_beam_angles_deg
+from sonarsim.config.presets import aris_beam_angles_deg, get_preset
 from sonarsim.io.readers import RecordingError
 from sonarsim.io.readers import aris as aris_module
 from sonarsim.io.readers.oculus import elevation_fov_deg
@@ -230,6 +230,43 @@ def test_aris_beam_angles_from_system_type_and_lens(tmp_path, system_type, large
     np.testing.assert_allclose(image.sonar.beam_angles_deg, expected)
     assert image.azimuth_deg[0] > 0 > image.azimuth_deg[-1]  # left-most (positive) first
     assert np.all(np.diff(image.azimuth_deg) < 0)
+
+
+@pytest.mark.parametrize(
+    "system_type, large_lens, ping_mode, preset, elevation",
+    [
+        (2, 0, 1, "aris1200-48", 14.0),
+        (2, 1, 1, "aris1200-48-telephoto", 3.0),
+        (0, 0, 1, "aris1800-48", 14.0),
+        (0, 1, 1, "aris1800-48-telephoto", 3.0),
+        (0, 0, 3, "aris1800-96", 14.0),
+        (0, 1, 3, "aris1800-96-telephoto", 3.0),
+        (1, 0, 6, "aris3000-64", 14.0),
+        (1, 0, 9, "aris3000-128", 14.0),
+    ],
+)
+def test_aris_lens_gives_the_elevation_aperture_and_the_preset(tmp_path, system_type, large_lens, ping_mode,
+                                                               preset, elevation):
+    # The lens is LargeLens in the frame header; 14 deg for every lens was the old assumption.
+    kw = {"system_type": system_type, "large_lens": large_lens, "ping_mode": ping_mode, "samples_per_beam": 20}
+    image = readers.read(write_aris(tmp_path / "lens.aris", [(kw, [])]))
+    assert image.sonar.elevation_fov_deg == elevation
+    assert image.sonar.preset == preset
+    assert image.config["header"]["elevation_fov_deg_assumed"] == elevation
+    assert image.config["header"]["lens"] == ("telephoto" if large_lens else "standard")
+    # The preset it names has the same beams and aperture (the window is the recording's).
+    named = get_preset(preset).sonar
+    assert named["n_beams"] == image.sonar.n_beams and named["elevation_fov_deg"] == elevation
+    np.testing.assert_allclose(named["beam_angles_deg"], image.sonar.beam_angles_deg, atol=1e-6)
+
+
+def test_aris_lens_changes_only_the_aperture_within_one_file_header(tmp_path):
+    # Two frames, standard then telephoto lens (a lens swap between recordings written to one file).
+    path = write_aris(tmp_path / "two.aris", [({"large_lens": 0}, []), ({"large_lens": 1}, [])])
+    first, second = readers.read(path, 0), readers.read(path, 1)
+    assert (first.sonar.elevation_fov_deg, second.sonar.elevation_fov_deg) == (14.0, 3.0)
+    assert (first.sonar.preset, second.sonar.preset) == ("aris1200-48", "aris1200-48-telephoto")
+    assert second.azimuth_deg[0] < first.azimuth_deg[0] / 1.5  # the telephoto fan is about half as wide
 
 
 def test_aris_multiple_frames_and_frame_selection(tmp_path):
@@ -819,6 +856,9 @@ def test_real_aris_sample():
     assert image.sonar.range_max_m == pytest.approx(23.40, abs=0.005)
     np.testing.assert_allclose(image.azimuth_deg, aris_beam_angles_deg("ARIS-telephoto", 48))
     assert 7.0 < image.azimuth_deg[0] < 7.7  # the telephoto lens: about 15 deg wide
+    # LargeLens 1 in the sample: the telephoto lens's aperture and preset, not 14 deg.
+    assert h["LargeLens"] == 1 and image.sonar.elevation_fov_deg == 3.0
+    assert image.sonar.preset == "aris1200-48-telephoto"
     frames = list(readers.read_frames(ARIS_SAMPLE))
     assert len(frames) == 6 and [f.config["header"]["FrameIndex"] for f in frames] == list(range(6))
 

@@ -32,9 +32,13 @@ Geometry, per frame (the frame header, not the file header, is authoritative):
   combinations (e.g. an ARIS 3000 with a telephoto lens) have no table and are refused rather
   than drawn with guessed angles.
 
-Assumptions (not in the file): the elevation aperture is 14 degrees for every model and lens
-(Sound Metrics' quoted 30 x 14 deg field of view; the telephoto lens's own vertical aperture
-could not be confirmed here). The carrier frequency is taken from ``FrequencyHiLow`` and the
+The lens is taken from the frame header (``LargeLens`` 1: the telephoto lens), and with it the
+elevation aperture, which is not in the file: Sound Metrics' published vertical beam width of
+that lens (:data:`sonarsim.config.presets.ARIS_ELEVATION_FOV_DEG`: 14 degrees for the standard
+lens, Sound Metrics' quoted 30 x 14 deg field of view; about 3 degrees for the telephoto lens, a
+figure that could not be confirmed here). The image's sonar names the preset of its model, beam
+count and lens (``preset``, :func:`sonarsim.config.presets.aris_preset_name`); its range window
+and bins are the recording's, not the preset's. The carrier frequency is taken from ``FrequencyHiLow`` and the
 model: 3.0 / 1.8 MHz (ARIS 3000, Integration SDK), 1.8 / 1.1 MHz (ARIS 1800), 1.2 / 0.7 MHz
 (ARIS 1200, as commonly quoted; not confirmed from a Sound Metrics document here); it is
 informational only.
@@ -106,7 +110,8 @@ SYSTEM_TYPES: dict[int, tuple[str, str, tuple[float, float]]] = {
     2: ("ARIS 1200", "ARIS1200", (1200.0, 700.0)),
 }
 
-#: Elevation aperture assumed for every ARIS (see the module notes).
+#: Elevation aperture of the standard lens (see the module notes; the telephoto lens's is
+#: :data:`sonarsim.config.presets.ARIS_ELEVATION_FOV_DEG` ``["telephoto"]``).
 ELEVATION_FOV_DEG = 14.0
 
 # Physical plausibility of the frame-header fields the geometry comes from. Sound Metrics'
@@ -386,9 +391,13 @@ class ArisRecording(Recording):
         model, fit_key, (hf_khz, lf_khz) = SYSTEM_TYPES[h["TheSystemType"]]
         telephoto = h["LargeLens"] == 1
         angles = self._beam_angles(model, "ARIS-telephoto" if telephoto else fit_key, n_beams, h, where)
+        from ...config.presets import ARIS_ELEVATION_FOV_DEG, aris_preset_name
+
         return {
             "header": h, "where": where, "start": start, "end": start + n_samples * dr, "dr": dr,
             "model": model, "telephoto": telephoto, "angles": angles,
+            "elevation": ARIS_ELEVATION_FOV_DEG["telephoto" if telephoto else "standard"],
+            "preset": aris_preset_name(fit_key, n_beams, telephoto),
             "frequency": hf_khz if h["FrequencyHiLow"] == 1 else lf_khz,
         }
 
@@ -400,7 +409,8 @@ class ArisRecording(Recording):
         SonarImage
             ``polar`` float32 ``(SamplesPerBeam, BeamCount)`` of the recorded 8-bit values,
             row 0 nearest, column 0 the left-most beam; ``config`` holds the source, format,
-            frame and the decoded frame header (plus ``model``, ``lens``, ``BeamCount``,
+            frame and the decoded frame header (plus ``model``, ``lens``, ``preset``,
+            ``elevation_fov_deg_assumed``, ``BeamCount``,
             ``window_start_m``, ``window_end_m``, ``sample_length_m`` and ``file_header``).
 
         Raises
@@ -429,11 +439,12 @@ class ArisRecording(Recording):
         try:
             sonar = SonarConfig(
                 beam_angles_deg=tuple(g["angles"]),
-                elevation_fov_deg=ELEVATION_FOV_DEG,
+                elevation_fov_deg=g["elevation"],
                 range_min_m=start,
                 range_max_m=end,
                 n_range_bins=n_samples,
                 frequency_khz=g["frequency"],
+                preset=g["preset"],
             )
         except ConfigError as exc:  # defensive: the checks above should make this impossible
             raise RecordingError(self._source, f"gives an impossible sonar: {exc}", where) from exc
@@ -447,7 +458,8 @@ class ArisRecording(Recording):
             sample_length_m=g["dr"],
             frequency_khz=g["frequency"],
             bits_per_value=8,
-            elevation_fov_deg_assumed=ELEVATION_FOV_DEG,
+            elevation_fov_deg_assumed=g["elevation"],
+            preset=g["preset"],
             file_header=dict(self.file_header),
         )
         return SonarImage(
