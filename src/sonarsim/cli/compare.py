@@ -1,5 +1,15 @@
 """The ``sonarsim compare`` command: MSE, PSNR and SSIM between two sonar images.
 
+With ``--stats`` A is taken as a real frame and B as a model in A's units, and the scores are
+put beside what they mean (issue 22; :func:`sonarsim.analysis.bands.realism_report`): B's PSNR
+and SSIM beside those of the trivial images made from A's frame (its range profile in every
+beam, its separable range x beam image) and of the ceiling (A's own 15 x 9 local mean), all
+scored on a held-out frame of A's recording (``--held-out``; by default the nearest later frame
+that is not B's), B's margin over the best trivial image (a one-line warning on stderr when it
+is negative), statistics in 8 range bands of the lit region and the water column, the
+across-fan beam profile, and the classifier two-sample test. With a single real frame all of it
+is scored on A itself, and the output says that this is optimistic.
+
 A thin layer over :mod:`sonarsim.analysis.comparison`. Wire it into the main parser with::
 
     from .compare import add_compare_parser, cmd_compare
