@@ -105,9 +105,9 @@ def patch_features(image: Any, mask: Any = None, patch: tuple[int, int] = PATCH_
     unknown = [f for f in features if f not in FEATURES]
     if unknown or not len(features):
         raise ValueError(f"features must be a non-empty selection of {', '.join(FEATURES)}, got {list(features)}")
-    h, w = (int(v) for v in patch)
-    if len(patch) != 2 or h < 2 or w < 2:
+    if len(patch) != 2 or min(int(v) for v in patch) < 2:
         raise ValueError(f"patch must be two sizes >= 2 (range bins, beams), got {patch}")
+    h, w = (int(v) for v in patch)
     if (x < 0).any():
         raise ValueError("image must be non-negative (intensities or counts)")
     nr, nb = x.shape[0] // h, x.shape[1] // w
