@@ -140,8 +140,8 @@ cdef struct Chain:
     bint expected
 
 
-cdef void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain *c, float *p,
-                       float *tg, float *bb, float *out) noexcept nogil:
+cdef inline void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain *c, float *p,
+                              float *tg, float *bb, float *out, bint per_beam, bint common) noexcept nogil:
     """Device values of row ``i`` whose mean image is ``m`` (``p``, ``tg``, ``bb``: scratch of
     ``n_b`` floats each).
 
@@ -149,6 +149,11 @@ cdef void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain
     ``table(10 log10(tvg[i] beam_gain[j] (mu + N)))`` (N the row's noise power, common noise
     included); else ``P = tvg[i] beam_gain[j] |sqrt(mu) F + sqrt(N) W + C|^2`` (F = 1 without
     speckle, W = 0 without noise, C = common_re[i] + i common_im[i]) and the compression of P.
+
+    ``per_beam`` (the per-beam factors are not all 1) and ``common`` (C is not 0) are constants
+    at each call (:func:`_combine`): the compiler makes a copy of the loops for each, and
+    without them the loops are those of a stage without these effects (same speed, same
+    rounding).
     """
     cdef Py_ssize_t j, k, n_t = c.n_table
     cdef float g = c.echo_gain[i], b = c.bang[i], t = c.tvg[i], mu, re, im, s, x, frac
@@ -164,19 +169,26 @@ cdef void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain
     cdef const part_t *fi = NULL
     cdef const part_t *wr = NULL
     cdef const part_t *wi = NULL
-    # The per-beam factors folded into the row's two constants first: with factors of 1 each
-    # product is exact, so the pixel loops below round as they did before the factors existed.
-    for j in range(n_b):
-        tg[j] = t * beam_gain[j]
+    if per_beam:  # the row's gain and bang in each beam
+        for j in range(n_b):
+            tg[j] = t * beam_gain[j]
     if c.expected:
-        for j in range(n_b):
-            bb[j] = b * bang_beam[j]
-        for j in range(n_b):
-            x = tg[j] * (g * m[j] + bb[j] + noise_power)
-            x = x if x > TINY else TINY
-            x = (DB_PER_LN * _ln(x) - lo) * inv_step
-            x = x if x > 0.0 else 0.0
-            p[j] = x if x < top else top
+        if per_beam:
+            for j in range(n_b):
+                bb[j] = b * bang_beam[j]
+            for j in range(n_b):
+                x = tg[j] * (g * m[j] + bb[j] + noise_power)
+                x = x if x > TINY else TINY
+                x = (DB_PER_LN * _ln(x) - lo) * inv_step
+                x = x if x > 0.0 else 0.0
+                p[j] = x if x < top else top
+        else:
+            for j in range(n_b):
+                x = t * (g * m[j] + b + noise_power)
+                x = x if x > TINY else TINY
+                x = (DB_PER_LN * _ln(x) - lo) * inv_step
+                x = x if x > 0.0 else 0.0
+                p[j] = x if x < top else top
         for j in range(n_b):
             x = p[j]
             k = <Py_ssize_t> x
@@ -190,48 +202,71 @@ cdef void _combine_row(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain
         # sqrt(mu) * scale * stored = sqrt(mu scale^2) * stored: the step folds into the gains.
         g = g * c.speckle.scale * c.speckle.scale
         b = b * c.speckle.scale * c.speckle.scale
-    for j in range(n_b):
-        bb[j] = b * bang_beam[j]
         fr = _field_row(&c.speckle, i)
         fi = fr + 2 * c.speckle.n_b
     if c.noise.data != NULL:
         wr = _field_row(&c.noise, i)
         wi = wr + 2 * c.noise.n_b
-    if c.speckle.data != NULL and c.noise.data != NULL and (cr != 0.0 or ci != 0.0):
-        for j in range(n_b):  # as below, with the noise common to the row
-            mu = g * m[j] + bb[j]
-            s = sqrtf(mu if mu > TINY else 0.0)
-            re = s * <float> fr[j] + sn * <float> wr[j] + cr
-            im = s * <float> fi[j] + sn * <float> wi[j] + ci
-            p[j] = re * re + im * im
-    elif c.speckle.data != NULL and c.noise.data != NULL:
+    else:  # the common noise comes with the receiver's (``frame`` passes zeros without it)
+        cr = ci = 0.0
+    if per_beam:
         for j in range(n_b):
-            mu = g * m[j] + bb[j]
+            bb[j] = b * bang_beam[j]
+    # ``bb[j] if per_beam else b``: a constant condition, resolved when the loops are compiled;
+    # likewise ``+ cr`` (zero without common noise, where fast maths drops it).
+    if c.speckle.data != NULL and c.noise.data != NULL:
+        for j in range(n_b):
+            mu = g * m[j] + (bb[j] if per_beam else b)
             s = sqrtf(mu if mu > TINY else 0.0)
             re = s * <float> fr[j] + sn * <float> wr[j]
             im = s * <float> fi[j] + sn * <float> wi[j]
+            if common:
+                re = re + cr
+                im = im + ci
             p[j] = re * re + im * im
     elif c.speckle.data != NULL:
         for j in range(n_b):
-            mu = g * m[j] + bb[j]
+            mu = g * m[j] + (bb[j] if per_beam else b)
             s = sqrtf(mu if mu > TINY else 0.0)
             re = s * <float> fr[j]
             im = s * <float> fi[j]
             p[j] = re * re + im * im
     elif c.noise.data != NULL:
         for j in range(n_b):
-            mu = g * m[j] + bb[j]
+            mu = g * m[j] + (bb[j] if per_beam else b)
             s = sqrtf(mu if mu > TINY else 0.0)
-            re = s + sn * <float> wr[j] + cr
-            im = sn * <float> wi[j] + ci
+            re = s + sn * <float> wr[j]
+            im = sn * <float> wi[j]
+            if common:
+                re = re + cr
+                im = im + ci
             p[j] = re * re + im * im
     else:
         for j in range(n_b):
-            mu = g * m[j] + bb[j]
+            mu = g * m[j] + (bb[j] if per_beam else b)
             p[j] = mu if mu > TINY else 0.0
-    for j in range(n_b):
-        p[j] = tg[j] * p[j]
+    if per_beam:
+        for j in range(n_b):
+            p[j] = tg[j] * p[j]
+    else:
+        for j in range(n_b):
+            p[j] = t * p[j]
     _compress_row(p, out, n_b, c.comp, c.lo_db, c.inv_span, c.inv_ceiling, c.gamma, c.fs, c.quantise)
+
+
+cdef void _combine(const float *m, Py_ssize_t i, Py_ssize_t n_b, const Chain *c, float *p, float *tg, float *bb,
+                   float *out, bint per_beam) noexcept nogil:
+    """:func:`_combine_row` with its flags as constants (one specialised copy each)."""
+    cdef bint common = c.common_re[i] != 0.0 or c.common_im[i] != 0.0
+    if per_beam:
+        if common:
+            _combine_row(m, i, n_b, c, p, tg, bb, out, True, True)
+        else:
+            _combine_row(m, i, n_b, c, p, tg, bb, out, True, False)
+    elif common:
+        _combine_row(m, i, n_b, c, p, tg, bb, out, False, True)
+    else:
+        _combine_row(m, i, n_b, c, p, tg, bb, out, False, False)
 
 
 cdef inline void _blur_beams_row(const float[:, ::1] x, Py_ssize_t i, const float[::1] column_factor,
@@ -321,6 +356,10 @@ def frame(const float[:, ::1] x, const float[::1] column_factor, const float[::1
     cdef float *p = row + n_b
     cdef float *tg = p + n_b
     cdef float *bb = tg + n_b
+    # The per-beam factors are all 1 unless an effect sets them: then the loops skip them.
+    cdef bint per_beam = False
+    for j in range(n_b):
+        per_beam = per_beam or bang_beam[j] != 1.0 or beam_gain[j] != 1.0
     cdef float *t
     with nogil:
         memset(pad, 0, (n_b + 2 * hb) * sizeof(float))
@@ -342,7 +381,7 @@ def frame(const float[:, ::1] x, const float[::1] column_factor, const float[::1
                     row[j] += k * t[j]
             for j in range(n_b):
                 row[j] *= norm_r[i]
-            _combine_row(row, i, n_b, &c, p, tg, bb, &out[i, 0])
+            _combine(row, i, n_b, &c, p, tg, bb, &out[i, 0], per_beam)
     free(ring)
 
 
