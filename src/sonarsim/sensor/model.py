@@ -82,6 +82,8 @@ class FrameDraws(NamedTuple):
 def beam_rng(seed: int, effect: str) -> np.random.Generator:
     """The generator of a scene's seeded per-beam factors (``effect``: a key of BEAM_DRAWS)."""
     return np.random.default_rng([int(seed), BEAM_STREAM, BEAM_DRAWS[effect]])
+
+
 # A sensor's elevation span defaults to this many -3 dB widths.
 DEFAULT_SPAN_WIDTHS = 3.0
 
@@ -161,6 +163,22 @@ class SensorModel:
     fields : bool
         Build the speckle and noise fields; ``False``: only the expected output is available
         (``apply(..., speckle=False)``), which is what a calibration evaluates many times.
+
+    Attributes
+    ----------
+    range_m : (n_range_bins,) float64 ndarray, metres
+    echo_gain, tvg : (n_range_bins,) float32 ndarrays
+        g(r) and t(r) (TVG and gain) as powers.
+    bang : (n_range_bins,) float32 ndarray, uPa^2
+        The bang's range profile (:func:`~sonarsim.sensor.channels.bang_row`).
+    beam_gain_db, bang_beam_db : (n_beams,) float64 ndarrays, dB
+        The channels' gain G_j and the bang's pattern B_j, seeded stripes included
+        (:func:`~sonarsim.sensor.channels.beam_gain_db`, :func:`~sonarsim.sensor.channels.bang_beam_db`,
+        drawn from :func:`beam_rng`); ``beam_gain`` and ``bang_beam``: the same as float32 powers.
+    noise_row : (n_range_bins,) float32 ndarray, uPa^2
+        N(r): the receiver's noise plus the after-TVG noise referred to the receiver.
+    common_power : (n_range_bins,) float64 ndarray, uPa^2
+        C(r), the noise common to a row's beams (:func:`~sonarsim.sensor.channels.common_noise_power`).
     """
 
     def __init__(self, spec: SensorSpec, sonar: SonarConfig, seed: int = 0, fields: bool = True) -> None:
