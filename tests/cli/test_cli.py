@@ -20,7 +20,8 @@ from PIL import Image
 from sonarsim.cli import main as cli
 
 PRESET_NAMES = [
-    "aris3000-128", "aris3000-64", "didson300", "oculus-m750d-lf", "oculus-m750d-hf",
+    "aris3000-128", "aris3000-64", "aris1800-96", "aris1800-48", "aris1200-48", "aris1800-96-telephoto",
+    "aris1800-48-telephoto", "aris1200-48-telephoto", "didson300", "oculus-m750d-lf", "oculus-m750d-hf",
     "oculus-m1200d-lf", "oculus-m1200d-hf", "blueview-p900-130", "gemini-720i",
 ]
 NPZ_KEYS = {"polar", "range_m", "azimuth_deg", "object", "ground", "single", "config_json"}
