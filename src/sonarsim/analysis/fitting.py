@@ -26,6 +26,7 @@ parameter that ran away), and ``sonarsim fit`` exits with status 3 on any of the
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, replace
 from typing import Callable, Sequence
 
@@ -108,45 +109,252 @@ def edge_cost(simulated: np.ndarray, real_edges: np.ndarray, smoothing: tuple[fl
 # filter across beams: speckle makes single-beam edges of a real image jump by centimetres.
 BAND_SMOOTHING = (12.0, 8.0)
 BAND_MEDIAN_BEAMS = 15
+# Least step of a band edge in the smoothed log-intensity, as a fraction of the image's spread of
+# that level (its 99th minus 1st percentile). Measured with the default smoothing: the real
+# Oculus floor ping's edges step by 0.27-0.50 (rise, 5th-95th percentile over beams) and
+# 0.37-0.41 (fall) of its spread; the ARIS sample's sea bed, lit from before its window start
+# to beyond its end and fading with range, has no step above 0.19 (rise) and 0.31 (fall, a
+# patch of brighter sea bed 22 m out) in 95 % of its beams. The step alone cannot tell them
+# apart: the level on each side of an edge must also persist (BAND_PERSISTENCE).
+BAND_MIN_CONTRAST = 0.2
+# Least step of an edge in units of its own noise (the speckle that is left after smoothing):
+# an image of speckle alone (whose spread is itself speckle) shows no edge.
+BAND_MIN_SIGNIFICANCE = 6.0
+# A band edge separates a band from a region that is darker throughout (hysteresis): below a
+# near edge, the region from the window start to the edge (its 75th percentile, so that the
+# transmit bang does not count) must lie at least this share of BAND_MIN_CONTRAST's step below
+# the band just beyond the edge; beyond a far edge, the region to the window end below the
+# band just before it. A sea bed seen at a grazing angle, brighter near the sonar and fading
+# with range, has steps of its texture that the smoothing leaves, but no region that stays dark.
+BAND_PERSISTENCE = 0.5
+# The range (in range smoothing sigmas) kept clear between an edge and the regions whose
+# levels it separates, and the length of the band measured on its far side of an edge.
+BAND_GAP_SIGMAS = 2.0
+BAND_LEVEL_SIGMAS = 4.0
+# Edges farther than this many robust standard deviations (and BAND_GAP_SIGMAS range
+# smoothing sigmas) from the flat-floor curve fitted through all beams' edges are dropped.
+BAND_OUTLIER_SIGMAS = 4.0
+
+
+def _log_level(polar: np.ndarray) -> np.ndarray:
+    """log1p of an image scaled to its own 99th percentile: gain does not matter, contrast does."""
+    img = np.clip(np.asarray(polar, dtype=float), 0, None)
+    scale = np.percentile(img[img > 0], 99) if np.any(img > 0) else 1.0
+    return np.log1p(img / (0.05 * scale))
+
+
+def _curve_outliers(azimuth_rad: np.ndarray, ranges: np.ndarray, floor_m: float) -> np.ndarray:
+    """Beams whose edge lies off the flat-floor curve through the others.
+
+    On a flat floor the ray at a fixed elevation meets the floor at ``1/r = a + b cos(theta) +
+    c sin(theta)`` (height, pitch and roll in ``a, b, c``; DESIGN section 10), so the edges of all
+    beams lie on one such curve; speckle taken for an edge does not. Fitted with two rounds of
+    rejection; returns a boolean mask of the outliers (False where ``ranges`` is NaN).
+    """
+    ok = np.isfinite(ranges) & (ranges > 0)
+    out = np.zeros(ranges.shape, dtype=bool)
+    if ok.sum() < 6:
+        return out
+    design = np.stack([np.ones_like(azimuth_rad), np.cos(azimuth_rad), np.sin(azimuth_rad)], axis=1)
+    keep = ok.copy()
+    for _ in range(3):
+        coef, *_ = np.linalg.lstsq(design[keep], 1.0 / ranges[keep], rcond=None)
+        inverse = design @ coef
+        model = np.where(inverse > 0, 1.0 / np.where(inverse > 0, inverse, 1.0), np.inf)
+        resid = np.abs(ranges - model)
+        spread = 1.4826 * np.median(resid[keep])
+        limit = max(BAND_OUTLIER_SIGMAS * spread, floor_m)
+        new_keep = ok & (resid <= limit)
+        if new_keep.sum() < 6 or np.array_equal(new_keep, keep):
+            keep = new_keep if new_keep.sum() >= 6 else keep
+            break
+        keep = new_keep
+    out[ok & ~keep] = True
+    return out
+
+
+def _column_upper_quartile(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """75th percentile (nearest rank) of ``values[mask[:, j], j]`` for every column (NaN where empty)."""
+    ranked = np.sort(np.where(mask, values, np.inf), axis=0)
+    count = mask.sum(axis=0)
+    index = np.clip(np.floor(0.75 * (count - 1)).astype(int), 0, values.shape[0] - 1)
+    return np.where(count > 0, ranked[index, np.arange(values.shape[1])], np.nan)
+
+
+def _column_means(values: np.ndarray, start: np.ndarray, stop: np.ndarray) -> np.ndarray:
+    """Mean of ``values[start[j]:stop[j], j]`` for every column ``j`` (NaN where empty)."""
+    n = values.shape[0]
+    start, stop = np.clip(start, 0, n), np.clip(stop, 0, n)
+    cumulative = np.vstack([np.zeros((1, values.shape[1])), np.cumsum(values, axis=0)])
+    cols = np.arange(values.shape[1])
+    count = stop - start
+    total = cumulative[stop, cols] - cumulative[start, cols]
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def band_edges(
+    image: SonarImage | np.ndarray,
+    smoothing: tuple[float, float] = BAND_SMOOTHING,
+    median_beams: int = BAND_MEDIAN_BEAMS,
+    *,
+    range_m: np.ndarray | None = None,
+    azimuth_deg: np.ndarray | None = None,
+    min_contrast: float = BAND_MIN_CONTRAST,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per beam, the near and far edges of a floor band, or NaN where the image shows none.
+
+    The image is taken as log-intensity scaled to its own 99th percentile (gain does not
+    matter) and smoothed with a Gaussian of ``smoothing`` sigmas (range bins, beams) against
+    speckle. In each beam the near edge is the strongest rise of that level and the far edge
+    the strongest fall beyond it, each kept only when it is a clear edge:
+
+    * its step is at least ``min_contrast`` of the image's spread of level (99th minus 1st
+      percentile) and :data:`BAND_MIN_SIGNIFICANCE` times the noise left by the smoothing;
+    * the side away from the band stays dark (hysteresis, :data:`BAND_PERSISTENCE`): all of
+      the window before a near edge, all of it after a far edge, lies below the band next to
+      the edge. A sea bed lit from before the window start to beyond its end, fading with range
+      (grazing incidence), has neither edge: both are NaN, not two speckle maxima;
+    * it lies on the flat-floor curve through the other beams' edges (``1/r = a + b cos(theta)
+      + c sin(theta)``) within :data:`BAND_OUTLIER_SIGMAS` robust deviations.
+
+    The edges kept are then replaced by the median over ``median_beams`` neighbouring beams (of
+    those that have one), which removes the speckle's jitter; a beam whose neighbourhood has an
+    edge in fewer than half of its beams gets NaN.
+
+    On a flat floor the near edge is where the lowest ray of the elevation aperture meets it,
+    the far edge the highest ray (where inside the window): DESIGN section 10 gives the closed
+    form ``1/r = A cos(theta) +- B`` (no roll), ``A = cos(h) sin(p) / z``, ``B = sin(h) cos(p) / z``.
+
+    Parameters
+    ----------
+    image : SonarImage or (n_range_bins, n_beams) float array
+        A recording or render (its ``polar``, ``range_m`` and ``azimuth_deg``), or a polar image
+        (intensities >= 0, any scale; row 0 nearest, column 0 the left-most beam) with
+        ``range_m`` given.
+    smoothing : (float, float), optional
+        Gaussian sigmas along range (bins) and across beams (beams).
+    median_beams : int, optional
+        Width (beams) of the median across beams; 1 for none.
+    range_m : (n_range_bins,) float array, metres, optional
+        Range of each bin; required with a bare array, else the image's.
+    azimuth_deg : (n_beams,) float array, degrees, optional
+        Beam centres, left-most first; with a bare array, evenly spaced over +-15 degrees if not
+        given (used only by the flat-floor outlier test).
+    min_contrast : float, optional
+        Least step of an edge as a fraction of the image's spread of level (see above).
+
+    Returns
+    -------
+    near, far : (n_beams,) float64 ndarrays, metres
+        Range of the near and far edge in each beam; NaN where the beam shows no clear edge (no
+        echo, an echo that begins before the window start or ends beyond its end, or only
+        speckle).
+
+    Raises
+    ------
+    ValueError
+        A bare array without ``range_m``, or axes that do not match its shape.
+    """
+    if isinstance(image, SonarImage):
+        polar = image.polar
+        r = np.asarray(image.range_m if range_m is None else range_m, dtype=float)
+        az = np.asarray(image.azimuth_deg if azimuth_deg is None else azimuth_deg, dtype=float)
+    else:
+        polar = np.asarray(image)
+        if range_m is None:
+            raise ValueError("band_edges: give range_m (metres, one per row) with a bare polar image")
+        r = np.asarray(range_m, dtype=float)
+        az = (np.asarray(azimuth_deg, dtype=float) if azimuth_deg is not None
+              else np.linspace(15.0, -15.0, polar.shape[1] if polar.ndim == 2 else 1))
+    if polar.ndim != 2 or r.shape != (polar.shape[0],) or az.shape != (polar.shape[1],):
+        raise ValueError(f"band_edges: a polar image of shape {polar.shape} needs range_m of shape "
+                         f"({polar.shape[0] if polar.ndim else 0},) and azimuth_deg of one value per beam; "
+                         f"got {r.shape} and {az.shape}")
+    return _band_core(polar, r, az, smoothing, median_beams, min_contrast)[:2]
+
+
+def _band_core(polar, r, az, smoothing, median_beams, min_contrast):
+    """:func:`band_edges` on checked arrays; also returns the smoothed level and its 1st and
+    99th percentiles (for :func:`band_view`)."""
+    n_bins, n_beams = polar.shape
+    near = np.full(n_beams, np.nan)
+    far = np.full(n_beams, np.nan)
+    level = _log_level(polar)
+    smooth = ndimage.gaussian_filter(level, smoothing, mode="nearest")
+    low, high = np.percentile(smooth, [1, 99])
+    sigma_r = float(smoothing[0])
+    # The step of level across an edge: the range derivative of the smoothed level times
+    # sigma sqrt(2 pi), which is exactly the step's height for a sharp step.
+    to_step = max(sigma_r, 1e-9) * np.sqrt(2.0 * np.pi)
+    step = np.gradient(smooth, axis=0) * to_step if n_bins > 1 else np.zeros_like(smooth)
+    spread = float(high - low)
+    if not spread > 0:
+        return near, far, smooth, low, high
+    # The noise of the step: speckle left by the smoothing, through the same filter.
+    residual = level - smooth
+    noise = 1.4826 * float(np.median(np.abs(residual - np.median(residual))))
+    delta = np.zeros((int(8 * sigma_r) + 3, int(8 * smoothing[1]) + 3))
+    delta[delta.shape[0] // 2, delta.shape[1] // 2] = 1.0
+    kernel = np.gradient(ndimage.gaussian_filter(delta, smoothing, mode="constant"), axis=0) * to_step
+    threshold = max(min_contrast * spread, BAND_MIN_SIGNIFICANCE * noise * float(np.linalg.norm(kernel)))
+    gap = max(1, int(np.ceil(BAND_GAP_SIGMAS * sigma_r)))
+    width = max(1, int(np.ceil(BAND_LEVEL_SIGMAS * sigma_r)))
+    if n_bins <= 2 * gap + 2:
+        return near, far, smooth, low, high
+    persist = BAND_PERSISTENCE * threshold
+    rows = np.arange(n_bins)[:, None]
+    cols = np.arange(n_beams)
+    inner = step[gap:n_bins - gap]
+    # Near edge: the strongest rise, kept when the band beyond it is brighter than (the 75th
+    # percentile of) everything before it by the persistence margin.
+    first = gap + np.argmax(inner, axis=0)
+    band_after = _column_means(smooth, first + gap, first + gap + width)
+    below_level = _column_upper_quartile(smooth, rows < (first - gap)[None, :])
+    ok = (step[first, cols] >= threshold) & np.isfinite(band_after)
+    ok &= ~np.isfinite(below_level) | (band_after - below_level >= persist)
+    near[ok] = r[first[ok]]
+    # Far edge: the strongest fall beyond the near edge (beyond the window start without one),
+    # kept when everything after it is darker than the band before it.
+    begin = np.where(ok, first + gap, gap)
+    searched = np.where((rows >= begin[None, :]) & (rows < n_bins - gap), step, np.inf)
+    last = np.argmin(searched, axis=0)
+    band_before = _column_means(smooth, np.maximum(0, last - gap - width), np.maximum(0, last - gap))
+    beyond_level = _column_upper_quartile(smooth, rows >= (last + gap)[None, :])
+    ok = np.isfinite(searched[last, cols]) & (-step[last, cols] >= threshold) & np.isfinite(band_before)
+    ok &= ~np.isfinite(beyond_level) | (band_before - beyond_level >= persist)
+    far[ok] = r[last[ok]]
+    dr = abs(float(r[1] - r[0])) if n_bins > 1 else 0.0
+    azimuth = np.radians(az)
+    for edges in (near, far):
+        edges[_curve_outliers(azimuth, edges, BAND_GAP_SIGMAS * sigma_r * dr)] = np.nan
+        if median_beams > 1 and np.isfinite(edges).any():
+            half = int(median_beams) // 2
+            padded = np.pad(edges, half, constant_values=np.nan)  # beyond the fan: no edge
+            windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * half + 1)
+            support = np.isfinite(windows).sum(axis=1)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                median = np.nanmedian(windows, axis=1)
+            keep = np.isfinite(edges) & (2 * support >= min(2 * half + 1, n_beams))
+            edges[:] = np.where(keep, median, np.nan)
+    return near, far, smooth, low, high
 
 
 def floor_band_m(
     image: SonarImage, smoothing: tuple[float, float] = BAND_SMOOTHING, median_beams: int = BAND_MEDIAN_BEAMS
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per beam, the near and far edges of a floor band: the steepest rise of the echo, and
-    the steepest fall after it.
-
-    Edges are taken on the smoothed log-intensity (``smoothing``: Gaussian sigmas in range bins
-    and beams, against speckle), like :func:`edge_map`, so that they do not depend on gain or
-    on how the brightness varies inside the band; then a median over ``median_beams``
-    neighbouring beams removes outliers. On a flat floor the near edge is where the
-    lowest ray of the elevation aperture meets it, the far edge the highest ray (when inside
-    the range window).
+    """The near and far edges of a floor band per beam, metres, NaN where none: :func:`band_edges`.
 
     Returns
     -------
-    onset, end : (n_beams,) float64 ndarrays, metres; NaN for a beam without echo.
+    onset, end : (n_beams,) float64 ndarrays, metres; NaN for a beam without a clear edge.
     """
-    img = np.clip(np.asarray(image.polar, dtype=float), 0, None)
-    scale = np.percentile(img[img > 0], 99) if np.any(img > 0) else 1.0
-    smooth = ndimage.gaussian_filter(np.log1p(img / (0.05 * scale)), smoothing, mode="nearest")
-    slope = np.gradient(smooth, axis=0)
-    r = np.asarray(image.range_m)
-    first = np.argmax(slope, axis=0)
-    after = np.where(np.arange(len(r))[:, None] > first[None, :], slope, np.inf)
-    last = np.argmin(after, axis=0)
-    valid = (slope.max(axis=0) > 0) & np.isfinite(after.min(axis=0)) & (after.min(axis=0) < 0)
-    onset = np.where(slope.max(axis=0) > 0, r[first], np.nan)
-    end = np.where(valid, r[last], np.nan)
-    if median_beams > 1:  # a median across neighbouring beams removes the speckle outliers
-        onset = ndimage.median_filter(onset, median_beams, mode="nearest")
-        end = ndimage.median_filter(end, median_beams, mode="nearest")
-    return onset, end
+    return band_edges(image, smoothing, median_beams)
 
 
 def floor_onset_m(image: SonarImage, **kwargs) -> np.ndarray:
-    """The near edge of the floor band in each beam, metres (see :func:`floor_band_m`)."""
-    return floor_band_m(image, **kwargs)[0]
+    """The near edge of the floor band in each beam, metres (see :func:`band_edges`)."""
+    return band_edges(image, **kwargs)[0]
 
 
 # What makes a fit meaningless (see :func:`fit_problems`). Smoothing of the domain-neutral check:
@@ -172,6 +380,17 @@ MAX_ANGLE_MOVE_DEG = 90.0
 # echo at the start and the band is found in at least MIN_BAND_BEAMS of the beams.
 MAX_OBJECT_SHARE = 0.05
 MIN_BAND_BEAMS = 0.5
+# A recording that shows an edge in fewer than this share of its beams shows none: its band
+# passes that end of the window (:func:`band_residuals`), and its fit is checked on the range
+# profile (:func:`profile_correlation`, at least MIN_PROFILE_CORRELATION) instead of edge maps.
+CENSORED_EDGE_FRACTION = 0.1
+# Intensity, as a fraction of a beam's largest, above which a bin counts as lit (BandView's
+# first_lit_m / last_lit_m): 60 dB down, so that a noise-free render's faded grazing echo
+# counts and only its true silence (outside the elevation aperture) does not.
+LIT_FLOOR = 1e-6
+# Measured: 0.99 on the ARIS sample's sea bed at its fitted pose; a recording of speckle alone
+# has no range profile to follow.
+MIN_PROFILE_CORRELATION = 0.5
 
 # Sentinel cost of a band comparison without a beam where both images show a band: finite, so
 # that the simplex can step away from it; reported as a problem, never as a residual.
@@ -241,6 +460,10 @@ class FitResult:
     edge_correlation : float
         Correlation of the edge maps of the recording and of the fitted render at
         :data:`CHECK_SMOOTHING`: the domain-neutral check of :func:`fit_problems`.
+    profile_correlation : float
+        Correlation of the range profiles of the recording and of the fitted render
+        (:func:`profile_correlation`): the check instead of ``edge_correlation`` for a recording
+        that shows no band edge (a sea bed lit across the whole window).
     problems : tuple of str
         Why the fit is meaningless (:func:`fit_problems`); empty for a fit to be trusted.
     converged : bool
@@ -261,6 +484,7 @@ class FitResult:
     domain_reason: str = ""
     edge_correlation: float = float("nan")
     problems: tuple[str, ...] = ()
+    profile_correlation: float = float("nan")
     converged: bool = True
 
     @property
@@ -323,10 +547,159 @@ def recording_geometry(real: SonarImage, scene: Scene) -> SonarConfig:
     return sonar
 
 
+@dataclass(frozen=True)
+class BandView:
+    """What one image shows of a floor band, per beam (see :func:`band_view`).
+
+    Attributes
+    ----------
+    near, far : (n_beams,) float64 ndarrays, metres
+        :func:`band_edges`; NaN where the beam shows no clear edge.
+    lit_start, lit_end : (n_beams,) bool ndarrays
+        The beam is lit at the window's start (end): its smoothed level over the first (last)
+        :data:`BAND_LEVEL_SIGMAS` range sigmas is above the middle of the image's spread.
+    fading : (n_beams,) bool ndarray
+        The beam shows no far edge and its level falls from the window start to its end by more
+        than :data:`BAND_MIN_CONTRAST` of the spread: a sea bed seen at a grazing angle, whose
+        echo fades with range instead of ending at an edge.
+    window_m : (float, float)
+        The first and last range bin, metres.
+    first_lit_m, last_lit_m : (n_beams,) float64 ndarrays, metres
+        The first and last range bin whose intensity exceeds :data:`LIT_FLOOR` of the beam's
+        largest (NaN in a beam without echo): where a noise-free render's echo begins and ends,
+        however gradually. (A recording's noise keeps it lit everywhere.)
+    """
+
+    near: np.ndarray
+    far: np.ndarray
+    lit_start: np.ndarray
+    lit_end: np.ndarray
+    fading: np.ndarray
+    window_m: tuple[float, float]
+    first_lit_m: np.ndarray
+    last_lit_m: np.ndarray
+
+    @property
+    def determined(self) -> np.ndarray:
+        """(n_beams,) bool: the band's extent in the window is known: each end an edge, or the
+        band lit at that end of the window (it begins before the start, or lasts beyond the end
+        or fades out)."""
+        # A near edge begins a band, whatever follows (a far edge, or a band lasting beyond the
+        # window); without one, the band must be lit at the start and end at an edge, fade out,
+        # or last to the window's end.
+        return np.isfinite(self.near) | (self.lit_start & (np.isfinite(self.far) | self.fading | self.lit_end))
+
+    @property
+    def edge_fraction(self) -> float:
+        """Fraction of the beams with a near or a far edge."""
+        return float(np.mean(np.isfinite(self.near) | np.isfinite(self.far)))
+
+
+def band_view(image: SonarImage, smoothing: tuple[float, float] = BAND_SMOOTHING) -> BandView:
+    """The band's edges (:func:`band_edges`) and what each beam shows at the window's ends.
+
+    Parameters
+    ----------
+    image : SonarImage
+    smoothing : (float, float), optional
+        Gaussian sigmas (range bins, beams), as for :func:`band_edges`.
+
+    Returns
+    -------
+    BandView
+    """
+    r = np.asarray(image.range_m, dtype=float)
+    near, far, smooth, lo, hi = _band_core(np.asarray(image.polar), r, np.asarray(image.azimuth_deg, dtype=float),
+                                           smoothing, BAND_MEDIAN_BEAMS, BAND_MIN_CONTRAST)
+    width = max(1, min(smooth.shape[0], int(np.ceil(BAND_LEVEL_SIGMAS * smoothing[0]))))
+    start, end = smooth[:width].mean(axis=0), smooth[-width:].mean(axis=0)
+    middle = lo + 0.5 * (hi - lo)
+    lit = hi > lo
+    polar = np.asarray(image.polar, dtype=float)
+    peak = polar.max(axis=0)
+    echo = (polar > LIT_FLOOR * peak) & (peak > 0)
+    any_echo = echo.any(axis=0)
+    first = np.where(any_echo, r[np.argmax(echo, axis=0)], np.nan)
+    last = np.where(any_echo, r[len(r) - 1 - np.argmax(echo[::-1], axis=0)], np.nan)
+    return BandView(
+        near=near, far=far, lit_start=lit & (start > middle), lit_end=lit & (end > middle),
+        fading=lit & ~np.isfinite(far) & (start - end > BAND_MIN_CONTRAST * (hi - lo)),
+        window_m=(float(r[0]), float(r[-1])), first_lit_m=first, last_lit_m=last,
+    )
+
+
+def band_residuals(real: BandView, simulated: BandView) -> np.ndarray:
+    """Per beam, how far the simulated band's ends are from the recording's, metres.
+
+    Where both images show an edge: the difference of the edges. Where only one does, the other
+    image's band passes that end of the window, and the residual is the distance from the edge
+    to the window's limit it must be beyond: a render whose near edge lies inside the window of
+    a recording lit from its first range bin (a sea bed at a grazing angle) is that far from
+    agreeing with it, however its speckle looks. Such a bound is used for the recording only
+    where it shows that edge in none of its beams (its band is lit at the start, or shows no
+    far edge anywhere), so that a beam where speckle hid an edge is not read as a band beyond
+    the window; for the render (noise-free where it is a plain render), wherever it is lit at
+    that end. Beams where neither shows the edge agree (0) when both bands pass that end of
+    the window, and are not counted (NaN) otherwise.
+
+    Parameters
+    ----------
+    real, simulated : BandView
+        :func:`band_view` of the recording and of the render, on one grid.
+
+    Returns
+    -------
+    (2 n_beams,) float64 ndarray, metres
+        Near-edge residuals of every beam, then far-edge residuals; NaN where not counted.
+    """
+    lo, hi = real.window_m
+    # The recording's band begins before its window (nearly) everywhere, or never ends in it
+    # sharply: a few beams where speckle passed for an edge do not change that.
+    real_before = (np.mean(np.isfinite(real.near)) < CENSORED_EDGE_FRACTION
+                   and np.mean(real.lit_start) >= MIN_BAND_BEAMS)
+    real_beyond = (np.mean(np.isfinite(real.far)) < CENSORED_EDGE_FRACTION
+                   and np.mean(real.lit_end | real.fading) >= MIN_BAND_BEAMS)
+    rn, sn, rf, sf = real.near, simulated.near, real.far, simulated.far
+    # The render shows a band in the beam: one that begins at an edge, or before the window.
+    sim_band = np.isfinite(sn) | simulated.lit_start
+    near = np.full(rn.shape, np.nan)
+    far = np.full(rf.shape, np.nan)
+    both = np.isfinite(rn) & np.isfinite(sn)
+    near[both] = sn[both] - rn[both]
+    only_real = np.isfinite(rn) & ~np.isfinite(sn) & simulated.lit_start
+    near[only_real] = rn[only_real] - lo
+    if real_before:
+        only_sim = ~np.isfinite(rn) & np.isfinite(sn)
+        near[only_sim] = sn[only_sim] - lo
+        # Neither shows an edge: the render's echo must begin at the window start too (a render
+        # without echo in the beam is as far from it as can be).
+        neither = ~np.isfinite(rn) & ~np.isfinite(sn)
+        near[neither] = np.where(np.isfinite(simulated.first_lit_m), simulated.first_lit_m - lo, hi - lo)[neither]
+    both = np.isfinite(rf) & np.isfinite(sf)
+    far[both] = sf[both] - rf[both]
+    only_real = np.isfinite(rf) & ~np.isfinite(sf) & sim_band
+    far[only_real] = hi - rf[only_real]
+    if real_beyond:
+        only_sim = ~np.isfinite(rf) & np.isfinite(sf)
+        far[only_sim] = hi - sf[only_sim]
+        # Neither shows an edge: the render's echo, however faded, must last to the window end.
+        neither = ~np.isfinite(rf) & ~np.isfinite(sf)
+        far[neither] = np.where(np.isfinite(simulated.last_lit_m), hi - simulated.last_lit_m, hi - lo)[neither]
+    return np.concatenate([near, far])
+
+
 def _band_beams(image: SonarImage) -> float:
-    """Fraction of the beams in which :func:`floor_band_m` finds both edges of a band."""
-    onset, end = floor_band_m(image)
-    return float(np.mean(np.isfinite(onset) & np.isfinite(end)))
+    """Fraction of the beams in which the band's extent is known (:attr:`BandView.determined`)."""
+    return float(np.mean(band_view(image).determined))
+
+
+def profile_correlation(a: SonarImage, b: SonarImage, smoothing: tuple[float, float] = BAND_SMOOTHING) -> float:
+    """Correlation, in [-1, 1], of the range profiles (mean over beams of the smoothed log level)
+    of two images on one grid: the domain-neutral check of a recording without band edges."""
+    pa, pb = (ndimage.gaussian_filter1d(_log_level(i.polar).mean(axis=1), smoothing[0], mode="nearest") for i in (a, b))
+    pa, pb = pa - pa.mean(), pb - pb.mean()
+    norm = float(np.linalg.norm(pa) * np.linalg.norm(pb))
+    return float(np.dot(pa, pb) / norm) if norm > 0 else 0.0
 
 
 def choose_domain(real: SonarImage, scene: Scene, start: SonarImage) -> tuple[str, str]:
@@ -387,6 +760,11 @@ def choose_domain(real: SonarImage, scene: Scene, start: SonarImage) -> tuple[st
     if rendered < MIN_BAND_BEAMS:
         return "edges", (f"the scene at its start pose shows a band in {100 * rendered:.0f} % of the beams "
                          f"(band needs {100 * MIN_BAND_BEAMS:.0f} %)")
+    if band_view(real).edge_fraction < CENSORED_EDGE_FRACTION:
+        return "band", (f"the scene's echo is one floor band (objects {100 * share:.0f} % of it) and the recording "
+                        f"is lit in {100 * seen:.0f} % of its beams from its first range bin, fading with range, "
+                        "without a band edge (a sea bed at a grazing angle): the band's near edge lies before the "
+                        "window and its far edge beyond it, which bounds height and tilt but does not fix them")
     return "band", (f"the scene's echo is one floor band (objects {100 * share:.0f} % of it) and the recording "
                     f"shows a band in {100 * seen:.0f} % of its beams: its edges fix height and tilt, where "
                     "whole-image edges follow speckle")
@@ -440,7 +818,13 @@ def fit_problems(real: SonarImage, result: FitResult) -> tuple[str, ...]:
     elif result.domain == "band" and result.cost > MAX_BAND_RMS_FRACTION * span:
         out.append(f"the band edges differ by {result.cost:.3g} m RMS (at most {MAX_BAND_RMS_FRACTION:g} of the "
                    f"{span:.3g} m window, {MAX_BAND_RMS_FRACTION * span:.3g} m, is a fit)")
-    if not result.edge_correlation >= MIN_EDGE_CORRELATION:  # also NaN
+    if result.domain == "band" and band_view(real).edge_fraction < CENSORED_EDGE_FRACTION:
+        # No edge to line up with (a sea bed lit across the window): its fall-off with range.
+        if not result.profile_correlation >= MIN_PROFILE_CORRELATION:  # also NaN
+            out.append(f"the render's echo does not fall off with range as the recording's does (profile "
+                       f"correlation {result.profile_correlation:.2f}, at least {MIN_PROFILE_CORRELATION:g} "
+                       "is needed; the recording shows no band edge)")
+    elif not result.edge_correlation >= MIN_EDGE_CORRELATION:  # also NaN
         out.append(f"the render's echo does not line up with the recording's (edge correlation "
                    f"{result.edge_correlation:.2f}, at least {MIN_EDGE_CORRELATION:g} is needed)")
     if np.isfinite(result.cost) and result.cost > result.cost_start:
@@ -532,15 +916,14 @@ def fit_pose(
         domain, reason = chosen, why
     else:  # the rule's opinion costs nothing: say when it differs
         reason = "asked for" if chosen == domain else f"asked for (auto would choose {chosen}: {why})"
-    real_onset, real_end = floor_band_m(real)
+    real_view = band_view(real)
 
     def onset_rms(image: SonarImage) -> float:
-        d = floor_onset_m(image) - real_onset
+        d = floor_onset_m(image) - real_view.near
         return float(np.sqrt(np.nanmean(d**2))) if np.isfinite(d).any() else float("nan")
 
     def band_rms(image: SonarImage) -> float:
-        onset, end = floor_band_m(image)
-        d = np.concatenate([onset - real_onset, end - real_end])
+        d = band_residuals(real_view, band_view(image))
         return float(np.sqrt(np.nanmean(d**2))) if np.isfinite(d).any() else NO_BAND_COST
 
     def reported(cost_of_image):
@@ -591,6 +974,7 @@ def fit_pose(
         pose=pose, scene=replace(scene, sonar=geometry, sonar_pose=pose), free=free, domain=domain, start=start, values=values,
         cost_start=cost_start, cost=final_cost(fitted), onset_rms_m=onset_rms(fitted), renders=renders,
         image=fitted, domain_reason=reason, edge_correlation=edge_correlation(real, fitted),
+        profile_correlation=profile_correlation(real, fitted),
         converged=bool(found.success),
     )
     return replace(result, problems=fit_problems(real, result))

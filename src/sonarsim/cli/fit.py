@@ -272,7 +272,13 @@ def cmd_fit(args) -> None:
         print(f"{name:6s} {result.start[name]:10.4f} -> {result.values[name]:10.4f} {UNITS[name]}")
     what = "1 - edge correlation" if result.domain == "edges" else "band-edge RMS, m"
     print(f"cost ({what}): {result.cost_start:.4f} -> {result.cost:.4f} in {result.renders} renders")
-    print(f"floor band residual over {len(onset_r)} beams: near edge RMS {result.onset_rms_m:.4f} m, far edge RMS {end_rms:.4f} m")
+    if not (np.isfinite(onset_r).any() or np.isfinite(end_r).any()):
+        # A sea bed lit across the whole window (grazing angle): no edge to compare.
+        print(f"floor band: the recording shows no band edge over its {len(onset_r)} beams (lit from "
+              f"{real.sonar.range_min_m:.2f} m, fading with range); the fit bounds height and tilt (near edge before "
+              f"the window, far edge beyond it), it does not fix them")
+    else:
+        print(f"floor band residual over {len(onset_r)} beams: near edge RMS {result.onset_rms_m:.4f} m, far edge RMS {end_rms:.4f} m")
     if result.problems:
         _log(f"error: {args.real}: the fit found no meaningful pose: {'; '.join(result.problems)}; nothing written; "
              + _what_to_try(args, result))
