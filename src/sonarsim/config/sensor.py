@@ -381,7 +381,7 @@ class BangSpec:
 
     Its power is a range profile times a pattern across beams that repeats from ping to ping
     (each channel picks up the transmission differently):
-    ``bang(r, j) = [L exp(-r / length_m) + R exp(-r / ringing_length_m) ring(r)] 10^(b_j / 10)``
+    ``bang(r, j) = [L exp(-max(r - hold_m, 0) / length_m) + R exp(-r / ringing_length_m) ring(r)] 10^(b_j / 10)``
     with ``ring(r) = cos^2(pi r / ringing_period_m)`` (1 without a period) and ``b_j`` the
     pattern in dB (:mod:`sonarsim.sensor.channels`).
 
@@ -391,6 +391,11 @@ class BangSpec:
         L: its level at range 0, dB re 1 uPa^2 at the receiver (before TVG), within [-300, 300].
     length_m : float
         Range over which it decays by 1/e (in power).
+    hold_m : float
+        Range over which it holds its level before decaying (the transmission itself: the
+        receiver hears the transmitter for the pulse's length, ``c tau / 2``), within [0, 1e4] m;
+        0: it decays from range 0 (on the real Oculus ping the first two bins, 5.7 mm, are
+        equally bright, then the level falls).
     ringing_db : float or None
         R: the near-range ringing's level at range 0, dB re 1 uPa^2 at the receiver, within
         [-300, 300]: a second, usually weaker and longer tail. ``None``: no ringing.
@@ -407,6 +412,7 @@ class BangSpec:
 
     level_db: float = 120.0
     length_m: float = 0.02
+    hold_m: float = 0.0
     ringing_db: float | None = None
     ringing_length_m: float | None = None
     ringing_period_m: float | None = None
@@ -416,6 +422,7 @@ class BangSpec:
     def __post_init__(self) -> None:
         _within("level_db", self.level_db, LEVEL_RANGE_DB)
         _positive("length_m", self.length_m)
+        _within("hold_m", self.hold_m, (0.0, 1e4), "m")
         if self.ringing_db is not None:
             _within("ringing_db", self.ringing_db, LEVEL_RANGE_DB)
             if self.ringing_length_m is None:

@@ -112,7 +112,7 @@ def beam_gain_db(spec: BeamGainSpec | None, azimuth_deg: np.ndarray, rng: np.ran
 def bang_row(spec: BangSpec | None, range_m: np.ndarray) -> np.ndarray:
     """The bang's power in each range bin, before its pattern across beams.
 
-    ``L exp(-r / length_m) + R exp(-r / ringing_length_m) cos^2(pi r / ringing_period_m)``
+    ``L exp(-max(r - hold_m, 0) / length_m) + R exp(-r / ringing_length_m) cos^2(pi r / ringing_period_m)``
     (``L``, ``R`` the levels ``level_db``, ``ringing_db`` as powers; the cosine is 1 without a
     period, the second term 0 without ``ringing_db``).
 
@@ -130,7 +130,7 @@ def bang_row(spec: BangSpec | None, range_m: np.ndarray) -> np.ndarray:
     r = np.asarray(range_m, dtype=float)
     if spec is None:
         return np.zeros(len(r))
-    p = 10.0 ** (spec.level_db / 10.0) * np.exp(-r / spec.length_m)
+    p = 10.0 ** (spec.level_db / 10.0) * np.exp(-np.maximum(r - spec.hold_m, 0.0) / spec.length_m)
     if spec.ringing_db is not None:
         ring = 10.0 ** (spec.ringing_db / 10.0) * np.exp(-r / spec.ringing_length_m)
         if spec.ringing_period_m is not None:
