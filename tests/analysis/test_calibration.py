@@ -85,7 +85,7 @@ def test_calibration_recovers_a_40_log_r_tvg_and_the_noise_after_it():
 
 
 def test_a_sensor_without_tvg_is_calibrated_without_one():
-    sensor = {**STARTING_SENSOR, "tvg": False, "gain_db": 80.0}
+    sensor = {**STARTING_SENSOR, "tvg": False, "gain_db": 80.0, "bang": {"level_db": 150.0, "length_m": 0.03}}
     real = sonarsim.render(floor_scene(sensor))
     res = calibrate(real, sonarsim.load_scene(floor_scene({**sensor, "gain_db": 70.0})), max_iterations=60,
                     fit_grain=False)

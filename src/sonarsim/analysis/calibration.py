@@ -6,29 +6,42 @@ The cost is the mean squared difference between the two over the whole frame, i.
 in the recording's own units that :func:`sonarsim.analysis.metrics.psnr` reports, plus the
 squared error of the water column's mean range profile (weight :data:`WATER_WEIGHT`): the dark
 water column counts little in the pixels' MSE, yet its distribution is set by that profile.
-Parameters:
+
+Parameters fitted:
 
 * sensor: ``gain_db`` (receiver gain), ``noise_db`` (receiver noise, before the TVG, which
   lifts it with range), ``noise_after_tvg_db`` (the digitiser's noise, after the TVG: a floor
   at every range), ``bang_db`` and ``bang_length_m`` (the transmit bang),
   ``elevation_width_deg`` (the two-way -3 dB width of the elevation pattern, whose sidelobes
   light the floor before and beyond the band: the rays cover at least :data:`MIN_SPAN_DEG`);
-* the TVG's spreading law, a discrete choice (20, 30 or 40 log r): the search runs for each
-  and keeps the best. The real Oculus ping is fitted with 40 log r: its water column rises by
-  about 20 dB per decade where the floor of noise after the TVG still shows (below 0.3 m) and
-  by 40 beyond the floor band, where the noise before the TVG dominates;
-* pose: any of x, y, z, roll, pitch, yaw named free, fitted with the sensor after the
-  sensor alone has been fitted at the scene's pose (fitting them together from the start lets
-  the simplex trade the pose against the elevation pattern: a 0.7 m height and 51 degree
-  pitch on the real ping). Start from a pose fitted on the floor band
-  (:func:`sonarsim.analysis.fitting.fit_pose` with ``domain="band"``): on the real ping it
-  then moves by about 1 cm and 0.5 degree.
+* the laws, discrete choices made jointly with the pose (each is fitted and the best kept):
+  the TVG's spreading (20, 30 or 40 log r) and the output's compression (``gamma`` or
+  ``log``, :data:`COMPRESSIONS`). The compression's shape (gamma, or the log's span in dB)
+  is set from the recording's speckle in its lit band and corrected against the model's own
+  speckled frames (:func:`output_shape`);
+* pose: any of x, y, z, roll, pitch, yaw named free.
 
-The output is gamma-compressed: for fully developed speckle the contrast of ``P ** gamma`` is
-``sqrt(Gamma(1 + 2 gamma) / Gamma(1 + gamma)^2 - 1)`` whatever the level, so gamma is set from
-the recording's speckle contrast in its lit band before the search (a log compression would
-give the dark water column the same spread in counts as the lit floor, which real 8-bit
-Oculus frames do not show).
+How the search avoids the wrong basin (issue 22: from a grid of starts, half ended more than
+1 dB below the best, silently):
+
+1. a closed-form start from the floor band's edges (:mod:`sonarsim.analysis.bandpose`): the
+   edges give ``1 / r = a cos(beam) + c sin(beam) +- b``, hence the pose for each elevation
+   half-angle along the family a flat floor allows; several half-angles are started from
+   (:data:`HALF_ANGLES_DEG`) instead of the user's pose;
+2. each start and each law: the sensor alone is fitted at the start's pose (cheap: the
+   noise-free image is rendered once); the best :data:`REFINED` of them, and each law's best
+   start, are then refined with the free pose parameters and the sensor together, and the
+   best result kept;
+3. physical bounds on every parameter (:func:`parameter_bounds`: the bang below the source
+   level and at least a range cell long, noise and gain where the device's output can show
+   them);
+4. degenerate outcomes are refused (:class:`CalibrationFailed`, exit status 3): the echo
+   switched off (the lit band explained as noise lifted by the TVG), the pose unmoved from its
+   start, a parameter pinned at a bound where moving it off the bound costs fit; a score below
+   a trivial baseline (the frame's own range profile in every beam) is a warning;
+5. the family of equally good poses (within :data:`FAMILY_DB` of the best PSNR): the
+   elevation width is held at several values around the best and the pose and sensor refitted
+   at each; the range of height, pitch and width is reported, not one of them as if measured.
 
 The search is derivative-free (Nelder-Mead over a bounded transform), re-rendering only when a
 parameter that changes the rays (pose, elevation width) moves; the sensor-only parameters
@@ -39,8 +52,8 @@ receive beams is set so that the speckle grain across beams matches the recordin
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from typing import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy import optimize
@@ -54,14 +67,13 @@ from ..renderer.simulator import Simulator
 from . import realism
 from .fitting import PARAMETERS, check_overlap, parse_free, pose_values, recording_geometry
 
-SENSOR_PARAMETERS = ("gain_db", "noise_db", "noise_after_tvg_db", "bang_db", "bang_length_m",
-                     "elevation_width_deg")
-# (lower, upper, initial step) of each parameter, in its units.
-BOUNDS = {
-    "gain_db": (-120.0, 120.0, 6.0), "noise_db": (-60.0, 200.0, 6.0), "noise_after_tvg_db": (-60.0, 250.0, 6.0),
-    "bang_db": (-60.0, 250.0, 6.0), "bang_length_m": (0.0005, 0.2, 0.01), "elevation_width_deg": (2.0, 60.0, 2.0),
-    "x": (-1e3, 1e3, 0.02), "y": (-1e3, 1e3, 0.02), "z": (-1e3, 1e3, 0.02),
-    "roll": (-90.0, 90.0, 1.0), "pitch": (-90.0, 90.0, 1.0), "yaw": (-180.0, 180.0, 1.0),
+SENSOR_PARAMETERS = ("gain_db", "noise_db", "noise_after_tvg_db", "bang_db", "bang_length_m", "bang_hold_m",
+                     "ringing_db", "ringing_length_m", "elevation_width_deg")
+#: Initial simplex step of each parameter, in its units.
+STEPS = {
+    "gain_db": 6.0, "noise_db": 6.0, "noise_after_tvg_db": 6.0, "bang_db": 6.0, "bang_length_m": 0.01,
+    "bang_hold_m": 0.005, "ringing_db": 6.0, "ringing_length_m": 0.02,
+    "elevation_width_deg": 2.0, "x": 0.02, "y": 0.02, "z": 0.02, "roll": 1.0, "pitch": 1.0, "yaw": 1.0,
 }
 
 #: The least elevation span (degrees) the rays cover while calibrating: the pattern's sidelobes
@@ -72,7 +84,43 @@ MIN_SPAN_DEG = 60.0
 #: Weight of the water column's mean profile in the cost (see :func:`calibrate`).
 WATER_WEIGHT = 5.0
 
-#: The starting sensor when the scene has none: an 8-bit device with log compression, 20 log r
+#: Output laws tried (with each TVG spreading law).
+COMPRESSIONS = ("gamma", "log")
+
+#: Half-angles (degrees) of the band's edges that the closed-form starts are made for.
+HALF_ANGLES_DEG = (2.0, 3.5, 5.0, 7.0, 10.0, 14.0)
+
+#: The band detector's edges lie at about this fraction of the two-way -3 dB width off the
+#: axis, each side (measured on renders of a uniform line array, widths 6-16 degrees: 0.84-1.03).
+EDGE_RATIO = 0.9
+
+#: Starts (a half-angle and a law) refined with the pose after the sensor-only stage, besides
+#: each law's best start.
+REFINED = 2
+
+#: Iterations of each sensor-only start (the refinement gets the full budget).
+START_ITERATIONS = 120
+
+#: A pose is one of the family when its PSNR is within this many dB of the best.
+FAMILY_DB = 0.2
+
+#: Elevation widths of the family scan, as factors of the best width.
+FAMILY_FACTORS = (0.4, 0.55, 0.7, 0.85, 1.2, 1.45, 1.8, 2.3)
+
+#: The echo is "switched off" when, over the recording's lit band, less than this share of the
+#: model's expected power is echo (the rest: noise and bang lifted by the TVG).
+MIN_ECHO_SHARE = 0.5
+
+#: A parameter at a bound counts as pinned there when moving it a quarter step inward raises the
+#: cost by more than this fraction (0.023 dB of PSNR: a change the fit can see).
+PINNED_COST_RISE = 0.005
+
+#: Bounds that are a natural limit rather than a plausibility bound: a result there is not
+#: pinned ((name, True) for the lower bound). The bang's decay over a twentieth of a range cell
+#: is an abrupt end (the receiver's blanking ends), which a sampled image cannot tell from 0.
+NATURAL_LIMITS = {("bang_length_m", True)}
+
+#: The starting sensor when the scene has none: an 8-bit device with gamma compression, 20 log r
 #: TVG and absorption in fresh water, a uniform line array in elevation, Gaussian receive beams.
 STARTING_SENSOR = {
     "source_level_db": 180.0,
@@ -89,9 +137,32 @@ STARTING_SENSOR = {
 
 # Speckle contrasts gamma can explain: gamma from 0.05 to 2 (exponential speckle compressed).
 MIN_CONTRAST, MAX_CONTRAST = 0.062, 2.2
-# Passes correcting gamma by the speckled model's contrast, and when to stop.
+# Passes correcting the output's shape by the speckled model's statistic, and when to stop.
 GAMMA_PASSES = 2
 GAMMA_TOLERANCE = 0.02
+#: Standard deviation (dB) of ``10 log10`` of exponential speckle: ``10 / ln 10 * pi / sqrt 6``.
+LOG_SPECKLE_STD_DB = 10.0 / math.log(10.0) * math.pi / math.sqrt(6.0)
+#: Spans (dB) a log output is fitted within.
+MIN_SPAN_DB, MAX_SPAN_DB = 10.0, 200.0
+
+
+class CalibrationFailed(SonarsimError):
+    """The search ended somewhere that does not describe the recording (exit status 3).
+
+    Attributes
+    ----------
+    reasons : tuple of str
+        What was found (the echo switched off, the pose unmoved, parameters pinned at bounds).
+    result : CalibrationResult
+        What the search ended with, for inspection.
+    """
+
+    exit_status = 3
+
+    def __init__(self, reasons: Sequence[str], result: "CalibrationResult") -> None:
+        self.reasons = tuple(reasons)
+        self.result = result
+        super().__init__("calibration refused: " + "; ".join(self.reasons))
 
 
 def gamma_for_contrast(contrast: float) -> float:
@@ -104,9 +175,67 @@ def gamma_for_contrast(contrast: float) -> float:
     return float(optimize.brentq(c, 0.01, 2.0))
 
 
+def span_for_spread(spread_counts: float, full_scale: float) -> float:
+    """The log output's span (dB) whose compression gives exponential speckle this standard
+    deviation in counts: ``LOG_SPECKLE_STD_DB * full_scale / spread``, within the fitted limits."""
+    return float(np.clip(LOG_SPECKLE_STD_DB * full_scale / max(spread_counts, 1e-9), MIN_SPAN_DB, MAX_SPAN_DB))
+
+
+def speckle_spread(image: np.ndarray, mask: np.ndarray) -> float:
+    """Standard deviation (counts) of ``image`` less its local mean over ``mask``: what a log
+    output's speckle shows whatever the level (:func:`span_for_spread`)."""
+    x = np.asarray(image, dtype=np.float64)
+    r = x - realism.local_mean(x)
+    keep = mask & (realism.local_mean(x) > 0)
+    if keep.sum() < 2:
+        raise ValueError("the region holds fewer than two pixels with echo")
+    # The local mean takes 1/(window cells) of the variance with it.
+    cells = realism.LOCAL_MEAN_WINDOW[0] * realism.LOCAL_MEAN_WINDOW[1]
+    return float(r[keep].std() / math.sqrt(1.0 - 1.0 / cells))
+
+
+def output_shape(compression: str, image: np.ndarray, mask: np.ndarray, full_scale: float) -> float:
+    """The compression's shape from a frame's speckle in ``mask``: gamma (``gamma``) from the
+    speckle contrast, or the span in dB (``log``) from its spread in counts."""
+    if compression == "gamma":
+        return gamma_for_contrast(realism.speckle_contrast(image, mask))
+    return span_for_spread(speckle_spread(image, mask), full_scale)
+
+
 def parse_free_parameters(text: str | Sequence[str]) -> tuple[str, ...]:
     """``"z,pitch"`` -> pose parameters to fit (possibly none); unknown names are errors."""
     return parse_free(text, allow_none=True)
+
+
+def parameter_bounds(spec: SensorSpec, sonar) -> dict[str, tuple[float, float]]:
+    """Physical bounds of each calibrated parameter, in its units.
+
+    * ``bang_db`` below the source level (the bang is the transmitter's own signal leaking in);
+      it holds its level for ``bang_hold_m``, at least one range cell (a bang shorter than a
+      bin is not resolved: its level would trade against its length without end), and then
+      decays over ``bang_length_m`` (a twentieth of a cell to half the window: a receiver
+      may recover within a bin);
+    * ``noise_db`` (before the TVG) from 0 dB re 1 uPa^2 (below any receiver's self-noise) to
+      20 dB under the source level; ``noise_after_tvg_db`` within 120 dB under the output's
+      ceiling (an 8- or 16-bit output shows nothing lower) and not above it (everything would
+      saturate);
+    * ``gain_db`` from -40 dB (an attenuating front end) to 120 dB (more than any receiver chain
+      offers; without a TVG law the gain alone lifts the echo of the far range);
+    * ``elevation_width_deg`` 1-60 degrees; the pose within a kilometre and its angles.
+    """
+    ceiling = spec.output.ceiling_db if spec.output is not None else 160.0
+    return {
+        "gain_db": (-40.0, 120.0), "noise_db": (0.0, spec.source_level_db - 20.0),
+        "noise_after_tvg_db": (ceiling - 120.0, ceiling), "bang_db": (0.0, spec.source_level_db),
+        "bang_length_m": (0.05 * float(sonar.range_resolution_m), 0.5 * float(sonar.range_max_m)),
+        "bang_hold_m": (float(sonar.range_resolution_m), max(0.1 * float(sonar.range_max_m),
+                                                             2.0 * float(sonar.range_resolution_m))),
+        "ringing_db": (0.0, spec.source_level_db),
+        "ringing_length_m": (float(sonar.range_resolution_m), 0.5 * float(sonar.range_max_m)),
+        "elevation_width_deg": (1.0, 60.0),
+        "x": (-1e3, 1e3), "y": (-1e3, 1e3), "z": (-1e3, 1e3),
+        "roll": (-90.0, 90.0), "pitch": (-90.0, 90.0), "yaw": (-180.0, 180.0),
+    }
 
 
 def sensor_values(spec: SensorSpec, sonar_elevation_deg: float) -> dict[str, float]:
@@ -114,10 +243,16 @@ def sensor_values(spec: SensorSpec, sonar_elevation_deg: float) -> dict[str, flo
     el = spec.elevation_pattern
     return {
         "gain_db": spec.gain_db,
-        "noise_db": spec.noise.level_db if spec.noise else -60.0,
-        "noise_after_tvg_db": spec.noise.after_tvg_db if spec.noise and spec.noise.after_tvg_db is not None else -60.0,
-        "bang_db": spec.bang.level_db if spec.bang else -60.0,
+        "noise_db": spec.noise.level_db if spec.noise else 0.0,
+        "noise_after_tvg_db": spec.noise.after_tvg_db if spec.noise and spec.noise.after_tvg_db is not None else 40.0,
+        "bang_db": spec.bang.level_db if spec.bang else 0.0,
         "bang_length_m": spec.bang.length_m if spec.bang else 0.01,
+        "bang_hold_m": spec.bang.hold_m if spec.bang else 0.0,
+        # Without ringing in the start, a weak, longer tail for the search to raise.
+        "ringing_db": (spec.bang.ringing_db if spec.bang and spec.bang.ringing_db is not None
+                       else (spec.bang.level_db - 30.0 if spec.bang else 0.0)),
+        "ringing_length_m": (spec.bang.ringing_length_m if spec.bang and spec.bang.ringing_length_m is not None
+                             else (3.0 * spec.bang.length_m if spec.bang else 0.03)),
         "elevation_width_deg": el.width_deg if el and el.width_deg else sonar_elevation_deg,
     }
 
@@ -133,7 +268,43 @@ def with_values(spec: SensorSpec, v: dict[str, float]) -> SensorSpec:
     return replace(spec, gain_db=v["gain_db"], elevation_pattern=el,
                    noise=replace(spec.noise, level_db=v["noise_db"], after_tvg_db=v["noise_after_tvg_db"])
                    if spec.noise else None,
-                   bang=replace(spec.bang, level_db=v["bang_db"], length_m=v["bang_length_m"]) if spec.bang else None)
+                   bang=_bang_with(spec.bang, v) if spec.bang else None)
+
+
+def _bang_with(bang, v: dict):
+    """The bang of ``v``; its ringing is held weaker and longer than the bang itself (a tail
+    after it: as strong and as short, it would be a second bang that the fit trades against
+    the first)."""
+    level, length = v["bang_db"], v["bang_length_m"]
+    ringing_db = v.get("ringing_db", bang.ringing_db)
+    ringing_length = v.get("ringing_length_m", bang.ringing_length_m)
+    if ringing_db is not None:
+        ringing_db = min(float(ringing_db), level)
+        ringing_length = max(float(ringing_length), length)
+    return replace(bang, level_db=level, length_m=length, hold_m=v.get("bang_hold_m", bang.hold_m),
+                   ringing_db=ringing_db, ringing_length_m=ringing_length)
+
+
+def with_law(spec: SensorSpec, compression: str, spreading: float | None, shape: float) -> SensorSpec:
+    """``spec`` with a TVG spreading law (``None``: kept) and an output law of the given shape
+    (gamma, or the log's span in dB below its ceiling)."""
+    out = spec.output
+    if compression == "gamma":
+        out = replace(out, compression="gamma", gamma=float(np.clip(shape, 0.05, 4.0)))
+    elif compression == "log":
+        out = replace(out, compression="log", floor_db=float(out.ceiling_db - shape))
+    else:
+        raise ConfigError("sensor.output.compression", f"calibration fits gamma or log, got {compression!r}")
+    tvg = spec.tvg if spreading is None or spec.tvg is None else replace(spec.tvg, spreading=float(spreading))
+    return replace(spec, output=out, tvg=tvg)
+
+
+def law_of(spec: SensorSpec) -> dict:
+    """The laws of a spec: ``{"compression", "spreading", "shape"}``."""
+    out = spec.output
+    shape = out.gamma if out.compression == "gamma" else out.ceiling_db - out.floor_db
+    return {"compression": out.compression, "spreading": spec.tvg.spreading if spec.tvg is not None else None,
+            "shape": float(shape)}
 
 
 @dataclass
@@ -149,10 +320,26 @@ class CalibrationResult:
     psnr_db : float
         PSNR of the expected render against the recording, in its units (peak 255 for 8-bit).
     psnr_start_db : float
+        The same at the user's start.
     renders : int
         Noise-free renders made.
     expected : SonarImage
         The calibrated expected render.
+    starts : list of dict
+        Each start tried: its half-angle, law, pose and PSNR after the sensor-only fit (and
+        ``refined_psnr_db`` where it was refined).
+    family : dict
+        The equally good poses (:func:`calibrate`, step 5): ``members`` (width, pose, PSNR
+        each), and the ``z``, ``pitch``, ``elevation_width_deg`` ranges within ``within_db``;
+        empty when no pose parameter is free or the band has no far edge.
+    baselines : dict
+        PSNR of the trivial images of the frame itself (its range profile in every beam, its
+        separable range x beam image) and its local mean (the ceiling), dB.
+    warnings : list of str
+        What the user should know about the result (a score below a baseline).
+    law : dict
+        The laws chosen: ``compression`` (gamma or log), ``spreading`` (TVG, dB per decade, or
+        None) and ``shape`` (gamma, or the log's span in dB).
     """
 
     scene: Scene
@@ -161,14 +348,193 @@ class CalibrationResult:
     psnr_start_db: float
     renders: int
     expected: SonarImage
+    starts: list = field(default_factory=list)
+    family: dict = field(default_factory=dict)
+    baselines: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+    law: dict = field(default_factory=dict)
 
 
 def _psnr(mse: float, peak: float) -> float:
     return float(10 * np.log10(peak ** 2 / mse)) if mse > 0 else float("inf")
 
 
+class _Problem:
+    """The cost of the calibration and what it caches (renders, sensor models)."""
+
+    def __init__(self, real: SonarImage, scene: Scene, sonar, free: tuple[str, ...], water_weight: float,
+                 bounds: dict) -> None:
+        self.scene, self.sonar, self.free = scene, sonar, free
+        self.target = np.asarray(real.polar, dtype=np.float64)
+        regions = realism.auto_regions(self.target)
+        self.lit, water = regions["lit"], regions["water"]
+        self.water = water
+        self.n_water = np.maximum(water.sum(axis=1), 1)
+        self.water_rows = water.sum(axis=1) >= 0.25 * water.shape[1]
+        self.real_water = (self.target * water).sum(axis=1) / self.n_water
+        self.water_weight = water_weight
+        self.bounds = bounds
+        self.pose0 = pose_values(scene.sonar_pose)
+        self.frames: dict = {}
+        self.models: dict = {}
+        self._residual: np.ndarray | None = None
+        self.renders = 0
+
+    def pose(self, v: dict) -> Pose:
+        pv = {**self.pose0, **{k: v[k] for k in self.free if k in v}}
+        return Pose((pv["x"], pv["y"], pv["z"]), (pv["roll"], pv["pitch"], pv["yaw"]))
+
+    def frame_for(self, spec: SensorSpec, v: dict) -> tuple[np.ndarray, Pose]:
+        """Noise-free total image for the pose and elevation width in v (cached)."""
+        pose = self.pose(v)
+        key = tuple(round(x, 6) for x in (*pose.position_m, *pose.rpy_deg)) + (round(v["elevation_width_deg"], 4),)
+        if key not in self.frames:
+            # Only the elevation pattern acts on the rays: render with it alone.
+            s2 = SensorSpec(elevation_pattern=with_values(spec, v).elevation_pattern)
+            sc = replace(self.scene, sensor=s2, sonar=self.sonar)
+            with Simulator(sc) as sim:
+                img = sim.render(pose, keep_rays=False, speckle=False)
+            self.renders += 1
+            if len(self.frames) > 64:
+                self.frames.clear()
+            self.frames[key] = img.components["total"]
+        return self.frames[key], pose
+
+    def model(self, spec: SensorSpec):
+        from ..sensor.model import SensorModel
+
+        m = self.models.get(spec)
+        if m is None:
+            m = SensorModel(spec, self.sonar, self.scene.render.seed, fields=False)
+            if len(self.models) > 8:
+                self.models.clear()
+            self.models[spec] = m
+        return m
+
+    def expected(self, spec: SensorSpec, v: dict) -> tuple[np.ndarray, Pose, SensorSpec]:
+        total, pose = self.frame_for(spec, v)
+        s2 = with_values(spec, v)
+        return self.model(s2).apply(total, speckle=False), pose, s2
+
+    def cost_of(self, e: np.ndarray) -> float:
+        c = float(np.mean((e - self.target) ** 2))
+        if self.water_weight > 0 and self.water_rows.any():
+            d = ((e * self.water).sum(axis=1) / self.n_water - self.real_water)[self.water_rows]
+            c += self.water_weight * float(np.mean(d ** 2))
+        return c
+
+    def cost(self, spec: SensorSpec, v: dict) -> float:
+        return self.cost_of(self.expected(spec, v)[0])
+
+    def psnr(self, spec: SensorSpec, v: dict, peak: float) -> float:
+        """PSNR (dB) of the expected image alone (the cost adds the water column's profile)."""
+        return _psnr(float(np.mean((self.expected(spec, v)[0] - self.target) ** 2)), peak)
+
+    def spread_mismatch(self, spec: SensorSpec, v: dict, n_bins: int = 12) -> float:
+        """Mean squared difference (counts^2) between the recording's speckle spread and the
+        model's at each level of the expected image.
+
+        The recording's spread is its standard deviation about its local mean, pixels binned by
+        the model's expected count; the model's, in closed form for exponential speckle:
+        ``c(gamma) E`` for a gamma output (contrast fixed, :func:`gamma_for_contrast`'s law),
+        ``LOG_SPECKLE_STD_DB * full_scale / span`` for a log output (fixed in counts).
+        """
+        from scipy.special import gammaln
+
+        e = self.expected(spec, v)[0]
+        out = spec.output
+        fs = out.full_scale
+        if self._residual is None:
+            cells = realism.LOCAL_MEAN_WINDOW[0] * realism.LOCAL_MEAN_WINDOW[1]
+            self._residual = (self.target - realism.local_mean(self.target)) / math.sqrt(1.0 - 1.0 / cells)
+        keep = (e > 2.0 * fs / 255.0) & (e < 0.9 * fs)
+        if keep.sum() < 10 * n_bins:
+            return 0.0
+        ev, rv = e[keep], self._residual[keep]
+        edges = np.quantile(ev, np.linspace(0, 1, n_bins + 1))
+        idx = np.clip(np.searchsorted(edges, ev, side="right") - 1, 0, n_bins - 1)
+        total, weight = 0.0, 0
+        for b in range(n_bins):
+            sel = idx == b
+            if sel.sum() < 10:
+                continue
+            real_std = float(rv[sel].std())
+            if out.compression == "gamma":
+                g = out.gamma
+                c = math.sqrt(math.exp(gammaln(1 + 2 * g) - 2 * gammaln(1 + g)) - 1.0)
+                model_std = c * float(ev[sel].mean())
+            else:
+                model_std = LOG_SPECKLE_STD_DB * fs / (out.ceiling_db - out.floor_db)
+            total += sel.sum() * (real_std - model_std) ** 2
+            weight += int(sel.sum())
+        return total / weight if weight else 0.0
+
+    def search(self, spec: SensorSpec, start: dict, active: Sequence[str], budget: int) -> tuple[dict, float]:
+        """Nelder-Mead over the parameters ``active`` from ``start`` (the others held), bounded
+        by clipping a scaled transform (``x = start + u * step``)."""
+        active = list(active)
+        lo = np.array([self.bounds[n][0] for n in active])
+        hi = np.array([self.bounds[n][1] for n in active])
+        step = np.array([STEPS[n] for n in active])
+        x0 = np.clip(np.array([start[n] for n in active]), lo, hi)
+
+        def values_of(u):
+            return {**start, **dict(zip(active, np.clip(x0 + u * step, lo, hi)))}
+
+        def f(u):
+            return self.cost(spec, values_of(u))
+
+        n = len(active)
+        r = optimize.minimize(f, np.zeros(n), method="Nelder-Mead",
+                              options={"maxiter": budget, "xatol": 1e-3, "fatol": 1e-4,
+                                       "initial_simplex": np.vstack([np.zeros(n), np.eye(n)])})
+        v = {k: float(x) for k, x in values_of(r.x).items()}
+        return v, float(r.fun)
+
+
+def _band_starts(real: SonarImage, problem: _Problem, free: tuple[str, ...], width0: float,
+                 half_angles: Sequence[float] | None) -> tuple[list[dict], object]:
+    """Closed-form start poses (one per half-angle) from the recording's floor band, or the
+    user's pose alone where no pose parameter that the band tells is free or no band is found."""
+    from .bandpose import fit_band_lines, pose_for_half_angle, pose_from_near_edge
+    from .fitting import floor_band_m
+
+    user = {"half_angle_deg": None, "elevation_width_deg": width0, "pose": {}}
+    if not {"z", "pitch", "roll"} & set(free):
+        return [user], None
+    try:
+        near, far = floor_band_m(real)
+        lines = fit_band_lines(real.azimuth_deg, near, far)
+    except ValueError:
+        return [user], None
+    starts = []
+    for h in (HALF_ANGLES_DEG if half_angles is None else half_angles):
+        try:
+            z, pitch, roll = (pose_for_half_angle(lines, h) if lines.both_edges
+                              else pose_from_near_edge(lines, problem.pose0["z"] - _ground_height(problem.scene), h))
+        except ValueError:
+            continue
+        pose = {}
+        if "z" in free:
+            pose["z"] = z + _ground_height(problem.scene)
+        if "pitch" in free:
+            pose["pitch"] = pitch
+        if "roll" in free:
+            pose["roll"] = roll
+        starts.append({"half_angle_deg": float(h), "elevation_width_deg": float(h) / EDGE_RATIO, "pose": pose})
+    return (starts or [user]), lines
+
+
+def _ground_height(scene: Scene) -> float:
+    return float(scene.ground.height_m) if scene.ground is not None else 0.0
+
+
 def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iterations: int = 600,
-              fit_grain: bool = True, water_weight: float = WATER_WEIGHT, spreading: Sequence[float] | None = (20.0, 30.0, 40.0)) -> CalibrationResult:
+              fit_grain: bool = True, water_weight: float = WATER_WEIGHT,
+              spreading: Sequence[float] | None = (20.0, 30.0, 40.0),
+              compressions: Sequence[str] | None = COMPRESSIONS, half_angles_deg: Sequence[float] | None = None,
+              family: bool = True, progress: Callable[[str], None] | None = None,
+              refuse_degenerate: bool = True, channels: bool = True) -> CalibrationResult:
     """Fit the sensor (and the free pose parameters) so that the expected render matches ``real``.
 
     Parameters
@@ -179,26 +545,48 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
         The scene behind it; its ``sensor`` (or :data:`STARTING_SENSOR`) and pose are the start.
         The image grid is the recording's (its beams and range bins).
     free : sequence of str
-        Pose parameters to fit as well.
+        Pose parameters to fit as well. Where z, pitch or roll are free and the recording shows
+        a floor band, the starts are the band's closed-form poses (the user's pose matters only
+        for the others, and for the height where the band has no far edge).
     max_iterations : int
-        Budget of the simplex search.
+        Budget of each refining simplex search (the sensor-only starts get at most
+        :data:`START_ITERATIONS`).
     fit_grain : bool
         Also set the receive beams' azimuth width from the speckle grain across beams.
     water_weight : float
         Weight of the water column's mean range profile (squared error of its rows' means, in
         device units squared) added to the pixels' mean squared error.
     spreading : sequence of float, optional
-        TVG spreading laws (dB per decade) to try; the one that fits best is kept. ``None``:
-        the starting sensor's.
+        TVG spreading laws (dB per decade) to try. ``None``: the starting sensor's.
+    compressions : sequence of str, optional
+        Output laws to try (:data:`COMPRESSIONS`). ``None``: the starting sensor's.
+    half_angles_deg : sequence of float, optional
+        Half-angles of the closed-form starts (default :data:`HALF_ANGLES_DEG`).
+    family : bool
+        Scan the family of equally good poses (step 5 above).
+    progress : callable, optional
+        Called with a line of text as each stage ends (the CLI prints it on stderr).
+    refuse_degenerate : bool
+        Raise :class:`CalibrationFailed` on a degenerate outcome (else list it in ``warnings``).
+    channels : bool
+        Fit the receive channels' structure (:func:`_fit_channels`): the across-fan gain
+        (``sensor.beam_gain``: steering exponent and per-beam stripes) and the bang's pattern
+        across beams (``sensor.bang.beam_db``).
+
+    Raises
+    ------
+    CalibrationFailed
+        The result is degenerate (see step 4 above); ``exc.result`` holds it.
     """
+    say = progress or (lambda line: None)
     free = tuple(free)
     check_overlap(real, scene)
     sonar = recording_geometry(real, scene)  # the recording's grid, as fit_pose renders
-    spec = scene.sensor if scene.sensor is not None else parse_sensor(STARTING_SENSOR)
-    if spec.output is None or spec.output.compression != "gamma":
-        raise ConfigError("sensor.output", "calibration fits a gamma-compressed output (compression: gamma)")
-    target = np.asarray(real.polar, dtype=np.float64)
-    lit = realism.auto_regions(target)["lit"]
+    spec0 = scene.sensor if scene.sensor is not None else parse_sensor(STARTING_SENSOR)
+    if spec0.output is None or spec0.output.compression not in COMPRESSIONS:
+        raise ConfigError("sensor.output", f"calibration fits an output with compression {' or '.join(COMPRESSIONS)}")
+    problem = _Problem(real, scene, sonar, free, water_weight, parameter_bounds(spec0, sonar))
+    target, lit = problem.target, problem.lit
     try:
         contrast = realism.speckle_contrast(target, lit)
     except ValueError as exc:
@@ -207,142 +595,374 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
         raise SonarsimError(f"the recording's speckle contrast in its bright band is {contrast:.3g}; calibration "
                             f"needs {MIN_CONTRAST}-{MAX_CONTRAST} (a speckled frame in the device's units, not a "
                             "noise-free render)")
-    spec = replace(spec, output=replace(spec.output, gamma=gamma_for_contrast(contrast)))
-    peak = spec.output.full_scale
-    pose0 = scene.sonar_pose
-    start = {**sensor_values(spec, sonar.elevation_fov_deg), **{k: pose_values(pose0)[k] for k in free}}
-    names = list(start)
-    lo = np.array([BOUNDS[n][0] for n in names])
-    hi = np.array([BOUNDS[n][1] for n in names])
-    step = np.array([BOUNDS[n][2] for n in names])
-    x0 = np.array([start[n] for n in names])
+    peak = spec0.output.full_scale
+    start_values = {**sensor_values(spec0, sonar.elevation_fov_deg), **{k: problem.pose0[k] for k in free}}
+    start_values = {k: float(np.clip(x, *problem.bounds[k])) for k, x in start_values.items()}
+    c0 = problem.cost(spec0, start_values)
 
-    cache: dict = {}
-    renders = [0]
+    laws = []
+    for comp in ([spec0.output.compression] if compressions is None else compressions):
+        shape = output_shape(comp, target, lit, peak)
+        for law in ([None] if spreading is None or spec0.tvg is None else spreading):
+            laws.append(with_law(spec0, comp, law, shape))
+    starts, lines = _band_starts(real, problem, free, start_values["elevation_width_deg"], half_angles_deg)
+    names = sensor_names(spec0)
+    # The starts fit the sensor at their own pose and width: one render each.
+    level_names = [n for n in names if n != "elevation_width_deg"] if len(starts) > 1 else names
+    tried = []
+    for k, st in enumerate(starts):
+        v0 = {**start_values, **st["pose"], "elevation_width_deg": float(np.clip(st["elevation_width_deg"],
+                                                                                 *problem.bounds["elevation_width_deg"]))}
+        for spec in laws:
+            v, c = problem.search(spec, v0, level_names, min(max_iterations, START_ITERATIONS))
+            tried.append({"start": k, "spec": spec, "values": v, "cost": c})
+        here = min((t for t in tried if t["start"] == k), key=lambda t: t["cost"])
+        h = st["half_angle_deg"]
+        say(f"start {k + 1}/{len(starts)}" + (f" (band edges at +-{h:g} deg)" if h is not None else " (the scene's pose)")
+            + f": best law PSNR {problem.psnr(here['spec'], here['values'], peak):.2f} dB")
+    tried.sort(key=lambda t: t["cost"])
+    # Refined with the pose: the best starts overall, and each law's best start (a law is
+    # chosen with the pose, not before it: ranked at a start's pose, the right law can trail).
+    chosen = tried[:REFINED]
+    for key in dict.fromkeys(law_key(t["spec"]) for t in tried):
+        first = next(t for t in tried if law_key(t["spec"]) == key)
+        if first not in chosen:
+            chosen.append(first)
+    refined = []
+    for t in chosen:
+        v, c = problem.search(t["spec"], t["values"], names + list(free), max_iterations)
+        refined.append({**t, "values": v, "cost": c, "from": t["values"]})
+        law = law_of(t["spec"])
+        tvg = f", {law['spreading']:g} log r" if law["spreading"] is not None else ""
+        say(f"refined start {t['start'] + 1} ({law['compression']}{tvg}): "
+            f"PSNR {problem.psnr(t['spec'], v, peak):.2f} dB")
+    # The laws are told apart by the speckle's spread as much as by the mean: a gamma output's
+    # spread in counts grows with the level, a log output's does not; both fit the mean image.
+    for t in refined:
+        t["rank"] = t["cost"] + problem.spread_mismatch(t["spec"], t["values"])
+    best = min(refined, key=lambda t: t["rank"])
+    spec, v = best["spec"], best["values"]
+    start_report = []
+    for t in tried:
+        st = starts[t["start"]]
+        rec = {"half_angle_deg": st["half_angle_deg"], **law_of(t["spec"]),
+               "pose": {k: t["values"][k] for k in free}, "psnr_db": problem.psnr(t["spec"], t["values"], peak)}
+        for r in refined:
+            if r["start"] == t["start"] and r["spec"] is t["spec"]:
+                rec["refined_psnr_db"] = problem.psnr(r["spec"], r["values"], peak)
+        start_report.append(rec)
 
-    def values_of(u):
-        x = np.clip(x0 + u * step, lo, hi)
-        return dict(zip(names, x))
-
-    def frame_for(v):
-        """Noise-free total image for the pose and elevation width in v (cached)."""
-        pv = {**pose_values(pose0), **{k: v[k] for k in free}}
-        key = tuple(round(pv[k], 6) for k in PARAMETERS) + (round(v["elevation_width_deg"], 4),)
-        if key not in cache:
-            # Only the elevation pattern acts on the rays: render with it alone.
-            s2 = SensorSpec(elevation_pattern=with_values(spec, v).elevation_pattern)
-            sc = replace(scene, sensor=s2, sonar=sonar)
-            with Simulator(sc) as sim:
-                pose = Pose((pv["x"], pv["y"], pv["z"]), (pv["roll"], pv["pitch"], pv["yaw"]))
-                img = sim.render(pose, keep_rays=False, speckle=False)
-            renders[0] += 1
-            if len(cache) > 64:
-                cache.clear()
-            cache[key] = (img.components["total"], pose)
-        return cache[key]
-
-    models: dict = {}
-
-    def expected(v):
-        total, pose = frame_for(v)
-        s2 = with_values(spec, v)
-        from ..sensor.model import SensorModel
-
-        m = models.get(s2)
-        if m is None:
-            m = SensorModel(s2, sonar, scene.render.seed, fields=False)
-            models.clear()
-            models[s2] = m
-        return m.apply(total, speckle=False), pose, s2
-
-    # The water column is dark: its squared errors are small next to the lit band's, yet its
-    # distribution is set by its mean profile. Its rows' mean errors are weighted in.
-    water = realism.auto_regions(target)["water"]
-    n_water = np.maximum(water.sum(axis=1), 1)
-    water_rows = water.sum(axis=1) >= 0.25 * water.shape[1]
-    real_water = (target * water).sum(axis=1) / n_water
-
-    def cost(u):
-        e, _, _ = expected(values_of(u))
-        c = float(np.mean((e - target) ** 2))
-        if water_weight > 0 and water_rows.any():
-            d = ((e * water).sum(axis=1) / n_water - real_water)[water_rows]
-            c += water_weight * float(np.mean(d ** 2))
-        return c
-
-    laws = [None] if spreading is None or spec.tvg is None else list(spreading)
-    c0 = cost(np.zeros(len(names)))
-
-    def search(active: np.ndarray, u0: np.ndarray):
-        """Nelder-Mead over the parameters ``active`` (indices), the others held at ``u0``."""
-        def f(w):
-            u = u0.copy()
-            u[active] = w
-            return cost(u)
-
-        n = len(active)
-        r = optimize.minimize(f, u0[active], method="Nelder-Mead",
-                              options={"maxiter": max_iterations, "xatol": 1e-3, "fatol": 1e-4,
-                                       "initial_simplex": u0[active] + np.vstack([np.zeros(n), np.eye(n)])})
-        u = u0.copy()
-        u[active] = r.x
-        return u, float(r.fun)
-
-    # First the sensor alone at the scene's pose, for each TVG law; then, with the best law,
-    # the free pose parameters and the sensor together from there.
-    sensor_idx = np.array([i for i, n in enumerate(names) if n not in free])
-    best = None
-    for law in laws:
-        spec = spec if law is None else replace(spec, tvg=replace(spec.tvg, spreading=float(law)))
-        u, c = search(sensor_idx, np.zeros(len(names)))
-        if best is None or c < best[1]:
-            best = (u, c, spec)
-    u, c, spec = best
-    if free:
-        u, c = search(np.arange(len(names)), u)
-    res = optimize.OptimizeResult(x=u, fun=c)
-    v = {k: float(x) for k, x in values_of(res.x).items()}
-    e, pose, s2 = expected(v)
+    if channels:
+        spec_c, v_c = _fit_channels(problem, spec, v, max_iterations, say)
+        # The closed forms move the levels; kept only where the fit is better for them.
+        if problem.cost(spec_c, v_c) < problem.cost(spec, v):
+            spec, v = spec_c, v_c
+        else:
+            say("channels: not kept (no better than without them)")
+    e, pose, s2 = problem.expected(spec, v)
     if fit_grain and s2.speckle is not None:
-        s2 = _fit_grain(real, s2, sonar, frame_for(v)[0], scene.render.seed, pose)
-        v["azimuth_width_deg"] = s2.azimuth_pattern.width_deg
-        # The closed-form gamma assumes independent pixels; speckle grain correlates them and
-        # lowers the contrast measured over a local mean. Correct gamma by the ratio of the
-        # recording's contrast to the model's (contrast is nearly proportional to gamma), then
-        # refit the sensor at the new gamma.
-        for _ in range(GAMMA_PASSES):
-            model_contrast = _speckled_contrast(s2, sonar, frame_for(v)[0], scene.render.seed, pose, lit)
-            ratio = contrast / model_contrast
-            if abs(ratio - 1.0) < GAMMA_TOLERANCE:
-                break
-            gamma = float(np.clip(s2.output.gamma * ratio, 0.05, 4.0))
-            spec = replace(spec, output=replace(spec.output, gamma=gamma),
-                           azimuth_pattern=s2.azimuth_pattern)
-            u, c = search(sensor_idx, u)
-            v = {k: float(x) for k, x in values_of(u).items()}
-            e, pose, s2 = expected(v)
-            s2 = _fit_grain(real, s2, sonar, frame_for(v)[0], scene.render.seed, pose)
-            v["azimuth_width_deg"] = s2.azimuth_pattern.width_deg
-    v["tvg_spreading"] = s2.tvg.spreading if s2.tvg is not None else 0.0
-    v["gamma"] = s2.output.gamma
+        spec, v, s2 = _fit_speckle(problem, real, spec, v, s2, free, max_iterations, peak)
+        say(f"speckle: azimuth width {s2.azimuth_pattern.width_deg:.3g} deg, "
+            f"{law_of(s2)['compression']} shape {law_of(s2)['shape']:.4g}")
+
+    family_report: dict = {}
+    if family and lines is not None and getattr(lines, "both_edges", False) and {"z", "pitch"} <= set(free):
+        spec, v, family_report = _family(problem, spec, v, free, max_iterations, peak, say)
+
+    e, pose, s2 = problem.expected(spec, v)
+    if fit_grain and s2.speckle is not None and spec.azimuth_pattern is not None:
+        s2 = replace(s2, azimuth_pattern=spec.azimuth_pattern)
+    law = law_of(s2)
+    values = dict(v)
+    values["tvg_spreading"] = law["spreading"] if law["spreading"] is not None else 0.0
+    if law["compression"] == "gamma":
+        values["gamma"] = s2.output.gamma
+    else:
+        values["log_span_db"] = law["shape"]
+    if s2.azimuth_pattern is not None and s2.azimuth_pattern.width_deg is not None:
+        values["azimuth_width_deg"] = s2.azimuth_pattern.width_deg
+    if s2.beam_gain is not None:
+        values["steering_exponent"] = s2.beam_gain.steering_exponent
+        if s2.beam_gain.gain_db is not None:
+            values["stripes_rms_db"] = float(np.sqrt(np.mean(np.square(s2.beam_gain.gain_db))))
     # The recording's grid, so that the calibrated scene renders frames like the recording's.
     fitted = replace(scene, sensor=s2, sonar=sonar, sonar_pose=pose)
-    from ..sensor.model import SensorModel
-
-    m = SensorModel(s2, sonar, scene.render.seed)
-    e = m.apply(frame_for(v)[0], speckle=False)
     mse = float(np.mean((e - target) ** 2))
     image = SonarImage(polar=e, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg, components={"expected": e},
                        sonar=sonar, pose=pose, config=fitted.to_dict())
-    return CalibrationResult(fitted, v, _psnr(mse, peak), _psnr(c0, peak), renders[0], image)
+    result = CalibrationResult(fitted, values, _psnr(mse, peak), _psnr(c0, peak), problem.renders, image,
+                               starts=start_report, family=family_report, law=law)
+    result.baselines = _baselines(target, peak)
+    best_trivial = max(result.baselines["range profile"], result.baselines["separable"])
+    if result.psnr_db < best_trivial:
+        result.warnings.append(
+            f"the calibrated model scores {result.psnr_db:.2f} dB on the frame it was fitted to, below a trivial "
+            f"image (the frame's own {'range profile' if best_trivial == result.baselines['range profile'] else 'separable range x beam profile'}"
+            f": {best_trivial:.2f} dB): the model explains less of this frame than a profile does")
+    problems = _degenerate(problem, s2, spec, v, best, free, pose)
+    if problems:
+        if refuse_degenerate:
+            raise CalibrationFailed(problems, result)
+        result.warnings.extend(problems)
+    return result
 
 
-def _speckled_contrast(spec: SensorSpec, sonar, total: np.ndarray, seed: int, pose, lit: np.ndarray) -> float:
-    """Speckle contrast in the region ``lit`` of a speckled frame of the model."""
+def sensor_names(spec: SensorSpec) -> list[str]:
+    """The searched sensor parameters that act in ``spec`` (no bang, no bang parameters)."""
+    out = ["gain_db"]
+    if spec.noise is not None:
+        out += ["noise_db", "noise_after_tvg_db"]
+    if spec.bang is not None:
+        out += ["bang_db", "bang_length_m", "bang_hold_m", "ringing_db", "ringing_length_m"]
+    if spec.elevation_pattern is not None:
+        out.append("elevation_width_deg")
+    return out
+
+
+def law_key(spec: SensorSpec) -> tuple:
+    law = law_of(spec)
+    return (law["compression"], law["spreading"])
+
+
+def _baselines(target: np.ndarray, peak: float) -> dict:
+    """PSNR (dB) of the frame's trivial images and its local mean against the frame itself."""
+    from . import metrics
+    from .baselines import baseline_images
+
+    return {name: metrics.psnr(target, img, data_range=peak) for name, img in baseline_images(target).items()}
+
+
+def _fit_speckle(problem: _Problem, real: SonarImage, spec: SensorSpec, v: dict, s2: SensorSpec,
+                 free: tuple[str, ...], max_iterations: int, peak: float):
+    """The azimuth width from the grain across beams, then the output's shape corrected by the
+    ratio of the recording's speckle statistic to the model's (the closed forms assume
+    independent pixels; the grain correlates them), the sensor refitted at each correction."""
+    lit = problem.lit
+    seed = problem.scene.render.seed
+    compression = spec.output.compression
+    total, pose = problem.frame_for(spec, v)
+    s2 = _fit_grain(real, s2, problem.sonar, total, seed, pose)
+    stat = _statistic(compression, peak)
+    want = stat(problem.target, lit)
+    for _ in range(GAMMA_PASSES):
+        got = stat(_speckled(s2, problem.sonar, problem.frame_for(spec, v)[0], seed, pose), lit)
+        ratio = want / got
+        if abs(ratio - 1.0) < GAMMA_TOLERANCE:
+            break
+        # Contrast is nearly proportional to gamma; the log's spread in counts inversely to its span.
+        shape = law_of(spec)["shape"] * (ratio if compression == "gamma" else 1.0 / ratio)
+        spec = with_law(replace(spec, azimuth_pattern=s2.azimuth_pattern), compression, None,
+                        float(np.clip(shape, 0.05, 4.0) if compression == "gamma" else np.clip(shape, MIN_SPAN_DB, MAX_SPAN_DB)))
+        v, _ = problem.search(spec, v, sensor_names(spec), max_iterations)
+        e, pose, s2 = problem.expected(spec, v)
+        s2 = _fit_grain(real, s2, problem.sonar, problem.frame_for(spec, v)[0], seed, pose)
+    spec = replace(spec, azimuth_pattern=s2.azimuth_pattern)
+    return spec, v, s2
+
+
+#: Passes of the channels' closed forms (per-beam gains, the bang's pattern), each followed by a
+#: short refit of the sensor's levels.
+CHANNEL_PASSES = 2
+
+#: A range row belongs to the bang when, in the model, the bang is at least this share of its
+#: expected power (echo and noise the rest).
+BANG_SHARE = 0.5
+
+
+def beam_ratio_db(real: np.ndarray, model: np.ndarray, output, rows: np.ndarray) -> np.ndarray:
+    """Per beam, the power gain (dB) that brings the model's mean counts over ``rows`` to the
+    recording's.
+
+    With a gamma output a power gain G scales every expected count by ``G ** gamma``; with a
+    log output it adds ``10 log10(G) * full_scale / span`` counts: both invert in closed form.
+    Pixels at the quantiser's floor (under half a count) or saturated are left out.
+
+    Parameters
+    ----------
+    real, model : (n_range_bins, n_beams) arrays, counts
+        The recording and the model's expected image.
+    output : OutputSpec
+    rows : (n_range_bins,) bool array
+        The range rows used.
+
+    Returns
+    -------
+    (n_beams,) float64 ndarray, dB (0 for a beam without usable pixels).
+    """
+    x, e = np.asarray(real, dtype=np.float64), np.asarray(model, dtype=np.float64)
+    fs = output.full_scale
+    keep = rows[:, None] & (e > 0.5 * fs / 255.0) & (e < 0.98 * fs)
+    n = keep.sum(axis=0)
+    sr, se = np.where(keep, x, 0.0).sum(axis=0), np.where(keep, e, 0.0).sum(axis=0)
+    ok = (n >= 2) & (sr > 0) & (se > 0)
+    out = np.zeros(x.shape[1])
+    if output.compression == "gamma":
+        out[ok] = 10.0 / output.gamma * np.log10(sr[ok] / se[ok])
+    else:
+        out[ok] = (sr[ok] - se[ok]) / n[ok] * (output.ceiling_db - output.floor_db) / fs
+    return out
+
+
+def _fit_channels(problem: _Problem, spec: SensorSpec, v: dict, max_iterations: int, say):
+    """The receive channels' structure in closed form: the across-fan gain (steering loss
+    ``cos^n`` and stripes, from the beams' mean levels beyond the bang) and the bang's
+    pattern across beams (from the rows the bang dominates), the levels refitted after each."""
+    from ..config.sensor import BeamGainSpec
+    from ..sensor import channels
+
+    sonar = problem.sonar
+    steer = 10.0 * np.log10(np.cos(np.radians(np.asarray(sonar.azimuth_deg, dtype=float))))
+    target = problem.target
+    for _ in range(CHANNEL_PASSES):
+        e, pose, s2 = problem.expected(spec, v)
+        m = problem.model(s2)
+        total, _ = problem.frame_for(spec, v)
+        echo_row = np.median(m.echo_gain[:, None] * np.asarray(m.mean_image(total), dtype=np.float64), axis=1)
+        bang = np.asarray(m.bang, dtype=np.float64)
+        share = bang / np.maximum(bang + np.asarray(m.noise_row, dtype=np.float64) + echo_row, 1e-300)
+        bang_rows = share >= BANG_SHARE
+        # Across the fan: the channels' gain, fitted as k + n * 10 log10 cos(theta) + stripes.
+        current = np.asarray(m.beam_gain_db, dtype=float)
+        rows = np.flatnonzero(~bang_rows)
+        ratio = beam_ratio_db(target, e, s2.output, ~bang_rows)
+        # The ratio's noise (speckle, not the channels): half the difference of the ratios
+        # measured on the window's near and far halves.
+        half = np.zeros(len(bang_rows), bool)
+        half[rows[: len(rows) // 2]] = True
+        noise_var = float(np.var(beam_ratio_db(target, e, s2.output, half)
+                                 - beam_ratio_db(target, e, s2.output, ~bang_rows & ~half))) / 4.0
+        want = current + ratio
+        design = np.column_stack([np.ones_like(steer), steer])
+        coef = np.linalg.lstsq(design, want, rcond=None)[0]
+        # The exponent's standard error from the ratio's noise: one that speckle could draw
+        # (within two standard errors of none) is none.
+        se = math.sqrt(noise_var * float(np.linalg.pinv(design.T @ design)[1, 1]))
+        n = float(np.clip(coef[1], 0.0, 200.0)) if coef[1] > 2.0 * se else 0.0
+        stripes = want - n * steer
+        k = float(stripes.mean())
+        stripes = stripes - k
+        # Shrunk towards none by how much of their spread the noise explains (James-Stein):
+        # stripes drawn from speckle alone are fitted as (nearly) none.
+        spread = float(np.mean(stripes ** 2))
+        stripes = np.clip(stripes * max(0.0, 1.0 - noise_var / spread) if spread > 0 else stripes, -60.0, 60.0)
+        v = {**v, "gain_db": float(np.clip(v["gain_db"] + k, *problem.bounds["gain_db"]))}
+        spec = replace(spec, beam_gain=BeamGainSpec(steering_exponent=n, gain_db=tuple(float(x) for x in stripes)))
+        if spec.bang is not None and bang_rows.sum() >= 1:
+            e, _, s2 = problem.expected(spec, v)
+            pattern = channels.bang_beam_db(s2.bang, sonar.n_beams) + beam_ratio_db(target, e, s2.output, bang_rows)
+            b = float(pattern.mean())
+            spec = replace(spec, bang=replace(spec.bang, beam_db=tuple(float(x) for x in np.clip(pattern - b, -60, 60))))
+            v["bang_db"] = float(np.clip(v["bang_db"] + b, *problem.bounds["bang_db"]))
+        v, _ = problem.search(spec, v, [n_ for n_ in sensor_names(spec) if n_ != "elevation_width_deg"],
+                              max(max_iterations // 2, 1))
+    stripes_rms = float(np.sqrt(np.mean(np.square(spec.beam_gain.gain_db))))
+    say(f"channels: steering loss cos^{spec.beam_gain.steering_exponent:.3g}, stripes {stripes_rms:.2f} dB RMS"
+        + (f", bang pattern {float(np.std(spec.bang.beam_db)):.2f} dB RMS over {int(bang_rows.sum())} rows"
+           if spec.bang is not None and spec.bang.beam_db is not None else "")
+        + f": PSNR {problem.psnr(spec, v, spec.output.full_scale):.2f} dB")
+    return spec, v
+
+
+def _statistic(compression: str, peak: float):
+    if compression == "gamma":
+        return realism.speckle_contrast
+    return speckle_spread
+
+
+def _speckled(spec: SensorSpec, sonar, total: np.ndarray, seed: int, pose) -> np.ndarray:
     from ..sensor.model import SensorModel
 
     m = SensorModel(spec, sonar, seed)
-    return realism.speckle_contrast(m.apply(total, m.anchored_rng(pose.position_m, pose.rpy_deg)), lit)
+    return m.apply(total, m.anchored_rng(pose.position_m, pose.rpy_deg))
+
+
+def _family(problem: _Problem, spec: SensorSpec, v: dict, free: tuple[str, ...], max_iterations: int, peak: float,
+            say) -> tuple[SensorSpec, dict, dict]:
+    """Hold the elevation width at factors of the best and refit pose and sensor at each: the
+    poses within :data:`FAMILY_DB` of the best are the family (a better one found is kept)."""
+    best_cost = problem.cost(spec, v)
+    w0 = v["elevation_width_deg"]
+    members = [{"elevation_width_deg": w0, **{k: v[k] for k in free}, "psnr_db": problem.psnr(spec, v, peak)}]
+    others = [n for n in sensor_names(spec) if n != "elevation_width_deg"] + list(free)
+    lo, hi = problem.bounds["elevation_width_deg"]
+    best = (best_cost, v)
+    for f in FAMILY_FACTORS:
+        w = float(np.clip(w0 * f, lo, hi))
+        # Along the family the band's half-angle scales with the width: start from the pose the
+        # band's lines give for it (the best pose moved along the curve).
+        start = {**v, "elevation_width_deg": w, **_along_family(v, w0, w, free)}
+        u, c = problem.search(spec, start, others, max(max_iterations // 2, 1))
+        members.append({"elevation_width_deg": w, **{k: u[k] for k in free}, "psnr_db": problem.psnr(spec, u, peak)})
+        if c < best[0]:
+            best = (c, u)
+    say(f"family: {len(members)} elevation widths refitted")
+    top = max(m["psnr_db"] for m in members)
+    good = [m for m in members if m["psnr_db"] >= top - FAMILY_DB]
+    report = {"within_db": FAMILY_DB, "members": sorted(members, key=lambda m: m["elevation_width_deg"])}
+    for k in ("elevation_width_deg", *[n for n in ("z", "pitch", "roll") if n in free]):
+        report[k] = [min(m[k] for m in good), max(m[k] for m in good)]
+    # Bracketed: the scan's extreme widths are themselves within the tolerance.
+    widths = [m["elevation_width_deg"] for m in members]
+    report["open_ended"] = any(m["elevation_width_deg"] in (min(widths), max(widths)) for m in good)
+    return spec, best[1], report
+
+
+def _along_family(v: dict, w0: float, w: float, free: tuple[str, ...]) -> dict:
+    """The pose that draws the same band edges with the width ``w`` as ``v``'s with ``w0``
+    (bandpose's closed form: the same lines at the half-angle scaled by the width)."""
+    from .bandpose import BandLines, pose_for_half_angle
+
+    if not {"z", "pitch"} <= set(free):
+        return {}
+    h0, h = EDGE_RATIO * w0, EDGE_RATIO * w
+    z, p, r = v["z"], math.radians(v["pitch"]), math.radians(v.get("roll", 0.0))
+    hr = math.radians(h0)
+    a = math.cos(hr) * math.sin(p) / z
+    c = -math.cos(hr) * math.cos(p) * math.sin(r) / z
+    b = math.sin(hr) * math.cos(p) * math.cos(r) / z
+    lines = BandLines(a, c, b, a + b, 0.0, 99, 99)
+    z2, p2, r2 = pose_for_half_angle(lines, min(h, 80.0))
+    out = {"z": z2, "pitch": p2}
+    if "roll" in free:
+        out["roll"] = r2
+    return out
+
+
+def _degenerate(problem: _Problem, s2: SensorSpec, spec: SensorSpec, v: dict, best: dict,
+                free: tuple[str, ...], pose: Pose) -> list[str]:
+    """What makes the result meaningless (see :func:`calibrate`, step 4)."""
+    out = []
+    total, _ = problem.frame_for(spec, v)
+    m = problem.model(s2)
+    mean = np.asarray(m.mean_image(total), dtype=np.float64)
+    echo = m.echo_gain[:, None] * mean
+    rest = m.bang[:, None] + m.noise_row[:, None]
+    lit = problem.lit
+    if lit.any():
+        share = float(np.median((echo / np.maximum(echo + rest, 1e-300))[lit]))
+        if share < MIN_ECHO_SHARE:
+            out.append(f"the echo is switched off: over the recording's bright band the model's echo is "
+                       f"{100 * share:.0f} % of its expected power (the rest noise and bang lifted by the TVG, "
+                       f"at least {100 * MIN_ECHO_SHARE:.0f} % echo is needed)")
+    moved = [k for k in free if abs(v[k] - best["from"][k]) > 1e-6 * STEPS[k]]
+    if free and not moved:
+        out.append(f"the pose did not move from its start ({', '.join(f'{k} {v[k]:.4g}' for k in free)}): "
+                   "the recording does not constrain it (is the scene's echo in the recording's window?)")
+    base = problem.cost(spec, v)
+    pinned = []
+    for k in (*sensor_names(spec), *free):
+        lo, hi = problem.bounds[k]
+        span = hi - lo
+        for edge, inward in ((lo, +1.0), (hi, -1.0)):
+            if (k, edge == lo) in NATURAL_LIMITS:
+                continue
+            if abs(v[k] - edge) <= 1e-3 * span:
+                moved_v = {**v, k: edge + inward * min(0.25 * STEPS[k], 0.1 * span)}
+                if problem.cost(spec, moved_v) > base * (1.0 + PINNED_COST_RISE):
+                    pinned.append(f"{k} {v[k]:.4g} (bounds {lo:.4g} to {hi:.4g})")
+    if pinned:
+        out.append("parameters pinned at their physical bounds, where the fit wants them beyond: " + ", ".join(pinned))
+    return out
 
 
 def _fit_grain(real: SonarImage, spec: SensorSpec, sonar, total: np.ndarray, seed: int, pose) -> SensorSpec:

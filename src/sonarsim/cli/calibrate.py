@@ -87,6 +87,17 @@ def side_by_side(real, expected, speckled, peak: float, frame: int = 0) -> np.nd
                                 "calibrated model: speckled frame"])
 
 
+def format_family(family: dict) -> str:
+    """One line on the poses a flat floor cannot tell apart (or why none was scanned)."""
+    if not family:
+        return "pose family: not scanned (needs z and pitch free and a floor band with both edges)"
+    parts = [f"{k} {lo:.3g}-{hi:.3g}" for k, (lo, hi) in
+             ((k, family[k]) for k in ("z", "pitch", "roll", "elevation_width_deg") if k in family)]
+    tail = " (and beyond: the scan's widest or narrowest width is one of them)" if family.get("open_ended") else ""
+    return (f"pose family: equally good within {family['within_db']:g} dB: " + ", ".join(parts) + tail +
+            "; one flat floor does not tell these apart, so the pose above is one of them, not a measurement")
+
+
 def cmd_calibrate(args) -> None:
     import json
 
@@ -123,13 +134,16 @@ def cmd_calibrate(args) -> None:
         except (SonarsimError, IndexError, ValueError) as exc:
             raise SonarsimError(f"--evaluate-frames: {args.real}: no frame {n} ({exc})") from None
     scene = load_scene(args.scene)
-    res = calibrate(real, scene, free=free, max_iterations=args.max_iterations)
+    # Progress on stderr: a calibration makes thousands of renders over a minute or more.
+    res = calibrate(real, scene, free=free, max_iterations=args.max_iterations,
+                    progress=lambda line: print(f"sonarsim calibrate: {line}", file=sys.stderr, flush=True))
     peak = res.scene.sensor.output.full_scale
     with Simulator(res.scene) as sim:
         speckled = sim.render(res.scene.sonar_pose, keep_rays=False)
     doc = calibrated_document(Path(args.scene), out, res.scene)
 
-    figures = {"frame": args.frame, "values": res.values,
+    figures = {"frame": args.frame, "values": res.values, "law": res.law, "baselines_db": res.baselines,
+               "family": res.family, "starts": res.starts, "warnings": res.warnings,
                "calibrated": evaluate(real.polar, res.expected.polar, speckled.polar, peak), "held_out": {}}
     for n, img in held_out:
         if np.asarray(img.polar).shape != res.expected.polar.shape:
@@ -151,6 +165,12 @@ def cmd_calibrate(args) -> None:
         print(f"{name:20s} {value:10.4f}")
     print(f"PSNR of the expected render on frame {args.frame}: {res.psnr_start_db:.2f} -> {res.psnr_db:.2f} dB "
           f"({res.renders} renders)")
+    b = res.baselines
+    print(f"beside it, on the same frame: its range profile in every beam {b['range profile']:.2f} dB, its "
+          f"separable range x beam image {b['separable']:.2f} dB, its 15 x 9 local mean (the ceiling) {b['ceiling']:.2f} dB")
+    print(format_family(res.family))
+    for w in res.warnings:
+        print(f"sonarsim: warning: {w}", file=sys.stderr)
     print(format_evaluation(figures["calibrated"], f"frame {args.frame} (calibrated): "))
     for n, ev in figures["held_out"].items():
         print(format_evaluation(ev, f"frame {n} (held out): "))

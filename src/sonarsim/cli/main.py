@@ -233,7 +233,8 @@ def _run(args) -> int:
             args.func(args)
     except SonarsimError as exc:
         _log(f"error: {exc}")
-        return EXIT_BAD_INPUT
+        # A refused result (a degenerate calibration) says so with its own status (3).
+        return int(getattr(exc, "exit_status", EXIT_BAD_INPUT))
     except OSError as exc:  # e.g. a disk that filled up while writing
         # atomic_write names the destination, never its temporary file.
         name = exc.filename2 or exc.filename or ""
