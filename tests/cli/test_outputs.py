@@ -46,6 +46,25 @@ def tiny_scene(tmp_path: Path) -> Path:
     return path
 
 
+# What `fit --domain band` is for: a floor alone (TINY_SCENE's box carries 79 % of its echo), its
+# band inside the window (near edge 1.74 m, far edge 2.37 m at pitch 30 deg), in 200 bins. The
+# band detector smooths over 12 bins and keeps 24 clear on each side of an edge: in TINY_SCENE's
+# 50 bins it can tell no edge from its own blur (the old detector put one at 2.03 m, between
+# the box's face at 1.93 m and the floor's edge at 2.37 m).
+BAND_SCENE = {
+    **{k: v for k, v in TINY_SCENE.items() if k != "objects"},
+    "sonar": {**TINY_SCENE["sonar"], "n_range_bins": 200,
+              "pose": {"position_m": [0.0, 0.0, 1.0], "rpy_deg": [0.0, 30.0, 0.0]}},
+}
+
+
+@pytest.fixture()
+def band_scene(tmp_path: Path) -> Path:
+    path = tmp_path / "band.yaml"
+    path.write_text(yaml.safe_dump(BAND_SCENE))
+    return path
+
+
 @pytest.fixture()
 def big_scene(tmp_path: Path) -> Path:
     path = tmp_path / "big.yaml"
@@ -134,12 +153,12 @@ def test_demo_record_lists_all_its_files_and_replaces_a_render(capsys, tmp_path:
     check_record(out, out / RECORD_NAME, list(DEMO_FILES))
 
 
-def test_fit_keeps_its_record_beside_its_scene(capsys, tmp_path: Path, tiny_scene: Path) -> None:
-    sonarsim.render(sonarsim.load_scene(tiny_scene)).save_npz(tmp_path / "real.npz")
+def test_fit_keeps_its_record_beside_its_scene(capsys, tmp_path: Path, band_scene: Path) -> None:
+    sonarsim.render(sonarsim.load_scene(band_scene)).save_npz(tmp_path / "real.npz")
     out = tmp_path / "fits" / "fitted.yaml"
     (tmp_path / "fits").mkdir()
     (tmp_path / "fits" / "other_fit.png").write_bytes(b"another fit's, no record lists it")
-    args = ["fit", tmp_path / "real.npz", "--scene", tiny_scene, "--free", "z", "--domain", "band",
+    args = ["fit", tmp_path / "real.npz", "--scene", band_scene, "--free", "z", "--domain", "band",
             "--max-renders", "12", "--out", out]
     code, err = run_main(capsys, *args)
     assert code == 0, err
@@ -156,6 +175,23 @@ def test_fit_keeps_its_record_beside_its_scene(capsys, tmp_path: Path, tiny_scen
     assert [e.get("name") or e.get("path") for e in files] == ["fitted.yaml", str(picture),
                                                                 str(picture.with_name("fit_figure.png"))]
     assert files[1]["sha256"] == hashlib.sha256(picture.read_bytes()).hexdigest()
+
+
+def test_fit_band_on_a_window_too_short_for_the_detector_writes_nothing(capsys, tmp_path: Path,
+                                                                        tiny_scene: Path) -> None:
+    # TINY_SCENE's 50 bins: no band edge the detector can tell (see BAND_SCENE), and its band
+    # starts 2.4 m out, not at the window start: no grazing sea bed to bound either.
+    sonarsim.render(sonarsim.load_scene(tiny_scene)).save_npz(tmp_path / "real.npz")
+    out = tmp_path / "fits" / "fitted.yaml"
+    with pytest.raises(SystemExit) as stopped:
+        cli.main([str(a) for a in ["fit", tmp_path / "real.npz", "--scene", tiny_scene, "--free", "z",
+                                   "--domain", "band", "--max-renders", "4", "--quiet", "--out", out]])
+    captured = capsys.readouterr()
+    assert stopped.value.code == 3, captured.err
+    assert "no beam shows a band in both the recording and the render" in captured.err
+    assert "no clear band edge in any of its 8 beams and is not lit from its first range bin" in captured.out
+    assert "fading with range" not in captured.out
+    assert not out.parent.exists() or os.listdir(out.parent) == []
 
 
 # --------------------------------------------------------------------------- checked before the work

@@ -248,7 +248,9 @@ def band_edges(
     near, far : (n_beams,) float64 ndarrays, metres
         Range of the near and far edge in each beam; NaN where the beam shows no clear edge (no
         echo, an echo that begins before the window start or ends beyond its end, or only
-        speckle).
+        speckle). NaN in every beam of a window too short for the smoothing: at most
+        ``2 ceil(BAND_GAP_SIGMAS sigma) + 2`` range bins (50 at the default 12-bin sigma), where
+        an edge cannot be told from the smoothing's own blur.
 
     Raises
     ------

@@ -231,7 +231,7 @@ def _what_to_try(args: argparse.Namespace, result: FitResult) -> str:
 def cmd_fit(args) -> None:
     import yaml
 
-    from ..analysis.fitting import UNITS, FitError, fit_pose, floor_band_m
+    from ..analysis.fitting import MIN_BAND_BEAMS, UNITS, FitError, band_view, fit_pose, floor_band_m
     from ..config.loader import load_scene
     from ..io.output import atomic_write, write_png
     from ..io.run_record import OutputRun, record_beside
@@ -273,10 +273,14 @@ def cmd_fit(args) -> None:
     what = "1 - edge correlation" if result.domain == "edges" else "band-edge RMS, m"
     print(f"cost ({what}): {result.cost_start:.4f} -> {result.cost:.4f} in {result.renders} renders")
     if not (np.isfinite(onset_r).any() or np.isfinite(end_r).any()):
-        # A sea bed lit across the whole window (grazing angle): no edge to compare.
-        print(f"floor band: the recording shows no band edge over its {len(onset_r)} beams (lit from "
-              f"{real.sonar.range_min_m:.2f} m, fading with range); the fit bounds height and tilt (near edge before "
-              f"the window, far edge beyond it), it does not fix them")
+        if np.mean(band_view(real).lit_start) >= MIN_BAND_BEAMS:
+            # A sea bed lit across the whole window (grazing angle): no edge to compare.
+            print(f"floor band: the recording shows no band edge over its {len(onset_r)} beams (lit from "
+                  f"{real.sonar.range_min_m:.2f} m, fading with range); the fit bounds height and tilt (near edge before "
+                  f"the window, far edge beyond it), it does not fix them")
+        else:  # not a grazing sea bed: no band at all, or a window too short to tell one
+            print(f"floor band: the recording shows no clear band edge in any of its {len(onset_r)} beams and is "
+                  f"not lit from its first range bin: no band to compare")
     else:
         print(f"floor band residual over {len(onset_r)} beams: near edge RMS {result.onset_rms_m:.4f} m, far edge RMS {end_rms:.4f} m")
     if result.problems:
