@@ -125,21 +125,26 @@ def test_real_oculus_calibration_on_ping_one_holds_on_pings_two_and_three(shared
     from sonarsim.io.readers import read_frames
 
     pings = list(read_frames(shared_data / "real" / "oculus" / "three_pings_8bit.raw"))
-    # The pose the floor band gives (fitting.fit_pose(..., domain="band"): z 0.416 m, pitch
-    # 28.8 deg, roll 1.4 deg) is the start; the sensor is fitted there, then with the pose.
+    # A generic start far from the pose the floor band gives (fitting.fit_pose(...,
+    # domain="band"): z 0.416 m, pitch 28.8 deg, roll 1.4 deg): the closed-form starts from the
+    # band's edges make the start irrelevant.
     scene = sonarsim.load_scene({
-        "sonar": {"preset": "oculus-m1200d-hf", "pose": {"position_m": [0, 0, 0.416], "rpy_deg": [1.4, 28.8, 0]}},
+        "sonar": {"preset": "oculus-m1200d-hf", "pose": {"position_m": [0, 0, 0.7], "rpy_deg": [0, 40, 0]}},
         "render": {"bounces": [1]}, "ground": {"height_m": 0, "albedo": 0.8}})
-    res = calibrate(pings[0], scene, free=("z", "pitch", "roll"), max_iterations=250)
-    # Measured: z 0.433 m, pitch 29.1 deg, roll 1.4 deg; elevation width 7.5 deg.
-    assert res.scene.sonar_pose.position_m[2] == pytest.approx(0.416, abs=0.03)
-    assert res.scene.sonar_pose.rpy_deg[1] == pytest.approx(28.8, abs=2.0)
-    assert res.values["tvg_spreading"] == 40.0
+    res = calibrate(pings[0], scene, free=("z", "pitch", "roll"), max_iterations=150)
+    # One floor ping does not tell height, pitch and elevation width apart: the family within
+    # 0.2 dB holds the band fit's pose (measured: z 0.19-0.55 m, pitch 12-39 deg, width 3-11
+    # deg), and the calibrated pose is one of the family, not a measurement.
+    fam = res.family
+    assert fam["z"][0] < 0.416 < fam["z"][1] and fam["pitch"][0] < 28.8 < fam["pitch"][1]
+    assert fam["z"][1] - fam["z"][0] > 0.2  # and it is wide: said, not hidden
+    assert fam["z"][0] <= res.scene.sonar_pose.position_m[2] <= fam["z"][1]
+    assert res.values["tvg_spreading"] == 40.0 and res.law["compression"] == "gamma"
     e = res.expected.polar
     for p in pings[1:]:
-        # The issue's targets (item 5). Measured: 19.20 and 19.21 dB (from 11.6 at the start;
-        # the paper's model: 13.3).
-        assert evaluate(p.polar, e, e)["psnr_db"] >= 19.0
+        # Measured: 19.30 and 19.33 dB (the range profile of ping 0: 19.14; from 11.6 at the
+        # start; the paper's model: 13.3).
+        assert evaluate(p.polar, e, e)["psnr_db"] >= 19.2
     # The speckle statistics hold whatever the pool of speckle fields (its seed).
     for seed in (0, 1, 2):
         sim = sonarsim.Simulator(replace(res.scene, render=replace(res.scene.render, seed=seed)))
@@ -241,3 +246,109 @@ def test_the_calibrated_oculus_preset_scores_on_every_real_ping(shared_data):
     # Measured: 19.27, 19.20, 19.21 dB (the uncalibrated paper model: 13.3).
     for p in pings:
         assert 10 * np.log10(255 ** 2 / np.mean((expected - p.polar) ** 2)) > 19.0
+
+
+# Issue 22, item 2: the right basin or a refusal ------------------------------------------------
+
+def _floor_truth():
+    return {**STARTING_SENSOR, "gain_db": 20.0, "noise": {"level_db": 95.0, "after_tvg_db": 105.0}, "bang": False,
+            "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 12.0, "span_deg": 60.0},
+            "azimuth_pattern": {"shape": "gaussian", "width_deg": 1.2}}
+
+
+@pytest.mark.parametrize("start", [(0.3, 20.0), (0.7, 40.0)])
+def test_far_apart_starts_end_in_one_basin_and_the_family_holds_the_truth(start):
+    """The closed-form starts from the band's edges make the user's start pose irrelevant; the
+    family of equally good poses is reported and holds the truth (z 0.5 m, pitch 25 deg)."""
+    real = sonarsim.render(floor_scene(_floor_truth()))
+    doc = floor_scene({**_floor_truth(), "gain_db": 5.0})
+    doc["sonar"]["pose"] = {"position_m": [0, 0, start[0]], "rpy_deg": [0, start[1], 0]}
+    lines = []
+    res = calibrate(real, sonarsim.load_scene(doc), free=("z", "pitch"), max_iterations=120, fit_grain=False,
+                    spreading=(20.0,), compressions=("gamma",), progress=lines.append)
+    # Measured: 20.8 dB from either start (the truth's own expected image: 20.9 dB).
+    truth_expected = sonarsim.render(floor_scene(_floor_truth()), speckle=False).polar
+    best = 10 * np.log10(255 ** 2 / np.mean((truth_expected - real.polar) ** 2))
+    assert res.psnr_db > best - 0.5
+    fam = res.family
+    # Here the model is the truth's, its sidelobes included: they tell the width, and the family
+    # narrows to the truth (measured: z 0.4998 m, pitch 25.0 deg, width 12.01 deg from both
+    # starts); on the real Oculus ping it spans z 0.19-0.55 m.
+    assert fam["z"][0] - 0.01 <= 0.5 <= fam["z"][1] + 0.01
+    assert fam["pitch"][0] - 0.5 <= 25.0 <= fam["pitch"][1] + 0.5
+    assert fam["elevation_width_deg"][0] - 0.5 <= 12.0 <= fam["elevation_width_deg"][1] + 0.5
+    # Along the family, a wider pattern goes with a higher sonar pitched further down.
+    members = fam["members"]
+    assert [m["z"] for m in members] == sorted(m["z"] for m in members)
+    assert any("start" in line for line in lines) and any("family" in line for line in lines)
+    # Every parameter inside its physical bounds: the bang (none here) and the noise included.
+    from sonarsim.analysis.calibration import parameter_bounds
+
+    bounds = parameter_bounds(res.scene.sensor, res.scene.sonar)
+    for k, x in res.values.items():
+        if k in bounds:
+            assert bounds[k][0] - 1e-9 <= x <= bounds[k][1] + 1e-9, k
+
+
+def test_an_echo_the_scene_cannot_make_is_refused_as_the_echo_switched_off(tmp_path, capsys):
+    """The recording shows a floor band; the scene's floor is 30 m down, out of the window: the
+    only fit left explains the band by noise lifted by the TVG, which is refused (exit 3)."""
+    from sonarsim.analysis.calibration import CalibrationFailed
+    from sonarsim.cli.main import main
+
+    real = sonarsim.render(floor_scene(_floor_truth()))
+    doc = floor_scene(_floor_truth())
+    doc["ground"]["height_m"] = -30.0
+    with pytest.raises(CalibrationFailed, match="echo is switched off") as info:
+        calibrate(real, sonarsim.load_scene(doc), free=(), max_iterations=60, fit_grain=False, spreading=(20.0,),
+                  compressions=("gamma",))
+    assert info.value.exit_status == 3 and info.value.result.psnr_db > 0
+    import yaml
+
+    real.save_npz(tmp_path / "real.npz")
+    (tmp_path / "scene.yaml").write_text(yaml.safe_dump(doc))
+    out = tmp_path / "cal.yaml"
+    rc = main(["calibrate", str(tmp_path / "real.npz"), "--scene", str(tmp_path / "scene.yaml"), "--out", str(out),
+               "--max-iterations", "40"])
+    err = capsys.readouterr().err
+    assert rc == 3 and "echo is switched off" in err and "Traceback" not in err
+    assert "sonarsim calibrate: start" in err  # progress on stderr
+    assert not out.exists() and not out.with_suffix(".png").exists()
+
+
+def test_a_free_parameter_the_recording_does_not_constrain_is_refused_as_unmoved():
+    """Yaw over a flat floor changes nothing in the image: the pose does not move, refused."""
+    from sonarsim.analysis.calibration import CalibrationFailed
+
+    real = sonarsim.render(floor_scene(_floor_truth()))
+    with pytest.raises(CalibrationFailed, match="yaw did not move the fit|did not move from its start"):
+        calibrate(real, sonarsim.load_scene(floor_scene(_floor_truth())), free=("yaw",), max_iterations=40,
+                  fit_grain=False, spreading=(20.0,), compressions=("gamma",), channels=False)
+
+
+def test_a_parameter_pinned_at_a_bound_where_it_matters_is_refused():
+    """A recording whose bang is 15 dB above the source level and holds for 0.3 m (the bounds:
+    the source level, a 100 us transmission): the fit ends at the bounds and would go beyond;
+    refused, naming the parameters."""
+    from sonarsim.analysis.calibration import CalibrationFailed
+
+    truth = {**_floor_truth(), "source_level_db": 180.0, "bang": {"level_db": 195.0, "length_m": 0.05, "hold_m": 0.3}}
+    real = sonarsim.render(floor_scene(truth))
+    start = {**truth, "bang": {"level_db": 150.0, "length_m": 0.02}}
+    with pytest.raises(CalibrationFailed, match="pinned at their physical bounds.*bang") as info:
+        calibrate(real, sonarsim.load_scene(floor_scene(start)), free=(), max_iterations=200, fit_grain=False,
+                  spreading=(20.0,), compressions=("gamma",), channels=False)
+    assert info.value.result.values["bang_db"] <= 180.0 and info.value.result.values["bang_hold_m"] <= 0.075
+
+
+def test_the_output_law_is_told_by_the_speckles_spread_log_against_gamma():
+    """Both laws fit a mean image; the speckle's spread against level tells them apart: a log
+    recording is fitted with a log output, a gamma one with gamma."""
+    for law in ("log", "gamma"):
+        out = ({"compression": "log", "floor_db": 90.0, "ceiling_db": 160.0, "dtype": "uint8"} if law == "log"
+               else {"compression": "gamma", "gamma": 0.3, "ceiling_db": 160.0, "dtype": "uint8"})
+        truth = {**_floor_truth(), "output": out}
+        real = sonarsim.render(floor_scene(truth))
+        res = calibrate(real, sonarsim.load_scene(floor_scene({**truth, "output": STARTING_SENSOR["output"]})),
+                        free=(), max_iterations=150, fit_grain=False, spreading=(20.0,), channels=False)
+        assert res.law["compression"] == law

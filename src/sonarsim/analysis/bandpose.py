@@ -86,7 +86,7 @@ def fit_band_lines(azimuth_deg, near_m, far_m=None, reject: float = 3.0) -> Band
         ``far_m`` may be omitted (the near edge alone: ``b`` is then fitted from it).
     reject : float
         Edges whose residual exceeds this many robust standard deviations (1.4826 x the median
-        absolute residual, at least a millimetre) are left out and the fit repeated (at most
+        absolute residual of the near, or the far, edges, at least a millimetre) are left out and the fit repeated (at most
         :data:`REJECT_PASSES` fits).
 
     Returns
@@ -122,11 +122,19 @@ def fit_band_lines(azimuth_deg, near_m, far_m=None, reject: float = 3.0) -> Band
         pred = a_rows @ coef
         with np.errstate(divide="ignore", invalid="ignore"):
             resid_m = np.where(pred > 0, 1.0 / pred - rr, np.inf)
-        scale = max(1.4826 * float(np.median(np.abs(resid_m[np.isfinite(resid_m)]))), 1e-3)
-        bad = ~(np.abs(resid_m) <= reject * scale)
+        # Each edge against its own spread: a far edge is blurrier than a near one (it is
+        # drawn by the pattern's weak upper side), and one scale would reject all of it.
+        n_n = int(ok_n.sum())
+        bad = np.zeros(len(resid_m), dtype=bool)
+        for part in (slice(0, n_n), slice(n_n, len(resid_m))):
+            rp = resid_m[part]
+            if not len(rp):
+                continue
+            fin = np.isfinite(rp)
+            scale = max(1.4826 * float(np.median(np.abs(rp[fin]))), 1e-3) if fin.any() else 1e-3
+            bad[part] = ~(np.abs(rp) <= reject * scale)
         if not bad.any():
             break
-        n_n = int(ok_n.sum())
         ok_n = ok_n.copy()
         ok_f = ok_f.copy()
         ok_n[np.flatnonzero(ok_n)[bad[:n_n]]] = False

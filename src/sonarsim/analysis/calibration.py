@@ -40,8 +40,8 @@ How the search avoids the wrong basin (issue 22: from a grid of starts, half end
    start, a parameter pinned at a bound where moving it off the bound costs fit; a score below
    a trivial baseline (the frame's own range profile in every beam) is a warning;
 5. the family of equally good poses (within :data:`FAMILY_DB` of the best PSNR): the
-   elevation width is held at several values around the best and the pose and sensor refitted
-   at each; the range of height, pitch and width is reported, not one of them as if measured.
+   elevation width is held at each of :data:`FAMILY_WIDTHS_DEG` and the pose and sensor
+   refitted there; the range of height, pitch and width is reported, not one of them as if measured.
 
 The search is derivative-free (Nelder-Mead over a bounded transform), re-rendering only when a
 parameter that changes the rays (pose, elevation width) moves; the sensor-only parameters
@@ -104,8 +104,12 @@ START_ITERATIONS = 120
 #: A pose is one of the family when its PSNR is within this many dB of the best.
 FAMILY_DB = 0.2
 
-#: Elevation widths of the family scan, as factors of the best width.
-FAMILY_FACTORS = (0.4, 0.55, 0.7, 0.85, 1.2, 1.45, 1.8, 2.3)
+#: Elevation widths (degrees, two-way -3 dB) of the family scan, besides the best fit's.
+FAMILY_WIDTHS_DEG = (2.0, 3.0, 4.5, 6.0, 8.0, 10.5, 14.0, 18.0, 24.0)
+
+#: A free pose parameter is unconstrained when a step either way changes the cost by less than
+#: this fraction.
+UNCONSTRAINED_COST = 1e-6
 
 #: The echo is "switched off" when, over the recording's lit band, less than this share of the
 #: model's expected power is echo (the rest: noise and bang lifted by the TVG).
@@ -114,6 +118,11 @@ MIN_ECHO_SHARE = 0.5
 #: A parameter at a bound counts as pinned there when moving it a quarter step inward raises the
 #: cost by more than this fraction (0.023 dB of PSNR: a change the fit can see).
 PINNED_COST_RISE = 0.005
+
+#: The longest the bang holds its level: a transmission of 100 us (c tau / 2 = 7.5 cm).
+BANG_HOLD_MAX_M = 0.075
+#: The longest 1/e decay of the bang and its ringing (0.5 m of range, 670 us).
+BANG_REACH_M = 0.5
 
 #: Bounds that are a natural limit rather than a plausibility bound: a result there is not
 #: pinned ((name, True) for the lower bound). The bang's decay over a twentieth of a range cell
@@ -212,9 +221,12 @@ def parameter_bounds(spec: SensorSpec, sonar) -> dict[str, tuple[float, float]]:
 
     * ``bang_db`` below the source level (the bang is the transmitter's own signal leaking in);
       it holds its level for ``bang_hold_m``, at least one range cell (a bang shorter than a
-      bin is not resolved: its level would trade against its length without end), and then
-      decays over ``bang_length_m`` (a twentieth of a cell to half the window: a receiver
-      may recover within a bin);
+      bin is not resolved: its level would trade against its length without end) and at most
+      :data:`BANG_HOLD_MAX_M` (a transmission of 100 us), then decays over ``bang_length_m`` (a
+      twentieth of a cell, an abrupt end, to :data:`BANG_REACH_M`); the ringing's decay length
+      is at most :data:`BANG_REACH_M` as well (a transducer rings for well under a
+      millisecond: without the limit, a bang and its ringing can draw the whole range profile
+      of a grazing sea bed and leave the echo nothing, as on the ARIS sample);
     * ``noise_db`` (before the TVG) from 0 dB re 1 uPa^2 (below any receiver's self-noise) to
       20 dB under the source level; ``noise_after_tvg_db`` within 120 dB under the output's
       ceiling (an 8- or 16-bit output shows nothing lower) and not above it (everything would
@@ -224,14 +236,14 @@ def parameter_bounds(spec: SensorSpec, sonar) -> dict[str, tuple[float, float]]:
     * ``elevation_width_deg`` 1-60 degrees; the pose within a kilometre and its angles.
     """
     ceiling = spec.output.ceiling_db if spec.output is not None else 160.0
+    cell = float(sonar.range_resolution_m)
     return {
         "gain_db": (-40.0, 120.0), "noise_db": (0.0, spec.source_level_db - 20.0),
         "noise_after_tvg_db": (ceiling - 120.0, ceiling), "bang_db": (0.0, spec.source_level_db),
-        "bang_length_m": (0.05 * float(sonar.range_resolution_m), 0.5 * float(sonar.range_max_m)),
-        "bang_hold_m": (float(sonar.range_resolution_m), max(0.1 * float(sonar.range_max_m),
-                                                             2.0 * float(sonar.range_resolution_m))),
+        "bang_length_m": (0.05 * cell, BANG_REACH_M),
+        "bang_hold_m": (cell, max(BANG_HOLD_MAX_M, 2.0 * cell)),
         "ringing_db": (0.0, spec.source_level_db),
-        "ringing_length_m": (float(sonar.range_resolution_m), 0.5 * float(sonar.range_max_m)),
+        "ringing_length_m": (cell, max(BANG_REACH_M, 2.0 * cell)),
         "elevation_width_deg": (1.0, 60.0),
         "x": (-1e3, 1e3), "y": (-1e3, 1e3), "z": (-1e3, 1e3),
         "roll": (-90.0, 90.0), "pitch": (-90.0, 90.0), "yaw": (-180.0, 180.0),
@@ -431,8 +443,8 @@ class _Problem:
         return _psnr(float(np.mean((self.expected(spec, v)[0] - self.target) ** 2)), peak)
 
     def spread_mismatch(self, spec: SensorSpec, v: dict, n_bins: int = 12) -> float:
-        """Mean squared difference (counts^2) between the recording's speckle spread and the
-        model's at each level of the expected image.
+        """Mean absolute difference (counts^2) between the recording's speckle variance and the
+        model's at each level of the expected image, the model's scaled to fit at best.
 
         The recording's spread is its standard deviation about its local mean, pixels binned by
         the model's expected count; the model's, in closed form for exponential speckle:
@@ -453,21 +465,31 @@ class _Problem:
         ev, rv = e[keep], self._residual[keep]
         edges = np.quantile(ev, np.linspace(0, 1, n_bins + 1))
         idx = np.clip(np.searchsorted(edges, ev, side="right") - 1, 0, n_bins - 1)
-        total, weight = 0.0, 0
+        real_std, model_std, count = [], [], []
         for b in range(n_bins):
             sel = idx == b
             if sel.sum() < 10:
                 continue
-            real_std = float(rv[sel].std())
+            real_std.append(float(rv[sel].std()))
             if out.compression == "gamma":
                 g = out.gamma
                 c = math.sqrt(math.exp(gammaln(1 + 2 * g) - 2 * gammaln(1 + g)) - 1.0)
-                model_std = c * float(ev[sel].mean())
+                model_std.append(c * float(ev[sel].mean()))
             else:
-                model_std = LOG_SPECKLE_STD_DB * fs / (out.ceiling_db - out.floor_db)
-            total += sel.sum() * (real_std - model_std) ** 2
-            weight += int(sel.sum())
-        return total / weight if weight else 0.0
+                model_std.append(LOG_SPECKLE_STD_DB * fs / (out.ceiling_db - out.floor_db))
+            count.append(int(sel.sum()))
+        if not count:
+            return 0.0
+        a, m, w = np.array(real_std), np.array(model_std), np.array(count, dtype=float)
+        # The shape of spread against level tells the laws apart (a gamma's grows with the
+        # level, a log's is flat); its scale is the compression's shape, set afterwards from the
+        # speckle (_fit_speckle), and a grain longer than the local mean's window lowers the
+        # measured spread: the model's curve is scaled to the recording's before they are compared.
+        # Compared as variances (counts^2, the units of the cost it is added to: a frame's
+        # squared error is the mean's error squared plus the speckle's variance).
+        a2, m2 = a ** 2, m ** 2
+        k = float((w * a2 * m2).sum() / max((w * m2 * m2).sum(), 1e-300))
+        return float((w * np.abs(a2 - k * m2)).sum() / w.sum())
 
     def search(self, spec: SensorSpec, start: dict, active: Sequence[str], budget: int) -> tuple[dict, float]:
         """Nelder-Mead over the parameters ``active`` from ``start`` (the others held), bounded
@@ -878,16 +900,16 @@ def _speckled(spec: SensorSpec, sonar, total: np.ndarray, seed: int, pose) -> np
 
 def _family(problem: _Problem, spec: SensorSpec, v: dict, free: tuple[str, ...], max_iterations: int, peak: float,
             say) -> tuple[SensorSpec, dict, dict]:
-    """Hold the elevation width at factors of the best and refit pose and sensor at each: the
-    poses within :data:`FAMILY_DB` of the best are the family (a better one found is kept)."""
+    """Hold the elevation width at each of :data:`FAMILY_WIDTHS_DEG` and refit pose and sensor:
+    the poses within :data:`FAMILY_DB` of the best are the family (a better one found is kept)."""
     best_cost = problem.cost(spec, v)
     w0 = v["elevation_width_deg"]
     members = [{"elevation_width_deg": w0, **{k: v[k] for k in free}, "psnr_db": problem.psnr(spec, v, peak)}]
     others = [n for n in sensor_names(spec) if n != "elevation_width_deg"] + list(free)
     lo, hi = problem.bounds["elevation_width_deg"]
     best = (best_cost, v)
-    for f in FAMILY_FACTORS:
-        w = float(np.clip(w0 * f, lo, hi))
+    for w in FAMILY_WIDTHS_DEG:
+        w = float(np.clip(w, lo, hi))
         # Along the family the band's half-angle scales with the width: start from the pose the
         # band's lines give for it (the best pose moved along the curve).
         start = {**v, "elevation_width_deg": w, **_along_family(v, w0, w, free)}
@@ -949,6 +971,13 @@ def _degenerate(problem: _Problem, s2: SensorSpec, spec: SensorSpec, v: dict, be
         out.append(f"the pose did not move from its start ({', '.join(f'{k} {v[k]:.4g}' for k in free)}): "
                    "the recording does not constrain it (is the scene's echo in the recording's window?)")
     base = problem.cost(spec, v)
+    # A free parameter that a step either way does not change the fit of is not measured: it
+    # ends wherever the simplex left it (yaw over a flat floor, say).
+    loose = [k for k in free if k in moved and all(
+        abs(problem.cost(spec, {**v, k: v[k] + d * STEPS[k]}) - base) <= UNCONSTRAINED_COST * base for d in (-1.0, 1.0))]
+    if loose:
+        out.append(f"{', '.join(loose)} did not move the fit: the recording does not constrain "
+                   f"{'it' if len(loose) == 1 else 'them'}; hold {'it' if len(loose) == 1 else 'them'} (leave out of --free)")
     pinned = []
     for k in (*sensor_names(spec), *free):
         lo, hi = problem.bounds[k]
