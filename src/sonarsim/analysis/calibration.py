@@ -124,6 +124,10 @@ BANG_HOLD_MAX_M = 0.075
 #: The longest 1/e decay of the bang and its ringing (0.5 m of range, 670 us).
 BANG_REACH_M = 0.5
 
+#: A texture estimated below this spread (dB, after the model's own speckle is subtracted) is
+#: taken as none.
+TEXTURE_FLOOR_DB = 0.75
+
 #: Bounds that are a natural limit rather than a plausibility bound: a result there is not
 #: pinned ((name, True) for the lower bound). The bang's decay over a twentieth of a range cell
 #: is an abrupt end (the receiver's blanking ends), which a sampled image cannot tell from 0.
@@ -556,7 +560,8 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
               spreading: Sequence[float] | None = (20.0, 30.0, 40.0),
               compressions: Sequence[str] | None = COMPRESSIONS, half_angles_deg: Sequence[float] | None = None,
               family: bool = True, progress: Callable[[str], None] | None = None,
-              refuse_degenerate: bool = True, channels: bool = True) -> CalibrationResult:
+              refuse_degenerate: bool = True, channels: bool = True, common_noise: bool = True,
+              texture: bool = True) -> CalibrationResult:
     """Fit the sensor (and the free pose parameters) so that the expected render matches ``real``.
 
     Parameters
@@ -594,6 +599,15 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
         Fit the receive channels' structure (:func:`_fit_channels`): the across-fan gain
         (``sensor.beam_gain``: steering exponent and per-beam stripes) and the bang's pattern
         across beams (``sensor.bang.beam_db``).
+    common_noise : bool
+        Fit the noise common to a row's beams (``sensor.noise.common_db``, ``common_length_m``)
+        from the water column's correlation across beams (:func:`_fit_common_noise`); kept
+        where the expected image fits as well (it splits the noise, it does not add to it).
+    texture : bool
+        Estimate the floor's texture (``ground.texture``) from the lit band
+        (:func:`_fit_texture`). The calibrated scene carries it (its renders are patchy like
+        the recording); ``expected`` and the PSNR are the texture's expectation (the untextured
+        image: the field's realisation under the recording cannot be known from its parameters).
 
     Raises
     ------
@@ -681,6 +695,10 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
             spec, v = spec_c, v_c
         else:
             say("channels: not kept (no better than without them)")
+    if common_noise:
+        spec_n, v_n = _fit_common_noise(problem, spec, v, max_iterations, say)
+        if spec_n is not spec and problem.cost(spec_n, v_n) <= problem.cost(spec, v) * (1.0 + 1e-3):
+            spec, v = spec_n, v_n
     e, pose, s2 = problem.expected(spec, v)
     if fit_grain and s2.speckle is not None:
         spec, v, s2 = _fit_speckle(problem, real, spec, v, s2, free, max_iterations, peak)
@@ -709,6 +727,11 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
             values["stripes_rms_db"] = float(np.sqrt(np.mean(np.square(s2.beam_gain.gain_db))))
     # The recording's grid, so that the calibrated scene renders frames like the recording's.
     fitted = replace(scene, sensor=s2, sonar=sonar, sonar_pose=pose)
+    tex = _fit_texture(problem, spec, v, pose, say) if texture else None
+    if tex is not None:
+        values["texture_std_db"] = tex.std_db
+        values["texture_correlation_range_m"], values["texture_correlation_across_m"] = tex.correlation_m
+        fitted = replace(fitted, ground=replace(fitted.ground, texture=tex))
     mse = float(np.mean((e - target) ** 2))
     image = SonarImage(polar=e, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg, components={"expected": e},
                        sonar=sonar, pose=pose, config=fitted.to_dict())
@@ -797,7 +820,7 @@ def beam_ratio_db(real: np.ndarray, model: np.ndarray, output, rows: np.ndarray)
 
     With a gamma output a power gain G scales every expected count by ``G ** gamma``; with a
     log output it adds ``10 log10(G) * full_scale / span`` counts: both invert in closed form.
-    Pixels at the quantiser's floor (under half a count) or saturated are left out.
+    Pixels near the quantiser's floor (under 5 counts of 255) or saturated are left out.
 
     Parameters
     ----------
@@ -813,7 +836,9 @@ def beam_ratio_db(real: np.ndarray, model: np.ndarray, output, rows: np.ndarray)
     """
     x, e = np.asarray(real, dtype=np.float64), np.asarray(model, dtype=np.float64)
     fs = output.full_scale
-    keep = rows[:, None] & (e > 0.5 * fs / 255.0) & (e < 0.98 * fs)
+    # Counts near the quantiser's floor are rounded too coarsely to invert (a gain of 2 dB on
+    # a pixel of 2 counts is lost in the rounding): at least 5 counts of 255.
+    keep = rows[:, None] & (e > 5.0 * fs / 255.0) & (e < 0.98 * fs)
     n = keep.sum(axis=0)
     sr, se = np.where(keep, x, 0.0).sum(axis=0), np.where(keep, e, 0.0).sum(axis=0)
     ok = (n >= 2) & (sr > 0) & (se > 0)
@@ -883,6 +908,181 @@ def _fit_channels(problem: _Problem, spec: SensorSpec, v: dict, max_iterations: 
            if spec.bang is not None and spec.bang.beam_db is not None else "")
         + f": PSNR {problem.psnr(spec, v, spec.output.full_scale):.2f} dB")
     return spec, v
+
+
+#: Beam lags over which the water column's across-beam correlation is measured: beyond the
+#: beamformer's grain (1-2 beams), where independent noise is uncorrelated.
+COMMON_LAGS = (3, 4, 5, 6)
+#: Range bands of the water column the common noise is measured in.
+COMMON_BANDS = 8
+#: Below this amplitude correlation a band holds no common noise (the estimate's noise floor:
+#: about 1 / sqrt(pixels) for a band of a thousand pixels, squared and rooted).
+COMMON_FLOOR = 0.1
+
+
+def counts_to_power(counts: np.ndarray, output) -> np.ndarray:
+    """Invert an output law (without its clipping): counts -> power over the ceiling (gamma,
+    linear) or 10^(level / 10) (log), up to a constant factor. For the texture's estimator."""
+    x = np.clip(np.asarray(counts, dtype=np.float64), 0.0, None) / output.full_scale
+    if output.compression == "gamma":
+        return x ** (1.0 / output.gamma)
+    if output.compression == "log":
+        return 10.0 ** (x * (output.ceiling_db - output.floor_db) / 10.0)
+    return x
+
+
+def across_beam_correlation(image: np.ndarray, rows: np.ndarray, mask: np.ndarray,
+                            lags: Sequence[int] = COMMON_LAGS) -> float:
+    """Correlation of a frame's residual (less its local mean along range) between beams
+    ``lags`` apart, over the pixels of ``rows`` inside ``mask``: what noise common to a row's
+    beams adds (independent noise and speckle have none beyond the beam's grain)."""
+    x = np.asarray(image, dtype=np.float64)
+    res = x - realism.local_mean(x, (9, 1))
+    vals = []
+    for lag in lags:
+        m = (mask[:, :-lag] & mask[:, lag:])[rows]
+        if m.sum() < 50:
+            continue
+        a, b = res[rows][:, :-lag][m], res[rows][:, lag:][m]
+        if a.std() > 0 and b.std() > 0:
+            vals.append(float(np.corrcoef(a, b)[0, 1]))
+    return float(np.mean(vals)) if vals else float("nan")
+
+
+def _fit_common_noise(problem: _Problem, spec: SensorSpec, v: dict, max_iterations: int, say):
+    """Noise common to a row's beams, from the water column's correlation across beams.
+
+    In a band of rows where the noise dominates, beams ``lags`` apart correlate (in intensity)
+    by ``f**2`` with ``f = C / (C + N)`` (Siegert), C the common noise's power and N the
+    independent noise's: so ``C = N f / (1 - f)`` with N the model's noise there. The bands'
+    C are fitted by ``C0 exp(-r / L)`` (log-linear least squares), the levels then refitted
+    (the independent noise gives up what the common takes).
+    """
+    if spec.noise is None:
+        return spec, v
+    target, water, r = problem.target, problem.water, np.asarray(problem.sonar.range_m, dtype=float)
+    rows_all = np.flatnonzero(problem.water_rows)
+    if len(rows_all) < COMMON_BANDS * 4:
+        return spec, v
+    e, pose, s2 = problem.expected(spec, v)
+    m = problem.model(s2)
+    noise = np.asarray(m.noise_row, dtype=np.float64) + np.asarray(m.common_power, dtype=np.float64)
+    rs, cs = [], []
+    for chunk in np.array_split(rows_all, COMMON_BANDS):
+        rows = np.zeros(len(r), dtype=bool)
+        rows[chunk] = True
+        rho = across_beam_correlation(target, rows, water)
+        if not np.isfinite(rho):
+            continue
+        f = math.sqrt(max(rho, 0.0))
+        if f < COMMON_FLOOR:
+            continue
+        f = min(f, 0.95)
+        rs.append(float(r[chunk].mean()))
+        cs.append(float(np.mean(noise[chunk])) * f / (1.0 - f))
+    if len(rs) < 2:
+        say("common noise: none found across the water column's beams")
+        return spec, v
+    slope, intercept = np.polyfit(np.array(rs), np.log(np.array(cs)), 1)
+    length = -1.0 / slope if slope < 0 else None
+    common_db = float(10.0 * intercept / math.log(10.0))
+    if length is not None:
+        length = float(np.clip(length, 1e-3, 1e4))
+    trial = replace(spec, noise=replace(spec.noise, common_db=float(np.clip(common_db, -300, 300)),
+                                        common_length_m=length))
+    v2, _ = problem.search(trial, v, [n for n in sensor_names(trial) if n != "elevation_width_deg"],
+                           max(max_iterations // 2, 1))
+    say(f"common noise: {common_db:.1f} dB" + (f", decaying over {length:.3g} m" if length else "")
+        + f" (from {len(rs)} bands of the water column): PSNR {problem.psnr(trial, v2, spec.output.full_scale):.2f} dB")
+    return trial, v2
+
+
+#: Texture spreads (dB) the model's frames are rendered with to match the recording's statistic.
+TEXTURE_GRID_DB = (0.0, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0)
+#: Blocks (range bins, beams) of :func:`log_block_variance`.
+TEXTURE_BLOCK = (4, 4)
+
+
+def log_block_variance(image: np.ndarray, expected: np.ndarray, mask: np.ndarray, output,
+                       block: tuple[int, int] = TEXTURE_BLOCK) -> float:
+    """Variance of the log of block means of ``image`` over ``expected`` (both in counts, turned
+    into power by ``output``), each row of blocks less its mean: the floor's patchiness plus
+    the speckle's share, with the range trend and the gain removed.
+
+    Parameters
+    ----------
+    image, expected : (n_range_bins, n_beams) arrays, counts
+    mask : (n_range_bins, n_beams) bool array
+        The lit floor; blocks wholly inside it are used.
+    output : OutputSpec
+    block : (int, int)
+
+    Returns
+    -------
+    float (natural-log units squared); nan with fewer than 10 blocks.
+    """
+    p = counts_to_power(image, output) / np.maximum(counts_to_power(expected, output), 1e-300)
+    nb, na = block
+    n_r, n_b = (p.shape[0] // nb) * nb, (p.shape[1] // na) * na
+    blocks = p[:n_r, :n_b].reshape(n_r // nb, nb, n_b // na, na).mean(axis=(1, 3))
+    inside = mask[:n_r, :n_b].reshape(n_r // nb, nb, n_b // na, na).all(axis=(1, 3)) & (blocks > 0)
+    if inside.sum() < 10:
+        return float("nan")
+    lg = np.where(inside, np.log(np.where(inside, blocks, 1.0)), 0.0)
+    count = inside.sum(axis=1)
+    row_mean = np.divide(lg.sum(axis=1), count, out=np.zeros(len(count)), where=count > 0)
+    res = (lg - row_mean[:, None])[inside & (count[:, None] >= 2)]
+    return float(res.var()) if len(res) >= 10 else float("nan")
+
+
+def _fit_texture(problem: _Problem, spec: SensorSpec, v: dict, pose: Pose, say):
+    """The floor's texture (a world-anchored log-normal reflectivity) from the lit band's
+    excess variance of local means (:func:`sonarsim.scene.floor_texture.estimate_texture`),
+    on the recording's counts turned back into power by the fitted output law, less what the
+    estimator reads in the calibrated model's own (untextured) speckled frame."""
+    from ..config.scene import TextureSpec
+    from ..scene.floor_texture import estimate_texture
+
+    scene = problem.scene
+    if scene.ground is None:
+        return None
+    e, _, s2 = problem.expected(spec, v)
+    mask = problem.lit & (e > 0)
+    kwargs = dict(mask=mask, expected=counts_to_power(e, s2.output),
+                  height_m=float(pose.position_m[2]) - _ground_height(scene))
+    try:  # the correlation lengths: the estimator's, on the recording
+        est = estimate_texture(counts_to_power(problem.target, s2.output), problem.sonar.range_m,
+                               problem.sonar.azimuth_deg, **kwargs)
+    except ValueError as exc:
+        say(f"texture: not estimated ({exc})")
+        return None
+    cell = float(problem.sonar.range_resolution_m)
+    lengths = tuple(float(np.clip(x, 2.0 * cell, 1e4)) for x in (est.correlation_range_m, est.correlation_across_m))
+    # The spread: the statistic's value in the recording matched by the calibrated model's own
+    # speckled frames rendered with textures of known spreads (the estimator's closed form
+    # assumes independent speckle cells; the model's frames carry the recording's grain).
+    want = log_block_variance(problem.target, e, mask, s2.output)
+    spreads, stats = [], []
+    for sd in TEXTURE_GRID_DB:
+        tex = TextureSpec(std_db=sd, correlation_m=lengths, angle_deg=float(pose.rpy_deg[2])) if sd > 0 else None
+        sc = replace(scene, sensor=s2, sonar=problem.sonar, ground=replace(scene.ground, texture=tex))
+        with Simulator(sc) as sim:
+            frame = sim.render(pose, keep_rays=False).polar
+        spreads.append(sd)
+        stats.append(log_block_variance(frame, e, mask, s2.output))
+        if stats[-1] >= want:
+            break
+    if want <= stats[0]:
+        say(f"texture: none (the recording's block variance {want:.4g} is within the model's speckle, {stats[0]:.4g})")
+        return None
+    std_db = float(np.interp(want, stats, spreads)) if want < stats[-1] else float(spreads[-1])
+    if std_db < TEXTURE_FLOOR_DB:
+        say(f"texture: {std_db:.2f} dB, below {TEXTURE_FLOOR_DB} dB: none")
+        return None
+    spec_t = TextureSpec(std_db=std_db, correlation_m=lengths, angle_deg=float(pose.rpy_deg[2]))
+    say(f"texture: {spec_t.std_db:.2f} dB, correlation {spec_t.correlation_m[0]:.3g} m along the range, "
+        f"{spec_t.correlation_m[1]:.3g} m across ({est.n_blocks} blocks)")
+    return spec_t
 
 
 def _statistic(compression: str, peak: float):
