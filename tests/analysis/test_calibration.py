@@ -184,6 +184,10 @@ def test_calibrate_command_writes_a_scene_that_renders_in_the_recordings_units(t
     printed = capsys.readouterr().out
     assert "PSNR" in printed and "KS" in printed and "water" in printed and "lit" in printed
     assert "frame 0 (held out)" in printed
+    # Beside the scores: the trivial images, the ceiling, the range bands, the C2ST.
+    for words in ("range profile", "separable", "ceiling", "per range band", "classifier two-sample test",
+                  "pose family"):
+        assert words in printed, words
     again = sonarsim.render(sonarsim.load_scene(out))
     assert again.polar.shape == real.polar.shape
     assert again.polar.max() <= 255 and np.array_equal(again.polar, np.round(again.polar))
@@ -191,6 +195,9 @@ def test_calibrate_command_writes_a_scene_that_renders_in_the_recordings_units(t
                                              - real.polar) ** 2))
     assert psnr > 20
     figures = json.loads((tmp_path / "fig.json").read_text())
+    rep = figures["realism"]
+    assert set(rep["scores"]) == {"model", "range profile", "separable", "ceiling"}
+    assert len(rep["bands"]["lit"]) >= 8 and 0.0 <= rep["c2st"]["accuracy"] <= 1.0
     assert figures["calibrated"]["regions"]["lit"]["ks"] < 0.2
     assert figures["held_out"]["0"]["psnr_db"] == pytest.approx(figures["calibrated"]["psnr_db"])
     for key in ("ks", "wasserstein", "contrast_a", "contrast_b", "grain_range_b", "grain_beams_b",

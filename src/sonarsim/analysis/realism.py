@@ -192,7 +192,7 @@ def distribution_distances(a, b, mask_a=None, mask_b=None) -> DistributionDistan
     va, vb = x[ma], y[mb]
     if not len(va) or not len(vb):
         raise ValueError("each region must hold at least one pixel")
-    return DistributionDistances(ks=float(ks_2samp(va, vb).statistic),
+    return DistributionDistances(ks=float(ks_2samp(va, vb, method="asymp").statistic),
                                  wasserstein=float(wasserstein_distance(va, vb)))
 
 

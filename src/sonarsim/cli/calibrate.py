@@ -142,13 +142,28 @@ def cmd_calibrate(args) -> None:
         speckled = sim.render(res.scene.sonar_pose, keep_rays=False)
     doc = calibrated_document(Path(args.scene), out, res.scene)
 
+    # Beside the scores: the trivial images of the calibration frame and the ceiling, the range
+    # bands, the beam profile and the C2ST, on the held-out frames (on the calibration frame
+    # itself, said to be optimistic, without any).
+    from ..analysis.bands import realism_report
+
+    frames = [np.asarray(real.polar, dtype=float)] + [np.asarray(img.polar, dtype=float) for _, img in held_out
+                                                      if np.asarray(img.polar).shape == res.expected.polar.shape]
+    report = realism_report(frames, res.expected.polar, speckled.polar, 0, range_m=res.expected.range_m,
+                            data_range=peak, frame_numbers=[args.frame] + [n for n, _ in held_out][:len(frames) - 1])
+    if report.get("warning"):
+        res.warnings.append(report["warning"])
     figures = {"frame": args.frame, "values": res.values, "law": res.law, "baselines_db": res.baselines,
                "family": res.family, "starts": res.starts, "warnings": res.warnings,
+               "realism": None,
                "calibrated": evaluate(real.polar, res.expected.polar, speckled.polar, peak), "held_out": {}}
     for n, img in held_out:
         if np.asarray(img.polar).shape != res.expected.polar.shape:
             raise SonarsimError(f"--evaluate-frames: frame {n} of {args.real} has another grid than frame {args.frame}")
         figures["held_out"][str(n)] = evaluate(img.polar, res.expected.polar, speckled.polar, peak)
+    from .compare import _jsonable, _print_realism, _print_scores
+
+    figures["realism"] = _jsonable(report)
     # Everything is computed before the first file is written: a refused held-out frame
     # leaves no calibrated scene behind.
     with run:
@@ -169,6 +184,8 @@ def cmd_calibrate(args) -> None:
     print(f"beside it, on the same frame: its range profile in every beam {b['range profile']:.2f} dB, its "
           f"separable range x beam image {b['separable']:.2f} dB, its 15 x 9 local mean (the ceiling) {b['ceiling']:.2f} dB")
     print(format_family(res.family))
+    _print_scores(report)
+    _print_realism(report)
     for w in res.warnings:
         print(f"sonarsim: warning: {w}", file=sys.stderr)
     print(format_evaluation(figures["calibrated"], f"frame {args.frame} (calibrated): "))
