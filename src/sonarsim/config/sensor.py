@@ -229,6 +229,11 @@ class PatternSpec:
     table : str or None
         ``table`` only: the CSV file (relative to the scene file), angle_deg and gain_db
         columns, gain 0 dB on axis.
+    correction_db : list of float or None
+        Elevation only: the pattern's departure from its shape, dB, at angles evenly spaced over
+        the span (first at ``-span_deg / 2``, last at ``+span_deg / 2``; 2 to 256 values, each
+        within [-300, 60] dB), interpolated linearly in power between them: a real
+        transducer's pattern is no ideal array's (``sonarsim calibrate`` fits it).
     leakage_beams : int or None
         Azimuth only: how many beams either side a beam's sidelobes reach. Default: as far as
         the leakage stays above -40 dB of the main beam, at most eight -3 dB widths (a uniform
@@ -242,9 +247,16 @@ class PatternSpec:
     span_deg: float | None = None
     table: str | None = None
     leakage_beams: int | None = None
+    correction_db: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         _choice("shape", self.shape, PATTERN_SHAPES)
+        if self.correction_db is not None:
+            c = self.correction_db
+            if isinstance(c, (str, bytes)) or not hasattr(c, "__len__") or not 2 <= len(c) <= 256:
+                raise ConfigError("correction_db", f"must be a list of 2 to 256 numbers (dB), got {shown(c)}")
+            object.__setattr__(self, "correction_db", tuple(_within(f"correction_db[{i}]", x, (-300.0, 60.0))
+                                                            for i, x in enumerate(c)))
         _choice("window", self.window, WINDOWS)
         lo, hi = PATTERN_WIDTH_RANGE_DEG
         if self.width_deg is not None:
@@ -572,6 +584,8 @@ class SensorSpec:
             raise ConfigError("elevation_pattern.leakage_beams", "only for the azimuth pattern")
         if self.azimuth_pattern is not None and self.azimuth_pattern.span_deg is not None:
             raise ConfigError("azimuth_pattern.span_deg", "only for the elevation pattern")
+        if self.azimuth_pattern is not None and self.azimuth_pattern.correction_db is not None:
+            raise ConfigError("azimuth_pattern.correction_db", "only for the elevation pattern")
         check_bandwidth(self, None)
 
     def carrier_khz(self, sonar_frequency_khz: float | None) -> float | None:

@@ -111,15 +111,36 @@ def pattern_gain(angle_rad: np.ndarray, spec: PatternSpec, default_width_deg: fl
     a = np.asarray(angle_rad, dtype=float)
     width = math.radians(spec.width_deg if spec.width_deg is not None else default_width_deg)
     if spec.shape == "gaussian":
-        return np.exp(-math.log(2.0) * (2.0 * a / width) ** 2)
-    if spec.shape == "table":
+        gain = np.exp(-math.log(2.0) * (2.0 * a / width) ** 2)
+    elif spec.shape == "table":
         angle, gain_db = _read_table(spec.table)
         # Outside the table: its last value (a measured pattern's far sidelobe level).
-        return 10.0 ** (np.interp(np.degrees(a), angle, gain_db) / 10.0)
-    u3 = half_power_u(spec.window, spec.sidelobe_db, ways)
-    scale = u3 / math.sin(width / 2.0)  # L / lambda
-    amp = array_amplitude(scale * np.sin(a), spec.window, spec.sidelobe_db)
-    return amp ** (2 * ways)
+        gain = 10.0 ** (np.interp(np.degrees(a), angle, gain_db) / 10.0)
+    else:
+        u3 = half_power_u(spec.window, spec.sidelobe_db, ways)
+        scale = u3 / math.sin(width / 2.0)  # L / lambda
+        amp = array_amplitude(scale * np.sin(a), spec.window, spec.sidelobe_db)
+        gain = amp ** (2 * ways)
+    if spec.correction_db is not None:
+        gain = gain * correction_gain(a, spec, math.degrees(width))
+    return gain
+
+
+def correction_knots_deg(spec: PatternSpec, width_deg: float) -> np.ndarray:
+    """Angles (degrees) of a pattern's ``correction_db`` values: evenly over its span (default
+    three -3 dB widths), from ``-span / 2`` to ``+span / 2``."""
+    span = spec.span_deg if spec.span_deg is not None else min(3.0 * width_deg, 170.0)
+    return np.linspace(-span / 2.0, span / 2.0, len(spec.correction_db))
+
+
+def correction_gain(angle_rad: np.ndarray, spec: PatternSpec, width_deg: float) -> np.ndarray:
+    """The power factor of ``spec.correction_db`` at angles off the axis: its values as powers,
+    interpolated linearly between the knots (:func:`correction_knots_deg`), the end values
+    beyond them. Linear in each value's power, so that a calibration can form the image of any
+    correction from the images of one knot each."""
+    knots = correction_knots_deg(spec, width_deg)
+    return np.interp(np.degrees(np.asarray(angle_rad, dtype=float)), knots,
+                     10.0 ** (np.asarray(spec.correction_db, dtype=float) / 10.0))
 
 
 def azimuth_kernels(spec: PatternSpec, beam_spacing_deg: float, default_width_deg: float,
