@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from dataclasses import replace
 
 import numpy as np
@@ -418,3 +419,16 @@ def test_the_elevation_patterns_correction_is_recovered_where_the_recording_has_
     # +12 deg the floor is out of the window and the smoothing carries the slope on.
     dip = got[18:22].mean() - np.median(got)
     assert dip < -4.0
+
+
+def test_a_pose_free_where_the_recording_shows_no_band_edge_is_refused_before_searching(shared_data):
+    """The ARIS sample's sea bed is lit across its whole window: no edge tells the pose, so
+    z, pitch and roll free are refused (exit-3 class) at once; held, the sensor is calibrated."""
+    from sonarsim.analysis.calibration import CalibrationFailed
+    from sonarsim.io.readers import read_frames
+
+    frame = next(iter(read_frames(shared_data / "real" / "aris" / "sample.aris")))
+    scene = sonarsim.load_scene(Path(__file__).resolve().parents[2] / "examples" / "aris_seabed.yaml")
+    with pytest.raises(CalibrationFailed, match="no floor band edge") as info:
+        calibrate(frame, scene, free=("z", "pitch", "roll"), max_iterations=20)
+    assert info.value.exit_status == 3 and info.value.result is None

@@ -37,8 +37,10 @@ How the search avoids the wrong basin (issue 22: from a grid of starts, half end
    them);
 4. degenerate outcomes are refused (:class:`CalibrationFailed`, exit status 3): the echo
    switched off (the lit band explained as noise lifted by the TVG), the pose unmoved from its
-   start, a parameter pinned at a bound where moving it off the bound costs fit; a score below
-   a trivial baseline (the frame's own range profile in every beam) is a warning;
+   start or a free parameter that does not change the fit, a parameter pinned at a bound where
+   moving it off the bound costs fit, height, pitch or roll free where the recording shows no
+   floor band edge; a score below a trivial baseline (the frame's own range profile in every
+   beam) is a warning;
 5. the family of equally good poses (within :data:`FAMILY_DB` of the best PSNR): the
    elevation width is held at each of :data:`FAMILY_WIDTHS_DEG` and the pose and sensor
    refitted there; the range of height, pitch and width is reported, not one of them as if measured.
@@ -130,8 +132,9 @@ TEXTURE_FLOOR_DB = 0.75
 
 #: Bounds that are a natural limit rather than a plausibility bound: a result there is not
 #: pinned ((name, True) for the lower bound). The bang's decay over a twentieth of a range cell
-#: is an abrupt end (the receiver's blanking ends), which a sampled image cannot tell from 0.
-NATURAL_LIMITS = {("bang_length_m", True)}
+#: is an abrupt end (the receiver's blanking ends), which a sampled image cannot tell from 0;
+#: so is its ringing's.
+NATURAL_LIMITS = {("bang_length_m", True), ("ringing_length_m", True)}
 
 #: The starting sensor when the scene has none: an 8-bit device with gamma compression, 20 log r
 #: TVG and absorption in fresh water, a uniform line array in elevation, Gaussian receive beams.
@@ -166,13 +169,13 @@ class CalibrationFailed(SonarsimError):
     ----------
     reasons : tuple of str
         What was found (the echo switched off, the pose unmoved, parameters pinned at bounds).
-    result : CalibrationResult
-        What the search ended with, for inspection.
+    result : CalibrationResult or None
+        What the search ended with, for inspection (None when refused before searching).
     """
 
     exit_status = 3
 
-    def __init__(self, reasons: Sequence[str], result: "CalibrationResult") -> None:
+    def __init__(self, reasons: Sequence[str], result: "CalibrationResult | None") -> None:
         self.reasons = tuple(reasons)
         self.result = result
         super().__init__("calibration refused: " + "; ".join(self.reasons))
@@ -247,7 +250,7 @@ def parameter_bounds(spec: SensorSpec, sonar) -> dict[str, tuple[float, float]]:
         "bang_length_m": (0.05 * cell, BANG_REACH_M),
         "bang_hold_m": (cell, max(BANG_HOLD_MAX_M, 2.0 * cell)),
         "ringing_db": (0.0, spec.source_level_db),
-        "ringing_length_m": (cell, max(BANG_REACH_M, 2.0 * cell)),
+        "ringing_length_m": (max(0.05 * cell, 1e-4), BANG_REACH_M),
         "elevation_width_deg": (1.0, 60.0),
         "x": (-1e3, 1e3), "y": (-1e3, 1e3), "z": (-1e3, 1e3),
         "roll": (-90.0, 90.0), "pitch": (-90.0, 90.0), "yaw": (-180.0, 180.0),
@@ -651,6 +654,14 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
         for law in ([None] if spreading is None or spec0.tvg is None else spreading):
             laws.append(with_law(spec0, comp, law, shape))
     starts, lines = _band_starts(real, problem, free, start_values["elevation_width_deg"], half_angles_deg)
+    told = [k for k in ("z", "pitch", "roll") if k in free]
+    if told and lines is None and refuse_degenerate:
+        # Without a band edge, the range profile alone sets height, tilt and the elevation
+        # pattern together: on the ARIS sample (a sea bed lit across the whole window) the search
+        # ended 4.9 m up, pitched 86 degrees down and rolled 43, with a 50-degree pattern.
+        raise CalibrationFailed([f"the recording shows no floor band edge, so {', '.join(told)} "
+                                 f"{'is' if len(told) == 1 else 'are'} not identified by it: bound the pose with "
+                                 "`sonarsim fit`, hold it (leave it out of --free) and calibrate the sensor"], None)
     names = sensor_names(spec0)
     # The starts fit the sensor at their own pose and width: one render each.
     level_names = [n for n in names if n != "elevation_width_deg"] if len(starts) > 1 else names
