@@ -9,7 +9,12 @@ For each real recording in ``../shared/data/real``:
 
 the sensor is calibrated on frame 0 *from a generic sonar* (the scene has no ``sensor:``
 section, so :func:`sonarsim.analysis.calibration.calibrate` starts from its
-``STARTING_SENSOR``), with the pose's height, pitch and roll free. Then
+``STARTING_SENSOR``), with the pose's height, pitch and roll free. Where calibrate refuses that
+without a result (a recording that shows no floor band edge cannot tell the pose: the ARIS sea
+bed), the benchmark takes the route the refusal advises, on frame 0 as well: the pose from
+:func:`sonarsim.analysis.fitting.fit_pose` (free z and pitch, as ``sonarsim fit``), then
+calibrate with the pose held; both routes are
+in the output. A refusal with a result is scored anyway and marked refused. Then
 :func:`sonarsim.analysis.bands.realism_report` scores, on the held-out frames 1..N-1 only:
 
 * PSNR and SSIM of the calibrated expected image, beside the trivial baselines made from frame
@@ -62,6 +67,7 @@ REAL = ROOT.parent / "shared" / "data" / "real"
 OCULUS_DATA = REAL / "oculus" / "three_pings_8bit.raw"
 ARIS_DATA = REAL / "aris" / "sample.aris"
 FREE = ("z", "pitch", "roll")
+POSE_FIT_FREE = ("z", "pitch")  # sonarsim fit's default, where calibrate refuses FREE
 SPECKLE_SEEDS = (1, 2, 3)
 STATEMENT = "fit on frame 0, scored on frames 1..N-1; nothing tuned to the held-out frames"
 
@@ -153,19 +159,42 @@ def code_version() -> str:
         return "unknown"
 
 
-def run_calibration(frame, scene, label: str, **options):
-    """calibrate(), its seconds, and the reasons when it refused (its ``.result`` kept)."""
+def run_calibration(frame, scene, label: str, free=FREE, **options):
+    """calibrate(), its seconds, and the reasons when it refused (its ``.result`` kept: None
+    where it refused before fitting anything)."""
     from sonarsim.analysis.calibration import CalibrationFailed, calibrate
 
     t0 = time.perf_counter()
     refused = None
     try:
-        res = calibrate(frame, scene, free=FREE,
+        res = calibrate(frame, scene, free=tuple(free),
                         progress=lambda line: say(f"  [{label} {time.perf_counter() - t0:6.0f} s] {line}"), **options)
     except CalibrationFailed as exc:
         res, refused = exc.result, list(exc.reasons)
-        say(f"  [{label}] calibration REFUSED (scored anyway): {'; '.join(refused)}")
+        say(f"  [{label}] calibration REFUSED ({'scored anyway' if res is not None else 'no result'}): "
+            f"{'; '.join(refused)}")
     return res, time.perf_counter() - t0, refused
+
+
+def pose_then_sensor(frame, scene, label: str, **options):
+    """What calibrate's refusal advises where the recording shows no band edge: the pose from
+    ``fit_pose`` on the same frame (free z and pitch, as ``sonarsim fit`` by default: a grazing
+    sea bed bounds them, README "Fitting"; roll stays at the scene's), then calibrate with the
+    pose held.
+    Returns calibrate's result, seconds (both steps), refusal reasons, and the pose fit's summary."""
+    from sonarsim.analysis.fitting import fit_pose
+
+    t0 = time.perf_counter()
+    say(f"  [{label}] following calibrate's advice: pose from fit_pose on frame 0, then the sensor with it held")
+    free = POSE_FIT_FREE
+    fit = fit_pose(frame, scene, free=free)
+    summary = {"free": list(free), "domain": fit.domain, "domain_reason": fit.domain_reason,
+               "values": {k: fit.values[k] for k in FREE}, "problems": list(fit.problems), "renders": fit.renders,
+               "profile_correlation": fit.profile_correlation, "seconds": time.perf_counter() - t0}
+    say(f"  [{label}] fit_pose: " + ", ".join(f"{k} {fit.values[k]:.4g}" for k in FREE)
+        + f" ({fit.domain}; {'; '.join(fit.problems) or 'no problem reported'})")
+    res, seconds, refused = run_calibration(frame, replace(scene, sonar_pose=fit.pose), label, free=(), **options)
+    return res, time.perf_counter() - t0, refused, summary
 
 
 def iterations(max_iterations) -> dict:
@@ -273,6 +302,19 @@ def score_recording(key: str, title: str, data: Path, scene_dict: dict, max_iter
     if scene.sensor is not None:
         raise SystemExit("bench_realism: the start scene must not have a sensor section")
     res, seconds, refused = run_calibration(frames_img[0], scene, key, **iterations(max_iterations))
+    route = {"free": list(FREE), "refused": refused is not None, "refusal_reasons": refused}
+    if res is None:
+        # Refused before fitting anything (e.g. free pose parameters that a recording without a
+        # band edge cannot tell): nothing to score from this route; take the one it advises.
+        first = route
+        res, seconds2, refused, pose_fit = pose_then_sensor(frames_img[0], scene, key, **iterations(max_iterations))
+        seconds += seconds2
+        route = {"free": [], "refused": refused is not None, "refusal_reasons": refused,
+                 "first_try": first, "pose_from_fit_pose": pose_fit,
+                 "note": f"calibrate refused free {', '.join(FREE)}; as it advises, the pose was fitted by fit_pose "
+                         "on frame 0 and held while calibrate fitted the sensor on frame 0"}
+        if res is None:
+            return unscored_entry(key, title, data, n, frames[0].shape, scene_dict, version, route, seconds)
     say(f"  [{key}] calibrated in {seconds:.0f} s; rendering {len(SPECKLE_SEEDS)} speckled frames and scoring")
     t0 = time.perf_counter()
     expected = np.asarray(res.expected.polar, dtype=np.float64)
@@ -294,7 +336,7 @@ def score_recording(key: str, title: str, data: Path, scene_dict: dict, max_iter
         "statement": STATEMENT, "report_note": rep["note"], "code": version,
         "date": time.strftime("%Y-%m-%d %H:%M"), "start_scene": scene_dict,
         "calibration": {
-            "refused": refused is not None, "refusal_reasons": refused, "warnings": list(res.warnings),
+            **route, "warnings": list(res.warnings),
             "seconds": seconds, "renders": res.renders, "psnr_frame0_db": res.psnr_db,
             "psnr_frame0_start_db": res.psnr_start_db, "baselines_frame0_db": res.baselines,
             "values": res.values, "law": res.law, "pose": res.scene.sonar_pose.to_dict(),
@@ -321,21 +363,49 @@ def score_recording(key: str, title: str, data: Path, scene_dict: dict, max_iter
     }
 
 
+def unscored_entry(key, title, data, n, shape, scene_dict, version, route, seconds) -> dict:
+    """A recording calibrate refused without a result on every route: nothing scored, every target
+    not measured."""
+    return {"title": title, "data": str(data.relative_to(REAL)) if data.is_relative_to(REAL) else str(data),
+            "frames": n, "image_shape": list(shape), "calibration_frame": 0, "held_out_frames": list(range(1, n)),
+            "statement": STATEMENT, "code": version, "date": time.strftime("%Y-%m-%d %H:%M"),
+            "start_scene": scene_dict, "scored": False, "calibration": {**route, "seconds": seconds},
+            "targets": [{"target": "all targets of item 5", "value": None, "threshold": None, "pass": False,
+                         "status": "NOT MEASURED"}]}
+
+
+def print_route(c: dict) -> None:
+    first = c.get("first_try")
+    if first:
+        print(f"  calibrate with free {', '.join(first['free'])}: REFUSED without a result: "
+              + "; ".join(first["refusal_reasons"] or []))
+        pf = c["pose_from_fit_pose"]
+        print(f"  then, as it advises: fit_pose on frame 0 (free {', '.join(pf['free'])}; {pf['domain']}): "
+              + ", ".join(f"{k} {v:.4g}" for k, v in pf["values"].items())
+              + f" in {pf['seconds']:.0f} s ({'; '.join(pf['problems']) or 'no problem reported'}); "
+              "calibrate with that pose held")
+    print("  " + ("REFUSED (exit-3 class, scored anyway): " + "; ".join(c["refusal_reasons"]) if c["refused"]
+                  else "not refused"))
+
+
 def print_recording(r: dict) -> None:
     c = r["calibration"]
     held = r["held_out_frames"]
     print(f"\n=== {r['title']} ({r['data']}, {r['frames']} frames of {r['image_shape'][0]} x {r['image_shape'][1]})")
     print(f"    {STATEMENT} (held out: {', '.join(map(str, held))})")
     print(f"    code: {r['code']}; {r['date']}")
+    if r.get("scored") is False:
+        print_route(c)
+        print("  nothing scored: calibrate gave no result; every target NOT MEASURED")
+        return
     law = c["law"]
     shape = f"gamma {law['shape']:.3g}" if law.get("compression") == "gamma" else f"log span {law.get('shape', 0):.3g} dB"
     tvg = f", {law['spreading']:g} log r TVG" if law.get("spreading") is not None else ""
     print(f"calibration: {c['seconds']:.0f} s, {c['renders']} renders; frame 0 PSNR {c['psnr_frame0_start_db']:.2f} -> "
-          f"{c['psnr_frame0_db']:.2f} dB; {shape}{tvg}; pose z {c['values'].get('z', float('nan')):.3f} m, pitch "
-          f"{c['values'].get('pitch', float('nan')):.2f}, roll {c['values'].get('roll', float('nan')):.2f} deg, "
+          f"{c['psnr_frame0_db']:.2f} dB; {shape}{tvg}; pose z {c['pose']['position_m'][2]:.3f} m, pitch "
+          f"{c['pose']['rpy_deg'][1]:.2f}, roll {c['pose']['rpy_deg'][0]:.2f} deg, "
           f"elevation width {c['values'].get('elevation_width_deg', float('nan')):.2f} deg")
-    print("  " + ("REFUSED (exit-3 class, scored anyway): " + "; ".join(c["refusal_reasons"]) if c["refused"]
-                  else "not refused"))
+    print_route(c)
     for w in c["warnings"]:
         print(f"  warning: {w}")
     print("  " + family_line({**c["family"]}))
