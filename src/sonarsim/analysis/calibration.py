@@ -775,15 +775,16 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
 
 
 def sensor_names(spec: SensorSpec) -> list[str]:
-    """The searched sensor parameters that act in ``spec`` (no bang, no bang parameters)."""
-    out = ["gain_db"]
-    if spec.noise is not None:
-        out += ["noise_db", "noise_after_tvg_db"]
-    if spec.bang is not None:
-        out += ["bang_db", "bang_length_m", "bang_hold_m", "ringing_db", "ringing_length_m"]
-    if spec.elevation_pattern is not None:
-        out.append("elevation_width_deg")
-    return out
+    """The searched sensor parameters (:data:`SENSOR_PARAMETERS`, in its order) that act in
+    ``spec``: no bang, no bang parameters."""
+    absent = set()
+    if spec.noise is None:
+        absent |= {"noise_db", "noise_after_tvg_db"}
+    if spec.bang is None:
+        absent |= {"bang_db", "bang_length_m", "bang_hold_m", "ringing_db", "ringing_length_m"}
+    if spec.elevation_pattern is None:
+        absent.add("elevation_width_deg")
+    return [n for n in SENSOR_PARAMETERS if n not in absent]
 
 
 def law_key(spec: SensorSpec) -> tuple:
