@@ -194,15 +194,44 @@ class TvgSpec:
         dB per decade of range (40: point targets, 30: area, 20: volume scattering).
     absorption : bool
         Also add back the two-way absorption ``2 alpha r``.
+    correction_db : list of float or None
+        The range law's departure from ``spreading log10 r + 2 alpha r``, dB, at ranges evenly
+        spaced over ``correction_range_m`` (2 to 256 values, each within [-60, 60] dB),
+        interpolated linearly in power between them and held at the end values beyond: a real
+        device's TVG curve is no ideal law, and over a flat floor the sea bed's angular response
+        (its backscatter against the grazing angle, a function of range alone there) departs
+        from Lambert's (``sonarsim calibrate`` fits it).
+    correction_range_m : (float, float) or None
+        First and last knot (m), first < last; required with ``correction_db``.
     """
 
     spreading: float = 40.0
     absorption: bool = True
+    correction_db: tuple[float, ...] | None = None
+    correction_range_m: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         _choice("spreading", _finite("spreading", self.spreading), TVG_SPREADING)
         if not isinstance(self.absorption, bool):
             raise ConfigError("absorption", f"must be true or false, got {shown(self.absorption)}")
+        c, span = self.correction_db, self.correction_range_m
+        if c is not None:
+            if isinstance(c, (str, bytes)) or not hasattr(c, "__len__") or not 2 <= len(c) <= 256:
+                raise ConfigError("correction_db", f"must be a list of 2 to 256 numbers (dB), got {shown(c)}")
+            object.__setattr__(self, "correction_db", tuple(_within(f"correction_db[{i}]", x, (-60.0, 60.0))
+                                                            for i, x in enumerate(c)))
+            if span is None:
+                raise ConfigError("correction_range_m", "required with correction_db: [first, last] knot in metres")
+        if span is not None:
+            if c is None:
+                raise ConfigError("correction_range_m", "only with correction_db")
+            if isinstance(span, (str, bytes)) or not hasattr(span, "__len__") or len(span) != 2:
+                raise ConfigError("correction_range_m", f"must be [first, last] in metres, got {shown(span)}")
+            a = _within("correction_range_m[0]", span[0], (0.0, 1e4), "m")
+            b = _within("correction_range_m[1]", span[1], (0.0, 1e4), "m")
+            if not a < b:
+                raise ConfigError("correction_range_m", f"the first knot must be nearer than the last, got [{a:g}, {b:g}]")
+            object.__setattr__(self, "correction_range_m", (a, b))
 
 
 @dataclass(frozen=True)

@@ -117,11 +117,22 @@ def echo_level_offset_db(range_m: np.ndarray, source_level_db: float, alpha_db_p
 
 
 def tvg_db(range_m: np.ndarray, spec: TvgSpec | None, alpha_db_per_m: float) -> np.ndarray:
-    """The TVG added at each range, dB: ``spreading log10 r + 2 alpha r`` (0 when off)."""
+    """The TVG added at each range, dB: ``spreading log10 r + 2 alpha r`` (0 when off), plus
+    ``correction_db`` (:class:`~sonarsim.config.sensor.TvgSpec`) where it is given."""
     r = np.asarray(range_m, dtype=float)
     if spec is None:
         return np.zeros_like(r)
     out = spec.spreading * _log_range(r)
     if spec.absorption:
         out = out + 2.0 * alpha_db_per_m * r
+    if spec.correction_db is not None:
+        out = out + 10.0 * np.log10(tvg_correction_gain(r, spec))
     return out
+
+
+def tvg_correction_gain(range_m: np.ndarray, spec: TvgSpec) -> np.ndarray:
+    """The power factor of ``spec.correction_db`` at each range: the knots' values as powers,
+    interpolated linearly between the knots (evenly over ``correction_range_m``), the end values
+    beyond them. Linear in each knot's power, as the elevation pattern's correction is."""
+    knots = np.linspace(spec.correction_range_m[0], spec.correction_range_m[1], len(spec.correction_db))
+    return np.interp(np.asarray(range_m, dtype=float), knots, 10.0 ** (np.asarray(spec.correction_db) / 10.0))
