@@ -145,9 +145,22 @@ def _smooth_solve(basis: np.ndarray | None, weight: np.ndarray, rhs: np.ndarray)
     return basis @ w
 
 
+def _lobe(values: np.ndarray, weights: np.ndarray, peak: int) -> np.ndarray:
+    """The weighted least-squares single lobe nearest ``values``: non-negative, rising up to
+    index ``peak`` and falling after it (two weighted isotonic regressions, each exact)."""
+    from scipy.optimize import isotonic_regression
+
+    out = np.empty_like(values)
+    w = np.maximum(weights, 1e-300)
+    out[: peak + 1] = isotonic_regression(values[: peak + 1], weights=w[: peak + 1], increasing=True).x
+    if peak + 1 < values.size:
+        out[peak + 1:] = isotonic_regression(values[peak + 1:], weights=w[peak + 1:], increasing=False).x
+    return np.maximum(out, 0.0)
+
+
 def flat_floor_image(reference: Any, range_m: Any, azimuth_deg: Any, height_m: float, pitch_deg: float,
-                     knot_deg: float, iterations: int = ITERATIONS, range_knot_m: float | None = None
-                     ) -> FlatFloorFit:
+                     knot_deg: float, iterations: int = ITERATIONS, range_knot_m: float | None = None,
+                     lobe: bool = False) -> FlatFloorFit:
     """Fit ``A(beam) G(r) P(elevation) + C(r)`` to one frame, every factor free.
 
     Parameters
@@ -166,6 +179,11 @@ def flat_floor_image(reference: Any, range_m: Any, azimuth_deg: Any, height_m: f
         If given, ``G`` and ``C`` are piecewise-linear curves with knots this far apart (m)
         instead of one free value per row: a range law smooth at that scale (spreading,
         absorption, TVG and the scattering law are; a floor's ridges at given ranges are not).
+    lobe : bool
+        Hold ``P`` to what an elevation beam pattern's main lobe can be: non-negative, rising
+        to its peak on the sonar's axis (the knot holding elevation 0) and falling on both
+        sides, of any width and shape. The fit stays exact per step (weighted isotonic
+        regression), so the error still never grows.
 
     Returns
     -------
@@ -186,6 +204,7 @@ def flat_floor_image(reference: Any, range_m: Any, azimuth_deg: Any, height_m: f
     # Knot index per pixel; n_knots marks "no floor" (P fixed at 0 there).
     k = np.where(seen, np.minimum(((np.where(seen, e, lo) - lo) / knot_deg).astype(np.int64), n_knots - 1), n_knots)
     kf = k.ravel()
+    axis_knot = int(np.clip(np.floor(-lo / knot_deg), 0, n_knots - 1))
     basis = None
     if range_knot_m is not None:
         if not (np.isfinite(range_knot_m) and range_knot_m > 0):
@@ -207,7 +226,10 @@ def flat_floor_image(reference: Any, range_m: Any, azimuth_deg: Any, height_m: f
         q = g[:, None] * pk
         a = _ratio((t * q).sum(axis=0), (q * q).sum(axis=0))
         q = g[:, None] * a[None, :]
-        p = _ratio(np.bincount(kf, (t * q).ravel(), n_knots + 1), np.bincount(kf, (q * q).ravel(), n_knots + 1))
+        den = np.bincount(kf, (q * q).ravel(), n_knots + 1)
+        p = _ratio(np.bincount(kf, (t * q).ravel(), n_knots + 1), den)
+        if lobe:
+            p[:n_knots] = _lobe(p[:n_knots], den[:n_knots], axis_knot)
         p[n_knots] = 0.0
         peak = float(np.max(np.abs(p))) or 1.0
         p /= peak
@@ -222,7 +244,8 @@ def flat_floor_image(reference: Any, range_m: Any, azimuth_deg: Any, height_m: f
 def flat_floor_bound(reference: Any, held_out: Sequence[Any], range_m: Any, azimuth_deg: Any,
                      heights_m: Sequence[float], pitches_deg: Sequence[float],
                      knots_deg: Sequence[float] = (1.0, 2.0, 4.0, 8.0), data_range: float = 255.0,
-                     iterations: int = ITERATIONS, range_knot_m: float | None = None) -> dict[str, Any]:
+                     iterations: int = ITERATIONS, range_knot_m: float | None = None,
+                     lobe: bool = False) -> dict[str, Any]:
     """Best flat-floor images of the reference frame over a grid of poses, scored held out.
 
     For each knot width, every pose of the grid is fitted on ``reference``
@@ -249,6 +272,8 @@ def flat_floor_bound(reference: Any, held_out: Sequence[Any], range_m: Any, azim
         Sweeps per fit.
     range_knot_m : float, optional
         Smooth range law (:func:`flat_floor_image`); default one value per row.
+    lobe : bool
+        Hold the elevation pattern to a single lobe about the axis (:func:`flat_floor_image`).
 
     Returns
     -------
@@ -270,7 +295,7 @@ def flat_floor_bound(reference: Any, held_out: Sequence[Any], range_m: Any, azim
             for pitch in pitches_deg:
                 try:
                     fit = flat_floor_image(ref, range_m, azimuth_deg, float(z), float(pitch), float(knot), iterations,
-                                           range_knot_m)
+                                           range_knot_m, lobe)
                 except ValueError:  # no beam sees the floor from there
                     continue
                 if best is None or fit.mse < best[3].mse:
@@ -278,9 +303,9 @@ def flat_floor_bound(reference: Any, held_out: Sequence[Any], range_m: Any, azim
         if best is None:
             raise ValueError("no pose of the grid sees the floor")
         name = f"flat floor, {float(knot):g} deg knots" + (
-            "" if range_knot_m is None else f", range law knots {float(range_knot_m):g} m")
+            "" if range_knot_m is None else f", range law knots {float(range_knot_m):g} m") + (", one lobe" if lobe else "")
         images[name] = np.clip(best[3].image, 0.0, data_range)
-        rows.append({"name": name, "knot_deg": float(knot), "range_knot_m": range_knot_m, "height_m": best[0], "pitch_deg": best[1],
+        rows.append({"name": name, "knot_deg": float(knot), "range_knot_m": range_knot_m, "lobe": bool(lobe), "height_m": best[0], "pitch_deg": best[1],
                      "psnr_reference": float(10.0 * np.log10(data_range ** 2 / max(best[3].mse, 1e-300)))})
     scores = held_out_scores(images, frames, None, data_range)
     for row in rows:
