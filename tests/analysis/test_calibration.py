@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from dataclasses import replace
 
@@ -463,3 +464,46 @@ def test_the_range_laws_correction_is_recovered_where_the_recording_has_one():
     assert got[mid].mean() - got[ends].mean() > 4.0
     plain = calibrate(real, sonarsim.load_scene(floor_scene(_floor_truth())), range_correction=False, **kw)
     assert res.psnr_db > plain.psnr_db + 0.3
+
+
+def test_a_textured_floors_mean_output_is_below_an_untextured_ones_by_the_closed_form():
+    """Through a gamma output the mean count of an echo scaled by a log-normal texture F of mean
+    1 is E[F^gamma] = exp(gamma (gamma - 1) s^2 / 2) times the untextured one's (s the texture's
+    spread in nepers): 0.915 for 4 dB and gamma 0.3. The expected image of a textured floor is
+    that mean over texture draws (calibrate's ``_texture_mean``)."""
+    truth = {**_floor_truth(), "noise": False}
+    plain = np.asarray(sonarsim.render(floor_scene(truth), speckle=False).polar, float)
+    doc = floor_scene(truth)
+    doc["ground"]["texture"] = {"std_db": 4.0, "correlation_m": [0.05, 0.05]}
+    draws = []
+    for seed in range(1, 17):
+        doc["render"]["seed"] = seed
+        draws.append(np.asarray(sonarsim.render(doc, speckle=False).polar, float))
+    lit = plain > 0.5 * plain.max()
+    ratio = np.mean(draws, axis=0)[lit].mean() / plain[lit].mean()
+    s = 4.0 * math.log(10) / 10
+    assert ratio == pytest.approx(math.exp(0.3 * (0.3 - 1) * s * s / 2), abs=0.015)
+
+
+def test_a_textured_floors_gain_is_fitted_to_the_textures_mean_output():
+    """Calibrate fits the gain to the mean over texture draws: it raises the gain the
+    untextured fit found, and the calibrated scene's speckled frames are as bright as the
+    recording over its lit band."""
+    doc = floor_scene(_floor_truth())
+    doc["ground"]["texture"] = {"std_db": 4.0, "correlation_m": [0.05, 0.05]}
+    real = sonarsim.render(doc)
+    lines = []
+    res = calibrate(real, sonarsim.load_scene(floor_scene({**_floor_truth(), "gain_db": 15.0})), free=(),
+                    max_iterations=150, spreading=(20.0,), compressions=("gamma",), channels=False, fit_grain=False,
+                    common_noise=False, range_correction=False, progress=lines.append)
+    assert res.scene.ground.texture is not None
+    moved = [line for line in lines if line.startswith("texture's mean")]
+    assert moved, lines
+    before, after = (float(x) for x in re.search(r"gain (\S+) -> (\S+) dB", moved[0]).groups())
+    assert after > before + 0.1 and res.values["gain_db"] == pytest.approx(after, abs=0.01)
+    lit = realism.auto_regions(np.asarray(real.polar, float))["lit"]
+    means = []
+    for seed in (11, 12, 13):
+        sc = replace(res.scene, render=replace(res.scene.render, seed=seed))
+        means.append(float(np.asarray(sonarsim.render(sc).polar, float)[lit].mean()))
+    assert np.mean(means) == pytest.approx(float(np.asarray(real.polar, float)[lit].mean()), rel=0.03)
