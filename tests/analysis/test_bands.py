@@ -173,3 +173,28 @@ def test_the_realism_report_on_the_real_oculus_pings(shared_data):
     assert rep["c2st"]["accuracy"] > 0.95  # a smooth image has no speckle
     same = classifier_two_sample_test(frames[1], frames[2])
     assert abs(same.accuracy - 0.5) < 3 * same.null_standard_error, same
+
+
+def test_the_ks_null_is_what_another_draw_of_the_model_scores_and_a_wrong_model_exceeds_it():
+    """With several speckled renders, each band carries ``ks_null``: the KS between the model's
+    first draw and its others. A recording that is another draw of the model scores about
+    that (within the draw-to-draw spread); a model 50 % too bright exceeds it in every band."""
+    truth, frames = _recording(3)
+    rng = np.random.default_rng(5)
+    draws = [truth * rng.gamma(6.0, 1.0 / 6.0, size=truth.shape) for _ in range(4)]
+    rep = realism_report(frames, truth, draws[:3], 0)
+    lit = [b for b in rep["bands"]["lit"] if b["ok"]]
+    assert lit and all(math.isfinite(b["ks_null"]) and 0 < b["ks_null"] < 0.1 for b in lit)
+    summary = rep["band_summary"]["lit"]
+    assert summary["max_ks_null"] == pytest.approx(max(b["ks_null"] for b in lit))
+    # The recording is a draw of the truth: its KS is of the null's size, band by band.
+    assert all(b["ks"] < 3 * b["ks_null"] + 0.02 for b in lit)
+    bright = realism_report(frames, 1.5 * truth, [1.5 * d for d in draws[:3]], 0)
+    wrong = [b for b in bright["bands"]["lit"] if b["ok"]]
+    assert all(b["ks"] > 2 * b["ks_null"] for b in wrong)  # measured: 2.5 to 10 times
+    assert bright["band_summary"]["lit"]["bands_ks_above_null"] == len(wrong)
+    # One render: no null.
+    one = realism_report(frames, truth, draws[0], 0)
+    assert all(math.isnan(b["ks_null"]) for b in one["bands"]["lit"])
+    assert one["band_summary"]["lit"]["bands_ks_above_null"] is None
+    json.loads(json.dumps(rep))
