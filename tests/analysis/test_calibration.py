@@ -470,7 +470,7 @@ def test_a_textured_floors_mean_output_is_below_an_untextured_ones_by_the_closed
     """Through a gamma output the mean count of an echo scaled by a log-normal texture F of mean
     1 is E[F^gamma] = exp(gamma (gamma - 1) s^2 / 2) times the untextured one's (s the texture's
     spread in nepers): 0.915 for 4 dB and gamma 0.3. The expected image of a textured floor is
-    that mean over texture draws (calibrate's ``_texture_mean``)."""
+    that mean over texture draws (calibrate's ``_texture_mean`` takes it by quadrature)."""
     truth = {**_floor_truth(), "noise": False}
     plain = np.asarray(sonarsim.render(floor_scene(truth), speckle=False).polar, float)
     doc = floor_scene(truth)
@@ -507,3 +507,25 @@ def test_a_textured_floors_gain_is_fitted_to_the_textures_mean_output():
         sc = replace(res.scene, render=replace(res.scene.render, seed=seed))
         means.append(float(np.asarray(sonarsim.render(sc).polar, float)[lit].mean()))
     assert np.mean(means) == pytest.approx(float(np.asarray(real.polar, float)[lit].mean()), rel=0.03)
+
+
+@pytest.mark.parametrize("cells", [0.0, 1.5])
+def test_the_pulse_length_is_recovered_from_the_grain_along_range(cells):
+    """A recording made with a CW pulse 1.5 range cells long (each echo reaching a quarter of
+    its amplitude into both neighbours: speckle correlated along range), or with none: the
+    fitted pulse gives it back (none, or one that spreads nothing: at most a cell)."""
+    cell = (3.0 - 0.2) / 240
+    truth = dict(_floor_truth())
+    if cells:
+        truth["pulse"] = {"kind": "cw", "length_us": 2.0 * cells * cell / 1500.0 * 1e6}
+    real = sonarsim.render(floor_scene(truth))
+    start = {k: v for k, v in _floor_truth().items() if k != "pulse"}
+    res = calibrate(real, sonarsim.load_scene(floor_scene(start)), free=(), max_iterations=100, spreading=(20.0,),
+                    compressions=("gamma",), channels=False, common_noise=False, texture=False,
+                    range_correction=False)
+    got = res.values.get("pulse_length_us")
+    if cells:
+        assert got is not None
+        assert got * 1e-6 * 1500.0 / 2.0 / cell == pytest.approx(cells, abs=0.15)
+    else:
+        assert got is None or got * 1e-6 * 1500.0 / 2.0 / cell <= 1.0
