@@ -20,6 +20,7 @@ from ..errors import ConfigError, shown
 from .materials import Material
 from .sensor import SensorSpec, check_azimuth_width, check_bandwidth
 from .sonar import SonarConfig
+from ..core.rays import check_ray_budget
 from ..core.transforms import Pose
 
 PRIMITIVES = ("box", "sphere", "cylinder")
@@ -611,8 +612,6 @@ class Scene:
             except ConfigError as exc:
                 raise ConfigError(exc.key if exc.key.startswith("sonar.") else f"sensor.{exc.key}", exc.detail) from None
         # The rays are counted now, so that a command refuses them before its run starts.
-        from ..core.rays import check_ray_budget
-
         check_ray_budget(self.sonar, self.render)
         if self.render.method == "paper" and self.planes:
             raise ConfigError(

@@ -14,11 +14,27 @@ NumPy twin.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Protocol, Sequence
 
 import numpy as np
 
-from ..config.materials import LAMBERTIAN, ROUGH, Material
+# The backscatter laws' codes in the compiled kernels (``renderer/_kernels.pyx``) and in
+# :class:`SurfaceLaws`. :mod:`sonarsim.config.materials` gives the same codes
+# (``Material.code``); they are repeated here because core imports nothing of the package
+# above it (tests/core/test_core_imports_nothing.py checks that the two agree).
+LAMBERTIAN, LAMBERT, ROUGH = 0, 1, 2
+
+
+class SurfaceMaterial(Protocol):
+    """What :meth:`SurfaceLaws.of` reads of a surface's material
+    (:class:`~sonarsim.config.materials.Material` has it)."""
+
+    @property
+    def coefficient(self) -> float: ...
+    @property
+    def code(self) -> int: ...
+    @property
+    def lobe(self) -> tuple[float, float]: ...
 
 
 @dataclass(frozen=True)
@@ -40,7 +56,7 @@ class SurfaceLaws:
     lobe: np.ndarray
 
     @classmethod
-    def of(cls, materials: "Sequence[Material] | np.ndarray | SurfaceLaws") -> "SurfaceLaws":
+    def of(cls, materials: "Sequence[SurfaceMaterial] | np.ndarray | SurfaceLaws") -> "SurfaceLaws":
         """From the surfaces' materials in surface-id order (row 0 is added), or pass a table
         through; a plain float array is the Lambertian albedo by surface id + 1 (row 0 included)."""
         if isinstance(materials, SurfaceLaws):

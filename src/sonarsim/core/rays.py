@@ -4,25 +4,59 @@ Ray ``(j, a, k)`` belongs to beam ``j``, azimuth sub-sample ``a`` across the bea
 elevation sample ``k``. Elevation samples are the centres of equal sub-intervals of the aperture,
 ascending (k = 0 is the lowest), so neighbouring rays on one surface are neighbours in the last
 axis -- which is what range splatting walks along.
+
+This module reads a sonar's geometry and a scene's render settings by their attributes only
+(:class:`SonarGeometry`, :class:`RaySettings`): core imports nothing of the package above it,
+and :class:`~sonarsim.config.sonar.SonarConfig` and :class:`~sonarsim.config.scene.RenderSettings`
+are what :mod:`sonarsim.config` passes in.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from ..config.scene import RenderSettings
-from ..config.sonar import SonarConfig
 from .memory import require
+
+
+class SonarGeometry(Protocol):
+    """What ray sampling reads of a sonar (:class:`~sonarsim.config.sonar.SonarConfig` has it)."""
+
+    @property
+    def n_beams(self) -> int: ...
+    @property
+    def elevation_fov_deg(self) -> float: ...
+    @property
+    def range_max_m(self) -> float: ...
+    @property
+    def range_resolution_m(self) -> float: ...
+    @property
+    def azimuth_deg(self) -> np.ndarray: ...
+
+    def effective_beam_width_deg(self) -> np.ndarray: ...
+
+
+class RaySettings(Protocol):
+    """What ray sampling reads of the render settings
+    (:class:`~sonarsim.config.scene.RenderSettings` has it)."""
+
+    @property
+    def elevation_samples(self) -> int | str: ...
+    @property
+    def azimuth_samples(self) -> int: ...
+    @property
+    def beam_pattern(self) -> str: ...
+
 
 BYTES_PER_RAY = 600
 AUTO_MIN_SAMPLES = 32
 AUTO_MAX_SAMPLES = 1024
 
 
-def auto_elevation_samples(sonar: SonarConfig) -> int:
+def auto_elevation_samples(sonar: SonarGeometry) -> int:
     """Elevation rays per beam for ``elevation_samples: auto``.
 
     Neighbouring rays are at most about two range bins apart (arc length) at the far end of the
@@ -34,13 +68,13 @@ def auto_elevation_samples(sonar: SonarConfig) -> int:
     return int(min(max(n, AUTO_MIN_SAMPLES), AUTO_MAX_SAMPLES))
 
 
-def samples_per_beam(sonar: SonarConfig, render: RenderSettings) -> tuple[int, int]:
+def samples_per_beam(sonar: SonarGeometry, render: RaySettings) -> tuple[int, int]:
     """``(n_azimuth_samples, n_elevation_samples)`` of each beam's rays."""
     n_el = auto_elevation_samples(sonar) if render.elevation_samples == "auto" else int(render.elevation_samples)
     return int(render.azimuth_samples), n_el
 
 
-def ray_bytes(sonar: SonarConfig, render: RenderSettings) -> int:
+def ray_bytes(sonar: SonarGeometry, render: RaySettings) -> int:
     """Bytes a frame's rays take: each its direction and weight here, and its legs' hits,
     points and normals per frame (``BYTES_PER_RAY`` in all).
 
@@ -50,7 +84,7 @@ def ray_bytes(sonar: SonarConfig, render: RenderSettings) -> int:
     return int(sonar.n_beams) * n_az * n_el * BYTES_PER_RAY
 
 
-def ray_size_key(sonar: SonarConfig, render: RenderSettings) -> str:
+def ray_size_key(sonar: SonarGeometry, render: RaySettings) -> str:
     """The key to name when there are too many rays: the largest factor of the count
     (``azimuth_samples: 1e9`` with 8 elevation samples is about ``render.azimuth_samples``)."""
     n_az, n_el = samples_per_beam(sonar, render)
@@ -60,7 +94,7 @@ def ray_size_key(sonar: SonarConfig, render: RenderSettings) -> str:
     return max(factors, key=lambda f: f[0])[1]
 
 
-def check_ray_budget(sonar: SonarConfig, render: RenderSettings) -> tuple[int, int]:
+def check_ray_budget(sonar: SonarGeometry, render: RaySettings) -> tuple[int, int]:
     """Refuse a ray fan beyond the memory budget, naming the key that makes it large.
 
     Nothing is allocated: :class:`~sonarsim.config.scene.Scene` calls it when a scene is
@@ -68,8 +102,10 @@ def check_ray_budget(sonar: SonarConfig, render: RenderSettings) -> tuple[int, i
 
     Parameters
     ----------
-    sonar : SonarConfig
-    render : RenderSettings
+    sonar : SonarGeometry
+        A :class:`~sonarsim.config.sonar.SonarConfig`.
+    render : RaySettings
+        A :class:`~sonarsim.config.scene.RenderSettings`.
 
     Returns
     -------
@@ -119,14 +155,16 @@ class RayFan:
         return int(self.weight.size)
 
 
-def make_ray_fan(sonar: SonarConfig, render: RenderSettings, elevation_gain=None) -> RayFan:
+def make_ray_fan(sonar: SonarGeometry, render: RaySettings, elevation_gain=None) -> RayFan:
     """Sample every beam over its azimuth width and the elevation aperture.
 
     Parameters
     ----------
-    sonar : SonarConfig
-    render : RenderSettings
-        ``elevation_samples``, ``azimuth_samples`` and ``beam_pattern`` are used.
+    sonar : SonarGeometry
+        A :class:`~sonarsim.config.sonar.SonarConfig`.
+    render : RaySettings
+        A :class:`~sonarsim.config.scene.RenderSettings`: ``elevation_samples``,
+        ``azimuth_samples`` and ``beam_pattern`` are used.
     elevation_gain : callable, optional
         ``(n,) elevation (rad) -> (n,) power gain``: a sensor's two-way elevation pattern,
         multiplied into the weights (the sonar's aperture is then the span it acts over).
