@@ -66,10 +66,16 @@ class TriangleMesh:
         return self.vertices[self.faces]
 
 
+def brightness(image) -> np.ndarray:
+    """(height, width) float32 luminance in [0, 1] of a PIL image (row 0 at the top).
+
+    Also :func:`sonarsim.scene.textures.brightness`: it is here because loading a textured mesh
+    needs it, and this module sits below :mod:`~sonarsim.scene.textures` (which wraps casters)."""
+    return (np.asarray(image.convert("L"), dtype=np.float32) / np.float32(255.0)).astype(np.float32)
+
+
 def _texture_of(mesh, where: str) -> tuple[np.ndarray, np.ndarray]:
     """``(uv, brightness)`` of a trimesh mesh's texture; MeshFileError naming ``where`` without one."""
-    from .textures import brightness
-
     visual = getattr(mesh, "visual", None)
     uv = getattr(visual, "uv", None)
     material = getattr(visual, "material", None)

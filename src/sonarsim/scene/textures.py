@@ -27,11 +27,9 @@ from typing import Sequence
 import numpy as np
 
 from ..trace.base import Hits
-
-
-def brightness(image) -> np.ndarray:
-    """(height, width) float32 luminance in [0, 1] of a PIL image (row 0 at the top)."""
-    return (np.asarray(image.convert("L"), dtype=np.float32) / np.float32(255.0)).astype(np.float32)
+# brightness lives with the meshes that read texture images (scene.meshes may not import this
+# module: it imports trace.base, which imports scene.meshes); re-exported here, where it was.
+from .meshes import brightness
 
 
 def sample(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
