@@ -10,6 +10,7 @@ answers (tests/trace/test_embree4.py compares the two ray by ray and frame by fr
 from __future__ import annotations
 
 import glob
+import importlib
 import importlib.util
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -138,7 +139,10 @@ def load_binding():
         hits otherwise than declared (:func:`verify_layout`).
     """
     try:
-        from . import _embree4
+        # By name, not ``from . import _embree4``: the compiled extension imports nothing of
+        # sonarsim, but a static import of it reads, to an import graph of the .py files, as an
+        # import of this package, whose make_caster imports this module (a false cycle).
+        _embree4 = importlib.import_module(f"{__package__}._embree4")
     except ImportError as exc:
         raise SonarsimError(f"the 'embree4' backend's extension sonarsim.trace._embree4 is not built ({exc}); "
                             "reinstall sonarsim from source, or use backend 'embree' with SONARSIM_EMBREE=embreex") from None
