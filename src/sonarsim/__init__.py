@@ -39,6 +39,13 @@ _SUBPACKAGES = ("analysis", "cli", "config", "core", "dataset", "errors", "image
                 "renderer", "scene", "sensor", "trace")
 
 
+# The image types show and save themselves (``_repr_png_``, ``plot``, ``save``, ``to_pil``,
+# ``save_npz``) through hooks that sonarsim.plot registers when imported (sonarsim.image.display):
+# imported here, so that every image has them. Light: matplotlib, NumPy and the writers load
+# when a picture or file is first made.
+from . import plot  # noqa: E402,F401
+
+
 def __getattr__(name: str) -> Any:
     module = _EXPORTS.get(name)
     if module is None:

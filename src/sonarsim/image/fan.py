@@ -33,7 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .display import fan_image_repr, hook
 from .grid import PolarGrid, _check_azimuth, _check_count
+from .levels import to_uint8
 
 __all__ = [
     "FanImage",
@@ -98,18 +100,15 @@ class FanImage:
         """``(H, W)``, the image shape in pixels."""
         return (int(self.x_m.shape[0]), int(self.y_m.shape[0]))
 
-    # -- pictures (sonarsim.plot; matplotlib is imported only here) ---------------------------
+    # -- pictures (sonarsim.plot, through the hooks of sonarsim.image.display; matplotlib is
+    # imported only when a picture is made) ----------------------------------------------------
 
     def __repr__(self) -> str:
-        from ..plot.notebook import fan_image_repr
-
         return fan_image_repr(self)
 
     def _repr_png_(self) -> bytes:
         """What a notebook shows: the annotated fan (dB re its maximum)."""
-        from ..plot.notebook import fan_image_figure, png_bytes
-
-        return png_bytes(fan_image_figure(self))
+        return hook("fan_repr_png", "FanImage._repr_png_")(self)
 
     def plot(self, ax=None, **options):
         """Draw the annotated fan (metres, rings, spokes, colour bar in dB re its maximum) on
@@ -123,33 +122,21 @@ class FanImage:
         -------
         matplotlib.axes.Axes
         """
-        from ..plot.notebook import fan_image_figure
-
-        if ax is None:
-            import matplotlib.pyplot as plt
-
-            ax = plt.figure(figsize=(4.5, 5.0), layout="compressed").add_subplot()
-        fan_image_figure(self, ax, **options)
-        return ax
+        return hook("fan_plot", "FanImage.plot")(self, ax, **options)
 
     def save(self, path, **options) -> None:
         """Write the annotated figure: PNG, SVG or PDF after the suffix of ``path``, atomically."""
-        from ..plot.figures import save_figure
-        from ..plot.notebook import fan_image_figure
-
-        save_figure(fan_image_figure(self, **options), path)
+        hook("fan_save", "FanImage.save")(self, path, **options)
 
     def to_pil(self, mapping: str = "db", gain_db: float = 0.0, dynamic_range_db: float = 40.0):
         """The exact-pixel image as an 8-bit grey PIL image (0 outside the fan), through
-        :func:`sonarsim.io.output.to_uint8`.
+        :func:`sonarsim.io.output.to_uint8` (:func:`sonarsim.image.levels.to_uint8`).
 
         Returns
         -------
         PIL.Image.Image
         """
         from PIL import Image
-
-        from ..io.output import to_uint8
 
         return Image.fromarray(to_uint8(self.image, mapping, gain_db, dynamic_range_db, mask=self.mask))
 

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.transforms import Pose
+from .display import hook, image_repr
 from .fan import FanMapper
 from .grid import PolarGrid
 from .labels import FanLabels, Labels
@@ -158,24 +159,20 @@ class SonarImage:
         return out
 
     def save_npz(self, path) -> None:
-        """Write :meth:`arrays` and the configuration to an NPZ file, atomically."""
-        from ..io.output import write_npz
+        """Write :meth:`arrays` and the configuration to an NPZ file, atomically
+        (:func:`sonarsim.io.output.write_npz`)."""
+        hook("write_npz", "SonarImage.save_npz")(path, self.arrays(), self.config)
 
-        write_npz(path, self.arrays(), self.config)
-
-    # -- pictures (sonarsim.plot; matplotlib is imported only here) ---------------------------
+    # -- pictures (sonarsim.plot, through the hooks of sonarsim.image.display; matplotlib is
+    # imported only when a picture is made) ----------------------------------------------------
 
     def __repr__(self) -> str:
         # One or two lines: the arrays' text would run to pages.
-        from ..plot.notebook import image_repr
-
         return image_repr(self)
 
     def _repr_png_(self) -> bytes:
         """What a notebook shows: the small annotated fan figure."""
-        from ..plot.notebook import image_repr_png
-
-        return image_repr_png(self)
+        return hook("image_repr_png", "SonarImage._repr_png_")(self)
 
     def plot(self, ax=None, *, kind: str = "fan", component: str | None = None, **options):
         """Draw the annotated figure (fan in metres, or polar) on ``ax`` and return the axes.
@@ -195,18 +192,14 @@ class SonarImage:
         -------
         matplotlib.axes.Axes
         """
-        from ..plot.notebook import image_plot
-
-        return image_plot(self, ax, kind, component, **options)
+        return hook("image_plot", "SonarImage.plot")(self, ax, kind, component, **options)
 
     def save(self, path, *, kind: str = "fan", component: str | None = None, **options) -> None:
         """Write the annotated figure to ``path``: PNG, SVG or PDF after its suffix, atomically.
 
         The options are those of :meth:`plot`.
         """
-        from ..plot.notebook import image_save
-
-        image_save(self, path, kind, component, **options)
+        hook("image_save", "SonarImage.save")(self, path, kind, component, **options)
 
     def to_pil(self, *, kind: str = "fan", component: str | None = None, **options):
         """The exact-pixel image as a PIL image (8-bit grey, as the commands' PNGs).
@@ -225,9 +218,7 @@ class SonarImage:
         -------
         PIL.Image.Image
         """
-        from ..plot.notebook import image_to_pil
-
-        return image_to_pil(self, kind, component, **options)
+        return hook("image_to_pil", "SonarImage.to_pil")(self, kind, component, **options)
 
 
 @functools.lru_cache(maxsize=8)

@@ -428,3 +428,9 @@ def file_digest(path: PathLike) -> tuple[int, str]:
             size += len(chunk)
     return size, digest.hexdigest()
 
+
+# SonarImage.save_npz writes through this (the image layer does not import io): its hook in
+# sonarsim.image.display (sonarsim.plot.hooks installs it too, without loading this module).
+from ..image.display import register as _register  # noqa: E402
+
+_register("write_npz", write_npz)

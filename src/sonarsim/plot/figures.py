@@ -24,7 +24,7 @@ import numpy as np
 
 from ..core.interrupts import signals_deferred
 from ..io.output import to_uint8
-from . import FIGURE_FORMATS
+from .formats import FIGURE_FORMATS
 from .axes import azimuth_ticks_deg, draw_fan_frame, format_azimuth, range_rings_m
 from .style import DEFAULT_COLORMAP, OUTSIDE_FAN_RGB, colorize, colormap_lut
 

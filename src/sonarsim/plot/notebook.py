@@ -2,8 +2,9 @@
 recordings show in a notebook and a console: a small annotated figure (``_repr_png_``), a short
 text ``repr`` (never the arrays), and ``plot`` / ``save`` / ``to_pil``.
 
-The classes keep one-line methods that call these functions, so that the image types do not
-import matplotlib until a picture is asked for.
+The classes keep one-line methods that call these functions through the hooks of
+:mod:`sonarsim.image.display` (registered by :mod:`sonarsim.plot.hooks`), so that the image types
+neither import this package nor matplotlib until a picture is asked for.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+# The text reprs need no figure: they live with the image types (re-exported here).
+from ..image.display import fan_image_repr, image_repr
 from .style import DEFAULT_COLORMAP
 
 if TYPE_CHECKING:
@@ -24,7 +27,10 @@ if TYPE_CHECKING:
 __all__ = [
     "KINDS",
     "fan_image_figure",
+    "fan_image_plot",
     "fan_image_repr",
+    "fan_image_repr_png",
+    "fan_image_save",
     "image_plot",
     "image_repr",
     "image_repr_png",
@@ -54,35 +60,6 @@ def png_bytes(fig: Any, dpi: int = _REPR_DPI) -> bytes:
     fig.savefig(buffer, format="png", dpi=dpi, metadata={"Software": None})
     _close(fig)
     return buffer.getvalue()
-
-
-def image_repr(image: Any) -> str:
-    """One or two lines about a :class:`~sonarsim.image.result.SonarImage`: device, shape,
-    range window and beams, components, pose; never the arrays."""
-    s = image.sonar
-    config = getattr(image, "config", None) or {}
-    if "format" in config:
-        device = f"{config['format']} recording {os.path.basename(str(config.get('source', '')))} frame {config.get('frame')}"
-    else:
-        device = s.preset or "sonar"
-    rows, cols = np.shape(image.polar)
-    edges = s.beam_edges_deg
-    first = (f"SonarImage({device}: {rows} ranges x {cols} beams, {s.range_min_m:.4g}-{s.range_max_m:.4g} m, "
-             f"{float(edges[0]):+.4g} to {float(edges[-1]):+.4g} deg")
-    comp = image.components
-    # The table's names cost nothing; listing path signatures would form them all.
-    table = getattr(comp, "table", None)
-    names = list(table) if table is not None else list(comp)
-    parts = []
-    if names:
-        parts.append("components " + ", ".join(names) + (" (+ path signatures)" if table is not None else ""))
-    if isinstance(config.get("sensor"), dict):
-        parts.append("sensor model on")
-    if image.pose is not None:
-        parts.append(f"pose {tuple(image.pose.position_m)} m rpy {tuple(image.pose.rpy_deg)} deg")
-    if image.labels is not None:
-        parts.append("labels")
-    return first + (";\n  " + "; ".join(parts) + ")" if parts else ")")
 
 
 def _figure(image: Any, kind: str, component: str | None, ax: Any, **options: Any) -> Any:
@@ -190,11 +167,27 @@ def fan_image_figure(fan: Any, ax: Axes | None = None, *, mapping: str = "db", g
     return fig
 
 
-def fan_image_repr(fan: Any) -> str:
-    """One line about a FanImage: shape, pixel size, extent, pixels inside the fan."""
-    h, w = fan.shape
-    return (f"FanImage({w} x {h} pixels of {fan.pixel_size_m * 1000:.4g} mm, forward to "
-            f"{float(fan.x_m[0]) + fan.pixel_size_m / 2:.4g} m, {int(np.count_nonzero(fan.mask))} pixels inside the fan)")
+def fan_image_plot(fan: Any, ax: Axes | None = None, **options: Any) -> Axes:
+    """Draw a FanImage's annotated figure (:func:`fan_image_figure`) on ``ax`` (default: a new
+    pyplot figure, which a notebook shows) and return the axes."""
+    if ax is None:
+        import matplotlib.pyplot as plt
+
+        ax = plt.figure(figsize=(4.5, 5.0), layout="compressed").add_subplot()
+    fan_image_figure(fan, ax, **options)
+    return ax
+
+
+def fan_image_save(fan: Any, path: str | os.PathLike, **options: Any) -> None:
+    """Write a FanImage's annotated figure; PNG, SVG or PDF from the suffix, atomically."""
+    from .figures import save_figure
+
+    save_figure(fan_image_figure(fan, **options), path)
+
+
+def fan_image_repr_png(fan: Any) -> bytes:
+    """What a notebook shows for a FanImage: its annotated fan (dB re its maximum)."""
+    return png_bytes(fan_image_figure(fan))
 
 
 # ---------------------------------------------------------------------------------- recordings
