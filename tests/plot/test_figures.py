@@ -244,8 +244,11 @@ def test_fit_figure_marks_the_fitted_band_on_the_real_image():
     import sonarsim
     from tests.conftest import block_scene_dict
 
+    from sonarsim.analysis.fitting import floor_band_m
+
     image = sonarsim.render(block_scene_dict(n_range_bins=200))
-    fig = F.fit_figure(image, image, frame=2)
+    # The band is passed in: the figures do not import the analysis (issue 23, item 5).
+    fig = F.fit_figure(image, image, frame=2, band=floor_band_m(image))
     panels = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
     assert [ax.get_title() for ax in panels] == ["real (frame 2), fitted floor band", "render at the fitted pose"]
     assert [t.get_text() for t in panels[0].get_legend().get_texts()] == ["near edge", "far edge"]
@@ -253,6 +256,12 @@ def test_fit_figure_marks_the_fitted_band_on_the_real_image():
     # The band's near edge (1 m up, 20 deg down, 14 deg aperture: 1 / sin(27 deg) = 2.2 m) in metres.
     assert np.median(np.hypot(near.get_xdata(), near.get_ydata())) == pytest.approx(1 / math.sin(math.radians(27)),
                                                                                    abs=0.1)
+    # Without a band: the two images, unmarked.
+    fig = F.fit_figure(image, image, frame=2)
+    panels = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    assert [ax.get_title() for ax in panels] == ["real (frame 2)", "render at the fitted pose"]
+    assert panels[0].get_legend() is None
+    assert not {"near edge", "far edge"} & {line.get_label() for line in panels[0].lines}
 
 
 def test_calibration_figure_shows_three_panels_in_counts():

@@ -673,16 +673,28 @@ def _index_comparison(images: Sequence[Any], titles: Sequence[str], *, normalize
     return fig
 
 
-def fit_figure(real: Any, fitted: Any, *, colormap: str = DEFAULT_COLORMAP, frame: int | None = None) -> Figure:
+def fit_figure(real: Any, fitted: Any, *, colormap: str = DEFAULT_COLORMAP, frame: int | None = None,
+               band: tuple[Any, Any] | None = None) -> Figure:
     """``sonarsim fit``: the real image with the fitted floor band's edges (near: red, far:
-    yellow) | the render at the fitted pose, on the same scale (:func:`comparison_figure`)."""
-    from ..analysis.fitting import floor_band_m
+    yellow) | the render at the fitted pose, on the same scale (:func:`comparison_figure`).
 
-    real_title = "real" + (f" (frame {frame})" if frame is not None else "") + ", fitted floor band"
+    Parameters
+    ----------
+    real, fitted : SonarImage
+    band : (near, far) of (n_beams,) float arrays, metres, optional
+        The fitted render's floor-band edges per beam, NaN where none:
+        ``sonarsim.analysis.fitting.floor_band_m(fitted)``. Passed in: the figures sit below
+        the analysis and do not import it. Without it, the real image is drawn unmarked.
+    """
+    real_title = "real" + (f" (frame {frame})" if frame is not None else "")
+    if band is not None:
+        real_title += ", fitted floor band"
     fig = comparison_figure([real, fitted], [real_title, "render at the fitted pose"], colormap=colormap,
                             title=describe(real).split("\n")[0])
+    if band is None:
+        return fig
     ax = fig.axes[0]
-    onset, end = floor_band_m(fitted)
+    onset, end = band
     az = np.radians(np.asarray(fitted.azimuth_deg, dtype=np.float64))
     for ranges, colour, name in ((onset, "red", "near edge"), (end, "gold", "far edge")):
         ranges = np.asarray(ranges, dtype=np.float64)
