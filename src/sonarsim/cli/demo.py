@@ -11,7 +11,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .render import (RENDER_FIGURES, RENDER_IMAGES, _log, add_image_options, add_render_options, check_pixel_size,
+from ..core.console import log as _log
+from .render import (RENDER_FIGURES, RENDER_IMAGES, add_image_options, add_render_options, check_pixel_size,
                      options_named, render_and_write)
 
 __all__ = ["add_demo_parser", "cmd_demo", "demo_scene_dict", "tank_scene_dict"]

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .argtypes import frame_index, integer_at_least
-from .main import _log
+from ..core.console import log as _log
 from ..errors import SonarsimError
 
 if TYPE_CHECKING:

@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import logging
 import os
 import signal
 import sys
-import warnings
-from typing import Iterator, Sequence, TextIO
+from typing import Iterator, Sequence
 
+# The message and warning forms are core.console's (the dataset's workers use them too);
+# re-exported here, where they were defined before.
+from ..core.console import WarningLogHandler, install_warning_format, show_warning  # noqa: F401
+from ..core.console import log as _log
 from ..errors import SonarsimError, interrupt_of
 
 EXIT_BAD_INPUT = 2
@@ -54,77 +56,6 @@ def _stop_signals_raise() -> Iterator[None]:
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
-
-
-def _log(msg: str) -> None:
-    print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
-
-
-def _one_line(text: str) -> str:
-    """``text`` with every run of whitespace (newlines too) as one space: a message is one line."""
-    return " ".join(str(text).split())
-
-
-def show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int,
-                 file: TextIO | None = None, line: str | None = None) -> None:
-    """:func:`warnings.showwarning` for the command line: ``sonarsim: warning: MESSAGE``.
-
-    Python's own format names the source file and line that warned and repeats that line of
-    code, which says nothing to someone running a command. The category is added only when it
-    is not the plain :class:`UserWarning` sonarsim raises (e.g. a NumPy ``RuntimeWarning``),
-    where it tells what kind of problem it is.
-
-    Parameters
-    ----------
-    message, category, filename, lineno, file, line
-        As :func:`warnings.showwarning` receives them; ``file`` defaults to ``sys.stderr``
-        at the time of the warning.
-    """
-    stream = file if file is not None else sys.stderr
-    if stream is None:  # pythonw, or stderr closed by the caller: nowhere to say it
-        return
-    kind = "" if category is UserWarning else f" ({category.__name__})"
-    try:
-        stream.write(f"sonarsim: warning: {_one_line(message)}{kind}\n")
-        stream.flush()
-    except (OSError, ValueError):  # a closed or broken stderr must not end the command
-        pass
-
-
-class WarningLogHandler(logging.Handler):
-    """Log records of sonarsim's loggers as ``sonarsim: warning: MESSAGE`` (or ``error``) lines
-    on ``sys.stderr``, the same form as :func:`show_warning` gives Python warnings.
-
-    ``sys.stderr`` is looked up at each record (not kept), so a redirected stderr is honoured.
-    """
-
-    def emit(self, record: logging.LogRecord) -> None:
-        try:
-            level = "warning" if record.levelno < logging.ERROR else "error"
-            stream = sys.stderr
-            if stream is not None:
-                stream.write(f"sonarsim: {level}: {_one_line(record.getMessage())}\n")
-                stream.flush()
-        except Exception:  # noqa: BLE001 - logging's own rule: a handler never raises
-            self.handleError(record)
-
-
-def install_warning_format() -> None:
-    """Show Python warnings and sonarsim's log warnings as one ``sonarsim: warning: ...`` line.
-
-    Done by the ``sonarsim`` executable (:func:`console_main`) only, not by :func:`main`:
-    a program or test calling :func:`main` keeps its own warning machinery (pytest records
-    warnings by the very hook this replaces).
-    """
-    warnings.showwarning = show_warning
-    logger = logging.getLogger("sonarsim")
-    if not any(isinstance(h, WarningLogHandler) for h in logger.handlers):
-        handler = WarningLogHandler(logging.WARNING)
-        logger.addHandler(handler)
-    # Without a level of its own the logger would follow the root's (WARNING unless changed);
-    # set it so that warnings are shown whatever the root logger says.
-    if logger.level == logging.NOTSET:
-        logger.setLevel(logging.WARNING)
 
 
 def _memory_size(text: str) -> int:

@@ -7,19 +7,15 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
+from ..core.console import log as _log
 from .argtypes import display_gain_db, display_range_db, frame_index, positive_float
 
 __all__ = ["RENDER_FIGURES", "RENDER_FILES", "add_image_options", "add_render_options", "add_render_parser", "cmd_render",
            "options_named", "render_and_write"]
-
-
-def _log(msg: str) -> None:
-    print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
 
 
 def _bounces(text: str) -> list[int]:

@@ -23,18 +23,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 from pathlib import Path
 
+from ..core.console import log as _log
 from .argtypes import display_gain_db, display_range_db, positive_float
 
 __all__ = ["add_show_parser", "cmd_show"]
-
-
-def _log(msg: str) -> None:
-    # Same form as sonarsim.cli.main's messages; progress goes to stderr, results to files.
-    print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
 
 
 def add_show_parser(subparsers) -> argparse.ArgumentParser:

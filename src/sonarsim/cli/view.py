@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
-import sys
 import threading
 import time
 from pathlib import Path
+
+from ..core.console import log as _log
 
 __all__ = ["add_view_parser", "cmd_view", "serve", "target_kind"]
 
@@ -31,10 +32,6 @@ __all__ = ["add_view_parser", "cmd_view", "serve", "target_kind"]
 SCENE_SUFFIXES = (".yaml", ".yml", ".json")
 #: Suffixes of recordings: a file so named that is no recording is reported as such.
 RECORDING_SUFFIXES = (".aris", ".raw", ".ddf")
-
-
-def _log(msg: str) -> None:
-    print(f"sonarsim: {msg}", file=sys.stderr, flush=True)
 
 
 def _port(text: str) -> int:

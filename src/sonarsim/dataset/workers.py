@@ -25,6 +25,7 @@ import warnings
 from collections.abc import Iterator, Sequence
 from typing import Any
 
+from ..core.console import install_warning_format, show_warning
 from .frames import SimulatorCache, render_frame
 from .scenario import Scenario
 
@@ -90,8 +91,8 @@ def _exit_with_parent(parent: int) -> None:
 
 def _cli_warnings() -> bool:
     """Whether this process shows warnings in the command line's one-line form
-    (:func:`sonarsim.cli.main.install_warning_format`), which its workers should then share."""
-    return getattr(warnings.showwarning, "__module__", None) == "sonarsim.cli.main"
+    (:func:`sonarsim.core.console.install_warning_format`), which its workers should then share."""
+    return warnings.showwarning is show_warning
 
 
 def _init_worker(scenario: Scenario, options: Any, width: int, threads: int | None, parent: int,
@@ -99,8 +100,6 @@ def _init_worker(scenario: Scenario, options: Any, width: int, threads: int | No
     if cli_warnings:
         # A worker starts from the fork server, not from the command: without this its
         # warnings (a plane facing away, say) would print in Python's raw form.
-        from ..cli.main import install_warning_format
-
         install_warning_format()
     _STATE.update(scenario=scenario, options=options, width=width, cache=SimulatorCache(threads=threads), out=out)
     threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
