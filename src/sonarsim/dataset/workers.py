@@ -26,6 +26,7 @@ from collections.abc import Iterator, Sequence
 from typing import Any
 
 from ..core.console import install_warning_format, show_warning
+from .encoding import _write_files, encode_frame
 from .frames import SimulatorCache, render_frame
 from .scenario import Scenario
 
@@ -107,7 +108,7 @@ def _init_worker(scenario: Scenario, options: Any, width: int, threads: int | No
 
 def render_batch(indices: Sequence[int], scenario: Scenario | None = None, options: Any = None,
                  width: int | None = None, cache: SimulatorCache | None = None) -> list[Any]:
-    """Render and encode frames ``indices``: a list of :class:`~sonarsim.dataset.writer.EncodedFrame`.
+    """Render and encode frames ``indices``: a list of :class:`~sonarsim.dataset.encoding.EncodedFrame`.
 
     In a worker process the arguments after ``indices`` come from its start-up state. A local
     worker that was given the dataset folder writes each frame's files itself (atomically, as
@@ -116,8 +117,6 @@ def render_batch(indices: Sequence[int], scenario: Scenario | None = None, optio
     frame (which held two workers to 1.3-1.7x one once frames took 3 ms).
     """
     from dataclasses import replace
-
-    from .writer import _write_files, encode_frame
 
     scenario = scenario if scenario is not None else _STATE["scenario"]
     options = options if options is not None else _STATE["options"]

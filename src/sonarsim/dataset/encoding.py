@@ -1,0 +1,235 @@
+"""One frame of a dataset encoded: its files' bytes and its manifest record.
+
+What a worker does with a rendered frame (:mod:`sonarsim.dataset.workers`) and what
+:func:`~sonarsim.dataset.writer.generate` checks and writes: the options that shape a frame's
+files (:class:`DatasetOptions`), their names (:func:`frame_files`), their bytes
+(:func:`encode_frame`, :func:`npz_bytes`) and their atomic writing. Apart from the writer so
+that the workers need not import it (the writer starts the workers). Everything here is also
+importable from :mod:`sonarsim.dataset.writer`, where it was defined before.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError, SonarsimError, shown
+from .frames import frame_arrays, label_mode, labels_supported
+from .manifest import frame_header
+from .scenario import FrameSpec
+
+__all__ = ["COCO_IMAGES", "FORMATS", "FRAMES_DIR", "DatasetOptions", "EncodedFrame", "encode_frame", "frame_files",
+           "npz_bytes"]
+
+#: File formats per frame: ``npz`` (always) and ``png`` (polar and fan images, 8-bit dB).
+FORMATS = ("npz", "png")
+#: The images ``coco.json`` names and boxes: each frame's fan PNG (boxes in fan pixels, the
+#: default) or its polar PNG (boxes in polar pixels). A dataset with ground truth always
+#: writes that PNG, so that every ``file_name`` in ``coco.json`` is a file of the dataset.
+COCO_IMAGES = ("fan", "polar")
+#: Name of the frames' folder inside a dataset folder.
+FRAMES_DIR = "frames"
+# Display mapping of the PNGs and of the bag's 8-bit fan (the `render` command's defaults).
+_DYNAMIC_RANGE_DB = 40.0
+# Entries stored without compression: float coordinates and axes, which deflate shrinks by
+# 1.3x at most (points_world: 0.6 ms of a frame's encoding for nothing); every image and label
+# map compresses 6-150x and is deflated.
+_STORED_ENTRIES = frozenset({"points_world", "range_m", "azimuth_deg"})
+
+
+@dataclass(frozen=True)
+class DatasetOptions:
+    """What shapes a dataset's files (part of its fingerprint). Validated on construction.
+
+    Attributes
+    ----------
+    labels : {"all", "total", "none"}
+        Ground truth from the renderer (stored in the NPZs, boxes in the manifest and
+        ``coco.json``): an instance map per component, of the total only, or none
+        (:func:`~sonarsim.dataset.frames.label_mode`; ``True``/``False`` are taken for
+        ``"all"``/``"none"``). A renderer without labels: ``"none"``.
+    formats : tuple of str
+        Subset of :data:`FORMATS`; ``npz`` is always written.
+    rosbag : {None, "mcap", "sqlite3"}
+        Write ``DIR/rosbag`` with this storage.
+    signatures : bool
+        Also store one image per path signature in the NPZs
+        (:func:`~sonarsim.dataset.frames.frame_arrays`); the component table's images are
+        always stored.
+    coco : {"fan", "polar"}
+        The image of each frame that ``coco.json`` names, and whose pixels its boxes are in
+        (:data:`COCO_IMAGES`); with ground truth that PNG is written even without ``png`` in
+        ``formats``.
+    """
+
+    labels: bool | str = "all"
+    formats: tuple[str, ...] = ("npz",)
+    rosbag: str | None = None
+    signatures: bool = False
+    coco: str = "fan"
+
+    def __post_init__(self) -> None:
+        from ..io.rosbag import BAG_STORAGES
+
+        formats = (self.formats,) if isinstance(self.formats, str) else tuple(self.formats)
+        bad = [f for f in formats if f not in FORMATS]
+        if bad:
+            raise ConfigError("formats", f"allowed: {', '.join(FORMATS)}; got {shown(bad[0])}")
+        object.__setattr__(self, "formats", tuple(f for f in FORMATS if f in formats or f == "npz"))
+        if self.rosbag is not None and self.rosbag not in BAG_STORAGES:
+            raise ConfigError("rosbag", f"allowed: {', '.join(BAG_STORAGES)} (or none); got {shown(self.rosbag)}")
+        # What this renderer can do: a dataset asked for labels on a renderer without them is
+        # an image-only dataset, and says so in its fingerprint.
+        mode = label_mode(self.labels)
+        object.__setattr__(self, "labels", mode if labels_supported() else "none")
+        if not isinstance(self.signatures, bool):
+            raise ConfigError("signatures", f"must be true or false, got {shown(self.signatures)}")
+        if self.coco not in COCO_IMAGES:
+            raise ConfigError("coco", f"allowed: {', '.join(COCO_IMAGES)}; got {shown(self.coco)}")
+
+    def document(self) -> dict[str, Any]:
+        """The options as JSON (``dataset.json`` and the fingerprint)."""
+        return {"labels": self.labels, "formats": list(self.formats), "rosbag": self.rosbag,
+                "signatures": self.signatures, "coco": self.coco}
+
+    @property
+    def pngs(self) -> tuple[str, ...]:
+        """The PNGs of each frame (``"polar"``, ``"fan"``): both with ``png`` in ``formats``;
+        otherwise, with ground truth, the one ``coco.json`` names."""
+        if "png" in self.formats:
+            return ("polar", "fan")
+        return (self.coco,) if self.labels != "none" else ()
+
+
+def frame_files(k: int, width: int, options: DatasetOptions) -> list[str]:
+    """Files of frame ``k``, relative to the dataset folder, in manifest order."""
+    stem = f"{FRAMES_DIR}/{k:0{width}d}"
+    return [f"{stem}.npz"] + [f"{stem}_{kind}.png" for kind in options.pngs]
+
+
+def npz_bytes(arrays: Mapping[str, np.ndarray], config: Mapping[str, Any]) -> bytes:
+    """The NPZ of ``arrays`` and ``config`` (as :func:`sonarsim.io.output.write_npz` stores
+    them), whose bytes depend on the content alone (:func:`sonarsim.io.npz.encode_npz`: fixed
+    entry dates, ISA-L deflate; float coordinates and axes stored).
+
+    ``numpy.savez_compressed`` stamps each entry with the current time, so two runs would
+    write different files for the same frame; :func:`sonarsim.io.output.read_npz` and
+    ``numpy.load`` read these files alike.
+    """
+    from ..io.npz import encode_npz
+    from ..io.output import npz_payload
+
+    return encode_npz(npz_payload(arrays, config), stored=_STORED_ENTRIES)
+
+
+def _png_bytes(image_uint8: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(image_uint8)).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def _image_png(image: Any, kind: str) -> bytes:
+    """A frame's polar or fan image as an 8-bit dB PNG (as ``sonarsim render`` draws them: the
+    far range at the top; the fan of :meth:`SonarImage.fan`, whose pixels the fan boxes are in)."""
+    from ..io.output import to_uint8
+
+    if kind == "polar":
+        return _png_bytes(to_uint8(image.polar[::-1], "db", 0.0, _DYNAMIC_RANGE_DB))
+    fan = image.fan()
+    return _png_bytes(to_uint8(fan.image, "db", 0.0, _DYNAMIC_RANGE_DB, mask=fan.mask))
+
+
+@dataclass(frozen=True)
+class EncodedFrame:
+    """A frame ready to be written: its files' bytes and its manifest record (unsealed).
+
+    Attributes
+    ----------
+    index : int
+    files : tuple of (str, bytes)
+        Relative path and content of each file, in :func:`frame_files` order.
+    record : dict
+        The manifest line (see :mod:`sonarsim.dataset.manifest`), with sizes and checksums.
+    seconds : dict
+        ``render`` and ``encode`` times of the frame, seconds (not part of the record).
+    """
+
+    index: int
+    files: tuple[tuple[str, bytes], ...]
+    record: dict
+    seconds: dict = field(default_factory=dict)
+
+
+def _boxes(spec: FrameSpec, image: Any) -> tuple[list[dict], list[int] | None]:
+    """The objects' boxes of a frame with labels (polar and fan pixels), and the fan's shape."""
+    from ..image.result import _fan_mapper
+    from .coco import fan_boxes
+
+    labels = getattr(image, "labels", None)
+    if labels is None:
+        return [], None
+    n_objects = len(spec.scene.get("objects") or [])  # ids 0..K-1 are objects, then planes
+    polar = np.asarray(labels.boxes_polar)
+    # The boxes of SonarImage.fan_labels(), without resampling the maps (a test compares them).
+    fan = fan_boxes(labels.instance["total"], image.sonar.grid, len(labels.ids))
+    out = [{"id": k, "name": str(labels.ids[k]), "polar": [int(v) for v in polar[k]],
+            "fan": [int(v) for v in fan[k]]}
+           for k in range(min(n_objects, len(polar))) if polar[k][0] >= 0]
+    return out, [int(v) for v in _fan_mapper(image.sonar.grid, None, "nearest").shape]
+
+
+def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: int) -> EncodedFrame:
+    """Encode a rendered frame's files and manifest record (done in the worker that rendered it).
+
+    Parameters
+    ----------
+    spec : FrameSpec
+        The frame rendered.
+    image : SonarImage
+        Its render (:func:`~sonarsim.dataset.frames.render_frame`).
+    options : DatasetOptions
+    width : int
+        Digits of the frame number in file names.
+    """
+    t0 = time.perf_counter()
+    arrays = frame_arrays(image, options.signatures)
+    config = dict(image.config)
+    # A worker renders with its share of the cores: the scene's own setting goes in the file,
+    # so that a frame's bytes do not depend on the number of workers.
+    render = dict(config.get("render") or {})
+    render["threads"] = (spec.scene.get("render") or {}).get("threads")
+    config["render"] = render
+    config["dataset"] = {"frame": spec.index, "seed": spec.seed, "time_s": spec.time_s}
+    names = frame_files(spec.index, width, options)
+    contents = [npz_bytes(arrays, config)] + [_image_png(image, kind) for kind in options.pngs]
+    record: dict[str, Any] = {
+        **frame_header(spec, names),
+        "bytes": {n: len(c) for n, c in zip(names, contents)},
+        "sha256": {n: hashlib.sha256(c).hexdigest() for n, c in zip(names, contents)},
+    }
+    if options.labels != "none":
+        record["boxes"], record["fan_shape"] = _boxes(spec, image)
+        record["polar_shape"] = [int(v) for v in np.shape(image.polar)]
+    return EncodedFrame(spec.index, tuple(zip(names, contents)), record,
+                        {"encode": time.perf_counter() - t0, **getattr(image, "timing", {})})
+
+
+def _write_files(out: Path, encoded: EncodedFrame) -> None:
+    from ..io.output import atomic_write
+
+    for name, content in encoded.files:
+        try:
+            with atomic_write(out / name, "wb") as handle:
+                handle.write(content)
+        except OSError as exc:
+            raise SonarsimError(f"{out / name}: cannot write: {exc.strerror or exc} (no partial file is left; "
+                                "frames written so far are kept: run the same command again to resume)") from None
