@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from .metrics import _as_image
+from .metrics import scores as image_scores
 from .realism import _region
 
 __all__ = ["CEILING_WINDOW", "baseline_images", "held_out_scores", "local_mean_image", "range_profile_image",
@@ -120,8 +121,6 @@ def held_out_scores(images: Mapping[str, Any], held_out: Sequence[Any], mask: An
         Means over the held-out frames; ``margin_db`` is the PSNR above the best of the
         ``range profile`` and ``separable`` baselines (present when they are scored).
     """
-    from .comparison import _metrics
-
     if not held_out:
         raise ValueError("no held-out frames to score on")
     frames = [_as_image(f, f"held_out[{k}]") for k, f in enumerate(held_out)]
@@ -129,7 +128,7 @@ def held_out_scores(images: Mapping[str, Any], held_out: Sequence[Any], mask: An
     out: dict[str, dict[str, float]] = {}
     for name, image in images.items():
         x = _as_image(image, name)
-        scores = [_metrics(x, f, m, None, data_range) for f in frames]
+        scores = [image_scores(x, f, m, None, data_range) for f in frames]
         out[name] = {"psnr": float(np.mean([s["psnr"] for s in scores])),
                      "ssim": float(np.mean([s["ssim"] for s in scores]))}
     trivial = [out[k]["psnr"] for k in ("range profile", "separable") if k in out]

@@ -26,6 +26,7 @@ from scipy import ndimage
 from ..errors import SonarsimError, shown
 from ..image.grid import PolarGrid, sector_area_m2
 from .metrics import NORMALIZATIONS, mse, normalize_255, psnr, ssim_map, ssim_support
+from .metrics import scores as _metrics
 
 __all__ = [
     "DOMAINS", "MAX_FAN_PIXELS", "MIN_OVERLAP", "PlainImage", "compare_images", "load_image", "load_region",
@@ -256,24 +257,6 @@ def _onto_grid(values: np.ndarray, src, dst) -> np.ndarray:
     j0, j1 = max(0, -dc), min(w, src.shape[1] - dc)
     if i1 > i0 and j1 > j0:
         out[i0:i1, j0:j1] = values[i0 + dr:i1 + dr, j0 + dc:j1 + dc]
-    return out
-
-
-def _metrics(x: np.ndarray, y: np.ndarray, mask: np.ndarray, normalize: str | None,
-             data_range: float) -> dict[str, Any]:
-    if normalize is not None:
-        x = normalize_255(x, mask, normalize)
-        y = normalize_255(y, mask, normalize)
-    support = ssim_support(x.shape, mask)
-    out: dict[str, Any] = {
-        "mse": mse(x, y, mask),
-        "psnr": psnr(x, y, mask, data_range),
-        # NaN rather than an error: MSE and PSNR are still meaningful for a region too small
-        # for an SSIM window (e.g. a tiny PNG), and the caller reports "n/a".
-        "ssim": float(np.mean(ssim_map(x, y, data_range)[support])) if support.any() else math.nan,
-        "n_pixels": int(mask.sum()),
-        "n_ssim_pixels": int(support.sum()),
-    }
     return out
 
 

@@ -48,6 +48,7 @@ from scipy import ndimage
 
 
 __all__ = [
+    "scores",
     "NORMALIZATIONS",
     "SSIM_K1",
     "SSIM_K2",
@@ -328,3 +329,25 @@ def ssim(a: Any, b: Any, mask: Any = None, data_range: float = 255.0) -> float:
             + " have none"
         )
     return float(np.mean(ssim_map(x, y, data_range)[valid]))
+
+
+def scores(x: np.ndarray, y: np.ndarray, mask: np.ndarray, normalize: str | None,
+           data_range: float) -> dict[str, Any]:
+    """MSE, PSNR and SSIM of two images on one grid over ``mask`` (after ``normalize_255``
+    of each where ``normalize`` is given), with the pixel counts they were taken over: what
+    :func:`sonarsim.analysis.comparison.compare_images` and the held-out scores of
+    :mod:`sonarsim.analysis.baselines` report."""
+    if normalize is not None:
+        x = normalize_255(x, mask, normalize)
+        y = normalize_255(y, mask, normalize)
+    support = ssim_support(x.shape, mask)
+    out: dict[str, Any] = {
+        "mse": mse(x, y, mask),
+        "psnr": psnr(x, y, mask, data_range),
+        # NaN rather than an error: MSE and PSNR are still meaningful for a region too small
+        # for an SSIM window (e.g. a tiny PNG), and the caller reports "n/a".
+        "ssim": float(np.mean(ssim_map(x, y, data_range)[support])) if support.any() else math.nan,
+        "n_pixels": int(mask.sum()),
+        "n_ssim_pixels": int(support.sum()),
+    }
+    return out

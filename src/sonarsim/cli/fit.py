@@ -296,6 +296,6 @@ def cmd_fit(args) -> None:
         write_png(image_path, side_by_side(real, result.image))
         # Planned above under --image; write_figure reports it on stderr.
         write_figure(args, figure_stem, lambda: fit_figure(real, result.image, colormap=args.colormap,
-                                                           frame=args.frame))
+                                                           frame=args.frame, band=(onset_s, end_s)))
     if not quiet:
         print(f"sonarsim: wrote {out} and {image_path}", file=sys.stderr)

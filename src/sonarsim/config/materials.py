@@ -41,11 +41,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.radiometry import LAMBERT, LAMBERTIAN, ROUGH
 from ..errors import ConfigError, shown
 
 LAWS = ("lambertian", "lambert", "rough")
-# Law codes of the compiled kernels (index into LAWS).
-LAMBERTIAN, LAMBERT, ROUGH = 0, 1, 2
+# Law codes of the compiled kernels (index into LAWS): LAMBERTIAN, LAMBERT, ROUGH, defined once in
+# core.radiometry (imported above).
 # Parameters each law uses (beyond ``law`` and ``texture``).
 LAW_KEYS = {"lambertian": ("albedo",), "lambert": ("mu",), "rough": ("albedo", "specular_strength", "roughness")}
 REQUIRED_KEYS = {"lambertian": (), "lambert": ("mu",), "rough": ("specular_strength", "roughness")}
