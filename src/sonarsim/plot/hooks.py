@@ -14,6 +14,8 @@ The NPZ writer belongs to :mod:`sonarsim.io`, which registers it too when
 
 from __future__ import annotations
 
+import importlib
+from collections.abc import Callable
 from typing import Any
 
 from ..image.display import register
@@ -21,64 +23,36 @@ from ..image.display import register
 __all__: list[str] = []
 
 
-def _image_repr_png(image: Any) -> bytes:
-    from .notebook import image_repr_png
+def _deferred(module: str, name: str) -> Callable[..., Any]:
+    """A hook that imports ``module`` (relative to this package: ``.notebook`` loads
+    matplotlib) on its first call and calls its ``name``."""
 
-    return image_repr_png(image)
+    def hook(*args: Any, **options: Any) -> Any:
+        return getattr(importlib.import_module(module, __package__), name)(*args, **options)
 
-
-def _image_plot(image: Any, *args: Any, **options: Any) -> Any:
-    from .notebook import image_plot
-
-    return image_plot(image, *args, **options)
-
-
-def _image_save(image: Any, *args: Any, **options: Any) -> None:
-    from .notebook import image_save
-
-    image_save(image, *args, **options)
+    hook.__name__ = hook.__qualname__ = name
+    return hook
 
 
-def _image_to_pil(image: Any, *args: Any, **options: Any) -> Any:
-    from .notebook import image_to_pil
-
-    return image_to_pil(image, *args, **options)
-
-
-def _fan_repr_png(fan: Any) -> bytes:
-    from .notebook import fan_image_repr_png
-
-    return fan_image_repr_png(fan)
-
-
-def _fan_plot(fan: Any, *args: Any, **options: Any) -> Any:
-    from .notebook import fan_image_plot
-
-    return fan_image_plot(fan, *args, **options)
-
-
-def _fan_save(fan: Any, *args: Any, **options: Any) -> None:
-    from .notebook import fan_image_save
-
-    fan_image_save(fan, *args, **options)
-
-
-def _write_npz(*args: Any, **kwargs: Any) -> None:
-    from ..io.output import write_npz
-
-    write_npz(*args, **kwargs)
+#: Hook name (``sonarsim.image.display``) -> (module, function) that does the work.
+HOOKS = {
+    "image_repr_png": (".notebook", "image_repr_png"),
+    "image_plot": (".notebook", "image_plot"),
+    "image_save": (".notebook", "image_save"),
+    "image_to_pil": (".notebook", "image_to_pil"),
+    "fan_repr_png": (".notebook", "fan_image_repr_png"),
+    "fan_plot": (".notebook", "fan_image_plot"),
+    "fan_save": (".notebook", "fan_image_save"),
+    # Belongs to io (which registers it too when io.output is imported); here as well so that
+    # ``import sonarsim`` gives ``save_npz`` without loading the writers.
+    "write_npz": ("..io.output", "write_npz"),
+}
 
 
 def register_all() -> None:
     """Install every hook (done on import; again after a test replaced one)."""
-    register("image_repr_png", _image_repr_png)
-    register("image_plot", _image_plot)
-    register("image_save", _image_save)
-    register("image_to_pil", _image_to_pil)
-    register("fan_repr_png", _fan_repr_png)
-    register("fan_plot", _fan_plot)
-    register("fan_save", _fan_save)
-    register("write_npz", _write_npz)
+    for hook, (module, name) in HOOKS.items():
+        register(hook, _deferred(module, name))
 
 
 register_all()
