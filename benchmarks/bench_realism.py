@@ -39,9 +39,16 @@ Fit on frame 0, scored on frames 1..N-1; nothing is tuned to the held-out frames
 result's PSNR (on frame 0 and held out) and how many end within 0.5 dB of the best. Each
 calibration takes minutes: the grid takes an hour or more.
 
+``--bound`` also measures, on the Oculus ping, the best image *any* flat-floor model could make
+(:mod:`sonarsim.analysis.flatfloor`: every factor of ``A(beam) G(range) P(elevation) + C(range)``
+free, fitted on frame 0 over a grid of poses, scored on frames 1-2), with the elevation
+pattern resolved to 1, 2, 4 and 8 degrees, free or held to one lobe about the sonar's axis, and the
+range law free per row or smooth (knots every 5 cm). It says how fine a structure the PSNR target
+needs (about 6 minutes).
+
 Usage::
 
-    python benchmarks/bench_realism.py [--only oculus|aris] [--grid [full]]
+    python benchmarks/bench_realism.py [--only oculus|aris|none] [--grid [full]] [--bound]
         [--json benchmarks/realism.json] [--data OCULUS.raw] [--aris-data SAMPLE.aris]
 
 Progress goes to stderr. Skips with a message (exit status 0, nothing written) when a
@@ -227,7 +234,7 @@ def compact_bands(bands: list[dict]) -> list[dict]:
     out = []
     for b in bands:
         row = {"range_m": b["range_m"], "pixels": b["pixels"], "ok": b["ok"], "ks": b["ks"],
-               "contrast_real_model": [b["contrast_real"], b["contrast_model"]], "contrast_rel_diff": b["contrast_rel_diff"]}
+               "ks_null": b.get("ks_null"), "contrast_real_model": [b["contrast_real"], b["contrast_model"]], "contrast_rel_diff": b["contrast_rel_diff"]}
         if b.get("reason"):
             row["reason"] = b["reason"]
         out.append(row)
@@ -350,7 +357,8 @@ def score_recording(key: str, title: str, data: Path, scene_dict: dict, max_iter
         "score_warning": rep["warning"], "model_psnr_per_held_out_frame": per_frame,
         "paper_model": {"note": "uncalibrated: no sensor, noise-free render at the calibrated pose, max -> 255",
                         **paper_scores},
-        "bands_note": f"speckled render seed {SPECKLE_SEEDS[0]} against the held-out frames pooled; "
+        "bands_note": f"speckled render seed {SPECKLE_SEEDS[0]} against the held-out frames pooled (ks_null: seed "
+                      f"{SPECKLE_SEEDS[0]} against seeds {', '.join(map(str, SPECKLE_SEEDS[1:]))}, the larger); "
                       "regions from frame 0 (auto_regions)",
         "bands": {k: compact_bands(v) for k, v in rep["bands"].items()}, "band_summary": rep["band_summary"],
         "beam_profile": {"rms_db": rep["beam_profile"]["rms_db"], "beams": rep["beam_profile"]["beams"],
@@ -423,9 +431,10 @@ def print_recording(r: dict) -> None:
           + f" dB; best baseline: {r['best_baseline']}; the ceiling's margin {r['ceiling_margin_db']:+.2f} dB")
     if r["score_warning"]:
         print(f"  warning: {r['score_warning']}")
-    print("range bands (speckled render vs held-out frames): KS, contrast real/model, relative difference")
-    print(f"  {'':2s} {'lit: range m':>14s} {'KS':>6s} {'contrast r/m':>13s} {'rel':>6s}   "
-          f"{'water: range m':>14s} {'KS':>6s} {'contrast r/m':>13s} {'rel':>6s}")
+    print("range bands (speckled render vs held-out frames): KS (and the KS of two draws of the model: what a "
+          "perfect model scores), contrast real/model, relative difference")
+    print(f"  {'':2s} {'lit: range m':>14s} {'KS':>6s} {'null':>5s} {'contrast r/m':>13s} {'rel':>6s}   "
+          f"{'water: range m':>14s} {'KS':>6s} {'null':>5s} {'contrast r/m':>13s} {'rel':>6s}")
 
     def cell(b):
         rng = f"{b['range_m'][0]:.2f}-{b['range_m'][1]:.2f}" if b["range_m"] else "-"
@@ -433,15 +442,17 @@ def print_recording(r: dict) -> None:
             return f"{rng:>14s} {'not ok: ' + str(b['pixels']) + ' px':>27s}"
         f = lambda x, fmt: format(x, fmt) if x is not None and math.isfinite(x) else "nan"
         cr, cm = b["contrast_real_model"]
-        return (f"{rng:>14s} {f(b['ks'], '6.3f'):>6s} {f(cr, '.3f'):>6s}/{f(cm, '.3f'):<6s} "
+        return (f"{rng:>14s} {f(b['ks'], '6.3f'):>6s} {f(b.get('ks_null'), '5.3f'):>5s} "
+                f"{f(cr, '.3f'):>6s}/{f(cm, '.3f'):<6s} "
                 f"{f(b['contrast_rel_diff'], '+.0%'):>6s}")
 
     for k, (a, w) in enumerate(zip(r["bands"]["lit"], r["bands"]["water"])):
         print(f"  {k:2d} {cell(a)}   {cell(w)}")
     for region in ("lit", "water"):
         s = r["band_summary"][region]
-        print(f"  {region}: max KS {s['max_ks']:.3f}, max |contrast rel diff| {s['max_abs_contrast_rel_diff']:.0%} "
-              f"over {s['bands_ok']}/{s['bands']} bands with enough pixels")
+        print(f"  {region}: max KS {s['max_ks']:.3f} (two draws of the model: up to {s.get('max_ks_null', float('nan')):.3f}; "
+              f"{s.get('bands_ks_above_null')} bands above it), max |contrast rel diff| "
+              f"{s['max_abs_contrast_rel_diff']:.0%} over {s['bands_ok']}/{s['bands']} bands with enough pixels")
     bp = r["beam_profile"]
     print(f"beam profile (lit region, mean per beam in dB): RMS model - real {bp['rms_db']:.2f} dB over {bp['beams']} beams")
     t = r["c2st"]
@@ -522,6 +533,53 @@ def run_grid(data: Path, full: bool, max_iterations, version: str) -> dict:
     return out
 
 
+BOUND_HEIGHTS_M = (0.15, 0.25, 0.35, 0.42, 0.5, 0.6, 0.75)
+BOUND_PITCHES_DEG = (8.0, 15.0, 22.0, 29.0, 36.0, 45.0, 55.0, 65.0)
+BOUND_KNOTS_DEG = (1.0, 2.0, 4.0, 8.0)
+BOUND_RANGE_KNOTS_M = (None, 0.05)
+
+
+def run_bound(data: Path, version: str) -> dict:
+    """The flat-floor bound on the Oculus ping (module docstring, ``--bound``)."""
+    import sonarsim
+    from sonarsim.analysis.flatfloor import flat_floor_bound
+
+    t0 = time.perf_counter()
+    frames_img = list(sonarsim.read_frames(data))
+    frames = [np.asarray(f.polar, dtype=np.float64) for f in frames_img]
+    rows, baselines = [], None
+    for lobe in (False, True):
+        for rk in BOUND_RANGE_KNOTS_M:
+            say(f"flat-floor bound: range law {'free per row' if rk is None else f'knots every {rk} m'}, "
+                f"pattern {'one lobe' if lobe else 'free'}")
+            b = flat_floor_bound(frames[0], frames[1:], frames_img[0].range_m, frames_img[0].azimuth_deg,
+                                 BOUND_HEIGHTS_M, BOUND_PITCHES_DEG, BOUND_KNOTS_DEG, data_range=255.0,
+                                 range_knot_m=rk, lobe=lobe)
+            baselines = b["baselines"]
+            rows += [{k: rnd(v) for k, v in row.items()} for row in b["knots"]]
+    return {"data": str(data.relative_to(REAL)) if data.is_relative_to(REAL) else str(data), "code": version,
+            "date": time.strftime("%Y-%m-%d %H:%M"), "seconds": time.perf_counter() - t0,
+            "statement": "fitted on frame 0 (the pose chosen on frame 0 too), scored on frames 1-2",
+            "model": "A(beam) G(range) P(elevation) + C(range), every factor free (G, C per row or piecewise "
+                     "linear), P piecewise constant over knots, free or held to one lobe about the axis",
+            "heights_m": list(BOUND_HEIGHTS_M), "pitches_deg": list(BOUND_PITCHES_DEG),
+            "baselines": {k: {m: rnd(x) for m, x in v.items()} for k, v in baselines.items()}, "rows": rows}
+
+
+def print_bound(b: dict) -> None:
+    print(f"\n=== flat-floor bound on the Oculus ping (code {b['code']}, {b['date']}; {b['statement']})")
+    base = b["baselines"]
+    print(f"  range profile {base['range profile']['psnr']:.2f} dB, separable {base['separable']['psnr']:.2f}, "
+          f"ceiling {base['ceiling']['psnr']:.2f} (held out)")
+    print(f"  {'pattern':>8s} {'elevation knots':>15s} {'range law':>14s} {'pose z, pitch':>14s} {'frame 0':>8s} "
+          f"{'held out':>8s} {'above range profile':>20s}")
+    for r in b["rows"]:
+        law = "free per row" if r["range_knot_m"] is None else f"{r['range_knot_m']:g} m knots"
+        print(f"  {'one lobe' if r.get('lobe') else 'free':>8s} {r['knot_deg']:>11g} deg {law:>14s} "
+              f"{r['height_m']:>7.2f} {r['pitch_deg']:>5.0f} "
+              f"{r['psnr_reference']:>8.2f} {r['psnr']:>8.2f} {r['above_range_profile_db']:>+19.2f}")
+
+
 def print_grid(g: dict) -> None:
     print(f"\n=== start grid on the Oculus ping 0 ({g['starts']} starts{', with the preset sensor' if g['full'] else ''}; "
           f"{g['seconds'] / 60:.0f} min; code {g['code']}, {g['date']})")
@@ -569,18 +627,25 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", default=str(ROOT / "benchmarks" / "realism.json"))
-    ap.add_argument("--only", choices=("oculus", "aris"), help="run one recording (the other's entry in the JSON is kept)")
+    ap.add_argument("--only", choices=("oculus", "aris", "none"),
+                    help="run one recording, or none (with --bound); entries not rerun are kept in the JSON")
     ap.add_argument("--grid", nargs="?", const="half", choices=("half", "full"),
                     help="also run the start grid on the Oculus ping: 18 starts, or 36 with 'full' (an hour or more)")
+    ap.add_argument("--bound", action="store_true",
+                    help="also measure the flat-floor bound on the Oculus ping (about 6 minutes)")
     ap.add_argument("--max-iterations", type=int, help="calibrate's max_iterations (default: calibrate's own)")
     ap.add_argument("--data", default=str(OCULUS_DATA), help="the three-ping Oculus recording (default: %(default)s)")
     ap.add_argument("--aris-data", default=str(ARIS_DATA), help="the ARIS recording (default: %(default)s)")
     args = ap.parse_args(argv)
-    want = [args.only] if args.only else ["oculus", "aris"]
+    want = {None: ["oculus", "aris"], "none": []}.get(args.only, [args.only])
     if args.grid and "oculus" not in want:
-        ap.error("--grid runs on the Oculus recording: not with --only aris")
+        ap.error("--grid runs on the Oculus recording: not with --only aris or none")
+    if args.bound and "oculus" not in want:
+        want_paths = want + ["oculus"]
+    else:
+        want_paths = want
     paths = {"oculus": Path(args.data), "aris": Path(args.aris_data)}
-    missing = [str(paths[k]) for k in want if not paths[k].is_file()]
+    missing = [str(paths[k]) for k in want_paths if not paths[k].is_file()]
     if missing:
         say(f"bench_realism: skipped: {', '.join(missing)} {'is' if len(missing) == 1 else 'are'} not present")
         return 0
@@ -603,6 +668,8 @@ def main(argv=None) -> int:
                 out["recordings"].update({k: v for k, v in old["recordings"].items() if k not in want})
             if old.get("grid") and not args.grid:
                 out["grid"] = old["grid"]
+            if old.get("flat_floor_bound") and not args.bound:
+                out["flat_floor_bound"] = old["flat_floor_bound"]
         except (ValueError, OSError):
             pass
     for key in want:
@@ -622,6 +689,11 @@ def main(argv=None) -> int:
         print_grid(out["grid"])
     elif out.get("grid"):
         print(f"\n(start grid kept from an earlier run: code {out['grid'].get('code')}, {out['grid'].get('date')})")
+    if args.bound:
+        out["flat_floor_bound"] = run_bound(paths["oculus"], version)
+        print_bound(out["flat_floor_bound"])
+    elif out.get("flat_floor_bound"):
+        print(f"\n(flat-floor bound kept from an earlier run: code {out['flat_floor_bound'].get('code')})")
     out["last_run"]["seconds"] = time.perf_counter() - t0
     write_json(json_path, out)
     print(f"\n{STATEMENT}. Total {out['last_run']['seconds'] / 60:.1f} min.")
