@@ -736,6 +736,8 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
         spec_n, v_n = _fit_common_noise(problem, spec, v, max_iterations, say)
         if spec_n is not spec and problem.cost(spec_n, v_n) < problem.cost(spec, v):
             spec, v = spec_n, v_n
+        elif spec_n is not spec:
+            say("common noise: not kept (no better than without it)")
     e, pose, s2 = problem.expected(spec, v)
     if fit_grain and s2.speckle is not None:
         spec, v, s2 = _fit_speckle(problem, real, spec, v, s2, free, max_iterations, peak)
