@@ -16,8 +16,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-# The text reprs need no figure: they live with the image types (re-exported here).
+# The text reprs need no figure: they live with the image types and the recordings
+# (re-exported here).
 from ..image.display import fan_image_repr, image_repr
+from ..io.readers._common import recording_repr
 from .style import DEFAULT_COLORMAP
 
 if TYPE_CHECKING:
@@ -188,20 +190,3 @@ def fan_image_save(fan: Any, path: str | os.PathLike, **options: Any) -> None:
 def fan_image_repr_png(fan: Any) -> bytes:
     """What a notebook shows for a FanImage: its annotated fan (dB re its maximum)."""
     return png_bytes(fan_image_figure(fan))
-
-
-# ---------------------------------------------------------------------------------- recordings
-
-def recording_repr(recording: Any) -> str:
-    """One or two lines about an open recording: format, file, frames, grid of its first frame."""
-    name = os.path.basename(os.fspath(recording.path))
-    head = f"{type(recording).__name__}({name!r}"
-    try:
-        n = recording.n_frames
-        image = recording.read(0)
-    except Exception as exc:  # a repr must not raise: say what is wrong instead
-        return f"{head}: unreadable: {exc})"
-    s = image.sonar
-    rows, cols = np.shape(image.polar)
-    return (f"{head}: {n} frames of {rows} ranges x {cols} beams,\n  {s.range_min_m:.4g}-{s.range_max_m:.4g} m, "
-            f"{float(s.beam_edges_deg[0]):+.4g} to {float(s.beam_edges_deg[-1]):+.4g} deg)")

@@ -16,7 +16,7 @@ from typing import BinaryIO
 
 from ...errors import SonarsimError
 
-__all__ = ["RecordingError"]
+__all__ = ["RecordingError", "recording_repr"]
 
 
 class RecordingError(SonarsimError, ValueError):
@@ -413,18 +413,14 @@ class Recording:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    # -- pictures (sonarsim.plot; matplotlib is imported only here) ---------------------------
+    # -- pictures (through the frames' own, sonarsim.image.display's hooks) -------------------
 
     def __repr__(self) -> str:
-        from ...plot.notebook import recording_repr
-
         return recording_repr(self)
 
     def _repr_png_(self) -> bytes:
         """What a notebook shows: the annotated fan of frame 0, in the device's counts."""
-        from ...plot.notebook import image_repr_png
-
-        return image_repr_png(self.read(0))
+        return self.read(0)._repr_png_()
 
     def plot(self, frame: int = 0, ax=None, **options):
         """Draw frame ``frame``'s annotated figure on ``ax`` (default: a new pyplot figure);
@@ -444,3 +440,24 @@ class Recording:
         """Frame ``frame`` as an exact-pixel PIL image (fan, or ``kind="polar"``), in the device's
         counts as ``sonarsim show`` writes them."""
         return self.read(frame).to_pil(**options)
+
+
+def recording_repr(recording: Recording) -> str:
+    """One or two lines about an open recording: format, file, frames, grid of its first frame.
+
+    Plain text, nothing drawn: it lives with the recordings (re-exported by
+    :mod:`sonarsim.plot.notebook`, its former home).
+    """
+    import numpy as np
+
+    name = os.path.basename(os.fspath(recording.path))
+    head = f"{type(recording).__name__}({name!r}"
+    try:
+        n = recording.n_frames
+        image = recording.read(0)
+    except Exception as exc:  # a repr must not raise: say what is wrong instead
+        return f"{head}: unreadable: {exc})"
+    s = image.sonar
+    rows, cols = np.shape(image.polar)
+    return (f"{head}: {n} frames of {rows} ranges x {cols} beams,\n  {s.range_min_m:.4g}-{s.range_max_m:.4g} m, "
+            f"{float(s.beam_edges_deg[0]):+.4g} to {float(s.beam_edges_deg[-1]):+.4g} deg)")
