@@ -12,16 +12,21 @@ only neighbour beyond its centre.
 (:attr:`sonarsim.config.sonar.SonarConfig.grid`), the scan conversion
 (:mod:`sonarsim.image.fan`) and the comparison of images (:mod:`sonarsim.analysis.comparison`)
 all use it.
+
+The grid is a data type of this layer: :mod:`sonarsim.config.sonar` builds its sonar's grid from
+it, and this package imports nothing of :mod:`sonarsim.config`. What an image needs of the
+sonar that made it is :class:`PolarSonar` (which ``SonarConfig`` satisfies).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-__all__ = ["PolarGrid", "beam_edges_deg", "sector_area_m2"]
+__all__ = ["PolarGrid", "PolarSonar", "beam_edges_deg", "sector_area_m2"]
 
 
 def _check_count(value: object, name: str) -> int:
@@ -241,3 +246,23 @@ class PolarGrid:
             f"{self.n_beams} beams over {self.azimuth_fov_deg:.4g} deg "
             f"({self.left_edge_deg:+.4g} to {self.right_edge_deg:+.4g})"
         )
+
+
+class PolarSonar(Protocol):
+    """What the image types need of the sonar that made an image: its polar grid.
+
+    :class:`sonarsim.config.sonar.SonarConfig` is one (the sonar of every rendered or recorded
+    :class:`~sonarsim.image.result.SonarImage`); this protocol lets :mod:`sonarsim.image` name
+    it without importing :mod:`sonarsim.config`, which sits above it (the sonar builds its grid
+    from this module).
+    """
+
+    @property
+    def grid(self) -> PolarGrid:
+        """The polar grid (range bins x beams) of the sonar's images."""
+        ...
+
+    @property
+    def range_edges_m(self) -> np.ndarray:
+        """(n_range_bins + 1,) range bin edges, metres."""
+        ...

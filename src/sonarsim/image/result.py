@@ -9,18 +9,14 @@ from __future__ import annotations
 import functools
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.transforms import Pose
 from .display import hook, image_repr
 from .fan import FanMapper
-from .grid import PolarGrid
+from .grid import PolarGrid, PolarSonar
 from .labels import FanLabels, Labels
-
-if TYPE_CHECKING:  # the sonar module builds its grid from this package
-    from ..config.sonar import SonarConfig
 
 
 
@@ -71,7 +67,9 @@ class SonarImage:
         :func:`sonarsim.paths.engine.path_name` (e.g. ``O-ground-[objects]-ground-O``). All
         are formed whatever enters the total, so that each is available as a label.
     sonar : SonarConfig
-        The sonar's intrinsics (beams, elevation aperture, range window) that produced the image.
+        The sonar's intrinsics (beams, elevation aperture, range window) that produced the image
+        (typed as :class:`~sonarsim.image.grid.PolarSonar`, what the image needs of it: this
+        package does not import :mod:`sonarsim.config`, which builds its grid from here).
     pose : Pose or None
         The sonar's pose in the world frame (sonar-to-world); ``None`` where it is unknown,
         as for a real recording read by :mod:`sonarsim.io.readers`.
@@ -88,7 +86,7 @@ class SonarImage:
     range_m: np.ndarray
     azimuth_deg: np.ndarray
     components: Mapping[str, np.ndarray]
-    sonar: SonarConfig
+    sonar: PolarSonar
     pose: Pose | None = None
     rays: RayMaps | None = None
     config: dict = field(default_factory=dict)
