@@ -17,10 +17,11 @@ A scenario (YAML or JSON, or the same dict from Python) holds::
 shared state (:class:`FrameSpec`): the scene document with this frame's objects and materials,
 the sonar pose, the timestamp and the frame's seed. Its draws come from
 ``numpy.random.default_rng(seed_k)`` where ``seed_k`` is derived from
-``SeedSequence([seed, k])``; the renderer's own draws (speckle, noise) come from
-``(render.seed, k)`` through ``Simulator.render(frame=k)``, with ``render.seed`` set to the
-scenario's seed. So the same scenario gives the same frames whatever the number of workers
-and whatever order they finish in.
+``SeedSequence([seed, k])`` (:func:`~sonarsim.core.streams.frame_seed`,
+:func:`~sonarsim.core.streams.scenario_rng`); the renderer's own draws (speckle, noise) come
+from ``(render.seed, k)`` through ``Simulator.render(frame=k)``, with ``render.seed`` set to the
+scenario's seed (:func:`~sonarsim.core.streams.frame_rng`). So the same scenario gives the
+same frames whatever the number of workers and whatever order they finish in.
 """
 
 from __future__ import annotations
@@ -38,6 +39,8 @@ import numpy as np
 
 from ..config.loader import _check_keys, _integer, _string, read_document, scene_from_dict
 from ..config.scene import Scene
+# frame_seed: defined with every other stream in core.streams, importable here as before.
+from ..core.streams import frame_seed, scenario_rng
 from ..core.transforms import Pose
 from ..errors import ConfigError, SonarsimError, shown
 from ..scene.cost import check_scene_cost
@@ -49,17 +52,6 @@ __all__ = ["SCENARIO_KEYS", "FrameSpec", "Scenario", "frame_seed", "load_scenari
 SCENARIO_KEYS = ("scene", "seed", "trajectory", "variation", "description", "start_time")
 # SeedSequence takes any non-negative integer; a seed beyond 2**128 is a typo, not entropy.
 MAX_SEED = 2**128 - 1
-
-
-def frame_seed(seed: int, k: int) -> int:
-    """The seed of frame ``k`` of a scenario seeded with ``seed``: a 63-bit integer.
-
-    ``SeedSequence([seed, k])``'s first 64-bit word with the top bit cleared (so that it is
-    a non-negative int64 wherever it is stored: JSON, NPZ, ROS messages). The frame's scene
-    draws come from ``numpy.random.default_rng(frame_seed(seed, k))``.
-    """
-    word = np.random.SeedSequence([int(seed), int(k)]).generate_state(1, np.uint64)[0]
-    return int(word) & (2**63 - 1)
 
 
 @dataclass(frozen=True)
@@ -202,7 +194,7 @@ class Scenario:
         origins : list of str
             The scenario key each object came from.
         """
-        rng = np.random.default_rng(frame_seed(self.seed, 0))
+        rng = scenario_rng(self.seed, 0)
         self.trajectory.pose(0, rng)  # the same draws as frame 0
         return self.variation.apply(self.scene, rng, side)
 
@@ -223,7 +215,7 @@ class Scenario:
         if not 0 <= k < self.n_frames:
             raise IndexError(f"frame {k} is outside the scenario's {self.n_frames} frames")
         seed = frame_seed(self.seed, k)
-        rng = np.random.default_rng(seed)
+        rng = scenario_rng(self.seed, k)  # default_rng(seed)
         pose = self.trajectory.pose(k, rng)
         doc, _ = self.variation.apply(self.scene, rng)
         return FrameSpec(k, seed, self.trajectory.time_s(k), pose, doc, self.base_dir)

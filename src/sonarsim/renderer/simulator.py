@@ -25,6 +25,7 @@ from ..core.memory import keep_freed_memory, require_together
 from ..scene.cost import check_scene_cost
 from ..core.radiometry import SurfaceLaws, backscatter
 from ..core.rays import RayFan, make_ray_fan, ray_bytes, ray_size_key
+from ..core.streams import frame_rng, sequential_rng
 from ..core.transforms import Pose
 from ..errors import ConfigError
 from ..image.result import RayMaps, SonarImage
@@ -35,7 +36,7 @@ from ..paths.engine import (
     trace_legs,
 )
 from ..paths.planes import ChainTable, PlaneSet
-from ..sensor.model import FRAME_STREAM, SensorModel, elevation_span_deg
+from ..sensor.model import SensorModel, elevation_span_deg
 from ..sensor.speckle import pool_bytes
 from ..scene.inside import InsideTest
 from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
@@ -164,7 +165,7 @@ class Simulator:
         # simulator's life: anchored in the world, the same every frame.
         self.textures = texture_fields(self.scene.reflecting_planes, self.scene.render.seed)
         self._textured = any(f is not None for f in self.textures)
-        self._rng = np.random.default_rng(self.scene.render.seed)  # speckle, frame after frame
+        self._rng = sequential_rng(self.scene.render.seed)  # speckle, frame after frame
         self._fans: dict[SonarConfig, RayFan] = {}  # by intrinsics: every pose shares the fan
         self._sensor_models: dict[SonarConfig, SensorModel] = {}
         self._last_fan: tuple[SonarConfig, RayFan] | None = None
@@ -457,7 +458,7 @@ class Simulator:
             paths = functools.partial(self._signature_images, sonar, fan, legs, sets, table)
         components = frame_components(stack, render.bounces, render.max_order, paths, total)
         total = components["total"]
-        rng = self._rng if frame is None else np.random.default_rng([int(render.seed), FRAME_STREAM, int(frame)])
+        rng = self._rng if frame is None else frame_rng(render.seed, frame)
         model = self.sensor_model(image_sonar)
         if model is not None:
             speckle_rng = rng

@@ -49,9 +49,10 @@ from ..config.scene import TEXTURE_COVARIANCES, PlaneSpec, TextureSpec
 from ..core.memory import require
 
 # The texture's random stream: ``[seed, TEXTURE_STREAM]`` (a seed given) or
-# ``[render.seed, TEXTURE_STREAM, plane index + 1]`` (after the sensor's frame, pool and world
-# streams 1, 2, 3 of :mod:`sonarsim.sensor.model`).
-TEXTURE_STREAM = 4
+# ``[render.seed, TEXTURE_STREAM, plane index + 1]``; defined with every other stream in
+# core.streams (TEXTURE_STREAM stays importable from here).
+from ..core.streams import TEXTURE_STREAM, texture_entropy, texture_rng
+
 # Cells along each axis of the periodic tile.
 TILE_CELLS = 1024
 # Tile cells per correlation length: enough that bilinear interpolation keeps the covariance at
@@ -138,7 +139,8 @@ def unit_tile(covariance: str, entropy: tuple[int, ...]) -> tuple[np.ndarray, tu
     ----------
     covariance : {'gaussian', 'exponential'}
     entropy : tuple of int
-        Seeds the generator (``numpy.random.default_rng(list(entropy))``).
+        Seeds the generator (``numpy.random.default_rng(list(entropy))``,
+        :func:`~sonarsim.core.streams.texture_rng`).
 
     Returns
     -------
@@ -155,7 +157,7 @@ def unit_tile(covariance: str, entropy: tuple[int, ...]) -> tuple[np.ndarray, tu
     k = np.minimum(np.arange(n), n - np.arange(n)) / per
     lam = np.fft.rfft2(correlation(np.hypot(k[:, None], k[None, :]), covariance)).real
     np.maximum(lam, 0.0, out=lam)
-    rng = np.random.default_rng(list(entropy))
+    rng = texture_rng(entropy)
     tile = np.fft.irfft2(np.sqrt(lam) * np.fft.rfft2(rng.standard_normal((n, n))), s=(n, n))
     cov = np.fft.irfft2(lam, s=(n, n))
     lags = tuple(float(cov[i, j]) for i, j in ((0, 0), (1, 0), (0, 1), (1, 1), (1, n - 1)))
@@ -267,7 +269,7 @@ def texture_fields(planes: Sequence[PlaneSpec], render_seed: int) -> tuple[Refle
         if t is None or not t.active:
             out.append(None)
             continue
-        entropy = (int(t.seed), TEXTURE_STREAM) if t.seed is not None else (int(render_seed), TEXTURE_STREAM, i + 1)
+        entropy = texture_entropy(render_seed, i, t.seed)
         out.append(ReflectivityField(t, plane.normal, entropy))
     return tuple(out)
 

@@ -16,8 +16,8 @@ beam or per range row, not per pixel, so each effect here is a vector that the s
 
 These functions return those vectors from a spec, so that a calibration can form or fit them
 alone. Seeded draws take a generator; :class:`~sonarsim.sensor.model.SensorModel` passes one of
-the scene's seed (``default_rng([seed, BEAM_STREAM, k])``), so a scene's stripes are the same in
-every frame and every process.
+the scene's seed (:func:`sonarsim.core.streams.beam_rng`, ``default_rng([seed, BEAM_STREAM, k])``),
+so a scene's stripes are the same in every frame and every process.
 """
 
 from __future__ import annotations

@@ -26,7 +26,6 @@ the renderer casts them over ``span_deg`` weighted by the two-way pattern
 
 from __future__ import annotations
 
-import hashlib
 import importlib
 import os
 from concurrent.futures import Executor
@@ -37,6 +36,10 @@ import numpy as np
 
 from ..config.sensor import SensorSpec, check_azimuth_width, check_bandwidth, check_beam_count
 from ..config.sonar import SonarConfig
+from ..core import streams
+# The stream ids, defined with their generators in core.streams: re-exported here, where they were before.
+from ..core.streams import BEAM_DRAWS, BEAM_STREAM, FRAME_STREAM, POOL_STREAM, WORLD_STREAM  # noqa: F401
+from ..core.streams import beam_rng
 from ..errors import ConfigError
 from . import acoustics, channels, output, patterns, pulse, speckle as speckle_mod
 
@@ -67,10 +70,6 @@ def _choose_stage():
 _stage = _choose_stage()
 
 COMPRESSION_CODES = {None: 0, "log": 1, "gamma": 2, "linear": 3}
-# Streams of a seed's generators (numpy SeedSequence entropy [seed, stream, ...]): no two collide.
-# BEAM_STREAM: the seeded per-beam factors, [seed, 4, k] with k one of the BEAM_DRAWS.
-FRAME_STREAM, POOL_STREAM, WORLD_STREAM, BEAM_STREAM = 1, 2, 3, 4
-BEAM_DRAWS = {"beam_gain": 0, "bang": 1}
 
 
 class FrameDraws(NamedTuple):
@@ -80,11 +79,6 @@ class FrameDraws(NamedTuple):
     speckle: speckle_mod.FieldDraw
     noise: speckle_mod.FieldDraw
     common: np.ndarray | None
-
-
-def beam_rng(seed: int, effect: str) -> np.random.Generator:
-    """The generator of a scene's seeded per-beam factors (``effect``: a key of BEAM_DRAWS)."""
-    return np.random.default_rng([int(seed), BEAM_STREAM, BEAM_DRAWS[effect]])
 
 
 # A sensor's elevation span defaults to this many -3 dB widths.
@@ -177,7 +171,8 @@ class SensorModel:
     beam_gain_db, bang_beam_db : (n_beams,) float64 ndarrays, dB
         The channels' gain G_j and the bang's pattern B_j, seeded stripes included
         (:func:`~sonarsim.sensor.channels.beam_gain_db`, :func:`~sonarsim.sensor.channels.bang_beam_db`,
-        drawn from :func:`beam_rng`); ``beam_gain`` and ``bang_beam``: the same as float32 powers.
+        drawn from :func:`~sonarsim.core.streams.beam_rng`); ``beam_gain`` and ``bang_beam``: the
+        same as float32 powers.
     noise_row : (n_range_bins,) float32 ndarray, uPa^2
         N(r): the receiver's noise plus the after-TVG noise referred to the receiver.
     common_power : (n_range_bins,) float64 ndarray, uPa^2
@@ -259,7 +254,7 @@ class SensorModel:
                                                                     for k in range(self.pool.n_fields)])) ** 2)
             self.expected_output = output.ExpectedOutput(spec.output, quantiles)
         else:  # K speckle without its fields: its law from a field drawn for the purpose
-            f = speckle_mod.filter_field(speckle_mod.scatterer_amplitudes(np.random.default_rng(self.seed), shape,
+            f = speckle_mod.filter_field(speckle_mod.scatterer_amplitudes(streams.sequential_rng(self.seed), shape,
                                                                           spec.speckle),
                                          self.range_amplitude, self.beam_amplitude)
             self.expected_output = output.ExpectedOutput(spec.output, output.empirical_quantiles(np.abs(f) ** 2))
@@ -324,12 +319,11 @@ class SensorModel:
         """A generator that is a function of the pose quantised to half a resolution cell.
 
         A still sonar reads the same fields frame after frame (still speckle); moving by more
-        than half a range bin, or turning by more than half a beam, reads other fields.
+        than half a range bin, or turning by more than half a beam, reads other fields
+        (:func:`~sonarsim.core.streams.world_rng`).
         """
         pose = np.concatenate([np.asarray(position_m, float), np.asarray(rpy_deg, float)])
-        q = np.floor(pose / self._anchor_cell)
-        key = hashlib.blake2b(q.astype(np.int64).tobytes(), digest_size=8).digest()
-        return np.random.default_rng([self.seed, WORLD_STREAM, int.from_bytes(key, "little")])
+        return streams.world_rng(self.seed, np.floor(pose / self._anchor_cell))
 
     def mean_image(self, image: np.ndarray, pool: Executor | None = None) -> np.ndarray:
         """``M``: the image through the azimuth leakage and the range spread (float32, same shape)."""
@@ -400,7 +394,7 @@ class SensorModel:
 
     def _default_rng(self) -> np.random.Generator:
         """Without a generator: the first frame of the sensor's seed (reproducible)."""
-        return np.random.default_rng([self.seed, FRAME_STREAM, 0])
+        return streams.frame_rng(self.seed, 0)
 
     # NumPy twins (the reference the compiled loops are tested against) -------------------------
 

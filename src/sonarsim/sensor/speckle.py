@@ -23,11 +23,11 @@ import numpy as np
 
 from ..config.sensor import SpeckleSpec
 from ..core.memory import require
+from ..core.streams import POOL_STREAM, pool_rng  # noqa: F401 (POOL_STREAM: importable here as before)
 
 POOL_FIELDS = 4
 FIELD_BITS = 8  # bits per stored part (real or imaginary) of a pool field
 FIELD_MAX = 2 ** (FIELD_BITS - 1) - 1
-POOL_STREAM = 2  # the pool's generator: [seed, 2] (frames use [seed, 1, frame]; see sensor.model)
 
 
 def complex_gaussian(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
@@ -136,7 +136,7 @@ class SpecklePool:
         n_r, n_b = shape
         require(pool_bytes(shape, spec is not None, noise, n_fields),
                 f"the speckle and noise fields of a {n_r} x {n_b} image", "sensor.speckle")
-        rng = np.random.default_rng([int(seed), POOL_STREAM])
+        rng = pool_rng(seed)  # [seed, POOL_STREAM]: see core.streams
         self.shape = shape
         self.n_fields = n_fields
         self.speckle, self.speckle_scale = None, 0.0
