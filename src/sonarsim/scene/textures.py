@@ -15,7 +15,7 @@ rough law is not scaled: it is a property of the surface's slopes, not of its co
 
 :class:`TexturedCaster` wraps any ray caster: it asks for the triangle and barycentric
 coordinates of each hit and returns the brightness as :attr:`Hits.texel
-<sonarsim.trace.base.Hits.texel>`, which every kernel and twin applies. Scenes without textures
+<sonarsim.core.hits.Hits.texel>`, which every kernel and twin applies. Scenes without textures
 never build it, and render as before.
 """
 
@@ -26,9 +26,8 @@ from typing import Sequence
 
 import numpy as np
 
-from ..trace.base import Hits
-# brightness lives with the meshes that read texture images (scene.meshes may not import this
-# module: it imports trace.base, which imports scene.meshes); re-exported here, where it was.
+from ..core.hits import Hits  # the casters' answer (below trace, which imports scene)
+# brightness lives with the meshes that read texture images; re-exported here, where it was.
 from .meshes import brightness
 
 
