@@ -389,7 +389,10 @@ def test_calibration_recovers_the_channels_and_the_floor_texture_of_a_synthetic_
     # model's own textured frames), 0.023 m along the range and 0.038 m across (the estimator's
     # lengths read short along the range here: 2 bins a block).
     assert got.beam_gain.steering_exponent == pytest.approx(40.0, rel=0.25)
-    assert np.corrcoef(got.beam_gain.gain_db, stripes)[0, 1] > 0.8
+    # The stripes trade with the texture's column means on one frame: 0.89 with the texture drawn
+    # from the beam factors' stream (before issue 23), 0.77 with its own; unrelated stripes
+    # correlate 0 +- 0.13 over 64 beams.
+    assert np.corrcoef(got.beam_gain.gain_db, stripes)[0, 1] > 0.65
     assert np.corrcoef(got.bang.beam_db, bang_pattern)[0, 1] > 0.8
     tex = res.scene.ground.texture
     assert tex is not None and tex.std_db == pytest.approx(3.0, rel=0.3)

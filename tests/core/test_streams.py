@@ -24,9 +24,9 @@ def first(rng: np.random.Generator, n: int = 3) -> list[int]:
 
 
 def test_the_ids_are_what_they_were():
-    assert (FRAME_STREAM, POOL_STREAM, WORLD_STREAM, BEAM_STREAM, TEXTURE_STREAM) == (1, 2, 3, 4, 4)
+    assert (FRAME_STREAM, POOL_STREAM, WORLD_STREAM, BEAM_STREAM, TEXTURE_STREAM) == (1, 2, 3, 4, 5)
     assert dict(BEAM_DRAWS) == {"beam_gain": 0, "bang": 1}
-    assert dict(streams.STREAMS) == {"frame": 1, "pool": 2, "world": 3, "beam": 4, "texture": 4}
+    assert dict(streams.STREAMS) == {"frame": 1, "pool": 2, "world": 3, "beam": 4, "texture": 5}
 
 
 def test_old_homes_still_export_the_names():
@@ -54,10 +54,10 @@ def test_the_derivations_are_the_entropy_lists_they_were(seed):
     key = int.from_bytes(hashlib.blake2b(cell.astype(np.int64).tobytes(), digest_size=8).digest(), "little")
     assert world_key(cell) == key
     assert same(world_rng(seed, cell), np.random.default_rng([seed, 3, key]))
-    assert texture_entropy(seed, 0) == (seed, 4, 1)
-    assert texture_entropy(seed, 2) == (seed, 4, 3)
-    assert texture_entropy(seed, 2, seed=9) == (9, 4)
-    assert same(texture_rng((seed, 4, 1)), np.random.default_rng([seed, 4, 1]))
+    assert texture_entropy(seed, 0) == (seed, 5, 1)
+    assert texture_entropy(seed, 2) == (seed, 5, 3)
+    assert texture_entropy(seed, 2, seed=9) == (9, 5)
+    assert same(texture_rng((seed, 5, 1)), np.random.default_rng([seed, 5, 1]))
     word = np.random.SeedSequence([seed, 3]).generate_state(1, np.uint64)[0]
     assert frame_seed(seed, 3) == int(word) & (2**63 - 1)
     assert same(scenario_rng(seed, 3), np.random.default_rng(frame_seed(seed, 3)))
@@ -72,8 +72,9 @@ def test_regression_first_draws():
     assert first(frame_rng(11, 3)) == [747860122, 1829800634, 954030950]
     assert first(pool_rng(7)) == [1208267292, 1193873271, 656516905]
     assert first(np.random.default_rng([7, WORLD_STREAM, 12345])) == [709444461, 3893859095, 430774392]
-    assert first(texture_rng(texture_entropy(11, 0))) == [1932154149, 2014292357, 1091026838]
-    assert first(texture_rng(texture_entropy(11, 0, seed=5))) == [3070425964, 1195425524, 36838203]
+    # The texture's, since its own id (5; before, under 4: [1932154149, ...] and [3070425964, ...]).
+    assert first(texture_rng(texture_entropy(11, 0))) == [1402971697, 1355046252, 195275963]
+    assert first(texture_rng(texture_entropy(11, 0, seed=5))) == [2241889808, 2947759701, 3794413493]
     assert [frame_seed(99, k) for k in range(3)] == [1680710531199098514, 588121100675164068,
                                                      5778322905919529231]
     assert first(scenario_rng(99, 0)) == [172224518, 516281451, 3522509968]
@@ -103,10 +104,14 @@ def test_different_streams_draw_differently_for_one_seed():
     assert len({frame_seed(seed, k) for k in range(100)}) == 100
 
 
-def test_texture_shares_the_beam_id_as_before():
-    """A known overlap, kept for bit-identity (see the module's docstring): the texture of plane 0
-    without a seed of its own reads the bang pattern's stream of the same seed."""
-    assert first(texture_rng(texture_entropy(11, 0))) == first(beam_rng(11, "bang"))
+def test_the_texture_no_longer_reads_the_beam_factors_streams():
+    """Textures had the beam factors' id (4): plane 0's texture without a seed of its own read
+    the bang pattern's numbers, and a texture seeded s the stripes of a scene seeded s. Their
+    own id (5) since."""
+    for s in (0, 11, 12345):
+        beams = [first(beam_rng(s, "bang")), first(beam_rng(s, "beam_gain"))]
+        assert first(texture_rng(texture_entropy(s, 0))) not in beams
+        assert first(texture_rng(texture_entropy(0, 0, seed=s))) not in beams
 
 
 def test_a_frame_is_the_same_whatever_order_frames_are_asked_in():

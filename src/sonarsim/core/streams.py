@@ -25,21 +25,21 @@ id      entropy                 what it feeds
 4       ``[seed, 4, k]``        :func:`beam_rng`: the seeded per-beam factors, ``k`` one of
                                 :data:`BEAM_DRAWS` (0 the channels' gain stripes, 1 the bang's
                                 pattern across beams)
-4       ``[seed, 4]`` or        :func:`texture_entropy`, :func:`texture_rng`: a floor texture's
-        ``[render.seed, 4,      tile (its own seed given, or ``render.seed`` and the plane's index
+5       ``[seed, 5]`` or        :func:`texture_entropy`, :func:`texture_rng`: a floor texture's
+        ``[render.seed, 5,      tile (its own seed given, or ``render.seed`` and the plane's index
         plane + 1]``            + 1)
 (none)  ``SeedSequence(         :func:`frame_seed`, :func:`scenario_rng`: a dataset scenario's
         [seed, k])``            per-frame scene draws (pose, objects, materials); the renderer's
                                 own draws for frame ``k`` come from :func:`frame_rng`
 ======  ======================  ==================================================================
 
-Known overlaps, kept so that every image stays bit-identical to earlier releases:
+Known overlaps:
 
-* :data:`TEXTURE_STREAM` is :data:`BEAM_STREAM` (both 4). ``SeedSequence`` pads entropy shorter
-  than four words with zeros, so ``[s, 4]`` is ``[s, 4, 0]``: a texture with its own seed ``s``
-  draws the numbers of the gain stripes of a scene seeded ``s``, and the texture of plane 0
-  without a seed (``[render.seed, 4, 1]``) those of the bang's pattern of the same scene.
-  The tile filters a million draws, so the two are nearly uncorrelated, but not independent.
+* Before issue 23, a floor texture's tile used the beam factors' id (4): ``SeedSequence`` pads
+  entropy shorter than four words with zeros, so a texture with its own seed ``s`` (``[s, 4]``)
+  drew the numbers of the gain stripes of a scene seeded ``s``, and plane 0's texture without a
+  seed (``[render.seed, 4, 1]``) those of the same scene's bang pattern. Textures have their own
+  id (5) since; textured images differ from earlier releases' by their draws only.
 * :func:`sequential_rng` feeds both the renderer's frame-after-frame generator and a K-speckle
   sensor's law (the two read the same numbers for different purposes).
 * Seeds of 2**32 and above are two or more words to ``SeedSequence``: ``[seed, stream, ...]``
@@ -70,8 +70,8 @@ POOL_STREAM = 2
 WORLD_STREAM = 3
 #: The seeded per-beam factors: ``[seed, BEAM_STREAM, BEAM_DRAWS[effect]]`` (:func:`beam_rng`).
 BEAM_STREAM = 4
-#: A floor texture's tile (:func:`texture_entropy`); the same id as BEAM_STREAM (see above).
-TEXTURE_STREAM = 4
+#: A floor texture's tile (:func:`texture_entropy`); its own id (it was BEAM_STREAM's: see above).
+TEXTURE_STREAM = 5
 #: The third word of :func:`beam_rng`'s entropy for each seeded per-beam effect.
 BEAM_DRAWS: Mapping[str, int] = MappingProxyType({"beam_gain": 0, "bang": 1})
 #: Every stream id by name.
