@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, MeshFileError, SonarsimError, check_input_file, key_text, shown
-from ..scene.meshes import load_mesh_file, world_reach_m
 from .document import MAX_DOCUMENT_BYTES as MAX_SCENE_BYTES, read_document  # noqa: F401 - re-exported
 from .materials import LAWS, Material, mu_from_db
+from .meshfiles import load_mesh_file, world_reach_m  # below scene: config imports nothing of it
 from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor
 from .scene import MAX_COORDINATE_M, GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene, TextureSpec
