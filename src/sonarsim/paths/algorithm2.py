@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.radiometry import SurfaceLaws, backscatter
-from ..renderer.formation import RayEnergy, accumulate, continuity, form_image
+from ..core.splat import RayEnergy, accumulate, continuity, form_image
 from ..config.scene import RenderSettings
 from ..config.sonar import SonarConfig
 from ..core.transforms import Pose

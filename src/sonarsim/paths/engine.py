@@ -45,7 +45,7 @@ from ..config.sonar import SonarConfig
 from ..core.radiometry import SurfaceLaws, backscatter
 from ..image.grid import beam_index
 from ..core.transforms import Pose
-from ..renderer.formation import RayEnergy, accumulate, continuity
+from ..core.splat import RayEnergy, accumulate, continuity
 from ..scene.floor_texture import scale_by_texture
 from ..trace.base import Hits
 from .planes import WATER_TOLERANCE_M, ChainTable, PlaneSet, apply, reflection_points
@@ -532,7 +532,7 @@ def option_paths(
 
 def set_continuity(points: np.ndarray, normals: np.ndarray, key: np.ndarray, n_elevation: int) -> np.ndarray:
     """(n_columns, n_elevation - 1) bool: neighbouring fan rays of a leg on one continuous
-    surface via one chain (:func:`~sonarsim.renderer.formation.continuity` on ray columns)."""
+    surface via one chain (:func:`~sonarsim.core.splat.continuity` on ray columns)."""
     shape = (-1, n_elevation)
     return continuity(points.reshape(shape + (3,)), normals.reshape(shape + (3,)), key.reshape(shape))
 
@@ -559,7 +559,7 @@ def splat_set(
     """One compact path set into an image stack (twin of ``_kernels.splat_events``).
 
     The set is made dense over the fan and given to
-    :func:`~sonarsim.renderer.formation.accumulate`: two paths are neighbours when their rays
+    :func:`~sonarsim.core.splat.accumulate`: two paths are neighbours when their rays
     are neighbours in one ray column with the same ``key`` and the chord between their
     scatterers passes the continuity test; each path's energy is ``scale * energy``.
 
