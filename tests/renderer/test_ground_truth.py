@@ -597,3 +597,22 @@ def test_total_only_labels_equal_the_full_labels_less_the_components(kernels):
                  "points_object", "points_component", "boxes_polar"):
         np.testing.assert_array_equal(getattr(total, name), getattr(full, name), err_msg=name)
     assert "instance" in total.arrays() and "instance_double" not in total.arrays()
+
+
+def test_labels_of_a_paper_frame_leave_its_components_as_they_are():
+    """``method: paper`` (Algorithm 2) forms no path sets; the labels form the general engine's
+    for themselves. The frame's signature images stay the ground's, as without labels (they
+    were taken from the labels' paths with no chain table: an AttributeError)."""
+    import sonarsim
+
+    doc = demo_scene_dict()
+    doc.setdefault("render", {})["method"] = "paper"
+    doc.pop("planes", None)
+    plain = sonarsim.render(doc, speckle=False)
+    labelled = sonarsim.render(doc, speckle=False, labels=True)
+    arrays = labelled.arrays()
+    assert {"instance", "elevation_deg", "points_world", "boxes_polar"} <= set(arrays)
+    assert arrays["instance"].max() > 0  # the demo's objects are labelled
+    assert sorted(labelled.components.keys()) == sorted(plain.components.keys())
+    for name in plain.components.keys():
+        np.testing.assert_array_equal(labelled.components[name], plain.components[name])
