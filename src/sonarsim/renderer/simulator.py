@@ -441,20 +441,18 @@ class Simulator:
                                                                  render.max_order if multipath else 1)
         truth = None
         t2 = time.perf_counter()
-        # Algorithm 2 and the fused ground route form no path sets: their signature images are the
-        # ground's, whether or not the labels below form the general engine's paths.
-        formed_without_paths = sets is None
         if labels:
-            lit = stack
+            lit, label_legs, label_sets = stack, legs, sets
             if sets is None:  # Algorithm 2 forms no paths: the general engine's, for the labels only
-                lit, legs, sets, _, _ = self._render_paths(sonar, pose, fan, reach, active,
-                                                           render.max_order if multipath else 1)
-            truth = frame_labels(sets, legs, fan, image_sonar, tuple(o.name for o in self.scene.objects),
+                # (the frame's own legs and sets stay None: its signature images are the ground's)
+                lit, label_legs, label_sets, _, _ = self._render_paths(sonar, pose, fan, reach, active,
+                                                                       render.max_order if multipath else 1)
+            truth = frame_labels(label_sets, label_legs, fan, image_sonar, tuple(o.name for o in self.scene.objects),
                                  tuple(p.name for p in self.scene.reflecting_planes), render.max_order,
                                  render.bounces, render.range_splat, self.kernels, lit_rows(lit, self.kernels),
                                  components=labels != "total")
         t3 = time.perf_counter()
-        if formed_without_paths:  # ground only: its four images are the four ground-only signatures
+        if sets is None:  # ground only: its four images are the four ground-only signatures
             rows = {c.name: stack[c.rows[0]] for c in component_table(render.max_order) if len(c.rows) == 1}
             paths = functools.partial(ground_signatures, rows)
         else:
