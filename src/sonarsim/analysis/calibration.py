@@ -781,7 +781,7 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
     if tex is not None:
         values["texture_std_db"] = tex.std_db
         values["texture_correlation_range_m"], values["texture_correlation_across_m"] = tex.correlation_m
-        e, v["gain_db"] = _texture_mean(problem, spec, v, pose, tex, say)
+        e, v["gain_db"] = _texture_mean(problem, spec, v, tex, say)
         values["gain_db"] = v["gain_db"]
         s2 = replace(s2, gain_db=v["gain_db"])
         fitted = replace(fitted, sensor=s2, ground=replace(fitted.ground, texture=tex))
@@ -1147,7 +1147,7 @@ def _fit_texture(problem: _Problem, spec: SensorSpec, v: dict, pose: Pose, say):
 TEXTURE_NODES = 12
 
 
-def _texture_mean(problem: _Problem, spec: SensorSpec, v: dict, pose: Pose, tex, say) -> tuple[np.ndarray, float]:
+def _texture_mean(problem: _Problem, spec: SensorSpec, v: dict, tex, say) -> tuple[np.ndarray, float]:
     """The expected image of the textured floor, and the gain that fits it.
 
     The texture's mean reflectivity is 1, but the output law is not linear: through a gamma
@@ -1200,6 +1200,25 @@ CORRECTION_STEP_DEG = 2.0
 CORRECTION_SMOOTHING = 20.0
 
 
+def _fit_smooth_knots(expected_of, target: np.ndarray, n: int, smoothing: float, bound_db: float) -> np.ndarray:
+    """Knot values (dB, within +-``bound_db``) whose expected image ``expected_of(x)`` fits
+    ``target`` best in the least-squares sense on every other row (a tenth of a second per
+    Jacobian on the real pings), with ``smoothing`` times their second differences as a
+    roughness penalty (a pattern or a range law varies smoothly): what the corrections of the
+    elevation pattern and of the range law both fit."""
+    from scipy.optimize import least_squares
+
+    rows = slice(None, None, 2)
+
+    def residuals(x):
+        r = (expected_of(x)[rows] - target[rows]).ravel()
+        rough = smoothing * np.diff(x, 2) if len(x) > 2 else np.zeros(0)
+        return np.concatenate([r / math.sqrt(r.size), rough / math.sqrt(max(len(rough), 1))])
+
+    return least_squares(residuals, np.zeros(n), bounds=(-bound_db, bound_db), diff_step=0.05, max_nfev=40,
+                         x_scale=3.0).x
+
+
 def _fit_elevation_correction(problem: _Problem, spec: SensorSpec, v: dict, say):
     """The elevation pattern's departure from its shape (``elevation_pattern.correction_db``).
 
@@ -1234,27 +1253,15 @@ def _fit_elevation_correction(problem: _Problem, spec: SensorSpec, v: dict, say)
     model = problem.model(replace(s2, elevation_pattern=base_el))
     target = problem.target
     used = np.flatnonzero(stack.reshape(n, -1).max(axis=1) > 0)  # knots that light some pixel
-    # Residuals on a thinned grid (every other row): a tenth of a second per Jacobian.
-    rows = slice(None, None, 2)
 
-    def expected_of(c):
-        total = np.tensordot(c, stack, axes=1).astype(np.float32)
-        return model.apply(total, speckle=False)
-
-    def residuals(x):
+    def expected_of(x):
         c = np.ones(n)
         c[used] = 10.0 ** (x / 10.0)
-        r = (expected_of(c)[rows] - target[rows]).ravel()
-        rough = CORRECTION_SMOOTHING * np.diff(x, 2) if len(x) > 2 else np.zeros(0)
-        return np.concatenate([r / math.sqrt(r.size), rough / math.sqrt(max(len(rough), 1))])
-
-    from scipy.optimize import least_squares
+        return model.apply(np.tensordot(c, stack, axes=1).astype(np.float32), speckle=False)
 
     before = problem.cost(spec, v)
-    fit = least_squares(residuals, np.zeros(len(used)), bounds=(-30.0, 30.0), diff_step=0.05, max_nfev=40,
-                        x_scale=3.0)
     db = np.zeros(n)
-    db[used] = fit.x
+    db[used] = _fit_smooth_knots(expected_of, target, len(used), CORRECTION_SMOOTHING, 30.0)
     trial = replace(spec, elevation_pattern=replace(el, correction_db=tuple(float(x) for x in db), span_deg=span))
     after = problem.cost(trial, v)
     if not after < before:
@@ -1287,37 +1294,27 @@ def _fit_range_correction(problem: _Problem, spec: SensorSpec, v: dict, say):
     :data:`RANGE_CORRECTION_KNOTS` knots over the window averages thousands of pixels per knot,
     so it follows the range profile's slow course, not one frame's speckle.
     """
-    from scipy.optimize import least_squares
-
     if spec.tvg is None:
         return spec, v
     r = np.asarray(problem.sonar.range_m, dtype=float)
     n = RANGE_CORRECTION_KNOTS
     span = (float(r[0]), float(r[-1]))
     total, _ = problem.frame_for(spec, v)
-    target = problem.target
-    rows = slice(None, None, 2)
 
     def trial(x):
         return replace(spec, tvg=replace(spec.tvg, correction_db=tuple(float(a) for a in x), correction_range_m=span))
 
-    def residuals(x):
-        e = problem.model(with_values(trial(x), v)).apply(total, speckle=False)
-        res = (e[rows] - target[rows]).ravel()
-        rough = CORRECTION_SMOOTHING_RANGE * np.diff(x, 2)
-        return np.concatenate([res / math.sqrt(res.size), rough / math.sqrt(len(rough))])
-
-    b = RANGE_CORRECTION_BOUND_DB
-    fit = least_squares(residuals, np.zeros(n), bounds=(-b, b), diff_step=0.05, max_nfev=40, x_scale=3.0)
-    out = trial(fit.x)
+    x = _fit_smooth_knots(lambda x: problem.model(with_values(trial(x), v)).apply(total, speckle=False),
+                          problem.target, n, CORRECTION_SMOOTHING_RANGE, RANGE_CORRECTION_BOUND_DB)
+    out = trial(x)
     peak = spec.output.full_scale
     gain = problem.psnr(out, v, peak) - problem.psnr(spec, v, peak)
     if not (problem.cost(out, v) < problem.cost(spec, v) and gain >= RANGE_CORRECTION_MIN_DB):
         say(f"range law correction: not kept ({gain:+.3f} dB: below {RANGE_CORRECTION_MIN_DB} dB, what fitting "
             "a frame's speckle gains)")
         return spec, v
-    say(f"range law correction: {n} knots over {span[0]:.3g}-{span[1]:.3g} m, {float(np.std(fit.x)):.2f} dB RMS, "
-        f"{float(np.min(fit.x)):+.1f} to {float(np.max(fit.x)):+.1f} dB: PSNR {problem.psnr(spec, v, peak):.2f} -> "
+    say(f"range law correction: {n} knots over {span[0]:.3g}-{span[1]:.3g} m, {float(np.std(x)):.2f} dB RMS, "
+        f"{float(np.min(x)):+.1f} to {float(np.max(x)):+.1f} dB: PSNR {problem.psnr(spec, v, peak):.2f} -> "
         f"{problem.psnr(out, v, peak):.2f} dB")
     return out, v
 
