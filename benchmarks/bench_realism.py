@@ -640,12 +640,9 @@ def main(argv=None) -> int:
     want = {None: ["oculus", "aris"], "none": []}.get(args.only, [args.only])
     if args.grid and "oculus" not in want:
         ap.error("--grid runs on the Oculus recording: not with --only aris or none")
-    if args.bound and "oculus" not in want:
-        want_paths = want + ["oculus"]
-    else:
-        want_paths = want
     paths = {"oculus": Path(args.data), "aris": Path(args.aris_data)}
-    missing = [str(paths[k]) for k in want_paths if not paths[k].is_file()]
+    needed = set(want) | ({"oculus"} if args.bound else set())  # the bound runs on the Oculus ping
+    missing = [str(paths[k]) for k in sorted(needed) if not paths[k].is_file()]
     if missing:
         say(f"bench_realism: skipped: {', '.join(missing)} {'is' if len(missing) == 1 else 'are'} not present")
         return 0
