@@ -155,7 +155,7 @@ def record_casts(sim: sonarsim.Simulator) -> list:
     caster_cls = type(getattr(sim.caster, "caster", sim.caster))
     recorded = []
     original = caster_cls.intersect
-    fused = compiled.ground_blocks
+    fused, loop = compiled.ground_blocks, compiled.packet_loop
 
     def recording(self, origins, directions, max_distance, threads=None, *args, **kwargs):
         n = len(directions)
@@ -166,11 +166,12 @@ def record_casts(sim: sonarsim.Simulator) -> list:
 
     caster_cls.intersect = recording
     compiled.ground_blocks = lambda *args: None
+    compiled.packet_loop = lambda caster: None  # the blocks cast through caster.intersect
     try:
         sim.render(keep_rays=False)
     finally:
         caster_cls.intersect = original
-        compiled.ground_blocks = fused
+        compiled.ground_blocks, compiled.packet_loop = fused, loop
     joined = []
     for caster in dict.fromkeys(r[0] for r in recorded):
         mine = [r for r in recorded if r[0] is caster and len(r[2])]

@@ -666,6 +666,18 @@ def trace_legs(
     return legs
 
 
+def renumber_chains(table: ChainTable, legs: list[Leg]) -> ChainTable:
+    """The frame's chains numbered canonically (:meth:`ChainTable.canonical`), the legs' chain
+    ids and keys made those: a chain's id then does not depend on which ray met it first, as
+    in the compiled engine's blocks."""
+    table, remap = table.canonical()
+    for leg in legs[1:]:
+        reached = leg.chain >= 0
+        leg.chain[reached] = remap[leg.chain[reached]]
+        leg.keys = None
+    return table
+
+
 # Rays along each edge of the transmit aperture that :func:`probe_chains` traces.
 PROBES_PER_EDGE = 48
 
@@ -684,7 +696,7 @@ def _aperture_edges(right_deg: float, left_deg: float, half_elevation_deg: float
 
 
 def probe_chains(table: ChainTable, view: SonarView, active: np.ndarray, max_length: int,
-                 per_edge: int = PROBES_PER_EDGE) -> None:
+                 per_edge: int = PROBES_PER_EDGE, kernel=None) -> None:
     """Add to ``table`` the chains of planes that the edges of the transmit aperture follow.
 
     Transmit legs are tried along the chains that some ray followed. The beams' rays sample
@@ -706,23 +718,38 @@ def probe_chains(table: ChainTable, view: SonarView, active: np.ndarray, max_len
         Most reflections on a transmit leg (``max_order - 1``).
     per_edge : int
         Rays along each edge.
+    kernel : callable, optional
+        ``_kernels.probe_chains`` (the compiled twin of the loop below, step for step).
     """
     planes = table.planes
     if max_length < 1 or not len(planes) or not np.any(active & (planes.specular > 0)):
         return
-    d = _aperture_edges(float(view.beam_edges_deg[-1]), float(view.beam_edges_deg[0]), view.half_elevation_deg,
-                        per_edge) @ view.rotation.T
-    o = np.broadcast_to(view.origin, d.shape).copy()
+    rot = view.rotation
+    e = _aperture_edges(float(view.beam_edges_deg[-1]), float(view.beam_edges_deg[0]), view.half_elevation_deg,
+                        per_edge)
+    d = e[:, 0:1] * rot[:, 0] + e[:, 1:2] * rot[:, 1] + e[:, 2:3] * rot[:, 2]  # R d, as _kernels.rotate sums
+    o = np.broadcast_to(np.asarray(view.origin, float), d.shape).copy()
+    if kernel is not None:
+        while True:
+            n_chains, overflow = kernel(o, d, planes.normal, planes.offset, np.ascontiguousarray(active, np.uint8),
+                                        planes.specular, view.range_max_m, max_length, table.children, len(table))
+            table.sync(n_chains)
+            if not overflow:
+                return
+            table._grow()
     chain = np.zeros(len(d), dtype=np.int64)
     travelled = np.zeros(len(d))
-    normal, offset = planes.normal[active], planes.offset[active]
     index = np.flatnonzero(active)
     for _ in range(max_length):
-        dn = d @ normal.T  # (rays, active planes): all planes at once
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t_all = np.where(dn < 0, (offset - o @ normal.T) / dn, np.inf)
-        t_all[~(t_all > 0)] = np.inf
-        nearest = np.argmin(t_all, axis=1)
+        # Every active plane at once; the dot products summed as the kernel sums them.
+        t_all = np.full((len(d), len(index)), np.inf)
+        for j, p in enumerate(index):
+            n = planes.normal[p]
+            dn = _dot(d, n)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (planes.offset[p] - _dot(o, n)) / dn
+            t_all[:, j] = np.where((dn < 0) & (t > 0), t, np.inf)
+        nearest = np.argmin(t_all, axis=1)  # the first of equal distances, as the kernel's strict <
         best_t = t_all[np.arange(len(d)), nearest]
         best_p = index[nearest]
         go = np.isfinite(best_t) & (travelled + best_t < view.range_max_m) & (planes.specular[best_p] > 0)
@@ -735,7 +762,7 @@ def probe_chains(table: ChainTable, view: SonarView, active: np.ndarray, max_len
         travelled = travelled[go] + t
         n = planes.normal[p]
         o = o + d * t[:, None]
-        d = d - 2.0 * np.einsum("ij,ij->i", d, n)[:, None] * n
+        d = d - (2.0 * _rowdot(d, n))[:, None] * n
         o = o + SURFACE_OFFSET_M * d
 
 

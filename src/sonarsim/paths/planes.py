@@ -165,6 +165,35 @@ class ChainTable:
             c, p = parent[k]
             self.chains.append(self.chains[c] + (p,))
 
+    def add(self, chain: tuple) -> int:
+        """Id of ``chain`` (a tuple of plane indices), added with its prefixes if new."""
+        c = 0
+        for p in chain:
+            c = self.child(c, int(p))
+        return c
+
+    def canonical(self) -> tuple["ChainTable", np.ndarray]:
+        """The same chains numbered canonically: by :meth:`key` (length, then planes from the
+        sonar), so that a chain's id does not depend on which ray met it first (the blocks of a
+        frame meet them in any order). Returns the new table and ``remap`` (int32, old id to
+        new id)."""
+        order = sorted(range(len(self.chains)), key=self.key)
+        out = ChainTable(self.planes, self.origin, self.max_length, capacity=max(self.capacity, 1))
+        remap = np.empty(len(self.chains), dtype=np.int32)
+        for c in order:  # a prefix sorts before its chain: each is added after its parent
+            remap[c] = out.add(self.chains[c])
+        return out, remap
+
+    def local_chains(self, children: np.ndarray, n_chains: int) -> list[tuple]:
+        """The chains of a block's own table (``children[c, p]``: the chain ``c + (p,)``; 0 the
+        empty chain), by local id."""
+        chains: list = [()] + [None] * (n_chains - 1)
+        rows = children[:n_chains]
+        pairs = sorted((int(rows[c, p]), int(c), int(p)) for c, p in zip(*np.nonzero(rows >= 0)))
+        for k, c, p in pairs:  # a child's id is above its parent's
+            chains[k] = chains[c] + (p,)
+        return chains
+
     # Views used by the path formation -----------------------------------------------------
 
     def length(self, c: int) -> int:

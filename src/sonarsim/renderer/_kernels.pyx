@@ -17,6 +17,7 @@ Nothing here allocates; the caller owns every array.
 from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, exp, isfinite, INFINITY, NAN
 from libc.math cimport M_PI
 from libc.string cimport memset
+import numpy as np
 cimport cython
 
 from sonarsim.trace.cast_abi cimport cast_rays_t
@@ -87,7 +88,7 @@ cdef class _Laws:
                 self.texel = &tv[0]
 
 
-cdef inline double diffuse_weight(_Laws laws, const double[::1] albedo_by_id, Py_ssize_t index, Py_ssize_t row,
+cdef inline double diffuse_weight(_Laws laws, const double* albedo_by_id, Py_ssize_t index, Py_ssize_t row,
                                   bint on_mesh, double w, double c) noexcept nogil:
     """``w * f(alpha)`` of surface ``index`` (surface id + 1) for the hit of row ``row``."""
     cdef double coef = albedo_by_id[index]
@@ -176,7 +177,7 @@ cdef (Py_ssize_t, double) primary_impl(const float[::1] hit_distance, const int[
         point[i, 1] = <float>(oy + dy * dd)
         point[i, 2] = <float>(oz + dz * dd)
         cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
-        c = diffuse_weight(laws, albedo_by_id, s + 1, i, s > 0, weight[i], cosf)
+        c = diffuse_weight(laws, &albedo_by_id[0], s + 1, i, s > 0, weight[i], cosf)
         if not tvg:
             r = dd if dd > 1e-6 else 1e-6
             c = c / (r * r)
@@ -231,9 +232,11 @@ def primary(const float[::1] hit_distance, const int[::1] hit_mesh, const float[
     return n_g, t_min
 
 
-cdef inline Py_ssize_t beam_of(const double[::1] edges, double az) noexcept nogil:
-    """Index j with edges[j] >= az > edges[j + 1] (edges descending); -1 outside the fan."""
-    cdef Py_ssize_t lo = 0, hi = edges.shape[0], mid
+cdef inline Py_ssize_t beam_of(const double* edges, Py_ssize_t n_edges, double az) noexcept nogil:
+    """Index j with edges[j] >= az > edges[j + 1] (edges descending); -1 outside the fan.
+    Pointers, not memoryviews, here and in the other per-ray helpers: passing a memoryview to
+    a function costs an atomic reference count each call."""
+    cdef Py_ssize_t lo = 0, hi = n_edges, mid
     # Count the edges >= az (they come first), minus one; matches
     # numpy.searchsorted(-edges, -az, side="right") - 1.
     while lo < hi:
@@ -242,13 +245,13 @@ cdef inline Py_ssize_t beam_of(const double[::1] edges, double az) noexcept nogi
             lo = mid + 1
         else:
             hi = mid
-    if lo - 1 < 0 or lo - 1 >= edges.shape[0] - 1:
+    if lo - 1 < 0 or lo - 1 >= n_edges - 1:
         return -1
     return lo - 1
 
 
 cdef inline Py_ssize_t beam_in_view(double x, double y, double z, double range_min, double range_max,
-                                    double half_elevation_deg, const double[::1] edges,
+                                    double half_elevation_deg, const double* edges, Py_ssize_t n_edges,
                                     double* length) noexcept nogil:
     """The beam that sees a point at ``(x, y, z)`` in the sonar frame, or -1 where it lies
     outside the range window, the elevation aperture or the fan; ``length`` receives its
@@ -268,7 +271,7 @@ cdef inline Py_ssize_t beam_in_view(double x, double y, double z, double range_m
     el = asin(el) * rad2deg
     if not fabs(el) <= half_elevation_deg:
         return -1
-    return beam_of(edges, atan2(y, x) * rad2deg)
+    return beam_of(edges, n_edges, atan2(y, x) * rad2deg)
 
 
 cdef void clear_impl(Py_ssize_t begin, Py_ssize_t end, double[::1] tri_dist, double[::1] tri_energy,
@@ -330,7 +333,7 @@ cdef void mirror_impl(const Py_ssize_t[::1] g_index, const double[::1] g_t, cons
         sv = m + 1
         # cos of the reflected ray (dx, dy, -dz) with the object's normal.
         c = fabs(nx * dx + ny * dy - nz * dz)
-        c = diffuse_weight(laws, albedo_by_id, sv + 1, j, True, weight[i], c)
+        c = diffuse_weight(laws, &albedo_by_id[0], sv + 1, j, True, weight[i], c)
         if not tvg:
             r = oa_v if oa_v > 1e-6 else 1e-6
             c = c / (r * r)
@@ -350,7 +353,7 @@ cdef void mirror_impl(const Py_ssize_t[::1] g_index, const double[::1] g_t, cons
         rx = rotation[0, 0] * ax + rotation[1, 0] * ay + rotation[2, 0] * az_
         ry = rotation[0, 1] * ax + rotation[1, 1] * ay + rotation[2, 1] * az_
         rz = rotation[0, 2] * ax + rotation[1, 2] * ay + rotation[2, 2] * az_
-        b = beam_in_view(rx, ry, rz, range_min, range_max, half_elevation_deg, edges, &oa)
+        b = beam_in_view(rx, ry, rz, range_min, range_max, half_elevation_deg, &edges[0], edges.shape[0], &oa)
         if b >= 0:
             r23[i] = 0.5 * (oa + oa_v)
             e23[i] = specular * c
@@ -449,22 +452,22 @@ cdef inline void deposit(double x, double x_dn, double x_up, bint c_dn, bint c_u
         column[b * stride] += <float>(density * ov)
 
 
-cdef inline bint neighbours(const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
-                            const Py_ssize_t[::1] ray, const double[::1] energy, Py_ssize_t k,
+cdef inline bint neighbours(const double* points, const double* normals, const int* key,
+                            const Py_ssize_t* ray, const double* energy, Py_ssize_t m, Py_ssize_t k,
                             Py_ssize_t n_elevation) noexcept nogil:
-    """Whether path k + 1 of a compact set is path k's upper neighbour on one continuous
-    surface (see ``splat_events``). A path without energy is no neighbour (as in
-    formation.accumulate)."""
-    cdef Py_ssize_t i = ray[k], m = ray.shape[0]
+    """Whether path k + 1 of a compact set of ``m`` paths is path k's upper neighbour on one
+    continuous surface (see ``splat_events``). A path without energy is no neighbour (as in
+    formation.accumulate). ``points``, ``normals``: (n, 3) C-contiguous."""
+    cdef Py_ssize_t i = ray[k]
     cdef double cx, cy, cz, off0, off1, limit
     if not (k + 1 < m and ray[k + 1] == i + 1 and (i + 1) % n_elevation != 0
             and key[i] >= 0 and key[i + 1] == key[i] and energy[k] != 0 and energy[k + 1] != 0):
         return False
-    cx = points[i + 1, 0] - points[i, 0]
-    cy = points[i + 1, 1] - points[i, 1]
-    cz = points[i + 1, 2] - points[i, 2]
-    off0 = cx * normals[i, 0] + cy * normals[i, 1] + cz * normals[i, 2]
-    off1 = cx * normals[i + 1, 0] + cy * normals[i + 1, 1] + cz * normals[i + 1, 2]
+    cx = points[3 * i + 3] - points[3 * i]
+    cy = points[3 * i + 4] - points[3 * i + 1]
+    cz = points[3 * i + 5] - points[3 * i + 2]
+    off0 = cx * normals[3 * i] + cy * normals[3 * i + 1] + cz * normals[3 * i + 2]
+    off1 = cx * normals[3 * i + 3] + cy * normals[3 * i + 4] + cz * normals[3 * i + 5]
     limit = CONTINUITY_SINE * CONTINUITY_SINE * (cx * cx + cy * cy + cz * cz)
     return off0 * off0 <= limit and off1 * off1 <= limit
 
@@ -788,6 +791,152 @@ cdef inline double dot3(const double* a, Py_ssize_t i, double x, double y, doubl
     return a[3 * i] * x + a[3 * i + 1] * y + a[3 * i + 2] * z
 
 
+cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const int[::1] hit_mesh,
+              const float[:, ::1] hit_normal, const double[:, ::1] org, const double[:, ::1] dirs,
+              const double[::1] before, const double[::1] atten, const int[::1] chain,
+              const double[:, ::1] plane_normal, const double[::1] plane_offset,
+              const unsigned char[::1] plane_active, const double[::1] plane_specular,
+              double reach, const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
+              bint first, bint reflect, int[:, ::1] children, int n_chains,
+              double[::1] dist, int[::1] sid, double[:, ::1] point,
+              double[:, ::1] normal, double[::1] intensity, double[::1] atten_out, int[::1] chain_out,
+              int[::1] key, Py_ssize_t[::1] live, int n_surfaces,
+              Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
+              double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
+              double[::1] nx_atten, int[::1] nx_chain, _Laws laws) noexcept nogil:
+    """The loop of :func:`trace_leg` (also run by :class:`PathBlocks`, block by block)."""
+
+    cdef Py_ssize_t k, i, m = ray.shape[0], n_next = 0, P = plane_normal.shape[0]
+    cdef Py_ssize_t row, p, best_p, cap = children.shape[0]
+    cdef bint one = org.shape[0] == 1
+    cdef double ox, oy, oz, dx, dy, dz, t, tp, dn, nx, ny, nz, b, total, c, r, rx, ry, rz, twice
+    cdef double px, py, pz, min_next = INFINITY
+    cdef float fx, fy, fz, cosf
+    cdef int s, ch, child
+    cdef bint overflow = False
+    cdef Py_ssize_t n_live = 0
+    cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
+    for k in range(m):
+        i = ray[k]
+        row = 0 if one else k
+        ox = org[row, 0]
+        oy = org[row, 1]
+        oz = org[row, 2]
+        dx = dirs[k, 0]
+        dy = dirs[k, 1]
+        dz = dirs[k, 2]
+        b = before[row]
+        if hit_mesh[k] >= 0:
+            t = hit_distance[k]
+            s = hit_mesh[k] + <int>P
+            nx = hit_normal[k, 0]
+            ny = hit_normal[k, 1]
+            nz = hit_normal[k, 2]
+        else:
+            t = INFINITY
+            s = -1
+            nx = 0.0
+            ny = 0.0
+            nz = 0.0
+        best_p = -1
+        for p in range(P):
+            if not plane_active[p]:
+                continue
+            dn = dot3(pn, p, dx, dy, dz)
+            if dn < 0:
+                tp = (plane_offset[p] - dot3(pn, p, ox, oy, oz)) / dn
+                if tp > 0 and tp < t and b + tp <= reach:
+                    t = tp
+                    best_p = p
+        if best_p >= 0:
+            s = <int>best_p
+            nx = plane_normal[best_p, 0]
+            ny = plane_normal[best_p, 1]
+            nz = plane_normal[best_p, 2]
+        total = b + t
+        if s < 0 or not total <= reach:
+            if first:
+                dist[i] = INFINITY
+                sid[i] = -1
+            continue
+        if first:
+            # As the caster reports them: float32 points and incidence (the round trip
+            # needs the build flag -fno-tree-slp-vectorize, see pyproject.toml).
+            fx = <float>(ox + dx * t)
+            fy = <float>(oy + dy * t)
+            fz = <float>(oz + dz * t)
+            px = fx
+            py = fy
+            pz = fz
+            cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
+            c = cosf
+        else:
+            px = ox + dx * t
+            py = oy + dy * t
+            pz = oz + dz * t
+            c = fabs(nx * dx + ny * dy + nz * dz)
+        c = diffuse_weight(laws, &albedo_by_id[0], s + 1, k, s >= P, weight[i], c)
+        if not tvg:
+            r = total if total > 1e-6 else 1e-6
+            c = c / (r * r)
+        ch = chain[row]
+        dist[i] = total
+        sid[i] = s
+        point[i, 0] = px
+        point[i, 1] = py
+        point[i, 2] = pz
+        normal[i, 0] = nx
+        normal[i, 1] = ny
+        normal[i, 2] = nz
+        intensity[i] = c
+        if not first:  # the first generation: no reflection yet, chain 0, key = sid
+            atten_out[i] = atten[row]
+            chain_out[i] = ch
+            key[i] = ch * n_surfaces + s
+        if c != 0:
+            live[n_live] = i
+            n_live += 1
+        if not (reflect and s < P and total < reach and plane_specular[s] > 0):
+            continue
+        child = children[ch, s]
+        if child < 0:
+            if n_chains >= cap:
+                overflow = True
+                continue
+            child = n_chains
+            children[ch, s] = child
+            n_chains += 1
+        twice = 2.0 * (dx * nx + dy * ny + dz * nz)
+        rx = dx - twice * nx
+        ry = dy - twice * ny
+        rz = dz - twice * nz
+        fx = <float>px
+        fy = <float>py
+        fz = <float>pz
+        nx_ray[n_next] = i
+        nx_org[n_next, 0] = fx + SURFACE_OFFSET_M * rx
+        nx_org[n_next, 1] = fy + SURFACE_OFFSET_M * ry
+        nx_org[n_next, 2] = fz + SURFACE_OFFSET_M * rz
+        nx_org32[n_next, 0] = <float>nx_org[n_next, 0]
+        nx_org32[n_next, 1] = <float>nx_org[n_next, 1]
+        nx_org32[n_next, 2] = <float>nx_org[n_next, 2]
+        nx_dir[n_next, 0] = rx
+        nx_dir[n_next, 1] = ry
+        nx_dir[n_next, 2] = rz
+        nx_dir32[n_next, 0] = <float>rx
+        nx_dir32[n_next, 1] = <float>ry
+        nx_dir32[n_next, 2] = <float>rz
+        nx_before[n_next] = total + SURFACE_OFFSET_M
+        nx_atten[n_next] = atten[row] * plane_specular[s]
+        nx_chain[n_next] = child
+        if total + SURFACE_OFFSET_M < min_next:
+            min_next = total + SURFACE_OFFSET_M
+        n_next += 1
+    return n_next, n_chains, min_next, overflow, n_live
+
+
+
+
 def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const int[::1] hit_mesh,
               const float[:, ::1] hit_normal, const double[:, ::1] org, const double[:, ::1] dirs,
               const double[::1] before, const double[::1] atten, const int[::1] chain,
@@ -818,135 +967,176 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     -------
     (n_next, n_chains, min_before_next, overflow, n_live)
     """
-    cdef Py_ssize_t k, i, m = ray.shape[0], n_next = 0, P = plane_normal.shape[0]
-    cdef Py_ssize_t row, p, best_p, cap = children.shape[0]
-    cdef bint one = org.shape[0] == 1
-    cdef double ox, oy, oz, dx, dy, dz, t, tp, dn, nx, ny, nz, b, total, c, r, rx, ry, rz, twice
-    cdef double px, py, pz, min_next = INFINITY
-    cdef float fx, fy, fz, cosf
-    cdef int s, ch, child
-    cdef bint overflow = False
-    cdef Py_ssize_t n_live = 0
+    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], ray.shape[0])
+    cdef (Py_ssize_t, int, double, bint, Py_ssize_t) r
+    with nogil:
+        r = trace_leg_impl(ray, hit_distance, hit_mesh, hit_normal, org, dirs, before, atten, chain, plane_normal, plane_offset, plane_active, plane_specular, reach, albedo_by_id, weight, tvg, first, reflect, children, n_chains, dist, sid, point, normal, intensity, atten_out, chain_out, key, live, n_surfaces, nx_ray, nx_org, nx_org32, nx_dir, nx_dir32, nx_before, nx_atten, nx_chain, laws)
+    return r
+
+
+cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] dist, const int[::1] sid,
+                const double[:, ::1] point, const double[::1] intensity, const double[::1] atten,
+                const int[::1] chain, bint same, int tx, const double[:, ::1] unfold,
+                const double[:, ::1] sources, const int[::1] tx_planes, double tx_specular,
+                const int[::1] rank, bint separate, int label, int n_planes, Py_ssize_t rays_per_beam,
+                double ox, double oy, double oz, const double[:, ::1] rotation,
+                const double[::1] edges, double half_elevation_deg, double range_min, double range_max,
+                const double[:, ::1] plane_normal, const double[::1] plane_offset,
+                const unsigned char[::1] plane_active,
+                Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
+                int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label) noexcept nogil:
+    """The loop of :func:`path_events` (also run by :class:`PathBlocks`)."""
+
+    cdef Py_ssize_t k, i, m = 0, n = live.shape[0], K = tx_planes.shape[0], j, q, P = plane_normal.shape[0]
+    cdef int c, s, last = tx_planes[K - 1] if K > 0 else -1, rank_tx = rank[tx] if not same else 0
+    cdef double ax, ay, az_, ux, uy, uz, vx, vy, vz, length, t, wx, wy, wz, tx_, ty, tz
+    cdef double denom, tol
+    cdef Py_ssize_t b
+    cdef bint ok
     cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
-    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], m)
+    for k in range(n):
+        i = live[k]
+        s = sid[i]
+        if same:
+            out_ray[m] = i
+            out_dist[m] = dist[i]
+            out_energy[m] = atten[i] * atten[i] * intensity[i]
+            out_beam[m] = <int>(i // rays_per_beam)
+            out_beam_tx[m] = out_beam[m]
+            out_label[m] = <signed char>((0 if s >= n_planes else 1) if label == 1 else label)
+            m += 1
+            continue
+        c = chain[i]
+        if c == tx or s == last:
+            continue
+        if not separate and rank[c] <= rank_tx:
+            continue
+        ax = point[i, 0]
+        ay = point[i, 1]
+        az_ = point[i, 2]
+        ux = unfold[0, 0] * ax + unfold[0, 1] * ay + unfold[0, 2] * az_ + unfold[0, 3] - ox
+        uy = unfold[1, 0] * ax + unfold[1, 1] * ay + unfold[1, 2] * az_ + unfold[1, 3] - oy
+        uz = unfold[2, 0] * ax + unfold[2, 1] * ay + unfold[2, 2] * az_ + unfold[2, 3] - oz
+        vx = rotation[0, 0] * ux + rotation[1, 0] * uy + rotation[2, 0] * uz
+        vy = rotation[0, 1] * ux + rotation[1, 1] * uy + rotation[2, 1] * uz
+        vz = rotation[0, 2] * ux + rotation[1, 2] * uy + rotation[2, 2] * uz
+        b = beam_in_view(vx, vy, vz, range_min, range_max, half_elevation_deg, &edges[0], edges.shape[0], &length)
+        if b < 0:
+            continue
+        # Walk back from A towards the sonar's images: each reflection point must lie on
+        # its plane, between its neighbours, inside the water.
+        ok = True
+        wx = ax
+        wy = ay
+        wz = az_
+        j = K - 1
+        while ok and j >= 0:
+            q = tx_planes[j]
+            tx_ = sources[j + 1, 0] - wx
+            ty = sources[j + 1, 1] - wy
+            tz = sources[j + 1, 2] - wz
+            denom = dot3(pn, q, tx_, ty, tz)
+            t = (plane_offset[q] - dot3(pn, q, wx, wy, wz)) / denom
+            if not (t > 0.0 and t < 1.0):
+                ok = False
+                break
+            wx = wx + t * tx_
+            wy = wy + t * ty
+            wz = wz + t * tz
+            tol = fabs(wx)
+            if fabs(wy) > tol:
+                tol = fabs(wy)
+            if fabs(wz) > tol:
+                tol = fabs(wz)
+            tol = WATER_TOLERANCE_M * (tol if tol > 1.0 else 1.0)
+            for q in range(P):
+                if plane_active[q] and dot3(pn, q, wx, wy, wz) - plane_offset[q] < -tol:
+                    ok = False
+                    break
+            j -= 1
+        if not ok:
+            continue
+        out_ray[m] = i
+        out_dist[m] = 0.5 * (dist[i] + length)
+        out_energy[m] = atten[i] * tx_specular * intensity[i]
+        out_beam[m] = <int>(i // rays_per_beam)
+        out_beam_tx[m] = <int>b
+        out_label[m] = <signed char>label
+        m += 1
+    return m
+
+
+def probe_chains(const double[:, ::1] origins, const double[:, ::1] directions,
+                 const double[:, ::1] plane_normal, const double[::1] plane_offset,
+                 const unsigned char[::1] plane_active, const double[::1] plane_specular, double range_max,
+                 Py_ssize_t max_length, int[:, ::1] children, int n_chains):
+    """The chains of planes that rays along the aperture's edges follow through the planes
+    alone (twin: ``paths.engine.probe_chains``, which traces the same rays step for step):
+    each ray goes to the nearest active plane it meets from the water side, reflects there
+    while the plane has specular reflectance and the path so far is shorter than
+    ``range_max``, at most ``max_length`` times; each step's chain is entered in ``children``
+    (``children[c, p]``: the chain ``c + (p,)``, -1 new, numbered from ``n_chains``).
+
+    Returns
+    -------
+    (n_chains, overflow)
+    """
+    cdef Py_ssize_t m = origins.shape[0], P = plane_normal.shape[0], k, p, best, step
+    cdef Py_ssize_t cap = children.shape[0]
+    cdef double ox, oy, oz, dx, dy, dz, dn, t, best_t, travelled, twice, nx, ny, nz
+    cdef int c, child
+    cdef bint overflow = False
+    cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
+    if directions.shape[0] != m or plane_offset.shape[0] != P or plane_active.shape[0] != P:
+        raise ValueError("probe arrays of different lengths")
     with nogil:
         for k in range(m):
-            i = ray[k]
-            row = 0 if one else k
-            ox = org[row, 0]
-            oy = org[row, 1]
-            oz = org[row, 2]
-            dx = dirs[k, 0]
-            dy = dirs[k, 1]
-            dz = dirs[k, 2]
-            b = before[row]
-            if hit_mesh[k] >= 0:
-                t = hit_distance[k]
-                s = hit_mesh[k] + <int>P
-                nx = hit_normal[k, 0]
-                ny = hit_normal[k, 1]
-                nz = hit_normal[k, 2]
-            else:
-                t = INFINITY
-                s = -1
-                nx = 0.0
-                ny = 0.0
-                nz = 0.0
-            best_p = -1
-            for p in range(P):
-                if not plane_active[p]:
-                    continue
-                dn = dot3(pn, p, dx, dy, dz)
-                if dn < 0:
-                    tp = (plane_offset[p] - dot3(pn, p, ox, oy, oz)) / dn
-                    if tp > 0 and tp < t and b + tp <= reach:
-                        t = tp
-                        best_p = p
-            if best_p >= 0:
-                s = <int>best_p
-                nx = plane_normal[best_p, 0]
-                ny = plane_normal[best_p, 1]
-                nz = plane_normal[best_p, 2]
-            total = b + t
-            if s < 0 or not total <= reach:
-                if first:
-                    dist[i] = INFINITY
-                    sid[i] = -1
-                continue
-            if first:
-                # As the caster reports them: float32 points and incidence (the round trip
-                # needs the build flag -fno-tree-slp-vectorize, see pyproject.toml).
-                fx = <float>(ox + dx * t)
-                fy = <float>(oy + dy * t)
-                fz = <float>(oz + dz * t)
-                px = fx
-                py = fy
-                pz = fz
-                cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
-                c = cosf
-            else:
-                px = ox + dx * t
-                py = oy + dy * t
-                pz = oz + dz * t
-                c = fabs(nx * dx + ny * dy + nz * dz)
-            c = diffuse_weight(laws, albedo_by_id, s + 1, k, s >= P, weight[i], c)
-            if not tvg:
-                r = total if total > 1e-6 else 1e-6
-                c = c / (r * r)
-            ch = chain[row]
-            dist[i] = total
-            sid[i] = s
-            point[i, 0] = px
-            point[i, 1] = py
-            point[i, 2] = pz
-            normal[i, 0] = nx
-            normal[i, 1] = ny
-            normal[i, 2] = nz
-            intensity[i] = c
-            if not first:  # the first generation: no reflection yet, chain 0, key = sid
-                atten_out[i] = atten[row]
-                chain_out[i] = ch
-                key[i] = ch * n_surfaces + s
-            if c != 0:
-                live[n_live] = i
-                n_live += 1
-            if not (reflect and s < P and total < reach and plane_specular[s] > 0):
-                continue
-            child = children[ch, s]
-            if child < 0:
-                if n_chains >= cap:
-                    overflow = True
-                    continue
-                child = n_chains
-                children[ch, s] = child
-                n_chains += 1
-            twice = 2.0 * (dx * nx + dy * ny + dz * nz)
-            rx = dx - twice * nx
-            ry = dy - twice * ny
-            rz = dz - twice * nz
-            fx = <float>px
-            fy = <float>py
-            fz = <float>pz
-            nx_ray[n_next] = i
-            nx_org[n_next, 0] = fx + SURFACE_OFFSET_M * rx
-            nx_org[n_next, 1] = fy + SURFACE_OFFSET_M * ry
-            nx_org[n_next, 2] = fz + SURFACE_OFFSET_M * rz
-            nx_org32[n_next, 0] = <float>nx_org[n_next, 0]
-            nx_org32[n_next, 1] = <float>nx_org[n_next, 1]
-            nx_org32[n_next, 2] = <float>nx_org[n_next, 2]
-            nx_dir[n_next, 0] = rx
-            nx_dir[n_next, 1] = ry
-            nx_dir[n_next, 2] = rz
-            nx_dir32[n_next, 0] = <float>rx
-            nx_dir32[n_next, 1] = <float>ry
-            nx_dir32[n_next, 2] = <float>rz
-            nx_before[n_next] = total + SURFACE_OFFSET_M
-            nx_atten[n_next] = atten[row] * plane_specular[s]
-            nx_chain[n_next] = child
-            if total + SURFACE_OFFSET_M < min_next:
-                min_next = total + SURFACE_OFFSET_M
-            n_next += 1
-    return n_next, n_chains, min_next, overflow, n_live
+            ox = origins[k, 0]
+            oy = origins[k, 1]
+            oz = origins[k, 2]
+            dx = directions[k, 0]
+            dy = directions[k, 1]
+            dz = directions[k, 2]
+            c = 0
+            travelled = 0.0
+            for step in range(max_length):
+                best = -1
+                best_t = INFINITY
+                for p in range(P):
+                    if not plane_active[p]:
+                        continue
+                    dn = dot3(pn, p, dx, dy, dz)
+                    if dn < 0:
+                        t = (plane_offset[p] - dot3(pn, p, ox, oy, oz)) / dn
+                        if t > 0 and t < best_t:
+                            best_t = t
+                            best = p
+                if best < 0 or not travelled + best_t < range_max or not plane_specular[best] > 0:
+                    break
+                child = children[c, best]
+                if child < 0:
+                    if n_chains >= cap:
+                        overflow = True
+                        break
+                    child = n_chains
+                    children[c, best] = child
+                    n_chains += 1
+                c = child
+                travelled = travelled + best_t
+                nx = plane_normal[best, 0]
+                ny = plane_normal[best, 1]
+                nz = plane_normal[best, 2]
+                ox = ox + dx * best_t
+                oy = oy + dy * best_t
+                oz = oz + dz * best_t
+                twice = 2.0 * (dx * nx + dy * ny + dz * nz)
+                dx = dx - twice * nx
+                dy = dy - twice * ny
+                dz = dz - twice * nz
+                ox = ox + SURFACE_OFFSET_M * dx
+                oy = oy + SURFACE_OFFSET_M * dy
+                oz = oz + SURFACE_OFFSET_M * dz
+    return n_chains, overflow
 
 
 def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::1] sid,
@@ -972,84 +1162,39 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
     -------
     int : the number of paths written.
     """
-    cdef Py_ssize_t k, i, m = 0, n = live.shape[0], K = tx_planes.shape[0], j, q, P = plane_normal.shape[0]
-    cdef int c, s, last = tx_planes[K - 1] if K > 0 else -1, rank_tx = rank[tx] if not same else 0
-    cdef double ax, ay, az_, ux, uy, uz, vx, vy, vz, length, t, wx, wy, wz, tx_, ty, tz
-    cdef double denom, tol
-    cdef Py_ssize_t b
-    cdef bint ok
-    cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
+    cdef Py_ssize_t m
     with nogil:
-        for k in range(n):
-            i = live[k]
-            s = sid[i]
-            if same:
-                out_ray[m] = i
-                out_dist[m] = dist[i]
-                out_energy[m] = atten[i] * atten[i] * intensity[i]
-                out_beam[m] = <int>(i // rays_per_beam)
-                out_beam_tx[m] = out_beam[m]
-                out_label[m] = <signed char>((0 if s >= n_planes else 1) if label == 1 else label)
-                m += 1
-                continue
-            c = chain[i]
-            if c == tx or s == last:
-                continue
-            if not separate and rank[c] <= rank_tx:
-                continue
-            ax = point[i, 0]
-            ay = point[i, 1]
-            az_ = point[i, 2]
-            ux = unfold[0, 0] * ax + unfold[0, 1] * ay + unfold[0, 2] * az_ + unfold[0, 3] - ox
-            uy = unfold[1, 0] * ax + unfold[1, 1] * ay + unfold[1, 2] * az_ + unfold[1, 3] - oy
-            uz = unfold[2, 0] * ax + unfold[2, 1] * ay + unfold[2, 2] * az_ + unfold[2, 3] - oz
-            vx = rotation[0, 0] * ux + rotation[1, 0] * uy + rotation[2, 0] * uz
-            vy = rotation[0, 1] * ux + rotation[1, 1] * uy + rotation[2, 1] * uz
-            vz = rotation[0, 2] * ux + rotation[1, 2] * uy + rotation[2, 2] * uz
-            b = beam_in_view(vx, vy, vz, range_min, range_max, half_elevation_deg, edges, &length)
-            if b < 0:
-                continue
-            # Walk back from A towards the sonar's images: each reflection point must lie on
-            # its plane, between its neighbours, inside the water.
-            ok = True
-            wx = ax
-            wy = ay
-            wz = az_
-            j = K - 1
-            while ok and j >= 0:
-                q = tx_planes[j]
-                tx_ = sources[j + 1, 0] - wx
-                ty = sources[j + 1, 1] - wy
-                tz = sources[j + 1, 2] - wz
-                denom = dot3(pn, q, tx_, ty, tz)
-                t = (plane_offset[q] - dot3(pn, q, wx, wy, wz)) / denom
-                if not (t > 0.0 and t < 1.0):
-                    ok = False
-                    break
-                wx = wx + t * tx_
-                wy = wy + t * ty
-                wz = wz + t * tz
-                tol = fabs(wx)
-                if fabs(wy) > tol:
-                    tol = fabs(wy)
-                if fabs(wz) > tol:
-                    tol = fabs(wz)
-                tol = WATER_TOLERANCE_M * (tol if tol > 1.0 else 1.0)
-                for q in range(P):
-                    if plane_active[q] and dot3(pn, q, wx, wy, wz) - plane_offset[q] < -tol:
-                        ok = False
-                        break
-                j -= 1
-            if not ok:
-                continue
-            out_ray[m] = i
-            out_dist[m] = 0.5 * (dist[i] + length)
-            out_energy[m] = atten[i] * tx_specular * intensity[i]
-            out_beam[m] = <int>(i // rays_per_beam)
-            out_beam_tx[m] = <int>b
-            out_label[m] = <signed char>label
-            m += 1
+        m = path_events_impl(live, dist, sid, point, intensity, atten, chain, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, ox, oy, oz, rotation, edges, half_elevation_deg, range_min, range_max, plane_normal, plane_offset, plane_active, out_ray, out_dist, out_energy, out_beam, out_beam_tx, out_label)
     return m
+
+
+cdef void splat_events_impl(const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
+                 const Py_ssize_t[::1] ray, const double[::1] distance, const double[::1] energy,
+                 const int[::1] beam, const signed char[::1] label, double scale,
+                 bint spread, Py_ssize_t n_elevation, double range_min, double dr,
+                 Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out) noexcept nogil:
+    """The loop of :func:`splat_events` (also run by :class:`PathBlocks`)."""
+
+    cdef Py_ssize_t k, m = ray.shape[0]
+    cdef bint c_dn = False, c_up
+    cdef double x, x_dn = 0.0, x_up
+    cdef double nb = <double>n_range_bins
+    cdef float* base = &out[0]
+    if m == 0:
+        return
+    cdef const double* pts = &points[0, 0]
+    cdef const double* nrm = &normals[0, 0]
+    cdef const int* kp = &key[0]
+    cdef const Py_ssize_t* rp = &ray[0]
+    cdef const double* ep = &energy[0]
+    for k in range(m):
+        c_up = spread and neighbours(pts, nrm, kp, rp, ep, m, k, n_elevation)
+        x = (distance[k] - range_min) / dr
+        x_up = (distance[k + 1] - range_min) / dr if c_up else 0.0
+        deposit(x, x_dn, x_up, c_dn, c_up, scale * energy[k],
+                base + <Py_ssize_t>label[k] * n_range_bins * n_beams + beam[k], n_beams, nb)
+        c_dn = c_up
+        x_dn = x
 
 
 def splat_events(const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
@@ -1065,20 +1210,436 @@ def splat_events(const double[:, ::1] points, const double[:, ::1] normals, cons
     between their scatterers lies within the continuity angle of both normals. Each path's
     energy is ``scale * energy``.
     """
-    cdef Py_ssize_t k, m = ray.shape[0]
-    cdef bint c_dn = False, c_up
-    cdef double x, x_dn = 0.0, x_up
-    cdef double nb = <double>n_range_bins
-    cdef float* base = &out[0]
     with nogil:
-        for k in range(m):
-            c_up = spread and neighbours(points, normals, key, ray, energy, k, n_elevation)
-            x = (distance[k] - range_min) / dr
-            x_up = (distance[k + 1] - range_min) / dr if c_up else 0.0
-            deposit(x, x_dn, x_up, c_dn, c_up, scale * energy[k],
-                    base + <Py_ssize_t>label[k] * n_range_bins * n_beams + beam[k], n_beams, nb)
-            c_dn = c_up
-            x_dn = x
+        splat_events_impl(points, normals, key, ray, distance, energy, beam, label, scale, spread, n_elevation, range_min, dr, n_range_bins, n_beams, out)
+
+
+cdef class PathBlocks:
+    """The general path engine for a block of beams in one call: rotate the block's rays, cast
+    them, trace their receive legs generation by generation (casting each generation's
+    reflected rays), and then -- once the frame's chains are known (:meth:`paths`) -- form its
+    paths into the path buffer and splat them into the block's own image columns. Twin of the
+    stage-by-stage NumPy engine (``sonarsim.paths.engine``), kernel for kernel.
+
+    A block writes only its own rays' entries, its own rows of the ray buffers, its own chain
+    table and (splatting) its own beams' columns, so blocks run on any thread at once (the GIL
+    is released) and the frame is the same bits whichever thread took which block, and however
+    the beams are cut into blocks: chains are numbered per block while tracing and renumbered
+    to the frame's canonical ids (``ChainTable.canonical``) before the paths are formed.
+
+    Casting goes through the Embree 4 binding's packet loop where the caster lends it (``cast``
+    of :meth:`trace`); elsewhere (embreex, the NumPy caster, textures) Python casts between
+    :meth:`begin` / :meth:`step`, which run the very same code on the hits it passes.
+
+    Parameters
+    ----------
+    work : renderer.compiled.Workspace
+        The per-ray buffers (``d64``, ``d32``, ``o32``, ``h_*``, the ray buffers ``r_*``, ``ray0``).
+    directions : (n, 3) float64, the fan's rays in the sonar frame
+    weight : (n,) float64
+    albedo_by_id, law_by_id, lobe_by_id : the surfaces' laws (as :func:`trace_leg`)
+    plane_normal, plane_offset, plane_specular : the planes (``PlaneSet``)
+    n_blocks, capacity : int
+        Blocks of a frame, and the rows of each block's chain table.
+    scene, scene_address, cast_address, ids, coherent : optional
+        The binding's packet loop (``Embree4Caster.packet_loop()``); None: Python casts.
+    """
+
+    cdef object keep
+    cdef void* scene
+    cdef cast_rays_t cast
+    cdef const int[::1] ids
+    cdef bint coherent
+    cdef readonly bint fused
+    cdef _Laws laws
+    cdef const double[:, ::1] fan_dirs
+    cdef const double[::1] weight, albedo
+    cdef const double[:, ::1] plane_normal
+    cdef const double[::1] plane_offset, plane_specular
+    cdef double[:, ::1] d64
+    cdef float[:, ::1] d32, o32, h_normal
+    cdef float[::1] h_dist
+    cdef int[::1] h_mesh
+    cdef const Py_ssize_t[::1] ray0
+    cdef const double[::1] ones
+    cdef const int[::1] zeros
+    cdef Py_ssize_t[:, ::1] r_ray
+    cdef double[:, :, ::1] r_org, r_dir
+    cdef float[:, :, ::1] r_org32, r_dir32
+    cdef double[:, ::1] r_before, r_atten
+    cdef int[:, ::1] r_chain
+    cdef readonly object children_array
+    cdef int[:, :, ::1] children
+    cdef int[::1] n_local
+    cdef unsigned char[::1] overflow
+    cdef Py_ssize_t[::1] blk_cur, blk_m
+    cdef double[::1] blk_min
+    cdef Py_ssize_t n_blocks
+    # Per frame.
+    cdef double[:, ::1] dist, intensity, atten
+    cdef int[:, ::1] sid, chain, key
+    cdef double[:, :, ::1] point, normal
+    cdef Py_ssize_t[:, ::1] live, n_live, n_cast
+    cdef const unsigned char[::1] active
+    cdef const double[:, ::1] rotation
+    cdef const double[::1] edges
+    cdef double origin[3]
+    cdef const double[:, ::1] origin2
+    cdef const double[::1] before1
+    cdef float origin32[3]
+    cdef double reach, range_min, range_max, dr, half_el
+    cdef bint tvg, spread, separate
+    cdef Py_ssize_t n_gen, n_el, n_bins, n_beams, rays_per_beam, n_surfaces, n_planes
+    cdef bint ready
+    # Per frame, after tracing (options()).
+    cdef const int[::1] opt_gen, opt_tx, opt_same, opt_label, opt_len, rank
+    cdef const double[:, :, ::1] opt_unfold, opt_sources
+    cdef const int[:, ::1] opt_planes
+    cdef const double[::1] opt_specular
+    cdef const int[:, ::1] remap
+    cdef Py_ssize_t[::1] p_offset, p_count
+    cdef Py_ssize_t[::1] p_ray
+    cdef double[::1] p_dist, p_energy
+    cdef int[::1] p_beam, p_beam_tx
+    cdef signed char[::1] p_label
+    cdef float[::1] out, total
+    cdef int total_rows[16]
+    cdef int n_total_rows
+    cdef bint paths_ready, splat
+
+    def __init__(self, work, const double[:, ::1] directions, const double[::1] weight,
+                 const double[::1] albedo_by_id, law_by_id, lobe_by_id, const double[:, ::1] plane_normal,
+                 const double[::1] plane_offset, const double[::1] plane_specular, Py_ssize_t n_blocks,
+                 Py_ssize_t capacity, scene=None, size_t scene_address=0, size_t cast_address=0, ids=None,
+                 bint coherent=False):
+        w = work
+        if w.n != directions.shape[0] or weight.shape[0] != w.n:
+            raise ValueError(f"a workspace of {w.n} rays for {directions.shape[0]} directions and {weight.shape[0]} weights")
+        if plane_offset.shape[0] != plane_normal.shape[0] or plane_specular.shape[0] != plane_normal.shape[0]:
+            raise ValueError("plane arrays of different lengths")
+        if n_blocks < 1 or capacity < 1:
+            raise ValueError("at least one block and one chain")
+        self.fused = scene is not None
+        if self.fused and (scene_address == 0 or cast_address == 0):
+            raise ValueError("no Embree scene or packet loop")
+        self.keep = (scene, ids, directions, weight, albedo_by_id, law_by_id, lobe_by_id, plane_normal, plane_offset,
+                     plane_specular)
+        self.scene = <void*>scene_address
+        self.cast = <cast_rays_t>cast_address
+        if ids is not None:
+            self.ids = ids
+        self.coherent = coherent
+        self.laws = _Laws(law_by_id, lobe_by_id, None, albedo_by_id.shape[0], 0)
+        self.fan_dirs, self.weight, self.albedo = directions, weight, albedo_by_id
+        self.plane_normal, self.plane_offset, self.plane_specular = plane_normal, plane_offset, plane_specular
+        self.n_planes = plane_normal.shape[0]
+        self.d64, self.d32, self.o32 = w.d64, w.d32, w.o32
+        self.h_dist, self.h_mesh, self.h_normal = w.h_dist, w.h_mesh, w.h_normal
+        self.ray0, self.ones, self.zeros = w.ray0, w.ones, w.zeros_i32
+        self.r_ray, self.r_org, self.r_dir, self.r_org32, self.r_dir32 = w.r_ray, w.r_org, w.r_dir, w.r_org32, w.r_dir32
+        self.r_before, self.r_atten, self.r_chain = w.r_before, w.r_atten, w.r_chain
+        self.n_blocks = n_blocks
+        self.grow(capacity)
+        self.n_local = np.zeros(n_blocks, np.int32)
+        self.overflow = np.zeros(n_blocks, np.uint8)
+        self.blk_cur = np.zeros(n_blocks, np.intp)
+        self.blk_m = np.zeros(n_blocks, np.intp)
+        self.blk_min = np.zeros(n_blocks)
+        self.before1 = np.zeros(1)
+        self.ready = False
+        self.paths_ready = False
+
+    def grow(self, Py_ssize_t capacity):
+        """Give each block a chain table of ``capacity`` rows (after an overflow)."""
+        self.children_array = np.full((self.n_blocks, capacity, max(self.n_planes, 1)), -1, np.int32)
+        self.children = self.children_array
+
+    def local_chains(self, Py_ssize_t k):
+        """Block ``k``'s chain table: ``(children, n_chains)`` (``children[c, p]``: its chain ``c + (p,)``)."""
+        return self.children_array[k], self.n_local[k]
+
+    def frame(self, legs, const unsigned char[::1] active, const double[:, ::1] rotation, const double[::1] origin,
+              double reach, bint tvg, Py_ssize_t n_gen, Py_ssize_t n_el, double range_min, double dr,
+              Py_ssize_t n_bins, Py_ssize_t n_beams, double range_max, double half_el, const double[::1] edges,
+              bint spread, bint separate, Py_ssize_t n_surfaces, float[::1] out=None):
+        """Set the frame: ``out`` (optional: the flat image stack the blocks will splat into;
+        block k zeroes its k-th share of the range bins while it traces, whole rows at a time,
+        contiguous), ``legs`` (``dist``, ``sid``, ``point``, ``normal``, ``intensity``,
+        ``atten``, ``chain``, ``key``, ``live``: the (n_gen, n, ...) receive legs, written by
+        the blocks; ``n_live``, ``n_cast``: (n_blocks, n_gen) counts), the planes the sonar
+        faces, the pose, the settings."""
+        if active.shape[0] != self.n_planes:
+            raise ValueError(f"{active.shape[0]} active flags for {self.n_planes} planes")
+        if n_gen < 1 or legs.dist.shape[0] < n_gen or legs.dist.shape[1] != self.fan_dirs.shape[0]:
+            raise ValueError("legs of the wrong shape")
+        if self.fan_dirs.shape[0] % (n_beams * n_el) != 0 or legs.n_live.shape[0] != self.n_blocks:
+            raise ValueError("the fan's shape does not match the workspace")
+        self.dist, self.sid, self.point, self.normal = legs.dist, legs.sid, legs.point, legs.normal
+        self.intensity, self.atten, self.chain, self.key = legs.intensity, legs.atten, legs.chain, legs.key
+        self.live, self.n_live, self.n_cast = legs.live, legs.n_live, legs.n_cast
+        self.active, self.rotation, self.edges = active, rotation, edges
+        self.origin2 = np.asarray(origin, dtype=np.float64).reshape(1, 3).copy()
+        for k in range(3):
+            self.origin[k] = origin[k]
+            self.origin32[k] = <float>origin[k]
+        self.reach, self.tvg, self.n_gen, self.n_el = reach, tvg, n_gen, n_el
+        self.range_min, self.dr, self.n_bins, self.n_beams = range_min, dr, n_bins, n_beams
+        self.range_max, self.half_el, self.spread, self.separate = range_max, half_el, spread, separate
+        self.rays_per_beam = self.fan_dirs.shape[0] // n_beams
+        self.n_surfaces = n_surfaces
+        if out is not None and out.shape[0] % (n_bins * n_beams) != 0:
+            raise ValueError("the output stack is not (rows, n_range_bins, n_beams)")
+        self.out = out
+        self.ready = True
+        self.paths_ready = False
+
+    cdef int _check(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1) except -1:
+        if not self.ready:
+            raise ValueError("call frame() first")
+        if not (0 <= b0 <= b1 <= self.n_beams) or not 0 <= k < self.n_blocks:
+            raise ValueError(f"block {k} of {self.n_blocks}, beams {b0}:{b1} of 0:{self.n_beams}")
+        return 0
+
+    cdef void _begin(self, Py_ssize_t k, Py_ssize_t a, Py_ssize_t b, bint origins) noexcept nogil:
+        """Reset block ``k``'s chains, mark its later generations "nothing", rotate its rays."""
+        cdef Py_ssize_t g, i, j, cap = self.children.shape[1], n_p = self.children.shape[2]
+        cdef int* ch = &self.children[k, 0, 0]
+        for j in range(cap * n_p):
+            ch[j] = -1
+        self.n_local[k] = 1
+        self.overflow[k] = 0
+        for g in range(self.n_gen):
+            self.n_live[k, g] = 0
+            self.n_cast[k, g] = 0
+        for g in range(1, self.n_gen):
+            for i in range(a, b):
+                self.dist[g, i] = INFINITY
+                self.sid[g, i] = -1
+                self.key[g, i] = -1
+        rotate_impl(self.fan_dirs, self.rotation, self.d64, self.d32, a, b)
+        if origins:
+            for i in range(a, b):
+                self.o32[i, 0] = self.origin32[0]
+                self.o32[i, 1] = self.origin32[1]
+                self.o32[i, 2] = self.origin32[2]
+        self.blk_m[k] = b - a
+        self.blk_cur[k] = 0
+        if self.out is not None:
+            self._zero(k)
+
+    cdef (Py_ssize_t, Py_ssize_t) _share(self, Py_ssize_t k) noexcept nogil:
+        """Block k's share of the range bins: whole image rows, contiguous in memory (a block's
+        own beams are strided: zeroing or summing them reads the stack column by column)."""
+        return k * self.n_bins // self.n_blocks, (k + 1) * self.n_bins // self.n_blocks
+
+    cdef void _zero(self, Py_ssize_t k) noexcept nogil:
+        cdef Py_ssize_t r, j0, j1, plane = self.n_bins * self.n_beams
+        j0, j1 = self._share(k)
+        for r in range(self.out.shape[0] // plane):
+            memset(&self.out[r * plane + j0 * self.n_beams], 0, (j1 - j0) * self.n_beams * sizeof(float))
+
+    cdef void _step(self, Py_ssize_t k, Py_ssize_t a, Py_ssize_t b, Py_ssize_t g, _Laws laws) noexcept nogil:
+        """Generation ``g`` of block ``k`` from the hits in ``h_*[a:a + m]`` (m: its rays)."""
+        cdef Py_ssize_t m = self.blk_m[k], cur = self.blk_cur[k], nxt = 1 - self.blk_cur[k]
+        cdef (Py_ssize_t, int, double, bint, Py_ssize_t) r
+        cdef bint reflect = g + 1 < self.n_gen
+        self.n_cast[k, g] = m
+        if g == 0:
+            r = trace_leg_impl(self.ray0[a:b], self.h_dist[a:b], self.h_mesh[a:b], self.h_normal[a:b], self.origin2,
+                               self.d64[a:b], self.before1, self.ones[:1], self.zeros[:1], self.plane_normal,
+                               self.plane_offset, self.active, self.plane_specular, self.reach, self.albedo,
+                               self.weight, self.tvg, True, reflect, self.children[k], self.n_local[k], self.dist[0],
+                               self.sid[0], self.point[0], self.normal[0], self.intensity[0], self.atten[0],
+                               self.chain[0], self.key[0], self.live[0, a:b], <int>self.n_surfaces,
+                               self.r_ray[nxt, a:b], self.r_org[nxt, a:b], self.r_org32[nxt, a:b],
+                               self.r_dir[nxt, a:b], self.r_dir32[nxt, a:b], self.r_before[nxt, a:b],
+                               self.r_atten[nxt, a:b], self.r_chain[nxt, a:b], laws)
+        else:
+            r = trace_leg_impl(self.r_ray[cur, a:a + m], self.h_dist[a:a + m], self.h_mesh[a:a + m],
+                               self.h_normal[a:a + m], self.r_org[cur, a:a + m], self.r_dir[cur, a:a + m],
+                               self.r_before[cur, a:a + m], self.r_atten[cur, a:a + m], self.r_chain[cur, a:a + m],
+                               self.plane_normal, self.plane_offset, self.active, self.plane_specular, self.reach,
+                               self.albedo, self.weight, self.tvg, False, reflect, self.children[k],
+                               self.n_local[k], self.dist[g], self.sid[g], self.point[g], self.normal[g],
+                               self.intensity[g], self.atten[g], self.chain[g], self.key[g], self.live[g, a:b],
+                               <int>self.n_surfaces, self.r_ray[nxt, a:b], self.r_org[nxt, a:b],
+                               self.r_org32[nxt, a:b], self.r_dir[nxt, a:b], self.r_dir32[nxt, a:b],
+                               self.r_before[nxt, a:b], self.r_atten[nxt, a:b], self.r_chain[nxt, a:b], laws)
+        self.blk_m[k] = r[0] if reflect else 0
+        self.n_local[k] = r[1]
+        self.blk_min[k] = r[2]
+        if r[3]:
+            self.overflow[k] = 1
+        self.n_live[k, g] = r[4]
+        self.blk_cur[k] = nxt
+
+    def trace(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1):
+        """Block ``k`` (beams ``b0:b1``) cast and traced through every generation, casting
+        through the packet loop. Returns False where its chain table overflowed (grow it and
+        run the block again)."""
+        if not self.fused:
+            raise ValueError("no packet loop: cast in Python between begin() and step()")
+        self.keep[0].address()  # raises once the caster released the Embree scene (no cast into freed memory)
+        cdef Py_ssize_t a, b, g, m, cur
+        self._check(k, b0, b1)
+        a, b = b0 * self.rays_per_beam, b1 * self.rays_per_beam
+        cdef float limit = <float>self.reach
+        with nogil:
+            self._begin(k, a, b, False)
+            if b > a:
+                self.cast(self.scene, self.origin32, 0, &self.d32[a, 0], &limit, 0, &self.ids[0], &self.h_dist[a],
+                          &self.h_mesh[a], &self.h_normal[a, 0], NULL, NULL, b - a, self.coherent)
+                self._step(k, a, b, 0, self.laws)
+                for g in range(1, self.n_gen):
+                    m = self.blk_m[k]
+                    if m == 0 or self.overflow[k]:
+                        break
+                    cur = self.blk_cur[k]
+                    limit = <float>(self.reach - self.blk_min[k])
+                    self.cast(self.scene, &self.r_org32[cur, a, 0], 3, &self.r_dir32[cur, a, 0], &limit, 0,
+                              &self.ids[0], &self.h_dist[a], &self.h_mesh[a], &self.h_normal[a, 0], NULL, NULL, m,
+                              self.coherent)
+                    self._step(k, a, b, g, self.laws)
+        return not self.overflow[k]
+
+    def begin(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1):
+        """Start block ``k`` for casting in Python: returns ``(buffer, m, limit)`` of the first
+        generation (see :meth:`pending`)."""
+        cdef Py_ssize_t a, b
+        self._check(k, b0, b1)
+        a, b = b0 * self.rays_per_beam, b1 * self.rays_per_beam
+        with nogil:
+            self._begin(k, a, b, True)
+        return self.pending(k)
+
+    def pending(self, Py_ssize_t k):
+        """``(buffer, m, limit)``: the block's next rays to cast are rows ``a:a + m`` of
+        ``o32``/``d32`` (buffer -1, the first generation) or of ``r_org32[buffer]`` /
+        ``r_dir32[buffer]``, up to ``limit`` metres; m 0: none left."""
+        return self.blk_cur[k] if self.n_cast[k, 0] else -1, self.blk_m[k], self.reach - (self.blk_min[k] if self.n_cast[k, 0] else 0.0)
+
+    def step(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1, Py_ssize_t g, law_by_id=None, lobe_by_id=None,
+             hit_texel=None):
+        """Generation ``g`` of block ``k`` from the hits Python cast into ``h_*[a:a + m]``.
+        Returns False where the chain table overflowed."""
+        cdef Py_ssize_t a, b
+        self._check(k, b0, b1)
+        a, b = b0 * self.rays_per_beam, b1 * self.rays_per_beam
+        if not 0 <= g < self.n_gen:
+            raise ValueError(f"generation {g} of {self.n_gen}")
+        cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, self.albedo.shape[0], self.blk_m[k])
+        with nogil:
+            self._step(k, a, b, g, laws)
+        return not self.overflow[k]
+
+    def options(self, const int[:, ::1] remap, const int[::1] rank, const int[::1] gen, const int[::1] tx,
+                const int[::1] same, const int[::1] label, const int[::1] length, const double[:, :, ::1] unfold,
+                const double[:, :, ::1] sources, const int[:, ::1] planes, const double[::1] specular,
+                Py_ssize_t[::1] offset, Py_ssize_t[::1] count, Py_ssize_t[::1] p_ray, double[::1] p_dist,
+                double[::1] p_energy, int[::1] p_beam, int[::1] p_beam_tx, signed char[::1] p_label,
+                bint splat=True, float[::1] total=None, tuple rows=()):
+        """Set what :meth:`paths` forms: each block's chain ids to the frame's (``remap``,
+        (n_blocks, capacity)), the chains' ranks, the transmit options in order (generation,
+        chain, same, image row, chain length, its unfolding map, the sonar's images, its
+        planes, its specular product), the path buffer (``offset[o * n_blocks + k]``: where
+        option o of block k starts; ``count``: receives how many it wrote; a block's
+        capacity for an option is its generation's live rays), whether to splat into the
+        frame's stack, and the ``total`` of stack ``rows`` (:meth:`sum_rows`)."""
+        cdef float[::1] out = self.out if splat else None
+        cdef Py_ssize_t n_opt = gen.shape[0], o
+        if not self.ready:
+            raise ValueError("call frame() first")
+        if remap.shape[0] != self.n_blocks or offset.shape[0] != n_opt * self.n_blocks or count.shape[0] != offset.shape[0]:
+            raise ValueError("remap, offsets or counts of the wrong shape")
+        for o in range(n_opt):
+            if not 0 <= gen[o] < self.n_gen or not 0 <= label[o] < 127 or length[o] > planes.shape[1]:
+                raise ValueError(f"transmit option {o} out of range")
+            if not same[o] and not 0 <= tx[o] < rank.shape[0]:
+                raise ValueError(f"transmit option {o}: chain {tx[o]} of {rank.shape[0]}")
+        if (out is not None and (out.shape[0] % (self.n_bins * self.n_beams) != 0
+                                 or n_opt and max(label) >= out.shape[0] // (self.n_bins * self.n_beams))):
+            raise ValueError("the output stack is too small for the options' rows")
+        self.remap, self.rank = remap, rank
+        self.opt_gen, self.opt_tx, self.opt_same, self.opt_label, self.opt_len = gen, tx, same, label, length
+        self.opt_unfold, self.opt_sources, self.opt_planes, self.opt_specular = unfold, sources, planes, specular
+        self.p_offset, self.p_count = offset, count
+        self.p_ray, self.p_dist, self.p_energy, self.p_beam, self.p_beam_tx, self.p_label = (
+            p_ray, p_dist, p_energy, p_beam, p_beam_tx, p_label)
+        self.splat = splat and out is not None
+        self.total = total
+        self.n_total_rows = len(rows) if total is not None and out is not None else 0
+        if self.n_total_rows > 16:
+            raise ValueError("at most 16 rows in the total")
+        for o in range(self.n_total_rows):
+            if not 0 <= rows[o] < out.shape[0] // (self.n_bins * self.n_beams):
+                raise ValueError(f"total row {rows[o]} outside the stack")
+            self.total_rows[o] = rows[o]
+        if self.n_total_rows and total.shape[0] != self.n_bins * self.n_beams:
+            raise ValueError("the total is not (n_range_bins, n_beams)")
+        self.paths_ready = True
+
+    def paths(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1):
+        """Block ``k``'s paths: chain ids made the frame's, every transmit option's paths into
+        the path buffer and, with an output stack, splatted into the block's own columns."""
+        if not self.paths_ready:
+            raise ValueError("call options() first")
+        cdef Py_ssize_t a, b, g, i, o, off, n, cnt, K, r, j, q, row
+        cdef Py_ssize_t n_opt = self.opt_gen.shape[0], plane = self.n_bins * self.n_beams
+        cdef int c
+        cdef bint splat = self.splat
+        self._check(k, b0, b1)
+        a, b = b0 * self.rays_per_beam, b1 * self.rays_per_beam
+        with nogil:
+            for g in range(1, self.n_gen):
+                for i in range(a, b):
+                    if self.sid[g, i] >= 0:
+                        c = self.remap[k, self.chain[g, i]]
+                        self.chain[g, i] = c
+                        self.key[g, i] = c * <int>self.n_surfaces + self.sid[g, i]
+            for o in range(n_opt):
+                g = self.opt_gen[o]
+                n = self.n_live[k, g]
+                off = self.p_offset[o * self.n_blocks + k]
+                K = self.opt_len[o]
+                cnt = path_events_impl(
+                    self.live[g, a:a + n], self.dist[g], self.sid[g], self.point[g], self.intensity[g],
+                    self.ones if g == 0 else self.atten[g], self.zeros if g == 0 else self.chain[g],
+                    self.opt_same[o], self.opt_tx[o], self.opt_unfold[o], self.opt_sources[o, :K + 1],
+                    self.opt_planes[o, :K], self.opt_specular[o], self.rank, self.separate, self.opt_label[o],
+                    <int>self.n_planes, self.rays_per_beam, self.origin[0], self.origin[1], self.origin[2],
+                    self.rotation, self.edges, self.half_el, self.range_min, self.range_max, self.plane_normal,
+                    self.plane_offset, self.active, self.p_ray[off:off + n], self.p_dist[off:off + n],
+                    self.p_energy[off:off + n], self.p_beam[off:off + n], self.p_beam_tx[off:off + n],
+                    self.p_label[off:off + n])
+                self.p_count[o * self.n_blocks + k] = cnt
+                if splat and cnt:
+                    splat_events_impl(self.point[g], self.normal[g], self.sid[0] if g == 0 else self.key[g],
+                                      self.p_ray[off:off + cnt], self.p_dist[off:off + cnt],
+                                      self.p_energy[off:off + cnt], self.p_beam[off:off + cnt],
+                                      self.p_label[off:off + cnt], 1.0, self.spread, self.n_el, self.range_min,
+                                      self.dr, self.n_bins, self.n_beams, self.out)
+
+    def sum_rows(self, Py_ssize_t k):
+        """The total's k-th share of the range bins (after every block's :meth:`paths`): the
+        stack rows given to :meth:`options` added in float32, in their order (as
+        ``components._sum_rows``)."""
+        if not self.paths_ready or not 0 <= k < self.n_blocks:
+            raise ValueError("call options() first, with a block index")
+        cdef Py_ssize_t j0, j1, q, i, plane = self.n_bins * self.n_beams
+        cdef float* tot
+        cdef const float* src
+        if not self.n_total_rows:
+            return
+        with nogil:
+            j0, j1 = self._share(k)
+            tot = &self.total[0]
+            src = &self.out[0] + self.total_rows[0] * plane
+            for i in range(j0 * self.n_beams, j1 * self.n_beams):
+                tot[i] = src[i]
+            for q in range(1, self.n_total_rows):
+                src = &self.out[0] + self.total_rows[q] * plane
+                for i in range(j0 * self.n_beams, j1 * self.n_beams):
+                    tot[i] = tot[i] + src[i]
 
 
 cdef inline bint add_to_map(int* state, float* first, float* table, Py_ssize_t n_ids, Py_ssize_t* n_slots,
@@ -1296,7 +1857,7 @@ cdef class LabelMaps:
                     break
                 ident = lut[surface]
                 if by_order or moments:
-                    c_up = spread and neighbours(points, normals, key, ray, energy, k, n_el)
+                    c_up = spread and neighbours(&points[0, 0], &normals[0, 0], &key[0], &ray[0], &energy[0], m, k, n_el)
                     x = (distance[k] - range_min) / dr
                     x_up = (distance[k + 1] - range_min) / dr if c_up else 0.0
                     # A path without energy lands nowhere (as in the twin's range cells): it

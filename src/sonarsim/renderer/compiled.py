@@ -16,6 +16,7 @@ them); kept as a specialisation until the general path is as fast on that case.
 
 from __future__ import annotations
 
+import functools
 import itertools
 
 import numpy as np
@@ -98,6 +99,16 @@ class Workspace:
         self.h_mesh, self.h2_mesh = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
         self.h_normal, self.h2_normal = np.empty((n, 3), dtype=np.float32), np.empty((n, 3), dtype=np.float32)
         self.ground_blocks: tuple | None = None  # (caster, fan, laws, GroundBlocks), see ground_blocks()
+        # The general engine's: its block engine (path_engine()), the rays of each block's
+        # current and next generation (two buffers, a block's rows at its own rays).
+        self.engine: tuple | None = None
+        self.options: tuple | None = None  # (planes, chains, n_gen, max_order, double_beam, arrays), _options()
+        self.ray0 = np.arange(n, dtype=np.intp)
+        self.r_ray = np.empty((2, n), dtype=np.intp)
+        self.r_org, self.r_dir = np.empty((2, n, 3)), np.empty((2, n, 3))
+        self.r_org32, self.r_dir32 = np.empty((2, n, 3), np.float32), np.empty((2, n, 3), np.float32)
+        self.r_before, self.r_atten = np.empty((2, n)), np.empty((2, n))
+        self.r_chain = np.empty((2, n), dtype=np.int32)
         self.beam = np.repeat(np.arange(n_beams, dtype=np.int32), n_per_beam)
         self.no_label = np.empty(0, dtype=np.int8)
         self.ones = np.ones(n)  # attenuation of the first generation's legs
@@ -332,163 +343,296 @@ def _drop_hidden(caster, pose: Pose, ground_height_m: float, work: Workspace) ->
     work.r23[cand[hidden]] = np.inf
 
 
-def rotate(fan: RayFan, pose: Pose, work: Workspace) -> None:
-    """The fan's rays at the sonar's pose: ``work.d64``/``d32`` directions, ``o32`` origins."""
-    o = pose.translation
-    _kernels.rotate(fan.directions.reshape(-1, 3), np.ascontiguousarray(pose.rotation), o[0], o[1], o[2],
-                    work.d64, work.d32, work.o32)
+# Blocks of beams a frame is cut into (whatever the number of threads: the image does not depend
+# on the cut, and a fixed cut keeps it plainly so): enough for two cores to share unevenly lit
+# beams, few enough that the per-block calls stay small.
+N_BLOCKS = 8
+
+# Rows of each block's own chain table at first (it grows on overflow).
+CHAIN_CAPACITY = 256
 
 
-class _LegTracer:
-    """Receive legs generation by generation (the state between two calls of the kernel)."""
+class FrameLegs:
+    """The receive legs of a frame, dense over the fan's ``n`` rays, generation by generation
+    (written by :class:`~sonarsim.renderer._kernels.PathBlocks`; see :class:`~sonarsim.paths.engine.Leg`).
 
-    def __init__(self, caster, planes, active, pose: Pose, fan: RayFan, work: Workspace, weight: np.ndarray,
-                 laws: SurfaceLaws | np.ndarray, tvg: bool, reach_m: float, n_generations: int, table,
-                 textures: tuple = ()) -> None:
-        self.laws = SurfaceLaws.of(laws)
-        # The planes' textures (by plane index), applied to each generation as the NumPy twin does.
-        self.textures = textures if any(f is not None for f in textures) else ()
-        albedo_by_id = self.laws.coefficient
-        self.n_surfaces = len(albedo_by_id) - 1  # planes and objects
-        self.caster, self.planes, self.work, self.weight = caster, planes, work, weight
-        self.albedo, self.tvg, self.reach, self.n_gen, self.table = albedo_by_id, tvg, reach_m, n_generations, table
-        self.active = np.ascontiguousarray(active, dtype=np.uint8)
-        self.n = fan.n_rays
-        # The first generation: the rotated fan, one origin for all.
-        self.ray = np.arange(self.n, dtype=np.intp)
-        self.org = pose.translation.reshape(1, 3).copy()
-        self.dirs, self.o32, self.d32 = work.d64, work.o32, work.d32
-        self.before, self.atten, self.chain = np.zeros(1), np.ones(1), np.zeros(1, dtype=np.int32)
-        self.limit = reach_m
-        self.g = 0
-
-    @property
-    def pending(self) -> int:
-        """Rays of the next generation (0: none left to trace)."""
-        return len(self.ray) if self.g < self.n_gen else 0
-
-    def cast(self, begin: int, end: int, threads: int | None = None):
-        """Cast rays ``begin:end`` of the next generation (to split a generation over cores)."""
-        return self.caster.intersect(self.o32[begin:end], self.d32[begin:end], self.limit, threads=threads)
-
-    def step(self, threads: int | None = None, parts=None):
-        """The next generation's :class:`~sonarsim.paths.engine.Leg`, or None when no ray is left.
-
-        ``parts``: the next generation's rays already cast, as ``(begin, end, hits)`` covering
-        them in order (see :meth:`cast`).
-        """
-        g, n, m = self.g, self.n, len(self.ray)
-        if g >= self.n_gen or not m:
-            return None
-        if parts is None:
-            parts = [(0, m, self.caster.intersect(self.o32, self.d32, self.limit, threads=threads))]
-        w = self.work
-        if g == 0:
-            # Every ray is visited and given its "nothing"; no reflection happened yet.
-            leg = Leg(g, np.empty(n), np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 3)),
-                       np.empty(n), w.ones, w.zeros_i32)
-            leg.keys = leg.sid
-        else:
-            # Only distance, sid and key need "nothing": the rest is read where a ray arrived.
-            leg = Leg(g, np.full(n, np.inf), np.full(n, -1, np.int32), np.empty((n, 3)), np.empty((n, 3)),
-                       np.empty(n), np.empty(n), np.empty(n, np.int32))
-            leg.keys = np.full(n, -1, np.int32)
-        live = np.empty(m, np.intp)
-        nx = (np.empty(m, np.intp), np.empty((m, 3)), np.empty((m, 3), np.float32), np.empty((m, 3)),
-              np.empty((m, 3), np.float32), np.empty(m), np.empty(m), np.empty(m, np.int32))
-        table = self.table
-        one = len(self.before) == 1  # the first generation: one origin for all rays
-        n_next = n_live = 0
-        min_next = np.inf
-        for a, b, hits in parts:
-            rows = slice(0, 1) if one else slice(a, b)
-            while True:
-                k_next, n_chains, k_min, overflow, k_live = _kernels.trace_leg(
-                    self.ray[a:b], hits.distance, hits.mesh_id, hits.normal, self.org[rows], self.dirs[a:b],
-                    self.before[rows], self.atten[rows], self.chain[rows], self.planes.normal, self.planes.offset,
-                    self.active, self.planes.specular, self.reach, self.albedo, self.weight, self.tvg, g == 0,
-                    g + 1 < self.n_gen, table.children, len(table), leg.distance, leg.sid, leg.point,
-                    leg.normal, leg.intensity, leg.atten, leg.chain, leg.keys, live[n_live:], self.n_surfaces,
-                    *(x[n_next:] for x in nx), *_law_args(self.laws, hits),
-                )
-                table.sync(n_chains)
-                if not overflow:
-                    break
-                table._grow()
-            n_next, n_live, min_next = n_next + k_next, n_live + k_live, min(min_next, k_min)
-        self.ray, self.org, self.o32, self.dirs, self.d32, self.before, self.atten, self.chain = (x[:n_next] for x in nx)
-        self.limit = float(self.reach - min_next)
-        self.g += 1
-        leg.live = live[:n_live]
-        if self.textures:
-            scale_by_texture(leg.intensity, leg.sid, leg.point, self.textures)
-        return leg
-
-    def rest(self, threads: int | None = None) -> list:
-        """Every generation still to come."""
-        legs = []
-        while (leg := self.step(threads)) is not None:
-            legs.append(leg)
-        return legs
-
-
-def trace_legs(caster, planes, active, pose: Pose, fan: RayFan, work: Workspace, weight: np.ndarray,
-               laws: SurfaceLaws | np.ndarray, tvg: bool, reach_m: float, n_generations: int, table,
-               textures: tuple = ()) -> list:
-    """Receive legs with the compiled kernel (twin: :func:`sonarsim.paths.engine.trace_legs`).
-
-    The first generation's rays are ``work``'s fan rotated to ``pose`` (see :func:`rotate`);
-    they leave from ``pose``'s position.
+    Attributes
+    ----------
+    dist, intensity, atten : (G, n) float64 ndarrays
+    sid, chain, key : (G, n) int32 ndarrays
+    point, normal : (G, n, 3) float64 ndarrays
+    live : (G, n) intp ndarray
+        Block k's live rays of generation g at ``live[g, a:a + n_live[k, g]]`` (a: its first ray).
+    n_live, n_cast : (n_blocks, G) intp ndarrays
+        Live rays, and rays cast, per block and generation.
     """
-    return _LegTracer(caster, planes, active, pose, fan, work, weight, laws, tvg, reach_m, n_generations,
-                      table, textures).rest()
+
+    def __init__(self, n_gen: int, n: int, n_blocks: int) -> None:
+        self.dist, self.intensity, self.atten = np.empty((n_gen, n)), np.empty((n_gen, n)), np.empty((n_gen, n))
+        self.sid, self.chain = np.empty((n_gen, n), np.int32), np.empty((n_gen, n), np.int32)
+        self.key = np.empty((n_gen, n), np.int32)
+        self.point, self.normal = np.empty((n_gen, n, 3)), np.empty((n_gen, n, 3))
+        self.live = np.empty((n_gen, n), np.intp)
+        self.n_live, self.n_cast = np.zeros((n_blocks, n_gen), np.intp), np.zeros((n_blocks, n_gen), np.intp)
+
+    def legs(self, work: Workspace) -> list[Leg]:
+        """The generations that cast any ray, as :class:`Leg` views."""
+        out = []
+        for g in range(self.dist.shape[0]):
+            if g and not self.n_cast[:, g].any():
+                break
+            first = g == 0
+            out.append(Leg(g, self.dist[g], self.sid[g], self.point[g], self.normal[g], self.intensity[g],
+                           work.ones if first else self.atten[g], work.zeros_i32 if first else self.chain[g],
+                           keys=self.sid[g] if first else self.key[g]))
+        return out
+
+
+def probe_kernel():
+    """``_kernels.probe_chains``, the compiled twin of :func:`sonarsim.paths.engine.probe_chains`' loop."""
+    return _kernels.probe_chains
+
+
+def packet_loop(caster) -> tuple | None:
+    """The caster's packet loop for the compiled blocks (``Embree4Caster.packet_loop``), None
+    where it has none (embreex, the NumPy caster) or no triangles."""
+    loop = getattr(type(caster), "packet_loop", None)  # on the type: a wrapper forwards attributes
+    return loop(caster) if loop is not None else None
+
+
+def path_engine(caster, work: Workspace, fan: RayFan, laws: SurfaceLaws, planes):
+    """The block engine (:class:`~sonarsim.renderer._kernels.PathBlocks`) for this caster,
+    workspace, fan, laws and planes, built on first use and kept on the workspace; it casts
+    through the caster's packet loop where it lends one (the Embree 4 binding), else Python
+    casts between its stages (embreex, the NumPy caster, textures)."""
+    handle = packet_loop(caster)
+    cached = work.engine
+    if (cached is not None and cached[0] is caster and cached[1] is fan and cached[2] is laws
+            and cached[3] is planes and cached[4].fused == (handle is not None)):
+        return cached[4]
+    law_by_id, lobe_by_id, _ = _law_args(laws, None)
+    n_blocks = min(N_BLOCKS, fan.shape[0])
+    engine = _kernels.PathBlocks(work, fan.directions.reshape(-1, 3), fan.weight.reshape(-1), laws.coefficient,
+                                 law_by_id, lobe_by_id, planes.normal, planes.offset, planes.specular, n_blocks,
+                                 CHAIN_CAPACITY, *(handle or ()))
+    work.engine = (caster, fan, laws, planes, engine)
+    return engine
+
+
+def _option_table(table, n_gen: int, max_order: int, double_beam: str) -> tuple:
+    """The frame's transmit options, as :func:`sonarsim.paths.engine.form_paths` tries them and
+    in its order: ``(gen, tx, same, label, length, unfold, chain_planes, specular)`` arrays of
+    ``PathBlocks.options``. Depends on the chains, not on the pose (see :func:`_options`)."""
+    from ..paths.engine import LABEL_PLANE, SAME, label_of_order, transmit_options
+
+    rows = []
+    for g in range(n_gen):
+        options = transmit_options(table, g, max_order)
+        if double_beam != "separate":
+            options = [tx for tx in options if tx == SAME or table.length(tx) <= g]
+        for tx in options:
+            same = tx == SAME
+            c = 0 if same else tx
+            order = 2 * g + 1 if same else g + table.length(c) + 1
+            rows.append((g, c, same, label_of_order(order) if order > 1 else LABEL_PLANE))
+    n_opt = len(rows)
+    length = np.array([0 if r[2] else table.length(r[1]) for r in rows], np.int32)
+    longest = int(length.max(initial=0))
+    unfold = np.zeros((n_opt, 3, 4))
+    chain_planes = np.zeros((n_opt, max(longest, 1)), np.int32)
+    specular = np.ones(n_opt)
+    for o, (g, c, sm, _) in enumerate(rows):
+        unfold[o] = table.unfold(c)
+        if not sm:
+            chain_planes[o, : length[o]] = table.chains[c]
+            specular[o] = table.specular(c)
+    columns = [np.array([r[k] for r in rows], np.int32) for k in range(4)]
+    return (*columns, length, unfold, chain_planes, specular)
+
+
+def _options(table, n_gen: int, max_order: int, double_beam: str, n_live: np.ndarray, work: Workspace):
+    """The arrays of ``PathBlocks.options`` (see :func:`_option_table`, kept on ``work`` while
+    the frames meet the same chains), the sonar's images along each option's chain, and the
+    path buffer's offsets and size (option-major; a block's capacity for an option is its
+    generation's live rays)."""
+    key = (table.planes, tuple(table.chains), n_gen, max_order, double_beam)
+    cached = work.options
+    if cached is None or cached[0] is not key[0] or cached[1:4] != key[1:4] or cached[4] != double_beam:
+        cached = work.options = (*key, _option_table(table, n_gen, max_order, double_beam))
+    gen, tx, same, label, length, unfold, chain_planes, specular = cached[5]
+    sources = np.zeros((len(gen), chain_planes.shape[1] + 1, 3))
+    for o in np.flatnonzero(same == 0):
+        sources[o, : length[o] + 1] = table.sources(int(tx[o]))
+    capacity = n_live[:, gen].T.reshape(-1)  # option-major
+    offset = np.zeros(len(capacity), np.intp)
+    np.cumsum(capacity[:-1], out=offset[1:])
+    return (gen, tx, same, label, length, unfold, sources, chain_planes, specular), offset, int(capacity.sum())
+
+
+class PathBuffer:
+    """The paths of a frame as the blocks wrote them (see ``docs/path-buffer.md``): fields of
+    one path per entry, option-major, each option's paths block after block in ray order.
+
+    Attributes
+    ----------
+    gen, tx, same : (n_options,) int32 ndarrays
+        Each transmit option's receive generation, transmit chain and whether the transmit leg
+        is the receive leg reversed.
+    offset, count : (n_options * n_blocks,) intp ndarrays
+        Where option o of block k starts (``o * n_blocks + k``) and how many paths it holds.
+    ray, distance, energy, beam, beam_tx, label : ndarrays
+        Per path: the fan ray it arrives along, half its length (m), its energy, its beam of
+        arrival, its transmit beam, its image row.
+    """
+
+    def __init__(self, options: tuple, offset: np.ndarray, size: int, n_blocks: int) -> None:
+        self.gen, self.tx, self.same = options[0], options[1], options[2]
+        self.n_blocks = n_blocks
+        self.offset, self.count = offset, np.zeros(len(offset), np.intp)
+        self.ray, self.distance, self.energy = np.empty(size, np.intp), np.empty(size), np.empty(size)
+        self.beam, self.beam_tx = np.empty(size, np.int32), np.empty(size, np.int32)
+        self.label = np.empty(size, np.int8)
+
+    def sets(self, double_beam: str = "paper") -> list:
+        """The frame's :class:`~sonarsim.paths.engine.PathSet` list, as ``form_paths`` forms it."""
+        from ..paths.engine import SAME, PathSet
+
+        out = []
+        K = self.n_blocks
+        for o in range(len(self.gen)):
+            parts = [slice(self.offset[o * K + k], self.offset[o * K + k] + self.count[o * K + k]) for k in range(K)]
+            parts = [p for p in parts if p.stop > p.start]
+            if not parts:
+                continue
+
+            def cat(a):
+                return a[parts[0]].copy() if len(parts) == 1 else np.concatenate([a[p] for p in parts])
+
+            g, tx = int(self.gen[o]), SAME if self.same[o] else int(self.tx[o])
+            ray, dist, energy, beam, label = (cat(self.ray), cat(self.distance), cat(self.energy), cat(self.beam),
+                                              cat(self.label))
+            if double_beam == "split" and tx != SAME:
+                out.append(PathSet(g, tx, ray, dist, 0.5 * energy, beam, label))
+                out.append(PathSet(g, tx, ray, dist, 0.5 * energy, cat(self.beam_tx), label))
+            else:
+                out.append(PathSet(g, tx, ray, dist, energy, beam, label))
+        return out
 
 
 def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: RayFan, work: Workspace,
-                 weight: np.ndarray, laws: SurfaceLaws | np.ndarray, render: RenderSettings, reach_m: float,
-                 n_generations: int, table, view, n_surfaces: int, stack: np.ndarray, pool=None,
-                 occlusion=None, textures: tuple = ()) -> tuple[list, list]:
-    """The whole compiled frame: receive legs, paths, and the image stack (float32, zeroed).
+                 laws: SurfaceLaws, render: RenderSettings, reach_m: float, n_generations: int, table,
+                 n_surfaces: int, stack: np.ndarray, pool=None, occlusion=None, textures: tuple = (),
+                 sum_rows: tuple[int, ...] = ()):
+    """The whole compiled frame in blocks of beams (:class:`~sonarsim.renderer._kernels.PathBlocks`):
+    receive legs, paths, and the image stack.
 
-    With ``pool`` (one worker, the other core), the later generations are cast and traced
-    there on one thread while this core forms the direct (single-bounce) paths.
-    ``occlusion(sets, legs)`` filters the other paths (``double_line_of_sight``). ``sonar`` is
-    the intrinsics, ``pose`` the sonar's pose in the world frame. ``textures``: the planes'
-    reflectivity textures by plane index (see :func:`sonarsim.paths.engine.trace_legs`).
+    Each block of beams goes whole through rotate, cast, the receive legs of every generation
+    (casting the reflected rays), on one thread, the two cores taking blocks in turn; then,
+    once the frame's chains are known and numbered canonically (with ``table``'s probes), each
+    block's paths are formed into the path buffer and splatted into its own beams' columns
+    (``double_beam: split`` and ``double_line_of_sight`` splat after every block, on this
+    thread: they write into other beams or cast once more).
+
+    Parameters
+    ----------
+    table : ChainTable
+        The chains the aperture's edges follow (``probe_chains``).
+    stack : (rows, n_range_bins, n_beams) float32 ndarray
+        Receives the image stack (its content is overwritten).
+    sum_rows : tuple of int
+        Stack rows whose sum is the frame's total, formed by the blocks where they splat.
 
     Returns
     -------
-    legs, sets : the receive legs and every path set (for the path-signature components)
+    legs : list of Leg
+    sets : callable
+        Forms the frame's path sets from the path buffer (for labels and signatures).
+    table : ChainTable
+        The frame's chains, canonically numbered (the ids of ``sets``).
+    total : (n_range_bins, n_beams) float32 ndarray or None
     """
-    rotate(fan, pose, work)
-    n_planes = len(planes)
-    per_beam = fan.n_rays // sonar.n_beams
-    geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
-    spread, n_el = render.range_splat, fan.shape[2]
-    tracer = _LegTracer(caster, planes, active, pose, fan, work, weight, laws, render.tvg, reach_m,
-                        n_generations, table, textures)
-    first = tracer.step()
-    legs = [first] if first is not None else []
-    direct: list = []
-    split = first is not None and pool is not None and tracer.pending > 0
-    if split:
-        # Both cores cast the reflected rays on one thread each; this core forms the direct
-        # image first, so it takes the smaller share.
-        m = tracer.pending
-        cut = int(OTHER_CORE_SHARE * m)
-        theirs = pool.submit(tracer.cast, 0, cut, 1)
-        direct = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam,
-                            only_same=True)
-        splat_paths(direct, legs, n_surfaces, n_el, geometry, spread, stack)
-        mine = tracer.cast(cut, m, 1)
-        legs.append(tracer.step(parts=[(0, cut, theirs.result()), (cut, m, mine)]))
-    legs += tracer.rest()
-    sets = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam,
-                      skip_first_same=split)
-    if occlusion is not None:
-        sets = occlusion(sets, legs)
-    splat_paths(sets, legs, n_surfaces, n_el, geometry, spread, stack)
-    return legs, direct + sets
+    laws = SurfaceLaws.of(laws)
+    engine = path_engine(caster, work, fan, laws, planes)
+    n_beams = sonar.n_beams
+    n_blocks = min(N_BLOCKS, n_beams)
+    blocks = beam_blocks(n_beams, n_blocks)
+    per_beam = fan.n_rays // n_beams
+    legs_out = FrameLegs(n_generations, fan.n_rays, n_blocks)
+    active8 = np.ascontiguousarray(active, dtype=np.uint8)
+    in_blocks = render.double_beam != "split" and occlusion is None  # each block splats its own beams
+    engine.frame(legs_out, active8, np.ascontiguousarray(pose.rotation), np.asarray(pose.translation, float),
+                 reach_m, render.tvg, n_generations, fan.shape[2], sonar.range_min_m, sonar.range_resolution_m,
+                 sonar.n_range_bins, n_beams, sonar.range_max_m, sonar.elevation_fov_deg / 2.0,
+                 np.ascontiguousarray(sonar.beam_edges_deg), render.range_splat, render.double_beam == "separate",
+                 n_surfaces, stack.reshape(-1) if in_blocks else None)
+    textures = textures if any(f is not None for f in textures) else ()
+    fused = engine.fused and not textures
+    w = work
+
+    def staged(k: int) -> bool:
+        """Block k with Python casting between the stages (the same code as the fused block)."""
+        b0, b1 = blocks[k]
+        a, b = b0 * per_beam, b1 * per_beam
+        buffer, m, limit = engine.begin(k, b0, b1)
+        for g in range(n_generations):
+            if not m:
+                break
+            if buffer < 0:
+                o32, d32 = w.o32[a:a + m], w.d32[a:a + m]
+            else:
+                o32, d32 = w.r_org32[buffer, a:a + m], w.r_dir32[buffer, a:a + m]
+            hits = caster.intersect(o32, d32, float(limit), threads=1)
+            w.h_dist[a:a + m], w.h_mesh[a:a + m], w.h_normal[a:a + m] = hits.distance, hits.mesh_id, hits.normal
+            if not engine.step(k, b0, b1, g, *_law_args(laws, hits)):
+                return False
+            if textures:
+                scale_by_texture(legs_out.intensity[g, a:b], legs_out.sid[g, a:b], legs_out.point[g, a:b], textures)
+            buffer, m, limit = engine.pending(k)
+        return True
+
+    def trace(k: int) -> None:
+        ok[k] = engine.trace(k, *blocks[k]) if fused else staged(k)
+
+    while True:
+        ok = [True] * len(blocks)
+        on_both_cores(trace, len(blocks), pool)
+        if all(ok):
+            break
+        children, _ = engine.local_chains(0)
+        engine.grow(4 * children.shape[0])  # a block met more chains than its table holds: again, larger
+    # The frame's chains: the probes' and every block's, numbered canonically.
+    local = [table.local_chains(*engine.local_chains(k)) for k in range(len(blocks))]
+    for chains in local:
+        for c in chains:
+            table.add(c)
+    table, _ = table.canonical()
+    capacity = engine.local_chains(0)[0].shape[0]
+    remap = np.zeros((len(blocks), capacity), np.int32)
+    for k, chains in enumerate(local):
+        remap[k, : len(chains)] = [table.add(c) for c in chains]
+    options, offset, size = _options(table, n_generations, render.max_order, render.double_beam, legs_out.n_live,
+                                     work)
+    buffer = PathBuffer(options, offset, size, len(blocks))
+    total = np.empty(stack.shape[1:], np.float32) if in_blocks and sum_rows else None
+    rank = np.arange(len(table), dtype=np.int32)  # canonical ids are ranks (ChainTable.key)
+    engine.options(remap, rank, *options, buffer.offset, buffer.count, buffer.ray, buffer.distance, buffer.energy,
+                   buffer.beam, buffer.beam_tx, buffer.label, in_blocks,
+                   None if total is None else total.reshape(-1), tuple(sum_rows) if total is not None else ())
+    on_both_cores(lambda k: engine.paths(k, *blocks[k]), len(blocks), pool)
+    if total is not None:
+        on_both_cores(engine.sum_rows, len(blocks), pool)
+    legs = legs_out.legs(work)
+    sets = functools.partial(buffer.sets, render.double_beam)
+    if not in_blocks:
+        stack[:] = 0.0
+        frame_sets = buffer.sets(render.double_beam)
+        if occlusion is not None:
+            frame_sets = occlusion(frame_sets, legs, table=table)
+        splat_paths(frame_sets, legs, n_surfaces, fan.shape[2], (sonar.range_min_m, sonar.range_resolution_m,
+                                                                 sonar.n_range_bins, n_beams), render.range_splat,
+                    stack)
+        sets = functools.partial(lambda s: s, frame_sets)
+    return legs, sets, table, total
 
 
 def option_paths(live, leg, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes,

@@ -32,8 +32,8 @@ from ..image.result import RayMaps, SonarImage
 from ..config.scene import ON_PLANE_TOLERANCE_M, check_sonar_position
 from ..paths.algorithm2 import render_paper
 from ..paths.engine import (
-    Leg, SonarView, accumulate_paths, drop_occluded, form_paths, ground_signatures, probe_chains, split_by_signature,
-    trace_legs,
+    Leg, SonarView, accumulate_paths, drop_occluded, form_paths, ground_signatures, probe_chains, renumber_chains,
+    split_by_signature, trace_legs,
 )
 from ..paths.planes import ChainTable, PlaneSet
 from ..sensor.model import SensorModel, elevation_span_deg
@@ -326,7 +326,8 @@ class Simulator:
         origin = view.origin
         table = ChainTable(self.planes, origin, max(render.max_order - 1, 0))
         # Transmit legs leaving just inside the aperture's edges (outside the rays' samples).
-        probe_chains(table, view, active, render.max_order - 1 if n_generations > 1 else 0)
+        probe_chains(table, view, active, render.max_order - 1 if n_generations > 1 else 0,
+                     kernel=compiled.probe_kernel() if self.kernels == "compiled" else None)
         n_planes = len(self.planes)
         n_surfaces = n_planes + len(self.meshes)
         weight = fan.weight.reshape(-1)
@@ -338,32 +339,43 @@ class Simulator:
             occlusion = functools.partial(drop_occluded, table=table, view=view, active=active, caster=self.caster)
         if self.kernels == "compiled":
             self._work = compiled.Workspace.for_fan(self._work, fan)
-            stack = np.zeros((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
-            legs, sets = compiled.render_paths(
-                self.caster, self.planes, active, sonar, pose, fan, self._work, weight, self._laws, render, reach,
-                n_generations, table, view, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
-                textures=self.textures,
+            stack = np.empty((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
+            legs, sets, table, total = compiled.render_paths(
+                self.caster, self.planes, active, sonar, pose, fan, self._work, self._laws, render, reach,
+                n_generations, table, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
+                textures=self.textures, sum_rows=total_rows(render.bounces, render.max_order),
             )
-        else:
-            directions = (fan.directions @ pose.rotation.T).reshape(-1, 3)
-            legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._laws,
-                              render.tvg, reach, n_generations, table, self.textures)
-            sets = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam)
-            if occlusion is not None:
-                sets = occlusion(sets, legs)
-            stack = accumulate_paths(sets, legs, n_surfaces, fan.shape, geometry, rows, render.range_splat)
-            stack = stack.astype(np.float32)
-        return stack, legs, sets, table, None
+            return stack, legs, sets, table, total
+        directions = (fan.directions @ pose.rotation.T).reshape(-1, 3)
+        legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._laws,
+                          render.tvg, reach, n_generations, table, self.textures)
+        table = renumber_chains(table, legs)
+        sets = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam)
+        if occlusion is not None:
+            sets = occlusion(sets, legs, table=table)
+        stack = accumulate_paths(sets, legs, n_surfaces, fan.shape, geometry, rows, render.range_splat)
+        return stack.astype(np.float32), legs, sets, table, None
 
     def _signature_images(self, sonar: SonarConfig, fan: RayFan, legs, sets, table) -> dict[str, np.ndarray]:
-        """One image per path signature (formed on demand; see :class:`Components`)."""
+        """One image per path signature (formed on demand; see :class:`Components`).
+
+        A signature lies in one row of the stack; the compiled kernels splat it as they splat
+        the stack (float32, in the same order), so a signature that alone fills a row (the
+        ground-only frame's four) is that row, bit for bit.
+        """
         geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
         n_planes = len(self.planes)
-        groups = split_by_signature(sets, legs, table, n_planes)
+        n_surfaces = n_planes + len(self.meshes)
+        render = self.scene.render
+        groups = split_by_signature(sets() if callable(sets) else sets, legs, table, n_planes)
         out = {}
         for name, group in groups.items():
-            stack = accumulate_paths(group, legs, n_planes + len(self.meshes), fan.shape, geometry,
-                                     stack_rows(self.scene.render.max_order), self.scene.render.range_splat)
+            if self.kernels == "compiled":
+                stack = np.zeros((stack_rows(render.max_order),) + geometry[2:], np.float32)
+                compiled.splat_paths(group, legs, n_surfaces, fan.shape[2], geometry, render.range_splat, stack)
+            else:
+                stack = accumulate_paths(group, legs, n_surfaces, fan.shape, geometry, stack_rows(render.max_order),
+                                         render.range_splat)
             image = stack.sum(axis=0).astype(np.float32)
             if image.any():  # a path whose energy all fell outside the window leaves no image
                 out[name] = image
@@ -447,6 +459,8 @@ class Simulator:
                 # (the frame's own legs and sets stay None: its signature images are the ground's)
                 lit, label_legs, label_sets, _, _ = self._render_paths(sonar, pose, fan, reach, active,
                                                                        render.max_order if multipath else 1)
+            if callable(label_sets):
+                label_sets = label_sets()
             truth = frame_labels(label_sets, label_legs, fan, image_sonar, tuple(o.name for o in self.scene.objects),
                                  tuple(p.name for p in self.scene.reflecting_planes), render.max_order,
                                  render.bounces, render.range_splat, self.kernels, lit_rows(lit, self.kernels),
