@@ -1354,9 +1354,10 @@ cdef class PathBlocks:
         self.children_array = np.full((self.n_blocks, capacity, max(self.n_planes, 1)), -1, np.int32)
         self.children = self.children_array
 
-    def local_chains(self, Py_ssize_t k):
-        """Block ``k``'s chain table: ``(children, n_chains)`` (``children[c, p]``: its chain ``c + (p,)``)."""
-        return self.children_array[k], self.n_local[k]
+    def chain_tables(self):
+        """Every block's chain table: ``(children, n_chains)``, (n_blocks, capacity, P) int32 and
+        (n_blocks,) int32 (``children[k, c, p]``: block k's chain ``c + (p,)``)."""
+        return self.children_array, np.asarray(self.n_local)
 
     def frame(self, legs, const unsigned char[::1] active, const double[:, ::1] rotation, const double[::1] origin,
               double reach, bint tvg, Py_ssize_t n_gen, Py_ssize_t n_el, double range_min, double dr,
@@ -1544,7 +1545,10 @@ cdef class PathBlocks:
         planes, its specular product), the path buffer (``offset[o * n_blocks + k]``: where
         option o of block k starts; ``count``: receives how many it wrote; a block's
         capacity for an option is its generation's live rays), whether to splat into the
-        frame's stack, and the ``total`` of stack ``rows`` (:meth:`sum_rows`)."""
+        frame's stack, and where to sum its ``rows`` (the frame's ``total``, flat
+        ``(n_range_bins, n_beams)``: each block adds its own columns' rows right after splatting
+        them, while they are in cache, in float32 and in the given order, as
+        ``components._sum_rows`` does)."""
         cdef float[::1] out = self.out if splat else None
         cdef Py_ssize_t n_opt = gen.shape[0], o
         if not self.ready:
@@ -1567,7 +1571,7 @@ cdef class PathBlocks:
             p_ray, p_dist, p_energy, p_beam, p_beam_tx, p_label)
         self.splat = splat and out is not None
         self.total = total
-        self.n_total_rows = len(rows) if total is not None and out is not None else 0
+        self.n_total_rows = len(rows) if total is not None and self.splat else 0
         if self.n_total_rows > 16:
             raise ValueError("at most 16 rows in the total")
         for o in range(self.n_total_rows):
@@ -1583,10 +1587,12 @@ cdef class PathBlocks:
         the path buffer and, with an output stack, splatted into the block's own columns."""
         if not self.paths_ready:
             raise ValueError("call options() first")
-        cdef Py_ssize_t a, b, g, i, o, off, n, cnt, K, r, j, q, row
+        cdef Py_ssize_t a, b, g, i, o, off, n, cnt, K, j, q, row
         cdef Py_ssize_t n_opt = self.opt_gen.shape[0], plane = self.n_bins * self.n_beams
         cdef int c
         cdef bint splat = self.splat
+        cdef float* tot
+        cdef const float* src
         self._check(k, b0, b1)
         a, b = b0 * self.rays_per_beam, b1 * self.rays_per_beam
         with nogil:
@@ -1618,28 +1624,18 @@ cdef class PathBlocks:
                                       self.p_energy[off:off + cnt], self.p_beam[off:off + cnt],
                                       self.p_label[off:off + cnt], 1.0, self.spread, self.n_el, self.range_min,
                                       self.dr, self.n_bins, self.n_beams, self.out)
-
-    def sum_rows(self, Py_ssize_t k):
-        """The total's k-th share of the range bins (after every block's :meth:`paths`): the
-        stack rows given to :meth:`options` added in float32, in their order (as
-        ``components._sum_rows``)."""
-        if not self.paths_ready or not 0 <= k < self.n_blocks:
-            raise ValueError("call options() first, with a block index")
-        cdef Py_ssize_t j0, j1, q, i, plane = self.n_bins * self.n_beams
-        cdef float* tot
-        cdef const float* src
-        if not self.n_total_rows:
-            return
-        with nogil:
-            j0, j1 = self._share(k)
-            tot = &self.total[0]
-            src = &self.out[0] + self.total_rows[0] * plane
-            for i in range(j0 * self.n_beams, j1 * self.n_beams):
-                tot[i] = src[i]
-            for q in range(1, self.n_total_rows):
-                src = &self.out[0] + self.total_rows[q] * plane
-                for i in range(j0 * self.n_beams, j1 * self.n_beams):
-                    tot[i] = tot[i] + src[i]
+            if self.n_total_rows:
+                # The block's columns are complete and recently touched: their total now.
+                tot = &self.total[0]
+                for j in range(self.n_bins):
+                    row = j * self.n_beams
+                    src = &self.out[0] + self.total_rows[0] * plane + row
+                    for i in range(b0, b1):
+                        tot[row + i] = src[i]
+                    for q in range(1, self.n_total_rows):
+                        src = &self.out[0] + self.total_rows[q] * plane + row
+                        for i in range(b0, b1):
+                            tot[row + i] = tot[row + i] + src[i]
 
 
 cdef inline bint add_to_map(int* state, float* first, float* table, Py_ssize_t n_ids, Py_ssize_t* n_slots,

@@ -22,6 +22,7 @@ import itertools
 import numpy as np
 
 from ..paths.engine import Leg
+from ..paths.planes import ChainTable
 from ..core.radiometry import SurfaceLaws
 
 from ..core.rays import RayFan
@@ -103,6 +104,7 @@ class Workspace:
         # current and next generation (two buffers, a block's rows at its own rays).
         self.engine: tuple | None = None
         self.options: tuple | None = None  # (planes, chains, n_gen, max_order, double_beam, arrays), _options()
+        self.chains: tuple | None = None  # (planes, key, chains, remap), _frame_chains()
         self.ray0 = np.arange(n, dtype=np.intp)
         self.r_ray = np.empty((2, n), dtype=np.intp)
         self.r_org, self.r_dir = np.empty((2, n, 3)), np.empty((2, n, 3))
@@ -117,11 +119,12 @@ class Workspace:
         self.empty_i32 = np.empty(0, dtype=np.int32)
 
 
-def beam_blocks(n_beams: int, n_blocks: int) -> list[tuple[int, int]]:
+@functools.lru_cache(maxsize=16)
+def beam_blocks(n_beams: int, n_blocks: int) -> tuple[tuple[int, int], ...]:
     """``n_blocks`` (at most ``n_beams``) contiguous ranges of beams covering ``0:n_beams``, of
     near-equal sizes."""
     cuts = np.linspace(0, n_beams, min(n_blocks, n_beams) + 1).round().astype(int)
-    return [(int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+    return tuple((int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:]) if b > a)
 
 
 def on_both_cores(task, n_tasks: int, pool=None) -> None:
@@ -343,10 +346,11 @@ def _drop_hidden(caster, pose: Pose, ground_height_m: float, work: Workspace) ->
     work.r23[cand[hidden]] = np.inf
 
 
-# Blocks of beams a frame is cut into (whatever the number of threads: the image does not depend
-# on the cut, and a fixed cut keeps it plainly so): enough for two cores to share unevenly lit
-# beams, few enough that the per-block calls stay small.
-N_BLOCKS = 8
+# Blocks of beams a frame is cut into, whatever the number of threads (the image does not
+# depend on the cut; a fixed cut keeps that plain). One per core measured fastest on the demo
+# and the six-plane tank (each block's columns are strided in the image, and a block's fixed
+# costs -- its calls, its share of the casting's packets -- outweigh finer balancing).
+N_BLOCKS = 2
 
 # Rows of each block's own chain table at first (it grows on overflow).
 CHAIN_CAPACITY = 256
@@ -417,6 +421,31 @@ def path_engine(caster, work: Workspace, fan: RayFan, laws: SurfaceLaws, planes)
                                  CHAIN_CAPACITY, *(handle or ()))
     work.engine = (caster, fan, laws, planes, engine)
     return engine
+
+
+def _frame_chains(table, engine, work: Workspace):
+    """The frame's chains -- the probes' (in ``table``) and every block's -- numbered
+    canonically, and each block's local ids to those: ``(table, remap)``, remap (n_blocks,
+    capacity) int32. Kept on ``work`` while the frames meet the same chains in every block."""
+    children, n_local = engine.chain_tables()
+    key = (tuple(table.chains), children[:, : int(n_local.max())].tobytes(), n_local.tobytes(), children.shape)
+    cached = work.chains
+    if cached is not None and cached[0] is table.planes and cached[1] == key:
+        chains, remap = cached[2], cached[3]
+        canonical = ChainTable(table.planes, table.origin, table.max_length)
+        for c in chains:
+            canonical.add(c)
+        return canonical, remap
+    local = [table.local_chains(children[k], int(n_local[k])) for k in range(len(n_local))]
+    for chains in local:
+        for c in chains:
+            table.add(c)
+    canonical, _ = table.canonical()
+    remap = np.zeros(children.shape[:2], np.int32)
+    for k, chains in enumerate(local):
+        remap[k, : len(chains)] = [canonical.add(c) for c in chains]
+    work.chains = (table.planes, key, list(canonical.chains), remap)
+    return canonical, remap
 
 
 def _option_table(table, n_gen: int, max_order: int, double_beam: str) -> tuple:
@@ -540,7 +569,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
     stack : (rows, n_range_bins, n_beams) float32 ndarray
         Receives the image stack (its content is overwritten).
     sum_rows : tuple of int
-        Stack rows whose sum is the frame's total, formed by the blocks where they splat.
+        Stack rows whose sum is the frame's total, added by the blocks where they splat.
 
     Returns
     -------
@@ -550,6 +579,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
     table : ChainTable
         The frame's chains, canonically numbered (the ids of ``sets``).
     total : (n_range_bins, n_beams) float32 ndarray or None
+        The sum of ``sum_rows`` (as ``components._sum_rows`` adds them), or None: not formed.
     """
     laws = SurfaceLaws.of(laws)
     engine = path_engine(caster, work, fan, laws, planes)
@@ -598,29 +628,16 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
         on_both_cores(trace, len(blocks), pool)
         if all(ok):
             break
-        children, _ = engine.local_chains(0)
-        engine.grow(4 * children.shape[0])  # a block met more chains than its table holds: again, larger
-    # The frame's chains: the probes' and every block's, numbered canonically.
-    local = [table.local_chains(*engine.local_chains(k)) for k in range(len(blocks))]
-    for chains in local:
-        for c in chains:
-            table.add(c)
-    table, _ = table.canonical()
-    capacity = engine.local_chains(0)[0].shape[0]
-    remap = np.zeros((len(blocks), capacity), np.int32)
-    for k, chains in enumerate(local):
-        remap[k, : len(chains)] = [table.add(c) for c in chains]
+        engine.grow(4 * engine.chain_tables()[0].shape[1])  # a block met more chains than its table holds: again, larger
+    table, remap = _frame_chains(table, engine, work)
     options, offset, size = _options(table, n_generations, render.max_order, render.double_beam, legs_out.n_live,
                                      work)
     buffer = PathBuffer(options, offset, size, len(blocks))
-    total = np.empty(stack.shape[1:], np.float32) if in_blocks and sum_rows else None
+    total = np.empty(stack.shape[1] * stack.shape[2], np.float32) if in_blocks and sum_rows else None
     rank = np.arange(len(table), dtype=np.int32)  # canonical ids are ranks (ChainTable.key)
     engine.options(remap, rank, *options, buffer.offset, buffer.count, buffer.ray, buffer.distance, buffer.energy,
-                   buffer.beam, buffer.beam_tx, buffer.label, in_blocks,
-                   None if total is None else total.reshape(-1), tuple(sum_rows) if total is not None else ())
+                   buffer.beam, buffer.beam_tx, buffer.label, in_blocks, total, tuple(sum_rows))
     on_both_cores(lambda k: engine.paths(k, *blocks[k]), len(blocks), pool)
-    if total is not None:
-        on_both_cores(engine.sum_rows, len(blocks), pool)
     legs = legs_out.legs(work)
     sets = functools.partial(buffer.sets, render.double_beam)
     if not in_blocks:
@@ -632,7 +649,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
                                                                  sonar.n_range_bins, n_beams), render.range_splat,
                     stack)
         sets = functools.partial(lambda s: s, frame_sets)
-    return legs, sets, table, total
+    return legs, sets, table, None if total is None else total.reshape(stack.shape[1:])
 
 
 def option_paths(live, leg, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes,
