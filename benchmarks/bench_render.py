@@ -143,10 +143,10 @@ def record_casts(sim: sonarsim.Simulator) -> list:
     caster, ready for the caster's bare casting (``cast_raw``: Embree's answer alone, no
     conversion to hits) on the frame's threads.
 
-    Recorded at ``intersect``, which every caster has (a textured scene wraps it). The ground
-    specialisation's fused blocks cast from compiled code, past ``intersect``: the recording
-    frame takes the same blocks' stages called one by one, which cast the very same rays (the
-    tests require the same bits). The batches of one caster are joined into one call, which
+    Recorded at ``intersect``, which every caster has (a textured scene wraps it). The path
+    engine's fused blocks cast from compiled code, past ``intersect``: the recording frame
+    takes the same blocks with Python casting between their stages, which cast the very same
+    rays (the tests require the same bits). The batches of one caster are joined into one call, which
     the caster spreads over its threads as evenly as one batch can be: the bare casting is
     given every advantage of the frame's threads.
     """
@@ -155,7 +155,7 @@ def record_casts(sim: sonarsim.Simulator) -> list:
     caster_cls = type(getattr(sim.caster, "caster", sim.caster))
     recorded = []
     original = caster_cls.intersect
-    fused, loop = compiled.ground_blocks, compiled.packet_loop
+    loop = compiled.packet_loop
 
     def recording(self, origins, directions, max_distance, threads=None, *args, **kwargs):
         n = len(directions)
@@ -165,13 +165,12 @@ def record_casts(sim: sonarsim.Simulator) -> list:
         return original(self, origins, directions, max_distance, threads, *args, **kwargs)
 
     caster_cls.intersect = recording
-    compiled.ground_blocks = lambda *args: None
     compiled.packet_loop = lambda caster: None  # the blocks cast through caster.intersect
     try:
         sim.render(keep_rays=False)
     finally:
         caster_cls.intersect = original
-        compiled.ground_blocks, compiled.packet_loop = fused, loop
+        compiled.packet_loop = loop
     joined = []
     for caster in dict.fromkeys(r[0] for r in recorded):
         mine = [r for r in recorded if r[0] is caster and len(r[2])]

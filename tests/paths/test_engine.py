@@ -1,11 +1,6 @@
-"""The general path engine on the ground-only case: it reproduces the former fast method.
-
-Before the path engine, sonarsim formed the ground echoes with a mirror-path method written
-for the flat ground alone (``paths.algorithm2.fast_mirror_paths`` + ``ground_echo_rays``, kept
-as a reference). The engine forms the same paths from its general pieces (receive legs
-traced, transmit legs by image sources, the paper's convention for reciprocal pairs); on every
-ground-only scene its images must equal the former method's to float precision.
-"""
+"""The path engine on the ground-only case: the paper's four paths, their names, and the orders
+each method forms. (Its images against the literal Algorithm 2: ``test_algorithm2.py``; path by
+path against the brute-force reference: ``test_reference.py``.)"""
 
 from __future__ import annotations
 
@@ -16,33 +11,8 @@ import pytest
 
 import sonarsim
 from sonarsim.cli.demo import demo_scene_dict
-from sonarsim.paths.algorithm2 import fast_mirror_paths, ground_echo_rays
 from sonarsim.paths.engine import parse_path_name, path_name
-from sonarsim.renderer.formation import RayEnergy, accumulate, continuity
-from sonarsim.renderer.simulator import MULTIPATH_REACH, RANGE_MARGIN
-from sonarsim.core.radiometry import lambertian_intensity
-from sonarsim.trace.surfaces import GROUND_ID, trace
 from tests.paths.test_algorithm2 import _scenes as ground_scenes
-
-
-def former_fast_method(sim: sonarsim.Simulator) -> dict[str, np.ndarray]:
-    """object, ground, double and triple images as the former fast method formed them."""
-    sonar, pose, render, ground = sim.scene.sonar, sim.scene.sonar_pose, sim.scene.render, sim.scene.ground
-    fan = sim.ray_fan(sonar)
-    origin, directions = pose.translation, fan.directions @ pose.rotation.T
-    reach = sonar.range_max_m * RANGE_MARGIN * MULTIPATH_REACH
-    hits = trace(sim.caster, origin, directions, ground, reach)
-    albedo = sim._laws.coefficient  # [none, ground, objects...]: the same table with the ground alone
-    intensity = lambertian_intensity(fan.weight, hits.cos_incidence, albedo[hits.surface_id + 1], hits.distance_m,
-                                     render.tvg)
-    cont = continuity(hits.point, hits.normal, hits.surface_id) if render.range_splat else None
-    label = np.where(hits.surface_id > GROUND_ID, 0, np.where(hits.surface_id == GROUND_ID, 1, -1))
-    rays = [RayEnergy(hits.distance_m, intensity, np.arange(sonar.n_beams)[:, None, None], label, cont)]
-    paths = fast_mirror_paths(sim.caster, origin, directions, hits, ground.height_m, fan.weight, albedo, render.tvg,
-                              reach)
-    rays += ground_echo_rays(paths, sonar, pose, render, ground.specular, sim.caster, labels=(2, 3))
-    img = accumulate(rays, sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams, 4)
-    return dict(zip(("object", "ground", "double", "triple"), img))
 
 
 def _scenes():
@@ -55,36 +25,6 @@ def _scenes():
         d["render"][key] = value
         out[f"{key}={value}"] = d
     return out
-
-
-@pytest.mark.parametrize("kernels", ["compiled", "numpy"])
-@pytest.mark.parametrize("name", list(_scenes()))
-def test_ground_only_images_equal_the_former_fast_method(name, kernels):
-    doc = _scenes()[name]
-    sim = sonarsim.Simulator(doc, kernels=kernels)
-    new = sim.render().components
-    old = former_fast_method(sim)
-    for key, ref in old.items():
-        diff = np.abs(new[key].astype(float) - ref)
-        # float32 images against float64 sums; the compiled path rounds like the caster.
-        assert diff.sum() <= 2e-6 * ref.sum() + 1e-12, (key, diff.sum() / max(ref.sum(), 1e-30))
-        assert diff.max() <= 1e-4 * max(ref.max(), 1e-30), key
-    assert new["double"].any() and new["triple"].any()
-
-
-@pytest.mark.parametrize("name", list(_scenes()))
-def test_the_ground_specialised_kernels_equal_the_general_engine(name):
-    doc = _scenes()[name]
-    special = sonarsim.Simulator(doc)
-    general = sonarsim.Simulator(doc)
-    general.specialise_ground = False
-    a, b = special.render(), general.render()
-    for key in ("object", "ground", "single", "double", "triple", "total"):
-        x, y = a.components[key].astype(float), b.components[key].astype(float)
-        assert np.abs(x - y).sum() <= 2e-6 * y.sum() + 1e-12, key
-    np.testing.assert_array_equal(a.rays.surface_id, b.rays.surface_id)
-    np.testing.assert_allclose(a.rays.intensity, b.rays.intensity, rtol=1e-6)
-    assert set(a.components.signatures) == set(b.components.signatures)
 
 
 def test_ground_only_signatures_are_the_paper_paths():

@@ -163,17 +163,6 @@ def test_compiled_kernels_equal_the_numpy_reference_under_every_law(name):
     assert np.abs(plain.polar - a.polar).sum() > 0.05 * np.abs(plain.polar).sum()
 
 
-def test_the_ground_specialisation_equals_the_general_engine_under_every_law():
-    doc = material_variants()["ground"]
-    sim = sonarsim.Simulator(doc)
-    a = sim.render()
-    sim.specialise_ground = False
-    b = sim.render()
-    for key in ("object", "ground", "double", "triple"):
-        x, y = a.components[key].astype(float), b.components[key].astype(float)
-        assert np.abs(x - y).sum() <= 1e-5 * np.abs(y).sum() + 1e-12, key
-
-
 def test_algorithm2_equals_the_fast_method_under_every_law():
     doc = material_variants()["ground"]
     doc["render"] = {**doc.get("render", {}), "elevation_samples": 96}

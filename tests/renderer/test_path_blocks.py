@@ -6,8 +6,6 @@ same kernels on the same rays: the same bits."""
 from __future__ import annotations
 
 import copy
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -66,7 +64,6 @@ def _frames(doc, threads, fused, monkeypatch, n_blocks=compiled.N_BLOCKS, capaci
         if not fused:
             m.setattr(compiled, "packet_loop", lambda caster: None)
         with sonarsim.Simulator(doc) as sim:
-            sim.specialise_ground = False
             assert sim.caster.name == "embree4"
             out = []
             for pose in POSES:
@@ -145,3 +142,131 @@ def test_the_probe_kernel_follows_the_chains_its_twin_follows(seed):
         got[kernel is None] = sorted(table.chains)
     assert got[True] == got[False]
     assert len(got[True]) > 1
+
+
+def test_blocks_cover_the_beams_once():
+    for n, k in ((128, 4), (7, 4), (3, 8), (1, 1), (512, 6)):
+        blocks = compiled.beam_blocks(n, k)
+        assert blocks[0][0] == 0 and blocks[-1][1] == n
+        assert all(b0 < b1 for b0, b1 in blocks) and all(blocks[i][1] == blocks[i + 1][0] for i in range(len(blocks) - 1))
+        assert len(blocks) == min(n, k)
+        sizes = [b1 - b0 for b0, b1 in blocks]
+        assert max(sizes) - min(sizes) <= 1
+
+
+def test_on_both_cores_runs_every_task_once_and_waits_for_the_other_thread():
+    from concurrent.futures import ThreadPoolExecutor
+    import threading
+    import time
+
+    seen, threads = [], set()
+
+    def task(k):
+        time.sleep(0.002)
+        seen.append(k)
+        threads.add(threading.get_ident())
+
+    with ThreadPoolExecutor(1) as pool:
+        compiled.on_both_cores(task, 9, pool)
+        assert sorted(seen) == list(range(9)) and len(threads) == 2
+        # A task that raises: the error reaches the caller after the other thread stopped.
+        done = []
+
+        def failing(k):
+            time.sleep(0.002)
+            if k == 1:
+                raise ValueError("block 1")
+            done.append(k)
+
+        with pytest.raises(ValueError, match="block 1"):
+            compiled.on_both_cores(failing, 6, pool)
+        n = len(done)
+        time.sleep(0.02)
+        assert len(done) == n  # nothing ran after the call returned
+
+
+def test_path_blocks_refuse_misuse(monkeypatch):
+    with sonarsim.Simulator(demo_scene_dict()) as sim:
+        sim.render()
+        engine = sim._work.engine[4]
+        with pytest.raises(ValueError, match="frame"):  # it let go of the frame's arrays
+            engine.trace(0, 0, 4)
+        checked = []
+        run = compiled.on_both_cores
+
+        def checking(task, n, pool=None):
+            if not checked:  # inside the frame, before its blocks are traced
+                for args in ((0, 0, 10_000), (0, 5, 2), (99, 0, 4)):
+                    with pytest.raises(ValueError, match="block"):
+                        engine.trace(*args)
+                assert engine.trace(0, 3, 3)  # no beams: nothing to do
+                checked.append(True)
+            run(task, n, pool)
+
+        monkeypatch.setattr(compiled, "on_both_cores", checking)
+        sim.render()
+        assert checked
+
+
+def test_a_released_caster_is_not_cast_through():
+    sim = sonarsim.Simulator(demo_scene_dict())
+    sim.render()
+    engine = sim._work.engine[4]
+    sim.caster.release()
+    with pytest.raises(sonarsim.SonarsimError, match="released"):
+        sim.render()
+    # Nor by the blocks already built on it (the Embree scene is freed).
+    with pytest.raises(sonarsim.SonarsimError, match="closed"):
+        engine.trace(0, 0, 4)
+
+
+def test_a_sonar_with_as_many_rays_but_other_beams_gets_its_own_workspace():
+    """64 beams x 366 elevation rays are as many rays as the demo's 128 x 183: a workspace kept
+    for the ray count alone gave the second sonar the first one's beam of each ray."""
+    from dataclasses import replace
+
+    for doc in (demo_scene_dict(), _tank(1, 3)):
+        sim = sonarsim.Simulator(doc)
+        a = sim.scene.sonar
+        angles = np.linspace(max(a.beam_angles_deg), min(a.beam_angles_deg), 64)
+        b = replace(a, beam_angles_deg=tuple(angles), elevation_fov_deg=27.95)
+        assert sim.ray_fan(b).n_rays == sim.ray_fan(a).n_rays and sim.ray_fan(b).shape[0] != sim.ray_fan(a).shape[0]
+        sim.render(keep_rays=False)
+        got = sim.render(sonar=b, keep_rays=False).polar
+        with sonarsim.Simulator(doc) as fresh:
+            np.testing.assert_array_equal(got, fresh.render(sonar=b, keep_rays=False).polar)
+        sim.close()
+
+
+def test_the_array_pool_hands_a_set_out_again_only_once_nothing_holds_it():
+    pool = compiled.ArrayPool()
+    shapes = {"a": ((4, 10), np.float64), "b": ((10,), np.int32)}
+    first = pool.take(shapes)
+    view = first["a"][1]  # something still holds the first set (as an image holds its legs)
+    second = pool.take(shapes)
+    assert second["a"] is not first["a"]
+    del view
+    assert pool.take(shapes)["a"] is first["a"]  # free again: reused
+    smaller = pool.take({"a": ((2, 5), np.float64), "b": ((3,), np.int32)})
+    assert smaller["a"].shape == (4, 10)  # a larger free set serves a smaller request
+    held = [pool.take({"a": ((4, 10 + k), np.float64)}) for k in range(1, 6)]
+    assert len(pool._sets) <= compiled.ArrayPool.KEEP + len(held)
+    del held
+    pool.take(shapes)
+    assert len(pool._sets) <= compiled.ArrayPool.KEEP + 5
+
+
+def test_a_loop_of_frames_reuses_its_legs_and_paths_and_an_image_keeps_its_own():
+    sim = sonarsim.Simulator(_tank(5, 3))
+    kept = sim.render()  # its signature images are formed from its legs and paths when asked
+    for pose in POSES[1:]:
+        sim.render(pose=pose)  # later frames cannot take the arrays the kept image still uses
+    with sonarsim.Simulator(_tank(5, 3)) as fresh:
+        ref = fresh.render()
+    assert len(ref.components.signatures) > 4
+    for k in ref.components.signatures:
+        np.testing.assert_array_equal(kept.components[k], ref.components[k])
+    n = len(sim._work.pool._sets)
+    for _ in range(4):
+        sim.render()
+    assert len(sim._work.pool._sets) == n

@@ -13,16 +13,13 @@ specular part causes multipath; objects are diffuse.
   split, see ``render.double_beam``), weight ``R * I_f``, only where A lies in the sonar's
   field of view and range window (and, optionally, in its line of sight).
 
-Two implementations give the same images:
-
-* :func:`fast_mirror_paths` -- sonarsim's former fast method: a ray that passes the ground
-  before reaching an object is exactly a ray that, reflected at G, goes on to the real object,
-  so only the rays that reach the ground are cast again. The general path engine reproduces
-  its images to float precision (``tests/paths/test_engine.py``).
 * :func:`render_paper` -- Algorithm 2 literally: single-bounce renders of S1 (objects + ground),
-  S2 (objects) and S3 (objects + mirrored objects), difference images and per-ray differences.
+  S2 (objects) and S3 (objects + mirrored objects), difference images and per-ray differences;
+  it hands a :class:`MirrorPaths` to :func:`ground_echo_images`, which forms the images.
 
-Both hand a :class:`MirrorPaths` to :func:`ground_echo_images`, which forms the images.
+The path engine's images are compared with these on the ground-only scenes
+(``tests/paths/test_algorithm2.py``), and path by path with the brute-force reference
+(``tests/paths/test_reference.py``).
 """
 
 from __future__ import annotations
@@ -37,7 +34,8 @@ from ..config.scene import RenderSettings
 from ..config.sonar import SonarConfig
 from ..core.transforms import Pose
 from ..image.grid import beam_index
-from ..trace.surfaces import GROUND_ID, NO_HIT, SurfaceHits, ground_distance, trace
+from ..trace.surfaces import GROUND_ID, NO_HIT, ground_distance, trace
+from .planes import PlaneSet, apply
 
 # Secondary rays start this far off the ground so that they cannot hit the plane's own
 # neighbourhood (the base of an object resting on it) through round-off, metres.
@@ -70,79 +68,6 @@ class MirrorPaths:
     point_virtual: np.ndarray
     normal_virtual: np.ndarray
     point_real: np.ndarray
-
-
-def mirror_z(v: np.ndarray, height_m: float = 0.0, is_direction: bool = False) -> np.ndarray:
-    """Mirror points (or, with ``is_direction``, vectors) across the plane ``z = height_m``."""
-    out = np.array(v, dtype=float, copy=True)
-    out[..., 2] = -out[..., 2] if is_direction else 2.0 * height_m - out[..., 2]
-    return out
-
-
-def fast_mirror_paths(
-    caster,
-    origin: np.ndarray,
-    directions: np.ndarray,
-    primary: SurfaceHits,
-    ground_height_m: float,
-    weight: np.ndarray,
-    laws: SurfaceLaws | np.ndarray,
-    tvg: bool,
-    max_distance_m: float,
-) -> MirrorPaths:
-    """Mirror paths from the primary hits: reflect the rays that reach the ground, cast on.
-
-    Parameters
-    ----------
-    caster : RayCaster
-        The objects (mesh k = object k).
-    origin : (3,) float array
-        The sonar O, metres.
-    directions : (..., 3) float array
-        Unit ray directions in the world frame.
-    primary : SurfaceHits
-        Closest hits of those rays against objects and ground.
-    ground_height_m : float
-    weight : (...) float array
-        Ray weights (beam pattern x dphi), see :class:`sonarsim.core.rays.RayFan`.
-    laws : SurfaceLaws or (n_objects + 2,) float array
-        Backscatter laws indexed by ``surface_id + 1`` (an array: the Lambertian albedo).
-    tvg : bool
-    max_distance_m : float
-        Longest unfolded path OA' worth following, metres.
-    """
-    shape = primary.distance_m.shape
-    dist = np.full(shape, np.inf)
-    inten = np.zeros(shape)
-    sid = np.full(shape, NO_HIT, dtype=np.int32)
-    pv = np.full(shape + (3,), np.nan)
-    nv = np.zeros(shape + (3,))
-    pr = np.full(shape + (3,), np.nan)
-    on_ground = (primary.surface_id == GROUND_ID) & (primary.distance_m < max_distance_m)
-    if not on_ground.any():
-        return MirrorPaths(dist, inten, sid, pv, nv, pr)
-    d = directions[on_ground]
-    t_g = primary.distance_m[on_ground]
-    g = primary.point[on_ground]
-    d_ref = mirror_z(d, is_direction=True)
-    start = g + SURFACE_OFFSET_M * d_ref
-    hits = caster.intersect(start, d_ref, float(max_distance_m - t_g.min()))
-    s = hits.distance.astype(float) + SURFACE_OFFSET_M
-    ok = (hits.mesh_id >= 0) & (t_g + s <= max_distance_m)
-    idx = tuple(i[ok] for i in np.nonzero(on_ground))
-    oa_virtual = t_g[ok] + s[ok]
-    normal = hits.normal[ok].astype(float)
-    a_real = g[ok] + d_ref[ok] * s[ok, None]
-    sid_ok = hits.mesh_id[ok] + 1
-    cos_inc = np.abs(np.einsum("ij,ij->i", normal, d_ref[ok]))
-    dist[idx] = oa_virtual
-    sid[idx] = sid_ok
-    texel = hits.texel[ok] if hits.texel is not None else None
-    inten[idx] = backscatter(weight[idx], cos_inc, SurfaceLaws.of(laws), sid_ok + 1, oa_virtual, tvg, texel)
-    pv[idx] = np.asarray(origin, float) + d[ok] * oa_virtual[:, None]
-    nv[idx] = mirror_z(normal, is_direction=True)
-    pr[idx] = a_real
-    return MirrorPaths(dist, inten, sid, pv, nv, pr)
 
 
 def ground_echo_rays(
@@ -291,7 +216,7 @@ def render_paper(
         surface_id=np.where(reached, hits_oo.surface_id - n_objects, NO_HIT).astype(np.int32),
         point_virtual=a_virtual,
         normal_virtual=hits_oo.normal,
-        point_real=mirror_z(a_virtual, ground.height_m),
+        point_real=apply(PlaneSet.from_specs([ground.as_plane()]).mirror(0), a_virtual),
     )
     double, _ = ground_echo_images(paths, sonar, pose, render, ground.specular, objects_caster)
     out["double"] = double
@@ -299,7 +224,4 @@ def render_paper(
     return out
 
 
-__all__ = [
-    "MirrorPaths", "fast_mirror_paths", "ground_distance", "ground_echo_images", "ground_echo_rays", "mirror_z",
-    "render_paper",
-]
+__all__ = ["MirrorPaths", "ground_distance", "ground_echo_images", "ground_echo_rays", "render_paper"]

@@ -1,17 +1,17 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True, initializedcheck=False
-"""Compiled per-ray kernels of the default render path.
+"""Compiled per-ray kernels of the path engine, the one engine of every frame.
 
-Each kernel is the loop form of NumPy code that stays in the package as the reference: the
-general path engine's ``trace_leg``, ``path_events`` and ``splat_events`` are twinned by
-:mod:`sonarsim.paths.engine` (with ``renderer.formation.accumulate``), kernel by kernel; the
-ground specialisation's ``primary``, ``mirror_paths`` and ``splat`` by the former fast method
-(``trace.surfaces.trace``, ``paths.algorithm2.fast_mirror_paths`` and ``ground_echo_rays``,
-``renderer.formation.accumulate``). The tests require each pair to agree. They exist because a frame of the demo casts ~40,000
-rays in ~3 ms, and the same arithmetic as a chain of NumPy passes costs three to four times
-that; fused into one loop per stage it costs a fraction of the casting.
+Each kernel is the loop form of NumPy code that stays in the package as the reference:
+``rotate``, ``trace_leg``, ``probe_chains``, ``path_events`` and ``splat_events`` are twinned by
+:mod:`sonarsim.paths.engine` (with ``core.splat.accumulate``), kernel by kernel, and the tests
+require each pair to agree. :class:`PathBlocks` runs them over a block of beams in one call
+without the GIL, casting through the Embree 4 binding's packet loop (``docs/path-buffer.md``);
+:class:`LabelMaps` forms the ground truth from the paths. They exist because a frame of the
+demo casts ~30,000 rays in ~1 ms, and the same arithmetic as a chain of NumPy passes costs
+several times that; fused into one loop per stage it costs about the casting again.
 
 All arrays are flat (C-contiguous) views of the ray fan ``(n_beams, n_azimuth, n_elevation)``.
-Nothing here allocates; the caller owns every array.
+Nothing here allocates per ray; the caller owns every array.
 """
 
 from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, exp, isfinite, INFINITY, NAN
@@ -21,10 +21,6 @@ import numpy as np
 cimport cython
 
 from sonarsim.trace.cast_abi cimport cast_rays_t
-
-ctypedef fused real_t:
-    float
-    double
 
 cdef double CONTINUITY_SINE = 0.5
 cdef double MIN_SPREAD_BINS = 1e-6
@@ -123,115 +119,6 @@ def embree_hits(const float[::1] tfar, const int[::1] geom_id, const float[:, ::
                 normal[i, 2] = 0.0
 
 
-cdef (Py_ssize_t, double) primary_impl(const float[::1] hit_distance, const int[::1] hit_mesh, const float[:, ::1] hit_normal,
-            const double[:, ::1] dirs, double ox, double oy, double oz,
-            bint has_ground, double ground_h, double max_dist,
-            const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
-            double[::1] dist, int[::1] sid, float[:, ::1] point, float[:, ::1] normal,
-            double[::1] intensity, signed char[::1] label,
-            Py_ssize_t[::1] g_index, double[::1] g_t, float[:, ::1] g_start, float[:, ::1] g_dir,
-            _Laws laws, Py_ssize_t offset) noexcept nogil:
-    """The loop of :func:`primary` (also run by :class:`GroundBlocks`)."""
-    cdef Py_ssize_t i, n = hit_distance.shape[0], n_g = 0
-    cdef double dd, tg, dx, dy, dz, nx, ny, nz, c, r, t_min = INFINITY
-    cdef float px, py, pz, cosf
-    cdef int s, m
-    for i in range(n):
-        dx = dirs[i, 0]
-        dy = dirs[i, 1]
-        dz = dirs[i, 2]
-        m = hit_mesh[i]
-        if m >= 0:
-            dd = hit_distance[i]
-            s = m + 1
-            nx = hit_normal[i, 0]
-            ny = hit_normal[i, 1]
-            nz = hit_normal[i, 2]
-        else:
-            dd = INFINITY
-            s = -1
-            nx = 0.0
-            ny = 0.0
-            nz = 0.0
-        if has_ground and oz > ground_h and dz < 0:
-            tg = (ground_h - oz) / dz
-            if tg > 0 and tg < dd and tg <= max_dist:
-                dd = tg
-                s = 0
-                nx = 0.0
-                ny = 0.0
-                nz = 1.0
-        dist[i] = dd
-        sid[i] = s
-        normal[i, 0] = <float>nx
-        normal[i, 1] = <float>ny
-        normal[i, 2] = <float>nz
-        if s == -1:
-            point[i, 0] = NAN
-            point[i, 1] = NAN
-            point[i, 2] = NAN
-            intensity[i] = 0.0
-            label[i] = -1
-            continue
-        point[i, 0] = <float>(ox + dx * dd)
-        point[i, 1] = <float>(oy + dy * dd)
-        point[i, 2] = <float>(oz + dz * dd)
-        cosf = fabsf(<float>nx * <float>dx + <float>ny * <float>dy + <float>nz * <float>dz)
-        c = diffuse_weight(laws, &albedo_by_id[0], s + 1, i, s > 0, weight[i], cosf)
-        if not tvg:
-            r = dd if dd > 1e-6 else 1e-6
-            c = c / (r * r)
-        intensity[i] = c
-        label[i] = 0 if s > 0 else 1
-        if s == 0 and dd < max_dist:
-            # Reflect at G and start just off the plane (see paths.algorithm2.SURFACE_OFFSET_M).
-            g_index[n_g] = i + offset
-            g_t[n_g] = dd
-            g_dir[n_g, 0] = <float>dx
-            g_dir[n_g, 1] = <float>dy
-            g_dir[n_g, 2] = <float>(-dz)
-            px = point[i, 0]
-            py = point[i, 1]
-            pz = point[i, 2]
-            g_start[n_g, 0] = <float>(px + SURFACE_OFFSET_M * dx)
-            g_start[n_g, 1] = <float>(py + SURFACE_OFFSET_M * dy)
-            g_start[n_g, 2] = <float>(pz - SURFACE_OFFSET_M * dz)
-            if dd < t_min:
-                t_min = dd
-            n_g += 1
-    return n_g, t_min
-
-
-def primary(const float[::1] hit_distance, const int[::1] hit_mesh, const float[:, ::1] hit_normal,
-            const double[:, ::1] dirs, double ox, double oy, double oz,
-            bint has_ground, double ground_h, double max_dist,
-            const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
-            double[::1] dist, int[::1] sid, float[:, ::1] point, float[:, ::1] normal,
-            double[::1] intensity, signed char[::1] label,
-            Py_ssize_t[::1] g_index, double[::1] g_t, float[:, ::1] g_start, float[:, ::1] g_dir,
-            law_by_id=None, lobe_by_id=None, hit_texel=None, Py_ssize_t offset=0):
-    """Objects (from the caster) and the analytic ground -> closest surface, I_f, labels.
-
-    Also lists the rays that reach the ground (for the secondary, reflected rays), as ray
-    indices plus ``offset`` in ``g_index`` (the arrays may be a block of a frame's rays).
-    ``law_by_id`` (int32) and ``lobe_by_id`` ((n, 2) float64) give each surface's backscatter law
-    (:class:`sonarsim.core.radiometry.SurfaceLaws`; None: Lambertian, ``albedo_by_id`` its
-    albedo); ``hit_texel`` (float32 per hit, optional) scales the objects' diffuse coefficient.
-
-    Returns
-    -------
-    (n_ground, min_t_ground) : the number of ground hits within ``max_dist`` and the nearest.
-    """
-    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], hit_distance.shape[0])
-    cdef Py_ssize_t n_g
-    cdef double t_min
-    with nogil:
-        n_g, t_min = primary_impl(hit_distance, hit_mesh, hit_normal, dirs, ox, oy, oz, has_ground, ground_h,
-                                  max_dist, albedo_by_id, weight, tvg, dist, sid, point, normal, intensity, label,
-                                  g_index, g_t, g_start, g_dir, laws, offset)
-    return n_g, t_min
-
-
 cdef inline Py_ssize_t beam_of(const double* edges, Py_ssize_t n_edges, double az) noexcept nogil:
     """Index j with edges[j] >= az > edges[j + 1] (edges descending); -1 outside the fan.
     Pointers, not memoryviews, here and in the other per-ray helpers: passing a memoryview to
@@ -272,119 +159,6 @@ cdef inline Py_ssize_t beam_in_view(double x, double y, double z, double range_m
     if not fabs(el) <= half_elevation_deg:
         return -1
     return beam_of(edges, n_edges, atan2(y, x) * rad2deg)
-
-
-cdef void clear_impl(Py_ssize_t begin, Py_ssize_t end, double[::1] tri_dist, double[::1] tri_energy,
-                     double[::1] r23, double[::1] e23) noexcept nogil:
-    """The loop of :func:`clear_mirror` (also run by :class:`GroundBlocks`)."""
-    cdef Py_ssize_t i
-    for i in range(begin, end):
-        tri_dist[i] = INFINITY
-        tri_energy[i] = 0.0
-        r23[i] = INFINITY
-        e23[i] = 0.0
-
-
-def clear_mirror(Py_ssize_t begin, Py_ssize_t end, double[::1] tri_dist, double[::1] tri_energy,
-                 double[::1] r23, double[::1] e23):
-    """Mark rays ``begin:end`` unreached in :func:`mirror_paths`' outputs: no distance (inf) and
-    no energy (0) in either set. Their points, normals, surfaces and beams of A are left as they
-    are: the splat and the line-of-sight test read those only for rays that carry energy, which
-    :func:`mirror_paths` wrote. (Clearing every field cost a third of a block's memory traffic.)"""
-    if begin < 0 or end > tri_dist.shape[0] or end > tri_energy.shape[0] or end > r23.shape[0] or end > e23.shape[0]:
-        raise ValueError(f"rays {begin}:{end} outside the arrays")
-    with nogil:
-        clear_impl(begin, end, tri_dist, tri_energy, r23, e23)
-
-
-cdef void mirror_impl(const Py_ssize_t[::1] g_index, const double[::1] g_t, const float[:, ::1] g_start,
-                 const float[::1] hit_distance, const int[::1] hit_mesh, const float[:, ::1] hit_normal,
-                 const double[:, ::1] dirs, const float[:, ::1] point,
-                 double ox, double oy, double oz, const double[:, ::1] rotation,
-                 const double[::1] edges, double half_elevation_deg, double range_min, double range_max,
-                 double max_dist, const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
-                 double specular,
-                 double[::1] tri_dist, double[::1] tri_energy, double[:, ::1] v_point,
-                 double[:, ::1] v_normal, int[::1] v_sid,
-                 double[::1] r23, double[::1] e23, int[::1] beam_a,
-                 _Laws laws) noexcept nogil:
-    """The loop of :func:`mirror_paths` (also run by :class:`GroundBlocks`)."""
-    cdef Py_ssize_t j, i, n_g = g_index.shape[0]
-    cdef double s, oa_v, nx, ny, nz, dx, dy, dz, c, ax, ay, az_, rx, ry, rz, oa
-    cdef double r, tg
-    cdef int m, sv
-    cdef Py_ssize_t b
-    for j in range(n_g):
-        m = hit_mesh[j]
-        if m < 0:
-            continue
-        s = <double>hit_distance[j] + SURFACE_OFFSET_M
-        tg = g_t[j]
-        if tg + s > max_dist:
-            continue
-        i = g_index[j]
-        oa_v = tg + s
-        dx = dirs[i, 0]
-        dy = dirs[i, 1]
-        dz = dirs[i, 2]
-        nx = hit_normal[j, 0]
-        ny = hit_normal[j, 1]
-        nz = hit_normal[j, 2]
-        sv = m + 1
-        # cos of the reflected ray (dx, dy, -dz) with the object's normal.
-        c = fabs(nx * dx + ny * dy - nz * dz)
-        c = diffuse_weight(laws, &albedo_by_id[0], sv + 1, j, True, weight[i], c)
-        if not tvg:
-            r = oa_v if oa_v > 1e-6 else 1e-6
-            c = c / (r * r)
-        tri_dist[i] = oa_v
-        tri_energy[i] = specular * specular * c
-        v_sid[i] = sv
-        v_point[i, 0] = ox + dx * oa_v
-        v_point[i, 1] = oy + dy * oa_v
-        v_point[i, 2] = oz + dz * oa_v
-        v_normal[i, 0] = nx
-        v_normal[i, 1] = ny
-        v_normal[i, 2] = -nz
-        # A, the real point, in the sonar frame: R^T (A - O).
-        ax = <double>point[i, 0] + dx * s - ox
-        ay = <double>point[i, 1] + dy * s - oy
-        az_ = <double>point[i, 2] - dz * s - oz
-        rx = rotation[0, 0] * ax + rotation[1, 0] * ay + rotation[2, 0] * az_
-        ry = rotation[0, 1] * ax + rotation[1, 1] * ay + rotation[2, 1] * az_
-        rz = rotation[0, 2] * ax + rotation[1, 2] * ay + rotation[2, 2] * az_
-        b = beam_in_view(rx, ry, rz, range_min, range_max, half_elevation_deg, &edges[0], edges.shape[0], &oa)
-        if b >= 0:
-            r23[i] = 0.5 * (oa + oa_v)
-            e23[i] = specular * c
-            beam_a[i] = <int>b
-
-
-def mirror_paths(const Py_ssize_t[::1] g_index, const double[::1] g_t, const float[:, ::1] g_start,
-                 const float[::1] hit_distance, const int[::1] hit_mesh, const float[:, ::1] hit_normal,
-                 const double[:, ::1] dirs, const float[:, ::1] point,
-                 double ox, double oy, double oz, const double[:, ::1] rotation,
-                 const double[::1] edges, double half_elevation_deg, double range_min, double range_max,
-                 double max_dist, const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
-                 double specular,
-                 double[::1] tri_dist, double[::1] tri_energy, double[:, ::1] v_point,
-                 double[:, ::1] v_normal, int[::1] v_sid,
-                 double[::1] r23, double[::1] e23, int[::1] beam_a,
-                 law_by_id=None, lobe_by_id=None, hit_texel=None):
-    """Reflected rays that reached an object -> case 4 (triple) and cases 2/3 (double).
-
-    ``law_by_id``, ``lobe_by_id``, ``hit_texel``: as for :func:`primary` (``hit_texel`` per
-    reflected ray).
-
-    Only reached rays are set: the others must come marked unreached (:func:`clear_mirror`:
-    distances inf, energies 0); their other fields are not read downstream.
-    ``e23`` is R x I_f where A lies in the field of view and range window, else 0.
-    """
-    cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], g_index.shape[0])
-    with nogil:
-        mirror_impl(g_index, g_t, g_start, hit_distance, hit_mesh, hit_normal, dirs, point, ox, oy, oz, rotation,
-                    edges, half_elevation_deg, range_min, range_max, max_dist, albedo_by_id, weight, tvg, specular,
-                    tri_dist, tri_energy, v_point, v_normal, v_sid, r23, e23, beam_a, laws)
 
 
 cdef inline double ffloor(double v) noexcept nogil:
@@ -472,103 +246,9 @@ cdef inline bint neighbours(const double* points, const double* normals, const i
     return off0 * off0 <= limit and off1 * off1 <= limit
 
 
-cdef inline bint alive(const double[::1] distance, const double[::1] energy, Py_ssize_t i) noexcept nogil:
-    return energy[i] != 0 and isfinite(distance[i])
-
-
-cdef void splat_impl(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[::1] sid,
-          const double[::1] distance, const double[::1] energy, const int[::1] beam,
-          const signed char[::1] label, int label_const,
-          const double[::1] distance2, const double[::1] energy2, const int[::1] beam2, int label2,
-          bint spread, Py_ssize_t n_elevation, double range_min, double dr,
-          Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out,
-          Py_ssize_t col_begin, Py_ssize_t col_end) noexcept nogil:
-    """The loop of :func:`splat` (also run by :class:`GroundBlocks`)."""
-    cdef Py_ssize_t n = distance.shape[0], n_cols = n // n_elevation
-    cdef Py_ssize_t col, k, i, first
-    cdef bint geo, live1, live1_up, live2, live2_up, c1_dn, c2_dn, c1_up, c2_up
-    cdef bint two = distance2.shape[0] > 0, use_label = label.shape[0] > 0
-    cdef real_t cx, cy, cz, off0, off1, limit
-    cdef int lab
-    cdef double x_dn1 = 0.0, x_dn2 = 0.0, x1, x2, x_up1 = 0.0, x_up2 = 0.0
-    cdef double nb = <double>n_range_bins
-    cdef float* base = &out[0]
-    if col_end < 0 or col_end > n_cols:
-        col_end = n_cols
-    for col in range(col_begin, col_end):
-        first = col * n_elevation
-        c1_dn = False
-        c2_dn = False
-        live1_up = alive(distance, energy, first) and (label[first] if use_label else label_const) >= 0
-        live2_up = two and alive(distance2, energy2, first)
-        for k in range(n_elevation):
-            i = first + k
-            live1 = live1_up
-            live2 = live2_up
-            geo = False
-            live1_up = False
-            live2_up = False
-            if k + 1 < n_elevation:
-                live1_up = alive(distance, energy, i + 1) and (label[i + 1] if use_label else label_const) >= 0
-                live2_up = two and alive(distance2, energy2, i + 1)
-                if spread and (live1 and live1_up or live2 and live2_up) and sid[i] >= 0 and sid[i + 1] == sid[i]:
-                    cx = points[i + 1, 0] - points[i, 0]
-                    cy = points[i + 1, 1] - points[i, 1]
-                    cz = points[i + 1, 2] - points[i, 2]
-                    # |n . chord| <= sine |chord| for both normals, squared: no square root.
-                    off0 = cx * normals[i, 0] + cy * normals[i, 1] + cz * normals[i, 2]
-                    off1 = cx * normals[i + 1, 0] + cy * normals[i + 1, 1] + cz * normals[i + 1, 2]
-                    limit = <real_t>(CONTINUITY_SINE * CONTINUITY_SINE) * (cx * cx + cy * cy + cz * cz)
-                    geo = off0 * off0 <= limit and off1 * off1 <= limit
-            if live1:
-                lab = label[i] if use_label else label_const
-                # A continuous lower neighbour computed this ray's x as its x_up: the same value.
-                x1 = x_up1 if c1_dn else (distance[i] - range_min) / dr
-                c1_up = geo and live1_up
-                x_up1 = (distance[i + 1] - range_min) / dr if c1_up else 0.0
-                deposit(x1, x_dn1, x_up1, c1_dn, c1_up, energy[i],
-                        base + <Py_ssize_t>lab * n_range_bins * n_beams + beam[i], n_beams, nb)
-                c1_dn = c1_up
-                x_dn1 = x1
-            else:
-                c1_dn = False
-            if live2:
-                x2 = x_up2 if c2_dn else (distance2[i] - range_min) / dr
-                c2_up = geo and live2_up
-                x_up2 = (distance2[i + 1] - range_min) / dr if c2_up else 0.0
-                deposit(x2, x_dn2, x_up2, c2_dn, c2_up, energy2[i],
-                        base + <Py_ssize_t>label2 * n_range_bins * n_beams + beam2[i], n_beams, nb)
-                c2_dn = c2_up
-                x_dn2 = x2
-            else:
-                c2_dn = False
-
-
-def splat(const real_t[:, ::1] points, const real_t[:, ::1] normals, const int[::1] sid,
-          const double[::1] distance, const double[::1] energy, const int[::1] beam,
-          const signed char[::1] label, int label_const,
-          const double[::1] distance2, const double[::1] energy2, const int[::1] beam2, int label2,
-          bint spread, Py_ssize_t n_elevation, double range_min, double dr,
-          Py_ssize_t n_range_bins, Py_ssize_t n_beams, float[::1] out,
-          Py_ssize_t col_begin=0, Py_ssize_t col_end=-1):
-    """Continuity + range cells + accumulation of one or two sets of rays on one geometry.
-
-    ``out`` is the flat float32 ``(n_labels, n_range_bins, n_beams)`` image. Set 1: ``distance``, ``energy``, ``beam``, with ``label`` per ray (or
-    ``label_const`` where ``label`` is empty). Set 2 (used where ``distance2`` is not empty):
-    ``distance2``, ``energy2``, ``beam2``, label ``label2`` -- the double bounce shares the
-    triple's geometry, so the continuity test runs once for both. Neighbours count as
-    continuous for a set only where both carry energy in it. Only the ray columns
-    ``col_begin:col_end`` are done (continuity runs along a column, so columns are
-    independent). The GIL is released.
-    """
-    with nogil:
-        splat_impl(points, normals, sid, distance, energy, beam, label, label_const, distance2, energy2, beam2,
-                   label2, spread, n_elevation, range_min, dr, n_range_bins, n_beams, out, col_begin, col_end)
-
-
 cdef void rotate_impl(const double[:, ::1] dirs, const double[:, ::1] rotation, double[:, ::1] out64,
                       float[:, ::1] out32, Py_ssize_t begin, Py_ssize_t end) noexcept nogil:
-    """Rows ``begin:end`` of :func:`rotate`'s directions (also run by :class:`GroundBlocks`)."""
+    """Rows ``begin:end`` of :func:`rotate`'s directions (also run by :class:`PathBlocks`)."""
     cdef Py_ssize_t i
     cdef double x, y, z, a, b, c
     for i in range(begin, end):
@@ -597,190 +277,6 @@ def rotate(const double[:, ::1] dirs, const double[:, ::1] rotation, double ox, 
             origins32[i, 1] = <float>oy
             origins32[i, 2] = <float>oz
         rotate_impl(dirs, rotation, out64, out32, 0, n)
-
-
-cdef class GroundBlocks:
-    """The ground specialisation's pipeline for a block of beams in one call, casting through
-    the Embree 4 binding's packet loop (``sonarsim.trace._embree4.cast_rays``) without a return
-    to Python between the stages: rotate, cast, :func:`primary`, the direct :func:`splat`,
-    :func:`clear_mirror`, the reflected rays' cast, :func:`mirror_paths` and the echo splat
-    (own beams). The same functions' loops, in the same order, on the same arrays as
-    ``renderer.compiled.render_fast`` calls them one by one (the tests require the same bits).
-
-    Built once per workspace and fan (binding the arrays costs more than a block); each frame
-    sets the pose and the output (:meth:`frame`), then :meth:`block` runs on any thread (the
-    GIL is released; blocks of different beams touch disjoint memory).
-
-    Parameters
-    ----------
-    scene : object
-        Kept alive while this object lives (the binding's ``Scene``).
-    scene_address, cast_address : int
-        The Embree scene and the packet loop (``Scene.address()``, ``cast_rays_address()``).
-    ids : (n_geometries,) int32
-        Mesh index of each Embree geometry.
-    coherent : bool
-        Packets of neighbouring rays (as the caster's flag).
-    work : renderer.compiled.Workspace
-    directions : (n, 3) float64, the fan's rays in the sonar frame
-    weight : (n,) float64
-    albedo_by_id, law_by_id, lobe_by_id : the surfaces' laws (as :func:`primary`)
-    """
-
-    cdef object keep
-    cdef void* scene
-    cdef cast_rays_t cast
-    cdef const int[::1] ids
-    cdef bint coherent
-    cdef _Laws laws
-    cdef const double[:, ::1] fan_dirs
-    cdef const double[::1] weight, albedo
-    cdef double[:, ::1] d64
-    cdef float[:, ::1] d32, h_normal, h2_normal, point, normal, g_start, g_dir
-    cdef float[::1] h_dist, h2_dist
-    cdef int[::1] h_mesh, h2_mesh, sid, v_sid, beam, beam_a
-    cdef double[::1] dist, intensity, g_t, tri_dist, tri_energy, r23, e23
-    cdef signed char[::1] label
-    cdef Py_ssize_t[::1] g_index
-    cdef double[:, ::1] v_point, v_normal
-    cdef const signed char[::1] no_label
-    cdef const double[::1] empty_f64
-    cdef const int[::1] empty_i32
-    # Per frame.
-    cdef float[::1] out, total
-    cdef int total_rows[4]
-    cdef int n_total_rows
-    cdef const double[:, ::1] rotation
-    cdef const double[::1] edges
-    cdef float origin32[3]
-    cdef double ox, oy, oz, reach, ground_h, range_min, range_max, dr, half_el, specular
-    cdef bint has_ground, tvg, multipath, spread, echoes
-    cdef Py_ssize_t n_el, n_az, n_bins, n_beams
-    cdef bint ready
-
-    def __init__(self, scene, size_t scene_address, size_t cast_address, const int[::1] ids, bint coherent,
-                 work, const double[:, ::1] directions, const double[::1] weight, const double[::1] albedo_by_id,
-                 law_by_id=None, lobe_by_id=None):
-        if scene_address == 0 or cast_address == 0:
-            raise ValueError("no Embree scene or packet loop")
-        self.keep = (scene, ids, directions, weight, albedo_by_id, law_by_id, lobe_by_id)
-        self.scene = <void*>scene_address
-        self.cast = <cast_rays_t>cast_address
-        self.ids = ids
-        self.coherent = coherent
-        self.laws = _Laws(law_by_id, lobe_by_id, None, albedo_by_id.shape[0], 0)
-        self.fan_dirs, self.weight, self.albedo = directions, weight, albedo_by_id
-        w = work
-        if w.n != directions.shape[0] or weight.shape[0] != w.n:
-            raise ValueError(f"a workspace of {w.n} rays for {directions.shape[0]} directions and {weight.shape[0]} weights")
-        self.d64, self.d32 = w.d64, w.d32
-        self.h_dist, self.h_mesh, self.h_normal = w.h_dist, w.h_mesh, w.h_normal
-        self.h2_dist, self.h2_mesh, self.h2_normal = w.h2_dist, w.h2_mesh, w.h2_normal
-        self.dist, self.sid, self.point, self.normal = w.dist, w.sid, w.point, w.normal
-        self.intensity, self.label = w.intensity, w.label
-        self.g_index, self.g_t, self.g_start, self.g_dir = w.g_index, w.g_t, w.g_start, w.g_dir
-        self.tri_dist, self.tri_energy, self.v_point, self.v_normal = w.tri_dist, w.tri_energy, w.v_point, w.v_normal
-        self.v_sid, self.r23, self.e23, self.beam_a, self.beam = w.v_sid, w.r23, w.e23, w.beam_a, w.beam
-        self.no_label, self.empty_f64, self.empty_i32 = w.no_label, w.empty_f64, w.empty_i32
-        self.ready = False
-
-    def frame(self, float[::1] out, const double[:, ::1] rotation, double ox, double oy, double oz,
-              bint has_ground, double ground_h, double reach, bint tvg, bint multipath, double specular,
-              bint spread, bint echoes, Py_ssize_t n_az, Py_ssize_t n_el, double range_min, double dr,
-              Py_ssize_t n_bins, Py_ssize_t n_beams, double range_max, double half_el, const double[::1] edges,
-              float[::1] total=None, tuple rows=()):
-        """Set the frame: the flat output stack ``(4, n_bins, n_beams)``, the pose, the settings.
-
-        ``echoes``: splat the echo images of each block (own beams) in :meth:`block`. Each block
-        first zeroes its beams' columns of ``out`` (which may come uninitialised). ``total``
-        (flat ``(n_bins, n_beams)``, optional): each block also sums the stack ``rows`` of its
-        beams into it, in the given order in float32 (as ``components._sum_rows``); only right
-        when nothing lands in a block's columns after it (``echoes`` of own beams).
-        """
-        if out.shape[0] != 4 * n_bins * n_beams:
-            raise ValueError("the output is not a (4, n_range_bins, n_beams) stack")
-        if total is not None and (total.shape[0] != n_bins * n_beams or not 0 < len(rows) <= 4
-                                  or any(not 0 <= r < 4 for r in rows)):
-            raise ValueError("the total is not (n_range_bins, n_beams), or its rows are not 1 to 4 of 0..3")
-        self.n_total_rows = len(rows) if total is not None else 0
-        for k in range(self.n_total_rows):
-            self.total_rows[k] = rows[k]
-        self.total = total
-        if (self.fan_dirs.shape[0] != n_beams * n_az * n_el or self.beam.shape[0] != self.fan_dirs.shape[0]
-                or self.beam[self.beam.shape[0] - 1] != n_beams - 1):
-            raise ValueError("the fan's shape does not match the workspace (its beams, or its rays per beam)")
-        self.out, self.rotation, self.edges = out, rotation, edges
-        self.ox, self.oy, self.oz = ox, oy, oz
-        self.origin32[0], self.origin32[1], self.origin32[2] = <float>ox, <float>oy, <float>oz
-        self.has_ground, self.ground_h, self.reach, self.tvg = has_ground, ground_h, reach, tvg
-        self.multipath, self.specular, self.spread, self.echoes = multipath, specular, spread, echoes
-        self.n_az, self.n_el, self.range_min, self.dr = n_az, n_el, range_min, dr
-        self.n_bins, self.n_beams, self.range_max, self.half_el = n_bins, n_beams, range_max, half_el
-        self.ready = True
-
-    def block(self, Py_ssize_t b0, Py_ssize_t b1):
-        """Beams ``b0:b1`` through the pipeline; returns the number of reflected rays cast (0:
-        none, and the mirror outputs of the block were not cleared)."""
-        if not self.ready:
-            raise ValueError("call frame() first")
-        self.keep[0].address()  # raises once the caster released the Embree scene (no cast into freed memory)
-        if not (0 <= b0 <= b1 <= self.n_beams):
-            raise ValueError(f"beams {b0}:{b1} outside 0:{self.n_beams}")
-        cdef Py_ssize_t c0 = b0 * self.n_az, c1 = b1 * self.n_az
-        cdef Py_ssize_t a = c0 * self.n_el, b = c1 * self.n_el, n_g = 0
-        cdef double t_min = INFINITY
-        cdef float reach32 = <float>self.reach, reach2
-        cdef Py_ssize_t plane = self.n_bins * self.n_beams, r, k, j, q, row
-        cdef float* o
-        cdef float* tot
-        cdef const float* src
-        if b == a:
-            return 0
-        with nogil:
-            o = &self.out[0]
-            for r in range(4):
-                for k in range(self.n_bins):
-                    memset(o + r * plane + k * self.n_beams + b0, 0, (b1 - b0) * sizeof(float))
-            rotate_impl(self.fan_dirs, self.rotation, self.d64, self.d32, a, b)
-            self.cast(self.scene, self.origin32, 0, &self.d32[a, 0], &reach32, 0, &self.ids[0],
-                      &self.h_dist[a], &self.h_mesh[a], &self.h_normal[a, 0], NULL, NULL, b - a, self.coherent)
-            n_g, t_min = primary_impl(
-                self.h_dist[a:b], self.h_mesh[a:b], self.h_normal[a:b], self.d64[a:b], self.ox, self.oy, self.oz,
-                self.has_ground, self.ground_h, self.reach, self.albedo, self.weight[a:b], self.tvg,
-                self.dist[a:b], self.sid[a:b], self.point[a:b], self.normal[a:b], self.intensity[a:b],
-                self.label[a:b], self.g_index[a:b], self.g_t[a:b], self.g_start[a:b], self.g_dir[a:b], self.laws, a)
-            splat_impl(self.point, self.normal, self.sid, self.dist, self.intensity, self.beam, self.label, 0,
-                       self.empty_f64, self.empty_f64, self.empty_i32, -1, self.spread, self.n_el, self.range_min,
-                       self.dr, self.n_bins, self.n_beams, self.out, c0, c1)
-            if self.multipath and n_g:
-                clear_impl(a, b, self.tri_dist, self.tri_energy, self.r23, self.e23)
-                reach2 = <float>(self.reach - t_min)
-                self.cast(self.scene, &self.g_start[a, 0], 3, &self.g_dir[a, 0], &reach2, 0, &self.ids[0],
-                          &self.h2_dist[a], &self.h2_mesh[a], &self.h2_normal[a, 0], NULL, NULL, n_g, self.coherent)
-                mirror_impl(self.g_index[a:a + n_g], self.g_t[a:a + n_g], self.g_start[a:a + n_g],
-                            self.h2_dist[a:a + n_g], self.h2_mesh[a:a + n_g], self.h2_normal[a:a + n_g],
-                            self.d64, self.point, self.ox, self.oy, self.oz, self.rotation, self.edges, self.half_el,
-                            self.range_min, self.range_max, self.reach, self.albedo, self.weight, self.tvg,
-                            self.specular, self.tri_dist, self.tri_energy, self.v_point, self.v_normal, self.v_sid,
-                            self.r23, self.e23, self.beam_a, self.laws)
-                if self.echoes:
-                    splat_impl(self.v_point, self.v_normal, self.v_sid, self.tri_dist, self.tri_energy, self.beam,
-                               self.no_label, 3, self.r23, self.e23, self.beam, 2, self.spread, self.n_el,
-                               self.range_min, self.dr, self.n_bins, self.n_beams, self.out, c0, c1)
-            if self.n_total_rows:
-                # The block's columns are complete and recently touched: their total now, row
-                # after row in float32 (each sum in the same order as components._sum_rows).
-                tot = &self.total[0]
-                for k in range(self.n_bins):
-                    row = k * self.n_beams
-                    src = o + self.total_rows[0] * plane + row
-                    for j in range(b0, b1):
-                        tot[row + j] = src[j]
-                    for q in range(1, self.n_total_rows):
-                        src = o + self.total_rows[q] * plane + row
-                        for j in range(b0, b1):
-                            tot[row + j] = tot[row + j] + src[j]
-        return n_g if self.multipath else 0
 
 
 # General reflecting planes (sonarsim.paths.engine is the NumPy twin) ----------------------
@@ -961,7 +457,8 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     continuity of range splatting). The first generation does not write ``atten_out``,
     ``chain_out`` and ``key``: they are 1, 0 and ``sid`` there. ``live`` lists, in row order, the rays that scatter some
     energy. ``children[c, p]`` is the chain ``c + (p,)`` (-1: new, numbered from ``n_chains``).
-    ``law_by_id``, ``lobe_by_id``, ``hit_texel`` (per row): as for :func:`primary`.
+    ``law_by_id``, ``lobe_by_id``: the surfaces' law codes and lobes (``SurfaceLaws``; None: all
+    Lambertian); ``hit_texel`` (per row): the objects' texture factor at each hit (None: none).
 
     Returns
     -------
@@ -1392,6 +889,21 @@ cdef class PathBlocks:
             raise ValueError("the output stack is not (rows, n_range_bins, n_beams)")
         self.out = out
         self.ready = True
+        self.paths_ready = False
+
+    def release(self):
+        """Let go of the frame's arrays (the legs, the path buffer, the stack): the caller
+        reuses them for a later frame once nothing else holds them."""
+        self.dist = self.intensity = self.atten = None
+        self.sid = self.chain = self.key = None
+        self.point = self.normal = None
+        self.live = self.n_live = self.n_cast = None
+        self.p_offset = self.p_count = self.p_ray = None
+        self.p_dist = self.p_energy = None
+        self.p_beam = self.p_beam_tx = None
+        self.p_label = None
+        self.out = self.total = None
+        self.ready = False
         self.paths_ready = False
 
     cdef int _check(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1) except -1:

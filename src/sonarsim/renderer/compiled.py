@@ -1,23 +1,19 @@
-"""The default render path with its per-ray loops compiled (:mod:`sonarsim.renderer._kernels`).
+"""The path engine with its per-ray loops compiled (:mod:`sonarsim.renderer._kernels`).
 
-General planes (:func:`render_paths`): the kernels ``trace_leg`` (one generation of receive
-legs), ``path_events`` (the paths of one generation and one transmit option) and
-``splat_events`` (paths into the image stack), twinned by the NumPy code of
-:mod:`sonarsim.paths.engine` and :mod:`sonarsim.renderer.formation`. Per frame: cast the fan,
-trace its legs, cast the reflected rays (split over both cores while this one forms the direct
-image), trace them, and so on up to ``max_order - 1`` reflections; then form and splat the paths.
-
-The ground alone at order 3 (:func:`render_fast`): the kernels ``primary``, ``mirror_paths``
-and ``splat`` written for the flat ground before the general engine, run over blocks of beams
-that the two cores take in turn; with the Embree 4 binding each block is one call of
-``_kernels.GroundBlocks``, which also casts. Same images as the general path (the tests compare
-them); kept as a specialisation until the general path is as fast on that case.
+:func:`render_paths` forms every frame, over any set of planes and any ``max_order``: the
+beams are cut into blocks, and each block goes whole through rotate, cast, the receive legs
+of every generation with their reflected casts (``_kernels.PathBlocks``, casting through the
+Embree 4 binding's packet loop where it loads, else Python casts between the same stages),
+then through its paths and their splatting, the two cores taking blocks in turn. The NumPy
+twin of each kernel is in :mod:`sonarsim.paths.engine`; ``docs/path-buffer.md`` describes the
+arrays that pass between the search and image formation.
 """
 
 from __future__ import annotations
 
 import functools
 import itertools
+import sys
 
 import numpy as np
 
@@ -26,7 +22,7 @@ from ..paths.planes import ChainTable
 from ..core.radiometry import SurfaceLaws
 
 from ..core.rays import RayFan
-from ..config.scene import GroundSpec, RenderSettings
+from ..config.scene import RenderSettings
 from ..config.sonar import SonarConfig
 from ..core.transforms import Pose
 from ..scene.floor_texture import scale_by_texture
@@ -37,13 +33,6 @@ except ImportError:  # not built (e.g. a source tree used without installing)
     _kernels = None
 
 AVAILABLE = _kernels is not None
-
-# Blocks of beams per core in the ground specialisation (render_fast): a few, so that a core
-# finishing early takes another block, but few enough that the per-block Python calls stay small.
-BLOCKS_PER_CORE = 2
-# Share of a frame's reflected rays cast on the other core while this one forms the direct image.
-OTHER_CORE_SHARE = 0.65
-
 
 def _law_args(laws: SurfaceLaws, hits) -> tuple:
     """The kernels' optional law arguments: ``(law_by_id, lobe_by_id, hit_texel)``, None where
@@ -74,52 +63,30 @@ class Workspace:
     def __init__(self, n: int, n_beams: int, n_per_beam: int) -> None:
         self.n = n
         self.layout = (n, n_beams, n_per_beam)
+        # The fan at the pose (float64, and float32 for the caster) and the first rays' origins.
         self.d64 = np.empty((n, 3))
         self.d32 = np.empty((n, 3), dtype=np.float32)
         self.o32 = np.empty((n, 3), dtype=np.float32)
-        self.dist = np.empty(n)
-        self.sid = np.empty(n, dtype=np.int32)
-        self.point = np.empty((n, 3), dtype=np.float32)
-        self.normal = np.empty((n, 3), dtype=np.float32)
-        self.intensity = np.empty(n)
-        self.label = np.empty(n, dtype=np.int8)
-        self.g_index = np.empty(n, dtype=np.intp)
-        self.g_t = np.empty(n)
-        self.g_start = np.empty((n, 3), dtype=np.float32)
-        self.g_dir = np.empty((n, 3), dtype=np.float32)
-        self.tri_dist = np.empty(n)
-        self.tri_energy = np.empty(n)
-        self.v_point = np.empty((n, 3))
-        self.v_normal = np.empty((n, 3))
-        self.v_sid = np.empty(n, dtype=np.int32)
-        self.r23 = np.empty(n)
-        self.e23 = np.empty(n)
-        self.beam_a = np.empty(n, dtype=np.int32)
-        # The casts' hits (primary rays; reflected rays in the rows of their block).
-        self.h_dist, self.h2_dist = np.empty(n, dtype=np.float32), np.empty(n, dtype=np.float32)
-        self.h_mesh, self.h2_mesh = np.empty(n, dtype=np.int32), np.empty(n, dtype=np.int32)
-        self.h_normal, self.h2_normal = np.empty((n, 3), dtype=np.float32), np.empty((n, 3), dtype=np.float32)
-        self.ground_blocks: tuple | None = None  # (caster, fan, laws, GroundBlocks), see ground_blocks()
-        # The general engine's: its block engine (path_engine()), the rays of each block's
-        # current and next generation (two buffers, a block's rows at its own rays).
-        self.engine: tuple | None = None
-        self.options: tuple | None = None  # (planes, chains, n_gen, max_order, double_beam, arrays), _options()
-        self.chains: tuple | None = None  # (planes, key, chains, remap), _frame_chains()
+        # The casts' hits (each block's rays, every generation, in the block's rows).
+        self.h_dist = np.empty(n, dtype=np.float32)
+        self.h_mesh = np.empty(n, dtype=np.int32)
+        self.h_normal = np.empty((n, 3), dtype=np.float32)
+        # The rays of each block's current and next generation (two buffers, a block's rows at
+        # its own rays).
         self.ray0 = np.arange(n, dtype=np.intp)
         self.r_ray = np.empty((2, n), dtype=np.intp)
         self.r_org, self.r_dir = np.empty((2, n, 3)), np.empty((2, n, 3))
         self.r_org32, self.r_dir32 = np.empty((2, n, 3), np.float32), np.empty((2, n, 3), np.float32)
         self.r_before, self.r_atten = np.empty((2, n)), np.empty((2, n))
         self.r_chain = np.empty((2, n), dtype=np.int32)
-        self.beam = np.repeat(np.arange(n_beams, dtype=np.int32), n_per_beam)
-        self.no_label = np.empty(0, dtype=np.int8)
         self.ones = np.ones(n)  # attenuation of the first generation's legs
         self.zeros_i32 = np.zeros(n, dtype=np.int32)  # their chain (none)
-        self.empty_f64 = np.empty(0)
-        self.empty_i32 = np.empty(0, dtype=np.int32)
+        self.engine: tuple | None = None  # (caster, fan, laws, planes, PathBlocks), path_engine()
+        self.chains: tuple | None = None  # (planes, key, chains, remap), _frame_chains()
+        self.options: tuple | None = None  # (planes, chains, n_gen, max_order, double_beam, arrays), _options()
+        self.pool = ArrayPool()  # the frames' legs and path buffers
 
 
-@functools.lru_cache(maxsize=16)
 def beam_blocks(n_beams: int, n_blocks: int) -> tuple[tuple[int, int], ...]:
     """``n_blocks`` (at most ``n_beams``) contiguous ranges of beams covering ``0:n_beams``, of
     near-equal sizes."""
@@ -151,201 +118,6 @@ def on_both_cores(task, n_tasks: int, pool=None) -> None:
         other.result()
 
 
-def ground_blocks(caster, work: Workspace, fan: RayFan, laws: SurfaceLaws):
-    """The fused block pipeline (:class:`~sonarsim.renderer._kernels.GroundBlocks`) for this
-    caster, workspace, fan and laws, built on first use and kept on the workspace; None where
-    the caster offers no packet loop (embreex, the NumPy caster, a scene with textures, whose
-    texels are looked up in Python)."""
-    loop = getattr(type(caster), "packet_loop", None)  # on the type: a wrapper forwards attributes
-    if loop is None:
-        return None
-    cached = work.ground_blocks
-    if cached is not None and cached[0] is caster and cached[1] is fan and cached[2] is laws and not caster.released:
-        return cached[3]
-    handle = loop(caster)
-    if handle is None:
-        return None
-    law_by_id, lobe_by_id, _ = _law_args(laws, None)
-    blocks = _kernels.GroundBlocks(*handle, work, fan.directions.reshape(-1, 3), fan.weight.reshape(-1),
-                                   laws.coefficient, law_by_id, lobe_by_id)
-    work.ground_blocks = (caster, fan, laws, blocks)
-    return blocks
-
-
-def render_fast(
-    caster,
-    sonar: SonarConfig,
-    pose: Pose,
-    fan: RayFan,
-    ground: GroundSpec | None,
-    render: RenderSettings,
-    laws: SurfaceLaws | np.ndarray,
-    reach_m: float,
-    multipath: bool,
-    work: Workspace,
-    pool=None,
-    sum_rows: tuple[int, ...] = (),
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Render the object, ground, double and triple images (labels 0-3).
-
-    Parameters
-    ----------
-    caster : RayCaster
-    sonar, pose, fan, render : the sonar's intrinsics, its pose (world frame), its rays (sonar
-        frame), the settings
-    ground : GroundSpec or None
-    laws : SurfaceLaws or (n_objects + 2,) float64 ndarray
-        Backscatter laws indexed by surface id + 1 (an array: Lambertian albedo).
-    reach_m : float
-        Longest path followed, metres.
-    multipath : bool
-        Form the ground echoes.
-    work : Workspace
-        Receives the per-ray results (``d64``: world directions; ``dist``, ``sid``,
-        ``intensity``: D_f, labels, I_f).
-    pool : concurrent.futures.ThreadPoolExecutor with one worker, optional
-        The other core: it takes blocks of beams as this one does.
-    sum_rows : tuple of int
-        The rows whose sum is the frame's total (``components.total_rows``); the fused blocks
-        add them up while a block's columns are in cache, where nothing lands there later.
-
-    Returns
-    -------
-    stack : (4, n_range_bins, n_beams) float32 ndarray
-        The images. float32 sums lose nothing here that the float32 result would keep.
-    total : (n_range_bins, n_beams) float32 ndarray or None
-        The sum of ``sum_rows`` (as ``components._sum_rows`` adds them), or None: not formed.
-
-    Notes
-    -----
-    The beams are cut into blocks, and each block goes whole through the pipeline on one
-    thread: rotate its rays, cast them, find the closest surfaces, splat the direct image, cast
-    the reflected rays, form the echo paths, splat the echoes. A block writes only its own
-    rays' entries and (with ``double_beam`` ``paper``) only its own beams' image columns, in ray
-    order, so the image is the same bits whichever thread took which block, and the same as on
-    one thread. The blocks that write into other beams' columns (``split``: the double bounce
-    also lands in the beam of A) and ``double_line_of_sight`` (a cast after all paths) are done
-    after the blocks, on this thread.
-    """
-    laws = SurfaceLaws.of(laws)
-    albedo_by_id = laws.coefficient
-    origin = pose.translation
-    ox, oy, oz = float(origin[0]), float(origin[1]), float(origin[2])
-    rotation = np.ascontiguousarray(pose.rotation)
-    directions = fan.directions.reshape(-1, 3)
-    weight = fan.weight.reshape(-1)
-    has_ground = ground is not None
-    n_beams, n_az, n_el = fan.shape
-    geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
-    spread = render.range_splat
-    half_el = sonar.elevation_fov_deg / 2.0
-    edges = np.ascontiguousarray(sonar.beam_edges_deg)
-    own_beam = render.double_beam == "paper"
-    pipelined = not render.double_line_of_sight  # that option casts again after all paths
-    # The echo images go with their block where they land in the block's own beams; otherwise
-    # (``split``, ``double_line_of_sight``) after every block, on this thread.
-    echoes_in_blocks = own_beam and pipelined
-    w = work
-    fused = ground_blocks(caster, work, fan, laws)
-    shape = (4, sonar.n_range_bins, sonar.n_beams)
-    total = None
-    if fused is not None:
-        out = np.empty(shape, dtype=np.float32)  # each block zeroes its own columns
-        if sum_rows and echoes_in_blocks:
-            total = np.empty(shape[1:], dtype=np.float32)
-    else:
-        out = np.zeros(shape, dtype=np.float32)
-    flat_out = out.reshape(-1)
-
-    def splat(points, normals, sid, set1, set2=None, columns=(0, -1)):
-        """Run the splat kernel: ``set = (distance, energy, beams, label array, label)``."""
-        d2, e2, b2, _, l2 = set2 if set2 is not None else (w.empty_f64, w.empty_f64, w.empty_i32, None, -1)
-        _kernels.splat(points, normals, sid, *set1, d2, e2, b2, l2, spread, n_el, *geometry, flat_out, *columns)
-
-    mirror = (w.v_point, w.v_normal, w.v_sid)
-    triple = (w.tri_dist, w.tri_energy, w.beam, w.no_label, 3)
-
-    def echoes(columns):
-        """The echo images of ray ``columns``."""
-        if own_beam:
-            splat(*mirror, triple, (w.r23, w.e23, w.beam, None, 2), columns=columns)
-            return
-        half = 0.5 * w.e23
-        splat(*mirror, triple, (w.r23, half, w.beam, None, 2), columns=columns)
-        splat(*mirror, (w.r23, half, w.beam_a, w.no_label, 2), columns=columns)  # case 2: beam of A
-
-    blocks = beam_blocks(n_beams, 1 if pool is None else BLOCKS_PER_CORE * 2)
-    echo_rays = [0] * len(blocks)
-
-    if fused is not None:
-        fused.frame(flat_out, rotation, ox, oy, oz, has_ground, ground.height_m if has_ground else 0.0, reach_m,
-                    render.tvg, multipath, ground.specular if has_ground else 0.0, spread, echoes_in_blocks, n_az,
-                    n_el, *geometry[:2], *geometry[2:], sonar.range_max_m, half_el, edges,
-                    None if total is None else total.reshape(-1), tuple(sum_rows) if total is not None else ())
-
-        def block(k: int) -> None:
-            echo_rays[k] = fused.block(*blocks[k])
-    else:
-        def block(k: int) -> None:
-            c0, c1 = blocks[k][0] * n_az, blocks[k][1] * n_az  # ray columns
-            a, b = c0 * n_el, c1 * n_el  # rays
-            _kernels.rotate(directions[a:b], rotation, ox, oy, oz, w.d64[a:b], w.d32[a:b], w.o32[a:b])
-            hits = caster.intersect(w.o32[a:b], w.d32[a:b], reach_m, threads=1)
-            n_g, t_min = _kernels.primary(
-                hits.distance, hits.mesh_id, hits.normal, w.d64[a:b], ox, oy, oz,
-                has_ground, ground.height_m if has_ground else 0.0, reach_m, albedo_by_id, weight[a:b], render.tvg,
-                w.dist[a:b], w.sid[a:b], w.point[a:b], w.normal[a:b], w.intensity[a:b], w.label[a:b],
-                w.g_index[a:b], w.g_t[a:b], w.g_start[a:b], w.g_dir[a:b], *_law_args(laws, hits), offset=a,
-            )
-            splat(w.point, w.normal, w.sid, (w.dist, w.intensity, w.beam, w.label, 0), columns=(c0, c1))
-            if not (multipath and n_g):
-                return
-            echo_rays[k] = n_g
-            _kernels.clear_mirror(a, b, w.tri_dist, w.tri_energy, w.r23, w.e23)
-            g = slice(a, a + n_g)
-            # The block's nearest ground hit bounds its reflected rays (a hit further than the
-            # reach allows is dropped ray by ray in mirror_paths anyway: the same answer).
-            hits2 = caster.intersect(w.g_start[g], w.g_dir[g], float(reach_m - t_min), threads=1)
-            _kernels.mirror_paths(
-                w.g_index[g], w.g_t[g], w.g_start[g], hits2.distance, hits2.mesh_id, hits2.normal,
-                w.d64, w.point, ox, oy, oz, rotation, edges, half_el, sonar.range_min_m, sonar.range_max_m,
-                reach_m, albedo_by_id, weight, render.tvg, ground.specular,
-                w.tri_dist, w.tri_energy, w.v_point, w.v_normal, w.v_sid,
-                w.r23, w.e23, w.beam_a, *_law_args(laws, hits2),
-            )
-            if echoes_in_blocks:
-                echoes((c0, c1))
-
-    on_both_cores(block, len(blocks), pool)
-    if not any(echo_rays) or echoes_in_blocks:
-        return out, total
-    # Blocks without echo rays skipped clearing their share of the mirror outputs.
-    for k, (b0, b1) in enumerate(blocks):
-        if not echo_rays[k]:
-            _kernels.clear_mirror(b0 * n_az * n_el, b1 * n_az * n_el, w.tri_dist, w.tri_energy, w.r23, w.e23)
-    if not pipelined:
-        _drop_hidden(caster, pose, ground.height_m, work)
-    echoes((0, -1))
-    return out, None
-
-
-def _drop_hidden(caster, pose: Pose, ground_height_m: float, work: Workspace) -> None:
-    """``double_line_of_sight``: no double bounce from an A that the sonar (at ``pose``) cannot see."""
-    cand = np.flatnonzero(work.e23 > 0)
-    if not cand.size:
-        return
-    origin = pose.translation
-    a_point = work.v_point[cand].copy()  # A', mirrored back across the ground: A
-    a_point[:, 2] = 2.0 * ground_height_m - a_point[:, 2]
-    to_a = a_point - origin
-    oa = np.linalg.norm(to_a, axis=1)
-    hit = caster.intersect(origin, to_a / oa[:, None], float(oa.max()) + 1.0)
-    # Visible when the first thing on the way is A itself (to float32 precision).
-    hidden = hit.distance < oa - 1e-3 * np.maximum(oa, 1.0)
-    work.e23[cand[hidden]] = 0.0
-    work.r23[cand[hidden]] = np.inf
-
-
 # Blocks of beams a frame is cut into, whatever the number of threads (the image does not
 # depend on the cut; a fixed cut keeps that plain). One per core measured fastest on the demo
 # and the six-plane tank (each block's columns are strided in the image, and a block's fixed
@@ -354,6 +126,42 @@ N_BLOCKS = 2
 
 # Rows of each block's own chain table at first (it grows on overflow).
 CHAIN_CAPACITY = 256
+
+
+class ArrayPool:
+    """Per-frame arrays kept between frames: a set is handed out again once nothing outside the
+    pool refers to any of its arrays (the frame's legs, paths and their views died with its
+    image), else a new set is made. A loop of frames then allocates nothing, where fresh
+    arrays of a 1024-beam frame (tens of megabytes) page-faulted every frame.
+    """
+
+    KEEP = 3  # sets kept: the frame being formed, the one still held by the previous image, a spare
+
+    def __init__(self) -> None:
+        self._sets: list[dict] = []
+
+    @staticmethod
+    def _free(arrays: dict) -> bool:
+        # References: the set's dict, the loop variable, getrefcount's argument.
+        return all(sys.getrefcount(a) <= 3 for a in arrays.values())
+
+    def take(self, shapes: dict) -> dict:
+        """A set of arrays of at least the given sizes: ``{name: (shape, dtype)}``, taken from
+        the first free set whose arrays are as large, else new (contents undefined)."""
+        for k, arrays in enumerate(self._sets):
+            if all(name in arrays and arrays[name].dtype == np.dtype(dt) and arrays[name].ndim == len(shape)
+                   and all(a >= b for a, b in zip(arrays[name].shape, shape)) for name, (shape, dt) in shapes.items()):
+                if self._free(arrays):
+                    self._sets.append(self._sets.pop(k))  # most recently used last
+                    return arrays
+        arrays = {name: np.empty(shape, dt) for name, (shape, dt) in shapes.items()}
+        self._sets.append(arrays)
+        if len(self._sets) > self.KEEP:  # forget the oldest free set (by identity: sets hold arrays)
+            for k in range(len(self._sets) - 1):
+                if self._free(self._sets[k]):
+                    del self._sets[k]
+                    break
+        return arrays
 
 
 class FrameLegs:
@@ -371,12 +179,14 @@ class FrameLegs:
         Live rays, and rays cast, per block and generation.
     """
 
-    def __init__(self, n_gen: int, n: int, n_blocks: int) -> None:
-        self.dist, self.intensity, self.atten = np.empty((n_gen, n)), np.empty((n_gen, n)), np.empty((n_gen, n))
-        self.sid, self.chain = np.empty((n_gen, n), np.int32), np.empty((n_gen, n), np.int32)
-        self.key = np.empty((n_gen, n), np.int32)
-        self.point, self.normal = np.empty((n_gen, n, 3)), np.empty((n_gen, n, 3))
-        self.live = np.empty((n_gen, n), np.intp)
+    def __init__(self, n_gen: int, n: int, n_blocks: int, pool: ArrayPool | None = None) -> None:
+        f, i = np.float64, np.int32
+        shapes = {"dist": ((n_gen, n), f), "intensity": ((n_gen, n), f), "atten": ((n_gen, n), f),
+                  "sid": ((n_gen, n), i), "chain": ((n_gen, n), i), "key": ((n_gen, n), i),
+                  "point": ((n_gen, n, 3), f), "normal": ((n_gen, n, 3), f), "live": ((n_gen, n), np.intp)}
+        arrays = pool.take(shapes) if pool is not None else {k: np.empty(*v) for k, v in shapes.items()}
+        for name, (shape, _) in shapes.items():  # views of exactly the frame's shape
+            setattr(self, name, arrays[name][tuple(slice(0, m) for m in shape)])
         self.n_live, self.n_cast = np.zeros((n_blocks, n_gen), np.intp), np.zeros((n_blocks, n_gen), np.intp)
 
     def legs(self, work: Workspace) -> list[Leg]:
@@ -514,13 +324,17 @@ class PathBuffer:
         arrival, its transmit beam, its image row.
     """
 
-    def __init__(self, options: tuple, offset: np.ndarray, size: int, n_blocks: int) -> None:
+    def __init__(self, options: tuple, offset: np.ndarray, size: int, n_blocks: int,
+                 pool: ArrayPool | None = None) -> None:
         self.gen, self.tx, self.same = options[0], options[1], options[2]
         self.n_blocks = n_blocks
         self.offset, self.count = offset, np.zeros(len(offset), np.intp)
-        self.ray, self.distance, self.energy = np.empty(size, np.intp), np.empty(size), np.empty(size)
-        self.beam, self.beam_tx = np.empty(size, np.int32), np.empty(size, np.int32)
-        self.label = np.empty(size, np.int8)
+        cap = 1 << max(size - 1, 0).bit_length()  # sizes vary from frame to frame: the pool's sets in powers of 2
+        shapes = {"ray": ((cap,), np.intp), "distance": ((cap,), np.float64), "energy": ((cap,), np.float64),
+                  "beam": ((cap,), np.int32), "beam_tx": ((cap,), np.int32), "label": ((cap,), np.int8)}
+        arrays = pool.take(shapes) if pool is not None else {k: np.empty(*v) for k, v in shapes.items()}
+        for name in shapes:
+            setattr(self, name, arrays[name][:size])
 
     def sets(self, double_beam: str = "paper") -> list:
         """The frame's :class:`~sonarsim.paths.engine.PathSet` list, as ``form_paths`` forms it."""
@@ -587,7 +401,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
     n_blocks = min(N_BLOCKS, n_beams)
     blocks = beam_blocks(n_beams, n_blocks)
     per_beam = fan.n_rays // n_beams
-    legs_out = FrameLegs(n_generations, fan.n_rays, n_blocks)
+    legs_out = FrameLegs(n_generations, fan.n_rays, n_blocks, work.pool)
     active8 = np.ascontiguousarray(active, dtype=np.uint8)
     in_blocks = render.double_beam != "split" and occlusion is None  # each block splats its own beams
     engine.frame(legs_out, active8, np.ascontiguousarray(pose.rotation), np.asarray(pose.translation, float),
@@ -625,19 +439,26 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
 
     while True:
         ok = [True] * len(blocks)
-        on_both_cores(trace, len(blocks), pool)
+        try:
+            on_both_cores(trace, len(blocks), pool)
+        except BaseException:
+            engine.release()
+            raise
         if all(ok):
             break
         engine.grow(4 * engine.chain_tables()[0].shape[1])  # a block met more chains than its table holds: again, larger
     table, remap = _frame_chains(table, engine, work)
     options, offset, size = _options(table, n_generations, render.max_order, render.double_beam, legs_out.n_live,
                                      work)
-    buffer = PathBuffer(options, offset, size, len(blocks))
+    buffer = PathBuffer(options, offset, size, len(blocks), work.pool)
     total = np.empty(stack.shape[1] * stack.shape[2], np.float32) if in_blocks and sum_rows else None
     rank = np.arange(len(table), dtype=np.int32)  # canonical ids are ranks (ChainTable.key)
     engine.options(remap, rank, *options, buffer.offset, buffer.count, buffer.ray, buffer.distance, buffer.energy,
                    buffer.beam, buffer.beam_tx, buffer.label, in_blocks, total, tuple(sum_rows))
-    on_both_cores(lambda k: engine.paths(k, *blocks[k]), len(blocks), pool)
+    try:
+        on_both_cores(lambda k: engine.paths(k, *blocks[k]), len(blocks), pool)
+    finally:
+        engine.release()  # the frame's arrays go back to the pool once its image is gone
     legs = legs_out.legs(work)
     sets = functools.partial(buffer.sets, render.double_beam)
     if not in_blocks:

@@ -171,9 +171,6 @@ class Simulator:
         self._last_fan: tuple[SonarConfig, RayFan] | None = None
         self.last_timing: dict[str, float] = {}
         self._config = self.scene.to_dict()  # the scene-file form; each frame adds its sonar and pose
-        # The paper's case (ground alone, order 3) on kernels specialised for it; False: the
-        # general path engine for every frame (same images; the tests compare the two).
-        self.specialise_ground = True
 
     def _warn_if_inside(self, position: np.ndarray, stacklevel: int) -> None:
         """Warn (once per object) when the sonar at ``position`` lies inside a closed object."""
@@ -301,23 +298,6 @@ class Simulator:
                   np.zeros(fan.n_rays, np.int32))
         return stack, [leg], None, None, None
 
-    def _render_ground_compiled(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float, multipath: bool):
-        """The paper's case (the ground alone, order 3) with kernels specialised for it.
-
-        Same images as :meth:`_render_paths` (the tests compare them), formed by the kernels
-        written for the flat ground before the general path engine; they pipeline the
-        reflected rays over both cores in batches and keep the ground-only demo at its frame
-        rate. A specialisation to retire once the general path is as fast.
-        """
-        self._work = compiled.Workspace.for_fan(self._work, fan)
-        render = self.scene.render
-        stack, total = compiled.render_fast(self.caster, sonar, pose, fan, self.scene.ground, render, self._laws,
-                                            reach, multipath, self._work, pool=self._pool,
-                                            sum_rows=total_rows(render.bounces, render.max_order))
-        w = self._work
-        leg = Leg(0, w.dist, w.sid, w.point, w.normal, w.intensity, w.ones, w.zeros_i32)
-        return stack, [leg], None, None, total
-
     def _render_paths(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float, active: np.ndarray,
                       n_generations: int):
         """``method: fast``: receive legs traced, transmit legs by image sources (any planes)."""
@@ -408,10 +388,8 @@ class Simulator:
             maps, elevation per cell, points in view, boxes) as ``labels``. ``True`` or
             ``'all'``: an instance map per component; ``'total'``: of the total only (two thirds
             of the cost on the demo tank; everything else is the same). Labels come from
-            the general path engine's paths, so a frame that would take a specialised route
-            (the ground alone at order 3) takes the general one, which forms the same image
-            (the tests compare them); with ``method: paper`` the image is still Algorithm 2's
-            and the general engine runs once more for the labels.
+            the path engine's paths; with ``method: paper`` the image is still Algorithm 2's
+            and the path engine runs once more for the labels.
 
         Returns
         -------
@@ -444,10 +422,6 @@ class Simulator:
         reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
         if render.method == "paper" and multipath and self._ground_only:
             stack, legs, sets, table, total = self._render_paper(sonar, pose, fan, reach)
-        elif (self.specialise_ground and self.kernels == "compiled" and self._ground_only and render.max_order == 3
-              and render.double_beam != "separate" and not labels and not self._textured):
-            # (A textured ground takes the general engine: the specialised kernels know no texture.)
-            stack, legs, sets, table, total = self._render_ground_compiled(sonar, pose, fan, reach, multipath)
         else:
             stack, legs, sets, table, total = self._render_paths(sonar, pose, fan, reach, active,
                                                                  render.max_order if multipath else 1)

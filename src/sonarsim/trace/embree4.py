@@ -282,7 +282,7 @@ class Embree4Caster:
 
     def packet_loop(self) -> tuple | None:
         """What the compiled kernels need to cast through the binding's packet loop themselves
-        (:class:`sonarsim.renderer._kernels.GroundBlocks`).
+        (:class:`sonarsim.renderer._kernels.PathBlocks`).
 
         Returns
         -------
