@@ -41,6 +41,7 @@ setup(
                     + (["-ffast-math", "-mrecip=none"] if VECTOR_MATH else []) + simd,
                     extra_link_args=["-lmvec"] if VECTOR_MATH else [])
           for name, simd in [("_stage", [])] + ([("_stage_avx2", ["-mavx2", "-mfma"])] if X86_64 else [])],
+        Extension("sonarsim.trace._hits", ["src/sonarsim/trace/_hits.pyx"], extra_compile_args=flags("-O3")),
         *([] if IS_MSVC else [
             Extension("sonarsim.trace._embree4", ["src/sonarsim/trace/_embree4.pyx"],
                       extra_compile_args=flags("-O3", "-fno-math-errno", "-fno-tree-slp-vectorize"),

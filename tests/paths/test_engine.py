@@ -1,6 +1,6 @@
 """The path engine on the ground-only case: the paper's four paths, their names, and the orders
-each method forms. (Its images against the literal Algorithm 2: ``test_algorithm2.py``; path by
-path against the brute-force reference: ``test_reference.py``.)"""
+each method forms. (Its images against the literal Algorithm 2 and the brute-force reference:
+``tests/reference/``.)"""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 import sonarsim
 from sonarsim.cli.demo import demo_scene_dict
 from sonarsim.paths.engine import parse_path_name, path_name
-from tests.paths.test_algorithm2 import _scenes as ground_scenes
+from tests.reference.test_algorithm2 import _scenes as ground_scenes
 
 
 def _scenes():

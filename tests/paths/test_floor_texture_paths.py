@@ -17,7 +17,7 @@ import pytest
 
 import sonarsim
 from sonarsim.core.transforms import Pose
-from tests.paths.test_reference import compare, ground_dict, tank_dict
+from tests.reference.test_brute_force import compare, ground_dict, tank_dict
 
 TEXTURE = {"std_db": 4.0, "correlation_m": [0.3, 0.1], "angle_deg": 20.0, "seed": 3}
 
@@ -146,7 +146,7 @@ def test_a_sonar_moved_along_x_sees_the_same_floor_moved_in_its_image():
 
 
 def test_algorithm_2_textures_the_direct_ground_echo_as_the_fast_method():
-    from tests.paths.test_algorithm2 import _scenes
+    from tests.reference.test_algorithm2 import _scenes
 
     doc = _scenes()["demo"]
     doc["ground"]["texture"] = dict(TEXTURE)

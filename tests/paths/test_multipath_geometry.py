@@ -20,7 +20,7 @@ import pytest
 
 import sonarsim
 from sonarsim.paths.engine import parse_path_name
-from sonarsim.paths.reference import render_reference
+from sonarsim.reference.brute_force import render_reference
 
 # --- the small sphere --------------------------------------------------------------------
 
@@ -321,7 +321,7 @@ def test_an_object_crossing_a_wall_is_clipped_to_the_water_side():
 # --- the law of reflection ----------------------------------------------------------------
 
 def test_every_path_obeys_the_law_of_reflection():
-    from tests.paths.test_reference import turned_dict
+    from tests.reference.test_brute_force import turned_dict
 
     doc = turned_dict(4, "separate")
     sim = sonarsim.Simulator(doc)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import sonarsim
+from sonarsim.trace import _hits
 from sonarsim.trace.embree import embree_hits
 from sonarsim.renderer import compiled
 from sonarsim.cli.demo import demo_scene_dict
@@ -338,7 +339,7 @@ def test_embree_hits_equals_its_twin(n):
     tfar = rng.uniform(0, 50, n).astype(np.float32)
     ng = (rng.normal(size=(n, 3)) * rng.uniform(1e-3, 1e3, (n, 1))).astype(np.float32)
     out = np.empty(n, np.float32), np.empty(n, np.int32), np.empty((n, 3), np.float32)
-    K.embree_hits(tfar, geom, ng, ids, *out)
+    _hits.embree_hits(tfar, geom, ng, ids, *out)
     twin = embree_hits(tfar, geom, ng, ids)
     for a, b in zip(out, (twin.distance, twin.mesh_id, twin.normal)):
         assert a.dtype == b.dtype

@@ -13,7 +13,7 @@ from sonarsim.cli.demo import demo_scene_dict
 from sonarsim.config.materials import Material
 from sonarsim.renderer import compiled
 from tests.conftest import sonar_dict
-from tests.paths.test_reference import compare, tank_dict
+from tests.reference.test_brute_force import compare, tank_dict
 
 LAMBERT = {"law": "lambert", "mu": 0.01}
 ROUGH = {"law": "rough", "albedo": 0.3, "specular_strength": 2.0, "roughness": 0.15}
@@ -138,7 +138,7 @@ def material_variants() -> dict:
 
 
 def with_laws(tank: dict) -> dict:
-    """The test tank (tests/paths/test_reference.py) with Lambert's floor, a rough wall and a rough ball."""
+    """The test tank (tests/reference/test_brute_force.py) with Lambert's floor, a rough wall and a rough ball."""
     tank["ground"] = {"height_m": 0.0, "material": {"law": "lambert", "mu": 0.05}, "specular": 0.6}
     wall = tank["planes"][1]
     del wall["albedo"]

@@ -431,7 +431,7 @@ class RenderSettings:
         Which orders make the total image (1 single, 2 double, 3 triple, ...); all orders are
         formed anyway, as components. ``None``: every order up to ``max_order``.
     method : {'fast', 'paper'}
-        Ground-echo implementation (see :mod:`sonarsim.paths.algorithm2`).
+        Ground-echo implementation (see :mod:`sonarsim.reference.algorithm2`).
     beam_pattern : {'uniform', 'gaussian'}
         beta(theta, phi): uniform (paper Eq. 4), or Gaussian falling to -3 dB at the edges of the
         elevation aperture and of each beam's azimuth width.

@@ -1,3 +1,4 @@
-"""Acoustic paths beyond the single bounce: the flat ground's double and triple echoes
-(paper Section IV); :mod:`~sonarsim.paths.algorithm2` holds the fast method and the paper's
-literal Algorithm 2."""
+"""Acoustic paths beyond the single bounce, over any reflecting planes: the planes and chains
+of them (:mod:`~sonarsim.paths.planes`) and the path engine's NumPy twin
+(:mod:`~sonarsim.paths.engine`). The oracles it is tested against are in
+:mod:`sonarsim.reference`."""

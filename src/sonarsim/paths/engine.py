@@ -26,11 +26,12 @@ come in reciprocal pairs (O-G-A-O and O-A-G-O, the paper's cases 2 and 3); how t
 is ``render.double_beam`` (see :class:`~sonarsim.scene.RenderSettings`). The default, the
 paper's, records each pair once from the leg with more reflections (``ChainTable.key``).
 
-This module is the NumPy twin of the compiled kernels of the general path, one function per
-kernel with the same inputs and outputs (``rotate``: :func:`rotate`, ``embree_hits``:
-:func:`sonarsim.trace.embree.embree_hits`, ``trace_leg``: :func:`trace_generation`, ``path_events``:
-:func:`option_paths`, ``splat_events``: :func:`splat_set`), compared kernel by kernel on random
-inputs in the tests; the frame (:func:`trace_legs`, :func:`form_paths`,
+This module is the NumPy twin of the path engine's compiled kernels, one function per kernel
+with the same inputs and outputs (``rotate``: :func:`rotate`, ``trace_leg``:
+:func:`trace_generation`, ``probe_chains``: :func:`probe_chains`, ``path_events``:
+:func:`option_paths`, ``splat_events``: :func:`splat_set`; the casters' ``trace._hits.embree_hits``:
+:func:`sonarsim.trace.embree.embree_hits`), compared kernel by kernel on random inputs in the
+tests; the frame (:func:`trace_legs`, :func:`form_paths`,
 :func:`accumulate_paths`) is a loop over them.
 """
 
@@ -48,7 +49,7 @@ from ..core.transforms import Pose
 from ..core.splat import RayEnergy, accumulate, continuity
 from ..scene.floor_texture import scale_by_texture
 from ..trace.base import Hits
-from .planes import WATER_TOLERANCE_M, ChainTable, PlaneSet, apply, reflection_points
+from .planes import WATER_TOLERANCE_M, ChainTable, PlaneSet, reflection_points
 
 # Reflected rays start this far off the plane so that round-off cannot make them meet it
 # again (or the base of an object resting on it), metres.
@@ -191,7 +192,7 @@ class SonarView:
 # kernel                   twin                        what
 # =======================  ==========================  =====================================
 # ``rotate``               :func:`rotate`              fan directions to the world frame
-# ``embree_hits``          ``trace.embree.embree_hits`` Embree's raw answer to hits
+# ``trace._hits.embree_hits`` ``trace.embree.embree_hits`` Embree's raw answer to hits
 # ``trace_leg``            :func:`trace_generation`    one generation of receive legs
 # ``path_events``          :func:`option_paths`        paths of one generation, one transmit
 # ``splat_events``         :func:`splat_set`           one path set into the image stack

@@ -95,30 +95,6 @@ cdef inline double diffuse_weight(_Laws laws, const double* albedo_by_id, Py_ssi
     return scatter(w, coef, laws.law[index], laws.lobe + 2 * index, c)
 
 
-def embree_hits(const float[::1] tfar, const int[::1] geom_id, const float[:, ::1] ng,
-                const int[::1] ids, float[::1] distance, int[::1] mesh_id, float[:, ::1] normal):
-    """Embree's raw answer -> distance (inf for none), mesh index (-1), unit normal (0)."""
-    cdef Py_ssize_t i, n = tfar.shape[0]
-    cdef int g
-    cdef float inv
-    with nogil:
-        for i in range(n):
-            g = geom_id[i]
-            if g >= 0:
-                distance[i] = tfar[i]
-                mesh_id[i] = ids[g]
-                inv = 1.0 / sqrtf(ng[i, 0] * ng[i, 0] + ng[i, 1] * ng[i, 1] + ng[i, 2] * ng[i, 2])
-                normal[i, 0] = ng[i, 0] * inv
-                normal[i, 1] = ng[i, 1] * inv
-                normal[i, 2] = ng[i, 2] * inv
-            else:
-                distance[i] = INFINITY
-                mesh_id[i] = -1
-                normal[i, 0] = 0.0
-                normal[i, 1] = 0.0
-                normal[i, 2] = 0.0
-
-
 cdef inline Py_ssize_t beam_of(const double* edges, Py_ssize_t n_edges, double az) noexcept nogil:
     """Index j with edges[j] >= az > edges[j + 1] (edges descending); -1 outside the fan.
     Pointers, not memoryviews, here and in the other per-ray helpers: passing a memoryview to

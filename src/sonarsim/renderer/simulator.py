@@ -30,7 +30,7 @@ from ..core.transforms import Pose
 from ..errors import ConfigError
 from ..image.result import RayMaps, SonarImage
 from ..config.scene import ON_PLANE_TOLERANCE_M, check_sonar_position
-from ..paths.algorithm2 import render_paper
+from ..reference.algorithm2 import render_paper
 from ..paths.engine import (
     Leg, SonarView, accumulate_paths, drop_occluded, form_paths, ground_signatures, probe_chains, renumber_chains,
     split_by_signature, trace_legs,

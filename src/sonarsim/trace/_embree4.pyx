@@ -421,7 +421,7 @@ cdef void cast_rays(void* scene, const float* o, Py_ssize_t o_step, const float*
         load_rays(&rh, o, o_step, d, tfar, tfar_step, start, m)
         packet_mask(&valid, m)
         api.rtcIntersect8(valid.v, scene, &rh, &args)
-        # Fused: the packet is still in L1; write what Hits needs (as _kernels.embree_hits does).
+        # Fused: the packet is still in L1; write what Hits needs (as trace._hits.embree_hits does).
         for k in range(m):
             i = start + k
             g = rh.hit.geomID[k]

@@ -18,16 +18,16 @@ from ..scene.meshes import TriangleMesh
 from .base import Hits, available_cores, nonempty_meshes
 
 try:  # the same post-processing as below, as one compiled loop
-    from ..renderer import _kernels
-except ImportError:
-    _kernels = None
+    from . import _hits
+except ImportError:  # not built (a source tree used without installing)
+    _hits = None
 
 # Below this many rays per thread, the thread hand-off costs more than it saves.
 MIN_RAYS_PER_CHUNK = 8192
 
 
 def embree_hits(tfar: np.ndarray, geom_id: np.ndarray, ng: np.ndarray, ids: np.ndarray) -> Hits:
-    """Embree's raw answer as :class:`~sonarsim.trace.base.Hits` (NumPy twin of ``_kernels.embree_hits``).
+    """Embree's raw answer as :class:`~sonarsim.trace.base.Hits` (NumPy twin of ``trace._hits.embree_hits``).
 
     Parameters
     ----------
@@ -152,9 +152,9 @@ class EmbreeCaster:
         d = np.ascontiguousarray(directions, dtype=np.float32)
         tfar = np.full(n, max_distance, dtype=np.float32)
         res = self.cast_raw(o, d, tfar, threads, with_uv=True) if with_uv else self.cast_raw(o, d, tfar, threads)
-        if _kernels is not None:
+        if _hits is not None:
             hits = Hits(np.empty(n, np.float32), np.empty(n, np.int32), np.empty((n, 3), np.float32))
-            _kernels.embree_hits(res["tfar"], res["geomID"], res["Ng"], self._ids, hits.distance, hits.mesh_id, hits.normal)
+            _hits.embree_hits(res["tfar"], res["geomID"], res["Ng"], self._ids, hits.distance, hits.mesh_id, hits.normal)
         else:
             hits = embree_hits(res["tfar"], res["geomID"], res["Ng"], self._ids)
         if not with_uv:

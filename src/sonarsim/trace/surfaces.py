@@ -1,6 +1,6 @@
 """Closest surfaces along rays: the scene's meshes (through a ray caster) and the ground plane.
 
-This is the tracing of the paper's literal Algorithm 2 (:mod:`sonarsim.paths.algorithm2`), the
+This is the tracing of the paper's literal Algorithm 2 (:mod:`sonarsim.reference.algorithm2`), the
 ground-only reference; the renderer's general path engine meets any planes itself
 (:func:`sonarsim.paths.engine.trace_legs`).
 

@@ -18,8 +18,8 @@ specular part causes multipath; objects are diffuse.
   it hands a :class:`MirrorPaths` to :func:`ground_echo_images`, which forms the images.
 
 The path engine's images are compared with these on the ground-only scenes
-(``tests/paths/test_algorithm2.py``), and path by path with the brute-force reference
-(``tests/paths/test_reference.py``).
+(``tests/reference/test_algorithm2.py``), and with the brute-force reference
+(:mod:`sonarsim.reference.brute_force`, ``tests/reference/test_brute_force.py``).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from ..config.sonar import SonarConfig
 from ..core.transforms import Pose
 from ..image.grid import beam_index
 from ..trace.surfaces import GROUND_ID, NO_HIT, ground_distance, trace
-from .planes import PlaneSet, apply
+from ..paths.planes import PlaneSet, apply
 
 # Secondary rays start this far off the ground so that they cannot hit the plane's own
 # neighbourhood (the base of an object resting on it) through round-off, metres.

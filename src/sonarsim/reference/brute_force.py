@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..scene.floor_texture import texture_fields
-from .engine import path_name
+from ..paths.engine import path_name
 
 # Reflected receive rays are cast against the objects from this far off the plane, metres (an
 # object resting on the plane must not be met at distance 0).
