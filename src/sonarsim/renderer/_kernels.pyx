@@ -407,8 +407,6 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
     return n_next, n_chains, min_next, overflow, n_live
 
 
-
-
 def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const int[::1] hit_mesh,
               const float[:, ::1] hit_normal, const double[:, ::1] org, const double[:, ::1] dirs,
               const double[::1] before, const double[::1] atten, const int[::1] chain,
@@ -841,13 +839,27 @@ cdef class PathBlocks:
         contiguous), ``legs`` (``dist``, ``sid``, ``point``, ``normal``, ``intensity``,
         ``atten``, ``chain``, ``key``, ``live``: the (n_gen, n, ...) receive legs, written by
         the blocks; ``n_live``, ``n_cast``: (n_blocks, n_gen) counts), the planes the sonar
-        faces, the pose, the settings."""
+        faces, the pose, the settings. Everything is checked before anything is kept (the
+        kernels read without bounds checks)."""
+        cdef Py_ssize_t n = self.fan_dirs.shape[0]
+        self.ready = False
+        self.paths_ready = False
         if active.shape[0] != self.n_planes:
             raise ValueError(f"{active.shape[0]} active flags for {self.n_planes} planes")
-        if n_gen < 1 or legs.dist.shape[0] < n_gen or legs.dist.shape[1] != self.fan_dirs.shape[0]:
-            raise ValueError("legs of the wrong shape")
-        if self.fan_dirs.shape[0] % (n_beams * n_el) != 0 or legs.n_live.shape[0] != self.n_blocks:
-            raise ValueError("the fan's shape does not match the workspace")
+        if rotation.shape[0] != 3 or rotation.shape[1] != 3 or origin.shape[0] != 3:
+            raise ValueError("the rotation is not 3 x 3 or the origin not 3 numbers")
+        if n_gen < 1 or n_beams < 1 or n_el < 1 or n % (n_beams * n_el) != 0 or edges.shape[0] != n_beams + 1:
+            raise ValueError("the fan's shape does not match the workspace (its beams, rays per beam or edges)")
+        for name in ("dist", "intensity", "atten", "sid", "chain", "key", "live", "point", "normal"):
+            a = getattr(legs, name)
+            if a.ndim < 2 or a.shape[0] < n_gen or a.shape[1] != n or (a.ndim == 3 and a.shape[2] != 3):
+                raise ValueError(f"legs.{name} of shape {a.shape} for {n_gen} generations of {n} rays")
+        for name in ("n_live", "n_cast"):
+            a = getattr(legs, name)
+            if a.shape[0] != self.n_blocks or a.shape[1] < n_gen:
+                raise ValueError(f"legs.{name} of shape {a.shape} for {self.n_blocks} blocks, {n_gen} generations")
+        if out is not None and out.shape[0] % (n_bins * n_beams) != 0:
+            raise ValueError("the output stack is not (rows, n_range_bins, n_beams)")
         self.dist, self.sid, self.point, self.normal = legs.dist, legs.sid, legs.point, legs.normal
         self.intensity, self.atten, self.chain, self.key = legs.intensity, legs.atten, legs.chain, legs.key
         self.live, self.n_live, self.n_cast = legs.live, legs.n_live, legs.n_cast
@@ -861,11 +873,8 @@ cdef class PathBlocks:
         self.range_max, self.half_el, self.spread, self.separate = range_max, half_el, spread, separate
         self.rays_per_beam = self.fan_dirs.shape[0] // n_beams
         self.n_surfaces = n_surfaces
-        if out is not None and out.shape[0] % (n_bins * n_beams) != 0:
-            raise ValueError("the output stack is not (rows, n_range_bins, n_beams)")
         self.out = out
         self.ready = True
-        self.paths_ready = False
 
     def release(self):
         """Let go of the frame's arrays (the legs, the path buffer, the stack): the caller
@@ -1005,6 +1014,7 @@ cdef class PathBlocks:
         """``(buffer, m, limit)``: the block's next rays to cast are rows ``a:a + m`` of
         ``o32``/``d32`` (buffer -1, the first generation) or of ``r_org32[buffer]`` /
         ``r_dir32[buffer]``, up to ``limit`` metres; m 0: none left."""
+        self._check(k, 0, 0)
         return self.blk_cur[k] if self.n_cast[k, 0] else -1, self.blk_m[k], self.reach - (self.blk_min[k] if self.n_cast[k, 0] else 0.0)
 
     def step(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1, Py_ssize_t g, law_by_id=None, lobe_by_id=None,
@@ -1038,36 +1048,58 @@ cdef class PathBlocks:
         them, while they are in cache, in float32 and in the given order, as
         ``components._sum_rows`` does)."""
         cdef float[::1] out = self.out if splat else None
-        cdef Py_ssize_t n_opt = gen.shape[0], o
+        cdef Py_ssize_t n_opt = gen.shape[0], o, k, m = p_ray.shape[0], n_rows = 0, q
+        self.paths_ready = False  # everything is checked before anything is kept
         if not self.ready:
             raise ValueError("call frame() first")
-        if remap.shape[0] != self.n_blocks or offset.shape[0] != n_opt * self.n_blocks or count.shape[0] != offset.shape[0]:
+        if out is not None:
+            n_rows = out.shape[0] // (self.n_bins * self.n_beams)
+        if (remap.shape[0] != self.n_blocks or remap.shape[1] < self.children.shape[1]
+                or offset.shape[0] != n_opt * self.n_blocks or count.shape[0] != offset.shape[0]):
             raise ValueError("remap, offsets or counts of the wrong shape")
+        for k in range(self.n_blocks):
+            for o in range(self.n_local[k]):
+                if not 0 <= remap[k, o] < rank.shape[0]:
+                    raise ValueError(f"block {k}'s chain {o} maps to {remap[k, o]}, not one of {rank.shape[0]}")
+        if (tx.shape[0] != n_opt or same.shape[0] != n_opt or label.shape[0] != n_opt or length.shape[0] != n_opt
+                or unfold.shape[0] != n_opt or unfold.shape[1] != 3 or unfold.shape[2] != 4
+                or sources.shape[0] != n_opt or sources.shape[2] != 3 or planes.shape[0] != n_opt
+                or specular.shape[0] != n_opt):
+            raise ValueError("transmit option arrays of different lengths or shapes")
+        if (p_dist.shape[0] != m or p_energy.shape[0] != m or p_beam.shape[0] != m or p_beam_tx.shape[0] != m
+                or p_label.shape[0] != m):
+            raise ValueError("path buffer arrays of different lengths")
         for o in range(n_opt):
-            if not 0 <= gen[o] < self.n_gen or not 0 <= label[o] < 127 or length[o] > planes.shape[1]:
+            if (not 0 <= gen[o] < self.n_gen or not 0 <= label[o] < 127 or not 0 <= length[o] <= planes.shape[1]
+                    or sources.shape[1] < length[o] + 1 or (out is not None and label[o] >= n_rows)):
                 raise ValueError(f"transmit option {o} out of range")
             if not same[o] and not 0 <= tx[o] < rank.shape[0]:
                 raise ValueError(f"transmit option {o}: chain {tx[o]} of {rank.shape[0]}")
-        if (out is not None and (out.shape[0] % (self.n_bins * self.n_beams) != 0
-                                 or n_opt and max(label) >= out.shape[0] // (self.n_bins * self.n_beams))):
-            raise ValueError("the output stack is too small for the options' rows")
+            for q in range(length[o]):
+                if not 0 <= planes[o, q] < self.n_planes:
+                    raise ValueError(f"transmit option {o}: plane {planes[o, q]} of {self.n_planes}")
+            for k in range(self.n_blocks):
+                if offset[o * self.n_blocks + k] < 0 or offset[o * self.n_blocks + k] + self.n_live[k, gen[o]] > m:
+                    raise ValueError(f"transmit option {o} of block {k} does not fit in the path buffer")
+        n_total = len(rows) if total is not None and out is not None else 0
+        if n_total > 16:
+            raise ValueError("at most 16 rows in the total")
+        for o in range(n_total):
+            if not 0 <= rows[o] < n_rows:
+                raise ValueError(f"total row {rows[o]} outside the stack")
+        if n_total and total.shape[0] != self.n_bins * self.n_beams:
+            raise ValueError("the total is not (n_range_bins, n_beams)")
         self.remap, self.rank = remap, rank
         self.opt_gen, self.opt_tx, self.opt_same, self.opt_label, self.opt_len = gen, tx, same, label, length
         self.opt_unfold, self.opt_sources, self.opt_planes, self.opt_specular = unfold, sources, planes, specular
         self.p_offset, self.p_count = offset, count
         self.p_ray, self.p_dist, self.p_energy, self.p_beam, self.p_beam_tx, self.p_label = (
             p_ray, p_dist, p_energy, p_beam, p_beam_tx, p_label)
-        self.splat = splat and out is not None
+        self.splat = out is not None
         self.total = total
-        self.n_total_rows = len(rows) if total is not None and self.splat else 0
-        if self.n_total_rows > 16:
-            raise ValueError("at most 16 rows in the total")
-        for o in range(self.n_total_rows):
-            if not 0 <= rows[o] < out.shape[0] // (self.n_bins * self.n_beams):
-                raise ValueError(f"total row {rows[o]} outside the stack")
+        self.n_total_rows = n_total
+        for o in range(n_total):
             self.total_rows[o] = rows[o]
-        if self.n_total_rows and total.shape[0] != self.n_bins * self.n_beams:
-            raise ValueError("the total is not (n_range_bins, n_beams)")
         self.paths_ready = True
 
     def paths(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1):

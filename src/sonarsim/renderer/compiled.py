@@ -81,10 +81,10 @@ class Workspace:
         self.r_chain = np.empty((2, n), dtype=np.int32)
         self.ones = np.ones(n)  # attenuation of the first generation's legs
         self.zeros_i32 = np.zeros(n, dtype=np.int32)  # their chain (none)
-        self.engine: tuple | None = None  # (caster, fan, laws, planes, PathBlocks), path_engine()
+        self.engine: tuple | None = None  # (caster, fan, laws, planes, PathBlocks, n_blocks), path_engine()
         self.chains: tuple | None = None  # (planes, key, chains, remap), _frame_chains()
         self.options: tuple | None = None  # (planes, chains, n_gen, max_order, double_beam, arrays), _options()
-        self.pool = ArrayPool()  # the frames' legs and path buffers
+        self.legs_pool, self.paths_pool = ArrayPool(), ArrayPool()  # the frames' legs and path buffers
 
 
 def beam_blocks(n_beams: int, n_blocks: int) -> tuple[tuple[int, int], ...]:
@@ -128,6 +128,11 @@ N_BLOCKS = 2
 CHAIN_CAPACITY = 256
 
 
+def _most_refs(arrays: dict) -> int:
+    """The largest reference count among a set's arrays, as this very expression sees it."""
+    return max(sys.getrefcount(a) for a in arrays.values())
+
+
 class ArrayPool:
     """Per-frame arrays kept between frames: a set is handed out again once nothing outside the
     pool refers to any of its arrays (the frame's legs, paths and their views died with its
@@ -137,31 +142,35 @@ class ArrayPool:
 
     KEEP = 3  # sets kept: the frame being formed, the one still held by the previous image, a spare
 
+    # The count of an array that only its set holds, measured by the same expression rather than
+    # assumed: what a reference count includes (the loop variable, the argument) varies between
+    # Python versions.
+    FREE_REFS = _most_refs({"probe": np.empty(1)})
+
     def __init__(self) -> None:
         self._sets: list[dict] = []
 
-    @staticmethod
-    def _free(arrays: dict) -> bool:
-        # References: the set's dict, the loop variable, getrefcount's argument.
-        return all(sys.getrefcount(a) <= 3 for a in arrays.values())
+    def _free(self, arrays: dict) -> bool:
+        return _most_refs(arrays) <= self.FREE_REFS
 
     def take(self, shapes: dict) -> dict:
         """A set of arrays of at least the given sizes: ``{name: (shape, dtype)}``, taken from
-        the first free set whose arrays are as large, else new (contents undefined)."""
+        the first free set whose arrays are as large, else new (contents undefined). The pool
+        keeps the :attr:`KEEP` most recently taken sets."""
+        taken = None
         for k, arrays in enumerate(self._sets):
             if all(name in arrays and arrays[name].dtype == np.dtype(dt) and arrays[name].ndim == len(shape)
                    and all(a >= b for a, b in zip(arrays[name].shape, shape)) for name, (shape, dt) in shapes.items()):
                 if self._free(arrays):
-                    self._sets.append(self._sets.pop(k))  # most recently used last
-                    return arrays
-        arrays = {name: np.empty(shape, dt) for name, (shape, dt) in shapes.items()}
-        self._sets.append(arrays)
-        if len(self._sets) > self.KEEP:  # forget the oldest free set (by identity: sets hold arrays)
-            for k in range(len(self._sets) - 1):
-                if self._free(self._sets[k]):
-                    del self._sets[k]
+                    taken = self._sets.pop(k)
                     break
-        return arrays
+        if taken is None:
+            taken = {name: np.empty(shape, dt) for name, (shape, dt) in shapes.items()}
+        self._sets.append(taken)  # most recently used last
+        # The oldest beyond KEEP are let go: a free one is freed, a held one lives on with the
+        # image that holds it (only the pool forgets it).
+        del self._sets[: max(len(self._sets) - self.KEEP, 0)]
+        return taken
 
 
 class FrameLegs:
@@ -221,15 +230,15 @@ def path_engine(caster, work: Workspace, fan: RayFan, laws: SurfaceLaws, planes)
     casts between its stages (embreex, the NumPy caster, textures)."""
     handle = packet_loop(caster)
     cached = work.engine
+    n_blocks = min(N_BLOCKS, fan.shape[0])
     if (cached is not None and cached[0] is caster and cached[1] is fan and cached[2] is laws
-            and cached[3] is planes and cached[4].fused == (handle is not None)):
+            and cached[3] is planes and cached[4].fused == (handle is not None) and cached[5] == n_blocks):
         return cached[4]
     law_by_id, lobe_by_id, _ = _law_args(laws, None)
-    n_blocks = min(N_BLOCKS, fan.shape[0])
     engine = _kernels.PathBlocks(work, fan.directions.reshape(-1, 3), fan.weight.reshape(-1), laws.coefficient,
                                  law_by_id, lobe_by_id, planes.normal, planes.offset, planes.specular, n_blocks,
                                  CHAIN_CAPACITY, *(handle or ()))
-    work.engine = (caster, fan, laws, planes, engine)
+    work.engine = (caster, fan, laws, planes, engine, n_blocks)
     return engine
 
 
@@ -401,14 +410,11 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
     n_blocks = min(N_BLOCKS, n_beams)
     blocks = beam_blocks(n_beams, n_blocks)
     per_beam = fan.n_rays // n_beams
-    legs_out = FrameLegs(n_generations, fan.n_rays, n_blocks, work.pool)
+    legs_out = FrameLegs(n_generations, fan.n_rays, n_blocks, work.legs_pool)
     active8 = np.ascontiguousarray(active, dtype=np.uint8)
     in_blocks = render.double_beam != "split" and occlusion is None  # each block splats its own beams
-    engine.frame(legs_out, active8, np.ascontiguousarray(pose.rotation), np.asarray(pose.translation, float),
-                 reach_m, render.tvg, n_generations, fan.shape[2], sonar.range_min_m, sonar.range_resolution_m,
-                 sonar.n_range_bins, n_beams, sonar.range_max_m, sonar.elevation_fov_deg / 2.0,
-                 np.ascontiguousarray(sonar.beam_edges_deg), render.range_splat, render.double_beam == "separate",
-                 n_surfaces, stack.reshape(-1) if in_blocks else None)
+    if not stack.flags.c_contiguous:
+        raise ValueError("the image stack must be C-contiguous (the blocks splat into it in place)")
     textures = textures if any(f is not None for f in textures) else ()
     fused = engine.fused and not textures
     w = work
@@ -416,7 +422,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
     def staged(k: int) -> bool:
         """Block k with Python casting between the stages (the same code as the fused block)."""
         b0, b1 = blocks[k]
-        a, b = b0 * per_beam, b1 * per_beam
+        a = b0 * per_beam
         buffer, m, limit = engine.begin(k, b0, b1)
         for g in range(n_generations):
             if not m:
@@ -429,36 +435,42 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
             w.h_dist[a:a + m], w.h_mesh[a:a + m], w.h_normal[a:a + m] = hits.distance, hits.mesh_id, hits.normal
             if not engine.step(k, b0, b1, g, *_law_args(laws, hits)):
                 return False
-            if textures:
-                scale_by_texture(legs_out.intensity[g, a:b], legs_out.sid[g, a:b], legs_out.point[g, a:b], textures)
             buffer, m, limit = engine.pending(k)
         return True
 
     def trace(k: int) -> None:
         ok[k] = engine.trace(k, *blocks[k]) if fused else staged(k)
 
-    while True:
-        ok = [True] * len(blocks)
-        try:
+    engine.frame(legs_out, active8, np.ascontiguousarray(pose.rotation), np.asarray(pose.translation, float),
+                 reach_m, render.tvg, n_generations, fan.shape[2], sonar.range_min_m, sonar.range_resolution_m,
+                 sonar.n_range_bins, n_beams, sonar.range_max_m, sonar.elevation_fov_deg / 2.0,
+                 np.ascontiguousarray(sonar.beam_edges_deg), render.range_splat, render.double_beam == "separate",
+                 n_surfaces, stack.reshape(-1) if in_blocks else None)
+    try:  # the engine lets go of the frame's arrays whatever happens (they go back to the pool)
+        while True:
+            ok = [True] * len(blocks)
             on_both_cores(trace, len(blocks), pool)
-        except BaseException:
-            engine.release()
-            raise
-        if all(ok):
-            break
-        engine.grow(4 * engine.chain_tables()[0].shape[1])  # a block met more chains than its table holds: again, larger
-    table, remap = _frame_chains(table, engine, work)
-    options, offset, size = _options(table, n_generations, render.max_order, render.double_beam, legs_out.n_live,
-                                     work)
-    buffer = PathBuffer(options, offset, size, len(blocks), work.pool)
-    total = np.empty(stack.shape[1] * stack.shape[2], np.float32) if in_blocks and sum_rows else None
-    rank = np.arange(len(table), dtype=np.int32)  # canonical ids are ranks (ChainTable.key)
-    engine.options(remap, rank, *options, buffer.offset, buffer.count, buffer.ray, buffer.distance, buffer.energy,
-                   buffer.beam, buffer.beam_tx, buffer.label, in_blocks, total, tuple(sum_rows))
-    try:
+            if all(ok):
+                break
+            engine.grow(4 * engine.chain_tables()[0].shape[1])  # a block met more chains than its table holds
+        if textures:
+            # Each generation's scatterers on textured planes take their factor, over the whole
+            # frame at once as the NumPy twin does (the factor's matrix products are not the same
+            # bits row by row); only the paths, formed after, read the intensity.
+            for g in range(n_generations):
+                if legs_out.n_cast[:, g].any():
+                    scale_by_texture(legs_out.intensity[g], legs_out.sid[g], legs_out.point[g], textures)
+        table, remap = _frame_chains(table, engine, work)
+        options, offset, size = _options(table, n_generations, render.max_order, render.double_beam,
+                                         legs_out.n_live, work)
+        buffer = PathBuffer(options, offset, size, len(blocks), work.paths_pool)
+        total = np.empty(stack.shape[1] * stack.shape[2], np.float32) if in_blocks and sum_rows else None
+        rank = np.arange(len(table), dtype=np.int32)  # canonical ids are ranks (ChainTable.key)
+        engine.options(remap, rank, *options, buffer.offset, buffer.count, buffer.ray, buffer.distance,
+                       buffer.energy, buffer.beam, buffer.beam_tx, buffer.label, in_blocks, total, tuple(sum_rows))
         on_both_cores(lambda k: engine.paths(k, *blocks[k]), len(blocks), pool)
     finally:
-        engine.release()  # the frame's arrays go back to the pool once its image is gone
+        engine.release()
     legs = legs_out.legs(work)
     sets = functools.partial(buffer.sets, render.double_beam)
     if not in_blocks:
