@@ -782,6 +782,34 @@ def chain_ranks(table: ChainTable) -> np.ndarray:
     return rank
 
 
+def frame_options(table: ChainTable, n_gen: int, max_order: int, double_beam: str) -> list[tuple[int, int, int]]:
+    """The frame's transmit options, in the order its paths are formed: ``(generation, transmit
+    option, image row)``, the option :data:`SAME` or a chain id (generation by generation, SAME
+    first, then chains by id: :func:`transmit_options`). Row 1 of the first generation's SAME
+    paths means order 1 (row 0 on objects, 1 on planes, per path)."""
+    out = []
+    for g in range(n_gen):
+        options = transmit_options(table, g, max_order)
+        if double_beam != "separate":
+            # A pair is formed from the leg with more reflections (ChainTable.key): transmit
+            # chains longer than this generation's receive chains never qualify.
+            options = [tx for tx in options if tx == SAME or table.length(tx) <= g]
+        for tx in options:
+            order = 2 * g + 1 if tx == SAME else g + table.length(tx) + 1
+            out.append((g, tx, label_of_order(order) if order > 1 else LABEL_PLANE))
+    return out
+
+
+def option_sets(gen: int, tx: int, ray: np.ndarray, distance: np.ndarray, energy: np.ndarray, beam: np.ndarray,
+                beam_tx: np.ndarray, label: np.ndarray, double_beam: str) -> list[PathSet]:
+    """The :class:`PathSet` list of one option's paths: with ``double_beam`` ``split``, the
+    paths whose legs differ go half to the beam of arrival and half to the transmit beam."""
+    if double_beam == "split" and tx != SAME:
+        half = 0.5 * energy
+        return [PathSet(gen, tx, ray, distance, half, beam, label), PathSet(gen, tx, ray, distance, half, beam_tx, label)]
+    return [PathSet(gen, tx, ray, distance, energy, beam, label)]
+
+
 def form_paths(
     legs: list[Leg],
     table: ChainTable,
@@ -791,11 +819,9 @@ def form_paths(
     rays_per_beam: int,
     max_order: int,
     double_beam: str,
-    only_same: bool = False,
-    skip_first_same: bool = False,
-    paths_of_option=None,
 ) -> list[PathSet]:
-    """Every path of the frame, as compact sets (:func:`option_paths` in a loop).
+    """Every path of the frame, as compact sets (:func:`option_paths` for each of
+    :func:`frame_options`).
 
     Parameters
     ----------
@@ -808,47 +834,22 @@ def form_paths(
         Rays of the fan per beam: ray ``i`` is in beam ``i // rays_per_beam`` (beam-major).
     max_order : int
     double_beam : {'paper', 'split', 'separate'}
-    only_same, skip_first_same : bool
-        Only the first generation's direct paths (the receive leg reversed), or all but those
-        (a frame may form the direct image early, on another core).
-    paths_of_option : callable, optional
-        Forms the paths of one generation and one transmit option, with the arguments and
-        results of :func:`option_paths` (the default); the compiled path passes its kernel.
     """
-    paths_of_option = option_paths if paths_of_option is None else paths_of_option
     rank = chain_ranks(table)
     no_planes = np.empty(0, np.int32)
     out: list[PathSet] = []
-    for leg in legs:
-        g = leg.gen
-        live = leg.live_rays()
-        options = transmit_options(table, g, max_order)
-        if double_beam != "separate":
-            # A pair is formed from the leg with more reflections (ChainTable.key): transmit
-            # chains longer than this generation's receive chains never qualify.
-            options = [tx for tx in options if tx == SAME or table.length(tx) <= g]
-        if only_same:
-            options = [SAME] if g == 0 and SAME in options else []
-        elif skip_first_same and g == 0:
-            options = [tx for tx in options if tx != SAME]
-        for tx in options:
-            same = tx == SAME
-            c = 0 if same else tx
-            chain = () if same else table.chains[tx]
-            order = 2 * g + 1 if same else g + len(chain) + 1
-            ray, distance, energy, beam, beam_tx, label = paths_of_option(
-                live, leg, same, c, table.unfold(c), table.sources(c),
-                np.asarray(chain, np.int32) if chain else no_planes, 1.0 if same else table.specular(tx),
-                rank, double_beam == "separate", label_of_order(order) if order > 1 else LABEL_PLANE, n_planes,
-                rays_per_beam, view, table.planes, active,
-            )
-            if not len(ray):
-                continue
-            if double_beam == "split" and not same:
-                out.append(PathSet(g, tx, ray, distance, 0.5 * energy, beam, label))
-                out.append(PathSet(g, tx, ray, distance, 0.5 * energy, beam_tx, label))
-            else:
-                out.append(PathSet(g, tx, ray, distance, energy, beam, label))
+    for g, tx, row in frame_options(table, len(legs), max_order, double_beam):
+        leg = legs[g]
+        same = tx == SAME
+        c = 0 if same else tx
+        chain = table.chains[c]
+        ray, distance, energy, beam, beam_tx, label = option_paths(
+            leg.live_rays(), leg, same, c, table.unfold(c), table.sources(c),
+            np.asarray(chain, np.int32) if chain else no_planes, 1.0 if same else table.specular(tx),
+            rank, double_beam == "separate", row, n_planes, rays_per_beam, view, table.planes, active,
+        )
+        if len(ray):
+            out += option_sets(g, tx, ray, distance, energy, beam, beam_tx, label, double_beam)
     return out
 
 

@@ -268,30 +268,21 @@ def _frame_chains(table, engine, work: Workspace):
 
 
 def _option_table(table, n_gen: int, max_order: int, double_beam: str) -> tuple:
-    """The frame's transmit options, as :func:`sonarsim.paths.engine.form_paths` tries them and
-    in its order: ``(gen, tx, same, label, length, unfold, chain_planes, specular)`` arrays of
-    ``PathBlocks.options``. Depends on the chains, not on the pose (see :func:`_options`)."""
-    from ..paths.engine import LABEL_PLANE, SAME, label_of_order, transmit_options
+    """The frame's transmit options (:func:`sonarsim.paths.engine.frame_options`, in its order)
+    as the arrays of ``PathBlocks.options``: ``(gen, tx, same, label, length, unfold,
+    chain_planes, specular)``. Depends on the chains, not on the pose (see :func:`_options`)."""
+    from ..paths.engine import SAME, frame_options
 
-    rows = []
-    for g in range(n_gen):
-        options = transmit_options(table, g, max_order)
-        if double_beam != "separate":
-            options = [tx for tx in options if tx == SAME or table.length(tx) <= g]
-        for tx in options:
-            same = tx == SAME
-            c = 0 if same else tx
-            order = 2 * g + 1 if same else g + table.length(c) + 1
-            rows.append((g, c, same, label_of_order(order) if order > 1 else LABEL_PLANE))
+    rows = [(g, 0 if tx == SAME else tx, tx == SAME, row) for g, tx, row in frame_options(table, n_gen, max_order,
+                                                                                          double_beam)]
     n_opt = len(rows)
     length = np.array([0 if r[2] else table.length(r[1]) for r in rows], np.int32)
-    longest = int(length.max(initial=0))
     unfold = np.zeros((n_opt, 3, 4))
-    chain_planes = np.zeros((n_opt, max(longest, 1)), np.int32)
+    chain_planes = np.zeros((n_opt, max(int(length.max(initial=0)), 1)), np.int32)
     specular = np.ones(n_opt)
-    for o, (g, c, sm, _) in enumerate(rows):
+    for o, (_, c, same, _) in enumerate(rows):
         unfold[o] = table.unfold(c)
-        if not sm:
+        if not same:
             chain_planes[o, : length[o]] = table.chains[c]
             specular[o] = table.specular(c)
     columns = [np.array([r[k] for r in rows], np.int32) for k in range(4)]
@@ -347,7 +338,7 @@ class PathBuffer:
 
     def sets(self, double_beam: str = "paper") -> list:
         """The frame's :class:`~sonarsim.paths.engine.PathSet` list, as ``form_paths`` forms it."""
-        from ..paths.engine import SAME, PathSet
+        from ..paths.engine import SAME, option_sets
 
         out = []
         K = self.n_blocks
@@ -360,14 +351,9 @@ class PathBuffer:
             def cat(a):
                 return a[parts[0]].copy() if len(parts) == 1 else np.concatenate([a[p] for p in parts])
 
-            g, tx = int(self.gen[o]), SAME if self.same[o] else int(self.tx[o])
-            ray, dist, energy, beam, label = (cat(self.ray), cat(self.distance), cat(self.energy), cat(self.beam),
-                                              cat(self.label))
-            if double_beam == "split" and tx != SAME:
-                out.append(PathSet(g, tx, ray, dist, 0.5 * energy, beam, label))
-                out.append(PathSet(g, tx, ray, dist, 0.5 * energy, cat(self.beam_tx), label))
-            else:
-                out.append(PathSet(g, tx, ray, dist, energy, beam, label))
+            out += option_sets(int(self.gen[o]), SAME if self.same[o] else int(self.tx[o]), cat(self.ray),
+                               cat(self.distance), cat(self.energy), cat(self.beam), cat(self.beam_tx),
+                               cat(self.label), double_beam)
         return out
 
 
@@ -483,32 +469,6 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
                     stack)
         sets = functools.partial(lambda s: s, frame_sets)
     return legs, sets, table, None if total is None else total.reshape(stack.shape[1:])
-
-
-def option_paths(live, leg, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes,
-                 rays_per_beam, view, planes, active):
-    """``_kernels.path_events`` with the arguments and results of its twin
-    :func:`sonarsim.paths.engine.option_paths`."""
-    m = len(live)
-    buf = (np.empty(m, np.intp), np.empty(m), np.empty(m), np.empty(m, np.int32), np.empty(m, np.int32),
-           np.empty(m, np.int8))
-    k = _kernels.path_events(
-        live, leg.distance, leg.sid, leg.point, leg.intensity, leg.atten, leg.chain, same, tx, unfold, sources,
-        tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, *view.origin, view.rotation,
-        view.beam_edges_deg, view.half_elevation_deg, view.range_min_m, view.range_max_m, planes.normal,
-        planes.offset, np.ascontiguousarray(active, dtype=np.uint8), *buf,
-    )
-    return tuple(a[:k] for a in buf)
-
-
-def form_paths(legs, table, view, active, n_planes: int, rays_per_beam: int, max_order: int,
-               double_beam: str, only_same: bool = False, skip_first_same: bool = False) -> list:
-    """Every path of the frame with the compiled kernel: :func:`sonarsim.paths.engine.form_paths`
-    with :func:`option_paths` (``_kernels.path_events``) for each transmit option."""
-    from ..paths.engine import form_paths as form
-
-    return form(legs, table, view, active, n_planes, rays_per_beam, max_order, double_beam, only_same=only_same,
-                skip_first_same=skip_first_same, paths_of_option=option_paths)
 
 
 def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, spread: bool, out: np.ndarray) -> None:
