@@ -278,7 +278,7 @@ def _engine_paths(sim) -> dict:
     active = sim.planes.facing(pose.translation)
     multipath = render.max_order > 1 and bool((active & (sim.planes.specular > 0)).any())
     reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
-    _, legs, sets, table, _ = sim._render_paths(sonar, pose, fan, reach, active, render.max_order if multipath else 1)
+    _, legs, sets, table, _, _ = sim._render_paths(sonar, pose, fan, reach, active, render.max_order if multipath else 1)
     out = {}
     for s in (sets() if callable(sets) else sets):
         leg = legs[s.gen]

@@ -16,7 +16,7 @@ from sonarsim.cli.demo import demo_scene_dict
 from sonarsim.image.fan import FanMapper
 from sonarsim.renderer import compiled
 from sonarsim.paths.engine import Leg, PathSet
-from sonarsim.renderer.ground_truth import _frame_truth, dominant, lit_rows, surface_ids
+from sonarsim.renderer.ground_truth import LabelSpec, _frame_truth, dominant, surface_ids
 
 N_BEAMS = 33  # odd: beam 16 is centred on the acoustic axis
 
@@ -433,10 +433,10 @@ def _hand_made_frame():
     return [order1, order2, order3], legs
 
 
-def _both(sets, legs, rows=(0, 8), bounces=(1, 2, 3), components=True, spread=False, n_obj=2, n_pl=1, grid=GRID,
+def _both(sets, legs, bounces=(1, 2, 3), components=True, spread=False, n_obj=2, n_pl=1, grid=GRID,
           elevation=ELEVATION_DEG):
-    lut = surface_ids(np.arange(n_obj + n_pl), n_pl, n_obj)
-    args = (sets, legs, n_obj + n_pl, lut, elevation, n_obj, grid, rows, 3, bounces, spread, components)
+    spec = LabelSpec(surface_ids(np.arange(n_obj + n_pl), n_pl, n_obj), elevation, n_obj, 3, bounces, components)
+    args = (sets, legs, n_obj + n_pl, spec, grid, spread)
     return compiled.frame_truth(*args), _frame_truth(*args)
 
 
@@ -499,8 +499,8 @@ def test_compiled_label_maps_equal_the_numpy_twin_on_hand_made_paths(bounces, co
 @pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled kernels not built")
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_compiled_label_maps_equal_the_numpy_twin_on_random_paths(seed):
-    """Many ids, spread range cells, a sub-window of rows: float32 against float64 sums, so the
-    means agree to round-off and the ids exactly (no near tie in these draws)."""
+    """Many ids, spread range cells: float32 against float64 sums, so the means agree to
+    round-off and the ids exactly (no near tie in these draws)."""
     rng = np.random.default_rng(100 + seed)
     n_obj, n_pl, n_el, n_cols = 5, 2, 8, 30
     n = n_el * n_cols
@@ -523,35 +523,18 @@ def test_compiled_label_maps_equal_the_numpy_twin_on_random_paths(seed):
                             lab))
     grid = (0.6, 0.05, 60, 6)
     el = np.linspace(-10.0, 10.0, n_el)
-    for rows in ((0, 60), (7, 52)):
-        kernel, twin = _both(sets, legs, rows=rows, spread=True, n_obj=n_obj, n_pl=n_pl, grid=grid, elevation=el)
-        _assert_routes_agree(kernel, twin, exact=False)
-        assert (kernel[3] >= 0).sum() > 100 and set(kernel[3].ravel()) >= set(range(n_obj + n_pl))
+    kernel, twin = _both(sets, legs, spread=True, n_obj=n_obj, n_pl=n_pl, grid=grid, elevation=el)
+    _assert_routes_agree(kernel, twin, exact=False)
+    assert (kernel[3] >= 0).sum() > 100 and set(kernel[3].ravel()) >= set(range(n_obj + n_pl))
 
 
 @pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled kernels not built")
 def test_compiled_label_maps_on_an_empty_window_and_no_paths():
     sets, legs = _hand_made_frame()
-    for rows, s in (((0, 0), sets), ((0, 8), [])):
-        kernel, twin = _both(s, legs, rows=rows)
+    for grid, s in (((1.0, 0.5, 0, 3), sets), (GRID, [])):
+        kernel, twin = _both(s, legs, grid=grid)
         _assert_routes_agree(kernel, twin)
         assert (kernel[3] == -1).all() and np.isnan(kernel[4]).all()
-
-
-@pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled kernels not built")
-def test_lit_rows_kernel_equals_its_twin():
-    rng = np.random.default_rng(5)
-    stack = np.zeros((4, 50, 7), np.float32)
-    assert lit_rows(stack) == lit_rows(stack, "numpy") == (0, 0)
-    stack[2, 13, 6] = 1e-30
-    stack[0, 40, 0] = 2.0
-    stack[1, 45, 3] = -0.0  # not lit, as in ndarray.any
-    assert lit_rows(stack) == lit_rows(stack, "numpy") == (13, 41)
-    stack[3, 47, 2] = np.nan  # lit, as in ndarray.any
-    assert lit_rows(stack) == lit_rows(stack, "numpy") == (13, 48)
-    for _ in range(20):
-        s = np.where(rng.random((3, 30, 5)) < 0.01, rng.random((3, 30, 5)), 0).astype(np.float32)
-        assert lit_rows(s) == lit_rows(s, "numpy")
 
 
 @pytest.mark.parametrize("double_beam", ["paper", "split"])

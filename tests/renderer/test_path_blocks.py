@@ -328,3 +328,87 @@ def test_a_path_buffer_too_small_for_the_options_is_refused_and_the_next_frame_r
             sim.render()
         monkeypatch.setattr(compiled, "_options", options)
         np.testing.assert_array_equal(sim.render(speckle=False).polar, good)
+
+
+LABELLED = ["demo", "tank6_order3", "tank2_order5", "range_splat=False", "double_beam=separate"]
+
+
+def _label_arrays(labels) -> list:
+    return [*(labels.instance[k] for k in labels.instance), labels.elevation_deg, labels.elevation_min_deg,
+            labels.elevation_max_deg, labels.points_world, labels.points_object, labels.points_component,
+            labels.points_cell, labels.boxes_polar]
+
+
+def _labelled(doc, threads, fused, monkeypatch, n_blocks=compiled.N_BLOCKS, mode=True, in_pass=True):
+    """Each pose's labels and image, formed in the frame's pass (or, ``in_pass=False``, from
+    the frame's path sets after it, as ``double_beam: split`` does)."""
+    doc = copy.deepcopy(doc)
+    doc["render"]["threads"] = threads
+    with monkeypatch.context() as m:
+        m.setattr(compiled, "N_BLOCKS", n_blocks)
+        if not fused:
+            m.setattr(compiled, "packet_loop", lambda caster: None)
+        render_paths, formed = compiled.render_paths, []
+
+        def spy(*a, **k):
+            result = render_paths(*a, **(k if in_pass else {**k, "labels": None}))
+            formed.append(result[-1] is not None)
+            return result
+
+        m.setattr(compiled, "render_paths", spy)
+        with sonarsim.Simulator(doc) as sim:
+            out = []
+            for pose in POSES:
+                img = sim.render(pose=pose, speckle=False, labels=mode)
+                out += _label_arrays(img.labels) + [img.polar, np.stack([img.components[k] for k in img.components])]
+        assert formed == [in_pass] * len(POSES)  # the route asked for was the one taken
+        return out
+
+
+@pytest.mark.parametrize("name", LABELLED)
+def test_labels_formed_in_the_pass_do_not_depend_on_threads_blocks_or_casting(name, monkeypatch):
+    doc = _variants()[name]
+    reference = _labelled(doc, 1, False, monkeypatch)
+    assert (reference[0] >= 0).any() and len(reference[-6])  # some cell labelled, some point
+    for threads, fused, n_blocks in ((2, True, compiled.N_BLOCKS), (2, False, compiled.N_BLOCKS), (2, True, 1),
+                                     (2, True, 3), (1, True, 13)):
+        got = _labelled(doc, threads, fused, monkeypatch, n_blocks)
+        assert len(got) == len(reference)
+        for a, b in zip(got, reference):
+            np.testing.assert_array_equal(a, b, err_msg=f"threads={threads} fused={fused} blocks={n_blocks}")
+
+
+@pytest.mark.parametrize("mode", [True, "total"])
+@pytest.mark.parametrize("name", LABELLED)
+def test_labels_formed_in_the_pass_equal_those_formed_from_the_path_sets_after_it(name, mode, monkeypatch):
+    """The same deposits in the same order per cell (option after option, rays ascending), so
+    the same bits: ids, ties, elevation moments, points in the path buffer's order."""
+    doc = _variants()[name]
+    after = _labelled(doc, 2, True, monkeypatch, mode=mode, in_pass=False)
+    for a, b in zip(_labelled(doc, 2, True, monkeypatch, mode=mode), after):
+        np.testing.assert_array_equal(a, b)
+    # And the labelled frame's image is the plain frame's.
+    per_pose = len(after) // len(POSES)
+    with sonarsim.Simulator(doc) as sim:
+        for k, pose in enumerate(POSES):
+            np.testing.assert_array_equal(sim.render(pose=pose, speckle=False).polar, after[(k + 1) * per_pose - 2])
+
+
+def test_the_label_scratch_is_left_clean_and_a_failed_frame_does_not_poison_the_next(monkeypatch):
+    with sonarsim.Simulator(_tank(5, 3)) as sim:
+        ref = _label_arrays(sim.render(speckle=False, labels=True).labels)
+        scratch = sim._work.labels_scratch
+        cells = scratch._arrays["cells"]
+        assert (cells[:, 0::2] == -1).all()  # every cell's state back to "nothing"
+        sim.render(speckle=False, labels="total")
+        assert scratch._arrays["cells"] is cells  # kept: no frame fills it
+        option_maps = compiled.FrameTruth.option_maps
+        monkeypatch.setattr(compiled.FrameTruth, "option_maps",
+                            lambda self, label: (option_maps(self, label)[0] + 99, option_maps(self, label)[1]))
+        with pytest.raises(ValueError, match="order map"):
+            sim.render(labels=True)
+        monkeypatch.setattr(compiled.FrameTruth, "option_maps", option_maps)
+        got = _label_arrays(sim.render(speckle=False, labels=True).labels)
+        assert scratch._arrays["cells"] is not cells  # the failed frame's was let go
+        for a, b in zip(got, ref):
+            np.testing.assert_array_equal(a, b)

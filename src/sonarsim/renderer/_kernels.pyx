@@ -16,7 +16,7 @@ Nothing here allocates per ray; the caller owns every array.
 
 from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, exp, isfinite, INFINITY, NAN
 from libc.math cimport M_PI
-from libc.string cimport memset
+from libc.string cimport memset, memmove
 import numpy as np
 cimport cython
 
@@ -685,6 +685,530 @@ def splat_events(const double[:, ::1] points, const double[:, ::1] normals, cons
         splat_events_impl(points, normals, key, ray, distance, energy, beam, label, scale, spread, n_elevation, range_min, dr, n_range_bins, n_beams, out)
 
 
+ctypedef struct MapCell:
+    # One cell of a dominance map (see add_to_map): -1, an id, or -2 - slot; the one id's sum.
+    int state
+    float first
+
+ctypedef struct CellMoments:
+    # The total's energy, energy x elevation (degrees), least and greatest elevation in a cell.
+    double weight
+    double weighted
+    float lo
+    float hi
+
+
+cdef inline bint add_to_map(MapCell* cell, float* table, Py_ssize_t n_ids, Py_ssize_t slot_base,
+                            Py_ssize_t* n_slots, int* reached, Py_ssize_t* n_reached, int index,
+                            int ident, float part) noexcept nogil:
+    """Add ``part`` of id ``ident`` to one cell of a dominance map; True when it is the cell's
+    first deposit.
+
+    A cell holds -1 (nothing yet), the one id that has deposited in it so far (with that id's
+    sum in ``first``), or ``-2 - slot`` once a second id deposits: from then on row ``slot`` of
+    ``table`` (slots x ids) holds every id's sum. Each id's sum is the one a dense float32
+    (ids x cells) stack would hold -- the same float32 additions in the same order from 0 --
+    so the dominant id is the same, ties included, without forming the stack. A cell's first
+    deposit appends its ``index`` to ``reached``, so that only the reached cells are resolved
+    (and reset). A block of beams takes its new slots from ``slot_base`` on (its own rows of
+    the table: blocks run at once).
+    """
+    cdef int s = cell.state
+    cdef float* row_sums
+    cdef Py_ssize_t j, slot
+    if s == ident:
+        cell.first += part
+        return False
+    if s == -1:
+        cell.state = ident
+        cell.first = part
+        reached[n_reached[0]] = index
+        n_reached[0] += 1
+        return True
+    if s >= 0:  # a second id: the cell is mixed
+        slot = slot_base + n_slots[0]
+        row_sums = table + slot * n_ids
+        for j in range(n_ids):
+            row_sums[j] = 0.0
+        row_sums[s] = cell.first
+        row_sums[ident] = part
+        cell.state = <int>(-2 - slot)
+        n_slots[0] += 1
+    else:
+        table[(-2 - <Py_ssize_t>s) * n_ids + ident] += part
+    return False
+
+
+cdef inline int strongest(const float* row, Py_ssize_t begin, Py_ssize_t end, float* top) noexcept nogil:
+    """Index in ``[begin, end)`` of the largest positive ``row`` entry (ties: the lower), -1 none."""
+    cdef Py_ssize_t k
+    cdef int best = -1
+    cdef float t = 0.0
+    for k in range(begin, end):
+        if row[k] > t:  # strict: zero never wins, a tie keeps the lower id
+            t = row[k]
+            best = <int>k
+    top[0] = t
+    return best
+
+
+cdef class LabelMaps:
+    """Instance maps, elevation moments and points of one frame, deposited path set by path set
+    -- by :class:`PathBlocks` in the frame's own pass, each block as it splats its paths into
+    the image (the same range cells, the same float32 parts), or by :meth:`add` from path sets
+    formed after the frame (twin: ``renderer.ground_truth._frame_truth``: dense stacks,
+    ``splat_truth`` and ``dominant``).
+
+    The beams are cut into blocks (``blocks``); a block deposits only into its own beams' cells,
+    its own share of ``reached`` and of ``table`` and its own points, :meth:`fill` sets its
+    share of the outputs' rows to "nothing", and :meth:`finish` resolves its reached cells, so
+    blocks run at once.
+
+    The dominance state and the moments are kept beam-major (cell ``beam * n_range_bins +
+    bin``): a path's range cell is a run of consecutive bins of one beam, and the paths of a
+    beam arrive in elevation order, near each other in range, so a deposit touches a cache
+    line or two where the image's bin-major layout takes one per bin.
+
+    Parameters
+    ----------
+    instance : (n_maps, n_range_bins, n_beams) int32, uninitialised
+        Receive the frame's instance maps (:meth:`fill`, then :meth:`finish`): the orders
+        1 .. n_maps - 1, then the total (or the total alone).
+    objects, planes : (n_range_bins, n_beams) int32, uninitialised, or (0, n_beams): not formed
+        Receive the first order's dominant object and dominant plane.
+    elevation : (3, n_range_bins, n_beams) float32, uninitialised
+        Receives the mean, least and greatest arrival elevation of the total's paths, degrees
+        (NaN where none).
+    boxes : (n_blocks, n_ids, 4) int32, -1 filled
+        Receives each block's boxes of the ids in the total.
+    cells : (n_maps, n_range_bins * n_beams * 2) int32, state -1 in every cell
+        The maps' dominance state (``MapCell``, beam-major). :meth:`finish` sets every cell it
+        resolves back to -1, so a frame that finished leaves it ready for the next.
+    reached : (n_maps, n_range_bins * n_beams) int32, uninitialised
+        Each map's reached cells (beam-major index), block after block (block k's from
+        ``n_range_bins * b0`` on), each block's in the order first reached.
+    table : (capacity, n_ids) float32, uninitialised
+        A row for every cell of every map (each becomes mixed at most once; block k's rows
+        from ``n_maps * n_range_bins * b0`` on); only the rows of mixed cells are touched.
+    moments : (n_range_bins * n_beams * 3) float64, uninitialised
+        The total's moments per cell (``CellMoments``, beam-major), written where a cell is
+        first reached (read only there).
+    lut : (n_surfaces,) int32
+        Label id (``0 .. n_ids - 1``) of each surface id.
+    elevation_rows : (n_elevation,) float64
+        Arrival elevation of each elevation row of the fan, degrees.
+    spread : bool
+    range_min, dr : float
+        The image's first range, metres, and the bin size, metres.
+    blocks : (n_blocks + 1,) intp
+        The blocks' first beams, then ``n_beams``.
+    n_objects : int
+        Label ids below it are objects, the others planes.
+    p_world, p_object, p_component, p_cell : (n, 3) float32, (n,) int32, (n,) int8, (n, 2) int32
+        Receive the points; ``n`` at least the number of paths of the frame.
+    """
+    cdef int[:, :, ::1] instance
+    cdef int[:, ::1] objects, planes
+    cdef float[:, :, ::1] elevation
+    cdef int[:, :, ::1] boxes
+    cdef int[:, ::1] cells
+    cdef int[:, ::1] reached
+    cdef Py_ssize_t[:, ::1] n_reached
+    cdef float[:, ::1] table
+    cdef double[::1] moments
+    cdef const int[::1] lut
+    cdef const double[::1] elevation_rows
+    cdef const Py_ssize_t[::1] blocks
+    cdef Py_ssize_t[::1] n_slots, seg_count
+    cdef unsigned char[::1] finished
+    cdef float[:, ::1] p_world
+    cdef int[::1] p_object
+    cdef signed char[::1] p_component
+    cdef int[:, ::1] p_cell
+    cdef double range_min, dr
+    cdef Py_ssize_t n_maps, n_rows, n_beams, n_elevation, n_ids, n_blocks
+    cdef int n_objects
+    cdef bint spread, split
+    cdef int bad_surface
+    cdef readonly Py_ssize_t n_points
+
+    def __init__(self, int[:, :, ::1] instance, int[:, ::1] objects, int[:, ::1] planes,
+                 float[:, :, ::1] elevation, int[:, :, ::1] boxes, int[:, ::1] cells, int[:, ::1] reached,
+                 float[:, ::1] table, double[::1] moments, const int[::1] lut, const double[::1] elevation_rows,
+                 bint spread, double range_min, double dr, const Py_ssize_t[::1] blocks, int n_objects,
+                 float[:, ::1] p_world, int[::1] p_object, signed char[::1] p_component, int[:, ::1] p_cell):
+        cdef Py_ssize_t k, n_cells
+        self.n_maps, self.n_rows, self.n_beams = instance.shape[0], instance.shape[1], instance.shape[2]
+        n_cells = self.n_rows * self.n_beams
+        self.n_ids = table.shape[1]
+        if self.n_maps < 1:
+            raise ValueError("no map of the total")
+        self.split = objects.shape[0] > 0
+        if (self.split and (objects.shape[0] != self.n_rows or planes.shape[0] != self.n_rows
+                            or objects.shape[1] != self.n_beams or planes.shape[1] != self.n_beams)
+                or elevation.shape[0] != 3 or elevation.shape[1] != self.n_rows or elevation.shape[2] != self.n_beams
+                or cells.shape[0] < self.n_maps or cells.shape[1] != 2 * n_cells
+                or reached.shape[0] < self.n_maps or reached.shape[1] != n_cells or moments.shape[0] != 3 * n_cells):
+            raise ValueError("label maps of different shapes")
+        if table.shape[0] < self.n_maps * n_cells:
+            raise ValueError(f"a table of {table.shape[0]} rows for {self.n_maps * n_cells} cells")
+        for k in range(lut.shape[0]):
+            if not 0 <= lut[k] < self.n_ids:
+                raise ValueError(f"label id {lut[k]} of surface {k} is not one of the table's {self.n_ids}")
+        if elevation_rows.shape[0] == 0:
+            raise ValueError("no elevation rows")
+        if blocks.shape[0] < 2 or blocks[0] != 0 or blocks[blocks.shape[0] - 1] != self.n_beams:
+            raise ValueError(f"blocks of beams {np.asarray(blocks).tolist()} do not cut 0:{self.n_beams}")
+        for k in range(blocks.shape[0] - 1):
+            if blocks[k + 1] < blocks[k]:
+                raise ValueError(f"blocks of beams {np.asarray(blocks).tolist()} are not ascending")
+        if boxes.shape[0] != blocks.shape[0] - 1 or boxes.shape[1] != self.n_ids or boxes.shape[2] != 4:
+            raise ValueError("boxes of the wrong shape")
+        if not 0 <= n_objects <= self.n_ids:
+            raise ValueError(f"{n_objects} objects of {self.n_ids} ids")
+        if (p_world.shape[1] != 3 or p_cell.shape[1] != 2 or p_world.shape[0] != p_object.shape[0]
+                or p_component.shape[0] != p_object.shape[0] or p_cell.shape[0] != p_object.shape[0]):
+            raise ValueError("point buffers of different lengths")
+        self.instance, self.objects, self.planes, self.elevation, self.boxes = instance, objects, planes, elevation, boxes
+        self.cells, self.reached, self.table, self.moments = cells, reached, table, moments
+        self.n_blocks = blocks.shape[0] - 1
+        self.blocks = blocks
+        self.n_objects = n_objects
+        self.n_reached = np.zeros((self.n_blocks, self.n_maps), np.intp)
+        self.n_slots = np.zeros(self.n_blocks, np.intp)
+        self.finished = np.zeros(self.n_blocks, np.uint8)
+        self.seg_count = np.zeros(0, np.intp)
+        self.lut, self.elevation_rows = lut, elevation_rows
+        self.n_elevation = elevation_rows.shape[0]
+        self.spread, self.range_min, self.dr = spread, range_min, dr
+        self.p_world, self.p_object, self.p_component, self.p_cell = p_world, p_object, p_component, p_cell
+        self.n_points = 0
+        self.bad_surface = -1
+
+    cdef Py_ssize_t deposit(self, Py_ssize_t blk, const double* points, const double* normals, const int* key,
+                            const int* sid, const Py_ssize_t* ray, const double* distance, const double* energy,
+                            const int* beam, const signed char* label, Py_ssize_t m, Py_ssize_t order_map,
+                            bint moments, float* image, Py_ssize_t pt_start) noexcept nogil:
+        """One compact path set of block ``blk`` (rays ascending; the receive leg ``points``,
+        ``normals``, ``key``, ``sid`` dense over the fan): its energy to map ``order_map`` (-1:
+        none) and, with ``moments``, to the total's map and the elevation moments; its points
+        (the paths with energy whose half length lies in the image) to the point buffers from
+        ``pt_start`` on. With ``image`` (the flat stack), also splats the set there as
+        ``splat_events`` does: one range cell per path for both. Returns the points written;
+        a path on a surface outside ``lut`` stops it (``bad_surface``)."""
+        cdef Py_ssize_t k, b, b_end, i, n_lut = self.lut.shape[0], b0 = self.blocks[blk]
+        cdef Py_ssize_t n_ids = self.n_ids, n_beams = self.n_beams, n_el = self.n_elevation
+        cdef Py_ssize_t n_pts = pt_start, column = 0, column_end = 0, n_rows = self.n_rows
+        cdef Py_ssize_t slot_base = self.n_maps * n_rows * b0, cell_base = n_rows * b0, run
+        cdef bint c_dn = False, c_up, by_order = order_map >= 0, spread = self.spread, cells
+        cdef double x, x_dn = 0.0, x_up, lo, hi, density, part, el, v
+        cdef double nb = <double>n_rows, range_min = self.range_min, dr = self.dr
+        cdef float pf, elf
+        cdef int ident = 0, surface = 0, index
+        cdef MapCell* order_cells = NULL
+        cdef int* order_reached = NULL
+        cdef Py_ssize_t* n_order = NULL
+        cdef MapCell* total_cells = NULL
+        cdef int* total_reached = NULL
+        cdef Py_ssize_t* n_total = NULL
+        cdef CellMoments* mom = NULL
+        cdef CellMoments* cm
+        # The counters in locals while the loop runs (through their own pointers the compiler
+        # would reload them after every store).
+        cdef Py_ssize_t slots = self.n_slots[blk], n_ord = 0, n_tot = 0
+        cdef Py_ssize_t* n_slots = &slots
+        cdef float* table = &self.table[0, 0] if self.table.shape[0] > 0 and n_ids > 0 else NULL
+        cdef float* column_out
+        cdef const int* lut = &self.lut[0] if n_lut > 0 else NULL
+        cdef const double* el_rows = &self.elevation_rows[0]
+        if n_rows * n_beams == 0:  # an empty image: no deposit
+            by_order = moments = False
+        if by_order:
+            order_cells = <MapCell*>&self.cells[order_map, 0]
+            order_reached = &self.reached[order_map, cell_base]
+            n_ord = self.n_reached[blk, order_map]
+            n_order = &n_ord
+        if moments:
+            total_cells = <MapCell*>&self.cells[self.n_maps - 1, 0]
+            total_reached = &self.reached[self.n_maps - 1, cell_base]
+            n_tot = self.n_reached[blk, self.n_maps - 1]
+            n_total = &n_tot
+            mom = <CellMoments*>&self.moments[0]
+        cells = by_order or moments or image != NULL
+        for k in range(m):
+            i = ray[k]
+            surface = sid[i]
+            if not 0 <= surface < n_lut:
+                self.bad_surface = surface
+                break
+            ident = lut[surface]
+            if cells:
+                c_up = spread and neighbours(points, normals, key, ray, energy, m, k, n_el)
+                x = (distance[k] - range_min) / dr
+                x_up = (distance[k + 1] - range_min) / dr if c_up else 0.0
+                # A path without energy lands nowhere (as in the twin's range cells): it
+                # would start a cell's elevation extremes without being part of its echo.
+                if energy[k] != 0 and range_cell(x, x_dn, x_up, c_dn, c_up, energy[k], nb, &lo, &hi, &density):
+                    if i >= column_end:  # rays ascend: one division per column of the fan
+                        column = i - i % n_el
+                        column_end = column + n_el
+                    el = el_rows[i - column]
+                    elf = <float>el  # the outputs are float32: the extremes of the rounded values
+                    b_end = bin_end(hi)
+                    column_out = image + <Py_ssize_t>label[k] * n_rows * n_beams + beam[k] if image != NULL else NULL
+                    run = beam[k] * n_rows  # the beam's cells, beam-major
+                    for b in range(<Py_ssize_t>lo, b_end):
+                        part = density * ((hi if hi < b + 1.0 else b + 1.0) - (lo if lo > b else <double>b))
+                        pf = <float>part
+                        if column_out != NULL:
+                            column_out[b * n_beams] += pf
+                        index = <int>(run + b)
+                        if by_order:
+                            add_to_map(order_cells + index, table, n_ids, slot_base, n_slots, order_reached,
+                                       n_order, index, ident, pf)
+                        if moments:
+                            cm = mom + index
+                            if add_to_map(total_cells + index, table, n_ids, slot_base, n_slots, total_reached,
+                                          n_total, index, ident, pf):
+                                cm.weight = part  # first reached: the moments start here
+                                cm.weighted = part * el
+                                cm.lo = elf
+                                cm.hi = elf
+                            else:
+                                cm.weight += part
+                                cm.weighted += part * el
+                                # Equal values are equal bits (one elevation per fan row).
+                                cm.lo = cm.lo if cm.lo < elf else elf
+                                cm.hi = cm.hi if cm.hi > elf else elf
+                c_dn = c_up
+                x_dn = x
+            # The bin floor((d - min) / dr) is in [0, n) exactly when v is: no floor() call.
+            v = (distance[k] - range_min) / dr
+            if v >= 0.0 and v < nb and energy[k] != 0:
+                self.p_world[n_pts, 0] = <float>points[3 * i]
+                self.p_world[n_pts, 1] = <float>points[3 * i + 1]
+                self.p_world[n_pts, 2] = <float>points[3 * i + 2]
+                self.p_object[n_pts] = ident
+                self.p_component[n_pts] = label[k]
+                self.p_cell[n_pts, 0] = <int>v
+                self.p_cell[n_pts, 1] = beam[k]
+                n_pts += 1
+        self.n_slots[blk] = slots
+        if by_order:
+            self.n_reached[blk, order_map] = n_ord
+        if moments:
+            self.n_reached[blk, self.n_maps - 1] = n_tot
+        return n_pts - pt_start
+
+    def add(self, const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
+            const int[::1] sid, const Py_ssize_t[::1] ray, const double[::1] distance, const double[::1] energy,
+            const int[::1] beam, const signed char[::1] label, Py_ssize_t order_map, bint moments):
+        """One compact path set formed after the frame (one block of every beam only): its
+        energy to map ``order_map`` (-1: none) and, with ``moments``, to the total's map and
+        the elevation moments; its points after those already kept.
+
+        ``points``, ``normals``, ``key``, ``sid``: the receive leg, dense over the fan; ``ray``,
+        ``distance``, ``energy``, ``beam``, ``label``: the set, rays ascending.
+        """
+        cdef Py_ssize_t m = ray.shape[0], n_fan = sid.shape[0], k
+        if self.n_blocks != 1:
+            raise ValueError("add() deposits into one block of every beam")
+        if label.shape[0] != m or distance.shape[0] != m or energy.shape[0] != m or beam.shape[0] != m:
+            raise ValueError("path set arrays of different lengths")
+        if (points.shape[0] != n_fan or normals.shape[0] != n_fan or key.shape[0] != n_fan
+                or points.shape[1] != 3 or normals.shape[1] != 3):
+            raise ValueError("receive leg arrays of different lengths")
+        if self.n_points + m > self.p_object.shape[0]:
+            raise ValueError("more paths than the point buffers hold")
+        if not -1 <= order_map < self.n_maps - 1:
+            raise ValueError(f"order map {order_map} of {self.n_maps - 1}")
+        for k in range(m):
+            if not 0 <= ray[k] < n_fan or not 0 <= beam[k] < self.n_beams or (k and ray[k] <= ray[k - 1]):
+                raise ValueError(f"path {k}: ray {ray[k]} of {n_fan} (ascending), beam {beam[k]} of {self.n_beams}")
+        if m == 0:
+            return
+        with nogil:
+            self.n_points += self.deposit(0, &points[0, 0], &normals[0, 0], &key[0], &sid[0], &ray[0], &distance[0],
+                                          &energy[0], &beam[0], &label[0], m, order_map, moments, NULL,
+                                          self.n_points)
+        self.check()
+
+    def check(self):
+        """Raise where a deposit met a path on a surface outside ``lut``."""
+        if self.bad_surface >= 0:
+            raise ValueError(f"a path on surface {self.bad_surface}, not one of the {self.lut.shape[0]}")
+
+    def compact(self, const Py_ssize_t[::1] offset):
+        """Gather the points that :class:`PathBlocks` wrote segment by segment (segment s from
+        ``offset[s]`` on, ``seg_count[s]`` of them) into one run, in segment order (the path
+        buffer's: option-major, block after block). Sets :attr:`n_points`."""
+        cdef Py_ssize_t s, n, o, j = 0
+        if offset.shape[0] != self.seg_count.shape[0]:
+            raise ValueError(f"{offset.shape[0]} segments for {self.seg_count.shape[0]} counts")
+        for s in range(offset.shape[0]):
+            o, n = offset[s], self.seg_count[s]
+            if n < 0 or o < j or o + n > self.p_object.shape[0]:
+                raise ValueError(f"point segment {s} ({o}, {n}) overlaps or leaves the buffers")
+            j = o + n  # (segments ascend: each moves down, never over one not yet moved)
+        j = 0
+        with nogil:
+            for s in range(offset.shape[0]):
+                o, n = offset[s], self.seg_count[s]
+                if n and o != j:
+                    memmove(&self.p_world[j, 0], &self.p_world[o, 0], n * 3 * sizeof(float))
+                    memmove(&self.p_object[j], &self.p_object[o], n * sizeof(int))
+                    memmove(&self.p_component[j], &self.p_component[o], n * sizeof(signed char))
+                    memmove(&self.p_cell[j, 0], &self.p_cell[o, 0], n * 2 * sizeof(int))
+                j += n
+        self.n_points = j
+
+    cdef void fill(self, Py_ssize_t blk) noexcept nogil:
+        """Block ``blk``'s cells of the outputs (its own beams' columns) set to "nothing": -1
+        ids, NaN elevations (before :meth:`finish` resolves the cells it reached)."""
+        cdef Py_ssize_t mp, i, r, n_b = self.n_beams, n_r = self.n_rows, b0 = self.blocks[blk]
+        cdef Py_ssize_t w = self.blocks[blk + 1] - b0
+        cdef float* el
+        if w <= 0:
+            return
+        for r in range(n_r):
+            for mp in range(self.n_maps):
+                memset(&self.instance[mp, r, b0], 0xFF, w * sizeof(int))  # all bits set: -1
+            if self.split:
+                memset(&self.objects[r, b0], 0xFF, w * sizeof(int))
+                memset(&self.planes[r, b0], 0xFF, w * sizeof(int))
+            for mp in range(3):
+                el = &self.elevation[mp, r, b0]
+                for i in range(w):
+                    el[i] = NAN
+
+    def fill_rows(self, Py_ssize_t blk):
+        """:meth:`fill` (for :meth:`add`'s route: :class:`PathBlocks` fills as it forms paths)."""
+        if not 0 <= blk < self.n_blocks:
+            raise ValueError(f"block {blk} of {self.n_blocks}")
+        with nogil:
+            self.fill(blk)
+
+    def finish(self, Py_ssize_t blk):
+        """:meth:`resolve` block ``blk`` (for :meth:`add`'s route: :class:`PathBlocks` resolves
+        each block right after its paths)."""
+        self.check()
+        if not 0 <= blk < self.n_blocks or self.finished[blk]:
+            raise ValueError(f"block {blk} of {self.n_blocks} (each resolved once)")
+        with nogil:
+            self.resolve(blk)
+
+    cdef void resolve(self, Py_ssize_t blk) noexcept nogil:
+        """Resolve block ``blk``'s reached cells into the outputs (filled by :meth:`fill`), and
+        set their state back to -1. Only block ``blk`` deposits into its cells, so it resolves
+        them as soon as its own paths are in, on its own thread, while they are in cache.
+
+        Each cell takes its dominant id (ties: the lower id; -1 where no id brought energy).
+        With ``objects`` / ``planes``, map 0 (the first order) also gives the dominant object
+        and the dominant plane of each cell, and its own value is the stronger of the two (a
+        tie: the object). The elevation's mean is weighted / weight where the total has paths
+        (0 / 0: NaN, no weight); ``boxes[blk]`` the inclusive ``[row, beam, row, beam]`` extent
+        of each id's cells in the total.
+        """
+        cdef Py_ssize_t mp, j, n, n_r = self.n_rows, n_b = self.n_beams, n_ids = self.n_ids, at
+        cdef int s, best, obj, gnd, r, c, index, n_obj = self.n_objects
+        cdef float to, tg
+        cdef bint both, last
+        cdef MapCell* st
+        cdef MapCell* cell
+        cdef const int* reached
+        cdef int* out
+        cdef int* o_out = NULL
+        cdef int* g_out = NULL
+        cdef float* el = NULL
+        cdef const float* row
+        cdef const float* table = &self.table[0, 0] if self.table.shape[0] > 0 and n_ids > 0 else NULL
+        cdef const CellMoments* mom = <CellMoments*>&self.moments[0] if self.moments.shape[0] > 0 else NULL
+        cdef const CellMoments* cm
+        cdef int* box = &self.boxes[blk, 0, 0] if n_ids > 0 else NULL
+        self.finished[blk] = 1
+        if n_r * n_b == 0 or self.bad_surface >= 0:
+            return
+        el = &self.elevation[0, 0, 0]
+        if self.split:
+            o_out = &self.objects[0, 0]
+            g_out = &self.planes[0, 0]
+        for mp in range(self.n_maps):
+            st = <MapCell*>&self.cells[mp, 0]
+            out = &self.instance[mp, 0, 0]
+            reached = &self.reached[mp, n_r * self.blocks[blk]]
+            n = self.n_reached[blk, mp]
+            both = self.split and mp == 0
+            last = mp == self.n_maps - 1
+            for j in range(n):
+                index = reached[j]
+                c = index // <int>n_r
+                r = index - c * <int>n_r
+                at = r * n_b + c
+                cell = st + index
+                s = cell.state
+                if s >= 0:
+                    best = s if cell.first > 0 else -1
+                    obj = best if best < n_obj else -1
+                    gnd = best if best >= n_obj else -1
+                else:
+                    row = table + (-2 - <Py_ssize_t>s) * n_ids
+                    if both:
+                        obj = strongest(row, 0, n_obj, &to)
+                        gnd = strongest(row, n_obj, n_ids, &tg)
+                        best = gnd if tg > to else obj
+                    else:
+                        best = strongest(row, 0, n_ids, &to)
+                cell.state = -1  # ready for the next frame
+                out[at] = best
+                if both:
+                    o_out[at] = obj
+                    g_out[at] = gnd
+                if last:
+                    cm = mom + index
+                    el[at] = <float>(cm.weighted / cm.weight)
+                    el[n_r * n_b + at] = cm.lo
+                    el[2 * n_r * n_b + at] = cm.hi
+                    if best >= 0:
+                        if box[4 * best] < 0:
+                            box[4 * best] = r
+                            box[4 * best + 1] = c
+                            box[4 * best + 2] = r
+                            box[4 * best + 3] = c
+                        else:
+                            box[4 * best] = r if r < box[4 * best] else box[4 * best]
+                            box[4 * best + 1] = c if c < box[4 * best + 1] else box[4 * best + 1]
+                            box[4 * best + 2] = r if r > box[4 * best + 2] else box[4 * best + 2]
+                            box[4 * best + 3] = c if c > box[4 * best + 3] else box[4 * best + 3]
+
+    def resolved(self):
+        """Whether every block was resolved (:meth:`resolve` or :meth:`finish`)."""
+        cdef Py_ssize_t k
+        for k in range(self.n_blocks):
+            if not self.finished[k]:
+                return False
+        return True
+
+    def united_boxes(self, int[:, ::1] out):
+        """The blocks' boxes of each id united into ``out`` (n_ids, 4) (-1: in no block)."""
+        cdef Py_ssize_t k, i, n_ids = self.n_ids
+        cdef int* b
+        if out.shape[0] != n_ids or out.shape[1] != 4:
+            raise ValueError("boxes of the wrong shape")
+        for i in range(n_ids):
+            out[i, 0] = out[i, 1] = out[i, 2] = out[i, 3] = -1
+            for k in range(self.n_blocks):
+                b = &self.boxes[k, i, 0]
+                if b[0] < 0:
+                    continue
+                if out[i, 0] < 0:
+                    out[i, 0], out[i, 1], out[i, 2], out[i, 3] = b[0], b[1], b[2], b[3]
+                else:
+                    out[i, 0] = min(out[i, 0], b[0])
+                    out[i, 1] = min(out[i, 1], b[1])
+                    out[i, 2] = max(out[i, 2], b[2])
+                    out[i, 3] = max(out[i, 3], b[3])
+
+
 cdef class PathBlocks:
     """The general path engine for a block of beams in one call: rotate the block's rays, cast
     them, trace their receive legs generation by generation (casting each generation's
@@ -774,6 +1298,10 @@ cdef class PathBlocks:
     cdef int[::1] p_beam, p_beam_tx
     cdef signed char[::1] p_label
     cdef float[::1] out, total
+    cdef LabelMaps labels
+    cdef const int[::1] opt_map
+    cdef const unsigned char[::1] opt_moments
+    cdef bint has_labels
     cdef int total_rows[16]
     cdef int n_total_rows
     cdef bint paths_ready, splat
@@ -888,6 +1416,10 @@ cdef class PathBlocks:
         self.p_beam = self.p_beam_tx = None
         self.p_label = None
         self.out = self.total = None
+        self.labels = None
+        self.opt_map = None
+        self.opt_moments = None
+        self.has_labels = False
         self.ready = False
         self.paths_ready = False
 
@@ -1036,7 +1568,8 @@ cdef class PathBlocks:
                 const double[:, :, ::1] sources, const int[:, ::1] planes, const double[::1] specular,
                 Py_ssize_t[::1] offset, Py_ssize_t[::1] count, Py_ssize_t[::1] p_ray, double[::1] p_dist,
                 double[::1] p_energy, int[::1] p_beam, int[::1] p_beam_tx, signed char[::1] p_label,
-                bint splat=True, float[::1] total=None, tuple rows=()):
+                bint splat=True, float[::1] total=None, tuple rows=(), LabelMaps labels=None,
+                const int[::1] order_map=None, const unsigned char[::1] moments=None):
         """Set what :meth:`paths` forms: each block's chain ids to the frame's (``remap``,
         (n_blocks, capacity)), the chains' ranks, the transmit options in order (generation,
         chain, same, image row, chain length, its unfolding map, the sonar's images, its
@@ -1046,7 +1579,11 @@ cdef class PathBlocks:
         frame's stack, and where to sum its ``rows`` (the frame's ``total``, flat
         ``(n_range_bins, n_beams)``: each block adds its own columns' rows right after splatting
         them, while they are in cache, in float32 and in the given order, as
-        ``components._sum_rows`` does)."""
+        ``components._sum_rows`` does) and, with ``labels``, the ground truth deposited in the
+        same pass: each block's paths, as it splats them, into ``labels`` (its blocks the
+        engine's), option o's energy into map ``order_map[o]`` (-1: none) and, where
+        ``moments[o]``, into the total's map and its elevation moments; the points of option o
+        of block k from its path buffer offset on (``LabelMaps.compact`` gathers them)."""
         cdef float[::1] out = self.out if splat else None
         cdef Py_ssize_t n_opt = gen.shape[0], o, k, m = p_ray.shape[0], n_rows = 0, q
         self.paths_ready = False  # everything is checked before anything is kept
@@ -1089,6 +1626,17 @@ cdef class PathBlocks:
                 raise ValueError(f"total row {rows[o]} outside the stack")
         if n_total and total.shape[0] != self.n_bins * self.n_beams:
             raise ValueError("the total is not (n_range_bins, n_beams)")
+        if labels is not None:
+            if labels.n_rows != self.n_bins or labels.n_beams != self.n_beams or labels.n_blocks != self.n_blocks:
+                raise ValueError("label maps of another image or another cut into blocks")
+            if order_map is None or moments is None or order_map.shape[0] != n_opt or moments.shape[0] != n_opt:
+                raise ValueError("an order map and a moments flag per transmit option")
+            for o in range(n_opt):
+                if not -1 <= order_map[o] < labels.n_maps - 1:
+                    raise ValueError(f"transmit option {o}: order map {order_map[o]} of {labels.n_maps - 1}")
+            if labels.p_object.shape[0] < m:
+                raise ValueError(f"point buffers of {labels.p_object.shape[0]} for a path buffer of {m}")
+            labels.seg_count = np.zeros(offset.shape[0], np.intp)
         self.remap, self.rank = remap, rank
         self.opt_gen, self.opt_tx, self.opt_same, self.opt_label, self.opt_len = gen, tx, same, label, length
         self.opt_unfold, self.opt_sources, self.opt_planes, self.opt_specular = unfold, sources, planes, specular
@@ -1096,6 +1644,8 @@ cdef class PathBlocks:
         self.p_ray, self.p_dist, self.p_energy, self.p_beam, self.p_beam_tx, self.p_label = (
             p_ray, p_dist, p_energy, p_beam, p_beam_tx, p_label)
         self.splat = out is not None
+        self.labels, self.opt_map, self.opt_moments = labels, order_map, moments
+        self.has_labels = labels is not None
         self.total = total
         self.n_total_rows = n_total
         for o in range(n_total):
@@ -1110,12 +1660,17 @@ cdef class PathBlocks:
         cdef Py_ssize_t a, b, g, i, o, off, n, cnt, K, j, q, row
         cdef Py_ssize_t n_opt = self.opt_gen.shape[0], plane = self.n_bins * self.n_beams
         cdef int c
-        cdef bint splat = self.splat
+        cdef bint splat = self.splat, has_labels = self.has_labels
+        cdef LabelMaps labels = self.labels
         cdef float* tot
         cdef const float* src
         self._check(k, b0, b1)
+        if has_labels and (labels.blocks[k] != b0 or labels.blocks[k + 1] != b1):
+            raise ValueError(f"block {k}: beams {b0}:{b1} here, {labels.blocks[k]}:{labels.blocks[k + 1]} in the labels")
         a, b = b0 * self.rays_per_beam, b1 * self.rays_per_beam
         with nogil:
+            if has_labels:
+                labels.fill(k)
             for g in range(1, self.n_gen):
                 for i in range(a, b):
                     if self.sid[g, i] >= 0:
@@ -1138,12 +1693,20 @@ cdef class PathBlocks:
                     self.p_energy[off:off + n], self.p_beam[off:off + n], self.p_beam_tx[off:off + n],
                     self.p_label[off:off + n])
                 self.p_count[o * self.n_blocks + k] = cnt
-                if splat and cnt:
+                if has_labels and cnt:
+                    labels.seg_count[o * self.n_blocks + k] = labels.deposit(
+                        k, &self.point[g, 0, 0], &self.normal[g, 0, 0], &self.sid[0, 0] if g == 0 else &self.key[g, 0],
+                        &self.sid[g, 0], &self.p_ray[off], &self.p_dist[off], &self.p_energy[off], &self.p_beam[off],
+                        &self.p_label[off], cnt, self.opt_map[o], self.opt_moments[o],
+                        &self.out[0] if splat else NULL, off)
+                elif splat and cnt:
                     splat_events_impl(self.point[g], self.normal[g], self.sid[0] if g == 0 else self.key[g],
                                       self.p_ray[off:off + cnt], self.p_dist[off:off + cnt],
                                       self.p_energy[off:off + cnt], self.p_beam[off:off + cnt],
                                       self.p_label[off:off + cnt], 1.0, self.spread, self.n_el, self.range_min,
                                       self.dr, self.n_bins, self.n_beams, self.out)
+            if has_labels:
+                labels.resolve(k)
             if self.n_total_rows:
                 # The block's columns are complete and recently touched: their total now.
                 tot = &self.total[0]
@@ -1156,402 +1719,6 @@ cdef class PathBlocks:
                         src = &self.out[0] + self.total_rows[q] * plane + row
                         for i in range(b0, b1):
                             tot[row + i] = tot[row + i] + src[i]
-
-
-cdef inline bint add_to_map(int* state, float* first, float* table, Py_ssize_t n_ids, Py_ssize_t* n_slots,
-                            int* reached, Py_ssize_t* n_reached, Py_ssize_t cell, Py_ssize_t row, int beam,
-                            int ident, float part) noexcept nogil:
-    """Add ``part`` of id ``ident`` to one cell of a dominance map; True when it is the cell's
-    first deposit.
-
-    A cell holds -1 (nothing yet), the one id that has deposited in it so far (with that id's
-    sum in ``first``), or ``-2 - slot`` once a second id deposits: from then on row ``slot`` of
-    ``table`` (slots x ids) holds every id's sum. Each id's sum is the one a dense float32
-    (ids x cells) stack would hold -- the same float32 additions in the same order from 0 --
-    so the dominant id is the same, ties included, without forming the stack. A cell's first
-    deposit appends its ``(row, beam)`` to ``reached`` (pairs), so that only the reached cells
-    are resolved.
-    """
-    cdef int s = state[cell]
-    cdef float* row_sums
-    cdef Py_ssize_t j
-    if s == ident:
-        first[cell] += part
-        return False
-    if s == -1:
-        state[cell] = ident
-        first[cell] = part
-        reached[2 * n_reached[0]] = <int>row
-        reached[2 * n_reached[0] + 1] = beam
-        n_reached[0] += 1
-        return True
-    if s >= 0:  # a second id: the cell is mixed
-        row_sums = table + n_slots[0] * n_ids
-        for j in range(n_ids):
-            row_sums[j] = 0.0
-        row_sums[s] = first[cell]
-        row_sums[ident] = part
-        state[cell] = <int>(-2 - n_slots[0])
-        n_slots[0] += 1
-    else:
-        table[(-2 - <Py_ssize_t>s) * n_ids + ident] += part
-    return False
-
-
-cdef inline int strongest(const float* row, Py_ssize_t begin, Py_ssize_t end, float* top) noexcept nogil:
-    """Index in ``[begin, end)`` of the largest positive ``row`` entry (ties: the lower), -1 none."""
-    cdef Py_ssize_t k
-    cdef int best = -1
-    cdef float t = 0.0
-    for k in range(begin, end):
-        if row[k] > t:  # strict: zero never wins, a tie keeps the lower id
-            t = row[k]
-            best = <int>k
-    top[0] = t
-    return best
-
-
-cdef class LabelMaps:
-    """Instance maps, elevation moments and points of one frame, formed set by set (twin:
-    ``renderer.ground_truth._frame_truth``: dense stacks, ``splat_truth`` and ``dominant``).
-
-    Parameters
-    ----------
-    state : (n_maps, n_rows, n_beams) int32, -1 filled
-        The window (lit rows) of the frame's instance maps, each map's window C-contiguous:
-        the orders 1 .. n_maps - 1, then the total (or the total alone). The dominance state
-        of :func:`add_to_map` is kept in them and resolved to ids by :meth:`finish`.
-    first : (n_maps, n_rows, n_beams) float32, uninitialised
-    reached : (n_maps, n_rows * n_beams, 2) int32, uninitialised
-        Each map's reached cells, ``(row, beam)``, in the order first reached.
-    n_reached : (n_maps,) intp
-        Their numbers (set to 0 here).
-    table : (capacity, n_ids) float32, uninitialised
-        A row for every cell of every map (each becomes mixed at most once); only the rows of
-        mixed cells are touched.
-    moments : (n_rows, n_beams, 2) float64, uninitialised
-        The total's energy and energy x elevation (degrees) per cell, side by side: the
-        final division reads one cache line per cell (it waits on memory, not arithmetic).
-    el_min, el_max : (n_rows, n_beams) float32, NaN filled
-        Windows of the outputs: least and greatest elevation of the total's paths, degrees.
-    lut : (n_surfaces,) int32
-        Label id (``0 .. n_ids - 1``) of each surface id.
-    elevation_rows : (n_elevation,) float64
-        Arrival elevation of each elevation row of the fan, degrees.
-    spread : bool
-    range_min, dr : float
-        The window's first range, metres, and the bin size, metres.
-    image_range_min : float, metres
-    n_image_rows : int
-        The whole image's range bins (the points are kept on it, not on the window).
-    p_world, p_object, p_component, p_cell : (n, 3) float32, (n,) int32, (n,) int8, (n, 2) int32
-        Receive the points; ``n`` at least the number of paths of the frame.
-
-    The uninitialised scratch is written where a cell is first reached, and read only there.
-    """
-    cdef int[:, :, :] state
-    cdef float[:, :, ::1] first
-    cdef int[:, :, ::1] reached
-    cdef Py_ssize_t[::1] n_reached
-    cdef float[:, ::1] table
-    cdef double[:, :, ::1] moments
-    cdef float[:, ::1] el_min
-    cdef float[:, ::1] el_max
-    cdef const int[::1] lut
-    cdef const double[::1] elevation_rows
-    cdef float[:, ::1] p_world
-    cdef int[::1] p_object
-    cdef signed char[::1] p_component
-    cdef int[:, ::1] p_cell
-    cdef double range_min, dr, image_range_min
-    cdef Py_ssize_t n_maps, n_rows, n_beams, n_image_rows, n_elevation, n_ids
-    cdef bint spread
-    cdef readonly Py_ssize_t n_slots, n_points
-
-    def __init__(self, int[:, :, :] state, float[:, :, ::1] first, int[:, :, ::1] reached,
-                 Py_ssize_t[::1] n_reached, float[:, ::1] table,
-                 double[:, :, ::1] moments, float[:, ::1] el_min, float[:, ::1] el_max,
-                 const int[::1] lut, const double[::1] elevation_rows, bint spread, double range_min, double dr,
-                 double image_range_min, Py_ssize_t n_image_rows,
-                 float[:, ::1] p_world, int[::1] p_object, signed char[::1] p_component, int[:, ::1] p_cell):
-        cdef Py_ssize_t k, n_cells
-        self.n_maps, self.n_rows, self.n_beams = state.shape[0], state.shape[1], state.shape[2]
-        n_cells = self.n_rows * self.n_beams
-        self.n_ids = table.shape[1]
-        if self.n_maps < 1:
-            raise ValueError("no map of the total")
-        if state.strides[2] != sizeof(int) or state.strides[1] != self.n_beams * sizeof(int):
-            raise ValueError("each map's window must be C-contiguous")
-        if (first.shape[0] != self.n_maps or first.shape[1] != self.n_rows or first.shape[2] != self.n_beams
-                or reached.shape[0] != self.n_maps or reached.shape[1] != n_cells or reached.shape[2] != 2
-                or n_reached.shape[0] != self.n_maps
-                or moments.shape[0] != self.n_rows or moments.shape[1] != self.n_beams or moments.shape[2] != 2
-                or el_min.shape[0] != self.n_rows or el_max.shape[0] != self.n_rows
-                or el_min.shape[1] != self.n_beams or el_max.shape[1] != self.n_beams):
-            raise ValueError("label maps of different shapes")
-        if table.shape[0] < self.n_maps * n_cells:
-            raise ValueError(f"a table of {table.shape[0]} rows for {self.n_maps * n_cells} cells")
-        for k in range(lut.shape[0]):
-            if not 0 <= lut[k] < self.n_ids:
-                raise ValueError(f"label id {lut[k]} of surface {k} is not one of the table's {self.n_ids}")
-        if elevation_rows.shape[0] == 0:
-            raise ValueError("no elevation rows")
-        if (p_world.shape[1] != 3 or p_cell.shape[1] != 2 or p_world.shape[0] != p_object.shape[0]
-                or p_component.shape[0] != p_object.shape[0] or p_cell.shape[0] != p_object.shape[0]):
-            raise ValueError("point buffers of different lengths")
-        self.state, self.first, self.reached, self.table = state, first, reached, table
-        self.n_reached = n_reached
-        self.n_reached[:] = 0
-        self.moments, self.el_min, self.el_max = moments, el_min, el_max
-        self.lut, self.elevation_rows = lut, elevation_rows
-        self.n_elevation = elevation_rows.shape[0]
-        self.spread, self.range_min, self.dr = spread, range_min, dr
-        self.image_range_min, self.n_image_rows = image_range_min, n_image_rows
-        self.p_world, self.p_object, self.p_component, self.p_cell = p_world, p_object, p_component, p_cell
-        self.n_slots = 0
-        self.n_points = 0
-
-    def add(self, const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
-            const int[::1] sid, const Py_ssize_t[::1] ray, const double[::1] distance, const double[::1] energy,
-            const int[::1] beam, const signed char[::1] label, Py_ssize_t order_map, bint moments):
-        """One compact path set (as ``splat_truth``): its energy to map ``order_map`` (-1: none)
-        and, with ``moments``, to the total's map and the elevation moments; its points (the
-        paths with energy whose half length lies in the image) to the point buffers.
-
-        ``points``, ``normals``, ``key``, ``sid``: the receive leg, dense over the fan; ``ray``,
-        ``distance``, ``energy``, ``beam``, ``label``: the set, rays ascending.
-        """
-        cdef Py_ssize_t k, b, b_end, cell, i, m = ray.shape[0], n_lut = self.lut.shape[0]
-        cdef Py_ssize_t n_ids = self.n_ids, n_beams = self.n_beams, n_el = self.n_elevation
-        cdef Py_ssize_t n_pts = self.n_points, n_slots = self.n_slots, column = 0, column_end = 0
-        cdef Py_ssize_t n_order = 0, n_total = 0, n_cells = self.n_rows * self.n_beams
-        cdef bint c_dn = False, c_up, by_order = order_map >= 0, spread = self.spread, bad = False
-        cdef double x, x_dn = 0.0, x_up, lo, hi, density, part, el, v
-        cdef double nb = <double>self.n_rows, range_min = self.range_min, dr = self.dr
-        cdef double image_min = self.image_range_min, n_image = <double>self.n_image_rows
-        cdef float pf, elf
-        cdef int ident = 0, surface = 0
-        cdef int* order_state = NULL
-        cdef float* order_first = NULL
-        cdef int* order_reached = NULL
-        cdef int* total_state = NULL
-        cdef float* total_first = NULL
-        cdef int* total_reached = NULL
-        cdef float* table = &self.table[0, 0] if self.table.shape[0] > 0 and n_ids > 0 else NULL
-        cdef double* mom = NULL
-        cdef float* el_min = NULL
-        cdef float* el_max = NULL
-        cdef const int* lut = &self.lut[0] if n_lut > 0 else NULL
-        cdef const double* el_rows = &self.elevation_rows[0]
-        if label.shape[0] != m or distance.shape[0] != m or energy.shape[0] != m or beam.shape[0] != m:
-            raise ValueError("path set arrays of different lengths")
-        if n_pts + m > self.p_object.shape[0]:
-            raise ValueError("more paths than the point buffers hold")
-        if order_map >= self.n_maps - 1:
-            raise ValueError(f"order map {order_map} of {self.n_maps - 1}")
-        if n_cells == 0:  # an empty window: no deposit
-            by_order = moments = False
-        if by_order:
-            order_state = &self.state[order_map, 0, 0]
-            order_first = &self.first[order_map, 0, 0]
-            order_reached = &self.reached[order_map, 0, 0]
-            n_order = self.n_reached[order_map]
-        if moments:
-            total_state = &self.state[self.n_maps - 1, 0, 0]
-            total_first = &self.first[self.n_maps - 1, 0, 0]
-            total_reached = &self.reached[self.n_maps - 1, 0, 0]
-            n_total = self.n_reached[self.n_maps - 1]
-            mom = &self.moments[0, 0, 0]
-            el_min = &self.el_min[0, 0]
-            el_max = &self.el_max[0, 0]
-        with nogil:
-            for k in range(m):
-                i = ray[k]
-                surface = sid[i]
-                if not 0 <= surface < n_lut:
-                    bad = True
-                    break
-                ident = lut[surface]
-                if by_order or moments:
-                    c_up = spread and neighbours(&points[0, 0], &normals[0, 0], &key[0], &ray[0], &energy[0], m, k, n_el)
-                    x = (distance[k] - range_min) / dr
-                    x_up = (distance[k + 1] - range_min) / dr if c_up else 0.0
-                    # A path without energy lands nowhere (as in the twin's range cells): it
-                    # would start a cell's elevation extremes without being part of its echo.
-                    if energy[k] != 0 and range_cell(x, x_dn, x_up, c_dn, c_up, energy[k], nb, &lo, &hi,
-                                                     &density):
-                        if i >= column_end:  # rays ascend: one division per column of the fan
-                            column = i - i % n_el
-                            column_end = column + n_el
-                        el = el_rows[i - column]
-                        elf = <float>el  # the outputs are float32: the extremes of the rounded values
-                        b_end = bin_end(hi)
-                        for b in range(<Py_ssize_t>lo, b_end):
-                            part = density * ((hi if hi < b + 1.0 else b + 1.0) - (lo if lo > b else <double>b))
-                            pf = <float>part
-                            cell = b * n_beams + beam[k]
-                            if by_order:
-                                add_to_map(order_state, order_first, table, n_ids, &n_slots, order_reached,
-                                           &n_order, cell, b, beam[k], ident, pf)
-                            if moments:
-                                if add_to_map(total_state, total_first, table, n_ids, &n_slots, total_reached,
-                                              &n_total, cell, b, beam[k], ident, pf):
-                                    mom[2 * cell] = part  # first reached: the moments start here
-                                    mom[2 * cell + 1] = part * el
-                                    el_min[cell] = elf
-                                    el_max[cell] = elf
-                                else:
-                                    mom[2 * cell] += part
-                                    mom[2 * cell + 1] += part * el
-                                    # Equal values are equal bits (one elevation per fan row).
-                                    el_min[cell] = el_min[cell] if el_min[cell] < elf else elf
-                                    el_max[cell] = el_max[cell] if el_max[cell] > elf else elf
-                    c_dn = c_up
-                    x_dn = x
-                # The bin floor((d - min) / dr) is in [0, n) exactly when v is: no floor() call.
-                v = (distance[k] - image_min) / dr
-                if v >= 0.0 and v < n_image and energy[k] != 0:
-                    self.p_world[n_pts, 0] = <float>points[i, 0]
-                    self.p_world[n_pts, 1] = <float>points[i, 1]
-                    self.p_world[n_pts, 2] = <float>points[i, 2]
-                    self.p_object[n_pts] = ident
-                    self.p_component[n_pts] = label[k]
-                    self.p_cell[n_pts, 0] = <int>v
-                    self.p_cell[n_pts, 1] = beam[k]
-                    n_pts += 1
-        self.n_slots = n_slots
-        self.n_points = n_pts
-        if by_order:
-            self.n_reached[order_map] = n_order
-        if moments:
-            self.n_reached[self.n_maps - 1] = n_total
-        if bad:
-            raise ValueError(f"a path on surface {surface}, not one of the {n_lut}")
-
-    def finish(self, int[:, ::1] objects, int[:, ::1] planes, int n_objects, float[:, ::1] elevation,
-               int[:, ::1] boxes, Py_ssize_t row_offset):
-        """Resolve every map's reached cells in place and write the total's mean elevation and boxes.
-
-        Each cell takes its dominant id (ties: the lower id; -1 where no id brought energy).
-        With ``objects`` / ``planes`` (windows, -1 filled; empty: not formed), map 0 (the first
-        order) also gives the dominant object and the dominant plane of each cell, and its own
-        value is the stronger of the two (a tie: the object). ``elevation`` (window, NaN
-        filled) receives weighted / weight where the total has paths (0 / 0: NaN, no weight);
-        ``boxes`` (n_ids, 4, -1 filled) the inclusive ``[row, beam, row, beam]`` extent of each
-        id's cells in the total, rows shifted by ``row_offset``.
-        """
-        cdef Py_ssize_t mp, j, cell, n, n_b = self.n_beams, n_ids = self.n_ids
-        cdef int s, best, obj, gnd, r, c
-        cdef float to, tg
-        cdef bint split = objects.shape[0] > 0, both, last
-        cdef int* st
-        cdef float* fs
-        cdef const int* cells
-        cdef const float* row
-        cdef const float* table = &self.table[0, 0] if self.table.shape[0] > 0 and n_ids > 0 else NULL
-        cdef int* o_out = NULL
-        cdef int* g_out = NULL
-        cdef float* el_out = NULL
-        cdef const double* mom = NULL
-        cdef int* box = NULL
-        if boxes.shape[0] != n_ids or boxes.shape[1] != 4:
-            raise ValueError("boxes of the wrong shape")
-        if (elevation.shape[0] != self.n_rows or elevation.shape[1] != n_b or split
-                and (objects.shape[0] != self.n_rows or planes.shape[0] != self.n_rows
-                     or objects.shape[1] != n_b or planes.shape[1] != n_b)):
-            raise ValueError("output windows of the wrong shape")
-        if self.n_rows * n_b == 0:
-            return
-        el_out = &elevation[0, 0]
-        mom = &self.moments[0, 0, 0]
-        if n_ids > 0:
-            box = &boxes[0, 0]
-        if split:
-            o_out = &objects[0, 0]
-            g_out = &planes[0, 0]
-        with nogil:
-            for mp in range(self.n_maps):
-                st = &self.state[mp, 0, 0]
-                fs = &self.first[mp, 0, 0]
-                cells = &self.reached[mp, 0, 0]
-                n = self.n_reached[mp]
-                both = split and mp == 0
-                last = mp == self.n_maps - 1
-                for j in range(n):
-                    r = cells[2 * j]
-                    c = cells[2 * j + 1]
-                    cell = r * n_b + c
-                    s = st[cell]
-                    if s >= 0:
-                        best = s if fs[cell] > 0 else -1
-                        obj = best if best < n_objects else -1
-                        gnd = best if best >= n_objects else -1
-                    else:
-                        row = table + (-2 - <Py_ssize_t>s) * n_ids
-                        if both:
-                            obj = strongest(row, 0, n_objects, &to)
-                            gnd = strongest(row, n_objects, n_ids, &tg)
-                            best = gnd if tg > to else obj
-                        else:
-                            best = strongest(row, 0, n_ids, &to)
-                    st[cell] = best
-                    if both:
-                        o_out[cell] = obj
-                        g_out[cell] = gnd
-                    if last:
-                        el_out[cell] = <float>(mom[2 * cell + 1] / mom[2 * cell])
-                        if best >= 0:
-                            r += <int>row_offset
-                            if box[4 * best] < 0:
-                                box[4 * best] = r
-                                box[4 * best + 1] = c
-                                box[4 * best + 2] = r
-                                box[4 * best + 3] = c
-                            else:
-                                box[4 * best] = r if r < box[4 * best] else box[4 * best]
-                                box[4 * best + 1] = c if c < box[4 * best + 1] else box[4 * best + 1]
-                                box[4 * best + 2] = r if r > box[4 * best + 2] else box[4 * best + 2]
-                                box[4 * best + 3] = c if c > box[4 * best + 3] else box[4 * best + 3]
-
-
-cdef inline bint row_lit(const float[:, :, ::1] stack, Py_ssize_t r, Py_ssize_t n_l, Py_ssize_t n_b) noexcept nogil:
-    """Whether range bin ``r`` of any row of the stack is not 0 (NaN counts, as in ndarray.any;
-    -0.0 does not). An OR over the bits without the sign: no branch per value, so it vectorises."""
-    cdef Py_ssize_t l, b
-    cdef unsigned int bits
-    cdef const unsigned int* values
-    for l in range(n_l):
-        values = <const unsigned int*>&stack[l, r, 0]
-        bits = 0
-        for b in range(n_b):
-            bits |= values[b] & 0x7fffffffu
-        if bits:
-            return True
-    return False
-
-
-def lit_rows(const float[:, :, ::1] stack):
-    """``[first, end)`` of the range bins where the image stack ``(rows, n_r, n_b)`` is not 0
-    (twin: ``renderer.ground_truth.lit_rows``): a scan from each end that stops at the first
-    lit bin, instead of reading the whole stack."""
-    cdef Py_ssize_t n_l = stack.shape[0], n_r = stack.shape[1], n_b = stack.shape[2], r, first = -1, end = 0
-    if n_l == 0 or n_b == 0:
-        return 0, 0
-    with nogil:
-        for r in range(n_r):
-            if row_lit(stack, r, n_l, n_b):
-                first = r
-                break
-        if first >= 0:
-            r = n_r - 1
-            while r >= first:
-                if row_lit(stack, r, n_l, n_b):
-                    end = r + 1
-                    break
-                r -= 1
-    if first < 0:
-        return 0, 0
-    return first, end
 
 
 def id_extents(const int[::1] ids, const int[:, ::1] extents, int[:, ::1] out):

@@ -85,6 +85,7 @@ class Workspace:
         self.chains: tuple | None = None  # (planes, key, chains, remap), _frame_chains()
         self.options: tuple | None = None  # (planes, chains, n_gen, max_order, double_beam, arrays), _options()
         self.legs_pool, self.paths_pool = ArrayPool(), ArrayPool()  # the frames' legs and path buffers
+        self.labels_scratch = LabelScratch()
 
 
 def beam_blocks(n_beams: int, n_blocks: int) -> tuple[tuple[int, int], ...]:
@@ -360,7 +361,7 @@ class PathBuffer:
 def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: RayFan, work: Workspace,
                  laws: SurfaceLaws, render: RenderSettings, reach_m: float, n_generations: int, table,
                  n_surfaces: int, stack: np.ndarray, pool=None, occlusion=None, textures: tuple = (),
-                 sum_rows: tuple[int, ...] = ()):
+                 sum_rows: tuple[int, ...] = (), labels=None):
     """The whole compiled frame in blocks of beams (:class:`~sonarsim.renderer._kernels.PathBlocks`):
     receive legs, paths, and the image stack.
 
@@ -379,6 +380,10 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
         Receives the image stack (its content is overwritten).
     sum_rows : tuple of int
         Stack rows whose sum is the frame's total, added by the blocks where they splat.
+    labels : sonarsim.renderer.ground_truth.LabelSpec, optional
+        Form the frame's ground truth in the same pass: each block deposits its paths into the
+        label maps as it splats them (:class:`FrameTruth`). Not where the blocks do not splat
+        (``double_beam: split``, ``double_line_of_sight``): the caller forms it from ``sets``.
 
     Returns
     -------
@@ -389,6 +394,8 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
         The frame's chains, canonically numbered (the ids of ``sets``).
     total : (n_range_bins, n_beams) float32 ndarray or None
         The sum of ``sum_rows`` (as ``components._sum_rows`` adds them), or None: not formed.
+    truth : tuple or None
+        With ``labels``, :meth:`FrameTruth.finish`'s maps where they were formed in the pass.
     """
     laws = SurfaceLaws.of(laws)
     engine = path_engine(caster, work, fan, laws, planes)
@@ -452,11 +459,20 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
         buffer = PathBuffer(options, offset, size, len(blocks), work.paths_pool)
         total = np.empty(stack.shape[1] * stack.shape[2], np.float32) if in_blocks and sum_rows else None
         rank = np.arange(len(table), dtype=np.int32)  # canonical ids are ranks (ChainTable.key)
+        truth, deposit = None, ()
+        if labels is not None and in_blocks:
+            truth = FrameTruth(size, labels, (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins,
+                                              n_beams), render.range_splat, blocks, work.labels_scratch)
+            deposit = (truth.maps, *truth.option_maps(options[3]))
         engine.options(remap, rank, *options, buffer.offset, buffer.count, buffer.ray, buffer.distance,
-                       buffer.energy, buffer.beam, buffer.beam_tx, buffer.label, in_blocks, total, tuple(sum_rows))
+                       buffer.energy, buffer.beam, buffer.beam_tx, buffer.label, in_blocks, total, tuple(sum_rows),
+                       *deposit)
         on_both_cores(lambda k: engine.paths(k, *blocks[k]), len(blocks), pool)
     finally:
         engine.release()
+    if truth is not None:
+        truth.maps.compact(buffer.offset)
+        truth = truth.finish()
     legs = legs_out.legs(work)
     sets = functools.partial(buffer.sets, render.double_beam)
     if not in_blocks:
@@ -468,7 +484,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
                                                                  sonar.n_range_bins, n_beams), render.range_splat,
                     stack)
         sets = functools.partial(lambda s: s, frame_sets)
-    return legs, sets, table, None if total is None else total.reshape(stack.shape[1:])
+    return legs, sets, table, None if total is None else total.reshape(stack.shape[1:]), truth
 
 
 def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, spread: bool, out: np.ndarray) -> None:
@@ -484,89 +500,157 @@ def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, 
 
 
 
-def frame_truth(sets, legs, n_surfaces: int, lut: np.ndarray, elevation_deg: np.ndarray, n_objects: int,
-                geometry: tuple, rows: tuple[int, int], max_order: int, bounces: tuple[int, ...], spread: bool,
-                components: bool) -> tuple:
-    """The label maps and points of a frame with ``_kernels.LabelMaps``: one pass per path set,
-    then one over the reached cells (twin: ``sonarsim.renderer.ground_truth._frame_truth``,
-    which takes the same arguments: dense stacks and ``dominant``).
+class LabelScratch:
+    """The label maps' scratch, kept between frames: the dominance state of every cell of every
+    map (-1 throughout while the scratch is not in use: each frame's ``LabelMaps.finish`` sets
+    it back to -1, so no frame fills it), the reached lists, the table of mixed cells and the
+    moments (uninitialised; written where first reached).
+    """
+
+    def __init__(self) -> None:
+        self._arrays: dict | None = None
+        self._clean = False
+
+    def take(self, n_maps: int, n_cells: int, n_ids: int) -> dict:
+        """Arrays for ``n_maps`` maps of ``n_cells`` cells and ``n_ids`` ids; new ones (their
+        state filled) unless the kept ones fit and the last frame gave them back clean."""
+        a = self._arrays
+        if (a is None or not self._clean or a["cells"].shape[0] < n_maps or a["cells"].shape[1] != 2 * n_cells
+                or a["table"].shape[1] != n_ids):
+            a = self._arrays = {"cells": np.full((n_maps, 2 * n_cells), -1, np.int32),
+                                "reached": np.empty((n_maps, n_cells), np.int32),
+                                "table": np.empty((n_maps * n_cells, n_ids), np.float32),
+                                "moments": np.empty(3 * n_cells)}
+        self._clean = False  # until every block has finished (a failed frame leaves it dirty)
+        return a
+
+    def give_back(self) -> None:
+        """Every block finished: the state is -1 again."""
+        self._clean = True
+
+
+class FrameTruth:
+    """The ground truth of one frame being formed: ``_kernels.LabelMaps`` with its outputs and
+    scratch (twin: ``sonarsim.renderer.ground_truth._frame_truth``: dense stacks and ``dominant``).
+
+    Deposited in the frame's own pass by the blocks as they splat (:func:`render_paths` with
+    ``labels``), or afterwards from path sets (:meth:`add`, one block of every beam).
+
+    Parameters
+    ----------
+    n_paths : int
+        Room for the points: at least the frame's paths (the path buffer's size).
+    spec : LabelSpec
+        What to form, and the surfaces' label ids.
+    geometry : (range_min_m, range_resolution_m, n_range_bins, n_beams)
+        The image's grid.
+    spread : bool
+    blocks : tuple of (int, int)
+        The engine's blocks of beams (default: one block of every beam, for :meth:`add`).
+    scratch : LabelScratch, optional
+        Kept between frames (default: a new one). The outputs are always new: the labels keep
+        them.
+    """
+
+    def __init__(self, n_paths: int, spec: "LabelSpec", geometry: tuple, spread: bool,
+                 blocks: tuple = (), scratch: LabelScratch | None = None) -> None:
+        range_min_m, dr, n_r, n_b = geometry
+        n_ids = len(spec.lut)
+        n_maps = spec.max_order + 1 if spec.components else 1  # the orders, then the total
+        blocks = blocks or ((0, n_b),)
+        self.spec, self.n_blocks = spec, len(blocks)
+        self._filled = False  # (the engine's blocks fill their rows as they form their paths)
+        self.scratch = scratch if scratch is not None else LabelScratch()
+        # Outputs: each block fills its share of rows with "nothing" (LabelMaps.fill), then
+        # resolves the cells its paths reached.
+        self.instance = np.empty((n_maps, n_r, n_b), np.int32)
+        self.split = np.empty((2, n_r if spec.components else 0, n_b), np.int32)
+        self.elevation = np.empty((3, n_r, n_b), np.float32)
+        self.boxes = np.full((len(blocks), n_ids, 4), -1, np.int32)
+        self.points = (np.empty((n_paths, 3), np.float32), np.empty(n_paths, np.int32), np.empty(n_paths, np.int8),
+                       np.empty((n_paths, 2), np.int32))
+        work = self.scratch.take(n_maps, n_r * n_b, n_ids)
+        edges = np.array([b0 for b0, _ in blocks] + [n_b], np.intp)
+        self.maps = _kernels.LabelMaps(self.instance, self.split[0], self.split[1], self.elevation, self.boxes,
+                                       work["cells"], work["reached"], work["table"], work["moments"],
+                                       np.ascontiguousarray(spec.lut, np.int32),
+                                       np.ascontiguousarray(spec.elevation_deg, np.float64), spread, range_min_m, dr,
+                                       edges, spec.n_objects, *self.points)
+
+    def option_maps(self, label: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per transmit option of image row ``label``: its order's map (-1: none) and whether it
+        enters the total (``PathBlocks.options``' ``order_map`` and ``moments``)."""
+        order = np.maximum(np.asarray(label, np.int32), 1)  # rows 0 (objects) and 1 (planes) are order 1
+        order_map = (order - 1 if self.spec.components else np.full(len(order), -1)).astype(np.int32)
+        moments = np.isin(order, self.spec.bounces).astype(np.uint8)
+        return order_map, moments
+
+    def add(self, sets, legs, n_surfaces: int) -> None:
+        """Deposit path sets formed after the frame (their receive legs ``legs[s.gen]``), one
+        block of every beam."""
+        if not self._filled:
+            self.maps.fill_rows(0)
+            self._filled = True
+        keys = {}
+        for s in sets:
+            if not len(s.ray):
+                continue
+            leg = legs[s.gen]
+            if s.gen not in keys:
+                keys[s.gen] = leg.key(n_surfaces)
+            order_map, moments = self.option_maps(s.label[:1])
+            self.maps.add(leg.point, leg.normal, keys[s.gen], leg.sid, s.ray, s.distance, s.energy, s.beam, s.label,
+                          int(order_map[0]), bool(moments[0]))
+
+    def finish(self) -> tuple:
+        """The resolved maps: ``(orders, objects, planes, total, elevation, boxes, points)``.
+
+        orders : (max_order, n_range_bins, n_beams) int32 ndarray
+            Dominant id per order (order 1: objects and planes together); empty without components.
+        objects, planes : (n_range_bins, n_beams) int32 ndarrays or None
+            The first order's dominant object and dominant plane (None without components).
+        total : (n_range_bins, n_beams) int32 ndarray
+        elevation : (3, n_range_bins, n_beams) float32 ndarray
+            Mean, least and greatest arrival elevation of the total's paths, degrees, NaN none.
+        boxes : (n_ids, 4) int32 ndarray
+            Boxes of the ids in ``total`` (see :func:`sonarsim.image.labels.boxes_of`).
+        points : tuple of (n, 3) float32, (n,) int32, (n,) int8 and (n, 2) int32 ndarrays
+            World position, id, component row and (bin, beam) of each path that lands in the image.
+        """
+        maps = self.maps
+        maps.check()
+        if self._filled:  # deposited by add(): resolved here (the engine's blocks resolve their own)
+            maps.finish(0)
+        if not maps.resolved():
+            raise ValueError("a block of the label maps was not resolved")
+        self.scratch.give_back()
+        n = maps.n_points
+        boxes = np.empty((len(self.spec.lut), 4), np.int32)
+        maps.united_boxes(boxes)
+        self.maps = None
+        objects, planes = (self.split[0], self.split[1]) if self.spec.components else (None, None)
+        return (self.instance[:-1], objects, planes, self.instance[-1], self.elevation, boxes,
+                tuple(p[:n] for p in self.points))
+
+
+def frame_truth(sets, legs, n_surfaces: int, spec: "LabelSpec", geometry: tuple, spread: bool) -> tuple:
+    """The label maps and points of a frame from its path sets, formed after the frame: one
+    pass per path set, then one over the reached cells (:meth:`FrameTruth.finish`'s tuple;
+    twin: ``sonarsim.renderer.ground_truth._frame_truth``, which takes the same arguments).
 
     Parameters
     ----------
     sets, legs : the frame's path sets and receive legs
     n_surfaces : int
         Planes + objects (for :meth:`Leg.key`).
-    lut : (n_surfaces,) int32 ndarray
-        Label id of each surface id.
-    elevation_deg : (n_elevation,) float64 ndarray
-        Arrival elevation of each row of the fan, degrees.
-    n_objects : int
-        Ids below it are objects, the others planes.
+    spec : LabelSpec
     geometry : (range_min_m, range_resolution_m, n_range_bins, n_beams)
         The image's grid.
-    rows : (int, int)
-        ``[first, end)`` of the range bins where paths may deposit (the lit rows).
-    max_order : int
-    bounces : tuple of int
-        Orders of the total.
     spread : bool
-    components : bool
-        Also form a map per order (and the first order's objects and planes).
-
-    Returns
-    -------
-    orders : (max_order, n_range_bins, n_beams) int32 ndarray
-        Dominant id per order (order 1: objects and planes together); empty without components.
-    objects, planes : (n_range_bins, n_beams) int32 ndarrays or None
-        The first order's dominant object and dominant plane (None without components).
-    total : (n_range_bins, n_beams) int32 ndarray
-    elevation : (3, n_range_bins, n_beams) float32 ndarray
-        Mean, least and greatest arrival elevation of the total's paths, degrees, NaN none.
-    boxes : (n_ids, 4) int32 ndarray
-        Boxes of the ids in ``total`` (see :func:`sonarsim.image.labels.boxes_of`).
-    points : tuple of (n, 3) float32, (n,) int32, (n,) int8 and (n, 2) int32 ndarrays
-        World position, id, component row and (bin, beam) of each path that lands in the image.
     """
-    range_min_m, dr, n_r, n_b = geometry
-    r0, r1 = rows
-    n_w = max(r1 - r0, 0)
-    n_ids = len(lut)
-    n_maps = max_order + 1 if components else 1  # the orders, then the total
-    # Outputs filled once; the kernel writes only the cells that paths reach.
-    instance = np.full((n_maps, n_r, n_b), -1, np.int32)
-    split = np.full((2, n_r if components else 0, n_b), -1, np.int32)
-    elevation = np.full((3, n_r, n_b), np.nan, np.float32)
-    n_paths = sum(len(s.ray) for s in sets)
-    points = (np.empty((n_paths, 3), np.float32), np.empty(n_paths, np.int32), np.empty(n_paths, np.int8),
-              np.empty((n_paths, 2), np.int32))
-    # Scratch left uninitialised: the kernel writes a cell's entries when it first reaches it,
-    # and a row of the table only for a cell where a second id arrives (so none is filled).
-    truth = _kernels.LabelMaps(
-        instance[:, r0:r1], np.empty((n_maps, n_w, n_b), np.float32), np.empty((n_maps, n_w * n_b, 2), np.int32),
-        np.zeros(n_maps, np.intp), np.empty((n_maps * n_w * n_b, n_ids), np.float32), np.empty((n_w, n_b, 2)),
-        elevation[1, r0:r1], elevation[2, r0:r1], np.ascontiguousarray(lut, np.int32),
-        np.ascontiguousarray(elevation_deg, np.float64), spread, range_min_m + r0 * dr, dr, range_min_m, n_r, *points)
-    keys = {}
-    for s in sets:
-        if not len(s.ray):
-            continue
-        leg = legs[s.gen]
-        if s.gen not in keys:
-            keys[s.gen] = leg.key(n_surfaces)
-        order = max(int(s.label[0]), 1)  # labels 0 (objects) and 1 (planes) are order 1
-        truth.add(leg.point, leg.normal, keys[s.gen], leg.sid, s.ray, s.distance, s.energy, s.beam, s.label,
-                  order - 1 if components else -1, order in bounces)
-    boxes = np.full((n_ids, 4), -1, np.int32)
-    truth.finish(split[0, r0:r1], split[1, r0:r1], n_objects, elevation[0, r0:r1], boxes, r0)
-    n = truth.n_points
-    objects, planes = (split[0], split[1]) if components else (None, None)
-    return instance[:-1], objects, planes, instance[-1], elevation, boxes, tuple(p[:n] for p in points)
-
-
-def lit_rows(stack: np.ndarray) -> tuple[int, int]:
-    """``_kernels.lit_rows`` (float32 C-contiguous stacks) with the result of its twin
-    :func:`sonarsim.renderer.ground_truth.lit_rows`."""
-    return _kernels.lit_rows(stack)
+    truth = FrameTruth(sum(len(s.ray) for s in sets), spec, geometry, spread)
+    truth.add(sets, legs, n_surfaces)
+    return truth.finish()
 
 
 def id_extents(ids: np.ndarray, extents: np.ndarray, n_ids: int) -> np.ndarray:

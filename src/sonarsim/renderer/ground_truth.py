@@ -12,16 +12,22 @@ has a value exactly where its component's image has energy. Per path set:
 
 Two routes give the same labels. The NumPy route (:func:`splat_truth`, then :func:`dominant`)
 forms a dense energy stack ``(n_ids, n_range_bins, n_beams)`` per order and is the reference.
-The compiled route (:func:`sonarsim.renderer.compiled.frame_truth`) never forms them: a cell
-keeps the first id that deposits and its float32 sum, and only a cell where a second id
-arrives gets a row of per-id sums; the same float32 additions in the same order, so the same
-dominant ids, ties included, at a fraction of the memory traffic.
+The compiled route (``_kernels.LabelMaps``, :class:`sonarsim.renderer.compiled.FrameTruth`)
+never forms them: a cell keeps the first id that deposits and its float32 sum, and only a
+cell where a second id arrives gets a row of per-id sums; the same float32 additions in the
+same order, so the same dominant ids, ties included, at a fraction of the memory traffic. The
+compiled engine deposits in the frame's own pass, each block of beams as it splats its paths
+(the very range cells and float32 parts of the image); where the blocks do not splat
+(``double_beam: split``, ``double_line_of_sight``) and with the NumPy kernels the labels are
+formed from the frame's path sets after it (:func:`frame_labels`), in the same order.
 
 The points are each path's scatterer, surface, image row and cell. No Python loop per ray:
 one per path set (a handful per frame) and one per id.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -165,73 +171,87 @@ def require_label_maps(n_ids: int, max_order: int, n_rows: int, n_beams: int, co
     require((n_maps * n_ids * 4.0 + 4 * 8.0) * n_rows * n_beams, f"label maps of {n_ids} surfaces x {max_order} orders",
             key)
 
+@dataclass(frozen=True)
+class LabelSpec:
+    """What ground truth a frame forms, and the label ids of its surfaces.
+
+    Attributes
+    ----------
+    lut : (n_surfaces,) int32 ndarray
+        Label id of each surface id (:func:`surface_ids`: objects ``0 .. K-1``, then planes).
+    elevation_deg : (n_elevation,) float64 ndarray
+        Arrival elevation of each elevation row of the fan, degrees.
+    n_objects : int
+        Label ids below it are objects, the others planes.
+    max_order : int
+    bounces : tuple of int
+        Orders of the total.
+    components : bool
+        Also an instance map per order (and the first order's objects and planes).
+    """
+
+    lut: np.ndarray
+    elevation_deg: np.ndarray
+    n_objects: int
+    max_order: int
+    bounces: tuple[int, ...]
+    components: bool = True
+
+    @classmethod
+    def of(cls, fan: RayFan, n_objects: int, n_planes: int, max_order: int, bounces: tuple[int, ...],
+           components: bool = True) -> LabelSpec:
+        """The spec of a frame whose rays are ``fan`` (their elevations are the arrival elevations)."""
+        lut = surface_ids(np.arange(n_planes + n_objects), n_planes, n_objects)  # one gather per set
+        return cls(lut, np.degrees(fan.elevation_rad), int(n_objects), int(max_order), tuple(bounces),
+                   bool(components))
+
+
 def frame_labels(
-    sets: list[PathSet],
-    legs: list[Leg],
-    fan: RayFan,
+    sets: list[PathSet] | None,
+    legs: list[Leg] | None,
+    spec: LabelSpec,
     sonar: SonarConfig,
     object_names: tuple[str, ...],
     plane_names: tuple[str, ...],
-    max_order: int,
-    bounces: tuple[int, ...],
     spread: bool,
     kernels: str,
-    rows: tuple[int, int] | None = None,
-    components: bool = True,
+    formed: tuple | None = None,
 ) -> Labels:
     """The :class:`~sonarsim.image.labels.Labels` of a frame from its paths.
 
     Parameters
     ----------
     sets : list of PathSet
-        Every path set of the frame (as the image was formed from them).
+        Every path set of the frame (as the image was formed from them); unused with ``formed``.
     legs : list of Leg
         Its receive legs (``legs[s.gen]`` for each set).
-    fan : RayFan
-        The rays the legs were traced along (their elevations are the arrival elevations).
+    spec : LabelSpec
+        What to form (the surfaces' ids, the orders, components or the total only).
     sonar : SonarConfig
         The image's grid: range window, bins, beams.
     object_names, plane_names : tuple of str
         Surfaces: object ``k`` is surface ``P + k``, plane ``p`` surface ``p``.
-    max_order : int
-    bounces : tuple of int
-        Orders of the total.
     spread : bool
         ``render.range_splat``.
     kernels : {'compiled', 'numpy'}
         The route (see the module docstring): the compiled one sums float32 as the image
         stack does, the NumPy one float64, so a near tie may go either way between them.
-    rows : (int, int), optional
-        ``[first, end)`` range bins outside which no path deposits energy (the image's lit
-        rows, :func:`lit_rows`): paths deposit in these rows only, the rest of every map is
-        "nothing". Default: the whole window.
-    components : bool
-        Form the instance map of every component; ``False``: of the total only (no per-order
-        maps: about two thirds of the time on the demo tank).
+    formed : tuple, optional
+        The maps already formed in the frame's own pass (``compiled.render_paths`` with
+        ``labels``): ``(orders, objects, planes, total, elevation, boxes, points)``.
 
     Returns
     -------
     Labels
     """
     n_obj, n_pl = len(object_names), len(plane_names)
-    n_ids = n_obj + n_pl
-    n_r, n_b = sonar.n_range_bins, sonar.n_beams
-    r0, r1 = (0, n_r) if rows is None else (int(rows[0]), int(rows[1]))
-    n_w = max(r1 - r0, 0)
-    dr, range_min_m = sonar.range_resolution_m, sonar.range_min_m  # (properties: computed on each access)
-    require_label_maps(n_ids, max_order, n_w, n_b, components)
-    lut = surface_ids(np.arange(n_pl + n_obj), n_pl, n_obj)  # surface id -> label id, one gather per set
-    elevation_deg = np.degrees(fan.elevation_rad)
-    if kernels == "compiled" and compiled.AVAILABLE:
-        orders, obj, gnd, total, maps, boxes, points = compiled.frame_truth(
-            sets, legs, n_obj + n_pl, lut, elevation_deg, n_obj, (range_min_m, dr, n_r, n_b), (r0, r1), max_order,
-            bounces, spread, components)
-    else:
-        orders, obj, gnd, total, maps, boxes, points = _frame_truth(
-            sets, legs, n_obj + n_pl, lut, elevation_deg, n_obj, (range_min_m, dr, n_r, n_b), (r0, r1), max_order,
-            bounces, spread, components)
+    geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
+    if formed is None:
+        route = compiled.frame_truth if kernels == "compiled" and compiled.AVAILABLE else _frame_truth
+        formed = route(sets, legs, n_obj + n_pl, spec, geometry, spread)
+    orders, obj, gnd, total, maps, boxes, points = formed
     instance = {}
-    for comp in component_table(max_order) if components else ():
+    for comp in component_table(spec.max_order) if spec.components else ():
         if comp.name == "object":
             instance[comp.name] = obj
         elif comp.name == "ground":
@@ -249,36 +269,34 @@ def frame_labels(
         points_object=points[1],
         points_component=points[2],
         points_cell=points[3],
-        point_components=point_component_names(max_order),
+        point_components=point_component_names(spec.max_order),
         boxes_polar=boxes,
     )
 
 
-def _frame_truth(sets: list[PathSet], legs: list[Leg], n_surfaces: int, lut: np.ndarray,
-                 elevation_deg: np.ndarray, n_obj: int, geometry: tuple, rows: tuple[int, int], max_order: int,
-                 bounces: tuple[int, ...], spread: bool, components: bool) -> tuple:
+def _frame_truth(sets: list[PathSet], legs: list[Leg], n_surfaces: int, spec: LabelSpec, geometry: tuple,
+                 spread: bool) -> tuple:
     """The NumPy route of :func:`frame_labels` (twin of :func:`compiled.frame_truth`, whose
-    arguments and results it takes): a dense float64 energy stack ``(ids, rows, beams)`` per
+    arguments and results it takes): a dense float64 energy stack ``(ids, bins, beams)`` per
     order and for the total, then :func:`dominant` of each."""
     range_min_m, dr, n_r, n_b = geometry
-    r0, r1 = rows
-    n_w = max(r1 - r0, 0)
+    lut, elevation_deg, n_obj = spec.lut, spec.elevation_deg, spec.n_objects
+    max_order, bounces, components = spec.max_order, spec.bounces, spec.components
     n_ids = len(lut)
     n_el = len(elevation_deg)
-    # The sub-window [r0, r1): its cells are the whole window's, shifted (no energy beyond it).
-    truth = _Truth(legs, n_surfaces, n_el, (range_min_m + r0 * dr, dr, n_w, n_b), spread)
+    truth = _Truth(legs, n_surfaces, n_el, geometry, spread)
     # Rows 0 .. max_order - 1 per order (when the components' maps are formed), the last the total.
-    energy = np.zeros((max_order + 1 if components else 1, n_ids, n_w, n_b))
+    energy = np.zeros((max_order + 1 if components else 1, n_ids, n_r, n_b))
     no_order = energy[:0].reshape(-1)
     # The total's energy and energy x elevation, and the running extremes, per cell.
-    acc = (np.zeros(n_w * n_b), np.zeros(n_w * n_b), np.full(n_w * n_b, np.nan), np.full(n_w * n_b, np.nan))
+    acc = (np.zeros(n_r * n_b), np.zeros(n_r * n_b), np.full(n_r * n_b, np.nan), np.full(n_r * n_b, np.nan))
     points, ids_out, rows_out, cells_out = [], [], [], []
     for s in sets:
         if not len(s.ray):
             continue
         ident = lut[legs[s.gen].sid[s.ray]]
         order = max(int(s.label[0]), 1)  # rows 0 (objects) and 1 (planes) are order 1
-        if n_w and (components or order in bounces):
+        if n_r * n_b and (components or order in bounces):
             truth(s, ident, elevation_deg[s.ray % n_el], energy[order - 1] if components else no_order,
                   order in bounces, (energy[-1].reshape(-1),) + acc)
         b = np.floor((s.distance - range_min_m) / dr)
@@ -288,35 +306,28 @@ def _frame_truth(sets: list[PathSet], legs: list[Leg], n_surfaces: int, lut: np.
         rows_out.append(s.label[keep])
         cells_out.append(np.stack([b[keep].astype(np.int32), s.beam[keep]], axis=1))
 
-    def full(window):  # the whole image's map: "nothing" outside the lit rows
-        out = np.full((n_r, n_b), -1, np.int32)
-        out[r0:r1] = window
-        return out
-
     orders, obj, gnd = np.zeros((0, n_r, n_b), np.int32), None, None
     if components:
-        o, o_top = dominant(energy[0, :n_obj], 0)
-        g, g_top = dominant(energy[0, n_obj:], n_obj)
-        single = np.where(g_top > o_top, g, o)  # a tie goes to the object (lower id)
-        orders = np.stack([full(single)] + [full(dominant(energy[k], 0)[0]) for k in range(1, max_order)])
-        obj, gnd = full(o), full(g)
-    window = dominant(energy[-1], 0)[0]
-    boxes = boxes_of(window, n_ids)  # on the lit rows; shifted to the window's bins below
-    boxes[boxes[:, 0] >= 0, 0::2] += r0
+        obj, o_top = dominant(energy[0, :n_obj], 0)
+        gnd, g_top = dominant(energy[0, n_obj:], n_obj)
+        single = np.where(g_top > o_top, gnd, obj)  # a tie goes to the object (lower id)
+        orders = np.stack([single] + [dominant(energy[k], 0)[0] for k in range(1, max_order)])
+    total = dominant(energy[-1], 0)[0]
+    boxes = boxes_of(total, n_ids)
 
     weight, weighted, el_min, el_max = acc
     maps = np.full((3, n_r, n_b), np.nan, np.float32)
     with np.errstate(invalid="ignore", divide="ignore"):  # NaN where nothing lands (0 / 0)
-        np.divide(weighted, weight, out=maps[0, r0:r1].reshape(-1), casting="same_kind")
-    maps[1, r0:r1] = el_min.reshape(n_w, n_b)
-    maps[2, r0:r1] = el_max.reshape(n_w, n_b)
+        np.divide(weighted, weight, out=maps[0].reshape(-1), casting="same_kind")
+    maps[1] = el_min.reshape(n_r, n_b)
+    maps[2] = el_max.reshape(n_r, n_b)
 
     def cat(parts, shape, dt):
         return np.concatenate(parts).astype(dt) if parts else np.zeros(shape, dt)
 
     points = (cat(points, (0, 3), np.float32), cat(ids_out, (0,), np.int32), cat(rows_out, (0,), np.int8),
               cat(cells_out, (0, 2), np.int32))
-    return orders, obj, gnd, full(window), maps, boxes, points
+    return orders, obj, gnd, total, maps, boxes, points
 
 
 def dominant(energy: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
@@ -345,18 +356,3 @@ def dominant(energy: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
         np.copyto(best, np.int32(k + offset), where=win)
         np.maximum(top, energy[k], out=top)
     return best, top
-
-
-def lit_rows(stack: np.ndarray, kernels: str = "compiled") -> tuple[int, int]:
-    """``[first, end)`` of the range bins where an image stack ``(rows, n_r, n_b)`` has energy.
-
-    The labels deposit each path's energy in the cells the image gave it, so no label has
-    energy outside these bins; ``(0, 0)`` for a dark frame. With ``kernels='compiled'`` (and a
-    float32 C-contiguous stack) ``_kernels.lit_rows`` scans in from both ends and stops at the
-    first lit bin; this is its twin, which reads the whole stack.
-    """
-    if (kernels == "compiled" and compiled.AVAILABLE and stack.dtype == np.float32 and stack.ndim == 3
-            and stack.flags.c_contiguous):
-        return compiled.lit_rows(stack)
-    lit = np.flatnonzero(stack.any(axis=(0, 2)))
-    return (int(lit[0]), int(lit[-1]) + 1) if len(lit) else (0, 0)

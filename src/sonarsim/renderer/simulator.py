@@ -46,7 +46,7 @@ from ..trace import available_cores, make_caster
 from ..trace.surfaces import trace
 from . import compiled
 from .components import component_table, frame_components, stack_rows, total_rows
-from .ground_truth import frame_labels, lit_rows
+from .ground_truth import LabelSpec, frame_labels, require_label_maps
 
 # Rays are cast this far past the range window so that range splatting sees the neighbour of a
 # ray that ends just inside it.
@@ -296,11 +296,14 @@ class Simulator:
         leg = Leg(0, hits.distance_m.reshape(-1), hits.surface_id.reshape(-1), hits.point.reshape(-1, 3),
                   hits.normal.reshape(-1, 3), self._intensity(fan, hits).reshape(-1), np.ones(fan.n_rays),
                   np.zeros(fan.n_rays, np.int32))
-        return stack, [leg], None, None, None
+        return stack, [leg], None, None, None, None
 
     def _render_paths(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float, active: np.ndarray,
-                      n_generations: int):
-        """``method: fast``: receive legs traced, transmit legs by image sources (any planes)."""
+                      n_generations: int, labels: LabelSpec | None = None):
+        """``method: fast``: receive legs traced, transmit legs by image sources (any planes).
+
+        Returns ``(stack, legs, sets, table, total, truth)``: ``truth`` the label maps where
+        the compiled engine formed them in the frame's own pass (``labels``), else None."""
         render = self.scene.render
         view = SonarView.of(sonar, pose)
         origin = view.origin
@@ -320,12 +323,12 @@ class Simulator:
         if self.kernels == "compiled":
             self._work = compiled.Workspace.for_fan(self._work, fan)
             stack = np.empty((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
-            legs, sets, table, total = compiled.render_paths(
+            legs, sets, table, total, truth = compiled.render_paths(
                 self.caster, self.planes, active, sonar, pose, fan, self._work, self._laws, render, reach,
                 n_generations, table, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
-                textures=self.textures, sum_rows=total_rows(render.bounces, render.max_order),
+                textures=self.textures, sum_rows=total_rows(render.bounces, render.max_order), labels=labels,
             )
-            return stack, legs, sets, table, total
+            return stack, legs, sets, table, total, truth
         directions = (fan.directions @ pose.rotation.T).reshape(-1, 3)
         legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._laws,
                           render.tvg, reach, n_generations, table, self.textures)
@@ -334,7 +337,7 @@ class Simulator:
         if occlusion is not None:
             sets = occlusion(sets, legs, table=table)
         stack = accumulate_paths(sets, legs, n_surfaces, fan.shape, geometry, rows, render.range_splat)
-        return stack.astype(np.float32), legs, sets, table, None
+        return stack.astype(np.float32), legs, sets, table, None, None
 
     def _signature_images(self, sonar: SonarConfig, fan: RayFan, legs, sets, table) -> dict[str, np.ndarray]:
         """One image per path signature (formed on demand; see :class:`Components`).
@@ -420,25 +423,29 @@ class Simulator:
         mirrors = active & (self.planes.specular > 0)
         multipath = render.max_order > 1 and bool(mirrors.any())
         reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
+        spec = None
+        if labels:
+            names = (tuple(o.name for o in self.scene.objects), tuple(p.name for p in self.scene.reflecting_planes))
+            spec = LabelSpec.of(fan, len(names[0]), len(names[1]), render.max_order, render.bounces,
+                                labels != "total")
+            require_label_maps(len(spec.lut), render.max_order, sonar.n_range_bins, sonar.n_beams, spec.components)
+        n_gen = render.max_order if multipath else 1
         if render.method == "paper" and multipath and self._ground_only:
-            stack, legs, sets, table, total = self._render_paper(sonar, pose, fan, reach)
+            stack, legs, sets, table, total, formed = self._render_paper(sonar, pose, fan, reach)
         else:
-            stack, legs, sets, table, total = self._render_paths(sonar, pose, fan, reach, active,
-                                                                 render.max_order if multipath else 1)
+            stack, legs, sets, table, total, formed = self._render_paths(sonar, pose, fan, reach, active, n_gen, spec)
         truth = None
         t2 = time.perf_counter()
         if labels:
-            lit, label_legs, label_sets = stack, legs, sets
+            label_legs, label_sets = legs, sets
             if sets is None:  # Algorithm 2 forms no paths: the general engine's, for the labels only
                 # (the frame's own legs and sets stay None: its signature images are the ground's)
-                lit, label_legs, label_sets, _, _ = self._render_paths(sonar, pose, fan, reach, active,
-                                                                       render.max_order if multipath else 1)
-            if callable(label_sets):
+                _, label_legs, label_sets, _, _, formed = self._render_paths(sonar, pose, fan, reach, active, n_gen,
+                                                                             spec)
+            if formed is None and callable(label_sets):
                 label_sets = label_sets()
-            truth = frame_labels(label_sets, label_legs, fan, image_sonar, tuple(o.name for o in self.scene.objects),
-                                 tuple(p.name for p in self.scene.reflecting_planes), render.max_order,
-                                 render.bounces, render.range_splat, self.kernels, lit_rows(lit, self.kernels),
-                                 components=labels != "total")
+            truth = frame_labels(label_sets, label_legs, spec, image_sonar, *names, render.range_splat, self.kernels,
+                                 formed)
         t3 = time.perf_counter()
         if sets is None:  # ground only: its four images are the four ground-only signatures
             rows = {c.name: stack[c.rows[0]] for c in component_table(render.max_order) if len(c.rows) == 1}
