@@ -552,7 +552,7 @@ class FrameTruth:
         them.
     """
 
-    def __init__(self, n_paths: int, spec: "LabelSpec", geometry: tuple, spread: bool,
+    def __init__(self, n_paths: int, spec, geometry: tuple, spread: bool,
                  blocks: tuple = (), scratch: LabelScratch | None = None) -> None:
         range_min_m, dr, n_r, n_b = geometry
         n_ids = len(spec.lut)
@@ -633,7 +633,7 @@ class FrameTruth:
                 tuple(p[:n] for p in self.points))
 
 
-def frame_truth(sets, legs, n_surfaces: int, spec: "LabelSpec", geometry: tuple, spread: bool) -> tuple:
+def frame_truth(sets, legs, n_surfaces: int, spec, geometry: tuple, spread: bool) -> tuple:
     """The label maps and points of a frame from its path sets, formed after the frame: one
     pass per path set, then one over the reached cells (:meth:`FrameTruth.finish`'s tuple;
     twin: ``sonarsim.renderer.ground_truth._frame_truth``, which takes the same arguments).
