@@ -16,7 +16,7 @@ all bounces), measured in one run on this machine:
 
 Usage::
 
-    python benchmarks/bench_dataset.py [--frames 120] [--labels all|total|none] [--json out.json]
+    python benchmarks/bench_dataset.py [--frames 120] [--labels total|all|none] [--json out.json]
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ def _rate(scenario, labels) -> float:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--frames", type=int, default=120)
-    p.add_argument("--labels", choices=("all", "total", "none"), default="all")
+    p.add_argument("--labels", choices=("all", "total", "none"), default="total")
     p.add_argument("--json", default=None)
     args = p.parse_args(argv)
     scenario = load_scenario(scenario_doc(args.frames))

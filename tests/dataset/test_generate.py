@@ -673,6 +673,11 @@ def test_label_modes(tmp_path):
     assert {"instance", "elevation_deg", "points_world", "points_object", "instance_object"} <= names["all"]
     assert {"instance", "elevation_deg", "points_world", "points_object"} <= names["total"]
     assert "instance_object" not in names["total"] and "instance" not in names["none"]
+    # The component images come with every per-component map (--labels all) only: the default
+    # (total) is issue 12's contract, and none the device image alone.
+    components = {"object", "ground", "single", "double", "triple", "total"}
+    assert components <= names["all"] and not components & (names["total"] | names["none"])
+    assert names["none"] == {"polar", "range_m", "azimuth_deg"}
     all_arrays, _ = read_npz(tmp_path / "all" / "frames/000000.npz")
     total_arrays, _ = read_npz(tmp_path / "total" / "frames/000000.npz")
     for name in ("polar", "instance", "elevation_deg", "points_world"):
@@ -689,9 +694,10 @@ def test_path_signature_images_are_stored_only_on_request(tmp_path):
     assert {"object", "ground", "single", "double", "triple", "total"} <= set(table)
     signature_names = set(frame.image.components.signatures)
     assert signature_names and not signature_names & set(arrays[False])  # the ground's bounces, by name
-    assert set(arrays[True]) == set(arrays[False]) | signature_names
+    assert not set(table) & set(arrays[False])  # the default: the device image and its labels
+    assert set(arrays[True]) == set(arrays[False]) | signature_names | set(table)
     for name in table:
-        np.testing.assert_array_equal(arrays[False][name], frame.image.components[name])
+        np.testing.assert_array_equal(arrays[True][name], frame.image.components[name])
     for name in signature_names:
         np.testing.assert_array_equal(arrays[True][name], frame.image.components[name])
     assert set(frame.arrays(signatures=True)) == set(arrays[True])

@@ -27,8 +27,8 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``dataset`` sub-command; sets ``func=cmd_dataset``."""
     p = subparsers.add_parser(
         "dataset", help="render a scenario's frames into a dataset folder (NPZ, manifest, COCO, ROS 2 bag)",
-        description="Render every frame of a scenario file into --out: frames/NNNNNN.npz (image, components, "
-        "labels), manifest.jsonl (pose, seed, files, sha256 per frame), dataset.json, coco.json (with labels: "
+        description="Render every frame of a scenario file into --out: frames/NNNNNN.npz (the image and its "
+        "labels; the component images with --labels all), manifest.jsonl (pose, seed, files, sha256 per frame), dataset.json, coco.json (with labels: "
         "object boxes on frames/NNNNNN_fan.png, written for it, or with --coco polar on frames/NNNNNN_polar.png) "
         "and optionally PNGs and a ROS 2 bag. Killed and started again with the same command, it "
         "keeps the frames that verify and makes the rest; a folder of another scenario or other options is "
@@ -53,17 +53,18 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--png", action="store_true", help="also write each frame's polar and fan images as PNG")
     p.add_argument("--seed", type=_seed, default=None, metavar="S",
                    help="replace the scenario's seed (every frame's draws come from it and the frame index)")
-    p.add_argument("--labels", choices=("all", "total", "none"), default="all",
-                   help="ground truth in each NPZ: an instance map per component (all, the default), of the total "
-                   "only (total: cheaper; elevation, points and boxes alike), or none")
+    p.add_argument("--labels", choices=("total", "all", "none"), default="total",
+                   help="what each NPZ holds besides the device image (polar, range_m, azimuth_deg): the total's "
+                   "instance map, the elevation maps, the points and the boxes (total, the default); also the "
+                   "component images and an instance map per component (all); or nothing more (none)"),
     p.add_argument("--coco", choices=("fan", "polar"), default="fan",
                    help="the image each frame's entry in coco.json names, and the pixels its boxes are in: fan "
                    "(default: frames/NNNNNN_fan.png, the fan at the range resolution, far range at the top) or polar "
                    "(frames/NNNNNN_polar.png: a column per beam, left-most first, a row per range bin, far range at "
                    "the top); that PNG is written with labels even without --png")
     p.add_argument("--signatures", action="store_true",
-                   help="also store one image per path signature (which planes each echo bounced off); the "
-                   "components (object, ground, single, double, ..., total) are always stored")
+                   help="also store one image per path signature (which planes each echo bounced off), and the "
+                   "component images (object, ground, single, double, ..., total)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=cmd_dataset)
     return p

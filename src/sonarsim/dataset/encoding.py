@@ -50,9 +50,11 @@ class DatasetOptions:
 
     Attributes
     ----------
-    labels : {"all", "total", "none"}
+    labels : {"total", "all", "none"}
         Ground truth from the renderer (stored in the NPZs, boxes in the manifest and
-        ``coco.json``): an instance map per component, of the total only, or none
+        ``coco.json``): the total's instance map, the elevation maps, the points and boxes
+        (``"total"``, the default: issue 12's contract), also the component images and an
+        instance map per component (``"all"``), or none (the device image alone)
         (:func:`~sonarsim.dataset.frames.label_mode`; ``True``/``False`` are taken for
         ``"all"``/``"none"``). A renderer without labels: ``"none"``.
     formats : tuple of str
@@ -61,15 +63,14 @@ class DatasetOptions:
         Write ``DIR/rosbag`` with this storage.
     signatures : bool
         Also store one image per path signature in the NPZs
-        (:func:`~sonarsim.dataset.frames.frame_arrays`); the component table's images are
-        always stored.
+        (:func:`~sonarsim.dataset.frames.frame_arrays`), and the component table's images.
     coco : {"fan", "polar"}
         The image of each frame that ``coco.json`` names, and whose pixels its boxes are in
         (:data:`COCO_IMAGES`); with ground truth that PNG is written even without ``png`` in
         ``formats``.
     """
 
-    labels: bool | str = "all"
+    labels: bool | str = "total"
     formats: tuple[str, ...] = ("npz",)
     rosbag: str | None = None
     signatures: bool = False
@@ -201,7 +202,7 @@ def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: in
         Digits of the frame number in file names.
     """
     t0 = time.perf_counter()
-    arrays = frame_arrays(image, options.signatures)
+    arrays = frame_arrays(image, options.signatures, components=options.labels == "all")
     config = dict(image.config)
     # A worker renders with its share of the cores: the scene's own setting goes in the file,
     # so that a frame's bytes do not depend on the number of workers.

@@ -196,7 +196,7 @@ def render_frame(spec: FrameSpec, cache: SimulatorCache, labels: bool | str = Tr
     return spec.render(cache.get(spec), **kwargs)
 
 
-def frame_arrays(image: SonarImage, signatures: bool = False) -> dict[str, np.ndarray]:
+def frame_arrays(image: SonarImage, signatures: bool = False, components: bool = True) -> dict[str, np.ndarray]:
     """The named arrays of a rendered frame, as a dataset's NPZ holds them.
 
     ``polar`` (n_range_bins, n_beams) float32, ``range_m`` (n_range_bins,) metres,
@@ -214,16 +214,19 @@ def frame_arrays(image: SonarImage, signatures: bool = False) -> dict[str, np.nd
         over the frame's paths each time (twice the labelled render on the demo tank) and,
         with the ground as the only mirror, repeat the table's images; with tank walls or a
         water surface they tell the bounces apart.
+    components : bool
+        The component table's images (a dataset stores them with ``labels: all`` only; the
+        signatures come with them).
 
     This is the one place that knows where labels live on a rendered image.
     """
-    components = image.components
-    names = getattr(components, "table", None)
-    if signatures or names is None:  # (a plain mapping of components: all of them)
+    names = getattr(image.components, "table", None)
+    if signatures or (names is None and components):  # (a plain mapping of components: all of them)
         out = dict(image.arrays())
     else:
         out = {"polar": image.polar, "range_m": image.range_m, "azimuth_deg": image.azimuth_deg}
-        out.update((name, components[name]) for name in names)
+        if components:
+            out.update((name, image.components[name]) for name in names)
     labels = getattr(image, "labels", None)
     if labels is not None:
         # Renderers whose arrays() already include the labels give the same names again.
@@ -264,7 +267,7 @@ class Frame:
 
 
 def frames(scenario: Scenario | str | os.PathLike | Mapping, start: int = 0, stop: int | None = None,
-           labels: bool | str = True, threads: int | None = None) -> Iterator[Frame]:
+           labels: bool | str = "total", threads: int | None = None) -> Iterator[Frame]:
     """Render a scenario's frames ``start .. stop - 1`` in order, without writing anything.
 
     Each frame is rendered from its :class:`FrameSpec` alone (a simulator is built once per
@@ -277,8 +280,10 @@ def frames(scenario: Scenario | str | os.PathLike | Mapping, start: int = 0, sto
         A loaded scenario, or what :func:`~sonarsim.dataset.load_scenario` reads.
     start, stop : int
         Frame range; ``stop=None``: to the scenario's last frame. Clipped to the scenario.
-    labels : bool or {"all", "total", "none"}
-        With ground truth (``frame.labels``) where the renderer provides it (:func:`label_mode`).
+    labels : bool or {"total", "all", "none"}
+        With ground truth (``frame.labels``) where the renderer provides it (:func:`label_mode`):
+        the total's instance map with the elevation maps, points and boxes (default), also an
+        instance map per component (``"all"``, ``True``), or none.
     threads : int, optional
         Ray-casting threads per simulator (default: the scene's ``render.threads``).
 

@@ -206,7 +206,7 @@ def generate(
     workers: int | None = None,
     formats: Iterable[str] = ("npz",),
     rosbag: str | None = None,
-    labels: bool | str = True,
+    labels: bool | str = "total",
     signatures: bool = False,
     coco: str = "fan",
     progress: bool = True,
@@ -236,10 +236,12 @@ def generate(
     rosbag : {None, "mcap", "sqlite3"}
         Also write ``out/rosbag`` (needs ``pip install 'sonarsim[ros]'``): every frame's
         messages stamped ``start_time`` plus the frame's time after frame 0's.
-    labels : bool or {"all", "total", "none"}
-        Ground truth, where the renderer provides it: an instance map per component
-        (``True``, ``"all"``), of the total only (``"total"``: cheaper, the rest alike), or
-        none (``False``, ``"none"``).
+    labels : bool or {"total", "all", "none"}
+        What each frame's NPZ holds besides the device image (``polar``, ``range_m``,
+        ``azimuth_deg``): the ground truth of issue 12's contract -- the total's instance map,
+        the elevation maps, the points and the boxes (``"total"``, the default); also the
+        component images and an instance map per component (``"all"``, ``True``); or nothing
+        more (``"none"``, ``False``).
     signatures : bool
         Also store one image per path signature (:class:`DatasetOptions`).
     coco : {"fan", "polar"}
