@@ -25,7 +25,7 @@ _EXPORTS = {
     "load_scene": ".config.loader",
     "Material": ".config.materials",
     "GroundSpec": ".config.scene", "ObjectSpec": ".config.scene", "PlaneSpec": ".config.scene",
-    "RenderSettings": ".config.scene", "Scene": ".config.scene",
+    "RenderSettings": ".config.scene", "Scene": ".config.scene", "ground_plane": ".config.scene",
     "SonarConfig": ".config.sonar",
     "Pose": ".core.transforms",
     "ConfigError": ".errors", "MeshFileError": ".errors", "SonarsimError": ".errors",
@@ -64,7 +64,7 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:  # what type checkers and IDEs see
     from .config.loader import load_scene
     from .config.materials import Material
-    from .config.scene import GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene
+    from .config.scene import GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene, ground_plane
     from .config.sonar import SonarConfig
     from .core.transforms import Pose
     from .errors import ConfigError, MeshFileError, SonarsimError

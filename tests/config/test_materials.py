@@ -167,7 +167,7 @@ def test_python_callers_get_the_same_checks():
     with pytest.raises(ConfigError, match="must be a Material"):
         PlaneSpec("wall", material={"law": "lambert"})
     # The ground as a plane carries its law (and the plane's default albedo beside it).
-    plane = GroundSpec(material=Material("lambert", mu=0.01)).as_plane()
+    plane = GroundSpec(material=Material("lambert", mu=0.01))
     assert plane.backscatter == Material("lambert", mu=0.01)
 
 

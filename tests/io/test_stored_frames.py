@@ -95,8 +95,8 @@ def test_dataset_frame_round_trip_and_show(tmp_path, capsys):
                 "trajectory": {"generate": {"kind": "orbit", "centre_m": [2.5, 0.0, 0.15], "radius_m": 2.0,
                                             "z_m": 1.0, "frames": 4}}}
     out = tmp_path / "ds"
-    generate(scenario, out, frames=2, formats=("npz", "png"), progress=False)
-    rendered = list(frames(scenario, stop=2))
+    generate(scenario, out, frames=2, formats=("npz", "png"), progress=False, labels="all")  # with components
+    rendered = list(frames(scenario, stop=2, labels="all"))
     for frame in rendered:
         path = out / "frames" / f"{frame.index:06d}.npz"
         arrays, config = read_npz(path)
@@ -104,6 +104,11 @@ def test_dataset_frame_round_trip_and_show(tmp_path, capsys):
         assert_same_image(back, frame.image, arrays)
         np.testing.assert_allclose(back.pose.matrix(), frame.spec.pose.matrix(), atol=1e-12)
         assert back.config["dataset"]["frame"] == frame.index == config["dataset"]["frame"]
+    # A dataset's default frame (the device image and its labels) reads back without components.
+    generate(scenario, tmp_path / "default", frames=1, progress=False)
+    back = sonarsim.read(tmp_path / "default" / "frames" / "000000.npz")
+    np.testing.assert_array_equal(back.polar, rendered[0].image.polar)
+    assert not set(back.components)
     # show on a stored frame: its figures, and the PNGs the dataset itself wrote.
     path = out / "frames" / "000001.npz"
     shown = tmp_path / "shown"

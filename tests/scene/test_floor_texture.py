@@ -195,7 +195,7 @@ def test_the_tile_wraps_with_its_period_and_off_grid_points_are_smooth():
 def test_fields_are_seeded_and_default_to_the_render_seed_and_the_plane():
     spec = TextureSpec(3.0, (1.0, 1.0))
     wall = PlaneSpec("wall", (5.0, 0, 0), (-1.0, 0, 0), 0.3, 1.0, None, spec)
-    ground = GroundSpec(texture=spec).as_plane()
+    ground = GroundSpec(texture=spec)
     pts = np.random.default_rng(0).uniform(-20, 20, (500, 3)) * [1, 1, 0]
     a = texture_fields((ground, wall), render_seed=5)
     b = texture_fields((ground, wall), render_seed=5)
@@ -204,7 +204,7 @@ def test_fields_are_seeded_and_default_to_the_render_seed_and_the_plane():
     assert not np.allclose(a[0].factor(pts), c[0].factor(pts))
     assert a[0].entropy != a[1].entropy  # two planes, two patterns
     # A seed of its own: the render seed no longer matters.
-    seeded = GroundSpec(texture=TextureSpec(3.0, (1.0, 1.0), seed=8)).as_plane()
+    seeded = GroundSpec(texture=TextureSpec(3.0, (1.0, 1.0), seed=8))
     np.testing.assert_array_equal(texture_fields((seeded,), 5)[0].factor(pts), texture_fields((seeded,), 6)[0].factor(pts))
     # No texture, or none to speak of: no field.
-    assert texture_fields((GroundSpec().as_plane(), GroundSpec(texture=TextureSpec(0.0)).as_plane()), 0) == (None, None)
+    assert texture_fields((GroundSpec(), GroundSpec(texture=TextureSpec(0.0))), 0) == (None, None)

@@ -562,7 +562,7 @@ def _band_starts(real: SonarImage, problem: _Problem, free: tuple[str, ...], wid
 
 
 def _ground_height(scene: Scene) -> float:
-    return float(scene.ground.height_m) if scene.ground is not None else 0.0
+    return float(scene.ground.offset_m) if scene.ground is not None else 0.0
 
 
 def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iterations: int = 600,

@@ -21,7 +21,7 @@ from .materials import LAWS, Material, mu_from_db
 from .meshfiles import load_mesh_file, world_reach_m  # below scene: config imports nothing of it
 from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor
-from .scene import MAX_COORDINATE_M, GroundSpec, ObjectSpec, PlaneSpec, RenderSettings, Scene, TextureSpec
+from .scene import MAX_COORDINATE_M, ObjectSpec, PlaneSpec, RenderSettings, Scene, TextureSpec, ground_plane
 from .sonar import MIN_RELATIVE_BIN_WIDTH, RangeBinError, SonarConfig, beam_edges_deg, check_range_window
 from ..core.transforms import Pose
 
@@ -327,7 +327,8 @@ def parse_texture(d: Any, where: str) -> TextureSpec:
     return _prefixed(where[: -len("texture")].rstrip("."), TextureSpec, **kw)
 
 
-def parse_ground(d: Any) -> GroundSpec | None:
+def parse_ground(d: Any) -> PlaneSpec | None:
+    """The ``ground:`` section: the plane named ``ground`` (:func:`~sonarsim.config.scene.ground_plane`)."""
     if d is None:
         return None
     _check_keys(d, GROUND_KEYS, "ground")
@@ -335,7 +336,7 @@ def parse_ground(d: Any) -> GroundSpec | None:
     kw.update(_material_of(d, "ground", texture_allowed=False))
     if "texture" in d:
         kw["texture"] = parse_texture(d["texture"], "ground.texture")
-    return _prefixed("ground", GroundSpec, **kw)
+    return _prefixed("ground", ground_plane, **kw)
 
 
 def parse_plane(d: Any, index: int) -> PlaneSpec:

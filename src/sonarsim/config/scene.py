@@ -30,6 +30,8 @@ DOUBLE_BEAMS = ("paper", "split", "separate")
 # Plane names become parts of component names (``O-surface-[objects]-O``): keep them plain.
 PLANE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 RESERVED_PLANE_NAMES = ("objects", "O")
+# The ground's name: the plane a scene file's ``ground:`` section stands for.
+GROUND = "ground"
 TEXTURE_COVARIANCES = ("gaussian", "exponential")
 # A reflectivity texture's spread: beyond 20 dB the log-normal's mean is carried by rare bright
 # spots that no frame samples (at 20 dB the median factor is 3e-5 of the mean).
@@ -254,66 +256,6 @@ class ObjectSpec:
 
 
 @dataclass(frozen=True)
-class GroundSpec:
-    """The flat ground plane ``z = height_m`` (normal +z).
-
-    Attributes
-    ----------
-    height_m : float
-        Height of the plane in the world frame, metres.
-    albedo : float
-        Diffuse albedo in [0, 1]: the direct ground echo (shorthand for the Lambertian
-        ``material``, used when ``material`` is None).
-    specular : float
-        Specular reflectance R in [0, 1] that drives the multipath (double bounces scale by R,
-        triple by R**2).
-    material : Material or None
-        The backscatter law of the direct ground echo (e.g. Lambert's law); give it or
-        ``albedo``, not both.
-    texture : TextureSpec or None
-        A world-anchored reflectivity texture (patches of brighter and darker floor) scaling
-        the backscatter wherever a path scatters off the ground; ``None``: uniform.
-    """
-
-    height_m: float = 0.0
-    albedo: float = 0.8
-    specular: float = 1.0
-    material: Material | None = None
-    texture: TextureSpec | None = None
-
-    def __post_init__(self) -> None:
-        if not np.isfinite(self.height_m):
-            raise ConfigError("ground.height_m", f"must be a finite number, got {self.height_m}")
-        # The ground is also a plane (as_plane), which must lie within the scene's extent.
-        if abs(self.height_m) > MAX_COORDINATE_M:
-            raise ConfigError("ground.height_m", f"must lie within 1e6 m of the origin, got {self.height_m}")
-        _check_unit_interval("ground.albedo", self.albedo)
-        _check_unit_interval("ground.specular", self.specular)
-        _check_material(self, "ground.")
-        _check_texture(self.texture, "ground.")
-
-    @property
-    def backscatter(self) -> Material:
-        """The backscatter law: ``material``, or the Lambertian law of ``albedo``."""
-        return self.material if self.material is not None else Material.lambertian(self.albedo)
-
-    def to_dict(self) -> dict:
-        if self.material is not None:
-            out = {"height_m": self.height_m, "material": self.material.to_dict(), "specular": self.specular}
-        else:
-            out = {"height_m": self.height_m, "albedo": self.albedo, "specular": self.specular}
-        if self.texture is not None:
-            out["texture"] = self.texture.to_dict()
-        return out
-
-    def as_plane(self) -> "PlaneSpec":
-        """The same ground as a general reflecting plane named ``ground``."""
-        albedo = self.albedo if self.material is None else PlaneSpec.__dataclass_fields__["albedo"].default
-        return PlaneSpec("ground", (0.0, 0.0, self.height_m), (0.0, 0.0, 1.0), albedo, self.specular, self.material,
-                         self.texture)
-
-
-@dataclass(frozen=True)
 class PlaneSpec:
     """An infinite reflecting plane: a floor, the water surface, a tank wall.
 
@@ -381,6 +323,19 @@ class PlaneSpec:
         return self.material if self.material is not None else Material.lambertian(self.albedo)
 
     @property
+    def height_m(self) -> float:
+        """The height of a horizontal plane (the ground's ``height_m``), metres.
+
+        Raises
+        ------
+        AttributeError
+            The plane is not horizontal (it has no one height).
+        """
+        if self.normal[0] != 0.0 or self.normal[1] != 0.0:
+            raise AttributeError(f"plane {self.name!r} is not horizontal: it has no height_m (see offset_m)")
+        return self.point_m[2]
+
+    @property
     def offset_m(self) -> float:
         """``n . p``: the plane is ``n . x = offset_m``; the water is ``n . x > offset_m``."""
         return float(np.dot(self.normal, self.point_m))
@@ -408,6 +363,72 @@ class PlaneSpec:
         if self.texture is not None:
             out["texture"] = self.texture.to_dict()
         return out
+
+
+#: The ground's albedo where none is given (the plane's own default, 0, is the water surface's).
+GROUND_ALBEDO = 0.8
+
+
+def ground_plane(height_m: float = 0.0, albedo: float | None = None, specular: float = 1.0,
+                 material: Material | None = None, texture: TextureSpec | None = None) -> PlaneSpec:
+    """The ground: the horizontal plane ``z = height_m`` (normal +z) named ``ground``, what a
+    scene file's ``ground:`` section stands for.
+
+    Parameters
+    ----------
+    height_m : float
+        Height of the plane in the world frame, metres.
+    albedo : float, optional
+        Diffuse albedo in [0, 1] of the direct ground echo (the Lambertian shorthand of
+        ``material``); default 0.8 without a ``material``.
+    specular : float
+        Specular reflectance R in [0, 1] that drives the multipath.
+    material : Material, optional
+        The backscatter law of the direct ground echo; give it or ``albedo``, not both.
+    texture : TextureSpec, optional
+        A world-anchored reflectivity texture; ``None``: uniform.
+
+    Returns
+    -------
+    PlaneSpec
+        Errors name the ``ground.`` keys.
+    """
+    try:
+        height = float(height_m)
+    except (TypeError, ValueError):
+        raise ConfigError("ground.height_m", f"must be a finite number, got {shown(height_m)}") from None
+    if not np.isfinite(height):
+        raise ConfigError("ground.height_m", f"must be a finite number, got {height_m}")
+    if abs(height) > MAX_COORDINATE_M:
+        raise ConfigError("ground.height_m", f"must lie within 1e6 m of the origin, got {height_m}")
+    if albedo is None:
+        albedo = GROUND_ALBEDO if material is None else PlaneSpec.__dataclass_fields__["albedo"].default
+    try:
+        return PlaneSpec(GROUND, (0.0, 0.0, height), (0.0, 0.0, 1.0), albedo, specular, material, texture)
+    except ConfigError as exc:
+        raise ConfigError(f"ground.{exc.key}", exc.detail) from None
+
+
+#: Earlier name of :func:`ground_plane` (it was a class of its own; the ground is now a
+#: :class:`PlaneSpec` named ``ground``): ``GroundSpec(height_m=..., albedo=...)`` still works.
+GroundSpec = ground_plane
+
+
+def is_ground(plane: PlaneSpec) -> bool:
+    """Whether ``plane`` is a ground: the horizontal plane named ``ground``, normal +z."""
+    return isinstance(plane, PlaneSpec) and plane.name == GROUND and plane.normal == (0.0, 0.0, 1.0)
+
+
+def ground_section(plane: PlaneSpec) -> dict:
+    """The ``ground:`` section of a scene file that stands for ``plane`` (:func:`is_ground`)."""
+    out: dict = {"height_m": plane.point_m[2]}
+    if plane.material is not None:
+        out.update(material=plane.material.to_dict(), specular=plane.specular)
+    else:
+        out.update(albedo=plane.albedo, specular=plane.specular)
+    if plane.texture is not None:
+        out["texture"] = plane.texture.to_dict()
+    return out
 
 
 @dataclass(frozen=True)
@@ -544,8 +565,10 @@ class Scene:
         y left, z up). Scene files give it as ``sonar.pose``. Default: the origin, looking
         along +x.
     objects : tuple of ObjectSpec
-    ground : GroundSpec or None
-        ``None``: no ground. Shorthand for a horizontal plane named ``ground``.
+    ground : PlaneSpec or None
+        The ground (:func:`ground_plane`: the horizontal plane named ``ground``, what a scene
+        file's ``ground:`` section stands for), or ``None``: no ground. It is reflecting plane
+        0 (:attr:`reflecting_planes`).
     planes : tuple of PlaneSpec
         Further reflecting planes (water surface, tank walls, a sloping bed).
     render : RenderSettings
@@ -558,7 +581,7 @@ class Scene:
 
     sonar: SonarConfig
     objects: tuple[ObjectSpec, ...] = ()
-    ground: GroundSpec | None = None
+    ground: PlaneSpec | None = None
     render: RenderSettings = field(default_factory=RenderSettings)
     source: str | None = None
     planes: tuple[PlaneSpec, ...] = ()
@@ -574,6 +597,9 @@ class Scene:
             if obj.name in seen:
                 raise ConfigError(f"objects[{i}].name", f"duplicate object name {shown(obj.name)}; names must be unique")
             seen.add(obj.name)
+        if self.ground is not None and not is_ground(self.ground):
+            raise ConfigError("ground", f"must be the horizontal plane named 'ground' with normal +z "
+                              f"(ground_plane(height_m=...)), got {shown(self.ground)}")
         taken = ["ground"] if self.ground is not None else []
         for i, plane in enumerate(self.planes):
             if plane.name in taken:
@@ -626,7 +652,7 @@ class Scene:
 
         A plane's index here is its surface id in the per-ray labels.
         """
-        return ((self.ground.as_plane(),) if self.ground is not None else ()) + self.planes
+        return ((self.ground,) if self.ground is not None else ()) + self.planes
 
     def with_pose(self, pose: Pose) -> "Scene":
         """The same scene with the sonar at another pose (``sonar_pose``); intrinsics unchanged."""
@@ -640,7 +666,7 @@ class Scene:
             "objects": [o.to_dict() for o in self.objects],
         }
         if self.ground is not None:
-            out["ground"] = self.ground.to_dict()
+            out["ground"] = ground_section(self.ground)
         if self.planes:
             out["planes"] = [p.to_dict() for p in self.planes]
         if self.sensor is not None:

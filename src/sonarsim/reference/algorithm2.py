@@ -216,7 +216,7 @@ def render_paper(
         surface_id=np.where(reached, hits_oo.surface_id - n_objects, NO_HIT).astype(np.int32),
         point_virtual=a_virtual,
         normal_virtual=hits_oo.normal,
-        point_real=apply(PlaneSet.from_specs([ground.as_plane()]).mirror(0), a_virtual),
+        point_real=apply(PlaneSet.from_specs([ground]).mirror(0), a_virtual),
     )
     double, _ = ground_echo_images(paths, sonar, pose, render, ground.specular, objects_caster)
     out["double"] = double

@@ -264,7 +264,7 @@ class Simulator:
     def mirrored_caster(self):
         """Objects followed by their mirror images (``method: paper`` only), built on first use."""
         if self._mirrored_caster is None:
-            g = self.scene.ground.as_plane()
+            g = self.scene.ground
             mirrored = self.meshes + [mirror_across_plane(m, g.point_m, g.normal) for m in self.meshes]
             self._mirrored_caster = with_textures(make_caster(self.backend, mirrored, self.scene.render.threads), mirrored)
         return self._mirrored_caster

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .base import RayCaster
-from ..config.scene import GroundSpec
+from ..config.scene import PlaneSpec
 
 GROUND_ID = 0
 NO_HIT = -1
@@ -77,7 +77,7 @@ def trace(
     caster: RayCaster,
     origins: np.ndarray,
     directions: np.ndarray,
-    ground: GroundSpec | None,
+    ground: PlaneSpec | None,
     max_distance_m: float,
 ) -> SurfaceHits:
     """Closest surface along each ray, objects and ground together.
@@ -88,7 +88,8 @@ def trace(
         Built over the objects' meshes (mesh k = object k).
     origins : (3,) or (..., 3) float array, metres
     directions : (..., 3) float array, unit vectors
-    ground : GroundSpec or None
+    ground : PlaneSpec or None
+        The ground (``Scene.ground``: horizontal, normal +z), or none.
     max_distance_m : float
         Hits further away count as none.
     """
@@ -102,7 +103,7 @@ def trace(
     normal = hits.normal.reshape(shape + (3,))
     texel = None if hits.texel is None else hits.texel.reshape(shape).copy()
     if ground is not None:
-        tg = ground_distance(o, d, ground.height_m)
+        tg = ground_distance(o, d, ground.offset_m)  # (normal +z: its offset is its height)
         on_ground = (tg < dist) & (tg <= max_distance_m)
         dist[on_ground] = tg[on_ground]
         sid[on_ground] = GROUND_ID
