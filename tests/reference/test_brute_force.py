@@ -270,7 +270,7 @@ def test_every_plane_of_the_channel_carries_paths(max_order):
 def _engine_paths(sim) -> dict:
     """The path engine's paths of the scene's frame, read from its path buffer: ``{(ray,
     transmit chain, receive chain): (scatterer, range, energy, beam)}``."""
-    from sonarsim.paths.engine import SAME
+    from sonarsim.paths.engine import SAME, SonarView
     from sonarsim.renderer.simulator import MULTIPATH_REACH, RANGE_MARGIN
 
     render, sonar, pose = sim.scene.render, sim.scene.sonar, sim.scene.sonar_pose
@@ -278,7 +278,8 @@ def _engine_paths(sim) -> dict:
     active = sim.planes.facing(pose.translation)
     multipath = render.max_order > 1 and bool((active & (sim.planes.specular > 0)).any())
     reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
-    _, legs, sets, table, _, _ = sim._render_paths(sonar, pose, fan, reach, active, render.max_order if multipath else 1)
+    _, legs, sets, table, _, _ = sim._render_paths(sonar, SonarView.of(sonar, pose, fan), reach, active,
+                                                   render.max_order if multipath else 1)
     out = {}
     for s in (sets() if callable(sets) else sets):
         leg = legs[s.gen]

@@ -412,3 +412,20 @@ def test_the_label_scratch_is_left_clean_and_a_failed_frame_does_not_poison_the_
         assert scratch._arrays["cells"] is not cells  # the failed frame's was let go
         for a, b in zip(got, ref):
             np.testing.assert_array_equal(a, b)
+
+
+def test_the_frame_view_carries_the_rays_rotated_once_as_the_blocks_rotate_them():
+    from sonarsim.renderer.simulator import as_pose
+
+    with sonarsim.Simulator(_tank(5, 3)) as sim:
+        for pose in POSES[1:]:
+            sim.render(pose=pose)
+            p = as_pose(pose)
+            fan = sim.ray_fan(sim.traced_sonar(sim.scene.sonar))
+            view = SonarView.of(sim.scene.sonar, p, fan)
+            assert view.directions is view.directions  # formed once
+            assert view.directions.shape == fan.shape + (3,) and view.pose is p
+            np.testing.assert_array_equal(view.directions.reshape(-1, 3), sim._work.d64)  # the kernel's bits
+            np.testing.assert_allclose(view.directions, fan.directions @ p.rotation.T, rtol=0, atol=1e-15)
+    with pytest.raises(ValueError, match="no rays"):
+        SonarView.of(sim.scene.sonar, p).directions

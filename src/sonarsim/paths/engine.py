@@ -38,12 +38,13 @@ tests; the frame (:func:`trace_legs`, :func:`form_paths`,
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..config.sonar import SonarConfig
 from ..core.radiometry import SurfaceLaws, backscatter
+from ..core.rays import RayFan
 from ..image.grid import beam_index
 from ..core.transforms import Pose
 from ..core.splat import RayEnergy, accumulate, continuity
@@ -150,7 +151,9 @@ class PathSet:
 
 @dataclass(frozen=True)
 class SonarView:
-    """What the path formation needs of the sonar (its intrinsics) at its pose.
+    """One frame's sonar: its pose, what the path formation needs of its intrinsics, and its
+    fan of rays, rotated to the pose once (the frame's one carrier of pose and fan: the
+    renderer, its NumPy twin, Algorithm 2, the probes and the line-of-sight test read it).
 
     Attributes
     ----------
@@ -159,6 +162,10 @@ class SonarView:
     beam_edges_deg : (n_beams + 1,) float64 ndarray, descending
     half_elevation_deg : float
     range_min_m, range_max_m : float
+    fan : RayFan or None
+        The rays in the sonar's frame (None: a view for the path formation alone).
+    pose : Pose or None
+        The pose ``origin`` and ``rotation`` come from.
     """
 
     origin: np.ndarray
@@ -167,15 +174,29 @@ class SonarView:
     half_elevation_deg: float
     range_min_m: float
     range_max_m: float
+    fan: RayFan | None = field(default=None, compare=False, repr=False)
+    pose: Pose | None = field(default=None, compare=False, repr=False)
 
     @classmethod
-    def of(cls, sonar: SonarConfig, pose: Pose) -> "SonarView":
-        """The view of ``sonar`` (its intrinsics) at ``pose`` (sonar-to-world, world frame)."""
+    def of(cls, sonar: SonarConfig, pose: Pose, fan: RayFan | None = None) -> "SonarView":
+        """The view of ``sonar`` (its intrinsics) at ``pose`` (sonar-to-world, world frame),
+        casting ``fan``."""
         return cls(
             np.asarray(pose.translation, float), np.ascontiguousarray(pose.rotation),
             np.ascontiguousarray(sonar.beam_edges_deg), sonar.elevation_fov_deg / 2.0,
-            sonar.range_min_m, sonar.range_max_m,
+            sonar.range_min_m, sonar.range_max_m, fan, pose,
         )
+
+    @functools.cached_property
+    def directions(self) -> np.ndarray:
+        """The fan's rays at the pose, world frame: ``R @ d`` for each ray (:func:`rotate`),
+        shape ``fan.shape + (3,)``, float64; formed on first use, once per frame. The compiled
+        engine rotates each block's share inside its kernel (``_kernels.rotate``, of which
+        :func:`rotate` is the twin): the same bits."""
+        if self.fan is None:
+            raise ValueError("a view without a fan has no rays")
+        d = self.fan.directions
+        return rotate(d.reshape(-1, 3), self.rotation, self.origin)[0].reshape(d.shape)
 
     def beam_of(self, azimuth_deg: np.ndarray) -> np.ndarray:
         """Beam whose edges contain each azimuth; -1 outside the fan."""

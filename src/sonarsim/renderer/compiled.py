@@ -24,7 +24,6 @@ from ..core.radiometry import SurfaceLaws
 from ..core.rays import RayFan
 from ..config.scene import RenderSettings
 from ..config.sonar import SonarConfig
-from ..core.transforms import Pose
 from ..scene.floor_texture import scale_by_texture
 
 try:
@@ -358,7 +357,7 @@ class PathBuffer:
         return out
 
 
-def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: RayFan, work: Workspace,
+def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspace,
                  laws: SurfaceLaws, render: RenderSettings, reach_m: float, n_generations: int, table,
                  n_surfaces: int, stack: np.ndarray, pool=None, occlusion=None, textures: tuple = (),
                  sum_rows: tuple[int, ...] = (), labels=None):
@@ -374,6 +373,8 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
 
     Parameters
     ----------
+    view : sonarsim.paths.engine.SonarView
+        The frame's pose and fan (each block rotates its own rays in the kernel).
     table : ChainTable
         The chains the aperture's edges follow (``probe_chains``).
     stack : (rows, n_range_bins, n_beams) float32 ndarray
@@ -398,6 +399,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
         With ``labels``, :meth:`FrameTruth.finish`'s maps where they were formed in the pass.
     """
     laws = SurfaceLaws.of(laws)
+    fan = view.fan
     engine = path_engine(caster, work, fan, laws, planes)
     n_beams = sonar.n_beams
     n_blocks = min(N_BLOCKS, n_beams)
@@ -434,7 +436,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, pose: Pose, fan: Ra
     def trace(k: int) -> None:
         ok[k] = engine.trace(k, *blocks[k]) if fused else staged(k)
 
-    engine.frame(legs_out, active8, np.ascontiguousarray(pose.rotation), np.asarray(pose.translation, float),
+    engine.frame(legs_out, active8, view.rotation, view.origin,
                  reach_m, render.tvg, n_generations, fan.shape[2], sonar.range_min_m, sonar.range_resolution_m,
                  sonar.n_range_bins, n_beams, sonar.range_max_m, sonar.elevation_fov_deg / 2.0,
                  np.ascontiguousarray(sonar.beam_edges_deg), render.range_splat, render.double_beam == "separate",

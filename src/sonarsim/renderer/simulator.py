@@ -277,12 +277,14 @@ class Simulator:
             scale_by_texture(flat, hits.surface_id.reshape(-1), hits.point.reshape(-1, 3), self.textures)
         return out
 
-    # The ways to form the image stack; each returns (stack, legs, path sets, chain table, total),
-    # total None where not already summed.
+    # The ways to form the image stack; each takes the frame's view (its pose and fan: one
+    # carrier, the rays rotated once) and returns (stack, legs, path sets, chain table, total,
+    # labels), total None where not already summed, labels None where not formed in the pass.
 
-    def _render_paper(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float):
+    def _render_paper(self, sonar: SonarConfig, view: SonarView, reach: float):
         """``method: paper``: Algorithm 2 literally (NumPy; the ground is the only plane)."""
-        origin, directions = pose.translation, fan.directions @ pose.rotation.T
+        fan, pose = view.fan, view.pose
+        origin, directions = view.origin, view.directions
         ground = self.scene.ground
         hits = trace(self.caster, origin, directions, ground, reach)
         images = render_paper(
@@ -298,15 +300,14 @@ class Simulator:
                   np.zeros(fan.n_rays, np.int32))
         return stack, [leg], None, None, None, None
 
-    def _render_paths(self, sonar: SonarConfig, pose: Pose, fan: RayFan, reach: float, active: np.ndarray,
+    def _render_paths(self, sonar: SonarConfig, view: SonarView, reach: float, active: np.ndarray,
                       n_generations: int, labels: LabelSpec | None = None):
         """``method: fast``: receive legs traced, transmit legs by image sources (any planes).
 
         Returns ``(stack, legs, sets, table, total, truth)``: ``truth`` the label maps where
         the compiled engine formed them in the frame's own pass (``labels``), else None."""
         render = self.scene.render
-        view = SonarView.of(sonar, pose)
-        origin = view.origin
+        fan, origin = view.fan, view.origin
         table = ChainTable(self.planes, origin, max(render.max_order - 1, 0))
         # Transmit legs leaving just inside the aperture's edges (outside the rays' samples).
         probe_chains(table, view, active, render.max_order - 1 if n_generations > 1 else 0,
@@ -324,12 +325,12 @@ class Simulator:
             self._work = compiled.Workspace.for_fan(self._work, fan)
             stack = np.empty((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
             legs, sets, table, total, truth = compiled.render_paths(
-                self.caster, self.planes, active, sonar, pose, fan, self._work, self._laws, render, reach,
+                self.caster, self.planes, active, sonar, view, self._work, self._laws, render, reach,
                 n_generations, table, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
                 textures=self.textures, sum_rows=total_rows(render.bounces, render.max_order), labels=labels,
             )
             return stack, legs, sets, table, total, truth
-        directions = (fan.directions @ pose.rotation.T).reshape(-1, 3)
+        directions = view.directions.reshape(-1, 3)
         legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._laws,
                           render.tvg, reach, n_generations, table, self.textures)
         table = renumber_chains(table, legs)
@@ -430,18 +431,18 @@ class Simulator:
                                 labels != "total")
             require_label_maps(len(spec.lut), render.max_order, sonar.n_range_bins, sonar.n_beams, spec.components)
         n_gen = render.max_order if multipath else 1
+        view = SonarView.of(sonar, pose, fan)  # the frame's pose and fan, its rays rotated once
         if render.method == "paper" and multipath and self._ground_only:
-            stack, legs, sets, table, total, formed = self._render_paper(sonar, pose, fan, reach)
+            stack, legs, sets, table, total, formed = self._render_paper(sonar, view, reach)
         else:
-            stack, legs, sets, table, total, formed = self._render_paths(sonar, pose, fan, reach, active, n_gen, spec)
+            stack, legs, sets, table, total, formed = self._render_paths(sonar, view, reach, active, n_gen, spec)
         truth = None
         t2 = time.perf_counter()
         if labels:
             label_legs, label_sets = legs, sets
             if sets is None:  # Algorithm 2 forms no paths: the general engine's, for the labels only
                 # (the frame's own legs and sets stay None: its signature images are the ground's)
-                _, label_legs, label_sets, _, _, formed = self._render_paths(sonar, pose, fan, reach, active, n_gen,
-                                                                             spec)
+                _, label_legs, label_sets, _, _, formed = self._render_paths(sonar, view, reach, active, n_gen, spec)
             if formed is None and callable(label_sets):
                 label_sets = label_sets()
             truth = frame_labels(label_sets, label_legs, spec, image_sonar, *names, render.range_splat, self.kernels,
