@@ -159,6 +159,9 @@ def _trace_both(rng, *, first, reflect, tvg, n=600, m=None, capacity=64, at_reac
     hit_normal = _unit(rng, k).astype(np.float32)
     hit_normal[hit_mesh < 0] = 0.0
     hit_dist[hit_mesh < 0] = np.inf
+    # The caster's triangle and barycentrics: the search records them where an object scatters.
+    hit_prim = np.where(hit_mesh >= 0, rng.integers(0, 500, k), -1).astype(np.int32)
+    hit_uv = np.where(hit_mesh[:, None] >= 0, rng.uniform(0.0, 0.5, (k, 2)), 0.0).astype(np.float32)
     if at_reach and k > 10:
         # Hits exactly at the reach: kept (total <= reach) but not reflected (total < reach).
         rows = slice(5, None, 20)
@@ -185,6 +188,7 @@ def _trace_both(rng, *, first, reflect, tvg, n=600, m=None, capacity=64, at_reac
     dense = lambda: (np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan),
                      np.full((n, 3), np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, -7, np.int32))
     kd = dense()
+    kprim, kuv = np.full(n, -1, np.int32), np.zeros((n, 2), np.float32)
     key = np.full(n, -1, np.int32)
     live = np.full(k, -9, np.intp)
     nx = (np.empty(k, np.intp), np.empty((k, 3)), np.empty((k, 3), np.float32), np.empty((k, 3)),
@@ -195,7 +199,7 @@ def _trace_both(rng, *, first, reflect, tvg, n=600, m=None, capacity=64, at_reac
             ray, hit_dist, hit_mesh, hit_normal, org, dirs, before, atten, chain, planes.normal, planes.offset,
             active.astype(np.uint8), planes.specular, reach, albedo_by_id, weight, tvg, first, reflect,
             kt.children, len(kt), kd[0], kd[1], kd[2], kd[3], kd[4], kd[5], kd[6], key,
-            live, n_surfaces, *nx, *law_args)
+            live, n_surfaces, *nx, *law_args, hit_prim=hit_prim, hit_uv=hit_uv, prim=kprim, uv=kuv)
         kt.sync(n_chains)
         if not overflow:
             break
@@ -204,17 +208,18 @@ def _trace_both(rng, *, first, reflect, tvg, n=600, m=None, capacity=64, at_reac
 
     tt = copy.deepcopy(table)
     td = dense()
-    leg = engine.Leg(1, *td)
+    leg = engine.Leg(1, *td, prim=np.full(n, -1, np.int32), uv=np.zeros((n, 2), np.float32))
     rays = engine.Rays(ray, org, dirs, before, atten, chain)
-    nxt, tlive = engine.trace_generation(rays, Hits(hit_dist, hit_mesh, hit_normal, texel), planes, active, reach,
-                                         table_laws, weight, tvg, first, reflect, tt, leg)
+    nxt, tlive = engine.trace_generation(rays, Hits(hit_dist, hit_mesh, hit_normal, texel, hit_prim, hit_uv), planes,
+                                         active, reach, table_laws, weight, tvg, first, reflect, tt, leg)
     kernel = dict(zip(("distance", "sid", "point", "normal", "intensity", "atten", "chain"), kd))
-    kernel.update(key=key, live=live[:n_live], ray=nx[0][:n_next], origin=nx[1][:n_next],
+    kernel.update(prim=kprim, uv=kuv, key=key, live=live[:n_live], ray=nx[0][:n_next], origin=nx[1][:n_next],
                   origin32=nx[2][:n_next], direction=nx[3][:n_next], direction32=nx[4][:n_next],
                   before=nx[5][:n_next], next_atten=nx[6][:n_next], next_chain=nx[7][:n_next],
                   min_next=min_next, n_chains=len(kt), chains=kt.chains)
     twin = dict(zip(("distance", "sid", "point", "normal", "intensity", "atten", "chain"), td))
-    twin.update(key=leg.key(n_surfaces) if not first else key, live=tlive, ray=nxt.ray, origin=nxt.origin,
+    twin.update(prim=leg.prim, uv=leg.uv, key=leg.key(n_surfaces) if not first else key, live=tlive, ray=nxt.ray,
+                origin=nxt.origin,
                 origin32=nxt.origin32, direction=nxt.direction, direction32=nxt.direction32, before=nxt.before,
                 next_atten=nxt.atten, next_chain=nxt.chain, min_next=nxt.before.min() if len(nxt) else np.inf,
                 n_chains=len(tt), chains=tt.chains)

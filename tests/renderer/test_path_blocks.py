@@ -429,3 +429,64 @@ def test_the_frame_view_carries_the_rays_rotated_once_as_the_blocks_rotate_them(
             np.testing.assert_allclose(view.directions, fan.directions @ p.rotation.T, rtol=0, atol=1e-15)
     with pytest.raises(ValueError, match="no rays"):
         SonarView.of(sim.scene.sonar, p).directions
+
+
+def _search(doc, monkeypatch, fused=True, kernels="compiled"):
+    """The receive legs of the scene's frame (the discrete search: surfaces, triangles,
+    barycentrics, scatterers), and the simulator's meshes."""
+    from sonarsim.renderer.simulator import MULTIPATH_REACH, RANGE_MARGIN
+
+    with monkeypatch.context() as m:
+        if not fused:
+            m.setattr(compiled, "packet_loop", lambda caster: None)
+        with sonarsim.Simulator(copy.deepcopy(doc), kernels=kernels) as sim:
+            render, sonar, pose = sim.scene.render, sim.scene.sonar, sim.scene.sonar_pose
+            fan = sim.ray_fan(sonar)
+            active = sim.planes.facing(pose.translation)
+            multipath = render.max_order > 1 and bool((active & (sim.planes.specular > 0)).any())
+            reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
+            _, legs, *_ = sim._render_paths(sonar, SonarView.of(sonar, pose, fan), reach, active,
+                                            render.max_order if multipath else 1, primitives=True)
+            legs = [(leg.sid.copy(), leg.prim.copy(), leg.uv.copy(), leg.point.copy()) for leg in legs]
+            return legs, sim.meshes, len(sim.planes)
+
+
+@pytest.mark.parametrize("name", ["demo", "tank6_order3"])
+def test_the_search_records_each_scatterer_s_triangle_and_barycentrics(name, monkeypatch):
+    """Where an object scatters, the legs hold its triangle and (u, v), from which the
+    scatterer is found again on the mesh (what the differentiable engine re-evaluates); -1
+    and 0 on planes. The fused blocks, Python casting and the NumPy twin record the same."""
+    doc = _variants()[name]
+    legs, meshes, n_planes = _search(doc, monkeypatch)
+    on_objects = 0
+    for sid, prim, uv, point in legs:
+        obj = sid >= n_planes
+        assert (prim[~obj] == -1).all() and (uv[~obj] == 0).all()
+        for k, mesh in enumerate(meshes):
+            i = np.flatnonzero(sid == n_planes + k)
+            if not len(i):
+                continue
+            a, b, c = (mesh.vertices[mesh.faces[prim[i], j]] for j in range(3))
+            u, v = uv[i, :1].astype(float), uv[i, 1:].astype(float)
+            np.testing.assert_allclose((1 - u - v) * a + u * b + v * c, point[i], rtol=0, atol=2e-5)
+            assert ((u >= -1e-6) & (v >= -1e-6) & (u + v <= 1 + 1e-6)).all()
+            on_objects += len(i)
+    assert on_objects > 100 and (len(legs) == 1 or (legs[1][0] >= n_planes).any())  # reflected rays meet objects too
+    for other in (_search(doc, monkeypatch, fused=False)[0], _search(doc, monkeypatch, kernels="numpy")[0]):
+        for (sid, prim, uv, _), (sid2, prim2, uv2, _) in zip(legs, other):
+            same = sid == sid2
+            assert same.mean() > 0.999
+            np.testing.assert_array_equal(prim[same], prim2[same])
+            np.testing.assert_array_equal(uv[same], uv2[same])
+
+
+def test_the_search_s_triangles_are_recorded_only_on_request():
+    with sonarsim.Simulator(demo_scene_dict()) as sim:
+        sonar, pose = sim.scene.sonar, sim.scene.sonar_pose
+        view = SonarView.of(sonar, pose, sim.ray_fan(sonar))
+        active = sim.planes.facing(pose.translation)
+        plain = sim._render_paths(sonar, view, 10.0, active, 3)
+        asked = sim._render_paths(sonar, view, 10.0, active, 3, primitives=True)
+        assert all(leg.prim is None and leg.uv is None for leg in plain[1])
+        assert all(leg.prim is not None and leg.prim.shape == leg.sid.shape for leg in asked[1])
+        np.testing.assert_array_equal(plain[0], asked[0])  # the same image either way

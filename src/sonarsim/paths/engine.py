@@ -93,6 +93,12 @@ class Leg:
         The rays that scatter some energy, ascending (None: found from the arrays).
     keys : (n,) int32 ndarray or None
         :meth:`key` as the tracing listed it (None: computed).
+    prim : (n,) int32 ndarray or None
+        The discrete search's triangle where an object scatters (an index into its mesh's
+        faces), -1 where a plane does or nothing (None: not recorded).
+    uv : (n, 2) float32 ndarray or None
+        Where on that triangle: the caster's barycentric ``(u, v)``, ``A = (1 - u - v) a + u b +
+        v c``; 0 elsewhere.
     """
 
     gen: int
@@ -105,6 +111,8 @@ class Leg:
     chain: np.ndarray
     live: np.ndarray | None = None
     keys: np.ndarray | None = None
+    prim: np.ndarray | None = None
+    uv: np.ndarray | None = None
 
     def key(self, n_surfaces: int) -> np.ndarray:
         """(n,) int32: rays on one surface via one chain share a key (-1 none): continuity."""
@@ -414,6 +422,10 @@ def trace_generation(
     leg.point[r] = point
     leg.normal[r] = normal
     leg.intensity[r] = intensity
+    if leg.prim is not None:  # the search's triangle and barycentrics where an object scatters
+        on_object = sid >= n_planes
+        leg.prim[r] = np.where(on_object, hits.primitive_id[k], -1)
+        leg.uv[r] = np.where(on_object[:, None], hits.barycentric[k], np.float32(0.0))
     if not first:
         leg.atten[r] = atten
         leg.chain[r] = chain
@@ -677,10 +689,11 @@ def trace_legs(
         leg = Leg(
             g, np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan), np.zeros((n, 3)),
             np.zeros(n), np.ones(n) if first else np.zeros(n), np.zeros(n, np.int32) if first else np.full(n, -1, np.int32),
+            prim=np.full(n, -1, np.int32), uv=np.zeros((n, 2), np.float32),
         )
         legs.append(leg)
         limit = float(reach_m - rays.before.min())
-        hits = caster.intersect(rays.origin32, rays.direction32, limit)
+        hits = caster.intersect(rays.origin32, rays.direction32, limit, with_uv=True)
         rays, _ = trace_generation(rays, hits, planes, active, reach_m, laws, weight, tvg, first,
                                    g + 1 < n_generations, table, leg)
         if any(f is not None for f in textures):

@@ -275,7 +275,9 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
               int[::1] key, Py_ssize_t[::1] live, int n_surfaces,
               Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
               double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
-              double[::1] nx_atten, int[::1] nx_chain, _Laws laws) noexcept nogil:
+              double[::1] nx_atten, int[::1] nx_chain, _Laws laws,
+              const int[::1] hit_prim, const float[:, ::1] hit_uv, int[::1] prim,
+              float[:, ::1] uv) noexcept nogil:
     """The loop of :func:`trace_leg` (also run by :class:`PathBlocks`, block by block)."""
 
     cdef Py_ssize_t k, i, m = ray.shape[0], n_next = 0, P = plane_normal.shape[0]
@@ -286,6 +288,7 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
     cdef float fx, fy, fz, cosf
     cdef int s, ch, child
     cdef bint overflow = False
+    cdef bint primitives = prim.shape[0] > 0  # the search's triangle and barycentrics, recorded
     cdef Py_ssize_t n_live = 0
     cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
     for k in range(m):
@@ -330,6 +333,10 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
             if first:
                 dist[i] = INFINITY
                 sid[i] = -1
+                if primitives:
+                    prim[i] = -1
+                    uv[i, 0] = 0.0
+                    uv[i, 1] = 0.0
             continue
         if first:
             # As the caster reports them: float32 points and incidence (the round trip
@@ -361,6 +368,15 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
         normal[i, 1] = ny
         normal[i, 2] = nz
         intensity[i] = c
+        if primitives:
+            if s >= P:  # an object's triangle and where on it (Embree's u, v)
+                prim[i] = hit_prim[k]
+                uv[i, 0] = hit_uv[k, 0]
+                uv[i, 1] = hit_uv[k, 1]
+            else:  # a plane: sid names it
+                prim[i] = -1
+                uv[i, 0] = 0.0
+                uv[i, 1] = 0.0
         if not first:  # the first generation: no reflection yet, chain 0, key = sid
             atten_out[i] = atten[row]
             chain_out[i] = ch
@@ -419,7 +435,8 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
               int[::1] key, Py_ssize_t[::1] live, int n_surfaces,
               Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
               double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
-              double[::1] nx_atten, int[::1] nx_chain, law_by_id=None, lobe_by_id=None, hit_texel=None):
+              double[::1] nx_atten, int[::1] nx_chain, law_by_id=None, lobe_by_id=None, hit_texel=None,
+              hit_prim=None, hit_uv=None, prim=None, uv=None):
     """One generation of receive legs: closest of objects and active planes, diffuse weight,
     and the specular reflection of the rays that meet a plane (twin: ``engine.trace_legs``).
 
@@ -433,6 +450,10 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     energy. ``children[c, p]`` is the chain ``c + (p,)`` (-1: new, numbered from ``n_chains``).
     ``law_by_id``, ``lobe_by_id``: the surfaces' law codes and lobes (``SurfaceLaws``; None: all
     Lambertian); ``hit_texel`` (per row): the objects' texture factor at each hit (None: none).
+    With ``hit_prim`` (rows) and ``hit_uv`` (rows x 2), the caster's triangle and barycentric
+    ``(u, v)``, the discrete search is recorded in ``prim`` and ``uv`` (dense): the triangle
+    and ``(u, v)`` where an object scatters, -1 and 0 where a plane does (and, in the first
+    generation, where nothing does).
 
     Returns
     -------
@@ -440,9 +461,25 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     """
     cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], ray.shape[0])
     cdef (Py_ssize_t, int, double, bint, Py_ssize_t) r
+    cdef const int[::1] hp = _NO_INT if hit_prim is None else hit_prim
+    cdef const float[:, ::1] huv = _NO_UV if hit_uv is None else hit_uv
+    cdef int[::1] po = _NO_INT_OUT if prim is None else prim
+    cdef float[:, ::1] uo = _NO_UV_OUT if uv is None else uv
+    if (hit_prim is None) != (prim is None) or (hit_prim is None) != (uv is None) or (hit_uv is None) != (uv is None):
+        raise ValueError("hit_prim, hit_uv, prim and uv go together")
+    if prim is not None and (hp.shape[0] != ray.shape[0] or huv.shape[0] != ray.shape[0] or huv.shape[1] != 2
+                             or po.shape[0] != dist.shape[0] or uo.shape[0] != dist.shape[0] or uo.shape[1] != 2):
+        raise ValueError("hit_prim, hit_uv (rows) and prim, uv (dense) of the wrong shapes")
     with nogil:
-        r = trace_leg_impl(ray, hit_distance, hit_mesh, hit_normal, org, dirs, before, atten, chain, plane_normal, plane_offset, plane_active, plane_specular, reach, albedo_by_id, weight, tvg, first, reflect, children, n_chains, dist, sid, point, normal, intensity, atten_out, chain_out, key, live, n_surfaces, nx_ray, nx_org, nx_org32, nx_dir, nx_dir32, nx_before, nx_atten, nx_chain, laws)
+        r = trace_leg_impl(ray, hit_distance, hit_mesh, hit_normal, org, dirs, before, atten, chain, plane_normal, plane_offset, plane_active, plane_specular, reach, albedo_by_id, weight, tvg, first, reflect, children, n_chains, dist, sid, point, normal, intensity, atten_out, chain_out, key, live, n_surfaces, nx_ray, nx_org, nx_org32, nx_dir, nx_dir32, nx_before, nx_atten, nx_chain, laws, hp, huv, po, uo)
     return r
+
+
+# Empty arrays: trace_leg without the search's triangles recorded.
+_NO_INT = np.zeros(0, np.int32)
+_NO_INT_OUT = np.zeros(0, np.int32)
+_NO_UV = np.zeros((0, 2), np.float32)
+_NO_UV_OUT = np.zeros((0, 2), np.float32)
 
 
 cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] dist, const int[::1] sid,
@@ -1254,7 +1291,8 @@ cdef class PathBlocks:
     cdef double[:, ::1] d64
     cdef float[:, ::1] d32, o32, h_normal
     cdef float[::1] h_dist
-    cdef int[::1] h_mesh
+    cdef int[::1] h_mesh, h_prim
+    cdef float[:, ::1] h_uv
     cdef const Py_ssize_t[::1] ray0
     cdef const double[::1] ones
     cdef const int[::1] zeros
@@ -1272,8 +1310,12 @@ cdef class PathBlocks:
     cdef Py_ssize_t n_blocks
     # Per frame.
     cdef double[:, ::1] dist, intensity, atten
-    cdef int[:, ::1] sid, chain, key
+    cdef int[:, ::1] sid, chain, key, prim
     cdef double[:, :, ::1] point, normal
+    cdef float[:, :, ::1] uv
+    cdef bint primitives
+    cdef int[::1] no_prim
+    cdef float[:, ::1] no_uv
     cdef Py_ssize_t[:, ::1] live, n_live, n_cast
     cdef const unsigned char[::1] active
     cdef const double[:, ::1] rotation
@@ -1334,6 +1376,8 @@ cdef class PathBlocks:
         self.n_planes = plane_normal.shape[0]
         self.d64, self.d32, self.o32 = w.d64, w.d32, w.o32
         self.h_dist, self.h_mesh, self.h_normal = w.h_dist, w.h_mesh, w.h_normal
+        self.h_prim, self.h_uv = w.h_prim, w.h_uv
+        self.no_prim, self.no_uv = np.zeros(0, np.int32), np.zeros((0, 2), np.float32)
         self.ray0, self.ones, self.zeros = w.ray0, w.ones, w.zeros_i32
         self.r_ray, self.r_org, self.r_dir, self.r_org32, self.r_dir32 = w.r_ray, w.r_org, w.r_dir, w.r_org32, w.r_dir32
         self.r_before, self.r_atten, self.r_chain = w.r_before, w.r_atten, w.r_chain
@@ -1361,12 +1405,13 @@ cdef class PathBlocks:
     def frame(self, legs, const unsigned char[::1] active, const double[:, ::1] rotation, const double[::1] origin,
               double reach, bint tvg, Py_ssize_t n_gen, Py_ssize_t n_el, double range_min, double dr,
               Py_ssize_t n_bins, Py_ssize_t n_beams, double range_max, double half_el, const double[::1] edges,
-              bint spread, bint separate, Py_ssize_t n_surfaces, float[::1] out=None):
+              bint spread, bint separate, Py_ssize_t n_surfaces, float[::1] out=None, bint primitives=False):
         """Set the frame: ``out`` (optional: the flat image stack the blocks will splat into;
         block k zeroes its k-th share of the range bins while it traces, whole rows at a time,
         contiguous), ``legs`` (``dist``, ``sid``, ``point``, ``normal``, ``intensity``,
         ``atten``, ``chain``, ``key``, ``live``: the (n_gen, n, ...) receive legs, written by
-        the blocks; ``n_live``, ``n_cast``: (n_blocks, n_gen) counts), the planes the sonar
+        the blocks; ``n_live``, ``n_cast``: (n_blocks, n_gen) counts; with ``primitives``, also
+        ``prim`` and ``uv``, the search's triangles and barycentrics), the planes the sonar
         faces, the pose, the settings. Everything is checked before anything is kept (the
         kernels read without bounds checks)."""
         cdef Py_ssize_t n = self.fan_dirs.shape[0]
@@ -1378,9 +1423,10 @@ cdef class PathBlocks:
             raise ValueError("the rotation is not 3 x 3 or the origin not 3 numbers")
         if n_gen < 1 or n_beams < 1 or n_el < 1 or n % (n_beams * n_el) != 0 or edges.shape[0] != n_beams + 1:
             raise ValueError("the fan's shape does not match the workspace (its beams, rays per beam or edges)")
-        for name in ("dist", "intensity", "atten", "sid", "chain", "key", "live", "point", "normal"):
+        for name in ("dist", "intensity", "atten", "sid", "chain", "key", "live", "point", "normal") + (
+                ("prim", "uv") if primitives else ()):
             a = getattr(legs, name)
-            if a.ndim < 2 or a.shape[0] < n_gen or a.shape[1] != n or (a.ndim == 3 and a.shape[2] != 3):
+            if a.ndim < 2 or a.shape[0] < n_gen or a.shape[1] != n or (a.ndim == 3 and a.shape[2] != (2 if name == "uv" else 3)):
                 raise ValueError(f"legs.{name} of shape {a.shape} for {n_gen} generations of {n} rays")
         for name in ("n_live", "n_cast"):
             a = getattr(legs, name)
@@ -1391,6 +1437,9 @@ cdef class PathBlocks:
         self.dist, self.sid, self.point, self.normal = legs.dist, legs.sid, legs.point, legs.normal
         self.intensity, self.atten, self.chain, self.key = legs.intensity, legs.atten, legs.chain, legs.key
         self.live, self.n_live, self.n_cast = legs.live, legs.n_live, legs.n_cast
+        self.primitives = primitives
+        if primitives:
+            self.prim, self.uv = legs.prim, legs.uv
         self.active, self.rotation, self.edges = active, rotation, edges
         self.origin2 = np.asarray(origin, dtype=np.float64).reshape(1, 3).copy()
         for k in range(3):
@@ -1410,6 +1459,8 @@ cdef class PathBlocks:
         self.dist = self.intensity = self.atten = None
         self.sid = self.chain = self.key = None
         self.point = self.normal = None
+        self.prim = None
+        self.uv = None
         self.live = self.n_live = self.n_cast = None
         self.p_offset = self.p_count = self.p_ray = None
         self.p_dist = self.p_energy = None
@@ -1446,6 +1497,10 @@ cdef class PathBlocks:
                 self.dist[g, i] = INFINITY
                 self.sid[g, i] = -1
                 self.key[g, i] = -1
+                if self.primitives:
+                    self.prim[g, i] = -1
+                    self.uv[g, i, 0] = 0.0
+                    self.uv[g, i, 1] = 0.0
         rotate_impl(self.fan_dirs, self.rotation, self.d64, self.d32, a, b)
         if origins:
             for i in range(a, b):
@@ -1483,7 +1538,11 @@ cdef class PathBlocks:
                                self.chain[0], self.key[0], self.live[0, a:b], <int>self.n_surfaces,
                                self.r_ray[nxt, a:b], self.r_org[nxt, a:b], self.r_org32[nxt, a:b],
                                self.r_dir[nxt, a:b], self.r_dir32[nxt, a:b], self.r_before[nxt, a:b],
-                               self.r_atten[nxt, a:b], self.r_chain[nxt, a:b], laws)
+                               self.r_atten[nxt, a:b], self.r_chain[nxt, a:b], laws,
+                               self.h_prim[a:b] if self.primitives else self.no_prim,
+                               self.h_uv[a:b] if self.primitives else self.no_uv,
+                               self.prim[0] if self.primitives else self.no_prim,
+                               self.uv[0] if self.primitives else self.no_uv)
         else:
             r = trace_leg_impl(self.r_ray[cur, a:a + m], self.h_dist[a:a + m], self.h_mesh[a:a + m],
                                self.h_normal[a:a + m], self.r_org[cur, a:a + m], self.r_dir[cur, a:a + m],
@@ -1494,7 +1553,11 @@ cdef class PathBlocks:
                                self.intensity[g], self.atten[g], self.chain[g], self.key[g], self.live[g, a:b],
                                <int>self.n_surfaces, self.r_ray[nxt, a:b], self.r_org[nxt, a:b],
                                self.r_org32[nxt, a:b], self.r_dir[nxt, a:b], self.r_dir32[nxt, a:b],
-                               self.r_before[nxt, a:b], self.r_atten[nxt, a:b], self.r_chain[nxt, a:b], laws)
+                               self.r_before[nxt, a:b], self.r_atten[nxt, a:b], self.r_chain[nxt, a:b], laws,
+                               self.h_prim[a:a + m] if self.primitives else self.no_prim,
+                               self.h_uv[a:a + m] if self.primitives else self.no_uv,
+                               self.prim[g] if self.primitives else self.no_prim,
+                               self.uv[g] if self.primitives else self.no_uv)
         self.blk_m[k] = r[0] if reflect else 0
         self.n_local[k] = r[1]
         self.blk_min[k] = r[2]
@@ -1518,7 +1581,8 @@ cdef class PathBlocks:
             self._begin(k, a, b, False)
             if b > a:
                 self.cast(self.scene, self.origin32, 0, &self.d32[a, 0], &limit, 0, &self.ids[0], &self.h_dist[a],
-                          &self.h_mesh[a], &self.h_normal[a, 0], NULL, NULL, b - a, self.coherent)
+                          &self.h_mesh[a], &self.h_normal[a, 0], &self.h_prim[a] if self.primitives else NULL,
+                          &self.h_uv[a, 0] if self.primitives else NULL, b - a, self.coherent)
                 self._step(k, a, b, 0, self.laws)
                 for g in range(1, self.n_gen):
                     m = self.blk_m[k]
@@ -1527,8 +1591,9 @@ cdef class PathBlocks:
                     cur = self.blk_cur[k]
                     limit = <float>(self.reach - self.blk_min[k])
                     self.cast(self.scene, &self.r_org32[cur, a, 0], 3, &self.r_dir32[cur, a, 0], &limit, 0,
-                              &self.ids[0], &self.h_dist[a], &self.h_mesh[a], &self.h_normal[a, 0], NULL, NULL, m,
-                              self.coherent)
+                              &self.ids[0], &self.h_dist[a], &self.h_mesh[a], &self.h_normal[a, 0],
+                              &self.h_prim[a] if self.primitives else NULL,
+                              &self.h_uv[a, 0] if self.primitives else NULL, m, self.coherent)
                     self._step(k, a, b, g, self.laws)
         return not self.overflow[k]
 

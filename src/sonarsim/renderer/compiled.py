@@ -70,6 +70,8 @@ class Workspace:
         self.h_dist = np.empty(n, dtype=np.float32)
         self.h_mesh = np.empty(n, dtype=np.int32)
         self.h_normal = np.empty((n, 3), dtype=np.float32)
+        self.h_prim = np.empty(n, dtype=np.int32)  # the triangle hit and its barycentric (u, v)
+        self.h_uv = np.empty((n, 2), dtype=np.float32)
         # The rays of each block's current and next generation (two buffers, a block's rows at
         # its own rays).
         self.ray0 = np.arange(n, dtype=np.intp)
@@ -182,17 +184,28 @@ class FrameLegs:
     dist, intensity, atten : (G, n) float64 ndarrays
     sid, chain, key : (G, n) int32 ndarrays
     point, normal : (G, n, 3) float64 ndarrays
+    prim : (G, n) int32 ndarray or None
+        The discrete search's triangle: the index into the object's mesh faces where an object
+        scatters, -1 where a plane does or nothing (``sid`` says which); recorded on request
+        (``primitives``: about 5 % of a demo frame).
+    uv : (G, n, 2) float32 ndarray or None
+        Where on that triangle (the caster's barycentric ``(u, v)``: ``p = (1 - u - v) a + u b
+        + v c``), 0 elsewhere.
     live : (G, n) intp ndarray
         Block k's live rays of generation g at ``live[g, a:a + n_live[k, g]]`` (a: its first ray).
     n_live, n_cast : (n_blocks, G) intp ndarrays
         Live rays, and rays cast, per block and generation.
     """
 
-    def __init__(self, n_gen: int, n: int, n_blocks: int, pool: ArrayPool | None = None) -> None:
+    def __init__(self, n_gen: int, n: int, n_blocks: int, pool: ArrayPool | None = None,
+                 primitives: bool = False) -> None:
         f, i = np.float64, np.int32
         shapes = {"dist": ((n_gen, n), f), "intensity": ((n_gen, n), f), "atten": ((n_gen, n), f),
                   "sid": ((n_gen, n), i), "chain": ((n_gen, n), i), "key": ((n_gen, n), i),
                   "point": ((n_gen, n, 3), f), "normal": ((n_gen, n, 3), f), "live": ((n_gen, n), np.intp)}
+        self.prim = self.uv = None
+        if primitives:
+            shapes.update(prim=((n_gen, n), i), uv=((n_gen, n, 2), np.float32))
         arrays = pool.take(shapes) if pool is not None else {k: np.empty(*v) for k, v in shapes.items()}
         for name, (shape, _) in shapes.items():  # views of exactly the frame's shape
             setattr(self, name, arrays[name][tuple(slice(0, m) for m in shape)])
@@ -207,7 +220,8 @@ class FrameLegs:
             first = g == 0
             out.append(Leg(g, self.dist[g], self.sid[g], self.point[g], self.normal[g], self.intensity[g],
                            work.ones if first else self.atten[g], work.zeros_i32 if first else self.chain[g],
-                           keys=self.sid[g] if first else self.key[g]))
+                           keys=self.sid[g] if first else self.key[g],
+                           prim=None if self.prim is None else self.prim[g], uv=None if self.uv is None else self.uv[g]))
         return out
 
 
@@ -360,7 +374,7 @@ class PathBuffer:
 def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspace,
                  laws: SurfaceLaws, render: RenderSettings, reach_m: float, n_generations: int, table,
                  n_surfaces: int, stack: np.ndarray, pool=None, occlusion=None, textures: tuple = (),
-                 sum_rows: tuple[int, ...] = (), labels=None):
+                 sum_rows: tuple[int, ...] = (), labels=None, primitives: bool = False):
     """The whole compiled frame in blocks of beams (:class:`~sonarsim.renderer._kernels.PathBlocks`):
     receive legs, paths, and the image stack.
 
@@ -385,6 +399,9 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
         Form the frame's ground truth in the same pass: each block deposits its paths into the
         label maps as it splats them (:class:`FrameTruth`). Not where the blocks do not splat
         (``double_beam: split``, ``double_line_of_sight``): the caller forms it from ``sets``.
+    primitives : bool
+        Record the discrete search's triangles and barycentrics in the legs (``Leg.prim``,
+        ``Leg.uv``), for what re-evaluates the hit points (the differentiable engine).
 
     Returns
     -------
@@ -405,7 +422,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
     n_blocks = min(N_BLOCKS, n_beams)
     blocks = beam_blocks(n_beams, n_blocks)
     per_beam = fan.n_rays // n_beams
-    legs_out = FrameLegs(n_generations, fan.n_rays, n_blocks, work.legs_pool)
+    legs_out = FrameLegs(n_generations, fan.n_rays, n_blocks, work.legs_pool, primitives)
     active8 = np.ascontiguousarray(active, dtype=np.uint8)
     in_blocks = render.double_beam != "split" and occlusion is None  # each block splats its own beams
     if not stack.flags.c_contiguous:
@@ -426,8 +443,10 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
                 o32, d32 = w.o32[a:a + m], w.d32[a:a + m]
             else:
                 o32, d32 = w.r_org32[buffer, a:a + m], w.r_dir32[buffer, a:a + m]
-            hits = caster.intersect(o32, d32, float(limit), threads=1)
+            hits = caster.intersect(o32, d32, float(limit), threads=1, with_uv=primitives)
             w.h_dist[a:a + m], w.h_mesh[a:a + m], w.h_normal[a:a + m] = hits.distance, hits.mesh_id, hits.normal
+            if primitives:
+                w.h_prim[a:a + m], w.h_uv[a:a + m] = hits.primitive_id, hits.barycentric
             if not engine.step(k, b0, b1, g, *_law_args(laws, hits)):
                 return False
             buffer, m, limit = engine.pending(k)
@@ -440,7 +459,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
                  reach_m, render.tvg, n_generations, fan.shape[2], sonar.range_min_m, sonar.range_resolution_m,
                  sonar.n_range_bins, n_beams, sonar.range_max_m, sonar.elevation_fov_deg / 2.0,
                  np.ascontiguousarray(sonar.beam_edges_deg), render.range_splat, render.double_beam == "separate",
-                 n_surfaces, stack.reshape(-1) if in_blocks else None)
+                 n_surfaces, stack.reshape(-1) if in_blocks else None, primitives)
     try:  # the engine lets go of the frame's arrays whatever happens (they go back to the pool)
         while True:
             ok = [True] * len(blocks)

@@ -301,11 +301,13 @@ class Simulator:
         return stack, [leg], None, None, None, None
 
     def _render_paths(self, sonar: SonarConfig, view: SonarView, reach: float, active: np.ndarray,
-                      n_generations: int, labels: LabelSpec | None = None):
+                      n_generations: int, labels: LabelSpec | None = None, primitives: bool = False):
         """``method: fast``: receive legs traced, transmit legs by image sources (any planes).
 
         Returns ``(stack, legs, sets, table, total, truth)``: ``truth`` the label maps where
-        the compiled engine formed them in the frame's own pass (``labels``), else None."""
+        the compiled engine formed them in the frame's own pass (``labels``), else None. With
+        ``primitives`` the legs record the search's triangles and barycentrics (the NumPy twin
+        always does)."""
         render = self.scene.render
         fan, origin = view.fan, view.origin
         table = ChainTable(self.planes, origin, max(render.max_order - 1, 0))
@@ -328,6 +330,7 @@ class Simulator:
                 self.caster, self.planes, active, sonar, view, self._work, self._laws, render, reach,
                 n_generations, table, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
                 textures=self.textures, sum_rows=total_rows(render.bounces, render.max_order), labels=labels,
+                primitives=primitives,
             )
             return stack, legs, sets, table, total, truth
         directions = view.directions.reshape(-1, 3)
