@@ -207,9 +207,15 @@ class PolarGrid:
 
     @property
     def beam_edges_deg(self) -> np.ndarray:
-        """(n_beams + 1,) float64 beam edges, degrees, descending (see :func:`beam_edges_deg`)."""
-        width = 1.0 if self.single_beam_width_deg is None else self.single_beam_width_deg
-        return beam_edges_deg(self.azimuth_deg, width)
+        """(n_beams + 1,) float64 beam edges, degrees, descending (see :func:`beam_edges_deg`);
+        read-only, formed once (every frame asks)."""
+        edges = self.__dict__.get("_beam_edges")
+        if edges is None:
+            width = 1.0 if self.single_beam_width_deg is None else self.single_beam_width_deg
+            edges = beam_edges_deg(self.azimuth_deg, width)
+            edges.setflags(write=False)
+            self.__dict__["_beam_edges"] = edges  # (a frozen dataclass: its fields stay as they are)
+        return edges
 
     @property
     def left_edge_deg(self) -> float:

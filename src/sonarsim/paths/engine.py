@@ -718,8 +718,10 @@ PROBES_PER_EDGE = 48
 
 
 @functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=8)  # a sonar's intrinsics: the same every frame
 def _aperture_edges(right_deg: float, left_deg: float, half_elevation_deg: float, per_edge: int) -> np.ndarray:
-    """(4 per_edge, 3) unit vectors in the sonar frame along the four edges of the aperture."""
+    """(4 per_edge, 3) unit vectors in the sonar frame along the four edges of the aperture
+    (read-only)."""
     az = np.radians(np.linspace(right_deg, left_deg, per_edge))
     half = np.radians(half_elevation_deg)
     el = np.linspace(-half, half, per_edge)

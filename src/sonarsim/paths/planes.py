@@ -184,6 +184,15 @@ class ChainTable:
             remap[c] = out.add(self.chains[c])
         return out, remap
 
+    def at(self, origin: np.ndarray) -> "ChainTable":
+        """The same chains, numbered the same, for a sonar at ``origin``: the unfolding maps
+        are kept (they do not depend on the sonar), the sonar's images are formed anew."""
+        out = ChainTable(self.planes, origin, self.max_length, capacity=self.capacity)
+        out.children = self.children.copy()
+        out.chains = list(self.chains)
+        out._unfold = dict(self._unfold)
+        return out
+
     def local_chains(self, children: np.ndarray, n_chains: int) -> list[tuple]:
         """The chains of a block's own table (``children[c, p]``: the chain ``c + (p,)``; 0 the
         empty chain), by local id."""

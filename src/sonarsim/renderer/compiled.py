@@ -83,7 +83,7 @@ class Workspace:
         self.ones = np.ones(n)  # attenuation of the first generation's legs
         self.zeros_i32 = np.zeros(n, dtype=np.int32)  # their chain (none)
         self.engine: tuple | None = None  # (caster, fan, laws, planes, PathBlocks, n_blocks), path_engine()
-        self.chains: tuple | None = None  # (planes, key, chains, remap), _frame_chains()
+        self.chains: tuple | None = None  # (planes, key, canonical table, remap), _frame_chains()
         self.options: tuple | None = None  # (planes, chains, n_gen, max_order, double_beam, arrays), _options()
         self.legs_pool, self.paths_pool = ArrayPool(), ArrayPool()  # the frames' legs and path buffers
         self.labels_scratch = LabelScratch()
@@ -264,11 +264,7 @@ def _frame_chains(table, engine, work: Workspace):
     key = (tuple(table.chains), children[:, : int(n_local.max())].tobytes(), n_local.tobytes(), children.shape)
     cached = work.chains
     if cached is not None and cached[0] is table.planes and cached[1] == key:
-        chains, remap = cached[2], cached[3]
-        canonical = ChainTable(table.planes, table.origin, table.max_length)
-        for c in chains:
-            canonical.add(c)
-        return canonical, remap
+        return cached[2].at(table.origin), cached[3]
     local = [table.local_chains(children[k], int(n_local[k])) for k in range(len(n_local))]
     for chains in local:
         for c in chains:
@@ -277,7 +273,7 @@ def _frame_chains(table, engine, work: Workspace):
     remap = np.zeros(children.shape[:2], np.int32)
     for k, chains in enumerate(local):
         remap[k, : len(chains)] = [canonical.add(c) for c in chains]
-    work.chains = (table.planes, key, list(canonical.chains), remap)
+    work.chains = (table.planes, key, canonical.at(table.origin), remap)
     return canonical, remap
 
 
