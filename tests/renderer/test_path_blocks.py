@@ -490,3 +490,61 @@ def test_the_search_s_triangles_are_recorded_only_on_request():
         assert all(leg.prim is None and leg.uv is None for leg in plain[1])
         assert all(leg.prim is not None and leg.prim.shape == leg.sid.shape for leg in asked[1])
         np.testing.assert_array_equal(plain[0], asked[0])  # the same image either way
+
+
+def test_label_maps_serve_one_frame_each_block_resolved_once(monkeypatch):
+    """Deposits after a block's cells were resolved (and set back to "nothing") would append
+    past its reached cells and table rows: refused, on both routes."""
+    from sonarsim.renderer.ground_truth import LabelSpec, surface_ids
+
+    spec = LabelSpec(surface_ids(np.arange(3), 1, 2), np.array([-1.0, 1.0]), 2, 2, (1, 2))
+    truth = compiled.FrameTruth(4, spec, (1.0, 0.5, 4, 2), False)
+    points, normals = np.zeros((4, 3)), np.tile([0.0, 0.0, 1.0], (4, 1))
+    sid = np.array([1, 2, 0, 1], np.int32)
+    path_set = (np.array([0, 2], np.intp), np.array([1.2, 1.7]), np.ones(2), np.array([0, 1], np.int32),
+                np.zeros(2, np.int8))
+    truth.maps.fill_rows(0)
+    truth.maps.add(points, normals, sid, sid, *path_set, 0, True)
+    truth.maps.finish(0)
+    with pytest.raises(ValueError, match="already resolved"):
+        truth.maps.add(points, normals, sid, sid, *path_set, 0, True)
+    with pytest.raises(ValueError, match="resolved once"):
+        truth.maps.finish(0)
+
+    with sonarsim.Simulator(_tank(5, 3)) as sim:
+        ref = _label_arrays(sim.render(speckle=False, labels=True).labels)
+        run, calls = compiled.on_both_cores, []
+
+        def again(task, n, pool=None):  # the frame's second hand-off forms the paths: once more
+            run(task, n, pool)
+            calls.append(n)
+            if len(calls) == 2:
+                with pytest.raises(ValueError, match="already resolved"):
+                    task(0)
+
+        monkeypatch.setattr(compiled, "on_both_cores", again)
+        sim.render(speckle=False, labels=True)
+        monkeypatch.setattr(compiled, "on_both_cores", run)
+        assert len(calls) == 2
+        # Label maps of another range grid would splat the image on their own: refused.
+        init = compiled.FrameTruth.__init__
+        monkeypatch.setattr(compiled.FrameTruth, "__init__",
+                            lambda self, n, spec, geometry, *a: init(self, n, spec, (geometry[0] + 0.01, *geometry[1:]),
+                                                                     *a))
+        with pytest.raises(ValueError, match="another range grid"):
+            sim.render(labels=True)
+        monkeypatch.setattr(compiled.FrameTruth, "__init__", init)
+        for a, b in zip(_label_arrays(sim.render(speckle=False, labels=True).labels), ref):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_the_label_scratch_is_kept_only_when_the_frame_that_took_it_gives_it_back():
+    scratch = compiled.LabelScratch()
+    first = scratch.take(1, 10, 3)
+    second = scratch.take(1, 10, 3)  # the first is still in use: a new set
+    assert second is not first
+    scratch.give_back(first)  # an older frame's word does not clean the newer set
+    third = scratch.take(1, 10, 3)
+    assert third is not second
+    scratch.give_back(third)
+    assert scratch.take(1, 10, 3) is third and (third["cells"] == -1).all()

@@ -56,7 +56,7 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--labels", choices=("total", "all", "none"), default="total",
                    help="what each NPZ holds besides the device image (polar, range_m, azimuth_deg): the total's "
                    "instance map, the elevation maps, the points and the boxes (total, the default); also the "
-                   "component images and an instance map per component (all); or nothing more (none)"),
+                   "component images and an instance map per component (all); or nothing more (none)")
     p.add_argument("--coco", choices=("fan", "polar"), default="fan",
                    help="the image each frame's entry in coco.json names, and the pixels its boxes are in: fan "
                    "(default: frames/NNNNNN_fan.png, the fan at the range resolution, far range at the top) or polar "

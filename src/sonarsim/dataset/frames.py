@@ -172,7 +172,7 @@ def require_dataset_memory(scenario: Scenario, labels: bool | str) -> None:
                           scenario.source) from None
 
 
-def render_frame(spec: FrameSpec, cache: SimulatorCache, labels: bool | str = True) -> SonarImage:
+def render_frame(spec: FrameSpec, cache: SimulatorCache, labels: bool | str = "total") -> SonarImage:
     """Render one frame from its spec alone (pose, seed, scene), without per-ray maps.
 
     Parameters
@@ -260,10 +260,11 @@ class Frame:
         """The frame's ground truth, or ``None`` (renderer without labels, or ``labels=False``)."""
         return getattr(self.image, "labels", None)
 
-    def arrays(self, signatures: bool = False) -> dict[str, np.ndarray]:
-        """:func:`frame_arrays` of the image: what the dataset's NPZ holds (made with the same
-        ``signatures``)."""
-        return frame_arrays(self.image, signatures)
+    def arrays(self, signatures: bool = False, components: bool = True) -> dict[str, np.ndarray]:
+        """:func:`frame_arrays` of the image: what the dataset's NPZ holds when made with the
+        same ``signatures`` and labels (``components``: the component images, which a dataset
+        stores with ``labels="all"`` only)."""
+        return frame_arrays(self.image, signatures, components)
 
 
 def frames(scenario: Scenario | str | os.PathLike | Mapping, start: int = 0, stop: int | None = None,

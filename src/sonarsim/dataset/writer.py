@@ -4,8 +4,10 @@ A dataset folder ``DIR`` holds::
 
     DIR/dataset.json          the dataset's fingerprint and options (manifest module)
     DIR/manifest.jsonl        one line per frame: pose, seed, files, sizes, sha256 (manifest module)
-    DIR/frames/000000.npz     per frame: polar, range_m, azimuth_deg, components, labels
-                              (path-signature images with signatures=True)
+    DIR/frames/000000.npz     per frame: polar, range_m, azimuth_deg and its labels (the total's
+                              instance map, elevation maps, points, boxes); the component images
+                              and per-component maps with labels="all", path-signature images
+                              (and the components) with signatures=True
     DIR/frames/000000_polar.png, 000000_fan.png   with "png" in formats (far range at the top);
                               with ground truth and without "png", the one coco.json names
     DIR/coco.json             with ground truth: the objects' boxes in the frames' fan PNGs (or,

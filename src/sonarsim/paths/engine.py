@@ -717,7 +717,6 @@ def renumber_chains(table: ChainTable, legs: list[Leg]) -> ChainTable:
 PROBES_PER_EDGE = 48
 
 
-@functools.lru_cache(maxsize=8)
 @functools.lru_cache(maxsize=8)  # a sonar's intrinsics: the same every frame
 def _aperture_edges(right_deg: float, left_deg: float, half_elevation_deg: float, per_edge: int) -> np.ndarray:
     """(4 per_edge, 3) unit vectors in the sonar frame along the four edges of the aperture

@@ -819,8 +819,11 @@ cdef class LabelMaps:
     boxes : (n_blocks, n_ids, 4) int32, -1 filled
         Receives each block's boxes of the ids in the total.
     cells : (n_maps, n_range_bins * n_beams * 2) int32, state -1 in every cell
-        The maps' dominance state (``MapCell``, beam-major). :meth:`finish` sets every cell it
-        resolves back to -1, so a frame that finished leaves it ready for the next.
+        The maps' dominance state (``MapCell``, beam-major). The state MUST be -1 in every cell
+        (not checked: a scan would cost a few per cent of a frame; any other value is read as
+        an id or a table row): fill a new array with -1. :meth:`resolve` sets every cell it
+        resolves back to -1, so a frame whose blocks all resolved leaves it ready for the next
+        (``compiled.LabelScratch`` keeps it between frames on that condition).
     reached : (n_maps, n_range_bins * n_beams) int32, uninitialised
         Each map's reached cells (beam-major index), block after block (block k's from
         ``n_range_bins * b0`` on), each block's in the order first reached.
@@ -1050,6 +1053,8 @@ cdef class LabelMaps:
         cdef Py_ssize_t m = ray.shape[0], n_fan = sid.shape[0], k
         if self.n_blocks != 1:
             raise ValueError("add() deposits into one block of every beam")
+        if self.finished[0]:
+            raise ValueError("the label maps are already resolved")
         if label.shape[0] != m or distance.shape[0] != m or energy.shape[0] != m or beam.shape[0] != m:
             raise ValueError("path set arrays of different lengths")
         if (points.shape[0] != n_fan or normals.shape[0] != n_fan or key.shape[0] != n_fan
@@ -1069,6 +1074,19 @@ cdef class LabelMaps:
                                           &energy[0], &beam[0], &label[0], m, order_map, moments, NULL,
                                           self.n_points)
         self.check()
+
+    def unused(self):
+        """Whether nothing was deposited or resolved yet (a LabelMaps serves one frame)."""
+        cdef Py_ssize_t k, mp
+        if self.n_points:
+            return False
+        for k in range(self.n_blocks):
+            if self.finished[k] or self.n_slots[k]:
+                return False
+            for mp in range(self.n_maps):
+                if self.n_reached[k, mp]:
+                    return False
+        return True
 
     def check(self):
         """Raise where a deposit met a path on a surface outside ``lut``."""
@@ -1698,6 +1716,12 @@ cdef class PathBlocks:
         if labels is not None:
             if labels.n_rows != self.n_bins or labels.n_beams != self.n_beams or labels.n_blocks != self.n_blocks:
                 raise ValueError("label maps of another image or another cut into blocks")
+            # They splat the image too: the same range cells as the frame's.
+            if (labels.range_min != self.range_min or labels.dr != self.dr or labels.spread != self.spread
+                    or labels.n_elevation != self.n_el):
+                raise ValueError("label maps of another range grid, range splat or fan")
+            if not labels.unused():
+                raise ValueError("label maps already deposited into (one LabelMaps per frame)")
             if order_map is None or moments is None or order_map.shape[0] != n_opt or moments.shape[0] != n_opt:
                 raise ValueError("an order map and a moments flag per transmit option")
             for o in range(n_opt):
@@ -1736,6 +1760,8 @@ cdef class PathBlocks:
         self._check(k, b0, b1)
         if has_labels and (labels.blocks[k] != b0 or labels.blocks[k + 1] != b1):
             raise ValueError(f"block {k}: beams {b0}:{b1} here, {labels.blocks[k]}:{labels.blocks[k + 1]} in the labels")
+        if has_labels and labels.finished[k]:
+            raise ValueError(f"block {k}'s labels are already resolved (each block's paths are formed once)")
         a, b = b0 * self.rays_per_beam, b1 * self.rays_per_beam
         with nogil:
             if has_labels:

@@ -18,7 +18,6 @@ import sys
 import numpy as np
 
 from ..paths.engine import Leg
-from ..paths.planes import ChainTable
 from ..core.radiometry import SurfaceLaws
 
 from ..core.rays import RayFan
@@ -273,7 +272,7 @@ def _frame_chains(table, engine, work: Workspace):
     remap = np.zeros(children.shape[:2], np.int32)
     for k, chains in enumerate(local):
         remap[k, : len(chains)] = [canonical.add(c) for c in chains]
-    work.chains = (table.planes, key, canonical.at(table.origin), remap)
+    work.chains = (table.planes, key, canonical, remap)  # (its unfolding maps grow as options ask)
     return canonical, remap
 
 
@@ -519,9 +518,9 @@ def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, 
 
 class LabelScratch:
     """The label maps' scratch, kept between frames: the dominance state of every cell of every
-    map (-1 throughout while the scratch is not in use: each frame's ``LabelMaps.finish`` sets
-    it back to -1, so no frame fills it), the reached lists, the table of mixed cells and the
-    moments (uninitialised; written where first reached).
+    map (-1 throughout while the scratch is not in use: each block's ``LabelMaps.resolve`` sets
+    the cells it reached back to -1, so no frame fills it), the reached lists, the table of
+    mixed cells and the moments (uninitialised; written where first reached).
     """
 
     def __init__(self) -> None:
@@ -541,9 +540,12 @@ class LabelScratch:
         self._clean = False  # until every block has finished (a failed frame leaves it dirty)
         return a
 
-    def give_back(self) -> None:
-        """Every block finished: the state is -1 again."""
-        self._clean = True
+    def give_back(self, arrays: dict) -> None:
+        """Every block of the frame that took ``arrays`` resolved its cells: their state is -1
+        again (only if they are still the kept set: a frame that took them is not the last
+        word on a newer set)."""
+        if arrays is self._arrays:
+            self._clean = True
 
 
 class FrameTruth:
@@ -586,7 +588,7 @@ class FrameTruth:
         self.boxes = np.full((len(blocks), n_ids, 4), -1, np.int32)
         self.points = (np.empty((n_paths, 3), np.float32), np.empty(n_paths, np.int32), np.empty(n_paths, np.int8),
                        np.empty((n_paths, 2), np.int32))
-        work = self.scratch.take(n_maps, n_r * n_b, n_ids)
+        work = self._work = self.scratch.take(n_maps, n_r * n_b, n_ids)
         edges = np.array([b0 for b0, _ in blocks] + [n_b], np.intp)
         self.maps = _kernels.LabelMaps(self.instance, self.split[0], self.split[1], self.elevation, self.boxes,
                                        work["cells"], work["reached"], work["table"], work["moments"],
@@ -640,7 +642,7 @@ class FrameTruth:
             maps.finish(0)
         if not maps.resolved():
             raise ValueError("a block of the label maps was not resolved")
-        self.scratch.give_back()
+        self.scratch.give_back(self._work)
         n = maps.n_points
         boxes = np.empty((len(self.spec.lut), 4), np.int32)
         maps.united_boxes(boxes)

@@ -247,6 +247,7 @@ def frame_labels(
     n_obj, n_pl = len(object_names), len(plane_names)
     geometry = (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins, sonar.n_beams)
     if formed is None:
+        require_label_maps(n_obj + n_pl, spec.max_order, sonar.n_range_bins, sonar.n_beams, spec.components)
         route = compiled.frame_truth if kernels == "compiled" and compiled.AVAILABLE else _frame_truth
         formed = route(sets, legs, n_obj + n_pl, spec, geometry, spread)
     orders, obj, gnd, total, maps, boxes, points = formed

@@ -432,6 +432,7 @@ class Simulator:
             names = (tuple(o.name for o in self.scene.objects), tuple(p.name for p in self.scene.reflecting_planes))
             spec = LabelSpec.of(fan, len(names[0]), len(names[1]), render.max_order, render.bounces,
                                 labels != "total")
+            # Before the frame (frame_labels checks again where it forms them after it).
             require_label_maps(len(spec.lut), render.max_order, sonar.n_range_bins, sonar.n_beams, spec.components)
         n_gen = render.max_order if multipath else 1
         view = SonarView.of(sonar, pose, fan)  # the frame's pose and fan, its rays rotated once

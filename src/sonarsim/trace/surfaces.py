@@ -103,6 +103,8 @@ def trace(
     normal = hits.normal.reshape(shape + (3,))
     texel = None if hits.texel is None else hits.texel.reshape(shape).copy()
     if ground is not None:
+        if tuple(ground.normal) != (0.0, 0.0, 1.0):
+            raise ValueError(f"the ground must be horizontal (normal +z), got normal {ground.normal}")
         tg = ground_distance(o, d, ground.offset_m)  # (normal +z: its offset is its height)
         on_ground = (tg < dist) & (tg <= max_distance_m)
         dist[on_ground] = tg[on_ground]
