@@ -548,3 +548,40 @@ def test_the_label_scratch_is_kept_only_when_the_frame_that_took_it_gives_it_bac
     assert third is not second
     scratch.give_back(third)
     assert scratch.take(1, 10, 3) is third and (third["cells"] == -1).all()
+
+
+def test_the_layout_kernel_forms_the_image_sources_and_offsets_as_numpy_does(monkeypatch):
+    """PathBlocks.layout against its twins: ChainTable.sources bit for bit, and the path
+    buffer's option-major offsets from the blocks' live rays."""
+    seen = []
+    layout = compiled._options
+
+    def checking(table, n_gen, max_order, double_beam, engine, work):
+        options, offset, size = layout(table, n_gen, max_order, double_beam, engine, work)
+        gen, tx, same, _, length, _, sources, _, _ = options
+        for o in range(len(gen)):
+            if same[o]:
+                assert not sources[o].any()
+            else:
+                np.testing.assert_array_equal(sources[o, : length[o] + 1], table.sources(int(tx[o])))
+        n_live = engine_live[0]
+        capacity = n_live[:, gen].T.reshape(-1)
+        np.testing.assert_array_equal(offset, np.concatenate([[0], np.cumsum(capacity)[:-1]]))
+        assert size == capacity.sum()
+        seen.append(int((same == 0).sum()))
+        return options, offset, size
+
+    frame_legs = compiled.FrameLegs
+    engine_live = []
+
+    def legs(*a, **k):
+        out = frame_legs(*a, **k)
+        engine_live[:] = [out.n_live]
+        return out
+
+    monkeypatch.setattr(compiled, "_options", checking)
+    monkeypatch.setattr(compiled, "FrameLegs", legs)
+    with sonarsim.Simulator(_tank(5, 4)) as sim:
+        for pose in POSES:
+            sim.render(pose=pose)
+    assert len(seen) == len(POSES) and min(seen) > 3  # options along chains of planes, every frame

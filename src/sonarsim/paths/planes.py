@@ -218,12 +218,17 @@ class ChainTable:
         return self._unfold[c]
 
     def sources(self, c: int) -> np.ndarray:
-        """(len + 1, 3) images of the sonar after 0, 1, ... mirrors of chain ``c``."""
+        """(len + 1, 3) images of the sonar after 0, 1, ... mirrors of chain ``c``: each the
+        last reflected across the next plane, ``x - 2 (n.x - offset) n``, in this order of
+        operations (``_kernels.PathBlocks.options`` forms them the same way: the same bits)."""
         if c not in self._sources:
-            src = [self.origin]
+            src = [tuple(float(v) for v in self.origin)]
             for p in self.chains[c]:
-                src.append(apply(self.planes.mirror(p), src[-1]))
-            self._sources[c] = np.vstack(src)
+                x0, x1, x2 = src[-1]
+                n0, n1, n2 = (float(v) for v in self.planes.normal[p])
+                twice = 2.0 * (((x0 * n0 + x1 * n1) + x2 * n2) - float(self.planes.offset[p]))
+                src.append((x0 - twice * n0, x1 - twice * n1, x2 - twice * n2))
+            self._sources[c] = np.array(src)
         return self._sources[c]
 
     def specular(self, c: int) -> float:

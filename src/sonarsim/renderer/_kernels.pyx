@@ -1329,7 +1329,7 @@ cdef class PathBlocks:
     cdef unsigned char[::1] overflow
     cdef Py_ssize_t[::1] blk_cur, blk_m
     cdef double[::1] blk_min
-    cdef Py_ssize_t n_blocks
+    cdef readonly Py_ssize_t n_blocks
     # Per frame.
     cdef double[:, ::1] dist, intensity, atten
     cdef int[:, ::1] sid, chain, key, prim
@@ -1649,6 +1649,50 @@ cdef class PathBlocks:
         with nogil:
             self._step(k, a, b, g, laws)
         return not self.overflow[k]
+
+    def layout(self, const int[::1] gen, const int[::1] same, const int[::1] length, const int[:, ::1] planes,
+               double[:, :, ::1] sources, Py_ssize_t[::1] offset):
+        """The frame's pose-dependent option arrays, after its blocks traced: ``sources[o]``,
+        the sonar's images along option o's chain (each the last reflected across the chain's
+        next plane, ``x - 2 (n.x - offset) n``, as ``ChainTable.sources`` forms them: the same
+        bits; zeros for an option whose transmit leg is the receive leg reversed), and
+        ``offset[o * n_blocks + k]``, where option o of block k starts in the path buffer
+        (option-major; its capacity is the block's live rays of the option's generation).
+        Returns the buffer's size. One call for what NumPy did in a dozen between the phases."""
+        cdef Py_ssize_t n_opt = gen.shape[0], o, k, q, p, size = 0
+        cdef double x0, x1, x2, n0, n1, n2, twice
+        if not self.ready:
+            raise ValueError("call frame() first")
+        if (same.shape[0] != n_opt or length.shape[0] != n_opt or planes.shape[0] != n_opt
+                or sources.shape[0] != n_opt or sources.shape[2] != 3 or offset.shape[0] != n_opt * self.n_blocks):
+            raise ValueError("option arrays of different lengths or shapes")
+        for o in range(n_opt):
+            if not 0 <= gen[o] < self.n_gen or not 0 <= length[o] <= planes.shape[1] or sources.shape[1] < length[o] + 1:
+                raise ValueError(f"transmit option {o} out of range")
+            for q in range(length[o]):
+                if not 0 <= planes[o, q] < self.n_planes:
+                    raise ValueError(f"transmit option {o}: plane {planes[o, q]} of {self.n_planes}")
+        with nogil:
+            for o in range(n_opt):
+                for q in range(sources.shape[1]):
+                    sources[o, q, 0] = 0.0
+                    sources[o, q, 1] = 0.0
+                    sources[o, q, 2] = 0.0
+                if not same[o]:
+                    x0, x1, x2 = self.origin[0], self.origin[1], self.origin[2]
+                    sources[o, 0, 0], sources[o, 0, 1], sources[o, 0, 2] = x0, x1, x2
+                    for q in range(length[o]):
+                        p = planes[o, q]
+                        n0, n1, n2 = self.plane_normal[p, 0], self.plane_normal[p, 1], self.plane_normal[p, 2]
+                        twice = 2.0 * (((x0 * n0 + x1 * n1) + x2 * n2) - self.plane_offset[p])
+                        x0 = x0 - twice * n0
+                        x1 = x1 - twice * n1
+                        x2 = x2 - twice * n2
+                        sources[o, q + 1, 0], sources[o, q + 1, 1], sources[o, q + 1, 2] = x0, x1, x2
+                for k in range(self.n_blocks):
+                    offset[o * self.n_blocks + k] = size
+                    size += self.n_live[k, gen[o]]
+        return size
 
     def options(self, const int[:, ::1] remap, const int[::1] rank, const int[::1] gen, const int[::1] tx,
                 const int[::1] same, const int[::1] label, const int[::1] length, const double[:, :, ::1] unfold,

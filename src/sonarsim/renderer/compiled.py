@@ -83,7 +83,7 @@ class Workspace:
         self.zeros_i32 = np.zeros(n, dtype=np.int32)  # their chain (none)
         self.engine: tuple | None = None  # (caster, fan, laws, planes, PathBlocks, n_blocks), path_engine()
         self.chains: tuple | None = None  # (planes, key, canonical table, remap), _frame_chains()
-        self.options: tuple | None = None  # (planes, chains, n_gen, max_order, double_beam, arrays), _options()
+        self.options: tuple | None = None  # (planes, chains, n_gen, max_order, double_beam, arrays, sources)
         self.legs_pool, self.paths_pool = ArrayPool(), ArrayPool()  # the frames' legs and path buffers
         self.labels_scratch = LabelScratch()
 
@@ -298,23 +298,24 @@ def _option_table(table, n_gen: int, max_order: int, double_beam: str) -> tuple:
     return (*columns, length, unfold, chain_planes, specular)
 
 
-def _options(table, n_gen: int, max_order: int, double_beam: str, n_live: np.ndarray, work: Workspace):
+def _options(table, n_gen: int, max_order: int, double_beam: str, engine, work: Workspace):
     """The arrays of ``PathBlocks.options`` (see :func:`_option_table`, kept on ``work`` while
     the frames meet the same chains), the sonar's images along each option's chain, and the
     path buffer's offsets and size (option-major; a block's capacity for an option is its
-    generation's live rays)."""
+    generation's live rays): those two formed by ``engine.layout`` in one call (twin:
+    ``ChainTable.sources``, and the live rays summed)."""
     key = (table.planes, tuple(table.chains), n_gen, max_order, double_beam)
     cached = work.options
     if cached is None or cached[0] is not key[0] or cached[1:4] != key[1:4] or cached[4] != double_beam:
-        cached = work.options = (*key, _option_table(table, n_gen, max_order, double_beam))
+        arrays = _option_table(table, n_gen, max_order, double_beam)
+        # The sonar's images' room, overwritten each frame: only this frame's blocks read
+        # them (PathBlocks.paths), before the next frame's layout.
+        cached = work.options = (*key, arrays, np.zeros((len(arrays[0]), arrays[6].shape[1] + 1, 3)))
     gen, tx, same, label, length, unfold, chain_planes, specular = cached[5]
-    sources = np.zeros((len(gen), chain_planes.shape[1] + 1, 3))
-    for o in np.flatnonzero(same == 0):
-        sources[o, : length[o] + 1] = table.sources(int(tx[o]))
-    capacity = n_live[:, gen].T.reshape(-1)  # option-major
-    offset = np.zeros(len(capacity), np.intp)
-    np.cumsum(capacity[:-1], out=offset[1:])
-    return (gen, tx, same, label, length, unfold, sources, chain_planes, specular), offset, int(capacity.sum())
+    sources = cached[6]
+    offset = np.empty(len(gen) * engine.n_blocks, np.intp)  # the frame's own: its path buffer keeps it
+    size = engine.layout(gen, same, length, chain_planes, sources, offset)
+    return (gen, tx, same, label, length, unfold, sources, chain_planes, specular), offset, size
 
 
 class PathBuffer:
@@ -470,8 +471,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
                 if legs_out.n_cast[:, g].any():
                     scale_by_texture(legs_out.intensity[g], legs_out.sid[g], legs_out.point[g], textures)
         table, remap = _frame_chains(table, engine, work)
-        options, offset, size = _options(table, n_generations, render.max_order, render.double_beam,
-                                         legs_out.n_live, work)
+        options, offset, size = _options(table, n_generations, render.max_order, render.double_beam, engine, work)
         buffer = PathBuffer(options, offset, size, len(blocks), work.paths_pool)
         total = np.empty(stack.shape[1] * stack.shape[2], np.float32) if in_blocks and sum_rows else None
         rank = np.arange(len(table), dtype=np.int32)  # canonical ids are ranks (ChainTable.key)
