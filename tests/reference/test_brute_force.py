@@ -271,13 +271,9 @@ def _engine_paths(sim) -> dict:
     """The path engine's paths of the scene's frame, read from its path buffer: ``{(ray,
     transmit chain, receive chain): (scatterer, range, energy, beam)}``."""
     from sonarsim.paths.engine import SAME, SonarView
-    from sonarsim.renderer.simulator import MULTIPATH_REACH, RANGE_MARGIN
-
     render, sonar, pose = sim.scene.render, sim.scene.sonar, sim.scene.sonar_pose
     fan = sim.ray_fan(sonar)
-    active = sim.planes.facing(pose.translation)
-    multipath = render.max_order > 1 and bool((active & (sim.planes.specular > 0)).any())
-    reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
+    active, multipath, reach = sim.frame_reach(sonar, pose)
     _, legs, sets, table, _, _ = sim._render_paths(sonar, SonarView.of(sonar, pose, fan), reach, active,
                                                    render.max_order if multipath else 1)
     out = {}

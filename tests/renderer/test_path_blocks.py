@@ -434,17 +434,13 @@ def test_the_frame_view_carries_the_rays_rotated_once_as_the_blocks_rotate_them(
 def _search(doc, monkeypatch, fused=True, kernels="compiled"):
     """The receive legs of the scene's frame (the discrete search: surfaces, triangles,
     barycentrics, scatterers), and the simulator's meshes."""
-    from sonarsim.renderer.simulator import MULTIPATH_REACH, RANGE_MARGIN
-
     with monkeypatch.context() as m:
         if not fused:
             m.setattr(compiled, "packet_loop", lambda caster: None)
         with sonarsim.Simulator(copy.deepcopy(doc), kernels=kernels) as sim:
             render, sonar, pose = sim.scene.render, sim.scene.sonar, sim.scene.sonar_pose
             fan = sim.ray_fan(sonar)
-            active = sim.planes.facing(pose.translation)
-            multipath = render.max_order > 1 and bool((active & (sim.planes.specular > 0)).any())
-            reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
+            active, multipath, reach = sim.frame_reach(sonar, pose)
             _, legs, *_ = sim._render_paths(sonar, SonarView.of(sonar, pose, fan), reach, active,
                                             render.max_order if multipath else 1, primitives=True)
             legs = [(leg.sid.copy(), leg.prim.copy(), leg.uv.copy(), leg.point.copy()) for leg in legs]

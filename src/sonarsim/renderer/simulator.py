@@ -300,6 +300,14 @@ class Simulator:
                   np.zeros(fan.n_rays, np.int32))
         return stack, [leg], None, None, None, None
 
+    def frame_reach(self, sonar: SonarConfig, pose: Pose) -> tuple[np.ndarray, bool, float]:
+        """What a frame at ``pose`` traces: the planes the sonar faces ((P,) bool), whether a
+        mirror among them makes multipath (with ``max_order`` > 1), and the longest receive
+        leg followed, metres."""
+        active = self.planes.facing(pose.translation)
+        multipath = self.scene.render.max_order > 1 and bool((active & (self.planes.specular > 0)).any())
+        return active, multipath, sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
+
     def _render_paths(self, sonar: SonarConfig, view: SonarView, reach: float, active: np.ndarray,
                       n_generations: int, labels: LabelSpec | None = None, primitives: bool = False):
         """``method: fast``: receive legs traced, transmit legs by image sources (any planes).
@@ -423,10 +431,7 @@ class Simulator:
         fan = self.ray_fan(sonar)
         image_sonar, sonar = sonar, self.traced_sonar(sonar)  # the image's grid; the rays' aperture
         t1 = time.perf_counter()
-        active = self.planes.facing(pose.translation)
-        mirrors = active & (self.planes.specular > 0)
-        multipath = render.max_order > 1 and bool(mirrors.any())
-        reach = sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
+        active, multipath, reach = self.frame_reach(sonar, pose)
         spec = None
         if labels:
             names = (tuple(o.name for o in self.scene.objects), tuple(p.name for p in self.scene.reflecting_planes))
