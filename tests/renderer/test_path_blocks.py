@@ -488,6 +488,51 @@ def test_the_search_s_triangles_are_recorded_only_on_request():
         np.testing.assert_array_equal(plain[0], asked[0])  # the same image either way
 
 
+def _weighing_scenes():
+    from tests.renderer.test_textures import multipath_scene
+
+    v = _variants()
+    return {"demo": (v["demo"], True), "tank6_order3": (v["tank6_order3"], True), "tvg=False": (v["tvg=False"], True),
+            "rough_objects": (v["rough_objects"], False), "textured": (multipath_scene(), True),
+            "textured_no_tvg": (multipath_scene(tvg=False), False)}
+
+
+@pytest.mark.parametrize("name", list(_weighing_scenes()))
+def test_the_weighing_reads_only_what_the_search_recorded(name, monkeypatch):
+    """The diffuse weights are formed from the legs the search wrote (surface, incidence,
+    length, the texture's factor) and nothing else: the NumPy twin's weighing, run on the
+    compiled engine's recorded legs with their weights erased, gives the engine's weights and
+    live rays bit for bit (fused blocks, and Python casting between the stages)."""
+    from sonarsim.paths.engine import weigh_leg
+
+    doc, fused = _weighing_scenes()[name]
+    with monkeypatch.context() as m:
+        if not fused:
+            m.setattr(compiled, "packet_loop", lambda caster: None)
+        with sonarsim.Simulator(copy.deepcopy(doc) if isinstance(doc, dict) else doc) as sim:
+            render, sonar, pose = sim.scene.render, sim.scene.sonar, sim.scene.sonar_pose
+            assert not sim._textured  # no plane texture: the legs' weights are the weighing's alone
+            fan = sim.ray_fan(sonar)
+            active, multipath, reach = sim.frame_reach(sonar, pose)
+            _, legs, *_ = sim._render_paths(sonar, SonarView.of(sonar, pose, fan), reach, active,
+                                            render.max_order if multipath else 1)
+            assert (legs[0].texel is not None) == name.startswith("textured")
+            n_planes, weighed = len(sim.planes), 0
+            exact = not (np.asarray(sim._laws.lobe)[:, 0] > 0).any()  # no lobe: the same arithmetic
+            for leg in legs:
+                reached = np.flatnonzero(leg.sid >= 0)
+                want, live = leg.intensity[reached].copy(), leg.live_rays().copy()
+                leg.intensity[:] = np.nan  # what the weighing must form again
+                got = weigh_leg(leg, reached, sim._laws, fan.weight.reshape(-1), render.tvg, n_planes)
+                if exact:
+                    np.testing.assert_array_equal(leg.intensity[reached], want)
+                else:  # a lobe's exp(): NumPy's and the C library's may differ in the last bit
+                    np.testing.assert_allclose(leg.intensity[reached], want, rtol=1e-14, atol=0)
+                np.testing.assert_array_equal(got, live)
+                weighed += len(reached)
+            assert weighed > 1000 and len(legs) >= (2 if name != "demo" and "tvg" not in name else 1)
+
+
 def test_label_maps_serve_one_frame_each_block_resolved_once(monkeypatch):
     """Deposits after a block's cells were resolved (and set back to "nothing") would append
     past its reached cells and table rows: refused, on both routes."""

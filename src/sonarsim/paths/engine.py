@@ -99,6 +99,13 @@ class Leg:
     uv : (n, 2) float32 ndarray or None
         Where on that triangle: the caster's barycentric ``(u, v)``, ``A = (1 - u - v) a + u b +
         v c``; 0 elsewhere.
+    cosine : (n,) float64 ndarray or None
+        The incidence ``|cos(alpha)|`` at A, as the search recorded it (generation 0: from the
+        float32 normal and direction, as the caster reports them); :func:`weigh_leg` turns it
+        into ``intensity`` (None: not recorded).
+    texel : (n,) float32 ndarray or None
+        Where the objects are textured, the texture's factor at each object's scatterer (the
+        search records it, the weighing reads it); None: no texture.
     """
 
     gen: int
@@ -113,6 +120,8 @@ class Leg:
     keys: np.ndarray | None = None
     prim: np.ndarray | None = None
     uv: np.ndarray | None = None
+    cosine: np.ndarray | None = None
+    texel: np.ndarray | None = None
 
     def key(self, n_surfaces: int) -> np.ndarray:
         """(n,) int32: rays on one surface via one chain share a key (-1 none): continuity."""
@@ -333,11 +342,13 @@ def trace_generation(
     table: ChainTable,
     leg: Leg,
 ) -> tuple[Rays, np.ndarray]:
-    """One generation of receive legs (twin of ``_kernels.trace_leg``).
+    """One generation of receive legs (twin of ``_kernels.trace_leg``): the search, then
+    :func:`weigh_leg` over what it recorded.
 
     Each ray ends at the closest of its object hit and the active planes it meets from the
-    water side within ``reach_m``; there it scatters (the diffuse weight) and, on a plane with
-    some specular reflectance, reflects and goes on as a ray of the next generation.
+    water side within ``reach_m``; there it scatters (the diffuse weight, formed by the
+    weighing from the recorded incidence) and, on a plane with some specular reflectance,
+    reflects and goes on as a ray of the next generation.
 
     Parameters
     ----------
@@ -363,9 +374,10 @@ def trace_generation(
     table : ChainTable
         Receives the chains met, numbered in the order of the rows that first meet them.
     leg : Leg
-        Dense over the fan; written at the rays reached (distance, sid, point, normal,
-        intensity; ``atten`` and ``chain`` except in the first generation, where they are
-        1 and 0). Its :meth:`Leg.key` is the kernel's ``key``.
+        Dense over the fan; written at the rays reached (distance, sid, point, normal, cosine,
+        intensity, texel where the hits carry a texture's factor; ``atten`` and ``chain``
+        except in the first generation, where they are 1 and 0). Its :meth:`Leg.key` is the
+        kernel's ``key``. A missing ``cosine`` (or ``texel``) is allocated.
 
     Returns
     -------
@@ -411,17 +423,20 @@ def trace_generation(
         cos = np.abs(_rowdot(normal.astype(np.float32), dd.astype(np.float32))).astype(np.float64)
     else:
         cos = np.abs(_rowdot(normal, dd))
-    texel = None
-    if hits.texel is not None:  # a texture scales the objects' diffuse coefficient, not the planes'
-        texel = np.where(sid >= n_planes, hits.texel[k], np.float32(1.0))
-    intensity = backscatter(np.asarray(weight)[r], cos, SurfaceLaws.of(laws), sid + 1, total, tvg, texel)
     atten = np.broadcast_to(rays.atten, (m,))[k]
     chain = np.broadcast_to(rays.chain, (m,))[k]
+    if leg.cosine is None:
+        leg.cosine = np.zeros(len(leg.distance))
     leg.distance[r] = total
     leg.sid[r] = sid
     leg.point[r] = point
     leg.normal[r] = normal
-    leg.intensity[r] = intensity
+    leg.cosine[r] = cos
+    if hits.texel is not None:  # a texture scales the objects' diffuse coefficient, not the planes'
+        if leg.texel is None:
+            leg.texel = np.ones(len(leg.distance), np.float32)
+        on_object = sid >= n_planes
+        leg.texel[r[on_object]] = hits.texel[k][on_object]
     if leg.prim is not None:  # the search's triangle and barycentrics where an object scatters
         on_object = sid >= n_planes
         leg.prim[r] = np.where(on_object, hits.primitive_id[k], -1)
@@ -429,7 +444,7 @@ def trace_generation(
     if not first:
         leg.atten[r] = atten
         leg.chain[r] = chain
-    live = r[intensity != 0]
+    live = weigh_leg(leg, r, laws, weight, tvg, n_planes)
     go = (sid < n_planes) & (total < reach_m)
     if n_planes:
         go &= planes.specular[np.minimum(sid, n_planes - 1)] > 0
@@ -449,6 +464,41 @@ def trace_generation(
     nxt = Rays(r[go], start, d_ref, total[go] + SURFACE_OFFSET_M, atten[go] * planes.specular[p],
                child[back.reshape(-1)])
     return nxt, live
+
+
+def weigh_leg(leg: Leg, reached: np.ndarray, laws: SurfaceLaws | np.ndarray, weight: np.ndarray, tvg: bool,
+              n_planes: int) -> np.ndarray:
+    """The diffuse weight of the rays a generation's search reached, from what it recorded
+    (twin of ``_kernels.weigh_impl``): ``leg.intensity[reached]``, from the surface, the
+    incidence, the leg's length and, on a textured object, the texture's factor.
+
+    Parameters
+    ----------
+    leg : Leg
+        With ``cosine`` (and ``texel`` where the objects are textured) written at ``reached``.
+    reached : (m,) intp ndarray
+        The fan rays the search reached, ascending.
+    laws : SurfaceLaws or (n_surfaces + 1,) float array
+        Backscatter laws by surface id + 1 (an array: the Lambertian albedo).
+    weight : (n,) float array
+        Weight ``beta dphi`` of each fan ray.
+    tvg : bool
+        Without TVG, the weight is divided by the leg's length squared.
+    n_planes : int
+
+    Returns
+    -------
+    (l,) intp ndarray
+        The rays of ``reached`` that scatter some energy.
+    """
+    sid = leg.sid[reached]
+    texel = None
+    if leg.texel is not None:
+        texel = np.where(sid >= n_planes, leg.texel[reached], np.float32(1.0))
+    intensity = backscatter(np.asarray(weight)[reached], leg.cosine[reached], SurfaceLaws.of(laws), sid + 1,
+                            leg.distance[reached], tvg, texel)
+    leg.intensity[reached] = intensity
+    return reached[intensity != 0]
 
 
 RAD2DEG = 180.0 / np.pi
@@ -689,7 +739,7 @@ def trace_legs(
         leg = Leg(
             g, np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan), np.zeros((n, 3)),
             np.zeros(n), np.ones(n) if first else np.zeros(n), np.zeros(n, np.int32) if first else np.full(n, -1, np.int32),
-            prim=np.full(n, -1, np.int32), uv=np.zeros((n, 2), np.float32),
+            prim=np.full(n, -1, np.int32), uv=np.zeros((n, 2), np.float32), cosine=np.zeros(n),
         )
         legs.append(leg)
         limit = float(reach_m - rays.before.min())

@@ -84,15 +84,42 @@ cdef class _Laws:
                 self.texel = &tv[0]
 
 
-cdef inline double diffuse_weight(_Laws laws, const double* albedo_by_id, Py_ssize_t index, Py_ssize_t row,
-                                  bint on_mesh, double w, double c) noexcept nogil:
-    """``w * f(alpha)`` of surface ``index`` (surface id + 1) for the hit of row ``row``."""
+cdef inline double diffuse_weight(_Laws laws, const double* albedo_by_id, Py_ssize_t index,
+                                  const float* texel, double w, double c) noexcept nogil:
+    """``w * f(alpha)`` of surface ``index`` (surface id + 1); ``texel``: the texture's factor
+    at the hit (NULL: none)."""
     cdef double coef = albedo_by_id[index]
-    if on_mesh and laws.texel != NULL:
-        coef = coef * laws.texel[row]
+    if texel != NULL:
+        coef = coef * texel[0]
     if laws.law == NULL:
         return w * coef * c
     return scatter(w, coef, laws.law[index], laws.lobe + 2 * index, c)
+
+
+cdef Py_ssize_t weigh_impl(Py_ssize_t[::1] live, Py_ssize_t n_reached, const int[::1] sid,
+                           const double[::1] cosine, const double[::1] dist, const float[::1] texel,
+                           bint textured, int n_planes, const double[::1] albedo_by_id,
+                           const double[::1] weight, bint tvg, _Laws laws,
+                           double[::1] intensity) noexcept nogil:
+    """The loop of :func:`weigh`: the diffuse weight of each reached ray from what the search
+    recorded (its surface, incidence, leg length and, on a textured object, the texture's
+    factor), and ``live[:n_reached]`` compacted in place to the rays with some energy."""
+    cdef Py_ssize_t j, i, n_live = 0
+    cdef int s
+    cdef double c, r
+    for j in range(n_reached):
+        i = live[j]
+        s = sid[i]
+        c = diffuse_weight(laws, &albedo_by_id[0], s + 1, &texel[i] if textured and s >= n_planes else NULL,
+                           weight[i], cosine[i])
+        if not tvg:
+            r = dist[i] if dist[i] > 1e-6 else 1e-6
+            c = c / (r * r)
+        intensity[i] = c
+        if c != 0:
+            live[n_live] = i
+            n_live += 1
+    return n_live
 
 
 cdef inline Py_ssize_t beam_of(const double* edges, Py_ssize_t n_edges, double az) noexcept nogil:
@@ -268,17 +295,17 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
               const double[::1] before, const double[::1] atten, const int[::1] chain,
               const double[:, ::1] plane_normal, const double[::1] plane_offset,
               const unsigned char[::1] plane_active, const double[::1] plane_specular,
-              double reach, const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
-              bint first, bint reflect, int[:, ::1] children, int n_chains,
+              double reach, bint first, bint reflect, int[:, ::1] children, int n_chains,
               double[::1] dist, int[::1] sid, double[:, ::1] point,
-              double[:, ::1] normal, double[::1] intensity, double[::1] atten_out, int[::1] chain_out,
+              double[:, ::1] normal, double[::1] cosine, double[::1] atten_out, int[::1] chain_out,
               int[::1] key, Py_ssize_t[::1] live, int n_surfaces,
               Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
               double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
-              double[::1] nx_atten, int[::1] nx_chain, _Laws laws,
+              double[::1] nx_atten, int[::1] nx_chain, const float* hit_texel, float[::1] texel,
               const int[::1] hit_prim, const float[:, ::1] hit_uv, int[::1] prim,
               float[:, ::1] uv) noexcept nogil:
-    """The loop of :func:`trace_leg` (also run by :class:`PathBlocks`, block by block)."""
+    """The loop of :func:`trace_leg`'s search (also run by :class:`PathBlocks`, block by block):
+    writes the legs and lists the reached rays in ``live``; :func:`weigh_impl` weighs them."""
 
     cdef Py_ssize_t k, i, m = ray.shape[0], n_next = 0, P = plane_normal.shape[0]
     cdef Py_ssize_t row, p, best_p, cap = children.shape[0]
@@ -289,7 +316,7 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
     cdef int s, ch, child
     cdef bint overflow = False
     cdef bint primitives = prim.shape[0] > 0  # the search's triangle and barycentrics, recorded
-    cdef Py_ssize_t n_live = 0
+    cdef Py_ssize_t n_reached = 0
     cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
     for k in range(m):
         i = ray[k]
@@ -354,10 +381,6 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
             py = oy + dy * t
             pz = oz + dz * t
             c = fabs(nx * dx + ny * dy + nz * dz)
-        c = diffuse_weight(laws, &albedo_by_id[0], s + 1, k, s >= P, weight[i], c)
-        if not tvg:
-            r = total if total > 1e-6 else 1e-6
-            c = c / (r * r)
         ch = chain[row]
         dist[i] = total
         sid[i] = s
@@ -367,7 +390,9 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
         normal[i, 0] = nx
         normal[i, 1] = ny
         normal[i, 2] = nz
-        intensity[i] = c
+        cosine[i] = c
+        if hit_texel != NULL and s >= P:  # the texture's factor where a textured object scatters
+            texel[i] = hit_texel[k]
         if primitives:
             if s >= P:  # an object's triangle and where on it (Embree's u, v)
                 prim[i] = hit_prim[k]
@@ -381,9 +406,8 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
             atten_out[i] = atten[row]
             chain_out[i] = ch
             key[i] = ch * n_surfaces + s
-        if c != 0:
-            live[n_live] = i
-            n_live += 1
+        live[n_reached] = i
+        n_reached += 1
         if not (reflect and s < P and total < reach and plane_specular[s] > 0):
             continue
         child = children[ch, s]
@@ -420,7 +444,7 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
         if total + SURFACE_OFFSET_M < min_next:
             min_next = total + SURFACE_OFFSET_M
         n_next += 1
-    return n_next, n_chains, min_next, overflow, n_live
+    return n_next, n_chains, min_next, overflow, n_reached
 
 
 def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const int[::1] hit_mesh,
@@ -436,9 +460,10 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
               Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
               double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
               double[::1] nx_atten, int[::1] nx_chain, law_by_id=None, lobe_by_id=None, hit_texel=None,
-              hit_prim=None, hit_uv=None, prim=None, uv=None):
-    """One generation of receive legs: closest of objects and active planes, diffuse weight,
-    and the specular reflection of the rays that meet a plane (twin: ``engine.trace_legs``).
+              hit_prim=None, hit_uv=None, prim=None, uv=None, cosine=None, texel=None):
+    """One generation of receive legs: the search (closest of objects and active planes, and
+    the specular reflection of the rays that meet a plane), then the weighing of what it
+    recorded (twin: ``engine.trace_generation``, ``engine.weigh_leg``).
 
     Rows ``k`` are rays ``ray[k]`` of the fan; ``org``, ``before``, ``atten``, ``chain`` may
     have one row for all (the first generation). Dense outputs (indexed by fan ray) must come
@@ -453,7 +478,10 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     With ``hit_prim`` (rows) and ``hit_uv`` (rows x 2), the caster's triangle and barycentric
     ``(u, v)``, the discrete search is recorded in ``prim`` and ``uv`` (dense): the triangle
     and ``(u, v)`` where an object scatters, -1 and 0 where a plane does (and, in the first
-    generation, where nothing does).
+    generation, where nothing does). The search writes each reached ray's incidence
+    ``|cos(alpha)|`` in ``cosine`` and, with ``hit_texel``, the texture's factor where an object
+    scatters in ``texel`` (dense; allocated here where not given); the weighing reads those,
+    ``sid`` and ``dist`` and writes ``intensity``.
 
     Returns
     -------
@@ -461,6 +489,11 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     """
     cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, albedo_by_id.shape[0], ray.shape[0])
     cdef (Py_ssize_t, int, double, bint, Py_ssize_t) r
+    cdef double[::1] cos_out = np.empty(dist.shape[0]) if cosine is None else cosine
+    cdef float[::1] tex_out = (np.ones(dist.shape[0], np.float32) if texel is None else texel) if hit_texel is not None else _NO_TEXEL
+    cdef Py_ssize_t n_live
+    if cos_out.shape[0] != dist.shape[0] or (hit_texel is not None and tex_out.shape[0] != dist.shape[0]):
+        raise ValueError("cosine and texel are dense over the fan, as dist is")
     cdef const int[::1] hp = _NO_INT if hit_prim is None else hit_prim
     cdef const float[:, ::1] huv = _NO_UV if hit_uv is None else hit_uv
     cdef int[::1] po = _NO_INT_OUT if prim is None else prim
@@ -471,8 +504,14 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
                              or po.shape[0] != dist.shape[0] or uo.shape[0] != dist.shape[0] or uo.shape[1] != 2):
         raise ValueError("hit_prim, hit_uv (rows) and prim, uv (dense) of the wrong shapes")
     with nogil:
-        r = trace_leg_impl(ray, hit_distance, hit_mesh, hit_normal, org, dirs, before, atten, chain, plane_normal, plane_offset, plane_active, plane_specular, reach, albedo_by_id, weight, tvg, first, reflect, children, n_chains, dist, sid, point, normal, intensity, atten_out, chain_out, key, live, n_surfaces, nx_ray, nx_org, nx_org32, nx_dir, nx_dir32, nx_before, nx_atten, nx_chain, laws, hp, huv, po, uo)
-    return r
+        r = trace_leg_impl(ray, hit_distance, hit_mesh, hit_normal, org, dirs, before, atten, chain, plane_normal,
+                           plane_offset, plane_active, plane_specular, reach, first, reflect, children, n_chains,
+                           dist, sid, point, normal, cos_out, atten_out, chain_out, key, live, n_surfaces, nx_ray,
+                           nx_org, nx_org32, nx_dir, nx_dir32, nx_before, nx_atten, nx_chain, laws.texel, tex_out,
+                           hp, huv, po, uo)
+        n_live = weigh_impl(live, r[4], sid, cos_out, dist, tex_out, laws.texel != NULL, <int>plane_normal.shape[0],
+                            albedo_by_id, weight, tvg, laws, intensity)
+    return r[0], r[1], r[2], r[3], n_live
 
 
 # Empty arrays: trace_leg without the search's triangles recorded.
@@ -480,6 +519,7 @@ _NO_INT = np.zeros(0, np.int32)
 _NO_INT_OUT = np.zeros(0, np.int32)
 _NO_UV = np.zeros((0, 2), np.float32)
 _NO_UV_OUT = np.zeros((0, 2), np.float32)
+_NO_TEXEL = np.zeros(0, np.float32)  # the legs' texel where no object is textured
 
 
 cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] dist, const int[::1] sid,
@@ -1331,7 +1371,8 @@ cdef class PathBlocks:
     cdef double[::1] blk_min
     cdef readonly Py_ssize_t n_blocks
     # Per frame.
-    cdef double[:, ::1] dist, intensity, atten
+    cdef double[:, ::1] dist, intensity, atten, cosine
+    cdef float[:, ::1] texel
     cdef int[:, ::1] sid, chain, key, prim
     cdef double[:, :, ::1] point, normal
     cdef float[:, :, ::1] uv
@@ -1430,9 +1471,10 @@ cdef class PathBlocks:
               bint spread, bint separate, Py_ssize_t n_surfaces, float[::1] out=None, bint primitives=False):
         """Set the frame: ``out`` (optional: the flat image stack the blocks will splat into;
         block k zeroes its k-th share of the range bins while it traces, whole rows at a time,
-        contiguous), ``legs`` (``dist``, ``sid``, ``point``, ``normal``, ``intensity``,
-        ``atten``, ``chain``, ``key``, ``live``: the (n_gen, n, ...) receive legs, written by
-        the blocks; ``n_live``, ``n_cast``: (n_blocks, n_gen) counts; with ``primitives``, also
+        contiguous), ``legs`` (``dist``, ``sid``, ``point``, ``normal``, ``cosine``,
+        ``intensity``, ``atten``, ``chain``, ``key``, ``live``: the (n_gen, n, ...) receive legs,
+        written by the blocks; ``texel``, (n_gen, n) float32 where objects are textured, else
+        None; ``n_live``, ``n_cast``: (n_blocks, n_gen) counts; with ``primitives``, also
         ``prim`` and ``uv``, the search's triangles and barycentrics), the planes the sonar
         faces, the pose, the settings. Everything is checked before anything is kept (the
         kernels read without bounds checks)."""
@@ -1445,8 +1487,8 @@ cdef class PathBlocks:
             raise ValueError("the rotation is not 3 x 3 or the origin not 3 numbers")
         if n_gen < 1 or n_beams < 1 or n_el < 1 or n % (n_beams * n_el) != 0 or edges.shape[0] != n_beams + 1:
             raise ValueError("the fan's shape does not match the workspace (its beams, rays per beam or edges)")
-        for name in ("dist", "intensity", "atten", "sid", "chain", "key", "live", "point", "normal") + (
-                ("prim", "uv") if primitives else ()):
+        for name in ("dist", "cosine", "intensity", "atten", "sid", "chain", "key", "live", "point", "normal") + (
+                ("prim", "uv") if primitives else ()) + (("texel",) if legs.texel is not None else ()):
             a = getattr(legs, name)
             if a.ndim < 2 or a.shape[0] < n_gen or a.shape[1] != n or (a.ndim == 3 and a.shape[2] != (2 if name == "uv" else 3)):
                 raise ValueError(f"legs.{name} of shape {a.shape} for {n_gen} generations of {n} rays")
@@ -1458,6 +1500,8 @@ cdef class PathBlocks:
             raise ValueError("the output stack is not (rows, n_range_bins, n_beams)")
         self.dist, self.sid, self.point, self.normal = legs.dist, legs.sid, legs.point, legs.normal
         self.intensity, self.atten, self.chain, self.key = legs.intensity, legs.atten, legs.chain, legs.key
+        self.cosine = legs.cosine
+        self.texel = legs.texel if legs.texel is not None else np.zeros((n_gen, 0), np.float32)
         self.live, self.n_live, self.n_cast = legs.live, legs.n_live, legs.n_cast
         self.primitives = primitives
         if primitives:
@@ -1478,7 +1522,8 @@ cdef class PathBlocks:
     def release(self):
         """Let go of the frame's arrays (the legs, the path buffer, the stack): the caller
         reuses them for a later frame once nothing else holds them."""
-        self.dist = self.intensity = self.atten = None
+        self.dist = self.intensity = self.atten = self.cosine = None
+        self.texel = None
         self.sid = self.chain = self.key = None
         self.point = self.normal = None
         self.prim = None
@@ -1551,16 +1596,18 @@ cdef class PathBlocks:
         cdef (Py_ssize_t, int, double, bint, Py_ssize_t) r
         cdef bint reflect = g + 1 < self.n_gen
         self.n_cast[k, g] = m
+        # The search (trace_leg_impl) lists the reached rays in live; the weighing reads what it
+        # recorded there and keeps those with some energy.
         if g == 0:
             r = trace_leg_impl(self.ray0[a:b], self.h_dist[a:b], self.h_mesh[a:b], self.h_normal[a:b], self.origin2,
                                self.d64[a:b], self.before1, self.ones[:1], self.zeros[:1], self.plane_normal,
-                               self.plane_offset, self.active, self.plane_specular, self.reach, self.albedo,
-                               self.weight, self.tvg, True, reflect, self.children[k], self.n_local[k], self.dist[0],
-                               self.sid[0], self.point[0], self.normal[0], self.intensity[0], self.atten[0],
+                               self.plane_offset, self.active, self.plane_specular, self.reach,
+                               True, reflect, self.children[k], self.n_local[k], self.dist[0],
+                               self.sid[0], self.point[0], self.normal[0], self.cosine[0], self.atten[0],
                                self.chain[0], self.key[0], self.live[0, a:b], <int>self.n_surfaces,
                                self.r_ray[nxt, a:b], self.r_org[nxt, a:b], self.r_org32[nxt, a:b],
                                self.r_dir[nxt, a:b], self.r_dir32[nxt, a:b], self.r_before[nxt, a:b],
-                               self.r_atten[nxt, a:b], self.r_chain[nxt, a:b], laws,
+                               self.r_atten[nxt, a:b], self.r_chain[nxt, a:b], laws.texel, self.texel[0],
                                self.h_prim[a:b] if self.primitives else self.no_prim,
                                self.h_uv[a:b] if self.primitives else self.no_uv,
                                self.prim[0] if self.primitives else self.no_prim,
@@ -1570,13 +1617,13 @@ cdef class PathBlocks:
                                self.h_normal[a:a + m], self.r_org[cur, a:a + m], self.r_dir[cur, a:a + m],
                                self.r_before[cur, a:a + m], self.r_atten[cur, a:a + m], self.r_chain[cur, a:a + m],
                                self.plane_normal, self.plane_offset, self.active, self.plane_specular, self.reach,
-                               self.albedo, self.weight, self.tvg, False, reflect, self.children[k],
+                               False, reflect, self.children[k],
                                self.n_local[k], self.dist[g], self.sid[g], self.point[g], self.normal[g],
-                               self.intensity[g], self.atten[g], self.chain[g], self.key[g], self.live[g, a:b],
+                               self.cosine[g], self.atten[g], self.chain[g], self.key[g], self.live[g, a:b],
                                <int>self.n_surfaces, self.r_ray[nxt, a:b], self.r_org[nxt, a:b],
                                self.r_org32[nxt, a:b], self.r_dir[nxt, a:b], self.r_dir32[nxt, a:b],
-                               self.r_before[nxt, a:b], self.r_atten[nxt, a:b], self.r_chain[nxt, a:b], laws,
-                               self.h_prim[a:a + m] if self.primitives else self.no_prim,
+                               self.r_before[nxt, a:b], self.r_atten[nxt, a:b], self.r_chain[nxt, a:b], laws.texel,
+                               self.texel[g], self.h_prim[a:a + m] if self.primitives else self.no_prim,
                                self.h_uv[a:a + m] if self.primitives else self.no_uv,
                                self.prim[g] if self.primitives else self.no_prim,
                                self.uv[g] if self.primitives else self.no_uv)
@@ -1585,7 +1632,9 @@ cdef class PathBlocks:
         self.blk_min[k] = r[2]
         if r[3]:
             self.overflow[k] = 1
-        self.n_live[k, g] = r[4]
+        self.n_live[k, g] = weigh_impl(self.live[g, a:b], r[4], self.sid[g], self.cosine[g], self.dist[g],
+                                       self.texel[g], laws.texel != NULL, <int>self.n_planes, self.albedo,
+                                       self.weight, self.tvg, laws, self.intensity[g])
         self.blk_cur[k] = nxt
 
     def trace(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1):
@@ -1646,6 +1695,8 @@ cdef class PathBlocks:
         if not 0 <= g < self.n_gen:
             raise ValueError(f"generation {g} of {self.n_gen}")
         cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, self.albedo.shape[0], self.blk_m[k])
+        if laws.texel != NULL and self.texel.shape[1] == 0:
+            raise ValueError("textured hits, but the frame's legs have no texel array")
         with nogil:
             self._step(k, a, b, g, laws)
         return not self.overflow[k]

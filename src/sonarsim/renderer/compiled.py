@@ -180,9 +180,14 @@ class FrameLegs:
 
     Attributes
     ----------
-    dist, intensity, atten : (G, n) float64 ndarrays
+    dist, cosine, intensity, atten : (G, n) float64 ndarrays
+        ``cosine`` (the incidence, as the search recorded it) is what the weighing turns into
+        ``intensity``.
     sid, chain, key : (G, n) int32 ndarrays
     point, normal : (G, n, 3) float64 ndarrays
+    texel : (G, n) float32 ndarray or None
+        Where the objects are textured (``textured``), the texture's factor at each object's
+        scatterer (the search records it, the weighing reads it); None otherwise.
     prim : (G, n) int32 ndarray or None
         The discrete search's triangle: the index into the object's mesh faces where an object
         scatters, -1 where a plane does or nothing (``sid`` says which); recorded on request
@@ -197,14 +202,16 @@ class FrameLegs:
     """
 
     def __init__(self, n_gen: int, n: int, n_blocks: int, pool: ArrayPool | None = None,
-                 primitives: bool = False) -> None:
+                 primitives: bool = False, textured: bool = False) -> None:
         f, i = np.float64, np.int32
-        shapes = {"dist": ((n_gen, n), f), "intensity": ((n_gen, n), f), "atten": ((n_gen, n), f),
-                  "sid": ((n_gen, n), i), "chain": ((n_gen, n), i), "key": ((n_gen, n), i),
+        shapes = {"dist": ((n_gen, n), f), "cosine": ((n_gen, n), f), "intensity": ((n_gen, n), f),
+                  "atten": ((n_gen, n), f), "sid": ((n_gen, n), i), "chain": ((n_gen, n), i), "key": ((n_gen, n), i),
                   "point": ((n_gen, n, 3), f), "normal": ((n_gen, n, 3), f), "live": ((n_gen, n), np.intp)}
-        self.prim = self.uv = None
+        self.prim = self.uv = self.texel = None
         if primitives:
             shapes.update(prim=((n_gen, n), i), uv=((n_gen, n, 2), np.float32))
+        if textured:
+            shapes.update(texel=((n_gen, n), np.float32))
         arrays = pool.take(shapes) if pool is not None else {k: np.empty(*v) for k, v in shapes.items()}
         for name, (shape, _) in shapes.items():  # views of exactly the frame's shape
             setattr(self, name, arrays[name][tuple(slice(0, m) for m in shape)])
@@ -220,7 +227,8 @@ class FrameLegs:
             out.append(Leg(g, self.dist[g], self.sid[g], self.point[g], self.normal[g], self.intensity[g],
                            work.ones if first else self.atten[g], work.zeros_i32 if first else self.chain[g],
                            keys=self.sid[g] if first else self.key[g],
-                           prim=None if self.prim is None else self.prim[g], uv=None if self.uv is None else self.uv[g]))
+                           prim=None if self.prim is None else self.prim[g], uv=None if self.uv is None else self.uv[g],
+                           cosine=self.cosine[g], texel=None if self.texel is None else self.texel[g]))
         return out
 
 
@@ -418,7 +426,10 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
     n_blocks = min(N_BLOCKS, n_beams)
     blocks = beam_blocks(n_beams, n_blocks)
     per_beam = fan.n_rays // n_beams
-    legs_out = FrameLegs(n_generations, fan.n_rays, n_blocks, work.legs_pool, primitives)
+    # A caster whose hits carry a texture's factor (scene.textures.TexturedCaster) casts in
+    # Python between the stages; the legs then record the factor for the weighing.
+    textured = bool(getattr(type(caster), "carries_texel", False))
+    legs_out = FrameLegs(n_generations, fan.n_rays, n_blocks, work.legs_pool, primitives, textured)
     active8 = np.ascontiguousarray(active, dtype=np.uint8)
     in_blocks = render.double_beam != "split" and occlusion is None  # each block splats its own beams
     if not stack.flags.c_contiguous:

@@ -87,6 +87,9 @@ class TexturedCaster:
         The meshes, in the caster's order; those with a ``texture`` are sampled.
     """
 
+    #: Its hits carry ``texel`` (the engine then records the factor in the legs it traces).
+    carries_texel = True
+
     def __init__(self, caster, meshes: Sequence) -> None:
         self.caster = caster
         self.name = caster.name
