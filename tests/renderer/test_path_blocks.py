@@ -154,7 +154,8 @@ def test_blocks_cover_the_beams_once():
         assert max(sizes) - min(sizes) <= 1
 
 
-def test_on_both_cores_runs_every_task_once_and_waits_for_the_other_thread():
+@pytest.mark.parametrize("kind", ["thread_pool", "second_core"])
+def test_on_both_cores_runs_every_task_once_and_waits_for_the_other_thread(kind):
     from concurrent.futures import ThreadPoolExecutor
     import threading
     import time
@@ -166,7 +167,7 @@ def test_on_both_cores_runs_every_task_once_and_waits_for_the_other_thread():
         seen.append(k)
         threads.add(threading.get_ident())
 
-    with ThreadPoolExecutor(1) as pool:
+    with (ThreadPoolExecutor(1) if kind == "thread_pool" else compiled.SecondCore()) as pool:
         compiled.on_both_cores(task, 9, pool)
         assert sorted(seen) == list(range(9)) and len(threads) == 2
         # A task that raises: the error reaches the caller after the other thread stopped.
@@ -194,14 +195,14 @@ def test_path_blocks_refuse_misuse(monkeypatch):
         checked = []
         run = compiled.on_both_cores
 
-        def checking(task, n, pool=None):
+        def checking(task, n, pool=None, signals=False):
             if not checked:  # inside the frame, before its blocks are traced
                 for args in ((0, 0, 10_000), (0, 5, 2), (99, 0, 4)):
                     with pytest.raises(ValueError, match="block"):
                         engine.trace(*args)
                 assert engine.trace(0, 3, 3)  # no beams: nothing to do
                 checked.append(True)
-            run(task, n, pool)
+            run(task, n, pool, signals)
 
         monkeypatch.setattr(compiled, "on_both_cores", checking)
         sim.render()
@@ -257,7 +258,7 @@ def test_the_array_pool_hands_a_set_out_again_only_once_nothing_holds_it():
     for _ in range(5):
         pool.take(shapes)
     assert len(pool._sets) == compiled.ArrayPool.KEEP
-    assert any(s["a"] is kept for s in pool._sets)
+    assert any(s[2]["a"] is kept for s in pool._sets)
 
 
 def test_a_loop_of_frames_reuses_its_legs_and_paths_and_an_image_keeps_its_own():
@@ -300,8 +301,8 @@ def test_path_blocks_check_a_frame_and_its_options_before_keeping_them(monkeypat
         seen = []
         run = compiled.on_both_cores
 
-        def checking(task, n, pool=None):
-            run(task, n, pool)
+        def checking(task, n, pool=None, signals=False):
+            run(task, n, pool, signals)
             if len(seen) == 0:  # after phase 1: options with a path buffer one path short
                 seen.append(True)
                 legs = compiled.FrameLegs(3, sim._work.n, engine.chain_tables()[1].shape[0])
@@ -556,8 +557,8 @@ def test_label_maps_serve_one_frame_each_block_resolved_once(monkeypatch):
         ref = _label_arrays(sim.render(speckle=False, labels=True).labels)
         run, calls = compiled.on_both_cores, []
 
-        def again(task, n, pool=None):  # the frame's second hand-off forms the paths: once more
-            run(task, n, pool)
+        def again(task, n, pool=None, signals=False):  # the frame's second hand-off forms the paths: once more
+            run(task, n, pool, signals)
             calls.append(n)
             if len(calls) == 2:
                 with pytest.raises(ValueError, match="already resolved"):
@@ -626,3 +627,59 @@ def test_the_layout_kernel_forms_the_image_sources_and_offsets_as_numpy_does(mon
         for pose in POSES:
             sim.render(pose=pose)
     assert len(seen) == len(POSES) and min(seen) > 3  # options along chains of planes, every frame
+
+
+def test_the_second_core_runs_tasks_in_order_passes_errors_and_stops_when_collected():
+    import gc
+    import threading
+    import weakref
+
+    pool = compiled.SecondCore()
+    order = []
+    futures = [pool.submit(order.append, k) for k in range(50)]
+    assert [f.result() for f in futures] == [None] * 50 and order == list(range(50))
+    assert list(pool.map(lambda x: x * x, range(5))) == [0, 1, 4, 9, 16]
+    with pytest.raises(ZeroDivisionError):
+        pool.submit(lambda: 1 / 0).result()
+    thread = pool._thread
+    assert thread.is_alive()
+    ref = weakref.ref(pool)
+    del pool, futures
+    gc.collect()
+    assert ref() is None
+    thread.join(timeout=5)
+    assert not thread.is_alive()  # collected: its thread stopped
+    other = compiled.SecondCore()
+    other.shutdown()
+    assert not other._thread.is_alive() and not any(t is other._thread for t in threading.enumerate())
+    with pytest.raises(RuntimeError, match="shutdown"):
+        other.submit(print)
+
+
+def test_on_both_cores_hands_off_through_the_flag_and_never_hangs():
+    """Each task runs once whichever thread takes it; a first task that raises the flag from
+    without the GIL (a kernel), one that never raises it, and one that fails before it could:
+    every call returns (or raises the task's error) with the worker idle again."""
+    from sonarsim.renderer import _kernels
+
+    pool = compiled.SecondCore()
+    zero = np.zeros(1, np.uint8)
+    for mode in ("kernel", "never", "fails"):
+        for n in (1, 2, 5):
+            done = []
+
+            def task(k, signal=None):
+                if signal is not None and mode == "fails":
+                    raise KeyError(k)
+                if signal is not None and mode == "kernel":
+                    _kernels.watch_flag(zero, 0.0005, signal)  # raised once the GIL is let go
+                done.append(k)
+
+            if mode == "fails" and n > 1:
+                with pytest.raises(KeyError):
+                    compiled.on_both_cores(task, n, pool, signals=True)
+            else:
+                compiled.on_both_cores(task, n, pool, signals=True)
+                assert sorted(done) == list(range(n)), (mode, n)
+            assert pool._state[2][0] == 1  # idle
+    pool.shutdown()

@@ -22,6 +22,65 @@ cimport cython
 
 from sonarsim.trace.cast_abi cimport cast_rays_t
 
+cdef extern from *:
+    """
+    /* Watching a flag that another thread sets: an acquiring load, a clock, a pause. */
+    #if defined(_MSC_VER)
+    #include <windows.h>
+    static int ss_flag_load(const unsigned char* p) { return *(const volatile unsigned char*)p; }
+    static void ss_flag_store(unsigned char* p, unsigned char v) { *(volatile unsigned char*)p = v; }
+    static double ss_now(void) {
+        LARGE_INTEGER f, c; QueryPerformanceFrequency(&f); QueryPerformanceCounter(&c);
+        return (double)c.QuadPart / (double)f.QuadPart;
+    }
+    static void ss_pause(void) { YieldProcessor(); }
+    #else
+    #include <time.h>
+    static int ss_flag_load(const unsigned char* p) { return __atomic_load_n(p, __ATOMIC_ACQUIRE); }
+    static void ss_flag_store(unsigned char* p, unsigned char v) { __atomic_store_n(p, v, __ATOMIC_RELEASE); }
+    static double ss_now(void) {
+        struct timespec t; clock_gettime(CLOCK_MONOTONIC, &t);
+        return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+    }
+    static void ss_pause(void) {
+    #if defined(__x86_64__) || defined(__i386__)
+        __builtin_ia32_pause();
+    #elif defined(__aarch64__)
+        __asm__ __volatile__("yield");
+    #endif
+    }
+    #endif
+    """
+    int ss_flag_load(const unsigned char* p) noexcept nogil
+    void ss_flag_store(unsigned char* p, unsigned char v) noexcept nogil
+    double ss_now() noexcept nogil
+    void ss_pause() noexcept nogil
+
+
+def watch_flag(const unsigned char[::1] flag, double seconds, unsigned char[::1] raise_first=None):
+    """Watch ``flag[0]`` for up to ``seconds``, without the GIL: True as soon as another thread
+    has made it nonzero, False once the time is up (``renderer.compiled.SecondCore``). With
+    ``raise_first``, set ``raise_first[0]`` to 1 once the GIL is let go: a thread watching that
+    flag can take the GIL without waiting for it."""
+    cdef double end
+    cdef bint seen = False
+    cdef int k
+    if flag.shape[0] < 1 or (raise_first is not None and raise_first.shape[0] < 1):
+        raise ValueError("an empty flag")
+    with nogil:
+        if raise_first is not None:
+            ss_flag_store(&raise_first[0], 1)
+        end = ss_now() + seconds
+        while not seen:
+            for k in range(64):
+                if ss_flag_load(&flag[0]):
+                    seen = True
+                    break
+                ss_pause()
+            if not seen and ss_now() >= end:
+                break
+    return seen
+
 cdef double CONTINUITY_SINE = 0.5
 cdef double MIN_SPREAD_BINS = 1e-6
 cdef double SURFACE_OFFSET_M = 1e-5
@@ -1637,10 +1696,11 @@ cdef class PathBlocks:
                                        self.weight, self.tvg, laws, self.intensity[g])
         self.blk_cur[k] = nxt
 
-    def trace(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1):
+    def trace(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1, unsigned char[::1] signal=None):
         """Block ``k`` (beams ``b0:b1``) cast and traced through every generation, casting
         through the packet loop. Returns False where its chain table overflowed (grow it and
-        run the block again)."""
+        run the block again). ``signal[0]`` is set to 1 once the GIL is let go (the frame's
+        other thread waits for that to take it, ``compiled.on_both_cores``)."""
         if not self.fused:
             raise ValueError("no packet loop: cast in Python between begin() and step()")
         self.keep[0].address()  # raises once the caster released the Embree scene (no cast into freed memory)
@@ -1648,7 +1708,10 @@ cdef class PathBlocks:
         self._check(k, b0, b1)
         a, b = b0 * self.rays_per_beam, b1 * self.rays_per_beam
         cdef float limit = <float>self.reach
+        cdef unsigned char* go = &signal[0] if signal is not None and signal.shape[0] > 0 else NULL
         with nogil:
+            if go != NULL:
+                ss_flag_store(go, 1)
             self._begin(k, a, b, False)
             if b > a:
                 self.cast(self.scene, self.origin32, 0, &self.d32[a, 0], &limit, 0, &self.ids[0], &self.h_dist[a],
@@ -1840,9 +1903,10 @@ cdef class PathBlocks:
             self.total_rows[o] = rows[o]
         self.paths_ready = True
 
-    def paths(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1):
+    def paths(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1, unsigned char[::1] signal=None):
         """Block ``k``'s paths: chain ids made the frame's, every transmit option's paths into
-        the path buffer and, with an output stack, splatted into the block's own columns."""
+        the path buffer and, with an output stack, splatted into the block's own columns.
+        ``signal``: as :meth:`trace`'s."""
         if not self.paths_ready:
             raise ValueError("call options() first")
         cdef Py_ssize_t a, b, g, i, o, off, n, cnt, K, j, q, row
@@ -1858,7 +1922,10 @@ cdef class PathBlocks:
         if has_labels and labels.finished[k]:
             raise ValueError(f"block {k}'s labels are already resolved (each block's paths are formed once)")
         a, b = b0 * self.rays_per_beam, b1 * self.rays_per_beam
+        cdef unsigned char* go = &signal[0] if signal is not None and signal.shape[0] > 0 else NULL
         with nogil:
+            if go != NULL:
+                ss_flag_store(go, 1)
             if has_labels:
                 labels.fill(k)
             for g in range(1, self.n_gen):

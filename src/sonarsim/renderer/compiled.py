@@ -11,9 +11,14 @@ arrays that pass between the search and image formation.
 
 from __future__ import annotations
 
+import collections
 import functools
 import itertools
 import sys
+import threading
+import weakref
+from collections.abc import Sequence
+from concurrent.futures import Executor, Future
 
 import numpy as np
 
@@ -88,6 +93,7 @@ class Workspace:
         self.labels_scratch = LabelScratch()
 
 
+@functools.lru_cache(maxsize=16)  # a sonar's: the same every frame
 def beam_blocks(n_beams: int, n_blocks: int) -> tuple[tuple[int, int], ...]:
     """``n_blocks`` (at most ``n_beams``) contiguous ranges of beams covering ``0:n_beams``, of
     near-equal sizes."""
@@ -95,13 +101,114 @@ def beam_blocks(n_beams: int, n_blocks: int) -> tuple[tuple[int, int], ...]:
     return tuple((int(a), int(b)) for a, b in zip(cuts[:-1], cuts[1:]) if b > a)
 
 
-def on_both_cores(task, n_tasks: int, pool=None) -> None:
+class SecondCore(Executor):
+    """The compiled frame's second core: one worker thread running its tasks in order (an
+    :class:`~concurrent.futures.Executor`, as ``ThreadPoolExecutor(1)`` is).
+
+    A frame hands it work twice (its two phases, :func:`on_both_cores`), a few hundred
+    microseconds apart, and a thread that sleeps -- on a lock, a condition or the GIL -- takes
+    50-100 us to wake on the machines this was measured on (virtual ones). So neither thread
+    of a frame sleeps: after each task the worker watches for the next one without the GIL
+    (``_kernels.watch_flag``: a load and a pause instruction in a loop) for :attr:`SPIN_S`
+    before it sleeps, as OpenMP runtimes do; and in :meth:`hand_off` each thread raises the
+    flag the other watches only once it has let go of the GIL, so that the other takes the
+    GIL without waiting. An idle simulator's worker sleeps. The thread stops when the
+    executor is shut down or collected.
+    """
+
+    #: Seconds a worker watches for its next task before it sleeps: a frame's gap between its
+    #: phases, and between the frames of a render loop.
+    SPIN_S = 0.002
+
+    def __init__(self) -> None:
+        queue, wake = collections.deque(), threading.Event()
+        go, idle = np.zeros(1, np.uint8), np.ones(1, np.uint8)
+        self._state = (queue, go, idle, wake)
+        self._shutdown = False
+        # The thread holds the queue, not the executor: collecting the executor stops it.
+        self._thread = threading.Thread(target=_second_core_loop, args=(queue, go, idle, wake, self.SPIN_S),
+                                        name="sonarsim-second-core", daemon=True)
+        self._thread.start()
+        self._stop = weakref.finalize(self, _second_core_stop, queue, go, wake)
+
+    def _queue(self, fn, args, kwargs) -> Future:
+        if self._shutdown:
+            raise RuntimeError("cannot schedule new futures after shutdown")
+        future: Future = Future()
+        queue, go, idle, wake = self._state
+        idle[0] = 0
+        queue.append((future, fn, args, kwargs))
+        wake.set()  # only where the worker sleeps (its watch has timed out) does this wake it
+        return future
+
+    def submit(self, fn, /, *args, **kwargs) -> Future:
+        future = self._queue(fn, args, kwargs)
+        self._state[1][0] = 1  # after the task is queued: the worker takes what it finds once it sees the flag
+        return future
+
+    def hand_off(self, fn) -> tuple[Future, np.ndarray]:
+        """Queue ``fn()`` without raising the worker's flag: the caller raises ``go[0]`` (the
+        array returned) once it has let go of the GIL, in a kernel, and waits with :meth:`join`."""
+        return self._queue(fn, (), {}), self._state[1]
+
+    def join(self, future: Future):
+        """Wait for ``future`` (queued by :meth:`hand_off`), watching without the GIL for the
+        worker to be idle again, then its result. Raises the worker's flag where the caller's
+        task did not (it failed before it could)."""
+        go, idle = self._state[1], self._state[2]
+        while not idle[0]:
+            if not go[0] and not future.running() and not future.done():
+                go[0] = 1
+            if not _kernels.watch_flag(idle, 0.01) and not self._thread.is_alive():
+                raise RuntimeError("the simulator's worker thread is gone (a process forked from one that had "
+                                   "started it): make the simulator in the process that renders")
+        return future.result()
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        self._shutdown = True
+        self._stop()
+        if wait and self._thread is not threading.current_thread():
+            self._thread.join()
+
+
+def _second_core_loop(queue: collections.deque, go: np.ndarray, idle: np.ndarray, wake: threading.Event,
+                      spin_s: float) -> None:
+    while True:
+        # Idle (raised once the GIL is let go), watching for the next task.
+        if not queue and not _kernels.watch_flag(go, spin_s, idle):
+            wake.wait()
+        # Cleared before the queue is read: a task queued after this raises them again.
+        wake.clear()
+        go[0] = 0
+        while queue:
+            future, fn, args, kwargs = queue.popleft()
+            if future is None:
+                return
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                future.set_result(fn(*args, **kwargs))
+            except BaseException as exc:  # the caller sees it in result()
+                future.set_exception(exc)
+                del exc
+
+
+def _second_core_stop(queue: collections.deque, go: np.ndarray, wake: threading.Event) -> None:
+    queue.append((None, None, None, None))
+    go[0] = 1
+    wake.set()
+
+
+def on_both_cores(task, n_tasks: int, pool=None, signals: bool = False) -> None:
     """Run ``task(0) .. task(n_tasks - 1)`` on this thread and ``pool``'s worker, each thread
     taking the next task when it is free (kernels release the GIL; no order between tasks).
 
     One hand-off per call: waking a sleeping thread costs more than a small task, so a frame
     gives the other core one long list of work instead of many short ones. The other thread
-    has finished before this returns, also when a task raised.
+    has finished before this returns, also when a task raised. With ``signals`` and a
+    :class:`SecondCore`, this thread's first task is called as ``task(k, go)`` and raises
+    ``go[0]`` once its kernel has let go of the GIL (``PathBlocks.trace``, ``.paths``): the
+    worker, watching ``go``, then takes the GIL without waiting for it.
     """
     claimed = itertools.count()
 
@@ -112,11 +219,23 @@ def on_both_cores(task, n_tasks: int, pool=None) -> None:
     if pool is None or n_tasks < 2:
         drain()
         return
-    other = pool.submit(drain)
+    if not (signals and isinstance(pool, SecondCore)):
+        other = pool.submit(drain)
+        try:
+            drain()
+        finally:
+            other.result()
+        return
+    other, go = pool.hand_off(drain)
     try:
+        k = next(claimed)
+        if k < n_tasks:
+            task(k, go)  # raises go (once only: a second raise has the worker wait for the GIL)
+        else:
+            go[0] = 1
         drain()
     finally:
-        other.result()
+        pool.join(other)
 
 
 # Blocks of beams a frame is cut into, whatever the number of threads (the image does not
@@ -149,7 +268,8 @@ class ArrayPool:
     FREE_REFS = _most_refs({"probe": np.empty(1)})
 
     def __init__(self) -> None:
-        self._sets: list[dict] = []
+        # (kind, shapes, arrays): kind names each array's dtype and rank, shapes its shape.
+        self._sets: list[tuple] = []
 
     def _free(self, arrays: dict) -> bool:
         return _most_refs(arrays) <= self.FREE_REFS
@@ -158,20 +278,22 @@ class ArrayPool:
         """A set of arrays of at least the given sizes: ``{name: (shape, dtype)}``, taken from
         the first free set whose arrays are as large, else new (contents undefined). The pool
         keeps the :attr:`KEEP` most recently taken sets."""
+        # Compared as tuples: a frame's few calls here run with the caches cold after its kernels.
+        kind = tuple((name, np.dtype(dt).char, len(shape)) for name, (shape, dt) in shapes.items())
+        want = tuple(shape for shape, _ in shapes.values())
         taken = None
-        for k, arrays in enumerate(self._sets):
-            if all(name in arrays and arrays[name].dtype == np.dtype(dt) and arrays[name].ndim == len(shape)
-                   and all(a >= b for a, b in zip(arrays[name].shape, shape)) for name, (shape, dt) in shapes.items()):
-                if self._free(arrays):
-                    taken = self._sets.pop(k)
-                    break
+        for k, (have_kind, have, arrays) in enumerate(self._sets):
+            if (have_kind == kind and (have == want or all(a >= b for hs, ws in zip(have, want) for a, b in zip(hs, ws)))
+                    and self._free(arrays)):
+                taken = self._sets.pop(k)
+                break
         if taken is None:
-            taken = {name: np.empty(shape, dt) for name, (shape, dt) in shapes.items()}
+            taken = (kind, want, {name: np.empty(shape, dt) for name, (shape, dt) in shapes.items()})
         self._sets.append(taken)  # most recently used last
         # The oldest beyond KEEP are let go: a free one is freed, a held one lives on with the
         # image that holds it (only the pool forgets it).
         del self._sets[: max(len(self._sets) - self.KEEP, 0)]
-        return taken
+        return taken[2]
 
 
 class FrameLegs:
@@ -214,10 +336,15 @@ class FrameLegs:
             shapes.update(texel=((n_gen, n), np.float32))
         arrays = pool.take(shapes) if pool is not None else {k: np.empty(*v) for k, v in shapes.items()}
         for name, (shape, _) in shapes.items():  # views of exactly the frame's shape
-            setattr(self, name, arrays[name][tuple(slice(0, m) for m in shape)])
+            a = arrays[name]
+            setattr(self, name, a if a.shape == shape else a[tuple(slice(0, m) for m in shape)])
         self.n_live, self.n_cast = np.zeros((n_blocks, n_gen), np.intp), np.zeros((n_blocks, n_gen), np.intp)
 
-    def legs(self, work: Workspace) -> list[Leg]:
+    def legs(self, work: Workspace) -> "LegViews":
+        """The generations that cast any ray, as :class:`Leg` views (formed on first use)."""
+        return LegViews(self, work)
+
+    def views(self, work: Workspace) -> list[Leg]:
         """The generations that cast any ray, as :class:`Leg` views."""
         out = []
         for g in range(self.dist.shape[0]):
@@ -230,6 +357,28 @@ class FrameLegs:
                            prim=None if self.prim is None else self.prim[g], uv=None if self.uv is None else self.uv[g],
                            cosine=self.cosine[g], texel=None if self.texel is None else self.texel[g]))
         return out
+
+
+class LegViews(Sequence):
+    """A frame's receive legs as a sequence of :class:`Leg` (:meth:`FrameLegs.views`), formed
+    when first read: a frame whose legs nobody reads (no ray maps, no signature images, labels
+    formed in the pass) does not form them."""
+
+    def __init__(self, legs: FrameLegs, work: Workspace) -> None:
+        self._source: tuple | None = (legs, work)
+        self._views: list[Leg] = []
+
+    def _all(self) -> list[Leg]:
+        if self._source is not None:
+            self._views = self._source[0].views(self._source[1])
+            self._source = None
+        return self._views
+
+    def __getitem__(self, index):
+        return self._all()[index]
+
+    def __len__(self) -> int:
+        return len(self._all())
 
 
 def probe_kernel():
@@ -459,8 +608,13 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
             buffer, m, limit = engine.pending(k)
         return True
 
-    def trace(k: int) -> None:
-        ok[k] = engine.trace(k, *blocks[k]) if fused else staged(k)
+    def trace(k: int, signal=None) -> None:
+        if fused:
+            ok[k] = engine.trace(k, *blocks[k], signal)
+            return
+        if signal is not None:  # Python casts between the stages: the other thread may start now
+            signal[0] = 1
+        ok[k] = staged(k)
 
     engine.frame(legs_out, active8, view.rotation, view.origin,
                  reach_m, render.tvg, n_generations, fan.shape[2], sonar.range_min_m, sonar.range_resolution_m,
@@ -470,7 +624,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
     try:  # the engine lets go of the frame's arrays whatever happens (they go back to the pool)
         while True:
             ok = [True] * len(blocks)
-            on_both_cores(trace, len(blocks), pool)
+            on_both_cores(trace, len(blocks), pool, signals=True)
             if all(ok):
                 break
             engine.grow(4 * engine.chain_tables()[0].shape[1])  # a block met more chains than its table holds
@@ -494,7 +648,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
         engine.options(remap, rank, *options, buffer.offset, buffer.count, buffer.ray, buffer.distance,
                        buffer.energy, buffer.beam, buffer.beam_tx, buffer.label, in_blocks, total, tuple(sum_rows),
                        *deposit)
-        on_both_cores(lambda k: engine.paths(k, *blocks[k]), len(blocks), pool)
+        on_both_cores(lambda k, signal=None: engine.paths(k, *blocks[k], signal), len(blocks), pool, signals=True)
     finally:
         engine.release()
     if truth is not None:

@@ -156,8 +156,11 @@ class Simulator:
         self._warn_if_inside(self.scene.sonar_pose.translation, stacklevel=3)
         self._mirrored_caster = None
         threads = self.scene.render.threads or available_cores()
-        # One worker: the second core of the compiled path (tasks run in order on it).
-        self._pool = ThreadPoolExecutor(1) if threads > 1 else None
+        # One worker: the second core of the compiled path (tasks run in order on it); the
+        # compiled kernels' worker watches for the frame's next hand-off instead of sleeping.
+        self._pool = None
+        if threads > 1:
+            self._pool = compiled.SecondCore() if self.kernels == "compiled" else ThreadPoolExecutor(1)
         # Backscatter laws by surface id + 1: index 0 is "no hit", p + 1 plane p, P + k + 1 object k.
         self._laws = SurfaceLaws.of([p.backscatter for p in self.scene.reflecting_planes]
                                     + [o.backscatter for o in self.scene.objects])
