@@ -545,7 +545,6 @@ def test_label_maps_serve_one_frame_each_block_resolved_once(monkeypatch):
     sid = np.array([1, 2, 0, 1], np.int32)
     path_set = (np.array([0, 2], np.intp), np.array([1.2, 1.7]), np.ones(2), np.array([0, 1], np.int32),
                 np.zeros(2, np.int8))
-    truth.maps.fill_rows(0)
     truth.maps.add(points, normals, sid, sid, *path_set, 0, True)
     truth.maps.finish(0)
     with pytest.raises(ValueError, match="already resolved"):

@@ -82,6 +82,10 @@ def watch_flag(const unsigned char[::1] flag, double seconds, unsigned char[::1]
     return seen
 
 cdef double CONTINUITY_SINE = 0.5
+# Rows of a tile of LabelMaps.resolve: its outputs (an id and three elevations a cell, the
+# block's beams wide) and its state stay in the first-level cache.
+cdef enum:
+    RESOLVE_TILE = 16
 cdef double MIN_SPREAD_BINS = 1e-6
 cdef double SURFACE_OFFSET_M = 1e-5
 cdef double WATER_TOLERANCE_M = 1e-7
@@ -835,8 +839,7 @@ ctypedef struct CellMoments:
 
 
 cdef inline bint add_to_map(MapCell* cell, float* table, Py_ssize_t n_ids, Py_ssize_t slot_base,
-                            Py_ssize_t* n_slots, int* reached, Py_ssize_t* n_reached, int index,
-                            int ident, float part) noexcept nogil:
+                            Py_ssize_t* n_slots, Py_ssize_t* n_reached, int ident, float part) noexcept nogil:
     """Add ``part`` of id ``ident`` to one cell of a dominance map; True when it is the cell's
     first deposit.
 
@@ -845,9 +848,8 @@ cdef inline bint add_to_map(MapCell* cell, float* table, Py_ssize_t n_ids, Py_ss
     ``table`` (slots x ids) holds every id's sum. Each id's sum is the one a dense float32
     (ids x cells) stack would hold -- the same float32 additions in the same order from 0 --
     so the dominant id is the same, ties included, without forming the stack. A cell's first
-    deposit appends its ``index`` to ``reached``, so that only the reached cells are resolved
-    (and reset). A block of beams takes its new slots from ``slot_base`` on (its own rows of
-    the table: blocks run at once).
+    deposit counts in ``n_reached``. A block of beams takes its new slots from ``slot_base``
+    on (its own rows of the table: blocks run at once).
     """
     cdef int s = cell.state
     cdef float* row_sums
@@ -858,7 +860,6 @@ cdef inline bint add_to_map(MapCell* cell, float* table, Py_ssize_t n_ids, Py_ss
     if s == -1:
         cell.state = ident
         cell.first = part
-        reached[n_reached[0]] = index
         n_reached[0] += 1
         return True
     if s >= 0:  # a second id: the cell is mixed
@@ -896,9 +897,8 @@ cdef class LabelMaps:
     ``splat_truth`` and ``dominant``).
 
     The beams are cut into blocks (``blocks``); a block deposits only into its own beams' cells,
-    its own share of ``reached`` and of ``table`` and its own points, :meth:`fill` sets its
-    share of the outputs' rows to "nothing", and :meth:`finish` resolves its reached cells, so
-    blocks run at once.
+    its own share of ``table`` and its own points, and :meth:`finish` resolves its cells (every
+    cell of its beams' columns of the outputs), so blocks run at once.
 
     The dominance state and the moments are kept beam-major (cell ``beam * n_range_bins +
     bin``): a path's range cell is a run of consecutive bins of one beam, and the paths of a
@@ -908,7 +908,7 @@ cdef class LabelMaps:
     Parameters
     ----------
     instance : (n_maps, n_range_bins, n_beams) int32, uninitialised
-        Receive the frame's instance maps (:meth:`fill`, then :meth:`finish`): the orders
+        Receive the frame's instance maps (:meth:`finish`): the orders
         1 .. n_maps - 1, then the total (or the total alone).
     objects, planes : (n_range_bins, n_beams) int32, uninitialised, or (0, n_beams): not formed
         Receive the first order's dominant object and dominant plane.
@@ -923,9 +923,6 @@ cdef class LabelMaps:
         an id or a table row): fill a new array with -1. :meth:`resolve` sets every cell it
         resolves back to -1, so a frame whose blocks all resolved leaves it ready for the next
         (``compiled.LabelScratch`` keeps it between frames on that condition).
-    reached : (n_maps, n_range_bins * n_beams) int32, uninitialised
-        Each map's reached cells (beam-major index), block after block (block k's from
-        ``n_range_bins * b0`` on), each block's in the order first reached.
     table : (capacity, n_ids) float32, uninitialised
         A row for every cell of every map (each becomes mixed at most once; block k's rows
         from ``n_maps * n_range_bins * b0`` on); only the rows of mixed cells are touched.
@@ -951,7 +948,6 @@ cdef class LabelMaps:
     cdef float[:, :, ::1] elevation
     cdef int[:, :, ::1] boxes
     cdef int[:, ::1] cells
-    cdef int[:, ::1] reached
     cdef Py_ssize_t[:, ::1] n_reached
     cdef float[:, ::1] table
     cdef double[::1] moments
@@ -972,7 +968,7 @@ cdef class LabelMaps:
     cdef readonly Py_ssize_t n_points
 
     def __init__(self, int[:, :, ::1] instance, int[:, ::1] objects, int[:, ::1] planes,
-                 float[:, :, ::1] elevation, int[:, :, ::1] boxes, int[:, ::1] cells, int[:, ::1] reached,
+                 float[:, :, ::1] elevation, int[:, :, ::1] boxes, int[:, ::1] cells,
                  float[:, ::1] table, double[::1] moments, const int[::1] lut, const double[::1] elevation_rows,
                  bint spread, double range_min, double dr, const Py_ssize_t[::1] blocks, int n_objects,
                  float[:, ::1] p_world, int[::1] p_object, signed char[::1] p_component, int[:, ::1] p_cell):
@@ -987,7 +983,7 @@ cdef class LabelMaps:
                             or objects.shape[1] != self.n_beams or planes.shape[1] != self.n_beams)
                 or elevation.shape[0] != 3 or elevation.shape[1] != self.n_rows or elevation.shape[2] != self.n_beams
                 or cells.shape[0] < self.n_maps or cells.shape[1] != 2 * n_cells
-                or reached.shape[0] < self.n_maps or reached.shape[1] != n_cells or moments.shape[0] != 3 * n_cells):
+                or moments.shape[0] != 3 * n_cells):
             raise ValueError("label maps of different shapes")
         if table.shape[0] < self.n_maps * n_cells:
             raise ValueError(f"a table of {table.shape[0]} rows for {self.n_maps * n_cells} cells")
@@ -1009,7 +1005,7 @@ cdef class LabelMaps:
                 or p_component.shape[0] != p_object.shape[0] or p_cell.shape[0] != p_object.shape[0]):
             raise ValueError("point buffers of different lengths")
         self.instance, self.objects, self.planes, self.elevation, self.boxes = instance, objects, planes, elevation, boxes
-        self.cells, self.reached, self.table, self.moments = cells, reached, table, moments
+        self.cells, self.table, self.moments = cells, table, moments
         self.n_blocks = blocks.shape[0] - 1
         self.blocks = blocks
         self.n_objects = n_objects
@@ -1038,17 +1034,15 @@ cdef class LabelMaps:
         cdef Py_ssize_t k, b, b_end, i, n_lut = self.lut.shape[0], b0 = self.blocks[blk]
         cdef Py_ssize_t n_ids = self.n_ids, n_beams = self.n_beams, n_el = self.n_elevation
         cdef Py_ssize_t n_pts = pt_start, column = 0, column_end = 0, n_rows = self.n_rows
-        cdef Py_ssize_t slot_base = self.n_maps * n_rows * b0, cell_base = n_rows * b0, run
+        cdef Py_ssize_t slot_base = self.n_maps * n_rows * b0, run
         cdef bint c_dn = False, c_up, by_order = order_map >= 0, spread = self.spread, cells
         cdef double x, x_dn = 0.0, x_up, lo, hi, density, part, el, v
         cdef double nb = <double>n_rows, range_min = self.range_min, dr = self.dr
         cdef float pf, elf
         cdef int ident = 0, surface = 0, index
         cdef MapCell* order_cells = NULL
-        cdef int* order_reached = NULL
         cdef Py_ssize_t* n_order = NULL
         cdef MapCell* total_cells = NULL
-        cdef int* total_reached = NULL
         cdef Py_ssize_t* n_total = NULL
         cdef CellMoments* mom = NULL
         cdef CellMoments* cm
@@ -1064,12 +1058,10 @@ cdef class LabelMaps:
             by_order = moments = False
         if by_order:
             order_cells = <MapCell*>&self.cells[order_map, 0]
-            order_reached = &self.reached[order_map, cell_base]
             n_ord = self.n_reached[blk, order_map]
             n_order = &n_ord
         if moments:
             total_cells = <MapCell*>&self.cells[self.n_maps - 1, 0]
-            total_reached = &self.reached[self.n_maps - 1, cell_base]
             n_tot = self.n_reached[blk, self.n_maps - 1]
             n_total = &n_tot
             mom = <CellMoments*>&self.moments[0]
@@ -1103,12 +1095,10 @@ cdef class LabelMaps:
                             column_out[b * n_beams] += pf
                         index = <int>(run + b)
                         if by_order:
-                            add_to_map(order_cells + index, table, n_ids, slot_base, n_slots, order_reached,
-                                       n_order, index, ident, pf)
+                            add_to_map(order_cells + index, table, n_ids, slot_base, n_slots, n_order, ident, pf)
                         if moments:
                             cm = mom + index
-                            if add_to_map(total_cells + index, table, n_ids, slot_base, n_slots, total_reached,
-                                          n_total, index, ident, pf):
+                            if add_to_map(total_cells + index, table, n_ids, slot_base, n_slots, n_total, ident, pf):
                                 cm.weight = part  # first reached: the moments start here
                                 cm.weighted = part * el
                                 cm.lo = elf
@@ -1216,15 +1206,14 @@ cdef class LabelMaps:
                 j += n
         self.n_points = j
 
-    cdef void fill(self, Py_ssize_t blk) noexcept nogil:
-        """Block ``blk``'s cells of the outputs (its own beams' columns) set to "nothing": -1
-        ids, NaN elevations (before :meth:`finish` resolves the cells it reached)."""
-        cdef Py_ssize_t mp, i, r, n_b = self.n_beams, n_r = self.n_rows, b0 = self.blocks[blk]
-        cdef Py_ssize_t w = self.blocks[blk + 1] - b0
+    cdef void fill_rows_of(self, Py_ssize_t b0, Py_ssize_t b1, Py_ssize_t r0, Py_ssize_t r1) noexcept nogil:
+        """Rows ``r0:r1`` of beams ``b0:b1`` of the outputs set to "nothing"."""
+        cdef Py_ssize_t mp, i, r
+        cdef Py_ssize_t w = b1 - b0
         cdef float* el
         if w <= 0:
             return
-        for r in range(n_r):
+        for r in range(r0, r1):
             for mp in range(self.n_maps):
                 memset(&self.instance[mp, r, b0], 0xFF, w * sizeof(int))  # all bits set: -1
             if self.split:
@@ -1234,13 +1223,6 @@ cdef class LabelMaps:
                 el = &self.elevation[mp, r, b0]
                 for i in range(w):
                     el[i] = NAN
-
-    def fill_rows(self, Py_ssize_t blk):
-        """:meth:`fill` (for :meth:`add`'s route: :class:`PathBlocks` fills as it forms paths)."""
-        if not 0 <= blk < self.n_blocks:
-            raise ValueError(f"block {blk} of {self.n_blocks}")
-        with nogil:
-            self.fill(blk)
 
     def finish(self, Py_ssize_t blk):
         """:meth:`resolve` block ``blk`` (for :meth:`add`'s route: :class:`PathBlocks` resolves
@@ -1252,24 +1234,30 @@ cdef class LabelMaps:
             self.resolve(blk)
 
     cdef void resolve(self, Py_ssize_t blk) noexcept nogil:
-        """Resolve block ``blk``'s reached cells into the outputs (filled by :meth:`fill`), and
-        set their state back to -1. Only block ``blk`` deposits into its cells, so it resolves
-        them as soon as its own paths are in, on its own thread, while they are in cache.
+        """Resolve block ``blk``'s cells into the outputs, every cell of its beams' columns,
+        and set the state of those it reached back to -1. Only block ``blk`` deposits into its
+        cells, so it resolves them as soon as its own paths are in, on its own thread.
 
-        Each cell takes its dominant id (ties: the lower id; -1 where no id brought energy).
-        With ``objects`` / ``planes``, map 0 (the first order) also gives the dominant object
-        and the dominant plane of each cell, and its own value is the stronger of the two (a
-        tie: the object). The elevation's mean is weighted / weight where the total has paths
-        (0 / 0: NaN, no weight); ``boxes[blk]`` the inclusive ``[row, beam, row, beam]`` extent
+        Each cell takes its dominant id (ties: the lower id; -1 where no id brought energy or
+        no path reached it). With ``objects`` / ``planes``, map 0 (the first order) also gives
+        the dominant object and the dominant plane of each cell, and its own value is the
+        stronger of the two (a tie: the object). The elevation's mean is weighted / weight
+        where the total has paths (0 / 0: NaN, no weight), NaN (and the least and greatest
+        too) where it has none; ``boxes[blk]`` the inclusive ``[row, beam, row, beam]`` extent
         of each id's cells in the total.
+
+        The state is beam-major (a path's bins are contiguous) and the outputs row-major: the
+        cells are visited in tiles of :data:`RESOLVE_TILE` rows across the block's beams, so
+        that both the state read and the outputs written stay in cache (writing each reached
+        cell where it lies, after filling the whole block, cost twice as much).
         """
-        cdef Py_ssize_t mp, j, n, n_r = self.n_rows, n_b = self.n_beams, n_ids = self.n_ids, at
-        cdef int s, best, obj, gnd, r, c, index, n_obj = self.n_objects
+        cdef Py_ssize_t mp, j, n_r = self.n_rows, n_b = self.n_beams, n_ids = self.n_ids, at, plane
+        cdef Py_ssize_t r0, r1, b0 = self.blocks[blk], b1 = self.blocks[blk + 1], index
+        cdef int s, best, obj, gnd, r, c, n_obj = self.n_objects
         cdef float to, tg
         cdef bint both, last
         cdef MapCell* st
         cdef MapCell* cell
-        cdef const int* reached
         cdef int* out
         cdef int* o_out = NULL
         cdef int* g_out = NULL
@@ -1279,64 +1267,65 @@ cdef class LabelMaps:
         cdef const CellMoments* mom = <CellMoments*>&self.moments[0] if self.moments.shape[0] > 0 else NULL
         cdef const CellMoments* cm
         cdef int* box = &self.boxes[blk, 0, 0] if n_ids > 0 else NULL
-        cdef double inv_r
         self.finished[blk] = 1
-        if n_r * n_b == 0 or self.bad_surface >= 0:
+        if n_r * n_b == 0 or b1 <= b0 or self.bad_surface >= 0:
             return
-        inv_r = 1.0 / <double>n_r
+        plane = n_r * n_b
         el = &self.elevation[0, 0, 0]
         if self.split:
             o_out = &self.objects[0, 0]
             g_out = &self.planes[0, 0]
-        for mp in range(self.n_maps):
-            st = <MapCell*>&self.cells[mp, 0]
-            out = &self.instance[mp, 0, 0]
-            reached = &self.reached[mp, n_r * self.blocks[blk]]
-            n = self.n_reached[blk, mp]
-            both = self.split and mp == 0
-            last = mp == self.n_maps - 1
-            for j in range(n):
-                index = reached[j]
-                # index // n_r by a multiplication (an integer division per cell was a tenth of
-                # this loop): (index + 0.5) / n_r lies at least 0.5 / n_r inside its integer.
-                c = <int>((index + 0.5) * inv_r)
-                r = index - c * <int>n_r
-                at = r * n_b + c
-                cell = st + index
-                s = cell.state
-                if s >= 0:
-                    best = s if cell.first > 0 else -1
-                    obj = best if best < n_obj else -1
-                    gnd = best if best >= n_obj else -1
-                else:
-                    row = table + (-2 - <Py_ssize_t>s) * n_ids
-                    if both:
-                        obj = strongest(row, 0, n_obj, &to)
-                        gnd = strongest(row, n_obj, n_ids, &tg)
-                        best = gnd if tg > to else obj
-                    else:
-                        best = strongest(row, 0, n_ids, &to)
-                cell.state = -1  # ready for the next frame
-                out[at] = best
-                if both:
-                    o_out[at] = obj
-                    g_out[at] = gnd
-                if last:
-                    cm = mom + index
-                    el[at] = <float>(cm.weighted / cm.weight)
-                    el[n_r * n_b + at] = cm.lo
-                    el[2 * n_r * n_b + at] = cm.hi
-                    if best >= 0:
-                        if box[4 * best] < 0:
-                            box[4 * best] = r
-                            box[4 * best + 1] = c
-                            box[4 * best + 2] = r
-                            box[4 * best + 3] = c
+        cdef Py_ssize_t tile
+        for tile in range((n_r + RESOLVE_TILE - 1) // RESOLVE_TILE):
+            r0 = tile * RESOLVE_TILE
+            r1 = r0 + RESOLVE_TILE if r0 + RESOLVE_TILE < n_r else n_r
+            self.fill_rows_of(b0, b1, r0, r1)  # "nothing", in cache for the reached cells' values
+            for mp in range(self.n_maps):
+                st = <MapCell*>&self.cells[mp, 0]
+                out = &self.instance[mp, 0, 0]
+                both = self.split and mp == 0
+                last = mp == self.n_maps - 1
+                for c in range(<int>b0, <int>b1):
+                    for r in range(<int>r0, <int>r1):
+                        index = <Py_ssize_t>c * n_r + r
+                        at = r * n_b + c
+                        cell = st + index
+                        s = cell.state
+                        if s == -1:  # no path reached the cell: as filled
+                            continue
+                        if s >= 0:
+                            best = s if cell.first > 0 else -1
+                            obj = best if best < n_obj else -1
+                            gnd = best if best >= n_obj else -1
                         else:
-                            box[4 * best] = r if r < box[4 * best] else box[4 * best]
-                            box[4 * best + 1] = c if c < box[4 * best + 1] else box[4 * best + 1]
-                            box[4 * best + 2] = r if r > box[4 * best + 2] else box[4 * best + 2]
-                            box[4 * best + 3] = c if c > box[4 * best + 3] else box[4 * best + 3]
+                            row = table + (-2 - <Py_ssize_t>s) * n_ids
+                            if both:
+                                obj = strongest(row, 0, n_obj, &to)
+                                gnd = strongest(row, n_obj, n_ids, &tg)
+                                best = gnd if tg > to else obj
+                            else:
+                                best = strongest(row, 0, n_ids, &to)
+                        cell.state = -1  # ready for the next frame
+                        out[at] = best
+                        if both:
+                            o_out[at] = obj
+                            g_out[at] = gnd
+                        if last:
+                            cm = mom + index
+                            el[at] = <float>(cm.weighted / cm.weight)
+                            el[plane + at] = cm.lo
+                            el[2 * plane + at] = cm.hi
+                            if best >= 0:
+                                if box[4 * best] < 0:
+                                    box[4 * best] = r
+                                    box[4 * best + 1] = c
+                                    box[4 * best + 2] = r
+                                    box[4 * best + 3] = c
+                                else:
+                                    box[4 * best] = r if r < box[4 * best] else box[4 * best]
+                                    box[4 * best + 1] = c if c < box[4 * best + 1] else box[4 * best + 1]
+                                    box[4 * best + 2] = r if r > box[4 * best + 2] else box[4 * best + 2]
+                                    box[4 * best + 3] = c if c > box[4 * best + 3] else box[4 * best + 3]
 
     def resolved(self):
         """Whether every block was resolved (:meth:`resolve` or :meth:`finish`)."""
@@ -1926,8 +1915,6 @@ cdef class PathBlocks:
         with nogil:
             if go != NULL:
                 ss_flag_store(go, 1)
-            if has_labels:
-                labels.fill(k)
             for g in range(1, self.n_gen):
                 for i in range(a, b):
                     if self.sid[g, i] >= 0:

@@ -684,8 +684,8 @@ def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, 
 class LabelScratch:
     """The label maps' scratch, kept between frames: the dominance state of every cell of every
     map (-1 throughout while the scratch is not in use: each block's ``LabelMaps.resolve`` sets
-    the cells it reached back to -1, so no frame fills it), the reached lists, the table of
-    mixed cells and the moments (uninitialised; written where first reached).
+    the cells it reached back to -1, so no frame fills it), the table of mixed cells and the
+    moments (uninitialised; written where first reached).
     """
 
     def __init__(self) -> None:
@@ -699,7 +699,6 @@ class LabelScratch:
         if (a is None or not self._clean or a["cells"].shape[0] < n_maps or a["cells"].shape[1] != 2 * n_cells
                 or a["table"].shape[1] != n_ids):
             a = self._arrays = {"cells": np.full((n_maps, 2 * n_cells), -1, np.int32),
-                                "reached": np.empty((n_maps, n_cells), np.int32),
                                 "table": np.empty((n_maps * n_cells, n_ids), np.float32),
                                 "moments": np.empty(3 * n_cells)}
         self._clean = False  # until every block has finished (a failed frame leaves it dirty)
@@ -743,10 +742,10 @@ class FrameTruth:
         n_maps = spec.max_order + 1 if spec.components else 1  # the orders, then the total
         blocks = blocks or ((0, n_b),)
         self.spec, self.n_blocks = spec, len(blocks)
-        self._filled = False  # (the engine's blocks fill their rows as they form their paths)
+        self._added = False  # path sets deposited by add() (the engine's blocks resolve their own)
         self.scratch = scratch if scratch is not None else LabelScratch()
-        # Outputs: each block fills its share of rows with "nothing" (LabelMaps.fill), then
-        # resolves the cells its paths reached.
+        # Outputs: each block resolves every cell of its beams' columns (LabelMaps.resolve:
+        # "nothing" where its paths reached none).
         self.instance = np.empty((n_maps, n_r, n_b), np.int32)
         self.split = np.empty((2, n_r if spec.components else 0, n_b), np.int32)
         self.elevation = np.empty((3, n_r, n_b), np.float32)
@@ -756,7 +755,7 @@ class FrameTruth:
         work = self._work = self.scratch.take(n_maps, n_r * n_b, n_ids)
         edges = np.array([b0 for b0, _ in blocks] + [n_b], np.intp)
         self.maps = _kernels.LabelMaps(self.instance, self.split[0], self.split[1], self.elevation, self.boxes,
-                                       work["cells"], work["reached"], work["table"], work["moments"],
+                                       work["cells"], work["table"], work["moments"],
                                        np.ascontiguousarray(spec.lut, np.int32),
                                        np.ascontiguousarray(spec.elevation_deg, np.float64), spread, range_min_m, dr,
                                        edges, spec.n_objects, *self.points)
@@ -772,9 +771,7 @@ class FrameTruth:
     def add(self, sets, legs, n_surfaces: int) -> None:
         """Deposit path sets formed after the frame (their receive legs ``legs[s.gen]``), one
         block of every beam."""
-        if not self._filled:
-            self.maps.fill_rows(0)
-            self._filled = True
+        self._added = True
         keys = {}
         for s in sets:
             if not len(s.ray):
@@ -803,7 +800,7 @@ class FrameTruth:
         """
         maps = self.maps
         maps.check()
-        if self._filled:  # deposited by add(): resolved here (the engine's blocks resolve their own)
+        if self._added:  # deposited by add(): resolved here (the engine's blocks resolve their own)
             maps.finish(0)
         if not maps.resolved():
             raise ValueError("a block of the label maps was not resolved")
@@ -819,7 +816,7 @@ class FrameTruth:
 
 def frame_truth(sets, legs, n_surfaces: int, spec, geometry: tuple, spread: bool) -> tuple:
     """The label maps and points of a frame from its path sets, formed after the frame: one
-    pass per path set, then one over the reached cells (:meth:`FrameTruth.finish`'s tuple;
+    pass per path set, then one over the cells (:meth:`FrameTruth.finish`'s tuple;
     twin: ``sonarsim.renderer.ground_truth._frame_truth``, which takes the same arguments).
 
     Parameters
