@@ -34,8 +34,11 @@ cdef extern from *:
         return (double)c.QuadPart / (double)f.QuadPart;
     }
     static void ss_pause(void) { YieldProcessor(); }
+    static void ss_yield(void) { SwitchToThread(); }
     #else
     #include <time.h>
+    #include <sched.h>
+    static void ss_yield(void) { sched_yield(); }
     static int ss_flag_load(const unsigned char* p) { return __atomic_load_n(p, __ATOMIC_ACQUIRE); }
     static void ss_flag_store(unsigned char* p, unsigned char v) { __atomic_store_n(p, v, __ATOMIC_RELEASE); }
     static double ss_now(void) {
@@ -55,13 +58,16 @@ cdef extern from *:
     void ss_flag_store(unsigned char* p, unsigned char v) noexcept nogil
     double ss_now() noexcept nogil
     void ss_pause() noexcept nogil
+    void ss_yield() noexcept nogil
 
 
 def watch_flag(const unsigned char[::1] flag, double seconds, unsigned char[::1] raise_first=None):
     """Watch ``flag[0]`` for up to ``seconds``, without the GIL: True as soon as another thread
     has made it nonzero, False once the time is up (``renderer.compiled.SecondCore``). With
     ``raise_first``, set ``raise_first[0]`` to 1 once the GIL is let go: a thread watching that
-    flag can take the GIL without waiting for it."""
+    flag can take the GIL without waiting for it. Between short runs of pause instructions it
+    offers its core to any other thread that is ready (a busy machine: a watcher that kept its
+    core would slow the very thread it waits for)."""
     cdef double end
     cdef bint seen = False
     cdef int k
@@ -77,8 +83,10 @@ def watch_flag(const unsigned char[::1] flag, double seconds, unsigned char[::1]
                     seen = True
                     break
                 ss_pause()
-            if not seen and ss_now() >= end:
-                break
+            if not seen:
+                ss_yield()
+                if ss_now() >= end:
+                    break
     return seen
 
 cdef double CONTINUITY_SINE = 0.5

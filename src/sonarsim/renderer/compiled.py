@@ -763,10 +763,8 @@ class FrameTruth:
     def option_maps(self, label: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per transmit option of image row ``label``: its order's map (-1: none) and whether it
         enters the total (``PathBlocks.options``' ``order_map`` and ``moments``)."""
-        order = np.maximum(np.asarray(label, np.int32), 1)  # rows 0 (objects) and 1 (planes) are order 1
-        order_map = (order - 1 if self.spec.components else np.full(len(order), -1)).astype(np.int32)
-        moments = np.isin(order, self.spec.bounces).astype(np.uint8)
-        return order_map, moments
+        return _option_maps(tuple(int(v) for v in np.asarray(label).reshape(-1)), self.spec.components,
+                            tuple(self.spec.bounces))
 
     def add(self, sets, legs, n_surfaces: int) -> None:
         """Deposit path sets formed after the frame (their receive legs ``legs[s.gen]``), one
@@ -812,6 +810,16 @@ class FrameTruth:
         objects, planes = (self.split[0], self.split[1]) if self.spec.components else (None, None)
         return (self.instance[:-1], objects, planes, self.instance[-1], self.elevation, boxes,
                 tuple(p[:n] for p in self.points))
+
+
+@functools.lru_cache(maxsize=64)  # a frame's options' rows: the same frame after frame
+def _option_maps(label: tuple, components: bool, bounces: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`FrameTruth.option_maps` (read-only arrays: they are shared)."""
+    order = np.maximum(np.asarray(label, np.int32), 1)  # rows 0 (objects) and 1 (planes) are order 1
+    order_map = (order - 1 if components else np.full(len(order), -1)).astype(np.int32)
+    moments = np.isin(order, bounces).astype(np.uint8)
+    order_map.flags.writeable = moments.flags.writeable = False
+    return order_map, moments
 
 
 def frame_truth(sets, legs, n_surfaces: int, spec, geometry: tuple, spread: bool) -> tuple:

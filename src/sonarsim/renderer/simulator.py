@@ -155,6 +155,7 @@ class Simulator:
         self._inside_warned: frozenset[str] = frozenset()
         self._warn_if_inside(self.scene.sonar_pose.translation, stacklevel=3)
         self._mirrored_caster = None
+        self._kept_label_spec: tuple | None = None  # (fan, key, LabelSpec): _label_spec()
         threads = self.scene.render.threads or available_cores()
         # One worker: the second core of the compiled path (tasks run in order on it); the
         # compiled kernels' worker watches for the frame's next hand-off instead of sleeping.
@@ -354,6 +355,21 @@ class Simulator:
         stack = accumulate_paths(sets, legs, n_surfaces, fan.shape, geometry, rows, render.range_splat)
         return stack.astype(np.float32), legs, sets, table, None, None
 
+    def _label_spec(self, fan: RayFan, sonar: SonarConfig, n_objects: int, n_planes: int,
+                    components: bool) -> LabelSpec:
+        """The frame's :class:`LabelSpec`, checked against the memory budget before the frame
+        (``frame_labels`` checks again where it forms the maps); the last one is kept, as the
+        fans are: a loop of frames forms it once."""
+        render = self.scene.render
+        key = (n_objects, n_planes, components, sonar.n_range_bins, sonar.n_beams)
+        kept = self._kept_label_spec
+        if kept is not None and kept[0] is fan and kept[1] == key:
+            return kept[2]
+        spec = LabelSpec.of(fan, n_objects, n_planes, render.max_order, render.bounces, components)
+        require_label_maps(len(spec.lut), render.max_order, sonar.n_range_bins, sonar.n_beams, spec.components)
+        self._kept_label_spec = (fan, key, spec)
+        return spec
+
     def _signature_images(self, sonar: SonarConfig, fan: RayFan, legs, sets, table) -> dict[str, np.ndarray]:
         """One image per path signature (formed on demand; see :class:`Components`).
 
@@ -438,10 +454,7 @@ class Simulator:
         spec = None
         if labels:
             names = (tuple(o.name for o in self.scene.objects), tuple(p.name for p in self.scene.reflecting_planes))
-            spec = LabelSpec.of(fan, len(names[0]), len(names[1]), render.max_order, render.bounces,
-                                labels != "total")
-            # Before the frame (frame_labels checks again where it forms them after it).
-            require_label_maps(len(spec.lut), render.max_order, sonar.n_range_bins, sonar.n_beams, spec.components)
+            spec = self._label_spec(fan, sonar, len(names[0]), len(names[1]), labels != "total")
         n_gen = render.max_order if multipath else 1
         view = SonarView.of(sonar, pose, fan)  # the frame's pose and fan, its rays rotated once
         if render.method == "paper" and multipath and self._ground_only:
