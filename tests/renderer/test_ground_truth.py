@@ -417,7 +417,7 @@ ELEVATION_DEG = np.array([-3.0, -1.0, 1.0, 3.0])
 def _leg(gen, sid, rng):
     n = N_EL * N_COLS
     points = rng.normal(0.0, 1.0, (n, 3))
-    normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+    normals = np.tile(np.float32([0.0, 0.0, 1.0]), (n, 1))
     return Leg(gen, np.full(n, 2.0), np.asarray(sid, np.int32), points, normals, np.ones(n), np.ones(n),
                np.zeros(n, np.int32))
 
@@ -525,7 +525,7 @@ def test_compiled_label_maps_equal_the_numpy_twin_on_random_paths(seed):
     for gen in range(2):
         step = rng.uniform(0.01, 0.05, n)
         points = np.cumsum(step)[:, None] * np.array([1.0, 0.2, 0.1]) + rng.normal(0, 1e-4, (n, 3))
-        normals = np.tile([0.0, 0.0, 1.0], (n, 1))
+        normals = np.tile(np.float32([0.0, 0.0, 1.0]), (n, 1))
         sid = np.repeat(rng.integers(0, n_obj + n_pl, n // 4), 4).astype(np.int32)
         legs.append(Leg(gen, np.full(n, 2.0), sid, points, normals, np.ones(n), np.ones(n), np.zeros(n, np.int32)))
     sets = []

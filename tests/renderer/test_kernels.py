@@ -186,7 +186,8 @@ def _trace_both(rng, *, first, reflect, tvg, n=600, m=None, capacity=64, at_reac
     # The kernel, as compiled.py calls it (grow the chain table and redo on overflow).
     kt = copy.deepcopy(table)
     dense = lambda: (np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan),
-                     np.full((n, 3), np.nan), np.full(n, np.nan), np.full(n, np.nan), np.full(n, -7, np.int32))
+                     np.full((n, 3), np.nan, np.float32), np.full(n, np.nan), np.full(n, np.nan),
+                     np.full(n, -7, np.int32))
     kd = dense()
     kprim, kuv = np.full(n, -1, np.int32), np.zeros((n, 2), np.float32)
     key = np.full(n, -1, np.int32)
@@ -304,8 +305,8 @@ def test_trace_leg_without_planes():
     hit_dist = np.where(hit_mesh >= 0, rng.uniform(0, 5, n), np.inf).astype(np.float32)
     hit_normal = _unit(rng, n).astype(np.float32)
     albedo, weight = np.array([0.0, 0.5, 0.7]), rng.uniform(0, 1, n)
-    out = [np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan), np.full((n, 3), np.nan),
-           np.full(n, np.nan)]
+    out = [np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan),
+           np.full((n, 3), np.nan, np.float32), np.full(n, np.nan)]
     ref = copy.deepcopy(out)
     live = np.empty(n, np.intp)
     nx = (np.empty(n, np.intp), np.empty((n, 3)), np.empty((n, 3), np.float32), np.empty((n, 3)),
@@ -454,7 +455,7 @@ def _splat_both(rng, *, spread, n_cols=40, n_el=16, nb=60, n_beams=8, n_labels=3
     step = rng.uniform(0.01, 0.05, n)
     points = np.cumsum(step)[:, None] * np.array([1.0, 0.2, 0.1]) + rng.normal(0, 1e-4, (n, 3))
     normals = np.tile([0.0, 0.0, 1.0], (n, 1)) + rng.normal(0, 0.05, (n, 3))
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = (normals / np.linalg.norm(normals, axis=1, keepdims=True)).astype(np.float32)  # as the legs hold them
     key = (np.arange(n) // 6 % 3).astype(np.int32)
     key[rng.random(n) < 0.05] = -1
     ray = np.flatnonzero(rng.random(n) < fraction).astype(np.intp)
@@ -532,8 +533,8 @@ def test_trace_leg_ties_and_planes_at_the_reach(first):
     hits = Hits(np.full(n, np.inf, np.float32), np.full(n, -1, np.int32), np.zeros((n, 3), np.float32))
     table = ChainTable(planes, origin, 3)
     kt, tt = copy.deepcopy(table), copy.deepcopy(table)
-    out = [np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan), np.full((n, 3), np.nan),
-           np.full(n, np.nan), np.full(n, np.nan), np.full(n, -7, np.int32)]
+    out = [np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan),
+           np.full((n, 3), np.nan, np.float32), np.full(n, np.nan), np.full(n, np.nan), np.full(n, -7, np.int32)]
     ref = copy.deepcopy(out)
     live = np.empty(n, np.intp)
     nx = (np.empty(n, np.intp), np.empty((n, 3)), np.empty((n, 3), np.float32), np.empty((n, 3)),
@@ -572,8 +573,8 @@ def test_law_tables_of_the_wrong_size_are_refused():
         np.arange(n, dtype=np.intp), np.ones(n, np.float32), hit_mesh, _unit(rng, n).astype(np.float32),
         np.zeros((1, 3)), _unit(rng, n), np.zeros(1), np.ones(1), np.zeros(1, np.int32), planes.normal,
         planes.offset, np.zeros(0, np.uint8), planes.specular, 4.0, np.array([0.0, 0.5]), np.ones(n), True, True,
-        False, table.children, 1, np.empty(n), np.empty(n, np.int32), np.empty((n, 3)), np.empty((n, 3)),
-        np.empty(n), np.empty(n), np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.intp), 1,
+        False, table.children, 1, np.empty(n), np.empty(n, np.int32), np.empty((n, 3)),
+        np.empty((n, 3), np.float32), np.empty(n), np.empty(n), np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.intp), 1,
         np.empty(n, np.intp), np.empty((n, 3)), np.empty((n, 3), np.float32), np.empty((n, 3)),
         np.empty((n, 3), np.float32), np.empty(n), np.empty(n), np.empty(n, np.int32), law, lobe, texel)
     ok = (np.array([0, 1], np.int32), np.zeros((2, 2)), np.ones(n, np.float32))

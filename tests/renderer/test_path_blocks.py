@@ -541,7 +541,7 @@ def test_label_maps_serve_one_frame_each_block_resolved_once(monkeypatch):
 
     spec = LabelSpec(surface_ids(np.arange(3), 1, 2), np.array([-1.0, 1.0]), 2, 2, (1, 2))
     truth = compiled.FrameTruth(4, spec, (1.0, 0.5, 4, 2), False)
-    points, normals = np.zeros((4, 3)), np.tile([0.0, 0.0, 1.0], (4, 1))
+    points, normals = np.zeros((4, 3)), np.tile(np.float32([0.0, 0.0, 1.0]), (4, 1))
     sid = np.array([1, 2, 0, 1], np.int32)
     path_set = (np.array([0, 2], np.intp), np.array([1.2, 1.7]), np.ones(2), np.array([0, 1], np.int32),
                 np.zeros(2, np.int8))

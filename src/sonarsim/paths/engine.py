@@ -81,8 +81,9 @@ class Leg:
         Surface scattering (see :mod:`sonarsim.paths.planes`), -1 none.
     point : (n, 3) float64 ndarray
         The scatterer A, metres (NaN: none).
-    normal : (n, 3) float64 ndarray
-        Unit normal of the surface at A (either orientation).
+    normal : (n, 3) float32 ndarray
+        Unit normal of the surface at A (either orientation): an object's as the caster reports
+        it, a plane's rounded to float32 (it serves the continuity of range splatting only).
     intensity : (n,) float64 ndarray
         Diffuse weight of the ray at A: ``beta l(r) rho cos(alpha) dphi``.
     atten : (n,) float64 ndarray
@@ -737,7 +738,7 @@ def trace_legs(
             break  # no generation after an empty one
         first = g == 0
         leg = Leg(
-            g, np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan), np.zeros((n, 3)),
+            g, np.full(n, np.inf), np.full(n, -1, np.int32), np.full((n, 3), np.nan), np.zeros((n, 3), np.float32),
             np.zeros(n), np.ones(n) if first else np.zeros(n), np.zeros(n, np.int32) if first else np.full(n, -1, np.int32),
             prim=np.full(n, -1, np.int32), uv=np.zeros((n, 2), np.float32), cosine=np.zeros(n),
         )

@@ -300,12 +300,12 @@ cdef inline void deposit(double x, double x_dn, double x_up, bint c_dn, bint c_u
         column[b * stride] += <float>(density * ov)
 
 
-cdef inline bint neighbours(const double* points, const double* normals, const int* key,
+cdef inline bint neighbours(const double* points, const float* normals, const int* key,
                             const Py_ssize_t* ray, const double* energy, Py_ssize_t m, Py_ssize_t k,
                             Py_ssize_t n_elevation) noexcept nogil:
     """Whether path k + 1 of a compact set of ``m`` paths is path k's upper neighbour on one
     continuous surface (see ``splat_events``). A path without energy is no neighbour (as in
-    formation.accumulate). ``points``, ``normals``: (n, 3) C-contiguous."""
+    formation.accumulate). ``points``, ``normals``: (n, 3) C-contiguous (float64, float32)."""
     cdef Py_ssize_t i = ray[k]
     cdef double cx, cy, cz, off0, off1, limit
     if not (k + 1 < m and ray[k + 1] == i + 1 and (i + 1) % n_elevation != 0
@@ -368,7 +368,7 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
               const unsigned char[::1] plane_active, const double[::1] plane_specular,
               double reach, bint first, bint reflect, int[:, ::1] children, int n_chains,
               double[::1] dist, int[::1] sid, double[:, ::1] point,
-              double[:, ::1] normal, double[::1] cosine, double[::1] atten_out, int[::1] chain_out,
+              float[:, ::1] normal, double[::1] cosine, double[::1] atten_out, int[::1] chain_out,
               int[::1] key, Py_ssize_t[::1] live, int n_surfaces,
               Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
               double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
@@ -458,9 +458,11 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
         point[i, 0] = px
         point[i, 1] = py
         point[i, 2] = pz
-        normal[i, 0] = nx
-        normal[i, 1] = ny
-        normal[i, 2] = nz
+        # float32: an object's normal is the caster's (exact); a plane's is rounded, and serves
+        # only the continuity test (a chord within 30 degrees of the surface), not the mirror.
+        normal[i, 0] = <float>nx
+        normal[i, 1] = <float>ny
+        normal[i, 2] = <float>nz
         cosine[i] = c
         if hit_texel != NULL and s >= P:  # the texture's factor where a textured object scatters
             texel[i] = hit_texel[k]
@@ -526,7 +528,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
               double reach, const double[::1] albedo_by_id, const double[::1] weight, bint tvg,
               bint first, bint reflect, int[:, ::1] children, int n_chains,
               double[::1] dist, int[::1] sid, double[:, ::1] point,
-              double[:, ::1] normal, double[::1] intensity, double[::1] atten_out, int[::1] chain_out,
+              float[:, ::1] normal, double[::1] intensity, double[::1] atten_out, int[::1] chain_out,
               int[::1] key, Py_ssize_t[::1] live, int n_surfaces,
               Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
               double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
@@ -787,7 +789,7 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
     return m
 
 
-cdef void splat_events_impl(const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
+cdef void splat_events_impl(const double[:, ::1] points, const float[:, ::1] normals, const int[::1] key,
                  const Py_ssize_t[::1] ray, const double[::1] distance, const double[::1] energy,
                  const int[::1] beam, const signed char[::1] label, double scale,
                  bint spread, Py_ssize_t n_elevation, double range_min, double dr,
@@ -802,7 +804,7 @@ cdef void splat_events_impl(const double[:, ::1] points, const double[:, ::1] no
     if m == 0:
         return
     cdef const double* pts = &points[0, 0]
-    cdef const double* nrm = &normals[0, 0]
+    cdef const float* nrm = &normals[0, 0]
     cdef const int* kp = &key[0]
     cdef const Py_ssize_t* rp = &ray[0]
     cdef const double* ep = &energy[0]
@@ -816,7 +818,7 @@ cdef void splat_events_impl(const double[:, ::1] points, const double[:, ::1] no
         x_dn = x
 
 
-def splat_events(const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
+def splat_events(const double[:, ::1] points, const float[:, ::1] normals, const int[::1] key,
                  const Py_ssize_t[::1] ray, const double[::1] distance, const double[::1] energy,
                  const int[::1] beam, const signed char[::1] label, double scale,
                  bint spread, Py_ssize_t n_elevation, double range_min, double dr,
@@ -1028,7 +1030,7 @@ cdef class LabelMaps:
         self.n_points = 0
         self.bad_surface = -1
 
-    cdef Py_ssize_t deposit(self, Py_ssize_t blk, const double* points, const double* normals, const int* key,
+    cdef Py_ssize_t deposit(self, Py_ssize_t blk, const double* points, const float* normals, const int* key,
                             const int* sid, const Py_ssize_t* ray, const double* distance, const double* energy,
                             const int* beam, const signed char* label, Py_ssize_t m, Py_ssize_t order_map,
                             bint moments, float* image, Py_ssize_t pt_start) noexcept nogil:
@@ -1137,7 +1139,7 @@ cdef class LabelMaps:
             self.n_reached[blk, self.n_maps - 1] = n_tot
         return n_pts - pt_start
 
-    def add(self, const double[:, ::1] points, const double[:, ::1] normals, const int[::1] key,
+    def add(self, const double[:, ::1] points, const float[:, ::1] normals, const int[::1] key,
             const int[::1] sid, const Py_ssize_t[::1] ray, const double[::1] distance, const double[::1] energy,
             const int[::1] beam, const signed char[::1] label, Py_ssize_t order_map, bint moments):
         """One compact path set formed after the frame (one block of every beam only): its
@@ -1430,7 +1432,8 @@ cdef class PathBlocks:
     cdef double[:, ::1] dist, intensity, atten, cosine
     cdef float[:, ::1] texel
     cdef int[:, ::1] sid, chain, key, prim
-    cdef double[:, :, ::1] point, normal
+    cdef double[:, :, ::1] point
+    cdef float[:, :, ::1] normal
     cdef float[:, :, ::1] uv
     cdef bint primitives
     cdef int[::1] no_prim

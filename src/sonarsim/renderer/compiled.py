@@ -306,7 +306,8 @@ class FrameLegs:
         ``cosine`` (the incidence, as the search recorded it) is what the weighing turns into
         ``intensity``.
     sid, chain, key : (G, n) int32 ndarrays
-    point, normal : (G, n, 3) float64 ndarrays
+    point : (G, n, 3) float64 ndarray
+    normal : (G, n, 3) float32 ndarray
     texel : (G, n) float32 ndarray or None
         Where the objects are textured (``textured``), the texture's factor at each object's
         scatterer (the search records it, the weighing reads it); None otherwise.
@@ -328,7 +329,7 @@ class FrameLegs:
         f, i = np.float64, np.int32
         shapes = {"dist": ((n_gen, n), f), "cosine": ((n_gen, n), f), "intensity": ((n_gen, n), f),
                   "atten": ((n_gen, n), f), "sid": ((n_gen, n), i), "chain": ((n_gen, n), i), "key": ((n_gen, n), i),
-                  "point": ((n_gen, n, 3), f), "normal": ((n_gen, n, 3), f), "live": ((n_gen, n), np.intp)}
+                  "point": ((n_gen, n, 3), f), "normal": ((n_gen, n, 3), np.float32), "live": ((n_gen, n), np.intp)}
         self.prim = self.uv = self.texel = None
         if primitives:
             shapes.update(prim=((n_gen, n), i), uv=((n_gen, n, 2), np.float32))

@@ -300,7 +300,7 @@ class Simulator:
         for row, k in enumerate(("object", "ground", "double", "triple")[: len(stack)]):
             stack[row] = images[k]
         leg = Leg(0, hits.distance_m.reshape(-1), hits.surface_id.reshape(-1), hits.point.reshape(-1, 3),
-                  hits.normal.reshape(-1, 3), self._intensity(fan, hits).reshape(-1), np.ones(fan.n_rays),
+                  hits.normal.reshape(-1, 3).astype(np.float32), self._intensity(fan, hits).reshape(-1), np.ones(fan.n_rays),
                   np.zeros(fan.n_rays, np.int32))
         return stack, [leg], None, None, None, None
 
