@@ -659,10 +659,16 @@ def test_on_both_cores_hands_off_through_the_flag_and_never_hangs():
     """Each task runs once whichever thread takes it; a first task that raises the flag from
     without the GIL (a kernel), one that never raises it, and one that fails before it could:
     every call returns (or raises the task's error) with the worker idle again."""
+    import time
+
     from sonarsim.renderer import _kernels
 
     pool = compiled.SecondCore()
     zero = np.zeros(1, np.uint8)
+    # join() returns once the worker is idle again, its task done.
+    future, go = pool.hand_off(lambda: time.sleep(0.02) or "slept")
+    go[0] = 1
+    assert pool.join(future) == "slept" and future.done()
     for mode in ("kernel", "never", "fails"):
         for n in (1, 2, 5):
             done = []
@@ -672,6 +678,7 @@ def test_on_both_cores_hands_off_through_the_flag_and_never_hangs():
                     raise KeyError(k)
                 if signal is not None and mode == "kernel":
                     _kernels.watch_flag(zero, 0.0005, signal)  # raised once the GIL is let go
+                time.sleep(0.003)  # the worker's tasks end after this thread's: the call waits for them
                 done.append(k)
 
             if mode == "fails" and n > 1:
