@@ -814,16 +814,18 @@ def probe_chains(table: ChainTable, view: SonarView, active: np.ndarray, max_len
     rot = view.rotation
     e = _aperture_edges(float(view.beam_edges_deg[-1]), float(view.beam_edges_deg[0]), view.half_elevation_deg,
                         per_edge)
-    d = e[:, 0:1] * rot[:, 0] + e[:, 1:2] * rot[:, 1] + e[:, 2:3] * rot[:, 2]  # R d, as _kernels.rotate sums
-    o = np.broadcast_to(np.asarray(view.origin, float), d.shape).copy()
-    if kernel is not None:
+    if kernel is not None:  # the kernel turns the edges' rays itself, as below
+        origin = np.asarray(view.origin, float).reshape(1, 3)
         while True:
-            n_chains, overflow = kernel(o, d, planes.normal, planes.offset, np.ascontiguousarray(active, np.uint8),
-                                        planes.specular, view.range_max_m, max_length, table.children, len(table))
+            n_chains, overflow = kernel(origin, e, planes.normal, planes.offset, np.ascontiguousarray(active, np.uint8),
+                                        planes.specular, view.range_max_m, max_length, table.children, len(table),
+                                        np.ascontiguousarray(rot, float))
             table.sync(n_chains)
             if not overflow:
                 return
             table._grow()
+    d = e[:, 0:1] * rot[:, 0] + e[:, 1:2] * rot[:, 1] + e[:, 2:3] * rot[:, 2]  # R d, as _kernels.rotate sums
+    o = np.broadcast_to(np.asarray(view.origin, float), d.shape).copy()
     chain = np.zeros(len(d), dtype=np.int64)
     travelled = np.zeros(len(d))
     index = np.flatnonzero(active)

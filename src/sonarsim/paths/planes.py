@@ -187,10 +187,13 @@ class ChainTable:
     def at(self, origin: np.ndarray) -> "ChainTable":
         """The same chains, numbered the same, for a sonar at ``origin``: the unfolding maps
         are kept (they do not depend on the sonar), the sonar's images are formed anew."""
-        out = ChainTable(self.planes, origin, self.max_length, capacity=self.capacity)
-        out.children = self.children.copy()
-        out.chains = list(self.chains)
-        out._unfold = dict(self._unfold)
+        # Every field set here (not through __init__, whose table of -1 would be replaced at
+        # once): a frame forms one of these with its caches cold.
+        out = object.__new__(ChainTable)
+        origin = np.asarray(origin, dtype=float).reshape(3)
+        out.__dict__.update(planes=self.planes, origin=origin, max_length=self.max_length, capacity=self.capacity,
+                            children=self.children.copy(), chains=list(self.chains), _unfold=dict(self._unfold),
+                            _sources={0: origin[None, :].copy()})
         return out
 
     def local_chains(self, children: np.ndarray, n_chains: int) -> list[tuple]:

@@ -690,34 +690,47 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
 def probe_chains(const double[:, ::1] origins, const double[:, ::1] directions,
                  const double[:, ::1] plane_normal, const double[::1] plane_offset,
                  const unsigned char[::1] plane_active, const double[::1] plane_specular, double range_max,
-                 Py_ssize_t max_length, int[:, ::1] children, int n_chains):
+                 Py_ssize_t max_length, int[:, ::1] children, int n_chains, const double[:, ::1] rotation=None):
     """The chains of planes that rays along the aperture's edges follow through the planes
     alone (twin: ``paths.engine.probe_chains``, which traces the same rays step for step):
     each ray goes to the nearest active plane it meets from the water side, reflects there
     while the plane has specular reflectance and the path so far is shorter than
     ``range_max``, at most ``max_length`` times; each step's chain is entered in ``children``
-    (``children[c, p]``: the chain ``c + (p,)``, -1 new, numbered from ``n_chains``).
+    (``children[c, p]``: the chain ``c + (p,)``, -1 new, numbered from ``n_chains``). With
+    ``rotation`` (3 x 3), ``directions`` are in the sonar's frame, turned here as the twin
+    turns them (``R d`` summed column by column), and ``origins`` is the sonar's one row.
 
     Returns
     -------
     (n_chains, overflow)
     """
-    cdef Py_ssize_t m = origins.shape[0], P = plane_normal.shape[0], k, p, best, step
+    cdef Py_ssize_t m = directions.shape[0], P = plane_normal.shape[0], k, p, best, step
     cdef Py_ssize_t cap = children.shape[0]
     cdef double ox, oy, oz, dx, dy, dz, dn, t, best_t, travelled, twice, nx, ny, nz
     cdef int c, child
     cdef bint overflow = False
     cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
-    if directions.shape[0] != m or plane_offset.shape[0] != P or plane_active.shape[0] != P:
+    cdef bint turn = rotation is not None
+    cdef double ex, ey, ez
+    if (origins.shape[0] != (1 if turn else m) or plane_offset.shape[0] != P or plane_active.shape[0] != P
+            or (turn and (rotation.shape[0] != 3 or rotation.shape[1] != 3))):
         raise ValueError("probe arrays of different lengths")
     with nogil:
         for k in range(m):
-            ox = origins[k, 0]
-            oy = origins[k, 1]
-            oz = origins[k, 2]
-            dx = directions[k, 0]
-            dy = directions[k, 1]
-            dz = directions[k, 2]
+            ox = origins[0 if turn else k, 0]
+            oy = origins[0 if turn else k, 1]
+            oz = origins[0 if turn else k, 2]
+            if turn:
+                ex = directions[k, 0]
+                ey = directions[k, 1]
+                ez = directions[k, 2]
+                dx = ex * rotation[0, 0] + ey * rotation[0, 1] + ez * rotation[0, 2]
+                dy = ex * rotation[1, 0] + ey * rotation[1, 1] + ez * rotation[1, 2]
+                dz = ex * rotation[2, 0] + ey * rotation[2, 1] + ez * rotation[2, 2]
+            else:
+                dx = directions[k, 0]
+                dy = directions[k, 1]
+                dz = directions[k, 2]
             c = 0
             travelled = 0.0
             for step in range(max_length):
