@@ -73,3 +73,22 @@ def test_realism_benchmark_skips_cleanly_without_the_data(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "skipped" in proc.stderr and "absent.raw" in proc.stderr and "Traceback" not in proc.stderr
     assert not out.exists()
+
+
+def test_bench_against_measures_two_trees_in_turn(tmp_path):
+    out = tmp_path / "against.json"
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "bench_against.py"), str(ROOT), str(ROOT), "--runs", "1",
+         "--repeats", "5", "--json", str(out)], capture_output=True, text=True, timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.count("frame/cast") == 2
+    res = json.loads(out.read_text())
+    (runs,) = res.values()  # the same tree twice: one entry, two runs
+    assert len(runs) == 2
+    for r in runs:
+        assert r["demo_frame_ms"] > 0 and r["demo_frame_over_cast"] == r["demo_frame_ms"] / r["demo_bare_cast_ms"]
+        assert r["tank_over_demo"] == r["tank_frame_ms"] / r["demo_frame_ms"]
+    bad = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_against.py"), str(tmp_path), str(ROOT)],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and "not a sonarsim checkout" in bad.stderr and "Traceback" not in bad.stderr
