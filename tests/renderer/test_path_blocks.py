@@ -401,6 +401,7 @@ def test_the_label_scratch_is_left_clean_and_a_failed_frame_does_not_poison_the_
         scratch = sim._work.labels_scratch
         cells = scratch._arrays["cells"]
         assert (cells[:, 0::2] == -1).all()  # every cell's state back to "nothing"
+        assert not scratch._arrays["touched"].any()  # and every tile's flag
         sim.render(speckle=False, labels="total")
         assert scratch._arrays["cells"] is cells  # kept: no frame fills it
         option_maps = compiled.FrameTruth.option_maps
@@ -581,14 +582,14 @@ def test_label_maps_serve_one_frame_each_block_resolved_once(monkeypatch):
 
 def test_the_label_scratch_is_kept_only_when_the_frame_that_took_it_gives_it_back():
     scratch = compiled.LabelScratch()
-    first = scratch.take(1, 10, 3)
-    second = scratch.take(1, 10, 3)  # the first is still in use: a new set
+    first = scratch.take(1, 5, 2, 3)
+    second = scratch.take(1, 5, 2, 3)  # the first is still in use: a new set
     assert second is not first
     scratch.give_back(first)  # an older frame's word does not clean the newer set
-    third = scratch.take(1, 10, 3)
+    third = scratch.take(1, 5, 2, 3)
     assert third is not second
     scratch.give_back(third)
-    assert scratch.take(1, 10, 3) is third and (third["cells"] == -1).all()
+    assert scratch.take(1, 5, 2, 3) is third and (third["cells"] == -1).all() and (third["touched"] == 0).all()
 
 
 def test_the_layout_kernel_forms_the_image_sources_and_offsets_as_numpy_does(monkeypatch):

@@ -94,6 +94,11 @@ cdef double CONTINUITY_SINE = 0.5
 # block's beams wide) and its state stay in the first-level cache.
 cdef enum:
     RESOLVE_TILE = 16
+
+
+cpdef Py_ssize_t tiles_of(Py_ssize_t n_rows) noexcept nogil:
+    """Tiles of :data:`RESOLVE_TILE` range rows that ``n_rows`` rows make (the last may be short)."""
+    return (n_rows + RESOLVE_TILE - 1) // RESOLVE_TILE
 cdef double MIN_SPREAD_BINS = 1e-6
 cdef double SURFACE_OFFSET_M = 1e-5
 cdef double WATER_TOLERANCE_M = 1e-7
@@ -946,6 +951,10 @@ cdef class LabelMaps:
         an id or a table row): fill a new array with -1. :meth:`resolve` sets every cell it
         resolves back to -1, so a frame whose blocks all resolved leaves it ready for the next
         (``compiled.LabelScratch`` keeps it between frames on that condition).
+    touched : (n_maps, n_beams * tiles_of(n_range_bins)) uint8, 0 everywhere
+        Whether a path reached a cell of each beam's tile of :data:`RESOLVE_TILE` range rows
+        (set where a cell is first reached; :meth:`resolve` reads only those tiles' cells and
+        sets them back to 0, as it does the state).
     table : (capacity, n_ids) float32, uninitialised
         A row for every cell of every map (each becomes mixed at most once; block k's rows
         from ``n_maps * n_range_bins * b0`` on); only the rows of mixed cells are touched.
@@ -972,6 +981,8 @@ cdef class LabelMaps:
     cdef int[:, :, ::1] boxes
     cdef int[:, ::1] cells
     cdef Py_ssize_t[:, ::1] n_reached
+    cdef unsigned char[:, ::1] touched
+    cdef Py_ssize_t n_tiles
     cdef float[:, ::1] table
     cdef double[::1] moments
     cdef const int[::1] lut
@@ -991,7 +1002,7 @@ cdef class LabelMaps:
     cdef readonly Py_ssize_t n_points
 
     def __init__(self, int[:, :, ::1] instance, int[:, ::1] objects, int[:, ::1] planes,
-                 float[:, :, ::1] elevation, int[:, :, ::1] boxes, int[:, ::1] cells,
+                 float[:, :, ::1] elevation, int[:, :, ::1] boxes, int[:, ::1] cells, unsigned char[:, ::1] touched,
                  float[:, ::1] table, double[::1] moments, const int[::1] lut, const double[::1] elevation_rows,
                  bint spread, double range_min, double dr, const Py_ssize_t[::1] blocks, int n_objects,
                  float[:, ::1] p_world, int[::1] p_object, signed char[::1] p_component, int[:, ::1] p_cell):
@@ -1006,7 +1017,8 @@ cdef class LabelMaps:
                             or objects.shape[1] != self.n_beams or planes.shape[1] != self.n_beams)
                 or elevation.shape[0] != 3 or elevation.shape[1] != self.n_rows or elevation.shape[2] != self.n_beams
                 or cells.shape[0] < self.n_maps or cells.shape[1] != 2 * n_cells
-                or moments.shape[0] != 3 * n_cells):
+                or moments.shape[0] != 3 * n_cells or touched.shape[0] < self.n_maps
+                or touched.shape[1] != self.n_beams * tiles_of(self.n_rows)):
             raise ValueError("label maps of different shapes")
         if table.shape[0] < self.n_maps * n_cells:
             raise ValueError(f"a table of {table.shape[0]} rows for {self.n_maps * n_cells} cells")
@@ -1029,6 +1041,7 @@ cdef class LabelMaps:
             raise ValueError("point buffers of different lengths")
         self.instance, self.objects, self.planes, self.elevation, self.boxes = instance, objects, planes, elevation, boxes
         self.cells, self.table, self.moments = cells, table, moments
+        self.touched, self.n_tiles = touched, tiles_of(self.n_rows)
         self.n_blocks = blocks.shape[0] - 1
         self.blocks = blocks
         self.n_objects = n_objects
@@ -1066,6 +1079,10 @@ cdef class LabelMaps:
         cdef MapCell* order_cells = NULL
         cdef Py_ssize_t* n_order = NULL
         cdef MapCell* total_cells = NULL
+        cdef unsigned char* order_touched = NULL
+        cdef unsigned char* total_touched = NULL
+        cdef Py_ssize_t tile_column = 0
+        cdef Py_ssize_t n_tiles = self.n_tiles
         cdef Py_ssize_t* n_total = NULL
         cdef CellMoments* mom = NULL
         cdef CellMoments* cm
@@ -1081,10 +1098,12 @@ cdef class LabelMaps:
             by_order = moments = False
         if by_order:
             order_cells = <MapCell*>&self.cells[order_map, 0]
+            order_touched = &self.touched[order_map, 0]
             n_ord = self.n_reached[blk, order_map]
             n_order = &n_ord
         if moments:
             total_cells = <MapCell*>&self.cells[self.n_maps - 1, 0]
+            total_touched = &self.touched[self.n_maps - 1, 0]
             n_tot = self.n_reached[blk, self.n_maps - 1]
             n_total = &n_tot
             mom = <CellMoments*>&self.moments[0]
@@ -1111,6 +1130,7 @@ cdef class LabelMaps:
                     b_end = bin_end(hi)
                     column_out = image + <Py_ssize_t>label[k] * n_rows * n_beams + beam[k] if image != NULL else NULL
                     run = beam[k] * n_rows  # the beam's cells, beam-major
+                    tile_column = beam[k] * n_tiles  # the beam's tiles
                     for b in range(<Py_ssize_t>lo, b_end):
                         part = density * ((hi if hi < b + 1.0 else b + 1.0) - (lo if lo > b else <double>b))
                         pf = <float>part
@@ -1118,10 +1138,12 @@ cdef class LabelMaps:
                             column_out[b * n_beams] += pf
                         index = <int>(run + b)
                         if by_order:
-                            add_to_map(order_cells + index, table, n_ids, slot_base, n_slots, n_order, ident, pf)
+                            if add_to_map(order_cells + index, table, n_ids, slot_base, n_slots, n_order, ident, pf):
+                                order_touched[tile_column + b // RESOLVE_TILE] = 1
                         if moments:
                             cm = mom + index
                             if add_to_map(total_cells + index, table, n_ids, slot_base, n_slots, n_total, ident, pf):
+                                total_touched[tile_column + b // RESOLVE_TILE] = 1
                                 cm.weight = part  # first reached: the moments start here
                                 cm.weighted = part * el
                                 cm.lo = elf
@@ -1290,6 +1312,7 @@ cdef class LabelMaps:
         cdef const CellMoments* mom = <CellMoments*>&self.moments[0] if self.moments.shape[0] > 0 else NULL
         cdef const CellMoments* cm
         cdef int* box = &self.boxes[blk, 0, 0] if n_ids > 0 else NULL
+        cdef unsigned char* flags
         self.finished[blk] = 1
         if n_r * n_b == 0 or b1 <= b0 or self.bad_surface >= 0:
             return
@@ -1308,7 +1331,11 @@ cdef class LabelMaps:
                 out = &self.instance[mp, 0, 0]
                 both = self.split and mp == 0
                 last = mp == self.n_maps - 1
+                flags = &self.touched[mp, 0]
                 for c in range(<int>b0, <int>b1):
+                    if not flags[c * self.n_tiles + tile]:  # no path reached the beam's tile: as filled
+                        continue
+                    flags[c * self.n_tiles + tile] = 0
                     for r in range(<int>r0, <int>r1):
                         index = <Py_ssize_t>c * n_r + r
                         at = r * n_b + c

@@ -684,22 +684,25 @@ def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, 
 
 class LabelScratch:
     """The label maps' scratch, kept between frames: the dominance state of every cell of every
-    map (-1 throughout while the scratch is not in use: each block's ``LabelMaps.resolve`` sets
-    the cells it reached back to -1, so no frame fills it), the table of mixed cells and the
-    moments (uninitialised; written where first reached).
+    map and the flags of the tiles a path reached (-1 and 0 throughout while the scratch is not
+    in use: each block's ``LabelMaps.resolve`` sets the cells and tiles it reached back, so no
+    frame fills them), the table of mixed cells and the moments (uninitialised; written where
+    first reached).
     """
 
     def __init__(self) -> None:
         self._arrays: dict | None = None
         self._clean = False
 
-    def take(self, n_maps: int, n_cells: int, n_ids: int) -> dict:
-        """Arrays for ``n_maps`` maps of ``n_cells`` cells and ``n_ids`` ids; new ones (their
-        state filled) unless the kept ones fit and the last frame gave them back clean."""
+    def take(self, n_maps: int, n_rows: int, n_beams: int, n_ids: int) -> dict:
+        """Arrays for ``n_maps`` maps of ``n_rows x n_beams`` cells and ``n_ids`` ids; new ones
+        (their state filled) unless the kept ones fit and the last frame gave them back clean."""
         a = self._arrays
+        n_cells, n_tiles = n_rows * n_beams, n_beams * _kernels.tiles_of(n_rows)
         if (a is None or not self._clean or a["cells"].shape[0] < n_maps or a["cells"].shape[1] != 2 * n_cells
-                or a["table"].shape[1] != n_ids):
+                or a["touched"].shape[1] != n_tiles or a["table"].shape[1] != n_ids):
             a = self._arrays = {"cells": np.full((n_maps, 2 * n_cells), -1, np.int32),
+                                "touched": np.zeros((n_maps, n_tiles), np.uint8),
                                 "table": np.empty((n_maps * n_cells, n_ids), np.float32),
                                 "moments": np.empty(3 * n_cells)}
         self._clean = False  # until every block has finished (a failed frame leaves it dirty)
@@ -753,10 +756,10 @@ class FrameTruth:
         self.boxes = np.full((len(blocks), n_ids, 4), -1, np.int32)
         self.points = (np.empty((n_paths, 3), np.float32), np.empty(n_paths, np.int32), np.empty(n_paths, np.int8),
                        np.empty((n_paths, 2), np.int32))
-        work = self._work = self.scratch.take(n_maps, n_r * n_b, n_ids)
+        work = self._work = self.scratch.take(n_maps, n_r, n_b, n_ids)
         edges = np.array([b0 for b0, _ in blocks] + [n_b], np.intp)
         self.maps = _kernels.LabelMaps(self.instance, self.split[0], self.split[1], self.elevation, self.boxes,
-                                       work["cells"], work["table"], work["moments"],
+                                       work["cells"], work["touched"], work["table"], work["moments"],
                                        np.ascontiguousarray(spec.lut, np.int32),
                                        np.ascontiguousarray(spec.elevation_deg, np.float64), spread, range_min_m, dr,
                                        edges, spec.n_objects, *self.points)
