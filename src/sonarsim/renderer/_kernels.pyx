@@ -904,6 +904,21 @@ cdef inline bint add_to_map(MapCell* cell, float* table, Py_ssize_t n_ids, Py_ss
     return False
 
 
+cdef inline void add_to_box(int* box, int first_row, int last_row, int beam) noexcept nogil:
+    """Widen an id's inclusive ``[row, beam, row, beam]`` box (-1: none yet) to rows
+    ``first_row .. last_row`` of ``beam``."""
+    if box[0] < 0:
+        box[0] = first_row
+        box[1] = beam
+        box[2] = last_row
+        box[3] = beam
+        return
+    box[0] = first_row if first_row < box[0] else box[0]
+    box[1] = beam if beam < box[1] else box[1]
+    box[2] = last_row if last_row > box[2] else box[2]
+    box[3] = beam if beam > box[3] else box[3]
+
+
 cdef inline int strongest(const float* row, Py_ssize_t begin, Py_ssize_t end, float* top) noexcept nogil:
     """Index in ``[begin, end)`` of the largest positive ``row`` entry (ties: the lower), -1 none."""
     cdef Py_ssize_t k
@@ -1313,6 +1328,7 @@ cdef class LabelMaps:
         cdef const CellMoments* cm
         cdef int* box = &self.boxes[blk, 0, 0] if n_ids > 0 else NULL
         cdef unsigned char* flags
+        cdef int run_id = -1, run_first = 0, run_last = 0
         self.finished[blk] = 1
         if n_r * n_b == 0 or b1 <= b0 or self.bad_surface >= 0:
             return
@@ -1336,6 +1352,7 @@ cdef class LabelMaps:
                     if not flags[c * self.n_tiles + tile]:  # no path reached the beam's tile: as filled
                         continue
                     flags[c * self.n_tiles + tile] = 0
+                    run_id = -1
                     for r in range(<int>r0, <int>r1):
                         index = <Py_ssize_t>c * n_r + r
                         at = r * n_b + c
@@ -1365,17 +1382,16 @@ cdef class LabelMaps:
                             el[at] = <float>(cm.weighted / cm.weight)
                             el[plane + at] = cm.lo
                             el[2 * plane + at] = cm.hi
-                            if best >= 0:
-                                if box[4 * best] < 0:
-                                    box[4 * best] = r
-                                    box[4 * best + 1] = c
-                                    box[4 * best + 2] = r
-                                    box[4 * best + 3] = c
-                                else:
-                                    box[4 * best] = r if r < box[4 * best] else box[4 * best]
-                                    box[4 * best + 1] = c if c < box[4 * best + 1] else box[4 * best + 1]
-                                    box[4 * best + 2] = r if r > box[4 * best + 2] else box[4 * best + 2]
-                                    box[4 * best + 3] = c if c > box[4 * best + 3] else box[4 * best + 3]
+                            # An id's cells come in runs down a beam (rows ascend): its box
+                            # takes a run's first and last row once, not every cell's.
+                            if best != run_id:
+                                if run_id >= 0:
+                                    add_to_box(box + 4 * run_id, run_first, run_last, c)
+                                run_id = best
+                                run_first = r
+                            run_last = r
+                    if run_id >= 0:
+                        add_to_box(box + 4 * run_id, run_first, run_last, c)
 
     def resolved(self):
         """Whether every block was resolved (:meth:`resolve` or :meth:`finish`)."""
