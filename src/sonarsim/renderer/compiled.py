@@ -757,7 +757,7 @@ class FrameTruth:
         self.points = (np.empty((n_paths, 3), np.float32), np.empty(n_paths, np.int32), np.empty(n_paths, np.int8),
                        np.empty((n_paths, 2), np.int32))
         work = self._work = self.scratch.take(n_maps, n_r, n_b, n_ids)
-        edges = np.array([b0 for b0, _ in blocks] + [n_b], np.intp)
+        edges = _block_edges(tuple(blocks), n_b)
         self.maps = _kernels.LabelMaps(self.instance, self.split[0], self.split[1], self.elevation, self.boxes,
                                        work["cells"], work["touched"], work["table"], work["moments"],
                                        np.ascontiguousarray(spec.lut, np.int32),
@@ -814,6 +814,14 @@ class FrameTruth:
         objects, planes = (self.split[0], self.split[1]) if self.spec.components else (None, None)
         return (self.instance[:-1], objects, planes, self.instance[-1], self.elevation, boxes,
                 tuple(p[:n] for p in self.points))
+
+
+@functools.lru_cache(maxsize=16)  # a sonar's: the same every frame
+def _block_edges(blocks: tuple, n_beams: int) -> np.ndarray:
+    """The blocks' first beams, then ``n_beams`` (read-only: shared)."""
+    edges = np.array([b0 for b0, _ in blocks] + [n_beams], np.intp)
+    edges.flags.writeable = False
+    return edges
 
 
 @functools.lru_cache(maxsize=64)  # a frame's options' rows: the same frame after frame

@@ -27,6 +27,8 @@ one per path set (a handful per frame) and one per id.
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,6 +43,7 @@ from .components import component_table, order_name
 from .formation import RayEnergy, expand_cells, range_cells
 
 
+@functools.lru_cache(maxsize=16)  # a scene's: the same every frame
 def point_component_names(max_order: int) -> tuple[str, ...]:
     """Names of the image rows, by row: ``object``, ``ground``, then one per order >= 2."""
     return ("object", "ground") + tuple(order_name(k) for k in range(2, max_order + 1))
