@@ -19,6 +19,7 @@ import threading
 import weakref
 from collections.abc import Sequence
 from concurrent.futures import Executor, Future
+from concurrent.futures import TimeoutError as FuturesTimeout
 
 import numpy as np
 
@@ -108,17 +109,21 @@ class SecondCore(Executor):
     A frame hands it work twice (its two phases, :func:`on_both_cores`), a few hundred
     microseconds apart, and a thread that sleeps -- on a lock, a condition or the GIL -- takes
     50-100 us to wake on the machines this was measured on (virtual ones). So neither thread
-    of a frame sleeps: after each task the worker watches for the next one without the GIL
-    (``_kernels.watch_flag``: a load and a pause instruction in a loop) for :attr:`SPIN_S`
-    before it sleeps, as OpenMP runtimes do; and in :meth:`hand_off` each thread raises the
-    flag the other watches only once it has let go of the GIL, so that the other takes the
-    GIL without waiting. An idle simulator's worker sleeps. The thread stops when the
-    executor is shut down or collected.
+    of a frame sleeps while the machine is idle: after each task the worker watches for the
+    next one without the GIL (``_kernels.watch_flag``: a load and a pause instruction in a
+    loop, offering its core between short runs) for :attr:`SPIN_S` before it sleeps, as
+    OpenMP runtimes do; the frame's thread watches for the worker's end for
+    :attr:`JOIN_SPIN_S` (:meth:`join`); and in :meth:`hand_off` each thread raises the flag
+    the other watches only once it has let go of the GIL, so that the other takes the GIL
+    without waiting. On a busy machine both fall back to sleeping. An idle simulator's worker
+    sleeps. The thread stops when the executor is shut down or collected.
     """
 
     #: Seconds a worker watches for its next task before it sleeps: a frame's gap between its
     #: phases, and between the frames of a render loop.
-    SPIN_S = 0.002
+    SPIN_S = 0.001
+    #: Seconds the frame's thread watches for the worker to finish before it sleeps (:meth:`join`).
+    JOIN_SPIN_S = 0.0005
 
     def __init__(self) -> None:
         queue, wake = collections.deque(), threading.Event()
@@ -152,17 +157,23 @@ class SecondCore(Executor):
         return self._queue(fn, (), {}), self._state[1]
 
     def join(self, future: Future):
-        """Wait for ``future`` (queued by :meth:`hand_off`), watching without the GIL for the
-        worker to be idle again, then its result. Raises the worker's flag where the caller's
-        task did not (it failed before it could)."""
+        """Wait for ``future`` (queued by :meth:`hand_off`): watching without the GIL for the
+        worker to be idle again for :attr:`JOIN_SPIN_S`, then sleeping; its result. Raises the
+        worker's flag where the caller's task did not (it failed before it could)."""
         go, idle = self._state[1], self._state[2]
-        while not idle[0]:
-            if not go[0] and not future.running() and not future.done():
-                go[0] = 1
-            if not _kernels.watch_flag(idle, 0.01) and not self._thread.is_alive():
-                raise RuntimeError("the simulator's worker thread is gone (a process forked from one that had "
-                                   "started it): make the simulator in the process that renders")
-        return future.result()
+        if not go[0] and not future.running() and not future.done():
+            go[0] = 1
+        # Watched briefly: a block ends within a few hundred microseconds of the other. Past
+        # that the machine is busy and the worker waits for a core: sleep, not take it.
+        if idle[0] or _kernels.watch_flag(idle, self.JOIN_SPIN_S):
+            return future.result()
+        while True:
+            try:
+                return future.result(timeout=1.0)
+            except FuturesTimeout:
+                if not self._thread.is_alive():
+                    raise RuntimeError("the simulator's worker thread is gone (a process forked from one that "
+                                       "had started it): make the simulator in the process that renders") from None
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
         self._shutdown = True
