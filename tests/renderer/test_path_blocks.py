@@ -688,5 +688,86 @@ def test_on_both_cores_hands_off_through_the_flag_and_never_hangs():
             else:
                 compiled.on_both_cores(task, n, pool, signals=True)
                 assert sorted(done) == list(range(n)), (mode, n)
+            deadline = time.monotonic() + 5
+            while not pool._state[2][0] and time.monotonic() < deadline:  # raised as it goes back to watching
+                time.sleep(0.001)
             assert pool._state[2][0] == 1  # idle
+    pool.shutdown()
+
+
+def test_the_second_core_lets_go_of_its_tasks_and_refuses_what_it_cannot_run():
+    import gc
+    import weakref
+
+    class Held:
+        pass
+
+    pool = compiled.SecondCore()
+    held = Held()
+    ref = weakref.ref(held)
+    assert pool.submit(lambda h: None, held).result() is None
+    del held
+    gc.collect()
+    assert ref() is None  # the worker does not keep its last task's arguments alive
+    pool.shutdown()
+    with pytest.raises(RuntimeError, match="shutdown"):
+        pool.submit(print)
+    stopped = compiled.SecondCore()
+    stopped._stop()  # the thread stops (as in a process forked from one that had started it)
+    stopped._thread.join(timeout=5)
+    with pytest.raises(RuntimeError, match="worker thread is gone"):
+        stopped.submit(print)
+
+
+@pytest.mark.parametrize("kind", ["thread_pool", "second_core"])
+def test_an_interrupted_frame_waits_for_the_other_thread_before_it_lets_go(kind):
+    """Ctrl-C while the frame's thread waits for the other: the wait goes on until the other
+    thread's tasks end (they write into the frame's arrays), then the interrupt is raised."""
+    from concurrent.futures import ThreadPoolExecutor
+    import threading
+    import time
+
+    pool = ThreadPoolExecutor(1) if kind == "thread_pool" else compiled.SecondCore()
+    ended = []
+
+    def task(k, signal=None):
+        if signal is not None:
+            signal[0] = 1
+        # The other thread's task ends well after this thread's.
+        time.sleep(0.02 if threading.current_thread() is threading.main_thread() else 0.2)
+        ended.append(k)
+
+    waits = []
+    if kind == "second_core":
+        real = pool.join
+
+        def interrupted_once(future):
+            if not waits:
+                waits.append(1)
+                raise KeyboardInterrupt
+            return real(future)
+
+        pool.join = interrupted_once
+        run = lambda: compiled.on_both_cores(task, 2, pool, signals=True)  # noqa: E731
+    else:
+        submit = pool.submit
+
+        def submit_interrupted_once(fn):
+            future = submit(fn)
+            result = future.result
+
+            def once(*a, **k):
+                if not waits:
+                    waits.append(1)
+                    raise KeyboardInterrupt
+                return result(*a, **k)
+
+            future.result = once
+            return future
+
+        pool.submit = submit_interrupted_once
+        run = lambda: compiled.on_both_cores(lambda k: task(k), 2, pool)  # noqa: E731
+    with pytest.raises(KeyboardInterrupt):
+        run()
+    assert waits and sorted(ended) == [0, 1]  # both tasks had ended when the interrupt came out
     pool.shutdown()

@@ -130,6 +130,7 @@ class SecondCore(Executor):
         go, idle = np.zeros(1, np.uint8), np.ones(1, np.uint8)
         self._state = (queue, go, idle, wake)
         self._shutdown = False
+        self._lock = threading.Lock()  # a task is queued before the stop, or refused
         # The thread holds the queue, not the executor: collecting the executor stops it.
         self._thread = threading.Thread(target=_second_core_loop, args=(queue, go, idle, wake, self.SPIN_S),
                                         name="sonarsim-second-core", daemon=True)
@@ -137,12 +138,15 @@ class SecondCore(Executor):
         self._stop = weakref.finalize(self, _second_core_stop, queue, go, wake)
 
     def _queue(self, fn, args, kwargs) -> Future:
-        if self._shutdown:
-            raise RuntimeError("cannot schedule new futures after shutdown")
         future: Future = Future()
         queue, go, idle, wake = self._state
-        idle[0] = 0
-        queue.append((future, fn, args, kwargs))
+        with self._lock:
+            if self._shutdown:
+                raise RuntimeError("cannot schedule new futures after shutdown")
+            if not self._thread.is_alive():
+                raise RuntimeError(_GONE)
+            idle[0] = 0
+            queue.append((future, fn, args, kwargs))
         wake.set()  # only where the worker sleeps (its watch has timed out) does this wake it
         return future
 
@@ -172,14 +176,22 @@ class SecondCore(Executor):
                 return future.result(timeout=1.0)
             except FuturesTimeout:
                 if not self._thread.is_alive():
-                    raise RuntimeError("the simulator's worker thread is gone (a process forked from one that "
-                                       "had started it): make the simulator in the process that renders") from None
+                    raise RuntimeError(_GONE) from None
 
     def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
-        self._shutdown = True
-        self._stop()
+        with self._lock:
+            self._shutdown = True
+            if cancel_futures:
+                for future, *_ in list(self._state[0]):
+                    if future is not None:
+                        future.cancel()
+            self._stop()
         if wait and self._thread is not threading.current_thread():
             self._thread.join()
+
+
+_GONE = ("the simulator's worker thread is gone (a process forked from one that had started it): make the "
+         "simulator in the process that renders")
 
 
 def _second_core_loop(queue: collections.deque, go: np.ndarray, idle: np.ndarray, wake: threading.Event,
@@ -194,14 +206,20 @@ def _second_core_loop(queue: collections.deque, go: np.ndarray, idle: np.ndarray
         while queue:
             future, fn, args, kwargs = queue.popleft()
             if future is None:
+                # Stopped: what was queued after the stop fails rather than waits for ever.
+                while queue:
+                    left = queue.popleft()[0]
+                    if left is not None and left.set_running_or_notify_cancel():
+                        left.set_exception(RuntimeError("the worker stopped before this task ran"))
                 return
-            if not future.set_running_or_notify_cancel():
-                continue
-            try:
-                future.set_result(fn(*args, **kwargs))
-            except BaseException as exc:  # the caller sees it in result()
-                future.set_exception(exc)
-                del exc
+            if future.set_running_or_notify_cancel():
+                try:
+                    future.set_result(fn(*args, **kwargs))
+                except BaseException as exc:  # the caller sees it in result()
+                    future.set_exception(exc)
+                    del exc
+            # Let go of the task and what it holds (a frame's arrays) while the worker waits.
+            del future, fn, args, kwargs
 
 
 def _second_core_stop(queue: collections.deque, go: np.ndarray, wake: threading.Event) -> None:
@@ -235,7 +253,7 @@ def on_both_cores(task, n_tasks: int, pool=None, signals: bool = False) -> None:
         try:
             drain()
         finally:
-            other.result()
+            _wait_through_interrupts(other.result)
         return
     other, go = pool.hand_off(drain)
     try:
@@ -246,7 +264,21 @@ def on_both_cores(task, n_tasks: int, pool=None, signals: bool = False) -> None:
             go[0] = 1
         drain()
     finally:
-        pool.join(other)
+        _wait_through_interrupts(lambda: pool.join(other))
+
+
+def _wait_through_interrupts(wait) -> None:
+    """``wait()``, again if Ctrl-C interrupts it, then the interrupt: the other thread writes
+    into the frame's arrays until its tasks end, so the frame must not let go of them before."""
+    interrupted = None
+    while True:
+        try:
+            wait()
+            break
+        except KeyboardInterrupt as exc:
+            interrupted = exc
+    if interrupted is not None:
+        raise interrupted
 
 
 # Blocks of beams a frame is cut into, whatever the number of threads (the image does not
@@ -768,7 +800,7 @@ class FrameTruth:
         self.points = (np.empty((n_paths, 3), np.float32), np.empty(n_paths, np.int32), np.empty(n_paths, np.int8),
                        np.empty((n_paths, 2), np.int32))
         work = self._work = self.scratch.take(n_maps, n_r, n_b, n_ids)
-        edges = _block_edges(tuple(blocks), n_b)
+        edges = _block_edges(tuple(int(b0) for b0, _ in blocks), n_b)
         self.maps = _kernels.LabelMaps(self.instance, self.split[0], self.split[1], self.elevation, self.boxes,
                                        work["cells"], work["touched"], work["table"], work["moments"],
                                        np.ascontiguousarray(spec.lut, np.int32),
@@ -828,9 +860,9 @@ class FrameTruth:
 
 
 @functools.lru_cache(maxsize=16)  # a sonar's: the same every frame
-def _block_edges(blocks: tuple, n_beams: int) -> np.ndarray:
+def _block_edges(starts: tuple, n_beams: int) -> np.ndarray:
     """The blocks' first beams, then ``n_beams`` (read-only: shared)."""
-    edges = np.array([b0 for b0, _ in blocks] + [n_beams], np.intp)
+    edges = np.array(list(starts) + [n_beams], np.intp)
     edges.flags.writeable = False
     return edges
 
