@@ -177,7 +177,8 @@ cdef Py_ssize_t weigh_impl(Py_ssize_t[::1] live, Py_ssize_t n_reached, const int
                            bint textured, int n_planes, const double[::1] albedo_by_id,
                            const double[::1] weight, bint tvg, _Laws laws,
                            double[::1] intensity) noexcept nogil:
-    """The loop of :func:`weigh`: the diffuse weight of each reached ray from what the search
+    """The weighing (run after each generation's search by :func:`trace_leg` and
+    :class:`PathBlocks`; twin: ``paths.engine.weigh_leg``): the diffuse weight of each reached ray from what the search
     recorded (its surface, incidence, leg length and, on a textured object, the texture's
     factor), and ``live[:n_reached]`` compacted in place to the rays with some energy."""
     cdef Py_ssize_t j, i, n_live = 0
@@ -386,7 +387,7 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
     cdef Py_ssize_t k, i, m = ray.shape[0], n_next = 0, P = plane_normal.shape[0]
     cdef Py_ssize_t row, p, best_p, cap = children.shape[0]
     cdef bint one = org.shape[0] == 1
-    cdef double ox, oy, oz, dx, dy, dz, t, tp, dn, nx, ny, nz, b, total, c, r, rx, ry, rz, twice
+    cdef double ox, oy, oz, dx, dy, dz, t, tp, dn, nx, ny, nz, b, total, c, rx, ry, rz, twice
     cdef double px, py, pz, min_next = INFINITY
     cdef float fx, fy, fz, cosf
     cdef int s, ch, child
