@@ -1,0 +1,243 @@
+"""The differentiable forward: a held search's paths formed again from the parameters (JAX).
+
+One pure function, :func:`form_stack`, maps the parameters (a flat dict of JAX arrays, see
+:mod:`sonarsim.diff.params`) and the frame's held search (:class:`~sonarsim.diff.search.Search`
+as arrays) to the image stack, doing what the compiled engine does after its search, in the
+same order:
+
+1. **The fan.** Each path's fan ray, rotated by the sonar's roll-pitch-yaw
+   (``R = Rz(yaw) Ry(pitch) Rx(roll)``, :mod:`sonarsim.core.transforms`), from the sonar's
+   position.
+2. **The receive leg.** The ray is reflected off the ``g`` planes of its chain in order
+   (``t = (offset - n.o) / (n.d)``, ``d' = d - 2 (n.d) n``), each plane's specular reflectance
+   multiplied into the leg's attenuation, and ends on its scatterer: a plane, or the plane of the
+   object's triangle the search found, its corners posed and scaled from the object's own mesh
+   (the hit point slides on that triangle's plane as the parameters move).
+3. **The weight.** ``w(ray) l(r) f(cos alpha)``: the fan ray's weight (beam patterns), the
+   range law (``1 / r^2`` without TVG), the surface's law (``albedo cos`` or ``mu cos``, plus the
+   rough law's Kirchhoff lobe), held texture factors.
+4. **The transmit leg.** The receive leg reversed (its length again), or the scatterer
+   unfolded by the transmit chain's mirrors (image sources, ``A* = M_1(M_2(... M_K(A)))``),
+   ``|A* - O|`` long, times the chain's reflectances.
+5. **The splat** (:func:`splat`): each path's energy spread uniformly over its range cell,
+   from the midpoints towards its neighbours in the ray column (the compiled engine's range
+   splatting), deposited exactly into range bins.
+
+The splat is differentiable because it is written as differences of ramps: a cell ``[lo, hi]``
+of density ``rho`` puts ``rho * (h(lo) - h(hi))`` into the bins, where ``h_x(b) = clip(b + 1 -
+x, 0, 1)`` is, along the range axis, the running sum of ``1 - frac(x)`` at ``floor(x)`` and
+``frac(x)`` at ``floor(x) + 1``. Four scattered values per path and one running sum per
+column form the image; the bins' values are piecewise linear in ``lo`` and ``hi``, so the
+gradient with respect to a path's range is the density moving across the bin edges at its two
+ends. A path without neighbours on its surface (a cell narrower than a millionth of a bin: an
+isolated ray, as on a small object's edge) is deposited in the bin of its range, as the
+compiled engine does; its gradient is that of a unit-wide cell starting at its range
+(straight-through: the value is the bin's, the derivative the cell's).
+
+What the held search does not move: which surfaces and triangles the paths meet (an occluding
+edge stays where the search found it: a ray that the parameters would move off its triangle
+still ends on that triangle's plane), which paths are neighbours on one surface, which
+transmit legs are valid and in which beam they leave, and the fan rays' beams. Refresh the
+search (:meth:`sonarsim.diff.Renderer.refresh`) after large steps.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from ..core.splat import MIN_SPREAD_BINS
+
+DEG = jnp.pi / 180.0
+
+
+def rpy_matrix(rpy_deg: jax.Array) -> jax.Array:
+    """(3, 3) ``Rz(yaw) Ry(pitch) Rx(roll)`` of ``(roll, pitch, yaw)`` in degrees
+    (:func:`sonarsim.core.transforms.rpy_to_matrix`)."""
+    r, p, y = rpy_deg[0] * DEG, rpy_deg[1] * DEG, rpy_deg[2] * DEG
+    cr, sr, cp, sp, cy, sy = jnp.cos(r), jnp.sin(r), jnp.cos(p), jnp.sin(p), jnp.cos(y), jnp.sin(y)
+    return jnp.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+def _dot(a: jax.Array, b: jax.Array) -> jax.Array:
+    return jnp.sum(a * b, axis=-1)
+
+
+def plane_table(params: dict, names: tuple[str, ...]) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The planes' unit normals (P, 3), offsets (P,) and specular reflectances (P,)."""
+    if not names:
+        z = jnp.zeros((1, 3)).at[0, 2].set(1.0)
+        return z, jnp.zeros(1), jnp.zeros(1)
+    n = jnp.stack([params[f"planes.{p}.normal"] for p in names])
+    n = n / jnp.linalg.norm(n, axis=1, keepdims=True)
+    off = jnp.stack([jnp.asarray(params[f"planes.{p}.offset_m"]).reshape(()) for p in names])
+    spec = jnp.stack([jnp.asarray(params[f"planes.{p}.specular"]).reshape(()) for p in names])
+    return n, off, spec
+
+
+def triangle_table(params: dict, objects: tuple[str, ...], local_faces: tuple) -> tuple[jax.Array, jax.Array]:
+    """The hit triangles' planes: unnormalised normals ``(b - a) x (c - a)`` (F, 3) and
+    offsets ``n . a`` (F,), their corners posed from each object's own mesh.
+
+    ``local_faces[k]``: (F_k, 3) vertex indices of object ``k``'s hit faces, in the order of
+    the search's ``faces`` (grouped by object).
+    """
+    normals, offsets = [], []
+    for name, faces in zip(objects, local_faces):
+        if faces.shape[0] == 0:
+            continue
+        v = params[f"objects.{name}.vertices_m"] * params[f"objects.{name}.scale"]
+        rot = rpy_matrix(params[f"objects.{name}.rpy_deg"])
+        tri = v[faces] @ rot.T + params[f"objects.{name}.position_m"]  # (F_k, 3, 3)
+        a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+        n = jnp.cross(b - a, c - a)
+        normals.append(n)
+        offsets.append(_dot(n, a))
+    if not normals:
+        return jnp.zeros((0, 3)), jnp.zeros(0)
+    return jnp.concatenate(normals), jnp.concatenate(offsets)
+
+
+def law_table(params: dict, surfaces: tuple[tuple[str, str], ...]) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """Diffuse coefficient, lobe strength and roughness by surface id (S,), from the
+    parameters of each surface's law (``surfaces``: ``(prefix, law)`` in surface-id order)."""
+    coef, strength, rough = [], [], []
+    for prefix, law in surfaces:
+        coef.append(jnp.asarray(params[f"{prefix}.mu" if law == "lambert" else f"{prefix}.albedo"]).reshape(()))
+        if law == "rough":
+            strength.append(jnp.asarray(params[f"{prefix}.specular_strength"]).reshape(()))
+            rough.append(jnp.asarray(params[f"{prefix}.roughness"]).reshape(()))
+        else:
+            strength.append(jnp.zeros(()))
+            rough.append(jnp.ones(()))
+    return jnp.stack(coef), jnp.stack(strength), jnp.stack(rough)
+
+
+def specular_lobe(c: jax.Array, s: jax.Array) -> jax.Array:
+    """``exp(-tan^2 / (2 s^2)) / cos^5`` (:func:`sonarsim.core.radiometry.specular_lobe`), 0 at grazing."""
+    c2 = jnp.maximum(c * c, 1e-300)
+    t2 = (1.0 - c2) / c2
+    out = jnp.exp(-t2 / (2.0 * s * s)) / (c2 * c2 * c)
+    return jnp.where(c * c > 0, out, 0.0)
+
+
+def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.Array, dict]:
+    """Each path's recorded range (m) and energy, and the geometry formed on the way.
+
+    Returns
+    -------
+    distance : (C,) half the path's length, metres
+    energy : (C,)
+    parts : dict
+        ``point`` (C, 3) the scatterers, ``rx`` (C,) receive-leg lengths, ``cos`` (C,) incidences.
+    """
+    rot = rpy_matrix(params["sonar.rpy_deg"])
+    origin = params["sonar.position_m"]
+    d = data["direction"] @ rot.T  # (C, 3) the fan rays in the world
+    normal, offset, spec = plane_table(params, static.planes)
+    o = jnp.broadcast_to(origin, d.shape)
+    gen = data["gen"]
+    dist = jnp.zeros(d.shape[0])
+    atten = jnp.ones(d.shape[0])
+    for j in range(data["rx_planes"].shape[1]):
+        on = j < gen
+        p = jnp.maximum(data["rx_planes"][:, j], 0)
+        n = normal[p]
+        dn = _dot(d, n)
+        t = (offset[p] - _dot(o, n)) / jnp.where(on, dn, 1.0)
+        t = jnp.where(on, t, 0.0)
+        o = o + t[:, None] * d
+        d = jnp.where(on[:, None], d - 2.0 * dn[:, None] * n, d)
+        dist = dist + t
+        atten = atten * jnp.where(on, spec[p], 1.0)
+    tri_n, tri_off = triangle_table(params, static.objects, data["local_faces"])
+    surf_n = jnp.concatenate([normal, tri_n])
+    surf_off = jnp.concatenate([offset, tri_off])
+    ns = surf_n[data["surface"]]
+    dn = _dot(d, ns)
+    t = (surf_off[data["surface"]] - _dot(o, ns)) / dn
+    point = o + t[:, None] * d
+    dist = dist + t
+    cos = jnp.abs(dn) / jnp.linalg.norm(ns, axis=1)
+    coef, strength, rough = law_table(params, static.surfaces)
+    sid = data["sid"]
+    f = coef[sid] * cos
+    if static.rough:
+        f = f + strength[sid] * specular_lobe(cos, rough[sid])
+    intensity = data["weight"] * f * data["factor"]
+    if not static.tvg:
+        intensity = intensity / jnp.maximum(dist, 1e-6) ** 2
+    # The transmit leg: reversed, or by image sources along its chain.
+    a = point
+    tx_spec = jnp.ones(d.shape[0])
+    for j in range(data["tx_planes"].shape[1] - 1, -1, -1):
+        q = data["tx_planes"][:, j]
+        on = q >= 0
+        q = jnp.maximum(q, 0)
+        n = normal[q]
+        a = jnp.where(on[:, None], a - 2.0 * (_dot(a, n) - offset[q])[:, None] * n, a)
+        tx_spec = tx_spec * jnp.where(on, spec[q], 1.0)
+    length = jnp.linalg.norm(a - origin, axis=1)
+    same = data["same"]
+    distance = jnp.where(same, dist, 0.5 * (dist + length))
+    energy = atten * jnp.where(same, atten, tx_spec) * intensity
+    energy = jnp.where(data["live"], energy, 0.0)
+    return distance, energy, {"point": point, "rx": dist, "cos": cos}
+
+
+def splat(distance: jax.Array, energy: jax.Array, row: jax.Array, n_rows: int, data: dict, geometry: tuple,
+          spread: bool = True) -> jax.Array:
+    """Paths into an image stack (n_rows, n_range_bins, n_beams) by range splatting (see the
+    module docstring).
+
+    Parameters
+    ----------
+    distance, energy : (C,)
+        Each path's range (m) and energy.
+    row : (C,) int
+        The stack row each path goes to.
+    n_rows : int
+    data : dict
+        ``down``, ``up``, ``has_down``, ``has_up`` (the held neighbours) and ``beam``.
+    geometry : (range_min_m, range_resolution_m, n_range_bins, n_beams)
+    spread : bool
+        Range splatting (``render.range_splat``); ``False``: each path in the bin of its range.
+    """
+    r0, dr, n, nb = geometry
+    x = (distance - r0) / dr
+    if spread:
+        hd, hu = data["has_down"], data["has_up"]
+        m_dn = 0.5 * (x + x[data["down"]])
+        m_up = 0.5 * (x + x[data["up"]])
+        lower = jnp.where(hd, m_dn, jnp.where(hu, 2.0 * x - m_up, x))
+        upper = jnp.where(hu, m_up, jnp.where(hd, 2.0 * x - m_dn, x))
+        lo = jnp.minimum(jnp.minimum(lower, upper), x)
+        hi = jnp.maximum(jnp.maximum(lower, upper), x)
+    else:
+        lo = hi = x
+    width = hi - lo
+    point = width < MIN_SPREAD_BINS
+    # A point fills its bin (the value); its derivative is a unit cell's starting at its range.
+    lo_point = lo + jax.lax.stop_gradient(jnp.floor(lo) - lo)
+    lo = jnp.where(point, lo_point, lo)
+    hi = jnp.where(point, lo_point + 1.0, hi)
+    density = energy / jnp.where(point, 1.0, width)
+    lo = jnp.clip(lo, 0.0, n)
+    hi = jnp.clip(hi, 0.0, n)
+    fl_lo = jax.lax.stop_gradient(jnp.floor(lo))
+    fl_hi = jax.lax.stop_gradient(jnp.floor(hi))
+    fr_lo, fr_hi = lo - fl_lo, hi - fl_hi
+    base = row * (n + 2)
+    beam = data["beam"]
+    i_lo = (base + fl_lo.astype(jnp.int32)) * nb + beam
+    i_hi = (base + fl_hi.astype(jnp.int32)) * nb + beam
+    index = jnp.concatenate([i_lo, i_lo + nb, i_hi, i_hi + nb])
+    value = jnp.concatenate([density * (1.0 - fr_lo), density * fr_lo, -density * (1.0 - fr_hi), -density * fr_hi])
+    acc = jnp.zeros(n_rows * (n + 2) * nb, dtype=energy.dtype).at[index].add(value)
+    return jnp.cumsum(acc.reshape(n_rows, n + 2, nb), axis=1)[:, :n, :]

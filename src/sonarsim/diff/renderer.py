@@ -1,0 +1,210 @@
+"""The differentiable renderer: :class:`Renderer`, ``params()`` and ``render(params)``.
+
+The compiled engine does the discrete search once (:func:`~sonarsim.diff.search.record_search`);
+the continuous rest of the frame is a JAX function of the parameters
+(:mod:`sonarsim.diff.forward`, then :mod:`sonarsim.diff.sensor` where the scene has a sensor),
+compiled by ``jax.jit`` on first use, differentiable by ``jax.grad`` and batched by ``jax.vmap``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..config.loader import load_scene
+from ..core.transforms import Pose
+from ..errors import ConfigError
+from ..renderer.components import component_table, total_rows
+from ..renderer.simulator import Simulator
+from ..scene.meshes import object_mesh_local
+from . import forward
+from .params import scene_params, surface_laws
+from .search import Search, record_search
+
+
+@dataclass(frozen=True)
+class Static:
+    """What the forward function is compiled for (hashable: ``jax.jit``'s static argument)."""
+
+    planes: tuple[str, ...]
+    objects: tuple[str, ...]
+    surfaces: tuple[tuple[str, str], ...]
+    rough: bool
+    tvg: bool
+    spread: bool
+    geometry: tuple[float, float, int, int]
+    n_rows: int
+    total_rows: tuple[int, ...]
+    n_signatures: int
+    sensor: Any = None  # sonarsim.diff.sensor.SensorStatic or None
+
+
+def _pose_of(params: Mapping[str, Any]) -> Pose:
+    return Pose(tuple(np.asarray(params["sonar.position_m"], float)), tuple(np.asarray(params["sonar.rpy_deg"], float)))
+
+
+class Renderer:
+    """A scene made differentiable: the expected image as a JAX function of its parameters.
+
+    Parameters
+    ----------
+    scene : Scene, mapping or path
+        Anything :func:`sonarsim.load_scene` accepts.
+    dtype : {'float64', 'float32'}
+        The arithmetic. ``float64`` (the default, and what the finite-difference checks need)
+        turns on JAX's 64-bit mode (``jax_enable_x64``) for the process; ``float32`` leaves
+        JAX's settings alone (GPUs are faster in it).
+
+    Examples
+    --------
+    >>> r = Renderer("tank.yaml")                                   # doctest: +SKIP
+    >>> p = r.params()
+    >>> image = r.render(p)                                          # (n_range_bins, n_beams)
+    >>> g = jax.grad(lambda q: jnp.sum(r.render(q)))(p)              # a dict like p
+    """
+
+    def __init__(self, scene: Any, dtype: str = "float64") -> None:
+        if dtype not in ("float64", "float32"):
+            raise ConfigError("dtype", f"unknown dtype {dtype!r}; allowed: float64, float32")
+        if dtype == "float64":
+            jax.config.update("jax_enable_x64", True)
+        self.dtype = jnp.float64 if dtype == "float64" else jnp.float32
+        self.scene = load_scene(scene)
+        self.sim = Simulator(self.scene)
+        scene = self.scene
+        render = scene.render
+        sonar = scene.sonar
+        self._fan = self.sim.ray_fan(sonar)
+        self._defaults = scene_params(scene)
+        from . import sensor as sensor_mod
+
+        self._sensor = sensor_mod.SensorPart(self.sim, self._fan) if scene.sensor is not None else None
+        if self._sensor is not None:
+            self._defaults.update(self._sensor.params())
+        laws = surface_laws(scene)
+        self.static = Static(
+            planes=tuple(self.sim.planes.names), objects=tuple(o.name for o in scene.objects), surfaces=laws,
+            rough=any(law == "rough" for _, law in laws), tvg=bool(render.tvg), spread=bool(render.range_splat),
+            geometry=(float(sonar.range_min_m), float(sonar.range_resolution_m), int(sonar.n_range_bins),
+                      int(sonar.n_beams)),
+            n_rows=0, total_rows=total_rows(render.bounces, render.max_order), n_signatures=0,
+            sensor=None if self._sensor is None else self._sensor.static,
+        )
+        self._local_faces = [np.asarray(object_mesh_local(o).faces, np.int64) for o in scene.objects]
+        self._jitted: dict = {}
+        self.search: Search | None = None
+        self.refresh()
+
+    # Parameters ------------------------------------------------------------------------------
+
+    def params(self) -> dict[str, jax.Array]:
+        """The scene's parameters (see :mod:`sonarsim.diff.params`), as JAX arrays."""
+        return {k: jnp.asarray(v, self.dtype) for k, v in self._defaults.items()}
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Every parameter's key."""
+        return tuple(self._defaults)
+
+    def _complete(self, params: Mapping[str, Any] | None) -> dict[str, Any]:
+        """``params`` over the defaults; an unknown key is refused by name."""
+        out: dict[str, Any] = dict(self._defaults)
+        if params is None:
+            return {k: jnp.asarray(v, self.dtype) for k, v in out.items()}
+        unknown = [k for k in params if k not in out]
+        if unknown:
+            raise ConfigError(unknown[0], f"no such parameter in this scene; its parameters: {', '.join(out)}")
+        for k, v in params.items():
+            shape = np.shape(self._defaults[k])
+            if jnp.shape(v) != shape:
+                raise ConfigError(k, f"has shape {jnp.shape(v)}; expected {shape}")
+            out[k] = v
+        return {k: jnp.asarray(v, self.dtype) if isinstance(v, (np.ndarray, float, int)) else v for k, v in out.items()}
+
+    # The held search -------------------------------------------------------------------------
+
+    def refresh(self, params: Mapping[str, Any] | None = None) -> Search:
+        """Run the discrete search again, at the sonar pose of ``params`` (default: the
+        scene's): after large steps the held search no longer matches what the parameters
+        would meet. (Objects' and planes' parameters are searched where the scene has them.)"""
+        pose = None if params is None or "sonar.position_m" not in params else _pose_of(
+            {**self._defaults, **{k: np.asarray(v) for k, v in params.items() if k.startswith("sonar.")}})
+        search = record_search(self.sim, pose)
+        self.search = search
+        self._data = self._arrays(search)
+        self.static = Static(**{**self.static.__dict__, "n_rows": search.n_rows,
+                                "n_signatures": max(len(search.signatures), 1)})
+        return search
+
+    def _arrays(self, search: Search) -> dict:
+        fan = self._fan
+        data = {k: jnp.asarray(v) for k, v in search.arrays().items()}
+        data["direction"] = jnp.asarray(fan.directions.reshape(-1, 3)[search.ray], self.dtype)
+        data["weight"] = jnp.asarray(fan.weight.reshape(-1)[search.ray], self.dtype)
+        data["factor"] = jnp.asarray(search.factor, self.dtype)
+        faces = []
+        for k in range(len(self.scene.objects)):
+            hit = search.faces[search.faces[:, 0] == k, 1]
+            faces.append(jnp.asarray(self._local_faces[k][hit]))
+        data["local_faces"] = tuple(faces)
+        if self._sensor is not None:
+            data.update(self._sensor.arrays(search))
+        return data
+
+    # Rendering -------------------------------------------------------------------------------
+
+    def _function(self, what: str):
+        fn = self._jitted.get(what)
+        if fn is None:
+            fn = jax.jit(_FORMS[what], static_argnums=2)
+            self._jitted[what] = fn
+        return fn
+
+    def render(self, params: Mapping[str, Any] | None = None) -> jax.Array:
+        """The expected image (n_range_bins, n_beams): the total of ``render.bounces``, or,
+        with a ``sensor:`` section, the sensor's expected output (no speckle, no noise draws)."""
+        return self._function("image")(self._complete(params), self._data, self.static)
+
+    def components(self, params: Mapping[str, Any] | None = None) -> dict[str, jax.Array]:
+        """Every component of the frame (``object``, ``ground``, ``single``, ``double``, ...,
+        ``total`` and one image per path signature), before any sensor."""
+        stack, sigs = self._function("components")(self._complete(params), self._data, self.static)
+        out = {}
+        for comp in component_table(max(self.static.n_rows - 1, 1)):
+            if comp.name == "total":
+                out["total"] = sum(stack[r] for r in self.static.total_rows)
+            else:
+                out[comp.name] = sum(stack[r] for r in comp.rows)
+        for i, name in enumerate(self.search.signatures):
+            out[name] = sigs[i]
+        return out
+
+
+def _stack(params: dict, data: dict, static: Static):
+    distance, energy, _ = forward.path_ranges(params, data, static)
+    return forward.splat(distance, energy, data["label"], static.n_rows, data, static.geometry, static.spread), (
+        distance, energy)
+
+
+def _image(params: dict, data: dict, static: Static):
+    stack, _ = _stack(params, data, static)
+    total = sum(stack[r] for r in static.total_rows)
+    if static.sensor is not None:
+        from . import sensor as sensor_mod
+
+        total = sensor_mod.expected_output(total, params, data, static.sensor)
+    return total
+
+
+def _components(params: dict, data: dict, static: Static):
+    stack, (distance, energy) = _stack(params, data, static)
+    sigs = forward.splat(distance, energy, data["signature"], static.n_signatures, data, static.geometry,
+                         static.spread)
+    return stack, sigs
+
+
+_FORMS = {"image": _image, "components": _components}

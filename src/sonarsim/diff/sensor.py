@@ -1,0 +1,1 @@
+"""The sensor stage, differentiable (placeholder until written)."""
