@@ -139,7 +139,12 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
     """
     rot = rpy_matrix(params["sonar.rpy_deg"])
     origin = params["sonar.position_m"]
-    d = data["direction"] @ rot.T  # (C, 3) the fan rays in the world
+    direction, weight = data["direction"], data["weight"]
+    if static.sensor is not None and static.sensor.elevation is not None:
+        from .sensor import fan_rays  # the elevation pattern's width moves the rays' weights
+
+        direction, weight = fan_rays(params, data, static.sensor)
+    d = direction @ rot.T  # (C, 3) the fan rays in the world
     normal, offset, spec = plane_table(params, static.planes)
     o = jnp.broadcast_to(origin, d.shape)
     gen = data["gen"]
@@ -170,7 +175,7 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
     f = coef[sid] * cos
     if static.rough:
         f = f + strength[sid] * specular_lobe(cos, rough[sid])
-    intensity = data["weight"] * f * data["factor"]
+    intensity = weight * f * data["factor"]
     if not static.tvg:
         intensity = intensity / jnp.maximum(dist, 1e-6) ** 2
     # The transmit leg: reversed, or by image sources along its chain.
