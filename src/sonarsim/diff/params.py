@@ -77,3 +77,108 @@ def surface_laws(scene: Scene) -> tuple[tuple[str, str], ...]:
     rows = [(f"planes.{p.name}", p.backscatter.law) for p in scene.reflecting_planes]
     rows += [(f"objects.{o.name}", o.backscatter.law) for o in scene.objects]
     return tuple(rows)
+
+
+def _material_with(material, prefix: str, values: dict):
+    """``material`` with the law parameters found under ``prefix`` in ``values``."""
+    from dataclasses import replace
+
+    changes = {}
+    for key in ("albedo", "mu", "specular_strength", "roughness"):
+        if f"{prefix}.{key}" in values:
+            changes[key] = float(values[f"{prefix}.{key}"])
+    return replace(material, **changes) if changes else material
+
+
+def scene_with(scene: Scene, params: dict) -> Scene:
+    """``scene`` with the values of ``params`` (any subset of :func:`scene_params`' keys and
+    the sensor's): the scene the compiled engine renders at those parameters.
+
+    An object whose vertices or scale change becomes a mesh object (its faces kept), so that
+    its triangles stay the ones the parameters name; a ground whose normal tilts becomes a
+    plane named ``ground``.
+    """
+    from dataclasses import replace
+
+    from ..core.transforms import Pose
+
+    v = {k: np.asarray(x, float) for k, x in params.items()}
+    base = scene_params(scene)
+
+    def changed(key: str) -> bool:
+        return key in v and not np.array_equal(v[key], base[key])
+
+    sonar_pose = scene.sonar_pose
+    if changed("sonar.position_m") or changed("sonar.rpy_deg"):
+        sonar_pose = Pose(tuple(v.get("sonar.position_m", base["sonar.position_m"])),
+                          tuple(v.get("sonar.rpy_deg", base["sonar.rpy_deg"])))
+    objects = []
+    for obj in scene.objects:
+        p = f"objects.{obj.name}"
+        changes: dict = {}
+        if changed(f"{p}.position_m") or changed(f"{p}.rpy_deg"):
+            changes["pose"] = Pose(tuple(v.get(f"{p}.position_m", base[f"{p}.position_m"])),
+                                   tuple(v.get(f"{p}.rpy_deg", base[f"{p}.rpy_deg"])))
+        if changed(f"{p}.vertices_m") or changed(f"{p}.scale"):
+            import trimesh
+
+            local = object_mesh_local(obj)
+            vertices = v.get(f"{p}.vertices_m", base[f"{p}.vertices_m"])
+            changes.update(primitive=None, size_m=None, radius_m=None, height_m=None,
+                           mesh=trimesh.Trimesh(vertices, np.asarray(local.faces), process=False),
+                           scale=tuple(float(s) for s in v.get(f"{p}.scale", base[f"{p}.scale"])))
+        material = _material_with(obj.backscatter, p, v)
+        if material != obj.backscatter:  # the albedo shorthand stays one
+            changes.update(albedo=material.coefficient) if obj.material is None else changes.update(material=material)
+        objects.append(replace(obj, **changes) if changes else obj)
+    planes, ground = [], scene.ground
+    for plane in scene.reflecting_planes:
+        p = f"planes.{plane.name}"
+        normal = v.get(f"{p}.normal", np.asarray(plane.normal, float))
+        normal = normal / np.linalg.norm(normal)
+        offset = float(v.get(f"{p}.offset_m", plane.offset_m))
+        material = _material_with(plane.backscatter, p, v)
+        changes = {}
+        if changed(f"{p}.normal") or changed(f"{p}.offset_m"):
+            changes.update(point_m=tuple(float(x) for x in normal * offset), normal=tuple(float(x) for x in normal))
+        if changed(f"{p}.specular"):
+            changes["specular"] = float(v[f"{p}.specular"])
+        if material != plane.backscatter:
+            changes.update(albedo=material.coefficient) if plane.material is None else changes.update(material=material)
+        new = replace(plane, **changes) if changes else plane
+        if plane is scene.ground and np.allclose(new.normal, (0.0, 0.0, 1.0), rtol=0.0, atol=1e-15):
+            ground = new  # still the horizontal ground
+        else:
+            if plane is scene.ground:
+                ground = None  # tilted: a plane named ground, first, so that the surface ids stay
+            planes.append(new)
+    sensor = scene.sensor
+    if sensor is not None:
+        sensor = sensor_with(sensor, v)
+    return replace(scene, sonar_pose=sonar_pose, objects=tuple(objects), ground=ground, planes=tuple(planes),
+                   sensor=sensor)
+
+
+def sensor_with(spec, values: dict):
+    """A :class:`~sonarsim.config.sensor.SensorSpec` with the ``sensor.*`` values given."""
+    from dataclasses import replace
+
+    def get(key, default):
+        return float(values[key]) if key in values else default
+
+    changes: dict = {}
+    for key in ("gain_db", "source_level_db"):
+        if f"sensor.{key}" in values:
+            changes[key] = get(f"sensor.{key}", None)
+    if spec.tvg is not None and "sensor.tvg_spreading" in values:
+        changes["tvg"] = replace(spec.tvg, spreading=get("sensor.tvg_spreading", spec.tvg.spreading))
+    if spec.noise is not None and ("sensor.noise_db" in values or "sensor.noise_after_tvg_db" in values):
+        changes["noise"] = replace(spec.noise, level_db=get("sensor.noise_db", spec.noise.level_db),
+                                   after_tvg_db=get("sensor.noise_after_tvg_db", spec.noise.after_tvg_db))
+    if spec.elevation_pattern is not None and "sensor.elevation_width_deg" in values:
+        changes["elevation_pattern"] = replace(spec.elevation_pattern, width_deg=get("sensor.elevation_width_deg", None))
+    if spec.azimuth_pattern is not None and "sensor.azimuth_width_deg" in values:
+        changes["azimuth_pattern"] = replace(spec.azimuth_pattern, width_deg=get("sensor.azimuth_width_deg", None))
+    if spec.output is not None and "sensor.gamma" in values:
+        changes["output"] = replace(spec.output, gamma=get("sensor.gamma", spec.output.gamma))
+    return replace(spec, **changes) if changes else spec

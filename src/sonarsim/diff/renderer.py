@@ -8,7 +8,7 @@ compiled by ``jax.jit`` on first use, differentiable by ``jax.grad`` and batched
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
 import jax
@@ -16,13 +16,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..config.loader import load_scene
-from ..core.transforms import Pose
 from ..errors import ConfigError
 from ..renderer.components import component_table, total_rows
 from ..renderer.simulator import Simulator
 from ..scene.meshes import object_mesh_local
 from . import forward
-from .params import scene_params, surface_laws
+from .params import scene_params, scene_with, surface_laws
 from .search import Search, record_search
 
 
@@ -41,10 +40,6 @@ class Static:
     total_rows: tuple[int, ...]
     n_signatures: int
     sensor: Any = None  # sonarsim.diff.sensor.SensorStatic or None
-
-
-def _pose_of(params: Mapping[str, Any]) -> Pose:
-    return Pose(tuple(np.asarray(params["sonar.position_m"], float)), tuple(np.asarray(params["sonar.rpy_deg"], float)))
 
 
 class Renderer:
@@ -128,12 +123,19 @@ class Renderer:
     # The held search -------------------------------------------------------------------------
 
     def refresh(self, params: Mapping[str, Any] | None = None) -> Search:
-        """Run the discrete search again, at the sonar pose of ``params`` (default: the
-        scene's): after large steps the held search no longer matches what the parameters
-        would meet. (Objects' and planes' parameters are searched where the scene has them.)"""
-        pose = None if params is None or "sonar.position_m" not in params else _pose_of(
-            {**self._defaults, **{k: np.asarray(v) for k, v in params.items() if k.startswith("sonar.")}})
-        search = record_search(self.sim, pose)
+        """Run the discrete search again at ``params`` (default: the scene's values): after
+        large steps the held search no longer matches what the parameters would meet. The
+        sonar's pose, the objects and the planes are searched where ``params`` puts them; the
+        sensor's parameters do not move the search (the rays stay the scene's fan)."""
+        values = {k: np.asarray(v, float) for k, v in (params or {}).items() if not k.startswith("sensor.")}
+        self._complete(values)  # unknown keys and shapes refused by name
+        moved = [k for k, v in values.items() if not k.startswith("sonar.") and not np.array_equal(v, self._defaults[k])]
+        scene = scene_with(self.scene, values) if values else self.scene
+        if moved:
+            with Simulator(replace(scene, sensor=self.scene.sensor)) as sim:
+                search = record_search(sim, scene.sonar_pose)
+        else:
+            search = record_search(self.sim, scene.sonar_pose)
         self.search = search
         self._data = self._arrays(search)
         self.static = Static(**{**self.static.__dict__, "n_rows": search.n_rows,
