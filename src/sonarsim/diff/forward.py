@@ -162,8 +162,9 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
         dist = dist + t
         atten = atten * jnp.where(on, spec[p], 1.0)
     tri_n, tri_off = triangle_table(params, static.objects, data["local_faces"])
-    surf_n = jnp.concatenate([normal, tri_n])
-    surf_off = jnp.concatenate([offset, tri_off])
+    n_planes = len(static.planes)  # (the plane table has a stand-in row where there is none)
+    surf_n = jnp.concatenate([normal[:n_planes], tri_n])
+    surf_off = jnp.concatenate([offset[:n_planes], tri_off])
     ns = surf_n[data["surface"]]
     dn = _dot(d, ns)
     t = (surf_off[data["surface"]] - _dot(o, ns)) / dn

@@ -75,12 +75,17 @@ class Search:
     signature : (C,) int64
         Index into :attr:`signatures`.
     live : (C,) bool
+    distance : (C,) float64
+        The range the compiled engine recorded for each path, metres (for diagnostics: the
+        forward forms its own).
     faces : (F, 2) int64
         The triangles scattered on: ``(object index, face index into its local mesh)``.
     signatures : tuple of str
         Path-signature names (:func:`~sonarsim.paths.engine.path_name`).
     n_rows : int
         Rows of the image stack.
+    n_planes : int
+        Planes of the scene (scatterer rows below it are planes).
     """
 
     n_paths: int
@@ -100,9 +105,11 @@ class Search:
     has_up: np.ndarray
     signature: np.ndarray
     live: np.ndarray
+    distance: np.ndarray
     faces: np.ndarray
     signatures: tuple[str, ...]
     n_rows: int
+    n_planes: int = 0
 
     @property
     def capacity(self) -> int:
@@ -211,7 +218,7 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
     max_rx = max(len(legs) - 1, 0)
     max_tx = max([len(c) for c in table.chains] + [1]) if table is not None else 1
     cols: dict[str, list] = {k: [] for k in ("ray", "gen", "rx", "sid", "prim", "same", "tx", "label", "beam",
-                                             "factor", "down", "up", "has_down", "has_up", "sig")}
+                                             "factor", "down", "up", "has_down", "has_up", "sig", "distance")}
     signatures: dict[str, int] = {}
     start = 0
     for s in sets:
@@ -261,7 +268,8 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
         for name, v in (("ray", ray), ("gen", np.full(m, s.gen)), ("rx", rx), ("sid", sid), ("prim", prim),
                         ("same", np.full(m, s.tx == SAME)), ("tx", tx), ("label", np.asarray(s.label, np.int64)),
                         ("beam", np.asarray(s.beam, np.int64)), ("factor", factor), ("down", down), ("up", up),
-                        ("has_down", has_down), ("has_up", link), ("sig", sig)):
+                        ("has_down", has_down), ("has_up", link), ("sig", sig),
+                        ("distance", np.asarray(s.distance, np.float64))):
             cols[name].append(v)
         start += m
 
@@ -299,6 +307,6 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
     return Search(
         n_paths=n, **arrays, factor=cat("factor", dtype=np.float64, fill=0.0), down=down, up=up,
         has_down=cat("has_down", dtype=bool, fill=False), has_up=cat("has_up", dtype=bool, fill=False),
-        signature=cat("sig"), live=live, faces=np.asarray(faces, np.int64).reshape(-1, 2),
-        signatures=tuple(signatures), n_rows=stack_rows(render.max_order),
+        signature=cat("sig"), live=live, distance=cat("distance", dtype=np.float64, fill=np.inf), faces=np.asarray(faces, np.int64).reshape(-1, 2),
+        signatures=tuple(signatures), n_rows=stack_rows(render.max_order), n_planes=n_planes,
     )
