@@ -148,8 +148,8 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
     normal, offset, spec = plane_table(params, static.planes)
     o = jnp.broadcast_to(origin, d.shape)
     gen = data["gen"]
-    dist = jnp.zeros(d.shape[0])
-    atten = jnp.ones(d.shape[0])
+    dist = jnp.zeros(d.shape[0], d.dtype)
+    atten = jnp.ones(d.shape[0], d.dtype)
     for j in range(data["rx_planes"].shape[1]):
         on = j < gen
         p = jnp.maximum(data["rx_planes"][:, j], 0)
@@ -181,7 +181,7 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
         intensity = intensity / jnp.maximum(dist, 1e-6) ** 2
     # The transmit leg: reversed, or by image sources along its chain.
     a = point
-    tx_spec = jnp.ones(d.shape[0])
+    tx_spec = jnp.ones(d.shape[0], d.dtype)
     for j in range(data["tx_planes"].shape[1] - 1, -1, -1):
         q = data["tx_planes"][:, j]
         on = q >= 0
@@ -246,4 +246,14 @@ def splat(distance: jax.Array, energy: jax.Array, row: jax.Array, n_rows: int, d
     index = jnp.concatenate([i_lo, i_lo + nb, i_hi, i_hi + nb])
     value = jnp.concatenate([density * (1.0 - fr_lo), density * fr_lo, -density * (1.0 - fr_hi), -density * fr_hi])
     acc = jnp.zeros(n_rows * (n + 2) * nb, dtype=energy.dtype).at[index].add(value)
-    return jnp.cumsum(acc.reshape(n_rows, n + 2, nb), axis=1)[:, :n, :]
+    image = jnp.cumsum(acc.reshape(n_rows, n + 2, nb), axis=1)[:, :n, :]
+    # The running sums leave round-off (1e-16 of a column's values, of either sign) in bins no
+    # cell covers: an exact count of the cells over each bin zeroes them, as they are in the
+    # compiled engine's images.
+    end = jnp.ceil(hi).astype(jnp.int32)
+    live = (hi > lo) & (energy != 0)
+    count_index = jnp.concatenate([(base + fl_lo.astype(jnp.int32)) * nb + beam, (base + end) * nb + beam])
+    count_value = jnp.concatenate([live.astype(jnp.int32), -live.astype(jnp.int32)])
+    count = jnp.zeros(n_rows * (n + 2) * nb, jnp.int32).at[count_index].add(count_value)
+    covered = jnp.cumsum(count.reshape(n_rows, n + 2, nb), axis=1)[:, :n, :] > 0
+    return jnp.where(covered, image, 0.0)

@@ -155,7 +155,10 @@ class Renderer:
         data["local_faces"] = tuple(faces)
         if self._sensor is not None:
             data.update(self._sensor.arrays(search))
-        return data
+        # One precision throughout (with JAX's 64-bit mode on, a float32 renderer's constants
+        # would otherwise be float64).
+        return jax.tree_util.tree_map(lambda a: a.astype(self.dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a,
+                                      data)
 
     # Rendering -------------------------------------------------------------------------------
 
@@ -169,7 +172,20 @@ class Renderer:
     def render(self, params: Mapping[str, Any] | None = None) -> jax.Array:
         """The expected image (n_range_bins, n_beams): the total of ``render.bounces``, or,
         with a ``sensor:`` section, the sensor's expected output (no speckle, no noise draws)."""
-        return self._function("image")(self._complete(params), self._data, self.static)
+        return self._function("image")(self._complete(params), self._data, self.static).astype(self.dtype)
+
+    def paths(self, params: Mapping[str, Any] | None = None) -> dict[str, jax.Array]:
+        """The frame's paths as the forward forms them, one entry per path of the held search:
+        ``distance`` (m, half the path's length), ``energy``, ``point`` (the scatterer, (n, 3),
+        m), ``receive_m`` (the receive leg's length), ``cos`` (the incidence at the
+        scatterer); and, held, ``ray``, ``beam``, ``label`` (the image-stack row) and
+        ``signature`` (an index into ``search.signatures``)."""
+        distance, energy, parts = self._function("paths")(self._complete(params), self._data, self.static)
+        n = self.search.n_paths
+        s = self.search
+        return {"distance": distance[:n], "energy": energy[:n], "point": parts["point"][:n],
+                "receive_m": parts["rx"][:n], "cos": parts["cos"][:n], "ray": s.ray[:n], "beam": s.beam[:n],
+                "label": s.label[:n], "signature": s.signature[:n]}
 
     def components(self, params: Mapping[str, Any] | None = None) -> dict[str, jax.Array]:
         """Every component of the frame (``object``, ``ground``, ``single``, ``double``, ...,
@@ -209,4 +225,4 @@ def _components(params: dict, data: dict, static: Static):
     return stack, sigs
 
 
-_FORMS = {"image": _image, "components": _components}
+_FORMS = {"image": _image, "components": _components, "paths": forward.path_ranges}

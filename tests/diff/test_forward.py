@@ -1,0 +1,168 @@
+"""The differentiable engine's forward: equal to the compiled engine, per component; its
+parameters, errors, batches and refreshed search (issue 24, items 1 and 4)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+jax = pytest.importorskip("jax")
+jnp = pytest.importorskip("jax.numpy")
+
+from sonarsim.cli.demo import demo_scene_dict, tank_scene_dict  # noqa: E402
+from sonarsim.errors import ConfigError  # noqa: E402
+from sonarsim.renderer.simulator import Simulator  # noqa: E402
+
+import sonarsim.diff as sd  # noqa: E402
+
+OCULUS = {"sonar": {"preset": "oculus-m1200d-hf", "pose": {"position_m": [0, 0, 0.433], "rpy_deg": [1.42, 29.06, 0]}},
+          "ground": {}, "sensor": {"preset": "oculus-m1200d-hf"}}
+SCENES = {"demo": demo_scene_dict, "tank": tank_scene_dict, "oculus": lambda: OCULUS}
+
+
+def rel_l1(a, b) -> float:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return float(np.abs(a - b).sum() / np.abs(b).sum())
+
+
+@pytest.fixture(scope="module", params=sorted(SCENES))
+def pair(request):
+    doc = SCENES[request.param]()
+    r = sd.Renderer(doc)
+    with Simulator(doc) as sim:
+        ref = sim.render(speckle=False)
+        components = {k: np.array(ref.components[k]) for k in ref.components}
+    return request.param, r, ref, components
+
+
+def test_the_forward_equals_the_compiled_engine_per_component(pair):
+    name, r, ref, components = pair
+    assert rel_l1(r.render(), ref.polar) < 1e-3, name
+    mine = r.components()
+    assert set(components) <= set(mine)
+    for k, image in components.items():
+        if image.any():
+            assert rel_l1(mine[k], image) < 1e-3, (name, k)
+    # The signatures the held search names and the compiled engine left out hold nothing.
+    for k in set(mine) - set(components):
+        assert float(np.abs(np.asarray(mine[k])).sum()) == 0.0, (name, k)
+
+
+def test_the_demo_has_every_order_and_the_tank_its_signatures(pair):
+    name, r, _, components = pair
+    if name == "demo":
+        assert all(float(np.asarray(r.components()[k]).sum()) > 0 for k in ("object", "ground", "double", "triple"))
+    if name == "tank":
+        assert len([k for k in components if k.startswith("O-")]) > 20
+
+
+def test_a_changed_parameter_changes_the_image_as_the_compiled_engine_does():
+    doc = tank_scene_dict()
+    r = sd.Renderer(doc)
+    p = r.params()
+    # A material and a plane's reflectance move no path: the held search is exact for them.
+    q = {**p, "objects.block.albedo": jnp.asarray(0.3), "planes.far_wall.specular": jnp.asarray(0.2)}
+    from sonarsim.diff.params import scene_with
+
+    with Simulator(scene_with(r.scene, q)) as sim:
+        ref = sim.render(speckle=False).polar
+    assert rel_l1(r.render(q), ref) < 1e-3
+    assert rel_l1(r.render(p), ref) > 1e-2
+
+
+def test_refresh_searches_again_where_the_parameters_moved_the_sonar():
+    r = sd.Renderer(demo_scene_dict())
+    p = r.params()
+    q = {**p, "sonar.position_m": p["sonar.position_m"] + jnp.asarray([0.3, -0.2, 0.1]),
+         "sonar.rpy_deg": p["sonar.rpy_deg"] + jnp.asarray([1.0, 3.0, -4.0])}
+    with Simulator(demo_scene_dict()) as sim:
+        from sonarsim.core.transforms import Pose
+
+        ref = sim.render(pose=Pose(tuple(np.asarray(q["sonar.position_m"])), tuple(np.asarray(q["sonar.rpy_deg"]))),
+                         speckle=False).polar
+    stale = rel_l1(r.render(q), ref)
+    r.refresh(q)
+    assert rel_l1(r.render(q), ref) < 1e-3 < stale
+
+
+def test_refresh_searches_moved_objects_and_planes():
+    r = sd.Renderer(tank_scene_dict())
+    p = r.params()
+    q = {**p, "objects.block.position_m": p["objects.block.position_m"] + jnp.asarray([-0.5, 0.3, 0.0]),
+         "planes.far_wall.offset_m": p["planes.far_wall.offset_m"] + 0.4}
+    from sonarsim.diff.params import scene_with
+
+    with Simulator(scene_with(r.scene, q)) as sim:
+        ref = sim.render(speckle=False).polar
+    r.refresh(q)
+    assert rel_l1(r.render(q), ref) < 1e-3
+
+
+def test_params_are_named_and_shaped_as_documented():
+    r = sd.Renderer(tank_scene_dict())
+    p = r.params()
+    assert p["sonar.position_m"].shape == (3,) and p["sonar.rpy_deg"].shape == (3,)
+    assert np.allclose(p["sonar.rpy_deg"], [0.0, 2.0, 0.0])
+    assert p["objects.buoy.position_m"].shape == (3,) and p["objects.buoy.scale"].shape == (3,)
+    assert p["objects.buoy.vertices_m"].shape[1] == 3
+    assert float(p["objects.buoy.albedo"]) == pytest.approx(0.7)
+    assert float(p["planes.ground.offset_m"]) == 0.0 and float(p["planes.surface.offset_m"]) == pytest.approx(-2.0)
+    assert np.allclose(p["planes.far_wall.normal"], [-1.0, 0.0, 0.0])
+    assert float(p["planes.far_wall.specular"]) == pytest.approx(0.5)
+    s = sd.Renderer(OCULUS).params()
+    assert {"sensor.gain_db", "sensor.tvg_spreading", "sensor.noise_db", "sensor.elevation_width_deg",
+            "sensor.azimuth_width_deg", "sensor.gamma"} <= set(s)
+    assert float(s["sensor.elevation_width_deg"]) == pytest.approx(7.48)
+
+
+def test_an_unknown_or_misshapen_parameter_is_refused_by_name():
+    r = sd.Renderer(demo_scene_dict())
+    with pytest.raises(ConfigError, match="objects.nothing.albedo: no such parameter"):
+        r.render({"objects.nothing.albedo": 0.5})
+    with pytest.raises(ConfigError, match=r"sonar.position_m: has shape \(2,\); expected \(3,\)"):
+        r.render({"sonar.position_m": jnp.zeros(2)})
+    with pytest.raises(ConfigError, match="dtype"):
+        sd.Renderer(demo_scene_dict(), dtype="float16")
+
+
+def test_a_missing_jax_names_the_extra(monkeypatch):
+    import sys
+
+    import sonarsim.diff as diff
+
+    monkeypatch.setitem(sys.modules, "jax", None)
+    with pytest.raises(ImportError, match=r"pip install 'sonarsim\[diff\]'"):
+        diff.require_jax()
+
+
+def test_a_batch_of_poses_by_vmap_equals_one_by_one():
+    r = sd.Renderer(demo_scene_dict())
+    p = r.params()
+    offsets = jnp.asarray([[0.0, 0.0, 0.0], [0.01, -0.02, 0.005], [-0.03, 0.01, 0.0], [0.0, 0.0, -0.01]])
+
+    def image(offset):
+        return r.render({**p, "sonar.position_m": p["sonar.position_m"] + offset})
+
+    batch = jax.vmap(image)(offsets)
+    assert batch.shape == (4, r.scene.sonar.n_range_bins, r.scene.sonar.n_beams)
+    for k in range(4):
+        one = np.asarray(image(offsets[k]))
+        np.testing.assert_allclose(np.asarray(batch[k]), one, rtol=1e-9, atol=1e-12 * np.abs(one).max())
+    assert rel_l1(batch[1], batch[0]) > 1e-3
+
+
+def test_float32_agrees_with_float64():
+    a = sd.Renderer(demo_scene_dict(), dtype="float32")
+    img = a.render()
+    assert img.dtype == jnp.float32
+    b = sd.Renderer(demo_scene_dict())
+    assert rel_l1(img, b.render()) < 1e-4
+
+
+def test_paths_are_the_held_searchs_with_the_compiled_ranges():
+    r = sd.Renderer(tank_scene_dict())
+    paths = r.paths()
+    n = r.search.n_paths
+    assert paths["distance"].shape == (n,) and paths["point"].shape == (n, 3)
+    # The compiled engine's ranges, formed again from the geometry (float32 hits there).
+    np.testing.assert_allclose(np.asarray(paths["distance"]), r.search.distance[:n], rtol=0, atol=2e-6)
