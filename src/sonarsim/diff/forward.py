@@ -239,21 +239,32 @@ def splat(distance: jax.Array, energy: jax.Array, row: jax.Array, n_rows: int, d
     fl_lo = jax.lax.stop_gradient(jnp.floor(lo))
     fl_hi = jax.lax.stop_gradient(jnp.floor(hi))
     fr_lo, fr_hi = lo - fl_lo, hi - fl_hi
-    base = row * (n + 2)
-    beam = data["beam"]
-    i_lo = (base + fl_lo.astype(jnp.int32)) * nb + beam
-    i_hi = (base + fl_hi.astype(jnp.int32)) * nb + beam
-    index = jnp.concatenate([i_lo, i_lo + nb, i_hi, i_hi + nb])
+    # Columns (row, beam) of n + 2 bins, range last: the running sums read memory in order.
+    base = (row * nb + data["beam"]) * (n + 2)
+    i_lo = base + fl_lo.astype(jnp.int32)
+    i_hi = base + fl_hi.astype(jnp.int32)
+    index = jnp.concatenate([i_lo, i_lo + 1, i_hi, i_hi + 1])
     value = jnp.concatenate([density * (1.0 - fr_lo), density * fr_lo, -density * (1.0 - fr_hi), -density * fr_hi])
-    acc = jnp.zeros(n_rows * (n + 2) * nb, dtype=energy.dtype).at[index].add(value)
-    image = jnp.cumsum(acc.reshape(n_rows, n + 2, nb), axis=1)[:, :n, :]
-    # The running sums leave round-off (1e-16 of a column's values, of either sign) in bins no
-    # cell covers: an exact count of the cells over each bin zeroes them, as they are in the
-    # compiled engine's images.
-    end = jnp.ceil(hi).astype(jnp.int32)
+    size = n_rows * nb * (n + 2)
+    image = running_sum(jnp.zeros(size, energy.dtype).at[index].add(value).reshape(n_rows, nb, n + 2))[:, :, :n]
+    # The running sums leave round-off (1e-16 of a column's values, of either sign) in bins
+    # no cell covers; the count of cells over each bin (+1 at a cell's first bin, -1 after
+    # its last, exact in integers) zeroes them, as they are in the compiled engine's images.
     live = (hi > lo) & (energy != 0)
-    count_index = jnp.concatenate([(base + fl_lo.astype(jnp.int32)) * nb + beam, (base + end) * nb + beam])
-    count_value = jnp.concatenate([live.astype(jnp.int32), -live.astype(jnp.int32)])
-    count = jnp.zeros(n_rows * (n + 2) * nb, jnp.int32).at[count_index].add(count_value)
-    covered = jnp.cumsum(count.reshape(n_rows, n + 2, nb), axis=1)[:, :n, :] > 0
-    return jnp.where(covered, image, 0.0)
+    end = i_hi + (fr_hi > 0).astype(jnp.int32)
+    count = jnp.zeros(size, jnp.int32).at[jnp.concatenate([i_lo, end])].add(
+        jnp.concatenate([live.astype(jnp.int32), -live.astype(jnp.int32)]))
+    covered = jnp.cumsum(count.reshape(n_rows, nb, n + 2), axis=2)[:, :, :n] > 0
+    return jnp.swapaxes(jnp.where(covered, image, 0.0), 1, 2)
+
+
+def running_sum(x: jax.Array, block: int = 48) -> jax.Array:
+    """Cumulative sums along the last axis, by blocks: within each block a product with a
+    triangular matrix of ones, then the blocks' totals carried (twice the speed of
+    ``jnp.cumsum`` on a CPU for an image's columns, and the same sums to round-off)."""
+    length = x.shape[-1]
+    n_blocks = -(-length // block)
+    y = jnp.pad(x, [(0, 0)] * (x.ndim - 1) + [(0, n_blocks * block - length)])
+    y = y.reshape(x.shape[:-1] + (n_blocks, block)) @ jnp.triu(jnp.ones((block, block), x.dtype))
+    carried = y[..., -1] @ jnp.triu(jnp.ones((n_blocks, n_blocks), x.dtype), k=1)
+    return (y + carried[..., None]).reshape(x.shape[:-1] + (n_blocks * block,))[..., :length]

@@ -209,8 +209,11 @@ def _stack(params: dict, data: dict, static: Static):
 
 
 def _image(params: dict, data: dict, static: Static):
-    stack, _ = _stack(params, data, static)
-    total = sum(stack[r] for r in static.total_rows)
+    distance, energy, _ = forward.path_ranges(params, data, static)
+    # One image: the paths of the orders in ``render.bounces``, added as they are splatted.
+    in_total = jnp.isin(data["label"], jnp.asarray(static.total_rows))
+    total = forward.splat(distance, jnp.where(in_total, energy, 0.0), jnp.zeros_like(data["label"]), 1, data,
+                          static.geometry, static.spread)[0]
     if static.sensor is not None:
         from . import sensor as sensor_mod
 
