@@ -213,3 +213,25 @@ def report(rows: Sequence[GradientCheck]) -> str:
                      f"{r.relative_error:10.2e}  {'held' if r.search_held else 'moved'}"
                      f"{'' if r.reference == 'compiled' else ' (held forward)'}")
     return "\n".join(lines)
+
+
+def scaled_errors(rows: Sequence[GradientCheck]) -> list[float]:
+    """Each row's error relative to its parameter's gradient: ``|gradient - fd| / max(|fd|,
+    |fd over the key's components|)`` (a vector parameter's components are judged against the
+    vector's size: a component whose derivative is nearly zero, such as a rotation about a
+    flat board's normal, is not judged by its own round-off), 0 where the key's differences
+    are all 0 and its gradient too."""
+    norms: dict[str, float] = {}
+    for r in rows:
+        norms[r.key] = norms.get(r.key, 0.0) + r.finite_difference ** 2
+    out = []
+    for r in rows:
+        scale = max(abs(r.finite_difference), norms[r.key] ** 0.5)
+        err = abs(r.gradient - r.finite_difference)
+        out.append(0.0 if err == 0.0 else (err / scale if scale > 0 else float("inf")))
+    return out
+
+
+def failures(rows: Sequence[GradientCheck], tolerance: float = 0.02) -> list[tuple[GradientCheck, float]]:
+    """The rows whose :func:`scaled_errors` exceed ``tolerance``, or whose search moved."""
+    return [(r, e) for r, e in zip(rows, scaled_errors(rows)) if e > tolerance or not r.search_held]

@@ -249,13 +249,16 @@ def splat(distance: jax.Array, energy: jax.Array, row: jax.Array, n_rows: int, d
     image = running_sum(jnp.zeros(size, energy.dtype).at[index].add(value).reshape(n_rows, nb, n + 2))[:, :, :n]
     # The running sums leave round-off (1e-16 of a column's values, of either sign) in bins
     # no cell covers; the count of cells over each bin (+1 at a cell's first bin, -1 after
-    # its last, exact in integers) zeroes them, as they are in the compiled engine's images.
+    # its last, exact in integers) zeroes their values, as they are in the compiled engine's
+    # images, and leaves their derivatives alone (an isolated path's derivative moves its
+    # energy into the next bin, which its value does not cover).
     live = (hi > lo) & (energy != 0)
     end = i_hi + (fr_hi > 0).astype(jnp.int32)
     count = jnp.zeros(size, jnp.int32).at[jnp.concatenate([i_lo, end])].add(
         jnp.concatenate([live.astype(jnp.int32), -live.astype(jnp.int32)]))
     covered = jnp.cumsum(count.reshape(n_rows, nb, n + 2), axis=2)[:, :, :n] > 0
-    return jnp.swapaxes(jnp.where(covered, image, 0.0), 1, 2)
+    image = image + jax.lax.stop_gradient(jnp.where(covered, 0.0, -image))
+    return jnp.swapaxes(image, 1, 2)
 
 
 def running_sum(x: jax.Array, block: int = 48) -> jax.Array:
