@@ -92,3 +92,19 @@ def test_bench_against_measures_two_trees_in_turn(tmp_path):
     bad = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_against.py"), str(tmp_path), str(ROOT)],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "not a sonarsim checkout" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_the_differentiable_benchmark_runs_at_tiny_sizes(tmp_path):
+    import pytest
+
+    pytest.importorskip("jax")
+    out = tmp_path / "diff.json"
+    proc = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_diff.py"), "--quick", "--json", str(out)],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    (case,) = json.loads(out.read_text())["cases"]
+    assert case["image"] == [1288, 128] and case["paths"] > 10_000 and case["parameters"] > 20
+    for key in ("compiled_frame_ms", "forward_ms", "value_and_grad_ms", "batch_frames_per_s", "compile_value_and_grad_s"):
+        assert case[key] > 0, key
+    assert case["value_and_grad_over_compiled"] == case["value_and_grad_ms"] / case["compiled_frame_ms"]
+    assert "value and gradient" in proc.stdout

@@ -35,7 +35,7 @@ _EXPORTS = {
 }
 
 __all__ = sorted(_EXPORTS)
-_SUBPACKAGES = ("analysis", "cli", "config", "core", "dataset", "errors", "image", "io", "paths", "plot",
+_SUBPACKAGES = ("analysis", "cli", "config", "core", "dataset", "diff", "errors", "image", "io", "paths", "plot",
                 "renderer", "scene", "sensor", "trace")
 
 

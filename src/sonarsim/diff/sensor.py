@@ -182,8 +182,8 @@ class SensorPart:
             out["s_quantiles"] = jnp.asarray(self._quantiles)
         if self.static.elevation is not None:
             n_el = self.fan.shape[2]
-            k = search.ray % n_el
-            out["s_frac"] = jnp.asarray(self._frac[k])
+            out["s_elevation_index"] = jnp.asarray(search.ray % n_el)
+            out["s_frac"] = jnp.asarray(self._frac)
             out["s_base_weight"] = jnp.asarray(self._base_weight[search.ray])
             out["s_theta"] = jnp.asarray(self.fan.azimuth_rad.reshape(-1)[search.ray // n_el])
         return out
@@ -223,20 +223,15 @@ def fan_rays(params: dict, data: dict, st: SensorStatic) -> tuple[jax.Array, jax
     parameter: the two-way pattern's gain at each ray's elevation (and, without ``span_deg``,
     the elevations and their interval scaled with the width)."""
     width = params["sensor.elevation_width_deg"]
-    frac = data["s_frac"]
+    k = data["s_elevation_index"]
+    span = jnp.minimum(3.0 * width, 170.0) if st.span_follows_width else st.span0_deg
+    phi = data["s_frac"] * span * (jnp.pi / 180.0)  # (n_elevation,): one gain per elevation sample
+    gain = pattern_gain(phi, st.elevation, st.elevation_window, width, ways=2)[k]
     if st.span_follows_width:
-        span0 = st.span0_deg
-        span = jnp.minimum(3.0 * width, 170.0)
-        phi = frac * span * (jnp.pi / 180.0)
-        scale = span / span0
-        theta = data["s_theta"]
+        phi, theta = phi[k], data["s_theta"]
         direction = jnp.stack([jnp.cos(phi) * jnp.cos(theta), jnp.cos(phi) * jnp.sin(theta), jnp.sin(phi)], axis=1)
-    else:
-        phi = frac * st.span0_deg * (jnp.pi / 180.0)
-        scale = 1.0
-        direction = data["direction"]
-    gain = pattern_gain(phi, st.elevation, st.elevation_window, width, ways=2)
-    return direction, data["s_base_weight"] * scale * gain
+        return direction, data["s_base_weight"] * (span / st.span0_deg) * gain
+    return data["direction"], data["s_base_weight"] * gain
 
 
 def leakage_kernel(params: dict, data: dict, st: SensorStatic) -> jax.Array:
