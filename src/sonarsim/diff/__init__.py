@@ -30,7 +30,7 @@ class MissingExtraError(ImportError):
 def require_jax() -> None:
     """Raise :class:`MissingExtraError` naming the extra when JAX cannot be imported."""
     try:
-        import jax  # noqa: F401  (only whether it imports)
+        importlib.import_module("jax")
     except ImportError:
         raise MissingExtraError(DIFF_EXTRA_MESSAGE) from None
 
