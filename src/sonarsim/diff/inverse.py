@@ -1,0 +1,243 @@
+"""Inverse problems by gradient: the pose (and any other parameters) that make the renderer's
+image match a target image.
+
+The loss compares the two images after a compressive map and a Gaussian blur, coarse to fine:
+``mean((B_s(T(sim)) - B_s(T(target)))^2)`` with ``T(x) = log(1 + x / scale)`` (so that the
+floor's weak echo counts beside an object's strong one) and ``B_s`` a blur of ``s`` bins and
+beams. A wide blur makes the loss informative far from the optimum (an echo a metre off still
+overlaps its target's blurred echo); the finer levels then place it. Each level is a
+Levenberg-Marquardt least-squares fit of the blurred residuals, with their Jacobian by JAX's
+forward mode (one JVP per free parameter); the search is refreshed at every point the fit
+evaluates (:meth:`~sonarsim.diff.Renderer.refresh`), so that the held search follows the
+parameters. Several starts may be given; the lowest final loss wins.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import ConfigError
+
+#: Free pose parameters by their short names and what they are in the parameter dict.
+POSE_KEYS = {"x": ("sonar.position_m", 0), "y": ("sonar.position_m", 1), "z": ("sonar.position_m", 2),
+             "roll": ("sonar.rpy_deg", 0), "pitch": ("sonar.rpy_deg", 1), "yaw": ("sonar.rpy_deg", 2)}
+#: The optimiser's unit of each kind of parameter: 5 cm, 2.5 degrees (comparable steps).
+UNITS = {"sonar.position_m": 0.05, "sonar.rpy_deg": 2.5}
+#: Coarse-to-fine blur widths, in range bins and beams.
+DEFAULT_BLURS = ((40.0, 20.0), (12.0, 6.0), (4.0, 2.0), (1.5, 1.0))
+
+
+@dataclass(frozen=True)
+class StartResult:
+    """One start of a fit: where it began and ended, and its final loss."""
+
+    start: dict
+    values: dict
+    loss: float
+    iterations: int
+    seconds: float
+
+
+@dataclass(frozen=True)
+class GradientFit:
+    """The result of :func:`fit`.
+
+    Attributes
+    ----------
+    values : dict of str to float
+        The free parameters' fitted values (short pose names: metres, degrees; other keys as
+        in :mod:`sonarsim.diff.params`).
+    params : dict
+        Every parameter at the fit (JAX arrays).
+    loss : float
+        The finest level's loss at the fit.
+    starts : tuple of StartResult
+        Every start, in the order tried.
+    seconds : float
+    """
+
+    values: dict
+    params: dict
+    loss: float
+    starts: tuple = field(default_factory=tuple)
+    seconds: float = 0.0
+
+
+def blur(image: jax.Array, sigma, pad: tuple[int, int] | None = None) -> jax.Array:
+    """A separable Gaussian blur of ``sigma`` (range bins, beams; may be traced), zero outside
+    the image: by FFT over the image padded with ``pad`` zeros on each side of each axis
+    (default three sigmas), so that one compiled function serves every width up to the pad."""
+    sigma = jnp.asarray(sigma, image.dtype)
+    if pad is None:
+        pad = tuple(int(math.ceil(3.0 * float(v))) + 1 for v in np.asarray(sigma))
+    x = jnp.pad(image, ((pad[0], pad[0]), (pad[1], pad[1])))
+    for axis in (0, 1):
+        n = x.shape[axis]
+        freq = jnp.fft.rfftfreq(n) * (2.0 * jnp.pi)
+        transfer = jnp.exp(-0.5 * (sigma[axis] * freq) ** 2)
+        shape = [1, 1]
+        shape[axis] = len(freq)
+        x = jnp.fft.irfft(jnp.fft.rfft(x, axis=axis) * transfer.reshape(shape), n=n, axis=axis)
+    return x[pad[0]:pad[0] + image.shape[0], pad[1]:pad[1] + image.shape[1]]
+
+
+def compress_scale(target: np.ndarray) -> float:
+    """The scale of ``T``: the target's median echo."""
+    t = np.asarray(target, float)
+    positive = t[t > 0]
+    return float(np.median(positive)) if len(positive) else 1.0
+
+
+def _names(free: Sequence[str], params: Mapping[str, Any]) -> list[tuple[str, str, int | None]]:
+    """``(name, key, index)`` of each free parameter (a pose name, or a scalar key)."""
+    out = []
+    for name in free:
+        if name in POSE_KEYS:
+            key, index = POSE_KEYS[name]
+            out.append((name, key, index))
+        elif name in params and np.ndim(params[name]) == 0:
+            out.append((name, name, None))
+        else:
+            allowed = ", ".join(list(POSE_KEYS) + [k for k in params if np.ndim(params[k]) == 0])
+            raise ConfigError("free", f"unknown free parameter {name!r}; allowed: {allowed}")
+    return out
+
+
+def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), starts: Sequence[Mapping] | None = None,
+        blurs: Sequence[tuple[float, float]] = DEFAULT_BLURS, iterations: int = 20,
+        weights: np.ndarray | None = None, scale: float | None = None, progress=None) -> GradientFit:
+    """The free parameters that make ``renderer``'s image match ``target`` (see the module docstring).
+
+    Parameters
+    ----------
+    renderer : sonarsim.diff.Renderer
+        Its scene's values are where unfree parameters stay and the default start.
+    target : (n_range_bins, n_beams) array
+        On the renderer's grid, in the renderer's units (intensity, or counts with a sensor).
+    free : sequence of str
+        Pose names (``x``, ``y``, ``z``, ``roll``, ``pitch``, ``yaw``) or scalar parameter keys.
+    starts : sequence of dict, optional
+        Start values of free parameters by name (missing ones: the scene's); default one start,
+        the scene's.
+    blurs : sequence of (float, float)
+        Coarse-to-fine blur widths (range bins, beams).
+    iterations : int
+        Per level: at most this many Levenberg-Marquardt steps.
+    weights : (n_range_bins, n_beams) array, optional
+        Per-pixel weights of the loss (1: all).
+    scale : float, optional
+        Of ``T``; default :func:`compress_scale` of the target.
+    progress : callable, optional
+        Called with ``(start index, level, loss)`` after each level.
+
+    Returns
+    -------
+    GradientFit
+    """
+    t0 = time.perf_counter()
+    base = renderer.params()
+    names = _names(free, base)
+    target = np.asarray(target, float)
+    expected = tuple(renderer.render(base).shape)
+    if target.shape != expected:
+        raise ConfigError("target", f"has shape {target.shape}; the renderer forms {expected}")
+    s = compress_scale(target) if scale is None else float(scale)
+    w = jnp.asarray(np.ones_like(target) if weights is None else np.asarray(weights, float))
+    t_img = jnp.log1p(jnp.asarray(target) / s)
+    units = np.array([UNITS.get(key, 1.0) * (1.0 if index is not None or key in UNITS else max(abs(float(base[key])), 1e-3))
+                      for _, key, index in names])
+
+    def to_params(u: jax.Array) -> dict:
+        p = dict(base)
+        for j, (_, key, index) in enumerate(names):
+            v = u[j] * units[j]
+            p[key] = p[key].at[index].set(v) if index is not None else v
+        return p
+
+    def values_of(u: np.ndarray) -> dict:
+        return {name: float(u[j] * units[j]) for j, (name, _, _) in enumerate(names)}
+
+    # One compiled residual and Jacobian for every level: the blur's width is an argument.
+    pad = tuple(int(math.ceil(3.0 * max(float(b[axis]) for b in blurs))) + 1 for axis in (0, 1))
+    sw = jnp.sqrt(w / jnp.sum(w))
+
+    def residuals(u, sigma, tb):
+        sim = jnp.log1p(jnp.maximum(renderer.render(to_params(u)), 0.0) / s)
+        return (sw * (blur(sim, sigma, pad) - tb)).ravel()
+
+    residuals_at, jacobian_at = jax.jit(residuals), jax.jit(jax.jacfwd(residuals))
+    levels = []
+    for sigma in blurs:
+        tb = blur(t_img, sigma, pad)
+        sg = jnp.asarray(sigma, t_img.dtype)
+        levels.append((lambda u, sg=sg, tb=tb: residuals_at(u, sg, tb), lambda u, sg=sg, tb=tb: jacobian_at(u, sg, tb)))
+
+    start_list = list(starts) if starts else [{}]
+    results = []
+    best = None
+    for k, start in enumerate(start_list):
+        ts = time.perf_counter()
+        u = np.array([float(start.get(name, _value(base, key, index))) for name, key, index in names]) / units
+        n_iter = 0
+        value = float("nan")
+        for level, (res_fn, jac_fn) in enumerate(levels):
+            u, value, used = _levenberg_marquardt(renderer, to_params, res_fn, jac_fn, u, iterations)
+            n_iter += used
+            if progress is not None:
+                progress(k, level, value)
+        results.append(StartResult(dict(start), values_of(u), value, n_iter, time.perf_counter() - ts))
+        if best is None or value < best[1]:
+            best = (u, value)
+    renderer.refresh(to_params(jnp.asarray(best[0])))
+    return GradientFit(values_of(best[0]), to_params(jnp.asarray(best[0])), best[1], tuple(results),
+                       time.perf_counter() - t0)
+
+
+def _levenberg_marquardt(renderer, to_params, residuals, jacobian, u: np.ndarray, iterations: int,
+                         tolerance: float = 1e-4, max_step: float = 1.0) -> tuple[np.ndarray, float, int]:
+    """Minimise ``|residuals(u)|^2`` from ``u`` (Levenberg-Marquardt, Marquardt's scaling), the
+    search refreshed at every point evaluated: each step's loss is the loss of the frame the
+    compiled engine would form there. Returns ``(u, loss, iterations)``."""
+    renderer.refresh(to_params(jnp.asarray(u)))
+    r = np.asarray(residuals(jnp.asarray(u)), float)
+    loss = float(r @ r)
+    lam = 1e-3
+    it = 0
+    for it in range(1, iterations + 1):
+        jac = np.asarray(jacobian(jnp.asarray(u)), float)
+        jtj = jac.T @ jac
+        g = jac.T @ r
+        scale = np.maximum(np.diag(jtj), 1e-12 * max(float(np.max(np.diag(jtj))), 1e-300))
+        improved = False
+        while lam < 1e8:
+            step = -np.linalg.solve(jtj + lam * np.diag(scale), g)
+            # A trust region of one unit (5 cm, 2.5 degrees) per step: the blurred images
+            # are matched locally; a longer step may jump into another echo's basin.
+            step = step * min(1.0, max_step / max(float(np.max(np.abs(step))), 1e-300))
+            trial = u + step
+            renderer.refresh(to_params(jnp.asarray(trial)))
+            r_new = np.asarray(residuals(jnp.asarray(trial)), float)
+            new = float(r_new @ r_new)
+            if np.isfinite(new) and new < loss:
+                u, r, loss, improved = trial, r_new, new, True
+                lam = max(lam / 3.0, 1e-7)
+                break
+            lam *= 4.0
+        if not improved:
+            renderer.refresh(to_params(jnp.asarray(u)))  # back to the best point's search
+            break
+        if float(np.max(np.abs(step))) < tolerance:
+            break
+    return u, loss, it
+
+
+def _value(params: Mapping[str, Any], key: str, index: int | None) -> float:
+    v = np.asarray(params[key], float)
+    return float(v[index]) if index is not None else float(v)
