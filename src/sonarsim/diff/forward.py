@@ -81,14 +81,14 @@ def plane_table(params: dict, names: tuple[str, ...]) -> tuple[jax.Array, jax.Ar
     return n, off, spec
 
 
-def triangle_table(params: dict, objects: tuple[str, ...], local_faces: tuple) -> tuple[jax.Array, jax.Array]:
+def triangle_table(params: dict, objects: tuple[str, ...], local_faces: tuple) -> tuple[jax.Array, jax.Array, jax.Array]:
     """The hit triangles' planes: unnormalised normals ``(b - a) x (c - a)`` (F, 3) and
     offsets ``n . a`` (F,), their corners posed from each object's own mesh.
 
     ``local_faces[k]``: (F_k, 3) vertex indices of object ``k``'s hit faces, in the order of
     the search's ``faces`` (grouped by object).
     """
-    normals, offsets = [], []
+    normals, offsets, corners = [], [], []
     for name, faces in zip(objects, local_faces):
         if faces.shape[0] == 0:
             continue
@@ -99,9 +99,10 @@ def triangle_table(params: dict, objects: tuple[str, ...], local_faces: tuple) -
         n = jnp.cross(b - a, c - a)
         normals.append(n)
         offsets.append(_dot(n, a))
+        corners.append(tri)
     if not normals:
-        return jnp.zeros((0, 3)), jnp.zeros(0)
-    return jnp.concatenate(normals), jnp.concatenate(offsets)
+        return jnp.zeros((0, 3)), jnp.zeros(0), jnp.zeros((0, 3, 3))
+    return jnp.concatenate(normals), jnp.concatenate(offsets), jnp.concatenate(corners)
 
 
 def law_table(params: dict, surfaces: tuple[tuple[str, str], ...]) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -144,8 +145,12 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
         from .sensor import fan_rays  # the elevation pattern's width moves the rays' weights
 
         direction, weight = fan_rays(params, data, static.sensor)
-    d = direction @ rot.T  # (C, 3) the fan rays in the world
     normal, offset, spec = plane_table(params, static.planes)
+    tri_n, tri_off, tri_corners = triangle_table(params, static.objects, data["local_faces"])
+    shift = jnp.zeros(direction.shape[0], direction.dtype)
+    if static.attach == "surfaces" and tri_corners.shape[0]:
+        direction, shift = follow_azimuth(params, data, static, rot, origin, direction, normal, offset, tri_corners)
+    d = direction @ rot.T  # (C, 3) the fan rays in the world
     o = jnp.broadcast_to(origin, d.shape)
     gen = data["gen"]
     dist = jnp.zeros(d.shape[0], d.dtype)
@@ -161,7 +166,6 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
         d = jnp.where(on[:, None], d - 2.0 * dn[:, None] * n, d)
         dist = dist + t
         atten = atten * jnp.where(on, spec[p], 1.0)
-    tri_n, tri_off = triangle_table(params, static.objects, data["local_faces"])
     n_planes = len(static.planes)  # (the plane table has a stand-in row where there is none)
     surf_n = jnp.concatenate([normal[:n_planes], tri_n])
     surf_off = jnp.concatenate([offset[:n_planes], tri_off])
@@ -171,6 +175,7 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
     point = o + t[:, None] * d
     dist = dist + t
     cos = jnp.abs(dn) / jnp.linalg.norm(ns, axis=1)
+
     coef, strength, rough = law_table(params, static.surfaces)
     sid = data["sid"]
     f = coef[sid] * cos
@@ -194,11 +199,50 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
     distance = jnp.where(same, dist, 0.5 * (dist + length))
     energy = atten * jnp.where(same, atten, tx_spec) * intensity
     energy = jnp.where(data["live"], energy, 0.0)
-    return distance, energy, {"point": point, "rx": dist, "cos": cos}
+    return distance, energy, {"point": point, "rx": dist, "cos": cos, "shift": shift}
+
+
+def follow_azimuth(params: dict, data: dict, static: Any, rot: jax.Array, origin: jax.Array, direction: jax.Array,
+                   normal: jax.Array, offset: jax.Array, corners: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``attach: surfaces``: each object path's fan ray turned in azimuth to where its
+    scatterer, held on its triangle (barycentric), now lies, keeping the ray's elevation.
+
+    The scatterer ``A`` is seen through the receive leg's mirrors (``A* = M_1(... M_g(A))``);
+    its azimuth in the sonar's frame replaces the ray's. The leg is then traced along the
+    turned ray as for any path (range, incidence, weight at the point it meets), and the
+    turn, ``shift`` (radians), moves the path's energy across the beams in the splat. Across
+    the beams an object's echo thus follows the object (and the sonar's turns); along a beam's
+    elevation the rays stay the fan's, exact at the aperture's edges and the floor's onset.
+
+    Returns
+    -------
+    direction : (C, 3)
+        The paths' directions in the sonar's frame.
+    shift : (C,)
+        Their turns, radians (0 for planes' paths).
+    """
+    n_planes = len(static.planes)
+    on_object = data["surface"] >= n_planes
+    row = jnp.maximum(data["surface"] - n_planes, 0)
+    tri = corners[row]
+    u, v = data["uv"][:, 0:1], data["uv"][:, 1:2]
+    a = (1.0 - u - v) * tri[:, 0] + u * tri[:, 1] + v * tri[:, 2]
+    for j in range(data["rx_planes"].shape[1] - 1, -1, -1):
+        p = data["rx_planes"][:, j]
+        on = (p >= 0) & (j < data["gen"])
+        p = jnp.maximum(p, 0)
+        n = normal[p]
+        a = jnp.where(on[:, None], a - 2.0 * (_dot(a, n) - offset[p])[:, None] * n, a)
+    local = (a - origin) @ rot  # R^T (A* - O): the sonar's frame
+    shift = jnp.where(on_object, jnp.arctan2(local[:, 1], local[:, 0]) - data["ray_azimuth"], 0.0)
+    c, s_ = jnp.cos(shift), jnp.sin(shift)
+    turned = jnp.stack([c * direction[:, 0] - s_ * direction[:, 1], s_ * direction[:, 0] + c * direction[:, 1],
+                        direction[:, 2]], axis=1)  # a turn about the sonar's z axis keeps the elevation
+    return turned, shift
 
 
 def splat(distance: jax.Array, energy: jax.Array, row: jax.Array, n_rows: int, data: dict, geometry: tuple,
-          spread: bool = True) -> jax.Array:
+          spread: bool = True, shift: jax.Array | None = None) -> jax.Array:
     """Paths into an image stack (n_rows, n_range_bins, n_beams) by range splatting (see the
     module docstring).
 
@@ -214,6 +258,11 @@ def splat(distance: jax.Array, energy: jax.Array, row: jax.Array, n_rows: int, d
     geometry : (range_min_m, range_resolution_m, n_range_bins, n_beams)
     spread : bool
         Range splatting (``render.range_splat``); ``False``: each path in the bin of its range.
+    shift : (C,), optional
+        Each path's azimuth off its ray's, radians (``attach: surfaces``): its energy is shared
+        with the neighbouring beam it moves towards, in proportion to the shift over the beams'
+        spacing (``data``'s ``beam_plus``/``beam_minus`` and ``step_plus``/``step_minus``; at
+        the fan's edges it stays in its beam).
     """
     r0, dr, n, nb = geometry
     x = (distance - r0) / dr
@@ -240,11 +289,21 @@ def splat(distance: jax.Array, energy: jax.Array, row: jax.Array, n_rows: int, d
     fl_hi = jax.lax.stop_gradient(jnp.floor(hi))
     fr_lo, fr_hi = lo - fl_lo, hi - fl_hi
     # Columns (row, beam) of n + 2 bins, range last: the running sums read memory in order.
-    base = (row * nb + data["beam"]) * (n + 2)
-    i_lo = base + fl_lo.astype(jnp.int32)
-    i_hi = base + fl_hi.astype(jnp.int32)
-    index = jnp.concatenate([i_lo, i_lo + 1, i_hi, i_hi + 1])
-    value = jnp.concatenate([density * (1.0 - fr_lo), density * fr_lo, -density * (1.0 - fr_hi), -density * fr_hi])
+    beams, shares = [data["beam"]], [None]
+    if shift is not None:
+        t_plus = jnp.clip(shift / data["step_plus"], 0.0, 1.0)
+        t_minus = jnp.clip(shift / data["step_minus"], 0.0, 1.0)
+        beams = [data["beam"], data["beam_plus"], data["beam_minus"]]
+        shares = [1.0 - t_plus - t_minus, t_plus, t_minus]
+    index, value = [], []
+    for beam, share in zip(beams, shares):
+        base = (row * nb + beam) * (n + 2)
+        i_lo = base + fl_lo.astype(jnp.int32)
+        i_hi = base + fl_hi.astype(jnp.int32)
+        rho = density if share is None else density * share
+        index += [i_lo, i_lo + 1, i_hi, i_hi + 1]
+        value += [rho * (1.0 - fr_lo), rho * fr_lo, -rho * (1.0 - fr_hi), -rho * fr_hi]
+    index, value = jnp.concatenate(index), jnp.concatenate(value)
     size = n_rows * nb * (n + 2)
     image = running_sum(jnp.zeros(size, energy.dtype).at[index].add(value).reshape(n_rows, nb, n + 2))[:, :, :n]
     # The running sums leave round-off (1e-16 of a column's values, of either sign) in bins
@@ -253,9 +312,15 @@ def splat(distance: jax.Array, energy: jax.Array, row: jax.Array, n_rows: int, d
     # images, and leaves their derivatives alone (an isolated path's derivative moves its
     # energy into the next bin, which its value does not cover).
     live = (hi > lo) & (energy != 0)
-    end = i_hi + (fr_hi > 0).astype(jnp.int32)
-    count = jnp.zeros(size, jnp.int32).at[jnp.concatenate([i_lo, end])].add(
-        jnp.concatenate([live.astype(jnp.int32), -live.astype(jnp.int32)]))
+    count_index, count_value = [], []
+    for beam, share in zip(beams, shares):
+        base = (row * nb + beam) * (n + 2)
+        i_lo = base + fl_lo.astype(jnp.int32)
+        end = base + fl_hi.astype(jnp.int32) + (fr_hi > 0).astype(jnp.int32)
+        on = (live if share is None else live & (share > 0)).astype(jnp.int32)
+        count_index += [i_lo, end]
+        count_value += [on, -on]
+    count = jnp.zeros(size, jnp.int32).at[jnp.concatenate(count_index)].add(jnp.concatenate(count_value))
     covered = jnp.cumsum(count.reshape(n_rows, nb, n + 2), axis=2)[:, :, :n] > 0
     image = image + jax.lax.stop_gradient(jnp.where(covered, 0.0, -image))
     return jnp.swapaxes(image, 1, 2)

@@ -1,10 +1,11 @@
 """Inverse problems by gradient: the pose (and any other parameters) that make the renderer's
 image match a target image.
 
-The loss compares the two images after a compressive map and a Gaussian blur, coarse to fine:
-``mean((B_s(T(sim)) - B_s(T(target)))^2)`` with ``T(x) = log(1 + x / scale)`` (so that the
-floor's weak echo counts beside an object's strong one) and ``B_s`` a blur of ``s`` bins and
-beams. A wide blur makes the loss informative far from the optimum (an echo a metre off still
+The loss compares the two images after a Gaussian blur and a compressive map, coarse to fine:
+``mean((T(B_s(sim)) - T(B_s(target)))^2)`` with ``B_s`` a blur of ``s`` bins and beams and
+``T(x) = log(1 + x / scale)`` (so that the floor's weak echo counts beside an object's strong
+one; blurred first, so that a narrow range cell crossing a bin edge does not make the
+derivative spike). A wide blur makes the loss informative far from the optimum (an echo a metre off still
 overlaps its target's blurred echo); the finer levels then place it. Each level is a
 Levenberg-Marquardt least-squares fit of the blurred residuals, with their Jacobian by JAX's
 forward mode (one JVP per free parameter); the search is refreshed at every point the fit
@@ -150,7 +151,7 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
         raise ConfigError("target", f"has shape {target.shape}; the renderer forms {expected}")
     s = compress_scale(target) if scale is None else float(scale)
     w = jnp.asarray(np.ones_like(target) if weights is None else np.asarray(weights, float))
-    t_img = jnp.log1p(jnp.asarray(target) / s)
+    t_img = jnp.asarray(target)
     units = np.array([UNITS.get(key, 1.0) * (1.0 if index is not None or key in UNITS else max(abs(float(base[key])), 1e-3))
                       for _, key, index in names])
 
@@ -168,16 +169,19 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
     pad = tuple(int(math.ceil(3.0 * max(float(b[axis]) for b in blurs))) + 1 for axis in (0, 1))
     sw = jnp.sqrt(w / jnp.sum(w))
 
-    def residuals(u, sigma, tb):
-        sim = jnp.log1p(jnp.maximum(renderer.render(to_params(u)), 0.0) / s)
-        return (sw * (blur(sim, sigma, pad) - tb)).ravel()
+    image = renderer.image_function()
+
+    def residuals(u, sigma, tb, data):  # the search's arrays an argument: refreshed, not traced in
+        sim = blur(image(to_params(u), data), sigma, pad)
+        return (sw * (jnp.log1p(jnp.maximum(sim, 0.0) / s) - tb)).ravel()
 
     residuals_at, jacobian_at = jax.jit(residuals), jax.jit(jax.jacfwd(residuals))
     levels = []
     for sigma in blurs:
-        tb = blur(t_img, sigma, pad)
+        tb = jnp.log1p(jnp.maximum(blur(t_img, sigma, pad), 0.0) / s)
         sg = jnp.asarray(sigma, t_img.dtype)
-        levels.append((lambda u, sg=sg, tb=tb: residuals_at(u, sg, tb), lambda u, sg=sg, tb=tb: jacobian_at(u, sg, tb)))
+        levels.append((lambda u, sg=sg, tb=tb: residuals_at(u, sg, tb, renderer.data),
+                       lambda u, sg=sg, tb=tb: jacobian_at(u, sg, tb, renderer.data)))
 
     start_list = list(starts) if starts else [{}]
     results = []

@@ -22,7 +22,7 @@ from ..renderer.simulator import Simulator
 from ..scene.meshes import object_mesh_local
 from . import forward
 from .params import scene_params, scene_with, surface_laws
-from .search import Search, record_search
+from .search import Search, padded_size, record_search
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,7 @@ class Static:
     total_rows: tuple[int, ...]
     n_signatures: int
     sensor: Any = None  # sonarsim.diff.sensor.SensorStatic or None
+    attach: str = "rays"
 
 
 class Renderer:
@@ -54,6 +55,14 @@ class Renderer:
         turns on JAX's 64-bit mode (``jax_enable_x64``) for the process; ``float32`` leaves
         JAX's settings alone (GPUs are faster in it).
 
+    attach : {'rays', 'surfaces'}
+        Where an object's scatterer is held (:mod:`sonarsim.diff.forward`): on its fan ray
+        (the default: exact at the aperture's edges and the floor's onset; an object moving
+        across the beams moves no ray), or on its triangle (its echo moves across the beams as
+        the object or the sonar moves: what pose fitting needs; the fan's and the aperture's
+        edges, where no held path stands for what enters, are then approximate). Planes'
+        scatterers stay on their rays in both.
+
     Examples
     --------
     >>> r = Renderer("tank.yaml")                                   # doctest: +SKIP
@@ -62,9 +71,11 @@ class Renderer:
     >>> g = jax.grad(lambda q: jnp.sum(r.render(q)))(p)              # a dict like p
     """
 
-    def __init__(self, scene: Any, dtype: str = "float64") -> None:
+    def __init__(self, scene: Any, dtype: str = "float64", attach: str = "rays") -> None:
         if dtype not in ("float64", "float32"):
             raise ConfigError("dtype", f"unknown dtype {dtype!r}; allowed: float64, float32")
+        if attach not in ("rays", "surfaces"):
+            raise ConfigError("attach", f"unknown attach {attach!r}; allowed: rays, surfaces")
         if dtype == "float64":
             jax.config.update("jax_enable_x64", True)
         self.dtype = jnp.float64 if dtype == "float64" else jnp.float32
@@ -87,11 +98,13 @@ class Renderer:
             geometry=(float(sonar.range_min_m), float(sonar.range_resolution_m), int(sonar.n_range_bins),
                       int(sonar.n_beams)),
             n_rows=0, total_rows=total_rows(render.bounces, render.max_order), n_signatures=0,
-            sensor=None if self._sensor is None else self._sensor.static,
+            sensor=None if self._sensor is None else self._sensor.static, attach=attach,
         )
         self._local_faces = [np.asarray(object_mesh_local(o).faces, np.int64) for o in scene.objects]
         self._jitted: dict = {}
         self.search: Search | None = None
+        self._capacity = 1024
+        self._face_capacity = [64] * len(scene.objects)
         self.refresh()
 
     # Parameters ------------------------------------------------------------------------------
@@ -133,9 +146,12 @@ class Renderer:
         scene = scene_with(self.scene, values) if values else self.scene
         if moved:
             with Simulator(replace(scene, sensor=self.scene.sensor)) as sim:
-                search = record_search(sim, scene.sonar_pose)
+                search = record_search(sim, scene.sonar_pose, self._capacity)
         else:
-            search = record_search(self.sim, scene.sonar_pose)
+            search = record_search(self.sim, scene.sonar_pose, self._capacity)
+        # Sizes only grow: a refreshed search of the same size or smaller reuses the compiled
+        # functions (a new size compiles them again, a second or more).
+        self._capacity = max(self._capacity, search.capacity)
         self.search = search
         self._data = self._arrays(search)
         self.static = Static(**{**self.static.__dict__, "n_rows": search.n_rows,
@@ -148,11 +164,30 @@ class Renderer:
         data["direction"] = jnp.asarray(fan.directions.reshape(-1, 3)[search.ray], self.dtype)
         data["weight"] = jnp.asarray(fan.weight.reshape(-1)[search.ray], self.dtype)
         data["factor"] = jnp.asarray(search.factor, self.dtype)
-        faces = []
+        if self.static.attach == "surfaces":  # the beams an object's echo moves across
+            n_el = fan.shape[2]
+            centre = np.radians(self.scene.sonar.azimuth_deg)
+            nb = len(centre)
+            beam = search.beam
+            plus, minus = np.minimum(beam + 1, nb - 1), np.maximum(beam - 1, 0)
+            data["ray_azimuth"] = jnp.asarray(fan.azimuth_rad.reshape(-1)[search.ray // n_el], self.dtype)
+            data["beam_plus"], data["beam_minus"] = jnp.asarray(plus), jnp.asarray(minus)
+            data["step_plus"] = jnp.asarray(np.where(plus != beam, centre[plus] - centre[beam], np.inf), self.dtype)
+            data["step_minus"] = jnp.asarray(np.where(minus != beam, centre[minus] - centre[beam], np.inf), self.dtype)
+        # The hit triangles of each object, padded (with its first face) to a size that only
+        # grows, and the paths' scatterer rows moved to the padded table.
+        faces, start, row_of = [], search.n_planes, np.arange(search.n_planes + len(search.faces))
         for k in range(len(self.scene.objects)):
-            hit = search.faces[search.faces[:, 0] == k, 1]
-            faces.append(jnp.asarray(self._local_faces[k][hit]))
+            rows = np.flatnonzero(search.faces[:, 0] == k)
+            hit = search.faces[rows, 1]
+            self._face_capacity[k] = max(self._face_capacity[k], padded_size(len(hit), 64))
+            padded = np.zeros(self._face_capacity[k], np.int64)
+            padded[:len(hit)] = hit
+            faces.append(jnp.asarray(self._local_faces[k][padded]))
+            row_of[search.n_planes + rows] = start + np.arange(len(rows))
+            start += self._face_capacity[k]
         data["local_faces"] = tuple(faces)
+        data["surface"] = jnp.asarray(row_of[search.surface])
         if self._sensor is not None:
             data.update(self._sensor.arrays(search))
         # One precision throughout (with JAX's 64-bit mode on, a float32 renderer's constants
@@ -168,6 +203,24 @@ class Renderer:
             fn = jax.jit(_FORMS[what], static_argnums=2)
             self._jitted[what] = fn
         return fn
+
+    @property
+    def data(self) -> dict:
+        """The held search's arrays (a pytree of JAX arrays): what :meth:`image_function`
+        takes beside the parameters. A new object after each :meth:`refresh`."""
+        return self._data
+
+    def image_function(self):
+        """The pure function ``f(params, data) -> image`` behind :meth:`render` (``params``
+        complete: every key of :meth:`params`).
+
+        Inside a function of your own that ``jax.jit`` compiles, pass :attr:`data` as an
+        argument: a ``jit`` that calls :meth:`render` reads the search as it was when the
+        function was traced, and a later :meth:`refresh` does not reach it.
+        """
+        fn, static = self._function("image"), self.static
+        dtype = self.dtype
+        return lambda params, data: fn(params, data, static).astype(dtype)
 
     def render(self, params: Mapping[str, Any] | None = None) -> jax.Array:
         """The expected image (n_range_bins, n_beams): the total of ``render.bounces``, or,
@@ -202,18 +255,22 @@ class Renderer:
         return out
 
 
+def _shift(parts: dict, static: Static):
+    return parts["shift"] if static.attach == "surfaces" else None
+
+
 def _stack(params: dict, data: dict, static: Static):
-    distance, energy, _ = forward.path_ranges(params, data, static)
-    return forward.splat(distance, energy, data["label"], static.n_rows, data, static.geometry, static.spread), (
-        distance, energy)
+    distance, energy, parts = forward.path_ranges(params, data, static)
+    return forward.splat(distance, energy, data["label"], static.n_rows, data, static.geometry, static.spread,
+                         _shift(parts, static)), (distance, energy, parts)
 
 
 def _image(params: dict, data: dict, static: Static):
-    distance, energy, _ = forward.path_ranges(params, data, static)
+    distance, energy, parts = forward.path_ranges(params, data, static)
     # One image: the paths of the orders in ``render.bounces``, added as they are splatted.
     in_total = jnp.isin(data["label"], jnp.asarray(static.total_rows))
     total = forward.splat(distance, jnp.where(in_total, energy, 0.0), jnp.zeros_like(data["label"]), 1, data,
-                          static.geometry, static.spread)[0]
+                          static.geometry, static.spread, _shift(parts, static))[0]
     if static.sensor is not None:
         from . import sensor as sensor_mod
 
@@ -222,9 +279,9 @@ def _image(params: dict, data: dict, static: Static):
 
 
 def _components(params: dict, data: dict, static: Static):
-    stack, (distance, energy) = _stack(params, data, static)
+    stack, (distance, energy, parts) = _stack(params, data, static)
     sigs = forward.splat(distance, energy, data["signature"], static.n_signatures, data, static.geometry,
-                         static.spread)
+                         static.spread, _shift(parts, static))
     return stack, sigs
 
 

@@ -75,6 +75,9 @@ class Search:
     signature : (C,) int64
         Index into :attr:`signatures`.
     live : (C,) bool
+    uv : (C, 2) float64
+        Where an object's scatterer lies on its triangle of :attr:`faces` (its own face's
+        corners ``a, b, c``: ``A = (1 - u - v) a + u b + v c``); 0 for planes.
     distance : (C,) float64
         The range the compiled engine recorded for each path, metres (for diagnostics: the
         forward forms its own).
@@ -105,6 +108,7 @@ class Search:
     has_up: np.ndarray
     signature: np.ndarray
     live: np.ndarray
+    uv: np.ndarray
     distance: np.ndarray
     faces: np.ndarray
     signatures: tuple[str, ...]
@@ -118,8 +122,20 @@ class Search:
     def arrays(self) -> dict[str, np.ndarray]:
         """The per-path arrays and :attr:`faces`, by name (what the forward function reads)."""
         names = ("ray", "gen", "rx_planes", "surface", "sid", "same", "tx_planes", "label", "beam", "factor",
-                 "down", "up", "has_down", "has_up", "signature", "live")
+                 "down", "up", "has_down", "has_up", "signature", "live", "uv")
         return {k: getattr(self, k) for k in names}
+
+
+def barycentric(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(m, 2) barycentric ``(u, v)`` of points (m, 3) on triangles (m, 3, 3): ``p = (1 - u - v)
+    a + u b + v c`` for the point's projection on the triangle's plane."""
+    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    e1, e2, d = b - a, c - a, points - a
+    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    p1, p2 = (d * e1).sum(1), (d * e2).sum(1)
+    den = d11 * d22 - d12 * d12
+    den = np.where(den == 0, 1.0, den)
+    return np.stack([(d22 * p1 - d12 * p2) / den, (d11 * p2 - d12 * p1) / den], axis=1)
 
 
 def padded_size(n: int, minimum: int = 1024) -> int:
@@ -218,7 +234,8 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
     max_rx = max(len(legs) - 1, 0)
     max_tx = max([len(c) for c in table.chains] + [1]) if table is not None else 1
     cols: dict[str, list] = {k: [] for k in ("ray", "gen", "rx", "sid", "prim", "same", "tx", "label", "beam",
-                                             "factor", "down", "up", "has_down", "has_up", "sig", "distance")}
+                                             "factor", "down", "up", "has_down", "has_up", "sig", "distance",
+                                             "point")}
     signatures: dict[str, int] = {}
     start = 0
     for s in sets:
@@ -269,7 +286,8 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
                         ("same", np.full(m, s.tx == SAME)), ("tx", tx), ("label", np.asarray(s.label, np.int64)),
                         ("beam", np.asarray(s.beam, np.int64)), ("factor", factor), ("down", down), ("up", up),
                         ("has_down", has_down), ("has_up", link), ("sig", sig),
-                        ("distance", np.asarray(s.distance, np.float64))):
+                        ("distance", np.asarray(s.distance, np.float64)),
+                        ("point", np.asarray(legs[s.gen].point)[ray].astype(np.float64))):
             cols[name].append(v)
         start += m
 
@@ -293,6 +311,19 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
     surface_n = surface[:n]
     surface_n[on_object[:n]] = n_planes + np.asarray(row).reshape(-1)
     surface[:n] = surface_n
+    # Where on its triangle each object's scatterer lies: barycentric (u, v) on the object's
+    # own face (a piece the planes cut from it lies in it), from the point the search found.
+    uv = np.zeros((cap, 2))
+    points = np.concatenate(cols["point"]) if cols["point"] else np.zeros((0, 3))
+    obj = np.flatnonzero(on_object[:n])
+    if len(obj):
+        k, face = sid[obj] - n_planes, prim[obj]
+        tri = np.empty((len(obj), 3, 3))
+        for kk in np.unique(k):
+            local = np.asarray(object_mesh_local(scene.objects[kk]).faces, np.int64)
+            posed = np.asarray(sim.meshes[kk].vertices, float)  # the posed vertices come first
+            tri[k == kk] = posed[local[face[k == kk]]]
+        uv[obj] = barycentric(points[obj], tri)
     pad = np.arange(n, cap)
     down, up = cat("down"), cat("up")
     down[n:], up[n:] = pad, pad
@@ -307,6 +338,6 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
     return Search(
         n_paths=n, **arrays, factor=cat("factor", dtype=np.float64, fill=0.0), down=down, up=up,
         has_down=cat("has_down", dtype=bool, fill=False), has_up=cat("has_up", dtype=bool, fill=False),
-        signature=cat("sig"), live=live, distance=cat("distance", dtype=np.float64, fill=np.inf), faces=np.asarray(faces, np.int64).reshape(-1, 2),
+        signature=cat("sig"), live=live, uv=uv, distance=cat("distance", dtype=np.float64, fill=np.inf), faces=np.asarray(faces, np.int64).reshape(-1, 2),
         signatures=tuple(signatures), n_rows=stack_rows(render.max_order), n_planes=n_planes,
     )
