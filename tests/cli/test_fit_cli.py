@@ -174,3 +174,27 @@ def test_fit_on_the_real_oculus_ping_writes_the_recording_geometry(shared_data, 
     render = sonarsim.render(fitted)
     info = compare_images(real, render)["info"]
     assert info["resampled"] is False and info["overlap"] == 1.0
+
+
+def test_fit_by_gradient_recovers_height_and_tilt_of_a_synthetic_floor(floor_case, tmp_path, capsys):
+    pytest.importorskip("jax")
+    real, scene = floor_case
+    out = tmp_path / "fitted.yaml"
+    assert run(["fit", real, "--scene", scene(0.45, 31.0), "--method", "gradient", "--out", out, "--no-figures"]) == 0
+    captured = capsys.readouterr()
+    assert "domain image: by gradient" in captured.err and "Traceback" not in captured.err
+    pose = yaml.safe_load(out.read_text())["sonar"]["pose"]
+    assert pose["position_m"][2] == pytest.approx(0.40, abs=0.005)
+    assert pose["rpy_deg"][1] == pytest.approx(28.0, abs=0.3)
+
+
+def test_fit_by_gradient_without_jax_names_the_extra(floor_case, tmp_path, capsys, monkeypatch):
+    import importlib.util
+
+    real, scene = floor_case
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "jax" else find_spec(name, *a))
+    status = run(["fit", real, "--scene", scene(0.45, 31.0), "--method", "gradient", "--out", tmp_path / "f.yaml"])
+    err = capsys.readouterr().err
+    assert status == 2 and "pip install 'sonarsim[diff]'" in err and "Traceback" not in err
+    assert not (tmp_path / "f.yaml").exists()

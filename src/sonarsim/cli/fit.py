@@ -66,6 +66,10 @@ def add_fit_parser(sub) -> argparse.ArgumentParser:
                    help="compare edge maps of whole images (edges), or the near and far edges of the floor band "
                    "(band); auto (default): band for a scene whose echo is one floor band, edges otherwise "
                    "(the choice and its reason go to stderr)")
+    p.add_argument("--method", choices=("search", "gradient"), default="search",
+                   help="search (default): a simplex search on edges or the floor band (--domain, --max-renders); "
+                   "gradient: Levenberg-Marquardt on blurred images with the differentiable engine's gradients, coarse "
+                   "to fine (needs pip install 'sonarsim[diff]'; --domain and --max-renders do not apply)")
     p.add_argument("--max-renders", type=_render_budget, default=600, help="render budget of the search (default: 600)")
     p.add_argument("--quiet", action="store_true", help="no progress or notes on stderr (errors still)")
     p.add_argument("--image", default=None, help="side-by-side PNG (default: next to --out, *_fit.png); the "
@@ -222,10 +226,22 @@ class _Progress:
 
 
 def _what_to_try(args: argparse.Namespace, result: FitResult) -> str:
+    if result.domain == "image":
+        return (f"try a starting pose nearer the recording's (sonar.pose in {args.scene}), fewer --free parameters, "
+                "or --method search")
     other = "band" if result.domain == "edges" else "edges"
     budget = "" if result.converged else f"a larger --max-renders (the search used all {args.max_renders}), "
     return (f"try a starting pose nearer the recording's (sonar.pose in {args.scene}), {budget}fewer --free "
             f"parameters, or --domain {other}")
+
+
+def _method(asked: str, quiet: bool) -> str:
+    """The fit's method; ``gradient`` needs JAX (refused by name without it, before any work)."""
+    import importlib.util
+
+    if asked == "gradient" and importlib.util.find_spec("jax") is None:
+        raise SonarsimError("--method gradient: the differentiable engine needs JAX: pip install 'sonarsim[diff]'")
+    return asked
 
 
 def cmd_fit(args) -> None:
@@ -251,9 +267,19 @@ def cmd_fit(args) -> None:
     scene = load_scene(args.scene)
     quiet = getattr(args, "quiet", False)
     progress = None if quiet else _Progress()
+    method = _method(getattr(args, "method", "search"), quiet)
     try:
-        result = fit_pose(real, scene, free=args.free, domain=args.domain, max_renders=args.max_renders,
-                          progress=progress)
+        if method == "gradient":
+            from ..diff.inverse import fit_recording
+
+            def levels(k, level, loss):
+                if not quiet:
+                    _log(f"fit (gradient): start {k + 1}, level {level + 1}: loss {loss:.4g}")
+
+            result = fit_recording(real, scene, free=free_parameters(args.free, allow_none=False), progress=levels)
+        else:
+            result = fit_pose(real, scene, free=args.free, domain=args.domain, max_renders=args.max_renders,
+                              progress=progress)
     except FitError as exc:  # it ran, and found nothing: not bad input
         _log(f"error: {exc}")
         raise SystemExit(EXIT_NO_FIT) from None
@@ -261,7 +287,8 @@ def cmd_fit(args) -> None:
         if progress is not None:  # end a status line before anything else is written
             progress.close()
     if progress is not None:
-        _log(f"fit: {result.renders} renders; domain {result.domain}: {result.domain_reason}")
+        _log(f"fit: {result.renders} {'searches' if result.domain == 'image' else 'renders'}; domain {result.domain}: "
+             f"{result.domain_reason}")
         if not result.converged:
             _log(f"note: the search stopped at the render budget (--max-renders {args.max_renders}) before "
                  "converging; a larger budget may improve the fit")
@@ -270,8 +297,9 @@ def cmd_fit(args) -> None:
     end_rms = float(np.sqrt(np.nanmean((end_s - end_r) ** 2))) if np.isfinite(end_s - end_r).any() else float("nan")
     for name in result.free:
         print(f"{name:6s} {result.start[name]:10.4f} -> {result.values[name]:10.4f} {UNITS[name]}")
-    what = "1 - edge correlation" if result.domain == "edges" else "band-edge RMS, m"
-    print(f"cost ({what}): {result.cost_start:.4f} -> {result.cost:.4f} in {result.renders} renders")
+    what = {"edges": "1 - edge correlation", "band": "band-edge RMS, m", "image": "blurred-image loss"}[result.domain]
+    print(f"cost ({what}): {result.cost_start:.4g} -> {result.cost:.4g} in {result.renders} "
+          f"{'searches' if result.domain == 'image' else 'renders'}")
     if not (np.isfinite(onset_r).any() or np.isfinite(end_r).any()):
         if np.mean(band_view(real).lit_start) >= MIN_BAND_BEAMS:
             # A sea bed lit across the whole window (grazing angle): no edge to compare.

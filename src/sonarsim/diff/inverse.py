@@ -59,6 +59,8 @@ class GradientFit:
         Every parameter at the fit (JAX arrays).
     loss : float
         The finest level's loss at the fit.
+    loss_start : float
+        The finest level's loss at the first start.
     starts : tuple of StartResult
         Every start, in the order tried.
     seconds : float
@@ -69,6 +71,7 @@ class GradientFit:
     loss: float
     starts: tuple = field(default_factory=tuple)
     seconds: float = 0.0
+    loss_start: float = float("nan")
 
 
 def blur(image: jax.Array, sigma, pad: tuple[int, int] | None = None) -> jax.Array:
@@ -113,7 +116,8 @@ def _names(free: Sequence[str], params: Mapping[str, Any]) -> list[tuple[str, st
 
 def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), starts: Sequence[Mapping] | None = None,
         blurs: Sequence[tuple[float, float]] = DEFAULT_BLURS, iterations: int = 20,
-        weights: np.ndarray | None = None, scale: float | None = None, progress=None) -> GradientFit:
+        weights: np.ndarray | None = None, scale: float | None = None, progress=None,
+        normalise: bool = False) -> GradientFit:
     """The free parameters that make ``renderer``'s image match ``target`` (see the module docstring).
 
     Parameters
@@ -137,6 +141,9 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
         Of ``T``; default :func:`compress_scale` of the target.
     progress : callable, optional
         Called with ``(start index, level, loss)`` after each level.
+    normalise : bool
+        Divide each blurred image by its mean before the compressive map (images in other
+        units: only their shapes are compared).
 
     Returns
     -------
@@ -150,6 +157,8 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
     if target.shape != expected:
         raise ConfigError("target", f"has shape {target.shape}; the renderer forms {expected}")
     s = compress_scale(target) if scale is None else float(scale)
+    if normalise and scale is None:
+        s = 0.1  # of the mean
     w = jnp.asarray(np.ones_like(target) if weights is None else np.asarray(weights, float))
     t_img = jnp.asarray(target)
     units = np.array([UNITS.get(key, 1.0) * (1.0 if index is not None or key in UNITS else max(abs(float(base[key])), 1e-3))
@@ -171,14 +180,17 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
 
     image = renderer.image_function()
 
+    def unit(x):
+        return x / jnp.mean(x) if normalise else x
+
     def residuals(u, sigma, tb, data):  # the search's arrays an argument: refreshed, not traced in
-        sim = blur(image(to_params(u), data), sigma, pad)
+        sim = unit(blur(image(to_params(u), data), sigma, pad))
         return (sw * (jnp.log1p(jnp.maximum(sim, 0.0) / s) - tb)).ravel()
 
     residuals_at, jacobian_at = jax.jit(residuals), jax.jit(jax.jacfwd(residuals))
     levels = []
     for sigma in blurs:
-        tb = jnp.log1p(jnp.maximum(blur(t_img, sigma, pad), 0.0) / s)
+        tb = jnp.log1p(jnp.maximum(unit(blur(t_img, sigma, pad)), 0.0) / s)
         sg = jnp.asarray(sigma, t_img.dtype)
         levels.append((lambda u, sg=sg, tb=tb: residuals_at(u, sg, tb, renderer.data),
                        lambda u, sg=sg, tb=tb: jacobian_at(u, sg, tb, renderer.data)))
@@ -189,6 +201,10 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
     for k, start in enumerate(start_list):
         ts = time.perf_counter()
         u = np.array([float(start.get(name, _value(base, key, index))) for name, key, index in names]) / units
+        if k == 0:
+            renderer.refresh(to_params(jnp.asarray(u)))
+            r0 = np.asarray(levels[-1][0](jnp.asarray(u)), float)
+            loss_start = float(r0 @ r0)
         n_iter = 0
         value = float("nan")
         for level, (res_fn, jac_fn) in enumerate(levels):
@@ -201,7 +217,7 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
             best = (u, value)
     renderer.refresh(to_params(jnp.asarray(best[0])))
     return GradientFit(values_of(best[0]), to_params(jnp.asarray(best[0])), best[1], tuple(results),
-                       time.perf_counter() - t0)
+                       time.perf_counter() - t0, loss_start)
 
 
 def _levenberg_marquardt(renderer, to_params, residuals, jacobian, u: np.ndarray, iterations: int,
@@ -245,3 +261,62 @@ def _levenberg_marquardt(renderer, to_params, residuals, jacobian, u: np.ndarray
 def _value(params: Mapping[str, Any], key: str, index: int | None) -> float:
     v = np.asarray(params[key], float)
     return float(v[index]) if index is not None else float(v)
+
+
+def fit_recording(real, scene, free: Sequence[str] = ("z", "pitch"), starts: Sequence[Mapping] | None = None,
+                  blurs: Sequence[tuple[float, float]] = DEFAULT_BLURS, progress=None):
+    """:func:`sonarsim.analysis.fitting.fit_pose` by gradient: the pose parameters ``free`` that
+    make ``scene`` look like the recording ``real``, on the recording's grid.
+
+    Without a sensor in the scene, the images are compared after dividing each by its blurred
+    mean (the renderer's intensity against the recording's counts: only their shapes can
+    agree); with one, in counts. The scatterers are held on their triangles
+    (``attach='surfaces'``) and the search refreshed at every point evaluated.
+
+    Returns
+    -------
+    FitResult
+        Its ``domain`` is ``image``; ``cost_start`` and ``cost`` are the finest level's loss;
+        ``renders`` counts the searches run; :func:`~sonarsim.analysis.fitting.fit_problems`
+        has judged it.
+    """
+    from dataclasses import replace
+
+    from ..analysis.fitting import (FitResult, check_overlap, edge_correlation, fit_problems, floor_onset_m,
+                                    band_view, parse_free, pose_from_values, pose_values, profile_correlation,
+                                    recording_geometry)
+    from ..renderer.simulator import Simulator
+    from .renderer import Renderer
+
+    free = parse_free(free)
+    check_overlap(real, scene)
+    geometry = recording_geometry(real, scene)
+    fitted_scene = replace(scene, sonar=geometry)
+    r = Renderer(fitted_scene, attach="surfaces")
+    counted = {"n": 0}
+    refresh = r.refresh
+
+    def counting_refresh(params=None):
+        counted["n"] += 1
+        return refresh(params)
+
+    r.refresh = counting_refresh
+    normalise = scene.sensor is None
+    start = pose_values(scene.sonar_pose)
+    t0 = time.perf_counter()
+    result = fit(r, np.asarray(real.polar, float), free=free, starts=starts, blurs=blurs, progress=progress,
+                 normalise=normalise)
+    start_loss = result.loss_start
+    values = dict(start, **{k: result.values[k] for k in free})
+    pose = pose_from_values(values)
+    with Simulator(fitted_scene) as sim:
+        image = sim.render(pose=pose, keep_rays=False, speckle=False)
+    real_view = band_view(real)
+    d = floor_onset_m(image) - real_view.near
+    onset = float(np.sqrt(np.nanmean(d ** 2))) if np.isfinite(d).any() else float("nan")
+    out = FitResult(pose=pose, free=free, domain="image", start=start, values=values, cost_start=start_loss,
+                    cost=result.loss, onset_rms_m=onset, renders=counted["n"], image=image,
+                    scene=replace(fitted_scene, sonar_pose=pose),
+                    domain_reason=f"by gradient ({time.perf_counter() - t0:.1f} s, {len(result.starts)} start(s))",
+                    edge_correlation=edge_correlation(real, image), profile_correlation=profile_correlation(real, image))
+    return replace(out, problems=fit_problems(real, out))
