@@ -49,6 +49,11 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--evaluate-frames", type=frame_list, default=(), metavar="N,M",
                    help="held-out frames of the recording to report the figures for")
     p.add_argument("--max-iterations", type=int, default=400, help="budget of each simplex search (default: 400)")
+    p.add_argument("--method", choices=("search", "gradient"), default="search",
+                   help="search (default): simplex searches over the sensor's laws, starts and pose family, with the "
+                   "channels, common noise, texture and range law; gradient: Levenberg-Marquardt with the "
+                   "differentiable engine (gain, TVG law, noise before and after the TVG, elevation width, gamma and "
+                   "the free pose, from the floor band's closed-form start; needs pip install 'sonarsim[diff]')")
     p.add_argument("--image", default=None, help="side-by-side PNG (default: --out with .png for .yaml); the "
                    "annotated figure goes beside it as *_figure.png")
     p.add_argument("--json", default=None, help="also write the figures as JSON to this file")
@@ -134,9 +139,21 @@ def cmd_calibrate(args) -> None:
         except (SonarsimError, IndexError, ValueError) as exc:
             raise SonarsimError(f"--evaluate-frames: {args.real}: no frame {n} ({exc})") from None
     scene = load_scene(args.scene)
-    # Progress on stderr: a calibration makes thousands of renders over a minute or more.
-    res = calibrate(real, scene, free=free, max_iterations=args.max_iterations,
-                    progress=lambda line: print(f"sonarsim calibrate: {line}", file=sys.stderr, flush=True))
+    if getattr(args, "method", "search") == "gradient":
+        import importlib.util
+
+        if importlib.util.find_spec("jax") is None:
+            raise SonarsimError("--method gradient: the differentiable engine needs JAX: pip install 'sonarsim[diff]'")
+        from ..diff import enable_compilation_cache
+        from ..diff.inverse import calibrate_recording
+
+        enable_compilation_cache()
+        res = calibrate_recording(real, scene, free=free, progress=lambda k, level, loss: print(
+            f"sonarsim calibrate: gradient, start {k + 1}, level {level + 1}: loss {loss:.4g}", file=sys.stderr, flush=True))
+    else:
+        # Progress on stderr: a calibration makes thousands of renders over a minute or more.
+        res = calibrate(real, scene, free=free, max_iterations=args.max_iterations,
+                        progress=lambda line: print(f"sonarsim calibrate: {line}", file=sys.stderr, flush=True))
     peak = res.scene.sensor.output.full_scale
     with Simulator(res.scene) as sim:
         speckled = sim.render(res.scene.sonar_pose, keep_rays=False)

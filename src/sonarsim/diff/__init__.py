@@ -35,6 +35,23 @@ def require_jax() -> None:
         raise MissingExtraError(DIFF_EXTRA_MESSAGE) from None
 
 
+def enable_compilation_cache(path: str | None = None) -> str:
+    """Keep JAX's compiled functions on disk (``SONARSIM_JAX_CACHE``, default
+    ``~/.cache/sonarsim/jax``): a fit or calibration in a new process then loads them instead
+    of compiling them again (seconds each). Returns the folder."""
+    import os
+    from pathlib import Path
+
+    require_jax()
+    import jax
+
+    folder = path or os.environ.get("SONARSIM_JAX_CACHE") or str(Path.home() / ".cache" / "sonarsim" / "jax")
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", folder)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+    return folder
+
+
 def __getattr__(name: str) -> Any:
     module = _EXPORTS.get(name)
     if module is None:

@@ -29,8 +29,11 @@ from ..errors import ConfigError
 #: Free pose parameters by their short names and what they are in the parameter dict.
 POSE_KEYS = {"x": ("sonar.position_m", 0), "y": ("sonar.position_m", 1), "z": ("sonar.position_m", 2),
              "roll": ("sonar.rpy_deg", 0), "pitch": ("sonar.rpy_deg", 1), "yaw": ("sonar.rpy_deg", 2)}
-#: The optimiser's unit of each kind of parameter: 5 cm, 2.5 degrees (comparable steps).
-UNITS = {"sonar.position_m": 0.05, "sonar.rpy_deg": 2.5}
+#: The optimiser's unit of each kind of parameter: 5 cm, 2.5 degrees, 10 dB, ... (comparable
+#: steps; a key not listed: its value's size). The sensor's levels start tens of dB off.
+UNITS = {"sonar.position_m": 0.05, "sonar.rpy_deg": 2.5, "sensor.gain_db": 10.0, "sensor.source_level_db": 10.0,
+         "sensor.noise_db": 10.0, "sensor.noise_after_tvg_db": 10.0, "sensor.tvg_spreading": 5.0,
+         "sensor.elevation_width_deg": 1.0, "sensor.azimuth_width_deg": 0.05, "sensor.gamma": 0.03}
 #: Coarse-to-fine blur widths, in range bins and beams.
 DEFAULT_BLURS = ((40.0, 20.0), (12.0, 6.0), (4.0, 2.0), (1.5, 1.0))
 
@@ -117,7 +120,8 @@ def _names(free: Sequence[str], params: Mapping[str, Any]) -> list[tuple[str, st
 def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), starts: Sequence[Mapping] | None = None,
         blurs: Sequence[tuple[float, float]] = DEFAULT_BLURS, iterations: int = 20,
         weights: np.ndarray | None = None, scale: float | None = None, progress=None,
-        normalise: bool = False) -> GradientFit:
+        normalise: bool = False, linear: bool = False, base: Mapping[str, Any] | None = None,
+        ftol: float = 0.0, snap: Mapping[str, Any] | None = None) -> GradientFit:
     """The free parameters that make ``renderer``'s image match ``target`` (see the module docstring).
 
     Parameters
@@ -144,13 +148,24 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
     normalise : bool
         Divide each blurred image by its mean before the compressive map (images in other
         units: only their shapes are compared).
+    linear : bool
+        Compare the blurred images themselves (over ``scale``: the loss is their mean squared
+        difference), not their logarithms: a calibration's counts.
+    base : dict, optional
+        The values of the parameters that are not free (default: the scene's).
+    ftol : float
+        A level ends when two steps in a row (after the third) lower its loss by less than
+        this fraction.
+    snap : dict of str to callable, optional
+        Free parameters whose value, after the first level, is replaced by ``snap[name](value)``
+        and then held (a value the scene format restricts, as the TVG law's coefficient).
 
     Returns
     -------
     GradientFit
     """
     t0 = time.perf_counter()
-    base = renderer.params()
+    base = {**renderer.params(), **({} if base is None else {k: jnp.asarray(v) for k, v in base.items()})}
     names = _names(free, base)
     target = np.asarray(target, float)
     expected = tuple(renderer.render(base).shape)
@@ -161,8 +176,7 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
         s = 0.1  # of the mean
     w = jnp.asarray(np.ones_like(target) if weights is None else np.asarray(weights, float))
     t_img = jnp.asarray(target)
-    units = np.array([UNITS.get(key, 1.0) * (1.0 if index is not None or key in UNITS else max(abs(float(base[key])), 1e-3))
-                      for _, key, index in names])
+    units = np.array([UNITS[key] if key in UNITS else max(abs(float(base[key])), 1e-3) for _, key, index in names])
 
     def to_params(u: jax.Array) -> dict:
         p = dict(base)
@@ -183,14 +197,17 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
     def unit(x):
         return x / jnp.mean(x) if normalise else x
 
+    def compressed(x):
+        return x / s if linear else jnp.log1p(jnp.maximum(x, 0.0) / s)
+
     def residuals(u, sigma, tb, data):  # the search's arrays an argument: refreshed, not traced in
         sim = unit(blur(image(to_params(u), data), sigma, pad))
-        return (sw * (jnp.log1p(jnp.maximum(sim, 0.0) / s) - tb)).ravel()
+        return (sw * (compressed(sim) - tb)).ravel()
 
     residuals_at, jacobian_at = jax.jit(residuals), jax.jit(jax.jacfwd(residuals))
     levels = []
     for sigma in blurs:
-        tb = jnp.log1p(jnp.maximum(unit(blur(t_img, sigma, pad)), 0.0) / s)
+        tb = compressed(unit(blur(t_img, sigma, pad)))
         sg = jnp.asarray(sigma, t_img.dtype)
         levels.append((lambda u, sg=sg, tb=tb: residuals_at(u, sg, tb, renderer.data),
                        lambda u, sg=sg, tb=tb: jacobian_at(u, sg, tb, renderer.data)))
@@ -207,8 +224,15 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
             loss_start = float(r0 @ r0)
         n_iter = 0
         value = float("nan")
+        held = np.zeros(len(u), bool)
         for level, (res_fn, jac_fn) in enumerate(levels):
-            u, value, used = _levenberg_marquardt(renderer, to_params, res_fn, jac_fn, u, iterations)
+            if level == 1 and snap:
+                for j, (name, _, _) in enumerate(names):
+                    if name in snap:
+                        u[j] = float(snap[name](u[j] * units[j])) / units[j]
+                        held[j] = True
+            u, value, used = _levenberg_marquardt(renderer, to_params, res_fn, jac_fn, u, iterations, ftol=ftol,
+                                                  held=held)
             n_iter += used
             if progress is not None:
                 progress(k, level, value)
@@ -221,7 +245,8 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
 
 
 def _levenberg_marquardt(renderer, to_params, residuals, jacobian, u: np.ndarray, iterations: int,
-                         tolerance: float = 1e-4, max_step: float = 1.0) -> tuple[np.ndarray, float, int]:
+                         tolerance: float = 1e-4, max_step: float = 1.0, ftol: float = 0.0,
+                         held: np.ndarray | None = None) -> tuple[np.ndarray, float, int]:
     """Minimise ``|residuals(u)|^2`` from ``u`` (Levenberg-Marquardt, Marquardt's scaling), the
     search refreshed at every point evaluated: each step's loss is the loss of the frame the
     compiled engine would form there. Returns ``(u, loss, iterations)``."""
@@ -230,22 +255,26 @@ def _levenberg_marquardt(renderer, to_params, residuals, jacobian, u: np.ndarray
     loss = float(r @ r)
     lam = 1e-3
     it = 0
+    slow = 0
     for it in range(1, iterations + 1):
-        jac = np.asarray(jacobian(jnp.asarray(u)), float)
+        jac = np.array(jacobian(jnp.asarray(u)), float)
+        if held is not None and held.any():
+            jac[:, held] = 0.0
         jtj = jac.T @ jac
         g = jac.T @ r
         scale = np.maximum(np.diag(jtj), 1e-12 * max(float(np.max(np.diag(jtj))), 1e-300))
         improved = False
         while lam < 1e8:
             step = -np.linalg.solve(jtj + lam * np.diag(scale), g)
-            # A trust region of one unit (5 cm, 2.5 degrees) per step: the blurred images
-            # are matched locally; a longer step may jump into another echo's basin.
+            # A trust region of one unit (5 cm, 2.5 degrees, 10 dB, ...) per step: the blurred
+            # images are matched locally (a longer step may jump into another echo's basin).
             step = step * min(1.0, max_step / max(float(np.max(np.abs(step))), 1e-300))
             trial = u + step
             renderer.refresh(to_params(jnp.asarray(trial)))
             r_new = np.asarray(residuals(jnp.asarray(trial)), float)
             new = float(r_new @ r_new)
             if np.isfinite(new) and new < loss:
+                gain = (loss - new) / loss if loss > 0 else 0.0
                 u, r, loss, improved = trial, r_new, new, True
                 lam = max(lam / 3.0, 1e-7)
                 break
@@ -253,7 +282,8 @@ def _levenberg_marquardt(renderer, to_params, residuals, jacobian, u: np.ndarray
         if not improved:
             renderer.refresh(to_params(jnp.asarray(u)))  # back to the best point's search
             break
-        if float(np.max(np.abs(step))) < tolerance:
+        slow = slow + 1 if gain < ftol and it > 3 else 0
+        if float(np.max(np.abs(step))) < tolerance or slow >= 2:
             break
     return u, loss, it
 
@@ -320,3 +350,131 @@ def fit_recording(real, scene, free: Sequence[str] = ("z", "pitch"), starts: Seq
                     domain_reason=f"by gradient ({time.perf_counter() - t0:.1f} s, {len(result.starts)} start(s))",
                     edge_correlation=edge_correlation(real, image), profile_correlation=profile_correlation(real, image))
     return replace(out, problems=fit_problems(real, out))
+
+
+#: The sensor's parameters a calibration by gradient fits (where the sensor has them).
+CALIBRATED = ("sensor.gain_db", "sensor.noise_db", "sensor.noise_after_tvg_db", "sensor.elevation_width_deg",
+              "sensor.gamma", "sensor.tvg_spreading")
+#: Blurs of a calibration's levels: the images' means first, the pixels last.
+CALIBRATION_BLURS = ((4.0, 2.0), (0.0, 0.0))
+#: Half-angles of the floor band's edges the closed-form starts take (degrees): one, in the
+#: middle of the family, by default (from 3.5, 5 and 7 degrees the real Oculus ping's
+#: calibrations end within 0.01 % of each other's loss: one floor does not tell them apart).
+CALIBRATION_HALF_ANGLES = (5.0,)
+
+
+def band_starts(real, scene, free: Sequence[str], half_angles: Sequence[float] = CALIBRATION_HALF_ANGLES) -> list[dict]:
+    """Closed-form starts from the recording's floor band: for each half-angle of its edges,
+    the height, pitch and roll that put the band where it is (:mod:`sonarsim.analysis.bandpose`)
+    and an elevation width of the pattern whose edges those are; ``[{}]`` where the band does
+    not give them (no band, or no pose parameter it tells is free)."""
+    from ..analysis.bandpose import fit_band_lines, pose_for_half_angle, pose_from_near_edge
+    from ..analysis.calibration import EDGE_RATIO
+    from ..analysis.fitting import floor_band_m
+
+    if not {"z", "pitch", "roll"} & set(free):
+        return [{}]
+    ground = scene.ground.offset_m if scene.ground is not None else 0.0
+    try:
+        near, far = floor_band_m(real)
+        lines = fit_band_lines(real.azimuth_deg, near, far)
+    except ValueError:
+        return [{}]
+    out = []
+    for h in half_angles:
+        try:
+            z, pitch, roll = (pose_for_half_angle(lines, h) if lines.both_edges
+                              else pose_from_near_edge(lines, scene.sonar_pose.position_m[2] - ground, h))
+        except ValueError:
+            continue
+        start = {k: v for k, v in (("z", z + ground), ("pitch", pitch), ("roll", roll)) if k in free}
+        start["sensor.elevation_width_deg"] = float(h) / EDGE_RATIO
+        out.append(start)
+    return out or [{}]
+
+
+def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"), starts: Sequence[Mapping] | None = None,
+                        iterations: int = 10, ftol: float = 1e-3, progress=None):
+    """Fit the sensor (:data:`CALIBRATED`) and the pose parameters ``free`` to one frame of a
+    recording by gradient: the expected output against the frame's counts, pixel by pixel,
+    after blurs from coarse to none (:data:`CALIBRATION_BLURS`), from the floor band's
+    closed-form starts (:func:`band_starts`), the best start kept.
+
+    Parameters
+    ----------
+    real : SonarImage
+        The frame, in the device's counts (8-bit: 0-255).
+    scene : Scene
+        The scene behind it: its sensor, or the calibration's generic start
+        (:data:`sonarsim.analysis.calibration.STARTING_SENSOR`), and its pose.
+    free : sequence of str
+        Pose names fitted as well.
+    starts : sequence of dict, optional
+        Default :func:`band_starts`.
+    iterations : int
+        Levenberg-Marquardt steps per level.
+
+    Returns
+    -------
+    CalibrationResult
+        As :func:`sonarsim.analysis.calibration.calibrate` returns it: the calibrated scene on
+        the recording's grid (the TVG law's coefficient the nearest the scene format allows
+        to the coarse level's, held at the finer), the values (sensor keys without their
+        ``sensor.`` prefix), the PSNR on the frame at the start and at the end, the expected
+        render (the compiled engine's), the starts, the laws and the frame's trivial
+        baselines; ``renders`` counts the searches run.
+    """
+    from dataclasses import replace
+
+    from ..analysis import metrics
+    from ..analysis.baselines import baseline_images
+    from ..analysis.calibration import STARTING_SENSOR, CalibrationResult
+    from ..analysis.fitting import check_overlap, recording_geometry
+    from ..config.sensor import TVG_SPREADING, parse_sensor
+    from ..renderer.simulator import Simulator
+    from .params import scene_with
+    from .renderer import Renderer
+
+    check_overlap(real, scene)
+    spec = scene.sensor if scene.sensor is not None else parse_sensor(STARTING_SENSOR)
+    fitted = replace(scene, sonar=recording_geometry(real, scene), sensor=spec)
+    r = Renderer(fitted, attach="surfaces")
+    searches = {"n": 0}
+    refresh = r.refresh
+
+    def counted(params=None):
+        searches["n"] += 1
+        return refresh(params)
+
+    r.refresh = counted
+    names = [n for n in free] + [k for k in CALIBRATED if k in r.names]
+    target = np.asarray(real.polar, float)
+    starts = list(starts) if starts is not None else band_starts(real, fitted, free)
+    full = float(spec.output.full_scale) if spec.output is not None else float(np.max(target))
+    # The TVG law's coefficient is fitted at the coarse level, then set to the nearest the
+    # scene format allows and held while the rest is fitted again.
+    nearest = {"sensor.tvg_spreading": lambda v: min(TVG_SPREADING, key=lambda w: abs(w - v))}
+    result = fit(r, target, free=names, starts=starts, blurs=CALIBRATION_BLURS, iterations=iterations,
+                 scale=full, linear=True, progress=progress, ftol=ftol, snap=nearest)
+    values = dict(result.values)
+    params = {k: v for k, v in values.items() if k.startswith("sensor.")}
+    pose = {"sonar.position_m": np.asarray(result.params["sonar.position_m"], float),
+            "sonar.rpy_deg": np.asarray(result.params["sonar.rpy_deg"], float)}
+    calibrated = scene_with(fitted, {**pose, **params})
+    with Simulator(calibrated) as sim:
+        expected = sim.render(speckle=False, keep_rays=False)
+    out_spec = calibrated.sensor
+    peak = float(out_spec.output.full_scale) if out_spec.output is not None else float(np.max(target))
+    start_mse = result.loss_start * full ** 2  # the finest level's loss is the MSE over full scale squared
+    law = {"compression": None if out_spec.output is None else out_spec.output.compression,
+           "spreading": None if out_spec.tvg is None else out_spec.tvg.spreading,
+           "shape": None if out_spec.output is None else out_spec.output.gamma}
+    return CalibrationResult(
+        scene=calibrated, values={k.replace("sensor.", "", 1): v for k, v in values.items()},
+        psnr_db=metrics.psnr(target, expected.polar, data_range=peak),
+        psnr_start_db=float(10 * np.log10(peak ** 2 / start_mse)) if start_mse > 0 else float("inf"),
+        renders=searches["n"], expected=expected,
+        starts=[{"start": dict(st.start), "values": dict(st.values), "loss": st.loss, "seconds": st.seconds}
+                for st in result.starts],
+        baselines={k: metrics.psnr(target, img, data_range=peak) for k, img in baseline_images(target).items()},
+        law=law)
