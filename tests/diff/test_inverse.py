@@ -88,3 +88,25 @@ def test_calibration_by_gradient_on_a_real_oculus_ping_holds_on_the_others(share
         np.testing.assert_array_equal(sim.render(speckle=False).polar, res.expected.polar)
     assert set(res.baselines) == {"range profile", "separable", "ceiling"}
     assert scores["model"]["margin_db"] > -1.0  # beside the trivial baselines (reported in the note)
+
+
+def test_calibrate_by_gradient_without_jax_names_the_extra(tmp_path, capsys, monkeypatch):
+    import importlib.util
+
+    import sonarsim
+    from sonarsim.cli.main import main
+
+    doc = {"sonar": {"preset": "oculus-m1200d-hf", "pose": {"position_m": [0, 0, 0.4], "rpy_deg": [0, 28, 0]}},
+           "ground": {}, "render": {"bounces": [1]}}
+    sonarsim.render(sonarsim.load_scene(doc)).save_npz(tmp_path / "real.npz")
+    (tmp_path / "s.yaml").write_text(__import__("yaml").safe_dump(doc))
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "jax" else find_spec(name, *a))
+    try:
+        status = main(["calibrate", str(tmp_path / "real.npz"), "--scene", str(tmp_path / "s.yaml"), "--method",
+                       "gradient", "--out", str(tmp_path / "c.yaml")])
+    except SystemExit as exc:
+        status = exc.code
+    err = capsys.readouterr().err
+    assert status == 2 and "pip install 'sonarsim[diff]'" in err and "Traceback" not in err
+    assert not (tmp_path / "c.yaml").exists()
