@@ -323,14 +323,6 @@ def fit_recording(real, scene, free: Sequence[str] = ("z", "pitch"), starts: Seq
     geometry = recording_geometry(real, scene)
     fitted_scene = replace(scene, sonar=geometry)
     r = Renderer(fitted_scene, attach="surfaces")
-    counted = {"n": 0}
-    refresh = r.refresh
-
-    def counting_refresh(params=None):
-        counted["n"] += 1
-        return refresh(params)
-
-    r.refresh = counting_refresh
     normalise = scene.sensor is None
     start = pose_values(scene.sonar_pose)
     t0 = time.perf_counter()
@@ -345,7 +337,7 @@ def fit_recording(real, scene, free: Sequence[str] = ("z", "pitch"), starts: Seq
     d = floor_onset_m(image) - real_view.near
     onset = float(np.sqrt(np.nanmean(d ** 2))) if np.isfinite(d).any() else float("nan")
     out = FitResult(pose=pose, free=free, domain="image", start=start, values=values, cost_start=start_loss,
-                    cost=result.loss, onset_rms_m=onset, renders=counted["n"], image=image,
+                    cost=result.loss, onset_rms_m=onset, renders=r.searches, image=image,
                     scene=replace(fitted_scene, sonar_pose=pose),
                     domain_reason=f"by gradient ({time.perf_counter() - t0:.1f} s, {len(result.starts)} start(s))",
                     edge_correlation=edge_correlation(real, image), profile_correlation=profile_correlation(real, image))
@@ -439,14 +431,6 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
     spec = scene.sensor if scene.sensor is not None else parse_sensor(STARTING_SENSOR)
     fitted = replace(scene, sonar=recording_geometry(real, scene), sensor=spec)
     r = Renderer(fitted, attach="surfaces")
-    searches = {"n": 0}
-    refresh = r.refresh
-
-    def counted(params=None):
-        searches["n"] += 1
-        return refresh(params)
-
-    r.refresh = counted
     names = [n for n in free] + [k for k in CALIBRATED if k in r.names]
     target = np.asarray(real.polar, float)
     starts = list(starts) if starts is not None else band_starts(real, fitted, free)
@@ -473,7 +457,7 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
         scene=calibrated, values={k.replace("sensor.", "", 1): v for k, v in values.items()},
         psnr_db=metrics.psnr(target, expected.polar, data_range=peak),
         psnr_start_db=float(10 * np.log10(peak ** 2 / start_mse)) if start_mse > 0 else float("inf"),
-        renders=searches["n"], expected=expected,
+        renders=r.searches, expected=expected,
         starts=[{"start": dict(st.start), "values": dict(st.values), "loss": st.loss, "seconds": st.seconds}
                 for st in result.starts],
         baselines={k: metrics.psnr(target, img, data_range=peak) for k, img in baseline_images(target).items()},

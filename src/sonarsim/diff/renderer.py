@@ -104,6 +104,7 @@ class Renderer:
         self._jitted: dict = {}
         self.search: Search | None = None
         self._capacity = 1024
+        self.searches = 0  # searches run (refresh): what a fit reports as its renders
         self._face_capacity = [64] * len(scene.objects)
         self.refresh()
 
@@ -140,6 +141,7 @@ class Renderer:
         large steps the held search no longer matches what the parameters would meet. The
         sonar's pose, the objects and the planes are searched where ``params`` puts them; the
         sensor's parameters do not move the search (the rays stay the scene's fan)."""
+        self.searches += 1
         values = {k: np.asarray(v, float) for k, v in (params or {}).items() if not k.startswith("sensor.")}
         self._complete(values)  # unknown keys and shapes refused by name
         moved = [k for k, v in values.items() if not k.startswith("sonar.") and not np.array_equal(v, self._defaults[k])]
