@@ -166,3 +166,88 @@ def test_paths_are_the_held_searchs_with_the_compiled_ranges():
     assert paths["distance"].shape == (n,) and paths["point"].shape == (n, 3)
     # The compiled engine's ranges, formed again from the geometry (float32 hits there).
     np.testing.assert_allclose(np.asarray(paths["distance"]), r.search.distance[:n], rtol=0, atol=2e-6)
+
+
+def _tank(**render):
+    d = tank_scene_dict()
+    d["render"].update(render)
+    return d
+
+
+def _textured_ground():
+    d = tank_scene_dict()
+    d["ground"]["texture"] = {"std_db": 3.0, "correlation_m": [0.3, 0.3], "seed": 1}
+    return d
+
+
+def _demo(**render):
+    d = demo_scene_dict()
+    d["render"] = {**d.get("render", {}), **render}
+    return d
+
+
+def _oculus_corrected():
+    d = {**OCULUS, "sensor": {"preset": "oculus-m1200d-hf",
+                              "elevation_pattern": {"shape": "gaussian", "width_deg": 10.0, "correction_db": [-3, 2, -3]}}}
+    return d
+
+
+@pytest.mark.parametrize("make", [
+    lambda: _tank(double_beam="split"), lambda: _tank(double_beam="separate"), lambda: _tank(double_line_of_sight=True),
+    _textured_ground, lambda: _demo(range_splat=False), lambda: _demo(tvg=False),
+    lambda: _demo(beam_pattern="gaussian", azimuth_samples=3), _oculus_corrected,
+], ids=["split", "separate", "line-of-sight", "textured-ground", "no-splat", "no-tvg", "gaussian-3-azimuth",
+        "elevation-correction"])
+@pytest.mark.parametrize("attach", ["rays", "surfaces"])
+def test_render_settings_and_sensors_equal_the_compiled_engine(make, attach):
+    doc = make()
+    with Simulator(doc) as sim:
+        ref = sim.render(speckle=False).polar
+    assert rel_l1(sd.Renderer(doc, attach=attach).render(), ref) < 1e-3
+
+
+def test_a_texture_scales_a_rough_objects_diffuse_part_not_its_lobe():
+    from dataclasses import replace
+
+    from sonarsim.config.materials import Material
+    from sonarsim.config.scene import ground_plane
+    from sonarsim.core.transforms import Pose
+    from tests.renderer.test_textures import textured_quad, wall_scene
+
+    for texture in (True, False):
+        material = Material("rough", albedo=0.7, specular_strength=0.5, roughness=0.3, texture=texture)
+        scene = wall_scene(material, d=3.0, mesh=textured_quad(height_m=1.0),
+                           ground=ground_plane(0.0, material=Material("lambert", mu=0.01), specular=0.5))
+        scene = replace(scene, sonar_pose=Pose((0.0, 0.0, 0.5), (0.0, 10.0, 0.0)))
+        with Simulator(scene) as sim:
+            ref = sim.render(speckle=False)
+        mine = sd.Renderer(scene).components()
+        for k in ("total", "object", "double"):
+            assert rel_l1(mine[k], ref.components[k]) < 1e-3, (texture, k)
+
+
+def test_an_empty_search_renders_nothing_and_a_sonar_on_a_plane_is_refused():
+    doc = demo_scene_dict()
+    doc.pop("ground")
+    doc["objects"] = []
+    r = sd.Renderer(doc)
+    assert r.search.n_paths == 0 and float(np.abs(np.asarray(r.render())).sum()) == 0.0
+    doc = demo_scene_dict()
+    doc["sonar"]["pose"]["position_m"] = [0.0, 0.0, 0.0]
+    with pytest.raises(ConfigError, match="lies on the plane 'ground'"):
+        sd.Renderer(doc)
+
+
+def test_refresh_moves_only_geometry_and_takes_float32_values_as_they_are():
+    r = sd.Renderer(demo_scene_dict(), dtype="float32")
+    r.refresh(r.params())  # float32-rounded values are the scene's: no object rebuilt as a mesh
+    assert r.searches == 2
+    r = sd.Renderer(demo_scene_dict())
+    p = r.params()
+    # A law's value beyond the scene format's bounds (a fit may go there) does not move the search.
+    r.refresh({**p, "objects.concrete_block.albedo": jnp.asarray(1.4)})
+    assert float(np.asarray(r.render({**p, "objects.concrete_block.albedo": jnp.asarray(1.4)})).sum()) > 0
+    with pytest.raises(ConfigError, match="sonar.position_m: must be finite"):
+        r.render({**p, "sonar.position_m": jnp.asarray([np.nan, 0.0, 1.0])})
+    # A list is taken as an array.
+    assert r.render({"sonar.position_m": [0.0, 0.0, 1.0]}).shape == (1288, 128)

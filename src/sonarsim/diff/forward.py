@@ -117,6 +117,8 @@ def law_table(params: dict, surfaces: tuple[tuple[str, str], ...]) -> tuple[jax.
         else:
             strength.append(jnp.zeros(()))
             rough.append(jnp.ones(()))
+    if not coef:  # no surface at all: a stand-in (nothing is met)
+        return jnp.zeros(1), jnp.zeros(1), jnp.ones(1)
     return jnp.stack(coef), jnp.stack(strength), jnp.stack(rough)
 
 
@@ -169,6 +171,8 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
     n_planes = len(static.planes)  # (the plane table has a stand-in row where there is none)
     surf_n = jnp.concatenate([normal[:n_planes], tri_n])
     surf_off = jnp.concatenate([offset[:n_planes], tri_off])
+    if surf_n.shape[0] == 0:  # nothing to meet (an empty search): the stand-in row
+        surf_n, surf_off = normal[:1], offset[:1]
     ns = surf_n[data["surface"]]
     dn = _dot(d, ns)
     t = (surf_off[data["surface"]] - _dot(o, ns)) / dn
@@ -178,7 +182,7 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
 
     coef, strength, rough = law_table(params, static.surfaces)
     sid = data["sid"]
-    f = coef[sid] * cos
+    f = coef[sid] * data["texel"] * cos  # a texture scales the diffuse part, not the lobe
     if static.rough:
         f = f + strength[sid] * specular_lobe(cos, rough[sid])
     intensity = weight * f * data["factor"]

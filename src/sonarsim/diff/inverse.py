@@ -105,6 +105,10 @@ def compress_scale(target: np.ndarray) -> float:
 def _names(free: Sequence[str], params: Mapping[str, Any]) -> list[tuple[str, str, int | None]]:
     """``(name, key, index)`` of each free parameter (a pose name, or a scalar key)."""
     out = []
+    if not len(free):
+        raise ConfigError("free", "no free parameter: name at least one (pose names or scalar keys)")
+    if len(set(free)) != len(free):
+        raise ConfigError("free", f"names a parameter twice: {', '.join(free)}")
     for name in free:
         if name in POSE_KEYS:
             key, index = POSE_KEYS[name]
@@ -165,12 +169,16 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
     GradientFit
     """
     t0 = time.perf_counter()
+    if not len(blurs):
+        raise ConfigError("blurs", "no level: give at least one blur width (0, 0: none)")
     base = {**renderer.params(), **({} if base is None else {k: jnp.asarray(v) for k, v in base.items()})}
     names = _names(free, base)
     target = np.asarray(target, float)
     expected = tuple(renderer.render(base).shape)
     if target.shape != expected:
         raise ConfigError("target", f"has shape {target.shape}; the renderer forms {expected}")
+    if not np.all(np.isfinite(target)):
+        raise ConfigError("target", "must be finite (it holds NaN or infinite values)")
     s = compress_scale(target) if scale is None else float(scale)
     if normalise and scale is None:
         s = 0.1  # of the mean
@@ -225,17 +233,27 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
         n_iter = 0
         value = float("nan")
         held = np.zeros(len(u), bool)
+
+        def snapped(u):
+            for j, (name, _, _) in enumerate(names):
+                if snap and name in snap:
+                    u[j] = float(snap[name](u[j] * units[j])) / units[j]
+                    held[j] = True
+            return u
+
         for level, (res_fn, jac_fn) in enumerate(levels):
-            if level == 1 and snap:
-                for j, (name, _, _) in enumerate(names):
-                    if name in snap:
-                        u[j] = float(snap[name](u[j] * units[j])) / units[j]
-                        held[j] = True
+            if level == 1:
+                u = snapped(u)
             u, value, used = _levenberg_marquardt(renderer, to_params, res_fn, jac_fn, u, iterations, ftol=ftol,
                                                   held=held)
             n_iter += used
             if progress is not None:
                 progress(k, level, value)
+        if snap and not held.any() and any(name in snap for name, _, _ in names):  # one level: snapped at the end
+            u = snapped(u)
+            renderer.refresh(to_params(jnp.asarray(u)))
+            r_end = np.asarray(levels[-1][0](jnp.asarray(u)), float)
+            value = float(r_end @ r_end)
         results.append(StartResult(dict(start), values_of(u), value, n_iter, time.perf_counter() - ts))
         if best is None or value < best[1]:
             best = (u, value)

@@ -124,8 +124,14 @@ def scene_with(scene: Scene, params: dict) -> Scene:
 
             local = object_mesh_local(obj)
             vertices = v.get(f"{p}.vertices_m", base[f"{p}.vertices_m"])
+            visual = None
+            if local.uv is not None and local.texture is not None:  # a textured mesh keeps its texture
+                from PIL import Image
+
+                image = Image.fromarray(np.round(np.clip(local.texture, 0.0, 1.0) * 255.0).astype(np.uint8))
+                visual = trimesh.visual.TextureVisuals(uv=np.asarray(local.uv), image=image)
             changes.update(primitive=None, size_m=None, radius_m=None, height_m=None,
-                           mesh=trimesh.Trimesh(vertices, np.asarray(local.faces), process=False),
+                           mesh=trimesh.Trimesh(vertices, np.asarray(local.faces), visual=visual, process=False),
                            scale=tuple(float(s) for s in v.get(f"{p}.scale", base[f"{p}.scale"])))
         material = _material_with(obj.backscatter, p, v)
         if material != obj.backscatter:  # the albedo shorthand stays one

@@ -25,6 +25,10 @@ from .params import scene_params, scene_with, surface_laws
 from .search import Search, padded_size, record_search
 
 
+#: The parameters that move the search (the rest are re-formed on the held search exactly).
+GEOMETRY = (".position_m", ".rpy_deg", ".scale", ".vertices_m", ".offset_m", ".normal")
+
+
 @dataclass(frozen=True)
 class Static:
     """What the forward function is compiled for (hashable: ``jax.jit``'s static argument)."""
@@ -129,10 +133,14 @@ class Renderer:
             raise ConfigError(unknown[0], f"no such parameter in this scene; its parameters: {', '.join(out)}")
         for k, v in params.items():
             shape = np.shape(self._defaults[k])
+            if not isinstance(v, (jax.Array, jax.core.Tracer, np.ndarray)):
+                v = np.asarray(v, float)  # a list or a number
             if jnp.shape(v) != shape:
                 raise ConfigError(k, f"has shape {jnp.shape(v)}; expected {shape}")
+            if not isinstance(v, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(v))):
+                raise ConfigError(k, "must be finite")
             out[k] = v
-        return {k: jnp.asarray(v, self.dtype) if isinstance(v, (np.ndarray, float, int)) else v for k, v in out.items()}
+        return {k: v if isinstance(v, jax.core.Tracer) else jnp.asarray(v, self.dtype) for k, v in out.items()}
 
     # The held search -------------------------------------------------------------------------
 
@@ -142,9 +150,14 @@ class Renderer:
         sonar's pose, the objects and the planes are searched where ``params`` puts them; the
         sensor's parameters do not move the search (the rays stay the scene's fan)."""
         self.searches += 1
-        values = {k: np.asarray(v, float) for k, v in (params or {}).items() if not k.startswith("sensor.")}
-        self._complete(values)  # unknown keys and shapes refused by name
-        moved = [k for k, v in values.items() if not k.startswith("sonar.") and not np.array_equal(v, self._defaults[k])]
+        self._complete(params)  # unknown keys and shapes refused by name
+        # Only geometry moves the search (laws, reflectances and the sensor do not: they are
+        # not even checked against the scene format's bounds here); a value within float32's
+        # round-off of the scene's has not moved.
+        values = {k: np.asarray(v, float) for k, v in (params or {}).items() if k.endswith(GEOMETRY)}
+        moved = [k for k, v in values.items() if not k.startswith("sonar.")
+                 and not np.allclose(v, self._defaults[k], rtol=1e-6, atol=1e-9)]
+        values = {k: v for k, v in values.items() if k.startswith("sonar.") or k in moved}
         scene = scene_with(self.scene, values) if values else self.scene
         if moved:
             with Simulator(replace(scene, sensor=self.scene.sensor)) as sim:
@@ -178,7 +191,9 @@ class Renderer:
             data["step_minus"] = jnp.asarray(np.where(minus != beam, centre[minus] - centre[beam], np.inf), self.dtype)
         # The hit triangles of each object, padded (with its first face) to a size that only
         # grows, and the paths' scatterer rows moved to the padded table.
-        faces, start, row_of = [], search.n_planes, np.arange(search.n_planes + len(search.faces))
+        # (at least one row: an empty search's padding points at row 0, which the plane table
+        # always has, a stand-in where there is no plane)
+        faces, start, row_of = [], search.n_planes, np.arange(max(search.n_planes + len(search.faces), 1))
         for k in range(len(self.scene.objects)):
             rows = np.flatnonzero(search.faces[:, 0] == k)
             hit = search.faces[rows, 1]
@@ -212,6 +227,11 @@ class Renderer:
         takes beside the parameters. A new object after each :meth:`refresh`."""
         return self._data
 
+    def _image_static(self) -> Static:
+        """What the image alone is compiled for: the signatures' count and the stack's rows
+        are the components' (a refresh that changes them does not compile the image again)."""
+        return Static(**{**self.static.__dict__, "n_rows": 0, "n_signatures": 0})
+
     def image_function(self):
         """The pure function ``f(params, data) -> image`` behind :meth:`render` (``params``
         complete: every key of :meth:`params`).
@@ -220,14 +240,14 @@ class Renderer:
         argument: a ``jit`` that calls :meth:`render` reads the search as it was when the
         function was traced, and a later :meth:`refresh` does not reach it.
         """
-        fn, static = self._function("image"), self.static
+        fn, static = self._function("image"), self._image_static()
         dtype = self.dtype
         return lambda params, data: fn(params, data, static).astype(dtype)
 
     def render(self, params: Mapping[str, Any] | None = None) -> jax.Array:
         """The expected image (n_range_bins, n_beams): the total of ``render.bounces``, or,
         with a ``sensor:`` section, the sensor's expected output (no speckle, no noise draws)."""
-        return self._function("image")(self._complete(params), self._data, self.static).astype(self.dtype)
+        return self._function("image")(self._complete(params), self._data, self._image_static()).astype(self.dtype)
 
     def paths(self, params: Mapping[str, Any] | None = None) -> dict[str, jax.Array]:
         """The frame's paths as the forward forms them, one entry per path of the held search:

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config.scene import ON_PLANE_TOLERANCE_M, check_sonar_position
 from ..paths.engine import SAME, SonarView, path_name, set_continuity
 from ..renderer.components import stack_rows
 from ..renderer.simulator import Simulator
@@ -65,8 +66,8 @@ class Search:
     beam : (C,) int64
         Beam the path is recorded in.
     factor : (C,) float64
-        Held factors: 0.5 for each half of a ``double_beam: split`` pair, textures'
-        reflectivity at the scatterer; 0 on padding.
+        Held factors of the whole weight: 0.5 for each half of a ``double_beam: split`` pair,
+        a textured plane's reflectivity at the scatterer; 0 on padding.
     down, up : (C,) int64
         The path's neighbour below and above in its ray column within its path set (itself
         where there is none).
@@ -75,6 +76,9 @@ class Search:
     signature : (C,) int64
         Index into :attr:`signatures`.
     live : (C,) bool
+    texel : (C,) float64
+        A textured object's texture at its scatterer (1 elsewhere): it scales the law's
+        diffuse coefficient only, not a rough law's lobe.
     uv : (C, 2) float64
         Where an object's scatterer lies on its triangle of :attr:`faces` (its own face's
         corners ``a, b, c``: ``A = (1 - u - v) a + u b + v c``); 0 for planes.
@@ -109,6 +113,7 @@ class Search:
     signature: np.ndarray
     live: np.ndarray
     uv: np.ndarray
+    texel: np.ndarray
     distance: np.ndarray
     faces: np.ndarray
     signatures: tuple[str, ...]
@@ -122,7 +127,7 @@ class Search:
     def arrays(self) -> dict[str, np.ndarray]:
         """The per-path arrays and :attr:`faces`, by name (what the forward function reads)."""
         names = ("ray", "gen", "rx_planes", "surface", "sid", "same", "tx_planes", "label", "beam", "factor",
-                 "down", "up", "has_down", "has_up", "signature", "live", "uv")
+                 "down", "up", "has_down", "has_up", "signature", "live", "uv", "texel")
         return {k: getattr(self, k) for k in names}
 
 
@@ -202,7 +207,12 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
     """
     scene = sim.scene
     render = scene.render
-    pose = pose if pose is not None else scene.sonar_pose
+    given = pose is not None
+    pose = pose if given else scene.sonar_pose
+    if len(sim.planes) and np.abs(sim.planes.signed_distance(pose.translation)).min() < ON_PLANE_TOLERANCE_M:
+        # As Simulator.render refuses it: a sonar on a plane sees nothing it can be sure of.
+        check_sonar_position(scene.reflecting_planes, pose.position_m, "sonar.position_m" if given else
+                             "sonar.pose.position_m")
     sonar = sim.traced_sonar(scene.sonar)
     fan = sim.ray_fan(scene.sonar)
     active, multipath, reach = sim.frame_reach(sonar, pose)
@@ -223,19 +233,20 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
         key = np.asarray(leg.key(n_surfaces)).copy()
         cont = set_continuity(np.asarray(leg.point), np.asarray(leg.normal), key, n_el)
         texture = np.ones(len(leg.sid))
-        if any(f is not None for f in sim.textures):
+        if any(f is not None for f in sim.textures):  # a plane's texture scales its whole weight
             scale_by_texture(texture, np.asarray(leg.sid), np.asarray(leg.point), sim.textures)
+        texel = np.ones(len(leg.sid))  # an object's texture scales its diffuse part only
         if leg.texel is not None:
-            texture = texture * np.where(np.asarray(leg.sid) >= n_planes, np.asarray(leg.texel, float), 1.0)
+            texel = np.where(np.asarray(leg.sid) >= n_planes, np.asarray(leg.texel, float), 1.0)
         per_gen.append(dict(sid=np.asarray(leg.sid).copy(), chain=np.asarray(leg.chain).copy(),
                             prim=None if leg.prim is None else np.asarray(leg.prim).copy(), cont=cont,
-                            texture=texture))
+                            texture=texture, texel=texel))
 
     max_rx = max(len(legs) - 1, 0)
     max_tx = max([len(c) for c in table.chains] + [1]) if table is not None else 1
     cols: dict[str, list] = {k: [] for k in ("ray", "gen", "rx", "sid", "prim", "same", "tx", "label", "beam",
                                              "factor", "down", "up", "has_down", "has_up", "sig", "distance",
-                                             "point")}
+                                             "point", "texel")}
     signatures: dict[str, int] = {}
     start = 0
     for s in sets:
@@ -286,7 +297,7 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
                         ("same", np.full(m, s.tx == SAME)), ("tx", tx), ("label", np.asarray(s.label, np.int64)),
                         ("beam", np.asarray(s.beam, np.int64)), ("factor", factor), ("down", down), ("up", up),
                         ("has_down", has_down), ("has_up", link), ("sig", sig),
-                        ("distance", np.asarray(s.distance, np.float64)),
+                        ("distance", np.asarray(s.distance, np.float64)), ("texel", g["texel"][ray]),
                         ("point", np.asarray(legs[s.gen].point)[ray].astype(np.float64))):
             cols[name].append(v)
         start += m
@@ -338,6 +349,7 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
     return Search(
         n_paths=n, **arrays, factor=cat("factor", dtype=np.float64, fill=0.0), down=down, up=up,
         has_down=cat("has_down", dtype=bool, fill=False), has_up=cat("has_up", dtype=bool, fill=False),
-        signature=cat("sig"), live=live, uv=uv, distance=cat("distance", dtype=np.float64, fill=np.inf), faces=np.asarray(faces, np.int64).reshape(-1, 2),
+        signature=cat("sig"), live=live, uv=uv, texel=cat("texel", dtype=np.float64, fill=1.0),
+        distance=cat("distance", dtype=np.float64, fill=np.inf), faces=np.asarray(faces, np.int64).reshape(-1, 2),
         signatures=tuple(signatures), n_rows=stack_rows(render.max_order), n_planes=n_planes,
     )

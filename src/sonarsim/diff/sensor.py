@@ -74,6 +74,8 @@ class SensorStatic:
     tvg: bool
     tvg_absorption: bool
     span0_deg: float
+    span_given: float | None = None  # the elevation pattern's span_deg
+    correction: tuple | None = None  # the elevation pattern's correction_db
 
 
 def _line_amplitude(u: jax.Array, window: tuple) -> jax.Array:
@@ -134,6 +136,8 @@ class SensorPart:
             has_noise=spec.noise is not None, has_after_tvg=spec.noise is not None and spec.noise.after_tvg_db is not None,
             tvg=spec.tvg is not None, tvg_absorption=spec.tvg is not None and spec.tvg.absorption,
             span0_deg=float(model.elevation_span_deg()),
+            span_given=None if ep is None or ep.span_deg is None else float(ep.span_deg),
+            correction=None if ep is None or ep.correction_db is None else tuple(float(c) for c in ep.correction_db),
         )
         self._speckled = speckled
         # The rays without the elevation pattern's gain (it is formed again from the width).
@@ -226,7 +230,12 @@ def fan_rays(params: dict, data: dict, st: SensorStatic) -> tuple[jax.Array, jax
     k = data["s_elevation_index"]
     span = jnp.minimum(3.0 * width, 170.0) if st.span_follows_width else st.span0_deg
     phi = data["s_frac"] * span * (jnp.pi / 180.0)  # (n_elevation,): one gain per elevation sample
-    gain = pattern_gain(phi, st.elevation, st.elevation_window, width, ways=2)[k]
+    gain = pattern_gain(phi, st.elevation, st.elevation_window, width, ways=2)
+    if st.correction is not None:  # its departure from the shape, over its span (which may follow the width)
+        half = (st.span_given if st.span_given is not None else jnp.minimum(3.0 * width, 170.0)) / 2.0
+        knots = jnp.linspace(-half, half, len(st.correction))
+        gain = gain * jnp.interp(phi * (180.0 / jnp.pi), knots, 10.0 ** (jnp.asarray(st.correction) / 10.0))
+    gain = gain[k]
     if st.span_follows_width:
         phi, theta = phi[k], data["s_theta"]
         direction = jnp.stack([jnp.cos(phi) * jnp.cos(theta), jnp.cos(phi) * jnp.sin(theta), jnp.sin(phi)], axis=1)
