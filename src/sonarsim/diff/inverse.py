@@ -81,9 +81,9 @@ def blur(image: jax.Array, sigma, pad: tuple[int, int] | None = None) -> jax.Arr
     """A separable Gaussian blur of ``sigma`` (range bins, beams; may be traced), zero outside
     the image: by FFT over the image padded with ``pad`` zeros on each side of each axis
     (default three sigmas), so that one compiled function serves every width up to the pad."""
+    if pad is None:  # (a width given as numbers; a traced width needs its pad)
+        pad = tuple(int(math.ceil(3.0 * float(v))) + 1 for v in sigma)
     sigma = jnp.asarray(sigma, image.dtype)
-    if pad is None:
-        pad = tuple(int(math.ceil(3.0 * float(v))) + 1 for v in np.asarray(sigma))
     x = jnp.pad(image, ((pad[0], pad[0]), (pad[1], pad[1])))
     for axis in (0, 1):
         n = x.shape[axis]
