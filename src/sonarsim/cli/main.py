@@ -84,6 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .demo import add_demo_parser
     from .fit import add_fit_parser
     from .presets import add_presets_parser
+    from .reconstruct import add_reconstruct_parser
     from .render import add_render_parser
     from .show import add_show_parser
     from .view import add_view_parser
@@ -113,6 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_compare_parser(sub)
     add_fit_parser(sub)
     add_calibrate_parser(sub)
+    add_reconstruct_parser(sub)
     # Looking: a scene in 3D with its live images, or a recording's frames, in the browser.
     add_view_parser(sub)
     return parser

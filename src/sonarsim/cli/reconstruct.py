@@ -1,0 +1,159 @@
+"""``sonarsim reconstruct``: the sea floor's height field from images with known sonar poses.
+
+Writes ``heights_m`` (ny, nx), ``x_m``, ``y_m``, ``seen`` (the grid's vertices some image's
+paths met) and ``loss`` (per round) to ``--out`` (an NPZ), and a figure beside it: start |
+reconstructed | error where ``--truth`` gives the true floor (a mesh file), else start |
+reconstructed. Needs the differentiable engine: ``pip install 'sonarsim[diff]'``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError, SonarsimError
+
+
+def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{what}: expected {n} numbers separated by commas, got {text!r}") from None
+    if len(values) != n or not all(np.isfinite(values)):
+        raise argparse.ArgumentTypeError(f"{what}: expected {n} finite numbers separated by commas, got {text!r}")
+    return values
+
+
+def _extent(text: str) -> tuple[float, ...]:
+    return _floats(text, 4, "--extent x0,x1,y0,y1")
+
+
+def _resolution(text: str) -> float:
+    (value,) = _floats(text, 1, "--resolution")
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"--resolution: must be positive, got {text!r}")
+    return value
+
+
+def add_reconstruct_parser(sub) -> argparse.ArgumentParser:
+    """Add the ``reconstruct`` sub-command to an argparse sub-parser collection."""
+    p = sub.add_parser(
+        "reconstruct", help="the sea floor's height field from images with known sonar poses (needs the diff extra)",
+        description="Reconstruct the sea floor's heights over --extent, on a grid of --resolution metres, from "
+        "one or more images (render.npz files, which carry their sonar pose, or recordings with --poses) by "
+        "gradient with the differentiable engine. Writes heights_m, x_m, y_m, seen and loss to --out (NPZ) and "
+        "a figure beside it (start | reconstructed | error with --truth).",
+    )
+    p.add_argument("images", nargs="+", help="render.npz files (their poses are read) or recordings (with --poses)")
+    p.add_argument("--scene", required=True, help="the starting scene (its sonar, objects; its ground is replaced)")
+    p.add_argument("--extent", required=True, type=_extent, help="x0,x1,y0,y1 of the floor to reconstruct, metres")
+    p.add_argument("--resolution", required=True, type=_resolution, help="grid spacing, metres")
+    p.add_argument("--out", required=True, help="where to write the heights (NPZ)")
+    p.add_argument("--poses", default=None, help="YAML or JSON list of {position_m, rpy_deg}, one per image "
+                   "(default: each render.npz's own pose)")
+    p.add_argument("--truth", default=None, help="a mesh file of the true floor: the figure shows the error")
+    p.add_argument("--smoothness", type=float, default=1e-3, help="weight of the heights' smoothness (default 1e-3)")
+    p.set_defaults(func=cmd_reconstruct)
+    return p
+
+
+def _poses(args, images) -> list:
+    from ..config.loader import parse_pose, read_document
+
+    if args.poses is None:
+        missing = [path for path, img in zip(args.images, images) if getattr(img, "pose", None) is None]
+        if missing:
+            raise SonarsimError(f"{missing[0]}: carries no sonar pose (a recording); give --poses")
+        return [img.pose for img in images]
+    doc = read_document(Path(args.poses))
+    if not isinstance(doc, list) or len(doc) != len(images):
+        raise ConfigError("--poses", f"must list one pose per image ({len(images)}), got "
+                          f"{len(doc) if isinstance(doc, list) else type(doc).__name__}")
+    return [parse_pose(d, f"--poses[{k}]") for k, d in enumerate(doc)]
+
+
+def truth_heights(path: str, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The true floor's heights at the grid's vertices: the mesh's highest surface over each."""
+    from ..config.meshfiles import load_mesh_file
+    from ..trace import make_caster
+
+    mesh = load_mesh_file(path)
+    caster = make_caster("embree", [mesh], None)
+    gx, gy = np.meshgrid(x, y)
+    top = float(np.max(mesh.vertices[:, 2])) + 1.0
+    # (a hair off the grid: a ray straight through a vertex or along an edge of the truth's own
+    # grid can slip between its triangles)
+    origins = np.stack([gx.ravel() + 1e-5, gy.ravel() + 0.7e-5, np.full(gx.size, top)], axis=1).astype(np.float32)
+    down = np.tile(np.array([0.0, 0.0, -1.0], np.float32), (gx.size, 1))
+    hits = caster.intersect(origins, down, 1e4)
+    z = np.where(hits.mesh_id >= 0, top - hits.distance.astype(float), np.nan)
+    return z.reshape(gx.shape)
+
+
+def cmd_reconstruct(args) -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("jax") is None:
+        raise SonarsimError("sonarsim reconstruct needs the differentiable engine (JAX): pip install 'sonarsim[diff]'")
+    from dataclasses import replace
+
+    from ..analysis.comparison import load_image
+    from ..config.loader import load_scene
+    from ..diff import enable_compilation_cache
+    from ..diff.reconstruct import reconstruct_heights
+    from ..io.output import atomic_write
+    from ..io.run_record import OutputRun, record_beside
+
+    out = Path(args.out)
+    figure = out.with_name(out.stem + "_figure.png")
+    run = OutputRun(record_beside(out), [(out, "--out"), (figure, "--out")], command=getattr(args, "command_line", None))
+    images = [load_image(path) for path in args.images]
+    grids = {(img.polar.shape, tuple(np.round(img.range_m[[0, -1]], 9))) for img in images}
+    if len(grids) != 1:
+        raise SonarsimError("the images have different grids (range bins, beams): give images of one sonar")
+    poses = _poses(args, images)
+    scene = load_scene(args.scene)
+    if images[0].sonar is not None:
+        scene = replace(scene, sonar=replace(images[0].sonar, elevation_fov_deg=scene.sonar.elevation_fov_deg))
+    enable_compilation_cache()
+    result = reconstruct_heights(scene, [img.polar for img in images], poses, args.extent, args.resolution,
+                                 smoothness=args.smoothness, progress=lambda sigma, loss: print(
+                                     f"sonarsim reconstruct: blur {sigma[0]:g} x {sigma[1]:g}: loss {loss:.4g}",
+                                     file=sys.stderr, flush=True))
+    truth = truth_heights(args.truth, result.x_m, result.y_m) if args.truth else None
+    with run:
+        with atomic_write(out, "wb") as f:
+            np.savez(f, heights_m=result.heights_m, x_m=result.x_m, y_m=result.y_m, seen=result.seen, loss=result.loss)
+        with atomic_write(figure, "wb") as f:
+            _figure(result, truth).savefig(f, format="png", dpi=100)
+    line = f"{result.seen.sum()} of {result.seen.size} grid vertices seen by {len(images)} image(s), {result.seconds:.1f} s"
+    if truth is not None:
+        ok = result.seen & np.isfinite(truth)
+        rms = float(np.sqrt(np.mean((result.heights_m - truth)[ok] ** 2))) if ok.any() else float("nan")
+        line += f"; RMS height error over the seen vertices {rms:.4f} m"
+    print(line)
+    print(f"sonarsim: wrote {out} and {figure}", file=sys.stderr)
+
+
+def _figure(result, truth):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [("start (flat)", np.zeros_like(result.heights_m)), ("reconstructed", result.heights_m)]
+    if truth is not None:
+        panels = [("truth", truth), ("reconstructed", result.heights_m), ("error", result.heights_m - truth)]
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6), constrained_layout=True)
+    extent = (result.x_m[0], result.x_m[-1], result.y_m[0], result.y_m[-1])
+    for ax, (title, z) in zip(axes, panels):
+        shown = np.where(result.seen, z, np.nan)
+        im = ax.imshow(shown, origin="lower", extent=extent, cmap="RdBu_r" if title == "error" else "viridis")
+        ax.set_title(f"{title} (seen vertices)")
+        ax.set_xlabel("x, m")
+        ax.set_ylabel("y, m")
+        fig.colorbar(im, ax=ax, label="height, m")
+    return fig
