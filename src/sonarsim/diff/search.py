@@ -236,8 +236,9 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
         if any(f is not None for f in sim.textures):  # a plane's texture scales its whole weight
             scale_by_texture(texture, np.asarray(leg.sid), np.asarray(leg.point), sim.textures)
         texel = np.ones(len(leg.sid))  # an object's texture scales its diffuse part only
-        if leg.texel is not None:
-            texel = np.where(np.asarray(leg.sid) >= n_planes, np.asarray(leg.texel, float), 1.0)
+        if leg.texel is not None:  # (read where an object scatters: elsewhere the pooled buffer holds anything)
+            on_object = np.asarray(leg.sid) >= n_planes
+            texel[on_object] = np.asarray(leg.texel)[on_object]
         per_gen.append(dict(sid=np.asarray(leg.sid).copy(), chain=np.asarray(leg.chain).copy(),
                             prim=None if leg.prim is None else np.asarray(leg.prim).copy(), cont=cont,
                             texture=texture, texel=texel))
