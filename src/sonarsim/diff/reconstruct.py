@@ -75,7 +75,7 @@ def grid_mesh(extent: Sequence[float], resolution: float, heights: np.ndarray | 
 def reconstruct_heights(scene, images: Sequence[np.ndarray], poses: Sequence[Pose], extent: Sequence[float],
                         resolution: float, start: np.ndarray | None = None, smoothness: float = 1e-3,
                         blurs: Sequence[tuple[float, float]] = ((4.0, 2.0), (1.5, 1.0)), rounds: int = 4,
-                        iterations: int = 20, progress=None) -> HeightField:
+                        iterations: int = 20, max_step: float = 0.03, progress=None) -> HeightField:
     """Heights of the sea floor over ``extent`` from ``images`` seen from ``poses``.
 
     Parameters
@@ -94,6 +94,9 @@ def reconstruct_heights(scene, images: Sequence[np.ndarray], poses: Sequence[Pos
         Start heights (default flat at 0).
     smoothness : float
         Weight of the squared differences of neighbouring heights.
+    max_step : float
+        How far a height may move in one round, metres (the views' searches are refreshed
+        between rounds).
     """
     from .renderer import Renderer
 
@@ -139,7 +142,10 @@ def reconstruct_heights(scene, images: Sequence[np.ndarray], poses: Sequence[Pos
                 value, g = value_and_grad(jnp.asarray(v), datas)
                 return float(value), np.asarray(g, float)
 
-            res = optimize.minimize(fun, h, jac=True, method="L-BFGS-B", options={"maxiter": iterations})
+            # A trust region per round (the heights move at most ``max_step`` from where the
+            # views' searches were made): a far step loses the floor the searches found.
+            bounds = list(zip(h - max_step, h + max_step))
+            res = optimize.minimize(fun, h, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": iterations})
             h = res.x
             losses.append(float(res.fun))
             if progress is not None:
