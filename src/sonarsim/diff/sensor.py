@@ -72,7 +72,6 @@ class SensorStatic:
     has_noise: bool
     has_after_tvg: bool
     tvg: bool
-    tvg_absorption: bool
     span0_deg: float
     span_given: float | None = None  # the elevation pattern's span_deg
     correction: tuple | None = None  # the elevation pattern's correction_db
@@ -134,7 +133,7 @@ class SensorPart:
             floor_db=0.0 if out is None else float(out.floor_db), ceiling_db=0.0 if out is None else float(out.ceiling_db),
             quantise=out is not None and out.dtype != "float32", table=(float(t.lo_db), float(t.step_db), len(t.table)),
             has_noise=spec.noise is not None, has_after_tvg=spec.noise is not None and spec.noise.after_tvg_db is not None,
-            tvg=spec.tvg is not None, tvg_absorption=spec.tvg is not None and spec.tvg.absorption,
+            tvg=spec.tvg is not None,
             span0_deg=float(model.elevation_span_deg()),
             span_given=None if ep is None or ep.span_deg is None else float(ep.span_deg),
             correction=None if ep is None or ep.correction_db is None else tuple(float(c) for c in ep.correction_db),
