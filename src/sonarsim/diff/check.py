@@ -39,7 +39,7 @@ STEPS = {
     "position_m": 1e-4, "offset_m": 1e-4, "vertices_m": 1e-4, "rpy_deg": 1e-2, "scale": 1e-3, "normal": 1e-4,
     "albedo": 1e-4, "mu": 1e-4, "specular": 1e-4, "specular_strength": 1e-3, "roughness": 1e-5,
     "gain_db": 1e-3, "source_level_db": 1e-3, "tvg_spreading": 1e-3, "noise_db": 1e-3, "noise_after_tvg_db": 1e-3,
-    "elevation_width_deg": 1e-3, "azimuth_width_deg": 3e-3, "gamma": 1e-4,
+    "elevation_width_deg": 1e-3, "azimuth_width_deg": 3e-3, "gamma": 1e-4, "beam_gain_db": 1e-2,
 }
 
 

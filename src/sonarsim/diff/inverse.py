@@ -163,7 +163,6 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
     snap : dict of str to callable, optional
         Free parameters whose value, after the first level, is replaced by ``snap[name](value)``
         and then held (a value the scene format restricts, as the TVG law's coefficient).
-
     Returns
     -------
     GradientFit
@@ -365,6 +364,11 @@ def fit_recording(real, scene, free: Sequence[str] = ("z", "pitch"), starts: Seq
 #: The sensor's parameters a calibration by gradient fits (where the sensor has them).
 CALIBRATED = ("sensor.gain_db", "sensor.noise_db", "sensor.noise_after_tvg_db", "sensor.elevation_width_deg",
               "sensor.gamma", "sensor.tvg_spreading")
+#: The levels' candidate starts (dB) tried before a calibration's first level (the generic
+#: sensor's gain can be 60 dB off a device's, where the compressed output hardly moves with it).
+LEVEL_GRID = {"sensor.gain_db": tuple(np.arange(-60.0, 121.0, 6.0)),
+              "sensor.noise_db": tuple(np.arange(-20.0, 121.0, 10.0)),
+              "sensor.noise_after_tvg_db": tuple(np.arange(-20.0, 121.0, 10.0))}
 #: Blurs of a calibration's levels: the images' means first, the pixels last.
 CALIBRATION_BLURS = ((4.0, 2.0), (0.0, 0.0))
 #: Half-angles of the floor band's edges the closed-form starts take (degrees): one, in the
@@ -403,6 +407,115 @@ def band_starts(real, scene, free: Sequence[str], half_angles: Sequence[float] =
     return out or [{}]
 
 
+#: How far beyond the window's depression angles the window start's elevation pattern reaches
+#: (its edges a fifth of the window's span outside it: the band shows no edge inside).
+WINDOW_MARGIN = 1.2
+
+
+def window_start(real, scene) -> dict | None:
+    """A start for a recording lit across its whole window (a sea bed at a grazing angle: no
+    band edge, so no height or tilt is told by it): at the scene's height above the ground, the
+    pitch that centres the window's depression angles in the elevation pattern and the
+    elevation width whose edges lie just outside them (:data:`WINDOW_MARGIN`). ``None`` where
+    the recording is not lit that way (most beams lit at the window's start and fading or lit
+    to its end)."""
+    from ..analysis.calibration import EDGE_RATIO
+    from ..analysis.fitting import band_view
+
+    view = band_view(real)
+    across = view.lit_start & (view.fading | view.lit_end) & ~np.isfinite(view.near)
+    if across.mean() < 0.5:
+        return None
+    ground = scene.ground.offset_m if scene.ground is not None else 0.0
+    h = float(scene.sonar_pose.position_m[2]) - ground
+    r0, r1 = (max(float(x), 1e-3) for x in view.window_m)
+    if h <= 0.0 or h >= r0:
+        return None
+    near, far = math.degrees(math.asin(h / r0)), math.degrees(math.asin(h / r1))
+    half = WINDOW_MARGIN * (near - far) / 2.0
+    return {"pitch": (near + far) / 2.0, "sensor.elevation_width_deg": half / EDGE_RATIO}
+
+
+def fit_beam_gains(renderer, params: Mapping[str, Any], target: np.ndarray, passes: int = 4,
+                   max_step_db: float = 6.0) -> dict:
+    """Each receive channel's gain (``sensor.beam_gain_db``) by Gauss-Newton on the pixels'
+    squared error, every beam at once: a beam's gain moves only its own column (it applies
+    after the leakage across beams), so one forward-mode derivative along all of them gives
+    every column's. The mean over beams is moved into ``sensor.gain_db``.
+
+    Returns
+    -------
+    dict
+        ``params`` with the two keys replaced.
+    """
+    image = renderer.image_function()
+    base = dict(params)
+
+    def with_gains(g):
+        return {**base, "sensor.beam_gain_db": g}
+
+    column = jax.jit(lambda g, data: jax.jvp(lambda x: image(with_gains(x), data), (g,), (jnp.ones_like(g),)))
+    t = jnp.asarray(target)
+    g = jnp.asarray(base["sensor.beam_gain_db"])
+    for _ in range(passes):
+        e, d = column(g, renderer.data)
+        step = jnp.sum(d * (t - e), axis=0) / jnp.maximum(jnp.sum(d * d, axis=0), 1e-30)
+        g = g + jnp.clip(step, -max_step_db, max_step_db)
+    mean = jnp.mean(g)
+    return {**base, "sensor.beam_gain_db": g - mean, "sensor.gain_db": base["sensor.gain_db"] + mean}
+
+
+def level_start(renderer, start: Mapping[str, float], target: np.ndarray,
+                grid: Mapping[str, Sequence[float]] | None = None, passes: int = 2,
+                sigma: tuple[float, float] = (4.0, 2.0)) -> dict:
+    """``start`` with the sensor's levels set by a coordinate search over :data:`LEVEL_GRID`:
+    the generic sensor's gain can be 60 dB off a device's, where the compressed output hardly
+    moves with it and a gradient step finds nothing. The echo is rendered once at the start
+    (the levels do not move it); each candidate costs the sensor stage alone, all of one
+    parameter's candidates evaluated together (``vmap``). The loss is the blurred images'
+    squared difference, as at a calibration's first level."""
+    from . import sensor as sensor_mod
+
+    grid = LEVEL_GRID if grid is None else grid
+    params = dict(renderer.params())
+    for name, value in start.items():
+        if name in POSE_KEYS:
+            key, index = POSE_KEYS[name]
+            params[key] = params[key].at[index].set(float(value))
+        elif name in params:
+            params[name] = jnp.asarray(float(value), params[name].dtype)
+    keys = [k for k in grid if k in params and k not in start]
+    st = renderer.static.sensor
+    if not keys or st is None:
+        return dict(start)
+    renderer.refresh(params)
+    echo, data = renderer.echo(params), renderer.data
+    pad = tuple(int(math.ceil(3.0 * s)) + 1 for s in sigma)
+    sg = jnp.asarray(sigma, echo.dtype)
+    tb = blur(jnp.asarray(target, echo.dtype), sg, pad)
+
+    def loss(levels):
+        p = dict(params)
+        for j, k in enumerate(keys):
+            p[k] = levels[j]
+        return jnp.sum((blur(sensor_mod.expected_output(echo, p, data, st), sg, pad) - tb) ** 2)
+
+    losses_of = jax.jit(jax.vmap(loss))
+    current = np.array([float(params[k]) for k in keys])
+    for _ in range(passes):
+        for j, k in enumerate(keys):
+            trials = np.repeat(current[None, :], len(grid[k]), axis=0)
+            trials[:, j] = np.asarray(grid[k], float)
+            current = _best(losses_of, trials, current, echo.dtype)
+    return {**start, **{k: float(v) for k, v in zip(keys, current)}}
+
+
+def _best(losses_of, trials: np.ndarray, current: np.ndarray, dtype) -> np.ndarray:
+    losses = np.array(losses_of(jnp.asarray(trials, dtype)), float)
+    losses[~np.isfinite(losses)] = np.inf
+    return trials[int(np.argmin(losses))].copy() if np.isfinite(losses).any() else current
+
+
 def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"), starts: Sequence[Mapping] | None = None,
                         iterations: int = 10, ftol: float = 1e-3, progress=None):
     """Fit the sensor (:data:`CALIBRATED`) and the pose parameters ``free`` to one frame of a
@@ -430,7 +543,8 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
         As :func:`sonarsim.analysis.calibration.calibrate` returns it: the calibrated scene on
         the recording's grid (the TVG law's coefficient the nearest the scene format allows
         to the coarse level's, held at the finer), the values (sensor keys without their
-        ``sensor.`` prefix), the PSNR on the frame at the start and at the end, the expected
+        ``sensor.`` prefix), the PSNR on the frame at the start (the closed-form start, its
+        levels set by :func:`level_start`) and at the end, the expected
         render (the compiled engine's), the starts, the laws and the frame's trivial
         baselines; ``renders`` counts the searches run.
     """
@@ -438,7 +552,8 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
 
     from ..analysis import metrics
     from ..analysis.baselines import baseline_images
-    from ..analysis.calibration import STARTING_SENSOR, CalibrationResult
+    from ..analysis import realism
+    from ..analysis.calibration import STARTING_SENSOR, CalibrationResult, output_shape, with_law
     from ..analysis.fitting import check_overlap, recording_geometry
     from ..config.sensor import TVG_SPREADING, parse_sensor
     from ..renderer.simulator import Simulator
@@ -446,12 +561,33 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
     from .renderer import Renderer
 
     check_overlap(real, scene)
-    spec = scene.sensor if scene.sensor is not None else parse_sensor(STARTING_SENSOR)
+    target = np.asarray(real.polar, float)
+    spec = scene.sensor
+    if spec is None:  # the generic sensor, its output's shape from the frame's speckle
+        spec = parse_sensor(STARTING_SENSOR)
+        if spec.output is not None and spec.output.compression in ("gamma", "log"):
+            shape = output_shape(spec.output.compression, target, realism.auto_regions(target)["lit"],
+                                 spec.output.full_scale)
+            spec = with_law(spec, spec.output.compression, None, shape)
     fitted = replace(scene, sonar=recording_geometry(real, scene), sensor=spec)
+    notes = []
+    if starts is None:
+        starts = band_starts(real, fitted, free)
+        across = window_start(real, fitted) if starts == [{}] and {"z", "pitch", "roll"} & set(free) else None
+        if across is not None:
+            # Lit across the window: the band tells neither height nor tilt, so the pose is held
+            # where the window start puts it (the scene's height; the pitch centring the window).
+            held = [k for k in free if k in POSE_KEYS]
+            notes.append(f"the recording is lit across its window (no floor band edge): {', '.join(held)} not "
+                         f"identified by it; held at the scene's height and the pitch that centres the window "
+                         f"({across['pitch']:.2f} deg)")
+            free = tuple(k for k in free if k not in POSE_KEYS)
+            fitted = scene_with(fitted, {"sonar.rpy_deg": np.array([*fitted.sonar_pose.rpy_deg[:1], across["pitch"],
+                                                                     *fitted.sonar_pose.rpy_deg[2:]])})
+            starts = [{"sensor.elevation_width_deg": across["sensor.elevation_width_deg"]}]
     r = Renderer(fitted, attach="surfaces")
     names = [n for n in free] + [k for k in CALIBRATED if k in r.names]
-    target = np.asarray(real.polar, float)
-    starts = list(starts) if starts is not None else band_starts(real, fitted, free)
+    starts = [level_start(r, start, target) for start in starts]
     full = float(spec.output.full_scale) if spec.output is not None else float(np.max(target))
     # The TVG law's coefficient is fitted at the coarse level, then set to the nearest the
     # scene format allows and held while the rest is fitted again.
@@ -459,7 +595,17 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
     result = fit(r, target, free=names, starts=starts, blurs=CALIBRATION_BLURS, iterations=iterations,
                  scale=full, linear=True, progress=progress, ftol=ftol, snap=nearest)
     values = dict(result.values)
+    best = dict(result.params)
+    if "sensor.beam_gain_db" in best:
+        # The channels' gains last, in closed form (kept where they lower the frame's error).
+        image = r.image_function()
+        before = float(np.mean((np.asarray(image(best, r.data)) - target) ** 2))
+        channels = fit_beam_gains(r, best, target)
+        if float(np.mean((np.asarray(image(channels, r.data)) - target) ** 2)) < before:
+            best = channels
+            values["sensor.gain_db"] = float(best["sensor.gain_db"])
     params = {k: v for k, v in values.items() if k.startswith("sensor.")}
+    params["sensor.beam_gain_db"] = np.asarray(best["sensor.beam_gain_db"], float)
     pose = {"sonar.position_m": np.asarray(result.params["sonar.position_m"], float),
             "sonar.rpy_deg": np.asarray(result.params["sonar.rpy_deg"], float)}
     calibrated = scene_with(fitted, {**pose, **params})
@@ -471,6 +617,7 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
     law = {"compression": None if out_spec.output is None else out_spec.output.compression,
            "spreading": None if out_spec.tvg is None else out_spec.tvg.spreading,
            "shape": None if out_spec.output is None else out_spec.output.gamma}
+    values["sensor.beam_gain_db"] = [round(float(x), 4) for x in params["sensor.beam_gain_db"]]
     return CalibrationResult(
         scene=calibrated, values={k.replace("sensor.", "", 1): v for k, v in values.items()},
         psnr_db=metrics.psnr(target, expected.polar, data_range=peak),
@@ -479,4 +626,4 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
         starts=[{"start": dict(st.start), "values": dict(st.values), "loss": st.loss, "seconds": st.seconds}
                 for st in result.starts],
         baselines={k: metrics.psnr(target, img, data_range=peak) for k, img in baseline_images(target).items()},
-        law=law)
+        law=law, warnings=notes)

@@ -187,4 +187,10 @@ def sensor_with(spec, values: dict):
         changes["azimuth_pattern"] = replace(spec.azimuth_pattern, width_deg=get("sensor.azimuth_width_deg", None))
     if spec.output is not None and "sensor.gamma" in values:
         changes["output"] = replace(spec.output, gamma=get("sensor.gamma", spec.output.gamma))
+    if "sensor.beam_gain_db" in values:
+        from ..config.sensor import BeamGainSpec
+
+        db = tuple(float(x) for x in np.ravel(np.asarray(values["sensor.beam_gain_db"], float)))
+        bg = spec.beam_gain if spec.beam_gain is not None else BeamGainSpec()
+        changes["beam_gain"] = replace(bg, gain_db=db if any(db) or bg.gain_db is not None else None)
     return replace(spec, **changes) if changes else spec

@@ -249,6 +249,12 @@ class Renderer:
         with a ``sensor:`` section, the sensor's expected output (no speckle, no noise draws)."""
         return self._function("image")(self._complete(params), self._data, self._image_static()).astype(self.dtype)
 
+    def echo(self, params: Mapping[str, Any] | None = None) -> jax.Array:
+        """The image (n_range_bins, n_beams) before the sensor stage: the total of
+        ``render.bounces`` that :func:`sonarsim.diff.sensor.expected_output` takes (the same as
+        :meth:`render` without a ``sensor:`` section)."""
+        return self._function("echo")(self._complete(params), self._data, self._image_static()).astype(self.dtype)
+
     def paths(self, params: Mapping[str, Any] | None = None) -> dict[str, jax.Array]:
         """The frame's paths as the forward forms them, one entry per path of the held search:
         ``distance`` (m, half the path's length), ``energy``, ``point`` (the scatterer, (n, 3),
@@ -287,12 +293,17 @@ def _stack(params: dict, data: dict, static: Static):
                          _shift(parts, static)), (distance, energy, parts)
 
 
-def _image(params: dict, data: dict, static: Static):
+def _echo(params: dict, data: dict, static: Static):
     distance, energy, parts = forward.path_ranges(params, data, static)
     # One image: the paths of the orders in ``render.bounces``, added as they are splatted.
     in_total = jnp.isin(data["label"], jnp.asarray(static.total_rows))
     total = forward.splat(distance, jnp.where(in_total, energy, 0.0), jnp.zeros_like(data["label"]), 1, data,
                           static.geometry, static.spread, _shift(parts, static))[0]
+    return total
+
+
+def _image(params: dict, data: dict, static: Static):
+    total = _echo(params, data, static)
     if static.sensor is not None:
         from . import sensor as sensor_mod
 
@@ -307,4 +318,4 @@ def _components(params: dict, data: dict, static: Static):
     return stack, sigs
 
 
-_FORMS = {"image": _image, "components": _components, "paths": forward.path_ranges}
+_FORMS = {"image": _image, "echo": _echo, "components": _components, "paths": forward.path_ranges}

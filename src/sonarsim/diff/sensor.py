@@ -16,6 +16,9 @@ key                                 meaning, unit
 ``sensor.azimuth_width_deg``        the azimuth pattern's -3 dB width (one-way), degrees: the
                                     leakage across beams
 ``sensor.gamma``                    the output chain's exponent (``compression: gamma``)
+``sensor.beam_gain_db``             (n_beams,) each receive channel's own gain ``beam_gain.gain_db``,
+                                    dB, in the image's beam order (the steering loss and seeded
+                                    stripes stay as the scene has them)
 ==================================  ==============================================================
 
 Each exists where the scene's sensor has the part it belongs to (a Gaussian or line-array
@@ -165,7 +168,13 @@ class SensorPart:
             out["sensor.azimuth_width_deg"] = w if w is not None else float(np.median(self.model.sonar.effective_beam_width_deg()))
         if st.compression == "gamma":
             out["sensor.gamma"] = s.output.gamma
+        out["sensor.beam_gain_db"] = self._given_beam_db()
         return {k: np.asarray(v, float) for k, v in out.items()}
+
+    def _given_beam_db(self) -> np.ndarray:
+        bg = self.spec.beam_gain
+        n = self.model.sonar.n_beams
+        return np.zeros(n) if bg is None or bg.gain_db is None else np.asarray(bg.gain_db, float)
 
     def arrays(self, search) -> dict:
         """The held arrays the sensor's forward reads (per path where the rays' weights depend
@@ -175,7 +184,8 @@ class SensorPart:
         out = {
             "s_range": jnp.asarray(r), "s_log_range": jnp.asarray(np.log10(np.maximum(r, acoustics.MIN_RANGE_M))),
             "s_echo_gain": jnp.asarray(10.0 ** (m.echo_gain_db / 10.0)), "s_bang": jnp.asarray(m.bang, jnp.float64),
-            "s_bang_beam": jnp.asarray(m.bang_beam, jnp.float64), "s_beam_gain": jnp.asarray(m.beam_gain, jnp.float64),
+            "s_bang_beam": jnp.asarray(m.bang_beam, jnp.float64), # The channels' gain without the given per-beam part (a parameter).
+            "s_beam_gain": jnp.asarray(10.0 ** ((m.beam_gain_db - self._given_beam_db()) / 10.0), jnp.float64),
             "s_column": jnp.asarray(m.column_factor, jnp.float64), "s_kr": jnp.asarray(m.range_spread),
             "s_norm_r": jnp.asarray(m._norm_r, jnp.float64), "s_common": jnp.asarray(m.common_power),
             "s_tvg_fixed_db": jnp.asarray(self._tvg_fixed_db()), "s_kb": jnp.asarray(m.beam_leakage),
@@ -292,7 +302,8 @@ def expected_output(image: jax.Array, params: dict, data: dict, st: SensorStatic
         noise = noise + 10.0 ** (params["sensor.noise_db"] / 10.0)
     if st.has_after_tvg:
         noise = noise + 10.0 ** (params["sensor.noise_after_tvg_db"] / 10.0) / tvg
-    p = tvg[:, None] * data["s_beam_gain"][None, :] * (mu + noise[:, None])
+    beam = data["s_beam_gain"] * 10.0 ** (params["sensor.beam_gain_db"] / 10.0)
+    p = tvg[:, None] * beam[None, :] * (mu + noise[:, None])
     if st.output == "none":
         return p
     lo_db, step_db, n = st.table
