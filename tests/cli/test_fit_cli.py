@@ -182,7 +182,7 @@ def test_fit_by_gradient_recovers_height_and_tilt_of_a_synthetic_floor(floor_cas
     out = tmp_path / "fitted.yaml"
     assert run(["fit", real, "--scene", scene(0.45, 31.0), "--method", "gradient", "--out", out, "--no-figures"]) == 0
     captured = capsys.readouterr()
-    assert "domain image: by gradient" in captured.err and "Traceback" not in captured.err
+    assert "domain band: by gradient on the floor band's edges" in captured.err and "Traceback" not in captured.err
     pose = yaml.safe_load(out.read_text())["sonar"]["pose"]
     assert pose["position_m"][2] == pytest.approx(0.40, abs=0.005)
     assert pose["rpy_deg"][1] == pytest.approx(28.0, abs=0.3)

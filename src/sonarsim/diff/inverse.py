@@ -34,6 +34,8 @@ POSE_KEYS = {"x": ("sonar.position_m", 0), "y": ("sonar.position_m", 1), "z": ("
 UNITS = {"sonar.position_m": 0.05, "sonar.rpy_deg": 2.5, "sensor.gain_db": 10.0, "sensor.source_level_db": 10.0,
          "sensor.noise_db": 10.0, "sensor.noise_after_tvg_db": 10.0, "sensor.tvg_spreading": 5.0,
          "sensor.elevation_width_deg": 1.0, "sensor.azimuth_width_deg": 0.05, "sensor.gamma": 0.03}
+#: The band loss's soft step: a beam's level over its brightest, the step's centre and width.
+BAND_LEVEL, BAND_SOFTNESS = 0.5, 0.1
 #: Coarse-to-fine blur widths, in range bins and beams.
 DEFAULT_BLURS = ((40.0, 20.0), (12.0, 6.0), (4.0, 2.0), (1.5, 1.0))
 
@@ -125,6 +127,7 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
         blurs: Sequence[tuple[float, float]] = DEFAULT_BLURS, iterations: int = 20,
         weights: np.ndarray | None = None, scale: float | None = None, progress=None,
         normalise: bool = False, linear: bool = False, base: Mapping[str, Any] | None = None,
+        band: bool = False,
         ftol: float = 0.0, snap: Mapping[str, Any] | None = None) -> GradientFit:
     """The free parameters that make ``renderer``'s image match ``target`` (see the module docstring).
 
@@ -155,6 +158,11 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
     linear : bool
         Compare the blurred images themselves (over ``scale``: the loss is their mean squared
         difference), not their logarithms: a calibration's counts.
+    band : bool
+        Compare where each beam is lit instead of its level: each blurred image over its beams'
+        brightest values, through a soft step at :data:`BAND_LEVEL` (the floor band's edges
+        without the intensity law between them: an uncalibrated model against a device's
+        counts).
     base : dict, optional
         The values of the parameters that are not free (default: the scene's).
     ftol : float
@@ -205,6 +213,11 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
         return x / jnp.mean(x) if normalise else x
 
     def compressed(x):
+        if band:
+            # Where each beam is lit: its blurred level over its brightest, through a soft step
+            # at half of it (the band's edges, whatever the intensity law between them).
+            peak = jnp.max(x, axis=0, keepdims=True) + 1e-30
+            return jax.nn.sigmoid((x / peak - BAND_LEVEL) / BAND_SOFTNESS)
         return x / s if linear else jnp.log1p(jnp.maximum(x, 0.0) / s)
 
     def residuals(u, sigma, tb, data):  # the search's arrays an argument: refreshed, not traced in
@@ -315,22 +328,28 @@ def fit_recording(real, scene, free: Sequence[str] = ("z", "pitch"), starts: Seq
     """:func:`sonarsim.analysis.fitting.fit_pose` by gradient: the pose parameters ``free`` that
     make ``scene`` look like the recording ``real``, on the recording's grid.
 
-    Without a sensor in the scene, the images are compared after dividing each by its blurred
-    mean (the renderer's intensity against the recording's counts: only their shapes can
-    agree); with one, in counts. The scatterers are held on their triangles
+    Where the scene's echo is one floor band and the recording shows its edges
+    (:func:`~sonarsim.analysis.fitting.choose_domain` says ``band``), the band's edges are
+    fitted (:func:`sonarsim.diff.bands.fit_band`: they do not depend on the range law that an
+    uncalibrated render and a device's counts differ in), from the band's closed-form pose for
+    the sonar's elevation aperture and from the scene's pose. Otherwise the images themselves:
+    without a sensor in the scene, after dividing each by its blurred mean (only their shapes
+    can agree); with one, in counts. The scatterers are held on their triangles
     (``attach='surfaces'``) and the search refreshed at every point evaluated.
 
     Returns
     -------
     FitResult
-        Its ``domain`` is ``image``; ``cost_start`` and ``cost`` are the finest level's loss;
-        ``renders`` counts the searches run; :func:`~sonarsim.analysis.fitting.fit_problems`
-        has judged it.
+        Its ``domain`` is ``band`` (``cost_start`` and ``cost`` the RMS band-edge differences,
+        metres, as :func:`~sonarsim.analysis.fitting.fit_pose` reports them) or ``image``
+        (the finest level's loss); ``renders`` counts the searches run;
+        :func:`~sonarsim.analysis.fitting.fit_problems` has judged it.
     """
     from dataclasses import replace
 
-    from ..analysis.fitting import (FitResult, check_overlap, edge_correlation, fit_problems, floor_onset_m,
-                                    band_view, parse_free, pose_from_values, pose_values, profile_correlation,
+    from ..analysis.fitting import (CENSORED_EDGE_FRACTION, NO_BAND_COST, FitResult, band_residuals, band_view,
+                                    check_overlap, choose_domain, edge_correlation, fit_problems, floor_onset_m,
+                                    parse_free, pose_from_values, pose_values, profile_correlation,
                                     recording_geometry)
     from ..renderer.simulator import Simulator
     from .renderer import Renderer
@@ -340,25 +359,61 @@ def fit_recording(real, scene, free: Sequence[str] = ("z", "pitch"), starts: Seq
     geometry = recording_geometry(real, scene)
     fitted_scene = replace(scene, sonar=geometry)
     r = Renderer(fitted_scene, attach="surfaces")
-    normalise = scene.sensor is None
     start = pose_values(scene.sonar_pose)
+    real_view = band_view(real)
+
+    def band_rms(image) -> float:
+        d = band_residuals(real_view, band_view(image))
+        return float(np.sqrt(np.nanmean(d ** 2))) if np.isfinite(d).any() else NO_BAND_COST
+
     t0 = time.perf_counter()
-    result = fit(r, np.asarray(real.polar, float), free=free, starts=starts, blurs=blurs, progress=progress,
-                 normalise=normalise)
-    start_loss = result.loss_start
-    values = dict(start, **{k: result.values[k] for k in free})
+    with Simulator(fitted_scene) as sim:
+        start_image = sim.render(keep_rays=False, speckle=False)
+    domain, _ = choose_domain(real, fitted_scene, start_image)
+    if domain == "band" and real_view.edge_fraction >= CENSORED_EDGE_FRACTION:
+        from .bands import fit_band
+
+        if starts is None:
+            starts = [{k: v for k, v in st.items() if k in free}
+                      for st in band_starts(real, fitted_scene, free, half_angles=(_edge_half_angle(fitted_scene),))]
+            starts = [st for st in starts if st] + [{}]
+        fitted, _, per = fit_band(r, real, free, starts=starts)
+        n_starts = len(per)
+    else:
+        domain = "image"
+        result = fit(r, np.asarray(real.polar, float), free=free, starts=starts, blurs=blurs, progress=progress,
+                     normalise=scene.sensor is None)
+        fitted, n_starts = result.values, len(result.starts)
+    values = dict(start, **{k: fitted[k] for k in free})
     pose = pose_from_values(values)
     with Simulator(fitted_scene) as sim:
         image = sim.render(pose=pose, keep_rays=False, speckle=False)
-    real_view = band_view(real)
+    if domain == "band":
+        cost_start, cost = band_rms(start_image), band_rms(image)
+    else:
+        cost_start, cost = result.loss_start, result.loss
     d = floor_onset_m(image) - real_view.near
     onset = float(np.sqrt(np.nanmean(d ** 2))) if np.isfinite(d).any() else float("nan")
-    out = FitResult(pose=pose, free=free, domain="image", start=start, values=values, cost_start=start_loss,
-                    cost=result.loss, onset_rms_m=onset, renders=r.searches, image=image,
+    how = "on the floor band's edges" if domain == "band" else "on the images"
+    out = FitResult(pose=pose, free=free, domain=domain, start=start, values=values, cost_start=cost_start,
+                    cost=cost, onset_rms_m=onset, renders=r.searches, image=image,
                     scene=replace(fitted_scene, sonar_pose=pose),
-                    domain_reason=f"by gradient ({time.perf_counter() - t0:.1f} s, {len(result.starts)} start(s))",
+                    domain_reason=f"by gradient {how} ({time.perf_counter() - t0:.1f} s, {n_starts} start(s))",
                     edge_correlation=edge_correlation(real, image), profile_correlation=profile_correlation(real, image))
     return replace(out, problems=fit_problems(real, out))
+
+
+def _edge_half_angle(scene) -> float:
+    """Where the noise-free render's band edges lie off the sonar's axis in elevation (degrees):
+    the elevation pattern's edge (:data:`~sonarsim.analysis.calibration.EDGE_RATIO` of its
+    half-width) with a sensor that has one, the fan's half-aperture otherwise."""
+    from ..analysis.calibration import EDGE_RATIO
+
+    sensor = scene.sensor
+    ep = None if sensor is None else sensor.elevation_pattern
+    if ep is not None and ep.width_deg is not None:
+        return EDGE_RATIO * float(ep.width_deg) / 2.0
+    return float(scene.sonar.elevation_fov_deg) / 2.0
 
 
 #: The sensor's parameters a calibration by gradient fits (where the sensor has them).
