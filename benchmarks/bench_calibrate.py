@@ -87,8 +87,8 @@ def one(name: str, args) -> dict:
                      "values": {k: round(float(v), 4) for k, v in cal.values.items() if np.ndim(v) == 0},
                      "notes": list(cal.warnings)})
         print(f"start z {z:.1f} m, pitch {pitch:4.1f} deg, elevation {elevation:4.1f} deg: held-out PSNR "
-              f"{scores['psnr']:.2f} dB in {seconds:.1f} s (z {cal.values.get('z', float('nan')):.3f}, "
-              f"pitch {cal.values.get('pitch', float('nan')):.2f}, width {cal.values['elevation_width_deg']:.2f}, "
+              f"{scores['psnr']:.2f} dB in {seconds:.1f} s (z {cal.scene.sonar_pose.position_m[2]:.3f}, "
+              f"pitch {cal.scene.sonar_pose.rpy_deg[1]:.2f}{' held' if cal.warnings else ''}, width {cal.values['elevation_width_deg']:.2f}, "
               f"gain {cal.values['gain_db']:.1f} dB)", flush=True)
     base = held_out_scores(baseline_images(ping.polar), held)
     best = max(r["held_out_psnr_db"] for r in rows)

@@ -133,6 +133,29 @@ def test_the_channels_gains_in_closed_form():
     assert float(got["sensor.gain_db"]) == pytest.approx(float(p["sensor.gain_db"]) + 1.0, abs=0.02)
 
 
+def test_the_sensor_stages_jacobian_columns_are_the_full_forward_modes(monkeypatch):
+    """The fit takes the Jacobian columns of the sensor stage's parameters on the echo formed
+    once: one Levenberg-Marquardt step with them is the step with every column through the
+    whole forward."""
+    from sonarsim.diff import inverse
+
+    r = sd.Renderer(SMALL_SENSOR)
+    truth = dict(r.params())
+    truth["sonar.position_m"] = truth["sonar.position_m"].at[2].set(0.52)
+    target = np.asarray(r.render(truth))
+    steps = {}
+    for stage in (inverse.SENSOR_STAGE, frozenset()):
+        monkeypatch.setattr(inverse, "SENSOR_STAGE", stage)
+        for free in (("z", "sensor.gain_db"),):
+            steps[stage, free] = fit(r, target, free=free, blurs=((2.0, 1.0),), iterations=1, linear=True,
+                                     scale=255.0).values
+    for (stage, free), values in steps.items():
+        for name in free:
+            assert values[name] == pytest.approx(steps[frozenset(), free][name], rel=1e-9, abs=1e-12)
+    split = steps[next(iter(steps))[0], ("z", "sensor.gain_db")]
+    assert split["z"] > 0.505  # it stepped towards 0.52
+
+
 def test_calibration_by_gradient_on_the_aris_sample_holds_on_its_other_frames(shared_data):
     """A sea bed lit across the whole window: the band tells neither height nor tilt, so the
     pose is held at the window start (the scene's height, the pitch that centres the window's

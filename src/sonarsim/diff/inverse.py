@@ -34,8 +34,11 @@ POSE_KEYS = {"x": ("sonar.position_m", 0), "y": ("sonar.position_m", 1), "z": ("
 UNITS = {"sonar.position_m": 0.05, "sonar.rpy_deg": 2.5, "sensor.gain_db": 10.0, "sensor.source_level_db": 10.0,
          "sensor.noise_db": 10.0, "sensor.noise_after_tvg_db": 10.0, "sensor.tvg_spreading": 5.0,
          "sensor.elevation_width_deg": 1.0, "sensor.azimuth_width_deg": 0.05, "sensor.gamma": 0.03}
-#: The band loss's soft step: a beam's level over its brightest, the step's centre and width.
-BAND_LEVEL, BAND_SOFTNESS = 0.5, 0.1
+#: Parameters that act in the sensor stage alone (:func:`sonarsim.diff.sensor.expected_output`
+#: on the echo): their Jacobian columns are taken there.
+SENSOR_STAGE = frozenset({"sensor.gain_db", "sensor.source_level_db", "sensor.tvg_spreading", "sensor.noise_db",
+                          "sensor.noise_after_tvg_db", "sensor.azimuth_width_deg", "sensor.gamma",
+                          "sensor.beam_gain_db"})
 #: Coarse-to-fine blur widths, in range bins and beams.
 DEFAULT_BLURS = ((40.0, 20.0), (12.0, 6.0), (4.0, 2.0), (1.5, 1.0))
 
@@ -127,7 +130,6 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
         blurs: Sequence[tuple[float, float]] = DEFAULT_BLURS, iterations: int = 20,
         weights: np.ndarray | None = None, scale: float | None = None, progress=None,
         normalise: bool = False, linear: bool = False, base: Mapping[str, Any] | None = None,
-        band: bool = False,
         ftol: float = 0.0, snap: Mapping[str, Any] | None = None) -> GradientFit:
     """The free parameters that make ``renderer``'s image match ``target`` (see the module docstring).
 
@@ -158,11 +160,6 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
     linear : bool
         Compare the blurred images themselves (over ``scale``: the loss is their mean squared
         difference), not their logarithms: a calibration's counts.
-    band : bool
-        Compare where each beam is lit instead of its level: each blurred image over its beams'
-        brightest values, through a soft step at :data:`BAND_LEVEL` (the floor band's edges
-        without the intensity law between them: an uncalibrated model against a device's
-        counts).
     base : dict, optional
         The values of the parameters that are not free (default: the scene's).
     ftol : float
@@ -213,18 +210,35 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
         return x / jnp.mean(x) if normalise else x
 
     def compressed(x):
-        if band:
-            # Where each beam is lit: its blurred level over its brightest, through a soft step
-            # at half of it (the band's edges, whatever the intensity law between them).
-            peak = jnp.max(x, axis=0, keepdims=True) + 1e-30
-            return jax.nn.sigmoid((x / peak - BAND_LEVEL) / BAND_SOFTNESS)
         return x / s if linear else jnp.log1p(jnp.maximum(x, 0.0) / s)
 
-    def residuals(u, sigma, tb, data):  # the search's arrays an argument: refreshed, not traced in
-        sim = unit(blur(image(to_params(u), data), sigma, pad))
-        return (sw * (compressed(sim) - tb)).ravel()
+    def finish(img, sigma, tb):
+        return (sw * (compressed(unit(blur(img, sigma, pad))) - tb)).ravel()
 
-    residuals_at, jacobian_at = jax.jit(residuals), jax.jit(jax.jacfwd(residuals))
+    def residuals(u, sigma, tb, data):  # the search's arrays an argument: refreshed, not traced in
+        return finish(image(to_params(u), data), sigma, tb)
+
+    # The parameters that act in the sensor stage alone (its levels, laws and the leakage across
+    # beams) take their derivatives there, on the echo formed once: forward-mode tangents
+    # through the geometry cost as much for a gain as for a height.
+    st = renderer.static.sensor
+    stage = np.array([st is not None and key in SENSOR_STAGE for _, key, _ in names])
+    if stage.any() and not stage.all():
+        from . import sensor as sensor_mod
+
+        echo = renderer.echo_function()
+        i_geo, i_stage = np.flatnonzero(~stage), np.flatnonzero(stage)
+
+        def jacobian(u, sigma, tb, data):
+            j_geo = jax.jacfwd(lambda v: residuals(u.at[i_geo].set(v), sigma, tb, data))(u[i_geo])
+            e = echo(to_params(u), data)
+            j_stage = jax.jacfwd(lambda v: finish(sensor_mod.expected_output(
+                e, to_params(u.at[i_stage].set(v)), data, st), sigma, tb))(u[i_stage])
+            out = jnp.zeros((j_geo.shape[0], len(u)), j_geo.dtype)
+            return out.at[:, i_geo].set(j_geo).at[:, i_stage].set(j_stage)
+    else:
+        jacobian = jax.jacfwd(residuals)
+    residuals_at, jacobian_at = jax.jit(residuals), jax.jit(jacobian)
     levels = []
     for sigma in blurs:
         tb = compressed(unit(blur(t_img, sigma, pad)))
@@ -565,6 +579,19 @@ def level_start(renderer, start: Mapping[str, float], target: np.ndarray,
     return {**start, **{k: float(v) for k, v in zip(keys, current)}}
 
 
+def _at_pose(scene, start: Mapping[str, float]):
+    """``scene`` with the pose names in ``start`` set."""
+    from .params import scene_with
+
+    position = np.array(scene.sonar_pose.position_m, float)
+    rpy = np.array(scene.sonar_pose.rpy_deg, float)
+    for name, value in start.items():
+        if name in POSE_KEYS:
+            key, index = POSE_KEYS[name]
+            (position if key == "sonar.position_m" else rpy)[index] = float(value)
+    return scene_with(scene, {"sonar.position_m": position, "sonar.rpy_deg": rpy})
+
+
 def _best(losses_of, trials: np.ndarray, current: np.ndarray, dtype) -> np.ndarray:
     losses = np.array(losses_of(jnp.asarray(trials, dtype)), float)
     losses[~np.isfinite(losses)] = np.inf
@@ -640,7 +667,9 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
             fitted = scene_with(fitted, {"sonar.rpy_deg": np.array([*fitted.sonar_pose.rpy_deg[:1], across["pitch"],
                                                                      *fitted.sonar_pose.rpy_deg[2:]])})
             starts = [{"sensor.elevation_width_deg": across["sensor.elevation_width_deg"]}]
-    r = Renderer(fitted, attach="surfaces")
+    # Built at the first start's pose: its search's capacity (and so the compiled functions'
+    # shapes) is then the same whatever pose the scene gave, and compiled once per machine.
+    r = Renderer(_at_pose(fitted, starts[0] if starts else {}), attach="surfaces")
     names = [n for n in free] + [k for k in CALIBRATED if k in r.names]
     starts = [level_start(r, start, target) for start in starts]
     full = float(spec.output.full_scale) if spec.output is not None else float(np.max(target))

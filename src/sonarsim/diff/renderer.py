@@ -244,6 +244,13 @@ class Renderer:
         dtype = self.dtype
         return lambda params, data: fn(params, data, static).astype(dtype)
 
+    def echo_function(self):
+        """The pure function ``f(params, data) -> image`` behind :meth:`echo` (see
+        :meth:`image_function`)."""
+        fn, static = self._function("echo"), self._image_static()
+        dtype = self.dtype
+        return lambda params, data: fn(params, data, static).astype(dtype)
+
     def render(self, params: Mapping[str, Any] | None = None) -> jax.Array:
         """The expected image (n_range_bins, n_beams): the total of ``render.bounces``, or,
         with a ``sensor:`` section, the sensor's expected output (no speckle, no noise draws)."""
