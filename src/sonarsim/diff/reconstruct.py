@@ -133,10 +133,23 @@ def reconstruct_heights(scene, images: Sequence[np.ndarray], poses: Sequence[Pos
             return out
 
         value_and_grad = jax.jit(jax.value_and_grad(total))
-        for _ in range(rounds):
+        value_at = jax.jit(total)
+        best = None
+        for k in range(rounds + 1):  # the last pass only checks the last round
             for r in renderers:
                 r.refresh(params_of(r, jnp.asarray(h)))
             datas = [r.data for r in renderers]
+            # The loss at these heights with the searches made here: a round that raised it
+            # (its held searches led the heights where the refreshed ones see worse) is undone.
+            here = float(value_at(jnp.asarray(h), datas))
+            if best is not None and here >= best[0]:
+                h = best[1]
+                for r in renderers:
+                    r.refresh(params_of(r, jnp.asarray(h)))
+                break
+            best = (here, h.copy())
+            if k == rounds:
+                break
 
             def fun(v):
                 value, g = value_and_grad(jnp.asarray(v), datas)
