@@ -117,6 +117,7 @@ def ambiguity(base, images, poses, out, error) -> dict:
     share = float(np.sum((weak.T @ e) ** 2) / max(float(e @ e), 1e-30))
     smallest = v[:, 0]
     return {"heights": int(len(seen)), "determined": int(keep.sum()),
+            "determined_at": {f"{t:g}": int(np.sum(w > t * w[-1])) for t in (1e-2, 1e-3, 1e-4, 1e-5)},
             "error_share_undetermined": share,
             "condition": float(w[-1] / max(w[0], 1e-300)),
             "weakest_mode_range_correlation": weakest_direction(smallest, out, seen)}
@@ -133,7 +134,7 @@ def weakest_direction(mode: np.ndarray, out, seen: np.ndarray) -> float:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="the 10 cm bump only")
-    ap.add_argument("--rounds", type=int, default=4)
+    ap.add_argument("--rounds", type=int, default=12)
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     rows = []
@@ -144,7 +145,10 @@ def main(argv=None) -> int:
             print(f"{name:18s} {n} view(s): RMS {1e3 * row['rms_m']:6.1f} mm over {row['seen_vertices']} vertices "
                   f"(flat floor {1e3 * row['flat_rms_m']:6.1f} mm, amplitude {1e3 * amp:5.0f} mm) in "
                   f"{row['seconds']:5.1f} s; {row['determined']} of {row['heights']} height combinations fixed "
-                  f"by the images, {100 * row['error_share_undetermined']:.0f} % of the error outside them",
+                  f"by the images, {100 * row['error_share_undetermined']:.0f} % of the error outside them "
+                  f"(eigenvalues above 1e-2/1e-3/1e-4/1e-5 of the largest: "
+                  f"{'/'.join(str(v) for v in row['determined_at'].values())}; weakest mode's correlation "
+                  f"with ground range {row['weakest_mode_range_correlation']:.2f})",
                   flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))

@@ -251,3 +251,42 @@ def test_refresh_moves_only_geometry_and_takes_float32_values_as_they_are():
         r.render({**p, "sonar.position_m": jnp.asarray([np.nan, 0.0, 1.0])})
     # A list is taken as an array.
     assert r.render({"sonar.position_m": [0.0, 0.0, 1.0]}).shape == (1288, 128)
+
+
+def test_a_reflectivity_per_vertex_is_interpolated_at_each_scatterer():
+    """``Renderer(reflectivity=...)``: at 1 the image is the plain renderer's; a field linear in
+    position, ``a + b x`` at the vertices, scales each path of the object by exactly
+    ``a + b x`` at its scatterer (barycentric interpolation of a linear field is exact), and
+    leaves the planes' paths alone."""
+    doc = demo_scene_dict()
+    name = doc["objects"][0]["name"]
+    plain = sd.Renderer(doc)
+    r = sd.Renderer(doc, reflectivity=(name,))
+    p = r.params()
+    assert p[f"objects.{name}.reflectivity"].shape == p[f"objects.{name}.vertices_m"].shape[:1]
+    np.testing.assert_allclose(np.asarray(r.render(p)), np.asarray(plain.render()), rtol=1e-12, atol=1e-15)
+    v = np.asarray(p[f"objects.{name}.vertices_m"])
+    field = {**p, f"objects.{name}.reflectivity": jnp.asarray(0.7 + 2.0 * v[:, 0])}
+    base, scaled = r.paths(p), r.paths(field)
+    mine = np.asarray(base["signature"]) >= 0
+    surface = np.asarray(r.data["surface"])[: r.search.n_paths]
+    first = len(r.static.planes)  # the object's rows: the first of the padded triangle table
+    on_object = (surface >= first) & (surface < first + r.data["local_faces"][0].shape[0])
+    # The object's own frame: its vertices are local, the scatterer is posed.
+    local = _to_local(np.asarray(base["point"]), doc["objects"][0])
+    want = np.where(on_object, 0.7 + 2.0 * local[:, 0], 1.0)
+    e0, e1 = np.asarray(base["energy"]), np.asarray(scaled["energy"])
+    live = mine & (e0 > 0)
+    # (to the float32 round-off of the search's hits, where the barycentric coordinates come from)
+    np.testing.assert_allclose(e1[live], e0[live] * want[live], rtol=1e-5)
+    assert on_object[live].any() and (~on_object[live]).any()
+    with pytest.raises(ConfigError, match="reflectivity"):
+        sd.Renderer(doc, reflectivity=("no_such_object",))
+
+
+def _to_local(points: np.ndarray, obj: dict) -> np.ndarray:
+    from sonarsim.core.transforms import Pose
+
+    pose = obj.get("pose", {})
+    rot = Pose(pose.get("position_m", (0, 0, 0)), pose.get("rpy_deg", (0, 0, 0)))
+    return (points - np.asarray(rot.position_m)) @ rot.rotation / np.asarray(obj.get("scale", 1.0))

@@ -1,9 +1,9 @@
 """``sonarsim reconstruct``: the sea floor's height field from images with known sonar poses.
 
 Writes ``heights_m`` (ny, nx), ``x_m``, ``y_m``, ``seen`` (the grid's vertices some image's
-paths met) and ``loss`` (per round) to ``--out`` (an NPZ), and a figure beside it: start |
-reconstructed | error where ``--truth`` gives the true floor (a mesh file), else start |
-reconstructed. Needs the differentiable engine: ``pip install 'sonarsim[diff]'``.
+paths met), ``loss`` (per round) and, with ``--reflectivity``, ``reflectivity`` (ny, nx) to
+``--out`` (an NPZ), and a figure beside it: start | reconstructed | error where ``--truth``
+gives the true floor (a mesh file), else start | reconstructed (and the reflectivity). Needs the differentiable engine: ``pip install 'sonarsim[diff]'``.
 """
 
 from __future__ import annotations
@@ -56,6 +56,8 @@ def add_reconstruct_parser(sub) -> argparse.ArgumentParser:
                    "(default: each render.npz's own pose)")
     p.add_argument("--truth", default=None, help="a mesh file of the true floor: the figure shows the error")
     p.add_argument("--smoothness", type=float, default=1e-3, help="weight of the heights' smoothness (default 1e-3)")
+    p.add_argument("--reflectivity", action="store_true", help="also fit the floor's reflectivity per grid vertex "
+                   "(relative to the scene ground's albedo; written as `reflectivity` and shown in the figure)")
     p.set_defaults(func=cmd_reconstruct)
     return p
 
@@ -120,13 +122,16 @@ def cmd_reconstruct(args) -> None:
         scene = replace(scene, sonar=replace(images[0].sonar, elevation_fov_deg=scene.sonar.elevation_fov_deg))
     enable_compilation_cache()
     result = reconstruct_heights(scene, [img.polar for img in images], poses, args.extent, args.resolution,
-                                 smoothness=args.smoothness, progress=lambda sigma, loss: print(
+                                 smoothness=args.smoothness, reflectivity=args.reflectivity,
+                                 progress=lambda sigma, loss: print(
                                      f"sonarsim reconstruct: blur {sigma[0]:g} x {sigma[1]:g}: loss {loss:.4g}",
                                      file=sys.stderr, flush=True))
     truth = truth_heights(args.truth, result.x_m, result.y_m) if args.truth else None
     with run:
+        extra = {} if result.reflectivity is None else {"reflectivity": result.reflectivity}
         with atomic_write(out, "wb") as f:
-            np.savez(f, heights_m=result.heights_m, x_m=result.x_m, y_m=result.y_m, seen=result.seen, loss=result.loss)
+            np.savez(f, heights_m=result.heights_m, x_m=result.x_m, y_m=result.y_m, seen=result.seen, loss=result.loss,
+                     **extra)
         with atomic_write(figure, "wb") as f:
             _figure(result, truth).savefig(f, format="png", dpi=100)
     line = f"{result.seen.sum()} of {result.seen.size} grid vertices seen by {len(images)} image(s), {result.seconds:.1f} s"
@@ -147,6 +152,8 @@ def _figure(result, truth):
     panels = [("start (flat)", np.zeros_like(result.heights_m)), ("reconstructed", result.heights_m)]
     if truth is not None:
         panels = [("truth", truth), ("reconstructed", result.heights_m), ("error", result.heights_m - truth)]
+    if result.reflectivity is not None:
+        panels.append(("reflectivity", result.reflectivity))
     fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6), constrained_layout=True)
     extent = (result.x_m[0], result.x_m[-1], result.y_m[0], result.y_m[-1])
     for ax, (title, z) in zip(axes, panels):
@@ -155,5 +162,5 @@ def _figure(result, truth):
         ax.set_title(f"{title} (seen vertices)")
         ax.set_xlabel("x, m")
         ax.set_ylabel("y, m")
-        fig.colorbar(im, ax=ax, label="height, m")
+        fig.colorbar(im, ax=ax, label="relative to the ground's albedo" if title == "reflectivity" else "height, m")
     return fig

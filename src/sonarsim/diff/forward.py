@@ -185,6 +185,8 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
     f = coef[sid] * data["texel"] * cos  # a texture scales the diffuse part, not the lobe
     if static.rough:
         f = f + strength[sid] * specular_lobe(cos, rough[sid])
+    if static.reflective:
+        f = f * vertex_reflectivity(params, data, static)
     intensity = weight * f * data["factor"]
     if not static.tvg:
         intensity = intensity / jnp.maximum(dist, 1e-6) ** 2
@@ -204,6 +206,28 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
     energy = atten * jnp.where(same, atten, tx_spec) * intensity
     energy = jnp.where(data["live"], energy, 0.0)
     return distance, energy, {"point": point, "rx": dist, "cos": cos, "shift": shift}
+
+
+def vertex_reflectivity(params: dict, data: dict, static: Any) -> jax.Array:
+    """(C,) each path's reflectivity factor: an object's ``reflectivity`` per vertex (see
+    :class:`~sonarsim.diff.Renderer`) interpolated at its scatterer over its triangle by the
+    held barycentric coordinates; 1 on planes and on the other objects."""
+    n_planes = len(static.planes)
+    surface = data["surface"]
+    row = surface - n_planes
+    u, v = data["uv"][:, 0], data["uv"][:, 1]
+    out = jnp.ones(surface.shape[0], data["uv"].dtype)
+    start = 0
+    for name, faces in zip(static.objects, data["local_faces"]):
+        count = faces.shape[0]
+        if name in static.reflective and count:
+            rho = params[f"objects.{name}.reflectivity"]
+            mine = (row >= start) & (row < start + count)
+            f = faces[jnp.clip(row - start, 0, count - 1)]
+            value = (1.0 - u - v) * rho[f[:, 0]] + u * rho[f[:, 1]] + v * rho[f[:, 2]]
+            out = jnp.where(mine, value, out)
+        start += count
+    return out
 
 
 def follow_azimuth(params: dict, data: dict, static: Any, rot: jax.Array, origin: jax.Array, direction: jax.Array,

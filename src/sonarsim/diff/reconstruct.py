@@ -1,5 +1,5 @@
-"""The sea floor's height field from sonar images with known poses, by gradient (issue 24 item 6;
-work in progress: the Python function, no command yet).
+"""The sea floor's height field (and, optionally, its reflectivity per vertex) from sonar images
+with known poses, by gradient (``sonarsim reconstruct``).
 
 The floor is a mesh object over a rectangle (``extent``), a grid of ``resolution`` metres
 whose vertices' heights are the unknowns; each image's renderer holds its own search (its
@@ -28,6 +28,15 @@ from ..errors import ConfigError
 from .inverse import blur, compress_scale
 
 SEABED = "seabed"
+#: The fitted reflectivity stays within exp(+-LOG_REFLECTIVITY) of the ground's (+-26 dB).
+LOG_REFLECTIVITY = 3.0
+#: The optimiser's unknown is the log-reflectivity over this: a metre of height moves the image
+#: far more than a unit of log-reflectivity, and L-BFGS's first steps follow the gradient.
+REFLECTIVITY_SCALE = 3.0
+#: The log-reflectivity's smoothness weight relative to the heights'.
+REFLECTIVITY_SMOOTHNESS = 1.0
+#: A level ends when a round moved no height by more than this fraction of ``max_step``.
+SETTLED = 0.25
 
 
 @dataclass(frozen=True)
@@ -44,6 +53,9 @@ class HeightField:
     loss : (k,) ndarray
         The loss after each round.
     seconds : float
+    reflectivity : (ny, nx) ndarray or None
+        The floor's reflectivity at the vertices, relative to the scene's ground (1: as its
+        albedo), where it was fitted too.
     """
 
     heights_m: np.ndarray
@@ -52,6 +64,7 @@ class HeightField:
     seen: np.ndarray
     loss: np.ndarray
     seconds: float
+    reflectivity: np.ndarray | None = None
 
 
 def grid_mesh(extent: Sequence[float], resolution: float, heights: np.ndarray | None = None):
@@ -74,8 +87,9 @@ def grid_mesh(extent: Sequence[float], resolution: float, heights: np.ndarray | 
 
 def reconstruct_heights(scene, images: Sequence[np.ndarray], poses: Sequence[Pose], extent: Sequence[float],
                         resolution: float, start: np.ndarray | None = None, smoothness: float = 1e-3,
-                        blurs: Sequence[tuple[float, float]] = ((4.0, 2.0), (1.5, 1.0)), rounds: int = 4,
-                        iterations: int = 20, max_step: float = 0.03, progress=None) -> HeightField:
+                        blurs: Sequence[tuple[float, float]] = ((4.0, 2.0), (1.5, 1.0)), rounds: int = 12,
+                        iterations: int = 20, max_step: float = 0.03, progress=None,
+                        reflectivity: bool = False) -> HeightField:
     """Heights of the sea floor over ``extent`` from ``images`` seen from ``poses``.
 
     Parameters
@@ -94,9 +108,16 @@ def reconstruct_heights(scene, images: Sequence[np.ndarray], poses: Sequence[Pos
         Start heights (default flat at 0).
     smoothness : float
         Weight of the squared differences of neighbouring heights.
+    rounds : int
+        At most this many rounds per level (a level ends sooner once a round moves no height
+        by more than :data:`SETTLED` of ``max_step``, or raises the loss).
     max_step : float
         How far a height may move in one round, metres (the views' searches are refreshed
         between rounds).
+    reflectivity : bool
+        Also fit the floor's reflectivity per vertex (relative to the ground's albedo; as its
+        logarithm, with the same smoothness term): a patch of brighter floor is otherwise
+        explained as relief.
     """
     from .renderer import Renderer
 
@@ -107,18 +128,30 @@ def reconstruct_heights(scene, images: Sequence[np.ndarray], poses: Sequence[Pos
     ny, nx = len(y), len(x)
     floor = ObjectSpec(name=SEABED, mesh=mesh, albedo=scene.ground.backscatter.coefficient if scene.ground else 0.8)
     base = replace(scene, ground=None, objects=tuple(scene.objects) + (floor,))
-    renderers = [Renderer(replace(base, sonar_pose=pose), attach="surfaces") for pose in poses]
+    reflective = (SEABED,) if reflectivity else ()
+    renderers = [Renderer(replace(base, sonar_pose=pose), attach="surfaces", reflectivity=reflective)
+                 for pose in poses]
     xy = np.asarray(mesh.vertices)[:, :2]
     key = f"objects.{SEABED}.vertices_m"
     scales = [compress_scale(np.asarray(img, float)) for img in images]
-    h = np.asarray(mesh.vertices)[:, 2].copy()
+    n = len(xy)
+    # The unknowns: the heights, then (with ``reflectivity``) the logarithms of the reflectivity.
+    h = np.concatenate([np.asarray(mesh.vertices)[:, 2], np.zeros(n if reflectivity else 0)])
 
-    def params_of(r, heights):
-        return {**r.params(), key: jnp.concatenate([jnp.asarray(xy), heights[:, None]], axis=1)}
+    def params_of(r, unknowns):
+        p = {**r.params(), key: jnp.concatenate([jnp.asarray(xy), unknowns[:n, None]], axis=1)}
+        if reflectivity:
+            p[f"objects.{SEABED}.reflectivity"] = jnp.exp(REFLECTIVITY_SCALE * unknowns[n:])
+        return p
 
-    def smooth(heights):
-        g = heights.reshape(ny, nx)
-        return jnp.sum((g[1:] - g[:-1]) ** 2) + jnp.sum((g[:, 1:] - g[:, :-1]) ** 2)
+    def smooth(unknowns):
+        out = 0.0
+        parts = ((unknowns[:n], 1.0), (REFLECTIVITY_SCALE * unknowns[n:], REFLECTIVITY_SMOOTHNESS)) if reflectivity \
+            else ((unknowns, 1.0),)
+        for part, weight in parts:
+            g = part.reshape(ny, nx)
+            out = out + weight * (jnp.sum((g[1:] - g[:-1]) ** 2) + jnp.sum((g[:, 1:] - g[:, :-1]) ** 2))
+        return out
 
     fns = [r.image_function() for r in renderers]
     losses = []
@@ -157,16 +190,28 @@ def reconstruct_heights(scene, images: Sequence[np.ndarray], poses: Sequence[Pos
 
             # A trust region per round (the heights move at most ``max_step`` from where the
             # views' searches were made): a far step loses the floor the searches found.
-            bounds = list(zip(h - max_step, h + max_step))
+            bounds = list(zip(h[:n] - max_step, h[:n] + max_step)) + [(-LOG_REFLECTIVITY / REFLECTIVITY_SCALE, LOG_REFLECTIVITY / REFLECTIVITY_SCALE)] * (len(h) - n)
             res = optimize.minimize(fun, h, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": iterations})
+            moved = float(np.max(np.abs(res.x[:n] - h[:n]))) if n else 0.0
             h = res.x
             losses.append(float(res.fun))
             if progress is not None:
                 progress(sigma, float(res.fun))
+            if moved < SETTLED * max_step:
+                # Settled inside the trust region: one more check of the loss with the searches
+                # refreshed (the round is undone if it raised it), then the next level.
+                for r in renderers:
+                    r.refresh(params_of(r, jnp.asarray(h)))
+                if float(value_at(jnp.asarray(h), [r.data for r in renderers])) >= best[0]:
+                    h = best[1]
+                    for r in renderers:
+                        r.refresh(params_of(r, jnp.asarray(h)))
+                break
     seen = np.zeros(ny * nx, bool)
     faces = np.asarray(mesh.faces)
     for r in renderers:
         k = len(scene.objects)
         hit = r.search.faces[r.search.faces[:, 0] == k, 1]
         seen[faces[hit].ravel()] = True
-    return HeightField(h.reshape(ny, nx), x, y, seen.reshape(ny, nx), np.asarray(losses), time.perf_counter() - t0)
+    return HeightField(h[:n].reshape(ny, nx), x, y, seen.reshape(ny, nx), np.asarray(losses), time.perf_counter() - t0,
+                       reflectivity=np.exp(REFLECTIVITY_SCALE * h[n:]).reshape(ny, nx) if reflectivity else None)

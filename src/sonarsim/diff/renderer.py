@@ -45,6 +45,7 @@ class Static:
     n_signatures: int
     sensor: Any = None  # sonarsim.diff.sensor.SensorStatic or None
     attach: str = "rays"
+    reflective: tuple[str, ...] = ()  # objects with a reflectivity per vertex
 
 
 class Renderer:
@@ -66,6 +67,12 @@ class Renderer:
         the object or the sonar moves: what pose fitting needs; the fan's and the aperture's
         edges, where no held path stands for what enters, are then approximate). Planes'
         scatterers stay on their rays in both.
+    reflectivity : sequence of str
+        Objects that get a reflectivity per vertex, ``objects.<name>.reflectivity``
+        (n_vertices,), dimensionless, 1 by default: it multiplies the object's law (its albedo
+        or mu, and a rough law's lobe) at each scatterer, interpolated over its triangle
+        (barycentric). A sea floor's reflectivity per cell, for one; the scene format has no
+        such field, so it exists here only.
 
     Examples
     --------
@@ -75,7 +82,8 @@ class Renderer:
     >>> g = jax.grad(lambda q: jnp.sum(r.render(q)))(p)              # a dict like p
     """
 
-    def __init__(self, scene: Any, dtype: str = "float64", attach: str = "rays") -> None:
+    def __init__(self, scene: Any, dtype: str = "float64", attach: str = "rays",
+                 reflectivity: tuple[str, ...] = ()) -> None:
         if dtype not in ("float64", "float32"):
             raise ConfigError("dtype", f"unknown dtype {dtype!r}; allowed: float64, float32")
         if attach not in ("rays", "surfaces"):
@@ -96,6 +104,13 @@ class Renderer:
         if self._sensor is not None:
             self._defaults.update(self._sensor.params())
         laws = surface_laws(scene)
+        by_name = {o.name: o for o in scene.objects}
+        unknown = [n for n in reflectivity if n not in by_name]
+        if unknown:
+            raise ConfigError("reflectivity", f"no object {unknown[0]!r} in the scene; its objects: "
+                              f"{', '.join(by_name) or 'none'}")
+        for name in reflectivity:
+            self._defaults[f"objects.{name}.reflectivity"] = np.ones(len(object_mesh_local(by_name[name]).vertices))
         self.static = Static(
             planes=tuple(self.sim.planes.names), objects=tuple(o.name for o in scene.objects), surfaces=laws,
             rough=any(law == "rough" for _, law in laws), tvg=bool(render.tvg), spread=bool(render.range_splat),
@@ -103,6 +118,7 @@ class Renderer:
                       int(sonar.n_beams)),
             n_rows=0, total_rows=total_rows(render.bounces, render.max_order), n_signatures=0,
             sensor=None if self._sensor is None else self._sensor.static, attach=attach,
+            reflective=tuple(reflectivity),
         )
         self._local_faces = [np.asarray(object_mesh_local(o).faces, np.int64) for o in scene.objects]
         self._jitted: dict = {}
