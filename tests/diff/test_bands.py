@@ -101,9 +101,10 @@ def test_the_band_fit_refuses_what_it_cannot_fit(floor):
 
 
 def test_the_real_oculus_floor_by_gradient_lands_where_the_band_search_does(shared_data):
-    """From four starts far apart, `fit --method gradient` (the band's edges) ends within 1 cm
-    and 0.5 degrees of the band search's pose (measured: 0.412-0.414 m, 28.56-28.68 degrees;
-    the search 0.415 m, 28.76 degrees), its band-edge RMS no worse than the search's."""
+    """From a start far off, `fit --method gradient` (the band's edges) ends within 1 cm and
+    0.5 degrees of the band search's pose, its band-edge RMS no worse than the search's
+    (measured from four starts, z 0.3-0.7 m and pitch 20-40 degrees: 0.412-0.417 m,
+    28.56-28.83 degrees, 0.0641 m; the search 0.415 m, 28.76 degrees)."""
     from sonarsim.analysis.fitting import fit_pose
     from sonarsim.diff.inverse import fit_recording
     from sonarsim.io.readers import read_frames
@@ -116,7 +117,7 @@ def test_the_real_oculus_floor_by_gradient_lands_where_the_band_search_does(shar
                                     "render": {"bounces": [1]}, "ground": {"height_m": 0, "albedo": 0.8}})
 
     search = fit_pose(ping, scene(0.62, 33.0), free=("z", "pitch"))
-    for z, pitch in ((0.62, 33.0), (0.3, 20.0)):
+    for z, pitch in ((0.3, 20.0),):
         got = fit_recording(ping, scene(z, pitch), free=("z", "pitch"))
         assert got.domain == "band" and not got.problems
         assert got.values["z"] == pytest.approx(search.values["z"], abs=0.01)

@@ -36,7 +36,7 @@ REFLECTIVITY_SCALE = 3.0
 #: The log-reflectivity's smoothness weight relative to the heights'.
 REFLECTIVITY_SMOOTHNESS = 1.0
 #: A level ends when a round moved no height by more than this fraction of ``max_step``.
-SETTLED = 0.25
+SETTLED = 0.1
 
 
 @dataclass(frozen=True)
@@ -65,6 +65,48 @@ class HeightField:
     loss: np.ndarray
     seconds: float
     reflectivity: np.ndarray | None = None
+
+
+def _rounds(renderers, params_of, value_and_grad, value_at, h: np.ndarray, n: int, rounds: int, iterations: int,
+            max_step: float, sigma, progress) -> tuple[np.ndarray, list[float]]:
+    """One level's rounds: each refreshes every view's search at the current unknowns, checks
+    the loss there, and runs L-BFGS within a trust region of ``step`` metres on the heights
+    (a far step loses the floor the searches found). A round that raised the loss with the
+    refreshed searches is undone and the region halved; the level ends when a round moves no
+    height by more than :data:`SETTLED` of ``max_step``, the region has shrunk below that, or
+    after ``rounds`` rounds."""
+    def refreshed(x):
+        for r in renderers:
+            r.refresh(params_of(r, jnp.asarray(x)))
+        return float(value_at(jnp.asarray(x), [r.data for r in renderers]))
+
+    best_value, best = refreshed(h), h.copy()
+    step, losses = max_step, []
+    log_bound = LOG_REFLECTIVITY / REFLECTIVITY_SCALE
+    for _ in range(rounds):
+        datas = [r.data for r in renderers]
+
+        def fun(v):
+            value, g = value_and_grad(jnp.asarray(v), datas)
+            return float(value), np.asarray(g, float)
+
+        bounds = list(zip(best[:n] - step, best[:n] + step)) + [(-log_bound, log_bound)] * (len(best) - n)
+        res = optimize.minimize(fun, best, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": iterations})
+        moved = float(np.max(np.abs(res.x[:n] - best[:n]))) if n else 0.0
+        losses.append(float(res.fun))
+        if progress is not None:
+            progress(sigma, float(res.fun))
+        value = refreshed(res.x)
+        if value < best_value:
+            best_value, best = value, res.x.copy()
+            if moved < SETTLED * max_step:
+                break
+        else:  # undone: the searches back at the best heights, a smaller region
+            refreshed(best)
+            step *= 0.5
+            if step < SETTLED * max_step:
+                break
+    return best, losses
 
 
 def grid_mesh(extent: Sequence[float], resolution: float, heights: np.ndarray | None = None):
@@ -109,8 +151,9 @@ def reconstruct_heights(scene, images: Sequence[np.ndarray], poses: Sequence[Pos
     smoothness : float
         Weight of the squared differences of neighbouring heights.
     rounds : int
-        At most this many rounds per level (a level ends sooner once a round moves no height
-        by more than :data:`SETTLED` of ``max_step``, or raises the loss).
+        At most this many rounds per level (see :func:`_rounds`: a round that raised the loss
+        with the refreshed searches is undone and the trust region halved; a level ends once
+        a round moves no height by more than :data:`SETTLED` of ``max_step``).
     max_step : float
         How far a height may move in one round, metres (the views' searches are refreshed
         between rounds).
@@ -167,46 +210,10 @@ def reconstruct_heights(scene, images: Sequence[np.ndarray], poses: Sequence[Pos
 
         value_and_grad = jax.jit(jax.value_and_grad(total))
         value_at = jax.jit(total)
-        best = None
-        for k in range(rounds + 1):  # the last pass only checks the last round
-            for r in renderers:
-                r.refresh(params_of(r, jnp.asarray(h)))
-            datas = [r.data for r in renderers]
-            # The loss at these heights with the searches made here: a round that raised it
-            # (its held searches led the heights where the refreshed ones see worse) is undone.
-            here = float(value_at(jnp.asarray(h), datas))
-            if best is not None and here >= best[0]:
-                h = best[1]
-                for r in renderers:
-                    r.refresh(params_of(r, jnp.asarray(h)))
-                break
-            best = (here, h.copy())
-            if k == rounds:
-                break
-
-            def fun(v):
-                value, g = value_and_grad(jnp.asarray(v), datas)
-                return float(value), np.asarray(g, float)
-
-            # A trust region per round (the heights move at most ``max_step`` from where the
-            # views' searches were made): a far step loses the floor the searches found.
-            bounds = list(zip(h[:n] - max_step, h[:n] + max_step)) + [(-LOG_REFLECTIVITY / REFLECTIVITY_SCALE, LOG_REFLECTIVITY / REFLECTIVITY_SCALE)] * (len(h) - n)
-            res = optimize.minimize(fun, h, jac=True, method="L-BFGS-B", bounds=bounds, options={"maxiter": iterations})
-            moved = float(np.max(np.abs(res.x[:n] - h[:n]))) if n else 0.0
-            h = res.x
-            losses.append(float(res.fun))
-            if progress is not None:
-                progress(sigma, float(res.fun))
-            if moved < SETTLED * max_step:
-                # Settled inside the trust region: one more check of the loss with the searches
-                # refreshed (the round is undone if it raised it), then the next level.
-                for r in renderers:
-                    r.refresh(params_of(r, jnp.asarray(h)))
-                if float(value_at(jnp.asarray(h), [r.data for r in renderers])) >= best[0]:
-                    h = best[1]
-                    for r in renderers:
-                        r.refresh(params_of(r, jnp.asarray(h)))
-                break
+        # (``h`` comes back from the level with every view's search made at it)
+        h, level_losses = _rounds(renderers, params_of, value_and_grad, value_at, h, n, rounds, iterations,
+                                  max_step, sigma, progress)
+        losses.extend(level_losses)
     seen = np.zeros(ny * nx, bool)
     faces = np.asarray(mesh.faces)
     for r in renderers:
