@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..analysis.fitting import BAND_GAP_SIGMAS, BAND_MEDIAN_BEAMS, BAND_SMOOTHING
-from .inverse import POSE_KEYS, UNITS, _levenberg_marquardt
+from .least_squares import POSE_KEYS, UNITS, levenberg_marquardt
 
 #: A beam's edge counts where the smoothed level's step there is at least this fraction of the
 #: image's spread of level (:data:`sonarsim.analysis.fitting.BAND_MIN_CONTRAST`'s role).
@@ -192,7 +192,7 @@ def fit_band(renderer, real, free: Sequence[str] = ("z", "pitch"), starts: Seque
         t0 = time.perf_counter()
         u = np.array([float(start.get(name, float(np.asarray(base[key])[index]))) for name, key, index in names]) / units
         renderer.refresh(to_params(jnp.asarray(u)))
-        u, value, used = _levenberg_marquardt(renderer, to_params, lambda x: res_at(x, renderer.data),
+        u, value, used = levenberg_marquardt(renderer, to_params, lambda x: res_at(x, renderer.data),
                                               lambda x: jac_at(x, renderer.data), u, iterations, ftol=1e-4,
                                               held=np.zeros(len(u), bool))
         out.append({"start": dict(start), "values": {n: float(u[j] * units[j]) for j, (n, _, _) in enumerate(names)},
