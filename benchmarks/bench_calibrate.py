@@ -2,8 +2,8 @@
 
 On the Oculus pings (a tank floor seen from above) and the ARIS sample (a sea bed at a grazing
 angle, lit across its window: the band tells neither height nor tilt, so the calibration holds
-the pose where its window start puts it, at the start's height), for each start (height, pitch and the generic sonar's elevation aperture; no calibrated preset:
-the calibration's generic sensor), calibrate on one ping with
+the pose at a window start), for each start (height, pitch and the generic sonar's elevation
+aperture; no calibrated preset: the calibration's generic sensor), calibrate on one ping with
 ``sonarsim.diff.inverse.calibrate_recording`` and score the expected image on the other pings
 (PSNR in counts), beside the trivial baselines made from the calibration ping (its range
 profile copied across the beams, a separable image) and the ceiling (its own local mean).
