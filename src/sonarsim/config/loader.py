@@ -36,7 +36,8 @@ RENDER_KEYS = tuple(RenderSettings.__dataclass_fields__)
 GROUND_KEYS = ("height_m", "albedo", "specular", "material", "texture")
 PLANE_KEYS = ("name", "point_m", "normal", "albedo", "specular", "material", "texture")
 TEXTURE_KEYS = tuple(TextureSpec.__dataclass_fields__)
-OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "pose", "scale", "albedo", "material")
+OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "pose", "scale", "albedo", "material",
+               "specular", "normals")
 MATERIAL_KEYS = ("law", "albedo", "mu", "mu_db", "specular_strength", "roughness", "texture")
 
 
@@ -377,9 +378,11 @@ def parse_object(d: Any, index: int, base_dir: Path | None) -> ObjectSpec:
         kw["mesh"] = str(path)
     if "size_m" in d:
         kw["size_m"] = _vector(d["size_m"], f"{where}.size_m", 3)
-    for key in ("radius_m", "height_m", "albedo"):
+    for key in ("radius_m", "height_m", "albedo", "specular"):
         if key in d:
             kw[key] = _number(d[key], f"{where}.{key}")
+    if "normals" in d:
+        kw["normals"] = _string(d["normals"], f"{where}.normals")
     if "scale" in d:
         s = d["scale"]
         kw["scale"] = _vector(s, f"{where}.scale", 3) if isinstance(s, (list, tuple)) else _number(s, f"{where}.scale")

@@ -27,6 +27,7 @@ PRIMITIVES = ("box", "sphere", "cylinder")
 METHODS = ("fast", "paper")
 BEAM_PATTERNS = ("uniform", "gaussian")
 DOUBLE_BEAMS = ("paper", "split", "separate")
+MIRROR_NORMALS = ("flat", "smooth")
 # Plane names become parts of component names (``O-surface-[objects]-O``): keep them plain.
 PLANE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 RESERVED_PLANE_NAMES = ("objects", "O")
@@ -182,6 +183,13 @@ class ObjectSpec:
         the Lambertian ``material``, used when ``material`` is None.
     material : Material or None
         The backscatter law (:mod:`sonarsim.config.materials`); give it or ``albedo``, not both.
+    specular : float
+        Specular reflectance R in [0, 1]: a ray meeting the object also reflects off it, as off
+        a plane, with R times its weight (:mod:`sonarsim.paths.facets`); 0 (the default): the
+        object only scatters.
+    normals : {'flat', 'smooth'}
+        What a specular object reflects about: each triangle's own normal, or the normal
+        interpolated across it from its corners (a smooth mesh of a curved surface).
     """
 
     name: str
@@ -194,6 +202,8 @@ class ObjectSpec:
     scale: float | tuple[float, float, float] = 1.0
     albedo: float = 0.8
     material: Material | None = None
+    specular: float = 0.0
+    normals: str = "flat"
 
     def __post_init__(self) -> None:
         if (self.primitive is None) == (self.mesh is None):
@@ -225,6 +235,13 @@ class ObjectSpec:
             raise ConfigError("scale", f"must be a number or three numbers within [{MIN_LENGTH_M:g}, {MAX_LENGTH_M:g}], "
                               f"got {self.scale}")
         _check_unit_interval("albedo", self.albedo)
+        _check_unit_interval("specular", self.specular)
+        if self.specular > 0 and (not PLANE_NAME.match(str(self.name)) or self.name in RESERVED_PLANE_NAMES):
+            # A mirror's name is part of the path names (``O-pipe-[ground]-O``), as a plane's is.
+            raise ConfigError("name", f"a specular object's name must be a letter followed by letters, digits or "
+                              f"underscores, and neither of {', '.join(RESERVED_PLANE_NAMES)}; got {shown(self.name)}")
+        if self.normals not in MIRROR_NORMALS:
+            raise ConfigError("normals", f"unknown normals {shown(self.normals)}; allowed: {', '.join(MIRROR_NORMALS)}")
         _check_material(self, texture_allowed=True)
         if self.material is not None and self.material.texture and self.primitive is not None:
             raise ConfigError("material.texture", "a primitive has no texture; give a `mesh` with one")
@@ -252,6 +269,10 @@ class ObjectSpec:
             out["albedo"] = self.albedo
         else:
             out["material"] = self.material.to_dict()
+        if self.specular:
+            out["specular"] = self.specular
+        if self.normals != "flat":
+            out["normals"] = self.normals
         return out
 
 

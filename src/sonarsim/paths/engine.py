@@ -342,6 +342,7 @@ def trace_generation(
     reflect: bool,
     table: ChainTable,
     leg: Leg,
+    facets=None,
 ) -> tuple[Rays, np.ndarray]:
     """One generation of receive legs (twin of ``_kernels.trace_leg``): the search, then
     :func:`weigh_leg` over what it recorded.
@@ -379,6 +380,11 @@ def trace_generation(
         intensity, texel where the hits carry a texture's factor; ``atten`` and ``chain``
         except in the first generation, where they are 1 and 0). Its :meth:`Leg.key` is the
         kernel's ``key``. A missing ``cosine`` (or ``texel``) is allocated.
+    facets : FacetSet, optional
+        The mesh mirrors (:mod:`sonarsim.paths.facets`): a ray that meets one of their
+        triangles also reflects, about the triangle's normal (or the interpolated one), into
+        chain mirror ``P + facet``. ``hits`` must carry the triangles and barycentrics. No
+        compiled twin yet: the simulator renders scenes with mesh mirrors with these loops.
 
     Returns
     -------
@@ -449,21 +455,47 @@ def trace_generation(
     go = (sid < n_planes) & (total < reach_m)
     if n_planes:
         go &= planes.specular[np.minimum(sid, n_planes - 1)] > 0
+    mirrors = facets is not None and facets.any
+    if mirrors:  # a mesh mirror's triangle reflects as a plane does (mirror P + facet)
+        facet = np.full(len(sid), -1, dtype=np.int64)
+        on_object = sid >= n_planes
+        facet[on_object] = facets.facet(sid[on_object] - n_planes, hits.primitive_id[k][on_object])
+        go |= (facet >= 0) & (total < reach_m)
     if not (reflect and go.any()):
         return Rays(r[:0], np.empty((0, 3)), np.empty((0, 3)), np.empty(0), np.empty(0), np.empty(0, np.int32)), live
     p, c = sid[go], chain[go]
+    if mirrors:
+        f = facet[go]
+        on_facet = f >= 0
+        p = np.where(on_facet, n_planes + f, p)
     # New chains are numbered in the order of the rows that first meet them, as the kernel does.
-    pair = c.astype(np.int64) * n_planes + p
+    pair = c.astype(np.int64) * (n_planes + (len(facets) if mirrors else 0)) + p
     _, first_row, back = np.unique(pair, return_index=True, return_inverse=True)
     child = np.empty(len(first_row), dtype=np.int32)
     for u in np.argsort(first_row, kind="stable"):
         child[u] = table.child(int(c[first_row[u]]), int(p[first_row[u]]))
-    nrm = planes.normal[p]
+    if not mirrors:
+        nrm = planes.normal[p]
+        spec = planes.specular[p]
+    else:
+        nrm = np.empty((len(p), 3))
+        spec = np.empty(len(p))
+        nrm[~on_facet] = planes.normal[p[~on_facet]]
+        spec[~on_facet] = planes.specular[p[~on_facet]]
+        ff = f[on_facet]
+        uv = hits.barycentric[k][go][on_facet].astype(np.float64)
+        bent = facets.reflecting_normal(ff, uv)
+        flat = facets.normal[ff]
+        # An interpolated normal may turn a grazing ray into the surface: there the facet's own
+        # normal reflects it (the ray must leave on the side it came from).
+        d_in = dd[go][on_facet]
+        into = _rowdot(d_in - (2.0 * _rowdot(d_in, bent))[:, None] * bent, flat) * _rowdot(d_in, flat) > 0
+        nrm[on_facet] = np.where(into[:, None], flat, bent)
+        spec[on_facet] = facets.specular[facets.obj[ff]]
     twice = 2.0 * _rowdot(dd[go], nrm)
     d_ref = dd[go] - twice[:, None] * nrm
     start = point[go].astype(np.float32).astype(np.float64) + SURFACE_OFFSET_M * d_ref
-    nxt = Rays(r[go], start, d_ref, total[go] + SURFACE_OFFSET_M, atten[go] * planes.specular[p],
-               child[back.reshape(-1)])
+    nxt = Rays(r[go], start, d_ref, total[go] + SURFACE_OFFSET_M, atten[go] * spec, child[back.reshape(-1)])
     return nxt, live
 
 
@@ -522,6 +554,7 @@ def option_paths(
     view: SonarView,
     planes: PlaneSet,
     active: np.ndarray,
+    facets=None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Paths of one generation's receive legs and one transmit option (twin of ``_kernels.path_events``).
 
@@ -556,6 +589,9 @@ def option_paths(
     view : SonarView
     planes : PlaneSet
     active : (P,) bool array
+    facets : FacetSet, optional
+        The mesh mirrors, where the chain holds some (mirror ``P + f``, facet ``f``; the leg
+        must record its triangles, ``leg.prim``).
 
     Returns
     -------
@@ -578,7 +614,11 @@ def option_paths(
         return i, leg.distance[i], energy, beam, beam.copy(), lab.astype(np.int8)
     c = leg.chain[i]
     last = int(tx_planes[-1]) if len(tx_planes) else -1
-    keep = (c != tx) & (s != last)
+    if last < n_planes:
+        keep = (c != tx) & (s != last)
+    else:  # a facet: not the scatterer's own triangle (its own plane, t = 0 up to round-off)
+        f = last - n_planes
+        keep = (c != tx) & ~((s - n_planes == facets.obj[f]) & (leg.prim[i] == f - facets.start[facets.obj[f]]))
     if not separate:
         keep &= rank[c] > rank[tx]
     i = i[keep]
@@ -598,15 +638,20 @@ def option_paths(
     w = a
     for j in range(len(tx_planes) - 1, -1, -1):
         q = int(tx_planes[j])
-        n = planes.normal[q]
+        if q < n_planes:
+            n, offset = planes.normal[q], planes.offset[q]
+        else:
+            n, offset = facets.normal[q - n_planes], facets.offset[q - n_planes]
         towards = sources[j + 1] - w
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = (planes.offset[q] - _dot(w, n)) / _dot(towards, n)
+            t = (offset - _dot(w, n)) / _dot(towards, n)
             ok &= (t > 0.0) & (t < 1.0)
             w = w + t[:, None] * towards
             tol = WATER_TOLERANCE_M * np.maximum(np.abs(w).max(axis=1), 1.0)
             for p in np.flatnonzero(active):
                 ok &= ~(_dot(w, planes.normal[p]) - planes.offset[p] < -tol)
+        if q >= n_planes:  # on the triangle itself, not only its plane
+            ok &= facets.contains(q - n_planes, w)
     k = np.flatnonzero(ok)
     i = i[k]
     distance = 0.5 * (leg.distance[i] + length[k])
@@ -724,7 +769,7 @@ def trace_legs(
     n_generations : int
         1 + the most reflections followed on a receive leg.
     table : ChainTable
-        Receives the chains met.
+        Receives the chains met; its ``facets``, the mesh mirrors, reflect as planes do.
     textures : tuple of ReflectivityField or None
         The planes' textures (:func:`~sonarsim.scene.floor_texture.texture_fields`, by plane
         index; empty: none): each scatterer on a textured plane takes its factor, so every path
@@ -746,7 +791,7 @@ def trace_legs(
         limit = float(reach_m - rays.before.min())
         hits = caster.intersect(rays.origin32, rays.direction32, limit, with_uv=True)
         rays, _ = trace_generation(rays, hits, planes, active, reach_m, laws, weight, tvg, first,
-                                   g + 1 < n_generations, table, leg)
+                                   g + 1 < n_generations, table, leg, facets=table.facets)
         if any(f is not None for f in textures):
             scale_by_texture(leg.intensity, leg.sid, leg.point, textures)
     return legs
@@ -926,15 +971,18 @@ def form_paths(
     rank = chain_ranks(table)
     no_planes = np.empty(0, np.int32)
     out: list[PathSet] = []
+    facets = table.facets
     for g, tx, row in frame_options(table, len(legs), max_order, double_beam):
         leg = legs[g]
         same = tx == SAME
         c = 0 if same else tx
+        if facets is not None and not same and not table.flat(c):
+            continue  # a smooth mirror has no image source: its legs come only reversed (SAME)
         chain = table.chains[c]
         ray, distance, energy, beam, beam_tx, label = option_paths(
             leg.live_rays(), leg, same, c, table.unfold(c), table.sources(c),
             np.asarray(chain, np.int32) if chain else no_planes, 1.0 if same else table.specular(tx),
-            rank, double_beam == "separate", row, n_planes, rays_per_beam, view, table.planes, active,
+            rank, double_beam == "separate", row, n_planes, rays_per_beam, view, table.planes, active, facets,
         )
         if len(ray):
             out += option_sets(g, tx, ray, distance, energy, beam, beam_tx, label, double_beam)
@@ -954,7 +1002,7 @@ def drop_occluded(sets: list[PathSet], legs: list[Leg], *, table: ChainTable, vi
             continue
         a = legs[s.gen].point[s.ray]
         chain = table.chains[s.tx]
-        q, _ = reflection_points(table.planes, chain, table.sources(s.tx), a, active)
+        q, _ = reflection_points(table.planes, chain, table.sources(s.tx), a, active, table.facets)
         corners = [np.broadcast_to(view.origin, a.shape)] + [q[:, j] for j in range(len(chain))] + [a]
         free = np.ones(len(a), dtype=bool)
         for k in range(len(corners) - 1):
@@ -1010,6 +1058,8 @@ def split_by_signature(sets: list[PathSet], legs: list[Leg], table: ChainTable, 
     """
     groups: dict[str, list[PathSet]] = {}
     names = table.planes.names
+    if table.facets is not None:  # mirrors P + f are named by their object
+        names = tuple(names) + tuple(table.facets.names[k] for k in table.facets.obj)
     for s in sets:
         leg = legs[s.gen]
         rx = leg.chain[s.ray].astype(np.int64)

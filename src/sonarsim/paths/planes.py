@@ -12,6 +12,10 @@ maps make the image-source method a matter of 3 x 4 affine maps:
 
 Surface ids of the per-ray labels: -1 nothing, ``p`` the plane ``p`` of the scene's
 :attr:`~sonarsim.scene.Scene.reflecting_planes` (the ground first), ``P + k`` object ``k``.
+
+A chain's mirrors are planes (``p < P``) or, where objects mirror, their triangles (mirror
+``P + f`` is facet ``f`` of :class:`~sonarsim.paths.facets.FacetSet`): every map below is the
+same for both, a facet mirroring across its own plane.
 """
 
 from __future__ import annotations
@@ -114,21 +118,28 @@ class ChainTable:
     max_length : int
         Longest chain kept.
     children : (capacity, P) int32 ndarray
-        ``children[c, p]``: the chain ``c + (p,)``, -1 where not met yet.
+        ``children[c, p]``: the chain ``c + (p,)``, -1 where not met yet (planes).
+    facets : FacetSet or None
+        The mesh mirrors (mirror ``P + f`` is facet ``f``); None: planes only.
+    facet_children : dict
+        ``(c, P + f)`` to the chain ``c + (P + f,)`` (facets are too many for a dense table).
     """
 
     planes: PlaneSet
     origin: np.ndarray
     max_length: int
     capacity: int = 64
+    facets: object = None
     chains: list = field(default_factory=list)
     children: np.ndarray = field(init=False)
+    facet_children: dict = field(default_factory=dict)
     _unfold: dict = field(default_factory=dict)
     _sources: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.origin = np.asarray(self.origin, dtype=float).reshape(3)
         self.children = np.full((self.capacity, max(len(self.planes), 1)), -1, dtype=np.int32)
+        self.facet_children = {}
         self.chains = [()]
         # Maps are formed when first asked for: most chains of a frame never need them.
         self._unfold = {0: IDENTITY}
@@ -139,6 +150,15 @@ class ChainTable:
 
     def child(self, c: int, p: int) -> int:
         """Id of the chain ``chains[c] + (p,)``, added if new."""
+        if p >= len(self.planes):
+            k = self.facet_children.get((c, p), -1)
+            if k < 0:
+                k = len(self.chains)
+                if k >= self.capacity:
+                    self._grow()
+                self.facet_children[(c, p)] = k
+                self.chains.append(self.chains[c] + (p,))
+            return k
         k = int(self.children[c, p])
         if k < 0:
             k = len(self.chains)
@@ -178,7 +198,7 @@ class ChainTable:
         frame meet them in any order). Returns the new table and ``remap`` (int32, old id to
         new id)."""
         order = sorted(range(len(self.chains)), key=self.key)
-        out = ChainTable(self.planes, self.origin, self.max_length, capacity=max(self.capacity, 1))
+        out = ChainTable(self.planes, self.origin, self.max_length, capacity=max(self.capacity, 1), facets=self.facets)
         remap = np.empty(len(self.chains), dtype=np.int32)
         for c in order:  # a prefix sorts before its chain: each is added after its parent
             remap[c] = out.add(self.chains[c])
@@ -192,8 +212,8 @@ class ChainTable:
         out = object.__new__(ChainTable)
         origin = np.asarray(origin, dtype=float).reshape(3)
         out.__dict__.update(planes=self.planes, origin=origin, max_length=self.max_length, capacity=self.capacity,
-                            children=self.children.copy(), chains=list(self.chains), _unfold=dict(self._unfold),
-                            _sources={0: origin[None, :].copy()})
+                            facets=self.facets, children=self.children.copy(), facet_children=dict(self.facet_children),
+                            chains=list(self.chains), _unfold=dict(self._unfold), _sources={0: origin[None, :].copy()})
         return out
 
     def local_chains(self, children: np.ndarray, n_chains: int) -> list[tuple]:
@@ -206,6 +226,47 @@ class ChainTable:
             chains[k] = chains[c] + (p,)
         return chains
 
+    # A chain's mirrors, planes and facets alike -------------------------------------------
+
+    def normal_of(self, p: int) -> np.ndarray:
+        """(3,) unit normal of mirror ``p`` (a plane's into the water; a facet's own)."""
+        n_planes = len(self.planes)
+        return self.planes.normal[p] if p < n_planes else self.facets.normal[p - n_planes]
+
+    def offset_of(self, p: int) -> float:
+        """``n . x`` on mirror ``p``'s plane, metres."""
+        n_planes = len(self.planes)
+        return float(self.planes.offset[p] if p < n_planes else self.facets.offset[p - n_planes])
+
+    def specular_of(self, p: int) -> float:
+        """Specular reflectance R of mirror ``p``."""
+        n_planes = len(self.planes)
+        if p < n_planes:
+            return float(self.planes.specular[p])
+        return float(self.facets.specular[self.facets.obj[p - n_planes]])
+
+    def name_of(self, p: int) -> str:
+        """Name of mirror ``p``: the plane's, or the facet's object's."""
+        n_planes = len(self.planes)
+        return self.planes.names[p] if p < n_planes else self.facets.names[self.facets.obj[p - n_planes]]
+
+    def mirror(self, p: int) -> np.ndarray:
+        """(3, 4) affine map of the reflection across mirror ``p``'s plane."""
+        if p < len(self.planes):
+            return self.planes.mirror(p)
+        n = self.normal_of(p)
+        out = np.empty((3, 4))
+        out[:, :3] = np.eye(3) - 2.0 * np.outer(n, n)
+        out[:, 3] = 2.0 * self.offset_of(p) * n
+        return out
+
+    def flat(self, c: int) -> bool:
+        """Chain ``c``'s mirrors all have point images (planes and flat facets): transmit legs
+        along it can come from image sources."""
+        n_planes = len(self.planes)
+        facets = self.facets
+        return all(p < n_planes or not facets.smooth[facets.obj[p - n_planes]] for p in self.chains[c])
+
     # Views used by the path formation -----------------------------------------------------
 
     def length(self, c: int) -> int:
@@ -216,7 +277,7 @@ class ChainTable:
         if c not in self._unfold:
             m = IDENTITY
             for p in self.chains[c]:
-                m = compose(m, self.planes.mirror(p))
+                m = compose(m, self.mirror(p))
             self._unfold[c] = m
         return self._unfold[c]
 
@@ -228,15 +289,19 @@ class ChainTable:
             src = [tuple(float(v) for v in self.origin)]
             for p in self.chains[c]:
                 x0, x1, x2 = src[-1]
-                n0, n1, n2 = (float(v) for v in self.planes.normal[p])
-                twice = 2.0 * (((x0 * n0 + x1 * n1) + x2 * n2) - float(self.planes.offset[p]))
+                n0, n1, n2 = (float(v) for v in self.normal_of(p))
+                twice = 2.0 * (((x0 * n0 + x1 * n1) + x2 * n2) - self.offset_of(p))
                 src.append((x0 - twice * n0, x1 - twice * n1, x2 - twice * n2))
             self._sources[c] = np.array(src)
         return self._sources[c]
 
     def specular(self, c: int) -> float:
         """Product of the specular reflectances along chain ``c``."""
-        return float(np.prod(self.planes.specular[list(self.chains[c])])) if self.chains[c] else 1.0
+        if not self.chains[c]:
+            return 1.0
+        if all(p < len(self.planes) for p in self.chains[c]):
+            return float(np.prod(self.planes.specular[list(self.chains[c])]))
+        return float(np.prod([self.specular_of(p) for p in self.chains[c]]))
 
     def key(self, c: int) -> tuple:
         """Sort key of chains for the reciprocal-pair convention: by number of planes, then by
@@ -245,29 +310,32 @@ class ChainTable:
 
     def name(self, c: int) -> str:
         """``surface-ground``: the planes in the order the sonar's side meets them."""
-        return "-".join(self.planes.names[p] for p in self.chains[c])
+        return "-".join(self.name_of(p) for p in self.chains[c])
 
 
 def reflection_points(
-    planes: PlaneSet, chain: tuple[int, ...], sources: np.ndarray, points: np.ndarray, active: np.ndarray
+    planes: PlaneSet, chain: tuple[int, ...], sources: np.ndarray, points: np.ndarray, active: np.ndarray,
+    facets=None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Reflection points of the transmit legs from the sonar to ``points`` via ``chain``.
 
     Walks back from each point A towards the sonar's images (the image-source method) and
-    checks that every reflection point lies on its plane between its neighbours and inside the
-    water (on the water side of every active plane).
+    checks that every reflection point lies on its mirror between its neighbours and inside the
+    water (on the water side of every active plane); on a facet, inside its triangle.
 
     Parameters
     ----------
     planes : PlaneSet
     chain : tuple of int
-        Planes in the order the sound meets them going out from the sonar.
+        Mirrors in the order the sound meets them going out from the sonar (``P + f``: facet f).
     sources : (len(chain) + 1, 3) float array
         Images of the sonar (:meth:`ChainTable.sources`).
     points : (m, 3) float array
         Scatterers A, metres.
     active : (P,) bool array
         Planes that bound the water this frame.
+    facets : FacetSet, optional
+        The mesh mirrors, where ``chain`` holds some.
 
     Returns
     -------
@@ -277,12 +345,16 @@ def reflection_points(
     """
     a = np.asarray(points, dtype=float)
     m, k = len(a), len(chain)
+    n_planes = len(planes)
     q = np.full((m, k, 3), np.nan)
     valid = np.ones(m, dtype=bool)
     x = a
     for j in range(k - 1, -1, -1):
         p = chain[j]
-        n, off = planes.normal[p], planes.offset[p]
+        if p < n_planes:
+            n, off = planes.normal[p], planes.offset[p]
+        else:
+            n, off = facets.normal[p - n_planes], facets.offset[p - n_planes]
         towards = sources[j + 1] - x
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (off - x @ n) / (towards @ n)
@@ -290,6 +362,8 @@ def reflection_points(
         x = x + t[:, None] * towards
         dist = planes.signed_distance(x)[:, active]
         ok &= np.all(dist >= -WATER_TOLERANCE_M * np.maximum(1.0, np.abs(x).max(axis=1))[:, None], axis=1)
+        if p >= n_planes:
+            ok &= facets.contains(p - n_planes, x)
         valid &= ok
         q[:, j] = x
     return q, valid

@@ -35,6 +35,7 @@ from ..paths.engine import (
     Leg, SonarView, accumulate_paths, drop_occluded, form_paths, ground_signatures, probe_chains, renumber_chains,
     split_by_signature, trace_legs,
 )
+from ..paths.facets import FacetSet
 from ..paths.planes import ChainTable, PlaneSet
 from ..sensor.model import SensorModel, elevation_span_deg
 from ..sensor.speckle import pool_bytes
@@ -140,13 +141,20 @@ class Simulator:
         except ConfigError as exc:
             raise ConfigError(exc.key, exc.detail, exc.source or self.scene.source) from None
         self.planes = PlaneSet.from_specs(self.scene.reflecting_planes)
-        # The ground is the only plane: Algorithm 2 (``method: paper``) applies.
-        self._ground_only = self.scene.ground is not None and not self.scene.planes
         self.meshes = [object_mesh_world(o) for o in self.scene.objects]
         for plane in self.scene.reflecting_planes:
             # Nothing beyond a floor, wall or surface can be seen; removing it (and faces lying
             # in the plane) keeps mirror geometry and coincident faces from making echoes.
             self.meshes = [clip_to_water(m, plane.point_m, plane.normal) for m in self.meshes]
+        # The objects that mirror (``specular`` > 0), their triangles as mirrors of the paths;
+        # None where none does (the planes' engine, unchanged).
+        objects = self.scene.objects
+        self.facets: FacetSet | None = None
+        if any(o.specular > 0 for o in objects):
+            self.facets = FacetSet.of(self.meshes, [o.name for o in objects], [o.specular for o in objects],
+                                      [o.normals for o in objects])
+        # The ground is the only mirror: Algorithm 2 (``method: paper``) applies.
+        self._ground_only = self.scene.ground is not None and not self.scene.planes and self.facets is None
         self._warn_about_planes()
         self.caster = with_textures(make_caster(backend, self.meshes, self.scene.render.threads), self.meshes)
         # A sonar inside a closed object sees only its inside: said once per object, for the
@@ -175,6 +183,12 @@ class Simulator:
         self._last_fan: tuple[SonarConfig, RayFan] | None = None
         self.last_timing: dict[str, float] = {}
         self._config = self.scene.to_dict()  # the scene-file form; each frame adds its sonar and pose
+
+    @property
+    def path_kernels(self) -> str:
+        """The kernels the path engine runs on: :attr:`kernels`, but the NumPy twins where
+        objects mirror (the compiled kernels cover mirror planes only)."""
+        return "numpy" if self.facets is not None else self.kernels
 
     def _warn_if_inside(self, position: np.ndarray, stacklevel: int) -> None:
         """Warn (once per object) when the sonar at ``position`` lies inside a closed object."""
@@ -309,7 +323,8 @@ class Simulator:
         mirror among them makes multipath (with ``max_order`` > 1), and the longest receive
         leg followed, metres."""
         active = self.planes.facing(pose.translation)
-        multipath = self.scene.render.max_order > 1 and bool((active & (self.planes.specular > 0)).any())
+        mirrors = bool((active & (self.planes.specular > 0)).any()) or self.facets is not None
+        multipath = self.scene.render.max_order > 1 and mirrors
         return active, multipath, sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
 
     def _render_paths(self, sonar: SonarConfig, view: SonarView, reach: float, active: np.ndarray,
@@ -322,7 +337,7 @@ class Simulator:
         always does)."""
         render = self.scene.render
         fan, origin = view.fan, view.origin
-        table = ChainTable(self.planes, origin, max(render.max_order - 1, 0))
+        table = ChainTable(self.planes, origin, max(render.max_order - 1, 0), facets=self.facets)
         # Transmit legs leaving just inside the aperture's edges (outside the rays' samples).
         probe_chains(table, view, active, render.max_order - 1 if n_generations > 1 else 0,
                      kernel=compiled.probe_kernel() if self.kernels == "compiled" else None)
@@ -335,7 +350,8 @@ class Simulator:
         occlusion = None
         if render.double_line_of_sight:
             occlusion = functools.partial(drop_occluded, table=table, view=view, active=active, caster=self.caster)
-        if self.kernels == "compiled":
+        # The compiled kernels cover planes; mesh mirrors take the NumPy twins' loops.
+        if self.path_kernels == "compiled":
             self._work = compiled.Workspace.for_fan(self._work, fan)
             stack = np.empty((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
             legs, sets, table, total, truth = compiled.render_paths(
@@ -384,7 +400,7 @@ class Simulator:
         groups = split_by_signature(sets() if callable(sets) else sets, legs, table, n_planes)
         out = {}
         for name, group in groups.items():
-            if self.kernels == "compiled":
+            if self.path_kernels == "compiled":
                 stack = np.zeros((stack_rows(render.max_order),) + geometry[2:], np.float32)
                 compiled.splat_paths(group, legs, n_surfaces, fan.shape[2], geometry, render.range_splat, stack)
             else:
@@ -470,7 +486,7 @@ class Simulator:
                 _, label_legs, label_sets, _, _, formed = self._render_paths(sonar, view, reach, active, n_gen, spec)
             if formed is None and callable(label_sets):
                 label_sets = label_sets()
-            truth = frame_labels(label_sets, label_legs, spec, image_sonar, *names, render.range_splat, self.kernels,
+            truth = frame_labels(label_sets, label_legs, spec, image_sonar, *names, render.range_splat, self.path_kernels,
                                  formed)
         t3 = time.perf_counter()
         if sets is None:  # ground only: its four images are the four ground-only signatures
