@@ -460,7 +460,10 @@ def trace_generation(
         facet = np.full(len(sid), -1, dtype=np.int64)
         on_object = sid >= n_planes
         facet[on_object] = facets.facet(sid[on_object] - n_planes, hits.primitive_id[k][on_object])
-        go |= (facet >= 0) & (total < reach_m)
+        mirror = facet >= 0
+        mirror[mirror] = facets.facing(facet[mirror], dd[mirror])  # a closed object's outside only
+        facet[~mirror] = -1
+        go |= mirror & (total < reach_m)
     if not (reflect and go.any()):
         return Rays(r[:0], np.empty((0, 3)), np.empty((0, 3)), np.empty(0), np.empty(0), np.empty(0, np.int32)), live
     p, c = sid[go], chain[go]
@@ -642,6 +645,9 @@ def option_paths(
             n, offset = planes.normal[q], planes.offset[q]
         else:
             n, offset = facets.normal[q - n_planes], facets.offset[q - n_planes]
+            side = int(facets.side[facets.obj[q - n_planes]])
+            if side:  # a closed object's facet is met from outside: the leg beyond it is there
+                ok &= side * (_dot(w, n) - offset) > 0.0
         towards = sources[j + 1] - w
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (offset - _dot(w, n)) / _dot(towards, n)

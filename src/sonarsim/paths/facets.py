@@ -9,6 +9,10 @@ Each triangle is a *facet*, numbered over the specular objects in scene order (o
 triangle ``j`` is facet ``start[k] + j``); in a chain (:class:`~sonarsim.paths.planes.ChainTable`)
 facet ``f`` is the mirror ``P + f``, after the ``P`` planes. A facet mirrors about:
 
+A facet of a closed object mirrors on the object's outside only (``side``): a ray meeting it
+from inside does not reflect, and a transmit leg must meet it from outside; an open sheet
+mirrors on both sides.
+
 * ``flat`` normals (the default): its own plane, the law of reflection about the triangle's
   normal. The image of a point across it is a point, so transmit legs come from image sources
   as for planes, with one more check: the reflection point must lie on the triangle itself
@@ -54,6 +58,9 @@ class FacetSet:
         Each object's specular reflectance R (0: not a mirror, no facets).
     smooth : (K,) bool ndarray
         The object mirrors about interpolated normals.
+    side : (K,) int8 ndarray
+        The side of its facets each object mirrors on: +1 where ``normal`` points out of it,
+        -1 where it points in, 0 both (an open mesh; :func:`~sonarsim.scene.meshes.outer_side`).
     start : (K + 1,) int64 ndarray
         Object ``k``'s facets are ``start[k] .. start[k + 1] - 1`` (none where R = 0).
     corners : (F, 3, 3) float64 ndarray
@@ -71,6 +78,7 @@ class FacetSet:
     names: tuple[str, ...]
     specular: np.ndarray
     smooth: np.ndarray
+    side: np.ndarray
     start: np.ndarray
     corners: np.ndarray
     normal: np.ndarray
@@ -80,8 +88,9 @@ class FacetSet:
 
     @classmethod
     def of(cls, meshes: Sequence[TriangleMesh], names: Sequence[str], specular: Sequence[float],
-           normals: Sequence[str]) -> "FacetSet":
-        """The facets of ``meshes`` (world frame, one per object) whose ``specular`` is above 0.
+           normals: Sequence[str], sides: Sequence[int] | None = None) -> "FacetSet":
+        """The facets of ``meshes`` (world frame, one per object) whose ``specular`` is above 0,
+        each object mirroring on ``sides`` (default: both).
 
         Degenerate triangles (no area) are kept, with a zero normal: no ray meets them and no
         point lies on them.
@@ -102,7 +111,8 @@ class FacetSet:
                 _corner_normals(m) if smooth[k] else np.repeat(normal[start[k]:start[k + 1], None, :], 3, axis=1)
                 for k, m in enumerate(meshes) if counts[k]
             ])
-        return cls(tuple(names), spec, smooth, start, tri, normal, np.einsum("ij,ij->i", normal, tri[:, 0]), obj,
+        side = np.zeros(len(spec), np.int8) if sides is None else np.asarray(sides, np.int8).reshape(-1)
+        return cls(tuple(names), spec, smooth, side, start, tri, normal, np.einsum("ij,ij->i", normal, tri[:, 0]), obj,
                    corner_normals)
 
     def __len__(self) -> int:
@@ -119,6 +129,13 @@ class FacetSet:
         obj = np.asarray(obj)
         mirror = self.specular[obj] > 0
         return np.where(mirror, self.start[obj] + np.asarray(prim), -1).astype(np.int64)
+
+    def facing(self, f: np.ndarray, direction: np.ndarray) -> np.ndarray:
+        """(m,) bool: rays along ``direction`` (m, 3) meet facet ``f`` (m,) on a side it
+        mirrors on."""
+        side = self.side[self.obj[np.asarray(f, dtype=np.intp)]]
+        dn = np.einsum("ij,ij->i", np.asarray(direction, dtype=float), self.normal[f])
+        return (side == 0) | (side * dn < 0)
 
     def reflecting_normal(self, f: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """(m, 3) the normal a ray meeting facet ``f`` at barycentric ``uv`` (m, 2) reflects

@@ -10,12 +10,17 @@ that the two can be compared image by image:
   surface (an object through the simulator's caster, an active plane by its own ray-plane
   formula) is a scatterer; on a plane with specular reflectance R > 0 the ray is also
   reflected (``d - 2 (d.n) n``) and goes on, until ``max_order - 1`` reflections or the reach.
-* **Transmit legs** are enumerated over *every* chain of active mirror planes (no plane twice
-  in a row), not only those the receive rays followed. Each is found by mirroring the sonar
-  across the chain's planes (image sources), walking back from the scatterer A towards them,
-  and then **verified** by tracing a ray from O in the departure direction found: it must meet
-  the chain's planes in order, each as the nearest plane, and then pass within
-  :data:`VERIFY_TOLERANCE_M` of A. The transmit length is the traced length.
+* **Mesh mirrors.** The triangles of an object with a specular reflectance are mirrors too,
+  each a flat facet (numbered ``P + f``, f over the specular objects' triangles in scene
+  order, as :mod:`sonarsim.paths.facets` numbers them): a receive ray that meets one both
+  scatters and reflects about the triangle's normal, computed here from its corners.
+* **Transmit legs** are enumerated over *every* chain of active mirror planes and facets (no
+  mirror twice in a row), not only those the receive rays followed. Each is found by
+  mirroring the sonar across the chain's mirrors (image sources), walking back from the
+  scatterer A towards them, and then **verified** by tracing a ray from O in the departure
+  direction found: it must meet the chain's mirrors in order, each nearer than any plane (a
+  facet: the ray must cross the triangle itself, by its own ray-triangle formula), and then
+  pass within :data:`VERIFY_TOLERANCE_M` of A. The transmit length is the traced length.
 * Every path goes into the single range bin of half its length (paper Algorithm 1, no range
   splatting), in the beam of the ray it arrives along.
 * A scatter on a textured plane takes the texture's factor at its point
@@ -38,6 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..scene.floor_texture import texture_fields
+from ..scene.meshes import object_mesh_world, outer_side
 from ..paths.engine import path_name
 
 # Reflected receive rays are cast against the objects from this far off the plane, metres (an
@@ -187,8 +193,69 @@ def ray_plane_distance(origin: np.ndarray, d: np.ndarray, normal: np.ndarray, of
     return out
 
 
+def ray_triangle_distance(origin: np.ndarray, d: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Distance along rays to one triangle (either side), ``inf`` where they miss it.
+
+    Parameters
+    ----------
+    origin, d : (m, 3) float arrays
+        Ray origins (metres) and unit directions.
+    corners : (3, 3) float array
+        The triangle's corners, metres.
+
+    Returns
+    -------
+    (m,) float64 ndarray, metres: the Moller-Trumbore distance where the ray crosses the
+    triangle (edges included) beyond :data:`MIN_STEP_M`.
+    """
+    a, b, c = (np.asarray(x, dtype=float) for x in corners)
+    e1, e2 = b - a, c - a
+    p = np.cross(d, e2)
+    det = p @ e1
+    out = np.full(len(d), np.inf)
+    ok = np.abs(det) > 1e-300
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / det
+        s = origin - a
+        u = np.sum(s * p, axis=1) * inv
+        q = np.cross(s, e1)
+        v = np.sum(d * q, axis=1) * inv
+        t = (q @ e2) * inv
+    edge = 1e-9
+    ok &= (u >= -edge) & (v >= -edge) & (u + v <= 1.0 + edge) & (t > MIN_STEP_M)
+    out[ok] = t[ok]
+    return out
+
+
+class _Facets:
+    """The specular objects' triangles as flat mirrors (mirror ``P + f``), from the simulator's
+    world meshes (clipped to the water, as its caster's); a closed object's mirror on their
+    outside only (``side``: +1 the normal's side, -1 the other, 0 both)."""
+
+    def __init__(self, sim, n_planes: int) -> None:
+        objects = sim.scene.objects
+        self.n_planes = n_planes
+        self.object_specular = np.array([o.specular for o in objects], dtype=float)
+        counts = [len(m.faces) if o.specular > 0 else 0 for m, o in zip(sim.meshes, objects)]
+        self.start = np.concatenate([[0], np.cumsum(counts)]).astype(int)
+        tri = [m.vertices[m.faces] for m, c in zip(sim.meshes, counts) if c]
+        self.corners = np.concatenate(tri).astype(float) if tri else np.empty((0, 3, 3))
+        n = np.cross(self.corners[:, 1] - self.corners[:, 0], self.corners[:, 2] - self.corners[:, 0])
+        self.normal = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        self.offset = np.sum(self.normal * self.corners[:, 0], axis=1)
+        owner = np.repeat(np.arange(len(objects)), counts)
+        self.specular = self.object_specular[owner] if len(owner) else np.empty(0)
+        # A closed object mirrors on its outside only (its whole mesh, before clipping, tells).
+        sides = [outer_side(object_mesh_world(o)) if c else 0 for o, c in zip(objects, counts)]
+        self.side = np.array(sides, dtype=int)[owner] if len(owner) else np.empty(0, int)
+        self.names = tuple(objects[k].name for k in owner)
+
+    def __len__(self) -> int:
+        return len(self.corners)
+
+
 def all_chains(mirrors: list[int], longest: int) -> list[tuple[int, ...]]:
-    """Every sequence of the mirror planes with no plane twice in a row, empty first, by length."""
+    """Every sequence of the mirrors with no mirror twice in a row, empty first, by length."""
     out: list[tuple[int, ...]] = [()]
     for k in range(1, longest + 1):
         out += [c for c in itertools.product(mirrors, repeat=k) if all(a != b for a, b in zip(c, c[1:]))]
@@ -218,13 +285,15 @@ class _Planes:
         return len(self.names)
 
 
-def _receive_legs(sim, planes: _Planes, active: np.ndarray, origin: np.ndarray, directions: np.ndarray,
-                  weight: np.ndarray, tvg: bool, reach: float, n_reflections: int, keep_legs: bool) -> dict:
+def _receive_legs(sim, planes: _Planes, facets: _Facets, active: np.ndarray, origin: np.ndarray,
+                  directions: np.ndarray, weight: np.ndarray, tvg: bool, reach: float, n_reflections: int,
+                  keep_legs: bool) -> dict:
     """Trace the fan's rays with reflections; one scatter event per ray and generation.
 
     Returns
     -------
     dict of arrays over the events: ``ray``, ``gen``, ``chain`` (list of tuples), ``sid``,
+    ``facet`` (the mirror ``P + f`` of the scatterer's triangle on a specular object, else -1),
     ``point`` (m, 3), ``length`` (receive leg, metres), ``atten`` (product of R),
     ``weight`` (diffuse weight at A), ``vertices`` (list of (g + 2, 3) arrays, or empty);
     ``followed``: the set of chains some ray travelled along (whether or not it met anything).
@@ -242,7 +311,7 @@ def _receive_legs(sim, planes: _Planes, active: np.ndarray, origin: np.ndarray, 
     atten = np.ones(n)
     chains: list[tuple[int, ...]] = [()] * n
     corners = np.repeat(origin[None, None, :], n, axis=0)  # (m, g + 1, 3): the leg's corners so far
-    events: dict = {k: [] for k in ("ray", "gen", "sid", "point", "length", "atten", "weight")}
+    events: dict = {k: [] for k in ("ray", "gen", "sid", "facet", "point", "length", "atten", "weight")}
     events["chain"], events["vertices"] = [], []
     followed: set = set()
     for gen in range(n_reflections + 1):
@@ -252,7 +321,7 @@ def _receive_legs(sim, planes: _Planes, active: np.ndarray, origin: np.ndarray, 
         # Objects: from O itself, or just off the plane the ray was reflected at.
         lift = 0.0 if gen == 0 else OFF_PLANE_M
         cast_from = (start + lift * d).astype(np.float32)
-        hits = sim.caster.intersect(cast_from, d.astype(np.float32), float(reach - before.min()))
+        hits = sim.caster.intersect(cast_from, d.astype(np.float32), float(reach - before.min()), with_uv=True)
         hit = np.asarray(hits.mesh_id) >= 0
         t = np.where(hit, np.asarray(hits.distance, dtype=float) + lift, np.inf)
         sid = np.where(hit, n_planes + np.asarray(hits.mesh_id), -1)
@@ -272,6 +341,17 @@ def _receive_legs(sim, planes: _Planes, active: np.ndarray, origin: np.ndarray, 
         a = start[k] + t[k, None] * d[k]
         cos = np.abs(np.sum(nrm[k] * d[k], axis=1))
         s = sid[k]
+        # The scatterer's triangle, where its object mirrors: mirror P + start + triangle.
+        mirror = np.full(len(k), -1)
+        if len(facets):
+            obj = np.clip(s - n_planes, 0, len(facets.object_specular) - 1)
+            on = (s >= n_planes) & (facets.object_specular[obj] > 0)
+            mirror[on] = n_planes + facets.start[obj[on]] + np.asarray(hits.primitive_id)[k][on]
+            # Met from the side it mirrors on.
+            f = mirror[on] - n_planes
+            side = facets.side[f]
+            dn = np.sum(d[k][on] * facets.normal[f], axis=1)
+            mirror[np.flatnonzero(on)[(side != 0) & (side * dn >= 0)]] = -1
         texel = np.ones(len(k)) if hits.texel is None else np.where(s >= n_planes, hits.texel[k], 1.0)
         law = np.zeros(len(k))
         for q in np.unique(s):
@@ -287,6 +367,7 @@ def _receive_legs(sim, planes: _Planes, active: np.ndarray, origin: np.ndarray, 
         events["ray"].append(ray[k])
         events["gen"].append(np.full(len(k), gen))
         events["sid"].append(s)
+        events["facet"].append(mirror)
         events["point"].append(a)
         events["length"].append(length[k])
         events["atten"].append(atten[k])
@@ -300,14 +381,21 @@ def _receive_legs(sim, planes: _Planes, active: np.ndarray, origin: np.ndarray, 
         go = (s < n_planes) & (length[k] < reach)
         if n_planes:
             go &= planes.specular[np.minimum(s, n_planes - 1)] > 0.0
+        go |= (mirror >= 0) & (length[k] < reach)
         g = k[go]
-        p = s[go]
+        p = np.where(mirror[go] >= 0, mirror[go], s[go])
         new_d = np.empty((len(g), 3))
+        r = np.empty(len(g))
         for q in np.unique(p):
             sel = p == q
-            new_d[sel] = reflect_direction(d[g[sel]], planes.normal[q])
+            if q < n_planes:
+                new_d[sel] = reflect_direction(d[g[sel]], planes.normal[q])
+                r[sel] = planes.specular[q]
+            else:
+                new_d[sel] = reflect_direction(d[g[sel]], facets.normal[q - n_planes])
+                r[sel] = facets.specular[q - n_planes]
         ray, start, d = ray[g], a[go], new_d
-        before, atten = length[g], atten[g] * planes.specular[p]
+        before, atten = length[g], atten[g] * r
         chains = [chains[i] + (int(q),) for i, q in zip(g, p)]
         corners = np.concatenate([corners[g], start[:, None, :]], axis=1)
     out = {key: (np.concatenate(v) if v else np.empty(0)) for key, v in events.items()
@@ -316,31 +404,34 @@ def _receive_legs(sim, planes: _Planes, active: np.ndarray, origin: np.ndarray, 
     out["ray"] = out["ray"].astype(int)
     out["gen"] = out["gen"].astype(int)
     out["sid"] = out["sid"].astype(int)
+    out["facet"] = out["facet"].astype(int)
     out["chain"], out["vertices"] = events["chain"], events["vertices"]
     out["followed"] = followed
     return out
 
 
-def _transmit_legs(planes: _Planes, active: np.ndarray, origin: np.ndarray, chain: tuple[int, ...],
-                   a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _transmit_legs(planes: _Planes, facets: _Facets, active: np.ndarray, origin: np.ndarray,
+                   chain: tuple[int, ...], a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Transmit legs from the sonar to scatterers ``a`` via ``chain``: image sources, then a traced check.
 
     Parameters
     ----------
     planes : _Planes
+    facets : _Facets
     active : (P,) bool array
     origin : (3,) float array
         The sonar O, metres.
     chain : tuple of int
-        Planes in the order the sound meets them leaving O.
+        Mirrors in the order the sound meets them leaving O (``P + f``: facet f).
     a : (m, 3) float array
         Scatterers, metres.
 
     Returns
     -------
     valid : (m,) bool ndarray
-        The traced ray meets the chain's planes in order, each as the nearest active plane,
-        then passes within :data:`VERIFY_TOLERANCE_M` of A before any other plane.
+        The traced ray meets the chain's mirrors in order, each nearer than any other active
+        plane (a facet: crossing its triangle), then passes within :data:`VERIFY_TOLERANCE_M`
+        of A before any plane.
     length : (m,) float64 ndarray
         Traced length from O to A, metres (NaN where not valid).
     departure : (m, 3) float64 ndarray
@@ -350,17 +441,23 @@ def _transmit_legs(planes: _Planes, active: np.ndarray, origin: np.ndarray, chai
         nearest A).
     """
     m, k = len(a), len(chain)
-    # Image sources: the sonar mirrored across the chain's planes in turn.
+    n_planes = len(planes)
+
+    def plane_of(p: int) -> tuple[np.ndarray, float]:
+        if p < n_planes:
+            return planes.normal[p], planes.offset[p]
+        return facets.normal[p - n_planes], facets.offset[p - n_planes]
+
+    # Image sources: the sonar mirrored across the chain's mirrors in turn.
     sources = [origin]
     for p in chain:
-        sources.append(mirror_point(sources[-1], planes.normal[p], planes.offset[p]))
+        sources.append(mirror_point(sources[-1], *plane_of(p)))
     # Walk back from A towards the images: the straight line from A to the last image crosses
     # the last plane at the last reflection point, and so on back to the sonar.
     x = np.array(a, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
         for j in range(k, 0, -1):
-            p = chain[j - 1]
-            n, off = planes.normal[p], planes.offset[p]
+            n, off = plane_of(chain[j - 1])
             towards = sources[j] - x
             s = (off - x @ n) / (towards @ n)
             x = x + s[:, None] * towards
@@ -384,12 +481,20 @@ def _transmit_legs(planes: _Planes, active: np.ndarray, origin: np.ndarray, chai
         t_near = dist.min(axis=1) if len(act) else np.full(m, np.inf)
         if j < k:
             p = chain[j]
-            valid &= (nearest == p) & np.isfinite(t_near)
-            t_step = np.where(np.isfinite(t_near), t_near, 0.0)
+            if p < n_planes:
+                valid &= (nearest == p) & np.isfinite(t_near)
+                t_step = np.where(np.isfinite(t_near), t_near, 0.0)
+            else:  # the facet's triangle, met before any plane
+                t_facet = ray_triangle_distance(pos, d, facets.corners[p - n_planes])
+                valid &= np.isfinite(t_facet) & (t_facet < t_near)
+                side = facets.side[p - n_planes]
+                if side:  # from the side it mirrors on
+                    valid &= side * (d @ facets.normal[p - n_planes]) < 0
+                t_step = np.where(np.isfinite(t_facet), t_facet, 0.0)
             pos = pos + t_step[:, None] * d
             length += t_step
             vertices[:, j + 1] = pos
-            d = reflect_direction(d, planes.normal[p])
+            d = reflect_direction(d, plane_of(p)[0])
         else:
             # The last segment must pass through A, before it leaves the water.
             rel = a - pos
@@ -474,11 +579,13 @@ def render_reference(sim, sonar=None, pose=None, *, max_order: int | None = None
 
     planes = _Planes(sim.scene.reflecting_planes)
     n_planes = len(planes)
+    facets = _Facets(sim, n_planes)
     origin = np.asarray(pose.translation, dtype=float).reshape(3)
     rotation = np.asarray(pose.rotation, dtype=float)
     # A plane takes part only when the sonar is on its water side.
     active = (planes.normal @ origin - planes.offset) > 0.0 if n_planes else np.zeros(0, bool)
     mirrors = [p for p in range(n_planes) if active[p] and planes.specular[p] > 0.0]
+    mirrors += [n_planes + f for f in range(len(facets))]
     multipath = max_order > 1 and bool(mirrors)
     reach = sonar.range_max_m * REACH_MARGIN * (MULTIPATH_FACTOR if multipath else 1.0)
     n_reflections = max_order - 1 if multipath else 0
@@ -487,7 +594,8 @@ def render_reference(sim, sonar=None, pose=None, *, max_order: int | None = None
     directions = fan.directions.reshape(-1, 3) @ rotation.T
     weight = np.asarray(fan.weight, dtype=float).reshape(-1)
     per_beam = len(directions) // sonar.n_beams
-    ev = _receive_legs(sim, planes, active, origin, directions, weight, render.tvg, reach, n_reflections, keep_legs)
+    ev = _receive_legs(sim, planes, facets, active, origin, directions, weight, render.tvg, reach, n_reflections,
+                       keep_legs)
     rx_chains = ev["followed"]
 
     # One row per path: (tx chain, rx chain, sid, range, L_tx, L_rx, energy, beam, beam_tx, order,
@@ -508,19 +616,20 @@ def render_reference(sim, sonar=None, pose=None, *, max_order: int | None = None
                          2 * len(tx) + 1, ev["ray"][i], True, i, None))
         other = allowed & ~same & (ev["weight"] != 0.0)
         if tx:
-            other &= ev["sid"] != tx[-1]  # the chain ends on the scatterer's own plane
+            # The chain ends on the scatterer's own plane or triangle.
+            other &= (ev["sid"] != tx[-1]) if tx[-1] < n_planes else (ev["facet"] != tx[-1])
         if double_beam != "separate":
             other &= rank[rx_id] > rank[c]  # each reciprocal pair once, from the greater receive chain
         idx = np.flatnonzero(other)
         if not len(idx):
             continue
-        valid, length, departure, vertices = _transmit_legs(planes, active, origin, tx, ev["point"][idx])
+        valid, length, departure, vertices = _transmit_legs(planes, facets, active, origin, tx, ev["point"][idx])
         inside, beam_tx = _in_aperture(sonar, pose, departure)
         ok = valid & inside & (length >= sonar.range_min_m) & (length < sonar.range_max_m)
         if los and ok.any():
             sel = np.flatnonzero(ok)
             ok[sel] &= _unoccluded(sim, vertices[sel])
-        r_tx = float(np.prod(planes.specular[list(tx)])) if tx else 1.0
+        r_tx = float(np.prod([planes.specular[p] if p < n_planes else facets.specular[p - n_planes] for p in tx]))
         for j in np.flatnonzero(ok):
             i = idx[j]
             rows.append((tx, ev["chain"][i], ev["sid"][i], 0.5 * (ev["length"][i] + length[j]), length[j],
@@ -548,7 +657,7 @@ def render_reference(sim, sonar=None, pose=None, *, max_order: int | None = None
     dr = (sonar.range_max_m - sonar.range_min_m) / n_bins
     stack = np.zeros((max_order + 1, n_bins, n_beams))
     signatures: dict = {}
-    names = planes.names
+    names = planes.names + facets.names  # a facet is named by its object
     for k in range(len(paths.energy)):
         b = int(np.floor((paths.range_m[k] - sonar.range_min_m) / dr))
         if not 0 <= b < n_bins:
@@ -572,4 +681,4 @@ def render_reference(sim, sonar=None, pose=None, *, max_order: int | None = None
     for k in range(2, max_order + 1):
         components[{2: "double", 3: "triple"}.get(k, f"order{k}")] = stack[k]
     components["total"] = stack.sum(axis=0)
-    return ReferenceImage(stack, components, signatures, paths, rx_chains, names)
+    return ReferenceImage(stack, components, signatures, paths, rx_chains, planes.names)

@@ -40,7 +40,7 @@ from ..paths.planes import ChainTable, PlaneSet
 from ..sensor.model import SensorModel, elevation_span_deg
 from ..sensor.speckle import pool_bytes
 from ..scene.inside import InsideTest
-from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world
+from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world, outer_side
 from ..scene.floor_texture import scale_by_texture, texture_fields
 from ..scene.textures import with_textures
 from ..trace import available_cores, make_caster
@@ -142,6 +142,8 @@ class Simulator:
             raise ConfigError(exc.key, exc.detail, exc.source or self.scene.source) from None
         self.planes = PlaneSet.from_specs(self.scene.reflecting_planes)
         self.meshes = [object_mesh_world(o) for o in self.scene.objects]
+        # The side each mirror mirrors on, from its whole mesh (clipping opens a closed one).
+        sides = [outer_side(m) if o.specular > 0 else 0 for m, o in zip(self.meshes, self.scene.objects)]
         for plane in self.scene.reflecting_planes:
             # Nothing beyond a floor, wall or surface can be seen; removing it (and faces lying
             # in the plane) keeps mirror geometry and coincident faces from making echoes.
@@ -152,7 +154,7 @@ class Simulator:
         self.facets: FacetSet | None = None
         if any(o.specular > 0 for o in objects):
             self.facets = FacetSet.of(self.meshes, [o.name for o in objects], [o.specular for o in objects],
-                                      [o.normals for o in objects])
+                                      [o.normals for o in objects], sides)
         # The ground is the only mirror: Algorithm 2 (``method: paper``) applies.
         self._ground_only = self.scene.ground is not None and not self.scene.planes and self.facets is None
         self._warn_about_planes()

@@ -146,6 +146,19 @@ def object_mesh_world(obj: ObjectSpec) -> TriangleMesh:
     return TriangleMesh(v, np.ascontiguousarray(local.faces, dtype=np.int32), local.uv, local.texture)
 
 
+def outer_side(mesh: TriangleMesh) -> int:
+    """Which side of its triangles a closed mesh's outside is on: +1 where the normals
+    ``(b - a) x (c - a)`` point out of the volume, -1 where they point in, 0 where the mesh
+    encloses no volume (an open sheet: both sides face the water)."""
+    if not len(mesh.faces):
+        return 0
+    m = _trimesh().Trimesh(mesh.vertices, mesh.faces, process=False)
+    if not (m.is_watertight and m.is_winding_consistent):
+        return 0
+    volume = float(m.volume)
+    return 0 if volume == 0.0 else (1 if volume > 0.0 else -1)
+
+
 def clip_to_water(mesh: TriangleMesh, point_m, normal) -> TriangleMesh:
     """The part of a mesh on the water side of a plane (possibly no faces at all).
 
