@@ -383,8 +383,9 @@ def trace_generation(
     facets : FacetSet, optional
         The mesh mirrors (:mod:`sonarsim.paths.facets`): a ray that meets one of their
         triangles also reflects, about the triangle's normal (or the interpolated one), into
-        chain mirror ``P + facet``. ``hits`` must carry the triangles and barycentrics. No
-        compiled twin yet: the simulator renders scenes with mesh mirrors with these loops.
+        chain mirror ``P + m`` (m the triangle's mirror). ``hits`` must carry the triangles and
+        barycentrics. No compiled twin yet: the simulator renders scenes with mesh mirrors with
+        these loops.
 
     Returns
     -------
@@ -456,7 +457,7 @@ def trace_generation(
     if n_planes:
         go &= planes.specular[np.minimum(sid, n_planes - 1)] > 0
     mirrors = facets is not None and facets.any
-    if mirrors:  # a mesh mirror's triangle reflects as a plane does (mirror P + facet)
+    if mirrors:  # a mesh mirror's triangle reflects as a plane does (chain mirror P + its mirror)
         facet = np.full(len(sid), -1, dtype=np.int64)
         on_object = sid >= n_planes
         facet[on_object] = facets.facet(sid[on_object] - n_planes, hits.primitive_id[k][on_object])
@@ -470,9 +471,9 @@ def trace_generation(
     if mirrors:
         f = facet[go]
         on_facet = f >= 0
-        p = np.where(on_facet, n_planes + f, p)
+        p = np.where(on_facet, n_planes + facets.mirror[np.maximum(f, 0)], p)
     # New chains are numbered in the order of the rows that first meet them, as the kernel does.
-    pair = c.astype(np.int64) * (n_planes + (len(facets) if mirrors else 0)) + p
+    pair = c.astype(np.int64) * (n_planes + (facets.n_mirrors if mirrors else 0)) + p
     _, first_row, back = np.unique(pair, return_index=True, return_inverse=True)
     child = np.empty(len(first_row), dtype=np.int32)
     for u in np.argsort(first_row, kind="stable"):
@@ -593,8 +594,8 @@ def option_paths(
     planes : PlaneSet
     active : (P,) bool array
     facets : FacetSet, optional
-        The mesh mirrors, where the chain holds some (mirror ``P + f``, facet ``f``; the leg
-        must record its triangles, ``leg.prim``).
+        The mesh mirrors, where the chain holds some (chain mirror ``P + m``: the facets' mirror
+        ``m``; the leg must record its triangles, ``leg.prim``).
 
     Returns
     -------
@@ -619,9 +620,11 @@ def option_paths(
     last = int(tx_planes[-1]) if len(tx_planes) else -1
     if last < n_planes:
         keep = (c != tx) & (s != last)
-    else:  # a facet: not the scatterer's own triangle (its own plane, t = 0 up to round-off)
-        f = last - n_planes
-        keep = (c != tx) & ~((s - n_planes == facets.obj[f]) & (leg.prim[i] == f - facets.start[facets.obj[f]]))
+    else:  # a mesh mirror: not the one the scatterer lies on (its plane, t = 0 up to round-off)
+        on = s >= n_planes
+        own = np.full(len(i), -1, dtype=np.int64)
+        own[on] = facets.mirror_of(s[on] - n_planes, leg.prim[i][on])
+        keep = (c != tx) & (own != last - n_planes)
     if not separate:
         keep &= rank[c] > rank[tx]
     i = i[keep]
@@ -644,8 +647,8 @@ def option_paths(
         if q < n_planes:
             n, offset = planes.normal[q], planes.offset[q]
         else:
-            n, offset = facets.normal[q - n_planes], facets.offset[q - n_planes]
-            side = int(facets.side[facets.obj[q - n_planes]])
+            n, offset = facets.mirror_normal[q - n_planes], facets.mirror_offset[q - n_planes]
+            side = int(facets.side[facets.mirror_obj[q - n_planes]])
             if side:  # a closed object's facet is met from outside: the leg beyond it is there
                 ok &= side * (_dot(w, n) - offset) > 0.0
         towards = sources[j + 1] - w
@@ -656,8 +659,8 @@ def option_paths(
             tol = WATER_TOLERANCE_M * np.maximum(np.abs(w).max(axis=1), 1.0)
             for p in np.flatnonzero(active):
                 ok &= ~(_dot(w, planes.normal[p]) - planes.offset[p] < -tol)
-        if q >= n_planes:  # on the triangle itself, not only its plane
-            ok &= facets.contains(q - n_planes, w)
+        if q >= n_planes:  # on one of its triangles, not only their plane
+            ok &= facets.contains_mirror(q - n_planes, w)
     k = np.flatnonzero(ok)
     i = i[k]
     distance = 0.5 * (leg.distance[i] + length[k])
@@ -1022,6 +1025,29 @@ def drop_occluded(sets: list[PathSet], legs: list[Leg], *, table: ChainTable, vi
     return out
 
 
+def path_corners(s: PathSet, legs: list[Leg], table: ChainTable, view: SonarView, active: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The corners of a path set's legs, from the sonar out: ``O, q_1, ..., q_k, A``.
+
+    The receive leg's corners are where its ray met each earlier generation's surface (where it
+    reflected); the transmit leg's are its reflection points (:func:`~sonarsim.paths.planes.reflection_points`),
+    or the receive leg's own for :data:`SAME`.
+
+    Returns
+    -------
+    tx, rx : (m, k + 2, 3) and (m, gen + 2, 3) float64 ndarrays, metres
+    """
+    ray = s.ray
+    origin = np.broadcast_to(np.asarray(view.origin, float), (len(ray), 3))
+    rx = np.stack([origin] + [legs[g].point[ray] for g in range(s.gen + 1)], axis=1)
+    if s.tx == SAME:
+        return rx, rx
+    chain = table.chains[s.tx]
+    q, _ = reflection_points(table.planes, chain, table.sources(s.tx), rx[:, -1], active, table.facets)
+    tx = np.concatenate([origin[:, None, :], q, rx[:, -1:, :]], axis=1)
+    return tx, rx
+
+
 def accumulate_paths(
     sets: list[PathSet], legs: list[Leg], n_surfaces: int, fan_shape: tuple[int, int, int], geometry: tuple,
     n_labels: int, spread: bool,
@@ -1064,8 +1090,8 @@ def split_by_signature(sets: list[PathSet], legs: list[Leg], table: ChainTable, 
     """
     groups: dict[str, list[PathSet]] = {}
     names = table.planes.names
-    if table.facets is not None:  # mirrors P + f are named by their object
-        names = tuple(names) + tuple(table.facets.names[k] for k in table.facets.obj)
+    if table.facets is not None:  # mirrors P + m are named by their object
+        names = tuple(names) + tuple(table.facets.names[k] for k in table.facets.mirror_obj)
     for s in sets:
         leg = legs[s.gen]
         rx = leg.chain[s.ray].astype(np.int64)

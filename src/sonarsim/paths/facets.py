@@ -6,8 +6,11 @@ diffuse law, as before) and goes on in the mirrored direction, carrying R times 
 a transmit leg may meet its triangles by image sources, each triangle a small mirror.
 
 Each triangle is a *facet*, numbered over the specular objects in scene order (object ``k``'s
-triangle ``j`` is facet ``start[k] + j``); in a chain (:class:`~sonarsim.paths.planes.ChainTable`)
-facet ``f`` is the mirror ``P + f``, after the ``P`` planes. A facet mirrors about:
+triangle ``j`` is facet ``start[k] + j``). An object's facets that lie in one plane (a box's
+face, cut in two or more triangles) form one *mirror*, as a plane is one: the same image
+sources, one chain for the rays that meet either triangle, one continuous surface for range
+splatting. In a chain (:class:`~sonarsim.paths.planes.ChainTable`) mirror ``m`` is ``P + m``,
+after the ``P`` planes; mirrors are numbered by their first facet. A facet mirrors about:
 
 A facet of a closed object mirrors on the object's outside only (``side``): a ray meeting it
 from inside does not reflect, and a transmit leg must meet it from outside; an open sheet
@@ -15,11 +18,12 @@ mirrors on both sides.
 
 * ``flat`` normals (the default): its own plane, the law of reflection about the triangle's
   normal. The image of a point across it is a point, so transmit legs come from image sources
-  as for planes, with one more check: the reflection point must lie on the triangle itself
-  (:meth:`FacetSet.contains`), not just on its plane.
+  as for planes, with one more check: the reflection point must lie on one of the mirror's
+  triangles (:meth:`FacetSet.contains`), not just on its plane.
 * ``smooth`` normals: the normal interpolated from the corners' normals (each the area-weighted
   mean of the normals of the faces around the corner within :data:`CREASE_DEG` of the face's
-  own, so a box's or a cylinder's edges stay sharp). A receive ray reflects about it; the image
+  own, so a box's or a cylinder's edges stay sharp). Each smooth facet is a mirror of its own.
+  A receive ray reflects about it; the image
   of a point across a curved mirror is not a point, so no transmit leg is formed by image
   sources across a smooth facet: those paths come from the receive legs that followed it
   (the pair's other member, by reciprocity: :mod:`sonarsim.paths.engine`).
@@ -44,6 +48,10 @@ CREASE_DEG = 45.0
 #: A reflection point may lie this far outside its triangle, relative to the triangle's
 #: longest edge (round-off on the edge two coplanar triangles share must leave no gap).
 EDGE_TOLERANCE = 1e-9
+
+#: Facets of one object whose unit normals and offsets (metres) agree to this many decimals
+#: lie in one plane: one mirror.
+COPLANAR_DECIMALS = 9
 
 
 @dataclass(frozen=True)
@@ -73,6 +81,15 @@ class FacetSet:
         Object index of each facet.
     corner_normals : (F, 3, 3) float64 ndarray or None
         The smooth normal at each corner (None: no object is smooth).
+    mirror : (F,) int64 ndarray
+        The mirror of each facet (its object's facets in its plane).
+    mirror_normal : (G, 3) float64 ndarray
+    mirror_offset : (G,) float64 ndarray
+        Each mirror's plane: its first facet's.
+    mirror_obj : (G,) int32 ndarray
+    mirror_start : (G + 1,) int64 ndarray
+    mirror_facets : (F,) int64 ndarray
+        Mirror ``m``'s facets are ``mirror_facets[mirror_start[m]:mirror_start[m + 1]]``.
     """
 
     names: tuple[str, ...]
@@ -85,6 +102,12 @@ class FacetSet:
     offset: np.ndarray
     obj: np.ndarray
     corner_normals: np.ndarray | None
+    mirror: np.ndarray
+    mirror_normal: np.ndarray
+    mirror_offset: np.ndarray
+    mirror_obj: np.ndarray
+    mirror_start: np.ndarray
+    mirror_facets: np.ndarray
 
     @classmethod
     def of(cls, meshes: Sequence[TriangleMesh], names: Sequence[str], specular: Sequence[float],
@@ -112,8 +135,21 @@ class FacetSet:
                 for k, m in enumerate(meshes) if counts[k]
             ])
         side = np.zeros(len(spec), np.int8) if sides is None else np.asarray(sides, np.int8).reshape(-1)
-        return cls(tuple(names), spec, smooth, side, start, tri, normal, np.einsum("ij,ij->i", normal, tri[:, 0]), obj,
-                   corner_normals)
+        offset = np.einsum("ij,ij->i", normal, tri[:, 0])
+        # Mirrors: a flat object's facets in one plane; each smooth facet alone.
+        alone = smooth[obj] if len(obj) else np.zeros(0, bool)
+        key = np.column_stack([obj, np.round(normal, COPLANAR_DECIMALS), np.round(offset, COPLANAR_DECIMALS),
+                               np.where(alone, np.arange(len(obj)), -1)])
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        order = np.argsort(first, kind="stable")  # mirrors numbered by their first facet
+        rank = np.empty(len(order), np.int64)
+        rank[order] = np.arange(len(order))
+        mirror = rank[inverse.reshape(-1)] if len(obj) else np.empty(0, np.int64)
+        heads = first[order]
+        members = np.argsort(mirror, kind="stable")
+        mirror_start = np.searchsorted(mirror[members], np.arange(len(heads) + 1)).astype(np.int64)
+        return cls(tuple(names), spec, smooth, side, start, tri, normal, offset, obj, corner_normals,
+                   mirror, normal[heads], offset[heads], obj[heads], mirror_start, members.astype(np.int64))
 
     def __len__(self) -> int:
         return len(self.obj)
@@ -123,12 +159,21 @@ class FacetSet:
         """Some object mirrors."""
         return len(self.obj) > 0
 
+    @property
+    def n_mirrors(self) -> int:
+        return len(self.mirror_obj)
+
     def facet(self, obj: np.ndarray, prim: np.ndarray) -> np.ndarray:
         """Facet ids of triangle ``prim`` of object ``obj`` (arrays; -1 where the object does
         not mirror)."""
         obj = np.asarray(obj)
         mirror = self.specular[obj] > 0
         return np.where(mirror, self.start[obj] + np.asarray(prim), -1).astype(np.int64)
+
+    def mirror_of(self, obj: np.ndarray, prim: np.ndarray) -> np.ndarray:
+        """Mirror ids of triangle ``prim`` of object ``obj`` (-1 where the object does not mirror)."""
+        f = self.facet(obj, prim)
+        return np.where(f >= 0, self.mirror[np.maximum(f, 0)] if len(self.mirror) else -1, -1)
 
     def facing(self, f: np.ndarray, direction: np.ndarray) -> np.ndarray:
         """(m,) bool: rays along ``direction`` (m, 3) meet facet ``f`` (m,) on a side it
@@ -154,6 +199,14 @@ class FacetSet:
         m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-300)
         return np.where(smooth[:, None], m, n)
 
+    def contains_mirror(self, m: int, points: np.ndarray) -> np.ndarray:
+        """(k,) bool: points (k, 3) on mirror ``m``'s plane lie on one of its triangles."""
+        facets = self.mirror_facets[self.mirror_start[m]:self.mirror_start[m + 1]]
+        inside = self.contains(int(facets[0]), points)
+        for f in facets[1:]:
+            inside |= self.contains(int(f), points)
+        return inside
+
     def contains(self, f: int, points: np.ndarray) -> np.ndarray:
         """(m,) bool: points (m, 3) on facet ``f``'s plane lie inside the triangle (edges
         included, within :data:`EDGE_TOLERANCE` of its size)."""
@@ -172,7 +225,7 @@ class FacetSet:
 
 
 def _corner_normals(mesh: TriangleMesh) -> np.ndarray:
-    """(n_faces, 3, 3): each corner's smooth normal, the area-weighted mean of the normals of
+    """(n_faces, 3, 3): each corner's smooth normal, the angle-weighted mean of the normals of
     the faces around its vertex that turn less than :data:`CREASE_DEG` from the face's own."""
     tri = mesh.vertices[mesh.faces]
     raw = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length: twice the area
@@ -195,8 +248,24 @@ def _corner_normals(mesh: TriangleMesh) -> np.ndarray:
     g = face_s[np.repeat(first[corner_v], reps) + offsets]
     own = unit[corner_f[corner_id]]
     close = np.einsum("ij,ij->i", own, unit[g]) >= np.cos(np.radians(CREASE_DEG))
+    # Each face weighted by its angle at the vertex: a quad cut in two triangles then counts
+    # as much as its neighbour cut the other way (area weights would tilt the normal).
+    angle = _corner_angles(tri)  # (n_faces, 3)
+    slot = np.argmax(mesh.faces[g] == corner_v[corner_id][:, None], axis=1)
     acc = np.zeros((len(corner_v), 3))
-    np.add.at(acc, corner_id[close], raw[g[close]])
+    np.add.at(acc, corner_id[close], unit[g[close]] * angle[g[close], slot[close]][:, None])
     norm = np.linalg.norm(acc, axis=1, keepdims=True)
     out = np.where(norm > 0, acc / np.maximum(norm, 1e-300), unit[corner_f])
     return out.reshape(n_faces, 3, 3)
+
+
+def _corner_angles(tri: np.ndarray) -> np.ndarray:
+    """(n, 3) the angle of each triangle (n, 3, 3) at each of its corners, radians."""
+    out = np.empty(tri.shape[:2])
+    for j in range(3):
+        u = tri[:, (j + 1) % 3] - tri[:, j]
+        v = tri[:, (j + 2) % 3] - tri[:, j]
+        nu, nv = np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1)
+        cos = np.einsum("ij,ij->i", u, v) / np.maximum(nu * nv, 1e-300)
+        out[:, j] = np.arccos(np.clip(cos, -1.0, 1.0))
+    return out

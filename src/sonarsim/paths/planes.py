@@ -14,8 +14,8 @@ Surface ids of the per-ray labels: -1 nothing, ``p`` the plane ``p`` of the scen
 :attr:`~sonarsim.scene.Scene.reflecting_planes` (the ground first), ``P + k`` object ``k``.
 
 A chain's mirrors are planes (``p < P``) or, where objects mirror, their triangles (mirror
-``P + f`` is facet ``f`` of :class:`~sonarsim.paths.facets.FacetSet`): every map below is the
-same for both, a facet mirroring across its own plane.
+``P + m`` is mirror ``m`` of :class:`~sonarsim.paths.facets.FacetSet`, an object's triangles
+in one plane): every map below is the same for both.
 """
 
 from __future__ import annotations
@@ -120,9 +120,9 @@ class ChainTable:
     children : (capacity, P) int32 ndarray
         ``children[c, p]``: the chain ``c + (p,)``, -1 where not met yet (planes).
     facets : FacetSet or None
-        The mesh mirrors (mirror ``P + f`` is facet ``f``); None: planes only.
+        The mesh mirrors (mirror ``P + m`` is the facets' mirror ``m``); None: planes only.
     facet_children : dict
-        ``(c, P + f)`` to the chain ``c + (P + f,)`` (facets are too many for a dense table).
+        ``(c, P + m)`` to the chain ``c + (P + m,)`` (mesh mirrors are too many for a dense table).
     """
 
     planes: PlaneSet
@@ -231,24 +231,24 @@ class ChainTable:
     def normal_of(self, p: int) -> np.ndarray:
         """(3,) unit normal of mirror ``p`` (a plane's into the water; a facet's own)."""
         n_planes = len(self.planes)
-        return self.planes.normal[p] if p < n_planes else self.facets.normal[p - n_planes]
+        return self.planes.normal[p] if p < n_planes else self.facets.mirror_normal[p - n_planes]
 
     def offset_of(self, p: int) -> float:
         """``n . x`` on mirror ``p``'s plane, metres."""
         n_planes = len(self.planes)
-        return float(self.planes.offset[p] if p < n_planes else self.facets.offset[p - n_planes])
+        return float(self.planes.offset[p] if p < n_planes else self.facets.mirror_offset[p - n_planes])
 
     def specular_of(self, p: int) -> float:
         """Specular reflectance R of mirror ``p``."""
         n_planes = len(self.planes)
         if p < n_planes:
             return float(self.planes.specular[p])
-        return float(self.facets.specular[self.facets.obj[p - n_planes]])
+        return float(self.facets.specular[self.facets.mirror_obj[p - n_planes]])
 
     def name_of(self, p: int) -> str:
         """Name of mirror ``p``: the plane's, or the facet's object's."""
         n_planes = len(self.planes)
-        return self.planes.names[p] if p < n_planes else self.facets.names[self.facets.obj[p - n_planes]]
+        return self.planes.names[p] if p < n_planes else self.facets.names[self.facets.mirror_obj[p - n_planes]]
 
     def mirror(self, p: int) -> np.ndarray:
         """(3, 4) affine map of the reflection across mirror ``p``'s plane."""
@@ -265,7 +265,7 @@ class ChainTable:
         along it can come from image sources."""
         n_planes = len(self.planes)
         facets = self.facets
-        return all(p < n_planes or not facets.smooth[facets.obj[p - n_planes]] for p in self.chains[c])
+        return all(p < n_planes or not facets.smooth[facets.mirror_obj[p - n_planes]] for p in self.chains[c])
 
     # Views used by the path formation -----------------------------------------------------
 
@@ -327,7 +327,7 @@ def reflection_points(
     ----------
     planes : PlaneSet
     chain : tuple of int
-        Mirrors in the order the sound meets them going out from the sonar (``P + f``: facet f).
+        Mirrors in the order the sound meets them going out from the sonar (``P + m``: mesh mirror m).
     sources : (len(chain) + 1, 3) float array
         Images of the sonar (:meth:`ChainTable.sources`).
     points : (m, 3) float array
@@ -354,7 +354,7 @@ def reflection_points(
         if p < n_planes:
             n, off = planes.normal[p], planes.offset[p]
         else:
-            n, off = facets.normal[p - n_planes], facets.offset[p - n_planes]
+            n, off = facets.mirror_normal[p - n_planes], facets.mirror_offset[p - n_planes]
         towards = sources[j + 1] - x
         with np.errstate(divide="ignore", invalid="ignore"):
             t = (off - x @ n) / (towards @ n)
@@ -363,7 +363,7 @@ def reflection_points(
         dist = planes.signed_distance(x)[:, active]
         ok &= np.all(dist >= -WATER_TOLERANCE_M * np.maximum(1.0, np.abs(x).max(axis=1))[:, None], axis=1)
         if p >= n_planes:
-            ok &= facets.contains(p - n_planes, x)
+            ok &= facets.contains_mirror(p - n_planes, x)
         valid &= ok
         q[:, j] = x
     return q, valid

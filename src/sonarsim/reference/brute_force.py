@@ -11,9 +11,10 @@ that the two can be compared image by image:
   formula) is a scatterer; on a plane with specular reflectance R > 0 the ray is also
   reflected (``d - 2 (d.n) n``) and goes on, until ``max_order - 1`` reflections or the reach.
 * **Mesh mirrors.** The triangles of an object with a specular reflectance are mirrors too,
-  each a flat facet (numbered ``P + f``, f over the specular objects' triangles in scene
-  order, as :mod:`sonarsim.paths.facets` numbers them): a receive ray that meets one both
-  scatters and reflects about the triangle's normal, computed here from its corners.
+  flat facets; an object's triangles in one plane are one mirror (numbered ``P + m``, m by
+  the mirror's first triangle over the specular objects' triangles in scene order, as
+  :mod:`sonarsim.paths.facets` numbers them). A receive ray that meets one both scatters and
+  reflects about the triangle's normal, computed here from its corners.
 * **Transmit legs** are enumerated over *every* chain of active mirror planes and facets (no
   mirror twice in a row), not only those the receive rays followed. Each is found by
   mirroring the sonar across the chain's mirrors (image sources), walking back from the
@@ -221,19 +222,22 @@ def ray_triangle_distance(origin: np.ndarray, d: np.ndarray, corners: np.ndarray
         q = np.cross(s, e1)
         v = np.sum(d * q, axis=1) * inv
         t = (q @ e2) * inv
-    edge = 1e-9
-    ok &= (u >= -edge) & (v >= -edge) & (u + v <= 1.0 + edge) & (t > MIN_STEP_M)
+        edge = 1e-9
+        ok &= (u >= -edge) & (v >= -edge) & (u + v <= 1.0 + edge) & (t > MIN_STEP_M)
     out[ok] = t[ok]
     return out
 
 
 class _Facets:
-    """The specular objects' triangles as flat mirrors (mirror ``P + f``), from the simulator's
-    world meshes (clipped to the water, as its caster's); a closed object's mirror on their
-    outside only (``side``: +1 the normal's side, -1 the other, 0 both)."""
+    """The specular objects' triangles as flat mirrors (mirror ``P + m``, an object's triangles
+    in one plane), from the simulator's world meshes (clipped to the water, as its caster's); a
+    closed object's mirror on their outside only (``side``: +1 the normal's side, -1 the other,
+    0 both)."""
 
     def __init__(self, sim, n_planes: int) -> None:
         objects = sim.scene.objects
+        if any(o.specular > 0 and o.normals != "flat" for o in objects):
+            raise ValueError("the reference mirrors about flat facets only (normals: flat)")
         self.n_planes = n_planes
         self.object_specular = np.array([o.specular for o in objects], dtype=float)
         counts = [len(m.faces) if o.specular > 0 else 0 for m, o in zip(sim.meshes, objects)]
@@ -244,6 +248,22 @@ class _Facets:
         self.normal = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
         self.offset = np.sum(self.normal * self.corners[:, 0], axis=1)
         owner = np.repeat(np.arange(len(objects)), counts)
+        # An object's triangles in one plane (normals and offsets within 1e-9) are one mirror,
+        # numbered by its first triangle.
+        group = np.full(len(owner), -1)
+        heads: list = []
+        for f in range(len(owner)):
+            if group[f] >= 0:
+                continue
+            same = ((owner == owner[f]) & (np.abs(self.normal - self.normal[f]).max(axis=1) < 1e-9)
+                    & (np.abs(self.offset - self.offset[f]) < 1e-9) & (group < 0))
+            group[same] = len(heads)
+            heads.append(f)
+        self.group = group
+        self.members = [np.flatnonzero(group == g) for g in range(len(heads))]
+        heads = np.array(heads, dtype=int)
+        self.normal, self.offset = self.normal[heads], self.offset[heads]  # by mirror from here on
+        owner = owner[heads]
         self.specular = self.object_specular[owner] if len(owner) else np.empty(0)
         # A closed object mirrors on its outside only (its whole mesh, before clipping, tells).
         sides = [outer_side(object_mesh_world(o)) if c else 0 for o, c in zip(objects, counts)]
@@ -251,7 +271,15 @@ class _Facets:
         self.names = tuple(objects[k].name for k in owner)
 
     def __len__(self) -> int:
-        return len(self.corners)
+        """The number of mirrors."""
+        return len(self.members)
+
+    def distance(self, origin: np.ndarray, d: np.ndarray, m: int) -> np.ndarray:
+        """(k,) distance along rays to the nearest of mirror ``m``'s triangles (``inf``: none)."""
+        out = np.full(len(d), np.inf)
+        for f in self.members[m]:
+            out = np.minimum(out, ray_triangle_distance(origin, d, self.corners[f]))
+        return out
 
 
 def all_chains(mirrors: list[int], longest: int) -> list[tuple[int, ...]]:
@@ -346,7 +374,7 @@ def _receive_legs(sim, planes: _Planes, facets: _Facets, active: np.ndarray, ori
         if len(facets):
             obj = np.clip(s - n_planes, 0, len(facets.object_specular) - 1)
             on = (s >= n_planes) & (facets.object_specular[obj] > 0)
-            mirror[on] = n_planes + facets.start[obj[on]] + np.asarray(hits.primitive_id)[k][on]
+            mirror[on] = n_planes + facets.group[facets.start[obj[on]] + np.asarray(hits.primitive_id)[k][on]]
             # Met from the side it mirrors on.
             f = mirror[on] - n_planes
             side = facets.side[f]
@@ -485,7 +513,7 @@ def _transmit_legs(planes: _Planes, facets: _Facets, active: np.ndarray, origin:
                 valid &= (nearest == p) & np.isfinite(t_near)
                 t_step = np.where(np.isfinite(t_near), t_near, 0.0)
             else:  # the facet's triangle, met before any plane
-                t_facet = ray_triangle_distance(pos, d, facets.corners[p - n_planes])
+                t_facet = facets.distance(pos, d, p - n_planes)
                 valid &= np.isfinite(t_facet) & (t_facet < t_near)
                 side = facets.side[p - n_planes]
                 if side:  # from the side it mirrors on
