@@ -341,3 +341,99 @@ def test_mirror_settings_survive_the_scene_file():
     scene = sonarsim.load_scene(doc)
     again = sonarsim.load_scene(scene.to_dict())
     assert again.objects[0].specular == 0.9 and again.objects[0].normals == "smooth"
+
+
+# --- specular returns (render.glints) ------------------------------------------------------
+
+GLINT_SONAR = {"n_beams": 16, "azimuth_fov_deg": 40.0, "elevation_fov_deg": 20.0, "range_min_m": 0.5,
+               "range_max_m": 5.0, "n_range_bins": 500}
+
+
+def square_wall(as_box: bool, tvg: bool) -> dict:
+    """A mirror wall (R 0.8, no diffuse part) 3 m ahead of a level sonar, met square on."""
+    wall = {"albedo": 0.0, "specular": 0.8}
+    doc = {"sonar": {**GLINT_SONAR, "pose": {"position_m": [0, 0, 1], "rpy_deg": [0, 0, 0]}},
+           "render": {"elevation_samples": 256, "azimuth_samples": 16, "max_order": 1, "glints": True, "tvg": tvg}}
+    if as_box:
+        doc["objects"] = [{"name": "wall", "primitive": "box", "size_m": [0.2, 20, 20],
+                           "pose": {"position_m": [3.1, 0, 1]}, **wall}]
+    else:
+        doc["planes"] = [{"name": "wall", "point_m": [3.0, 0, 0], "normal": [-1, 0, 0], **wall}]
+    return doc
+
+
+@pytest.mark.parametrize("as_box,tvg", [(False, True), (False, False), (True, True)])
+def test_a_mirror_met_square_on_returns_what_its_image_source_sends(as_box, tvg):
+    """The sonar's image in the wall is a source 2 D away: the intensity at the sonar is
+    R / (2 D)**2, in the image's units pi R / (4 D**2) per radian of beam width (times D**2
+    with TVG), at range D, in the beams either side of the axis."""
+    im = sonarsim.render(square_wall(as_box, tvg))
+    total = im.components["total"].astype(float)
+    d, r = 3.0, 0.8
+    expected = np.pi * r / (4 * d * d) * (d * d if tvg else 1.0)
+    width = np.radians(GLINT_SONAR["azimuth_fov_deg"] / GLINT_SONAR["n_beams"])
+    assert total.sum() * width == pytest.approx(expected, rel=0.05)
+    rows, cols = np.flatnonzero(total.sum(axis=1)), np.flatnonzero(total.sum(axis=0))
+    assert np.all(np.abs(im.range_m[rows] - d) < 0.01) and set(cols) <= {7, 8}
+    assert set(im.components.signatures) == {"O-wall-O"}
+    assert parse_path_name("O-wall-O") == (["wall"], "", [])
+
+
+C_CORNER = np.array([3.0, 0.0, 1.0])
+
+
+def corner_reflector(direction, r=0.9) -> tuple[dict, np.ndarray]:
+    """Three mirror plates (0.5 m, R 0.9, no diffuse part) in the planes x, y, z through
+    C_CORNER, open towards -x, -y, -z; the sonar 2.5 m from C along ``direction``, aimed at C."""
+    size, t = 0.5, 0.02
+    plates = [("back", [t, size, size], [t / 2, -size / 2, -size / 2]),
+              ("side", [size, t, size], [-size / 2, t / 2, -size / 2]),
+              ("top", [size, size, t], [-size / 2, -size / 2, t / 2])]
+    objects = [{"name": n, "primitive": "box", "size_m": s, "pose": {"position_m": (C_CORNER + o).tolist()},
+                "albedo": 0.0, "specular": r} for n, s, o in plates]
+    u = np.asarray(direction, float) / np.linalg.norm(direction)
+    o = C_CORNER + 2.5 * u
+    look = C_CORNER - o
+    pose = {"position_m": o.tolist(), "rpy_deg": [0.0, -np.degrees(np.arcsin(look[2] / 2.5)),
+                                                 np.degrees(np.arctan2(look[1], look[0]))]}
+    doc = {"sonar": {**GLINT_SONAR, "n_beams": 15, "azimuth_fov_deg": 30.0, "pose": pose},
+           "render": {"elevation_samples": 256, "azimuth_samples": 16, "max_order": 3, "glints": True},
+           "objects": objects}
+    return doc, o
+
+
+@pytest.mark.parametrize("direction", [(-1, -1, -1), (-1, -0.3, -0.3), (-0.3, -1, -0.5), (-0.5, -0.4, -1),
+                                       (-1, -0.5, -0.7)])
+def test_a_corner_reflector_returns_at_its_range_from_every_direction_in_its_quadrant(direction):
+    """Three reflections invert the sonar through the corner C: its image is a source at 2 |OC|
+    whatever the direction in the quadrant, so the return lies at the corner's range, in the
+    beam of C, with pi R**3 / 4 per radian of beam width (TVG), in all six orders of the
+    plates."""
+    doc, o = corner_reflector(direction)
+    im = sonarsim.render(doc)
+    total = im.components["total"].astype(float)
+    width = np.radians(2.0)
+    r = 0.9
+    assert total.sum() * width == pytest.approx(np.pi * r ** 3 / 4, rel=0.05)
+    rng = np.linalg.norm(C_CORNER - o)
+    rows, cols = np.flatnonzero(total.sum(axis=1)), np.flatnonzero(total.sum(axis=0))
+    assert np.all(np.abs(im.range_m[rows] - rng) < 0.015) and cols.tolist() == [7]
+    triples = [n for n in im.components.signatures if len(parse_path_name(n)[0]) == 3]
+    assert len(triples) == 6 and {frozenset(parse_path_name(n)[0]) for n in triples} == {
+        frozenset({"back", "side", "top"})}
+
+
+@pytest.mark.parametrize("direction", [(1, 1, 1), (-1, 0.3, -0.3), (-1, -0.3, 0.4)])
+def test_a_corner_reflector_returns_nothing_from_outside_its_quadrant(direction):
+    doc, _ = corner_reflector(direction)
+    assert not sonarsim.render(doc).components["total"].any()
+
+
+def test_bad_glint_settings_are_refused_naming_the_key():
+    for edit, key in (({"glints": "yes"}, "render.glints"), ({"glint_radius_m": 0.0}, "render.glint_radius_m"),
+                      ({"glint_radius_m": 2.0}, "render.glint_radius_m")):
+        doc = square_wall(False, True)
+        doc["render"].update(edit)
+        with pytest.raises(ConfigError) as err:
+            sonarsim.Simulator(doc)
+        assert key in str(err.value)

@@ -291,8 +291,10 @@ def parse_render(d: Any) -> RenderSettings:
             kw[key] = _integer(value, k)
         elif key == "threads":
             kw[key] = None if value is None else _integer(value, k)
-        elif key in ("tvg", "range_splat", "double_line_of_sight", "speckle"):
+        elif key in ("tvg", "range_splat", "double_line_of_sight", "speckle", "glints"):
             kw[key] = _boolean(value, k)
+        elif key == "glint_radius_m":
+            kw[key] = _number(value, k)
         elif key == "bounces":
             if isinstance(value, int) and not isinstance(value, bool):
                 value = [value]

@@ -503,6 +503,17 @@ class RenderSettings:
         generator seeded with it, so a sequence of renders is reproducible.
     threads : int or None
         Ray-casting threads, 1 to ``MAX_THREADS`` (256); ``None``: all CPU cores, however many.
+    glints : bool
+        Also form the specular returns: sound that reflects off mirrors (planes or specular
+        objects) and comes back to the sonar without scattering -- a corner reflector's
+        retro-reflection, a wall met square on. Each of the fan's rays that returns, after one
+        to ``max_order`` reflections, within ``glint_radius_m`` of the sonar carries
+        ``R ... R w / glint_radius_m**2`` (w the ray's weight; :mod:`sonarsim.paths.engine`).
+        Off by default (the paper's model has none).
+    glint_radius_m : float
+        Radius of the receiving disc of the specular returns, metres, in (0, 1]: about the
+        array's half-length; it must exceed the spacing of the returning rays (range times
+        the ray spacing in radians), or the returns are undersampled.
     """
 
     elevation_samples: int | str = "auto"
@@ -518,6 +529,8 @@ class RenderSettings:
     speckle: bool = False
     seed: int = 0
     threads: int | None = None
+    glints: bool = False
+    glint_radius_m: float = 0.05
 
     def __post_init__(self) -> None:
         es = self.elevation_samples
@@ -554,9 +567,14 @@ class RenderSettings:
         if th is not None and (isinstance(th, bool) or not isinstance(th, (int, np.integer)) or not 1 <= th <= MAX_THREADS):
             raise ConfigError("render.threads", f"must be an integer from 1 to {MAX_THREADS} or null (all cores), "
                               f"got {shown(th)}")
+        if not isinstance(self.glints, (bool, np.bool_)):
+            raise ConfigError("render.glints", f"must be true or false, got {shown(self.glints)}")
+        gr = self.glint_radius_m
+        if isinstance(gr, bool) or not isinstance(gr, (int, float, np.number)) or not (np.isfinite(gr) and 0 < gr <= 1):
+            raise ConfigError("render.glint_radius_m", f"must be a length in (0, 1] metres, got {shown(gr)}")
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "elevation_samples": self.elevation_samples if self.elevation_samples == "auto" else int(self.elevation_samples),
             "azimuth_samples": int(self.azimuth_samples),
             "tvg": self.tvg,
@@ -571,6 +589,9 @@ class RenderSettings:
             "seed": int(self.seed),
             "threads": self.threads,
         }
+        if self.glints:  # (written only when on: the scene files before them stay as they were)
+            out.update(glints=True, glint_radius_m=float(self.glint_radius_m))
+        return out
 
 
 @dataclass(frozen=True)

@@ -59,6 +59,10 @@ SURFACE_OFFSET_M = 1e-5
 # ``PathSet.tx`` of the paths whose transmit leg is the receive leg reversed.
 SAME = -1
 
+# ``PathSet.tx`` of the specular returns (``render.glints``): no scatter, the set's leg holds
+# the last mirror each returning ray met (:func:`glint_sets`).
+GLINT = -2
+
 # Image rows ("labels") of the frame's image stack: order 1 is split by what scatters.
 LABEL_OBJECT, LABEL_PLANE = 0, 1
 
@@ -107,6 +111,15 @@ class Leg:
     texel : (n,) float32 ndarray or None
         Where the objects are textured, the texture's factor at each object's scatterer (the
         search records it, the weighing reads it); None: no texture.
+    back_length : (n,) float64 ndarray or None
+        With ``render.glints``: the length of the specular return of the ray that reflects at
+        this generation's mirror and comes back to the sonar (``inf``: none). None: not traced.
+    back_atten : (n,) float64 ndarray or None
+        Its product of specular reflectances (the last mirror's included).
+    back_dir : (n, 3) float64 ndarray or None
+        The direction it travels as it reaches the sonar (it arrives from ``-back_dir``).
+    back_chain : (n,) int32 ndarray or None
+        Its chain (every mirror it met).
     """
 
     gen: int
@@ -123,6 +136,10 @@ class Leg:
     uv: np.ndarray | None = None
     cosine: np.ndarray | None = None
     texel: np.ndarray | None = None
+    back_length: np.ndarray | None = None
+    back_atten: np.ndarray | None = None
+    back_dir: np.ndarray | None = None
+    back_chain: np.ndarray | None = None
 
     def key(self, n_surfaces: int) -> np.ndarray:
         """(n,) int32: rays on one surface via one chain share a key (-1 none): continuity."""
@@ -754,6 +771,7 @@ def trace_legs(
     n_generations: int,
     table: ChainTable,
     textures: tuple = (),
+    glint_radius_m: float | None = None,
 ) -> list[Leg]:
     """Receive legs of the fan's rays, generation by generation (:func:`trace_generation` in a loop).
 
@@ -783,11 +801,17 @@ def trace_legs(
         The planes' textures (:func:`~sonarsim.scene.floor_texture.texture_fields`, by plane
         index; empty: none): each scatterer on a textured plane takes its factor, so every path
         formed from it does.
+    glint_radius_m : float, optional
+        Also trace the specular returns (``render.glints``): each reflected ray that comes back
+        within this distance of the sonar before it meets anything, after at most
+        ``n_generations`` reflections, is written into the ``back_*`` arrays of the leg where
+        it last reflected (:func:`returns_to_sonar`).
     """
     rays = Rays.from_sonar(origin, directions)
     n = len(rays)
     legs = []
-    for g in range(n_generations):
+    glints = glint_radius_m is not None
+    for g in range(n_generations + (1 if glints else 0)):
         if not len(rays):
             break  # no generation after an empty one
         first = g == 0
@@ -796,14 +820,99 @@ def trace_legs(
             np.zeros(n), np.ones(n) if first else np.zeros(n), np.zeros(n, np.int32) if first else np.full(n, -1, np.int32),
             prim=np.full(n, -1, np.int32), uv=np.zeros((n, 2), np.float32), cosine=np.zeros(n),
         )
-        legs.append(leg)
         limit = float(reach_m - rays.before.min())
         hits = caster.intersect(rays.origin32, rays.direction32, limit, with_uv=True)
+        reflected = rays
         rays, _ = trace_generation(rays, hits, planes, active, reach_m, laws, weight, tvg, first,
-                                   g + 1 < n_generations, table, leg, facets=table.facets)
+                                   g + 1 < n_generations or (glints and g + 1 == n_generations), table, leg,
+                                   facets=table.facets)
+        if glints and not first:  # the rays reflected at the last generation's mirrors
+            returns_to_sonar(legs[-1], reflected, leg, origin, glint_radius_m, reach_m)
+        if g == n_generations:
+            break  # traced for its returns only: these rays' scatterers are beyond max_order
+        legs.append(leg)
         if any(f is not None for f in textures):
             scale_by_texture(leg.intensity, leg.sid, leg.point, textures)
     return legs
+
+
+def returns_to_sonar(mirror: Leg, rays: Rays, reached: Leg, origin: np.ndarray, radius_m: float,
+                     reach_m: float) -> None:
+    """The specular returns among rays reflected at ``mirror``'s scatterers (``render.glints``).
+
+    A ray returns when its line passes within ``radius_m`` of the sonar O, ahead of it and
+    before the surface it reaches (``reached``: its next generation, whose ``distance`` is
+    ``inf`` where it met nothing within the reach). Its length is the leg so far plus the
+    distance along the ray to O's foot on it. Written into ``mirror.back_*``.
+
+    Why a disc: a point receiver meets a ray with probability zero; the rays that cross a disc
+    of radius a around O estimate the intensity there as ``sum(R w) / a**2`` in the image's
+    units (each ray carries the solid angle of its weight, and a flux density is a count of
+    tubes per area). The image-source picture gives the same for a flat mirror met square on
+    at range r: ``pi R / (4 r**2)`` per radian of beam width (tested), without its
+    degeneracy at a corner reflector's apex, where every reflection point is the apex.
+    """
+    n = len(mirror.distance)
+    if mirror.back_length is None:
+        mirror.back_length = np.full(n, np.inf)
+        mirror.back_atten = np.zeros(n)
+        mirror.back_dir = np.zeros((n, 3))
+        mirror.back_chain = np.full(n, -1, np.int32)
+    m = len(rays)
+    if not m:
+        return
+    org = np.broadcast_to(rays.origin, (m, 3))
+    before = np.broadcast_to(rays.before, (m,))
+    d = rays.direction
+    w = np.asarray(origin, float) - org
+    t = _rowdot(w, d)
+    miss2 = _rowdot(w, w) - t * t
+    ahead = reached.distance[rays.ray] - before  # inf: met nothing
+    ok = (t > 0.0) & (t < ahead) & (miss2 <= radius_m * radius_m) & (before + t <= reach_m)
+    k = np.flatnonzero(ok)
+    r = rays.ray[k]
+    mirror.back_length[r] = before[k] + t[k]
+    mirror.back_atten[r] = np.broadcast_to(rays.atten, (m,))[k]
+    mirror.back_dir[r] = d[k]
+    mirror.back_chain[r] = np.broadcast_to(rays.chain, (m,))[k]
+
+
+def glint_sets(legs: list[Leg], view: SonarView, n_planes: int, rays_per_beam: int, max_order: int,
+               weight: np.ndarray, radius_m: float, tvg: bool) -> list[PathSet]:
+    """The specular returns as path sets (``tx`` :data:`GLINT`), one per generation of mirrors.
+
+    A return after k reflections is of order k; it is recorded at half its length, in the beam
+    it arrives from (``-back_dir`` inside the receive aperture: the fan and the elevation
+    aperture), with ``R ... R w / radius_m**2`` (times the range squared with TVG, as the
+    scattered paths' ``l(r)``); w the weight of the fan ray it left along. Its set's leg is
+    the one where it last reflected (its point and surface label it); order 1 goes to the
+    objects' or planes' row by that surface.
+    """
+    out = []
+    for leg in legs:
+        if leg.back_length is None or leg.gen + 1 > max_order:
+            continue
+        ray = np.flatnonzero(np.isfinite(leg.back_length))
+        if not len(ray):
+            continue
+        arrive = -leg.back_dir[ray]
+        rot = view.rotation
+        v = arrive[:, 0:1] * rot[0] + arrive[:, 1:2] * rot[1] + arrive[:, 2:3] * rot[2]  # R^T: the sonar frame
+        el = np.degrees(np.arcsin(np.clip(v[:, 2], -1.0, 1.0)))
+        beam = view.beam_of(np.degrees(np.arctan2(v[:, 1], v[:, 0])))
+        keep = (beam >= 0) & (np.abs(el) <= view.half_elevation_deg)
+        ray, beam = ray[keep], beam[keep].astype(np.int32)
+        distance = 0.5 * leg.back_length[ray]
+        energy = leg.back_atten[ray] * np.asarray(weight)[ray] / (radius_m * radius_m)
+        if tvg:
+            energy = energy * distance * distance
+        order = leg.gen + 1
+        if order == 1:
+            label = np.where(leg.sid[ray] >= n_planes, LABEL_OBJECT, LABEL_PLANE).astype(np.int8)
+        else:
+            label = np.full(len(ray), label_of_order(order), np.int8)
+        out.append(PathSet(leg.gen, GLINT, ray, distance, energy, beam, label))
+    return out
 
 
 def renumber_chains(table: ChainTable, legs: list[Leg]) -> ChainTable:
@@ -815,6 +924,10 @@ def renumber_chains(table: ChainTable, legs: list[Leg]) -> ChainTable:
         reached = leg.chain >= 0
         leg.chain[reached] = remap[leg.chain[reached]]
         leg.keys = None
+    for leg in legs:  # the specular returns' chains
+        if leg.back_chain is not None:
+            back = leg.back_chain >= 0
+            leg.back_chain[back] = remap[leg.back_chain[back]]
     return table
 
 
@@ -1006,7 +1119,7 @@ def drop_occluded(sets: list[PathSet], legs: list[Leg], *, table: ChainTable, vi
     """
     out = []
     for s in sets:
-        if s.tx == SAME or not len(s.ray):
+        if s.tx in (SAME, GLINT) or not len(s.ray):  # (a specular return is traced: seen)
             out.append(s)
             continue
         a = legs[s.gen].point[s.ray]
@@ -1033,6 +1146,9 @@ def path_corners(s: PathSet, legs: list[Leg], table: ChainTable, view: SonarView
     reflected); the transmit leg's are its reflection points (:func:`~sonarsim.paths.planes.reflection_points`),
     or the receive leg's own for :data:`SAME`.
 
+    A specular return (:data:`GLINT`) has no scatterer: its ``tx`` is the traced leg to its
+    last mirror and ``rx`` that leg and the point nearest O on the way back.
+
     Returns
     -------
     tx, rx : (m, k + 2, 3) and (m, gen + 2, 3) float64 ndarrays, metres
@@ -1040,6 +1156,10 @@ def path_corners(s: PathSet, legs: list[Leg], table: ChainTable, view: SonarView
     ray = s.ray
     origin = np.broadcast_to(np.asarray(view.origin, float), (len(ray), 3))
     rx = np.stack([origin] + [legs[g].point[ray] for g in range(s.gen + 1)], axis=1)
+    if s.tx == GLINT:  # the traced leg out, and back from its last mirror to O's foot on it
+        leg = legs[s.gen]
+        foot = rx[:, -1] + (leg.back_length[ray] - leg.distance[ray])[:, None] * leg.back_dir[ray]
+        return rx, np.concatenate([rx, foot[:, None]], axis=1)
     if s.tx == SAME:
         return rx, rx
     chain = table.chains[s.tx]
@@ -1094,6 +1214,13 @@ def split_by_signature(sets: list[PathSet], legs: list[Leg], table: ChainTable, 
         names = tuple(names) + tuple(table.facets.names[k] for k in table.facets.mirror_obj)
     for s in sets:
         leg = legs[s.gen]
+        if s.tx == GLINT:  # no scatterer: named by the mirrors met, ``O-wall-O``
+            for c in np.unique(leg.back_chain[s.ray]):
+                k = leg.back_chain[s.ray] == c
+                name = "-".join(["O", *(names[p] for p in table.chains[int(c)]), "O"])
+                groups.setdefault(name, []).append(
+                    PathSet(s.gen, s.tx, s.ray[k], s.distance[k], s.energy[k], s.beam[k], s.label[k]))
+            continue
         rx = leg.chain[s.ray].astype(np.int64)
         kind = np.minimum(leg.sid[s.ray], n_planes).astype(np.int64)
         code = rx * (n_planes + 1) + kind
@@ -1132,7 +1259,8 @@ def path_name(tx: list[str], at: str, rx: list[str]) -> str:
 
 
 def parse_path_name(name: str) -> tuple[list[str], str, list[str]]:
-    """Inverse of :func:`path_name`: ``(tx planes, scatterer, rx planes)``.
+    """Inverse of :func:`path_name`: ``(tx planes, scatterer, rx planes)``; a specular return's
+    name (``O-north-east-O``, no scatterer) gives ``(its mirrors, "", [])``.
 
     Raises
     ------
@@ -1141,6 +1269,8 @@ def parse_path_name(name: str) -> tuple[list[str], str, list[str]]:
     """
     parts = name.split("-")
     at = [k for k, p in enumerate(parts) if p.startswith("[") and p.endswith("]")]
+    if len(parts) >= 3 and parts[0] == "O" and parts[-1] == "O" and not at and "" not in parts:
+        return parts[1:-1], "", []  # a specular return (``O-wall-O``): its mirrors, no scatterer
     if len(parts) < 3 or parts[0] != "O" or parts[-1] != "O" or len(at) != 1:
         raise ValueError(f"not a path-signature name: {name!r}")
     k = at[0]

@@ -33,7 +33,7 @@ from ..config.scene import ON_PLANE_TOLERANCE_M, check_sonar_position
 from ..reference.algorithm2 import render_paper
 from ..paths.engine import (
     Leg, SonarView, accumulate_paths, drop_occluded, form_paths, ground_signatures, probe_chains, renumber_chains,
-    split_by_signature, trace_legs,
+    glint_sets, split_by_signature, trace_legs,
 )
 from ..paths.facets import FacetSet
 from ..paths.planes import ChainTable, PlaneSet
@@ -156,7 +156,8 @@ class Simulator:
             self.facets = FacetSet.of(self.meshes, [o.name for o in objects], [o.specular for o in objects],
                                       [o.normals for o in objects], sides)
         # The ground is the only mirror: Algorithm 2 (``method: paper``) applies.
-        self._ground_only = self.scene.ground is not None and not self.scene.planes and self.facets is None
+        self._ground_only = (self.scene.ground is not None and not self.scene.planes and self.facets is None
+                             and not self.scene.render.glints)
         self._warn_about_planes()
         self.caster = with_textures(make_caster(backend, self.meshes, self.scene.render.threads), self.meshes)
         # A sonar inside a closed object sees only its inside: said once per object, for the
@@ -189,8 +190,9 @@ class Simulator:
     @property
     def path_kernels(self) -> str:
         """The kernels the path engine runs on: :attr:`kernels`, but the NumPy twins where
-        objects mirror (the compiled kernels cover mirror planes only)."""
-        return "numpy" if self.facets is not None else self.kernels
+        objects mirror or the specular returns are traced (the compiled kernels cover the
+        scattered paths over mirror planes only)."""
+        return "numpy" if self.facets is not None or self.scene.render.glints else self.kernels
 
     def _warn_if_inside(self, position: np.ndarray, stacklevel: int) -> None:
         """Warn (once per object) when the sonar at ``position`` lies inside a closed object."""
@@ -326,7 +328,9 @@ class Simulator:
         leg followed, metres."""
         active = self.planes.facing(pose.translation)
         mirrors = bool((active & (self.planes.specular > 0)).any()) or self.facets is not None
-        multipath = self.scene.render.max_order > 1 and mirrors
+        render = self.scene.render
+        # (a specular return of order 1 comes back from twice the range, as multipath does)
+        multipath = (render.max_order > 1 or render.glints) and mirrors
         return active, multipath, sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
 
     def _render_paths(self, sonar: SonarConfig, view: SonarView, reach: float, active: np.ndarray,
@@ -364,10 +368,13 @@ class Simulator:
             )
             return stack, legs, sets, table, total, truth
         directions = view.directions.reshape(-1, 3)
+        glint = render.glint_radius_m if render.glints else None
         legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._laws,
-                          render.tvg, reach, n_generations, table, self.textures)
+                          render.tvg, reach, n_generations, table, self.textures, glint_radius_m=glint)
         table = renumber_chains(table, legs)
         sets = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam)
+        if glint is not None:
+            sets += glint_sets(legs, view, n_planes, per_beam, render.max_order, weight, glint, render.tvg)
         if occlusion is not None:
             sets = occlusion(sets, legs, table=table)
         stack = accumulate_paths(sets, legs, n_surfaces, fan.shape, geometry, rows, render.range_splat)
