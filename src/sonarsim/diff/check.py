@@ -114,11 +114,16 @@ def _search_rows(search) -> dict:
 
 def same_search(a: dict, b: dict, range_max_m: float) -> bool:
     """Whether two searches (:func:`_search_rows`) agree on every path that reaches the image
-    (a path beyond the window, where the tracing's reach cuts legs off, cannot change it)."""
+    (a path beyond the window, where the tracing's reach cuts legs off, cannot change it; nor
+    can one beyond the window's end without neighbours, whose bin is beyond it: a transmit leg
+    that crosses the window's end as a mirror turns makes such a path come and go)."""
     far = 1.05 * range_max_m
     for x, y in ((a, b), (b, a)):
         for key, (value, distance) in x.items():
-            if distance <= far and (key not in y or y[key][0] != value):
+            isolated = not value[-2] and not value[-1]  # (has_down, has_up)
+            if distance > far or (distance >= range_max_m and isolated):
+                continue
+            if key not in y or y[key][0] != value:
                 return False
     return True
 

@@ -8,16 +8,19 @@ same order:
 1. **The fan.** Each path's fan ray, rotated by the sonar's roll-pitch-yaw
    (``R = Rz(yaw) Ry(pitch) Rx(roll)``, :mod:`sonarsim.core.transforms`), from the sonar's
    position.
-2. **The receive leg.** The ray is reflected off the ``g`` planes of its chain in order
-   (``t = (offset - n.o) / (n.d)``, ``d' = d - 2 (n.d) n``), each plane's specular reflectance
-   multiplied into the leg's attenuation, and ends on its scatterer: a plane, or the plane of the
+2. **The receive leg.** The ray is reflected off the ``g`` mirrors of its chain in order
+   (``t = (offset - n.o) / (n.d)``, ``d' = d - 2 (n.d) n``): planes, and the triangles of
+   mirroring objects it met, their planes posed from the objects' vertices (so a mirror's pose
+   and vertices turn the reflected rays); each mirror's specular reflectance is multiplied into
+   the leg's attenuation. The leg ends on its scatterer: a plane, or the plane of the
    object's triangle the search found, its corners posed and scaled from the object's own mesh
    (the hit point slides on that triangle's plane as the parameters move).
 3. **The weight.** ``w(ray) l(r) f(cos alpha)``: the fan ray's weight (beam patterns), the
    range law (``1 / r^2`` without TVG), the surface's law (``albedo cos`` or ``mu cos``, plus the
    rough law's Kirchhoff lobe), held texture factors.
 4. **The transmit leg.** The receive leg reversed (its length again), or the scatterer
-   unfolded by the transmit chain's mirrors (image sources, ``A* = M_1(M_2(... M_K(A)))``),
+   unfolded by the transmit chain's mirrors, planes or mesh mirrors' planes (image sources,
+   ``A* = M_1(M_2(... M_K(A)))``),
    ``|A* - O|`` long, times the chain's reflectances.
 5. **The splat** (:func:`splat`): each path's energy spread uniformly over its range cell,
    from the midpoints towards its neighbours in the ray column (the compiled engine's range
@@ -79,6 +82,28 @@ def plane_table(params: dict, names: tuple[str, ...]) -> tuple[jax.Array, jax.Ar
     off = jnp.stack([jnp.asarray(params[f"planes.{p}.offset_m"]).reshape(()) for p in names])
     spec = jnp.stack([jnp.asarray(params[f"planes.{p}.specular"]).reshape(()) for p in names])
     return n, off, spec
+
+
+def mirror_table(params: dict, static: Any, normal: jax.Array, offset: jax.Array, spec: jax.Array, tri_n: jax.Array,
+                 tri_off: jax.Array, local_faces: tuple) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The chains' mirrors by row, as the search numbers them: the planes, then the held
+    triangles (unit normals, offsets, and their objects' specular reflectance, 0 for an object
+    that does not mirror: its triangles are then only scatterers)."""
+    n_planes = len(static.planes)
+    length = jnp.linalg.norm(tri_n, axis=1)
+    length = jnp.where(length > 0, length, 1.0)
+    tri_spec = []
+    for name, faces in zip(static.objects, local_faces):
+        if faces.shape[0]:
+            r = params.get(f"objects.{name}.specular", 0.0)
+            tri_spec.append(jnp.broadcast_to(jnp.asarray(r, tri_n.dtype), (faces.shape[0],)))
+    tri_spec = jnp.concatenate(tri_spec) if tri_spec else jnp.zeros(0, tri_n.dtype)
+    n = jnp.concatenate([normal[:n_planes], tri_n / length[:, None]])
+    off = jnp.concatenate([offset[:n_planes], tri_off / length])
+    r = jnp.concatenate([spec[:n_planes], tri_spec])
+    if n.shape[0] == 0:  # nothing at all: the stand-in row
+        return normal[:1], offset[:1], spec[:1]
+    return n, off, r
 
 
 def triangle_table(params: dict, objects: tuple[str, ...], local_faces: tuple) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -147,8 +172,11 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
         from .sensor import fan_rays  # the elevation pattern's width moves the rays' weights
 
         direction, weight = fan_rays(params, data, static.sensor)
-    normal, offset, spec = plane_table(params, static.planes)
+    plane_n, plane_off, plane_spec = plane_table(params, static.planes)
     tri_n, tri_off, tri_corners = triangle_table(params, static.objects, data["local_faces"])
+    # The chains' mirrors: the planes, then the held triangles (a mesh mirror's).
+    normal, offset, spec = mirror_table(params, static, plane_n, plane_off, plane_spec, tri_n, tri_off,
+                                        data["local_faces"])
     shift = jnp.zeros(direction.shape[0], direction.dtype)
     if static.attach == "surfaces" and tri_corners.shape[0]:
         direction, shift = follow_azimuth(params, data, static, rot, origin, direction, normal, offset, tri_corners)
@@ -169,10 +197,10 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
         dist = dist + t
         atten = atten * jnp.where(on, spec[p], 1.0)
     n_planes = len(static.planes)  # (the plane table has a stand-in row where there is none)
-    surf_n = jnp.concatenate([normal[:n_planes], tri_n])
-    surf_off = jnp.concatenate([offset[:n_planes], tri_off])
+    surf_n = jnp.concatenate([plane_n[:n_planes], tri_n])
+    surf_off = jnp.concatenate([plane_off[:n_planes], tri_off])
     if surf_n.shape[0] == 0:  # nothing to meet (an empty search): the stand-in row
-        surf_n, surf_off = normal[:1], offset[:1]
+        surf_n, surf_off = plane_n[:1], plane_off[:1]
     ns = surf_n[data["surface"]]
     dn = _dot(d, ns)
     t = (surf_off[data["surface"]] - _dot(o, ns)) / dn

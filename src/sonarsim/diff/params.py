@@ -16,6 +16,8 @@ key                                         shape   meaning, unit
                                                     tessellated)
 ``objects.<name>.albedo`` / ``.mu``         ()      diffuse coefficient (``lambertian`` and
                                                     ``rough``: albedo; ``lambert``: mu)
+``objects.<name>.specular``                 ()      a mirroring object's specular reflectance R
+                                                    (only where the scene's is above 0)
 ``objects.<name>.specular_strength``        ()      ``rough`` law only: the lobe at normal incidence
 ``objects.<name>.roughness``                ()      ``rough`` law only: rms facet slope
 ``planes.<name>.offset_m``                  ()      ``n . x`` on the plane, metres (the ground:
@@ -63,6 +65,8 @@ def scene_params(scene: Scene) -> dict[str, np.ndarray]:
         out[f"{p}.scale"] = np.broadcast_to(np.asarray(obj.scale, float), (3,)).copy()
         out[f"{p}.vertices_m"] = np.asarray(object_mesh_local(obj).vertices, float).copy()
         out.update({k: np.asarray(v, float) for k, v in material_params(p, obj.backscatter).items()})
+        if obj.specular > 0:  # a mesh mirror's R (an object that does not mirror has none to move)
+            out[f"{p}.specular"] = np.asarray(obj.specular, float)
     for plane in scene.reflecting_planes:
         p = f"planes.{plane.name}"
         out[f"{p}.offset_m"] = np.asarray(plane.offset_m, float)
@@ -133,6 +137,8 @@ def scene_with(scene: Scene, params: dict) -> Scene:
             changes.update(primitive=None, size_m=None, radius_m=None, height_m=None,
                            mesh=trimesh.Trimesh(vertices, np.asarray(local.faces), visual=visual, process=False),
                            scale=tuple(float(s) for s in v.get(f"{p}.scale", base[f"{p}.scale"])))
+        if changed(f"{p}.specular"):
+            changes["specular"] = float(v[f"{p}.specular"])
         material = _material_with(obj.backscatter, p, v)
         if material != obj.backscatter:  # the albedo shorthand stays one
             changes.update(albedo=material.coefficient) if obj.material is None else changes.update(material=material)

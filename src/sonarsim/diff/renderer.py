@@ -221,6 +221,9 @@ class Renderer:
             start += self._face_capacity[k]
         data["local_faces"] = tuple(faces)
         data["surface"] = jnp.asarray(row_of[search.surface])
+        for key in ("rx_planes", "tx_planes"):  # a mesh mirror's triangle: its row in the padded table
+            chains = getattr(search, key)
+            data[key] = jnp.asarray(np.where(chains >= search.n_planes, row_of[np.maximum(chains, 0)], chains))
         if self._sensor is not None:
             data.update(self._sensor.arrays(search))
         # One precision throughout (with JAX's 64-bit mode on, a float32 renderer's constants

@@ -11,11 +11,12 @@ incidences, weights, ranges, energies, the splat) is formed again from the param
 
 What the search decides and the record keeps:
 
-* per path: its fan ray, its receive generation ``g`` and the ``g`` planes its receive leg
-  reflects off (from the sonar), the surface it scatters on (a plane, or an object's
-  triangle: an index into the object's own mesh faces, before the planes clip it), its transmit
-  leg (the receive leg reversed, or a chain of planes), its image row, the beam it is recorded
-  in, and which signature it belongs to;
+* per path: its fan ray, its receive generation ``g`` and the ``g`` mirrors its receive leg
+  reflects off (from the sonar: a plane, or the triangle of a mirroring object it met), the
+  surface it scatters on (a plane, or an object's triangle: an index into the object's own
+  mesh faces, before the planes clip it), its transmit leg (the receive leg reversed, or a
+  chain of mirrors: planes, and for a mesh mirror its first triangle, whose plane it is), its
+  image row, the beam it is recorded in, and which signature it belongs to;
 * the continuity of range splatting: which path is each path's neighbour in its ray column
   (``continuity`` tests on the frame's points, held like the rest: the splat's support moves
   with the ranges, its topology does not);
@@ -30,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config.scene import ON_PLANE_TOLERANCE_M, check_sonar_position
+from ..errors import ConfigError
 from ..paths.engine import SAME, SonarView, path_name, set_continuity
 from ..renderer.components import stack_rows
 from ..renderer.simulator import Simulator
@@ -51,7 +53,8 @@ class Search:
     gen : (C,) int64
         Reflections on the receive leg.
     rx_planes : (C, G - 1) int64
-        The receive leg's planes from the sonar (``-1`` beyond ``gen``).
+        The receive leg's mirrors from the sonar (``-1`` beyond ``gen``): plane ``p`` is ``p``,
+        the ``k``-th triangle of :attr:`faces` is ``P + k`` (a mesh mirror's, as it met it).
     surface : (C,) int64
         Row of the scatterer in the frame's scatterer table: plane ``p`` is ``p``, the
         ``k``-th triangle of :attr:`faces` is ``P + k``.
@@ -60,7 +63,8 @@ class Search:
     same : (C,) bool
         The transmit leg is the receive leg reversed.
     tx_planes : (C, L) int64
-        The transmit chain's planes from the sonar (``-1`` beyond its length).
+        The transmit chain's mirrors from the sonar (``-1`` beyond its length), numbered as
+        ``rx_planes`` (a mesh mirror by its first triangle).
     label : (C,) int64
         Image-stack row.
     beam : (C,) int64
@@ -86,7 +90,8 @@ class Search:
         The range the compiled engine recorded for each path, metres (for diagnostics: the
         forward forms its own).
     faces : (F, 2) int64
-        The triangles scattered on: ``(object index, face index into its local mesh)``.
+        The triangles scattered on or reflected off: ``(object index, face index into its
+        local mesh)``, sorted.
     signatures : tuple of str
         Path-signature names (:func:`~sonarsim.paths.engine.path_name`).
     n_rows : int
@@ -207,6 +212,12 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
     """
     scene = sim.scene
     render = scene.render
+    if render.glints:
+        raise ConfigError("render.glints", "the differentiable engine forms no specular returns; set it false")
+    for k, obj in enumerate(scene.objects):
+        if obj.specular > 0 and obj.normals != "flat":
+            raise ConfigError(f"objects[{k}].normals", "the differentiable engine mirrors about flat triangles "
+                              "only; allowed here: flat")
     given = pose is not None
     pose = pose if given else scene.sonar_pose
     if len(sim.planes) and np.abs(sim.planes.signed_distance(pose.translation)).min() < ON_PLANE_TOLERANCE_M:
@@ -224,7 +235,19 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
     n_surfaces = n_planes + len(sim.meshes)
     n_el = fan.shape[2]
     sources = clipped_face_sources(sim)
-    names = sim.planes.names
+    facets = sim.facets
+    names = tuple(sim.planes.names)
+    if facets is not None:  # chain mirror P + m: named by its object
+        names += tuple(facets.names[k] for k in facets.mirror_obj)
+    # The mesh mirrors' triangles, (object, local face), as the legs meet them; coded
+    # -(2 + index) in the chains until the triangle table is formed.
+    mirror_pairs: list[tuple[int, int]] = []
+
+    def mirror_codes(obj: np.ndarray, prim: np.ndarray) -> np.ndarray:
+        local = [int(sources[k][f]) for k, f in zip(obj.tolist(), prim.tolist())]
+        codes = -(2 + len(mirror_pairs) + np.arange(len(local), dtype=np.int64))
+        mirror_pairs.extend(zip(obj.tolist(), local))
+        return codes
 
     # Per generation: what every path of it reads of its receive leg (copied: the legs are the
     # engine's pooled buffers, reused by the next frame).
@@ -260,9 +283,20 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
         for c in np.unique(chains):
             planes = table.chains[int(c)] if s.gen else ()
             rx[chains == c, :len(planes)] = planes
+        for j in range(max_rx):  # a mesh mirror on the receive leg: the triangle the ray met
+            at = rx[:, j] >= n_planes
+            if at.any():
+                rx[at, j] = mirror_codes(per_gen[j]["sid"][ray[at]] - n_planes, per_gen[j]["prim"][ray[at]])
         tx = np.full((m, max_tx), -1, np.int64)
         if s.tx != SAME:
-            tx[:, :len(table.chains[s.tx])] = table.chains[s.tx]
+            chain = list(table.chains[s.tx])
+            for j, e in enumerate(chain):  # a mesh mirror on the transmit leg: its first triangle
+                if e >= n_planes:
+                    f = int(facets.mirror_facets[facets.mirror_start[e - n_planes]])
+                    k = int(facets.obj[f])
+                    chain[j] = int(mirror_codes(np.array([k]), np.array([f - facets.start[k]]))[0])
+            tx[:] = -1
+            tx[:, :len(chain)] = chain
         factor = g["texture"][ray].copy()
         if render.double_beam == "split" and s.tx != SAME:
             factor *= 0.5
@@ -317,12 +351,17 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
     prim = cat("prim", fill=-1)
     on_object = sid >= n_planes
     faces = np.stack([sid[:n][on_object[:n]] - n_planes, prim[:n][on_object[:n]]], axis=1) if n else np.zeros((0, 2), np.int64)
+    n_scatter = len(faces)
+    if mirror_pairs:  # one table for the triangles scattered on and reflected off
+        faces = np.concatenate([faces, np.asarray(mirror_pairs, np.int64).reshape(-1, 2)])
     faces, row = (np.unique(faces, axis=0, return_inverse=True) if len(faces) else (np.zeros((0, 2), np.int64),
                                                                                    np.zeros(0, np.int64)))
+    row = np.asarray(row).reshape(-1)
     surface = np.where(sid >= 0, np.minimum(sid, n_planes), 0)
     surface_n = surface[:n]
-    surface_n[on_object[:n]] = n_planes + np.asarray(row).reshape(-1)
+    surface_n[on_object[:n]] = n_planes + row[:n_scatter]
     surface[:n] = surface_n
+    mirror_row = n_planes + row[n_scatter:]
     # Where on its triangle each object's scatterer lies: barycentric (u, v) on the object's
     # own face (a piece the planes cut from it lies in it), from the point the search found.
     uv = np.zeros((cap, 2))
@@ -341,9 +380,13 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
     down[n:], up[n:] = pad, pad
     live = np.zeros(cap, bool)
     live[:n] = True
-    arrays = dict(ray=cat("ray"), gen=cat("gen"), rx_planes=cat("rx", (max_rx,), fill=-1), surface=surface,
+    rx_planes, tx_planes = cat("rx", (max_rx,), fill=-1), cat("tx", (max_tx,), fill=-1)
+    for chains in (rx_planes, tx_planes):  # the mesh mirrors' codes to their triangles' rows
+        coded = chains <= -2
+        chains[coded] = mirror_row[-chains[coded] - 2]
+    arrays = dict(ray=cat("ray"), gen=cat("gen"), rx_planes=rx_planes, surface=surface,
                   sid=np.where(sid >= 0, sid, 0), same=cat("same", dtype=bool, fill=True),
-                  tx_planes=cat("tx", (max_tx,), fill=-1), label=cat("label"), beam=cat("beam"))
+                  tx_planes=tx_planes, label=cat("label"), beam=cat("beam"))
     if n:  # padding repeats the first path's geometry (finite everywhere) with no energy
         for a in arrays.values():
             a[n:] = a[0]
