@@ -48,14 +48,18 @@ def test_bounces_beyond_max_order_name_the_option(tmp_path, capsys):
 def test_demo_writes_the_tank_and_its_multipath_figure(demo_dir: Path) -> None:  # noqa: F811
     doc = yaml.safe_load((demo_dir / "tank.yaml").read_text())
     assert {p["name"] for p in doc["planes"]} == {"surface", "far_wall", "left_wall", "right_wall"}
+    assert [o["name"] for o in doc["objects"] if o.get("specular", 0) > 0] == ["steel_plate"]  # a mesh mirror
     with Image.open(demo_dir / "multipath.png") as im:
         im.load()
         a = np.asarray(im)
-    # Four panels in a 2 x 2 grid, each with some echo in it.
+    # Five panels, two across in three rows (the last place empty), each with some echo in it:
+    # all paths, direct, via the surface, via a wall, via the steel plate.
     h, w = a.shape
-    panels = [a[:h // 2, :w // 2], a[:h // 2, w // 2:], a[h // 2:, :w // 2], a[h // 2:, w // 2:]]
-    assert all((p == 255).any() for p in panels)  # the white title strip and gaps
-    assert all(((p > 100) & (p < 255)).sum() > 100 for p in panels)
+    rows = [(0, h // 3), (h // 3, 2 * h // 3), (2 * h // 3, h)]
+    panels = [a[r0:r1, c0:c1] for r0, r1 in rows for c0, c1 in ((0, w // 2), (w // 2, w))]
+    assert all((p == 255).any() for p in panels[:5])  # the white title strip and gaps
+    assert all(((p > 100) & (p < 255)).sum() > 100 for p in panels[:5])
+    assert (panels[5] == 255).all()
 
 
 def test_demo_with_a_lower_max_order_writes_every_figure(tmp_path, capsys):

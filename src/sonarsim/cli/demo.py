@@ -68,7 +68,7 @@ def demo_scene_dict() -> dict:
     }
 
 
-def tank_scene_dict() -> dict:
+def tank_scene_dict(mirror: bool = False) -> dict:
     """A water tank with a floor, a water surface and walls, in scene-file form (the multipath demo).
 
     An Oculus M1200d (1.2 MHz, here 256 beams over 60 degrees, 20 degrees of elevation) 1.4 m
@@ -76,7 +76,20 @@ def tank_scene_dict() -> dict:
     about 4.3 m and the floor from about 6.6 m; the far wall is 7.2 m away, the side walls 2 m
     to either side. A buoy floats near the surface, a post stands from floor to surface, a
     block hangs in mid-water. Paths up to order 3 over all five planes.
+
+    With ``mirror`` (the demo's tank), a steel plate (1.2 x 1.0 m, R 0.9) stands on the floor
+    4.2 m ahead and 1.3 m to the left, turned to mirror the post and the block towards the
+    sonar: a mesh mirror whose ghosts the multipath figure shows.
     """
+    doc = _tank_planes()
+    if mirror:
+        doc["objects"].append({"name": "steel_plate", "primitive": "box", "size_m": [0.03, 1.2, 1.0],
+                               "pose": {"position_m": [4.2, 1.3, 0.5], "rpy_deg": [0.0, 0.0, 66.6]},
+                               "albedo": 0.1, "specular": 0.9})
+    return doc
+
+
+def _tank_planes() -> dict:
     wall = {"albedo": 0.6, "specular": 0.5}
     return {
         "sonar": {
@@ -158,7 +171,7 @@ def cmd_demo(args) -> None:
     with options_named(args):
         scene = scene_from_dict(doc)
 
-    tank = tank_scene_dict()
+    tank = tank_scene_dict(mirror=True)
     # The command line's render options apply to the tank too (its scene file says so).
     if args.max_order is not None:
         tank["render"]["max_order"] = args.max_order
@@ -211,7 +224,7 @@ def _demo_files(args, out: Path, run, demo, tank, aris) -> None:
                                   dynamic_range_db=args.dynamic_range_db)
     write_png(out / "multipath.png", figure)
     _log(f"wrote {out / 'tank.yaml'} and {out / 'multipath.png'} "
-         "(fan views: all paths | direct echoes | via the water surface | via a wall)")
+         "(fan views: all paths | direct echoes | via the water surface | via a wall | via the steel plate, a mirror)")
     write_figure(args, out / "multipath_figure", lambda: multipath_figure(tank_image, **shown), run)
 
     with atomic_write(out / "scene_aris3000.yaml", "w") as f:

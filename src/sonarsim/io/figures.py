@@ -49,12 +49,14 @@ def bounce_comparison(image, pixel_size_m: float | None = None, mapping: str = "
 
 def path_families(image) -> list[tuple[str, np.ndarray]]:
     """(title, polar image) of a tank's path families: all paths, direct echoes, paths that meet
-    the water surface, paths that meet a wall (planes named ``*surface*`` and ``*wall*``)."""
+    the water surface, paths that meet a wall (planes named ``*surface*`` and ``*wall*``), and
+    where objects mirror (``specular`` > 0), the paths that meet one of them (their ghosts)."""
     from ..paths.engine import parse_path_name
 
     comp = image.components
     zero = np.zeros(image.polar.shape)
-    surface, wall = zero.copy(), zero.copy()
+    surface, wall, mirrored = zero.copy(), zero.copy(), zero.copy()
+    mirrors = [o.get("name") for o in image.config.get("objects", []) if o.get("specular", 0) > 0]
     for name in comp.signatures:
         tx, _, rx = parse_path_name(name)
         met = set(tx) | set(rx)
@@ -62,21 +64,28 @@ def path_families(image) -> list[tuple[str, np.ndarray]]:
             surface += comp[name]
         if any("wall" in p for p in met):
             wall += comp[name]
+        if met & set(mirrors):
+            mirrored += comp[name]
     order = image.config.get("render", {}).get("max_order", 3)
-    return [
+    out = [
         (f"all paths up to order {order}", comp["total"]),
         ("direct echoes (order 1)", comp["single"]),
         ("ghosts: paths that meet the water surface", surface),
         ("ghosts: paths that meet a wall", wall),
     ]
+    if mirrors:
+        names = " and ".join(n.replace("_", " ") for n in mirrors)
+        out.append((f"ghosts: paths that meet the {names} (mirror)", mirrored))
+    return out
 
 
 def multipath_comparison(image, pixel_size_m: float | None = None, mapping: str = "db", gain_db: float = 0.0,
                          dynamic_range_db: float = 40.0, gap_px: int = 10, title_px: int = 34) -> np.ndarray:
-    """Fan views of a tank's path families in a labelled 2 x 2 grid.
+    """Fan views of a tank's path families in a labelled grid, two across.
 
     All paths | direct echoes; paths that meet the water surface | paths that meet a wall (by
-    plane name: planes named ``*surface*`` and ``*wall*``). One intensity reference (the
+    plane name: planes named ``*surface*`` and ``*wall*``); the paths that meet a mirroring
+    object, where there is one. One intensity reference (the
     maximum of all paths) for every panel, so their brightness compares directly.
 
     Parameters
@@ -86,7 +95,7 @@ def multipath_comparison(image, pixel_size_m: float | None = None, mapping: str 
 
     Returns
     -------
-    (2 (H + title_px) + gap_px, 2 W + gap_px) uint8 ndarray
+    (rows (H + title_px) + (rows - 1) gap_px, 2 W + gap_px) uint8 ndarray
     """
     from PIL import Image, ImageDraw, ImageFont
 
@@ -105,7 +114,8 @@ def multipath_comparison(image, pixel_size_m: float | None = None, mapping: str 
         font = ImageFont.load_default(size=max(10, title_px * 2 // 3))
     except (OSError, TypeError):  # Pillow without FreeType: the small bitmap font
         font = ImageFont.load_default()
-    canvas = Image.new("L", (2 * w + gap_px, 2 * (h + title_px) + gap_px), 255)
+    rows = -(-len(tiles) // 2)
+    canvas = Image.new("L", (2 * w + gap_px, rows * (h + title_px) + (rows - 1) * gap_px), 255)
     draw = ImageDraw.Draw(canvas)
     for k, ((title, _), tile) in enumerate(zip(panels, tiles)):
         x, y = (k % 2) * (w + gap_px), (k // 2) * (h + title_px + gap_px)

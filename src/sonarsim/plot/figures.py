@@ -562,8 +562,9 @@ def ground_echo_figure(image: Any, *, mapping: str = "db", gain_db: float = 0.0,
 
 def multipath_figure(image: Any, *, mapping: str = "db", gain_db: float = 0.0, dynamic_range_db: float = 40.0,
                      colormap: str = DEFAULT_COLORMAP, pixel_size_m: float | None = None) -> Figure:
-    """A tank's path families (:func:`sonarsim.io.figures.path_families`) in a labelled 2 x 2
-    grid on one scale (dB re the maximum of all paths).
+    """A tank's path families (:func:`sonarsim.io.figures.path_families`) in a labelled grid,
+    two across (three where a mirroring object adds its ghosts), on one scale (dB re the
+    maximum of all paths).
 
     Parameters
     ----------
@@ -576,7 +577,8 @@ def multipath_figure(image: Any, *, mapping: str = "db", gain_db: float = 0.0, d
     scale = DisplayScale(mapping, gain_db, dynamic_range_db, reference_name="the maximum of all paths").resolved(
         np.asarray(families[0][1]))
     panels = [Panel(name, image, np.asarray(values, np.float64)) for name, values in families]
-    return panels_figure(panels, scale, ncols=2, title="Multipath: " + describe(image).split("\n")[0],
+    return panels_figure(panels, scale, ncols=2 if len(panels) <= 4 else 3,
+                         title="Multipath: " + describe(image).split("\n")[0],
                          colormap=colormap, pixel_size_m=pixel_size_m)
 
 

@@ -192,7 +192,9 @@ class Simulator:
         """The kernels the path engine runs on: :attr:`kernels`, but the NumPy twins where
         objects mirror or the specular returns are traced (the compiled kernels cover the
         scattered paths over mirror planes only)."""
-        return "numpy" if self.facets is not None or self.scene.render.glints else self.kernels
+        render = self.scene.render
+        mirrors = self.facets is not None and render.max_order > 1  # (at order 1 nothing reflects)
+        return "numpy" if mirrors or render.glints else self.kernels
 
     def _warn_if_inside(self, position: np.ndarray, stacklevel: int) -> None:
         """Warn (once per object) when the sonar at ``position`` lies inside a closed object."""

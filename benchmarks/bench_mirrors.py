@@ -1,0 +1,115 @@
+"""Time mesh mirrors (issue 25, item 6): the demo with its block and pipe made mirrors against
+the demo, and a specular hull over a floor by its triangle count and the path order.
+
+Ratios are taken in one run on one machine (timings swing with the load; best of N):
+
+* ``demo_mirrors / demo``: the demo scene at order 3, its concrete block and pipe with
+  ``specular: 0.5`` (the target: 1.6);
+* ``hull, order k / order 1``: an ellipsoidal hull (6 x 2 x 1.5 m, a UV sphere of about
+  ``--triangles`` faces, ``specular: 0.8``) 1 m over a plane floor, seen from below and
+  ahead (the target at 50,000 triangles and order 3: 3);
+* the same at order 3 for a range of triangle counts: how the cost grows with them.
+
+    python benchmarks/bench_mirrors.py [--repeat 3] [--quick] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import sonarsim
+from sonarsim.cli.demo import demo_scene_dict
+
+
+def frame_time(doc: dict, repeat: int) -> tuple[float, str]:
+    """Best of ``repeat`` frames (after two to warm up), seconds, and the kernels used."""
+    with sonarsim.Simulator(doc) as sim:
+        sim.render(keep_rays=False)
+        sim.render(keep_rays=False)
+        best = np.inf
+        for _ in range(repeat):
+            t = time.perf_counter()
+            sim.render(keep_rays=False)
+            best = min(best, time.perf_counter() - t)
+        return best, sim.path_kernels
+
+
+def hull_mesh(folder: Path, triangles: int) -> str:
+    """A PLY file of an ellipsoidal hull with about ``triangles`` faces."""
+    import trimesh
+
+    n = max(int(round(np.sqrt(triangles / 4.0))), 4)  # a UV sphere of count n has about 4 n^2 faces
+    m = trimesh.creation.uv_sphere(radius=1.0, count=[n, n])
+    m.apply_scale([3.0, 1.0, 0.75])
+    path = folder / f"hull_{len(m.faces)}.ply"
+    m.export(path)
+    return str(path), len(m.faces)
+
+
+def hull_scene(mesh: str, order: int) -> dict:
+    return {
+        "sonar": {"preset": "aris3000-128", "range_min_m": 0.5, "range_max_m": 8.0, "n_range_bins": 1000,
+                  "pose": {"position_m": [0.0, 0.0, 1.0], "rpy_deg": [0.0, -4.0, 0.0]}},
+        "render": {"max_order": order},
+        "ground": {"height_m": 0.0, "albedo": 0.5, "specular": 0.6},
+        "objects": [{"name": "hull", "mesh": mesh, "pose": {"position_m": [5.0, 0.0, 2.75]}, "albedo": 0.3,
+                     "specular": 0.8}],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--triangles", type=int, default=50_000)
+    parser.add_argument("--quick", action="store_true", help="fewer frames and triangle counts")
+    parser.add_argument("--json", type=Path, help="write the figures here")
+    args = parser.parse_args()
+    repeat = 1 if args.quick else args.repeat
+    out: dict = {}
+
+    demo = demo_scene_dict()
+    mirrors = copy.deepcopy(demo)
+    for obj in mirrors["objects"]:
+        if obj["name"] in ("concrete_block", "pipe"):
+            obj["specular"] = 0.5
+    t_demo, k_demo = frame_time(demo, max(repeat, 5))
+    t_mirror, k_mirror = frame_time(mirrors, repeat)
+    out["demo_s"], out["demo_mirrors_s"] = t_demo, t_mirror
+    out["demo_ratio"] = t_mirror / t_demo
+    print(f"demo, order 3 ({k_demo}): {t_demo * 1e3:.1f} ms; block and pipe mirrors ({k_mirror}): "
+          f"{t_mirror * 1e3:.1f} ms; ratio {t_mirror / t_demo:.2f} (target 1.6)")
+
+    with tempfile.TemporaryDirectory() as tmp:
+        mesh, n_faces = hull_mesh(Path(tmp), args.triangles)
+        orders = (1, 3) if args.quick else (1, 2, 3, 4)
+        times = {}
+        for order in orders:
+            times[order], kernels = frame_time(hull_scene(mesh, order), repeat)
+            print(f"hull, {n_faces} triangles, order {order} ({kernels}): {times[order] * 1e3:.1f} ms; "
+                  f"{times[order] / times[1]:.2f} x order 1")
+        out["hull_triangles"] = n_faces
+        out["hull_order_s"] = {str(k): v for k, v in times.items()}
+        out["hull_ratio_order3"] = times[3] / times[1]
+        print(f"hull order 3 / order 1: {times[3] / times[1]:.2f} (target 3)")
+        counts = (2_000, args.triangles) if args.quick else (500, 2_000, 8_000, 20_000, args.triangles)
+        growth = {}
+        for count in counts:
+            mesh, n_faces = hull_mesh(Path(tmp), count)
+            t1, _ = frame_time(hull_scene(mesh, 1), repeat)
+            t3, _ = frame_time(hull_scene(mesh, 3), repeat)
+            growth[n_faces] = (t1, t3)
+            print(f"  {n_faces:>6} triangles: order 1 {t1 * 1e3:7.1f} ms, order 3 {t3 * 1e3:7.1f} ms ({t3 / t1:.2f} x)")
+        out["growth"] = {str(k): {"order1_s": a, "order3_s": b} for k, (a, b) in growth.items()}
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
