@@ -148,6 +148,12 @@ def test_sphere_echoes_land_where_the_image_sources_put_them(range_splat, render
     else:
         comps = sonarsim.Simulator(doc, kernels=renderer).render().components
         images = {n: comps[n].astype(float) for n in comps.signatures}
+    assert_sphere_paths_as_predicted(images)
+
+
+def assert_sphere_paths_as_predicted(images: dict) -> dict:
+    """Every sphere path of :func:`predicted_paths`, and no other, in ``images`` (signature
+    name -> image); returns the prediction."""
     predicted = predicted_paths()
     got = {n for n, img in images.items() if "[objects]" in n and img.sum() > 0}
     assert got == set(predicted)
@@ -165,6 +171,7 @@ def test_sphere_echoes_land_where_the_image_sources_put_them(range_splat, render
         # The echo comes from the near side of the sphere: within a radius short of the centre's range.
         mean = (img.sum(axis=1) * centres).sum() / img.sum()
         assert rng - SPHERE_R - DR <= mean <= rng + DR, (name, mean, rng)
+    return predicted
 
 
 # --- upside down --------------------------------------------------------------------------
