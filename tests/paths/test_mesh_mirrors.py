@@ -423,3 +423,68 @@ def test_bad_glint_settings_are_refused_naming_the_key():
         with pytest.raises(ConfigError) as err:
             sonarsim.Simulator(doc)
         assert key in str(err.value)
+
+
+def test_labels_cover_the_paths_via_mesh_mirrors_and_the_specular_returns():
+    """The demo's tank with its steel plate, and the specular returns on: every component's
+    instance map is set exactly where it has energy; the cells that only the plate's ghosts
+    reach are labelled with what scattered there (the post among them, not the plate alone),
+    with the elevation the ghost arrives at, and points in them."""
+    from sonarsim.cli.demo import tank_scene_dict
+
+    doc = tank_scene_dict(mirror=True)
+    doc["render"].update(elevation_samples=40, glints=True)
+    img = sonarsim.Simulator(doc).render(speckle=False, labels=True)
+    lab = img.labels
+    assert lab.ids[:4] == ("buoy", "post", "block", "steel_plate")
+    for name, inst in lab.instance.items():
+        np.testing.assert_array_equal(inst >= 0, img.components[name] > 0, err_msg=name)
+    comp = img.components
+    plate = sum(np.asarray(comp[n], float) for n in comp.signatures
+                if "steel_plate" in parse_path_name(n)[0] + parse_path_name(n)[2])
+    others = np.asarray(comp["total"], float) - plate
+    ghost_only = (plate > 0) & (others <= 1e-6 * plate)
+    assert ghost_only.sum() > 50
+    ids = set(np.unique(lab.instance["total"][ghost_only]).tolist())
+    assert lab.ids.index("post") in ids and ids - {lab.ids.index("steel_plate")}
+    el = lab.elevation_deg[ghost_only]
+    assert np.all(np.isfinite(el)) and np.all(np.abs(el) <= 10.0 + 1e-6)
+    cells = {tuple(c) for c in lab.points_cell.tolist()}
+    assert sum((r, b) in cells for r, b in zip(*np.nonzero(ghost_only))) > 20
+    # Specular returns are labelled too (the plate met square on, a wall's corner...).
+    glints = [n for n in comp.signatures if parse_path_name(n)[1] == ""]
+    assert all(np.all(lab.instance["total"][np.asarray(comp[n]) > 0] >= 0) for n in glints)
+
+
+def test_a_fan_of_many_faces_keeps_its_apex_flat_and_a_huge_mirror_is_refused_before_building():
+    """Smooth normals pair each corner with the faces around its vertex: a fan's apex (more than
+    MAX_SMOOTH_DEGREE faces) keeps its face's own normal instead of 4e10 pairs; and the mirror
+    tables count in the scene's memory estimate, refused before anything is built."""
+    import trimesh
+
+    from sonarsim.core.memory import memory_budget
+    from sonarsim.core.triangles import TriangleMesh
+    from sonarsim.paths.facets import MAX_SMOOTH_DEGREE, FacetSet
+    from sonarsim.scene import cost
+
+    cone = trimesh.creation.cone(radius=1.0, height=1.0, sections=400)
+    mesh = TriangleMesh(np.asarray(cone.vertices, float), np.asarray(cone.faces, np.int32))
+    facets = FacetSet.of([mesh], ["cone"], [0.5], ["smooth"])
+    apex = np.argmax(mesh.vertices[:, 2])
+    at_apex = mesh.faces == apex
+    assert at_apex.sum() > MAX_SMOOTH_DEGREE
+    np.testing.assert_allclose(facets.corner_normals[at_apex], np.repeat(facets.normal, 3, axis=0).reshape(-1, 3, 3)[at_apex])
+    assert cost.BYTES_PER_SMOOTH_TRIANGLE >= 3 * MAX_SMOOTH_DEGREE * 48
+    n = int(memory_budget() / cost.BYTES_PER_TRIANGLE * 0.8)  # fits as a scatterer, not as a smooth mirror
+    from dataclasses import replace
+
+    base = sonarsim.load_scene(pipe_scene())
+    big = replace(base, objects=(replace(base.objects[0], normals="smooth"),))
+    plain = replace(base, objects=(replace(base.objects[0], specular=0.0),))
+    import unittest.mock as mock
+
+    with mock.patch.object(cost, "object_triangles", return_value=n):
+        cost.check_scene_cost(plain)
+        with pytest.raises(ConfigError) as err:
+            cost.check_scene_cost(big)
+    assert "objects" in str(err.value)

@@ -53,6 +53,11 @@ EDGE_TOLERANCE = 1e-9
 #: lie in one plane: one mirror.
 COPLANAR_DECIMALS = 9
 
+#: A corner whose vertex more faces than this meet at (a cone's apex, a fan) keeps its face's
+#: own normal: averaging pairs every corner of a vertex with every face around it, D^2 pairs
+#: for a vertex of D faces (a 200,000-face fan would be 4e10).
+MAX_SMOOTH_DEGREE = 32
+
 
 @dataclass(frozen=True)
 class FacetSet:
@@ -242,7 +247,7 @@ def _corner_normals(mesh: TriangleMesh) -> np.ndarray:
     # Every corner (face f, its vertex v) paired with every face g around v.
     corner_v = vert
     corner_f = face
-    reps = degree[corner_v]
+    reps = np.where(degree[corner_v] <= MAX_SMOOTH_DEGREE, degree[corner_v], 0)  # (a fan's apex: its own normal)
     corner_id = np.repeat(np.arange(len(corner_v)), reps)
     offsets = np.arange(reps.sum()) - np.repeat(np.cumsum(reps) - reps, reps)
     g = face_s[np.repeat(first[corner_v], reps) + offsets]

@@ -27,6 +27,12 @@ from .meshes import CYLINDER_SECTIONS, cylinder_sections, load_mesh_file, sphere
 
 __all__ = ["BYTES_PER_TRIANGLE", "SceneCost", "check_scene_cost", "object_triangles", "scene_cost"]
 
+#: Memory a mirror's triangle (an object with ``specular`` > 0) takes beyond that, in the path
+#: engine's tables (:mod:`sonarsim.paths.facets`: corners, normal, plane, mirror and their sort),
+#: and with smooth normals the corners' normals and the pairs that average them (each corner
+#: with at most ``paths.facets.MAX_SMOOTH_DEGREE``, 32, faces, 64 bytes a pair).
+BYTES_PER_MIRROR_TRIANGLE = 400.0
+BYTES_PER_SMOOTH_TRIANGLE = 3 * 32 * 64.0
 #: Memory a triangle takes once built: world vertices and faces, Embree's copies and its
 #: high-quality BVH (with spatial splits), and the temporaries of the build.
 BYTES_PER_TRIANGLE = 200.0
@@ -95,8 +101,12 @@ def scene_cost(scene: Scene, counts: Sequence[int] | None = None) -> SceneCost:
     """
     counts = [1] * len(scene.objects) if counts is None else list(counts)
     n = sum(counts)
-    triangles = sum(c * object_triangles(o) for c, o in zip(counts, scene.objects))
-    return SceneCost(n, triangles, n * BYTES_PER_OBJECT + triangles * BYTES_PER_TRIANGLE,
+    each = [object_triangles(o) for o in scene.objects]
+    triangles = sum(c * t for c, t in zip(counts, each))
+    # A mirror's triangles also fill the path engine's tables (paths.facets).
+    mirrors = sum(c * t * (BYTES_PER_MIRROR_TRIANGLE + (BYTES_PER_SMOOTH_TRIANGLE if o.normals == "smooth" else 0.0))
+                  for c, t, o in zip(counts, each, scene.objects) if o.specular > 0)
+    return SceneCost(n, triangles, n * BYTES_PER_OBJECT + triangles * BYTES_PER_TRIANGLE + mirrors,
                      n * SECONDS_PER_OBJECT + triangles * SECONDS_PER_TRIANGLE)
 
 
