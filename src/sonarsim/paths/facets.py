@@ -222,11 +222,12 @@ class FacetSet:
         det = d11 * d22 - d12 * d12
         if det <= 0.0:
             return np.zeros(len(p), dtype=bool)
-        p1, p2 = p @ e1, p @ e2
-        u = (d22 * p1 - d12 * p2) / det
-        v = (d11 * p2 - d12 * p1) / det
-        tol = EDGE_TOLERANCE * max(1.0, np.sqrt(max(d11, d22)))
-        return (u >= -tol) & (v >= -tol) & (u + v <= 1.0 + tol)
+        with np.errstate(invalid="ignore"):  # (points already refused are NaN: not inside)
+            p1, p2 = p @ e1, p @ e2
+            u = (d22 * p1 - d12 * p2) / det
+            v = (d11 * p2 - d12 * p1) / det
+            tol = EDGE_TOLERANCE * max(1.0, np.sqrt(max(d11, d22)))
+            return (u >= -tol) & (v >= -tol) & (u + v <= 1.0 + tol)
 
 
 def _corner_normals(mesh: TriangleMesh) -> np.ndarray:
