@@ -13,6 +13,7 @@ jnp = pytest.importorskip("jax.numpy")
 import sonarsim.diff as sd  # noqa: E402
 from sonarsim.diff import check  # noqa: E402
 from sonarsim.errors import ConfigError  # noqa: E402
+from sonarsim.paths.engine import parse_path_name  # noqa: E402
 from sonarsim.renderer.simulator import Simulator  # noqa: E402
 from tests.diff.test_gradients import SONAR, assert_checked  # noqa: E402
 from tests.paths.test_mesh_mirrors import mirror_tank, wall_scene  # noqa: E402
@@ -80,8 +81,9 @@ def test_transmit_legs_across_mesh_mirrors_against_the_held_forward():
     doc = mirror_tank(3, "separate")
     doc["render"]["range_splat"] = True  # (the reference's scenes put each path in one bin: no derivative)
     r = sd.Renderer(doc)
-    tx_mirrors = {m for k in r.search.signatures for m in ("block", "plate") if m in k.split("[")[0]
-                  and k.split("[")[0] != k.split("]")[1][::-1]}
+    # Signatures whose transmit leg meets a mirror and is not the receive leg reversed.
+    tx_mirrors = {m for k in r.search.signatures for m in ("block", "plate")
+                  if m in parse_path_name(k)[0] and parse_path_name(k)[0] != parse_path_name(k)[2]}
     assert tx_mirrors == {"block", "plate"}
     keys = [f"objects.{m}.{p}" for m in ("block", "plate") for p in ("position_m", "rpy_deg", "specular")]
     rows = check.check_gradients(r, keys, reference="held")

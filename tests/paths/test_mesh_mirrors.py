@@ -33,7 +33,7 @@ def mirror_tank(max_order: int = 3, double_beam: str = "paper", line_of_sight: b
 
 # --- the same wall, a plane or a box --------------------------------------------------------
 
-def wall_scene(as_box: bool, max_order: int, double_beam: str = "paper") -> dict:
+def wall_scene(as_box: bool, max_order: int, double_beam: str = "paper", line_of_sight: bool = False) -> dict:
     """A floor, a far wall at x = 4 (a plane, or the front face of a box 0.5 m thick and 40 m
     wide) with the same albedo and R, a ball and a block; the sonar pitched down, yawed."""
     objects = [
@@ -51,17 +51,21 @@ def wall_scene(as_box: bool, max_order: int, double_beam: str = "paper") -> dict
         planes.append({"name": "wall", "point_m": [4.0, 0, 0], "normal": [-1, 0, 0], **wall})
     return {
         "sonar": {**SONAR, "elevation_fov_deg": 30.0, "pose": {"position_m": [0.0, 0.1, 1.1], "rpy_deg": [0, 12, 6]}},
-        "render": {"elevation_samples": 64, "max_order": max_order, "double_beam": double_beam},
+        "render": {"elevation_samples": 64, "max_order": max_order, "double_beam": double_beam,
+                   "double_line_of_sight": line_of_sight},
         "ground": {"height_m": 0.0, "albedo": 0.5, "specular": 0.6},
         "planes": planes, "objects": objects,
     }
 
 
-@pytest.mark.parametrize("max_order,double_beam", [(1, "paper"), (2, "paper"), (3, "paper"), (4, "paper"),
-                                                   (3, "separate")])
-def test_a_wall_given_as_a_box_renders_as_the_wall_given_as_a_plane(max_order, double_beam):
-    plane = sonarsim.Simulator(wall_scene(False, max_order, double_beam)).render().components
-    box = sonarsim.Simulator(wall_scene(True, max_order, double_beam)).render().components
+@pytest.mark.parametrize("max_order,double_beam,los", [(1, "paper", False), (2, "paper", False), (3, "paper", False),
+                                                       (4, "paper", False), (3, "separate", False),
+                                                       (3, "separate", True)])
+def test_a_wall_given_as_a_box_renders_as_the_wall_given_as_a_plane(max_order, double_beam, los):
+    """(With ``double_line_of_sight`` the box is an object the transmit legs are cast against:
+    a leg's reflection point on it must not count as blocking the leg.)"""
+    plane = sonarsim.Simulator(wall_scene(False, max_order, double_beam, los)).render().components
+    box = sonarsim.Simulator(wall_scene(True, max_order, double_beam, los)).render().components
     names = ["single", "total"] + [n for n in ("double", "triple", "order4") if n in plane]
     for name in names:
         a, b = plane[name].astype(float), box[name].astype(float)
@@ -453,6 +457,7 @@ def test_labels_cover_the_paths_via_mesh_mirrors_and_the_specular_returns():
     assert sum((r, b) in cells for r, b in zip(*np.nonzero(ghost_only))) > 20
     # Specular returns are labelled too (the plate met square on, a wall's corner...).
     glints = [n for n in comp.signatures if parse_path_name(n)[1] == ""]
+    assert glints
     assert all(np.all(lab.instance["total"][np.asarray(comp[n]) > 0] >= 0) for n in glints)
 
 

@@ -106,9 +106,17 @@ def _search_rows(search) -> dict:
     faces = np.concatenate([np.stack([np.full(search.n_planes, -1), np.arange(search.n_planes)], axis=1),
                             search.faces]).astype(np.int64)
     where = faces[search.surface[:n]]
+
+    def mirrors(chains: np.ndarray) -> np.ndarray:
+        # A chain's mesh mirror is a row of this search's triangle table: named by its triangle.
+        tri = faces[np.clip(chains, 0, len(faces) - 1)]
+        return np.where((chains >= search.n_planes)[..., None], tri, np.stack([np.full_like(chains, -1), chains], -1)
+                        ).reshape(len(chains), -1)
+
     keys = np.concatenate([search.ray[:n, None], search.gen[:n, None], search.same[:n, None], search.beam[:n, None],
-                           search.tx_planes[:n]], axis=1)
-    values = np.concatenate([where, search.rx_planes[:n], search.has_down[:n, None], search.has_up[:n, None]], axis=1)
+                           mirrors(search.tx_planes[:n])], axis=1)
+    values = np.concatenate([where, mirrors(search.rx_planes[:n]), search.has_down[:n, None], search.has_up[:n, None]],
+                            axis=1)
     return {tuple(k): (tuple(v), d) for k, v, d in zip(keys.tolist(), values.tolist(), search.distance[:n].tolist())}
 
 

@@ -56,6 +56,10 @@ from .planes import WATER_TOLERANCE_M, ChainTable, PlaneSet, reflection_points
 # again (or the base of an object resting on it), metres.
 SURFACE_OFFSET_M = 1e-5
 
+# A transmit leg's segment that ends on a mesh mirror may meet it this much before its end,
+# relative to its length (at least 1 m): the caster reports hits in float32.
+MIRROR_HIT = 1e-5
+
 # ``PathSet.tx`` of the paths whose transmit leg is the receive leg reversed.
 SAME = -1
 
@@ -145,7 +149,9 @@ class Leg:
         """(n,) int32: rays on one surface via one chain share a key (-1 none): continuity."""
         if self.keys is not None:
             return self.keys
-        return np.where(self.sid >= 0, self.chain * n_surfaces + self.sid, -1).astype(np.int32)
+        # (int64 while formed: many chains times many surfaces would wrap in int32)
+        key = np.where(self.sid >= 0, self.chain.astype(np.int64) * n_surfaces + self.sid, -1)
+        return key.astype(np.int64 if key.max(initial=0) > np.iinfo(np.int32).max else np.int32)
 
     def live_rays(self) -> np.ndarray:
         """(l,) intp: the rays that scatter some energy, ascending."""
@@ -1115,8 +1121,11 @@ def drop_occluded(sets: list[PathSet], legs: list[Leg], *, table: ChainTable, vi
     """``double_line_of_sight``: keep only the paths whose transmit leg no object blocks.
 
     Every segment of the leg (O -> reflection points -> A) is cast against the objects; the
-    last one may end on A itself (to float32 precision).
+    last one may end on A itself (to float32 precision). A reflection point on a mesh mirror is
+    on an object too: a segment leaves it from :data:`SURFACE_OFFSET_M` along the segment, and
+    one that ends on it may meet it within :data:`MIRROR_HIT` of its length.
     """
+    n_planes = len(table.planes)
     out = []
     for s in sets:
         if s.tx in (SAME, GLINT) or not len(s.ray):  # (a specular return is traced: seen)
@@ -1126,14 +1135,18 @@ def drop_occluded(sets: list[PathSet], legs: list[Leg], *, table: ChainTable, vi
         chain = table.chains[s.tx]
         q, _ = reflection_points(table.planes, chain, table.sources(s.tx), a, active, table.facets)
         corners = [np.broadcast_to(view.origin, a.shape)] + [q[:, j] for j in range(len(chain))] + [a]
+        on_mesh = [False] + [p >= n_planes for p in chain] + [True]  # corners on an object
         free = np.ones(len(a), dtype=bool)
         for k in range(len(corners) - 1):
             seg = corners[k + 1] - corners[k]
             length = np.linalg.norm(seg, axis=1)
-            hit = caster.intersect(corners[k], seg / length[:, None], float(length.max()) + 1.0)
+            unit = seg / length[:, None]
+            lift = SURFACE_OFFSET_M if on_mesh[k] else 0.0
+            hit = caster.intersect(corners[k] + lift * unit, unit, float(length.max()) + 1.0)
             last = k == len(corners) - 2
-            slack = 1e-3 * np.maximum(length, 1.0) if last else 0.0
-            free &= hit.distance >= length - slack
+            slack = 1e-3 * np.maximum(length, 1.0) if last else (MIRROR_HIT * np.maximum(length, 1.0)
+                                                                 if on_mesh[k + 1] else 0.0)
+            free &= hit.distance + lift >= length - slack
         out.append(PathSet(s.gen, s.tx, s.ray[free], s.distance[free], s.energy[free], s.beam[free], s.label[free]))
     return out
 

@@ -134,7 +134,7 @@ class FacetSet:
         normal = np.divide(raw, length[:, None], out=np.zeros_like(raw), where=length[:, None] > 0)
         obj = np.repeat(np.arange(len(counts), dtype=np.int32), counts)
         corner_normals = None
-        if np.any(smooth & (spec > 0)):
+        if np.any(smooth & (spec > 0) & (np.asarray(counts) > 0)):  # (a mirror the planes clipped away has none)
             corner_normals = np.concatenate([
                 _corner_normals(m) if smooth[k] else np.repeat(normal[start[k]:start[k + 1], None, :], 3, axis=1)
                 for k, m in enumerate(meshes) if counts[k]

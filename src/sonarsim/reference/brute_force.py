@@ -554,21 +554,30 @@ def _in_aperture(sonar, pose, departure: np.ndarray) -> tuple[np.ndarray, np.nda
     return inside, beam
 
 
-def _unoccluded(sim, vertices: np.ndarray) -> np.ndarray:
+def _unoccluded(sim, vertices: np.ndarray, on_mirror: list | None = None) -> np.ndarray:
     """(m,) bool: no object lies on any segment of legs given by their corners (m, k + 2, 3).
 
     The last segment ends on the scatterer A itself, which the caster may report a little
     before A: a hit within :data:`SELF_HIT_M` (relative, at least 1 mm) of A counts as A.
+    ``on_mirror[j]``: corner j is a reflection point on a mesh mirror, itself an object: a
+    segment leaves it from :data:`OFF_PLANE_M` on, and one ending on it may meet it within
+    ``1e-5`` of its length (float32 hits).
     """
     m, n_corners = vertices.shape[:2]
+    on_mirror = on_mirror or [False] * n_corners
     free = np.ones(m, dtype=bool)
     for j in range(n_corners - 1):
         seg = vertices[:, j + 1] - vertices[:, j]
         span = np.linalg.norm(seg, axis=1)
-        hits = sim.caster.intersect(vertices[:, j].astype(np.float32), (seg / span[:, None]).astype(np.float32),
+        unit = seg / span[:, None]
+        lift = OFF_PLANE_M if on_mirror[j] else 0.0
+        hits = sim.caster.intersect((vertices[:, j] + lift * unit).astype(np.float32), unit.astype(np.float32),
                                     float(span.max()) + 1.0)
-        t = np.asarray(hits.distance, dtype=float)
-        slack = SELF_HIT_M * np.maximum(span, 1.0) if j == n_corners - 2 else 0.0
+        t = np.asarray(hits.distance, dtype=float) + lift
+        if j == n_corners - 2:
+            slack = SELF_HIT_M * np.maximum(span, 1.0)
+        else:
+            slack = 1e-5 * np.maximum(span, 1.0) if on_mirror[j + 1] else 0.0
         free &= ~(t < span - slack)
     return free
 
@@ -656,7 +665,7 @@ def render_reference(sim, sonar=None, pose=None, *, max_order: int | None = None
         ok = valid & inside & (length >= sonar.range_min_m) & (length < sonar.range_max_m)
         if los and ok.any():
             sel = np.flatnonzero(ok)
-            ok[sel] &= _unoccluded(sim, vertices[sel])
+            ok[sel] &= _unoccluded(sim, vertices[sel], [False] + [p >= n_planes for p in tx] + [True])
         r_tx = float(np.prod([planes.specular[p] if p < n_planes else facets.specular[p - n_planes] for p in tx]))
         for j in np.flatnonzero(ok):
             i = idx[j]
