@@ -179,6 +179,10 @@ class PathSet:
         Beam the path is recorded in.
     label : (m,) int8 ndarray
         Image row (:data:`LABEL_OBJECT`, :data:`LABEL_PLANE`, or the order).
+    swap : bool
+        The paths are the reciprocal partners of the ones formed: the sound goes out along
+        the set's receive legs (a smooth mirror's, which has no image source) and comes back
+        along its transmit chain, in whose beam they are recorded (:func:`form_paths`).
     """
 
     gen: int
@@ -188,6 +192,7 @@ class PathSet:
     energy: np.ndarray
     beam: np.ndarray
     label: np.ndarray
+    swap: bool = False
 
 
 @dataclass(frozen=True)
@@ -1100,12 +1105,14 @@ def form_paths(
     no_planes = np.empty(0, np.int32)
     out: list[PathSet] = []
     facets = table.facets
+    smooth = []
     for g, tx, row in frame_options(table, len(legs), max_order, double_beam):
         leg = legs[g]
         same = tx == SAME
         c = 0 if same else tx
         if facets is not None and not same and not table.flat(c):
-            continue  # a smooth mirror has no image source: its legs come only reversed (SAME)
+            smooth.append((g, tx, row))  # no image source across a smooth mirror: formed reversed below
+            continue
         chain = table.chains[c]
         ray, distance, energy, beam, beam_tx, label = option_paths(
             leg.live_rays(), leg, same, c, table.unfold(c), table.sources(c),
@@ -1114,6 +1121,44 @@ def form_paths(
         )
         if len(ray):
             out += option_sets(g, tx, ray, distance, energy, beam, beam_tx, label, double_beam)
+    for g, tx, row in smooth:
+        out += reciprocal_sets(legs, table, g, tx, row, rank, view, active, n_planes, rays_per_beam, double_beam)
+    return out
+
+
+def reciprocal_sets(legs: list[Leg], table: ChainTable, g: int, tx: int, row: int, rank: np.ndarray, view: SonarView,
+                    active: np.ndarray, n_planes: int, rays_per_beam: int, double_beam: str) -> list[PathSet]:
+    """The paths of option ``(g, tx)`` whose transmit chain ``tx`` meets a smooth mirror, formed
+    from their reciprocal partners: the receive legs that followed ``tx`` (traced: no image
+    source needed), with a transmit leg by image sources along each flat chain ``c`` of
+    generation ``g`` that pairs with ``tx`` in this ``double_beam`` mode. A partner has the
+    path's length; its energy is weighed, as every path's, by its traced leg (here the one via
+    the smooth mirror: the model weighs a path by the ray it traces, so that the two members
+    of a pair differ where the mirror is curved, as they do for planes at different ranges);
+    the path arrives along ``c``, in the beam its partner's transmit leg leaves in (``swap``)."""
+    k = table.length(tx)
+    if k >= len(legs):
+        return []
+    leg = legs[k]
+    live = leg.live_rays()
+    live = live[leg.chain[live] == tx]
+    if not len(live):
+        return []
+    out: list[PathSet] = []
+    for c in range(len(table)):
+        if c == tx or table.length(c) != g or not table.flat(c):
+            continue  # (a pair of two smooth chains has no image source on either side)
+        if double_beam != "separate" and not rank[c] > rank[tx]:
+            continue  # the pair is formed from the other member, or not at all
+        chain = table.chains[c]
+        ray, distance, energy, beam, beam_tx, label = option_paths(
+            live, leg, False, c, table.unfold(c), table.sources(c), np.asarray(chain, np.int32), table.specular(c),
+            rank, True, row, n_planes, rays_per_beam, view, table.planes, active, table.facets,
+        )
+        if len(ray):
+            for s in option_sets(k, c, ray, distance, energy, beam_tx, beam, label, double_beam):
+                s.swap = True
+                out.append(s)
     return out
 
 
@@ -1147,7 +1192,8 @@ def drop_occluded(sets: list[PathSet], legs: list[Leg], *, table: ChainTable, vi
             slack = 1e-3 * np.maximum(length, 1.0) if last else (MIRROR_HIT * np.maximum(length, 1.0)
                                                                  if on_mesh[k + 1] else 0.0)
             free &= hit.distance + lift >= length - slack
-        out.append(PathSet(s.gen, s.tx, s.ray[free], s.distance[free], s.energy[free], s.beam[free], s.label[free]))
+        out.append(PathSet(s.gen, s.tx, s.ray[free], s.distance[free], s.energy[free], s.beam[free], s.label[free],
+                           s.swap))
     return out
 
 
@@ -1241,11 +1287,13 @@ def split_by_signature(sets: list[PathSet], legs: list[Leg], table: ChainTable, 
             rx_chain = table.chains[int(c) // (n_planes + 1)]
             q = int(c) % (n_planes + 1)
             tx_chain = rx_chain if s.tx == SAME else table.chains[s.tx]
+            if s.swap:  # formed from its reciprocal partner: its legs the other way round
+                tx_chain, rx_chain = rx_chain, tx_chain
             name = path_name([names[p] for p in tx_chain], "objects" if q == n_planes else names[q],
                              [names[p] for p in rx_chain])
             k = code == c
             groups.setdefault(name, []).append(
-                PathSet(s.gen, s.tx, s.ray[k], s.distance[k], s.energy[k], s.beam[k], s.label[k])
+                PathSet(s.gen, s.tx, s.ray[k], s.distance[k], s.energy[k], s.beam[k], s.label[k], s.swap)
             )
     return groups
 
