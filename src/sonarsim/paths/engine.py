@@ -495,7 +495,7 @@ def trace_generation(
         go |= mirror & (total < reach_m)
     if not (reflect and go.any()):
         return Rays(r[:0], np.empty((0, 3)), np.empty((0, 3)), np.empty(0), np.empty(0), np.empty(0, np.int32)), live
-    p, c = sid[go], chain[go]
+    p, c, d_go = sid[go], chain[go], dd[go]
     if mirrors:
         f = facet[go]
         on_facet = f >= 0
@@ -520,12 +520,12 @@ def trace_generation(
         flat = facets.normal[ff]
         # An interpolated normal may turn a grazing ray into the surface: there the facet's own
         # normal reflects it (the ray must leave on the side it came from).
-        d_in = dd[go][on_facet]
+        d_in = d_go[on_facet]
         into = _rowdot(d_in - (2.0 * _rowdot(d_in, bent))[:, None] * bent, flat) * _rowdot(d_in, flat) > 0
         nrm[on_facet] = np.where(into[:, None], flat, bent)
         spec[on_facet] = facets.specular[facets.obj[ff]]
-    twice = 2.0 * _rowdot(dd[go], nrm)
-    d_ref = dd[go] - twice[:, None] * nrm
+    twice = 2.0 * _rowdot(d_go, nrm)
+    d_ref = d_go - twice[:, None] * nrm
     start = point[go].astype(np.float32).astype(np.float64) + SURFACE_OFFSET_M * d_ref
     nxt = Rays(r[go], start, d_ref, total[go] + SURFACE_OFFSET_M, atten[go] * spec, child[back.reshape(-1)])
     return nxt, live

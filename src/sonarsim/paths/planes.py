@@ -78,12 +78,18 @@ class PlaneSet:
         return self.signed_distance(np.asarray(position, dtype=float).reshape(3)) > 0.0
 
     def mirror(self, p: int) -> np.ndarray:
-        """(3, 4) affine map of the reflection across plane ``p``: ``x - 2 (n.x - offset) n``."""
-        n = self.normal[p]
-        out = np.empty((3, 4))
-        out[:, :3] = np.eye(3) - 2.0 * np.outer(n, n)
-        out[:, 3] = 2.0 * self.offset[p] * n
-        return out
+        """(3, 4) affine map of the reflection across plane ``p`` (:func:`mirror_map`)."""
+        return mirror_map(self.normal[p], float(self.offset[p]))
+
+
+def mirror_map(normal: np.ndarray, offset: float) -> np.ndarray:
+    """(3, 4) affine map of the reflection across the plane ``n . x = offset``:
+    ``x - 2 (n.x - offset) n`` (n a unit normal)."""
+    n = np.asarray(normal, dtype=float)
+    out = np.empty((3, 4))
+    out[:, :3] = np.eye(3) - 2.0 * np.outer(n, n)
+    out[:, 3] = 2.0 * offset * n
+    return out
 
 
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -252,13 +258,7 @@ class ChainTable:
 
     def mirror(self, p: int) -> np.ndarray:
         """(3, 4) affine map of the reflection across mirror ``p``'s plane."""
-        if p < len(self.planes):
-            return self.planes.mirror(p)
-        n = self.normal_of(p)
-        out = np.empty((3, 4))
-        out[:, :3] = np.eye(3) - 2.0 * np.outer(n, n)
-        out[:, 3] = 2.0 * self.offset_of(p) * n
-        return out
+        return mirror_map(self.normal_of(p), self.offset_of(p))
 
     def flat(self, c: int) -> bool:
         """Chain ``c``'s mirrors all have point images (planes and flat facets): transmit legs
