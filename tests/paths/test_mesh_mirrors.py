@@ -131,8 +131,10 @@ def _law_of_reflection(corners: np.ndarray, chain, normal_of, tol: float) -> int
     return len(chain)
 
 
-def test_every_path_obeys_the_law_of_reflection_at_every_mesh_vertex():
-    sim = sonarsim.Simulator(mirror_tank(4, "separate"))
+@pytest.mark.parametrize("kernels", ["compiled", "numpy"])
+def test_every_path_obeys_the_law_of_reflection_at_every_mesh_vertex(kernels):
+    sim = sonarsim.Simulator(mirror_tank(4, "separate"), kernels=kernels)
+    assert sim.path_kernels == kernels
     n_planes = len(sim.planes)
     facets = sim.facets
 
@@ -160,7 +162,7 @@ def test_every_path_obeys_the_law_of_reflection_at_every_mesh_vertex():
     view = SonarView.of(sonar, pose, sim.ray_fan(sonar))
     _, legs, sets, table, _, _ = sim._render_paths(sonar, view, reach, active, 4)
     on_facets = 0
-    for s in sets:
+    for s in (sets() if callable(sets) else sets):
         tx, rx = path_corners(s, legs, table, view, active)
         rx_chain = legs[s.gen].chain[s.ray]
         for i in range(len(s.ray)):
@@ -250,11 +252,12 @@ def _fermat_length(o: np.ndarray, a: np.ndarray, start: np.ndarray) -> tuple[flo
     return float(res.fun), q_of(res.x)
 
 
-def test_a_mirroring_pipe_on_the_floor_shows_the_floor_where_fermat_puts_it():
+@pytest.mark.parametrize("kernels", ["compiled", "numpy"])
+def test_a_mirroring_pipe_on_the_floor_shows_the_floor_where_fermat_puts_it(kernels):
     """The floor seen in a pipe lying on it (O-pipe-[ground]-O and O-[ground]-pipe-O): each
     path's range is that of the specular path over the smooth cylinder through its floor point
     (the mesh's facets sag 0.2 mm at most), its reflection point on the pipe's lit side."""
-    sim = sonarsim.Simulator(pipe_scene())
+    sim = sonarsim.Simulator(pipe_scene(), kernels=kernels)
     sonar, pose = sim.scene.sonar, sim.scene.sonar_pose
     active, _, reach = sim.frame_reach(sonar, pose)
     view = SonarView.of(sonar, pose, sim.ray_fan(sonar))
@@ -262,7 +265,7 @@ def test_a_mirroring_pipe_on_the_floor_shows_the_floor_where_fermat_puts_it():
     o = np.asarray(pose.translation, float)
     checked = {"tx": 0, "rx": 0}
     rng = np.random.default_rng(0)
-    for s in sets:
+    for s in (sets() if callable(sets) else sets):
         leg = legs[s.gen]
         on_floor = leg.sid[s.ray] == 0
         if s.tx == SAME:

@@ -184,7 +184,8 @@ class FacetSet:
         """(m,) bool: rays along ``direction`` (m, 3) meet facet ``f`` (m,) on a side it
         mirrors on."""
         side = self.side[self.obj[np.asarray(f, dtype=np.intp)]]
-        dn = np.einsum("ij,ij->i", np.asarray(direction, dtype=float), self.normal[f])
+        d, n = np.asarray(direction, dtype=float), self.normal[f]
+        dn = d[:, 0] * n[:, 0] + d[:, 1] * n[:, 1] + d[:, 2] * n[:, 2]  # summed as the kernels sum
         return (side == 0) | (side * dn < 0)
 
     def reflecting_normal(self, f: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -218,16 +219,22 @@ class FacetSet:
         a, b, c = self.corners[f]
         e1, e2 = b - a, c - a
         p = np.asarray(points, dtype=float) - a
-        d11, d12, d22 = e1 @ e1, e1 @ e2, e2 @ e2
+        # Every dot product summed as the kernels sum, (x + y) + z: their decisions are these.
+        d11, d12, d22 = _dot3(e1, e1), _dot3(e1, e2), _dot3(e2, e2)
         det = d11 * d22 - d12 * d12
-        if det <= 0.0:
+        if not det > 0.0:
             return np.zeros(len(p), dtype=bool)
         with np.errstate(invalid="ignore"):  # (points already refused are NaN: not inside)
-            p1, p2 = p @ e1, p @ e2
+            p1, p2 = _dot3(p, e1), _dot3(p, e2)
             u = (d22 * p1 - d12 * p2) / det
             v = (d11 * p2 - d12 * p1) / det
             tol = EDGE_TOLERANCE * max(1.0, np.sqrt(max(d11, d22)))
             return (u >= -tol) & (v >= -tol) & (u + v <= 1.0 + tol)
+
+
+def _dot3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a . b`` over the last axis of length 3, summed ``(x + y) + z``."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
 def _corner_normals(mesh: TriangleMesh) -> np.ndarray:

@@ -222,14 +222,14 @@ class ChainTable:
                             chains=list(self.chains), _unfold=dict(self._unfold), _sources={0: origin[None, :].copy()})
         return out
 
-    def local_chains(self, children: np.ndarray, n_chains: int) -> list[tuple]:
-        """The chains of a block's own table (``children[c, p]``: the chain ``c + (p,)``; 0 the
-        empty chain), by local id."""
-        chains: list = [()] + [None] * (n_chains - 1)
-        rows = children[:n_chains]
-        pairs = sorted((int(rows[c, p]), int(c), int(p)) for c, p in zip(*np.nonzero(rows >= 0)))
-        for k, c, p in pairs:  # a child's id is above its parent's
-            chains[k] = chains[c] + (p,)
+    @staticmethod
+    def local_chains(parent: np.ndarray, last: np.ndarray, n_chains: int) -> list[tuple]:
+        """The chains of a block's own numbering, by local id: chain ``c`` (0 < c < n_chains)
+        is chain ``parent[c]`` followed by mirror ``last[c]``; 0 is the empty chain
+        (``_kernels.PathBlocks.chain_parents``)."""
+        chains: list = [()]
+        for c in range(1, n_chains):  # a child's id is above its parent's
+            chains.append(chains[int(parent[c])] + (int(last[c]),))
         return chains
 
     # A chain's mirrors, planes and facets alike -------------------------------------------

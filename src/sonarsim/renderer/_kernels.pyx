@@ -17,6 +17,7 @@ Nothing here allocates per ray; the caller owns every array.
 from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, exp, isfinite, INFINITY, NAN
 from libc.math cimport M_PI
 from libc.string cimport memset, memmove
+from libc.stdint cimport int64_t, uint64_t
 import numpy as np
 cimport cython
 
@@ -367,6 +368,154 @@ cdef inline double dot3(const double* a, Py_ssize_t i, double x, double y, doubl
     return a[3 * i] * x + a[3 * i + 1] * y + a[3 * i + 2] * z
 
 
+# Mesh mirrors (sonarsim.paths.facets is the NumPy twin) -----------------------------------
+
+# A reflection point may lie this far outside its triangle, relative to the triangle's longest
+# edge (``paths.facets.EDGE_TOLERANCE``).
+cdef double EDGE_TOLERANCE = 1e-9
+
+
+cdef struct MirrorTables:
+    # What the kernels read of ``paths.facets.FacetSet`` (flat normals): pointers into the
+    # arrays a :class:`Mirrors` keeps.
+    Py_ssize_t n_mirrors          # M
+    Py_ssize_t n_objects          # K (every object, mirroring or not)
+    const int64_t* obj_start      # (K + 1,): object k's facets are obj_start[k] .. obj_start[k + 1] - 1
+    const double* obj_specular    # (K,)
+    const signed char* obj_side   # (K,): +1 / -1 the side it mirrors on, 0 both
+    const int64_t* facet_mirror   # (F,)
+    const double* facet_normal    # (F, 3)
+    const double* corners         # (F, 3, 3)
+    const int64_t* mirror_start   # (M + 1,)
+    const int64_t* mirror_facets  # (F,)
+    const int* mirror_obj         # (M,)
+
+
+cdef class Mirrors:
+    """The mesh mirrors as the kernels read them (``paths.facets.FacetSet`` with flat normals;
+    :meth:`of` takes one). Immutable: the arrays are copied into C-contiguous ones it keeps.
+
+    Parameters
+    ----------
+    start : (K + 1,) int64, specular : (K,) float64, side : (K,) int8
+        Per object (every object of the scene).
+    mirror : (F,) int64, normal : (F, 3) float64, corners : (F, 3, 3) float64
+        Per facet.
+    mirror_start : (M + 1,) int64, mirror_facets : (F,) int64, mirror_obj : (M,) int32
+    mirror_normal : (M, 3) float64, mirror_offset : (M,) float64
+        Per mirror: its facets, its object, its plane (``n . x = offset``).
+    """
+
+    cdef MirrorTables t
+    cdef readonly object arrays
+    cdef readonly Py_ssize_t n_mirrors
+
+    def __init__(self, start, specular, side, mirror, normal, corners, mirror_start, mirror_facets, mirror_obj,
+                 mirror_normal, mirror_offset):
+        a = dict(mirror_normal=np.ascontiguousarray(mirror_normal, np.float64).reshape(-1, 3),
+                 mirror_offset=np.ascontiguousarray(mirror_offset, np.float64), start=np.ascontiguousarray(start, np.int64), specular=np.ascontiguousarray(specular, np.float64),
+                 side=np.ascontiguousarray(side, np.int8), mirror=np.ascontiguousarray(mirror, np.int64),
+                 normal=np.ascontiguousarray(normal, np.float64).reshape(-1, 3),
+                 corners=np.ascontiguousarray(corners, np.float64).reshape(-1, 3, 3),
+                 mirror_start=np.ascontiguousarray(mirror_start, np.int64),
+                 mirror_facets=np.ascontiguousarray(mirror_facets, np.int64),
+                 mirror_obj=np.ascontiguousarray(mirror_obj, np.int32))
+        cdef Py_ssize_t K = a["specular"].shape[0], F = a["mirror"].shape[0], M = a["mirror_obj"].shape[0]
+        if (a["start"].shape[0] != K + 1 or a["side"].shape[0] != K or a["normal"].shape[0] != F
+                or a["corners"].shape[0] != F or a["mirror_start"].shape[0] != M + 1 or a["mirror_facets"].shape[0] != F
+                or a["mirror_normal"].shape[0] != M or a["mirror_offset"].shape[0] != M):
+            raise ValueError("mirror tables of inconsistent lengths")
+        if K and (a["start"][0] != 0 or a["start"][K] != F or np.any(np.diff(a["start"]) < 0)):
+            raise ValueError("object facet ranges do not cover the facets in order")
+        if M and (a["mirror_start"][0] != 0 or a["mirror_start"][M] != F or np.any(np.diff(a["mirror_start"]) <= 0)):
+            raise ValueError("mirror facet ranges do not cover the facets, each mirror one at least")
+        if F and (a["mirror"].min() < 0 or a["mirror"].max() >= M or a["mirror_facets"].min() < 0
+                  or a["mirror_facets"].max() >= F):
+            raise ValueError("facet or mirror ids out of range")
+        if M and (a["mirror_obj"].min() < 0 or a["mirror_obj"].max() >= K):
+            raise ValueError("a mirror's object out of range")
+        for v in a.values():
+            v.flags.writeable = False
+        self.arrays = a
+        self.n_mirrors = M
+        self.t.n_mirrors = M
+        self.t.n_objects = K
+        self.t.obj_start = <const int64_t*>_address(a["start"])
+        self.t.obj_specular = <const double*>_address(a["specular"])
+        self.t.obj_side = <const signed char*>_address(a["side"])
+        self.t.facet_mirror = <const int64_t*>_address(a["mirror"])
+        self.t.facet_normal = <const double*>_address(a["normal"])
+        self.t.corners = <const double*>_address(a["corners"])
+        self.t.mirror_start = <const int64_t*>_address(a["mirror_start"])
+        self.t.mirror_facets = <const int64_t*>_address(a["mirror_facets"])
+        self.t.mirror_obj = <const int*>_address(a["mirror_obj"])
+
+    @classmethod
+    def of(cls, facets):
+        """The tables of a ``FacetSet`` whose objects all mirror about flat normals."""
+        if facets.corner_normals is not None and np.any(facets.smooth & (facets.specular > 0)):
+            raise ValueError("the kernels mirror about flat normals only (smooth mirrors: the NumPy twins)")
+        return cls(facets.start, facets.specular, facets.side, facets.mirror, facets.normal, facets.corners,
+                   facets.mirror_start, facets.mirror_facets, facets.mirror_obj, facets.mirror_normal,
+                   facets.mirror_offset)
+
+
+
+cdef size_t _address(a):
+    """Address of a C-contiguous array's data (0 where it is empty)."""
+    return <size_t>a.ctypes.data if a.size else 0
+
+
+cdef inline int64_t facet_of(const MirrorTables* mt, Py_ssize_t obj, int prim) noexcept nogil:
+    """Facet of triangle ``prim`` of object ``obj``, -1 where the object does not mirror (twin:
+    ``FacetSet.facet``)."""
+    cdef int64_t f
+    if mt == NULL or obj < 0 or obj >= mt.n_objects or prim < 0:
+        return -1
+    f = mt.obj_start[obj] + prim
+    return f if f < mt.obj_start[obj + 1] else -1
+
+
+cdef inline bint in_triangle(const double* c, double wx, double wy, double wz) noexcept nogil:
+    """The point, on the plane of the triangle with corners ``c`` (9 numbers), lies inside it,
+    edges included within EDGE_TOLERANCE of its size (twin: ``FacetSet.contains``)."""
+    cdef double e1x = c[3] - c[0], e1y = c[4] - c[1], e1z = c[5] - c[2]
+    cdef double e2x = c[6] - c[0], e2y = c[7] - c[1], e2z = c[8] - c[2]
+    cdef double px = wx - c[0], py = wy - c[1], pz = wz - c[2]
+    cdef double d11 = e1x * e1x + e1y * e1y + e1z * e1z
+    cdef double d12 = e1x * e2x + e1y * e2y + e1z * e2z
+    cdef double d22 = e2x * e2x + e2y * e2y + e2z * e2z
+    cdef double det = d11 * d22 - d12 * d12, p1, p2, u, v, tol
+    if not det > 0.0:
+        return False
+    p1 = px * e1x + py * e1y + pz * e1z
+    p2 = px * e2x + py * e2y + pz * e2z
+    u = (d22 * p1 - d12 * p2) / det
+    v = (d11 * p2 - d12 * p1) / det
+    tol = sqrt(d11 if d11 > d22 else d22)
+    tol = EDGE_TOLERANCE * (tol if tol > 1.0 else 1.0)
+    return u >= -tol and v >= -tol and u + v <= 1.0 + tol
+
+
+cdef inline bint on_mirror(const MirrorTables* mt, Py_ssize_t m, double wx, double wy, double wz) noexcept nogil:
+    """The point, on mirror ``m``'s plane, lies on one of its triangles (twin:
+    ``FacetSet.contains_mirror``)."""
+    cdef int64_t j
+    for j in range(mt.mirror_start[m], mt.mirror_start[m + 1]):
+        if in_triangle(mt.corners + 9 * mt.mirror_facets[j], wx, wy, wz):
+            return True
+    return False
+
+
+cdef inline Py_ssize_t hash_slot(const int64_t* keys, Py_ssize_t mask, int64_t key) noexcept nogil:
+    """The slot of ``key`` in an open-addressing table of ``mask + 1`` slots (a power of 2; -1
+    free), or of the free slot where it would go (linear probing)."""
+    cdef Py_ssize_t h = <Py_ssize_t>((<uint64_t>key * <uint64_t>0x9E3779B97F4A7C15ULL) >> 40) & mask
+    while keys[h] != -1 and keys[h] != key:
+        h = (h + 1) & mask
+    return h
+
+
 cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const int[::1] hit_mesh,
               const float[:, ::1] hit_normal, const double[:, ::1] org, const double[:, ::1] dirs,
               const double[::1] before, const double[::1] atten, const int[::1] chain,
@@ -380,9 +529,16 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
               double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
               double[::1] nx_atten, int[::1] nx_chain, const float* hit_texel, float[::1] texel,
               const int[::1] hit_prim, const float[:, ::1] hit_uv, int[::1] prim,
-              float[:, ::1] uv) noexcept nogil:
+              float[:, ::1] uv, const MirrorTables* mt, int64_t* hkeys, int* hvals, Py_ssize_t hmask,
+              int* parent, int* last_mirror) noexcept nogil:
     """The loop of :func:`trace_leg`'s search (also run by :class:`PathBlocks`, block by block):
-    writes the legs and lists the reached rays in ``live``; :func:`weigh_impl` weighs them."""
+    writes the legs and lists the reached rays in ``live``; :func:`weigh_impl` weighs them.
+
+    ``mt`` (NULL: none) are the mesh mirrors: a ray whose triangle (``hit_prim``) is a facet it
+    meets on a side the facet mirrors on reflects about the facet's normal into chain mirror
+    ``P + m``, the child found in the open-addressing table ``hkeys`` / ``hvals`` (``hmask + 1``
+    slots, at least twice the chain table's rows; key ``chain * M + m``). ``parent`` and
+    ``last_mirror`` (NULL: not kept) receive each new chain's parent and last mirror."""
 
     cdef Py_ssize_t k, i, m = ray.shape[0], n_next = 0, P = plane_normal.shape[0]
     cdef Py_ssize_t row, p, best_p, cap = children.shape[0]
@@ -390,9 +546,12 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
     cdef double ox, oy, oz, dx, dy, dz, t, tp, dn, nx, ny, nz, b, total, c, rx, ry, rz, twice
     cdef double px, py, pz, min_next = INFINITY
     cdef float fx, fy, fz, cosf
-    cdef int s, ch, child
+    cdef int s, ch, child, side
     cdef bint overflow = False
     cdef bint primitives = prim.shape[0] > 0  # the search's triangle and barycentrics, recorded
+    cdef int64_t facet, hk
+    cdef Py_ssize_t slot
+    cdef double spec
     cdef Py_ssize_t n_reached = 0
     cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
     for k in range(m):
@@ -487,16 +646,51 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
             key[i] = ch * n_surfaces + s
         live[n_reached] = i
         n_reached += 1
-        if not (reflect and s < P and total < reach and plane_specular[s] > 0):
-            continue
-        child = children[ch, s]
-        if child < 0:
-            if n_chains >= cap:
-                overflow = True
+        facet = -1
+        if mt != NULL and s >= P:  # a mesh mirror's triangle, met on a side it mirrors on
+            facet = facet_of(mt, s - P, hit_prim[k])
+            if facet >= 0:
+                side = mt.obj_side[s - P]
+                if side != 0 and not side * (dx * mt.facet_normal[3 * facet] + dy * mt.facet_normal[3 * facet + 1]
+                                             + dz * mt.facet_normal[3 * facet + 2]) < 0:
+                    facet = -1
+        if facet >= 0:
+            if not (reflect and total < reach):
                 continue
-            child = n_chains
-            children[ch, s] = child
-            n_chains += 1
+            nx = mt.facet_normal[3 * facet]
+            ny = mt.facet_normal[3 * facet + 1]
+            nz = mt.facet_normal[3 * facet + 2]
+            spec = mt.obj_specular[s - P]
+            hk = <int64_t>ch * mt.n_mirrors + mt.facet_mirror[facet]
+            slot = hash_slot(hkeys, hmask, hk)
+            if hkeys[slot] == hk:
+                child = hvals[slot]
+            else:
+                if n_chains >= cap:
+                    overflow = True
+                    continue
+                child = n_chains
+                hkeys[slot] = hk
+                hvals[slot] = child
+                n_chains += 1
+                if parent != NULL:
+                    parent[child] = ch
+                    last_mirror[child] = <int>(P + mt.facet_mirror[facet])
+        else:
+            if not (reflect and s < P and total < reach and plane_specular[s] > 0):
+                continue
+            spec = plane_specular[s]
+            child = children[ch, s]
+            if child < 0:
+                if n_chains >= cap:
+                    overflow = True
+                    continue
+                child = n_chains
+                children[ch, s] = child
+                n_chains += 1
+                if parent != NULL:
+                    parent[child] = ch
+                    last_mirror[child] = s
         twice = 2.0 * (dx * nx + dy * ny + dz * nz)
         rx = dx - twice * nx
         ry = dy - twice * ny
@@ -518,7 +712,7 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
         nx_dir32[n_next, 1] = <float>ry
         nx_dir32[n_next, 2] = <float>rz
         nx_before[n_next] = total + SURFACE_OFFSET_M
-        nx_atten[n_next] = atten[row] * plane_specular[s]
+        nx_atten[n_next] = atten[row] * spec
         nx_chain[n_next] = child
         if total + SURFACE_OFFSET_M < min_next:
             min_next = total + SURFACE_OFFSET_M
@@ -539,7 +733,9 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
               Py_ssize_t[::1] nx_ray, double[:, ::1] nx_org, float[:, ::1] nx_org32,
               double[:, ::1] nx_dir, float[:, ::1] nx_dir32, double[::1] nx_before,
               double[::1] nx_atten, int[::1] nx_chain, law_by_id=None, lobe_by_id=None, hit_texel=None,
-              hit_prim=None, hit_uv=None, prim=None, uv=None, cosine=None, texel=None):
+              hit_prim=None, hit_uv=None, prim=None, uv=None, cosine=None, texel=None, Mirrors mirrors=None,
+              int64_t[::1] mirror_keys=None, int[::1] mirror_children=None, int[::1] parent=None,
+              int[::1] last_mirror=None):
     """One generation of receive legs: the search (closest of objects and active planes, and
     the specular reflection of the rays that meet a plane), then the weighing of what it
     recorded (twin: ``engine.trace_generation``, ``engine.weigh_leg``).
@@ -562,6 +758,12 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     scatters in ``texel`` (dense; allocated here where not given); the weighing reads those,
     ``sid`` and ``dist`` and writes ``intensity``.
 
+    With ``mirrors`` (:class:`Mirrors`; the search's triangles must be given), a ray that meets
+    a facet also reflects, into chain mirror ``P + m``: ``mirror_keys`` (-1 free) and
+    ``mirror_children`` are the open-addressing table of those chains (a power of 2 of slots,
+    at least twice ``children``'s rows; key ``chain * M + m``). ``parent`` and ``last_mirror``
+    (as many as ``children``'s rows, optional) receive each new chain's parent and last mirror.
+
     Returns
     -------
     (n_next, n_chains, min_before_next, overflow, n_live)
@@ -582,12 +784,32 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     if prim is not None and (hp.shape[0] != ray.shape[0] or huv.shape[0] != ray.shape[0] or huv.shape[1] != 2
                              or po.shape[0] != dist.shape[0] or uo.shape[0] != dist.shape[0] or uo.shape[1] != 2):
         raise ValueError("hit_prim, hit_uv (rows) and prim, uv (dense) of the wrong shapes")
+    cdef const MirrorTables* mt = NULL
+    cdef int64_t* hkeys = NULL
+    cdef int* hvals = NULL
+    cdef int* par = NULL
+    cdef int* lst = NULL
+    cdef Py_ssize_t hmask = 0
+    if mirrors is not None:
+        if hit_prim is None:
+            raise ValueError("mirrors need the search's triangles (hit_prim, hit_uv, prim, uv)")
+        if (mirror_keys is None or mirror_children is None or mirror_keys.shape[0] != mirror_children.shape[0]
+                or mirror_keys.shape[0] < 2 * children.shape[0] or mirror_keys.shape[0] & (mirror_keys.shape[0] - 1)):
+            raise ValueError("mirror_keys and mirror_children: a power of 2 of slots, twice the chain table's rows")
+        mt = &mirrors.t
+        hkeys, hvals, hmask = &mirror_keys[0], &mirror_children[0], mirror_keys.shape[0] - 1
+    if (parent is None) != (last_mirror is None):
+        raise ValueError("parent and last_mirror go together")
+    if parent is not None:
+        if parent.shape[0] < children.shape[0] or last_mirror.shape[0] < children.shape[0]:
+            raise ValueError("parent and last_mirror: a row per chain table row")
+        par, lst = &parent[0], &last_mirror[0]
     with nogil:
         r = trace_leg_impl(ray, hit_distance, hit_mesh, hit_normal, org, dirs, before, atten, chain, plane_normal,
                            plane_offset, plane_active, plane_specular, reach, first, reflect, children, n_chains,
                            dist, sid, point, normal, cos_out, atten_out, chain_out, key, live, n_surfaces, nx_ray,
                            nx_org, nx_org32, nx_dir, nx_dir32, nx_before, nx_atten, nx_chain, laws.texel, tex_out,
-                           hp, huv, po, uo)
+                           hp, huv, po, uo, mt, hkeys, hvals, hmask, par, lst)
         n_live = weigh_impl(live, r[4], sid, cos_out, dist, tex_out, laws.texel != NULL, <int>plane_normal.shape[0],
                             albedo_by_id, weight, tvg, laws, intensity)
     return r[0], r[1], r[2], r[3], n_live
@@ -611,11 +833,17 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
                 const double[:, ::1] plane_normal, const double[::1] plane_offset,
                 const unsigned char[::1] plane_active,
                 Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
-                int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label) noexcept nogil:
-    """The loop of :func:`path_events` (also run by :class:`PathBlocks`)."""
+                int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label,
+                const MirrorTables* mt, const int* leg_prim) noexcept nogil:
+    """The loop of :func:`path_events` (also run by :class:`PathBlocks`). ``plane_normal`` and
+    ``plane_offset`` hold the planes, then (with ``mt``) the mesh mirrors' planes; the water is
+    bounded by the first ``plane_active.shape[0]`` (the planes). ``leg_prim``: the legs'
+    triangles (dense; needed where a chain ends on a mesh mirror)."""
 
-    cdef Py_ssize_t k, i, m = 0, n = live.shape[0], K = tx_planes.shape[0], j, q, P = plane_normal.shape[0]
+    cdef Py_ssize_t k, i, m = 0, n = live.shape[0], K = tx_planes.shape[0], j, q, P = plane_active.shape[0]
     cdef int c, s, last = tx_planes[K - 1] if K > 0 else -1, rank_tx = rank[tx] if not same else 0
+    cdef int64_t f
+    cdef int side
     cdef double ax, ay, az_, ux, uy, uz, vx, vy, vz, length, t, wx, wy, wz, tx_, ty, tz
     cdef double denom, tol
     cdef Py_ssize_t b
@@ -634,8 +862,15 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
             m += 1
             continue
         c = chain[i]
-        if c == tx or s == last:
+        if c == tx:
             continue
+        if last < n_planes:
+            if s == last:
+                continue
+        elif s >= n_planes:  # a mesh mirror: not the one the scatterer lies on
+            f = facet_of(mt, s - n_planes, leg_prim[i])
+            if f >= 0 and mt.facet_mirror[f] == last - n_planes:
+                continue
         if not separate and rank[c] <= rank_tx:
             continue
         ax = point[i, 0]
@@ -659,6 +894,11 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
         j = K - 1
         while ok and j >= 0:
             q = tx_planes[j]
+            if q >= n_planes:  # a closed object's facet is met from outside: the leg beyond it is there
+                side = mt.obj_side[mt.mirror_obj[q - n_planes]]
+                if side != 0 and not side * (dot3(pn, q, wx, wy, wz) - plane_offset[q]) > 0.0:
+                    ok = False
+                    break
             tx_ = sources[j + 1, 0] - wx
             ty = sources[j + 1, 1] - wy
             tz = sources[j + 1, 2] - wz
@@ -680,6 +920,9 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
                 if plane_active[q] and dot3(pn, q, wx, wy, wz) - plane_offset[q] < -tol:
                     ok = False
                     break
+            q = tx_planes[j]
+            if ok and q >= n_planes and not on_mirror(mt, q - n_planes, wx, wy, wz):
+                ok = False  # on one of its triangles, not only their plane
             j -= 1
         if not ok:
             continue
@@ -789,9 +1032,14 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
                 const double[:, ::1] plane_normal, const double[::1] plane_offset,
                 const unsigned char[::1] plane_active,
                 Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
-                int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label):
+                int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label, Mirrors mirrors=None,
+                const int[::1] prim=None):
     """Paths of one generation's receive legs and one transmit option (twin:
     ``engine.option_paths``).
+
+    With ``mirrors`` (:class:`Mirrors`), ``plane_normal`` and ``plane_offset`` hold the P planes
+    (``plane_active``'s length) and then the M mesh mirrors' planes, a chain's mirror ``P + m``
+    is mesh mirror m, and ``prim`` (dense) holds the legs' triangles.
 
     ``same``: the transmit leg is the receive leg reversed (order label ``label``; for the
     first generation the label is 0 on objects, 1 on planes). Otherwise the transmit leg
@@ -802,9 +1050,22 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
     -------
     int : the number of paths written.
     """
-    cdef Py_ssize_t m
+    cdef Py_ssize_t m, q
+    cdef Py_ssize_t n_mirrors = 0 if mirrors is None else mirrors.n_mirrors
+    cdef const MirrorTables* mt = NULL if mirrors is None else &mirrors.t
+    cdef const int* pp = NULL
+    if (plane_active.shape[0] != n_planes or plane_normal.shape[0] != n_planes + n_mirrors
+            or plane_offset.shape[0] != plane_normal.shape[0]):
+        raise ValueError("plane_normal and plane_offset: the planes then the mesh mirrors; plane_active: the planes")
+    for q in range(tx_planes.shape[0]):
+        if not 0 <= tx_planes[q] < n_planes + n_mirrors:
+            raise ValueError(f"mirror {tx_planes[q]} of {n_planes} planes and {n_mirrors} mesh mirrors")
+    if mirrors is not None:
+        if prim is None or prim.shape[0] != dist.shape[0]:
+            raise ValueError("mirrors need the legs' triangles (prim, dense)")
+        pp = &prim[0] if prim.shape[0] else NULL
     with nogil:
-        m = path_events_impl(live, dist, sid, point, intensity, atten, chain, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, ox, oy, oz, rotation, edges, half_elevation_deg, range_min, range_max, plane_normal, plane_offset, plane_active, out_ray, out_dist, out_energy, out_beam, out_beam_tx, out_label)
+        m = path_events_impl(live, dist, sid, point, intensity, atten, chain, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, ox, oy, oz, rotation, edges, half_elevation_deg, range_min, range_max, plane_normal, plane_offset, plane_active, out_ray, out_dist, out_energy, out_beam, out_beam_tx, out_label, mt, pp)
     return m
 
 
@@ -1480,6 +1741,16 @@ cdef class PathBlocks:
     cdef int[:, ::1] r_chain
     cdef readonly object children_array
     cdef int[:, :, ::1] children
+    # Mesh mirrors (set_mirrors): their tables, the planes then their planes, and each block's
+    # open-addressing table of the chains that end on one; every block's chains' parents.
+    cdef Mirrors mirrors
+    cdef const MirrorTables* mt
+    cdef const double[:, ::1] surf_normal
+    cdef const double[::1] surf_offset
+    cdef int64_t[:, ::1] hkeys
+    cdef int[:, ::1] hvals
+    cdef int[:, ::1] parent, last_mirror
+    cdef readonly object parent_array, last_array
     cdef int[::1] n_local
     cdef unsigned char[::1] overflow
     cdef Py_ssize_t[::1] blk_cur, blk_m
@@ -1531,7 +1802,7 @@ cdef class PathBlocks:
                  const double[::1] albedo_by_id, law_by_id, lobe_by_id, const double[:, ::1] plane_normal,
                  const double[::1] plane_offset, const double[::1] plane_specular, Py_ssize_t n_blocks,
                  Py_ssize_t capacity, scene=None, size_t scene_address=0, size_t cast_address=0, ids=None,
-                 bint coherent=False):
+                 bint coherent=False, Mirrors mirrors=None):
         w = work
         if w.n != directions.shape[0] or weight.shape[0] != w.n:
             raise ValueError(f"a workspace of {w.n} rays for {directions.shape[0]} directions and {weight.shape[0]} weights")
@@ -1553,6 +1824,14 @@ cdef class PathBlocks:
         self.fan_dirs, self.weight, self.albedo = directions, weight, albedo_by_id
         self.plane_normal, self.plane_offset, self.plane_specular = plane_normal, plane_offset, plane_specular
         self.n_planes = plane_normal.shape[0]
+        self.mirrors = mirrors
+        self.mt = NULL
+        self.surf_normal, self.surf_offset = plane_normal, plane_offset
+        if mirrors is not None and mirrors.n_mirrors:
+            self.mt = &mirrors.t
+            self.surf_normal = np.concatenate([np.asarray(plane_normal).reshape(-1, 3),
+                                               mirrors.arrays["mirror_normal"]])
+            self.surf_offset = np.concatenate([np.asarray(plane_offset), mirrors.arrays["mirror_offset"]])
         self.d64, self.d32, self.o32 = w.d64, w.d32, w.o32
         self.h_dist, self.h_mesh, self.h_normal = w.h_dist, w.h_mesh, w.h_normal
         self.h_prim, self.h_uv = w.h_prim, w.h_uv
@@ -1575,6 +1854,18 @@ cdef class PathBlocks:
         """Give each block a chain table of ``capacity`` rows (after an overflow)."""
         self.children_array = np.full((self.n_blocks, capacity, max(self.n_planes, 1)), -1, np.int32)
         self.children = self.children_array
+        self.parent_array = np.zeros((self.n_blocks, capacity), np.int32)
+        self.last_array = np.zeros((self.n_blocks, capacity), np.int32)
+        self.parent, self.last_mirror = self.parent_array, self.last_array
+        slots = 1 << (2 * capacity - 1).bit_length() if self.mt != NULL else 1
+        self.hkeys = np.full((self.n_blocks, slots), -1, np.int64)
+        self.hvals = np.zeros((self.n_blocks, slots), np.int32)
+
+    def chain_parents(self):
+        """Every block's chains as it numbered them: ``(parent, last, n_chains)``, (n_blocks,
+        capacity) int32 twice and (n_blocks,) int32 (block k's chain c, 0 < c < n_chains[k], is
+        its chain ``parent[k, c]`` followed by mirror ``last[k, c]``; chain 0 is empty)."""
+        return self.parent_array, self.last_array, np.asarray(self.n_local)
 
     def chain_tables(self):
         """Every block's chain table: ``(children, n_chains)``, (n_blocks, capacity, P) int32 and
@@ -1599,6 +1890,8 @@ cdef class PathBlocks:
         self.paths_ready = False
         if active.shape[0] != self.n_planes:
             raise ValueError(f"{active.shape[0]} active flags for {self.n_planes} planes")
+        if self.mt != NULL and not primitives:
+            raise ValueError("mesh mirrors need the search's triangles (primitives)")
         if rotation.shape[0] != 3 or rotation.shape[1] != 3 or origin.shape[0] != 3:
             raise ValueError("the rotation is not 3 x 3 or the origin not 3 numbers")
         if n_gen < 1 or n_beams < 1 or n_el < 1 or n % (n_beams * n_el) != 0 or edges.shape[0] != n_beams + 1:
@@ -1670,6 +1963,9 @@ cdef class PathBlocks:
         cdef int* ch = &self.children[k, 0, 0]
         for j in range(cap * n_p):
             ch[j] = -1
+        if self.mt != NULL:
+            for j in range(self.hkeys.shape[1]):
+                self.hkeys[k, j] = -1
         self.n_local[k] = 1
         self.overflow[k] = 0
         for g in range(self.n_gen):
@@ -1727,7 +2023,9 @@ cdef class PathBlocks:
                                self.h_prim[a:b] if self.primitives else self.no_prim,
                                self.h_uv[a:b] if self.primitives else self.no_uv,
                                self.prim[0] if self.primitives else self.no_prim,
-                               self.uv[0] if self.primitives else self.no_uv)
+                               self.uv[0] if self.primitives else self.no_uv, self.mt, &self.hkeys[k, 0],
+                               &self.hvals[k, 0], self.hkeys.shape[1] - 1, &self.parent[k, 0],
+                               &self.last_mirror[k, 0])
         else:
             r = trace_leg_impl(self.r_ray[cur, a:a + m], self.h_dist[a:a + m], self.h_mesh[a:a + m],
                                self.h_normal[a:a + m], self.r_org[cur, a:a + m], self.r_dir[cur, a:a + m],
@@ -1742,7 +2040,9 @@ cdef class PathBlocks:
                                self.texel[g], self.h_prim[a:a + m] if self.primitives else self.no_prim,
                                self.h_uv[a:a + m] if self.primitives else self.no_uv,
                                self.prim[g] if self.primitives else self.no_prim,
-                               self.uv[g] if self.primitives else self.no_uv)
+                               self.uv[g] if self.primitives else self.no_uv, self.mt, &self.hkeys[k, 0],
+                               &self.hvals[k, 0], self.hkeys.shape[1] - 1, &self.parent[k, 0],
+                               &self.last_mirror[k, 0])
         self.blk_m[k] = r[0] if reflect else 0
         self.n_local[k] = r[1]
         self.blk_min[k] = r[2]
@@ -1841,8 +2141,8 @@ cdef class PathBlocks:
             if not 0 <= gen[o] < self.n_gen or not 0 <= length[o] <= planes.shape[1] or sources.shape[1] < length[o] + 1:
                 raise ValueError(f"transmit option {o} out of range")
             for q in range(length[o]):
-                if not 0 <= planes[o, q] < self.n_planes:
-                    raise ValueError(f"transmit option {o}: plane {planes[o, q]} of {self.n_planes}")
+                if not 0 <= planes[o, q] < self.surf_normal.shape[0]:
+                    raise ValueError(f"transmit option {o}: mirror {planes[o, q]} of {self.surf_normal.shape[0]}")
         with nogil:
             for o in range(n_opt):
                 for q in range(sources.shape[1]):
@@ -1854,8 +2154,8 @@ cdef class PathBlocks:
                     sources[o, 0, 0], sources[o, 0, 1], sources[o, 0, 2] = x0, x1, x2
                     for q in range(length[o]):
                         p = planes[o, q]
-                        n0, n1, n2 = self.plane_normal[p, 0], self.plane_normal[p, 1], self.plane_normal[p, 2]
-                        twice = 2.0 * (((x0 * n0 + x1 * n1) + x2 * n2) - self.plane_offset[p])
+                        n0, n1, n2 = self.surf_normal[p, 0], self.surf_normal[p, 1], self.surf_normal[p, 2]
+                        twice = 2.0 * (((x0 * n0 + x1 * n1) + x2 * n2) - self.surf_offset[p])
                         x0 = x0 - twice * n0
                         x1 = x1 - twice * n1
                         x2 = x2 - twice * n2
@@ -1915,8 +2215,8 @@ cdef class PathBlocks:
             if not same[o] and not 0 <= tx[o] < rank.shape[0]:
                 raise ValueError(f"transmit option {o}: chain {tx[o]} of {rank.shape[0]}")
             for q in range(length[o]):
-                if not 0 <= planes[o, q] < self.n_planes:
-                    raise ValueError(f"transmit option {o}: plane {planes[o, q]} of {self.n_planes}")
+                if not 0 <= planes[o, q] < self.surf_normal.shape[0]:
+                    raise ValueError(f"transmit option {o}: mirror {planes[o, q]} of {self.surf_normal.shape[0]}")
             for k in range(self.n_blocks):
                 if offset[o * self.n_blocks + k] < 0 or offset[o * self.n_blocks + k] + self.n_live[k, gen[o]] > m:
                     raise ValueError(f"transmit option {o} of block {k} does not fit in the path buffer")
@@ -2000,10 +2300,10 @@ cdef class PathBlocks:
                     self.opt_same[o], self.opt_tx[o], self.opt_unfold[o], self.opt_sources[o, :K + 1],
                     self.opt_planes[o, :K], self.opt_specular[o], self.rank, self.separate, self.opt_label[o],
                     <int>self.n_planes, self.rays_per_beam, self.origin[0], self.origin[1], self.origin[2],
-                    self.rotation, self.edges, self.half_el, self.range_min, self.range_max, self.plane_normal,
-                    self.plane_offset, self.active, self.p_ray[off:off + n], self.p_dist[off:off + n],
+                    self.rotation, self.edges, self.half_el, self.range_min, self.range_max, self.surf_normal,
+                    self.surf_offset, self.active, self.p_ray[off:off + n], self.p_dist[off:off + n],
                     self.p_energy[off:off + n], self.p_beam[off:off + n], self.p_beam_tx[off:off + n],
-                    self.p_label[off:off + n])
+                    self.p_label[off:off + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL)
                 self.p_count[o * self.n_blocks + k] = cnt
                 if has_labels and cnt:
                     labels.seg_count[o * self.n_blocks + k] = labels.deposit(

@@ -87,7 +87,7 @@ class Workspace:
         self.r_chain = np.empty((2, n), dtype=np.int32)
         self.ones = np.ones(n)  # attenuation of the first generation's legs
         self.zeros_i32 = np.zeros(n, dtype=np.int32)  # their chain (none)
-        self.engine: tuple | None = None  # (caster, fan, laws, planes, PathBlocks, n_blocks), path_engine()
+        self.engine: tuple | None = None  # (caster, fan, laws, planes, PathBlocks, n_blocks, facets), path_engine()
         self.chains: tuple | None = None  # (planes, key, canonical table, remap), _frame_chains()
         self.options: tuple | None = None  # (planes, chains, n_gen, max_order, double_beam, arrays, sources)
         self.legs_pool, self.paths_pool = ArrayPool(), ArrayPool()  # the frames' legs and path buffers
@@ -437,22 +437,25 @@ def packet_loop(caster) -> tuple | None:
     return loop(caster) if loop is not None else None
 
 
-def path_engine(caster, work: Workspace, fan: RayFan, laws: SurfaceLaws, planes):
+def path_engine(caster, work: Workspace, fan: RayFan, laws: SurfaceLaws, planes, facets=None):
     """The block engine (:class:`~sonarsim.renderer._kernels.PathBlocks`) for this caster,
-    workspace, fan, laws and planes, built on first use and kept on the workspace; it casts
-    through the caster's packet loop where it lends one (the Embree 4 binding), else Python
-    casts between its stages (embreex, the NumPy caster, textures)."""
+    workspace, fan, laws, planes and mesh mirrors (``paths.facets.FacetSet`` with flat normals,
+    or None), built on first use and kept on the workspace; it casts through the caster's
+    packet loop where it lends one (the Embree 4 binding), else Python casts between its
+    stages (embreex, the NumPy caster, textures)."""
     handle = packet_loop(caster)
     cached = work.engine
     n_blocks = min(N_BLOCKS, fan.shape[0])
     if (cached is not None and cached[0] is caster and cached[1] is fan and cached[2] is laws
-            and cached[3] is planes and cached[4].fused == (handle is not None) and cached[5] == n_blocks):
+            and cached[3] is planes and cached[4].fused == (handle is not None) and cached[5] == n_blocks
+            and cached[6] is facets):
         return cached[4]
     law_by_id, lobe_by_id, _ = _law_args(laws, None)
+    mirrors = _kernels.Mirrors.of(facets) if facets is not None and facets.any else None
     engine = _kernels.PathBlocks(work, fan.directions.reshape(-1, 3), fan.weight.reshape(-1), laws.coefficient,
                                  law_by_id, lobe_by_id, planes.normal, planes.offset, planes.specular, n_blocks,
-                                 CHAIN_CAPACITY, *(handle or ()))
-    work.engine = (caster, fan, laws, planes, engine, n_blocks)
+                                 CHAIN_CAPACITY, *(handle or ()), mirrors=mirrors)
+    work.engine = (caster, fan, laws, planes, engine, n_blocks, facets)
     return engine
 
 
@@ -460,17 +463,18 @@ def _frame_chains(table, engine, work: Workspace):
     """The frame's chains -- the probes' (in ``table``) and every block's -- numbered
     canonically, and each block's local ids to those: ``(table, remap)``, remap (n_blocks,
     capacity) int32. Kept on ``work`` while the frames meet the same chains in every block."""
-    children, n_local = engine.chain_tables()
-    key = (tuple(table.chains), children[:, : int(n_local.max())].tobytes(), n_local.tobytes(), children.shape)
+    parent, last, n_local = engine.chain_parents()
+    n = int(n_local.max())
+    key = (tuple(table.chains), parent[:, :n].tobytes(), last[:, :n].tobytes(), n_local.tobytes(), parent.shape)
     cached = work.chains
     if cached is not None and cached[0] is table.planes and cached[1] == key:
         return cached[2].at(table.origin), cached[3]
-    local = [table.local_chains(children[k], int(n_local[k])) for k in range(len(n_local))]
+    local = [table.local_chains(parent[k], last[k], int(n_local[k])) for k in range(len(n_local))]
     for chains in local:
         for c in chains:
             table.add(c)
     canonical, _ = table.canonical()
-    remap = np.zeros(children.shape[:2], np.int32)
+    remap = np.zeros(parent.shape, np.int32)
     for k, chains in enumerate(local):
         remap[k, : len(chains)] = [canonical.add(c) for c in chains]
     work.chains = (table.planes, key, canonical, remap)  # (its unfolding maps grow as options ask)
@@ -614,7 +618,9 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
     """
     laws = SurfaceLaws.of(laws)
     fan = view.fan
-    engine = path_engine(caster, work, fan, laws, planes)
+    facets = table.facets if table.facets is not None and table.facets.any else None
+    engine = path_engine(caster, work, fan, laws, planes, facets)
+    primitives = primitives or facets is not None  # a mirror is found by its triangle
     n_beams = sonar.n_beams
     n_blocks = min(N_BLOCKS, n_beams)
     blocks = beam_blocks(n_beams, n_blocks)

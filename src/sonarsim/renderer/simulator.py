@@ -190,11 +190,12 @@ class Simulator:
     @property
     def path_kernels(self) -> str:
         """The kernels the path engine runs on: :attr:`kernels`, but the NumPy twins where
-        objects mirror or the specular returns are traced (the compiled kernels cover the
-        scattered paths over mirror planes only)."""
+        objects mirror about smooth normals or the specular returns are traced (the compiled
+        kernels cover the scattered paths over planes and flat mesh mirrors)."""
         render = self.scene.render
-        mirrors = self.facets is not None and render.max_order > 1  # (at order 1 nothing reflects)
-        return "numpy" if mirrors or render.glints else self.kernels
+        facets = self.facets
+        smooth = facets is not None and render.max_order > 1 and bool(np.any(facets.smooth & (facets.specular > 0)))
+        return "numpy" if smooth or render.glints else self.kernels
 
     def _warn_if_inside(self, position: np.ndarray, stacklevel: int) -> None:
         """Warn (once per object) when the sonar at ``position`` lies inside a closed object."""
