@@ -18,6 +18,7 @@ from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, exp, isfinite, INF
 from libc.math cimport M_PI
 from libc.string cimport memset, memmove
 from libc.stdint cimport int64_t, uint64_t
+from libc.stdlib cimport qsort
 import numpy as np
 cimport cython
 
@@ -218,28 +219,68 @@ cdef inline Py_ssize_t beam_of(const double* edges, Py_ssize_t n_edges, double a
     return lo - 1
 
 
+# Within this relative distance of the aperture's edge (its sine) or a beam's edge (its
+# tangent), :func:`beam_in_view` decides with the exact angle: elsewhere round-off cannot
+# change the decision, and the sine and the tangent decide it alone (no asin or atan2).
+cdef double ANGLE_MARGIN = 1e-9
+
+
 cdef inline Py_ssize_t beam_in_view(double x, double y, double z, double range_min, double range_max,
                                     double half_elevation_deg, const double* edges, Py_ssize_t n_edges,
-                                    double* length) noexcept nogil:
+                                    double* length, double sin_half=-1.0, const double* tan_edges=NULL) noexcept nogil:
     """The beam that sees a point at ``(x, y, z)`` in the sonar frame, or -1 where it lies
     outside the range window, the elevation aperture or the fan; ``length`` receives its
     distance from the sonar. Cheapest test first: most candidate points fail the range window
     or the elevation (twins: ``paths.engine.option_paths`` with ``SonarView.beam_of``, and
-    ``paths.algorithm2.ground_echo_rays``)."""
-    cdef double r = sqrt(x * x + y * y + z * z), el
+    ``paths.algorithm2.ground_echo_rays``).
+
+    ``sin_half``: the sine of the half elevation aperture (negative: none), and ``tan_edges``:
+    the tangents of the beam edges (NULL: none; :func:`view_tables`), decide without the angles wherever
+    round-off cannot change the decision (:data:`ANGLE_MARGIN`): the same decisions, cheaper."""
+    cdef double r = sqrt(x * x + y * y + z * z), el, a, t, tol
     cdef double rad2deg = 180.0 / M_PI
+    cdef Py_ssize_t lo, hi, mid
     length[0] = r
     if not (r >= range_min and r < range_max):
         return -1
     el = z / r
-    if el > 1.0:
-        el = 1.0
-    elif el < -1.0:
-        el = -1.0
-    el = asin(el) * rad2deg
-    if not fabs(el) <= half_elevation_deg:
+    a = fabs(el)
+    if sin_half >= 0.0 and a > sin_half * (1.0 + ANGLE_MARGIN):
         return -1
+    if sin_half < 0.0 or not a < sin_half * (1.0 - ANGLE_MARGIN):  # near the aperture's edge: the angle
+        if el > 1.0:
+            el = 1.0
+        elif el < -1.0:
+            el = -1.0
+        el = asin(el) * rad2deg
+        if not fabs(el) <= half_elevation_deg:
+            return -1
+    if tan_edges != NULL and x > 0.0:
+        # atan2(y, x) rises with y / x for x > 0: count the edges at or above it by tangent.
+        t = y / x
+        lo = 0
+        hi = n_edges
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if tan_edges[mid] >= t:
+                lo = mid + 1
+            else:
+                hi = mid
+        tol = ANGLE_MARGIN * (1.0 + fabs(t))
+        if not ((lo > 0 and fabs(tan_edges[lo - 1] - t) <= tol) or (lo < n_edges and fabs(tan_edges[lo] - t) <= tol)):
+            if lo - 1 < 0 or lo - 1 >= n_edges - 1:
+                return -1
+            return lo - 1
     return beam_of(edges, n_edges, atan2(y, x) * rad2deg)
+
+
+def view_tables(const double[::1] edges, double half_elevation_deg):
+    """``(sin_half, tan_edges)`` for :func:`beam_in_view`: the sine of the half aperture, and
+    the tangents of the beam edges (None where an edge is not within 89 degrees of the axis)."""
+    sin_half = np.sin(np.radians(half_elevation_deg)) if 0.0 <= half_elevation_deg <= 90.0 else -1.0
+    e = np.asarray(edges, dtype=np.float64)
+    tan_edges = np.tan(np.radians(e)) if e.size and np.all(np.abs(e) < 89.0) else None
+    return float(sin_half), tan_edges
 
 
 cdef inline double ffloor(double v) noexcept nogil:
@@ -459,6 +500,11 @@ cdef class Mirrors:
                    facets.mirror_start, facets.mirror_facets, facets.mirror_obj, facets.mirror_normal,
                    facets.mirror_offset)
 
+
+
+cdef int _ascending(const void* x, const void* y) noexcept nogil:
+    cdef Py_ssize_t u = (<const Py_ssize_t*>x)[0], v = (<const Py_ssize_t*>y)[0]
+    return (u > v) - (u < v)
 
 
 cdef size_t _address(a):
@@ -834,7 +880,7 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
                 const unsigned char[::1] plane_active,
                 Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
                 int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label,
-                const MirrorTables* mt, const int* leg_prim) noexcept nogil:
+                const MirrorTables* mt, const int* leg_prim, double sin_half, const double* tan_edges) noexcept nogil:
     """The loop of :func:`path_events` (also run by :class:`PathBlocks`). ``plane_normal`` and
     ``plane_offset`` hold the planes, then (with ``mt``) the mesh mirrors' planes; the water is
     bounded by the first ``plane_active.shape[0]`` (the planes). ``leg_prim``: the legs'
@@ -882,7 +928,8 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
         vx = rotation[0, 0] * ux + rotation[1, 0] * uy + rotation[2, 0] * uz
         vy = rotation[0, 1] * ux + rotation[1, 1] * uy + rotation[2, 1] * uz
         vz = rotation[0, 2] * ux + rotation[1, 2] * uy + rotation[2, 2] * uz
-        b = beam_in_view(vx, vy, vz, range_min, range_max, half_elevation_deg, &edges[0], edges.shape[0], &length)
+        b = beam_in_view(vx, vy, vz, range_min, range_max, half_elevation_deg, &edges[0], edges.shape[0], &length,
+                         sin_half, tan_edges)
         if b < 0:
             continue
         # Walk back from A towards the sonar's images: each reflection point must lie on
@@ -1054,6 +1101,11 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
     cdef Py_ssize_t n_mirrors = 0 if mirrors is None else mirrors.n_mirrors
     cdef const MirrorTables* mt = NULL if mirrors is None else &mirrors.t
     cdef const int* pp = NULL
+    views = view_tables(edges, half_elevation_deg)
+    cdef double sin_half = views[0]
+    tan_array = views[1]
+    cdef const double[::1] tan_edges = tan_array
+    cdef const double* tp = &tan_edges[0] if tan_array is not None else NULL
     if (plane_active.shape[0] != n_planes or plane_normal.shape[0] != n_planes + n_mirrors
             or plane_offset.shape[0] != plane_normal.shape[0]):
         raise ValueError("plane_normal and plane_offset: the planes then the mesh mirrors; plane_active: the planes")
@@ -1065,7 +1117,7 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
             raise ValueError("mirrors need the legs' triangles (prim, dense)")
         pp = &prim[0] if prim.shape[0] else NULL
     with nogil:
-        m = path_events_impl(live, dist, sid, point, intensity, atten, chain, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, ox, oy, oz, rotation, edges, half_elevation_deg, range_min, range_max, plane_normal, plane_offset, plane_active, out_ray, out_dist, out_energy, out_beam, out_beam_tx, out_label, mt, pp)
+        m = path_events_impl(live, dist, sid, point, intensity, atten, chain, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, ox, oy, oz, rotation, edges, half_elevation_deg, range_min, range_max, plane_normal, plane_offset, plane_active, out_ray, out_dist, out_energy, out_beam, out_beam_tx, out_label, mt, pp, sin_half, tp)
     return m
 
 
@@ -1770,6 +1822,8 @@ cdef class PathBlocks:
     cdef const unsigned char[::1] active
     cdef const double[:, ::1] rotation
     cdef const double[::1] edges
+    cdef const double[::1] tan_edges
+    cdef double sin_half
     cdef double origin[3]
     cdef const double[:, ::1] origin2
     cdef const double[::1] before1
@@ -1785,6 +1839,10 @@ cdef class PathBlocks:
     cdef const double[::1] opt_specular
     cdef const int[:, ::1] remap
     cdef Py_ssize_t[::1] p_offset, p_count
+    # Each block's live rays of a generation ordered by their chain's rank, and where each rank
+    # starts (paths(): an option visits only the rays whose chain outranks its own).
+    cdef Py_ssize_t[::1] by_rank, subset
+    cdef Py_ssize_t[:, ::1] rank_start
     cdef Py_ssize_t[::1] p_ray
     cdef double[::1] p_dist, p_energy
     cdef int[::1] p_beam, p_beam_tx
@@ -1842,6 +1900,8 @@ cdef class PathBlocks:
         self.n_blocks = n_blocks
         self.grow(capacity)
         self.n_local = np.zeros(n_blocks, np.int32)
+        self.by_rank, self.subset = np.empty(w.n, np.intp), np.empty(w.n, np.intp)
+        self.rank_start = np.zeros((n_blocks, 2), np.intp)
         self.overflow = np.zeros(n_blocks, np.uint8)
         self.blk_cur = np.zeros(n_blocks, np.intp)
         self.blk_m = np.zeros(n_blocks, np.intp)
@@ -1916,6 +1976,7 @@ cdef class PathBlocks:
         if primitives:
             self.prim, self.uv = legs.prim, legs.uv
         self.active, self.rotation, self.edges = active, rotation, edges
+        self.sin_half, self.tan_edges = view_tables(edges, half_el)
         self.origin2 = np.asarray(origin, dtype=np.float64).reshape(1, 3).copy()
         for k in range(3):
             self.origin[k] = origin[k]
@@ -2258,7 +2319,32 @@ cdef class PathBlocks:
         self.n_total_rows = n_total
         for o in range(n_total):
             self.total_rows[o] = rows[o]
+        if self.rank_start.shape[1] < rank.shape[0] + 1:
+            self.rank_start = np.zeros((self.n_blocks, rank.shape[0] + 1), np.intp)
         self.paths_ready = True
+
+    cdef void _sort_by_rank(self, Py_ssize_t k, Py_ssize_t a, Py_ssize_t g, Py_ssize_t n) noexcept nogil:
+        """Block ``k``'s ``n`` live rays of generation ``g`` (from row ``a``) into ``by_rank[a:]``
+        by their chain's rank, in ray order within a rank (a counting sort); ``rank_start[k, r]``:
+        where rank r starts (``rank_start[k, n_chains]`` = n)."""
+        cdef Py_ssize_t r, j, i, n_ranks = self.rank.shape[0], total = 0, c
+        cdef Py_ssize_t* start = &self.rank_start[k, 0]
+        for r in range(n_ranks + 1):
+            start[r] = 0
+        for j in range(n):
+            start[self.rank[self.chain[g, self.live[g, a + j]]]] += 1
+        for r in range(n_ranks + 1):  # counts to starts
+            c = start[r]
+            start[r] = total
+            total += c
+        for j in range(n):
+            i = self.live[g, a + j]
+            r = self.rank[self.chain[g, i]]
+            self.by_rank[a + start[r]] = i
+            start[r] += 1
+        for r in range(n_ranks, 0, -1):  # each back to its rank's start
+            start[r] = start[r - 1]
+        start[0] = 0
 
     def paths(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1, unsigned char[::1] signal=None):
         """Block ``k``'s paths: chain ids made the frame's, every transmit option's paths into
@@ -2266,7 +2352,8 @@ cdef class PathBlocks:
         ``signal``: as :meth:`trace`'s."""
         if not self.paths_ready:
             raise ValueError("call options() first")
-        cdef Py_ssize_t a, b, g, i, o, off, n, cnt, K, j, q, row
+        cdef Py_ssize_t a, b, g, i, o, off, n, cnt, K, j, q, row, first, sorted_gen
+        cdef const Py_ssize_t[::1] rays
         cdef Py_ssize_t n_opt = self.opt_gen.shape[0], plane = self.n_bins * self.n_beams
         cdef int c
         cdef bint splat = self.splat, has_labels = self.has_labels
@@ -2289,13 +2376,26 @@ cdef class PathBlocks:
                         c = self.remap[k, self.chain[g, i]]
                         self.chain[g, i] = c
                         self.key[g, i] = c * <int>self.n_surfaces + self.sid[g, i]
+            sorted_gen = -1
             for o in range(n_opt):
                 g = self.opt_gen[o]
                 n = self.n_live[k, g]
                 off = self.p_offset[o * self.n_blocks + k]
                 K = self.opt_len[o]
+                rays = self.live[g, a:a + n]
+                if not self.opt_same[o] and not self.separate and g > 0:
+                    # Only the rays whose chain outranks the transmit chain make paths (each
+                    # reciprocal pair once): where they are few, visit only those, in ray order.
+                    if sorted_gen != g:
+                        self._sort_by_rank(k, a, g, n)
+                        sorted_gen = g
+                    first = self.rank_start[k, self.rank[self.opt_tx[o]] + 1]
+                    if 4 * (n - first) < n:
+                        memmove(&self.subset[a], &self.by_rank[a + first], (n - first) * sizeof(Py_ssize_t))
+                        qsort(&self.subset[a], n - first, sizeof(Py_ssize_t), _ascending)
+                        rays = self.subset[a:a + n - first]
                 cnt = path_events_impl(
-                    self.live[g, a:a + n], self.dist[g], self.sid[g], self.point[g], self.intensity[g],
+                    rays, self.dist[g], self.sid[g], self.point[g], self.intensity[g],
                     self.ones if g == 0 else self.atten[g], self.zeros if g == 0 else self.chain[g],
                     self.opt_same[o], self.opt_tx[o], self.opt_unfold[o], self.opt_sources[o, :K + 1],
                     self.opt_planes[o, :K], self.opt_specular[o], self.rank, self.separate, self.opt_label[o],
@@ -2303,7 +2403,8 @@ cdef class PathBlocks:
                     self.rotation, self.edges, self.half_el, self.range_min, self.range_max, self.surf_normal,
                     self.surf_offset, self.active, self.p_ray[off:off + n], self.p_dist[off:off + n],
                     self.p_energy[off:off + n], self.p_beam[off:off + n], self.p_beam_tx[off:off + n],
-                    self.p_label[off:off + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL)
+                    self.p_label[off:off + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL,
+                    self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL)
                 self.p_count[o * self.n_blocks + k] = cnt
                 if has_labels and cnt:
                     labels.seg_count[o * self.n_blocks + k] = labels.deposit(
