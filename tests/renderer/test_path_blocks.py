@@ -52,6 +52,11 @@ def _variants():
         obj.pop("albedo", None)
         obj["material"] = {"law": "rough", "albedo": 0.3, "specular_strength": 2.0, "roughness": 0.15}
     out["rough_objects"] = rough
+    mirrors = _tank(1, 4)  # the block and the pipe mirror (mesh mirrors, issue 25) in a tank
+    for obj in mirrors["objects"]:
+        if obj["name"] in ("concrete_block", "pipe"):
+            obj["specular"] = 0.5
+    out["mirrors_order4"] = mirrors
     return out
 
 
@@ -87,7 +92,7 @@ def test_fused_blocks_equal_the_stages_with_python_casting(name, monkeypatch):
             np.testing.assert_array_equal(a, b, err_msg=f"threads={threads} fused={fused}")
 
 
-@pytest.mark.parametrize("name", ["demo", "tank6_order3", "tank2_order5"])
+@pytest.mark.parametrize("name", ["demo", "tank6_order3", "tank2_order5", "mirrors_order4"])
 def test_the_image_does_not_depend_on_how_the_beams_are_cut_into_blocks(name, monkeypatch):
     doc = _variants()[name]
     reference = _frames(doc, 2, True, monkeypatch)
@@ -96,8 +101,9 @@ def test_the_image_does_not_depend_on_how_the_beams_are_cut_into_blocks(name, mo
             np.testing.assert_array_equal(a, b, err_msg=f"{n_blocks} blocks")
 
 
-def test_a_block_whose_chain_table_overflows_is_traced_again_with_a_larger_one(monkeypatch):
-    doc = _tank(5, 4)
+@pytest.mark.parametrize("name", ["tank6_order4", "mirrors_order4"])
+def test_a_block_whose_chain_table_overflows_is_traced_again_with_a_larger_one(name, monkeypatch):
+    doc = _tank(5, 4) if name == "tank6_order4" else _variants()[name]
     reference = _frames(doc, 2, True, monkeypatch)
     for fused in (True, False):
         for a, b in zip(_frames(doc, 2, fused, monkeypatch, capacity=2), reference):
