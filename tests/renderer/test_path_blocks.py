@@ -60,12 +60,14 @@ def _variants():
     return out
 
 
-def _frames(doc, threads, fused, monkeypatch, n_blocks=compiled.N_BLOCKS, capacity=compiled.CHAIN_CAPACITY):
+def _frames(doc, threads, fused, monkeypatch, n_blocks=compiled.N_BLOCKS, capacity=compiled.CHAIN_CAPACITY,
+            path_buffer_bytes=compiled.PATH_BUFFER_BYTES):
     doc = copy.deepcopy(doc)
     doc["render"]["threads"] = threads
     with monkeypatch.context() as m:
         m.setattr(compiled, "N_BLOCKS", n_blocks)
         m.setattr(compiled, "CHAIN_CAPACITY", capacity)
+        m.setattr(compiled, "PATH_BUFFER_BYTES", path_buffer_bytes)
         if not fused:
             m.setattr(compiled, "packet_loop", lambda caster: None)
         with sonarsim.Simulator(doc) as sim:
@@ -108,6 +110,38 @@ def test_a_block_whose_chain_table_overflows_is_traced_again_with_a_larger_one(n
     for fused in (True, False):
         for a, b in zip(_frames(doc, 2, fused, monkeypatch, capacity=2), reference):
             np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("name", ["demo", "mirrors_order4", "double_beam=separate"])
+def test_a_path_buffer_laid_out_for_the_counted_paths_gives_the_same_frames(name, monkeypatch):
+    """Past ``PATH_BUFFER_BYTES`` (here: always) a frame counts its paths in a first pass and
+    lays its path buffer out for them alone: the same frames, labels and signatures, and a
+    buffer of exactly its paths."""
+    doc = _variants()[name]
+    reference = _frames(doc, 2, True, monkeypatch)
+    sizes = []
+    real = compiled.PathBuffer.__init__
+
+    def spy(self, options, offset, size, n_blocks, pool=None):
+        real(self, options, offset, size, n_blocks, pool)
+        sizes.append((size, self))
+
+    monkeypatch.setattr(compiled.PathBuffer, "__init__", spy)
+    for fused in (True, False):
+        for a, b in zip(_frames(doc, 2, fused, monkeypatch, path_buffer_bytes=0), reference):
+            np.testing.assert_array_equal(a, b)
+    size, buffer = sizes[-1]
+    assert size == buffer.count.sum() > 0  # every entry a path
+    np.testing.assert_array_equal(buffer.offset[1:], np.cumsum(buffer.count)[:-1])
+    with sonarsim.Simulator(doc) as sim:  # labels formed in the pass, too
+        monkeypatch.setattr(compiled, "PATH_BUFFER_BYTES", 0)
+        counted = sim.render(speckle=False, labels=True)
+        monkeypatch.setattr(compiled, "PATH_BUFFER_BYTES", 2**40)
+        plain = sim.render(speckle=False, labels=True)
+    a, b = counted.labels.arrays(), plain.labels.arrays()
+    assert a.keys() == b.keys() and len(a) > 3
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
 
 
 def test_chains_are_numbered_canonically_whatever_order_they_were_met_in():

@@ -869,6 +869,49 @@ _NO_UV_OUT = np.zeros((0, 2), np.float32)
 _NO_TEXEL = np.zeros(0, np.float32)  # the legs' texel where no object is textured
 
 
+cdef inline bint walk(double ax, double ay, double az, Py_ssize_t K, const int* tx_planes, const double* sources,
+                      const double* pn, const double* plane_offset, const unsigned char* plane_active, Py_ssize_t P,
+                      int n_planes, const MirrorTables* mt) noexcept nogil:
+    """A transmit leg from the sonar to ``A`` along a chain of K mirrors (``tx_planes``, the
+    planes', then mesh mirrors' normals ``pn`` and offsets) exists: walking back from A towards
+    the sonar's images (``sources``, (K + 1) x 3), each reflection point lies on its mirror
+    (a mesh mirror's: on one of its triangles, met from the side it mirrors on), between its
+    neighbours, inside the water (the P planes' side where ``plane_active``)."""
+    cdef double wx = ax, wy = ay, wz = az, tx_, ty, tz, denom, t, tol
+    cdef Py_ssize_t j = K - 1, q
+    cdef int side
+    while j >= 0:
+        q = tx_planes[j]
+        if q >= n_planes:  # a closed object's facet is met from outside: the leg beyond it is there
+            side = mt.obj_side[mt.mirror_obj[q - n_planes]]
+            if side != 0 and not side * (dot3(pn, q, wx, wy, wz) - plane_offset[q]) > 0.0:
+                return False
+        tx_ = sources[3 * (j + 1)] - wx
+        ty = sources[3 * (j + 1) + 1] - wy
+        tz = sources[3 * (j + 1) + 2] - wz
+        denom = dot3(pn, q, tx_, ty, tz)
+        t = (plane_offset[q] - dot3(pn, q, wx, wy, wz)) / denom
+        if not (t > 0.0 and t < 1.0):
+            return False
+        wx = wx + t * tx_
+        wy = wy + t * ty
+        wz = wz + t * tz
+        tol = fabs(wx)
+        if fabs(wy) > tol:
+            tol = fabs(wy)
+        if fabs(wz) > tol:
+            tol = fabs(wz)
+        tol = WATER_TOLERANCE_M * (tol if tol > 1.0 else 1.0)
+        for q in range(P):
+            if plane_active[q] and dot3(pn, q, wx, wy, wz) - plane_offset[q] < -tol:
+                return False
+        q = tx_planes[j]
+        if q >= n_planes and not on_mirror(mt, q - n_planes, wx, wy, wz):
+            return False  # on one of its triangles, not only their plane
+        j -= 1
+    return True
+
+
 cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] dist, const int[::1] sid,
                 const double[:, ::1] point, const double[::1] intensity, const double[::1] atten,
                 const int[::1] chain, bint same, int tx, const double[:, ::1] unfold,
@@ -889,12 +932,16 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
     cdef Py_ssize_t k, i, m = 0, n = live.shape[0], K = tx_planes.shape[0], j, q, P = plane_active.shape[0]
     cdef int c, s, last = tx_planes[K - 1] if K > 0 else -1, rank_tx = rank[tx] if not same else 0
     cdef int64_t f
-    cdef int side
-    cdef double ax, ay, az_, ux, uy, uz, vx, vy, vz, length, t, wx, wy, wz, tx_, ty, tz
-    cdef double denom, tol
+    cdef bint mirror_chain = False
+    cdef double ax, ay, az_, ux, uy, uz, vx, vy, vz, length
     cdef Py_ssize_t b
-    cdef bint ok
-    cdef const double* pn = &plane_normal[0, 0] if P > 0 else NULL
+    # (the planes' and the mesh mirrors' normals: there may be mirrors and no plane)
+    cdef const double* pn = &plane_normal[0, 0] if plane_normal.shape[0] > 0 else NULL
+    cdef const double* po = &plane_offset[0] if plane_offset.shape[0] > 0 else NULL
+    cdef const int* chain_of_tx = &tx_planes[0] if K > 0 else NULL
+    for j in range(K):
+        if tx_planes[j] >= n_planes:
+            mirror_chain = True
     for k in range(n):
         i = live[k]
         s = sid[i]
@@ -922,6 +969,11 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
         ax = point[i, 0]
         ay = point[i, 1]
         az_ = point[i, 2]
+        # A mesh mirror is small: its triangles refuse most transmit legs, at less cost than
+        # the view (the same conditions, in another order: the same paths).
+        if mirror_chain and not walk(ax, ay, az_, K, chain_of_tx, &sources[0, 0], pn, po,
+                                     &plane_active[0] if P > 0 else NULL, P, n_planes, mt):
+            continue
         ux = unfold[0, 0] * ax + unfold[0, 1] * ay + unfold[0, 2] * az_ + unfold[0, 3] - ox
         uy = unfold[1, 0] * ax + unfold[1, 1] * ay + unfold[1, 2] * az_ + unfold[1, 3] - oy
         uz = unfold[2, 0] * ax + unfold[2, 1] * ay + unfold[2, 2] * az_ + unfold[2, 3] - oz
@@ -932,46 +984,8 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
                          sin_half, tan_edges)
         if b < 0:
             continue
-        # Walk back from A towards the sonar's images: each reflection point must lie on
-        # its plane, between its neighbours, inside the water.
-        ok = True
-        wx = ax
-        wy = ay
-        wz = az_
-        j = K - 1
-        while ok and j >= 0:
-            q = tx_planes[j]
-            if q >= n_planes:  # a closed object's facet is met from outside: the leg beyond it is there
-                side = mt.obj_side[mt.mirror_obj[q - n_planes]]
-                if side != 0 and not side * (dot3(pn, q, wx, wy, wz) - plane_offset[q]) > 0.0:
-                    ok = False
-                    break
-            tx_ = sources[j + 1, 0] - wx
-            ty = sources[j + 1, 1] - wy
-            tz = sources[j + 1, 2] - wz
-            denom = dot3(pn, q, tx_, ty, tz)
-            t = (plane_offset[q] - dot3(pn, q, wx, wy, wz)) / denom
-            if not (t > 0.0 and t < 1.0):
-                ok = False
-                break
-            wx = wx + t * tx_
-            wy = wy + t * ty
-            wz = wz + t * tz
-            tol = fabs(wx)
-            if fabs(wy) > tol:
-                tol = fabs(wy)
-            if fabs(wz) > tol:
-                tol = fabs(wz)
-            tol = WATER_TOLERANCE_M * (tol if tol > 1.0 else 1.0)
-            for q in range(P):
-                if plane_active[q] and dot3(pn, q, wx, wy, wz) - plane_offset[q] < -tol:
-                    ok = False
-                    break
-            q = tx_planes[j]
-            if ok and q >= n_planes and not on_mirror(mt, q - n_planes, wx, wy, wz):
-                ok = False  # on one of its triangles, not only their plane
-            j -= 1
-        if not ok:
+        if not (mirror_chain or walk(ax, ay, az_, K, chain_of_tx, &sources[0, 0], pn, po,
+                                     &plane_active[0] if P > 0 else NULL, P, n_planes, mt)):
             continue
         out_ray[m] = i
         out_dist[m] = 0.5 * (dist[i] + length)
@@ -1842,6 +1856,14 @@ cdef class PathBlocks:
     # Each block's live rays of a generation ordered by their chain's rank, and where each rank
     # starts (paths(): an option visits only the rays whose chain outranks its own).
     cdef Py_ssize_t[::1] by_rank, subset
+    # The counting pass (options(counting=True)): its scratch, and each option's room after it.
+    cdef Py_ssize_t[::1] scratch_ray
+    cdef double[::1] scratch_dist, scratch_energy
+    cdef int[::1] scratch_beam, scratch_beam_tx
+    cdef signed char[::1] scratch_label
+    cdef const Py_ssize_t[::1] capacity
+    cdef bint counting
+    cdef unsigned char[::1] remapped
     cdef Py_ssize_t[:, ::1] rank_start
     cdef Py_ssize_t[::1] p_ray
     cdef double[::1] p_dist, p_energy
@@ -1901,6 +1923,8 @@ cdef class PathBlocks:
         self.grow(capacity)
         self.n_local = np.zeros(n_blocks, np.int32)
         self.by_rank, self.subset = np.empty(w.n, np.intp), np.empty(w.n, np.intp)
+        self.scratch_ray = np.empty(0, np.intp)
+        self.remapped = np.zeros(n_blocks, np.uint8)
         self.rank_start = np.zeros((n_blocks, 2), np.intp)
         self.overflow = np.zeros(n_blocks, np.uint8)
         self.blk_cur = np.zeros(n_blocks, np.intp)
@@ -1977,6 +2001,7 @@ cdef class PathBlocks:
             self.prim, self.uv = legs.prim, legs.uv
         self.active, self.rotation, self.edges = active, rotation, edges
         self.sin_half, self.tan_edges = view_tables(edges, half_el)
+        self.remapped[:] = 0
         self.origin2 = np.asarray(origin, dtype=np.float64).reshape(1, 3).copy()
         for k in range(3):
             self.origin[k] = origin[k]
@@ -2232,7 +2257,8 @@ cdef class PathBlocks:
                 Py_ssize_t[::1] offset, Py_ssize_t[::1] count, Py_ssize_t[::1] p_ray, double[::1] p_dist,
                 double[::1] p_energy, int[::1] p_beam, int[::1] p_beam_tx, signed char[::1] p_label,
                 bint splat=True, float[::1] total=None, tuple rows=(), LabelMaps labels=None,
-                const int[::1] order_map=None, const unsigned char[::1] moments=None):
+                const int[::1] order_map=None, const unsigned char[::1] moments=None,
+                const Py_ssize_t[::1] capacity=None, bint counting=False):
         """Set what :meth:`paths` forms: each block's chain ids to the frame's (``remap``,
         (n_blocks, capacity)), the chains' ranks, the transmit options in order (generation,
         chain, same, image row, chain length, its unfolding map, the sonar's images, its
@@ -2246,7 +2272,20 @@ cdef class PathBlocks:
         same pass: each block's paths, as it splats them, into ``labels`` (its blocks the
         engine's), option o's energy into map ``order_map[o]`` (-1: none) and, where
         ``moments[o]``, into the total's map and its elevation moments; the points of option o
-        of block k from its path buffer offset on (``LabelMaps.compact`` gathers them)."""
+        of block k from its path buffer offset on (``LabelMaps.compact`` gathers them).
+
+        ``capacity`` (per ``offset`` entry; default: the generation's live rays) is each block's
+        room for an option: the counts of a ``counting`` pass, which forms the paths into the
+        engine's own scratch and only counts them (``count``: no splat, labels or total; the
+        path buffer arrays may be empty), so that a frame of many transmit options (mesh
+        mirrors) lays out a path buffer of its paths, not of its candidates."""
+        if counting and (splat or total is not None or labels is not None):
+            raise ValueError("a counting pass forms no image, total or labels")
+        if counting and self.scratch_ray.shape[0] < self.fan_dirs.shape[0]:
+            n = self.fan_dirs.shape[0]
+            self.scratch_ray, self.scratch_dist, self.scratch_energy = np.empty(n, np.intp), np.empty(n), np.empty(n)
+            self.scratch_beam, self.scratch_beam_tx = np.empty(n, np.int32), np.empty(n, np.int32)
+            self.scratch_label = np.empty(n, np.int8)
         cdef float[::1] out = self.out if splat else None
         cdef Py_ssize_t n_opt = gen.shape[0], o, k, m = p_ray.shape[0], n_rows = 0, q
         self.paths_ready = False  # everything is checked before anything is kept
@@ -2279,7 +2318,10 @@ cdef class PathBlocks:
                 if not 0 <= planes[o, q] < self.surf_normal.shape[0]:
                     raise ValueError(f"transmit option {o}: mirror {planes[o, q]} of {self.surf_normal.shape[0]}")
             for k in range(self.n_blocks):
-                if offset[o * self.n_blocks + k] < 0 or offset[o * self.n_blocks + k] + self.n_live[k, gen[o]] > m:
+                room = self.n_live[k, gen[o]] if capacity is None else capacity[o * self.n_blocks + k]
+                if capacity is not None and not 0 <= room <= self.n_live[k, gen[o]]:
+                    raise ValueError(f"transmit option {o} of block {k}: room for {room} of {self.n_live[k, gen[o]]} rays")
+                if not counting and (offset[o * self.n_blocks + k] < 0 or offset[o * self.n_blocks + k] + room > m):
                     raise ValueError(f"transmit option {o} of block {k} does not fit in the path buffer")
         n_total = len(rows) if total is not None and out is not None else 0
         if n_total > 16:
@@ -2319,6 +2361,9 @@ cdef class PathBlocks:
         self.n_total_rows = n_total
         for o in range(n_total):
             self.total_rows[o] = rows[o]
+        if capacity is not None and capacity.shape[0] != offset.shape[0]:
+            raise ValueError("a capacity per option and block, as the offsets")
+        self.capacity, self.counting = capacity, counting
         if self.rank_start.shape[1] < rank.shape[0] + 1:
             self.rank_start = np.zeros((self.n_blocks, rank.shape[0] + 1), np.intp)
         self.paths_ready = True
@@ -2356,7 +2401,7 @@ cdef class PathBlocks:
         cdef const Py_ssize_t[::1] rays
         cdef Py_ssize_t n_opt = self.opt_gen.shape[0], plane = self.n_bins * self.n_beams
         cdef int c
-        cdef bint splat = self.splat, has_labels = self.has_labels
+        cdef bint splat = self.splat, has_labels = self.has_labels, counting = self.counting
         cdef LabelMaps labels = self.labels
         cdef float* tot
         cdef const float* src
@@ -2370,12 +2415,14 @@ cdef class PathBlocks:
         with nogil:
             if go != NULL:
                 ss_flag_store(go, 1)
-            for g in range(1, self.n_gen):
-                for i in range(a, b):
-                    if self.sid[g, i] >= 0:
-                        c = self.remap[k, self.chain[g, i]]
-                        self.chain[g, i] = c
-                        self.key[g, i] = c * <int>self.n_surfaces + self.sid[g, i]
+            if not self.remapped[k]:  # once a frame (a counting pass came first, or not)
+                self.remapped[k] = 1
+                for g in range(1, self.n_gen):
+                    for i in range(a, b):
+                        if self.sid[g, i] >= 0:
+                            c = self.remap[k, self.chain[g, i]]
+                            self.chain[g, i] = c
+                            self.key[g, i] = c * <int>self.n_surfaces + self.sid[g, i]
             sorted_gen = -1
             for o in range(n_opt):
                 g = self.opt_gen[o]
@@ -2390,10 +2437,29 @@ cdef class PathBlocks:
                         self._sort_by_rank(k, a, g, n)
                         sorted_gen = g
                     first = self.rank_start[k, self.rank[self.opt_tx[o]] + 1]
+                    if first == n:  # none: a frame's many chains of mesh mirrors mostly outrank its rays'
+                        self.p_count[o * self.n_blocks + k] = 0
+                        continue
                     if 4 * (n - first) < n:
                         memmove(&self.subset[a], &self.by_rank[a + first], (n - first) * sizeof(Py_ssize_t))
                         qsort(&self.subset[a], n - first, sizeof(Py_ssize_t), _ascending)
                         rays = self.subset[a:a + n - first]
+                if counting:  # formed into the block's own scratch rows, and counted
+                    cnt = path_events_impl(
+                        rays, self.dist[g], self.sid[g], self.point[g], self.intensity[g],
+                        self.ones if g == 0 else self.atten[g], self.zeros if g == 0 else self.chain[g],
+                        self.opt_same[o], self.opt_tx[o], self.opt_unfold[o], self.opt_sources[o, :K + 1],
+                        self.opt_planes[o, :K], self.opt_specular[o], self.rank, self.separate, self.opt_label[o],
+                        <int>self.n_planes, self.rays_per_beam, self.origin[0], self.origin[1], self.origin[2],
+                        self.rotation, self.edges, self.half_el, self.range_min, self.range_max, self.surf_normal,
+                        self.surf_offset, self.active, self.scratch_ray[a:a + n], self.scratch_dist[a:a + n],
+                        self.scratch_energy[a:a + n], self.scratch_beam[a:a + n], self.scratch_beam_tx[a:a + n],
+                        self.scratch_label[a:a + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL,
+                        self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL)
+                    self.p_count[o * self.n_blocks + k] = cnt
+                    continue
+                if self.capacity is not None:  # room for what the counting pass counted
+                    n = self.capacity[o * self.n_blocks + k]
                 cnt = path_events_impl(
                     rays, self.dist[g], self.sid[g], self.point[g], self.intensity[g],
                     self.ones if g == 0 else self.atten[g], self.zeros if g == 0 else self.chain[g],

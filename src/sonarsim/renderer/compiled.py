@@ -30,6 +30,7 @@ from ..core.rays import RayFan
 from ..config.scene import RenderSettings
 from ..config.sonar import SonarConfig
 from ..scene.floor_texture import scale_by_texture
+from ..core.memory import require
 
 try:
     from . import _kernels
@@ -523,6 +524,32 @@ def _options(table, n_gen: int, max_order: int, double_beam: str, engine, work: 
     return (gen, tx, same, label, length, unfold, sources, chain_planes, specular), offset, size
 
 
+# Bytes of one path in the path buffer (:class:`PathBuffer`: ray, distance, energy, beam,
+# transmit beam, label).
+PATH_BYTES = 8 + 8 + 8 + 4 + 4 + 1
+
+# A frame whose path buffer, laid out with room for every candidate (each option's
+# generation's live rays), would be larger than this counts its paths first and lays out room
+# for them alone (:func:`_counted_layout`): many transmit options (the chains of mesh mirrors,
+# ``double_beam: separate``) have many candidates and few paths.
+PATH_BUFFER_BYTES = 64 * 2**20
+
+
+def _counted_layout(engine, remap: np.ndarray, rank: np.ndarray, options: tuple, offset: np.ndarray,
+                    blocks: tuple, pool) -> tuple[np.ndarray, int, np.ndarray]:
+    """Count the frame's paths option by option and block by block (a pass of ``engine.paths``
+    that forms them into the engine's scratch, on both cores), and lay the path buffer out for
+    them: ``(offset, size, capacity)``, each option's room in each block its count."""
+    count = np.zeros(len(offset), np.intp)
+    none = (np.empty(0, np.intp), np.empty(0), np.empty(0), np.empty(0, np.int32), np.empty(0, np.int32),
+            np.empty(0, np.int8))
+    engine.options(remap, rank, *options, offset, count, *none, False, counting=True)
+    on_both_cores(lambda k, signal=None: engine.paths(k, *blocks[k], signal), len(blocks), pool, signals=True)
+    exact = np.zeros(len(count), np.intp)
+    np.cumsum(count[:-1], out=exact[1:])  # option-major, block after block
+    return exact, int(count.sum()), count
+
+
 class PathBuffer:
     """The paths of a frame as the blocks wrote them (see ``docs/path-buffer.md``): fields of
     one path per entry, option-major, each option's paths block after block in ray order.
@@ -687,9 +714,13 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
                     scale_by_texture(legs_out.intensity[g], legs_out.sid[g], legs_out.point[g], textures)
         table, remap = _frame_chains(table, engine, work)
         options, offset, size = _options(table, n_generations, render.max_order, render.double_beam, engine, work)
+        rank = np.arange(len(table), dtype=np.int32)  # canonical ids are ranks (ChainTable.key)
+        capacity = None
+        if size * PATH_BYTES > PATH_BUFFER_BYTES:  # many transmit options: room for the paths, not the candidates
+            offset, size, capacity = _counted_layout(engine, remap, rank, options, offset, blocks, pool)
+            require(size * PATH_BYTES, f"the frame's {size} paths", "render.max_order")
         buffer = PathBuffer(options, offset, size, len(blocks), work.paths_pool)
         total = np.empty(stack.shape[1] * stack.shape[2], np.float32) if in_blocks and sum_rows else None
-        rank = np.arange(len(table), dtype=np.int32)  # canonical ids are ranks (ChainTable.key)
         truth, deposit = None, ()
         if labels is not None and in_blocks:
             truth = FrameTruth(size, labels, (sonar.range_min_m, sonar.range_resolution_m, sonar.n_range_bins,
@@ -697,7 +728,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
             deposit = (truth.maps, *truth.option_maps(options[3]))
         engine.options(remap, rank, *options, buffer.offset, buffer.count, buffer.ray, buffer.distance,
                        buffer.energy, buffer.beam, buffer.beam_tx, buffer.label, in_blocks, total, tuple(sum_rows),
-                       *deposit)
+                       *(deposit or (None, None, None)), capacity=capacity)
         on_both_cores(lambda k, signal=None: engine.paths(k, *blocks[k], signal), len(blocks), pool, signals=True)
     finally:
         engine.release()
