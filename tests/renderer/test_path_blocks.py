@@ -811,3 +811,49 @@ def test_an_interrupted_frame_waits_for_the_other_thread_before_it_lets_go(kind)
         run()
     assert waits and sorted(ended) == [0, 1]  # both tasks had ended when the interrupt came out
     pool.shutdown()
+
+
+def test_the_cut_into_blocks_moves_towards_equal_work_and_holds_against_one_slow_frame():
+    work = compiled.Workspace(128 * 4, 128, 4)
+    blocks = work.blocks(128, 2)
+    assert blocks == ((0, 64), (64, 128))
+    # Block 1 three times as slow: after BALANCE_FRAMES frames the cut gives it a third of its
+    # beams less (equal shares of the work, taken as even over each block's beams: 64 + 64 / 3).
+    for _ in range(compiled.BALANCE_FRAMES - 1):
+        work.balance(blocks, [1.0, 3.0])
+        assert work.blocks(128, 2) is blocks
+    work.balance(blocks, [1.0, 3.0])
+    assert work.blocks(128, 2) == ((0, 85), (85, 128))
+    # Nearly even, or one frame slow among even ones: the cut holds.
+    blocks = work.blocks(128, 2)
+    for seconds in ([1.0, 1.05], [1.0, 1.0], [1.0, 9.0], [1.0, 1.0]):
+        work.balance(blocks, seconds)
+    assert work.blocks(128, 2) is blocks
+    # Another number of blocks, or a frame cut otherwise (an older cut): even again, or ignored.
+    assert work.blocks(128, 3) == compiled.beam_blocks(128, 3)
+    work.balance(((0, 10), (10, 128)), [1.0, 50.0])
+    assert work.blocks(128, 3) == compiled.beam_blocks(128, 3)
+
+
+def test_a_frame_renders_the_same_image_whatever_the_cut_the_balance_chose(monkeypatch):
+    """Cuts the balance may choose (uneven, one block of a few beams): the same frame, bit for
+    bit, labels and signatures included."""
+    monkeypatch.setattr(compiled, "BALANCE_FRAMES", 10**9)  # the cut set here holds
+    doc = copy.deepcopy(_variants()["mirrors_order4"])
+    with sonarsim.Simulator(doc) as sim:
+        frames = []
+        for cut in (((0, 64), (64, 128)), ((0, 20), (20, 128)), ((0, 121), (121, 128))):
+            sim.render(speckle=False)  # (the workspace exists)
+            sim._work.cut = cut
+            img = sim.render(speckle=False, labels=True)
+            assert sim._work.cut == cut
+            frames.append(img)
+    first = frames[0]
+    for img in frames[1:]:
+        np.testing.assert_array_equal(img.polar, first.polar)
+        assert img.components.signatures == first.components.signatures
+        for key in first.components:
+            np.testing.assert_array_equal(img.components[key], first.components[key])
+        a, b = img.labels.arrays(), first.labels.arrays()
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)

@@ -18,7 +18,6 @@ from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, exp, isfinite, INF
 from libc.math cimport M_PI
 from libc.string cimport memset, memmove
 from libc.stdint cimport int64_t, uint64_t
-from libc.stdlib cimport qsort
 import numpy as np
 cimport cython
 
@@ -500,11 +499,6 @@ cdef class Mirrors:
                    facets.mirror_start, facets.mirror_facets, facets.mirror_obj, facets.mirror_normal,
                    facets.mirror_offset)
 
-
-
-cdef int _ascending(const void* x, const void* y) noexcept nogil:
-    cdef Py_ssize_t u = (<const Py_ssize_t*>x)[0], v = (<const Py_ssize_t*>y)[0]
-    return (u > v) - (u < v)
 
 
 cdef size_t _address(a):
@@ -1853,9 +1847,9 @@ cdef class PathBlocks:
     cdef const double[::1] opt_specular
     cdef const int[:, ::1] remap
     cdef Py_ssize_t[::1] p_offset, p_count
-    # Each block's live rays of a generation ordered by their chain's rank, and where each rank
-    # starts (paths(): an option visits only the rays whose chain outranks its own).
-    cdef Py_ssize_t[::1] by_rank, subset
+    # Each block's live rays of a generation whose chain outranks the last transmit option's
+    # (paths()), in its own rows.
+    cdef Py_ssize_t[::1] subset
     # The counting pass (options(counting=True)): its scratch, and each option's room after it.
     cdef Py_ssize_t[::1] scratch_ray
     cdef double[::1] scratch_dist, scratch_energy
@@ -1864,7 +1858,6 @@ cdef class PathBlocks:
     cdef const Py_ssize_t[::1] capacity
     cdef bint counting
     cdef unsigned char[::1] remapped
-    cdef Py_ssize_t[:, ::1] rank_start
     cdef Py_ssize_t[::1] p_ray
     cdef double[::1] p_dist, p_energy
     cdef int[::1] p_beam, p_beam_tx
@@ -1922,10 +1915,9 @@ cdef class PathBlocks:
         self.n_blocks = n_blocks
         self.grow(capacity)
         self.n_local = np.zeros(n_blocks, np.int32)
-        self.by_rank, self.subset = np.empty(w.n, np.intp), np.empty(w.n, np.intp)
+        self.subset = np.empty(w.n, np.intp)
         self.scratch_ray = np.empty(0, np.intp)
         self.remapped = np.zeros(n_blocks, np.uint8)
-        self.rank_start = np.zeros((n_blocks, 2), np.intp)
         self.overflow = np.zeros(n_blocks, np.uint8)
         self.blk_cur = np.zeros(n_blocks, np.intp)
         self.blk_m = np.zeros(n_blocks, np.intp)
@@ -2364,32 +2356,7 @@ cdef class PathBlocks:
         if capacity is not None and capacity.shape[0] != offset.shape[0]:
             raise ValueError("a capacity per option and block, as the offsets")
         self.capacity, self.counting = capacity, counting
-        if self.rank_start.shape[1] < rank.shape[0] + 1:
-            self.rank_start = np.zeros((self.n_blocks, rank.shape[0] + 1), np.intp)
         self.paths_ready = True
-
-    cdef void _sort_by_rank(self, Py_ssize_t k, Py_ssize_t a, Py_ssize_t g, Py_ssize_t n) noexcept nogil:
-        """Block ``k``'s ``n`` live rays of generation ``g`` (from row ``a``) into ``by_rank[a:]``
-        by their chain's rank, in ray order within a rank (a counting sort); ``rank_start[k, r]``:
-        where rank r starts (``rank_start[k, n_chains]`` = n)."""
-        cdef Py_ssize_t r, j, i, n_ranks = self.rank.shape[0], total = 0, c
-        cdef Py_ssize_t* start = &self.rank_start[k, 0]
-        for r in range(n_ranks + 1):
-            start[r] = 0
-        for j in range(n):
-            start[self.rank[self.chain[g, self.live[g, a + j]]]] += 1
-        for r in range(n_ranks + 1):  # counts to starts
-            c = start[r]
-            start[r] = total
-            total += c
-        for j in range(n):
-            i = self.live[g, a + j]
-            r = self.rank[self.chain[g, i]]
-            self.by_rank[a + start[r]] = i
-            start[r] += 1
-        for r in range(n_ranks, 0, -1):  # each back to its rank's start
-            start[r] = start[r - 1]
-        start[0] = 0
 
     def paths(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1, unsigned char[::1] signal=None):
         """Block ``k``'s paths: chain ids made the frame's, every transmit option's paths into
@@ -2397,7 +2364,8 @@ cdef class PathBlocks:
         ``signal``: as :meth:`trace`'s."""
         if not self.paths_ready:
             raise ValueError("call options() first")
-        cdef Py_ssize_t a, b, g, i, o, off, n, cnt, K, j, q, row, first, sorted_gen
+        cdef Py_ssize_t a, b, g, i, o, off, n, cnt, K, j, q, row, n_kept = 0, kept_gen = -1
+        cdef int r_tx, kept_rank = -1
         cdef const Py_ssize_t[::1] rays
         cdef Py_ssize_t n_opt = self.opt_gen.shape[0], plane = self.n_bins * self.n_beams
         cdef int c
@@ -2423,7 +2391,6 @@ cdef class PathBlocks:
                             c = self.remap[k, self.chain[g, i]]
                             self.chain[g, i] = c
                             self.key[g, i] = c * <int>self.n_surfaces + self.sid[g, i]
-            sorted_gen = -1
             for o in range(n_opt):
                 g = self.opt_gen[o]
                 n = self.n_live[k, g]
@@ -2432,18 +2399,25 @@ cdef class PathBlocks:
                 rays = self.live[g, a:a + n]
                 if not self.opt_same[o] and not self.separate and g > 0:
                     # Only the rays whose chain outranks the transmit chain make paths (each
-                    # reciprocal pair once): where they are few, visit only those, in ray order.
-                    if sorted_gen != g:
-                        self._sort_by_rank(k, a, g, n)
-                        sorted_gen = g
-                    first = self.rank_start[k, self.rank[self.opt_tx[o]] + 1]
-                    if first == n:  # none: a frame's many chains of mesh mirrors mostly outrank its rays'
+                    # reciprocal pair once). A generation's options come by rising rank: the
+                    # rays left for one are those left for the one before that outrank it, kept
+                    # in ray order (a frame's many chains of mesh mirrors mostly outrank its rays').
+                    r_tx = self.rank[self.opt_tx[o]]
+                    if kept_gen != g or r_tx < kept_rank:
+                        memmove(&self.subset[a], &self.live[g, a], n * sizeof(Py_ssize_t))
+                        n_kept = n
+                        kept_gen = g
+                    kept_rank = r_tx
+                    j = 0
+                    for i in range(n_kept):
+                        if self.rank[self.chain[g, self.subset[a + i]]] > r_tx:
+                            self.subset[a + j] = self.subset[a + i]
+                            j += 1
+                    n_kept = j
+                    if n_kept == 0:
                         self.p_count[o * self.n_blocks + k] = 0
                         continue
-                    if 4 * (n - first) < n:
-                        memmove(&self.subset[a], &self.by_rank[a + first], (n - first) * sizeof(Py_ssize_t))
-                        qsort(&self.subset[a], n - first, sizeof(Py_ssize_t), _ascending)
-                        rays = self.subset[a:a + n - first]
+                    rays = self.subset[a:a + n_kept]
                 if counting:  # formed into the block's own scratch rows, and counted
                     cnt = path_events_impl(
                         rays, self.dist[g], self.sid[g], self.point[g], self.intensity[g],

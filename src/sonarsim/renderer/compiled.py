@@ -16,6 +16,7 @@ import functools
 import itertools
 import sys
 import threading
+import time
 import weakref
 from collections.abc import Sequence
 from concurrent.futures import Executor, Future
@@ -92,7 +93,52 @@ class Workspace:
         self.chains: tuple | None = None  # (planes, key, canonical table, remap), _frame_chains()
         self.options: tuple | None = None  # (planes, chains, n_gen, max_order, double_beam, arrays, sources)
         self.legs_pool, self.paths_pool = ArrayPool(), ArrayPool()  # the frames' legs and path buffers
+        self.cut: tuple | None = None  # the beams' cut into blocks (blocks(), balance())
+        self._spent: list = []  # the blocks' times of the last frames at the cut
         self.labels_scratch = LabelScratch()
+
+
+    def blocks(self, n_beams: int, n_blocks: int) -> tuple[tuple[int, int], ...]:
+        """The cut of the beams into blocks the next frame uses: even (:func:`beam_blocks`) at
+        first, then as :meth:`balance` moves it."""
+        cut = self.cut
+        if cut is None or len(cut) != min(n_blocks, n_beams) or cut[-1][1] != n_beams:
+            cut = self.cut = beam_blocks(n_beams, n_blocks)
+            self._spent = []
+        return cut
+
+    def balance(self, blocks: tuple[tuple[int, int], ...], seconds: Sequence[float]) -> None:
+        """Move the cut towards blocks of equal work, from the time each block of a frame cut
+        as ``blocks`` took (its tracing and its paths): where the multipath gathers on one side
+        of the fan (a mirror there), the even cut leaves one core waiting for the other. The
+        image does not depend on the cut (tested); only its speed does.
+
+        The work is taken as spread evenly over each block's beams, each block's time as the
+        median of :data:`BALANCE_FRAMES` frames at the cut; the cut moves to equal shares where
+        that promises the slowest block :data:`BALANCE_GAIN` less (a frame delayed by the
+        machine's load does not move it, nor round-off in the model move it to and fro)."""
+        spent = np.asarray(seconds, dtype=float)
+        if blocks is not self.cut or len(blocks) < 2 or not np.all(spent > 0.0):
+            return
+        self._spent.append(spent)
+        if len(self._spent) < BALANCE_FRAMES:
+            return
+        spent = np.median(self._spent, axis=0)
+        self._spent.clear()
+        edges = np.array([b0 for b0, _ in blocks] + [blocks[-1][1]], dtype=float)
+        work = np.concatenate([[0.0], np.cumsum(spent)])
+        new = np.round(np.interp(np.linspace(0.0, work[-1], len(blocks) + 1), work, edges)).astype(int)
+        new[0], new[-1] = 0, int(edges[-1])
+        for j in range(1, len(new) - 1):  # a beam at least in every block
+            new[j] = min(max(new[j], new[j - 1] + 1), int(edges[-1]) - (len(new) - 1 - j))
+        if np.diff(np.interp(new, edges, work)).max() < (1.0 - BALANCE_GAIN) * spent.max():
+            self.cut = tuple((int(a), int(b)) for a, b in zip(new[:-1], new[1:]))
+
+
+# A frame's cut moves only where the slowest block would take this much less, judged on the
+# median times of this many frames at the cut (Workspace.balance).
+BALANCE_GAIN = 0.1
+BALANCE_FRAMES = 4
 
 
 @functools.lru_cache(maxsize=16)  # a sonar's: the same every frame
@@ -536,15 +582,16 @@ PATH_BUFFER_BYTES = 64 * 2**20
 
 
 def _counted_layout(engine, remap: np.ndarray, rank: np.ndarray, options: tuple, offset: np.ndarray,
-                    blocks: tuple, pool) -> tuple[np.ndarray, int, np.ndarray]:
+                    paths, n_blocks: int, pool) -> tuple[np.ndarray, int, np.ndarray]:
     """Count the frame's paths option by option and block by block (a pass of ``engine.paths``
     that forms them into the engine's scratch, on both cores), and lay the path buffer out for
-    them: ``(offset, size, capacity)``, each option's room in each block its count."""
+    them: ``(offset, size, capacity)``, each option's room in each block its count. ``paths(k,
+    signal)`` runs block k's pass."""
     count = np.zeros(len(offset), np.intp)
     none = (np.empty(0, np.intp), np.empty(0), np.empty(0), np.empty(0, np.int32), np.empty(0, np.int32),
             np.empty(0, np.int8))
     engine.options(remap, rank, *options, offset, count, *none, False, counting=True)
-    on_both_cores(lambda k, signal=None: engine.paths(k, *blocks[k], signal), len(blocks), pool, signals=True)
+    on_both_cores(paths, n_blocks, pool, signals=True)
     exact = np.zeros(len(count), np.intp)
     np.cumsum(count[:-1], out=exact[1:])  # option-major, block after block
     return exact, int(count.sum()), count
@@ -650,7 +697,9 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
     primitives = primitives or facets is not None  # a mirror is found by its triangle
     n_beams = sonar.n_beams
     n_blocks = min(N_BLOCKS, n_beams)
-    blocks = beam_blocks(n_beams, n_blocks)
+    blocks = work.blocks(n_beams, n_blocks)
+    spent = np.zeros(len(blocks))  # each block's seconds, tracing and forming paths (Workspace.balance)
+    overflowed = False
     per_beam = fan.n_rays // n_beams
     # A caster whose hits carry a texture's factor (scene.textures.TexturedCaster) casts in
     # Python between the stages; the legs then record the factor for the weighing.
@@ -686,12 +735,19 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
         return True
 
     def trace(k: int, signal=None) -> None:
+        start = time.perf_counter()
         if fused:
             ok[k] = engine.trace(k, *blocks[k], signal)
-            return
-        if signal is not None:  # Python casts between the stages: the other thread may start now
-            signal[0] = 1
-        ok[k] = staged(k)
+        else:
+            if signal is not None:  # Python casts between the stages: the other thread may start now
+                signal[0] = 1
+            ok[k] = staged(k)
+        spent[k] += time.perf_counter() - start
+
+    def paths(k: int, signal=None) -> None:
+        start = time.perf_counter()
+        engine.paths(k, *blocks[k], signal)
+        spent[k] += time.perf_counter() - start
 
     engine.frame(legs_out, active8, view.rotation, view.origin,
                  reach_m, render.tvg, n_generations, fan.shape[2], sonar.range_min_m, sonar.range_resolution_m,
@@ -704,6 +760,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
             on_both_cores(trace, len(blocks), pool, signals=True)
             if all(ok):
                 break
+            overflowed = True  # (the blocks' times include a trace that was thrown away)
             engine.grow(4 * engine.chain_tables()[0].shape[1])  # a block met more chains than its table holds
         if textures:
             # Each generation's scatterers on textured planes take their factor, over the whole
@@ -717,7 +774,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
         rank = np.arange(len(table), dtype=np.int32)  # canonical ids are ranks (ChainTable.key)
         capacity = None
         if size * PATH_BYTES > PATH_BUFFER_BYTES:  # many transmit options: room for the paths, not the candidates
-            offset, size, capacity = _counted_layout(engine, remap, rank, options, offset, blocks, pool)
+            offset, size, capacity = _counted_layout(engine, remap, rank, options, offset, paths, len(blocks), pool)
             require(size * PATH_BYTES, f"the frame's {size} paths", "render.max_order")
         buffer = PathBuffer(options, offset, size, len(blocks), work.paths_pool)
         total = np.empty(stack.shape[1] * stack.shape[2], np.float32) if in_blocks and sum_rows else None
@@ -729,9 +786,11 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
         engine.options(remap, rank, *options, buffer.offset, buffer.count, buffer.ray, buffer.distance,
                        buffer.energy, buffer.beam, buffer.beam_tx, buffer.label, in_blocks, total, tuple(sum_rows),
                        *(deposit or (None, None, None)), capacity=capacity)
-        on_both_cores(lambda k, signal=None: engine.paths(k, *blocks[k], signal), len(blocks), pool, signals=True)
+        on_both_cores(paths, len(blocks), pool, signals=True)
     finally:
         engine.release()
+    if pool is not None and not overflowed:
+        work.balance(blocks, spent)
     if truth is not None:
         truth.maps.compact(buffer.offset)
         truth = truth.finish()
