@@ -36,12 +36,16 @@ def _variants():
     out["oculus_sine_spaced"] = oculus
     # Mesh mirrors (issue 25): the demo's block and pipe mirror, at order 3 and 4, each
     # reciprocal pair once and both members, and with the transmit legs cast against objects.
+    # With the pipe smooth, a path whose transmit leg would cross it is formed from its partner.
     for name, order, mode, los in (("mirrors", 3, "paper", False), ("mirrors_order4_separate", 4, "separate", False),
-                                   ("mirrors_split_los", 3, "split", True)):
+                                   ("mirrors_split_los", 3, "split", True), ("mirrors_smooth", 3, "paper", False),
+                                   ("mirrors_smooth_separate", 3, "separate", False)):
         d = copy.deepcopy(rolled)
         for obj in d["objects"]:
             if obj["name"] in ("concrete_block", "pipe"):
                 obj["specular"] = 0.5
+            if obj["name"] == "pipe" and "smooth" in name:
+                obj["normals"] = "smooth"
         d["render"].update(max_order=order, double_beam=mode, double_line_of_sight=los)
         d["render"].pop("bounces", None)
         out[name] = d

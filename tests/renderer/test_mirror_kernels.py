@@ -35,24 +35,30 @@ def _mesh(vertices, faces, rot, shift):
     return TriangleMesh(np.asarray(vertices, float) @ rot.T + shift, np.asarray(faces, np.int32))
 
 
-def _facets(meshes, specular):
-    """The FacetSet of ``meshes`` (flat normals), each mirroring on its outside, and its kernel tables."""
+def _facets(meshes, specular, normals=None):
+    """The FacetSet of ``meshes`` (flat normals unless ``normals`` says), each mirroring on its
+    outside, and its kernel tables."""
     sides = [outer_side(m) if r > 0 else 0 for m, r in zip(meshes, specular)]
-    facets = FacetSet.of(meshes, [f"o{k}" for k in range(len(meshes))], specular, ["flat"] * len(meshes), sides)
+    facets = FacetSet.of(meshes, [f"o{k}" for k in range(len(meshes))], specular,
+                         normals or ["flat"] * len(meshes), sides)
     return facets, K.Mirrors.of(facets)
 
 
-def _scene(rng, capacity=64):
+def _scene(rng, capacity=64, smooth=False):
     """Three random planes round a sonar and three objects: a closed box and an open sheet that
-    mirror, a box that does not; a chain table of random plane chains."""
+    mirror, a box that does not; a chain table of random plane chains. ``smooth``: the first
+    object is a ball mirroring about its smooth normals instead, and the sheet is smooth too."""
     origin = rng.normal(size=3)
     planes = _planes(rng, origin, 3)
     box = trimesh.creation.box(extents=rng.uniform(0.5, 1.5, 3))
-    meshes = [_mesh(box.vertices, box.faces, _rotation(rng), origin + rng.uniform(-1, 1, 3)),
+    first = trimesh.creation.icosphere(subdivisions=1, radius=0.7) if smooth else box
+    meshes = [_mesh(first.vertices, first.faces, _rotation(rng), origin + rng.uniform(-1, 1, 3)),
               _mesh(SHEET, [[0, 1, 2], [0, 2, 3]], _rotation(rng), origin + rng.uniform(-1, 1, 3)),
               _mesh(box.vertices, box.faces, _rotation(rng), origin + rng.uniform(-1, 1, 3))]
-    facets, mirrors = _facets(meshes, [rng.uniform(0.3, 0.9), rng.uniform(0.3, 0.9), 0.0])
-    assert facets.side.tolist() == [1, 0, 0] and facets.n_mirrors == 7  # the box's 6 faces, the sheet
+    normals = ["smooth", "smooth", "flat"] if smooth else None
+    facets, mirrors = _facets(meshes, [rng.uniform(0.3, 0.9), rng.uniform(0.3, 0.9), 0.0], normals)
+    # The box's 6 faces and the sheet; smooth: each of the ball's 80 and the sheet's 2 facets alone.
+    assert facets.side.tolist() == [1, 0, 0] and facets.n_mirrors == (82 if smooth else 7)
     table = _table(planes, origin, rng, capacity=capacity)
     table.facets = facets
     albedo = np.concatenate([[0.0], planes.albedo, rng.uniform(0.1, 1.0, 3)])
@@ -147,11 +153,11 @@ def _trace_twin(s, tt, rays, hits, first, n, weight, key):
     return twin
 
 
-def _generations(seed, n=800, capacity=64, planes_active=True):
+def _generations(seed, n=800, capacity=64, planes_active=True, smooth=False):
     """Generation 0 (first) and then 1 of random rays in a random scene, each traced by the kernel
     and the twin on their own chain tables: [(kernel, twin, overflows, rays, scene)] per generation."""
     rng = np.random.default_rng(seed)
-    s = _scene(rng, capacity)
+    s = _scene(rng, capacity, smooth)
     s["active"][:] = planes_active
     kt, tt = _kernel_tables(s["table"]), copy.deepcopy(s["table"])
     out = []
@@ -179,6 +185,23 @@ def test_trace_leg_with_mirrors_equals_trace_generation(first, seed):
     assert inside.sum() >= 5 and not np.isin(r[inside], kernel["ray"]).any()
     dull = r[kernel["sid"][r] == P + 2]
     assert len(dull) >= 5 and not np.isin(dull, kernel["ray"]).any()
+
+
+@pytest.mark.parametrize("first", [True, False])
+def test_trace_leg_with_smooth_mirrors_equals_trace_generation(first):
+    """A smooth facet reflects about the normal interpolated at the hit (the caster's
+    barycentrics), or its own where that would send a grazing ray on through."""
+    kernel, twin, _, rays, s = _generations(7, capacity=256, smooth=True)[0 if first else 1]
+    _assert_same(kernel, twin)
+    P, facets = len(s["planes"]), s["facets"]
+    # Rays reflected off the ball left along its interpolated normals, not its facets' own.
+    reflected = [kernel["chains"][c][-1] for c in kernel["next_chain"]]
+    assert sum(1 for m in reflected if m >= P and facets.mirror_obj[m - P] == 0) >= 5
+    hit = np.isin(kernel["ray"], np.flatnonzero(kernel["sid"] == P))
+    flat = facets.normal[facets.facet(np.zeros(hit.sum(), int), kernel["prim"][kernel["ray"][hit]])]
+    d_in = rays.direction[np.searchsorted(rays.ray, kernel["ray"][hit])]
+    d_flat = d_in - 2.0 * np.einsum("ij,ij->i", d_in, flat)[:, None] * flat
+    assert np.abs(kernel["direction"][hit] - d_flat).max() > 1e-3
 
 
 def test_trace_leg_mirror_chain_overflow_numbers_chains_like_the_twin():

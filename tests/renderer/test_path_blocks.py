@@ -57,6 +57,12 @@ def _variants():
         if obj["name"] in ("concrete_block", "pipe"):
             obj["specular"] = 0.5
     out["mirrors_order4"] = mirrors
+    smooth = copy.deepcopy(mirrors)  # the pipe mirrors about its smooth normals: partners formed
+    for obj in smooth["objects"]:
+        if obj["name"] == "pipe":
+            obj["normals"] = "smooth"
+    smooth["render"]["double_beam"] = "separate"
+    out["mirrors_smooth_separate"] = smooth
     return out
 
 
@@ -94,7 +100,7 @@ def test_fused_blocks_equal_the_stages_with_python_casting(name, monkeypatch):
             np.testing.assert_array_equal(a, b, err_msg=f"threads={threads} fused={fused}")
 
 
-@pytest.mark.parametrize("name", ["demo", "tank6_order3", "tank2_order5", "mirrors_order4"])
+@pytest.mark.parametrize("name", ["demo", "tank6_order3", "tank2_order5", "mirrors_order4", "mirrors_smooth_separate"])
 def test_the_image_does_not_depend_on_how_the_beams_are_cut_into_blocks(name, monkeypatch):
     doc = _variants()[name]
     reference = _frames(doc, 2, True, monkeypatch)
@@ -112,7 +118,7 @@ def test_a_block_whose_chain_table_overflows_is_traced_again_with_a_larger_one(n
             np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("name", ["demo", "mirrors_order4", "double_beam=separate"])
+@pytest.mark.parametrize("name", ["demo", "mirrors_order4", "double_beam=separate", "mirrors_smooth_separate"])
 def test_a_path_buffer_laid_out_for_the_counted_paths_gives_the_same_frames(name, monkeypatch):
     """Past ``PATH_BUFFER_BYTES`` (here: always) a frame counts its paths in a first pass and
     lays its path buffer out for them alone: the same frames, labels and signatures, and a
@@ -122,8 +128,8 @@ def test_a_path_buffer_laid_out_for_the_counted_paths_gives_the_same_frames(name
     sizes = []
     real = compiled.PathBuffer.__init__
 
-    def spy(self, options, offset, size, n_blocks, pool=None):
-        real(self, options, offset, size, n_blocks, pool)
+    def spy(self, options, offset, size, n_blocks, pool=None, swap=None):
+        real(self, options, offset, size, n_blocks, pool, swap)
         sizes.append((size, self))
 
     monkeypatch.setattr(compiled.PathBuffer, "__init__", spy)
@@ -364,7 +370,7 @@ def test_a_path_buffer_too_small_for_the_options_is_refused_and_the_next_frame_r
     with sonarsim.Simulator(demo_scene_dict()) as sim:
         good = sim.render(speckle=False).polar
         options = compiled._options
-        monkeypatch.setattr(compiled, "_options", lambda *a: (*options(*a)[:2], 1))  # room for one path
+        monkeypatch.setattr(compiled, "_options", lambda *a: (*options(*a)[:2], 1, options(*a)[3]))  # room for one
         with pytest.raises(ValueError, match="does not fit in the path buffer"):
             sim.render()
         monkeypatch.setattr(compiled, "_options", options)
@@ -639,8 +645,9 @@ def test_the_layout_kernel_forms_the_image_sources_and_offsets_as_numpy_does(mon
     layout = compiled._options
 
     def checking(table, n_gen, max_order, double_beam, engine, work):
-        options, offset, size = layout(table, n_gen, max_order, double_beam, engine, work)
+        options, offset, size, only = layout(table, n_gen, max_order, double_beam, engine, work)
         gen, tx, same, _, length, _, sources, _, _ = options
+        assert (only == -1).all()  # (planes only: every transmit chain flat)
         for o in range(len(gen)):
             if same[o]:
                 assert not sources[o].any()
@@ -651,7 +658,7 @@ def test_the_layout_kernel_forms_the_image_sources_and_offsets_as_numpy_does(mon
         np.testing.assert_array_equal(offset, np.concatenate([[0], np.cumsum(capacity)[:-1]]))
         assert size == capacity.sum()
         seen.append(int((same == 0).sum()))
-        return options, offset, size
+        return options, offset, size, only
 
     frame_legs = compiled.FrameLegs
     engine_live = []

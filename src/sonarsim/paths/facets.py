@@ -202,7 +202,7 @@ class FacetSet:
         v = np.asarray(uv, dtype=float)[:, 1:2]
         c = self.corner_normals[f]
         m = (1.0 - u - v) * c[:, 0] + u * c[:, 1] + v * c[:, 2]
-        m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-300)
+        m /= np.maximum(np.sqrt(_dot3(m, m)), 1e-300)[:, None]  # (summed as the kernels sum)
         return np.where(smooth[:, None], m, n)
 
     def contains_mirror(self, m: int, points: np.ndarray) -> np.ndarray:

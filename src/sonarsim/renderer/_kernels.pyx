@@ -423,6 +423,8 @@ cdef struct MirrorTables:
     const int64_t* obj_start      # (K + 1,): object k's facets are obj_start[k] .. obj_start[k + 1] - 1
     const double* obj_specular    # (K,)
     const signed char* obj_side   # (K,): +1 / -1 the side it mirrors on, 0 both
+    const unsigned char* obj_smooth  # (K,): mirrors about the normals interpolated from its corners
+    const double* corner_normals  # (F, 3, 3) (NULL: no smooth object)
     const int64_t* facet_mirror   # (F,)
     const double* facet_normal    # (F, 3)
     const double* corners         # (F, 3, 3)
@@ -444,6 +446,9 @@ cdef class Mirrors:
     mirror_start : (M + 1,) int64, mirror_facets : (F,) int64, mirror_obj : (M,) int32
     mirror_normal : (M, 3) float64, mirror_offset : (M,) float64
         Per mirror: its facets, its object, its plane (``n . x = offset``).
+    smooth : (K,) bool, corner_normals : (F, 3, 3) float64, optional
+        The objects that mirror about the normals interpolated from their corners' (``normals:
+        smooth``), and those normals (needed where one is).
     """
 
     cdef MirrorTables t
@@ -451,8 +456,11 @@ cdef class Mirrors:
     cdef readonly Py_ssize_t n_mirrors
 
     def __init__(self, start, specular, side, mirror, normal, corners, mirror_start, mirror_facets, mirror_obj,
-                 mirror_normal, mirror_offset):
-        a = dict(mirror_normal=np.ascontiguousarray(mirror_normal, np.float64).reshape(-1, 3),
+                 mirror_normal, mirror_offset, smooth=None, corner_normals=None):
+        n_obj = np.asarray(specular).reshape(-1).shape[0]
+        a = dict(smooth=np.ascontiguousarray(np.zeros(n_obj, bool) if smooth is None else smooth, np.uint8),
+                 corner_normals=np.ascontiguousarray(np.zeros((0, 3, 3)) if corner_normals is None else corner_normals,
+                                                     np.float64).reshape(-1, 3, 3), mirror_normal=np.ascontiguousarray(mirror_normal, np.float64).reshape(-1, 3),
                  mirror_offset=np.ascontiguousarray(mirror_offset, np.float64), start=np.ascontiguousarray(start, np.int64), specular=np.ascontiguousarray(specular, np.float64),
                  side=np.ascontiguousarray(side, np.int8), mirror=np.ascontiguousarray(mirror, np.int64),
                  normal=np.ascontiguousarray(normal, np.float64).reshape(-1, 3),
@@ -463,7 +471,8 @@ cdef class Mirrors:
         cdef Py_ssize_t K = a["specular"].shape[0], F = a["mirror"].shape[0], M = a["mirror_obj"].shape[0]
         if (a["start"].shape[0] != K + 1 or a["side"].shape[0] != K or a["normal"].shape[0] != F
                 or a["corners"].shape[0] != F or a["mirror_start"].shape[0] != M + 1 or a["mirror_facets"].shape[0] != F
-                or a["mirror_normal"].shape[0] != M or a["mirror_offset"].shape[0] != M):
+                or a["mirror_normal"].shape[0] != M or a["mirror_offset"].shape[0] != M or a["smooth"].shape[0] != K
+                or (a["smooth"].any() and a["corner_normals"].shape[0] != F)):
             raise ValueError("mirror tables of inconsistent lengths")
         if K and (a["start"][0] != 0 or a["start"][K] != F or np.any(np.diff(a["start"]) < 0)):
             raise ValueError("object facet ranges do not cover the facets in order")
@@ -483,6 +492,8 @@ cdef class Mirrors:
         self.t.obj_start = <const int64_t*>_address(a["start"])
         self.t.obj_specular = <const double*>_address(a["specular"])
         self.t.obj_side = <const signed char*>_address(a["side"])
+        self.t.obj_smooth = <const unsigned char*>_address(a["smooth"])
+        self.t.corner_normals = <const double*>_address(a["corner_normals"]) if a["smooth"].any() else NULL
         self.t.facet_mirror = <const int64_t*>_address(a["mirror"])
         self.t.facet_normal = <const double*>_address(a["normal"])
         self.t.corners = <const double*>_address(a["corners"])
@@ -492,12 +503,10 @@ cdef class Mirrors:
 
     @classmethod
     def of(cls, facets):
-        """The tables of a ``FacetSet`` whose objects all mirror about flat normals."""
-        if facets.corner_normals is not None and np.any(facets.smooth & (facets.specular > 0)):
-            raise ValueError("the kernels mirror about flat normals only (smooth mirrors: the NumPy twins)")
+        """The tables of a ``FacetSet``."""
         return cls(facets.start, facets.specular, facets.side, facets.mirror, facets.normal, facets.corners,
                    facets.mirror_start, facets.mirror_facets, facets.mirror_obj, facets.mirror_normal,
-                   facets.mirror_offset)
+                   facets.mirror_offset, facets.smooth, facets.corner_normals)
 
 
 
@@ -514,6 +523,33 @@ cdef inline int64_t facet_of(const MirrorTables* mt, Py_ssize_t obj, int prim) n
         return -1
     f = mt.obj_start[obj] + prim
     return f if f < mt.obj_start[obj + 1] else -1
+
+
+cdef inline void smooth_normal(const double* c, float u, float v, double dx, double dy, double dz,
+                               double* nx, double* ny, double* nz) noexcept nogil:
+    """The normal a ray along ``d`` meeting a smooth facet at barycentric ``(u, v)`` reflects
+    about: its corners' normals ``c`` (9 numbers) interpolated and made unit; where that would
+    turn a grazing ray into the surface, the facet's own (``n*`` on entry) (twin:
+    ``FacetSet.reflecting_normal`` and ``engine.trace_generation``)."""
+    cdef double uu = u, vv = v, w = 1.0 - uu - vv
+    cdef double mx = w * c[0] + uu * c[3] + vv * c[6]
+    cdef double my = w * c[1] + uu * c[4] + vv * c[7]
+    cdef double mz = w * c[2] + uu * c[5] + vv * c[8]
+    cdef double length = sqrt(mx * mx + my * my + mz * mz), twice, rx, ry, rz
+    if length < 1e-300:
+        length = 1e-300
+    mx = mx / length
+    my = my / length
+    mz = mz / length
+    twice = 2.0 * (dx * mx + dy * my + dz * mz)
+    rx = dx - twice * mx
+    ry = dy - twice * my
+    rz = dz - twice * mz
+    if (rx * nx[0] + ry * ny[0] + rz * nz[0]) * (dx * nx[0] + dy * ny[0] + dz * nz[0]) > 0:
+        return  # the interpolated normal would send it on through: the facet's own
+    nx[0] = mx
+    ny[0] = my
+    nz[0] = mz
 
 
 cdef inline bint in_triangle(const double* c, double wx, double wy, double wz) noexcept nogil:
@@ -700,6 +736,8 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
             nx = mt.facet_normal[3 * facet]
             ny = mt.facet_normal[3 * facet + 1]
             nz = mt.facet_normal[3 * facet + 2]
+            if mt.obj_smooth[s - P]:
+                smooth_normal(mt.corner_normals + 9 * facet, hit_uv[k, 0], hit_uv[k, 1], dx, dy, dz, &nx, &ny, &nz)
             spec = mt.obj_specular[s - P]
             hk = <int64_t>ch * mt.n_mirrors + mt.facet_mirror[facet]
             slot = hash_slot(hkeys, hmask, hk)
@@ -917,11 +955,14 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
                 const unsigned char[::1] plane_active,
                 Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
                 int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label,
-                const MirrorTables* mt, const int* leg_prim, double sin_half, const double* tan_edges) noexcept nogil:
+                const MirrorTables* mt, const int* leg_prim, double sin_half, const double* tan_edges,
+                int only=-1) noexcept nogil:
     """The loop of :func:`path_events` (also run by :class:`PathBlocks`). ``plane_normal`` and
     ``plane_offset`` hold the planes, then (with ``mt``) the mesh mirrors' planes; the water is
     bounded by the first ``plane_active.shape[0]`` (the planes). ``leg_prim``: the legs'
-    triangles (dense; needed where a chain ends on a mesh mirror)."""
+    triangles (dense; needed where a chain ends on a mesh mirror). ``only`` >= 0: only the rays
+    whose receive chain is that one, each paired with the transmit chain whatever their ranks
+    (a smooth mirror's reciprocal partners: ``engine.reciprocal_sets``)."""
 
     cdef Py_ssize_t k, i, m = 0, n = live.shape[0], K = tx_planes.shape[0], j, q, P = plane_active.shape[0]
     cdef int c, s, last = tx_planes[K - 1] if K > 0 else -1, rank_tx = rank[tx] if not same else 0
@@ -949,6 +990,8 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
             m += 1
             continue
         c = chain[i]
+        if only >= 0 and c != only:
+            continue
         if c == tx:
             continue
         if last < n_planes:
@@ -958,7 +1001,7 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
             f = facet_of(mt, s - n_planes, leg_prim[i])
             if f >= 0 and mt.facet_mirror[f] == last - n_planes:
                 continue
-        if not separate and rank[c] <= rank_tx:
+        if not separate and only < 0 and rank[c] <= rank_tx:
             continue
         ax = point[i, 0]
         ay = point[i, 1]
@@ -1088,13 +1131,14 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
                 const unsigned char[::1] plane_active,
                 Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
                 int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label, Mirrors mirrors=None,
-                const int[::1] prim=None):
+                const int[::1] prim=None, int only=-1):
     """Paths of one generation's receive legs and one transmit option (twin:
     ``engine.option_paths``).
 
     With ``mirrors`` (:class:`Mirrors`), ``plane_normal`` and ``plane_offset`` hold the P planes
     (``plane_active``'s length) and then the M mesh mirrors' planes, a chain's mirror ``P + m``
-    is mesh mirror m, and ``prim`` (dense) holds the legs' triangles.
+    is mesh mirror m, and ``prim`` (dense) holds the legs' triangles. ``only`` >= 0: only the
+    rays whose receive chain is ``only``, whatever the ranks (a smooth mirror's partners).
 
     ``same``: the transmit leg is the receive leg reversed (order label ``label``; for the
     first generation the label is 0 on objects, 1 on planes). Otherwise the transmit leg
@@ -1125,7 +1169,7 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
             raise ValueError("mirrors need the legs' triangles (prim, dense)")
         pp = &prim[0] if prim.shape[0] else NULL
     with nogil:
-        m = path_events_impl(live, dist, sid, point, intensity, atten, chain, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, ox, oy, oz, rotation, edges, half_elevation_deg, range_min, range_max, plane_normal, plane_offset, plane_active, out_ray, out_dist, out_energy, out_beam, out_beam_tx, out_label, mt, pp, sin_half, tp)
+        m = path_events_impl(live, dist, sid, point, intensity, atten, chain, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, ox, oy, oz, rotation, edges, half_elevation_deg, range_min, range_max, plane_normal, plane_offset, plane_active, out_ray, out_dist, out_energy, out_beam, out_beam_tx, out_label, mt, pp, sin_half, tp, only)
     return m
 
 
@@ -1841,7 +1885,7 @@ cdef class PathBlocks:
     cdef Py_ssize_t n_gen, n_el, n_bins, n_beams, rays_per_beam, n_surfaces, n_planes
     cdef bint ready
     # Per frame, after tracing (options()).
-    cdef const int[::1] opt_gen, opt_tx, opt_same, opt_label, opt_len, rank
+    cdef const int[::1] opt_gen, opt_tx, opt_same, opt_label, opt_len, rank, opt_only
     cdef const double[:, :, ::1] opt_unfold, opt_sources
     cdef const int[:, ::1] opt_planes
     cdef const double[::1] opt_specular
@@ -2024,6 +2068,7 @@ cdef class PathBlocks:
         self.labels = None
         self.opt_map = None
         self.opt_moments = None
+        self.opt_only = None
         self.has_labels = False
         self.ready = False
         self.paths_ready = False
@@ -2250,7 +2295,7 @@ cdef class PathBlocks:
                 double[::1] p_energy, int[::1] p_beam, int[::1] p_beam_tx, signed char[::1] p_label,
                 bint splat=True, float[::1] total=None, tuple rows=(), LabelMaps labels=None,
                 const int[::1] order_map=None, const unsigned char[::1] moments=None,
-                const Py_ssize_t[::1] capacity=None, bint counting=False):
+                const Py_ssize_t[::1] capacity=None, bint counting=False, const int[::1] only=None):
         """Set what :meth:`paths` forms: each block's chain ids to the frame's (``remap``,
         (n_blocks, capacity)), the chains' ranks, the transmit options in order (generation,
         chain, same, image row, chain length, its unfolding map, the sonar's images, its
@@ -2270,7 +2315,9 @@ cdef class PathBlocks:
         room for an option: the counts of a ``counting`` pass, which forms the paths into the
         engine's own scratch and only counts them (``count``: no splat, labels or total; the
         path buffer arrays may be empty), so that a frame of many transmit options (mesh
-        mirrors) lays out a path buffer of its paths, not of its candidates."""
+        mirrors) lays out a path buffer of its paths, not of its candidates. ``only`` (per option,
+        -1: none): the option pairs its transmit chain with the rays of that receive chain alone,
+        whatever the ranks (a smooth mirror's reciprocal partners)."""
         if counting and (splat or total is not None or labels is not None):
             raise ValueError("a counting pass forms no image, total or labels")
         if counting and self.scratch_ray.shape[0] < self.fan_dirs.shape[0]:
@@ -2355,6 +2402,13 @@ cdef class PathBlocks:
             self.total_rows[o] = rows[o]
         if capacity is not None and capacity.shape[0] != offset.shape[0]:
             raise ValueError("a capacity per option and block, as the offsets")
+        if only is not None:
+            if only.shape[0] != n_opt:
+                raise ValueError("an 'only' chain per transmit option")
+            for o in range(n_opt):
+                if not -1 <= only[o] < rank.shape[0] or (only[o] >= 0 and same[o]):
+                    raise ValueError(f"transmit option {o}: only chain {only[o]} of {rank.shape[0]}")
+        self.opt_only = only if only is not None else np.full(n_opt, -1, np.int32)
         self.capacity, self.counting = capacity, counting
         self.paths_ready = True
 
@@ -2397,7 +2451,7 @@ cdef class PathBlocks:
                 off = self.p_offset[o * self.n_blocks + k]
                 K = self.opt_len[o]
                 rays = self.live[g, a:a + n]
-                if not self.opt_same[o] and not self.separate and g > 0:
+                if not self.opt_same[o] and not self.separate and g > 0 and self.opt_only[o] < 0:
                     # Only the rays whose chain outranks the transmit chain make paths (each
                     # reciprocal pair once). A generation's options come by rising rank: the
                     # rays left for one are those left for the one before that outrank it, kept
@@ -2429,7 +2483,8 @@ cdef class PathBlocks:
                         self.surf_offset, self.active, self.scratch_ray[a:a + n], self.scratch_dist[a:a + n],
                         self.scratch_energy[a:a + n], self.scratch_beam[a:a + n], self.scratch_beam_tx[a:a + n],
                         self.scratch_label[a:a + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL,
-                        self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL)
+                        self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL,
+                        self.opt_only[o])
                     self.p_count[o * self.n_blocks + k] = cnt
                     continue
                 if self.capacity is not None:  # room for what the counting pass counted
@@ -2444,7 +2499,7 @@ cdef class PathBlocks:
                     self.surf_offset, self.active, self.p_ray[off:off + n], self.p_dist[off:off + n],
                     self.p_energy[off:off + n], self.p_beam[off:off + n], self.p_beam_tx[off:off + n],
                     self.p_label[off:off + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL,
-                    self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL)
+                    self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL, self.opt_only[o])
                 self.p_count[o * self.n_blocks + k] = cnt
                 if has_labels and cnt:
                     labels.seg_count[o * self.n_blocks + k] = labels.deposit(

@@ -531,23 +531,45 @@ def _frame_chains(table, engine, work: Workspace):
 def _option_table(table, n_gen: int, max_order: int, double_beam: str) -> tuple:
     """The frame's transmit options (:func:`sonarsim.paths.engine.frame_options`, in its order)
     as the arrays of ``PathBlocks.options``: ``(gen, tx, same, label, length, unfold,
-    chain_planes, specular)``. Depends on the chains, not on the pose (see :func:`_options`)."""
-    from ..paths.engine import SAME, frame_options
+    chain_planes, specular, only)``. Depends on the chains, not on the pose (see :func:`_options`).
 
-    rows = [(g, 0 if tx == SAME else tx, tx == SAME, row) for g, tx, row in frame_options(table, n_gen, max_order,
-                                                                                          double_beam)]
+    An option whose transmit chain meets a smooth mirror (no image source) is formed from its
+    reciprocal partners, after the others, as ``engine.reciprocal_sets`` forms them: the receive
+    legs that followed it (``only``: that chain; -1 for the others) with a transmit leg along
+    each flat chain that pairs with it."""
+    from ..paths.engine import SAME, chain_ranks, frame_options
+
+    rows, smooth = [], []  # rows: (generation, chain, same, image row, only)
+    for g, tx, row in frame_options(table, n_gen, max_order, double_beam):
+        if tx != SAME and not table.flat(tx):
+            smooth.append((g, tx, row))
+            continue
+        rows.append((g, 0 if tx == SAME else tx, tx == SAME, row, -1))
+    if smooth:
+        rank = chain_ranks(table)
+        flat = [table.flat(c) for c in range(len(table))]
+        for g, tx, row in smooth:
+            k = table.length(tx)
+            if k >= n_gen:
+                continue
+            for c in range(len(table)):
+                if c == tx or table.length(c) != g or not flat[c]:
+                    continue
+                if double_beam != "separate" and not rank[c] > rank[tx]:
+                    continue  # the pair is formed from the other member, or not at all
+                rows.append((k, c, False, row, tx))
     n_opt = len(rows)
     length = np.array([0 if r[2] else table.length(r[1]) for r in rows], np.int32)
     unfold = np.zeros((n_opt, 3, 4))
     chain_planes = np.zeros((n_opt, max(int(length.max(initial=0)), 1)), np.int32)
     specular = np.ones(n_opt)
-    for o, (_, c, same, _) in enumerate(rows):
+    for o, (_, c, same, _, _) in enumerate(rows):
         unfold[o] = table.unfold(c)
         if not same:
             chain_planes[o, : length[o]] = table.chains[c]
             specular[o] = table.specular(c)
-    columns = [np.array([r[k] for r in rows], np.int32) for k in range(4)]
-    return (*columns, length, unfold, chain_planes, specular)
+    columns = [np.array([r[k] for r in rows], np.int32) for k in range(5)]
+    return (*columns[:4], length, unfold, chain_planes, specular, columns[4])
 
 
 def _options(table, n_gen: int, max_order: int, double_beam: str, engine, work: Workspace):
@@ -555,7 +577,7 @@ def _options(table, n_gen: int, max_order: int, double_beam: str, engine, work: 
     the frames meet the same chains), the sonar's images along each option's chain, and the
     path buffer's offsets and size (option-major; a block's capacity for an option is its
     generation's live rays): those two formed by ``engine.layout`` in one call (twin:
-    ``ChainTable.sources``, and the live rays summed)."""
+    ``ChainTable.sources``, and the live rays summed); and each option's ``only`` chain."""
     key = (table.planes, tuple(table.chains), n_gen, max_order, double_beam)
     cached = work.options
     if cached is None or cached[0] is not key[0] or cached[1:4] != key[1:4] or cached[4] != double_beam:
@@ -563,11 +585,11 @@ def _options(table, n_gen: int, max_order: int, double_beam: str, engine, work: 
         # The sonar's images' room, overwritten each frame: only this frame's blocks read
         # them (PathBlocks.paths), before the next frame's layout.
         cached = work.options = (*key, arrays, np.zeros((len(arrays[0]), arrays[6].shape[1] + 1, 3)))
-    gen, tx, same, label, length, unfold, chain_planes, specular = cached[5]
+    gen, tx, same, label, length, unfold, chain_planes, specular, only = cached[5]
     sources = cached[6]
     offset = np.empty(len(gen) * engine.n_blocks, np.intp)  # the frame's own: its path buffer keeps it
     size = engine.layout(gen, same, length, chain_planes, sources, offset)
-    return (gen, tx, same, label, length, unfold, sources, chain_planes, specular), offset, size
+    return (gen, tx, same, label, length, unfold, sources, chain_planes, specular), offset, size, only
 
 
 # Bytes of one path in the path buffer (:class:`PathBuffer`: ray, distance, energy, beam,
@@ -582,7 +604,7 @@ PATH_BUFFER_BYTES = 64 * 2**20
 
 
 def _counted_layout(engine, remap: np.ndarray, rank: np.ndarray, options: tuple, offset: np.ndarray,
-                    paths, n_blocks: int, pool) -> tuple[np.ndarray, int, np.ndarray]:
+                    only: np.ndarray, paths, n_blocks: int, pool) -> tuple[np.ndarray, int, np.ndarray]:
     """Count the frame's paths option by option and block by block (a pass of ``engine.paths``
     that forms them into the engine's scratch, on both cores), and lay the path buffer out for
     them: ``(offset, size, capacity)``, each option's room in each block its count. ``paths(k,
@@ -590,7 +612,7 @@ def _counted_layout(engine, remap: np.ndarray, rank: np.ndarray, options: tuple,
     count = np.zeros(len(offset), np.intp)
     none = (np.empty(0, np.intp), np.empty(0), np.empty(0), np.empty(0, np.int32), np.empty(0, np.int32),
             np.empty(0, np.int8))
-    engine.options(remap, rank, *options, offset, count, *none, False, counting=True)
+    engine.options(remap, rank, *options, offset, count, *none, False, counting=True, only=only)
     on_both_cores(paths, n_blocks, pool, signals=True)
     exact = np.zeros(len(count), np.intp)
     np.cumsum(count[:-1], out=exact[1:])  # option-major, block after block
@@ -606,6 +628,9 @@ class PathBuffer:
     gen, tx, same : (n_options,) int32 ndarrays
         Each transmit option's receive generation, transmit chain and whether the transmit leg
         is the receive leg reversed.
+    swap : (n_options,) bool ndarray
+        The option's paths are a smooth mirror's reciprocal partners (``PathSet.swap``): formed
+        along its receive legs, recorded in their transmit beams.
     offset, count : (n_options * n_blocks,) intp ndarrays
         Where option o of block k starts (``o * n_blocks + k``) and how many paths it holds.
     ray, distance, energy, beam, beam_tx, label : ndarrays
@@ -614,8 +639,9 @@ class PathBuffer:
     """
 
     def __init__(self, options: tuple, offset: np.ndarray, size: int, n_blocks: int,
-                 pool: ArrayPool | None = None) -> None:
+                 pool: ArrayPool | None = None, swap: np.ndarray | None = None) -> None:
         self.gen, self.tx, self.same = options[0], options[1], options[2]
+        self.swap = np.zeros(len(self.gen), bool) if swap is None else np.asarray(swap, bool)
         self.n_blocks = n_blocks
         self.offset, self.count = offset, np.zeros(len(offset), np.intp)
         cap = 1 << max(size - 1, 0).bit_length()  # sizes vary from frame to frame: the pool's sets in powers of 2
@@ -640,9 +666,14 @@ class PathBuffer:
             def cat(a):
                 return a[parts[0]].copy() if len(parts) == 1 else np.concatenate([a[p] for p in parts])
 
-            out += option_sets(int(self.gen[o]), SAME if self.same[o] else int(self.tx[o]), cat(self.ray),
-                               cat(self.distance), cat(self.energy), cat(self.beam), cat(self.beam_tx),
-                               cat(self.label), double_beam)
+            beam, beam_tx = cat(self.beam), cat(self.beam_tx)
+            if self.swap[o]:  # a smooth mirror's reciprocal partners: in the beam they arrive in
+                beam, beam_tx = beam_tx, beam
+            sets = option_sets(int(self.gen[o]), SAME if self.same[o] else int(self.tx[o]), cat(self.ray),
+                               cat(self.distance), cat(self.energy), beam, beam_tx, cat(self.label), double_beam)
+            for s in sets:
+                s.swap = bool(self.swap[o])
+            out += sets
         return out
 
 
@@ -770,13 +801,18 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
                 if legs_out.n_cast[:, g].any():
                     scale_by_texture(legs_out.intensity[g], legs_out.sid[g], legs_out.point[g], textures)
         table, remap = _frame_chains(table, engine, work)
-        options, offset, size = _options(table, n_generations, render.max_order, render.double_beam, engine, work)
+        options, offset, size, only = _options(table, n_generations, render.max_order, render.double_beam, engine,
+                                               work)
+        # A smooth mirror's reciprocal partners arrive in their partners' transmit beams, which
+        # may be another block's: such a frame splats after its blocks, as 'split' does.
+        in_blocks = in_blocks and not (only >= 0).any()
         rank = np.arange(len(table), dtype=np.int32)  # canonical ids are ranks (ChainTable.key)
         capacity = None
         if size * PATH_BYTES > PATH_BUFFER_BYTES:  # many transmit options: room for the paths, not the candidates
-            offset, size, capacity = _counted_layout(engine, remap, rank, options, offset, paths, len(blocks), pool)
+            offset, size, capacity = _counted_layout(engine, remap, rank, options, offset, only, paths, len(blocks),
+                                                     pool)
             require(size * PATH_BYTES, f"the frame's {size} paths", "render.max_order")
-        buffer = PathBuffer(options, offset, size, len(blocks), work.paths_pool)
+        buffer = PathBuffer(options, offset, size, len(blocks), work.paths_pool, swap=only >= 0)
         total = np.empty(stack.shape[1] * stack.shape[2], np.float32) if in_blocks and sum_rows else None
         truth, deposit = None, ()
         if labels is not None and in_blocks:
@@ -785,7 +821,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
             deposit = (truth.maps, *truth.option_maps(options[3]))
         engine.options(remap, rank, *options, buffer.offset, buffer.count, buffer.ray, buffer.distance,
                        buffer.energy, buffer.beam, buffer.beam_tx, buffer.label, in_blocks, total, tuple(sum_rows),
-                       *(deposit or (None, None, None)), capacity=capacity)
+                       *(deposit or (None, None, None)), capacity=capacity, only=only)
         on_both_cores(paths, len(blocks), pool, signals=True)
     finally:
         engine.release()

@@ -189,13 +189,10 @@ class Simulator:
 
     @property
     def path_kernels(self) -> str:
-        """The kernels the path engine runs on: :attr:`kernels`, but the NumPy twins where
-        objects mirror about smooth normals or the specular returns are traced (the compiled
-        kernels cover the scattered paths over planes and flat mesh mirrors)."""
-        render = self.scene.render
-        facets = self.facets
-        smooth = facets is not None and render.max_order > 1 and bool(np.any(facets.smooth & (facets.specular > 0)))
-        return "numpy" if smooth or render.glints else self.kernels
+        """The kernels the path engine runs on: :attr:`kernels`, but the NumPy twins where the
+        specular returns are traced (the compiled kernels cover the scattered paths over
+        planes and mesh mirrors)."""
+        return "numpy" if self.scene.render.glints else self.kernels
 
     def _warn_if_inside(self, position: np.ndarray, stacklevel: int) -> None:
         """Warn (once per object) when the sonar at ``position`` lies inside a closed object."""
