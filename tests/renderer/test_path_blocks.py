@@ -63,6 +63,15 @@ def _variants():
             obj["normals"] = "smooth"
     smooth["render"]["double_beam"] = "separate"
     out["mirrors_smooth_separate"] = smooth
+    # And the specular returns (one generation more, traced): the far wall met square on, the
+    # sonar level.
+    glints = _tank(2, 4)
+    for obj in glints["objects"]:
+        if obj["name"] in ("concrete_block", "pipe"):
+            obj["specular"] = 0.5
+    glints["sonar"]["pose"]["rpy_deg"] = [0.0, 3.0, 0.0]
+    glints["render"].update(glints=True, glint_radius_m=0.2)
+    out["mirrors_glints"] = glints
     return out
 
 
@@ -100,7 +109,8 @@ def test_fused_blocks_equal_the_stages_with_python_casting(name, monkeypatch):
             np.testing.assert_array_equal(a, b, err_msg=f"threads={threads} fused={fused}")
 
 
-@pytest.mark.parametrize("name", ["demo", "tank6_order3", "tank2_order5", "mirrors_order4", "mirrors_smooth_separate"])
+@pytest.mark.parametrize("name", ["demo", "tank6_order3", "tank2_order5", "mirrors_order4", "mirrors_smooth_separate",
+                                  "mirrors_glints"])
 def test_the_image_does_not_depend_on_how_the_beams_are_cut_into_blocks(name, monkeypatch):
     doc = _variants()[name]
     reference = _frames(doc, 2, True, monkeypatch)

@@ -944,6 +944,36 @@ cdef inline bint walk(double ax, double ay, double az, Py_ssize_t K, const int* 
     return True
 
 
+cdef void returns_impl(const Py_ssize_t* ray, const double* org, const double* dirs, const double* before,
+                       const double* atten, const int* chain, Py_ssize_t m, const double* reached,
+                       const double* origin, double radius2, double reach, double* back_length,
+                       double* back_atten, double* back_dir, int* back_chain) noexcept nogil:
+    """The specular returns among ``m`` rays reflected at the last generation's scatterers
+    (twin: ``engine.returns_to_sonar``): a ray whose line passes within the disc of radius
+    ``sqrt(radius2)`` round the sonar, ahead of it and before the surface it reaches
+    (``reached``: the next generation's dense distances, inf: nothing) and within the reach,
+    writes its length to the sonar's foot, its attenuation, direction and chain at its fan ray."""
+    cdef Py_ssize_t k, i
+    cdef double wx, wy, wz, dx, dy, dz, t, miss2
+    for k in range(m):
+        dx = dirs[3 * k]
+        dy = dirs[3 * k + 1]
+        dz = dirs[3 * k + 2]
+        wx = origin[0] - org[3 * k]
+        wy = origin[1] - org[3 * k + 1]
+        wz = origin[2] - org[3 * k + 2]
+        t = wx * dx + wy * dy + wz * dz
+        miss2 = (wx * wx + wy * wy + wz * wz) - t * t
+        i = ray[k]
+        if t > 0.0 and t < reached[i] - before[k] and miss2 <= radius2 and before[k] + t <= reach:
+            back_length[i] = before[k] + t
+            back_atten[i] = atten[k]
+            back_dir[3 * i] = dx
+            back_dir[3 * i + 1] = dy
+            back_dir[3 * i + 2] = dz
+            back_chain[i] = chain[k]
+
+
 cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] dist, const int[::1] sid,
                 const double[:, ::1] point, const double[::1] intensity, const double[::1] atten,
                 const int[::1] chain, bint same, int tx, const double[:, ::1] unfold,
@@ -1862,6 +1892,12 @@ cdef class PathBlocks:
     cdef readonly Py_ssize_t n_blocks
     # Per frame.
     cdef double[:, ::1] dist, intensity, atten, cosine
+    # The specular returns (frame(glint_radius=...)): each generation's rays that, reflected at
+    # its scatterer, come back to the sonar (engine.returns_to_sonar); glint_r2 <= 0: not traced.
+    cdef double[:, ::1] back_length, back_atten
+    cdef double[:, :, ::1] back_dir
+    cdef int[:, ::1] back_chain
+    cdef double glint_r2
     cdef float[:, ::1] texel
     cdef int[:, ::1] sid, chain, key, prim
     cdef double[:, :, ::1] point
@@ -1995,7 +2031,8 @@ cdef class PathBlocks:
     def frame(self, legs, const unsigned char[::1] active, const double[:, ::1] rotation, const double[::1] origin,
               double reach, bint tvg, Py_ssize_t n_gen, Py_ssize_t n_el, double range_min, double dr,
               Py_ssize_t n_bins, Py_ssize_t n_beams, double range_max, double half_el, const double[::1] edges,
-              bint spread, bint separate, Py_ssize_t n_surfaces, float[::1] out=None, bint primitives=False):
+              bint spread, bint separate, Py_ssize_t n_surfaces, float[::1] out=None, bint primitives=False,
+              double glint_radius=0.0):
         """Set the frame: ``out`` (optional: the flat image stack the blocks will splat into;
         block k zeroes its k-th share of the range bins while it traces, whole rows at a time,
         contiguous), ``legs`` (``dist``, ``sid``, ``point``, ``normal``, ``cosine``,
@@ -2012,6 +2049,11 @@ cdef class PathBlocks:
             raise ValueError(f"{active.shape[0]} active flags for {self.n_planes} planes")
         if self.mt != NULL and not primitives:
             raise ValueError("mesh mirrors need the search's triangles (primitives)")
+        if glint_radius > 0.0:  # the specular returns: each generation's back_* arrays
+            for name in ("back_length", "back_atten", "back_chain", "back_dir"):
+                a = getattr(legs, name, None)
+                if a is None or a.shape[0] < n_gen or a.shape[1] != n or (name == "back_dir" and a.shape[2] != 3):
+                    raise ValueError(f"legs.{name} missing or of the wrong shape for the specular returns")
         if rotation.shape[0] != 3 or rotation.shape[1] != 3 or origin.shape[0] != 3:
             raise ValueError("the rotation is not 3 x 3 or the origin not 3 numbers")
         if n_gen < 1 or n_beams < 1 or n_el < 1 or n % (n_beams * n_el) != 0 or edges.shape[0] != n_beams + 1:
@@ -2030,6 +2072,10 @@ cdef class PathBlocks:
         self.dist, self.sid, self.point, self.normal = legs.dist, legs.sid, legs.point, legs.normal
         self.intensity, self.atten, self.chain, self.key = legs.intensity, legs.atten, legs.chain, legs.key
         self.cosine = legs.cosine
+        self.glint_r2 = glint_radius * glint_radius if glint_radius > 0.0 else 0.0
+        if self.glint_r2 > 0.0:
+            self.back_length, self.back_atten = legs.back_length, legs.back_atten
+            self.back_dir, self.back_chain = legs.back_dir, legs.back_chain
         self.texel = legs.texel if legs.texel is not None else np.zeros((n_gen, 0), np.float32)
         self.live, self.n_live, self.n_cast = legs.live, legs.n_live, legs.n_cast
         self.primitives = primitives
@@ -2054,6 +2100,10 @@ cdef class PathBlocks:
         """Let go of the frame's arrays (the legs, the path buffer, the stack): the caller
         reuses them for a later frame once nothing else holds them."""
         self.dist = self.intensity = self.atten = self.cosine = None
+        self.back_length = self.back_atten = None
+        self.back_dir = None
+        self.back_chain = None
+        self.glint_r2 = 0.0
         self.texel = None
         self.sid = self.chain = self.key = None
         self.point = self.normal = None
@@ -2094,6 +2144,11 @@ cdef class PathBlocks:
         for g in range(self.n_gen):
             self.n_live[k, g] = 0
             self.n_cast[k, g] = 0
+        if self.glint_r2 > 0.0:
+            for g in range(self.n_gen):
+                for i in range(a, b):
+                    self.back_length[g, i] = INFINITY
+                    self.back_chain[g, i] = -1
         for g in range(1, self.n_gen):
             for i in range(a, b):
                 self.dist[g, i] = INFINITY
@@ -2166,6 +2221,11 @@ cdef class PathBlocks:
                                self.uv[g] if self.primitives else self.no_uv, self.mt, &self.hkeys[k, 0],
                                &self.hvals[k, 0], self.hkeys.shape[1] - 1, &self.parent[k, 0],
                                &self.last_mirror[k, 0])
+        if g > 0 and self.glint_r2 > 0.0:
+            returns_impl(&self.r_ray[cur, a], &self.r_org[cur, a, 0], &self.r_dir[cur, a, 0], &self.r_before[cur, a],
+                         &self.r_atten[cur, a], &self.r_chain[cur, a], m, &self.dist[g, 0], self.origin,
+                         self.glint_r2, self.reach, &self.back_length[g - 1, 0], &self.back_atten[g - 1, 0],
+                         &self.back_dir[g - 1, 0, 0], &self.back_chain[g - 1, 0])
         self.blk_m[k] = r[0] if reflect else 0
         self.n_local[k] = r[1]
         self.blk_min[k] = r[2]
@@ -2439,6 +2499,11 @@ cdef class PathBlocks:
                 ss_flag_store(go, 1)
             if not self.remapped[k]:  # once a frame (a counting pass came first, or not)
                 self.remapped[k] = 1
+                if self.glint_r2 > 0.0:  # the specular returns' chains
+                    for g in range(self.n_gen):
+                        for i in range(a, b):
+                            if self.back_chain[g, i] >= 0:
+                                self.back_chain[g, i] = self.remap[k, self.back_chain[g, i]]
                 for g in range(1, self.n_gen):
                     for i in range(a, b):
                         if self.sid[g, i] >= 0:

@@ -24,7 +24,7 @@ from concurrent.futures import TimeoutError as FuturesTimeout
 
 import numpy as np
 
-from ..paths.engine import Leg
+from ..paths.engine import Leg, glint_sets
 from ..core.radiometry import SurfaceLaws
 
 from ..core.rays import RayFan
@@ -415,7 +415,8 @@ class FrameLegs:
     """
 
     def __init__(self, n_gen: int, n: int, n_blocks: int, pool: ArrayPool | None = None,
-                 primitives: bool = False, textured: bool = False) -> None:
+                 primitives: bool = False, textured: bool = False, glints: bool = False,
+                 n_legs: int | None = None) -> None:
         f, i = np.float64, np.int32
         shapes = {"dist": ((n_gen, n), f), "cosine": ((n_gen, n), f), "intensity": ((n_gen, n), f),
                   "atten": ((n_gen, n), f), "sid": ((n_gen, n), i), "chain": ((n_gen, n), i), "key": ((n_gen, n), i),
@@ -425,6 +426,13 @@ class FrameLegs:
             shapes.update(prim=((n_gen, n), i), uv=((n_gen, n, 2), np.float32))
         if textured:
             shapes.update(texel=((n_gen, n), np.float32))
+        self.back_length = self.back_atten = self.back_dir = self.back_chain = None
+        if glints:
+            shapes.update(back_length=((n_gen, n), f), back_atten=((n_gen, n), f), back_dir=((n_gen, n, 3), f),
+                          back_chain=((n_gen, n), i))
+        # The generations that are the frame's legs: with the specular returns, one more is
+        # traced for the returns of the last one's reflections alone.
+        self.n_legs = n_gen if n_legs is None else n_legs
         arrays = pool.take(shapes) if pool is not None else {k: np.empty(*v) for k, v in shapes.items()}
         for name, (shape, _) in shapes.items():  # views of exactly the frame's shape
             a = arrays[name]
@@ -438,7 +446,7 @@ class FrameLegs:
     def views(self, work: Workspace) -> list[Leg]:
         """The generations that cast any ray, as :class:`Leg` views."""
         out = []
-        for g in range(self.dist.shape[0]):
+        for g in range(self.n_legs):
             if g and not self.n_cast[:, g].any():
                 break
             first = g == 0
@@ -447,6 +455,9 @@ class FrameLegs:
                            keys=self.sid[g] if first else self.key[g],
                            prim=None if self.prim is None else self.prim[g], uv=None if self.uv is None else self.uv[g],
                            cosine=self.cosine[g], texel=None if self.texel is None else self.texel[g]))
+            if self.back_length is not None:
+                out[-1].back_length, out[-1].back_atten = self.back_length[g], self.back_atten[g]
+                out[-1].back_dir, out[-1].back_chain = self.back_dir[g], self.back_chain[g]
         return out
 
 
@@ -680,7 +691,8 @@ class PathBuffer:
 def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspace,
                  laws: SurfaceLaws, render: RenderSettings, reach_m: float, n_generations: int, table,
                  n_surfaces: int, stack: np.ndarray, pool=None, occlusion=None, textures: tuple = (),
-                 sum_rows: tuple[int, ...] = (), labels=None, primitives: bool = False):
+                 sum_rows: tuple[int, ...] = (), labels=None, primitives: bool = False,
+                 glint_radius_m: float | None = None):
     """The whole compiled frame in blocks of beams (:class:`~sonarsim.renderer._kernels.PathBlocks`):
     receive legs, paths, and the image stack.
 
@@ -735,9 +747,16 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
     # A caster whose hits carry a texture's factor (scene.textures.TexturedCaster) casts in
     # Python between the stages; the legs then record the factor for the weighing.
     textured = bool(getattr(type(caster), "carries_texel", False))
-    legs_out = FrameLegs(n_generations, fan.n_rays, n_blocks, work.legs_pool, primitives, textured)
+    glints = glint_radius_m is not None
+    # The specular returns: one generation more is traced, for the returns of the last one's
+    # reflections alone (engine.trace_legs).
+    n_traced = n_generations + (1 if glints else 0)
+    legs_out = FrameLegs(n_traced, fan.n_rays, n_blocks, work.legs_pool, primitives, textured, glints,
+                         n_legs=n_generations)
     active8 = np.ascontiguousarray(active, dtype=np.uint8)
-    in_blocks = render.double_beam != "split" and occlusion is None  # each block splats its own beams
+    # Each block splats its own beams, but for paths that arrive in others' (the specular
+    # returns, 'split') or that a cast may yet remove.
+    in_blocks = render.double_beam != "split" and occlusion is None and not glints
     if not stack.flags.c_contiguous:
         raise ValueError("the image stack must be C-contiguous (the blocks splat into it in place)")
     textures = textures if any(f is not None for f in textures) else ()
@@ -749,7 +768,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
         b0, b1 = blocks[k]
         a = b0 * per_beam
         buffer, m, limit = engine.begin(k, b0, b1)
-        for g in range(n_generations):
+        for g in range(n_traced):
             if not m:
                 break
             if buffer < 0:
@@ -781,10 +800,11 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
         spent[k] += time.perf_counter() - start
 
     engine.frame(legs_out, active8, view.rotation, view.origin,
-                 reach_m, render.tvg, n_generations, fan.shape[2], sonar.range_min_m, sonar.range_resolution_m,
+                 reach_m, render.tvg, n_traced, fan.shape[2], sonar.range_min_m, sonar.range_resolution_m,
                  sonar.n_range_bins, n_beams, sonar.range_max_m, sonar.elevation_fov_deg / 2.0,
                  np.ascontiguousarray(sonar.beam_edges_deg), render.range_splat, render.double_beam == "separate",
-                 n_surfaces, stack.reshape(-1) if in_blocks else None, primitives)
+                 n_surfaces, stack.reshape(-1) if in_blocks else None, primitives,
+                 glint_radius_m if glints else 0.0)
     try:  # the engine lets go of the frame's arrays whatever happens (they go back to the pool)
         while True:
             ok = [True] * len(blocks)
@@ -835,6 +855,9 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
     if not in_blocks:
         stack[:] = 0.0
         frame_sets = buffer.sets(render.double_beam)
+        if glints:
+            frame_sets += glint_sets(legs, view, len(planes), per_beam, render.max_order, fan.weight.reshape(-1),
+                                     glint_radius_m, render.tvg)
         if occlusion is not None:
             frame_sets = occlusion(frame_sets, legs, table=table)
         splat_paths(frame_sets, legs, n_surfaces, fan.shape[2], (sonar.range_min_m, sonar.range_resolution_m,

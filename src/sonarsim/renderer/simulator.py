@@ -189,10 +189,8 @@ class Simulator:
 
     @property
     def path_kernels(self) -> str:
-        """The kernels the path engine runs on: :attr:`kernels`, but the NumPy twins where the
-        specular returns are traced (the compiled kernels cover the scattered paths over
-        planes and mesh mirrors)."""
-        return "numpy" if self.scene.render.glints else self.kernels
+        """The kernels the path engine runs on (:attr:`kernels`)."""
+        return self.kernels
 
     def _warn_if_inside(self, position: np.ndarray, stacklevel: int) -> None:
         """Warn (once per object) when the sonar at ``position`` lies inside a closed object."""
@@ -364,7 +362,7 @@ class Simulator:
                 self.caster, self.planes, active, sonar, view, self._work, self._laws, render, reach,
                 n_generations, table, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
                 textures=self.textures, sum_rows=total_rows(render.bounces, render.max_order), labels=labels,
-                primitives=primitives,
+                primitives=primitives, glint_radius_m=render.glint_radius_m if render.glints else None,
             )
             return stack, legs, sets, table, total, truth
         directions = view.directions.reshape(-1, 3)
