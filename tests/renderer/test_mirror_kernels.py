@@ -335,3 +335,39 @@ def test_mirror_misuse_is_refused():
     for change, match in bad:
         with pytest.raises(ValueError, match=match):
             _paths_both(p, tx, True, **change)
+
+
+def test_the_returns_kernel_equals_returns_to_sonar():
+    """``returns_impl`` (run by the blocks after each generation) against its twin, bit for bit,
+    on rays aimed near the sonar: within and without the disc, behind it, beyond what they meet
+    next, beyond the reach."""
+    rng = np.random.default_rng(11)
+    n, m, origin, radius = 400, 300, np.array([0.2, -0.1, 1.0]), 0.1
+    ray = np.sort(rng.choice(n, m, replace=False)).astype(np.intp)
+    org = origin + rng.normal(size=(m, 3)) * 2.0
+    aim = origin + rng.normal(size=(m, 3)) * 0.08  # about half pass within the disc
+    dirs = _unit(rng, m)
+    dirs[::2] = (aim - org)[::2] / np.linalg.norm((aim - org)[::2], axis=1)[:, None]
+    dirs[::9] *= -1.0  # the sonar behind them
+    before, atten = rng.uniform(0.0, 3.0, m), rng.uniform(0.1, 1.0, m)
+    chain = rng.integers(1, 20, m).astype(np.int32)
+    reached = np.full(n, np.inf)
+    reached[ray[::5]] = before[::5] + rng.uniform(0.5, 4.0, len(ray[::5]))  # something met first, or not
+    outs = []
+    for which in ("kernel", "twin"):
+        back = (np.full(n, np.inf), np.zeros(n), np.zeros((n, 3)), np.full(n, -1, np.int32))
+        if which == "kernel":
+            K.returns_to_sonar(ray, org, dirs, before, atten, chain, reached, origin, radius, 6.0, *back)
+        else:
+            leg = engine.Leg(0, *_dense(n))
+            leg.back_length, leg.back_atten, leg.back_dir, leg.back_chain = back
+            nxt = engine.Leg(1, *_dense(n))
+            nxt.distance[:] = reached
+            engine.returns_to_sonar(leg, engine.Rays(ray, org, dirs, before, atten, chain), nxt, origin, radius, 6.0)
+        outs.append(back)
+    for a, b in zip(*outs):
+        np.testing.assert_array_equal(a, b)
+    found = np.isfinite(outs[0][0])
+    assert 20 <= found.sum() < m // 2  # returns found, and rays refused
+    with pytest.raises(ValueError, match="different lengths"):
+        K.returns_to_sonar(ray[:-1], org, dirs, before, atten, chain, reached, origin, radius, 6.0, *outs[0])

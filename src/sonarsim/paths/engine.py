@@ -262,6 +262,7 @@ class SonarView:
 # ``trace._hits.embree_hits`` ``trace.embree.embree_hits`` Embree's raw answer to hits
 # ``trace_leg``            :func:`trace_generation`    one generation of receive legs
 # ``path_events``          :func:`option_paths`        paths of one generation, one transmit
+# ``returns_impl``         :func:`returns_to_sonar`    the specular returns of one generation
 # ``splat_events``         :func:`splat_set`           one path set into the image stack
 # =======================  ==========================  =====================================
 #
@@ -412,8 +413,7 @@ def trace_generation(
         The mesh mirrors (:mod:`sonarsim.paths.facets`): a ray that meets one of their
         triangles also reflects, about the triangle's normal (or the interpolated one), into
         chain mirror ``P + m`` (m the triangle's mirror). ``hits`` must carry the triangles and
-        barycentrics. No compiled twin yet: the simulator renders scenes with mesh mirrors with
-        these loops.
+        barycentrics (the kernel's tables: ``_kernels.Mirrors``).
 
     Returns
     -------
@@ -849,7 +849,8 @@ def trace_legs(
 
 def returns_to_sonar(mirror: Leg, rays: Rays, reached: Leg, origin: np.ndarray, radius_m: float,
                      reach_m: float) -> None:
-    """The specular returns among rays reflected at ``mirror``'s scatterers (``render.glints``).
+    """The specular returns among rays reflected at ``mirror``'s scatterers (``render.glints``;
+    twin of ``_kernels.returns_impl``, which ``PathBlocks`` runs after each generation's search).
 
     A ray returns when its line passes within ``radius_m`` of the sonar O, ahead of it and
     before the surface it reaches (``reached``: its next generation, whose ``distance`` is

@@ -974,6 +974,30 @@ cdef void returns_impl(const Py_ssize_t* ray, const double* org, const double* d
             back_chain[i] = chain[k]
 
 
+def returns_to_sonar(const Py_ssize_t[::1] ray, const double[:, ::1] org, const double[:, ::1] dirs,
+                     const double[::1] before, const double[::1] atten, const int[::1] chain,
+                     const double[::1] reached, const double[::1] origin, double radius, double reach,
+                     double[::1] back_length, double[::1] back_atten, double[:, ::1] back_dir, int[::1] back_chain):
+    """The specular returns among rays (rows: fan ray ``ray[k]``, from ``org`` along ``dirs``,
+    after ``before`` metres, with ``atten`` and ``chain``) reflected at the last generation's
+    scatterers, ``reached`` the next generation's dense distances (twin:
+    ``engine.returns_to_sonar``); written into the dense ``back_*`` arrays at their fan rays."""
+    cdef Py_ssize_t m = ray.shape[0], n = reached.shape[0], k
+    if (org.shape[0] != m or dirs.shape[0] != m or before.shape[0] != m or atten.shape[0] != m
+            or chain.shape[0] != m or origin.shape[0] != 3 or back_length.shape[0] != n
+            or back_atten.shape[0] != n or back_dir.shape[0] != n or back_chain.shape[0] != n):
+        raise ValueError("returns: arrays of different lengths")
+    for k in range(m):
+        if not 0 <= ray[k] < n:
+            raise ValueError(f"ray {ray[k]} of {n}")
+    if m == 0:
+        return
+    with nogil:
+        returns_impl(&ray[0], &org[0, 0], &dirs[0, 0], &before[0], &atten[0], &chain[0], m, &reached[0],
+                     &origin[0], radius * radius, reach, &back_length[0], &back_atten[0], &back_dir[0, 0],
+                     &back_chain[0])
+
+
 cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] dist, const int[::1] sid,
                 const double[:, ::1] point, const double[::1] intensity, const double[::1] atten,
                 const int[::1] chain, bint same, int tx, const double[:, ::1] unfold,

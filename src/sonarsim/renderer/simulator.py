@@ -354,7 +354,6 @@ class Simulator:
         occlusion = None
         if render.double_line_of_sight:
             occlusion = functools.partial(drop_occluded, table=table, view=view, active=active, caster=self.caster)
-        # The compiled kernels cover planes; mesh mirrors take the NumPy twins' loops.
         if self.path_kernels == "compiled":
             self._work = compiled.Workspace.for_fan(self._work, fan)
             stack = np.empty((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
