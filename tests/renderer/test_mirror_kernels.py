@@ -371,3 +371,50 @@ def test_the_returns_kernel_equals_returns_to_sonar():
     assert 20 <= found.sum() < m // 2  # returns found, and rays refused
     with pytest.raises(ValueError, match="different lengths"):
         K.returns_to_sonar(ray[:-1], org, dirs, before, atten, chain, reached, origin, radius, 6.0, *outs[0])
+
+
+def test_the_view_decides_by_the_angles_within_round_off_of_every_edge():
+    """``beam_in_view`` decides by sine and tangent, and by the angles themselves (C's asin and
+    atan2) within ``ANGLE_MARGIN`` of an edge: points a few ulps either side of the beams' and
+    the aperture's edges land where the angles put them. (NumPy's vectorised arctan2 may differ
+    from C's in the last ulp, so the reference here is ``math``'s, which is C's.)"""
+    import math
+
+    from tests.renderer.test_kernels import _path_events, _paths_setup
+
+    wrong = total = rejected = 0
+    deg = 180.0 / math.pi  # (multiplied by, as the kernel does: not times 180, over pi)
+    for seed in range(4):
+        rng = np.random.default_rng(200 + seed)
+        planes, active, table, view, leg, live, per_beam = _paths_setup(rng)
+        n, rank, edges = len(leg.distance), engine.chain_ranks(table), np.asarray(view.beam_edges_deg)
+        half = np.radians(view.half_elevation_deg)
+        for tx in range(1, len(table)):
+            unfold = np.asarray(table.unfold(tx))
+            az = np.radians(edges[rng.integers(0, len(edges), n)]) * (1 + rng.integers(-3, 4, n) * np.finfo(float).eps)
+            el = np.where(rng.random(n) < 0.5, rng.uniform(-half, half, n),
+                          np.sign(rng.normal(size=n)) * half * (1 + rng.integers(-3, 4, n) * np.finfo(float).eps))
+            r = rng.uniform(1.0, 5.0, n)
+            local = np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=1) * r[:, None]
+            # Scatterers whose unfolded image lies there: A = unfold^-1 (O + R local).
+            leg.point[:] = np.linalg.solve(unfold[:, :3], (view.origin + local @ view.rotation.T - unfold[:, 3]).T).T
+            kernel, _ = _path_events(live, leg, False, tx, table, rank, True, 2, len(planes), per_beam, view, planes,
+                                     active)
+            formed = dict(zip(kernel[0].tolist(), kernel[4].tolist()))
+            U, R, o = unfold.tolist(), view.rotation.tolist(), view.origin.tolist()
+            for i in live:
+                a = leg.point[i].tolist()  # summed term by term as the kernel sums, in Python floats
+                u = [U[j][0] * a[0] + U[j][1] * a[1] + U[j][2] * a[2] + U[j][3] - o[j] for j in range(3)]
+                v = [R[0][j] * u[0] + R[1][j] * u[1] + R[2][j] * u[2] for j in range(3)]
+                length = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+                if not view.range_min_m <= length < view.range_max_m:
+                    continue
+                inside = abs(math.asin(max(-1.0, min(1.0, v[2] / length))) * deg) <= view.half_elevation_deg
+                beam = int(engine.beam_index(edges, np.array([math.atan2(v[1], v[0]) * deg]))[0])
+                if not inside or beam < 0:
+                    rejected += 1
+                    wrong += i in formed
+                    continue
+                total += 1
+                wrong += formed.get(i, beam) != beam  # (the walk may refuse it; where formed, this beam)
+    assert wrong == 0 and total > 1000 and rejected > 1000

@@ -435,7 +435,9 @@ cdef struct MirrorTables:
 
 cdef class Mirrors:
     """The mesh mirrors as the kernels read them (``paths.facets.FacetSet`` with flat normals;
-    :meth:`of` takes one). Immutable: the arrays are copied into C-contiguous ones it keeps.
+    :meth:`of` takes one). It keeps the arrays (C-contiguous and of the kernels' dtypes: copied
+    only where they are not; a FacetSet's are already) and makes them read-only: the kernels
+    read them through pointers for the simulator's life.
 
     Parameters
     ----------
