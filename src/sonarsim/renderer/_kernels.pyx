@@ -2507,10 +2507,6 @@ cdef class PathBlocks:
         cdef Py_ssize_t a, b, g, i, o, off, n, cnt, K, j, q, row, n_kept = 0, kept_gen = -1
         cdef int r_tx, kept_rank = -1
         cdef const Py_ssize_t[::1] rays
-        cdef Py_ssize_t[::1] o_ray  # where an option's paths go: the path buffer, or the counting scratch
-        cdef double[::1] o_dist, o_energy
-        cdef int[::1] o_beam, o_beam_tx
-        cdef signed char[::1] o_label
         cdef Py_ssize_t n_opt = self.opt_gen.shape[0], plane = self.n_bins * self.n_beams
         cdef int c
         cdef bint splat = self.splat, has_labels = self.has_labels, counting = self.counting
@@ -2568,13 +2564,22 @@ cdef class PathBlocks:
                         continue
                     rays = self.subset[a:a + n_kept]
                 if counting:  # formed into the block's own scratch rows, and counted
-                    o_ray, o_dist, o_energy = self.scratch_ray[a:a + n], self.scratch_dist[a:a + n], self.scratch_energy[a:a + n]
-                    o_beam, o_beam_tx, o_label = self.scratch_beam[a:a + n], self.scratch_beam_tx[a:a + n], self.scratch_label[a:a + n]
-                else:
-                    if self.capacity is not None:  # room for what the counting pass counted
-                        n = self.capacity[o * self.n_blocks + k]
-                    o_ray, o_dist, o_energy = self.p_ray[off:off + n], self.p_dist[off:off + n], self.p_energy[off:off + n]
-                    o_beam, o_beam_tx, o_label = self.p_beam[off:off + n], self.p_beam_tx[off:off + n], self.p_label[off:off + n]
+                    cnt = path_events_impl(
+                        rays, self.dist[g], self.sid[g], self.point[g], self.intensity[g],
+                        self.ones if g == 0 else self.atten[g], self.zeros if g == 0 else self.chain[g],
+                        self.opt_same[o], self.opt_tx[o], self.opt_unfold[o], self.opt_sources[o, :K + 1],
+                        self.opt_planes[o, :K], self.opt_specular[o], self.rank, self.separate, self.opt_label[o],
+                        <int>self.n_planes, self.rays_per_beam, self.origin[0], self.origin[1], self.origin[2],
+                        self.rotation, self.edges, self.half_el, self.range_min, self.range_max, self.surf_normal,
+                        self.surf_offset, self.active, self.scratch_ray[a:a + n], self.scratch_dist[a:a + n],
+                        self.scratch_energy[a:a + n], self.scratch_beam[a:a + n], self.scratch_beam_tx[a:a + n],
+                        self.scratch_label[a:a + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL,
+                        self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL,
+                        self.opt_only[o])
+                    self.p_count[o * self.n_blocks + k] = cnt
+                    continue
+                if self.capacity is not None:  # room for what the counting pass counted
+                    n = self.capacity[o * self.n_blocks + k]
                 cnt = path_events_impl(
                     rays, self.dist[g], self.sid[g], self.point[g], self.intensity[g],
                     self.ones if g == 0 else self.atten[g], self.zeros if g == 0 else self.chain[g],
@@ -2582,12 +2587,10 @@ cdef class PathBlocks:
                     self.opt_planes[o, :K], self.opt_specular[o], self.rank, self.separate, self.opt_label[o],
                     <int>self.n_planes, self.rays_per_beam, self.origin[0], self.origin[1], self.origin[2],
                     self.rotation, self.edges, self.half_el, self.range_min, self.range_max, self.surf_normal,
-                    self.surf_offset, self.active, o_ray, o_dist, o_energy, o_beam, o_beam_tx, o_label, self.mt,
-                    &self.prim[g, 0] if self.mt != NULL else NULL, self.sin_half,
-                    &self.tan_edges[0] if self.tan_edges is not None else NULL, self.opt_only[o])
-                if counting:
-                    self.p_count[o * self.n_blocks + k] = cnt
-                    continue
+                    self.surf_offset, self.active, self.p_ray[off:off + n], self.p_dist[off:off + n],
+                    self.p_energy[off:off + n], self.p_beam[off:off + n], self.p_beam_tx[off:off + n],
+                    self.p_label[off:off + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL,
+                    self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL, self.opt_only[o])
                 self.p_count[o * self.n_blocks + k] = cnt
                 if has_labels and cnt:
                     labels.seg_count[o * self.n_blocks + k] = labels.deposit(
