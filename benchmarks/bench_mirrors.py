@@ -7,10 +7,10 @@ Ratios are taken in one run on one machine (timings swing with the load):
   ``specular: 0.5`` (the target: 1.6), the medians of frames of the two taken in turn;
 * ``hull, order k / order 1``: an ellipsoidal hull (6 x 2 x 1.5 m, a UV sphere of about
   ``--triangles`` faces, ``specular: 0.8``) 1 m over a plane floor, seen from below and
-  ahead (the target at 50,000 triangles and order 3: 3);
-* the same at order 3 for a range of triangle counts: how the cost grows with them.
+  ahead (the target at 50,000 triangles and order 3: 3), the orders' frames taken in turn;
+* the same at orders 1 and 3 for a range of triangle counts: how the cost grows with them.
 
-    python benchmarks/bench_mirrors.py [--repeat 3] [--quick] [--json out.json]
+    python benchmarks/bench_mirrors.py [--rounds 10] [--quick] [--json out.json]
 """
 
 from __future__ import annotations
@@ -26,19 +26,6 @@ import numpy as np
 
 import sonarsim
 from sonarsim.cli.demo import demo_scene_dict
-
-
-def frame_time(doc: dict, repeat: int) -> tuple[float, str]:
-    """Best of ``repeat`` frames (after two to warm up), seconds, and the kernels used."""
-    with sonarsim.Simulator(doc) as sim:
-        sim.render(keep_rays=False)
-        sim.render(keep_rays=False)
-        best = np.inf
-        for _ in range(repeat):
-            t = time.perf_counter()
-            sim.render(keep_rays=False)
-            best = min(best, time.perf_counter() - t)
-        return best, sim.path_kernels
 
 
 def paired_times(docs: list[dict], rounds: int, batch: int = 10) -> tuple[np.ndarray, list[str]]:
@@ -91,12 +78,11 @@ def hull_scene(mesh: str, order: int) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--rounds", type=int, default=10, help="turns of 10 frames per hull scene")
     parser.add_argument("--triangles", type=int, default=50_000)
     parser.add_argument("--quick", action="store_true", help="fewer frames and triangle counts")
     parser.add_argument("--json", type=Path, help="write the figures here")
     args = parser.parse_args()
-    repeat = 1 if args.quick else args.repeat
     out: dict = {}
 
     demo = demo_scene_dict()
@@ -114,13 +100,14 @@ def main() -> None:
           f"{t_mirror * 1e3:.2f} ms (medians of {len(times)} frames taken in turn); ratio {t_mirror / t_demo:.2f}, "
           f"of the best frames {best[1] / best[0]:.2f} (target 1.6)")
 
+    rounds = 2 if args.quick else args.rounds
     with tempfile.TemporaryDirectory() as tmp:
         mesh, n_faces = hull_mesh(Path(tmp), args.triangles)
         orders = (1, 3) if args.quick else (1, 2, 3, 4)
-        times = {}
-        for order in orders:
-            times[order], kernels = frame_time(hull_scene(mesh, order), repeat)
-            print(f"hull, {n_faces} triangles, order {order} ({kernels}): {times[order] * 1e3:.1f} ms; "
+        hull_times, kernels = paired_times([hull_scene(mesh, order) for order in orders], rounds)
+        times = dict(zip(orders, np.median(hull_times, axis=0)))
+        for order, k in zip(orders, kernels):
+            print(f"hull, {n_faces} triangles, order {order} ({k}): {times[order] * 1e3:.2f} ms; "
                   f"{times[order] / times[1]:.2f} x order 1")
         out["hull_triangles"] = n_faces
         out["hull_order_s"] = {str(k): v for k, v in times.items()}
@@ -130,10 +117,9 @@ def main() -> None:
         growth = {}
         for count in counts:
             mesh, n_faces = hull_mesh(Path(tmp), count)
-            t1, _ = frame_time(hull_scene(mesh, 1), repeat)
-            t3, _ = frame_time(hull_scene(mesh, 3), repeat)
+            t1, t3 = np.median(paired_times([hull_scene(mesh, 1), hull_scene(mesh, 3)], rounds)[0], axis=0)
             growth[n_faces] = (t1, t3)
-            print(f"  {n_faces:>6} triangles: order 1 {t1 * 1e3:7.1f} ms, order 3 {t3 * 1e3:7.1f} ms ({t3 / t1:.2f} x)")
+            print(f"  {n_faces:>6} triangles: order 1 {t1 * 1e3:7.2f} ms, order 3 {t3 * 1e3:7.2f} ms ({t3 / t1:.2f} x)")
         out["growth"] = {str(k): {"order1_s": a, "order3_s": b} for k, (a, b) in growth.items()}
     if args.json:
         args.json.write_text(json.dumps(out, indent=1))
