@@ -120,10 +120,11 @@ def _trace_kernel(s, kt, rays, hits, first, n, weight, **change):
         kw = dict(hit_prim=hits.primitive_id, hit_uv=hits.barycentric, prim=out[7], uv=out[8], mirrors=s["mirrors"],
                   mirror_keys=kt["keys"], mirror_children=kt["vals"], parent=kt["parent"], last_mirror=kt["last"])
         kw.update(change)
+        n_known = kw.pop("n_chains", len(kt["chains"]))
         n_next, n_chains, min_next, overflow, n_live = K.trace_leg(
             rays.ray, hits.distance, hits.mesh_id, hits.normal, rays.origin, rays.direction, rays.before, rays.atten,
             rays.chain, planes.normal, planes.offset, s["active"].astype(np.uint8), planes.specular, REACH,
-            s["albedo"], weight, True, first, True, kt["children"], len(kt["chains"]), *out[:7], out[9], out[10],
+            s["albedo"], weight, True, first, True, kt["children"], n_known, *out[:7], out[9], out[10],
             len(planes) + 3, *nx, **kw)
         for c in range(len(kt["chains"]), n_chains):  # chain c: its parent's then its last mirror
             kt["chains"].append(kt["chains"][kt["parent"][c]] + (int(kt["last"][c]),))
@@ -418,3 +419,38 @@ def test_the_view_decides_by_the_angles_within_round_off_of_every_edge():
                 total += 1
                 wrong += formed.get(i, beam) != beam  # (the walk may refuse it; where formed, this beam)
     assert wrong == 0 and total > 1000 and rejected > 1000
+
+
+def test_a_smooth_object_that_does_not_mirror_beside_one_that_does_renders_compiled():
+    """``normals: smooth`` on an object without ``specular`` (it has no facets, no corner
+    normals): the compiled frame renders, as the NumPy one does."""
+    import sonarsim
+    from sonarsim.cli.demo import demo_scene_dict
+
+    doc = demo_scene_dict()
+    for obj in doc["objects"]:
+        if obj["name"] == "concrete_block":
+            obj["specular"] = 0.5
+        if obj["name"] == "pipe":
+            obj["normals"] = "smooth"
+    a = sonarsim.Simulator(doc, kernels="compiled").render(speckle=False)
+    b = sonarsim.Simulator(doc, kernels="numpy").render(speckle=False)
+    assert np.abs(a.polar.astype(float) - b.polar).sum() <= 1e-6 * np.abs(b.polar).sum()
+
+
+def test_the_kernels_refuse_tables_and_arrays_they_would_read_or_write_past():
+    rng = np.random.default_rng(3)
+    s = _scene(rng)
+    kt = _kernel_tables(s["table"])
+    rays, hits = _rays(rng, s, 50, True, len(kt["chains"]))
+    weight = rng.uniform(0.0, 1e-3, 50)
+    with pytest.raises(ValueError, match="chains in a chain table"):
+        _trace_kernel(s, kt, rays, hits, True, 50, weight, n_chains=-3)
+    full = np.arange(SLOTS, dtype=np.int64)  # every slot taken by some other chain's key
+    with pytest.raises(ValueError, match="more than half full"):
+        _trace_kernel(s, kt, rays, hits, True, 50, weight, mirror_keys=full)
+    n = 10
+    args = (np.arange(n, dtype=np.intp), np.zeros((n, 3)), np.ones((n, 3)), np.zeros(n), np.ones(n),
+            np.zeros(n, np.int32), np.full(n, np.inf), np.zeros(3), 0.1, 5.0)
+    with pytest.raises(ValueError, match=r"\(rows, 3\)"):
+        K.returns_to_sonar(*args, np.full(n, np.inf), np.zeros(n), np.zeros((n, 1)), np.full(n, -1, np.int32))

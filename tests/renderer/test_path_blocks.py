@@ -874,3 +874,43 @@ def test_a_frame_renders_the_same_image_whatever_the_cut_the_balance_chose(monke
         a, b = img.labels.arrays(), first.labels.arrays()
         for key in a:
             np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def test_path_blocks_refuse_a_room_other_than_the_counted_a_bad_growth_and_generations_out_of_order(monkeypatch):
+    """The counting pass's room is held to: a block that would form more paths stops at its
+    room and the frame fails (nothing is written past it), and the next frame renders; a chain
+    table smaller than the chains held, and a generation stepped out of order, are refused."""
+    doc = _variants()["mirrors_order4"]
+    monkeypatch.setattr(compiled, "PATH_BUFFER_BYTES", 0)
+    with sonarsim.Simulator(doc) as sim:
+        good = sim.render(speckle=False).polar
+        layout = compiled._counted_layout
+
+        def short(*args):
+            offset, size, capacity = layout(*args)
+            k = int(np.argmax(capacity))
+            capacity = capacity.copy()
+            capacity[k] -= 1  # one path less room than counted, in the largest option of a block
+            return offset, size, capacity
+
+        monkeypatch.setattr(compiled, "_counted_layout", short)
+        with pytest.raises(RuntimeError, match="counting pass counted"):
+            sim.render()
+        monkeypatch.setattr(compiled, "_counted_layout", layout)
+        np.testing.assert_array_equal(sim.render(speckle=False).polar, good)
+        engine = sim._work.engine[4]
+        with pytest.raises(ValueError, match="chain table of 0 rows"):
+            engine.grow(0)
+        seen = []
+        run = compiled.on_both_cores
+
+        def checking(task, n, pool=None, signals=False):
+            if not seen:  # inside the frame, before its blocks are traced
+                with pytest.raises(ValueError, match="generation 1 next"):
+                    engine.step(0, 0, 4, 1)  # not begun
+                seen.append(True)
+            run(task, n, pool, signals)
+
+        monkeypatch.setattr(compiled, "on_both_cores", checking)
+        sim.render()
+        assert seen

@@ -460,7 +460,13 @@ cdef class Mirrors:
     def __init__(self, start, specular, side, mirror, normal, corners, mirror_start, mirror_facets, mirror_obj,
                  mirror_normal, mirror_offset, smooth=None, corner_normals=None):
         n_obj = np.asarray(specular).reshape(-1).shape[0]
-        a = dict(smooth=np.ascontiguousarray(np.zeros(n_obj, bool) if smooth is None else smooth, np.uint8),
+        smooth = np.zeros(n_obj, bool) if smooth is None else np.asarray(smooth, bool).reshape(-1)
+        start = np.asarray(start).reshape(-1)
+        if smooth.shape[0] == n_obj and start.shape[0] == n_obj + 1:
+            # (an object smooth but not a mirror, or whose facets the planes clipped away, has no
+            # corner normals and needs none: it reflects nothing)
+            smooth = smooth & (np.asarray(specular).reshape(-1) > 0) & (np.diff(start) > 0)
+        a = dict(smooth=np.ascontiguousarray(smooth, np.uint8),
                  corner_normals=np.ascontiguousarray(np.zeros((0, 3, 3)) if corner_normals is None else corner_normals,
                                                      np.float64).reshape(-1, 3, 3), mirror_normal=np.ascontiguousarray(mirror_normal, np.float64).reshape(-1, 3),
                  mirror_offset=np.ascontiguousarray(mirror_offset, np.float64), start=np.ascontiguousarray(start, np.int64), specular=np.ascontiguousarray(specular, np.float64),
@@ -870,12 +876,18 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     cdef int* par = NULL
     cdef int* lst = NULL
     cdef Py_ssize_t hmask = 0
+    if children.shape[0] < 1 or not 1 <= n_chains <= children.shape[0]:
+        raise ValueError(f"{n_chains} chains in a chain table of {children.shape[0]} rows (at least the empty chain)")
+    if ray.shape[0] and (np.min(chain) < 0 or np.max(chain) >= n_chains):
+        raise ValueError(f"the rays' chains are not among the {n_chains} of the table")
     if mirrors is not None:
         if hit_prim is None:
             raise ValueError("mirrors need the search's triangles (hit_prim, hit_uv, prim, uv)")
         if (mirror_keys is None or mirror_children is None or mirror_keys.shape[0] != mirror_children.shape[0]
                 or mirror_keys.shape[0] < 2 * children.shape[0] or mirror_keys.shape[0] & (mirror_keys.shape[0] - 1)):
             raise ValueError("mirror_keys and mirror_children: a power of 2 of slots, twice the chain table's rows")
+        if 2 * np.count_nonzero(np.asarray(mirror_keys) != -1) > mirror_keys.shape[0]:
+            raise ValueError("mirror_keys more than half full (a table of this frame's chains: -1 free)")
         mt = &mirrors.t
         hkeys, hvals, hmask = &mirror_keys[0], &mirror_children[0], mirror_keys.shape[0] - 1
     if (parent is None) != (last_mirror is None):
@@ -989,6 +1001,8 @@ def returns_to_sonar(const Py_ssize_t[::1] ray, const double[:, ::1] org, const 
             or chain.shape[0] != m or origin.shape[0] != 3 or back_length.shape[0] != n
             or back_atten.shape[0] != n or back_dir.shape[0] != n or back_chain.shape[0] != n):
         raise ValueError("returns: arrays of different lengths")
+    if org.shape[1] != 3 or dirs.shape[1] != 3 or back_dir.shape[1] != 3:
+        raise ValueError("returns: origins, directions and back_dir are (rows, 3)")
     for k in range(m):
         if not 0 <= ray[k] < n:
             raise ValueError(f"ray {ray[k]} of {n}")
@@ -1021,6 +1035,7 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
     (a smooth mirror's reciprocal partners: ``engine.reciprocal_sets``)."""
 
     cdef Py_ssize_t k, i, m = 0, n = live.shape[0], K = tx_planes.shape[0], j, q, P = plane_active.shape[0]
+    cdef Py_ssize_t room = out_ray.shape[0]  # the outputs' length: nothing is written past it
     cdef int c, s, last = tx_planes[K - 1] if K > 0 else -1, rank_tx = rank[tx] if not same else 0
     cdef int64_t f
     cdef bint mirror_chain = False
@@ -1037,6 +1052,8 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
         i = live[k]
         s = sid[i]
         if same:
+            if m >= room:
+                return room + 1  # (more paths than room: the caller refuses the frame)
             out_ray[m] = i
             out_dist[m] = dist[i]
             out_energy[m] = atten[i] * atten[i] * intensity[i]
@@ -1080,6 +1097,8 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
         if not (mirror_chain or walk(ax, ay, az_, K, chain_of_tx, &sources[0, 0], pn, po,
                                      &plane_active[0] if P > 0 else NULL, P, n_planes, mt)):
             continue
+        if m >= room:
+            return room + 1
         out_ray[m] = i
         out_dist[m] = 0.5 * (dist[i] + length)
         out_energy[m] = atten[i] * tx_specular * intensity[i]
@@ -1203,7 +1222,7 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
 
     Returns
     -------
-    int : the number of paths written.
+    int : the number of paths written (the outputs hold every live ray: never more than their length).
     """
     cdef Py_ssize_t m, q
     cdef Py_ssize_t n_mirrors = 0 if mirrors is None else mirrors.n_mirrors
@@ -1214,6 +1233,10 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
     tan_array = views[1]
     cdef const double[::1] tan_edges = tan_array
     cdef const double* tp = &tan_edges[0] if tan_array is not None else NULL
+    q = out_ray.shape[0]
+    if (q < live.shape[0] or out_dist.shape[0] != q or out_energy.shape[0] != q or out_beam.shape[0] != q
+            or out_beam_tx.shape[0] != q or out_label.shape[0] != q):
+        raise ValueError("path_events: outputs of one length, with room for every live ray")
     if (plane_active.shape[0] != n_planes or plane_normal.shape[0] != n_planes + n_mirrors
             or plane_offset.shape[0] != plane_normal.shape[0]):
         raise ValueError("plane_normal and plane_offset: the planes then the mesh mirrors; plane_active: the planes")
@@ -1913,7 +1936,7 @@ cdef class PathBlocks:
     cdef readonly object parent_array, last_array
     cdef int[::1] n_local
     cdef unsigned char[::1] overflow
-    cdef Py_ssize_t[::1] blk_cur, blk_m
+    cdef Py_ssize_t[::1] blk_cur, blk_m, blk_gen
     cdef double[::1] blk_min
     cdef readonly Py_ssize_t n_blocks
     # Per frame.
@@ -1964,6 +1987,7 @@ cdef class PathBlocks:
     cdef const Py_ssize_t[::1] capacity
     cdef bint counting
     cdef unsigned char[::1] remapped
+    cdef unsigned char[::1] miscounted  # a block formed other than the counting pass counted
     cdef Py_ssize_t[::1] p_ray
     cdef double[::1] p_dist, p_energy
     cdef int[::1] p_beam, p_beam_tx
@@ -2019,14 +2043,16 @@ cdef class PathBlocks:
         self.r_ray, self.r_org, self.r_dir, self.r_org32, self.r_dir32 = w.r_ray, w.r_org, w.r_dir, w.r_org32, w.r_dir32
         self.r_before, self.r_atten, self.r_chain = w.r_before, w.r_atten, w.r_chain
         self.n_blocks = n_blocks
-        self.grow(capacity)
         self.n_local = np.zeros(n_blocks, np.int32)
+        self.grow(capacity)
         self.subset = np.empty(w.n, np.intp)
         self.scratch_ray = np.empty(0, np.intp)
         self.remapped = np.zeros(n_blocks, np.uint8)
+        self.miscounted = np.zeros(n_blocks, np.uint8)
         self.overflow = np.zeros(n_blocks, np.uint8)
         self.blk_cur = np.zeros(n_blocks, np.intp)
         self.blk_m = np.zeros(n_blocks, np.intp)
+        self.blk_gen = np.full(n_blocks, -1, np.intp)  # each block's next generation (-1: not begun)
         self.blk_min = np.zeros(n_blocks)
         self.before1 = np.zeros(1)
         self.ready = False
@@ -2034,6 +2060,8 @@ cdef class PathBlocks:
 
     def grow(self, Py_ssize_t capacity):
         """Give each block a chain table of ``capacity`` rows (after an overflow)."""
+        if capacity < 1 or capacity < np.max(self.n_local):
+            raise ValueError(f"a chain table of {capacity} rows for blocks that hold {np.max(self.n_local)} chains")
         self.children_array = np.full((self.n_blocks, capacity, max(self.n_planes, 1)), -1, np.int32)
         self.children = self.children_array
         self.parent_array = np.zeros((self.n_blocks, capacity), np.int32)
@@ -2192,6 +2220,7 @@ cdef class PathBlocks:
                 self.o32[i, 2] = self.origin32[2]
         self.blk_m[k] = b - a
         self.blk_cur[k] = 0
+        self.blk_gen[k] = 0
         if self.out is not None:
             self._zero(k)
 
@@ -2261,6 +2290,7 @@ cdef class PathBlocks:
                                        self.texel[g], laws.texel != NULL, <int>self.n_planes, self.albedo,
                                        self.weight, self.tvg, laws, self.intensity[g])
         self.blk_cur[k] = nxt
+        self.blk_gen[k] = g + 1
 
     def trace(self, Py_ssize_t k, Py_ssize_t b0, Py_ssize_t b1, unsigned char[::1] signal=None):
         """Block ``k`` (beams ``b0:b1``) cast and traced through every generation, casting
@@ -2323,6 +2353,9 @@ cdef class PathBlocks:
         a, b = b0 * self.rays_per_beam, b1 * self.rays_per_beam
         if not 0 <= g < self.n_gen:
             raise ValueError(f"generation {g} of {self.n_gen}")
+        if g != self.blk_gen[k] or (g > 0 and self.blk_m[k] == 0):
+            raise ValueError(f"block {k}: generation {g} next, but {self.blk_gen[k]} is (begin() first, then "
+                             "each generation once, while it has rays)")
         cdef _Laws laws = _Laws(law_by_id, lobe_by_id, hit_texel, self.albedo.shape[0], self.blk_m[k])
         if laws.texel != NULL and self.texel.shape[1] == 0:
             raise ValueError("textured hits, but the frame's legs have no texel array")
@@ -2421,7 +2454,11 @@ cdef class PathBlocks:
         if (remap.shape[0] != self.n_blocks or remap.shape[1] < self.children.shape[1]
                 or offset.shape[0] != n_opt * self.n_blocks or count.shape[0] != offset.shape[0]):
             raise ValueError("remap, offsets or counts of the wrong shape")
+        if capacity is not None and capacity.shape[0] != offset.shape[0]:
+            raise ValueError("a capacity per option and block, as the offsets")
         for k in range(self.n_blocks):
+            if self.n_local[k] > remap.shape[1]:
+                raise ValueError(f"block {k} holds {self.n_local[k]} chains, remap {remap.shape[1]}")
             for o in range(self.n_local[k]):
                 if not 0 <= remap[k, o] < rank.shape[0]:
                     raise ValueError(f"block {k}'s chain {o} maps to {remap[k, o]}, not one of {rank.shape[0]}")
@@ -2486,8 +2523,6 @@ cdef class PathBlocks:
         self.n_total_rows = n_total
         for o in range(n_total):
             self.total_rows[o] = rows[o]
-        if capacity is not None and capacity.shape[0] != offset.shape[0]:
-            raise ValueError("a capacity per option and block, as the offsets")
         if only is not None:
             if only.shape[0] != n_opt:
                 raise ValueError("an 'only' chain per transmit option")
@@ -2520,6 +2555,7 @@ cdef class PathBlocks:
             raise ValueError(f"block {k}'s labels are already resolved (each block's paths are formed once)")
         a, b = b0 * self.rays_per_beam, b1 * self.rays_per_beam
         cdef unsigned char* go = &signal[0] if signal is not None and signal.shape[0] > 0 else NULL
+        self.miscounted[k] = 0
         with nogil:
             if go != NULL:
                 ss_flag_store(go, 1)
@@ -2593,6 +2629,9 @@ cdef class PathBlocks:
                     self.p_energy[off:off + n], self.p_beam[off:off + n], self.p_beam_tx[off:off + n],
                     self.p_label[off:off + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL,
                     self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL, self.opt_only[o])
+                if cnt > n or (self.capacity is not None and cnt != n):
+                    self.miscounted[k] = 1
+                    cnt = cnt if cnt <= n else n
                 self.p_count[o * self.n_blocks + k] = cnt
                 if has_labels and cnt:
                     labels.seg_count[o * self.n_blocks + k] = labels.deposit(
@@ -2620,6 +2659,9 @@ cdef class PathBlocks:
                         src = &self.out[0] + self.total_rows[q] * plane + row
                         for i in range(b0, b1):
                             tot[row + i] = tot[row + i] + src[i]
+        if self.miscounted[k]:
+            raise RuntimeError(f"block {k} formed other paths than its counting pass counted (the room given "
+                               "for them in options(capacity=...))")
 
 
 def id_extents(const int[::1] ids, const int[:, ::1] extents, int[:, ::1] out):
