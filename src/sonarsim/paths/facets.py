@@ -124,8 +124,10 @@ class FacetSet:
         point lies on them.
         """
         spec = np.asarray(specular, dtype=float).reshape(-1)
-        smooth = np.array([n == "smooth" for n in normals], dtype=bool).reshape(-1)
         counts = [len(m.faces) if r > 0 else 0 for m, r in zip(meshes, spec)]
+        # Smooth where the object mirrors (a smooth object without R, or one the planes clipped
+        # away, has no facets: nothing of it is interpolated).
+        smooth = np.array([n == "smooth" for n in normals], dtype=bool).reshape(-1) & (np.asarray(counts) > 0)
         start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         corners = [m.vertices[m.faces] for m, c in zip(meshes, counts) if c]
         tri = np.concatenate(corners).astype(float) if corners else np.empty((0, 3, 3))
@@ -134,7 +136,7 @@ class FacetSet:
         normal = np.divide(raw, length[:, None], out=np.zeros_like(raw), where=length[:, None] > 0)
         obj = np.repeat(np.arange(len(counts), dtype=np.int32), counts)
         corner_normals = None
-        if np.any(smooth & (spec > 0) & (np.asarray(counts) > 0)):  # (a mirror the planes clipped away has none)
+        if np.any(smooth):
             corner_normals = np.concatenate([
                 _corner_normals(m) if smooth[k] else np.repeat(normal[start[k]:start[k + 1], None, :], 3, axis=1)
                 for k, m in enumerate(meshes) if counts[k]

@@ -460,13 +460,7 @@ cdef class Mirrors:
     def __init__(self, start, specular, side, mirror, normal, corners, mirror_start, mirror_facets, mirror_obj,
                  mirror_normal, mirror_offset, smooth=None, corner_normals=None):
         n_obj = np.asarray(specular).reshape(-1).shape[0]
-        smooth = np.zeros(n_obj, bool) if smooth is None else np.asarray(smooth, bool).reshape(-1)
-        start = np.asarray(start).reshape(-1)
-        if smooth.shape[0] == n_obj and start.shape[0] == n_obj + 1:
-            # (an object smooth but not a mirror, or whose facets the planes clipped away, has no
-            # corner normals and needs none: it reflects nothing)
-            smooth = smooth & (np.asarray(specular).reshape(-1) > 0) & (np.diff(start) > 0)
-        a = dict(smooth=np.ascontiguousarray(smooth, np.uint8),
+        a = dict(smooth=np.ascontiguousarray(np.zeros(n_obj, bool) if smooth is None else smooth, np.uint8),
                  corner_normals=np.ascontiguousarray(np.zeros((0, 3, 3)) if corner_normals is None else corner_normals,
                                                      np.float64).reshape(-1, 3, 3), mirror_normal=np.ascontiguousarray(mirror_normal, np.float64).reshape(-1, 3),
                  mirror_offset=np.ascontiguousarray(mirror_offset, np.float64), start=np.ascontiguousarray(start, np.int64), specular=np.ascontiguousarray(specular, np.float64),
