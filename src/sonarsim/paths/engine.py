@@ -1146,11 +1146,7 @@ def reciprocal_sets(legs: list[Leg], table: ChainTable, g: int, tx: int, row: in
     if not len(live):
         return []
     out: list[PathSet] = []
-    for c in range(len(table)):
-        if c == tx or table.length(c) != g or not table.flat(c):
-            continue  # (a pair of two smooth chains has no image source on either side)
-        if double_beam != "separate" and not rank[c] > rank[tx]:
-            continue  # the pair is formed from the other member, or not at all
+    for c in partner_chains(table, g, tx, rank, double_beam):
         chain = table.chains[c]
         ray, distance, energy, beam, beam_tx, label = option_paths(
             live, leg, False, c, table.unfold(c), table.sources(c), np.asarray(chain, np.int32), table.specular(c),
@@ -1161,6 +1157,16 @@ def reciprocal_sets(legs: list[Leg], table: ChainTable, g: int, tx: int, row: in
                 s.swap = True
                 out.append(s)
     return out
+
+
+def partner_chains(table: ChainTable, g: int, tx: int, rank: np.ndarray, double_beam: str) -> list[int]:
+    """The flat chains of length ``g`` whose transmit legs pair with the receive legs that
+    followed smooth chain ``tx`` (:func:`reciprocal_sets`; the compiled engine's options with
+    an ``only`` chain): every one in ``separate``, else those that outrank ``tx`` (the pair is
+    formed from the other member, or not at all); a pair of two smooth chains has no image
+    source on either side."""
+    return [c for c in range(len(table)) if c != tx and table.length(c) == g and table.flat(c)
+            and (double_beam == "separate" or rank[c] > rank[tx])]
 
 
 def drop_occluded(sets: list[PathSet], legs: list[Leg], *, table: ChainTable, view: SonarView, active, caster) -> list[PathSet]:

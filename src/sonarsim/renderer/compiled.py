@@ -97,7 +97,6 @@ class Workspace:
         self._spent: list = []  # the blocks' times of the last frames at the cut
         self.labels_scratch = LabelScratch()
 
-
     def blocks(self, n_beams: int, n_blocks: int) -> tuple[tuple[int, int], ...]:
         """The cut of the beams into blocks the next frame uses: even (:func:`beam_blocks`) at
         first, then as :meth:`balance` moves it."""
@@ -497,8 +496,8 @@ def packet_loop(caster) -> tuple | None:
 
 def path_engine(caster, work: Workspace, fan: RayFan, laws: SurfaceLaws, planes, facets=None):
     """The block engine (:class:`~sonarsim.renderer._kernels.PathBlocks`) for this caster,
-    workspace, fan, laws, planes and mesh mirrors (``paths.facets.FacetSet`` with flat normals,
-    or None), built on first use and kept on the workspace; it casts through the caster's
+    workspace, fan, laws, planes and mesh mirrors (``paths.facets.FacetSet``, or None), built
+    on first use and kept on the workspace; it casts through the caster's
     packet loop where it lends one (the Embree 4 binding), else Python casts between its
     stages (embreex, the NumPy caster, textures)."""
     handle = packet_loop(caster)
@@ -548,7 +547,7 @@ def _option_table(table, n_gen: int, max_order: int, double_beam: str) -> tuple:
     reciprocal partners, after the others, as ``engine.reciprocal_sets`` forms them: the receive
     legs that followed it (``only``: that chain; -1 for the others) with a transmit leg along
     each flat chain that pairs with it."""
-    from ..paths.engine import SAME, chain_ranks, frame_options
+    from ..paths.engine import SAME, chain_ranks, frame_options, partner_chains
 
     rows, smooth = [], []  # rows: (generation, chain, same, image row, only)
     for g, tx, row in frame_options(table, n_gen, max_order, double_beam):
@@ -558,17 +557,9 @@ def _option_table(table, n_gen: int, max_order: int, double_beam: str) -> tuple:
         rows.append((g, 0 if tx == SAME else tx, tx == SAME, row, -1))
     if smooth:
         rank = chain_ranks(table)
-        flat = [table.flat(c) for c in range(len(table))]
         for g, tx, row in smooth:
-            k = table.length(tx)
-            if k >= n_gen:
-                continue
-            for c in range(len(table)):
-                if c == tx or table.length(c) != g or not flat[c]:
-                    continue
-                if double_beam != "separate" and not rank[c] > rank[tx]:
-                    continue  # the pair is formed from the other member, or not at all
-                rows.append((k, c, False, row, tx))
+            if table.length(tx) < n_gen:
+                rows += [(table.length(tx), c, False, row, tx) for c in partner_chains(table, g, tx, rank, double_beam)]
     n_opt = len(rows)
     length = np.array([0 if r[2] else table.length(r[1]) for r in rows], np.int32)
     unfold = np.zeros((n_opt, 3, 4))
