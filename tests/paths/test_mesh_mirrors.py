@@ -351,30 +351,42 @@ GLINT_SONAR = {"n_beams": 16, "azimuth_fov_deg": 40.0, "elevation_fov_deg": 20.0
                "range_max_m": 5.0, "n_range_bins": 500}
 
 
-def square_wall(as_box: bool, tvg: bool) -> dict:
-    """A mirror wall (R 0.8, no diffuse part) 3 m ahead of a level sonar, met square on."""
+def square_wall(as_box: bool, tvg: bool, distance_m: float = 3.0, plate_m: float = 20.0) -> dict:
+    """A mirror wall (R 0.8, no diffuse part) ``distance_m`` ahead of a level sonar, met square
+    on: a plane, or the front face of a box ``plate_m`` wide and high (a plate)."""
     wall = {"albedo": 0.0, "specular": 0.8}
     doc = {"sonar": {**GLINT_SONAR, "pose": {"position_m": [0, 0, 1], "rpy_deg": [0, 0, 0]}},
            "render": {"elevation_samples": 256, "azimuth_samples": 16, "max_order": 1, "glints": True, "tvg": tvg}}
     if as_box:
-        doc["objects"] = [{"name": "wall", "primitive": "box", "size_m": [0.2, 20, 20],
-                           "pose": {"position_m": [3.1, 0, 1]}, **wall}]
+        doc["objects"] = [{"name": "wall", "primitive": "box", "size_m": [0.2, plate_m, plate_m],
+                           "pose": {"position_m": [distance_m + 0.1, 0, 1]}, **wall}]
     else:
-        doc["planes"] = [{"name": "wall", "point_m": [3.0, 0, 0], "normal": [-1, 0, 0], **wall}]
+        doc["planes"] = [{"name": "wall", "point_m": [distance_m, 0, 0], "normal": [-1, 0, 0], **wall}]
     return doc
 
 
-@pytest.mark.parametrize("as_box,tvg", [(False, True), (False, False), (True, True)])
-def test_a_mirror_met_square_on_returns_what_its_image_source_sends(as_box, tvg):
-    """The sonar's image in the wall is a source 2 D away: the intensity at the sonar is
-    R / (2 D)**2, in the image's units pi R / (4 D**2) per radian of beam width (times D**2
-    with TVG), at range D, in the beams either side of the axis."""
-    im = sonarsim.render(square_wall(as_box, tvg))
+@pytest.mark.parametrize("as_box,tvg,distance_m,plate_m", [(False, True, 3.0, 20.0), (False, False, 3.0, 20.0),
+                                                           (True, True, 3.0, 20.0), (True, True, 1.5, 0.6),
+                                                           (True, False, 2.2, 0.6)])
+def test_a_mirror_met_square_on_returns_what_its_image_source_sends(as_box, tvg, distance_m, plate_m):
+    """A plate square on in the near field (its Fresnel zones far smaller than it) is a mirror:
+    the sonar's image in it is a source 2 D away, and the sonar equation gives the echo level
+    ``SL + 10 log10 R - 20 log10(2 D)``. In the image's units (``sigma / r**2`` per radian of
+    beam width, see :func:`sonarsim.sensor.acoustics.echo_level_offset_db`) that is
+    ``R / (2 D)**2`` summed over the beams it lands in times their width in radians (times
+    ``D**2`` with TVG), at range D, in the beams either side of the axis. (Issue 37: it was
+    ``pi`` times that, the disc's area taken as ``a**2``.)"""
+    from sonarsim.sensor.acoustics import echo_level_offset_db
+
+    im = sonarsim.render(square_wall(as_box, tvg, distance_m, plate_m))
     total = im.components["total"].astype(float)
-    d, r = 3.0, 0.8
-    expected = np.pi * r / (4 * d * d) * (d * d if tvg else 1.0)
+    d, r = distance_m, 0.8
     width = np.radians(GLINT_SONAR["azimuth_fov_deg"] / GLINT_SONAR["n_beams"])
-    assert total.sum() * width == pytest.approx(expected, rel=0.05)
+    x = total.sum() * width / (d * d if tvg else 1.0)  # sigma / r**2 of the range-compensated image
+    assert x == pytest.approx(r / (2 * d) ** 2, rel=0.05)
+    source_level = 200.0
+    level = float(echo_level_offset_db(np.array([d]), source_level, 0.0)[0]) + 10 * np.log10(x * d * d)
+    assert level == pytest.approx(source_level + 10 * np.log10(r) - 20 * np.log10(2 * d), abs=0.2)
     rows, cols = np.flatnonzero(total.sum(axis=1)), np.flatnonzero(total.sum(axis=0))
     assert np.all(np.abs(im.range_m[rows] - d) < 0.006) and set(cols) <= {7, 8}  # (bins of 9 mm)
     assert set(im.components.signatures) == {"O-wall-O"}
@@ -409,14 +421,14 @@ def corner_reflector(direction, r=0.9) -> tuple[dict, np.ndarray]:
 def test_a_corner_reflector_returns_at_its_range_from_every_direction_in_its_quadrant(direction):
     """Three reflections invert the sonar through the corner C: its image is a source at 2 |OC|
     whatever the direction in the quadrant, so the return lies at the corner's range, in the
-    beam of C, with pi R**3 / 4 per radian of beam width (TVG), in all six orders of the
-    plates."""
+    beam of C, with R**3 / 4 per radian of beam width (TVG: R**3 / (2 |OC|)**2 times |OC|**2),
+    in all six orders of the plates."""
     doc, o = corner_reflector(direction)
     im = sonarsim.render(doc)
     total = im.components["total"].astype(float)
     width = np.radians(2.0)
     r = 0.9
-    assert total.sum() * width == pytest.approx(np.pi * r ** 3 / 4, rel=0.05)
+    assert total.sum() * width == pytest.approx(r ** 3 / 4, rel=0.05)
     rng = np.linalg.norm(C_CORNER - o)
     rows, cols = np.flatnonzero(total.sum(axis=1)), np.flatnonzero(total.sum(axis=0))
     assert np.all(np.abs(im.range_m[rows] - rng) < 0.006) and cols.tolist() == [7]  # (bins of 9 mm)

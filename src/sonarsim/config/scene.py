@@ -508,7 +508,8 @@ class RenderSettings:
         objects) and comes back to the sonar without scattering -- a corner reflector's
         retro-reflection, a wall met square on. Each of the fan's rays that returns, after one
         to ``max_order`` reflections, within ``glint_radius_m`` of the sonar carries
-        ``R ... R w / glint_radius_m**2`` (w the ray's weight; :mod:`sonarsim.paths.engine`).
+        ``R ... R w / (pi glint_radius_m**2)`` (w the ray's weight, the disc's area below it;
+        :mod:`sonarsim.paths.engine`).
         Off by default (the paper's model has none).
     glint_radius_m : float
         Radius of the receiving disc of the specular returns, metres, in (0, 1]: about the

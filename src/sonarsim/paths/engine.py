@@ -18,7 +18,7 @@ of surface interactions: the planes met on both legs plus the scatter.
   leaves the sonar inside the aperture only within a region narrower than the ray spacing.
 * A path is recorded at half its total length, in the beam of the ray it arrives along,
   weighted by the product of the specular reflectances of both legs times the diffuse
-  weight of that ray at A (``beta l(r) rho cos(alpha) dphi``, r the receive leg's length).
+  weight of that ray at A (``beta l(r) rho cos(alpha) cos(phi) dphi``, r the receive leg's length).
 
 When both legs follow the same chain, the transmit leg is the receive leg reversed (the path
 O-G-A-G-O of the paper): its length and validity are the ray's own. Legs on different chains
@@ -93,7 +93,7 @@ class Leg:
         Unit normal of the surface at A (either orientation): an object's as the caster reports
         it, a plane's rounded to float32 (it serves the continuity of range splatting only).
     intensity : (n,) float64 ndarray
-        Diffuse weight of the ray at A: ``beta l(r) rho cos(alpha) dphi``.
+        Diffuse weight of the ray at A: ``beta l(r) rho cos(alpha) cos(phi) dphi``.
     atten : (n,) float64 ndarray
         Product of the specular reflectances along the leg (1 everywhere in generation 0).
     chain : (n,) int32 ndarray
@@ -395,7 +395,7 @@ def trace_generation(
     laws : SurfaceLaws or (n_surfaces + 1,) float array
         Backscatter laws by surface id + 1 (an array: the Lambertian albedo).
     weight : (n,) float array
-        Weight ``beta dphi`` of each fan ray.
+        Weight ``beta cos(phi) dphi`` of each fan ray.
     tvg : bool
     first : bool
         The first generation: points and incidence as the caster reports them (float32), and
@@ -546,7 +546,7 @@ def weigh_leg(leg: Leg, reached: np.ndarray, laws: SurfaceLaws | np.ndarray, wei
     laws : SurfaceLaws or (n_surfaces + 1,) float array
         Backscatter laws by surface id + 1 (an array: the Lambertian albedo).
     weight : (n,) float array
-        Weight ``beta dphi`` of each fan ray.
+        Weight ``beta cos(phi) dphi`` of each fan ray.
     tvg : bool
         Without TVG, the weight is divided by the leg's length squared.
     n_planes : int
@@ -798,7 +798,7 @@ def trace_legs(
     directions : (n, 3) float64 array
         Unit ray directions in the world frame.
     weight : (n,) float array
-        Ray weights ``beta dphi``.
+        Ray weights ``beta cos(phi) dphi``.
     laws : SurfaceLaws or (P + n_objects + 1,) float array
         Backscatter laws indexed by surface id + 1 (an array: the Lambertian albedo).
     tvg : bool
@@ -858,10 +858,12 @@ def returns_to_sonar(mirror: Leg, rays: Rays, reached: Leg, origin: np.ndarray, 
     distance along the ray to O's foot on it. Written into ``mirror.back_*``.
 
     Why a disc: a point receiver meets a ray with probability zero; the rays that cross a disc
-    of radius a around O estimate the intensity there as ``sum(R w) / a**2`` in the image's
-    units (each ray carries the solid angle of its weight, and a flux density is a count of
-    tubes per area). The image-source picture gives the same for a flat mirror met square on
-    at range r: ``pi R / (4 r**2)`` per radian of beam width (tested), without its
+    of radius a around O estimate the intensity there as ``sum(R w) / (pi a**2)`` in the
+    image's units (each ray carries the solid angle of its weight, and a flux density is the
+    flux through the disc over its area, ``pi a**2``). The image-source picture gives the same
+    for a flat mirror met square on at range r: the sonar's image is a source ``2 r`` away, so
+    ``R / (2 r)**2`` summed over the beams it lands in, times the beam width in radians (the
+    sonar equation's ``SL - 20 log10(2 r)`` for R = 1; tested), without the image source's
     degeneracy at a corner reflector's apex, where every reflection point is the apex.
     """
     n = len(mirror.distance)
@@ -895,7 +897,7 @@ def glint_sets(legs: list[Leg], view: SonarView, n_planes: int, rays_per_beam: i
 
     A return after k reflections is of order k; it is recorded at half its length, in the beam
     it arrives from (``-back_dir`` inside the receive aperture: the fan and the elevation
-    aperture), with ``R ... R w / radius_m**2`` (times the range squared with TVG, as the
+    aperture), with ``R ... R w / (pi radius_m**2)`` (times the range squared with TVG, as the
     scattered paths' ``l(r)``); w the weight of the fan ray it left along. Its set's leg is
     the one where it last reflected (its point and surface label it); order 1 goes to the
     objects' or planes' row by that surface.
@@ -915,7 +917,7 @@ def glint_sets(legs: list[Leg], view: SonarView, n_planes: int, rays_per_beam: i
         keep = (beam >= 0) & (np.abs(el) <= view.half_elevation_deg)
         ray, beam = ray[keep], beam[keep].astype(np.int32)
         distance = 0.5 * leg.back_length[ray]
-        energy = leg.back_atten[ray] * np.asarray(weight)[ray] / (radius_m * radius_m)
+        energy = leg.back_atten[ray] * np.asarray(weight)[ray] / (np.pi * radius_m * radius_m)
         if tvg:
             energy = energy * distance * distance
         order = leg.gen + 1
