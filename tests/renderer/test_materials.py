@@ -33,19 +33,20 @@ def wall_scene(material: dict, d: float = 3.0, elev: float = 12.0, **render) -> 
 @pytest.mark.parametrize("law", list(LAWS))
 def test_wall_matches_the_integral_of_the_law(law):
     # Eq. 3 with f(alpha) in place of rho cos(alpha): each beam's energy is the integral over
-    # the elevation aperture of f(cos(phi) cos(theta)) dphi (TVG on, uniform beam pattern).
+    # the elevation aperture of f(cos(phi) cos(theta)) cos(phi) dphi (the solid angle per
+    # radian of beam width; TVG on, uniform beam pattern).
     elev = 12.0
     img = sonarsim.render(wall_scene(LAWS[law], elev=elev))
     theta = np.radians(img.azimuth_deg)
     a = math.radians(elev) / 2
-    if law == "lambert":
-        expected = 0.01 * np.cos(theta) * 2 * math.sin(a)  # closed form: mu cos(alpha) per ray
+    if law == "lambert":  # closed form: mu cos(alpha) cos(phi) = mu cos(theta) cos(phi)**2
+        expected = 0.01 * np.cos(theta) * (2 * a + math.sin(2 * a)) / 2
     else:
         phi = np.linspace(-a, a, 20001)
-        f = Material(**LAWS[law]).evaluate(np.cos(phi)[None, :] * np.cos(theta)[:, None])
+        f = Material(**LAWS[law]).evaluate(np.cos(phi)[None, :] * np.cos(theta)[:, None]) * np.cos(phi)[None, :]
         expected = (0.5 * (f[:, 1:] + f[:, :-1]) * np.diff(phi)).sum(axis=1)  # trapezoids
     if law == "lambertian":
-        np.testing.assert_allclose(expected, 0.6 * np.cos(theta) * 2 * math.sin(a), rtol=1e-8)
+        np.testing.assert_allclose(expected, 0.6 * np.cos(theta) * (2 * a + math.sin(2 * a)) / 2, rtol=1e-8)
     np.testing.assert_allclose(img.polar.sum(axis=0), expected, rtol=2e-3)
 
 

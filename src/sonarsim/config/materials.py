@@ -3,7 +3,7 @@
 A law is a backscattering cross-section per unit area and unit solid angle, ``sigma(alpha)``
 (dimensionless; ``10 log10 sigma`` is the backscattering strength, the quantity sea-bed
 measurements report), at incidence ``alpha`` (the angle between the ray and the surface
-normal). A ray of weight ``w = beta(theta, phi) * dphi`` meets an area that grows as
+normal). A ray of weight ``w = beta(theta, phi) * cos(phi) dphi`` meets an area that grows as
 ``1 / cos(alpha)`` (``dA = r^2 dOmega / cos(alpha)``), so it carries
 ``w * l(r) * f(alpha)`` with ``f = sigma / cos(alpha)`` (paper Eq. 3-6 with ``f = rho cos``):
 

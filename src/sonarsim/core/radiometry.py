@@ -1,7 +1,7 @@
 """Radiometry: the backscattered energy a ray carries (paper Eq. 3-6).
 
-A ray hitting a surface at incidence alpha returns ``beta * l(r) * f(alpha) * dphi``, where
-``beta * dphi`` is the ray's weight (beam pattern times the elevation interval it stands for),
+A ray hitting a surface at incidence alpha returns ``beta * l(r) * f(alpha) * cos(phi) dphi``, where
+``beta * cos(phi) dphi`` is the ray's weight (beam pattern times the solid angle it stands for),
 ``l(r)`` the range compensation and ``f`` the surface's backscatter law
 (:mod:`sonarsim.config.materials`): the paper's Lambertian ``rho * cos(alpha)`` by default,
 Lambert's ``mu * cos(alpha)**2``, or a diffuse part plus a specular lobe.
@@ -119,7 +119,7 @@ def backscatter(
     tvg: bool,
     texel: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Per-ray backscatter ``beta * l(r) * f(alpha) * dphi`` under each surface's law.
+    """Per-ray backscatter ``beta * l(r) * f(alpha) * cos(phi) dphi`` under each surface's law.
 
     The NumPy twin of the kernels' law (same operations in the same order: the Lambertian
     case is exactly :func:`lambertian_intensity`).
@@ -127,7 +127,7 @@ def backscatter(
     Parameters
     ----------
     weight : (...) float array
-        Ray weight ``beta(theta, phi) * dphi`` (radians).
+        Ray weight ``beta(theta, phi) * cos(phi) dphi`` (radians).
     cos_incidence : (...) float array
         cos(alpha) in [0, 1].
     laws : SurfaceLaws
@@ -174,12 +174,12 @@ def lambertian_intensity(
     distance_m: np.ndarray,
     tvg: bool,
 ) -> np.ndarray:
-    """Per-ray backscatter ``beta * l(r) * rho * cos(alpha) * dphi`` (paper Eq. 3-6).
+    """Per-ray backscatter ``beta * l(r) * rho * cos(alpha) * cos(phi) dphi`` (paper Eq. 3-6).
 
     Parameters
     ----------
     weight : (...) float array
-        Ray weight ``beta(theta, phi) * dphi`` (radians), see :class:`sonarsim.core.rays.RayFan`.
+        Ray weight ``beta(theta, phi) * cos(phi) dphi`` (radians), see :class:`sonarsim.core.rays.RayFan`.
     cos_incidence : (...) float array
         cos of the angle between the ray and the surface normal, in [0, 1].
     albedo : (...) float array

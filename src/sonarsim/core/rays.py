@@ -136,8 +136,10 @@ class RayFan:
     elevation_rad : (n_elevation_samples,) float64 ndarray
         phi of each elevation sample, ascending.
     weight : (n_beams, n_azimuth_samples, n_elevation_samples) float64 ndarray
-        ``beta(theta, phi) * dphi / n_azimuth_samples`` in radians: with these weights the image
-        approximates the integral of paper Eq. 3 whatever the number of rays.
+        ``beta(theta, phi) * cos(phi) * dphi / n_azimuth_samples`` in radians: the solid angle
+        of the ray's cell (``cos(phi) dphi dtheta``) per radian of beam width, times the beam
+        pattern; with these weights the image approximates the integral of paper Eq. 3 over
+        solid angle whatever the number of rays.
     """
 
     directions: np.ndarray
@@ -193,5 +195,8 @@ def make_ray_fan(sonar: SonarGeometry, render: RaySettings, elevation_gain=None)
         beta = beta * np.exp(-ln2 * (2.0 * frac) ** 2)[None, :, None]
     if elevation_gain is not None:
         beta = beta * np.asarray(elevation_gain(phi), dtype=float)[None, None, :]
-    weight = beta * (dphi / n_az)
+    # A ray stands for the solid angle cos(phi) dphi dtheta of its cell: the cos(phi) is the
+    # sphere's metric (a cell of one dphi x dtheta narrows towards the poles), so that the image
+    # is the integral of paper Eq. 3 over solid angle, per radian of beam width.
+    weight = beta * (cphi * (dphi / n_az))[None, None, :]
     return RayFan(directions=directions, azimuth_rad=theta, elevation_rad=phi, weight=weight)

@@ -248,7 +248,9 @@ def fan_rays(params: dict, data: dict, st: SensorStatic) -> tuple[jax.Array, jax
     if st.span_follows_width:
         phi, theta = phi[k], data["s_theta"]
         direction = jnp.stack([jnp.cos(phi) * jnp.cos(theta), jnp.cos(phi) * jnp.sin(theta), jnp.sin(phi)], axis=1)
-        return direction, data["s_base_weight"] * (span / st.span0_deg) * gain
+        # (the base weight holds cos(phi) at the fan's own elevation: a ray's solid angle)
+        cos0 = jnp.cos(data["s_frac"] * st.span0_deg * (jnp.pi / 180.0))[k]
+        return direction, data["s_base_weight"] * (span / st.span0_deg) * gain * (jnp.cos(phi) / cos0)
     return data["direction"], data["s_base_weight"] * gain
 
 

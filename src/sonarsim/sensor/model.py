@@ -219,8 +219,9 @@ class SensorModel:
         self.noise_expected = ((noise_row + self.common_power).astype(np.float32) if self._has_common
                                else self.noise_row)
         self._no_common = np.zeros(len(r), np.float32)
-        # The image holds backscatter per radian of elevation (sigma / cos(alpha) dphi per ray,
-        # see config.materials); times each beam's width in radians it is sigma / r^2.
+        # The image holds backscatter per radian of beam width (sigma / cos(alpha) cos(phi) dphi
+        # per ray, see config.materials and core.rays); times each beam's width in radians it is
+        # sigma / r^2.
         self.column_factor = np.radians(sonar.effective_beam_width_deg()).astype(np.float32)
         spacing = float(np.median(np.abs(np.diff(sonar.azimuth_deg)))) if sonar.n_beams > 1 else 1.0
         # The cell a pose is quantised to for world-anchored speckle (see anchored_rng).
