@@ -167,7 +167,7 @@ def test_load_image_refuses_what_it_cannot_read(tmp_path, npz_files, monkeypatch
         load_image(npz_files["full"], component="echo")
     foreign = tmp_path / "foreign.npz"
     np.savez(foreign, polar=np.zeros((3, 3)))
-    with pytest.raises(SonarsimError, match="not a readable sonarsim NPZ"):
+    with pytest.raises(SonarsimError, match="not a readable NPZ written by sonarsim"):
         load_image(foreign)
     # Anything else goes to sonarsim.io.readers; simulate it being absent.
     other = tmp_path / "recording.aris"

@@ -38,10 +38,10 @@ def _save(path, arrays, config_text="{}", **changed):
 @pytest.mark.parametrize("config_text, changed, message", [
     ("[" * 100000 + "]" * 100000, {}, "nested too deeply"),
     ('{"sonar": ' + "{\"a\": " * 50000 + "1" + "}" * 50001, {}, "nested too deeply"),
-    ("{}", {"polar": np.full((50, 8), "x")}, "'polar' holds <U1 values"),
-    ("{}", {"polar": np.ones((50, 8), np.complex64)}, "'polar' holds complex64 values"),
-    ("{}", {"range_m": np.array(["a"] * 50)}, "'range_m' holds <U1 values"),
-    ("{}", {"polar": np.ones((1, 50, 8), np.float32)}, r"'polar' has shape \(1, 50, 8\); an image has 2 dimensions"),
+    ("{}", {"polar": np.full((50, 8), "x")}, "polar: holds <U1 values"),
+    ("{}", {"polar": np.ones((50, 8), np.complex64)}, "polar: holds complex64 values"),
+    ("{}", {"range_m": np.array(["a"] * 50)}, "range_m: holds <U1 values"),
+    ("{}", {"polar": np.ones((1, 50, 8), np.float32)}, r"polar: has shape \(1, 50, 8\); an image has 2 dimensions"),
     ('{"sonar": {"elevation_fov_deg": "wide"}}', {}, "sonar.elevation_fov_deg is 'wide'; allowed: a number"),
     ('{"sonar": {"elevation_fov_deg": [1, 2]}}', {}, r"sonar.elevation_fov_deg is \[1, 2\]"),
 ])

@@ -15,7 +15,6 @@ from __future__ import annotations
 import importlib
 import math
 import os
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -132,21 +131,14 @@ def _geometry_of(image: Any, polar: np.ndarray, name: str) -> PolarGrid | None:
 
 
 def _range_window(range_m: np.ndarray, name: str) -> tuple[float, float]:
-    """``(range_min_m, range_max_m)`` from uniformly spaced bin centres."""
-    r = range_m.ravel()
-    if r.size < 2:
-        raise SonarsimError(
-            f"{name}: cannot recover the range window from {r.size} range bin centre(s)"
-        )
-    step = np.diff(r)
-    dr = float(r[-1] - r[0]) / (r.size - 1)
-    # Bins are uniform by the project's convention; anything else is not a sonarsim image.
-    if not (dr > 0 and np.allclose(step, dr, rtol=1e-6, atol=1e-9)):
-        raise SonarsimError(f"{name}: range_m must be uniformly spaced, increasing bin centres")
-    # Rounded to 12 significant digits so that a window such as 0.5-5 m comes back as exactly
-    # that rather than 0.49999999999999994 (float round-off of centre - dr/2); the change is
-    # far below any meaningful range.
-    return float(f"{r[0] - dr / 2.0:.12g}"), float(f"{r[-1] + dr / 2.0:.12g}")
+    """``(range_min_m, range_max_m)`` from uniformly spaced bin centres
+    (:func:`sonarsim.io.readers.npz.range_window`, naming ``name``)."""
+    from ..io.readers.npz import range_window
+
+    try:
+        return range_window(range_m)
+    except ValueError as exc:
+        raise SonarsimError(f"{name}: {exc}") from None
 
 
 def _same_grid(ga: PolarGrid, gb: PolarGrid) -> bool:
@@ -607,7 +599,9 @@ def load_image(path: str | os.PathLike, frame: int | None = None, component: str
       axes (range window from the uniform bin centres, beam table from ``azimuth_deg``) and
       from the configuration (elevation aperture, 14 deg if absent; beam width); its ``pose``
       is the configuration's ``sonar.pose`` (None if absent or unreadable). Its
-      ``components`` are the stored ones; ``rays`` is None.
+      ``components`` are the stored echo components (not the label maps); ``rays`` is None.
+      Read by :func:`sonarsim.io.readers.npz.load_stored_image`, the loader ``sonarsim.read``
+      and ``show`` use (``geometry="axes"``); an image holding NaN or infinities is refused.
     * a PNG: a :class:`PlainImage` (no geometry) holding the grey levels as float32 (colour is
       converted to luma by Pillow; 16-bit and float images keep their values). Rows are
       flipped on reading, because sonarsim draws polar PNGs with far range at the top, so that
@@ -730,75 +724,8 @@ def _load_png(p: Path, name: str) -> PlainImage:
 
 
 def _load_npz(p: Path, name: str, component: str | None):
-    from ..io.output import read_npz
-    from ..image.result import SonarImage
-    from ..config.sonar import SonarConfig
+    # The one loader of stored images (sonarsim.read and show use it too); the geometry from
+    # the axes, so that any image with axes compares.
+    from ..io.readers.npz import load_stored_image
 
-    try:
-        arrays, config = read_npz(p)
-    except (ValueError, OSError, zipfile.BadZipFile, KeyError) as exc:
-        raise SonarsimError(f"{name}: not a readable sonarsim NPZ file: {exc}") from None
-    missing = [k for k in ("polar", "range_m", "azimuth_deg") if k not in arrays]
-    if missing:
-        raise SonarsimError(f"{name}: not a sonarsim image: no {', '.join(missing)} array(s)")
-    key = "polar" if component is None else component
-    if key in arrays and np.ndim(arrays[key]) != 2:
-        raise SonarsimError(f"{name}: {key!r} has shape {np.shape(arrays[key])}; an image has 2 dimensions "
-                            "(range bins x beams)")
-    if key not in arrays:
-        stored = sorted(k for k, v in arrays.items() if np.ndim(v) == 2 and np.shape(v) == np.shape(arrays["polar"]))
-        raise SonarsimError(
-            f"{name}: no image {key!r}; the file holds {', '.join(stored) or 'none'}"
-        )
-    # Real numbers only: strings, complex values or booleans are no sonar image or axis.
-    for k in (key, "range_m", "azimuth_deg"):
-        if arrays[k].dtype.kind not in "iuf":
-            raise SonarsimError(f"{name}: {k!r} holds {arrays[k].dtype} values; a sonarsim image holds real numbers")
-    polar = np.asarray(arrays[key], dtype=np.float32)
-    range_m = np.asarray(arrays["range_m"], dtype=np.float64).ravel()
-    azimuth = np.asarray(arrays["azimuth_deg"], dtype=np.float64).ravel()
-    if polar.shape != (range_m.size, azimuth.size):
-        raise SonarsimError(
-            f"{name}: {key!r} has shape {polar.shape} but range_m and azimuth_deg give "
-            f"({range_m.size}, {azimuth.size})"
-        )
-    rmin, rmax = _range_window(range_m, name)
-    s = config.get("sonar") if isinstance(config.get("sonar"), dict) else {}
-    kwargs: dict[str, Any] = {}
-    for k in ("beam_width_deg", "frequency_khz"):
-        if isinstance(s.get(k), (int, float)):
-            kwargs[k] = float(s[k])
-    pose = None
-    if isinstance(s.get("pose"), dict):
-        from ..config.loader import parse_pose
-
-        try:
-            pose = parse_pose(s["pose"], "sonar.pose")
-        except SonarsimError:
-            pass  # the pose plays no part in a comparison; a bad one must not block it
-    elevation = s.get("elevation_fov_deg", 14.0)
-    if isinstance(elevation, bool) or not isinstance(elevation, (int, float)):
-        raise SonarsimError(f"{name}: config_json sonar.elevation_fov_deg is {shown(elevation)}; allowed: a number "
-                            "of degrees in (0, 180)")
-    try:
-        sonar = SonarConfig(
-            beam_angles_deg=tuple(azimuth),
-            elevation_fov_deg=float(elevation),
-            range_min_m=rmin,
-            range_max_m=rmax,
-            n_range_bins=int(range_m.size),
-            **kwargs,
-        )
-    except (SonarsimError, TypeError, ValueError) as exc:
-        raise SonarsimError(f"{name}: inconsistent sonar geometry: {exc}") from None
-    # Every image of the render's shape is a component (orders, path signatures), but the
-    # image itself and the per-ray maps.
-    components = {
-        k: np.asarray(v, dtype=np.float32)
-        for k, v in arrays.items()
-        if k != "polar" and not k.startswith("rays_") and np.shape(v) == polar.shape
-    }
-    return SonarImage(
-        polar=polar, range_m=range_m, azimuth_deg=azimuth, components=components, sonar=sonar, pose=pose,
-        rays=None, config=config,
-    )
+    return load_stored_image(p, component, geometry="axes")

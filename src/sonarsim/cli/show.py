@@ -29,7 +29,7 @@ from pathlib import Path
 from ..core.console import log as _log
 from .argtypes import display_gain_db, display_range_db, positive_float
 
-__all__ = ["add_show_parser", "cmd_show"]
+__all__ = ["add_show_parser", "cmd_show", "figure_title"]
 
 
 def add_show_parser(subparsers) -> argparse.ArgumentParser:
@@ -140,6 +140,44 @@ def cmd_show(args: argparse.Namespace) -> None:
         write_png(out / "fan.png", fan_png)
         _log(f"wrote {out / 'polar.png'} and {out / 'fan.png'} ({fan.shape[1]} x {fan.shape[0]} px) "
              f"in {time.perf_counter() - t1:.3f} s")
+        title = figure_title(image, source)
         write_figure(args, out / "fan_figure", lambda: fan_figure(image, scale=scale, colormap=args.colormap,
-                                                                   pixel_size_m=args.pixel_size), run)
-        write_figure(args, out / "polar_figure", lambda: polar_figure(image, scale=scale, colormap=args.colormap), run)
+                                                                   pixel_size_m=args.pixel_size, title=title), run)
+        write_figure(args, out / "polar_figure", lambda: polar_figure(image, scale=scale, colormap=args.colormap,
+                                                                       title=title), run)
+
+
+def figure_title(image, source: str) -> str:
+    """The figures' title: a recording's as :func:`~sonarsim.plot.figures.describe` gives it
+    (format, file, frame); a stored image named by its file, and for a dataset's frame its
+    number and time, in place of the plain "sonar" of a render without a preset.
+
+    Parameters
+    ----------
+    image : SonarImage
+        What was read (a recording's frame or a stored image).
+    source : str
+        The file given on the command line.
+
+    Returns
+    -------
+    str
+        Two or three lines.
+    """
+    from ..plot.figures import describe
+
+    lines = describe(image).split("\n")
+    config = getattr(image, "config", None) or {}
+    if "format" in config:  # a recording: describe names it
+        return "\n".join(lines)
+    name = os.path.basename(source)
+    dataset = config.get("dataset")
+    if isinstance(dataset, dict) and isinstance(dataset.get("frame"), int) and not isinstance(dataset["frame"], bool):
+        name += f", dataset frame {dataset['frame']}"
+        t = dataset.get("time_s")
+        if isinstance(t, (int, float)) and not isinstance(t, bool):
+            name += f" at t = {t:g} s"
+    s = image.sonar
+    device = f"{s.preset}, " if s.preset else ""
+    lines[0] = f"{name}: {device}{lines[0].split(', ', 1)[1] if ', ' in lines[0] else lines[0]}"
+    return "\n".join(lines)
