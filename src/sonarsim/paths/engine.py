@@ -1167,8 +1167,11 @@ def partner_chains(table: ChainTable, g: int, tx: int, rank: np.ndarray, double_
     an ``only`` chain): every one in ``separate``, else those that outrank ``tx`` (the pair is
     formed from the other member, or not at all); a pair of two smooth chains has no image
     source on either side."""
-    return [c for c in range(len(table)) if c != tx and table.length(c) == g and table.flat(c)
-            and (double_beam == "separate" or rank[c] > rank[tx])]
+    c = table.flat_of_length(g)
+    c = c[c != tx]
+    if double_beam != "separate":
+        c = c[np.asarray(rank)[c] > rank[tx]]
+    return c.tolist()
 
 
 def drop_occluded(sets: list[PathSet], legs: list[Leg], *, table: ChainTable, view: SonarView, active, caster) -> list[PathSet]:

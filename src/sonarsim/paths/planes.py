@@ -141,6 +141,7 @@ class ChainTable:
     facet_children: dict = field(default_factory=dict)
     _unfold: dict = field(default_factory=dict)
     _sources: dict = field(default_factory=dict)
+    _flat_index: tuple = (0, {})
 
     def __post_init__(self) -> None:
         self.origin = np.asarray(self.origin, dtype=float).reshape(3)
@@ -266,6 +267,20 @@ class ChainTable:
         n_planes = len(self.planes)
         facets = self.facets
         return all(p < n_planes or not facets.smooth[facets.mirror_obj[p - n_planes]] for p in self.chains[c])
+
+    def flat_of_length(self, g: int) -> np.ndarray:
+        """Ids (ascending) of the flat chains (:meth:`flat`) of length ``g``.
+
+        Indexed once for the table as it stands (again when it has grown): asked once per
+        smooth chain, a scan of every chain made the reciprocal pairs quadratic in the chains
+        (a sphere of 82k smooth facets: 8 s of a frame's 8.1)."""
+        n, index = self._flat_index
+        if n != len(self.chains):
+            lengths = np.fromiter((len(c) for c in self.chains), np.int64, len(self.chains))
+            flat = np.fromiter((self.flat(c) for c in range(len(self.chains))), bool, len(self.chains))
+            index = {int(k): np.flatnonzero(flat & (lengths == k)) for k in np.unique(lengths)}
+            self._flat_index = (len(self.chains), index)
+        return index.get(int(g), np.zeros(0, np.int64))
 
     # Views used by the path formation -----------------------------------------------------
 
