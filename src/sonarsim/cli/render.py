@@ -184,6 +184,9 @@ def render_and_write(scene, out: Path, args, run=None):
     s = image.sonar
     _log(f"scene built in {t1 - t0:.3f} s; rendered {s.n_range_bins} x {s.n_beams} image "
          f"({sim.ray_fan(s).n_rays} rays) in {t2 - t1:.3f} s")
+    # The path-signature images (render.npz holds them) are formed, and checked against the
+    # budget, before anything is written: a refusal must leave no PNG behind.
+    image.components.signatures
     out.mkdir(parents=True, exist_ok=True)
 
     def write(name: str, polar, label: str) -> None:

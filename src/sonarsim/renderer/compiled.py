@@ -858,10 +858,14 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
     return legs, sets, table, None if total is None else total.reshape(stack.shape[1:]), truth
 
 
-def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, spread: bool, out: np.ndarray) -> None:
-    """Accumulate path sets into the float32 image stack ``out`` (labels x bins x beams)."""
+def splat_paths(sets, legs, n_surfaces: int, n_elevation: int, geometry: tuple, spread: bool, out: np.ndarray,
+                keys: dict | None = None) -> None:
+    """Accumulate path sets into the float32 image stack ``out`` (labels x bins x beams).
+
+    ``keys``: the legs' surface keys by generation, kept by a caller that splats many groups
+    of one frame's paths (each a pass over the leg's rays)."""
     flat = out.reshape(-1)
-    keys = {}
+    keys = {} if keys is None else keys
     for s in sets:
         leg = legs[s.gen]
         if s.gen not in keys:

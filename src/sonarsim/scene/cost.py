@@ -25,7 +25,8 @@ from ..core.memory import require, require_time
 from ..errors import ConfigError
 from .meshes import CYLINDER_SECTIONS, cylinder_sections, load_mesh_file, sphere_subdivisions
 
-__all__ = ["BYTES_PER_TRIANGLE", "SceneCost", "check_scene_cost", "object_triangles", "scene_cost"]
+__all__ = ["BYTES_PER_LEG_RAY", "BYTES_PER_TRIANGLE", "SceneCost", "check_scene_cost", "leg_bytes", "object_triangles",
+           "scene_cost"]
 
 #: Memory a mirror's triangle (an object with ``specular`` > 0) takes beyond that, in the path
 #: engine's tables (:mod:`sonarsim.paths.facets`: corners, normal, plane, mirror and their sort),
@@ -38,9 +39,36 @@ BYTES_PER_SMOOTH_TRIANGLE = 3 * 32 * 64.0
 BYTES_PER_TRIANGLE = 200.0
 #: Build time of a triangle (Embree's high-quality BVH dominates: 2 to 3.5 microseconds here).
 SECONDS_PER_TRIANGLE = 3e-6
+#: Build time of a mirror's triangle beyond that (its facet, plane and mirror tables; with smooth
+#: normals its corners' normals): 4.8 s for a sphere of 327,680 smooth mirror triangles here
+#: with the machine loaded five times over, about 3 microseconds a triangle on a quiet one.
+SECONDS_PER_MIRROR_TRIANGLE = 3e-6
 #: Build time of an object beyond its triangles (its spec, its mesh placed in the world).
 SECONDS_PER_OBJECT = 1e-4
 BYTES_PER_OBJECT = 4096.0
+
+
+#: Memory a ray takes per traced generation of a frame with paths beyond the first bounce
+#: (``renderer.compiled.FrameLegs``: range, cosine, intensity, attenuation, surface, chain,
+#: key, point, normal, live index: 88 bytes; primitives, texels and the specular returns' 44
+#: more), rounded up.
+BYTES_PER_LEG_RAY = 150.0
+#: Generations that :data:`sonarsim.core.rays.BYTES_PER_RAY` already counts.
+LEGS_IN_RAY_BYTES = 3
+
+
+def leg_bytes(n_rays: int, max_order: int, glints: bool) -> float:
+    """Memory of a frame's traced legs beyond what :data:`~sonarsim.core.rays.BYTES_PER_RAY`
+    counts: ``max_order`` generations (one more with ``glints``, traced for the specular
+    returns), ``BYTES_PER_LEG_RAY`` a ray each.
+
+    Returns
+    -------
+    float
+        Bytes; 0 for a frame of up to ``LEGS_IN_RAY_BYTES`` generations.
+    """
+    generations = int(max_order) + (1 if glints else 0)
+    return float(n_rays) * max(0, generations - LEGS_IN_RAY_BYTES) * BYTES_PER_LEG_RAY
 
 
 @dataclass(frozen=True)
@@ -106,8 +134,10 @@ def scene_cost(scene: Scene, counts: Sequence[int] | None = None) -> SceneCost:
     # A mirror's triangles also fill the path engine's tables (paths.facets).
     mirrors = sum(c * t * (BYTES_PER_MIRROR_TRIANGLE + (BYTES_PER_SMOOTH_TRIANGLE if o.normals == "smooth" else 0.0))
                   for c, t, o in zip(counts, each, scene.objects) if o.specular > 0)
+    mirror_triangles = sum(c * t for c, t, o in zip(counts, each, scene.objects) if o.specular > 0)
     return SceneCost(n, triangles, n * BYTES_PER_OBJECT + triangles * BYTES_PER_TRIANGLE + mirrors,
-                     n * SECONDS_PER_OBJECT + triangles * SECONDS_PER_TRIANGLE)
+                     n * SECONDS_PER_OBJECT + triangles * SECONDS_PER_TRIANGLE
+                     + mirror_triangles * SECONDS_PER_MIRROR_TRIANGLE)
 
 
 def check_scene_cost(scene: Scene, key: str = "objects", counts: Sequence[int] | None = None) -> SceneCost:
