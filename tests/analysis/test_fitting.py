@@ -118,7 +118,7 @@ def test_fit_command_writes_the_fitted_scene_and_the_side_by_side_image(tmp_path
         "ground": {"albedo": 0.8}, "render": {"bounces": [1]},
     }))
     out = tmp_path / "out" / "fitted.yaml"
-    rc = main(["fit", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--free", "z,pitch",
+    rc = main(["fit", "--method", "search", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--free", "z,pitch",
                "--domain", "band", "--out", str(out)])
     assert rc == 0
     fitted = sonarsim.load_scene(out)

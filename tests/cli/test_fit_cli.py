@@ -55,7 +55,7 @@ def test_auto_says_which_domain_and_progress_goes_to_stderr(floor_case, tmp_path
     real, scene = floor_case
     monkeypatch.setattr(fit_cli, "PROGRESS_INTERVAL_S", 0.0)  # every render reported
     out = tmp_path / "fitted.yaml"
-    assert run(["fit", real, "--scene", scene(0.37, 26.0), "--max-renders", 40, "--out", out]) == 0
+    assert run(["fit", "--method", "search", real, "--scene", scene(0.37, 26.0), "--max-renders", 40, "--out", out]) == 0
     err = capsys.readouterr().err.splitlines()
     progress = [line for line in err if line.startswith("sonarsim: fit (band): ")]
     assert len(progress) >= 20 and progress[0].startswith("sonarsim: fit (band): 2/40 renders, best band-edge RMS")
@@ -70,7 +70,7 @@ def test_quiet_silences_progress_and_notes(floor_case, tmp_path, capsys, monkeyp
     real, scene = floor_case
     monkeypatch.setattr(fit_cli, "PROGRESS_INTERVAL_S", 0.0)
     out = tmp_path / "fitted.yaml"
-    assert run(["fit", real, "--scene", scene(0.37, 26.0), "--max-renders", 40, "--quiet", "--out", out]) == 0
+    assert run(["fit", "--method", "search", real, "--scene", scene(0.37, 26.0), "--max-renders", 40, "--quiet", "--out", out]) == 0
     captured = capsys.readouterr()
     assert captured.err == "" and "near edge RMS" in captured.out and out.exists()
 
@@ -104,7 +104,7 @@ def assert_one_line_exit_3(status, err, *, says):
 def test_a_far_start_exits_3_and_writes_nothing(floor_case, tmp_path, capsys):
     real, scene = floor_case
     out = tmp_path / "out" / "fitted.yaml"
-    status = run(["fit", real, "--scene", scene(1.5, 60.0), "--max-renders", 30, "--quiet", "--out", out])
+    status = run(["fit", "--method", "search", real, "--scene", scene(1.5, 60.0), "--max-renders", 30, "--quiet", "--out", out])
     captured = capsys.readouterr()
     assert_one_line_exit_3(status, captured.err, says=(
         "real.npz: the fit found no meaningful pose: the render's echo does not line up with the recording's",
@@ -128,7 +128,7 @@ def test_a_recording_of_noise_exits_3(floor_case, tmp_path, capsys):
     rng = np.random.default_rng(1)
     replace(image, polar=rng.exponential(1.0, image.polar.shape).astype(np.float32),
             components={}).save_npz(tmp_path / "noise.npz")
-    status = run(["fit", tmp_path / "noise.npz", "--scene", scene(0.4, 28.0), "--max-renders", 20, "--quiet",
+    status = run(["fit", "--method", "search", tmp_path / "noise.npz", "--scene", scene(0.4, 28.0), "--max-renders", 20, "--quiet",
                   "--out", tmp_path / "f.yaml"])
     assert_one_line_exit_3(status, capsys.readouterr().err, says=("noise.npz: the fit found no meaningful pose",))
     assert not (tmp_path / "f.yaml").exists()
@@ -137,7 +137,7 @@ def test_a_recording_of_noise_exits_3(floor_case, tmp_path, capsys):
 @pytest.mark.parametrize("budget", ["0", "-3", "many"])
 def test_a_bad_render_budget_is_bad_input(floor_case, tmp_path, capsys, budget):
     real, scene = floor_case
-    status = run(["fit", real, "--scene", scene(0.4, 28.0), "--max-renders", budget, "--out", tmp_path / "f.yaml"])
+    status = run(["fit", "--method", "search", real, "--scene", scene(0.4, 28.0), "--max-renders", budget, "--out", tmp_path / "f.yaml"])
     err = capsys.readouterr().err
     assert status == 2 and f"--max-renders: expected a number of renders >= 1, got '{budget}'" in err
 
