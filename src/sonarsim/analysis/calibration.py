@@ -35,15 +35,21 @@ How the search avoids the wrong basin (issue 22: from a grid of starts, half end
 3. physical bounds on every parameter (:func:`parameter_bounds`: the bang below the source
    level and at least a range cell long, noise and gain where the device's output can show
    them);
-4. degenerate outcomes are refused (:class:`CalibrationFailed`, exit status 3): the echo
-   switched off (the lit band explained as noise lifted by the TVG), the pose unmoved from its
-   start or a free parameter that does not change the fit, a parameter pinned at a bound where
-   moving it off the bound costs fit, height, pitch or roll free where the recording shows no
-   floor band edge; a score below a trivial baseline (the frame's own range profile in every
-   beam) is a warning;
+4. degenerate outcomes are refused (:class:`CalibrationFailed`, exit status 3), by this search
+   and by the gradient calibration (:func:`sonarsim.diff.inverse.calibrate_recording`) alike:
+   a frame without echo (:func:`frame_problems`: one level, saturated, no lit region, pixel
+   noise, no speckle), the echo switched off (the lit band explained as noise lifted by the
+   TVG), the pose unmoved from its start or a free parameter that does not change the fit, a
+   parameter pinned at a bound where moving it off the bound costs fit, height, pitch or roll
+   free where the recording shows no floor band edge, a model that explains less than
+   :data:`MIN_EXPLAINED` of the frame's variance (:func:`model_problems`); a score below a
+   trivial baseline (the frame's own range profile in every beam) is a warning, and so is a
+   value at a bound where moving it off changes nothing (``CalibrationResult.at_bounds``);
 5. the family of equally good poses (within :data:`FAMILY_DB` of the best PSNR): the
    elevation width is held at each of :data:`FAMILY_WIDTHS_DEG` and the pose and sensor
-   refitted there; the range of height, pitch and width is reported, not one of them as if measured.
+   refitted there; the range of height, pitch and width is reported, and the member written
+   is the family's middle (:func:`family_middle`), not its best, which is chance within the
+   tolerance and was the scan's narrowest width on the real Oculus ping.
 
 The search is derivative-free (Nelder-Mead over a bounded transform), re-rendering only when a
 parameter that changes the rays (pose, elevation width) moves; the sensor-only parameters

@@ -109,9 +109,14 @@ def format_value(name: str, value) -> str:
             f"from {float(v.min()):.4f} to {float(v.max()):.4f}")
 
 
-def format_family(family: dict) -> str:
+def format_family(family: dict, method: str = "search", free: tuple = ()) -> str:
     """One line on the poses a flat floor cannot tell apart (or why none was scanned)."""
     if not family:
+        if method == "gradient" and {"z", "pitch"} <= set(free):
+            return ("pose family: not scanned by the gradient method (--method search scans it); one flat floor does "
+                    "not tell height, pitch and elevation width apart, so the pose above is the fit from the floor "
+                    "band's closed-form start with its edges at +-5 deg (the middle of the search's scan), one of "
+                    "the equally good poses, not a measurement")
         return "pose family: not scanned (needs z and pitch free and a floor band with both edges)"
     parts = [f"{k} {lo:.3g}-{hi:.3g}" for k, (lo, hi) in
              ((k, family[k]) for k in ("z", "pitch", "roll", "elevation_width_deg") if k in family)]
@@ -222,7 +227,7 @@ def cmd_calibrate(args) -> None:
         print(f"beside it, on the same frame: its range profile in every beam {b['range profile']:.2f} dB, its "
               f"separable range x beam image {b['separable']:.2f} dB, its 15 x 9 local mean (the ceiling) "
               f"{b['ceiling']:.2f} dB")
-        print(format_family(res.family))
+        print(format_family(res.family, method, free))
         _print_scores(report)
         _print_realism(report)
         print(format_evaluation(figures["calibrated"], f"frame {args.frame} (calibrated): "))

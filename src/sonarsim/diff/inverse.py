@@ -295,7 +295,12 @@ def fit_recording(real, scene, free: Sequence[str] = ("z", "pitch"), starts: Seq
     (:func:`~sonarsim.analysis.fitting.choose_domain` says ``band``), the band's edges are
     fitted (:func:`sonarsim.diff.bands.fit_band`: they do not depend on the range law that an
     uncalibrated render and a device's counts differ in), from the band's closed-form pose for
-    the sonar's elevation aperture and from the scene's pose. Otherwise the images themselves:
+    the sonar's elevation aperture and from the scene's pose. Where the domain is ``band`` but
+    the recording shows no band edge (a sea bed lit across the window), the band's cost is flat
+    within its bounds and has no gradient: the search's band fit
+    (:func:`~sonarsim.analysis.fitting.fit_pose`) decides, so both methods give one verdict.
+    A recording without echo (:func:`~sonarsim.analysis.fitting.echo_problems`) raises
+    :class:`~sonarsim.analysis.fitting.FitError`. Otherwise the images themselves:
     without a sensor in the scene, after dividing each by its blurred mean (only their shapes
     can agree); with one, in counts. The scatterers are held on their triangles
     (``attach='surfaces'``) and the search refreshed at every point evaluated.
