@@ -180,7 +180,7 @@ def test_calibrate_command_writes_a_scene_that_renders_in_the_recordings_units(t
     scene_file = tmp_path / "scene.yaml"
     scene_file.write_text(yaml.safe_dump(doc))
     out = tmp_path / "out" / "calibrated.yaml"
-    rc = main(["calibrate", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--out", str(out),
+    rc = main(["calibrate", "--method", "search", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--out", str(out),
                "--max-iterations", "120", "--json", str(tmp_path / "fig.json"), "--evaluate-frames", "0"])
     assert rc == 0
     printed = capsys.readouterr().out
@@ -317,7 +317,7 @@ def test_an_echo_the_scene_cannot_make_is_refused_as_the_echo_switched_off(tmp_p
     real.save_npz(tmp_path / "real.npz")
     (tmp_path / "scene.yaml").write_text(yaml.safe_dump(doc))
     out = tmp_path / "cal.yaml"
-    rc = main(["calibrate", str(tmp_path / "real.npz"), "--scene", str(tmp_path / "scene.yaml"), "--out", str(out),
+    rc = main(["calibrate", "--method", "search", str(tmp_path / "real.npz"), "--scene", str(tmp_path / "scene.yaml"), "--out", str(out),
                "--max-iterations", "40"])
     err = capsys.readouterr().err
     assert rc == 3 and "echo is switched off" in err and "Traceback" not in err

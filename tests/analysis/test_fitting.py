@@ -118,7 +118,7 @@ def test_fit_command_writes_the_fitted_scene_and_the_side_by_side_image(tmp_path
         "ground": {"albedo": 0.8}, "render": {"bounces": [1]},
     }))
     out = tmp_path / "out" / "fitted.yaml"
-    rc = main(["fit", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--free", "z,pitch",
+    rc = main(["fit", "--method", "search", str(tmp_path / "real.npz"), "--scene", str(scene_file), "--free", "z,pitch",
                "--domain", "band", "--out", str(out)])
     assert rc == 0
     fitted = sonarsim.load_scene(out)
@@ -260,12 +260,14 @@ def test_a_start_far_from_the_recordings_pose_gives_a_meaningless_fit():
         fit_pose(real, floor_scene(0.40, -40.0, 0.0), domain="edges", max_renders=9)
 
 
-def test_a_recording_of_noise_gives_a_meaningless_fit():
+def test_a_recording_of_noise_is_refused_before_the_search():
+    """Exponential noise has no echo structure (issue 37: refused before any render, where it
+    used to be searched and then judged)."""
     real = sonarsim.render(floor_scene(0.40, 28.0, 0.0))
     rng = np.random.default_rng(0)
     noise = replace(real, polar=rng.exponential(1.0, real.polar.shape).astype(np.float32), components={})
-    res = fit_pose(noise, floor_scene(0.40, 28.0, 0.0), max_renders=20)
-    assert not res.meaningful and any("does not line up" in p for p in res.problems)
+    with pytest.raises(FitError, match="the recording holds no echo to fit: the frame shows no echo structure"):
+        fit_pose(noise, floor_scene(0.40, 28.0, 0.0), max_renders=20)
 
 
 def test_fit_problems_name_each_condition():

@@ -55,7 +55,7 @@ def test_auto_says_which_domain_and_progress_goes_to_stderr(floor_case, tmp_path
     real, scene = floor_case
     monkeypatch.setattr(fit_cli, "PROGRESS_INTERVAL_S", 0.0)  # every render reported
     out = tmp_path / "fitted.yaml"
-    assert run(["fit", real, "--scene", scene(0.37, 26.0), "--max-renders", 40, "--out", out]) == 0
+    assert run(["fit", "--method", "search", real, "--scene", scene(0.37, 26.0), "--max-renders", 40, "--out", out]) == 0
     err = capsys.readouterr().err.splitlines()
     progress = [line for line in err if line.startswith("sonarsim: fit (band): ")]
     assert len(progress) >= 20 and progress[0].startswith("sonarsim: fit (band): 2/40 renders, best band-edge RMS")
@@ -70,7 +70,7 @@ def test_quiet_silences_progress_and_notes(floor_case, tmp_path, capsys, monkeyp
     real, scene = floor_case
     monkeypatch.setattr(fit_cli, "PROGRESS_INTERVAL_S", 0.0)
     out = tmp_path / "fitted.yaml"
-    assert run(["fit", real, "--scene", scene(0.37, 26.0), "--max-renders", 40, "--quiet", "--out", out]) == 0
+    assert run(["fit", "--method", "search", real, "--scene", scene(0.37, 26.0), "--max-renders", 40, "--quiet", "--out", out]) == 0
     captured = capsys.readouterr()
     assert captured.err == "" and "near edge RMS" in captured.out and out.exists()
 
@@ -104,7 +104,7 @@ def assert_one_line_exit_3(status, err, *, says):
 def test_a_far_start_exits_3_and_writes_nothing(floor_case, tmp_path, capsys):
     real, scene = floor_case
     out = tmp_path / "out" / "fitted.yaml"
-    status = run(["fit", real, "--scene", scene(1.5, 60.0), "--max-renders", 30, "--quiet", "--out", out])
+    status = run(["fit", "--method", "search", real, "--scene", scene(1.5, 60.0), "--max-renders", 30, "--quiet", "--out", out])
     captured = capsys.readouterr()
     assert_one_line_exit_3(status, captured.err, says=(
         "real.npz: the fit found no meaningful pose: the render's echo does not line up with the recording's",
@@ -128,16 +128,18 @@ def test_a_recording_of_noise_exits_3(floor_case, tmp_path, capsys):
     rng = np.random.default_rng(1)
     replace(image, polar=rng.exponential(1.0, image.polar.shape).astype(np.float32),
             components={}).save_npz(tmp_path / "noise.npz")
-    status = run(["fit", tmp_path / "noise.npz", "--scene", scene(0.4, 28.0), "--max-renders", 20, "--quiet",
+    status = run(["fit", "--method", "search", tmp_path / "noise.npz", "--scene", scene(0.4, 28.0), "--max-renders", 20, "--quiet",
                   "--out", tmp_path / "f.yaml"])
-    assert_one_line_exit_3(status, capsys.readouterr().err, says=("noise.npz: the fit found no meaningful pose",))
+    # Refused before any search: exponential noise has no echo structure (issue 37).
+    assert_one_line_exit_3(status, capsys.readouterr().err, says=(
+        "noise.npz: the recording holds no echo to fit: the frame shows no echo structure",))
     assert not (tmp_path / "f.yaml").exists()
 
 
 @pytest.mark.parametrize("budget", ["0", "-3", "many"])
 def test_a_bad_render_budget_is_bad_input(floor_case, tmp_path, capsys, budget):
     real, scene = floor_case
-    status = run(["fit", real, "--scene", scene(0.4, 28.0), "--max-renders", budget, "--out", tmp_path / "f.yaml"])
+    status = run(["fit", "--method", "search", real, "--scene", scene(0.4, 28.0), "--max-renders", budget, "--out", tmp_path / "f.yaml"])
     err = capsys.readouterr().err
     assert status == 2 and f"--max-renders: expected a number of renders >= 1, got '{budget}'" in err
 
@@ -177,11 +179,13 @@ def test_fit_on_the_real_oculus_ping_writes_the_recording_geometry(shared_data, 
 
 
 def test_fit_by_gradient_recovers_height_and_tilt_of_a_synthetic_floor(floor_case, tmp_path, capsys):
+    """The gradient is the default method where JAX is installed (--method auto)."""
     pytest.importorskip("jax")
     real, scene = floor_case
     out = tmp_path / "fitted.yaml"
-    assert run(["fit", real, "--scene", scene(0.45, 31.0), "--method", "gradient", "--out", out, "--no-figures"]) == 0
+    assert run(["fit", real, "--scene", scene(0.45, 31.0), "--out", out, "--no-figures"]) == 0
     captured = capsys.readouterr()
+    assert "fit: method gradient;" in captured.err
     assert "domain band: by gradient on the floor band's edges" in captured.err and "Traceback" not in captured.err
     pose = yaml.safe_load(out.read_text())["sonar"]["pose"]
     assert pose["position_m"][2] == pytest.approx(0.40, abs=0.005)
@@ -198,3 +202,39 @@ def test_fit_by_gradient_without_jax_names_the_extra(floor_case, tmp_path, capsy
     err = capsys.readouterr().err
     assert status == 2 and "pip install 'sonarsim[diff]'" in err and "Traceback" not in err
     assert not (tmp_path / "f.yaml").exists()
+
+
+METHODS = ["search", pytest.param("gradient", marks=pytest.mark.skipif(
+    __import__("importlib.util").util.find_spec("jax") is None, reason="needs JAX (sonarsim[diff])"))]
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_one_bright_pixel_on_a_silent_ping_is_refused(shared_data, tmp_path, capsys, method):
+    """Issue 37: an all-zero Oculus ping with one bright pixel was fitted to a pitch of 87 deg,
+    exit 0. It holds no echo: refused before any search, one line, nothing written."""
+    from .crafted import crafted_oculus, one_bright_pixel
+
+    ping = crafted_oculus(shared_data / "real" / "oculus" / "one_ping_8bit.raw", tmp_path / "one_pixel.raw",
+                          one_bright_pixel)
+    out = tmp_path / "out"
+    out.mkdir()
+    example = Path(__file__).resolve().parents[2] / "examples" / "oculus_floor.yaml"
+    status = run(["fit", ping, "--scene", example, "--method", method, "--out", out / "f.yaml"])
+    assert_one_line_exit_3(status, capsys.readouterr().err, says=(
+        f"{ping}: the recording holds no echo to fit: the frame's lit region holds 0 pixels", "nothing written"))
+    assert list(out.iterdir()) == []
+
+
+def test_free_parameters_no_floor_determines_are_refused_by_name(floor_case, tmp_path, capsys):
+    """Issue 37: ``--free x,y,z,roll,pitch,yaw`` on a flat floor wrote an x and a y that no floor
+    determines. x, y and yaw do not change a flat floor's render at all: refused, named."""
+    real, scene = floor_case
+    out = tmp_path / "out"
+    out.mkdir()
+    status = run(["fit", "--method", "search", real, "--scene", scene(0.39, 27.0), "--free", "x,y,z,roll,pitch,yaw",
+                  "--max-renders", 60, "--quiet", "--out", out / "f.yaml"])
+    captured = capsys.readouterr()
+    assert_one_line_exit_3(status, captured.err, says=(
+        "x, y, yaw do not change the render (a step of x 0.05 m, y 0.05 m, yaw 2 deg either way leaves it unchanged)",
+        "leave them out of --free"))
+    assert list(out.iterdir()) == []

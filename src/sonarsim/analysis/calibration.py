@@ -35,15 +35,21 @@ How the search avoids the wrong basin (issue 22: from a grid of starts, half end
 3. physical bounds on every parameter (:func:`parameter_bounds`: the bang below the source
    level and at least a range cell long, noise and gain where the device's output can show
    them);
-4. degenerate outcomes are refused (:class:`CalibrationFailed`, exit status 3): the echo
-   switched off (the lit band explained as noise lifted by the TVG), the pose unmoved from its
-   start or a free parameter that does not change the fit, a parameter pinned at a bound where
-   moving it off the bound costs fit, height, pitch or roll free where the recording shows no
-   floor band edge; a score below a trivial baseline (the frame's own range profile in every
-   beam) is a warning;
+4. degenerate outcomes are refused (:class:`CalibrationFailed`, exit status 3), by this search
+   and by the gradient calibration (:func:`sonarsim.diff.inverse.calibrate_recording`) alike:
+   a frame without echo (:func:`frame_problems`: one level, saturated, no lit region, pixel
+   noise, no speckle), the echo switched off (the lit band explained as noise lifted by the
+   TVG), the pose unmoved from its start or a free parameter that does not change the fit, a
+   parameter pinned at a bound where moving it off the bound costs fit, height, pitch or roll
+   free where the recording shows no floor band edge, a model that explains less than
+   :data:`MIN_EXPLAINED` of the frame's variance (:func:`model_problems`); a score below a
+   trivial baseline (the frame's own range profile in every beam) is a warning, and so is a
+   value at a bound where moving it off changes nothing (``CalibrationResult.at_bounds``);
 5. the family of equally good poses (within :data:`FAMILY_DB` of the best PSNR): the
    elevation width is held at each of :data:`FAMILY_WIDTHS_DEG` and the pose and sensor
-   refitted there; the range of height, pitch and width is reported, not one of them as if measured.
+   refitted there; the range of height, pitch and width is reported, and the member written
+   is the family's middle (:func:`family_middle`), not its best, which is chance within the
+   tolerance and was the scan's narrowest width on the real Oculus ping.
 
 The search is derivative-free (Nelder-Mead over a bounded transform), re-rendering only when a
 parameter that changes the rays (pose, elevation width) moves; the sensor-only parameters
@@ -156,6 +162,16 @@ STARTING_SENSOR = {
 }
 
 
+#: The least share of the frame's variance (about its mean) that the calibrated expected image
+#: must explain: a model no better than the frame's mean level explains no echo. Measured: 71 %
+#: (Oculus ping) and 78 % (ARIS sample) for the frames' own range profiles, under 3 % on
+#: random bytes.
+MIN_EXPLAINED = 0.1
+#: The steering loss's exponent the channels' fit allows (``cos^n``); at it, the fan's profile
+#: is not a steering loss (reported).
+MAX_STEERING_EXPONENT = 200.0
+
+
 # Speckle contrasts gamma can explain: gamma from 0.05 to 2 (exponential speckle compressed).
 MIN_CONTRAST, MAX_CONTRAST = 0.062, 2.2
 # Passes correcting the output's shape by the speckled model's statistic, and when to stop.
@@ -176,23 +192,36 @@ class CalibrationFailed(SonarsimError):
         What was found (the echo switched off, the pose unmoved, parameters pinned at bounds).
     result : CalibrationResult or None
         What the search ended with, for inspection (None when refused before searching).
+    source : str or None
+        The recording, named first in the message (the command line gives it).
     """
 
     exit_status = 3
 
-    def __init__(self, reasons: Sequence[str], result: "CalibrationResult | None") -> None:
+    def __init__(self, reasons: Sequence[str], result: "CalibrationResult | None", source: str | None = None) -> None:
         self.reasons = tuple(reasons)
         self.result = result
-        super().__init__("calibration refused: " + "; ".join(self.reasons))
+        self.source = source
+        super().__init__((f"{source}: " if source else "") + "calibration refused: " + "; ".join(self.reasons))
 
 
 def gamma_for_contrast(contrast: float) -> float:
-    """The gamma whose compression gives exponential speckle this contrast (std / mean)."""
+    """The gamma whose compression gives exponential speckle this contrast (std / mean).
+
+    Raises
+    ------
+    ValueError
+        A contrast outside :data:`MIN_CONTRAST` - :data:`MAX_CONTRAST` (no gamma from 0.01 to 2
+        gives it: a saturated or noise-free region), or not finite.
+    """
     from scipy.special import gammaln
 
     def c(g):
         return math.sqrt(math.exp(gammaln(1 + 2 * g) - 2 * gammaln(1 + g)) - 1.0) - contrast
 
+    if not (np.isfinite(contrast) and c(0.01) < 0.0 < c(2.0)):
+        raise ValueError(f"the speckle contrast of the region is {contrast:.3g}; a gamma output's speckle shows "
+                         f"{MIN_CONTRAST}-{MAX_CONTRAST}")
     return float(optimize.brentq(c, 0.01, 2.0))
 
 
@@ -215,9 +244,71 @@ def speckle_spread(image: np.ndarray, mask: np.ndarray) -> float:
     return float(r[keep].std() / math.sqrt(1.0 - 1.0 / cells))
 
 
+def frame_problems(image: np.ndarray) -> list[str]:
+    """Why a frame holds no echo to calibrate on (both methods refuse it before fitting):
+    :func:`~sonarsim.analysis.fitting.echo_problems`, and no speckle in its lit band (a
+    contrast no gamma output shows)."""
+    from .fitting import echo_problems
+
+    out = list(echo_problems(image))
+    if out:
+        return out
+    x = np.asarray(image, dtype=np.float64)
+    try:
+        contrast = realism.speckle_contrast(x, realism.auto_regions(x)["lit"])
+    except ValueError as exc:
+        return [f"the frame has no speckle in its bright band: {exc}"]
+    if not MIN_CONTRAST <= contrast <= MAX_CONTRAST:
+        return [f"the frame's speckle contrast in its bright band is {contrast:.3g}; calibration needs "
+                f"{MIN_CONTRAST}-{MAX_CONTRAST} (a speckled frame in the device's units, not a noise-free render)"]
+    return []
+
+
+def model_problems(target: np.ndarray, expected: np.ndarray) -> list[str]:
+    """Why a calibrated expected image explains no echo of ``target``: it explains less than
+    :data:`MIN_EXPLAINED` of the frame's variance about its mean (the trivial image of one
+    level does as well), or its error is not finite."""
+    t = np.asarray(target, dtype=np.float64)
+    mse = float(np.mean((np.asarray(expected, dtype=np.float64) - t) ** 2))
+    var = float(t.var())
+    if not np.isfinite(mse):
+        return [f"the calibrated image's error is {mse}"]
+    explained = 1.0 - mse / var if var > 0 else 0.0
+    if explained < MIN_EXPLAINED:
+        return [f"the calibrated model explains {100 * explained:.1f} % of the frame's variance about its mean level "
+                f"(at least {100 * MIN_EXPLAINED:g} % is an echo the model explains; the frame's mean level alone "
+                "explains 0 %)"]
+    return []
+
+
+def bound_report(values: dict, bounds: dict[str, tuple[float, float]], exclude=NATURAL_LIMITS) -> tuple[list, list]:
+    """The values at or beyond their bounds: ``(beyond, at)``, each a list of clauses naming the
+    value and the bounds. At a bound means within 1e-3 of the span; ``exclude`` holds
+    ``(name, is_lower)`` bounds that are natural limits, not plausibility bounds."""
+    beyond, at = [], []
+    for k, (lo, hi) in bounds.items():
+        if k not in values or np.ndim(values[k]) != 0:
+            continue
+        x = float(values[k])
+        tol = 1e-3 * (hi - lo)
+        text = f"{k} {x:.4g} (bounds {lo:.4g} to {hi:.4g})"
+        if not np.isfinite(x) or x < lo - tol or x > hi + tol:
+            beyond.append(text)
+        elif (abs(x - lo) <= tol and (k, True) not in exclude) or (abs(x - hi) <= tol and (k, False) not in exclude):
+            at.append(text)
+    return beyond, at
+
+
 def output_shape(compression: str, image: np.ndarray, mask: np.ndarray, full_scale: float) -> float:
     """The compression's shape from a frame's speckle in ``mask``: gamma (``gamma``) from the
-    speckle contrast, or the span in dB (``log``) from its spread in counts."""
+    speckle contrast, or the span in dB (``log``) from its spread in counts.
+
+    Raises
+    ------
+    ValueError
+        No speckle to measure in ``mask`` (fewer than two pixels with echo, a contrast no
+        gamma gives).
+    """
     if compression == "gamma":
         return gamma_for_contrast(realism.speckle_contrast(image, mask))
     return span_for_spread(speckle_spread(image, mask), full_scale)
@@ -364,6 +455,9 @@ class CalibrationResult:
     law : dict
         The laws chosen: ``compression`` (gamma or log), ``spreading`` (TVG, dB per decade, or
         None) and ``shape`` (gamma, or the log's span in dB).
+    at_bounds : list of str
+        Parameters that ended at a bound where the frame does not determine them (said in
+        ``warnings``).
     """
 
     scene: Scene
@@ -377,6 +471,7 @@ class CalibrationResult:
     baselines: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
     law: dict = field(default_factory=dict)
+    at_bounds: list = field(default_factory=list)
 
 
 def _psnr(mse: float, peak: float) -> float:
@@ -532,16 +627,13 @@ def _band_starts(real: SonarImage, problem: _Problem, free: tuple[str, ...], wid
                  half_angles: Sequence[float] | None) -> tuple[list[dict], object]:
     """Closed-form start poses (one per half-angle) from the recording's floor band, or the
     user's pose alone where no pose parameter that the band tells is free or no band is found."""
-    from .bandpose import fit_band_lines, pose_for_half_angle, pose_from_near_edge
-    from .fitting import floor_band_m
+    from .bandpose import pose_for_half_angle, pose_from_near_edge
 
     user = {"half_angle_deg": None, "elevation_width_deg": width0, "pose": {}}
     if not {"z", "pitch", "roll"} & set(free):
         return [user], None
-    try:
-        near, far = floor_band_m(real)
-        lines = fit_band_lines(real.azimuth_deg, near, far)
-    except ValueError:
+    lines = band_lines(real)
+    if lines is None:
         return [user], None
     starts = []
     for h in (HALF_ANGLES_DEG if half_angles is None else half_angles):
@@ -559,6 +651,27 @@ def _band_starts(real: SonarImage, problem: _Problem, free: tuple[str, ...], wid
             pose["roll"] = roll
         starts.append({"half_angle_deg": float(h), "elevation_width_deg": float(h) / EDGE_RATIO, "pose": pose})
     return (starts or [user]), lines
+
+
+def band_lines(real: SonarImage):
+    """The recording's floor band edges as lines (:func:`~sonarsim.analysis.bandpose.fit_band_lines`),
+    or None where it shows no band edge to fit them to."""
+    from .bandpose import fit_band_lines
+    from .fitting import floor_band_m
+
+    try:
+        near, far = floor_band_m(real)
+        return fit_band_lines(real.azimuth_deg, near, far)
+    except ValueError:
+        return None
+
+
+def no_band_edge_problem(told: Sequence[str]) -> str:
+    """Why height, pitch or roll (``told``) free are refused on a recording without a floor band
+    edge (both methods)."""
+    return (f"the recording shows no floor band edge, so {', '.join(told)} {'is' if len(told) == 1 else 'are'} not "
+            "identified by it: bound the pose with `sonarsim fit`, hold it (leave it out of --free) and calibrate "
+            "the sensor")
 
 
 def _ground_height(scene: Scene) -> float:
@@ -648,16 +761,11 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
     spec0 = scene.sensor if scene.sensor is not None else parse_sensor(STARTING_SENSOR)
     if spec0.output is None or spec0.output.compression not in COMPRESSIONS:
         raise ConfigError("sensor.output", f"calibration fits an output with compression {' or '.join(COMPRESSIONS)}")
+    refused = frame_problems(real.polar)
+    if refused:  # the same verdict as the gradient calibration's, before any search
+        raise CalibrationFailed(["the recording holds no echo to calibrate on: " + "; ".join(refused)], None)
     problem = _Problem(real, scene, sonar, free, water_weight, parameter_bounds(spec0, sonar))
     target, lit = problem.target, problem.lit
-    try:
-        contrast = realism.speckle_contrast(target, lit)
-    except ValueError as exc:
-        raise SonarsimError(f"the recording has no speckle to calibrate on in its bright band: {exc}") from None
-    if not MIN_CONTRAST <= contrast <= MAX_CONTRAST:
-        raise SonarsimError(f"the recording's speckle contrast in its bright band is {contrast:.3g}; calibration "
-                            f"needs {MIN_CONTRAST}-{MAX_CONTRAST} (a speckled frame in the device's units, not a "
-                            "noise-free render)")
     peak = spec0.output.full_scale
     start_values = {**sensor_values(spec0, sonar.elevation_fov_deg), **{k: problem.pose0[k] for k in free}}
     start_values = {k: float(np.clip(x, *problem.bounds[k])) for k, x in start_values.items()}
@@ -674,9 +782,7 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
         # Without a band edge, the range profile alone sets height, tilt and the elevation
         # pattern together: on the ARIS sample (a sea bed lit across the whole window) the search
         # ended 4.9 m up, pitched 86 degrees down and rolled 43, with a 50-degree pattern.
-        raise CalibrationFailed([f"the recording shows no floor band edge, so {', '.join(told)} "
-                                 f"{'is' if len(told) == 1 else 'are'} not identified by it: bound the pose with "
-                                 "`sonarsim fit`, hold it (leave it out of --free) and calibrate the sensor"], None)
+        raise CalibrationFailed([no_band_edge_problem(told)], None)
     names = sensor_names(spec0)
     # The starts fit the sensor at their own pose and width: one render each.
     level_names = [n for n in names if n != "elevation_width_deg"] if len(starts) > 1 else names
@@ -797,7 +903,19 @@ def calibrate(real: SonarImage, scene: Scene, free: Sequence[str] = (), max_iter
             f"the calibrated model scores {result.psnr_db:.2f} dB on the frame it was fitted to, below a trivial "
             f"image (the frame's own {'range profile' if best_trivial == result.baselines['range profile'] else 'separable range x beam profile'}"
             f": {best_trivial:.2f} dB): the model explains less of this frame than a profile does")
-    problems = _degenerate(problem, s2, spec, v, best, free, pose)
+    problems = _degenerate(problem, s2, spec, v, best, free, pose) + model_problems(target, e)
+    # Values at a bound where moving off it changes nothing (not refused by _degenerate): the
+    # recording does not determine them there; said, not hidden (the ARIS sample's noise_db 0).
+    _, at = bound_report(v, {k: problem.bounds[k] for k in sensor_names(spec)})
+    if s2.beam_gain is not None and s2.beam_gain.steering_exponent >= MAX_STEERING_EXPONENT:
+        at.append(f"steering_exponent {s2.beam_gain.steering_exponent:.4g} (bounds 0 to {MAX_STEERING_EXPONENT:g}: "
+                  "the fan's profile falls off faster than a steering loss; the stripes hold the rest)")
+    pinned_text = " ".join(problems)
+    at = [a for a in at if a.split(" ")[0] + " " not in pinned_text]
+    if at:
+        result.warnings.append("parameters at their bounds, which the frame does not determine there (the fit is "
+                               "as good on the bound as off it): " + ", ".join(at))
+    result.at_bounds = [a.split(" ")[0] for a in at]
     if problems:
         if refuse_degenerate:
             raise CalibrationFailed(problems, result)
@@ -938,7 +1056,7 @@ def _fit_channels(problem: _Problem, spec: SensorSpec, v: dict, max_iterations: 
         # The exponent's standard error from the ratio's noise: one that speckle could draw
         # (within two standard errors of none) is none.
         se = math.sqrt(noise_var * float(np.linalg.pinv(design.T @ design)[1, 1]))
-        n = float(np.clip(coef[1], 0.0, 200.0)) if coef[1] > 2.0 * se else 0.0
+        n = float(np.clip(coef[1], 0.0, MAX_STEERING_EXPONENT)) if coef[1] > 2.0 * se else 0.0
         stripes = want - n * steer
         k = float(stripes.mean())
         stripes = stripes - k
@@ -1332,16 +1450,38 @@ def _speckled(spec: SensorSpec, sonar, total: np.ndarray, seed: int, pose) -> np
     return m.apply(total, m.anchored_rng(pose.position_m, pose.rpy_deg))
 
 
+def family_middle(members: Sequence[dict], within_db: float = FAMILY_DB) -> int:
+    """The index in ``members`` of the middle of the equally good family: of the members within
+    ``within_db`` of the best PSNR, the one of median elevation width (the lower of the two
+    middle ones for an even count). The family's members fit equally well, so its best is
+    chance; its edges are where it stops, the worst guess of the pose.
+
+    Parameters
+    ----------
+    members : sequence of dict
+        Each with ``elevation_width_deg`` and ``psnr_db``.
+    within_db : float
+
+    Returns
+    -------
+    int
+    """
+    top = max(float(m["psnr_db"]) for m in members)
+    good = sorted((i for i, m in enumerate(members) if float(m["psnr_db"]) >= top - within_db),
+                  key=lambda i: float(members[i]["elevation_width_deg"]))
+    return good[(len(good) - 1) // 2]
+
+
 def _family(problem: _Problem, spec: SensorSpec, v: dict, free: tuple[str, ...], max_iterations: int, peak: float,
             say) -> tuple[SensorSpec, dict, dict]:
     """Hold the elevation width at each of :data:`FAMILY_WIDTHS_DEG` and refit pose and sensor:
-    the poses within :data:`FAMILY_DB` of the best are the family (a better one found is kept)."""
-    best_cost = problem.cost(spec, v)
+    the poses within :data:`FAMILY_DB` of the best are the family; the member returned is its
+    middle (:func:`family_middle`), never an edge."""
     w0 = v["elevation_width_deg"]
     members = [{"elevation_width_deg": w0, **{k: v[k] for k in free}, "psnr_db": problem.psnr(spec, v, peak)}]
+    fits = [v]
     others = [n for n in sensor_names(spec) if n != "elevation_width_deg"] + list(free)
     lo, hi = problem.bounds["elevation_width_deg"]
-    best = (best_cost, v)
     for w in FAMILY_WIDTHS_DEG:
         w = float(np.clip(w, lo, hi))
         # Along the family the band's half-angle scales with the width: start from the pose the
@@ -1349,9 +1489,10 @@ def _family(problem: _Problem, spec: SensorSpec, v: dict, free: tuple[str, ...],
         start = {**v, "elevation_width_deg": w, **_along_family(v, w0, w, free)}
         u, c = problem.search(spec, start, others, max(max_iterations // 2, 1))
         members.append({"elevation_width_deg": w, **{k: u[k] for k in free}, "psnr_db": problem.psnr(spec, u, peak)})
-        if c < best[0]:
-            best = (c, u)
-    say(f"family: {len(members)} elevation widths refitted")
+        fits.append(u)
+    middle = family_middle(members)
+    say(f"family: {len(members)} elevation widths refitted; the middle of the equally good ones kept "
+        f"(width {members[middle]['elevation_width_deg']:.3g} deg)")
     top = max(m["psnr_db"] for m in members)
     good = [m for m in members if m["psnr_db"] >= top - FAMILY_DB]
     report = {"within_db": FAMILY_DB, "members": sorted(members, key=lambda m: m["elevation_width_deg"])}
@@ -1360,7 +1501,9 @@ def _family(problem: _Problem, spec: SensorSpec, v: dict, free: tuple[str, ...],
     # Bracketed: the scan's extreme widths are themselves within the tolerance.
     widths = [m["elevation_width_deg"] for m in members]
     report["open_ended"] = any(m["elevation_width_deg"] in (min(widths), max(widths)) for m in good)
-    return spec, best[1], report
+    report["chosen"] = {k: members[middle][k] for k in ("elevation_width_deg", *[n for n in ("z", "pitch", "roll")
+                                                                                  if n in free])}
+    return spec, fits[middle], report
 
 
 def _along_family(v: dict, w0: float, w: float, free: tuple[str, ...]) -> dict:

@@ -394,6 +394,122 @@ LIT_FLOOR = 1e-6
 # has no range profile to follow.
 MIN_PROFILE_CORRELATION = 0.5
 
+# What a recording must show for a fit or a calibration to mean anything (:func:`echo_problems`).
+# Least lit region (realism.auto_regions' ``lit``), pixels: one bright pixel on a silent ping
+# is no echo to fit (it sent a pose fit to a pitch of 87 degrees).
+MIN_ECHO_PIXELS = 20
+# Largest share of the pixels at the frame's largest value: beyond it the frame is saturated
+# and its levels say nothing of the echo.
+MAX_SATURATED_SHARE = 0.5
+# Least share of a frame's variance that its 15 x 9 local mean explains: pixel noise explains
+# 1/135 (measured: 0.7 % on random bytes in the Oculus and ARIS layouts), an echo far more
+# (82 % on the real Oculus ping, 83 % on the ARIS sample).
+MIN_STRUCTURE = 0.05
+# A free parameter whose step (:data:`STEPS`) either way changes the render by less than this
+# share of the render's standard deviation (RMS) is not determined by any recording: x, y and
+# yaw over a flat floor change nothing at all.
+MIN_PARAMETER_EFFECT = 1e-3
+
+
+def echo_problems(image) -> tuple[str, ...]:
+    """Why a frame holds no echo that a model can explain; empty when nothing shows that.
+
+    * every pixel has one value (an all-zero or all-saturated ping);
+    * more than :data:`MAX_SATURATED_SHARE` of the pixels at the frame's largest value;
+    * fewer than :data:`MIN_ECHO_PIXELS` pixels in its lit region
+      (:func:`~sonarsim.analysis.realism.auto_regions`);
+    * its 15 x 9 local mean explains less than :data:`MIN_STRUCTURE` of its variance (pixel
+      noise, such as random bytes).
+
+    Parameters
+    ----------
+    image : (n_range_bins, n_beams) array-like
+        The frame, in its own units.
+
+    Returns
+    -------
+    tuple of str
+        One clause per problem, with the figure found and the limit.
+    """
+    from .baselines import local_mean_image
+    from .realism import auto_regions
+
+    x = np.asarray(image, dtype=np.float64)
+    finite = x[np.isfinite(x)]
+    if finite.size == 0:
+        return ("the frame holds no finite pixel",)
+    top = float(finite.max())
+    if float(finite.min()) == top:
+        return (f"every pixel of the frame is {top:g} (a silent or saturated ping): no echo",)
+    out = []
+    saturated = float(np.mean(finite == top))
+    if saturated > MAX_SATURATED_SHARE:
+        out.append(f"{100 * saturated:.0f} % of the frame's pixels are at its largest value {top:g} (saturated; at "
+                   f"most {100 * MAX_SATURATED_SHARE:.0f} % may be)")
+    x = np.where(np.isfinite(x), x, 0.0)
+    lit = int(auto_regions(x)["lit"].sum())
+    if lit < MIN_ECHO_PIXELS:
+        out.append(f"the frame's lit region holds {lit} pixel{'s' if lit != 1 else ''} (at least {MIN_ECHO_PIXELS} "
+                   "are an echo)")
+    var = float(x.var())
+    explained = 1.0 - float(np.mean((local_mean_image(x) - x) ** 2)) / var if var > 0 else 0.0
+    if explained < MIN_STRUCTURE:
+        out.append(f"the frame shows no echo structure: its 15 x 9 local mean explains {100 * explained:.1f} % of its "
+                   f"variance (pixel noise: under 1 %; at least {100 * MIN_STRUCTURE:g} % is an echo)")
+    return tuple(out)
+
+
+def unidentified_parameters(scene: Scene, free: Sequence[str], simulator: Simulator | None = None) -> tuple[str, ...]:
+    """The free pose parameters that do not change ``scene``'s render at its pose: a step of
+    :data:`STEPS` either way moves it by less than :data:`MIN_PARAMETER_EFFECT` of its standard
+    deviation (RMS). No recording determines them (x, y and yaw over a flat floor).
+
+    Parameters
+    ----------
+    scene : Scene
+        At the fitted pose, on the recording's grid.
+    free : sequence of str
+        Pose parameter names (:data:`PARAMETERS`).
+    simulator : Simulator, optional
+        Reused if given (it must hold ``scene``).
+
+    Returns
+    -------
+    tuple of str
+        The names, in ``free``'s order.
+    """
+    sim = simulator if simulator is not None else Simulator(scene)
+    try:
+        values = pose_values(scene.sonar_pose)
+        base = np.asarray(sim.render(keep_rays=False, speckle=False).polar, dtype=np.float64)
+        scale = float(base.std())
+        if not scale > 0:
+            return ()
+        out = []
+        for name in free:
+            if name not in STEPS:
+                continue
+            changes = []
+            for sign in (-1.0, 1.0):
+                moved = sim.render(pose=pose_from_values({**values, name: values[name] + sign * STEPS[name]}),
+                                   keep_rays=False, speckle=False).polar
+                changes.append(float(np.sqrt(np.mean((np.asarray(moved, np.float64) - base) ** 2))) / scale)
+            if max(changes) < MIN_PARAMETER_EFFECT:
+                out.append(name)
+        return tuple(out)
+    finally:
+        if simulator is None:
+            sim.close()
+
+
+def unidentified_problem(names: Sequence[str]) -> str:
+    """The clause that refuses free parameters no recording determines."""
+    steps = ", ".join(f"{n} {STEPS[n]:g} {UNITS[n]}" for n in names)
+    return (f"{', '.join(names)} {'does' if len(names) == 1 else 'do'} not change the render (a step of {steps} "
+            f"either way leaves it unchanged): the recording cannot determine {'it' if len(names) == 1 else 'them'}; "
+            "leave " + ("it" if len(names) == 1 else "them") + " out of --free")
+
+
 # Sentinel cost of a band comparison without a beam where both images show a band: finite, so
 # that the simplex can step away from it; reported as a problem, never as a residual.
 NO_BAND_COST = 1e3
@@ -794,7 +910,10 @@ def fit_problems(real: SonarImage, result: FitResult) -> tuple[str, ...]:
       search that converged onto its start is not a problem: the start was already a minimum,
       as when a fitted scene is fitted again; the band cost is flat between range bins.);
     * a free parameter moved farther from the start than the recording's far range (x, y, z)
-      or :data:`MAX_ANGLE_MOVE_DEG` (angles): it ran away.
+      or :data:`MAX_ANGLE_MOVE_DEG` (angles): it ran away;
+    * a free parameter does not change the render at the fitted pose
+      (:func:`unidentified_parameters`: x, y and yaw over a flat floor): no recording
+      determines it.
 
     (A render that is black at the fitted pose is not returned at all: :func:`fit_pose` raises
     :class:`FitError`.)
@@ -840,7 +959,17 @@ def fit_problems(real: SonarImage, result: FitResult) -> tuple[str, ...]:
         limit = MAX_ANGLE_MOVE_DEG if UNITS[name] == "deg" else real.sonar.range_max_m
         if moved > limit:
             out.append(f"{name} ran away by {moved:.3g} {UNITS[name]} (more than {limit:.3g})")
+    loose = unidentified_parameters(result.scene, result.free)
+    if loose:
+        out.append(unidentified_problem(loose))
     return tuple(out)
+
+
+def require_echo(real: SonarImage) -> None:
+    """Raise :class:`FitError` where the recording holds no echo to fit (:func:`echo_problems`)."""
+    problems = echo_problems(real.polar)
+    if problems:
+        raise FitError("the recording holds no echo to fit: " + "; ".join(problems) + "; nothing written")
 
 
 def fit_pose(
@@ -897,6 +1026,7 @@ def fit_pose(
     if int(max_renders) < 1:
         raise ConfigError("max_renders", f"the render budget is {max_renders}; it must be at least 1")
     check_overlap(real, scene)
+    require_echo(real)
     sim = simulator if simulator is not None else Simulator(scene)
     # The intrinsics of every render (fixed): the recording's grid; only the pose varies.
     geometry = recording_geometry(real, scene)

@@ -48,12 +48,17 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--free", default="", help="pose parameters to fit as well, from x,y,z,roll,pitch,yaw (default: none)")
     p.add_argument("--evaluate-frames", type=frame_list, default=(), metavar="N,M",
                    help="held-out frames of the recording to report the figures for")
-    p.add_argument("--max-iterations", type=int, default=400, help="budget of each simplex search (default: 400)")
-    p.add_argument("--method", choices=("search", "gradient"), default="search",
-                   help="search (default): simplex searches over the sensor's laws, starts and pose family, with the "
+    p.add_argument("--max-iterations", type=int, default=None,
+                   help="search: budget of each simplex search (default: 400); gradient: Levenberg-Marquardt steps "
+                   "per blur level (default: 10)")
+    p.add_argument("--method", choices=("auto", "search", "gradient"), default="auto",
+                   help="auto (default): gradient where JAX is installed, search otherwise (said on stderr); "
+                   "search: simplex searches over the sensor's laws, starts and pose family, with the "
                    "channels, common noise, texture and range law; gradient: Levenberg-Marquardt with the "
                    "differentiable engine (gain, TVG law, noise before and after the TVG, elevation width, gamma and "
-                   "the free pose, from the floor band's closed-form start; needs pip install 'sonarsim[diff]')")
+                   "the free pose, from the floor band's closed-form start; needs pip install 'sonarsim[diff]'). "
+                   "Both refuse (exit 3, nothing written) the same frames: no echo, pose parameters the frame "
+                   "does not identify, a model no better than the frame's mean level")
     p.add_argument("--image", default=None, help="side-by-side PNG (default: --out with .png for .yaml); the "
                    "annotated figure goes beside it as *_figure.png")
     p.add_argument("--json", default=None, help="also write the figures as JSON to this file")
@@ -92,15 +97,35 @@ def side_by_side(real, expected, speckled, peak: float, frame: int = 0) -> np.nd
                                 "calibrated model: speckled frame"])
 
 
-def format_family(family: dict) -> str:
+def format_value(name: str, value) -> str:
+    """One line of the calibrated values: a number, or a per-beam table summarised (the
+    channels' gains: their count, RMS and range)."""
+    if np.ndim(value) == 0:
+        return f"{name:20s} {float(value):10.4f}"
+    v = np.asarray(value, dtype=float)
+    if v.size == 0:
+        return f"{name:20s} (none)"
+    return (f"{name:20s} {v.size} values, RMS {float(np.sqrt(np.mean(v ** 2))):.4f}, "
+            f"from {float(v.min()):.4f} to {float(v.max()):.4f}")
+
+
+def format_family(family: dict, method: str = "search", free: tuple = ()) -> str:
     """One line on the poses a flat floor cannot tell apart (or why none was scanned)."""
     if not family:
+        if method == "gradient" and {"z", "pitch"} <= set(free):
+            return ("pose family: not scanned by the gradient method (--method search scans it); one flat floor does "
+                    "not tell height, pitch and elevation width apart, so the pose above is the fit from the floor "
+                    "band's closed-form start with its edges at +-5 deg (the middle of the search's scan), one of "
+                    "the equally good poses, not a measurement")
         return "pose family: not scanned (needs z and pitch free and a floor band with both edges)"
     parts = [f"{k} {lo:.3g}-{hi:.3g}" for k, (lo, hi) in
              ((k, family[k]) for k in ("z", "pitch", "roll", "elevation_width_deg") if k in family)]
     tail = " (and beyond: the scan's widest or narrowest width is one of them)" if family.get("open_ended") else ""
+    chosen = family.get("chosen") or {}
+    which = ("the pose above is the family's middle" + (f" (elevation width {chosen['elevation_width_deg']:.3g} deg)"
+                                                        if "elevation_width_deg" in chosen else ""))
     return (f"pose family: equally good within {family['within_db']:g} dB: " + ", ".join(parts) + tail +
-            "; one flat floor does not tell these apart, so the pose above is one of them, not a measurement")
+            f"; one flat floor does not tell these apart: {which}, not a measurement")
 
 
 def cmd_calibrate(args) -> None:
@@ -108,15 +133,15 @@ def cmd_calibrate(args) -> None:
 
     import yaml
 
-    from ..analysis.calibration import calibrate, evaluate, format_evaluation
+    from ..analysis.calibration import CalibrationFailed, calibrate, evaluate, format_evaluation
     from ..analysis.comparison import load_image
     from ..config.loader import load_scene
     from ..io.output import atomic_write, write_png
     from ..io.run_record import OutputRun, record_beside
     from ..renderer.simulator import Simulator
-    from .fit import _load_real, free_parameters
+    from .fit import _load_real, free_parameters, resolve_method
 
-    if args.max_iterations < 1:
+    if args.max_iterations is not None and args.max_iterations < 1:
         raise ConfigError("--max-iterations", f"must be at least 1, got {args.max_iterations}")
     from ..plot.figures import calibration_figure
     from .figures import figure_paths, write_figure
@@ -139,21 +164,24 @@ def cmd_calibrate(args) -> None:
         except (SonarsimError, IndexError, ValueError) as exc:
             raise SonarsimError(f"--evaluate-frames: {args.real}: no frame {n} ({exc})") from None
     scene = load_scene(args.scene)
-    if getattr(args, "method", "search") == "gradient":
-        import importlib.util
+    # (which method auto chose is said with the result: a refusal stays one line)
+    method = resolve_method(getattr(args, "method", "auto"))
+    try:
+        if method == "gradient":
+            from ..diff import enable_compilation_cache
+            from ..diff.inverse import calibrate_recording
 
-        if importlib.util.find_spec("jax") is None:
-            raise SonarsimError("--method gradient: the differentiable engine needs JAX: pip install 'sonarsim[diff]'")
-        from ..diff import enable_compilation_cache
-        from ..diff.inverse import calibrate_recording
-
-        enable_compilation_cache()
-        res = calibrate_recording(real, scene, free=free, progress=lambda k, level, loss: print(
-            f"sonarsim calibrate: gradient, start {k + 1}, level {level + 1}: loss {loss:.4g}", file=sys.stderr, flush=True))
-    else:
-        # Progress on stderr: a calibration makes thousands of renders over a minute or more.
-        res = calibrate(real, scene, free=free, max_iterations=args.max_iterations,
-                        progress=lambda line: print(f"sonarsim calibrate: {line}", file=sys.stderr, flush=True))
+            enable_compilation_cache()
+            res = calibrate_recording(real, scene, free=free, iterations=args.max_iterations or 10,
+                                      progress=lambda k, level, loss: print(
+                f"sonarsim calibrate: gradient, start {k + 1}, level {level + 1}: loss {loss:.4g}", file=sys.stderr,
+                flush=True))
+        else:
+            # Progress on stderr: a calibration makes thousands of renders over a minute or more.
+            res = calibrate(real, scene, free=free, max_iterations=args.max_iterations or 400,
+                            progress=lambda line: print(f"sonarsim calibrate: {line}", file=sys.stderr, flush=True))
+    except CalibrationFailed as exc:  # the recording named first (exit status 3)
+        raise CalibrationFailed(exc.reasons, exc.result, source=str(args.real)) from None
     peak = res.scene.sensor.output.full_scale
     with Simulator(res.scene) as sim:
         speckled = sim.render(res.scene.sonar_pose, keep_rays=False)
@@ -181,31 +209,50 @@ def cmd_calibrate(args) -> None:
     from .compare import _jsonable, _print_realism, _print_scores
 
     figures["realism"] = _jsonable(report)
-    # Everything is computed before the first file is written: a refused held-out frame
-    # leaves no calibrated scene behind.
+    figures["method"] = method
+    figures["at_bounds"] = list(getattr(res, "at_bounds", []))
+    # Everything is computed and formatted before the first file is written (the report's
+    # lines included: a value that cannot be printed once crashed after the scene was written
+    # and its run record said "complete"); a refused held-out frame leaves nothing behind.
+    import contextlib
+    import io
+
+    text = io.StringIO()
+    with contextlib.redirect_stdout(text):
+        for name, value in res.values.items():
+            print(format_value(name, value))
+        print(f"PSNR of the expected render on frame {args.frame}: {res.psnr_start_db:.2f} -> {res.psnr_db:.2f} dB "
+              f"({res.renders} renders, method {method})")
+        b = res.baselines
+        print(f"beside it, on the same frame: its range profile in every beam {b['range profile']:.2f} dB, its "
+              f"separable range x beam image {b['separable']:.2f} dB, its 15 x 9 local mean (the ceiling) "
+              f"{b['ceiling']:.2f} dB")
+        print(format_family(res.family, method, free))
+        _print_scores(report)
+        _print_realism(report)
+        print(format_evaluation(figures["calibrated"], f"frame {args.frame} (calibrated): "))
+        for n, ev in figures["held_out"].items():
+            print(format_evaluation(ev, f"frame {n} (held out): "))
+    json_text = json.dumps(figures, indent=1, default=_json_default) if args.json else None
+    scene_text = yaml.safe_dump(doc, sort_keys=False)
     with run:
-        with atomic_write(out, "w") as f:
-            yaml.safe_dump(doc, f, sort_keys=False)
+        # The calibrated scene last: a failure writing the pictures leaves no scene behind.
         write_png(image_path, side_by_side(real, res.expected, speckled, peak, args.frame))
         write_figure(args, figure_stem, lambda: calibration_figure(real, res.expected, speckled, peak, args.frame,
                                                                    colormap=args.colormap))
-        if args.json:
+        if json_text is not None:
             with atomic_write(Path(args.json), "w") as f:
-                json.dump(figures, f, indent=1, default=float)
-
-    for name, value in res.values.items():
-        print(f"{name:20s} {value:10.4f}")
-    print(f"PSNR of the expected render on frame {args.frame}: {res.psnr_start_db:.2f} -> {res.psnr_db:.2f} dB "
-          f"({res.renders} renders)")
-    b = res.baselines
-    print(f"beside it, on the same frame: its range profile in every beam {b['range profile']:.2f} dB, its "
-          f"separable range x beam image {b['separable']:.2f} dB, its 15 x 9 local mean (the ceiling) {b['ceiling']:.2f} dB")
-    print(format_family(res.family))
-    _print_scores(report)
-    _print_realism(report)
+                f.write(json_text)
+        with atomic_write(out, "w") as f:
+            f.write(scene_text)
+    sys.stdout.write(text.getvalue())
     for w in res.warnings:
         print(f"sonarsim: warning: {w}", file=sys.stderr)
-    print(format_evaluation(figures["calibrated"], f"frame {args.frame} (calibrated): "))
-    for n, ev in figures["held_out"].items():
-        print(format_evaluation(ev, f"frame {n} (held out): "))
     print(f"sonarsim: wrote {out} and {image_path}", file=sys.stderr)
+
+
+def _json_default(value):
+    """Numbers and arrays of numpy in the JSON figures."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return float(value)

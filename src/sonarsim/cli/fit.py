@@ -35,11 +35,13 @@ EXIT_CODES = """exit status:
   0  fitted: the scene with the fitted pose and the picture are written
   2  bad input: an unreadable recording or scene, an unknown parameter, a recording
      whose range window or fan the scene's sonar does not cover
-  3  the fit found no meaningful pose (nothing written): nothing echoes at the fitted
+  3  the fit found no meaningful pose (nothing written): the recording holds no echo
+     (a silent, saturated or noise-only frame), nothing echoes at the fitted
      pose, the render's echo does not line up with the recording's, the band edges
      differ by more than a tenth of the range window, the search ended worse than it
-     started (or used its budget without finding anything better), or a free parameter
-     ran away; the message says which, and what to try"""
+     started (or used its budget without finding anything better), a free parameter
+     ran away, or a free parameter does not change the render (x, y, yaw over a flat
+     floor); the message says which, and what to try"""
 
 
 def _render_budget(text: str) -> int:
@@ -66,10 +68,12 @@ def add_fit_parser(sub) -> argparse.ArgumentParser:
                    help="compare edge maps of whole images (edges), or the near and far edges of the floor band "
                    "(band); auto (default): band for a scene whose echo is one floor band, edges otherwise "
                    "(the choice and its reason go to stderr)")
-    p.add_argument("--method", choices=("search", "gradient"), default="search",
-                   help="search (default): a simplex search on edges or the floor band (--domain, --max-renders); "
-                   "gradient: Levenberg-Marquardt on blurred images with the differentiable engine's gradients, coarse "
-                   "to fine (needs pip install 'sonarsim[diff]'; --domain and --max-renders do not apply)")
+    p.add_argument("--method", choices=("auto", "search", "gradient"), default="auto",
+                   help="auto (default): gradient where JAX is installed and --domain is auto, search otherwise "
+                   "(said on stderr); search: a simplex search on edges or the floor band (--domain, --max-renders); "
+                   "gradient: Levenberg-Marquardt on the floor band's edges or on blurred images with the differentiable "
+                   "engine's gradients, coarse to fine (needs pip install 'sonarsim[diff]'; --domain and --max-renders "
+                   "do not apply)")
     p.add_argument("--max-renders", type=_render_budget, default=600, help="render budget of the search (default: 600)")
     p.add_argument("--quiet", action="store_true", help="no progress or notes on stderr (errors still)")
     p.add_argument("--image", default=None, help="side-by-side PNG (default: next to --out, *_fit.png); the "
@@ -235,11 +239,34 @@ def _what_to_try(args: argparse.Namespace, result: FitResult) -> str:
             f"parameters, or --domain {other}")
 
 
-def _method(asked: str, quiet: bool) -> str:
-    """The fit's method; ``gradient`` needs JAX (refused by name without it, before any work)."""
+def jax_available() -> bool:
+    """Whether the differentiable engine can be imported (JAX installed)."""
     import importlib.util
 
-    if asked == "gradient" and importlib.util.find_spec("jax") is None:
+    return importlib.util.find_spec("jax") is not None
+
+
+def resolve_method(asked: str, note=None) -> str:
+    """``--method`` of ``fit`` and ``calibrate``: ``auto`` is ``gradient`` where JAX is
+    installed and ``search`` otherwise (``note`` receives a line saying which); ``gradient``
+    without JAX is refused by name, before any work.
+
+    Parameters
+    ----------
+    asked : {'auto', 'search', 'gradient'}
+    note : callable, optional
+        Receives one line when ``auto`` chose.
+
+    Returns
+    -------
+    {'search', 'gradient'}
+    """
+    if asked == "auto":
+        method = "gradient" if jax_available() else "search"
+        if note is not None:
+            note(f"method {method} (--method auto: {'JAX is installed' if method == 'gradient' else 'JAX is not installed; pip install sonarsim[diff] for the gradient method'})")
+        return method
+    if asked == "gradient" and not jax_available():
         raise SonarsimError("--method gradient: the differentiable engine needs JAX: pip install 'sonarsim[diff]'")
     return asked
 
@@ -267,7 +294,10 @@ def cmd_fit(args) -> None:
     scene = load_scene(args.scene)
     quiet = getattr(args, "quiet", False)
     progress = None if quiet else _Progress()
-    method = _method(getattr(args, "method", "search"), quiet)
+    # (which method auto chose is said with the result: a refusal stays one line)
+    asked = getattr(args, "method", "auto")
+    # --domain chooses among the search's domains; the gradient chooses its own (band or images).
+    method = "search" if asked == "auto" and getattr(args, "domain", "auto") != "auto" else resolve_method(asked)
     try:
         if method == "gradient":
             from ..diff.inverse import fit_recording
@@ -281,13 +311,14 @@ def cmd_fit(args) -> None:
             result = fit_pose(real, scene, free=args.free, domain=args.domain, max_renders=args.max_renders,
                               progress=progress)
     except FitError as exc:  # it ran, and found nothing: not bad input
-        _log(f"error: {exc}")
+        _log(f"error: {args.real}: {exc}")
         raise SystemExit(EXIT_NO_FIT) from None
     finally:
         if progress is not None:  # end a status line before anything else is written
             progress.close()
     if progress is not None:
-        _log(f"fit: {result.renders} {'searches' if result.domain == 'image' else 'renders'}; domain {result.domain}: "
+        _log(f"fit: method {method}; {result.renders} {'searches' if result.domain == 'image' else 'renders'}; "
+             f"domain {result.domain}: "
              f"{result.domain_reason}")
         if not result.converged:
             _log(f"note: the search stopped at the render budget (--max-renders {args.max_renders}) before "
@@ -312,8 +343,10 @@ def cmd_fit(args) -> None:
     else:
         print(f"floor band residual over {len(onset_r)} beams: near edge RMS {result.onset_rms_m:.4f} m, far edge RMS {end_rms:.4f} m")
     if result.problems:
-        _log(f"error: {args.real}: the fit found no meaningful pose: {'; '.join(result.problems)}; nothing written; "
-             + _what_to_try(args, result))
+        # Free parameters no recording determines: the advice is to hold them, said in the clause.
+        only_loose = all("out of --free" in p for p in result.problems)
+        _log(f"error: {args.real}: the fit found no meaningful pose: {'; '.join(result.problems)}; nothing written"
+             + ("" if only_loose else "; " + _what_to_try(args, result)))
         raise SystemExit(EXIT_NO_FIT)
     # The recording's beams and range window, as calibrate writes them: the scene renders on
     # the recording's grid (the preset's 512 beams against a 256-beam recording did not).

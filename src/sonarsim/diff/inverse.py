@@ -295,7 +295,12 @@ def fit_recording(real, scene, free: Sequence[str] = ("z", "pitch"), starts: Seq
     (:func:`~sonarsim.analysis.fitting.choose_domain` says ``band``), the band's edges are
     fitted (:func:`sonarsim.diff.bands.fit_band`: they do not depend on the range law that an
     uncalibrated render and a device's counts differ in), from the band's closed-form pose for
-    the sonar's elevation aperture and from the scene's pose. Otherwise the images themselves:
+    the sonar's elevation aperture and from the scene's pose. Where the domain is ``band`` but
+    the recording shows no band edge (a sea bed lit across the window), the band's cost is flat
+    within its bounds and has no gradient: the search's band fit
+    (:func:`~sonarsim.analysis.fitting.fit_pose`) decides, so both methods give one verdict.
+    A recording without echo (:func:`~sonarsim.analysis.fitting.echo_problems`) raises
+    :class:`~sonarsim.analysis.fitting.FitError`. Otherwise the images themselves:
     without a sensor in the scene, after dividing each by its blurred mean (only their shapes
     can agree); with one, in counts. The scatterers are held on their triangles
     (``attach='surfaces'``) and the search refreshed at every point evaluated.
@@ -313,12 +318,13 @@ def fit_recording(real, scene, free: Sequence[str] = ("z", "pitch"), starts: Seq
     from ..analysis.fitting import (CENSORED_EDGE_FRACTION, NO_BAND_COST, FitResult, band_residuals, band_view,
                                     check_overlap, choose_domain, edge_correlation, fit_problems, floor_onset_m,
                                     parse_free, pose_from_values, pose_values, profile_correlation,
-                                    recording_geometry)
+                                    recording_geometry, require_echo)
     from ..renderer.simulator import Simulator
     from .renderer import Renderer
 
     free = parse_free(free)
     check_overlap(real, scene)
+    require_echo(real)
     geometry = recording_geometry(real, scene)
     fitted_scene = replace(scene, sonar=geometry)
     r = Renderer(fitted_scene, attach="surfaces")
@@ -333,6 +339,16 @@ def fit_recording(real, scene, free: Sequence[str] = ("z", "pitch"), starts: Seq
     with Simulator(fitted_scene) as sim:
         start_image = sim.render(keep_rays=False, speckle=False)
     domain, _ = choose_domain(real, fitted_scene, start_image)
+    if domain == "band" and real_view.edge_fraction < CENSORED_EDGE_FRACTION:
+        # A sea bed lit across the window shows no band edge: the band's cost is flat (zero)
+        # wherever the render's band also passes both ends of the window, so there is no gradient
+        # to follow, and the images' gradient fit judged by edges refused what the search
+        # bounds. The search's band fit decides (the same verdict by either method).
+        from ..analysis.fitting import fit_pose
+
+        out = fit_pose(real, scene, free=free, domain="band")
+        return replace(out, domain_reason=out.domain_reason + "; by the search: the recording shows no band edge, "
+                       "so the band's cost is flat within its bounds and has no gradient to follow")
     if domain == "band" and real_view.edge_fraction >= CENSORED_EDGE_FRACTION:
         from .bands import fit_band
 
@@ -560,7 +576,7 @@ def _best(losses_of, trials: np.ndarray, current: np.ndarray, dtype) -> np.ndarr
 
 
 def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"), starts: Sequence[Mapping] | None = None,
-                        iterations: int = 10, ftol: float = 1e-3, progress=None):
+                        iterations: int = 10, ftol: float = 1e-3, progress=None, refuse_degenerate: bool = True):
     """Fit the sensor (:data:`CALIBRATED`) and the pose parameters ``free`` to one frame of a
     recording by gradient: the expected output against the frame's counts, pixel by pixel,
     after blurs from coarse to none (:data:`CALIBRATION_BLURS`), from the floor band's
@@ -579,6 +595,16 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
         Default :func:`band_starts`.
     iterations : int
         Levenberg-Marquardt steps per level.
+    refuse_degenerate : bool
+        Raise :class:`~sonarsim.analysis.calibration.CalibrationFailed` (as the search
+        calibration does, the same verdicts): height, pitch or roll free where the recording
+        shows no floor band edge, a free pose parameter that does not change the render
+        (:func:`~sonarsim.analysis.fitting.unidentified_parameters`), a sensor value beyond
+        its physical bounds (:func:`~sonarsim.analysis.calibration.parameter_bounds`), a model
+        that explains no echo (:func:`~sonarsim.analysis.calibration.model_problems`). False:
+        the pose is held at a window start where the recording is lit across its window, and
+        the rest are listed in ``warnings``. A frame without an echo
+        (:func:`~sonarsim.analysis.calibration.frame_problems`) is refused either way.
 
     Returns
     -------
@@ -596,8 +622,10 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
     from ..analysis import metrics
     from ..analysis.baselines import baseline_images
     from ..analysis import realism
-    from ..analysis.calibration import STARTING_SENSOR, CalibrationResult, output_shape, with_law
-    from ..analysis.fitting import check_overlap, recording_geometry
+    from ..analysis.calibration import (PINNED_COST_RISE, STARTING_SENSOR, CalibrationFailed, CalibrationResult,
+                                        band_lines, frame_problems, model_problems, no_band_edge_problem,
+                                        output_shape, parameter_bounds, with_law)
+    from ..analysis.fitting import check_overlap, recording_geometry, unidentified_parameters, unidentified_problem
     from ..config.sensor import TVG_SPREADING, parse_sensor
     from ..renderer.simulator import Simulator
     from .params import scene_with
@@ -605,12 +633,22 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
 
     check_overlap(real, scene)
     target = np.asarray(real.polar, float)
+    refused = frame_problems(target)
+    if refused:  # the search calibration's verdict, before any work
+        raise CalibrationFailed(["the recording holds no echo to calibrate on: " + "; ".join(refused)], None)
+    told = [k for k in ("z", "pitch", "roll") if k in free]
+    if told and refuse_degenerate and band_lines(real) is None:
+        raise CalibrationFailed([no_band_edge_problem(told)], None)
     spec = scene.sensor
     if spec is None:  # the generic sensor, its output's shape from the frame's speckle
         spec = parse_sensor(STARTING_SENSOR)
         if spec.output is not None and spec.output.compression in ("gamma", "log"):
-            shape = output_shape(spec.output.compression, target, realism.auto_regions(target)["lit"],
-                                 spec.output.full_scale)
+            try:
+                shape = output_shape(spec.output.compression, target, realism.auto_regions(target)["lit"],
+                                     spec.output.full_scale)
+            except ValueError as exc:
+                raise CalibrationFailed([f"the recording has no speckle to calibrate on in its bright band: {exc}"],
+                                        None) from None
             spec = with_law(spec, spec.output.compression, None, shape)
     fitted = replace(scene, sonar=recording_geometry(real, scene), sensor=spec)
     notes = []
@@ -657,9 +695,30 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
                  scale=full, linear=True, progress=progress, ftol=ftol, snap=nearest, base=base)
     values = dict(result.values)
     best = dict(result.params)
+    image = r.image_function()
+    # Levenberg-Marquardt knows no bounds: a value beyond the search's physical bounds
+    # (parameter_bounds) is set to its bound. Where that costs fit, the fit wants it beyond:
+    # pinned, refused; where it does not, the frame does not determine it there (the ARIS
+    # sample's noise before the TVG went to -110 dB re 1 uPa^2): said, as the search says it.
+    bounds = parameter_bounds(spec, fitted.sonar)
+    clipped = {k: float(np.clip(values[k], *bounds[k[7:]])) for k in values
+               if k.startswith("sensor.") and k[7:] in bounds and not bounds[k[7:]][0] <= values[k] <= bounds[k[7:]][1]}
+    pinned, at_bounds = [], []
+    if clipped:
+        mse_free = float(np.mean((np.asarray(image(best, r.data)) - target) ** 2))
+        on_bounds = {**best, **{k: jnp.asarray(v, best[k].dtype) for k, v in clipped.items()}}
+        mse_bound = float(np.mean((np.asarray(image(on_bounds, r.data)) - target) ** 2))
+        texts = [f"{k[7:]} {values[k]:.4g} (bounds {bounds[k[7:]][0]:.4g} to {bounds[k[7:]][1]:.4g})" for k in clipped]
+        if not mse_bound <= mse_free * (1.0 + PINNED_COST_RISE):
+            pinned = texts
+        else:
+            best = on_bounds
+            values.update(clipped)
+            at_bounds = [k[7:] for k in clipped]
+            notes.append("parameters at their bounds, which the frame does not determine there (the fit is as good on "
+                         "the bound as beyond it): " + ", ".join(f"{k[7:]} {v:.4g}" for k, v in clipped.items()))
     if "sensor.beam_gain_db" in best:
         # The channels' gains last, in closed form (kept where they lower the frame's error).
-        image = r.image_function()
         before = float(np.mean((np.asarray(image(best, r.data)) - target) ** 2))
         channels = fit_beam_gains(r, best, target)
         if float(np.mean((np.asarray(image(channels, r.data)) - target) ** 2)) < before:
@@ -679,7 +738,15 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
            "spreading": None if out_spec.tvg is None else out_spec.tvg.spreading,
            "shape": None if out_spec.output is None else out_spec.output.gamma}
     values["sensor.beam_gain_db"] = [round(float(x), 4) for x in params["sensor.beam_gain_db"]]
-    return CalibrationResult(
+    # The search calibration's verdicts (analysis.calibration): the same recording, the same answer.
+    problems = model_problems(target, expected.polar)
+    loose = unidentified_parameters(calibrated, [k for k in free if k in POSE_KEYS])
+    if loose:
+        problems.append(unidentified_problem(loose))
+    if pinned:
+        problems.append("parameters pinned at their physical bounds, where the fit wants them beyond: "
+                        + ", ".join(pinned))
+    out = CalibrationResult(
         scene=calibrated, values={k.replace("sensor.", "", 1): v for k, v in values.items()},
         psnr_db=metrics.psnr(target, expected.polar, data_range=peak),
         psnr_start_db=float(10 * np.log10(peak ** 2 / start_mse)) if start_mse > 0 else float("inf"),
@@ -687,4 +754,9 @@ def calibrate_recording(real, scene, free: Sequence[str] = ("z", "pitch", "roll"
         starts=[{"start": dict(st.start), "values": dict(st.values), "loss": st.loss, "seconds": st.seconds}
                 for st in result.starts],
         baselines={k: metrics.psnr(target, img, data_range=peak) for k, img in baseline_images(target).items()},
-        law=law, warnings=notes)
+        law=law, warnings=notes, at_bounds=at_bounds)
+    if problems:
+        if refuse_degenerate:
+            raise CalibrationFailed(problems, out)
+        out.warnings.extend(problems)
+    return out
