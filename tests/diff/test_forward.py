@@ -244,9 +244,11 @@ def test_refresh_moves_only_geometry_and_takes_float32_values_as_they_are():
     assert r.searches == 2
     r = sd.Renderer(demo_scene_dict())
     p = r.params()
-    # A law's value beyond the scene format's bounds (a fit may go there) does not move the search.
+    # A law's value beyond the scene format's bounds (a fit's trial step may go there) does not
+    # move the search, and refresh takes it; render refuses it (issue 37).
     r.refresh({**p, "objects.concrete_block.albedo": jnp.asarray(1.4)})
-    assert float(np.asarray(r.render({**p, "objects.concrete_block.albedo": jnp.asarray(1.4)})).sum()) > 0
+    with pytest.raises(ConfigError, match=r"objects.concrete_block.albedo: must be finite, within \[0, 1\]"):
+        r.render({**p, "objects.concrete_block.albedo": jnp.asarray(1.4)})
     with pytest.raises(ConfigError, match="sonar.position_m: must be finite"):
         r.render({**p, "sonar.position_m": jnp.asarray([np.nan, 0.0, 1.0])})
     # A list is taken as an array.
@@ -270,8 +272,9 @@ def test_a_reflectivity_per_vertex_is_interpolated_at_each_scatterer():
     base, scaled = r.paths(p), r.paths(field)
     mine = np.asarray(base["signature"]) >= 0
     surface = np.asarray(r.data["surface"])[: r.search.n_paths]
-    first = len(r.static.planes)  # the object's rows: the first of the padded triangle table
-    on_object = (surface >= first) & (surface < first + r.data["local_faces"][0].shape[0])
+    first = len(r.static.planes)  # the triangle table's rows follow the planes'
+    face_object = np.asarray(r.data["face_object"])
+    on_object = (surface >= first) & (face_object[np.clip(surface - first, 0, len(face_object) - 1)] == 0)
     # The object's own frame: its vertices are local, the scatterer is posed.
     local = _to_local(np.asarray(base["point"]), doc["objects"][0])
     want = np.where(on_object, 0.7 + 2.0 * local[:, 0], 1.0)

@@ -84,6 +84,8 @@ STEERING_EXPONENT_RANGE = (0.0, 200.0)
 # Decay lengths and periods of the near-range effects (ringing, row noise), metres: from a tenth
 # of a millimetre (below any range cell) to the longest range window (config.sonar.MAX_RANGE_M).
 NEAR_RANGE_LENGTH_M = (1e-4, 1e4)
+# The output chain's gamma exponent.
+GAMMA_RANGE = (0.05, 4.0)
 
 
 def _within(key: str, value: Any, bounds: tuple[float, float], unit: str = "dB") -> float:
@@ -535,8 +537,8 @@ class OutputSpec:
     def __post_init__(self) -> None:
         _choice("compression", self.compression, COMPRESSIONS)
         g = _positive("gamma", self.gamma)
-        if not 0.05 <= g <= 4:
-            raise ConfigError("gamma", f"must be in [0.05, 4], got {g}")
+        if not GAMMA_RANGE[0] <= g <= GAMMA_RANGE[1]:
+            raise ConfigError("gamma", f"must be in [{GAMMA_RANGE[0]:g}, {GAMMA_RANGE[1]:g}], got {g}")
         lo, hi = _finite("floor_db", self.floor_db), _finite("ceiling_db", self.ceiling_db)
         for key, v in (("floor_db", lo), ("ceiling_db", hi)):
             if not -100.0 <= v <= 400.0:

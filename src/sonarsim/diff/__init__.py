@@ -19,7 +19,8 @@ from typing import Any
 
 DIFF_EXTRA_MESSAGE = "the differentiable engine needs JAX: pip install 'sonarsim[diff]'"
 
-_EXPORTS = {"Renderer": ".renderer", "Search": ".search", "record_search": ".search"}
+_EXPORTS = {"Renderer": ".renderer", "Search": ".search", "record_search": ".search",
+            "StaleSearchWarning": ".renderer"}
 __all__ = sorted(_EXPORTS)
 
 

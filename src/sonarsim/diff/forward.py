@@ -72,62 +72,101 @@ def _dot(a: jax.Array, b: jax.Array) -> jax.Array:
     return jnp.sum(a * b, axis=-1)
 
 
-def plane_table(params: dict, names: tuple[str, ...]) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """The planes' unit normals (P, 3), offsets (P,) and specular reflectances (P,)."""
+# Degenerate geometry inside ``jit``: a collapsed triangle (or an object scaled to nothing) has
+# no normal, a ray parallel to a plane no intersection. Such a path contributes nothing. Each
+# division and root below is taken of a stand-in value where its argument is degenerate and
+# the result then dropped by a second ``where`` (a ``where`` alone passes 0 * inf = NaN back
+# through the branch it did not take).
+
+
+def safe_length(v: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``(|v|, ok)`` along the last axis: ``ok`` where ``|v|^2`` is a normal float (above the
+    dtype's smallest), and there the length; elsewhere length 1 (a stand-in whose gradient is
+    finite and unused)."""
+    sq = _dot(v, v)
+    ok = sq > jnp.finfo(sq.dtype).tiny
+    return jnp.sqrt(jnp.where(ok, sq, 1.0)), ok
+
+
+def safe_divide(num: jax.Array, den: jax.Array, ok: jax.Array) -> jax.Array:
+    """``num / den`` where ``ok``, 0 elsewhere (gradients finite everywhere)."""
+    return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
+
+
+def rpy_matrices(rpy_deg: jax.Array) -> jax.Array:
+    """(N, 3, 3) :func:`rpy_matrix` of (N, 3) angles at once."""
+    r, p, y = rpy_deg[:, 0] * DEG, rpy_deg[:, 1] * DEG, rpy_deg[:, 2] * DEG
+    cr, sr, cp, sp, cy, sy = jnp.cos(r), jnp.sin(r), jnp.cos(p), jnp.sin(p), jnp.cos(y), jnp.sin(y)
+    return jnp.stack([
+        jnp.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
+        jnp.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
+        jnp.stack([-sp, cp * sr, cp * cr], axis=-1),
+    ], axis=-2)
+
+
+def plane_table(params: dict, names: tuple[str, ...]) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """The planes' unit normals (P, 3), offsets (P,), specular reflectances (P,) and whether
+    each normal is one (P,) (a zero normal, possible only inside ``jit``, is the zero vector
+    here: nothing meets that plane)."""
     if not names:
         z = jnp.zeros((1, 3)).at[0, 2].set(1.0)
-        return z, jnp.zeros(1), jnp.zeros(1)
+        return z, jnp.zeros(1), jnp.zeros(1), jnp.ones(1, bool)
     n = jnp.stack([params[f"planes.{p}.normal"] for p in names])
-    n = n / jnp.linalg.norm(n, axis=1, keepdims=True)
+    length, ok = safe_length(n)
+    n = jnp.where(ok[:, None], n / length[:, None], 0.0)
     off = jnp.stack([jnp.asarray(params[f"planes.{p}.offset_m"]).reshape(()) for p in names])
     spec = jnp.stack([jnp.asarray(params[f"planes.{p}.specular"]).reshape(()) for p in names])
-    return n, off, spec
+    return n, off, spec, ok
+
+
+def object_values(params: dict, objects: tuple[str, ...], suffix: str, default: float | None = None) -> jax.Array:
+    """(N, ...) one parameter of every object, stacked in object order (``default`` for an
+    object without it)."""
+    return jnp.stack([jnp.asarray(params[f"objects.{o}.{suffix}"] if default is None
+                                  else params.get(f"objects.{o}.{suffix}", default)) for o in objects])
 
 
 def mirror_table(params: dict, static: Any, normal: jax.Array, offset: jax.Array, spec: jax.Array, tri_n: jax.Array,
-                 tri_off: jax.Array, local_faces: tuple) -> tuple[jax.Array, jax.Array, jax.Array]:
+                 tri_off: jax.Array, face_object: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """The chains' mirrors by row, as the search numbers them: the planes, then the held
     triangles (unit normals, offsets, and their objects' specular reflectance, 0 for an object
-    that does not mirror: its triangles are then only scatterers)."""
+    that does not mirror: its triangles are then only scatterers). A collapsed triangle's
+    normal is the zero vector: no leg meets it."""
     n_planes = len(static.planes)
-    length = jnp.linalg.norm(tri_n, axis=1)
-    length = jnp.where(length > 0, length, 1.0)
-    tri_spec = []
-    for name, faces in zip(static.objects, local_faces):
-        if faces.shape[0]:
-            r = params.get(f"objects.{name}.specular", 0.0)
-            tri_spec.append(jnp.broadcast_to(jnp.asarray(r, tri_n.dtype), (faces.shape[0],)))
-    tri_spec = jnp.concatenate(tri_spec) if tri_spec else jnp.zeros(0, tri_n.dtype)
-    n = jnp.concatenate([normal[:n_planes], tri_n / length[:, None]])
-    off = jnp.concatenate([offset[:n_planes], tri_off / length])
+    length, ok = safe_length(tri_n)
+    if static.objects and tri_n.shape[0]:
+        tri_spec = object_values(params, static.objects, "specular", 0.0).astype(tri_n.dtype)[face_object]
+    else:
+        tri_spec = jnp.zeros(tri_n.shape[0], tri_n.dtype)
+    n = jnp.concatenate([normal[:n_planes], jnp.where(ok[:, None], tri_n / length[:, None], 0.0)])
+    off = jnp.concatenate([offset[:n_planes], jnp.where(ok, tri_off / length, 0.0)])
     r = jnp.concatenate([spec[:n_planes], tri_spec])
     if n.shape[0] == 0:  # nothing at all: the stand-in row
         return normal[:1], offset[:1], spec[:1]
     return n, off, r
 
 
-def triangle_table(params: dict, objects: tuple[str, ...], local_faces: tuple) -> tuple[jax.Array, jax.Array, jax.Array]:
+def triangle_table(params: dict, objects: tuple[str, ...], faces: jax.Array,
+                   face_object: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """The hit triangles' planes: unnormalised normals ``(b - a) x (c - a)`` (F, 3) and
-    offsets ``n . a`` (F,), their corners posed from each object's own mesh.
+    offsets ``n . a`` (F,), and their corners (F, 3, 3), posed and scaled from each object's
+    own mesh.
 
-    ``local_faces[k]``: (F_k, 3) vertex indices of object ``k``'s hit faces, in the order of
-    the search's ``faces`` (grouped by object).
+    ``faces``: (F, 3) indices into every object's vertices, concatenated in object order;
+    ``face_object``: (F,) the object of each. All objects are posed at once (one gather, one
+    batched product), so that the compiled function does not grow with the object count.
     """
-    normals, offsets, corners = [], [], []
-    for name, faces in zip(objects, local_faces):
-        if faces.shape[0] == 0:
-            continue
-        v = params[f"objects.{name}.vertices_m"] * params[f"objects.{name}.scale"]
-        rot = rpy_matrix(params[f"objects.{name}.rpy_deg"])
-        tri = v[faces] @ rot.T + params[f"objects.{name}.position_m"]  # (F_k, 3, 3)
-        a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-        n = jnp.cross(b - a, c - a)
-        normals.append(n)
-        offsets.append(_dot(n, a))
-        corners.append(tri)
-    if not normals:
+    if not objects or faces.shape[0] == 0:
         return jnp.zeros((0, 3)), jnp.zeros(0), jnp.zeros((0, 3, 3))
-    return jnp.concatenate(normals), jnp.concatenate(offsets), jnp.concatenate(corners)
+    vertices = jnp.concatenate([params[f"objects.{o}.vertices_m"] for o in objects])
+    scale = object_values(params, objects, "scale")[face_object]  # (F, 3)
+    rot = rpy_matrices(object_values(params, objects, "rpy_deg"))[face_object]  # (F, 3, 3)
+    position = object_values(params, objects, "position_m")[face_object]
+    local = vertices[faces] * scale[:, None, :]  # (F, 3 corners, 3)
+    tri = jnp.einsum("fcj,fij->fci", local, rot) + position[:, None, :]
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    n = jnp.cross(b - a, c - a)
+    return n, _dot(n, a), tri
 
 
 def law_table(params: dict, surfaces: tuple[tuple[str, str], ...]) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -148,22 +187,32 @@ def law_table(params: dict, surfaces: tuple[tuple[str, str], ...]) -> tuple[jax.
 
 
 def specular_lobe(c: jax.Array, s: jax.Array) -> jax.Array:
-    """``exp(-tan^2 / (2 s^2)) / cos^5`` (:func:`sonarsim.core.radiometry.specular_lobe`), 0 at grazing."""
-    c2 = jnp.maximum(c * c, 1e-300)
+    """``exp(-tan^2 / (2 s^2)) / cos^5`` (:func:`sonarsim.core.radiometry.specular_lobe`), 0 at
+    grazing (where ``cos^5`` is below the dtype's smallest float the lobe has long been 0) and
+    for a roughness of 0 or less (possible only inside ``jit``)."""
+    ok = (c > jnp.finfo(c.dtype).tiny ** 0.2) & (s > 0)
+    c = jnp.where(ok, c, 1.0)
+    s = jnp.where(ok, s, 1.0)
+    c2 = c * c
     t2 = (1.0 - c2) / c2
-    out = jnp.exp(-t2 / (2.0 * s * s)) / (c2 * c2 * c)
-    return jnp.where(c * c > 0, out, 0.0)
+    return jnp.where(ok, jnp.exp(-t2 / (2.0 * s * s)) / (c2 * c2 * c), 0.0)
 
 
 def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.Array, dict]:
     """Each path's recorded range (m) and energy, and the geometry formed on the way.
+
+    A path that meets degenerate geometry (a collapsed triangle, an object scaled to nothing,
+    a leg parallel to its mirror or scatterer, a plane's zero normal: all only inside ``jit``,
+    where values are not checked) has no energy and the range the search recorded; its
+    gradients are 0, never NaN.
 
     Returns
     -------
     distance : (C,) half the path's length, metres
     energy : (C,)
     parts : dict
-        ``point`` (C, 3) the scatterers, ``rx`` (C,) receive-leg lengths, ``cos`` (C,) incidences.
+        ``point`` (C, 3) the scatterers, ``rx`` (C,) receive-leg lengths, ``cos`` (C,)
+        incidences, ``valid`` (C,) whether the path met no degenerate geometry.
     """
     rot = rpy_matrix(params["sonar.rpy_deg"])
     origin = params["sonar.position_m"]
@@ -172,11 +221,11 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
         from .sensor import fan_rays  # the elevation pattern's width moves the rays' weights
 
         direction, weight = fan_rays(params, data, static.sensor)
-    plane_n, plane_off, plane_spec = plane_table(params, static.planes)
-    tri_n, tri_off, tri_corners = triangle_table(params, static.objects, data["local_faces"])
+    plane_n, plane_off, plane_spec, plane_ok = plane_table(params, static.planes)
+    tri_n, tri_off, tri_corners = triangle_table(params, static.objects, data["faces"], data["face_object"])
     # The chains' mirrors: the planes, then the held triangles (a mesh mirror's).
     normal, offset, spec = mirror_table(params, static, plane_n, plane_off, plane_spec, tri_n, tri_off,
-                                        data["local_faces"])
+                                        data["face_object"])
     shift = jnp.zeros(direction.shape[0], direction.dtype)
     if static.attach == "surfaces" and tri_corners.shape[0]:
         direction, shift = follow_azimuth(params, data, static, rot, origin, direction, normal, offset, tri_corners)
@@ -185,13 +234,17 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
     gen = data["gen"]
     dist = jnp.zeros(d.shape[0], d.dtype)
     atten = jnp.ones(d.shape[0], d.dtype)
+    tiny = jnp.finfo(d.dtype).tiny
+    # A leg meets a plane where it is not parallel to it (a zero normal is parallel to all).
+    valid = jnp.ones(d.shape[0], bool)
     for j in range(data["rx_planes"].shape[1]):
         on = j < gen
         p = jnp.maximum(data["rx_planes"][:, j], 0)
         n = normal[p]
         dn = _dot(d, n)
-        t = (offset[p] - _dot(o, n)) / jnp.where(on, dn, 1.0)
-        t = jnp.where(on, t, 0.0)
+        hit = jnp.abs(dn) > tiny
+        valid = valid & (hit | ~on)
+        t = safe_divide(offset[p] - _dot(o, n), dn, on & hit)
         o = o + t[:, None] * d
         d = jnp.where(on[:, None], d - 2.0 * dn[:, None] * n, d)
         dist = dist + t
@@ -202,11 +255,16 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
     if surf_n.shape[0] == 0:  # nothing to meet (an empty search): the stand-in row
         surf_n, surf_off = plane_n[:1], plane_off[:1]
     ns = surf_n[data["surface"]]
+    length_n, has_normal = safe_length(ns)
     dn = _dot(d, ns)
-    t = (surf_off[data["surface"]] - _dot(o, ns)) / dn
+    # (Below eps^2 of incidence the range would overflow float32: such a path grazes its
+    # surface and has no energy anyway.)
+    meets = has_normal & (jnp.abs(dn) > jnp.finfo(d.dtype).eps ** 2 * length_n)
+    valid = valid & meets
+    t = safe_divide(surf_off[data["surface"]] - _dot(o, ns), dn, meets)
     point = o + t[:, None] * d
     dist = dist + t
-    cos = jnp.abs(dn) / jnp.linalg.norm(ns, axis=1)
+    cos = safe_divide(jnp.abs(dn), length_n, meets)
 
     coef, strength, rough = law_table(params, static.surfaces)
     sid = data["sid"]
@@ -219,21 +277,27 @@ def path_ranges(params: dict, data: dict, static: Any) -> tuple[jax.Array, jax.A
     if not static.tvg:
         intensity = intensity / jnp.maximum(dist, 1e-6) ** 2
     # The transmit leg: reversed, or by image sources along its chain.
+    mirror_ok = jnp.concatenate([plane_ok[:n_planes], safe_length(tri_n)[1]])
+    if mirror_ok.shape[0] == 0:
+        mirror_ok = plane_ok[:1]
     a = point
     tx_spec = jnp.ones(d.shape[0], d.dtype)
     for j in range(data["tx_planes"].shape[1] - 1, -1, -1):
         q = data["tx_planes"][:, j]
         on = q >= 0
         q = jnp.maximum(q, 0)
+        valid = valid & (mirror_ok[q] | ~on)
         n = normal[q]
         a = jnp.where(on[:, None], a - 2.0 * (_dot(a, n) - offset[q])[:, None] * n, a)
         tx_spec = tx_spec * jnp.where(on, spec[q], 1.0)
-    length = jnp.linalg.norm(a - origin, axis=1)
+    length, apart = safe_length(a - origin)
+    length = jnp.where(apart, length, 0.0)
     same = data["same"]
     distance = jnp.where(same, dist, 0.5 * (dist + length))
+    distance = jnp.where(valid, distance, data["held_distance"])
     energy = atten * jnp.where(same, atten, tx_spec) * intensity
-    energy = jnp.where(data["live"], energy, 0.0)
-    return distance, energy, {"point": point, "rx": dist, "cos": cos, "shift": shift}
+    energy = jnp.where(data["live"] & valid, energy, 0.0)
+    return distance, energy, {"point": point, "rx": dist, "cos": cos, "shift": shift, "valid": valid}
 
 
 def vertex_reflectivity(params: dict, data: dict, static: Any) -> jax.Array:
@@ -242,20 +306,20 @@ def vertex_reflectivity(params: dict, data: dict, static: Any) -> jax.Array:
     held barycentric coordinates; 1 on planes and on the other objects."""
     n_planes = len(static.planes)
     surface = data["surface"]
-    row = surface - n_planes
+    faces, face_object = data["faces"], data["face_object"]
+    if faces.shape[0] == 0:
+        return jnp.ones(surface.shape[0], data["uv"].dtype)
+    row = jnp.clip(surface - n_planes, 0, faces.shape[0] - 1)
+    # Every object's vertices in one table (1 where an object has no reflectivity).
+    rho = jnp.concatenate([params[f"objects.{o}.reflectivity"] if o in static.reflective else
+                           jnp.ones(params[f"objects.{o}.vertices_m"].shape[0], data["uv"].dtype)
+                           for o in static.objects])
+    reflective = jnp.asarray([o in static.reflective for o in static.objects])
     u, v = data["uv"][:, 0], data["uv"][:, 1]
-    out = jnp.ones(surface.shape[0], data["uv"].dtype)
-    start = 0
-    for name, faces in zip(static.objects, data["local_faces"]):
-        count = faces.shape[0]
-        if name in static.reflective and count:
-            rho = params[f"objects.{name}.reflectivity"]
-            mine = (row >= start) & (row < start + count)
-            f = faces[jnp.clip(row - start, 0, count - 1)]
-            value = (1.0 - u - v) * rho[f[:, 0]] + u * rho[f[:, 1]] + v * rho[f[:, 2]]
-            out = jnp.where(mine, value, out)
-        start += count
-    return out
+    f = faces[row]
+    value = (1.0 - u - v) * rho[f[:, 0]] + u * rho[f[:, 1]] + v * rho[f[:, 2]]
+    mine = (surface >= n_planes) & reflective[face_object[row]]
+    return jnp.where(mine, value, 1.0)
 
 
 def follow_azimuth(params: dict, data: dict, static: Any, rot: jax.Array, origin: jax.Array, direction: jax.Array,
@@ -290,7 +354,10 @@ def follow_azimuth(params: dict, data: dict, static: Any, rot: jax.Array, origin
         n = normal[p]
         a = jnp.where(on[:, None], a - 2.0 * (_dot(a, n) - offset[p])[:, None] * n, a)
     local = (a - origin) @ rot  # R^T (A* - O): the sonar's frame
-    shift = jnp.where(on_object, jnp.arctan2(local[:, 1], local[:, 0]) - data["ray_azimuth"], 0.0)
+    # (A scatterer on the sonar's z axis has no azimuth: it keeps its ray's.)
+    seen = on_object & (local[:, 0] ** 2 + local[:, 1] ** 2 > jnp.finfo(local.dtype).tiny)
+    shift = jnp.where(seen, jnp.arctan2(jnp.where(seen, local[:, 1], 0.0), jnp.where(seen, local[:, 0], 1.0))
+                      - data["ray_azimuth"], 0.0)
     c, s_ = jnp.cos(shift), jnp.sin(shift)
     turned = jnp.stack([c * direction[:, 0] - s_ * direction[:, 1], s_ * direction[:, 0] + c * direction[:, 1],
                         direction[:, 2]], axis=1)  # a turn about the sonar's z axis keeps the elevation

@@ -31,10 +31,118 @@ key                                         shape   meaning, unit
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..config.scene import Scene
 from ..scene.meshes import object_mesh_local
+
+
+@dataclass(frozen=True)
+class Bound:
+    """The values a parameter may take: the scene format's bounds for the field it stands for.
+
+    Attributes
+    ----------
+    lo, hi : float
+        Inclusive bounds (``hi`` exclusive where ``open_hi``).
+    unit : str
+        For the messages.
+    field : str
+        The scene format's field whose bound this is.
+    open_hi : bool
+    """
+
+    lo: float
+    hi: float
+    unit: str
+    field: str
+    open_hi: bool = False
+
+    def text(self) -> str:
+        unit = f" {self.unit}" if self.unit else ""
+        return f"[{self.lo:g}, {self.hi:g}{')' if self.open_hi else ']'}{unit}"
+
+
+def parameter_bounds() -> dict[str, Bound]:
+    """Every parameter's bounds by the last part of its key (``albedo``, ``scale``, ...) or,
+    for the sensor, by its whole key: the scene format's own bounds, read from the constants
+    its validation uses (:mod:`sonarsim.config.scene`, :mod:`~sonarsim.config.materials`,
+    :mod:`~sonarsim.config.sensor`, :mod:`~sonarsim.config.loader`), so that a value the scene
+    format refuses is refused here too.
+
+    Two differ, as the differentiable engine makes them continuous: ``sensor.tvg_spreading``
+    (the scene format takes 0, 20, 30 or 40) may lie anywhere between those, and an object's
+    ``reflectivity`` (which the scene format does not have) is any factor of 0 or more.
+    """
+    from ..config import loader, materials
+    from ..config import scene as cs
+    from ..config import sensor as cn
+
+    coordinate = (-cs.MAX_COORDINATE_M, cs.MAX_COORDINATE_M, "m")
+    return {
+        "position_m": Bound(*coordinate, "pose.position_m"),
+        "rpy_deg": Bound(-loader.MAX_ANGLE_DEG, loader.MAX_ANGLE_DEG, "degrees", "pose.rpy_deg"),
+        "scale": Bound(cs.MIN_LENGTH_M, cs.MAX_LENGTH_M, "", "objects[].scale"),
+        "vertices_m": Bound(*coordinate, "objects[].mesh (its vertices' reach)"),
+        "albedo": Bound(0.0, 1.0, "", "albedo"),
+        "mu": Bound(0.0, 1.0, "", "material.mu"),
+        "specular": Bound(0.0, 1.0, "", "specular"),
+        "specular_strength": Bound(0.0, materials.MAX_SPECULAR_STRENGTH, "", "material.specular_strength"),
+        "roughness": Bound(materials.MIN_ROUGHNESS, materials.MAX_ROUGHNESS, "", "material.roughness"),
+        "offset_m": Bound(*coordinate, "planes[].point_m"),
+        "normal": Bound(-np.inf, np.inf, "", "planes[].normal"),  # and not the zero vector
+        "reflectivity": Bound(0.0, np.inf, "", "(the differentiable engine's own)"),
+        "sensor.gain_db": Bound(*cn.GAIN_RANGE_DB, "dB", "sensor.gain_db"),
+        "sensor.source_level_db": Bound(*cn.LEVEL_RANGE_DB, "dB", "sensor.source_level_db"),
+        "sensor.noise_db": Bound(*cn.LEVEL_RANGE_DB, "dB", "sensor.noise.level_db"),
+        "sensor.noise_after_tvg_db": Bound(*cn.LEVEL_RANGE_DB, "dB", "sensor.noise.after_tvg_db"),
+        "sensor.tvg_spreading": Bound(min(cn.TVG_SPREADING), max(cn.TVG_SPREADING), "dB per decade",
+                                      "sensor.tvg.spreading"),
+        "sensor.elevation_width_deg": Bound(*cn.PATTERN_WIDTH_RANGE_DEG, "degrees", "sensor.elevation_pattern.width_deg",
+                                            open_hi=True),
+        "sensor.azimuth_width_deg": Bound(*cn.PATTERN_WIDTH_RANGE_DEG, "degrees", "sensor.azimuth_pattern.width_deg",
+                                          open_hi=True),
+        "sensor.gamma": Bound(*cn.GAMMA_RANGE, "", "sensor.output.gamma"),
+        "sensor.beam_gain_db": Bound(*cn.PER_BEAM_RANGE_DB, "dB", "sensor.beam_gain.gain_db"),
+    }
+
+
+def bound_of(key: str, bounds: dict[str, Bound] | None = None) -> Bound | None:
+    """The :class:`Bound` of a parameter key (None for a key without one)."""
+    bounds = parameter_bounds() if bounds is None else bounds
+    return bounds.get(key) or bounds.get(key.rsplit(".", 1)[-1])
+
+
+def check_value(key: str, value: np.ndarray, bounds: dict[str, Bound] | None = None) -> None:
+    """Refuse a parameter's value that is not finite or lies outside the scene format's bounds.
+
+    Parameters
+    ----------
+    key : str
+        The parameter (``objects.buoy.albedo``).
+    value : ndarray
+        Its concrete value (any shape: a batch of values is checked member by member).
+
+    Raises
+    ------
+    ConfigError
+        Naming the key (and the component, for a vector), the allowed range and the value.
+    """
+    from ..errors import ConfigError, shown
+
+    v = np.asarray(value, dtype=float)
+    bound = bound_of(key, bounds)
+    finite = np.isfinite(v)
+    inside = finite if bound is None else finite & (v >= bound.lo) & ((v < bound.hi) if bound.open_hi else (v <= bound.hi))
+    allowed = "finite" if bound is None else f"finite, within {bound.text()} (the scene format's bounds of {bound.field})"
+    if not inside.all():
+        at = np.unravel_index(int(np.flatnonzero(~inside.reshape(-1))[0]), v.shape) if v.ndim else ()
+        which = f" (at {list(map(int, at))})" if v.ndim else ""
+        raise ConfigError(key, f"must be {allowed}; got {shown(float(v[at]))}{which}")
+    if key.endswith(".normal") and v.shape[-1:] == (3,) and not (np.linalg.norm(v, axis=-1) > 0).all():
+        raise ConfigError(key, "must not be the zero vector (a plane's normal)")
 
 
 def material_params(prefix: str, material) -> dict[str, float]:

@@ -8,6 +8,7 @@ compiled by ``jax.jit`` on first use, differentiable by ``jax.grad`` and batched
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
@@ -21,12 +22,27 @@ from ..renderer.components import component_table, total_rows
 from ..renderer.simulator import Simulator
 from ..scene.meshes import object_mesh_local
 from . import forward
-from .params import scene_params, scene_with, surface_laws
+from .params import check_value, parameter_bounds, scene_params, scene_with, surface_laws
 from .search import Search, padded_size, record_search
 
 
 #: The parameters that move the search (the rest are re-formed on the held search exactly).
 GEOMETRY = (".position_m", ".rpy_deg", ".scale", ".vertices_m", ".offset_m", ".normal")
+
+#: How far is far from the held search (:meth:`Renderer.refresh`): the sonar moved by more than
+#: this fraction of the range window's far end, or turned by more than this fraction of the
+#: narrower of its fields of view; a plane's points within the window moved by more than this
+#: fraction of the window's far end.
+FAR_FRACTION = 0.1
+#: An object whose vertices moved by more than this fraction of its size (the largest side of
+#: its box at the held search) has left the triangles the held paths meet.
+FAR_OBJECT_FRACTION = 0.5
+
+
+class StaleSearchWarning(UserWarning):
+    """The parameters rendered have moved the sonar, an object or a plane far from where the
+    held search was taken: the image still shows the held paths (what the sonar met there),
+    not what it would meet now. :meth:`Renderer.refresh` searches again."""
 
 
 @dataclass(frozen=True)
@@ -121,11 +137,13 @@ class Renderer:
             reflective=tuple(reflectivity),
         )
         self._local_faces = [np.asarray(object_mesh_local(o).faces, np.int64) for o in scene.objects]
+        counts = [len(self._defaults[f"objects.{o.name}.vertices_m"]) for o in scene.objects]
+        self._vertex_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
         self._jitted: dict = {}
         self.search: Search | None = None
         self._capacity = 1024
         self.searches = 0  # searches run (refresh): what a fit reports as its renders
-        self._face_capacity = [64] * len(scene.objects)
+        self._face_capacity = 64
         self.refresh()
 
     # Parameters ------------------------------------------------------------------------------
@@ -139,24 +157,107 @@ class Renderer:
         """Every parameter's key."""
         return tuple(self._defaults)
 
-    def _complete(self, params: Mapping[str, Any] | None) -> dict[str, Any]:
-        """``params`` over the defaults; an unknown key is refused by name."""
+    def _complete(self, params: Mapping[str, Any] | None, bounds: bool = True) -> dict[str, Any]:
+        """``params`` over the defaults; an unknown key is refused by name, and so is a value
+        that is not finite or (``bounds``) lies outside the scene format's bounds
+        (:func:`~sonarsim.diff.params.check_value`), wherever the value is concrete: given
+        directly, or traced by ``jax.grad``, ``jax.jacfwd`` or ``jax.vmap`` outside ``jit``.
+        Inside ``jit`` values are abstract and cannot be checked here; the forward then keeps
+        degenerate geometry from turning into NaN (:func:`sonarsim.diff.forward.path_ranges`)."""
         out: dict[str, Any] = dict(self._defaults)
         if params is None:
             return {k: jnp.asarray(v, self.dtype) for k, v in out.items()}
         unknown = [k for k in params if k not in out]
         if unknown:
             raise ConfigError(unknown[0], f"no such parameter in this scene; its parameters: {', '.join(out)}")
+        table = parameter_bounds()
         for k, v in params.items():
             shape = np.shape(self._defaults[k])
             if not isinstance(v, (jax.Array, jax.core.Tracer, np.ndarray)):
                 v = np.asarray(v, float)  # a list or a number
             if jnp.shape(v) != shape:
                 raise ConfigError(k, f"has shape {jnp.shape(v)}; expected {shape}")
-            if not isinstance(v, jax.core.Tracer) and not np.all(np.isfinite(np.asarray(v))):
-                raise ConfigError(k, "must be finite")
+            value = concrete_value(v)
+            if value is not None:
+                check_value(k, value, table if bounds else {})
             out[k] = v
         return {k: v if isinstance(v, jax.core.Tracer) else jnp.asarray(v, self.dtype) for k, v in out.items()}
+
+    def _checked(self, params: Mapping[str, Any] | None) -> dict[str, Any]:
+        """:meth:`_complete` with the bounds, and a :class:`StaleSearchWarning` where the
+        concrete parameters are far from the held search."""
+        out = self._complete(params)
+        if params is not None and not self._stale_warned:
+            far = self.distance_from_search(params)
+            if far:
+                self._stale_warned = True  # once per held search: a loop of renders says it once
+                warnings.warn(f"{far}: the image shows the paths held where the search was taken, not what would be "
+                              "met here; call refresh(params) to search again at these parameters (one frame of "
+                              "the compiled engine)", StaleSearchWarning, stacklevel=3)
+        return out
+
+    def distance_from_search(self, params: Mapping[str, Any]) -> str:
+        """How far ``params`` (concrete values) have moved the geometry from the held search,
+        where it is far (see :data:`FAR_FRACTION`, :data:`FAR_OBJECT_FRACTION`): one clause
+        per thing moved far, e.g. ``"the sonar moved 500 m (far: beyond 0.8 m)"``; empty where
+        nothing is, or where the values are abstract (inside ``jit``)."""
+        from ..core.transforms import rpy_to_matrix
+
+        held, sonar = self._held, self.scene.sonar
+        reach = float(sonar.range_max_m)
+        values = {}
+        for k, v in params.items():
+            if k.endswith(GEOMETRY):
+                c = concrete_value(v)
+                if c is None:
+                    return ""
+                if c.shape == np.shape(held[k]) and not np.array_equal(c, held[k]):
+                    values[k] = np.asarray(c, float)
+        if not values:
+            return ""
+
+        def get(k):
+            return values.get(k, held[k])
+
+        def turn_deg(a, b):
+            ra, rb = rpy_to_matrix(*np.radians(a)), rpy_to_matrix(*np.radians(b))
+            return float(np.degrees(np.arccos(np.clip((np.trace(ra.T @ rb) - 1.0) / 2.0, -1.0, 1.0))))
+
+        out = []
+        if "sonar.position_m" in values or "sonar.rpy_deg" in values:
+            moved = float(np.linalg.norm(get("sonar.position_m") - held["sonar.position_m"]))
+            turned = turn_deg(held["sonar.rpy_deg"], get("sonar.rpy_deg"))
+            fov = min(float(sonar.azimuth_fov_deg), float(sonar.elevation_fov_deg))
+            if moved > FAR_FRACTION * reach or turned > FAR_FRACTION * fov:
+                out.append(f"the sonar moved {moved:.3g} m and turned {turned:.3g} degrees from the held search "
+                           f"(far: beyond {FAR_FRACTION * reach:.3g} m, {FAR_FRACTION:g} of the range window's far end, "
+                           f"or {FAR_FRACTION * fov:.3g} degrees, {FAR_FRACTION:g} of the narrower field of view)")
+        for obj in self.scene.objects:
+            p = f"objects.{obj.name}"
+            if not any(f"{p}.{part}" in values for part in ("position_m", "rpy_deg", "scale", "vertices_m")):
+                continue
+
+            def world(get):
+                v = get(f"{p}.vertices_m") * get(f"{p}.scale")
+                return v @ rpy_to_matrix(*np.radians(get(f"{p}.rpy_deg"))).T + get(f"{p}.position_m")
+
+            before, after = world(lambda k: held[k]), world(get)
+            size = float(np.max(before.max(axis=0) - before.min(axis=0))) if len(before) else 0.0
+            moved = float(np.max(np.linalg.norm(after - before, axis=1))) if len(before) else 0.0
+            if moved > FAR_OBJECT_FRACTION * size:
+                out.append(f"object {obj.name!r} moved {moved:.3g} m (its vertices; far: beyond "
+                           f"{FAR_OBJECT_FRACTION * size:.3g} m, {FAR_OBJECT_FRACTION:g} of its size)")
+        for name in self.static.planes:
+            p = f"planes.{name}"
+            if f"{p}.offset_m" in values or f"{p}.normal" in values:
+                n0, n1 = held[f"{p}.normal"], get(f"{p}.normal")
+                n0, n1 = n0 / np.linalg.norm(n0), n1 / max(np.linalg.norm(n1), 1e-300)
+                moved = abs(float(get(f"{p}.offset_m")) - float(held[f"{p}.offset_m"])) + reach * float(
+                    np.linalg.norm(n1 - n0))
+                if moved > FAR_FRACTION * reach:
+                    out.append(f"plane {name!r} moved about {moved:.3g} m within the range window (far: beyond "
+                               f"{FAR_FRACTION * reach:.3g} m)")
+        return "; ".join(out)
 
     # The held search -------------------------------------------------------------------------
 
@@ -166,7 +267,10 @@ class Renderer:
         sonar's pose, the objects and the planes are searched where ``params`` puts them; the
         sensor's parameters do not move the search (the rays stay the scene's fan)."""
         self.searches += 1
-        self._complete(params)  # unknown keys and shapes refused by name
+        # Unknown keys, shapes and values that are not finite are refused by name; the scene
+        # format's bounds are not checked here, so that an optimiser's trial step beyond one
+        # is a step that fails (render refuses it), not a fit that stops.
+        self._complete(params, bounds=False)
         # Only geometry moves the search (laws, reflectances and the sensor do not: they are
         # not even checked against the scene format's bounds here); a value within float32's
         # round-off of the scene's has not moved.
@@ -184,6 +288,9 @@ class Renderer:
         # functions (a new size compiles them again, a second or more).
         self._capacity = max(self._capacity, search.capacity)
         self.search = search
+        self._held = {**{k: v for k, v in self._defaults.items() if k.endswith(GEOMETRY)},
+                      **{k: np.asarray(v, float) for k, v in (params or {}).items() if k.endswith(GEOMETRY)}}
+        self._stale_warned = False
         self._data = self._arrays(search)
         self.static = Static(**{**self.static.__dict__, "n_rows": search.n_rows,
                                 "n_signatures": max(len(search.signatures), 1)})
@@ -205,25 +312,24 @@ class Renderer:
             data["beam_plus"], data["beam_minus"] = jnp.asarray(plus), jnp.asarray(minus)
             data["step_plus"] = jnp.asarray(np.where(plus != beam, centre[plus] - centre[beam], np.inf), self.dtype)
             data["step_minus"] = jnp.asarray(np.where(minus != beam, centre[minus] - centre[beam], np.inf), self.dtype)
-        # The hit triangles of each object, padded (with its first face) to a size that only
-        # grows, and the paths' scatterer rows moved to the padded table.
-        # (at least one row: an empty search's padding points at row 0, which the plane table
-        # always has, a stand-in where there is no plane)
-        faces, start, row_of = [], search.n_planes, np.arange(max(search.n_planes + len(search.faces), 1))
-        for k in range(len(self.scene.objects)):
-            rows = np.flatnonzero(search.faces[:, 0] == k)
-            hit = search.faces[rows, 1]
-            self._face_capacity[k] = max(self._face_capacity[k], padded_size(len(hit), 64))
-            padded = np.zeros(self._face_capacity[k], np.int64)
-            padded[:len(hit)] = hit
-            faces.append(jnp.asarray(self._local_faces[k][padded]))
-            row_of[search.n_planes + rows] = start + np.arange(len(rows))
-            start += self._face_capacity[k]
-        data["local_faces"] = tuple(faces)
-        data["surface"] = jnp.asarray(row_of[search.surface])
-        for key in ("rx_planes", "tx_planes"):  # a mesh mirror's triangle: its row in the padded table
-            chains = getattr(search, key)
-            data[key] = jnp.asarray(np.where(chains >= search.n_planes, row_of[np.maximum(chains, 0)], chains))
+        # The hit triangles of every object in one table, as the search numbers them (so the
+        # paths' rows need no moving), padded (with its first row) to a size that only grows,
+        # their corners as indices into the objects' vertices concatenated in object order.
+        n_faces = len(search.faces)
+        self._face_capacity = max(self._face_capacity, padded_size(n_faces, 64))
+        rows = np.zeros(self._face_capacity if self.scene.objects else 0, np.int64)
+        rows[:n_faces] = np.arange(n_faces)
+        obj = search.faces[rows, 0] if n_faces else np.zeros(len(rows), np.int64)
+        local = search.faces[rows, 1] if n_faces else np.zeros(len(rows), np.int64)
+        corners = np.zeros((len(rows), 3), np.int64)
+        for k in np.unique(obj):
+            at = obj == k
+            corners[at] = self._local_faces[k][local[at]] + self._vertex_start[k]
+        data["faces"] = jnp.asarray(corners)
+        data["face_object"] = jnp.asarray(obj)
+        # Where a path meets degenerate geometry inside jit, it keeps the range the search
+        # recorded (its neighbours' range cells stay where they were; padding: 0).
+        data["held_distance"] = jnp.asarray(np.where(np.isfinite(search.distance), search.distance, 0.0), self.dtype)
         if self._sensor is not None:
             data.update(self._sensor.arrays(search))
         # One precision throughout (with JAX's 64-bit mode on, a float32 renderer's constants
@@ -273,13 +379,13 @@ class Renderer:
     def render(self, params: Mapping[str, Any] | None = None) -> jax.Array:
         """The expected image (n_range_bins, n_beams): the total of ``render.bounces``, or,
         with a ``sensor:`` section, the sensor's expected output (no speckle, no noise draws)."""
-        return self._function("image")(self._complete(params), self._data, self._image_static()).astype(self.dtype)
+        return self._function("image")(self._checked(params), self._data, self._image_static()).astype(self.dtype)
 
     def echo(self, params: Mapping[str, Any] | None = None) -> jax.Array:
         """The image (n_range_bins, n_beams) before the sensor stage: the total of
         ``render.bounces`` that :func:`sonarsim.diff.sensor.expected_output` takes (the same as
         :meth:`render` without a ``sensor:`` section)."""
-        return self._function("echo")(self._complete(params), self._data, self._image_static()).astype(self.dtype)
+        return self._function("echo")(self._checked(params), self._data, self._image_static()).astype(self.dtype)
 
     def paths(self, params: Mapping[str, Any] | None = None) -> dict[str, jax.Array]:
         """The frame's paths as the forward forms them, one entry per path of the held search:
@@ -287,7 +393,7 @@ class Renderer:
         m), ``receive_m`` (the receive leg's length), ``cos`` (the incidence at the
         scatterer); and, held, ``ray``, ``beam``, ``label`` (the image-stack row) and
         ``signature`` (an index into ``search.signatures``)."""
-        distance, energy, parts = self._function("paths")(self._complete(params), self._data, self.static)
+        distance, energy, parts = self._function("paths")(self._checked(params), self._data, self.static)
         n = self.search.n_paths
         s = self.search
         return {"distance": distance[:n], "energy": energy[:n], "point": parts["point"][:n],
@@ -297,7 +403,7 @@ class Renderer:
     def components(self, params: Mapping[str, Any] | None = None) -> dict[str, jax.Array]:
         """Every component of the frame (``object``, ``ground``, ``single``, ``double``, ...,
         ``total`` and one image per path signature), before any sensor."""
-        stack, sigs = self._function("components")(self._complete(params), self._data, self.static)
+        stack, sigs = self._function("components")(self._checked(params), self._data, self.static)
         out = {}
         for comp in component_table(max(self.static.n_rows - 1, 1)):
             if comp.name == "total":
@@ -307,6 +413,27 @@ class Renderer:
         for i, name in enumerate(self.search.signatures):
             out[name] = sigs[i]
         return out
+
+
+def concrete_value(value: Any) -> np.ndarray | None:
+    """The value behind a parameter as a NumPy array, or None inside ``jit`` (abstract).
+
+    A plain array is its value; a tracer of ``jax.grad`` or ``jax.jacfwd`` taken outside
+    ``jit`` carries its concrete primal, and one of ``jax.vmap`` its batch (every member is
+    then checked).
+    """
+    if not isinstance(value, jax.core.Tracer):
+        return np.asarray(value)
+    try:
+        concrete = value.to_concrete_value()
+    except Exception:  # noqa: BLE001 - a tracer that has none
+        concrete = None
+    if concrete is not None:
+        return np.asarray(concrete)
+    batch = getattr(value, "val", None)  # jax.vmap's tracer: the batch it maps over
+    if batch is not None and type(value).__name__ == "BatchTracer":
+        return concrete_value(batch)
+    return None
 
 
 def _shift(parts: dict, static: Static):

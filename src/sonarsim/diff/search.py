@@ -170,14 +170,32 @@ def clipped_face_sources(sim: Simulator) -> list[np.ndarray]:
     for obj, mesh in zip(sim.scene.objects, sim.meshes):
         local = object_mesh_local(obj)
         faces0 = np.asarray(local.faces, np.int64)
-        index = {tuple(sorted(f)): i for i, f in enumerate(faces0.tolist())}
         n0 = len(local.vertices)
         src = np.empty(len(mesh.faces), np.int64)
         world0 = np.asarray(mesh.vertices[:n0], float)  # the clip keeps the posed vertices first
         tri0 = world0[faces0]
         e1, e2 = tri0[:, 1] - tri0[:, 0], tri0[:, 2] - tri0[:, 0]
         nrm = np.cross(e1, e2)
-        for j, f in enumerate(np.asarray(mesh.faces, np.int64).tolist()):
+        # Kept faces, all at once: a face's sorted corners as one integer, looked up among the
+        # local faces' (a scene of thousands of objects has millions of faces).
+        faces = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
+        found = np.zeros(len(faces), bool)
+        if len(faces0) and len(faces) and n0 < 2 ** 20:
+            def code(f):
+                f = np.sort(f, axis=1)
+                return (f[:, 0] * n0 + f[:, 1]) * n0 + f[:, 2]
+
+            keys0 = code(faces0)
+            order = np.argsort(keys0, kind="stable")
+            keys = code(np.minimum(faces, n0 - 1))
+            # (the last of equal keys, as the dictionary below keeps it)
+            at = np.maximum(np.searchsorted(keys0[order], keys, side="right") - 1, 0)
+            found = (faces.max(axis=1) < n0) & (keys0[order][at] == keys)
+            src[found] = order[at[found]]
+        rest = np.flatnonzero(~found).tolist()
+        index = {tuple(sorted(f)): i for i, f in enumerate(faces0.tolist())} if rest else {}
+        for j in rest:
+            f = faces[j].tolist()
             key = tuple(sorted(f))
             if max(f) < n0 and key in index:
                 src[j] = index[key]

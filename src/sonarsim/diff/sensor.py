@@ -88,12 +88,20 @@ def _line_amplitude(u: jax.Array, window: tuple) -> jax.Array:
 
 
 def pattern_gain(angle_rad: jax.Array, shape: str, window: tuple, width_deg: jax.Array, ways: int) -> jax.Array:
-    """Power gain of a Gaussian or line-array pattern (:func:`sonarsim.sensor.patterns.pattern_gain`)."""
-    width = width_deg * (jnp.pi / 180.0)
+    """Power gain of a Gaussian or line-array pattern (:func:`sonarsim.sensor.patterns.pattern_gain`).
+
+    A width of 0 or less (possible only inside ``jit``: the scene format's bounds are checked
+    where values are concrete) is a beam that receives nothing: gain 0, gradients 0 (the width
+    divided by is a stand-in there, so that no NaN comes back through the ``where``).
+    """
+    ok = width_deg > 0
+    width = jnp.where(ok, width_deg, 1.0) * (jnp.pi / 180.0)
     if shape == "gaussian":
-        return jnp.exp(-LN2 * (2.0 * angle_rad / width) ** 2)
-    u3 = patterns.half_power_u(window[0], window[1], ways)
-    return _line_amplitude(u3 / jnp.sin(width / 2.0) * jnp.sin(angle_rad), window) ** (2 * ways)
+        gain = jnp.exp(-LN2 * (2.0 * angle_rad / width) ** 2)
+    else:
+        u3 = patterns.half_power_u(window[0], window[1], ways)
+        gain = _line_amplitude(u3 / jnp.sin(width / 2.0) * jnp.sin(angle_rad), window) ** (2 * ways)
+    return jnp.where(ok, gain, 0.0)
 
 
 class SensorPart:
@@ -242,6 +250,7 @@ def fan_rays(params: dict, data: dict, st: SensorStatic) -> tuple[jax.Array, jax
     gain = pattern_gain(phi, st.elevation, st.elevation_window, width, ways=2)
     if st.correction is not None:  # its departure from the shape, over its span (which may follow the width)
         half = (st.span_given if st.span_given is not None else jnp.minimum(3.0 * width, 170.0)) / 2.0
+        half = jnp.where(half > 0, half, 1.0)  # (a width of 0: no gain to correct, and knots apart)
         knots = jnp.linspace(-half, half, len(st.correction))
         gain = gain * jnp.interp(phi * (180.0 / jnp.pi), knots, 10.0 ** (jnp.asarray(st.correction) / 10.0))
     gain = gain[k]
@@ -263,7 +272,12 @@ def leakage_kernel(params: dict, data: dict, st: SensorStatic) -> jax.Array:
     sub = (jnp.arange(16) + 0.5) / 16 - 0.5
     offsets = (m[:, None] + sub[None, :]) * st.beam_spacing_deg * (jnp.pi / 180.0)
     k = jnp.mean(pattern_gain(offsets, st.azimuth, st.azimuth_window, params["sensor.azimuth_width_deg"], ways=1), axis=1)
-    return k / jnp.sum(k)
+    # A beam far narrower than the beams' spacing (its gain underflows at every offset, as at a
+    # width of 0, possible only inside jit) leaks into no other beam: the kernel is its centre.
+    total = jnp.sum(k)
+    ok = total > jnp.finfo(k.dtype).tiny
+    centre = jnp.asarray([1.0 if m == 0 else 0.0 for m in st.leakage_m], k.dtype)
+    return jnp.where(ok, k / jnp.where(ok, total, 1.0), centre)
 
 
 def _blur(x: jax.Array, kernel: jax.Array, axis: int) -> jax.Array:
