@@ -859,7 +859,7 @@ def reconstruction_figure(heights_m: np.ndarray, x_m: np.ndarray, y_m: np.ndarra
     if hi <= lo:  # a flat result: a scale a millimetre wide about it
         lo, hi = lo - 5e-4, hi + 5e-4
     n = 2 + (truth_m is not None) + (reflectivity is not None)
-    fig = _new_figure((4.2 * n + 0.6, 3.8), "constrained")
+    fig = _new_figure((4.6 * n + 1.0, 3.8), "compressed")  # compressed: maps keep their aspect, bars stay beside them
     axes = list(fig.subplots(1, n, squeeze=False).ravel())
     extent = (float(x_m[0]), float(x_m[-1]), float(y_m[0]), float(y_m[-1]))
 
