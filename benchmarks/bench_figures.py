@@ -42,7 +42,7 @@ def main() -> None:
         "reconstruction_figure": lambda: F.reconstruction_figure(heights, x, y, heights > -1, truth_m=heights * 0.9),
     }
     F.save_figure(F.fan_figure(demo), Path(tempfile.gettempdir()) / f"warm.{args.format}")  # imports, fonts
-    print(f"{"figure":<22} {'build s':>8} {'write s':>8} {'total s':>8} {'cpu s':>7}")
+    print(f"{'figure':<22} {'build s':>8} {'write s':>8} {'total s':>8} {'cpu s':>7}")
     with tempfile.TemporaryDirectory() as tmp:
         for name, build in cases.items():
             best = None
