@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -371,3 +372,88 @@ def test_ctrl_c_while_a_figure_is_drawn_is_delivered_after_it_as_keyboard_interr
     assert drawn[0] == "interrupting" and drawn[-1] == "later"  # drawing went on to its end
     assert os.listdir(tmp_path) == []  # no figure, no temporary file
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+
+
+# ------------------------------------------------------------------------------ issue 37's figure defects
+
+
+def _drawn(fig):
+    """Draw ``fig`` on an Agg canvas; its renderer."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return canvas.get_renderer()
+
+
+def test_panels_keep_their_labels_inside_the_figure_and_the_title_above_theirs():
+    # ground_echo_figure.png cut its x labels off at the bottom and its title sat on the middle
+    # panel's: the fans keep their aspect, and the figure was too short for the layout to fit them.
+    image = synthetic(point_target(), single=point_target(), triple=point_target() * 0.1,
+                      double=point_target() * 0.2, object=point_target(), ground=point_target() * 0.01)
+    fig = F.ground_echo_figure(image)
+    renderer = _drawn(fig)
+    height = fig.bbox.height
+    panels = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    for ax in panels:
+        box = ax.get_tightbbox(renderer)
+        assert box.y0 >= 0.0 and box.y1 <= height, (ax.get_title(), box.y0, box.y1, height)
+        assert ax.xaxis.label.get_window_extent(renderer).y0 >= 0.0
+    title = fig._suptitle.get_window_extent(renderer)
+    assert min(title.y0 - ax.title.get_window_extent(renderer).y1 for ax in panels) > 2.0  # pixels apart
+
+
+def test_the_sensor_figure_shows_the_ideal_image_it_is_given():
+    # The demo labelled "ideal" the sensor render's own total, formed over the elevation
+    # pattern's 42-degree ray span; the ideal image is the scene without the sensor.
+    ideal = synthetic(point_target())
+    wide = synthetic(np.full((200, 40), 0.5, np.float32), total=np.full((200, 40), 0.5, np.float32))
+    recorded = replace(wide, config={"sensor": {"output": {"dtype": "uint8"}}})
+    fig = F.sensor_figure(recorded, recorded, "a device", ideal=ideal)
+    first = fig.axes[0]
+    assert first.get_title() == "ideal (the paper's model, no sensor)"
+    rgb = np.asarray(first.images[0].get_array()).reshape(-1, 3)
+    inside = rgb[(rgb != OUTSIDE_FAN_RGB).any(axis=1)]
+    # The point target on a faint floor (-30 dB: black in a 40 dB window at most partly), not
+    # the uniform image of the recorded total (one colour everywhere).
+    assert len(np.unique(inside, axis=0)) > 2
+    fig = F.sensor_figure(recorded, recorded, "a device")  # without: the title says what it is
+    assert fig.axes[0].get_title() == "renderer's image over the sensor's ray span"
+
+
+def test_the_comparison_shows_its_metrics_and_the_difference_centred_on_zero():
+    a = synthetic(point_target())
+    b = synthetic(point_target(row=120))
+    metrics = {"polar": {"mse": 12.5, "psnr": 37.16, "ssim": 0.912}, "fan": {"mse": 10.0, "psnr": 38.1, "ssim": 0.93}}
+    fig = F.comparison_figure([a, b], ["A", "B"], metrics=metrics, difference=True, title="sonarsim compare")
+    text = fig._suptitle.get_text()
+    assert "polar: MSE 12.5, PSNR 37.16 dB, SSIM 0.912" in text and "fan: MSE 10, PSNR 38.1 dB" in text
+    panels = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    assert [ax.get_title() for ax in panels] == ["A", "B", "A \u2212 B"]
+    bars = colorbars(fig)
+    signed = [bar for bar in bars if bar.get_ylabel().startswith("A \u2212 B")]
+    assert len(signed) == 1
+    lo, hi = signed[0].get_ylim()
+    assert lo == pytest.approx(-hi) and hi == pytest.approx(1.0 - 1e-3)  # spot (1) minus floor (1e-3), over each maximum
+    # Different grids: no difference, and the title says why.
+    c = synthetic(point_target(bins=100), bins=100)
+    fig = F.comparison_figure([a, c], ["A", "C"], difference=True)
+    assert "no difference panel" in fig._suptitle.get_text()
+    assert len([ax for ax in fig.axes if ax.get_label() != "<colorbar>"]) == 2
+
+
+def test_the_reconstruction_figure_shares_one_height_scale_and_centres_the_error():
+    x, y = np.linspace(0.0, 1.0, 11), np.linspace(-0.5, 0.5, 11)
+    truth = 0.1 * np.exp(-((x[None, :] - 0.5) ** 2 + y[:, None] ** 2) / 0.02)
+    result = truth * 0.8 + 0.002
+    seen = np.ones_like(truth, bool)
+    seen[0, 0] = False
+    fig = F.reconstruction_figure(result, x, y, seen, truth_m=truth)
+    images = [ax.images[0] for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    (truth_im, result_im, error_im) = images
+    assert truth_im.norm.vmin == result_im.norm.vmin and truth_im.norm.vmax == result_im.norm.vmax  # one scale
+    assert truth_im.norm.vmax == pytest.approx(truth[seen].max())
+    assert error_im.norm.vmin == pytest.approx(-error_im.norm.vmax)  # centred on zero
+    assert error_im.norm.vmax == pytest.approx(np.abs(result - truth)[seen].max())
+    assert error_im.get_cmap().name == F.SIGNED_COLORMAP
+    assert len(colorbars(fig)) == 2  # heights (truth and result) and the error

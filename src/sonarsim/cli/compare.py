@@ -218,8 +218,9 @@ def _held_out_indices(args: argparse.Namespace) -> list[int]:
     return (after or before)[:1]
 
 
-def _write_figure(args: argparse.Namespace, run: Any, image_a: Any, image_b: Any, normalize: str | None) -> None:
-    """compare_figure.* in --out: A | B on the scale the metrics see."""
+def _write_figure(args: argparse.Namespace, run: Any, image_a: Any, image_b: Any, normalize: str | None,
+                  metrics: Any = None) -> None:
+    """compare_figure.* in --out: A | B | A - B on the scale the metrics see, the metrics under the title."""
     from pathlib import Path
 
     from ..plot.figures import comparison_figure
@@ -235,7 +236,8 @@ def _write_figure(args: argparse.Namespace, run: Any, image_a: Any, image_b: Any
     with run:
         write_figure(args, Path(args.out) / "compare_figure",
                      lambda: comparison_figure([image_a, image_b], titles, normalize=normalize, colormap=args.colormap,
-                                               pixel_size_m=args.pixel_size, title="sonarsim compare"), run)
+                                               pixel_size_m=args.pixel_size, title="sonarsim compare",
+                                               metrics=metrics, difference=True), run)
 
 
 def cmd_compare(args: argparse.Namespace) -> None:
@@ -272,7 +274,7 @@ def cmd_compare(args: argparse.Namespace) -> None:
     info = result["info"]
     desc_a, desc_b = _describe(image_a), _describe(image_b)
     if run is not None:
-        _write_figure(args, run, image_a, image_b, normalize)
+        _write_figure(args, run, image_a, image_b, normalize, {d: result[d] for d in DOMAINS if d in result})
 
     if args.json:
         doc = {

@@ -231,9 +231,10 @@ def _demo_files(args, out: Path, run, demo, tank, aris) -> None:
         yaml.safe_dump(aris[0], f, sort_keys=False)
     with Simulator(aris[1], backend=args.backend) as sim:
         recorded, expected = sim.render(), sim.render(speckle=False)
-    write_png(out / "aris3000.png", sensor_comparison(recorded, expected, "an ARIS 3000", 255.0, args.pixel_size))
+    write_png(out / "aris3000.png", sensor_comparison(recorded, expected, "an ARIS 3000", 255.0, args.pixel_size,
+                                                        ideal=image))
     _log(f"wrote {out / 'scene_aris3000.yaml'} and {out / 'aris3000.png'} "
          "(fan views: ideal | as an ARIS 3000 records it, 8-bit | its expected output)")
     write_figure(args, out / "aris3000_figure",
-                 lambda: sensor_figure(recorded, expected, "an ARIS 3000", dynamic_range_db=args.dynamic_range_db,
+                 lambda: sensor_figure(recorded, expected, "an ARIS 3000", ideal=image, dynamic_range_db=args.dynamic_range_db,
                                        colormap=args.colormap, pixel_size_m=args.pixel_size), run)

@@ -144,23 +144,7 @@ def cmd_reconstruct(args) -> None:
 
 
 def _figure(result, truth):
-    import matplotlib
+    from ..plot.figures import reconstruction_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    panels = [("start (flat)", np.zeros_like(result.heights_m)), ("reconstructed", result.heights_m)]
-    if truth is not None:
-        panels = [("truth", truth), ("reconstructed", result.heights_m), ("error", result.heights_m - truth)]
-    if result.reflectivity is not None:
-        panels.append(("reflectivity", result.reflectivity))
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.6), constrained_layout=True)
-    extent = (result.x_m[0], result.x_m[-1], result.y_m[0], result.y_m[-1])
-    for ax, (title, z) in zip(axes, panels):
-        shown = np.where(result.seen, z, np.nan)
-        im = ax.imshow(shown, origin="lower", extent=extent, cmap="RdBu_r" if title == "error" else "viridis")
-        ax.set_title(f"{title} (seen vertices)")
-        ax.set_xlabel("x, m")
-        ax.set_ylabel("y, m")
-        fig.colorbar(im, ax=ax, label="relative to the ground's albedo" if title == "reflectivity" else "height, m")
-    return fig
+    return reconstruction_figure(result.heights_m, result.x_m, result.y_m, result.seen, truth_m=truth,
+                                 reflectivity=result.reflectivity)

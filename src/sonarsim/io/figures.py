@@ -157,7 +157,7 @@ def device_tile(polar: np.ndarray, image, full_scale: float, pixel_size_m: float
 
 
 def sensor_comparison(recorded, expected, device: str, full_scale: float, pixel_size_m: float | None = None,
-                      dynamic_range_db: float = 40.0) -> np.ndarray:
+                      dynamic_range_db: float = 40.0, ideal=None) -> np.ndarray:
     """The renderer's ideal image | as the device records it | the device's expected output.
 
     Parameters
@@ -170,12 +170,15 @@ def sensor_comparison(recorded, expected, device: str, full_scale: float, pixel_
         Its name, for the titles.
     full_scale : float
         The device's largest value (255 for 8-bit).
+    ideal : SonarImage, optional
+        The scene rendered without the sensor (the paper's ideal image); default
+        ``recorded.components["total"]``, formed over the sensor's ray span.
     """
     from ..image.fan import FanMapper
 
     s = recorded.sonar
     fan = FanMapper(s.n_range_bins, s.range_min_m, s.range_max_m, recorded.azimuth_deg, pixel_size_m)(
-        np.asarray(recorded.components["total"], dtype=np.float64))
+        np.asarray(recorded.components["total"] if ideal is None else ideal.polar, dtype=np.float64))
     ideal = to_uint8(fan.image, "db", 0.0, dynamic_range_db, mask=fan.mask)
     ideal[~fan.mask] = OUTSIDE_FAN_GREY
     tiles = [ideal, device_tile(recorded.polar, recorded, full_scale, pixel_size_m),

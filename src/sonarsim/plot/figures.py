@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -52,7 +52,9 @@ __all__ = [
     "panels_figure",
     "polar_figure",
     "save_figure",
+    "reconstruction_figure",
     "sensor_figure",
+    "signed_limit",
 ]
 
 #: A fan drawn in a figure is resampled to about this many pixels along its range, whatever the
@@ -144,11 +146,19 @@ class Panel:
         Gives the geometry (and, without ``values``, the picture: its ``polar``).
     values : (n_range_bins, n_beams) ndarray or None
         What to draw on the image's grid instead of ``image.polar`` (a component, a sum).
+    signed_limit : float or None
+        Set for a signed panel (a difference): ``values`` are drawn as they are, on a diverging
+        colour map centred on zero from ``-signed_limit`` to ``+signed_limit``, with a colour
+        bar of their own labelled ``signed_label``.
+    signed_label : str
+        The signed panel's colour-bar label, with its unit.
     """
 
     title: str
     image: Any
     values: np.ndarray | None = None
+    signed_limit: float | None = None
+    signed_label: str = "difference"
 
     @property
     def polar(self) -> np.ndarray:
@@ -506,7 +516,12 @@ def panels_figure(panels: Sequence[Panel], scales: DisplayScale | Sequence[Displ
         fixed[key] = per_panel[members[0]].resolved(*(panels[k].polar for k in members))
     ncols = ncols or len(panels)
     nrows = math.ceil(len(panels) / ncols)
-    fig = _new_figure(_fan_size(panels[0].image.sonar, ncols, nrows, colorbar=True), "constrained")
+    width, height = _fan_size(panels[0].image.sonar, ncols, nrows, colorbar=True)
+    # Fans keep their aspect: the constrained layout cannot shrink them below the height their
+    # width asks for, and without this room the x labels fell off the bottom and the figure's
+    # title sat on the panels' titles.
+    lines = title.count("\n") + 1 if title else 0
+    fig = _new_figure((width, height + 0.45 + 0.18 * lines), "constrained")
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     mappers: dict[Any, Any] = {}
     for k, panel in enumerate(panels):
@@ -514,8 +529,11 @@ def panels_figure(panels: Sequence[Panel], scales: DisplayScale | Sequence[Displ
         px = figure_pixel_size(panel.image.sonar, pixel_size_m)
         if (grid, px) not in mappers:  # one scan converter per geometry
             mappers[(grid, px)] = FanMapper.from_grid(grid, px)
-        draw_fan(axes[k], panel.image, panel.values, fixed[id(per_panel[k])], colormap=colormap,
-                 mapper=mappers[(grid, px)])
+        if panel.signed_limit is not None:
+            _draw_signed_fan(fig, axes[k], panel, mappers[(grid, px)])
+        else:
+            draw_fan(axes[k], panel.image, panel.values, fixed[id(per_panel[k])], colormap=colormap,
+                     mapper=mappers[(grid, px)])
         axes[k].set_title(panel.title, fontsize=10)
         if k % ncols:  # the forward axis label once per row is enough
             axes[k].set_ylabel("")
@@ -527,6 +545,8 @@ def panels_figure(panels: Sequence[Panel], scales: DisplayScale | Sequence[Displ
     # maximum read alike on one bar, a dB panel beside panels in counts gets a bar of its own.
     bars: dict[tuple, list[int]] = {}
     for k in range(len(panels)):
+        if panels[k].signed_limit is not None:  # its own bar, drawn with it
+            continue
         sc = fixed[id(per_panel[k])]
         bars.setdefault((sc.label, sc.limits), []).append(k)
     for members in bars.values():
@@ -534,6 +554,49 @@ def panels_figure(panels: Sequence[Panel], scales: DisplayScale | Sequence[Displ
     if title:
         fig.suptitle(title, fontsize=10)
     return fig
+
+
+#: The diverging colour map of signed panels (differences, height errors): white at zero.
+SIGNED_COLORMAP = "RdBu_r"
+
+
+def _draw_signed_fan(fig: Figure, ax: Axes, panel: Panel, mapper: Any) -> None:
+    """A signed panel (:attr:`Panel.signed_limit`): the values' fan on a diverging map centred
+    on zero, the fan's frame and a colour bar of its own."""
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    limit = float(panel.signed_limit) if panel.signed_limit and np.isfinite(panel.signed_limit) else 1.0
+    fan = mapper(np.nan_to_num(np.asarray(panel.polar, np.float64), nan=0.0, posinf=0.0, neginf=0.0))
+    norm = Normalize(-limit, limit)
+    rgba = _signed_rgba(fan.image, norm)
+    rgba[~fan.mask] = (*(np.asarray(OUTSIDE_FAN_RGB) / 255.0), 1.0)
+    half = fan.pixel_size_m / 2.0
+    extent = (fan.y_m[0] + half, fan.y_m[-1] - half, fan.x_m[-1] - half, fan.x_m[0] + half)
+    ax.imshow(rgba, extent=extent, origin="upper", interpolation="antialiased", zorder=1)
+    ax.set_facecolor(np.asarray(OUTSIDE_FAN_RGB) / 255.0)
+    draw_fan_frame(ax, mapper.range_min_m, mapper.range_max_m, mapper.left_edge_deg, mapper.right_edge_deg)
+    rmax = mapper.range_max_m
+    ax.set_xlim(extent[0] + 0.03 * rmax, extent[1] - 0.12 * rmax)
+    ax.set_ylim(0.0, max(extent[3], rmax) + 0.09 * rmax)
+    fig.colorbar(ScalarMappable(norm=norm, cmap=SIGNED_COLORMAP), ax=ax, label=panel.signed_label, shrink=0.85,
+                 pad=0.03)
+
+
+def _signed_rgba(values: np.ndarray, norm: Any) -> np.ndarray:
+    """RGBA (float, 0-1) of signed values on :data:`SIGNED_COLORMAP` under ``norm``."""
+    from matplotlib import colormaps
+
+    return colormaps[SIGNED_COLORMAP](norm(values))
+
+
+def signed_limit(values: np.ndarray) -> float:
+    """The symmetric colour limit of a signed panel: the largest finite magnitude (1 when there
+    is none, so that an all-zero difference still has a scale)."""
+    v = np.asarray(values, np.float64)
+    v = np.abs(v[np.isfinite(v)])
+    peak = float(v.max()) if v.size else 0.0
+    return peak if peak > 0.0 else 1.0
 
 
 # ---------------------------------------------------------------------------------- the comparisons
@@ -582,7 +645,7 @@ def multipath_figure(image: Any, *, mapping: str = "db", gain_db: float = 0.0, d
                          colormap=colormap, pixel_size_m=pixel_size_m)
 
 
-def sensor_figure(recorded: Any, expected: Any, device: str, *, dynamic_range_db: float = 40.0,
+def sensor_figure(recorded: Any, expected: Any, device: str, *, ideal: Any = None, dynamic_range_db: float = 40.0,
                   colormap: str = DEFAULT_COLORMAP, pixel_size_m: float | None = None) -> Figure:
     """The renderer's ideal image (dB) | as the device records it | its expected output (both
     in the device's counts, one colour bar).
@@ -590,17 +653,26 @@ def sensor_figure(recorded: Any, expected: Any, device: str, *, dynamic_range_db
     Parameters
     ----------
     recorded : SonarImage
-        A render through a sensor model (``polar`` in counts; ``components["total"]`` ideal).
+        A render through a sensor model (``polar`` in counts).
     expected : SonarImage
         The same frame with ``speckle=False``.
     device : str
         Its name, for the titles.
+    ideal : SonarImage, optional
+        The same scene rendered without the sensor model: the paper's ideal image. Without it
+        the first panel is ``recorded.components["total"]``, which a sensor whose elevation
+        pattern widens the rays' span (an ARIS preset: 42 degrees) forms over that span, not
+        over the sonar's aperture; its title says so.
     """
-    ideal = DisplayScale("db", 0.0, dynamic_range_db, reference_name="the ideal image's maximum")
+    scale = DisplayScale("db", 0.0, dynamic_range_db, reference_name="the ideal image's maximum")
     counts = default_scale(recorded)
-    panels = [Panel("ideal (the paper's model)", recorded, np.asarray(recorded.components["total"])),
-              Panel(f"as {device} records it", recorded), Panel(f"{device}: expected (no speckle)", expected)]
-    return panels_figure(panels, [ideal, counts, counts], title=describe(recorded).split("\n")[0],
+    if ideal is not None:
+        first = Panel("ideal (the paper's model, no sensor)", ideal, np.asarray(ideal.polar))
+    else:
+        first = Panel("renderer's image over the sensor's ray span", recorded,
+                      np.asarray(recorded.components["total"]))
+    panels = [first, Panel(f"as {device} records it", recorded), Panel(f"{device}: expected (no speckle)", expected)]
+    return panels_figure(panels, [scale, counts, counts], title=describe(recorded).split("\n")[0],
                          colormap=colormap, pixel_size_m=pixel_size_m)
 
 
@@ -612,8 +684,10 @@ def _same_counts(images: Sequence[Any]) -> float | None:
 
 def comparison_figure(images: Sequence[Any], titles: Sequence[str], *, normalize: str | None = "max",
                       colormap: str = DEFAULT_COLORMAP, pixel_size_m: float | None = None,
-                      title: str = "") -> Figure:
-    """Real and simulated images side by side, on the same scale.
+                      title: str = "", metrics: Mapping[str, Mapping[str, float]] | None = None,
+                      difference: bool = False) -> Figure:
+    """Real and simulated images side by side, on the same scale; optionally their difference
+    and the metrics.
 
     Images in one device's counts (recordings, renders through a sensor model) are shown in
     those counts against full scale. Others (a render's intensity beside a recording's counts
@@ -628,30 +702,85 @@ def comparison_figure(images: Sequence[Any], titles: Sequence[str], *, normalize
         by :func:`~sonarsim.analysis.comparison.load_image`), all are drawn as polar images
         over beam and range-bin indices (far range at the top).
     titles : sequence of str
+    metrics : mapping, optional
+        Per domain (``"polar"``, ``"fan"``), the scores ``mse``, ``psnr`` (dB) and ``ssim``:
+        written under the figure's title.
+    difference : bool
+        Add a panel of the first image minus the second on the scale the panels show (counts,
+        or each image over its maximum), on a diverging map centred on zero. Drawn where the
+        two share one polar grid; otherwise the title says why there is none.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
+    title = _with_metrics(title, metrics)
     if any(getattr(im, "sonar", None) is None for im in images):
-        return _index_comparison(images, titles, normalize=normalize, colormap=colormap, title=title)
+        return _index_comparison(images, titles, normalize=normalize, colormap=colormap, title=title,
+                                 difference=difference)
     full = _same_counts(images)
     if full is not None:
         scale: DisplayScale | list[DisplayScale] = DisplayScale("linear", reference=full, units=_COUNTS,
                                                                 reference_name=f"full scale ({full:g})")
+        shown = [np.asarray(im.polar, np.float64) for im in images]
+        unit = "counts"
     elif normalize is None:
         scale = DisplayScale("linear", reference_name="the larger maximum")
+        peak = scale.resolved(*(im.polar for im in images)).reference
+        shown = [np.asarray(im.polar, np.float64) / peak for im in images]
+        unit = "/ the larger maximum"
     else:
         # One scale per image (each its own reference), all reading alike: one colour bar.
         # (resolved: an image without echo, or with NaN, or below zero, has no maximum to divide by)
         scale = [DisplayScale("linear", reference_name="each image's maximum").resolved(im.polar) for im in images]
+        shown = [np.asarray(im.polar, np.float64) / sc.reference for im, sc in zip(images, scale)]
+        unit = "/ each image's maximum"
     panels = [Panel(t, im) for t, im in zip(titles, images)]
+    if difference and len(images) == 2:
+        a, b = images
+        if _same_polar_grid(a, b):
+            diff = shown[0] - shown[1]
+            panels.append(Panel("A \u2212 B", a, diff, signed_limit=signed_limit(diff),
+                                signed_label=f"A \u2212 B ({unit})"))
+            if isinstance(scale, list):
+                scale = [*scale, scale[0]]
+            else:
+                scale = [scale] * 3
+        else:
+            title = (title + "\n" if title else "") + "no difference panel: A and B lie on different polar grids"
     return panels_figure(panels, scale, title=title, colormap=colormap, pixel_size_m=pixel_size_m)
 
 
+def _same_polar_grid(a: Any, b: Any) -> bool:
+    """Whether two images' pixels are the same cells (same shape, range and azimuth axes)."""
+    pa, pb = np.shape(a.polar), np.shape(b.polar)
+    if pa != pb:
+        return False
+    return bool(np.allclose(a.range_m, b.range_m, rtol=0, atol=1e-9)
+                and np.allclose(a.azimuth_deg, b.azimuth_deg, rtol=0, atol=1e-9))
+
+
+def _with_metrics(title: str, metrics: Mapping[str, Mapping[str, float]] | None) -> str:
+    """``title`` with one line of scores per domain (``polar: MSE 12.3, PSNR 37.2 dB, SSIM 0.91``)."""
+    if not metrics:
+        return title
+    lines = []
+    for domain, scores in metrics.items():
+        parts = []
+        for key, name, unit in (("mse", "MSE", ""), ("psnr", "PSNR", " dB"), ("ssim", "SSIM", "")):
+            if key in scores:
+                v = float(scores[key])
+                parts.append(f"{name} {v:.4g}{unit}" if np.isfinite(v) else f"{name} {v}")
+        if parts:
+            lines.append(f"{domain}: " + ", ".join(parts))
+    return "\n".join(([title] if title else []) + lines)
+
+
 def _index_comparison(images: Sequence[Any], titles: Sequence[str], *, normalize: str | None, colormap: str,
-                      title: str) -> Figure:
-    """Polar images without geometry side by side: beam index across, range bin up."""
+                      title: str, difference: bool = False) -> Figure:
+    """Polar images without geometry side by side: beam index across, range bin up (and, with
+    ``difference``, the first minus the second where their shapes agree)."""
+    from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
 
     if normalize is None:
@@ -659,8 +788,12 @@ def _index_comparison(images: Sequence[Any], titles: Sequence[str], *, normalize
         scales = [shared] * len(images)
     else:
         scales = [DisplayScale("linear", reference_name="each image's maximum").resolved(im.polar) for im in images]
-    fig = _new_figure((4.0 * len(images) + 1.4, 5.2))
-    axes = fig.subplots(1, len(images), squeeze=False).ravel()
+    with_diff = difference and len(images) == 2 and np.shape(images[0].polar) == np.shape(images[1].polar)
+    if difference and not with_diff:
+        title = (title + "\n" if title else "") + "no difference panel: A and B differ in shape"
+    n = len(images) + (1 if with_diff else 0)
+    fig = _new_figure((4.0 * n + 1.4 + (1.0 if with_diff else 0.0), 5.2 + 0.18 * title.count("\n")), "constrained")
+    axes = fig.subplots(1, n, squeeze=False).ravel()
     for ax, im, sc, name in zip(axes, images, scales, titles):
         polar = np.asarray(im.polar)
         rows, cols = polar.shape
@@ -669,9 +802,91 @@ def _index_comparison(images: Sequence[Any], titles: Sequence[str], *, normalize
         ax.set_xlabel("beam (index, left-most first)")
         ax.set_ylabel("range bin (index, nearest at the bottom)")
         ax.set_title(name, fontsize=10)
-    _colorbar(fig, list(axes), scales[-1], colormap)
+    _colorbar(fig, list(axes[:len(images)]), scales[-1], colormap)
+    if with_diff:
+        a, b = (np.asarray(im.polar, np.float64) / sc.reference for im, sc in zip(images, scales))
+        diff = a - b
+        limit = signed_limit(diff)
+        rows, cols = diff.shape
+        norm = Normalize(-limit, limit)
+        axes[-1].imshow(diff, origin="lower", aspect="auto", extent=(-0.5, cols - 0.5, -0.5, rows - 0.5),
+                        cmap=SIGNED_COLORMAP, norm=norm, interpolation="antialiased")
+        axes[-1].set_xlabel("beam (index, left-most first)")
+        axes[-1].set_title("A \u2212 B", fontsize=10)
+        fig.colorbar(ScalarMappable(norm=norm, cmap=SIGNED_COLORMAP), ax=axes[-1], shrink=0.85, pad=0.03,
+                     label=f"A \u2212 B (/ {scales[0].reference_name})")
     if title:
         fig.suptitle(title, fontsize=10)
+    return fig
+
+
+def reconstruction_figure(heights_m: np.ndarray, x_m: np.ndarray, y_m: np.ndarray, seen: np.ndarray, *,
+                          truth_m: np.ndarray | None = None, reflectivity: np.ndarray | None = None) -> Figure:
+    """``sonarsim reconstruct``: the floor's heights over the grid, the seen vertices only.
+
+    With ``truth_m``: truth | reconstructed | error (reconstructed minus truth); truth and
+    result on one colour scale (one bar), the error on a diverging map centred on zero. Without:
+    start (flat) | reconstructed, on one scale. ``reflectivity`` adds its own panel.
+
+    Parameters
+    ----------
+    heights_m : (ny, nx) ndarray
+        The reconstructed heights, metres.
+    x_m : (nx,) ndarray
+    y_m : (ny,) ndarray
+        The grid's axes, metres.
+    seen : (ny, nx) bool ndarray
+        The vertices some path met; the others are not drawn.
+    truth_m : (ny, nx) ndarray, optional
+        The true heights on the same grid.
+    reflectivity : (ny, nx) ndarray, optional
+        Per vertex, relative to the ground's albedo.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    heights = np.asarray(heights_m, np.float64)
+    seen = np.asarray(seen, bool)
+    ref = np.zeros_like(heights) if truth_m is None else np.asarray(truth_m, np.float64)
+    pair = [("truth" if truth_m is not None else "start (flat)", ref), ("reconstructed", heights)]
+    shown = [np.where(seen, z, np.nan) for _, z in pair]
+    finite = np.concatenate([v[np.isfinite(v)] for v in shown])
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    if hi <= lo:  # a flat result: a scale a millimetre wide about it
+        lo, hi = lo - 5e-4, hi + 5e-4
+    n = 2 + (truth_m is not None) + (reflectivity is not None)
+    fig = _new_figure((4.6 * n + 1.0, 3.8), "compressed")  # compressed: maps keep their aspect, bars stay beside them
+    axes = list(fig.subplots(1, n, squeeze=False).ravel())
+    extent = (float(x_m[0]), float(x_m[-1]), float(y_m[0]), float(y_m[-1]))
+
+    def frame(ax: Axes, title: str) -> None:
+        ax.set_title(f"{title} (seen vertices)", fontsize=10)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+
+    heights_norm = Normalize(lo, hi)
+    for ax, (title, _), z in zip(axes, pair, shown):
+        ax.imshow(z, origin="lower", extent=extent, cmap="viridis", norm=heights_norm)
+        frame(ax, title)
+    fig.colorbar(ScalarMappable(norm=heights_norm, cmap="viridis"), ax=axes[:2], label="height (m)", shrink=0.9)
+    k = 2
+    if truth_m is not None:
+        error = np.where(seen, heights - ref, np.nan)
+        norm = Normalize(-signed_limit(error), signed_limit(error))
+        axes[k].imshow(error, origin="lower", extent=extent, cmap=SIGNED_COLORMAP, norm=norm)
+        frame(axes[k], "error: reconstructed \u2212 truth")
+        fig.colorbar(ScalarMappable(norm=norm, cmap=SIGNED_COLORMAP), ax=axes[k], label="height error (m)",
+                     shrink=0.9)
+        k += 1
+    if reflectivity is not None:
+        shown_r = np.where(seen, np.asarray(reflectivity, np.float64), np.nan)
+        im = axes[k].imshow(shown_r, origin="lower", extent=extent, cmap="cividis")
+        frame(axes[k], "reflectivity")
+        fig.colorbar(im, ax=axes[k], label="relative to the ground's albedo", shrink=0.9)
     return fig
 
 
