@@ -12,8 +12,14 @@ datasets, ROS 2 bags) and :mod:`~sonarsim.plot` (annotated figures, notebook dis
 live viewer); :mod:`~sonarsim.cli` is a thin layer on top.
 """
 
-import importlib
-from typing import TYPE_CHECKING, Any
+# First: in the ``sonarsim`` command, a Ctrl-C from here on says one line (and no traceback) even
+# while the modules below, and then the command's, load: before its own handler is in place.
+from .core.interrupts import hold_ctrl_c_while_the_command_starts as _hold_ctrl_c
+
+_hold_ctrl_c()
+
+import importlib  # noqa: E402
+from typing import TYPE_CHECKING, Any  # noqa: E402
 
 __version__ = "0.1.0"
 

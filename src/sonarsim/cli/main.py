@@ -161,6 +161,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _run(args) -> int:
     """Run the parsed command; returns the exit status (errors and signals as one line)."""
+    from ..core.interrupts import ctrl_c_received, release_ctrl_c_hold
+
+    # The command's start (imports, parsing) held Ctrl-C (core.interrupts); from here it raises.
+    release_ctrl_c_hold()
     try:
         with _stop_signals_raise():
             args.func(args)
@@ -186,6 +190,8 @@ def _run(args) -> int:
         # Ctrl-C, SIGTERM/SIGHUP (Terminated), or an error caused by one: a Ctrl-C that lands
         # while a compiled module is imported surfaces as "ImportError: initialization failed".
         interrupt = interrupt_of(exc)
+        if interrupt is None and ctrl_c_received() and not isinstance(exc, SystemExit):
+            interrupt = KeyboardInterrupt()  # turned into another error where it landed (a module's import)
         if interrupt is None or isinstance(exc, SystemExit):
             raise
         signum = interrupt.signum if isinstance(interrupt, Terminated) else signal.SIGINT

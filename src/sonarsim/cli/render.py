@@ -76,7 +76,11 @@ def add_render_parser(subparsers: Any) -> argparse.ArgumentParser:
     g = p.add_argument_group("sensor")
     g.add_argument("--sensor", default=None, metavar="PRESET",
                    help="device model: a sensor preset (named like the sonar presets, e.g. aris3000-128; "
-                   "replaces the scene's sensor section) or 'none' (the noise-free image)")
+                   "replaces the scene's sensor section) or 'none' (the noise-free image); a preset of another "
+                   "device than the scene's sonar is refused")
+    g.add_argument("--force", action="store_true",
+                   help="take a --sensor preset of another device than the scene's sonar (e.g. aris3000-128 on an "
+                   "Oculus scene)")
     g.add_argument("--no-speckle", action="store_true",
                    help="no random draws: with a sensor section, its expected (mean) output; without, the "
                    "noise-free total even when render.speckle is on")
@@ -109,13 +113,21 @@ def override_render(scene, args):
         return scene
     from ..config.loader import _prefixed
     from ..config.scene import RenderSettings
-    from ..config.sensor import parse_sensor
+    from ..config.sensor import parse_sensor, preset_device_mismatch
+    from ..errors import ConfigError
 
     with options_named(args):
         render = _prefixed("render", RenderSettings, **{**scene.render.__dict__, **changes})
         if sensor is None:
             return replace(scene, render=render)
-        return replace(scene, render=render, sensor=None if sensor == "none" else parse_sensor({"preset": sensor}))
+        if sensor == "none":
+            return replace(scene, render=render, sensor=None)
+        spec = parse_sensor({"preset": sensor})
+    # A device's preset on another device's scene renders without complaint and means nothing.
+    mismatch = preset_device_mismatch(sensor, scene.sonar)
+    if mismatch is not None and not getattr(args, "force", False):
+        raise ConfigError("--sensor", f"{mismatch}, or --force to take it anyway")
+    return replace(scene, render=render, sensor=spec)
 
 
 # Scene keys that a command-line option can set: an error in their value names the option.

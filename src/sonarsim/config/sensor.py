@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, SonarsimError, check_input_file, key_text, shown
+from .presets import ARIS_MODES, PRESETS, ArisMode
 from .sonar import FREQUENCY_RANGE_KHZ, MIN_BEAM_WIDTH_DEG
 
 ABSORPTION_MODELS = ("francois-garrison", "ainslie-mccolm", "constant")
@@ -814,16 +815,30 @@ def _device(frequency_khz: float, elevation_deg: float, beam_deg: float, pulse_u
     })
 
 
+# The ARIS presets' pulse lengths by carrier (kHz): our choice, as for the other devices' (a few
+# microseconds at 3 MHz, longer at the lower carriers: 13 to 18 cycles of the carrier).
+_ARIS_PULSE_US: Mapping[float, float] = MappingProxyType({3000.0: 6.0, 1800.0: 8.0, 1200.0: 12.0, 1100.0: 12.0})
+
+
+def _aris_device(mode: ArisMode) -> Mapping[str, Any]:
+    """An ARIS mode's ``sensor`` section: its carrier, elevation aperture and beam width are those
+    of the sonar preset of the same name (taken from Sound Metrics' measured beam table and
+    figures, :mod:`sonarsim.config.presets`), so that both presets read one source."""
+    sonar = PRESETS[mode.name].sonar
+    return _device(float(sonar["frequency_khz"]), float(sonar["elevation_fov_deg"]), float(sonar["beam_width_deg"]),
+                   _ARIS_PULSE_US[mode.frequency_khz])
+
+
 #: Sensor presets, named after the sonar presets they go with (``sonar: {preset: X}`` and
 #: ``sensor: {preset: X}``): carrier frequency, -3 dB elevation and azimuth widths from the
 #: manufacturers' published figures (the sonar presets' ``frequency_khz``, ``elevation_fov_deg``
-#: and ``beam_width_deg``), output data type as the devices record it; the pulse lengths, levels
+#: and ``beam_width_deg``; for every ARIS model x beam count x lens, those of Sound Metrics'
+#: measured beam tables), output data type as the devices record it; the pulse lengths, levels
 #: (source level, noise, bang, compression window: a concrete floor at mid-scale, a noise
 #: floor just visible) and windows are our choices, to be calibrated against a recording with
 #: ``sonarsim calibrate`` (see the README).
 SENSOR_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({
-    "aris3000-128": _device(3000.0, 14.0, 0.236, 6.0),
-    "aris3000-64": _device(1800.0, 14.0, 0.472, 8.0),
+    **{mode.name: _aris_device(mode) for mode in ARIS_MODES},
     "didson300": _device(1800.0, 14.0, 0.3, 8.0),
     "oculus-m750d-lf": _device(750.0, 20.0, 1.0, 20.0),
     "oculus-m750d-hf": _device(1200.0, 12.0, 0.6, 12.0),
@@ -845,3 +860,44 @@ SENSOR_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({
     "blueview-p900-130": _device(900.0, 20.0, 1.0, 15.0, dtype="uint16"),
     "gemini-720i": _device(720.0, 20.0, 1.0, 20.0),
 })
+
+
+# A sonar without a preset is taken for a preset's device unless its carrier differs from the
+# preset's by more than this fraction (the ARIS 1800's 1.1 MHz against the 1200's 1.2 MHz: 8 %).
+DEVICE_FREQUENCY_TOLERANCE = 0.05
+
+
+def preset_device_mismatch(preset: str, sonar: Any) -> str | None:
+    """Why a sensor preset models another device than a sonar, or ``None`` where it may be the same.
+
+    A sensor preset is the device of the sonar preset of the same name. A sonar made from a
+    preset (``sonar.preset``, whatever keys override it) is that preset's device: only the
+    sensor preset of that name fits it (``aris3000-64`` on an ``aris3000-128`` sonar is another
+    mode, with another carrier and beam width). A sonar without a preset is another device when
+    its ``frequency_khz`` differs from the sensor preset's by more than
+    :data:`DEVICE_FREQUENCY_TOLERANCE`; without a frequency it cannot be told, and fits.
+
+    Parameters
+    ----------
+    preset : str
+        A key of :data:`SENSOR_PRESETS`.
+    sonar : SonarConfig
+        The scene's sonar (its ``preset`` and ``frequency_khz`` are read).
+
+    Returns
+    -------
+    str or None
+        One sentence naming both devices and the preset that fits, or ``None``.
+    """
+    own = getattr(sonar, "preset", None)
+    if own is not None:
+        if own == preset:
+            return None
+        fits = f"--sensor {own}" if own in SENSOR_PRESETS else "a sensor section of its own"
+        return (f"sensor preset {shown(preset)} models another device than the scene's sonar (sonar preset "
+                f"{shown(own)}): use {fits}")
+    freq, theirs = getattr(sonar, "frequency_khz", None), SENSOR_PRESETS[preset].get("frequency_khz")
+    if freq is not None and theirs is not None and abs(theirs - freq) > DEVICE_FREQUENCY_TOLERANCE * freq:
+        return (f"sensor preset {shown(preset)} models a {theirs:g} kHz device; the scene's sonar is at "
+                f"{freq:g} kHz (sonar.frequency_khz)")
+    return None

@@ -552,7 +552,8 @@ class Simulator:
             speckle_rng = rng
             if self.scene.sensor.speckle is not None and self.scene.sensor.speckle.anchor == "world":
                 speckle_rng = model.anchored_rng(pose.position_m, pose.rpy_deg)  # still sonar, still speckle
-            total = model.apply(total, speckle_rng, speckle is not False, pool=self._pool, noise_rng=rng)
+            total = model.apply(total, speckle_rng, speckle is not False, pool=self._pool, noise_rng=rng,
+                                warn_saturation=True)
         elif render.speckle and speckle is not False:
             total = (total * rng.exponential(1.0, total.shape)).astype(np.float32)
         rays = None

@@ -272,6 +272,7 @@ class SensorModel:
         self._dummy = np.zeros((1, 1, 2, 2), np.int8)  # stands for an absent pool field
         self._work: tuple[np.ndarray, np.ndarray] | None = None
         self._traced: SonarConfig | None = None
+        self._saturation_warned = False
 
     # The elevation pattern (used by the renderer when it makes the rays) ---------------------
 
@@ -339,7 +340,8 @@ class SensorModel:
         return out
 
     def apply(self, image: np.ndarray, rng: np.random.Generator | None = None, speckle: bool = True,
-              pool: Executor | None = None, noise_rng: np.random.Generator | None = None) -> np.ndarray:
+              pool: Executor | None = None, noise_rng: np.random.Generator | None = None,
+              warn_saturation: bool = False) -> np.ndarray:
         """The device's output for a range-compensated image.
 
         Parameters
@@ -355,11 +357,25 @@ class SensorModel:
             A worker thread: the rows are split between it and the caller.
         noise_rng : numpy Generator, optional
             Chooses the noise field instead of ``rng`` (the frame's, when the speckle is the pose's).
+        warn_saturation : bool
+            Warn (:class:`~sonarsim.sensor.output.SaturationWarning`, one line naming the
+            fraction) when more than :data:`~sonarsim.sensor.output.SATURATION_WARN_FRACTION` of
+            the output is at full scale; once per model (a sequence's first such frame), so that
+            a dataset says it once. The renderer asks for it; a calibration's trial sensors
+            (which saturate on the way to their fit) do not.
 
         Returns
         -------
         (n_range_bins, n_beams) float32 ndarray in device units (integers for integer data types).
         """
+        out = self._apply(image, rng, speckle, pool, noise_rng)
+        if warn_saturation and not self._saturation_warned:
+            self._saturation_warned = output.saturation_warning(out, self.spec.output) > \
+                output.SATURATION_WARN_FRACTION
+        return out
+
+    def _apply(self, image: np.ndarray, rng: np.random.Generator | None, speckle: bool, pool: Executor | None,
+               noise_rng: np.random.Generator | None) -> np.ndarray:
         x = np.ascontiguousarray(image, dtype=np.float32)
         if _stage is None:
             m = self.mean_image_reference(x)

@@ -3,7 +3,9 @@
 A received power P (uPa^2, after TVG and gain) becomes a device value: ``log`` maps the level
 ``10 log10 P`` linearly between ``floor_db`` and ``ceiling_db``; ``gamma`` maps
 ``(P / P_ceiling) ** gamma``; ``linear`` maps ``P / P_ceiling``; then values are clipped to
-``[0, full scale]`` (saturation) and rounded (integer data types).
+``[0, full scale]`` (saturation) and rounded (integer data types). An output with more than
+:data:`SATURATION_WARN_FRACTION` of its pixels at full scale is warned about
+(:func:`saturation_warning`): those pixels say only "at least this loud".
 
 The expected output of a pixel whose mean power is mu is ``E[out(mu S)]`` with S the speckle's
 unit-mean intensity law: it is a function of mu alone, tabulated once per sensor
@@ -13,6 +15,7 @@ unit-mean intensity law: it is a function of mu alone, tabulated once per sensor
 from __future__ import annotations
 
 import functools
+import warnings
 
 import numpy as np
 
@@ -24,6 +27,61 @@ TABLE_MARGIN_DB = 60.0
 MAX_TABLE_LEVELS = 8192
 # Quantiles of the speckle intensity averaged over (midpoints of equal-probability slices).
 QUANTILES = 4096
+# More than this fraction of an output's pixels at the device's maximum is warned about. A device
+# set up well clips at most a strong target's peak or the transmit bang's first bins (the
+# project's ARIS and Oculus recordings hold no pixel at 255: their maxima are 181-202 and 254);
+# beyond 1 % a gain or ceiling is off and a whole structure (a floor band, an object) is clipped flat.
+SATURATION_WARN_FRACTION = 0.01
+
+
+class SaturationWarning(UserWarning):
+    """A sensor's output holds more than :data:`SATURATION_WARN_FRACTION` of its pixels at full scale."""
+
+
+def saturated_fraction(values: np.ndarray, spec: OutputSpec | None) -> float:
+    """The fraction of device values at the output's full scale (0 without an output chain).
+
+    Parameters
+    ----------
+    values : (...) float array
+        Device values (:func:`compress`, or their expectation).
+    spec : OutputSpec or None
+
+    Returns
+    -------
+    float
+        In [0, 1]; 0 for an empty array or without ``spec`` (a power saturates nowhere).
+    """
+    v = np.asarray(values)
+    if spec is None or v.size == 0:
+        return 0.0
+    return float(np.count_nonzero(v >= spec.full_scale)) / v.size
+
+
+def saturation_warning(values: np.ndarray, spec: OutputSpec | None) -> float:
+    """Warn (:class:`SaturationWarning`, one line) when more than :data:`SATURATION_WARN_FRACTION`
+    of the values are at full scale; returns the fraction.
+
+    Parameters
+    ----------
+    values : (...) float array
+        Device values.
+    spec : OutputSpec or None
+
+    Returns
+    -------
+    float
+        The saturated fraction (:func:`saturated_fraction`).
+    """
+    fraction = saturated_fraction(values, spec)
+    if fraction > SATURATION_WARN_FRACTION:
+        top = f"{spec.full_scale:g}" if spec.dtype != "float32" else "1.0 (float32 full scale)"
+        warnings.warn(
+            f"the sensor output saturates: {100 * fraction:.1f} % of its pixels are at the device's maximum "
+            f"({top}; more than {100 * SATURATION_WARN_FRACTION:g} % is warned about): lower sensor.gain_db or "
+            f"sensor.source_level_db, or raise sensor.output.ceiling_db",
+            SaturationWarning, stacklevel=3)
+    return fraction
 
 
 def compress(power: np.ndarray, spec: OutputSpec | None) -> np.ndarray:
