@@ -118,7 +118,7 @@ def frame_files(k: int, width: int, options: DatasetOptions) -> list[str]:
 def npz_bytes(arrays: Mapping[str, np.ndarray], config: Mapping[str, Any]) -> bytes:
     """The NPZ of ``arrays`` and ``config`` (as :func:`sonarsim.io.output.write_npz` stores
     them), whose bytes depend on the content alone (:func:`sonarsim.io.npz.encode_npz`: fixed
-    entry dates, ISA-L deflate; float coordinates and axes stored).
+    entry dates, zlib deflate; float coordinates and axes stored).
 
     ``numpy.savez_compressed`` stamps each entry with the current time, so two runs would
     write different files for the same frame; :func:`sonarsim.io.output.read_npz` and
