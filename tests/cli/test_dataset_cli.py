@@ -164,3 +164,48 @@ def test_help_documents_the_coco_option(capsys):
         main(["dataset", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "--coco {fan,polar}" in text and "frames/NNNNNN_polar.png" in text and "even without --png" in text
+
+
+def test_workers_are_capped_by_the_cores_and_the_memory_budget_saying_so(tmp_path, scenario_file, capsys,
+                                                                         monkeypatch):
+    # --workers 1000 once started a process per frame and passed 6 GB.
+    import concurrent.futures as cf
+
+    import sonarsim.dataset.workers as workers
+
+    started = []
+
+    class Recording(cf.ProcessPoolExecutor):
+        def __init__(self, max_workers=None, **kwargs):
+            started.append(max_workers)
+            super().__init__(max_workers, **kwargs)
+
+    monkeypatch.setattr(workers.cf, "ProcessPoolExecutor", Recording)
+    monkeypatch.setattr(workers, "available_cores", lambda: 2)
+    out = tmp_path / "ds"
+    assert main(["dataset", str(scenario_file), "--out", str(out), "--frames", "4", "--workers", "1000",
+                 "--no-progress"]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if "--workers" in line]
+    assert len(lines) == 1 and "--workers 1000: starting 2 (2 CPU cores here" in lines[0], lines
+    assert started == [2]
+    assert len(read_manifest(out / "manifest.jsonl")) == 4
+    # A budget that holds one worker's frames only: one process (this one), said so.
+    started.clear()
+    budget = int(workers.worker_bytes(1e6) * 1.5)
+    assert main(["--max-memory", str(budget), "dataset", str(scenario_file), "--out", str(tmp_path / "one"),
+                 "--frames", "2", "--workers", "2", "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "--workers 2: starting 1 (the memory budget of" in err and "holds 1 of about" in err
+    assert started == []
+
+
+def test_cap_workers_by_hand():
+    from sonarsim.dataset.workers import WORKER_BASE_BYTES, cap_workers, worker_bytes
+
+    frame = 10 * 2**20
+    each = WORKER_BASE_BYTES + 4 * frame
+    assert worker_bytes(frame) == each
+    assert cap_workers(3, frame, cores=4, budget=10 * each) == (3, None)
+    n, note = cap_workers(1000, frame, cores=16, budget=int(5.5 * each))
+    assert n == 5 and note.startswith("--workers 1000: starting 5 (16 CPU cores here; the memory budget")
+    assert cap_workers(8, frame, cores=16, budget=each // 2)[0] == 1  # never below one

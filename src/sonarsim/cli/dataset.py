@@ -38,7 +38,8 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--frames", type=_count, default=None, metavar="N",
                    help="make at most the first N frames (default: all the scenario's)")
     p.add_argument("--workers", type=_count, default=None, metavar="N",
-                   help="render in N processes (default 1), or with --ray N actors (default: the cluster's CPUs); "
+                   help="render in N processes (default 1; at most the CPU cores, and as many as the memory "
+                   "budget holds: a cap is said on stderr), or with --ray N actors (default: the cluster's CPUs); "
                    "the frames are the same whatever N")
     p.add_argument("--ray", default=None, metavar="ADDRESS",
                    help="render on a Ray cluster: its address, 'auto' (the cluster this machine belongs to) or "

@@ -65,7 +65,7 @@ from .encoding import (  # noqa: F401
     frame_files,
     npz_bytes,
 )
-from .frames import as_scenario, require_dataset_memory
+from .frames import as_scenario, frame_memory_bytes, require_dataset_memory
 from .manifest import (
     INFO_NAME,
     MANIFEST_NAME,
@@ -231,8 +231,9 @@ def generate(
     frames : int, optional
         Cap on the number of frames (``--frames N``); default all the scenario's.
     workers : int, optional
-        Processes that render (1: this one); with ``ray``, Ray actors (default: the
-        cluster's CPUs).
+        Processes that render (1: this one), at most the cores and as many as the memory
+        budget holds (:func:`~sonarsim.dataset.workers.cap_workers`; a cap is said in one line
+        to ``log``); with ``ray``, Ray actors (default: the cluster's CPUs).
     formats : iterable of str
         :data:`FORMATS`: ``"npz"`` (always), ``"png"`` (polar and fan PNGs).
     rosbag : {None, "mcap", "sqlite3"}
@@ -320,6 +321,14 @@ def generate(
     width = max(6, len(str(n - 1)))
     out = Path(out)
     say = log or (lambda msg: print(f"sonarsim: {msg}", file=sys.stderr, flush=True))
+    if workers is not None and workers > 1 and ray is None:
+        # Local processes: no more than the cores run at once, nor than the budget holds
+        # (a process per frame for --workers 1000 would pass any memory).
+        from .workers import cap_workers
+
+        workers, note = cap_workers(workers, frame_memory_bytes(scenario, options.labels))
+        if note:
+            say(note)
 
     stamps = None
     if options.rosbag is not None:
