@@ -28,7 +28,8 @@ from .scenario import FrameSpec
 __all__ = ["COCO_IMAGES", "FORMATS", "FRAMES_DIR", "DatasetOptions", "EncodedFrame", "encode_frame", "frame_files",
            "npz_bytes"]
 
-#: File formats per frame: ``npz`` (always) and ``png`` (polar and fan images, 8-bit dB).
+#: File formats per frame: ``npz`` (always) and ``png`` (polar and fan images, 8-bit: a sensor
+#: model's output in the device's counts, a render without one in dB).
 FORMATS = ("npz", "png")
 #: The images ``coco.json`` names and boxes: each frame's fan PNG (boxes in fan pixels, the
 #: default) or its polar PNG (boxes in polar pixels). A dataset with ground truth always
@@ -36,7 +37,7 @@ FORMATS = ("npz", "png")
 COCO_IMAGES = ("fan", "polar")
 #: Name of the frames' folder inside a dataset folder.
 FRAMES_DIR = "frames"
-# Display mapping of the PNGs and of the bag's 8-bit fan (the `render` command's defaults).
+# dB window of the PNGs and of the bag's 8-bit fan of a render without a sensor model (`render`'s default).
 _DYNAMIC_RANGE_DB = 40.0
 # Entries stored without compression: float coordinates and axes, which deflate shrinks by
 # 1.3x at most (points_world: 0.6 ms of a frame's encoding for nothing); every image and label
@@ -139,14 +140,16 @@ def _png_bytes(image_uint8: np.ndarray) -> bytes:
 
 
 def _image_png(image: Any, kind: str) -> bytes:
-    """A frame's polar or fan image as an 8-bit dB PNG (as ``sonarsim render`` draws them: the
-    far range at the top; the fan of :meth:`SonarImage.fan`, whose pixels the fan boxes are in)."""
-    from ..io.output import to_uint8
+    """A frame's polar or fan image as an 8-bit PNG, as ``sonarsim render`` draws them: a sensor
+    model's output in the device's counts (an 8-bit device's values as they are, as a real
+    recording shows), a render without one in dB (:func:`~sonarsim.image.levels.default_levels`);
+    the far range at the top; the fan of :meth:`SonarImage.fan`, whose pixels the fan boxes are in."""
+    from ..image.levels import default_levels
 
     if kind == "polar":
-        return _png_bytes(to_uint8(image.polar[::-1], "db", 0.0, _DYNAMIC_RANGE_DB))
+        return _png_bytes(default_levels(image, image.polar[::-1], dynamic_range_db=_DYNAMIC_RANGE_DB))
     fan = image.fan()
-    return _png_bytes(to_uint8(fan.image, "db", 0.0, _DYNAMIC_RANGE_DB, mask=fan.mask))
+    return _png_bytes(default_levels(image, fan.image, fan.mask, dynamic_range_db=_DYNAMIC_RANGE_DB))
 
 
 @dataclass(frozen=True)

@@ -96,6 +96,7 @@ __all__ = [
     "BagFrameIds",
     "BagWriter",
     "beam_directions",
+    "device_polar",
     "format_stamp",
     "frame_from_image",
     "frame_stamps",
@@ -539,6 +540,22 @@ def beam_directions(azimuth_deg: np.ndarray) -> np.ndarray:
     return np.stack([np.zeros_like(theta), -np.sin(theta), np.cos(theta)], axis=-1)
 
 
+def device_polar(image: SonarImage) -> np.ndarray:
+    """The polar image in the type the device sends: a sensor model's 8- or 16-bit output (whole
+    counts, held as float32 by the renderer) as uint8 or uint16, so that a bag carries
+    ``DTYPE_UINT8`` data as the real device's driver would; anything else (a render's intensity,
+    an expected output with fractional counts) as it is."""
+    polar = np.asarray(image.polar)
+    sensor = image.config.get("sensor") if isinstance(image.config, Mapping) else None
+    dtype = ((sensor.get("output") or {}).get("dtype") if isinstance(sensor, Mapping) else None)
+    if dtype not in ("uint8", "uint16") or polar.dtype.kind != "f":
+        return polar
+    top = np.iinfo(dtype).max
+    with np.errstate(invalid="ignore"):
+        whole = bool(np.all((polar >= 0) & (polar <= top) & (polar == np.round(polar))))
+    return polar.astype(dtype) if whole else polar
+
+
 def frame_from_image(
     image: SonarImage,
     stamp_ns: int,
@@ -587,7 +604,7 @@ def frame_from_image(
     return BagFrame(
         stamp_ns=stamp_ns,
         pose=image.pose,
-        polar=image.polar,
+        polar=device_polar(image),
         range_m=image.range_m,
         azimuth_deg=image.azimuth_deg,
         tx_beamwidth_deg=image.sonar.elevation_fov_deg,
