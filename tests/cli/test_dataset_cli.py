@@ -209,3 +209,28 @@ def test_cap_workers_by_hand():
     n, note = cap_workers(1000, frame, cores=16, budget=int(5.5 * each))
     assert n == 5 and note.startswith("--workers 1000: starting 5 (16 CPU cores here; the memory budget")
     assert cap_workers(8, frame, cores=16, budget=each // 2)[0] == 1  # never below one
+
+
+def test_frame_ids_and_topics_options_name_the_bags_frames_and_topics(tmp_path, scenario_file, capsys):
+    highlevel = pytest.importorskip("rosbags.highlevel")
+    out = tmp_path / "ds"
+    assert main(["dataset", str(scenario_file), "--out", str(out), "--frames", "1", "--rosbag", "mcap",
+                 "--frame-ids", "world=map,image=sonar_optical", "--topics", "image=/oculus/image,pose=/oculus/pose",
+                 "--no-progress"]) == 0
+    with highlevel.AnyReader([out / "rosbag"]) as reader:
+        topics = {c.topic for c in reader.connections}
+        ids = {c.topic: reader.deserialize(raw, c.msgtype).header.frame_id
+               for c, _, raw in reader.messages() if c.topic in ("/oculus/image", "/oculus/pose")}
+    assert {"/oculus/image", "/oculus/pose", "/tf"} <= topics and "/sonar/image" not in topics
+    assert ids == {"/oculus/image": "sonar_optical", "/oculus/pose": "map"}
+    capsys.readouterr()
+    for options, needle in ((["--frame-ids", "world=map"], "--frame-ids: names the ROS 2 bag"),
+                            (["--rosbag", "mcap", "--topics", "imgae=/a"], "--topics: imgae: unknown name"),
+                            (["--rosbag", "mcap", "--topics", "image=/a b"], "--topics: image: must be a ROS topic")):
+        assert main(["dataset", str(scenario_file), "--out", str(tmp_path / "x"), *options]) == 2
+        err = capsys.readouterr().err.strip()
+        assert needle in err and "\n" not in err, err
+    assert not (tmp_path / "x").exists()  # refused before anything was touched
+    with pytest.raises(SystemExit) as info:
+        main(["dataset", str(scenario_file), "--out", str(tmp_path / "x"), "--rosbag", "mcap", "--topics", "image"])
+    assert info.value.code == 2

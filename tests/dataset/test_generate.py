@@ -769,3 +769,41 @@ def test_fan_box_reduction_compiled_equals_its_numpy_twin():
     sparse = np.full(n, 5, np.int32)
     sparse[7] = 2
     assert (compiled.id_extents(sparse, extents, 7)[[0, 1, 3, 4, 6]] == -1).all()
+
+
+def test_a_sensor_models_frames_are_drawn_and_bagged_in_the_devices_counts(tmp_path):
+    # Issue 37: the PNGs and the bag's fan were dB-mapped on top of the device's compression,
+    # and the bag held an 8-bit device's image as float32. Frame names and topics come from the
+    # scenario's rosbag section, then from generate's arguments (the command line's options).
+    highlevel = pytest.importorskip("rosbags.highlevel")
+    from PIL import Image
+
+    scenario = {**ORBIT, "scene": {**SCENE, "sensor": {"preset": "aris3000-64"}},
+                "rosbag": {"frame_ids": {"world": "map"}, "topics": {"image": "/aris/image", "fan": "/x/fan"}}}
+    out = tmp_path / "ds"
+    generate(scenario, out, frames=2, formats=("npz", "png"), rosbag="mcap", progress=False,
+             frame_ids={"sonar": "aris"}, topics={"fan": "/aris/fan"})
+    counts = {k: read_npz(out / f"frames/{k:06d}.npz")[0]["polar"] for k in range(2)}
+    for k, polar in counts.items():
+        assert np.array_equal(polar, np.round(polar)) and polar.max() <= 255 and polar.max() > 0
+        np.testing.assert_array_equal(np.asarray(Image.open(out / f"frames/{k:06d}_polar.png")),
+                                      polar[::-1].astype(np.uint8))
+    fans = [np.asarray(Image.open(out / f"frames/{k:06d}_fan.png")) for k in range(2)]
+    seen: dict[str, list] = {}
+    with highlevel.AnyReader([out / "rosbag"]) as reader:
+        for conn, _, raw in reader.messages():
+            seen.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype))
+    assert set(seen) == {"/aris/image", "/aris/fan", "/sonar/pose", "/tf", "/sonar/points"}
+    for k, msg in enumerate(seen["/aris/image"]):
+        assert msg.image.dtype == 0 and msg.header.frame_id == "sonar_image"  # DTYPE_UINT8
+        data = np.frombuffer(bytes(msg.image.data), np.uint8).reshape(-1, msg.image.beam_count)
+        np.testing.assert_array_equal(data, counts[k].astype(np.uint8))
+    for k, msg in enumerate(seen["/aris/fan"]):
+        assert msg.encoding == "mono8" and msg.header.frame_id == "aris"
+        np.testing.assert_array_equal(np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.width),
+                                      fans[k])
+    assert {m.header.frame_id for m in seen["/sonar/pose"]} == {"map"}
+    with pytest.raises(ConfigError, match=r"rosbag\.topics\.imgae.*unknown name"):
+        generate(scenario, tmp_path / "bad", frames=1, rosbag="mcap", progress=False, topics={"imgae": "/a"})
+    with pytest.raises(ConfigError, match=r"rosbag\.frame_ids\.world.*ROS frame name"):
+        load_scenario({**scenario, "rosbag": {"frame_ids": {"world": "9 lives"}}})

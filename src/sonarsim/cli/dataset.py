@@ -23,6 +23,23 @@ def _seed(text: str) -> int:
     return integer_at_least(text, 0, "seed")
 
 
+def _names(option: str) -> Any:
+    """An argparse type: ``name=value,name=value`` as a dict (each name once)."""
+
+    def parse(text: str) -> dict[str, str]:
+        out: dict[str, str] = {}
+        for item in text.split(","):
+            name, sep, value = item.partition("=")
+            name, value = name.strip(), value.strip()
+            if not sep or not name or not value or name in out:
+                raise argparse.ArgumentTypeError(f"{option} must be NAME=VALUE pairs separated by commas, each "
+                                                 f"name once (e.g. world=map,sonar=sonar_link), got {text!r}")
+            out[name] = value
+        return out
+
+    return parse
+
+
 def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``dataset`` sub-command; sets ``func=cmd_dataset``."""
     p = subparsers.add_parser(
@@ -51,6 +68,13 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "(2024-05-01T12:00:00Z; UTC where no offset is given) or seconds since 1970 (default: the "
                    "scenario's start_time, else 2000-01-01T00:00:00Z: fixed, so that the same scenario gives the "
                    "same bag byte for byte; \"$(date +%%s)\" for now)")
+    p.add_argument("--frame-ids", type=_names("--frame-ids"), default=None, metavar="NAME=ID,...",
+                   help="the bag's frame names, e.g. world=map,sonar=sonar_link (names: world, sonar, image; "
+                   "default world, sonar, sonar_image, or the scenario's rosbag.frame_ids)")
+    p.add_argument("--topics", type=_names("--topics"), default=None, metavar="NAME=TOPIC,...",
+                   help="the bag's topics, e.g. image=/oculus/image,fan=/oculus/fan (names: image, fan, pose, tf, "
+                   "points; default /sonar/image, /sonar/fan, /sonar/pose, /tf, /sonar/points, or the scenario's "
+                   "rosbag.topics)")
     p.add_argument("--png", action="store_true", help="also write each frame's polar and fan images as PNG")
     p.add_argument("--seed", type=_seed, default=None, metavar="S",
                    help="replace the scenario's seed (every frame's draws come from it and the frame index)")
@@ -83,6 +107,16 @@ def cmd_dataset(args: argparse.Namespace) -> None:
         if args.rosbag is None:
             raise ConfigError("--start-time", "sets the ROS 2 bag's stamps: give --rosbag mcap or sqlite3 too")
         start_ns = parse_start_time(args.start_time, "--start-time")
+    for option, value in (("--frame-ids", args.frame_ids), ("--topics", args.topics)):
+        if value is not None:
+            from ..io.rosbag import bag_naming
+
+            if args.rosbag is None:
+                raise ConfigError(option, "names the ROS 2 bag's frames and topics: give --rosbag mcap or sqlite3 too")
+            try:  # the names checked before the scenario is read (the scenario's checked with it)
+                bag_naming(**{option[2:].replace("-", "_"): value})
+            except ConfigError as exc:
+                raise ConfigError(option, f"{exc.key.rsplit('.', 1)[-1]}: {exc.detail}") from None
     scenario = load_scenario(args.scenario, frames=args.frames)
     if start_ns is not None:
         from ..io.rosbag import frame_stamps
@@ -97,7 +131,8 @@ def cmd_dataset(args: argparse.Namespace) -> None:
         scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
         rosbag=args.rosbag, ray=args.ray, labels=args.labels, signatures=args.signatures, coco=args.coco,
         progress=not args.no_progress,
-        command=getattr(args, "command_line", None), start_time=args.start_time,
+        command=getattr(args, "command_line", None), start_time=args.start_time, frame_ids=args.frame_ids,
+        topics=args.topics,
     )
     rate = f" ({summary.frames_per_s:.2f} frames/s)" if summary.rendered else ""
     print(f"sonarsim: {summary.out}: {summary.n_frames} frames ({summary.rendered} made, {summary.reused} kept) "

@@ -180,11 +180,13 @@ def _bag_frame(out: Path, record: Mapping[str, Any], stamp_ns: int) -> Any:
     return frame_from_image(image, stamp_ns, fan=fan_u8, **points)
 
 
-def _write_bag(out: Path, records: Sequence[Mapping[str, Any]], storage: str, stamps: Sequence[int]) -> Path:
+def _write_bag(out: Path, records: Sequence[Mapping[str, Any]], storage: str, stamps: Sequence[int],
+               naming: tuple[Any, Any] | None = None) -> Path:
     """Write ``out/rosbag`` from the finished frames, in frame order, replacing an older bag.
 
     ``stamps``: each frame's stamp (:func:`~sonarsim.io.rosbag.frame_stamps` of the frames'
-    times from the start time).
+    times from the start time); ``naming``: its frame ids and topics
+    (:func:`~sonarsim.io.rosbag.bag_naming`), default the defaults.
     """
     from ..io.output import temp_prefix
     from ..io.rosbag import BagWriter, remove_abandoned_bags
@@ -197,7 +199,8 @@ def _write_bag(out: Path, records: Sequence[Mapping[str, Any]], storage: str, st
         old = Path(tempfile.mkdtemp(prefix=temp_prefix(BAG_NAME), suffix=".tmp", dir=out))
         os.rename(path, old / BAG_NAME) if path.is_dir() and not path.is_symlink() else os.unlink(path)
         shutil.rmtree(old, ignore_errors=True)
-    with BagWriter(path, storage=storage) as bag:
+    frame_ids, topics = naming if naming is not None else (None, None)
+    with BagWriter(path, storage=storage, frame_ids=frame_ids, topics=topics) as bag:
         for record, stamp in zip(records, stamps):
             bag.write_frame(_bag_frame(out, record, stamp))
     return path
@@ -221,6 +224,8 @@ def generate(
     log: Callable[[str], None] | None = None,
     on_frame: Callable[[int], None] | None = None,
     start_time: Any = None,
+    frame_ids: Mapping[str, str] | None = None,
+    topics: Mapping[str, str] | None = None,
 ) -> DatasetSummary:
     """Render a scenario's frames into the dataset folder ``out`` (resumable; see the module docs).
 
@@ -278,6 +283,10 @@ def generate(
         :data:`~sonarsim.io.rosbag.DEFAULT_START_TIME` (2000-01-01T00:00:00Z). It shapes the
         bag alone, not the frames or the fingerprint: the bag is written anew at the end of
         every run, so a run with another start time re-stamps it.
+    frame_ids, topics : mapping of str to str, optional
+        The bag's frame names (``world``, ``sonar``, ``image``) and topics (``image``, ``fan``,
+        ``pose``, ``tf``, ``points``), replacing the scenario's ``rosbag`` section name by name
+        (:func:`~sonarsim.io.rosbag.bag_naming`); like ``start_time``, they shape the bag alone.
 
     Returns
     -------
@@ -347,6 +356,12 @@ def generate(
             stamps = frame_stamps(start_ns, [scenario.trajectory.time_s(k) for k in range(n)], "start_time")
         except ConfigError as exc:
             raise ConfigError(exc.key, exc.detail, source) from None
+        from ..io.rosbag import bag_naming
+
+        try:
+            naming = bag_naming(scenario.rosbag, "rosbag", frame_ids=frame_ids, topics=topics)
+        except ConfigError as exc:
+            raise ConfigError(exc.key, exc.detail, scenario.source if scenario.rosbag else None) from None
 
     # Every frame's spec digest: the fingerprint, and what each manifest line must match.
     fingerprint = Fingerprint(options.document())
@@ -416,7 +431,7 @@ def generate(
             doc = coco_from_records(ordered, image=options.coco)
             with atomic_write(coco_path, "w") as handle:
                 handle.write(canonical_json(doc) + "\n")
-        bag_path = _write_bag(out, ordered, options.rosbag, stamps) if options.rosbag else None
+        bag_path = _write_bag(out, ordered, options.rosbag, stamps, naming) if options.rosbag else None
     return DatasetSummary(out, n, len(todo), len(kept), time.perf_counter() - t_start, manifest_path,
                           coco_path, bag_path, fingerprint.value, stamps[0] if stamps else None)
 
