@@ -373,7 +373,8 @@ def test_coco_boxes_from_records():
     assert doc["images"][0]["width"] == 80 and doc["images"][0]["height"] == 50
     assert [a["bbox"] for a in doc["annotations"]] == [[20, 10, 10, 5], [0, 0, 1, 1]]
     assert [a["area"] for a in doc["annotations"]] == [50, 1]
-    assert doc["categories"] == [{"id": 1, "name": "block"}, {"id": 2, "name": "rock"}]
+    assert doc["categories"] == [{"id": 1, "name": "block", "supercategory": "object"},
+                                 {"id": 2, "name": "rock", "supercategory": "object"}]
     assert [category_of(n) for n in ("rock_3", "rock", "pipe_a", "_7")] == ["rock", "rock", "pipe_a", "_7"]
     # Polar pixels: a column per beam, row 0 the farthest of the 30 bins (bins 1-3 are rows 26-28).
     polar = coco_from_records(records[:1], image="polar")
@@ -436,9 +437,12 @@ def test_coco_names_images_that_exist_and_its_boxes_land_on_the_objects(tmp_path
         assert set(boxes) == {"block", "ball"}, boxes
         inside = np.zeros(echo.shape, bool)
         world_to_sonar = np.linalg.inv(spec.pose.matrix())
+        # (The fan's linear interpolation spreads an echo one pixel past the cells whose
+        # nearest pixels the boxes span.)
+        grow = 1 if coco == "fan" else 0
         for obj in spec.scene["objects"]:
             x, y, w, h = boxes[obj["name"]]
-            inside[y:y + h, x:x + w] = True
+            inside[max(0, y - grow):y + h + grow, max(0, x - grow):x + w + grow] = True
             # The object's centre, projected as a 2D sonar images it (range, azimuth), falls in
             # its own box.
             p = world_to_sonar @ np.array([*obj["pose"]["position_m"], 1.0])
@@ -468,7 +472,7 @@ def test_coco_file_of_a_labelled_dataset(tmp_path):
     summary = generate(ORBIT, tmp_path / "ds", frames=3, progress=False)
     doc = json.loads(summary.coco.read_text())
     assert [i["id"] for i in doc["images"]] == [0, 1, 2]
-    assert doc["categories"] == [{"id": 1, "name": "block"}]
+    assert doc["categories"] == [{"id": 1, "name": "block", "supercategory": "object"}]
     assert len(doc["annotations"]) == 3  # the block is seen in every frame of the orbit
 
 

@@ -46,7 +46,8 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
         "dataset", help="render a scenario's frames into a dataset folder (NPZ, manifest, COCO, ROS 2 bag)",
         description="Render every frame of a scenario file into --out: frames/NNNNNN.npz (the image and its "
         "labels; the component images with --labels all), manifest.jsonl (pose, seed, files, sha256 per frame), dataset.json, coco.json (with labels: "
-        "object boxes on frames/NNNNNN_fan.png, written for it, or with --coco polar on frames/NNNNNN_polar.png) "
+        "each object's direct echo, box and mask, on frames/NNNNNN_fan.png, written for it, or with --coco polar on "
+        "frames/NNNNNN_polar.png; its ghosts too with --coco-ghosts) "
         "and optionally PNGs and a ROS 2 bag. Killed and started again with the same command, it "
         "keeps the frames that verify and makes the rest; a folder of another scenario or other options is "
         "refused.")
@@ -87,6 +88,10 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "(default: frames/NNNNNN_fan.png, the fan at the range resolution, far range at the top) or polar "
                    "(frames/NNNNNN_polar.png: a column per beam, left-most first, a row per range bin, far range at "
                    "the top); that PNG is written with labels even without --png")
+    p.add_argument("--coco-ghosts", action="store_true",
+                   help="also annotate each object's multipath ghosts in coco.json, one annotation per path "
+                   "signature (categories CATEGORY/SIGNATURE, e.g. buoy/O-surface-[objects]-surface-O); the boxes "
+                   "and masks are the objects' direct echoes either way")
     p.add_argument("--signatures", action="store_true",
                    help="also store one image per path signature (which planes each echo bounced off), and the "
                    "component images (object, ground, single, double, ..., total)")
@@ -130,6 +135,7 @@ def cmd_dataset(args: argparse.Namespace) -> None:
     summary = generate(
         scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
         rosbag=args.rosbag, ray=args.ray, labels=args.labels, signatures=args.signatures, coco=args.coco,
+        ghosts=args.coco_ghosts,
         progress=not args.no_progress,
         command=getattr(args, "command_line", None), start_time=args.start_time, frame_ids=args.frame_ids,
         topics=args.topics,

@@ -27,7 +27,7 @@ from typing import Any
 
 from ..core.console import install_warning_format, show_warning
 from .encoding import _write_files, encode_frame
-from .frames import SimulatorCache, render_frame
+from .frames import SimulatorCache, render_frame, rendered_labels
 from .scenario import Scenario
 
 __all__ = ["RAY_HINT", "WORKER_BASE_BYTES", "available_cores", "batches", "cap_workers", "worker_bytes", "encoded_frames", "encoded_frames_ray", "render_batch"]
@@ -182,7 +182,7 @@ def render_batch(indices: Sequence[int], scenario: Scenario | None = None, optio
     out = []
     for k in indices:
         spec = scenario.frame(k)
-        encoded = encode_frame(spec, render_frame(spec, cache, options.labels), options, width)
+        encoded = encode_frame(spec, render_frame(spec, cache, rendered_labels(options.labels)), options, width)
         if folder is not None:
             _write_files(folder, encoded)
             encoded = replace(encoded, files=())

@@ -57,7 +57,7 @@ from .encoding import (  # noqa: F401
     FRAMES_DIR,
     DatasetOptions,
     EncodedFrame,
-    _boxes,
+    _annotations,
     _image_png,
     _png_bytes,
     _write_files,
@@ -216,6 +216,7 @@ def generate(
     labels: bool | str = "total",
     signatures: bool = False,
     coco: str = "fan",
+    ghosts: bool = False,
     progress: bool = True,
     threads: int | None = None,
     batch_size: int | None = None,
@@ -258,7 +259,11 @@ def generate(
         With ground truth, the image of each frame that ``coco.json`` names and boxes:
         ``frames/NNNNNN_fan.png`` with the boxes in fan pixels (default), or
         ``frames/NNNNNN_polar.png`` with the boxes in polar pixels (a column per beam, the far
-        range at the top). That PNG is written whether or not ``formats`` has ``"png"``.
+        range at the top). That PNG is written whether or not ``formats`` has ``"png"``. Boxes
+        and masks are each object's direct echo (:mod:`sonarsim.dataset.coco`).
+    ghosts : bool
+        Also annotate each object's multipath ghosts in ``coco.json``, one annotation per path
+        signature (categories ``<category>/<signature>``).
     progress : bool
         A progress bar on stderr (frames, rate, time left; needs ``tqdm``).
     threads : int, optional
@@ -321,7 +326,7 @@ def generate(
     if batch_size is not None:
         batch_size = _positive_int(batch_size, "batch_size")
     options = DatasetOptions(labels=labels, formats=tuple(formats), rosbag=rosbag, signatures=signatures,
-                             coco=coco)
+                             coco=coco, ghosts=ghosts)
     if options.rosbag is not None:
         from ..io.rosbag import _import_rosbags
 
