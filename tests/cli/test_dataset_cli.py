@@ -127,7 +127,9 @@ def test_ray_missing_is_one_line(tmp_path, scenario_file, capsys, monkeypatch):
     monkeypatch.setattr(builtins, "__import__", no_ray)
     assert main(["dataset", str(scenario_file), "--out", str(tmp_path / "ds"), "--ray", "auto"]) == 2
     err = capsys.readouterr().err.strip()
-    assert "sonarsim[ray]" in err and "\n" not in err
+    from sonarsim.core.extras import install_command
+
+    assert install_command("ray") in err and "\n" not in err
     assert not (tmp_path / "ds").exists()
 
 
@@ -234,3 +236,43 @@ def test_frame_ids_and_topics_options_name_the_bags_frames_and_topics(tmp_path, 
     with pytest.raises(SystemExit) as info:
         main(["dataset", str(scenario_file), "--out", str(tmp_path / "x"), "--rosbag", "mcap", "--topics", "image"])
     assert info.value.code == 2
+
+
+def test_install_hints_work_from_a_checkout_and_from_a_package(tmp_path, monkeypatch):
+    # Issue 37: from a clone, pip install 'sonarsim[ros]' fetched another package from the index.
+    import shlex
+
+    import sonarsim.core.extras as extras
+    from sonarsim.dataset.workers import RAY_HINT
+
+    root = extras.checkout_root()
+    assert root is not None and (root / "pyproject.toml").is_file()  # the tests run from a clone
+    monkeypatch.chdir(root)
+    assert extras.install_command("ros") == "pip install -e '.[ros]'"
+    monkeypatch.chdir(tmp_path)
+    command = extras.install_command("ros")
+    assert command == f"pip install -e {shlex.quote(str(root) + '[ros]')}"
+    assert shlex.split(command)[-1] == f"{root}[ros]"  # one argument: the clone with the extra
+    assert RAY_HINT.startswith("install the Ray extra: pip install -e ")
+    monkeypatch.setattr(extras, "checkout_root", lambda: None)  # an installed package
+    assert extras.install_hint("viewer") == "install the viewer extra: pip install 'sonarsim[viewer]'"
+    with pytest.raises(ValueError, match="extra must be one of ros, ray, viewer, diff"):
+        extras.install_command("gpu")
+
+
+def test_the_missing_rosbags_hint_names_this_checkout(tmp_path, scenario_file, capsys, monkeypatch):
+    import sys
+
+    from sonarsim.core.extras import install_command
+    from sonarsim.io import rosbag
+
+    monkeypatch.setitem(sys.modules, "rosbags", None)  # import rosbags -> ImportError
+    monkeypatch.setitem(sys.modules, "rosbags.rosbag2", None)
+    rosbag._import_rosbags.cache_clear()
+    try:
+        assert main(["dataset", str(scenario_file), "--out", str(tmp_path / "ds"), "--rosbag", "mcap"]) == 2
+    finally:
+        rosbag._import_rosbags.cache_clear()
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(f"install the ROS extra: {install_command('ros')}") and "\n" not in err, err
+    assert "pip install -e" in err

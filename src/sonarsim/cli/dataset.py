@@ -61,9 +61,10 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "the frames are the same whatever N")
     p.add_argument("--ray", default=None, metavar="ADDRESS",
                    help="render on a Ray cluster: its address, 'auto' (the cluster this machine belongs to) or "
-                   "'local' (a new Ray instance here); needs sonarsim[ray]")
+                   "'local' (a new Ray instance here); needs the ray extra (pip install -e '.[ray]' in a clone)")
     p.add_argument("--rosbag", choices=("mcap", "sqlite3"), default=None,
-                   help="also write a ROS 2 bag into OUT/rosbag with this storage (needs sonarsim[ros])")
+                   help="also write a ROS 2 bag into OUT/rosbag with this storage (needs the ros extra: pip install -e '.[ros]' "
+                   "in a clone, pip install 'sonarsim[ros]' for an installed package)")
     p.add_argument("--start-time", default=None, metavar="TIME",
                    help="the bag's stamp of frame 0, the others following the trajectory's times: ISO 8601 "
                    "(2024-05-01T12:00:00Z; UTC where no offset is given) or seconds since 1970 (default: the "

@@ -26,14 +26,15 @@ from collections.abc import Iterator, Sequence
 from typing import Any
 
 from ..core.console import install_warning_format, show_warning
+from ..core.extras import install_hint
 from .encoding import _write_files, encode_frame
 from .frames import SimulatorCache, render_frame, rendered_labels
 from .scenario import Scenario
 
 __all__ = ["RAY_HINT", "WORKER_BASE_BYTES", "available_cores", "batches", "cap_workers", "worker_bytes", "encoded_frames", "encoded_frames_ray", "render_batch"]
 
-#: What to install for ``--ray``.
-RAY_HINT = "install the Ray extra: pip install 'sonarsim[ray]'"
+#: What to install for ``--ray`` (:mod:`sonarsim.core.extras`: right for a clone and for an installed package).
+RAY_HINT = install_hint("ray")
 
 # Per worker process: the scenario and options it was started with, and its simulators.
 _STATE: dict[str, Any] = {}

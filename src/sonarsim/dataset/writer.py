@@ -245,7 +245,7 @@ def generate(
     formats : iterable of str
         :data:`FORMATS`: ``"npz"`` (always), ``"png"`` (polar and fan PNGs).
     rosbag : {None, "mcap", "sqlite3"}
-        Also write ``out/rosbag`` (needs ``pip install 'sonarsim[ros]'``): every frame's
+        Also write ``out/rosbag`` (needs the ``ros`` extra, :mod:`sonarsim.core.extras`): every frame's
         messages stamped ``start_time`` plus the frame's time after frame 0's.
     labels : bool or {"total", "all", "none"}
         What each frame's NPZ holds besides the device image (``polar``, ``range_m``,
@@ -274,7 +274,7 @@ def generate(
     ray : str, optional
         Render on a Ray cluster instead of local processes: its address (``"auto"``,
         ``"ray://host:10001"``) or ``"local"`` (a new instance on this machine). Needs
-        ``pip install 'sonarsim[ray]'``. The frames are the same as local ones.
+        the ``ray`` extra (:mod:`sonarsim.core.extras`). The frames are the same as local ones.
     command : sequence of str, optional
         The command line, stored in the run record.
     log : callable, optional

@@ -63,7 +63,8 @@ bag under the final name (at most a hidden ``.NAME.sonarsim-PID-XXXX.tmp`` folde
 :func:`remove_abandoned_bags` clears once that process is gone). ``rosbags`` cannot append to
 a bag, so a resumed run rewrites the whole bag.
 
-``rosbags`` is optional: ``pip install 'sonarsim[ros]'``. Importing this module works without
+``rosbags`` is optional: the ``ros`` extra (``pip install -e '.[ros]'`` in a clone, ``pip install
+'sonarsim[ros]'`` for an installed package: :func:`sonarsim.core.extras.install_command`). Importing this module works without
 it; opening a :class:`BagWriter` without it raises :class:`~sonarsim.errors.SonarsimError`.
 """
 
@@ -84,6 +85,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..core.extras import install_hint
 from ..core.transforms import Pose
 from ..errors import ConfigError, SonarsimError, shown
 from .output import TEMP_MARK, temp_prefix
@@ -130,7 +132,6 @@ _S = math.sqrt(0.5)
 #: ``[[0, 0, 1], [0, -1, 0], [1, 0, 0]]`` (symmetric, its own inverse).
 SONAR_TO_IMAGE_QUAT_XYZW = (_S, 0.0, _S, 0.0)
 
-_EXTRA_HINT = "install the ROS extra: pip install 'sonarsim[ros]'"
 
 # Message definitions written from the field lists of marine_acoustic_msgs (BSD-3,
 # apl-ocean-engineering/marine_msgs); only the fields matter to the wire format and the type
@@ -711,7 +712,7 @@ def _import_rosbags() -> tuple[Any, Any, Any]:
         from rosbags.rosbag2 import StoragePlugin, Writer
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     except ImportError as exc:
-        raise SonarsimError(f"writing ROS 2 bags needs the 'rosbags' library ({exc}); {_EXTRA_HINT}") from None
+        raise SonarsimError(f"writing ROS 2 bags needs the 'rosbags' library ({exc}); {install_hint('ros')}") from None
     # Humble's definitions of the std/geometry/sensor/tf2 messages, which later distributions
     # kept unchanged; the marine_acoustic_msgs are not in any store and are added here.
     typestore = get_typestore(Stores.ROS2_HUMBLE)
