@@ -127,7 +127,9 @@ def test_ray_missing_is_one_line(tmp_path, scenario_file, capsys, monkeypatch):
     monkeypatch.setattr(builtins, "__import__", no_ray)
     assert main(["dataset", str(scenario_file), "--out", str(tmp_path / "ds"), "--ray", "auto"]) == 2
     err = capsys.readouterr().err.strip()
-    assert "sonarsim[ray]" in err and "\n" not in err
+    from sonarsim.core.extras import install_command
+
+    assert install_command("ray") in err and "\n" not in err
     assert not (tmp_path / "ds").exists()
 
 
@@ -164,3 +166,113 @@ def test_help_documents_the_coco_option(capsys):
         main(["dataset", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "--coco {fan,polar}" in text and "frames/NNNNNN_polar.png" in text and "even without --png" in text
+
+
+def test_workers_are_capped_by_the_cores_and_the_memory_budget_saying_so(tmp_path, scenario_file, capsys,
+                                                                         monkeypatch):
+    # --workers 1000 once started a process per frame and passed 6 GB.
+    import concurrent.futures as cf
+
+    import sonarsim.dataset.workers as workers
+
+    started = []
+
+    class Recording(cf.ProcessPoolExecutor):
+        def __init__(self, max_workers=None, **kwargs):
+            started.append(max_workers)
+            super().__init__(max_workers, **kwargs)
+
+    monkeypatch.setattr(workers.cf, "ProcessPoolExecutor", Recording)
+    monkeypatch.setattr(workers, "available_cores", lambda: 2)
+    out = tmp_path / "ds"
+    assert main(["dataset", str(scenario_file), "--out", str(out), "--frames", "4", "--workers", "1000",
+                 "--no-progress"]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if "--workers" in line]
+    assert len(lines) == 1 and "--workers 1000: starting 2 (2 CPU cores here" in lines[0], lines
+    assert started == [2]
+    assert len(read_manifest(out / "manifest.jsonl")) == 4
+    # A budget that holds one worker's frames only: one process (this one), said so.
+    started.clear()
+    budget = int(workers.worker_bytes(1e6) * 1.5)
+    assert main(["--max-memory", str(budget), "dataset", str(scenario_file), "--out", str(tmp_path / "one"),
+                 "--frames", "2", "--workers", "2", "--no-progress"]) == 0
+    err = capsys.readouterr().err
+    assert "--workers 2: starting 1 (the memory budget of" in err and "holds 1 of about" in err
+    assert started == []
+
+
+def test_cap_workers_by_hand():
+    from sonarsim.dataset.workers import WORKER_BASE_BYTES, cap_workers, worker_bytes
+
+    frame = 10 * 2**20
+    each = WORKER_BASE_BYTES + 4 * frame
+    assert worker_bytes(frame) == each
+    assert cap_workers(3, frame, cores=4, budget=10 * each) == (3, None)
+    n, note = cap_workers(1000, frame, cores=16, budget=int(5.5 * each))
+    assert n == 5 and note.startswith("--workers 1000: starting 5 (16 CPU cores here; the memory budget")
+    assert cap_workers(8, frame, cores=16, budget=each // 2)[0] == 1  # never below one
+
+
+def test_frame_ids_and_topics_options_name_the_bags_frames_and_topics(tmp_path, scenario_file, capsys):
+    highlevel = pytest.importorskip("rosbags.highlevel")
+    out = tmp_path / "ds"
+    assert main(["dataset", str(scenario_file), "--out", str(out), "--frames", "1", "--rosbag", "mcap",
+                 "--frame-ids", "world=map,image=sonar_optical", "--topics", "image=/oculus/image,pose=/oculus/pose",
+                 "--no-progress"]) == 0
+    with highlevel.AnyReader([out / "rosbag"]) as reader:
+        topics = {c.topic for c in reader.connections}
+        ids = {c.topic: reader.deserialize(raw, c.msgtype).header.frame_id
+               for c, _, raw in reader.messages() if c.topic in ("/oculus/image", "/oculus/pose")}
+    assert {"/oculus/image", "/oculus/pose", "/tf"} <= topics and "/sonar/image" not in topics
+    assert ids == {"/oculus/image": "sonar_optical", "/oculus/pose": "map"}
+    capsys.readouterr()
+    for options, needle in ((["--frame-ids", "world=map"], "--frame-ids: names the ROS 2 bag"),
+                            (["--rosbag", "mcap", "--topics", "imgae=/a"], "--topics: imgae: unknown name"),
+                            (["--rosbag", "mcap", "--topics", "image=/a b"], "--topics: image: must be a ROS topic")):
+        assert main(["dataset", str(scenario_file), "--out", str(tmp_path / "x"), *options]) == 2
+        err = capsys.readouterr().err.strip()
+        assert needle in err and "\n" not in err, err
+    assert not (tmp_path / "x").exists()  # refused before anything was touched
+    with pytest.raises(SystemExit) as info:
+        main(["dataset", str(scenario_file), "--out", str(tmp_path / "x"), "--rosbag", "mcap", "--topics", "image"])
+    assert info.value.code == 2
+
+
+def test_install_hints_work_from_a_checkout_and_from_a_package(tmp_path, monkeypatch):
+    # Issue 37: from a clone, pip install 'sonarsim[ros]' fetched another package from the index.
+    import shlex
+
+    import sonarsim.core.extras as extras
+    from sonarsim.dataset.workers import RAY_HINT
+
+    root = extras.checkout_root()
+    assert root is not None and (root / "pyproject.toml").is_file()  # the tests run from a clone
+    monkeypatch.chdir(root)
+    assert extras.install_command("ros") == "pip install -e '.[ros]'"
+    monkeypatch.chdir(tmp_path)
+    command = extras.install_command("ros")
+    assert command == f"pip install -e {shlex.quote(str(root) + '[ros]')}"
+    assert shlex.split(command)[-1] == f"{root}[ros]"  # one argument: the clone with the extra
+    assert RAY_HINT.startswith("install the Ray extra: pip install -e ")
+    monkeypatch.setattr(extras, "checkout_root", lambda: None)  # an installed package
+    assert extras.install_hint("viewer") == "install the viewer extra: pip install 'sonarsim[viewer]'"
+    with pytest.raises(ValueError, match="extra must be one of ros, ray, viewer, diff"):
+        extras.install_command("gpu")
+
+
+def test_the_missing_rosbags_hint_names_this_checkout(tmp_path, scenario_file, capsys, monkeypatch):
+    import sys
+
+    from sonarsim.core.extras import install_command
+    from sonarsim.io import rosbag
+
+    monkeypatch.setitem(sys.modules, "rosbags", None)  # import rosbags -> ImportError
+    monkeypatch.setitem(sys.modules, "rosbags.rosbag2", None)
+    rosbag._import_rosbags.cache_clear()
+    try:
+        assert main(["dataset", str(scenario_file), "--out", str(tmp_path / "ds"), "--rosbag", "mcap"]) == 2
+    finally:
+        rosbag._import_rosbags.cache_clear()
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(f"install the ROS extra: {install_command('ros')}") and "\n" not in err, err
+    assert "pip install -e" in err

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import hashlib
 import io
+import subprocess
+import sys
+import textwrap
 import time
 import zipfile
+import zlib
 
 import numpy as np
 import pytest
@@ -104,3 +109,53 @@ def test_archives_beyond_the_plain_zip_limits_are_written_as_zip64(monkeypatch):
 def test_object_arrays_are_refused():
     with pytest.raises(ValueError, match="'bad'.*object"):
         encode_npz({"ok": np.zeros(2), "bad": np.array([{}, 1], dtype=object)})
+
+
+def _streams(data: bytes) -> dict[str, tuple[bytes, bytes]]:
+    """Each deflated entry's raw deflate stream and its content."""
+    out = {}
+    with zipfile.ZipFile(io.BytesIO(data)) as archive:
+        for info in archive.infolist():
+            if info.compress_type == zipfile.ZIP_DEFLATED:
+                start = info.header_offset + 30 + len(info.filename)  # local header, no extra field
+                out[info.filename] = (data[start:start + info.compress_size], archive.read(info))
+    return out
+
+
+def test_entries_are_zlib_level_1_streams_that_no_memory_state_can_change():
+    # Regression (issue 37): ISA-L's streams for the same content changed in a few bytes with
+    # what the process had done before (its compressor state comes from malloc uncleared), so
+    # 1-2 frames in 10 of a resumed or multi-worker dataset failed the manifest's SHA-256.
+    # zlib reads nothing it has not written: the stream is a function of the content alone.
+    streams = _streams(encode_npz(sample()))
+    assert len(streams) == len(sample())
+    for name, (stream, content) in streams.items():
+        squeeze = zlib.compressobj(1, zlib.DEFLATED, -15)
+        assert stream == squeeze.compress(content) + squeeze.flush(), name
+
+
+_SONAR_FRAME = """
+import hashlib, sys
+import numpy as np
+from sonarsim.io.npz import encode_npz
+rng = np.random.default_rng(7)
+polar = np.zeros((1288, 128), np.float32)
+polar[300:] = rng.exponential(1e-3, (988, 128)).astype(np.float32)
+arrays = {"polar": polar, "instance": np.where(polar > 2e-3, 1, -1).astype(np.int32),
+          "elevation_deg": np.where(polar > 0, rng.normal(0, 5, polar.shape), np.nan).astype(np.float32)}
+seen = set()
+keep = []
+for k in range(12):
+    # Churn the heap between encodes, as a worker's renders do between frames.
+    keep = [np.frombuffer(rng.bytes(int(n)), np.uint8).copy() for n in rng.integers(1000, 400000, 30)]
+    seen.add(hashlib.sha256(encode_npz(arrays)).hexdigest())
+print(" ".join(sorted(seen)))
+"""
+
+
+def test_the_same_frame_gives_the_same_bytes_in_any_process_after_anything():
+    # Three processes (other addresses, other heaps), twelve encodes each between allocations.
+    runs = [subprocess.run([sys.executable, "-c", textwrap.dedent(_SONAR_FRAME)], capture_output=True, text=True,
+                           check=True).stdout.split() for _ in range(3)]
+    assert all(len(r) == 1 for r in runs), runs
+    assert len({r[0] for r in runs}) == 1, runs

@@ -306,7 +306,7 @@ def test_missing_rosbags_names_the_extra(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "rosbags.rosbag2", None)  # import fails
     rb._import_rosbags.cache_clear()
     try:
-        with pytest.raises(SonarsimError, match=r"sonarsim\[ros\]"):
+        with pytest.raises(SonarsimError, match=r"the 'rosbags' library .*install the ROS extra: pip install .*\[ros\]'$"):
             BagWriter(tmp_path / "rosbag").open()
     finally:
         rb._import_rosbags.cache_clear()

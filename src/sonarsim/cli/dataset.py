@@ -23,13 +23,31 @@ def _seed(text: str) -> int:
     return integer_at_least(text, 0, "seed")
 
 
+def _names(option: str) -> Any:
+    """An argparse type: ``name=value,name=value`` as a dict (each name once)."""
+
+    def parse(text: str) -> dict[str, str]:
+        out: dict[str, str] = {}
+        for item in text.split(","):
+            name, sep, value = item.partition("=")
+            name, value = name.strip(), value.strip()
+            if not sep or not name or not value or name in out:
+                raise argparse.ArgumentTypeError(f"{option} must be NAME=VALUE pairs separated by commas, each "
+                                                 f"name once (e.g. world=map,sonar=sonar_link), got {text!r}")
+            out[name] = value
+        return out
+
+    return parse
+
+
 def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     """Add the ``dataset`` sub-command; sets ``func=cmd_dataset``."""
     p = subparsers.add_parser(
         "dataset", help="render a scenario's frames into a dataset folder (NPZ, manifest, COCO, ROS 2 bag)",
         description="Render every frame of a scenario file into --out: frames/NNNNNN.npz (the image and its "
         "labels; the component images with --labels all), manifest.jsonl (pose, seed, files, sha256 per frame), dataset.json, coco.json (with labels: "
-        "object boxes on frames/NNNNNN_fan.png, written for it, or with --coco polar on frames/NNNNNN_polar.png) "
+        "each object's direct echo, box and mask, on frames/NNNNNN_fan.png, written for it, or with --coco polar on "
+        "frames/NNNNNN_polar.png; its ghosts too with --coco-ghosts) "
         "and optionally PNGs and a ROS 2 bag. Killed and started again with the same command, it "
         "keeps the frames that verify and makes the rest; a folder of another scenario or other options is "
         "refused.")
@@ -38,18 +56,27 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--frames", type=_count, default=None, metavar="N",
                    help="make at most the first N frames (default: all the scenario's)")
     p.add_argument("--workers", type=_count, default=None, metavar="N",
-                   help="render in N processes (default 1), or with --ray N actors (default: the cluster's CPUs); "
+                   help="render in N processes (default 1; at most the CPU cores, and as many as the memory "
+                   "budget holds: a cap is said on stderr), or with --ray N actors (default: the cluster's CPUs); "
                    "the frames are the same whatever N")
     p.add_argument("--ray", default=None, metavar="ADDRESS",
                    help="render on a Ray cluster: its address, 'auto' (the cluster this machine belongs to) or "
-                   "'local' (a new Ray instance here); needs sonarsim[ray]")
+                   "'local' (a new Ray instance here); needs the ray extra (pip install -e '.[ray]' in a clone)")
     p.add_argument("--rosbag", choices=("mcap", "sqlite3"), default=None,
-                   help="also write a ROS 2 bag into OUT/rosbag with this storage (needs sonarsim[ros])")
+                   help="also write a ROS 2 bag into OUT/rosbag with this storage (needs the ros extra: pip install -e '.[ros]' "
+                   "in a clone, pip install 'sonarsim[ros]' for an installed package)")
     p.add_argument("--start-time", default=None, metavar="TIME",
                    help="the bag's stamp of frame 0, the others following the trajectory's times: ISO 8601 "
                    "(2024-05-01T12:00:00Z; UTC where no offset is given) or seconds since 1970 (default: the "
                    "scenario's start_time, else 2000-01-01T00:00:00Z: fixed, so that the same scenario gives the "
                    "same bag byte for byte; \"$(date +%%s)\" for now)")
+    p.add_argument("--frame-ids", type=_names("--frame-ids"), default=None, metavar="NAME=ID,...",
+                   help="the bag's frame names, e.g. world=map,sonar=sonar_link (names: world, sonar, image; "
+                   "default world, sonar, sonar_image, or the scenario's rosbag.frame_ids)")
+    p.add_argument("--topics", type=_names("--topics"), default=None, metavar="NAME=TOPIC,...",
+                   help="the bag's topics, e.g. image=/oculus/image,fan=/oculus/fan (names: image, fan, pose, tf, "
+                   "points; default /sonar/image, /sonar/fan, /sonar/pose, /tf, /sonar/points, or the scenario's "
+                   "rosbag.topics)")
     p.add_argument("--png", action="store_true", help="also write each frame's polar and fan images as PNG")
     p.add_argument("--seed", type=_seed, default=None, metavar="S",
                    help="replace the scenario's seed (every frame's draws come from it and the frame index)")
@@ -62,6 +89,10 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "(default: frames/NNNNNN_fan.png, the fan at the range resolution, far range at the top) or polar "
                    "(frames/NNNNNN_polar.png: a column per beam, left-most first, a row per range bin, far range at "
                    "the top); that PNG is written with labels even without --png")
+    p.add_argument("--coco-ghosts", action="store_true",
+                   help="also annotate each object's multipath ghosts in coco.json, one annotation per path "
+                   "signature (categories CATEGORY/SIGNATURE, e.g. buoy/O-surface-[objects]-surface-O); the boxes "
+                   "and masks are the objects' direct echoes either way")
     p.add_argument("--signatures", action="store_true",
                    help="also store one image per path signature (which planes each echo bounced off), and the "
                    "component images (object, ground, single, double, ..., total)")
@@ -82,6 +113,16 @@ def cmd_dataset(args: argparse.Namespace) -> None:
         if args.rosbag is None:
             raise ConfigError("--start-time", "sets the ROS 2 bag's stamps: give --rosbag mcap or sqlite3 too")
         start_ns = parse_start_time(args.start_time, "--start-time")
+    for option, value in (("--frame-ids", args.frame_ids), ("--topics", args.topics)):
+        if value is not None:
+            from ..io.rosbag import bag_naming
+
+            if args.rosbag is None:
+                raise ConfigError(option, "names the ROS 2 bag's frames and topics: give --rosbag mcap or sqlite3 too")
+            try:  # the names checked before the scenario is read (the scenario's checked with it)
+                bag_naming(**{option[2:].replace("-", "_"): value})
+            except ConfigError as exc:
+                raise ConfigError(option, f"{exc.key.rsplit('.', 1)[-1]}: {exc.detail}") from None
     scenario = load_scenario(args.scenario, frames=args.frames)
     if start_ns is not None:
         from ..io.rosbag import frame_stamps
@@ -95,8 +136,10 @@ def cmd_dataset(args: argparse.Namespace) -> None:
     summary = generate(
         scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
         rosbag=args.rosbag, ray=args.ray, labels=args.labels, signatures=args.signatures, coco=args.coco,
+        ghosts=args.coco_ghosts,
         progress=not args.no_progress,
-        command=getattr(args, "command_line", None), start_time=args.start_time,
+        command=getattr(args, "command_line", None), start_time=args.start_time, frame_ids=args.frame_ids,
+        topics=args.topics,
     )
     rate = f" ({summary.frames_per_s:.2f} frames/s)" if summary.rendered else ""
     print(f"sonarsim: {summary.out}: {summary.n_frames} frames ({summary.rendered} made, {summary.reused} kept) "

@@ -204,14 +204,16 @@ def _demo_files(args, out: Path, run, demo, tank, aris) -> None:
     from ..renderer.simulator import Simulator
     from .figures import write_figure
 
-    # The figures take the PNGs' mapping, gain and window, and the command's colour map.
-    shown = {"mapping": args.mapping, "gain_db": args.gain_db, "dynamic_range_db": args.dynamic_range_db,
+    # The figures take the PNGs' mapping, gain and window, and the command's colour map (the
+    # demo's renders are intensities: dB unless --mapping says otherwise).
+    mapping = args.mapping or "db"
+    shown = {"mapping": mapping, "gain_db": args.gain_db, "dynamic_range_db": args.dynamic_range_db,
              "colormap": args.colormap}
 
     with atomic_write(out / "scene.yaml", "w") as f:
         yaml.safe_dump(demo[0], f, sort_keys=False)
     image = render_and_write(demo[1], out, args, run)
-    write_png(out / "ground_echo.png", bounce_comparison(image, args.pixel_size, args.mapping, args.gain_db, args.dynamic_range_db))
+    write_png(out / "ground_echo.png", bounce_comparison(image, args.pixel_size, mapping, args.gain_db, args.dynamic_range_db))
     _log(f"wrote {out / 'ground_echo.png'} (fan views: single | single + triple | all bounces)")
     write_figure(args, out / "ground_echo_figure", lambda: ground_echo_figure(image, pixel_size_m=args.pixel_size, **shown),
                  run)
@@ -220,7 +222,7 @@ def _demo_files(args, out: Path, run, demo, tank, aris) -> None:
         yaml.safe_dump(tank[0], f, sort_keys=False)
     with Simulator(tank[1], backend=args.backend) as sim:
         tank_image = sim.render()
-    figure = multipath_comparison(tank_image, mapping=args.mapping, gain_db=args.gain_db,
+    figure = multipath_comparison(tank_image, mapping=mapping, gain_db=args.gain_db,
                                   dynamic_range_db=args.dynamic_range_db)
     write_png(out / "multipath.png", figure)
     _log(f"wrote {out / 'tank.yaml'} and {out / 'multipath.png'} "

@@ -36,8 +36,10 @@ def add_image_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("images")
     g.add_argument("--pixel-size", type=positive_float, default=None, metavar="M",
                    help="fan image pixel size in metres (default: the range resolution)")
-    g.add_argument("--mapping", choices=("db", "linear"), default="db",
-                   help="PNG intensity mapping: dB window below the maximum, or linear (default: db)")
+    g.add_argument("--mapping", choices=("db", "linear"), default=None,
+                   help="PNG mapping: dB window below the maximum, or linear (default: a sensor model's output "
+                   "linear in the device's counts, as a real recording shows, 0-255 for an 8-bit device; a render "
+                   "without one, and every component image, in dB)")
     g.add_argument("--gain-db", type=display_gain_db, default=0.0, help="display gain in dB (default: 0)")
     g.add_argument("--dynamic-range-db", type=display_range_db, default=40.0,
                    help="width of the dB window shown (default: 40)")
@@ -183,6 +185,7 @@ def render_and_write(scene, out: Path, args, run=None):
     ``run`` (an entered :class:`~sonarsim.io.run_record.OutputRun`) learns the names of the
     per-component images before they are written.
     """
+    from ..image.levels import default_levels
     from ..io.output import to_uint8, write_png
     from ..renderer.simulator import Simulator
 
@@ -202,10 +205,17 @@ def render_and_write(scene, out: Path, args, run=None):
     out.mkdir(parents=True, exist_ok=True)
 
     def write(name: str, polar, label: str) -> None:
+        # The device's output (the total, with a sensor model) in its counts, as a recording
+        # is drawn; every component is echo intensity, in dB (image.levels explains why).
+        def levels(values, mask=None):
+            if label is None:
+                return default_levels(image, values, mask, args.mapping, args.gain_db, args.dynamic_range_db)
+            return to_uint8(values, args.mapping or "db", args.gain_db, args.dynamic_range_db, mask=mask)
+
         # The polar PNG shows far range at the top, like the fan, so both read the same way.
-        polar_png = to_uint8(polar[::-1], args.mapping, args.gain_db, args.dynamic_range_db)
+        polar_png = levels(polar[::-1])
         fan = image.fan(pixel_size_m=args.pixel_size, component=label)
-        fan_png = to_uint8(fan.image, args.mapping, args.gain_db, args.dynamic_range_db, mask=fan.mask)
+        fan_png = levels(fan.image, fan.mask)
         # Both images are made before either is written: a failure leaves neither.
         for kind, png in (("polar", polar_png), ("fan", fan_png)):
             path = out / f"{kind}{name}.png"
@@ -227,12 +237,11 @@ def render_and_write(scene, out: Path, args, run=None):
 def write_render_figures(image, out: Path, args, run=None) -> None:
     """The annotated fan and polar figures of a render (device output in its counts, a render's
     intensity in dB with the command's gain and window)."""
-    from ..plot.figures import default_scale, device_full_scale, fan_figure, polar_figure
+    from ..plot.figures import default_scale, fan_figure, polar_figure
     from .figures import write_figure
 
-    # The PNG mapping applies to intensities; a device's output is shown in its counts.
-    mapping = None if device_full_scale(image) is not None else args.mapping
-    scale = default_scale(image, mapping, args.gain_db, args.dynamic_range_db)
+    # As the PNGs: a device's output in its counts, a render's intensity in dB (or --mapping).
+    scale = default_scale(image, args.mapping, args.gain_db, args.dynamic_range_db)
     colormap = getattr(args, "colormap", "inferno")
     frame = getattr(args, "frame", None)
     write_figure(args, out / "fan_figure", lambda: fan_figure(image, scale=scale, colormap=colormap, frame=frame,

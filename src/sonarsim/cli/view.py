@@ -13,7 +13,8 @@ name the server (DNS rebinding) or whose ``Origin`` is another site's is refused
 the command says so once per reason; the values a page sends are checked against each
 control's bounds before they are applied (:mod:`sonarsim.plot.viewer.guard`).
 
-Needs the ``viewer`` extra (``pip install 'sonarsim[viewer]'``).
+Needs the ``viewer`` extra (:func:`sonarsim.core.extras.install_command`: ``pip install -e '.[viewer]'``
+in a clone).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import time
 from pathlib import Path
 
 from ..core.console import log as _log
+from ..core.extras import install_command
 
 __all__ = ["add_view_parser", "cmd_view", "serve", "target_kind"]
 
@@ -53,7 +55,7 @@ def add_view_parser(subparsers) -> argparse.ArgumentParser:
         "switches for components, bounces and sensor effects, and a button that saves scene.yaml (the current "
         "poses), polar.png and fan.png into --out. Given a recording (ARIS .aris, Oculus .raw; recognised by "
         "content), shows its frames with a frame slider. Runs until Ctrl-C. Needs the viewer extra: "
-        "pip install 'sonarsim[viewer]'.")
+        f"{install_command('viewer')}.")
     p.add_argument("target", metavar="SCENE|RECORDING", help="a scene file (YAML/JSON) or a recording")
     p.add_argument("--port", type=_port, default=8080, metavar="N",
                    help="port of the page (default: 8080; 0: any free port)")

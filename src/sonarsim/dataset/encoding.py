@@ -28,7 +28,8 @@ from .scenario import FrameSpec
 __all__ = ["COCO_IMAGES", "FORMATS", "FRAMES_DIR", "DatasetOptions", "EncodedFrame", "encode_frame", "frame_files",
            "npz_bytes"]
 
-#: File formats per frame: ``npz`` (always) and ``png`` (polar and fan images, 8-bit dB).
+#: File formats per frame: ``npz`` (always) and ``png`` (polar and fan images, 8-bit: a sensor
+#: model's output in the device's counts, a render without one in dB).
 FORMATS = ("npz", "png")
 #: The images ``coco.json`` names and boxes: each frame's fan PNG (boxes in fan pixels, the
 #: default) or its polar PNG (boxes in polar pixels). A dataset with ground truth always
@@ -36,7 +37,7 @@ FORMATS = ("npz", "png")
 COCO_IMAGES = ("fan", "polar")
 #: Name of the frames' folder inside a dataset folder.
 FRAMES_DIR = "frames"
-# Display mapping of the PNGs and of the bag's 8-bit fan (the `render` command's defaults).
+# dB window of the PNGs and of the bag's 8-bit fan of a render without a sensor model (`render`'s default).
 _DYNAMIC_RANGE_DB = 40.0
 # Entries stored without compression: float coordinates and axes, which deflate shrinks by
 # 1.3x at most (points_world: 0.6 ms of a frame's encoding for nothing); every image and label
@@ -68,6 +69,9 @@ class DatasetOptions:
         The image of each frame that ``coco.json`` names, and whose pixels its boxes are in
         (:data:`COCO_IMAGES`); with ground truth that PNG is written even without ``png`` in
         ``formats``.
+    ghosts : bool
+        Also annotate each object's multipath ghosts in ``coco.json``, one annotation per path
+        signature (:mod:`sonarsim.dataset.coco`); the boxes are the direct echoes' either way.
     """
 
     labels: bool | str = "total"
@@ -75,6 +79,7 @@ class DatasetOptions:
     rosbag: str | None = None
     signatures: bool = False
     coco: str = "fan"
+    ghosts: bool = False
 
     def __post_init__(self) -> None:
         from ..io.rosbag import BAG_STORAGES
@@ -94,11 +99,15 @@ class DatasetOptions:
             raise ConfigError("signatures", f"must be true or false, got {shown(self.signatures)}")
         if self.coco not in COCO_IMAGES:
             raise ConfigError("coco", f"allowed: {', '.join(COCO_IMAGES)}; got {shown(self.coco)}")
+        if not isinstance(self.ghosts, bool):
+            raise ConfigError("ghosts", f"must be true or false, got {shown(self.ghosts)}")
 
     def document(self) -> dict[str, Any]:
-        """The options as JSON (``dataset.json`` and the fingerprint)."""
+        """The options as JSON (``dataset.json`` and the fingerprint). ``boxes: direct`` marks
+        datasets whose boxes are the direct echoes' (a folder made before, whose boxes spanned
+        the ghosts, is another dataset)."""
         return {"labels": self.labels, "formats": list(self.formats), "rosbag": self.rosbag,
-                "signatures": self.signatures, "coco": self.coco}
+                "signatures": self.signatures, "coco": self.coco, "boxes": "direct", "ghosts": self.ghosts}
 
     @property
     def pngs(self) -> tuple[str, ...]:
@@ -118,7 +127,7 @@ def frame_files(k: int, width: int, options: DatasetOptions) -> list[str]:
 def npz_bytes(arrays: Mapping[str, np.ndarray], config: Mapping[str, Any]) -> bytes:
     """The NPZ of ``arrays`` and ``config`` (as :func:`sonarsim.io.output.write_npz` stores
     them), whose bytes depend on the content alone (:func:`sonarsim.io.npz.encode_npz`: fixed
-    entry dates, ISA-L deflate; float coordinates and axes stored).
+    entry dates, zlib deflate; float coordinates and axes stored).
 
     ``numpy.savez_compressed`` stamps each entry with the current time, so two runs would
     write different files for the same frame; :func:`sonarsim.io.output.read_npz` and
@@ -139,14 +148,16 @@ def _png_bytes(image_uint8: np.ndarray) -> bytes:
 
 
 def _image_png(image: Any, kind: str) -> bytes:
-    """A frame's polar or fan image as an 8-bit dB PNG (as ``sonarsim render`` draws them: the
-    far range at the top; the fan of :meth:`SonarImage.fan`, whose pixels the fan boxes are in)."""
-    from ..io.output import to_uint8
+    """A frame's polar or fan image as an 8-bit PNG, as ``sonarsim render`` draws them: a sensor
+    model's output in the device's counts (an 8-bit device's values as they are, as a real
+    recording shows), a render without one in dB (:func:`~sonarsim.image.levels.default_levels`);
+    the far range at the top; the fan of :meth:`SonarImage.fan`, whose pixels the fan boxes are in."""
+    from ..image.levels import default_levels
 
     if kind == "polar":
-        return _png_bytes(to_uint8(image.polar[::-1], "db", 0.0, _DYNAMIC_RANGE_DB))
+        return _png_bytes(default_levels(image, image.polar[::-1], dynamic_range_db=_DYNAMIC_RANGE_DB))
     fan = image.fan()
-    return _png_bytes(to_uint8(fan.image, "db", 0.0, _DYNAMIC_RANGE_DB, mask=fan.mask))
+    return _png_bytes(default_levels(image, fan.image, fan.mask, dynamic_range_db=_DYNAMIC_RANGE_DB))
 
 
 @dataclass(frozen=True)
@@ -170,22 +181,76 @@ class EncodedFrame:
     seconds: dict = field(default_factory=dict)
 
 
-def _boxes(spec: FrameSpec, image: Any) -> tuple[list[dict], list[int] | None]:
-    """The objects' boxes of a frame with labels (polar and fan pixels), and the fan's shape."""
+def _signature_order(signature: str) -> int:
+    """The order of a path signature (``O-surface-[objects]-surface-O``: 3): its surfaces."""
+    return len(signature.split("-")) - 2
+
+
+def _annotated(id_map: np.ndarray, image: Any, n_objects: int, names: tuple[str, ...], coco: str,
+               path: str | None = None) -> list[dict]:
+    """Per object of ``id_map`` (polar cells: ids, -1 none): its polar and fan boxes, and its
+    pixels in the image ``coco.json`` names (RLE) with their count."""
+    from ..image.labels import boxes_of
     from ..image.result import _fan_mapper
-    from .coco import fan_boxes
+    from .coco import fan_boxes, rle
+
+    n_ids = len(names)
+    grid = image.sonar.grid
+    polar = boxes_of(id_map, n_ids)
+    # The boxes of SonarImage.fan_labels(), without resampling the maps (a test compares them).
+    fan = fan_boxes(id_map, grid, n_ids)
+    present = [k for k in range(min(n_objects, n_ids)) if polar[k][0] >= 0]
+    if not present:
+        return []
+    if coco == "fan":
+        # Ids + 1 in float32 (exact below 2**24), resampled by nearest neighbour as the boxes are.
+        pixels = _fan_mapper(grid, None, "nearest")(id_map.astype(np.float32) + 1.0).image.astype(np.int32) - 1
+    else:
+        pixels = id_map[::-1]  # the polar PNG: far range at the top
+    out = []
+    for k in present:
+        entry: dict[str, Any] = {"id": k, "name": str(names[k]), "polar": [int(v) for v in polar[k]],
+                                 "fan": [int(v) for v in fan[k]]}
+        if path is not None:
+            entry["path"] = path
+        if coco == "fan":
+            box = fan[k]
+        else:
+            h = id_map.shape[0]
+            box = [h - 1 - polar[k][2], polar[k][1], h - 1 - polar[k][0], polar[k][3]]
+        if box[0] >= 0:
+            entry["segmentation"], entry["area"] = rle(pixels, k, box)
+        out.append(entry)
+    return out
+
+
+def _annotations(spec: FrameSpec, image: Any, options: DatasetOptions) -> tuple[list[dict], list[dict], list[int] | None]:
+    """A labelled frame's objects: their direct echoes (boxes and pixels), their ghosts per path
+    signature (with ``options.ghosts``), and the fan's shape."""
+    from ..image.result import _fan_mapper
+    from ..renderer.components import order_name
 
     labels = getattr(image, "labels", None)
     if labels is None:
-        return [], None
+        return [], [], None
     n_objects = len(spec.scene.get("objects") or [])  # ids 0..K-1 are objects, then planes
-    polar = np.asarray(labels.boxes_polar)
-    # The boxes of SonarImage.fan_labels(), without resampling the maps (a test compares them).
-    fan = fan_boxes(labels.instance["total"], image.sonar.grid, len(labels.ids))
-    out = [{"id": k, "name": str(labels.ids[k]), "polar": [int(v) for v in polar[k]],
-            "fan": [int(v) for v in fan[k]]}
-           for k in range(min(n_objects, len(polar))) if polar[k][0] >= 0]
-    return out, [int(v) for v in _fan_mapper(image.sonar.grid, None, "nearest").shape]
+    # The objects' single-bounce paths (the renderer's ``object`` map); the total's map would
+    # give each object the cells of its ghosts too. A renderer without it: the total's.
+    direct = labels.instance.get("object", labels.instance["total"])
+    boxes = _annotated(np.asarray(direct), image, n_objects, labels.ids, options.coco)
+    ghosts: list[dict] = []
+    if options.ghosts:
+        components = image.components
+        table = set(getattr(components, "table", None) or ())
+        for signature in [name for name in components if name not in table]:
+            order = _signature_order(signature)
+            by_order = labels.instance.get(order_name(order))
+            if order < 2 or "[objects]" not in signature or by_order is None:
+                continue
+            # Where an object dominates this order and this signature brings energy.
+            ghost = np.where(np.asarray(components[signature]) > 0, by_order, -1)
+            ghosts += _annotated(ghost, image, n_objects, labels.ids, options.coco, signature)
+    return boxes, ghosts, [int(v) for v in _fan_mapper(image.sonar.grid, None, "nearest").shape]
 
 
 def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: int) -> EncodedFrame:
@@ -218,7 +283,9 @@ def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: in
         "sha256": {n: hashlib.sha256(c).hexdigest() for n, c in zip(names, contents)},
     }
     if options.labels != "none":
-        record["boxes"], record["fan_shape"] = _boxes(spec, image)
+        record["boxes"], ghosts, record["fan_shape"] = _annotations(spec, image, options)
+        if options.ghosts:
+            record["ghosts"] = ghosts
         record["polar_shape"] = [int(v) for v in np.shape(image.polar)]
     return EncodedFrame(spec.index, tuple(zip(names, contents)), record,
                         {"encode": time.perf_counter() - t0, **getattr(image, "timing", {})})

@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from ..image.result import SonarImage
     from ..renderer.simulator import Simulator
 
-__all__ = ["LABEL_MODES", "Frame", "SimulatorCache", "as_scenario", "frame_arrays", "frames", "label_mode", "labels_supported", "render_frame"]
+__all__ = ["LABEL_MODES", "Frame", "SimulatorCache", "as_scenario", "frame_arrays", "frame_memory_bytes", "frames", "label_mode", "labels_supported", "render_frame", "rendered_labels"]
 
 # Simulators kept per process: frames that vary their scene each get their own key, and a
 # simulator holds its meshes and ray-casting structures; a few cover a scenario that cycles
@@ -138,6 +138,32 @@ def label_mode(labels: bool | str) -> str:
     return str(labels)
 
 
+def _largest_frame(scenario: Scenario) -> tuple[dict, Any]:
+    """The document of a frame of ``scenario`` with the most of everything (its variation at the
+    high end), and its scene without objects (they are counted, not built: the scenario's check
+    built one of each kind)."""
+    from ..config.loader import scene_from_dict
+
+    doc = scenario.probe("high")[0]
+    return doc, scene_from_dict({**doc, "objects": []}, base_dir=scenario.base_dir)
+
+
+def frame_memory_bytes(scenario: Scenario, labels: bool | str) -> float:
+    """The most bytes one frame of ``scenario`` holds at once while it renders: its images,
+    rays and sensor fields, and its label maps for the most objects a frame can hold (what
+    :func:`require_dataset_memory` checks against the budget)."""
+    from ..renderer.ground_truth import label_map_bytes
+    from ..renderer.simulator import frame_memory_parts
+
+    doc, scene = _largest_frame(scenario)
+    total = sum(float(n) for n, _, _ in frame_memory_parts(scene, scene.sonar))
+    mode = label_mode(labels)
+    if mode != "none" and labels_supported():
+        total += label_map_bytes(len(doc.get("objects") or []) + len(scene.reflecting_planes), scene.render.max_order,
+                                 scene.sonar.n_range_bins, scene.sonar.n_beams, components=True)
+    return total
+
+
 def require_dataset_memory(scenario: Scenario, labels: bool | str) -> None:
     """Refuse, before the first frame, frames that would not fit the memory budget: their
     images, rays and sensor fields, and their label maps for the most objects a frame of
@@ -148,15 +174,12 @@ def require_dataset_memory(scenario: Scenario, labels: bool | str) -> None:
     ConfigError
         Naming the key (``variation.objects`` or ``scene.objects`` for the labels) and the file.
     """
-    from ..config.loader import scene_from_dict
     from ..errors import ConfigError
     from ..renderer.ground_truth import require_label_maps
     from ..renderer.simulator import require_frame_memory
 
     mode = label_mode(labels)
-    doc = scenario.probe("high")[0]
-    # The objects are counted, not built (the scenario's check built one of each kind).
-    scene = scene_from_dict({**doc, "objects": []}, base_dir=scenario.base_dir)
+    doc, scene = _largest_frame(scenario)
     try:
         require_frame_memory(scene, scene.sonar)
     except ConfigError as exc:
@@ -164,12 +187,21 @@ def require_dataset_memory(scenario: Scenario, labels: bool | str) -> None:
     if mode == "none" or not labels_supported():
         return
     try:
+        # Every component's maps (rendered_labels): the boxes are the direct echoes'.
         require_label_maps(len(doc.get("objects") or []) + len(scene.reflecting_planes), scene.render.max_order,
-                           scene.sonar.n_range_bins, scene.sonar.n_beams, components=mode == "all",
+                           scene.sonar.n_range_bins, scene.sonar.n_beams, components=True,
                            key="variation.objects" if scenario.variation.objects else "scene.objects")
     except ConfigError as exc:
-        raise ConfigError(exc.key, f"{exc.detail}; or ask for fewer labels (--labels total, or none)",
+        raise ConfigError(exc.key, f"{exc.detail}; or ask for no labels (--labels none)",
                           scenario.source) from None
+
+
+def rendered_labels(labels: bool | str) -> str:
+    """What a dataset asks the renderer for, to store ``labels`` (:func:`label_mode`): every
+    component's instance map whenever it has ground truth, since its boxes and masks are the
+    objects' direct echoes (the ``object`` map); the NPZ keeps what ``labels`` says
+    (:func:`frame_arrays`)."""
+    return "none" if label_mode(labels) == "none" else "all"
 
 
 def render_frame(spec: FrameSpec, cache: SimulatorCache, labels: bool | str = "total") -> SonarImage:
@@ -232,6 +264,10 @@ def frame_arrays(image: SonarImage, signatures: bool = False, components: bool =
         # Renderers whose arrays() already include the labels give the same names again.
         for name, value in labels.arrays().items():
             out.setdefault(name, value)
+    if not components:
+        # The components' instance maps come with their images: a dataset frame, rendered with
+        # every map for its boxes (rendered_labels), stores the total's alone without them.
+        out = {name: value for name, value in out.items() if not name.startswith("instance_")}
     return out
 
 

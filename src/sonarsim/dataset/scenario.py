@@ -11,6 +11,9 @@ A scenario (YAML or JSON, or the same dict from Python) holds::
     variation: {...}            # optional: what is drawn per frame (sonarsim.dataset.variation)
     start_time: 2024-05-01T12:00:00Z  # optional: the ROS 2 bag's stamp of frame 0 (ISO 8601 or
                                 # seconds since 1970; default 2000-01-01T00:00:00Z, never the clock)
+    rosbag:                     # optional: the bag's frame names and topics (sonarsim.io.rosbag)
+      frame_ids: {world: map, sonar: sonar, image: sonar_image}
+      topics: {image: /sonar/image, fan: /sonar/fan, pose: /sonar/pose, tf: /tf, points: /sonar/points}
     description: "..."          # optional, free text
 
 :meth:`Scenario.frame` gives, for frame ``k``, everything needed to render it without any
@@ -49,7 +52,7 @@ from .variation import Variation, parse_variation
 
 __all__ = ["SCENARIO_KEYS", "FrameSpec", "Scenario", "frame_seed", "load_scenario"]
 
-SCENARIO_KEYS = ("scene", "seed", "trajectory", "variation", "description", "start_time")
+SCENARIO_KEYS = ("scene", "seed", "trajectory", "variation", "description", "start_time", "rosbag")
 # SeedSequence takes any non-negative integer; a seed beyond 2**128 is a typo, not entropy.
 MAX_SEED = 2**128 - 1
 
@@ -132,6 +135,9 @@ class Scenario:
         The ROS 2 bag's stamp of frame 0, nanoseconds since 1970 (the ``start_time`` key,
         :func:`sonarsim.io.rosbag.parse_start_time`); later frames follow the trajectory's
         times. ``None``: :data:`sonarsim.io.rosbag.DEFAULT_START_TIME`.
+    rosbag : dict
+        The ``rosbag`` section (checked): ``frame_ids`` and ``topics`` of the bag
+        (:func:`sonarsim.io.rosbag.bag_naming`); empty for the defaults.
     """
 
     scene: dict = field(repr=False)
@@ -143,6 +149,7 @@ class Scenario:
     source: str | None = None
     description: str | None = None
     start_time_ns: int | None = None
+    rosbag: dict = field(default_factory=dict, repr=False)
 
     @property
     def n_frames(self) -> int:
@@ -342,6 +349,12 @@ def _from_dict(d: Any, base: Path, source: str | None) -> Scenario:
         from ..io.rosbag import parse_start_time
 
         start_time_ns = parse_start_time(d["start_time"], "start_time")
+    bag: dict = {}
+    if d.get("rosbag") is not None:
+        from ..io.rosbag import bag_naming
+
+        bag_naming(d["rosbag"], "rosbag")  # checked now, used when the bag is written
+        bag = {k: dict(v) for k, v in d["rosbag"].items() if v}
     scene_doc, scene_dir = _scene_document(d["scene"], base)
     scene_doc = copy.deepcopy(dict(scene_doc))
     render = scene_doc.get("render") or {}
@@ -361,7 +374,7 @@ def _from_dict(d: Any, base: Path, source: str | None) -> Scenario:
     trajectory = parse_trajectory(d["trajectory"], base, range_min_m=scene.sonar.range_min_m)
     variation = parse_variation(d.get("variation"), scene_doc, base)
     return Scenario(scene_doc, seed, trajectory, variation, str(scene_dir), None, source, description,
-                    start_time_ns)
+                    start_time_ns, bag)
 
 
 def _scene_document(value: Any, base: Path) -> tuple[Mapping, Path]:

@@ -26,14 +26,15 @@ from collections.abc import Iterator, Sequence
 from typing import Any
 
 from ..core.console import install_warning_format, show_warning
+from ..core.extras import install_hint
 from .encoding import _write_files, encode_frame
-from .frames import SimulatorCache, render_frame
+from .frames import SimulatorCache, render_frame, rendered_labels
 from .scenario import Scenario
 
-__all__ = ["RAY_HINT", "available_cores", "batches", "encoded_frames", "encoded_frames_ray", "render_batch"]
+__all__ = ["RAY_HINT", "WORKER_BASE_BYTES", "available_cores", "batches", "cap_workers", "worker_bytes", "encoded_frames", "encoded_frames_ray", "render_batch"]
 
-#: What to install for ``--ray``.
-RAY_HINT = "install the Ray extra: pip install 'sonarsim[ray]'"
+#: What to install for ``--ray`` (:mod:`sonarsim.core.extras`: right for a clone and for an installed package).
+RAY_HINT = install_hint("ray")
 
 # Per worker process: the scenario and options it was started with, and its simulators.
 _STATE: dict[str, Any] = {}
@@ -45,6 +46,62 @@ def available_cores() -> int:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # pragma: no cover - not Linux
         return os.cpu_count() or 1
+
+
+#: A worker process's memory besides its frames: the interpreter, NumPy, SciPy, Embree and the
+#: renderer (128 MiB measured after four 16 x 120 frames), with some room.
+WORKER_BASE_BYTES = 160 * 2**20
+#: A worker holds about this many frames' worth of a frame's render memory at its peak: the
+#: render's buffers, the image and its labels, and their copies while they are encoded
+#: (measured: 270 and 430 MiB resident for frames estimated at 46 and 86 MiB, with the base).
+FRAME_COPIES = 4
+
+
+def worker_bytes(frame_bytes: float) -> float:
+    """A worker process's memory at its peak, for frames that hold ``frame_bytes`` while they
+    render (:func:`~sonarsim.dataset.frames.frame_memory_bytes`)."""
+    return WORKER_BASE_BYTES + FRAME_COPIES * float(frame_bytes)
+
+
+def cap_workers(requested: int, frame_bytes: float, cores: int | None = None,
+                budget: int | None = None) -> tuple[int, str | None]:
+    """The worker processes to start for ``requested``: no more than the cores, nor than the
+    memory budget holds.
+
+    Parameters
+    ----------
+    requested : int
+        ``--workers`` (>= 1).
+    frame_bytes : float
+        What one frame holds at once while it renders.
+    cores : int, optional
+        Default :func:`available_cores`.
+    budget : int, optional
+        Bytes; default :func:`sonarsim.core.memory.memory_budget` (``--max-memory``).
+
+    Returns
+    -------
+    workers : int
+        At least 1 (a frame that does not fit alone was refused before).
+    note : str or None
+        One line saying what capped the request, or None when nothing did.
+    """
+    from ..core.memory import ENV_VAR, memory_budget
+
+    cores = available_cores() if cores is None else cores
+    budget = memory_budget() if budget is None else budget
+    each = worker_bytes(frame_bytes)
+    by_memory = max(1, int(budget // each))
+    workers = max(1, min(requested, cores, by_memory))
+    if workers == requested:
+        return workers, None
+    why = []
+    if cores < requested:
+        why.append(f"{cores} CPU core{'s' if cores != 1 else ''} here")
+    if by_memory < requested:
+        why.append(f"the memory budget of {budget / 2**30:.3g} GiB holds {by_memory} of about "
+                   f"{each / 2**20:.0f} MiB each (--max-memory or ${ENV_VAR} to change it)")
+    return workers, f"--workers {requested}: starting {workers} ({'; '.join(why)})"
 
 
 def batches(indices: Sequence[int], size: int) -> list[list[int]]:
@@ -126,7 +183,7 @@ def render_batch(indices: Sequence[int], scenario: Scenario | None = None, optio
     out = []
     for k in indices:
         spec = scenario.frame(k)
-        encoded = encode_frame(spec, render_frame(spec, cache, options.labels), options, width)
+        encoded = encode_frame(spec, render_frame(spec, cache, rendered_labels(options.labels)), options, width)
         if folder is not None:
             _write_files(folder, encoded)
             encoded = replace(encoded, files=())
@@ -161,6 +218,7 @@ def encoded_frames(scenario: Scenario, indices: Sequence[int], options: Any, wid
     EncodedFrame
         In the order tasks finish (by index within a task).
     """
+    workers = max(1, min(workers, len(indices)))  # an idle process is memory for nothing
     if threads is None:
         threads = max(1, available_cores() // workers)
     if workers <= 1:

@@ -57,7 +57,7 @@ from .encoding import (  # noqa: F401
     FRAMES_DIR,
     DatasetOptions,
     EncodedFrame,
-    _boxes,
+    _annotations,
     _image_png,
     _png_bytes,
     _write_files,
@@ -65,7 +65,7 @@ from .encoding import (  # noqa: F401
     frame_files,
     npz_bytes,
 )
-from .frames import as_scenario, require_dataset_memory
+from .frames import as_scenario, frame_memory_bytes, require_dataset_memory
 from .manifest import (
     INFO_NAME,
     MANIFEST_NAME,
@@ -161,8 +161,9 @@ def _check_identity(info_path: Path, fingerprint: Fingerprint, n: int, out: Path
 def _bag_frame(out: Path, record: Mapping[str, Any], stamp_ns: int) -> Any:
     """The bag frame of a finished frame, from its NPZ, stamped ``stamp_ns``."""
     from ..config.loader import parse_sonar_section
+    from ..image.levels import default_levels
     from ..image.result import SonarImage
-    from ..io.output import read_npz, to_uint8
+    from ..io.output import read_npz
     from ..io.rosbag import frame_from_image
 
     arrays, config = read_npz(out / record["files"][0])
@@ -170,19 +171,22 @@ def _bag_frame(out: Path, record: Mapping[str, Any], stamp_ns: int) -> Any:
     image = SonarImage(polar=arrays["polar"], range_m=arrays["range_m"], azimuth_deg=arrays["azimuth_deg"],
                        components={}, sonar=sonar, pose=pose, config=config)
     fan = image.fan()
-    # 8-bit fan: what image viewers (rqt, Foxglove) show without a colour map.
-    fan_u8 = to_uint8(fan.image, "db", 0.0, _DYNAMIC_RANGE_DB, mask=fan.mask)
+    # 8-bit fan: what image viewers (rqt, Foxglove) show without a colour map; drawn as the
+    # PNGs are (a device's counts, a render's dB).
+    fan_u8 = default_levels(image, fan.image, fan.mask, dynamic_range_db=_DYNAMIC_RANGE_DB)
     points = {}
     if "points_world" in arrays and "points_object" in arrays:
         points = {"points_world": arrays["points_world"], "points_object": arrays["points_object"]}
     return frame_from_image(image, stamp_ns, fan=fan_u8, **points)
 
 
-def _write_bag(out: Path, records: Sequence[Mapping[str, Any]], storage: str, stamps: Sequence[int]) -> Path:
+def _write_bag(out: Path, records: Sequence[Mapping[str, Any]], storage: str, stamps: Sequence[int],
+               naming: tuple[Any, Any] | None = None) -> Path:
     """Write ``out/rosbag`` from the finished frames, in frame order, replacing an older bag.
 
     ``stamps``: each frame's stamp (:func:`~sonarsim.io.rosbag.frame_stamps` of the frames'
-    times from the start time).
+    times from the start time); ``naming``: its frame ids and topics
+    (:func:`~sonarsim.io.rosbag.bag_naming`), default the defaults.
     """
     from ..io.output import temp_prefix
     from ..io.rosbag import BagWriter, remove_abandoned_bags
@@ -195,7 +199,8 @@ def _write_bag(out: Path, records: Sequence[Mapping[str, Any]], storage: str, st
         old = Path(tempfile.mkdtemp(prefix=temp_prefix(BAG_NAME), suffix=".tmp", dir=out))
         os.rename(path, old / BAG_NAME) if path.is_dir() and not path.is_symlink() else os.unlink(path)
         shutil.rmtree(old, ignore_errors=True)
-    with BagWriter(path, storage=storage) as bag:
+    frame_ids, topics = naming if naming is not None else (None, None)
+    with BagWriter(path, storage=storage, frame_ids=frame_ids, topics=topics) as bag:
         for record, stamp in zip(records, stamps):
             bag.write_frame(_bag_frame(out, record, stamp))
     return path
@@ -211,6 +216,7 @@ def generate(
     labels: bool | str = "total",
     signatures: bool = False,
     coco: str = "fan",
+    ghosts: bool = False,
     progress: bool = True,
     threads: int | None = None,
     batch_size: int | None = None,
@@ -219,6 +225,8 @@ def generate(
     log: Callable[[str], None] | None = None,
     on_frame: Callable[[int], None] | None = None,
     start_time: Any = None,
+    frame_ids: Mapping[str, str] | None = None,
+    topics: Mapping[str, str] | None = None,
 ) -> DatasetSummary:
     """Render a scenario's frames into the dataset folder ``out`` (resumable; see the module docs).
 
@@ -231,12 +239,13 @@ def generate(
     frames : int, optional
         Cap on the number of frames (``--frames N``); default all the scenario's.
     workers : int, optional
-        Processes that render (1: this one); with ``ray``, Ray actors (default: the
-        cluster's CPUs).
+        Processes that render (1: this one), at most the cores and as many as the memory
+        budget holds (:func:`~sonarsim.dataset.workers.cap_workers`; a cap is said in one line
+        to ``log``); with ``ray``, Ray actors (default: the cluster's CPUs).
     formats : iterable of str
         :data:`FORMATS`: ``"npz"`` (always), ``"png"`` (polar and fan PNGs).
     rosbag : {None, "mcap", "sqlite3"}
-        Also write ``out/rosbag`` (needs ``pip install 'sonarsim[ros]'``): every frame's
+        Also write ``out/rosbag`` (needs the ``ros`` extra, :mod:`sonarsim.core.extras`): every frame's
         messages stamped ``start_time`` plus the frame's time after frame 0's.
     labels : bool or {"total", "all", "none"}
         What each frame's NPZ holds besides the device image (``polar``, ``range_m``,
@@ -250,7 +259,11 @@ def generate(
         With ground truth, the image of each frame that ``coco.json`` names and boxes:
         ``frames/NNNNNN_fan.png`` with the boxes in fan pixels (default), or
         ``frames/NNNNNN_polar.png`` with the boxes in polar pixels (a column per beam, the far
-        range at the top). That PNG is written whether or not ``formats`` has ``"png"``.
+        range at the top). That PNG is written whether or not ``formats`` has ``"png"``. Boxes
+        and masks are each object's direct echo (:mod:`sonarsim.dataset.coco`).
+    ghosts : bool
+        Also annotate each object's multipath ghosts in ``coco.json``, one annotation per path
+        signature (categories ``<category>/<signature>``).
     progress : bool
         A progress bar on stderr (frames, rate, time left; needs ``tqdm``).
     threads : int, optional
@@ -261,7 +274,7 @@ def generate(
     ray : str, optional
         Render on a Ray cluster instead of local processes: its address (``"auto"``,
         ``"ray://host:10001"``) or ``"local"`` (a new instance on this machine). Needs
-        ``pip install 'sonarsim[ray]'``. The frames are the same as local ones.
+        the ``ray`` extra (:mod:`sonarsim.core.extras`). The frames are the same as local ones.
     command : sequence of str, optional
         The command line, stored in the run record.
     log : callable, optional
@@ -275,6 +288,10 @@ def generate(
         :data:`~sonarsim.io.rosbag.DEFAULT_START_TIME` (2000-01-01T00:00:00Z). It shapes the
         bag alone, not the frames or the fingerprint: the bag is written anew at the end of
         every run, so a run with another start time re-stamps it.
+    frame_ids, topics : mapping of str to str, optional
+        The bag's frame names (``world``, ``sonar``, ``image``) and topics (``image``, ``fan``,
+        ``pose``, ``tf``, ``points``), replacing the scenario's ``rosbag`` section name by name
+        (:func:`~sonarsim.io.rosbag.bag_naming`); like ``start_time``, they shape the bag alone.
 
     Returns
     -------
@@ -309,7 +326,7 @@ def generate(
     if batch_size is not None:
         batch_size = _positive_int(batch_size, "batch_size")
     options = DatasetOptions(labels=labels, formats=tuple(formats), rosbag=rosbag, signatures=signatures,
-                             coco=coco)
+                             coco=coco, ghosts=ghosts)
     if options.rosbag is not None:
         from ..io.rosbag import _import_rosbags
 
@@ -320,6 +337,14 @@ def generate(
     width = max(6, len(str(n - 1)))
     out = Path(out)
     say = log or (lambda msg: print(f"sonarsim: {msg}", file=sys.stderr, flush=True))
+    if workers is not None and workers > 1 and ray is None:
+        # Local processes: no more than the cores run at once, nor than the budget holds
+        # (a process per frame for --workers 1000 would pass any memory).
+        from .workers import cap_workers
+
+        workers, note = cap_workers(workers, frame_memory_bytes(scenario, options.labels))
+        if note:
+            say(note)
 
     stamps = None
     if options.rosbag is not None:
@@ -336,6 +361,12 @@ def generate(
             stamps = frame_stamps(start_ns, [scenario.trajectory.time_s(k) for k in range(n)], "start_time")
         except ConfigError as exc:
             raise ConfigError(exc.key, exc.detail, source) from None
+        from ..io.rosbag import bag_naming
+
+        try:
+            naming = bag_naming(scenario.rosbag, "rosbag", frame_ids=frame_ids, topics=topics)
+        except ConfigError as exc:
+            raise ConfigError(exc.key, exc.detail, scenario.source if scenario.rosbag else None) from None
 
     # Every frame's spec digest: the fingerprint, and what each manifest line must match.
     fingerprint = Fingerprint(options.document())
@@ -405,7 +436,7 @@ def generate(
             doc = coco_from_records(ordered, image=options.coco)
             with atomic_write(coco_path, "w") as handle:
                 handle.write(canonical_json(doc) + "\n")
-        bag_path = _write_bag(out, ordered, options.rosbag, stamps) if options.rosbag else None
+        bag_path = _write_bag(out, ordered, options.rosbag, stamps, naming) if options.rosbag else None
     return DatasetSummary(out, n, len(todo), len(kept), time.perf_counter() - t_start, manifest_path,
                           coco_path, bag_path, fingerprint.value, stamps[0] if stamps else None)
 

@@ -17,7 +17,9 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-DIFF_EXTRA_MESSAGE = "the differentiable engine needs JAX: pip install 'sonarsim[diff]'"
+from ..core.extras import install_command
+
+DIFF_EXTRA_MESSAGE = f"the differentiable engine needs JAX: {install_command('diff')}"
 
 _EXPORTS = {"Renderer": ".renderer", "Search": ".search", "record_search": ".search",
             "StaleSearchWarning": ".renderer"}

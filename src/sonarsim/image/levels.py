@@ -3,17 +3,26 @@
 The one place where intensities become display levels: the exact-pixel PNGs
 (:mod:`sonarsim.io.output`, which re-exports :func:`to_uint8`), the figures'
 colours (:mod:`sonarsim.plot`) and :meth:`FanImage.to_pil <sonarsim.image.fan.FanImage.to_pil>`.
-A pure array function, here in the image layer so that the image types can use it without
+Pure array functions, here in the image layer so that the image types can use them without
 importing :mod:`sonarsim.io`.
+
+What an image is drawn on unless told otherwise (:func:`default_levels`) is decided here too:
+a device's output -- a sensor model's render, a real recording -- is already compressed by the
+device (an Oculus's gamma, an ARIS's 0-80 dB onto 0-255), so it is drawn in its counts, linearly
+against the output type's full scale, as the device's own software and a real recording's PNG
+show it; a dB mapping on top would compress it twice (median pixel 240 of 255: a pale image in
+which objects hide). A render without a sensor model is in echo intensity and drawn in dB below
+its maximum.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
-__all__ = ["MAPPINGS", "to_uint8"]
+__all__ = ["MAPPINGS", "default_levels", "device_full_scale", "to_uint8"]
 
 #: Intensity mappings accepted by :func:`to_uint8`.
 MAPPINGS = ("db", "linear")
@@ -126,3 +135,53 @@ def to_uint8(
     v = np.clip(v, 0.0, 1.0)
     out[lit] = np.floor(v * 255.0 + 0.5).astype(np.uint8)
     return out
+
+
+def device_full_scale(image: Any) -> float | None:
+    """Full-scale value of a device's output, or ``None`` for a render in intensity units.
+
+    A render through a sensor model (its configuration has a ``sensor`` section) gives the output
+    type's full scale (255, 65535, 1.0); a real recording 255 for 8-bit data and its frame's
+    maximum for wider data (as ``sonarsim show`` does).
+    """
+    config = getattr(image, "config", None) or {}
+    sensor = config.get("sensor")
+    if isinstance(sensor, dict):
+        dtype = (sensor.get("output") or {}).get("dtype", "uint8")
+        return {"uint8": 255.0, "uint16": 65535.0}.get(dtype, 1.0)
+    if "format" in config:  # a recording (sonarsim.io.readers)
+        bits = (config.get("header") or {}).get("bits_per_value", 8)
+        if bits == 8:
+            return 255.0
+        peak = float(np.max(image.polar)) if np.size(image.polar) else 0.0
+        return peak if peak > 0.0 else 1.0
+    return None
+
+
+def default_levels(image: Any, values: np.ndarray, mask: np.ndarray | None = None, mapping: str | None = None,
+                   gain_db: float = 0.0, dynamic_range_db: float = 40.0) -> np.ndarray:
+    """8-bit display levels of ``values`` (the polar image, a fan, a component of ``image``) as
+    sonarsim draws ``image`` unless told otherwise (see the module notes).
+
+    Parameters
+    ----------
+    image : SonarImage
+        Whose configuration says whether ``values`` are a device's counts
+        (:func:`device_full_scale`).
+    values : array_like, any shape
+    mask : array_like of bool, optional
+        As :func:`to_uint8`.
+    mapping : {'db', 'linear'}, optional
+        Default: ``linear`` for device output (against its full scale: an 8-bit device's counts
+        are the PNG's values), ``db`` for a render (below the image's maximum).
+    gain_db, dynamic_range_db : float
+        As :func:`to_uint8`.
+
+    Returns
+    -------
+    np.ndarray, uint8, the shape of ``values``
+    """
+    full = device_full_scale(image)
+    if full is not None:
+        return to_uint8(values, mapping or "linear", gain_db, dynamic_range_db, full, mask)
+    return to_uint8(values, mapping or "db", gain_db, dynamic_range_db, None, mask)

@@ -1,14 +1,20 @@
-"""NPZ files encoded fast and deterministically (what :func:`numpy.load` reads).
+"""NPZ files encoded deterministically (what :func:`numpy.load` reads).
 
 An NPZ is a zip archive of ``.npy`` files. ``numpy.savez_compressed`` deflates with zlib at
-level 6 and stamps each entry with the current time; on a dataset frame (a dozen 128 x 1288
-images) that is tens of milliseconds, ten times the frame's render, and two runs never write
-the same bytes. Here each entry is deflated by ISA-L (the ``isal`` package: standard raw
-deflate streams, about ten times faster than zlib at level 1 with the same ratio on sonar
-images) and the zip container is laid out directly, with a fixed date, so the bytes depend on
-the arrays alone. :mod:`zipfile` has no way to take an entry already deflated, hence the few
-lines of container below; the tests read every file back with :mod:`zipfile` (CRC checked)
-and :func:`numpy.load`.
+level 6 and stamps each entry with the current time, so two runs never write the same bytes.
+Here each entry is deflated by zlib at level 1 (a raw deflate stream) and the zip container is
+laid out directly, with a fixed date, so the bytes depend on the arrays alone. :mod:`zipfile`
+has no way to take an entry already deflated, hence the few lines of container below; the
+tests read every file back with :mod:`zipfile` (CRC checked) and :func:`numpy.load`.
+
+Why zlib and not ISA-L (the ``isal`` package, about six times faster at the same ratio, used
+here before): ISA-L's stream for the same input was not always the same. Python-isal hands
+ISA-L a compressor state and level buffer from ``malloc`` without clearing them, and 1-2
+frames in 10 of a dataset came out with a few bytes of one entry's stream changed (the
+content and size the same) depending on what the process had done before -- a resumed or
+concurrent-worker run then failed its manifest's SHA-256 (issue 37). zlib's deflate reads no
+memory it has not written, so its output is a function of the input, the level and the zlib
+build. ISA-L still computes the CRC-32 (a checksum has one answer).
 
 Archives beyond the plain zip format's limits (4 GiB entries, 65,535 entries) are written by
 :mod:`zipfile` (zip64) instead: slower, equally valid.
@@ -24,15 +30,15 @@ from collections.abc import Mapping
 
 import numpy as np
 
-try:  # ISA-L's deflate and CRC: same streams as zlib's, several times faster
-    from isal import isal_zlib as _deflate
-except ImportError:  # pragma: no cover - isal is a dependency; zlib gives valid (other) bytes
-    _deflate = zlib
+try:  # ISA-L's CRC-32: the same checksum as zlib's, several times faster
+    from isal.isal_zlib import crc32 as _crc32
+except ImportError:  # pragma: no cover - isal is a dependency
+    from zlib import crc32 as _crc32
 
 __all__ = ["DEFLATE_LEVEL", "encode_npz"]
 
-#: Deflate level (ISA-L's 0-3; zlib's 1 when ISA-L is missing). Level 1: a 128 x 1288 float32
-#: sonar image in 0.3 ms at ratio 7 (zlib level 1: 2.5 ms, the same ratio).
+#: zlib's deflate level (1-9). Level 1: a 128 x 1288 float32 sonar image in about 2.5 ms at
+#: ratio 7; level 6 (numpy's) takes twice as long for a few per cent less.
 DEFLATE_LEVEL = 1
 _STORED, _DEFLATED = 0, 8
 _VERSION = 20  # "2.0": deflate, no zip64
@@ -85,7 +91,7 @@ def encode_npz(arrays: Mapping[str, np.ndarray], stored: frozenset[str] | set[st
         Names stored without compression (data that deflate cannot shrink, such as float
         coordinates: they would cost time for nothing).
     level : int
-        Deflate level of the other entries.
+        zlib's deflate level (1-9) of the other entries.
 
     Returns
     -------
@@ -105,12 +111,12 @@ def encode_npz(arrays: Mapping[str, np.ndarray], stored: frozenset[str] | set[st
     offset = 0
     for name, header, array in entries:
         data = _raw(array)
-        crc = _deflate.crc32(data, _deflate.crc32(header))
+        crc = _crc32(data, _crc32(header))
         size = len(header) + len(data)
         if name[:-4].decode() in stored:
             method, body = _STORED, [header, data]
         else:
-            squeeze = _deflate.compressobj(level, zlib.DEFLATED, -15)
+            squeeze = zlib.compressobj(level, zlib.DEFLATED, -15)
             method, body = _DEFLATED, [squeeze.compress(header) + squeeze.compress(data) + squeeze.flush()]
         packed = sum(len(b) for b in body)
         if offset + packed + 30 + len(name) >= _LIMIT:

@@ -289,7 +289,7 @@ def write_npz(
 ) -> None:
     """Save arrays and the configuration that produced them to a compressed ``.npz``, atomically.
 
-    The archive is deflated by :func:`sonarsim.io.npz.encode_npz` (ISA-L, fixed entry dates:
+    The archive is deflated by :func:`sonarsim.io.npz.encode_npz` (zlib level 1, fixed entry dates:
     the same arrays give the same bytes); ``numpy.load`` reads it like any NPZ.
 
     The configuration is stored as JSON text in a 0-d unicode array under :data:`CONFIG_KEY`

@@ -14,6 +14,10 @@ topic          type                                     content
 
 Frames (names configurable with :class:`BagFrameIds`)
 -----------------------------------------------------
+Their names and the topics above (:class:`BagTopics`) are set from Python, from a scenario's
+``rosbag: {frame_ids: {world: map}, topics: {image: /oculus/image}}`` section, or with
+``sonarsim dataset --frame-ids world=map --topics image=/oculus/image`` (:func:`bag_naming`).
+
 ``world``
     The scene's world frame (right-handed, z up).
 ``sonar``
@@ -59,12 +63,14 @@ bag under the final name (at most a hidden ``.NAME.sonarsim-PID-XXXX.tmp`` folde
 :func:`remove_abandoned_bags` clears once that process is gone). ``rosbags`` cannot append to
 a bag, so a resumed run rewrites the whole bag.
 
-``rosbags`` is optional: ``pip install 'sonarsim[ros]'``. Importing this module works without
+``rosbags`` is optional: the ``ros`` extra (``pip install -e '.[ros]'`` in a clone, ``pip install
+'sonarsim[ros]'`` for an installed package: :func:`sonarsim.core.extras.install_command`). Importing this module works without
 it; opening a :class:`BagWriter` without it raises :class:`~sonarsim.errors.SonarsimError`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import os
@@ -79,14 +85,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..core.extras import install_hint
 from ..core.transforms import Pose
-from ..errors import ConfigError, SonarsimError
+from ..errors import ConfigError, SonarsimError, shown
 from .output import TEMP_MARK, temp_prefix
 
 if TYPE_CHECKING:
     from ..image.result import SonarImage
 
 __all__ = [
+    "BAG_NAMING_KEYS",
     "BAG_STORAGES",
     "DEFAULT_START_NS",
     "DEFAULT_START_TIME",
@@ -94,8 +102,11 @@ __all__ = [
     "TOPICS",
     "BagFrame",
     "BagFrameIds",
+    "BagTopics",
     "BagWriter",
+    "bag_naming",
     "beam_directions",
+    "device_polar",
     "format_stamp",
     "frame_from_image",
     "frame_stamps",
@@ -121,7 +132,6 @@ _S = math.sqrt(0.5)
 #: ``[[0, 0, 1], [0, -1, 0], [1, 0, 0]]`` (symmetric, its own inverse).
 SONAR_TO_IMAGE_QUAT_XYZW = (_S, 0.0, _S, 0.0)
 
-_EXTRA_HINT = "install the ROS extra: pip install 'sonarsim[ros]'"
 
 # Message definitions written from the field lists of marine_acoustic_msgs (BSD-3,
 # apl-ocean-engineering/marine_msgs); only the fields matter to the wire format and the type
@@ -218,6 +228,78 @@ class BagFrameIds:
                 )
         if len(set(names.values())) != 3:
             raise ConfigError("rosbag.frame_ids", f"the three frames must have distinct names, got {names}")
+
+
+_TOPIC_RE = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+@dataclass(frozen=True)
+class BagTopics:
+    """Topic of each message of a frame (defaults: :data:`TOPICS`).
+
+    Attributes
+    ----------
+    image, fan, pose, tf, points : str
+        ROS topic names (segments of letters, digits and '_', not starting with a digit,
+        joined by '/'; a leading '/' makes them absolute). ``tf`` stays ``/tf`` for tf2's
+        tools unless a stack remaps it.
+    """
+
+    image: str = TOPICS["image"]
+    fan: str = TOPICS["fan"]
+    pose: str = TOPICS["pose"]
+    tf: str = TOPICS["tf"]
+    points: str = TOPICS["points"]
+
+    def __post_init__(self) -> None:
+        names = dataclasses.asdict(self)
+        for key, name in names.items():
+            if not isinstance(name, str) or not _TOPIC_RE.match(name):
+                raise ConfigError(f"rosbag.topics.{key}", "must be a ROS topic name (segments of letters, digits "
+                                  f"and '_', not starting with a digit, joined by '/'), got {shown(name)}")
+        if len(set(names.values())) != len(names):
+            raise ConfigError("rosbag.topics", f"every message needs its own topic, got {names}")
+
+
+#: Keys of a scenario's ``rosbag`` section (and of :func:`bag_naming`).
+BAG_NAMING_KEYS = ("frame_ids", "topics")
+
+
+def bag_naming(doc: Any = None, key: str = "rosbag", **overrides: Mapping[str, str] | None
+               ) -> tuple[BagFrameIds, BagTopics]:
+    """The frame names and topics of a bag from a mapping such as a scenario's ``rosbag``
+    section (``{frame_ids: {world: map}, topics: {image: /oculus/image}}``), with ``overrides``
+    (``frame_ids=``, ``topics=``: mappings, e.g. from the command line) replacing its entries
+    name by name; what neither sets keeps its default.
+
+    Raises
+    ------
+    ConfigError
+        An unknown key or name (``rosbag.topics.imgae``), a value that is not a ROS name, or
+        two frames or topics with one name; the key named is under ``key``.
+    """
+    if doc is None:
+        doc = {}
+    if not isinstance(doc, Mapping):
+        raise ConfigError(key, f"must be a mapping with {' and/or '.join(BAG_NAMING_KEYS)}, got {shown(doc)}")
+    unknown = [k for k in doc if k not in BAG_NAMING_KEYS]
+    if unknown:
+        raise ConfigError(f"{key}.{unknown[0]}", f"unknown key; allowed: {', '.join(BAG_NAMING_KEYS)}")
+    parts: dict[str, dict[str, str]] = {}
+    for part, cls in (("frame_ids", BagFrameIds), ("topics", BagTopics)):
+        given = doc.get(part) or {}
+        if not isinstance(given, Mapping):
+            raise ConfigError(f"{key}.{part}", f"must be a mapping of names, got {shown(given)}")
+        merged = {**given, **(overrides.get(part) or {})}
+        allowed = [f.name for f in dataclasses.fields(cls)]
+        bad = [k for k in merged if k not in allowed]
+        if bad:
+            raise ConfigError(f"{key}.{part}.{bad[0]}", f"unknown name; allowed: {', '.join(allowed)}")
+        parts[part] = merged
+    try:
+        return BagFrameIds(**parts["frame_ids"]), BagTopics(**parts["topics"])
+    except ConfigError as exc:  # the dataclasses name rosbag.*; here the caller's key
+        raise ConfigError(key + exc.key[len("rosbag"):], exc.detail) from None
 
 
 # Time ---------------------------------------------------------------------------------------
@@ -539,6 +621,22 @@ def beam_directions(azimuth_deg: np.ndarray) -> np.ndarray:
     return np.stack([np.zeros_like(theta), -np.sin(theta), np.cos(theta)], axis=-1)
 
 
+def device_polar(image: SonarImage) -> np.ndarray:
+    """The polar image in the type the device sends: a sensor model's 8- or 16-bit output (whole
+    counts, held as float32 by the renderer) as uint8 or uint16, so that a bag carries
+    ``DTYPE_UINT8`` data as the real device's driver would; anything else (a render's intensity,
+    an expected output with fractional counts) as it is."""
+    polar = np.asarray(image.polar)
+    sensor = image.config.get("sensor") if isinstance(image.config, Mapping) else None
+    dtype = ((sensor.get("output") or {}).get("dtype") if isinstance(sensor, Mapping) else None)
+    if dtype not in ("uint8", "uint16") or polar.dtype.kind != "f":
+        return polar
+    top = np.iinfo(dtype).max
+    with np.errstate(invalid="ignore"):
+        whole = bool(np.all((polar >= 0) & (polar <= top) & (polar == np.round(polar))))
+    return polar.astype(dtype) if whole else polar
+
+
 def frame_from_image(
     image: SonarImage,
     stamp_ns: int,
@@ -587,7 +685,7 @@ def frame_from_image(
     return BagFrame(
         stamp_ns=stamp_ns,
         pose=image.pose,
-        polar=image.polar,
+        polar=device_polar(image),
         range_m=image.range_m,
         azimuth_deg=image.azimuth_deg,
         tx_beamwidth_deg=image.sonar.elevation_fov_deg,
@@ -614,7 +712,7 @@ def _import_rosbags() -> tuple[Any, Any, Any]:
         from rosbags.rosbag2 import StoragePlugin, Writer
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     except ImportError as exc:
-        raise SonarsimError(f"writing ROS 2 bags needs the 'rosbags' library ({exc}); {_EXTRA_HINT}") from None
+        raise SonarsimError(f"writing ROS 2 bags needs the 'rosbags' library ({exc}); {install_hint('ros')}") from None
     # Humble's definitions of the std/geometry/sensor/tf2 messages, which later distributions
     # kept unchanged; the marine_acoustic_msgs are not in any store and are added here.
     typestore = get_typestore(Stores.ROS2_HUMBLE)
@@ -637,6 +735,8 @@ class BagWriter:
         ``metadata.yaml`` (rosbag2 format version 9).
     frame_ids : BagFrameIds, optional
         Names of the world, sonar and image frames.
+    topics : BagTopics, optional
+        Topic of each message (default :data:`TOPICS`).
 
     Examples
     --------
@@ -654,7 +754,8 @@ class BagWriter:
     :meth:`abort`, the partial bag is deleted.
     """
 
-    def __init__(self, path: str | os.PathLike, storage: str = "mcap", frame_ids: BagFrameIds | None = None) -> None:
+    def __init__(self, path: str | os.PathLike, storage: str = "mcap", frame_ids: BagFrameIds | None = None,
+                 topics: BagTopics | None = None) -> None:
         if storage not in BAG_STORAGES:
             raise ConfigError("rosbag", f"storage must be one of {', '.join(BAG_STORAGES)}, got {storage!r}")
         self.path = Path(path)
@@ -662,6 +763,9 @@ class BagWriter:
         self.frame_ids = frame_ids if frame_ids is not None else BagFrameIds()
         if not isinstance(self.frame_ids, BagFrameIds):
             raise ConfigError("rosbag.frame_ids", f"must be a BagFrameIds, got {type(frame_ids).__name__}")
+        self.topics = topics if topics is not None else BagTopics()
+        if not isinstance(self.topics, BagTopics):
+            raise ConfigError("rosbag.topics", f"must be a BagTopics, got {type(topics).__name__}")
         self.frames_written = 0
         self._writer: Any = None
         self._tmp_dir: Path | None = None
@@ -781,7 +885,7 @@ class BagWriter:
             for key, msg in messages:
                 if key not in self._connections:
                     # Added at first use, so that a bag without fans or points lists no such topic.
-                    self._connections[key] = self._writer.add_connection(TOPICS[key], _MSGTYPES[key],
+                    self._connections[key] = self._writer.add_connection(getattr(self.topics, key), _MSGTYPES[key],
                                                                          typestore=self._typestore)
                 self._writer.write(self._connections[key], frame.stamp_ns,
                                    self._typestore.serialize_cdr(msg, _MSGTYPES[key]))

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core.interrupts import signals_deferred
+from ..image.levels import device_full_scale  # noqa: F401 (here before; figures use it)
 from ..io.output import to_uint8
 from .formats import FIGURE_FORMATS
 from .axes import azimuth_ticks_deg, draw_fan_frame, format_azimuth, range_rings_m
@@ -167,27 +168,6 @@ class Panel:
 
 
 # ---------------------------------------------------------------------------------- descriptions
-
-def device_full_scale(image: Any) -> float | None:
-    """Full-scale value of a device's output, or ``None`` for a render in intensity units.
-
-    A render through a sensor model (its configuration has a ``sensor`` section) gives the output
-    type's full scale (255, 65535, 1.0); a real recording 255 for 8-bit data and its frame's
-    maximum for wider data (as ``sonarsim show`` does).
-    """
-    config = getattr(image, "config", None) or {}
-    sensor = config.get("sensor")
-    if isinstance(sensor, dict):
-        dtype = (sensor.get("output") or {}).get("dtype", "uint8")
-        return {"uint8": 255.0, "uint16": 65535.0}.get(dtype, 1.0)
-    if "format" in config:  # a recording (sonarsim.io.readers)
-        bits = (config.get("header") or {}).get("bits_per_value", 8)
-        if bits == 8:
-            return 255.0
-        peak = float(np.max(image.polar)) if np.size(image.polar) else 0.0
-        return peak if peak > 0.0 else 1.0
-    return None
-
 
 def default_scale(image: Any, mapping: str | None = None, gain_db: float = 0.0,
                   dynamic_range_db: float = 40.0) -> DisplayScale:

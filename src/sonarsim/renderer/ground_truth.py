@@ -168,11 +168,16 @@ def require_label_maps(n_ids: int, max_order: int, n_rows: int, n_beams: int, co
     ConfigError
         Naming ``key``, the surfaces and orders, and the size against the budget.
     """
+    require(label_map_bytes(n_ids, max_order, n_rows, n_beams, components),
+            f"label maps of {n_ids} surfaces x {max_order} orders", key)
+
+
+def label_map_bytes(n_ids: int, max_order: int, n_rows: int, n_beams: int, components: bool = True) -> float:
+    """The most bytes a frame's label maps take (:func:`require_label_maps`'s parameters)."""
     n_maps = max_order + 1 if components else 1
     # Either route: per map, at worst a row of ids per cell (dense stacks, or the compiled
     # route's table if every cell were mixed), and four per-cell accumulators.
-    require((n_maps * n_ids * 4.0 + 4 * 8.0) * n_rows * n_beams, f"label maps of {n_ids} surfaces x {max_order} orders",
-            key)
+    return (n_maps * n_ids * 4.0 + 4 * 8.0) * n_rows * n_beams
 
 @dataclass(frozen=True)
 class LabelSpec:

@@ -70,17 +70,9 @@ def as_pose(pose: Any) -> Pose:
     return Pose.from_matrix(m)
 
 
-def require_frame_memory(scene: Scene, sonar: SonarConfig) -> None:
-    """Check what a frame of ``sonar`` in ``scene`` holds at once against the memory budget,
-    before any of it is allocated: its images, its rays (over a sensor's elevation span) and the
-    sensor's speckle and noise fields. Each is also checked alone where it is made; here their
-    sum (a scene whose parts each fit could still not fit together).
-
-    Raises
-    ------
-    ConfigError
-        Naming the key of the largest part.
-    """
+def frame_memory_parts(scene: Scene, sonar: SonarConfig) -> list[tuple[float, str, str]]:
+    """What a frame of ``sonar`` in ``scene`` holds at once: ``(bytes, what, key)`` for its images,
+    its rays (over a sensor's elevation span) and the sensor's speckle and noise fields."""
     spec, render = scene.sensor, scene.render
     traced = sonar
     parts = [(image_bytes(sonar.n_range_bins, sonar.n_beams), "images", "sonar.n_range_bins")]
@@ -97,7 +89,20 @@ def require_frame_memory(scene: Scene, sonar: SonarConfig) -> None:
     if legs:
         parts.append((legs, f"path legs ({render.max_order + (1 if render.glints else 0)} generations)",
                       "render.max_order"))
-    require_together(parts, f"a frame of {sonar.n_range_bins} x {sonar.n_beams}")
+    return parts
+
+
+def require_frame_memory(scene: Scene, sonar: SonarConfig) -> None:
+    """Check what a frame of ``sonar`` in ``scene`` holds at once (:func:`frame_memory_parts`)
+    against the memory budget, before any of it is allocated. Each part is also checked alone
+    where it is made; here their sum (a scene whose parts each fit could still not fit together).
+
+    Raises
+    ------
+    ConfigError
+        Naming the key of the largest part.
+    """
+    require_together(frame_memory_parts(scene, sonar), f"a frame of {sonar.n_range_bins} x {sonar.n_beams}")
 
 
 #: Time to form a path signature's image, per pixel (compiled kernels: the splat, the copy of

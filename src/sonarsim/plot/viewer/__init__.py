@@ -12,12 +12,13 @@ from __future__ import annotations
 
 from types import ModuleType
 
+from ...core.extras import install_hint
 from ...errors import SonarsimError
 
 __all__ = ["VIEWER_EXTRA_MESSAGE", "require_viser"]
 
 #: What ``sonarsim view`` says when viser is not installed.
-VIEWER_EXTRA_MESSAGE = "install the viewer extra: pip install 'sonarsim[viewer]'"
+VIEWER_EXTRA_MESSAGE = install_hint("viewer")  # (a clone's pip install -e, or the package's extra)
 
 
 def require_viser() -> ModuleType:
