@@ -89,7 +89,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .show import add_show_parser
     from .view import add_view_parser
 
-    parser = argparse.ArgumentParser(
+    from .argtypes import Parser
+
+    # (values that begin with a minus, --extent -1,3,0,1, in every sub-command: see Parser)
+    parser = Parser(
         prog="sonarsim",
         description="Simulate 2D forward-looking sonar images (with ground echoes) from 3D scenes.",
     )
