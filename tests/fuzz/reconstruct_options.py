@@ -100,7 +100,8 @@ def make_files(folder: Path) -> Path:
     np.savez(folder / "zero.npz", **{**members, "polar": np.zeros_like(members["polar"])})
     (folder / "noise.npz").write_bytes(np.random.default_rng(0).bytes(4096))
     one = {"position_m": [0, 0, 1], "rpy_deg": [0, 25, 0]}
-    for name, value in (("poses1.yaml", [one]), ("poses2.yaml", [one, {"position_m": [0, -0.5, 1], "rpy_deg": [0, 25, 12]}]),
+    two = [one, {"position_m": [0, -0.5, 1], "rpy_deg": [0, 25, 12]}]
+    for name, value in (("poses1.yaml", [one]), ("poses2.yaml", two),
                         ("far.yaml", [{"position_m": [1e6, 0, 1], "rpy_deg": [0, 25, 0]}] * 3),
                         ("away.yaml", [{"position_m": [0, 0, 1], "rpy_deg": [0, 25, 180]}] * 3),
                         ("three.yaml", [one] * 3), ("mapping.yaml", one)):

@@ -58,6 +58,9 @@ SMOOTHNESS_RANGE = (0.0, 1e3)
 #: Memory per grid vertex held once: the grid mesh and its copies, the optimiser's L-BFGS
 #: history and bounds, the gradient and the smoothness term's temporaries.
 BYTES_PER_VERTEX = 1800.0
+#: Memory per grid vertex of the mesh alone (:func:`grid_mesh`: vertices, two faces, the
+#: coordinate grids and the trimesh's copies).
+BYTES_PER_MESH_VERTEX = 200.0
 #: Memory per grid vertex per view: the view's scene (the floor's triangles built for ray
 #: tracing, the renderer's copy of its faces) and its search's tables.
 BYTES_PER_VERTEX_VIEW = 1000.0
@@ -128,6 +131,39 @@ def check_smoothness(smoothness: float, key: str = "smoothness") -> float:
     return value
 
 
+def _vertices(f: float) -> int:
+    """Vertices along a side of ``f - 1`` cells (a float; 1e300 stays an int Python holds)."""
+    return int(round(f - 1.0)) + 1 if math.isfinite(f) else 2**62
+
+
+def _grid_counts(extent: Sequence[float], resolution: float, keys: tuple[str, str]):
+    """The extent and the resolution checked, and the vertices along x and y as floats (a
+    resolution of 1e-300 m is 1e300 vertices, no integer to allocate): ``x0, x1, y0, y1, res,
+    fx, fy``; see :func:`plan_grid` for the refusals."""
+    extent_key, resolution_key = keys
+    try:
+        x0, x1, y0, y1 = (float(v) for v in extent)
+    except (TypeError, ValueError):
+        raise ConfigError(extent_key, f"must be four numbers x0, x1, y0, y1, got {extent!r}") from None
+    if not all(math.isfinite(v) and abs(v) <= MAX_COORDINATE_M for v in (x0, x1, y0, y1)):
+        raise ConfigError(extent_key, f"must lie within {MAX_COORDINATE_M:g} m of the origin, got "
+                          f"{x0:g},{x1:g},{y0:g},{y1:g}")
+    if not (x1 > x0 and y1 > y0):
+        raise ConfigError(extent_key, f"must be x0 < x1 and y0 < y1 (metres), got {x0:g},{x1:g},{y0:g},{y1:g}")
+    try:
+        res = float(resolution)
+    except (TypeError, ValueError):
+        res = math.nan
+    if not (math.isfinite(res) and res > 0):
+        raise ConfigError(resolution_key, f"must be a positive number of metres, got {resolution!r}")
+    fx, fy = (x1 - x0) / res + 1.0, (y1 - y0) / res + 1.0
+    # (the vertices are round(side / resolution) + 1: below half a cell, a side has one)
+    if min(_vertices(fx), _vertices(fy)) < 2:
+        raise ConfigError(resolution_key, f"{res:g} m leaves fewer than two vertices along a side of the "
+                          f"{x1 - x0:g} m x {y1 - y0:g} m extent; allowed: less than {2 * min(x1 - x0, y1 - y0):g} m")
+    return x0, x1, y0, y1, res, fx, fy
+
+
 def plan_grid(extent: Sequence[float], resolution: float, views: int, scene=None, levels: int = 2,
               keys: tuple[str, str] = ("extent", "resolution")) -> GridPlan:
     """The grid over ``extent`` at ``resolution`` and what reconstructing it from ``views``
@@ -161,25 +197,7 @@ def plan_grid(extent: Sequence[float], resolution: float, views: int, scene=None
         budget and how to raise it).
     """
     extent_key, resolution_key = keys
-    try:
-        x0, x1, y0, y1 = (float(v) for v in extent)
-    except (TypeError, ValueError):
-        raise ConfigError(extent_key, f"must be four numbers x0, x1, y0, y1, got {extent!r}") from None
-    if not all(math.isfinite(v) and abs(v) <= MAX_COORDINATE_M for v in (x0, x1, y0, y1)):
-        raise ConfigError(extent_key, f"must lie within {MAX_COORDINATE_M:g} m of the origin, got {x0:g},{x1:g},{y0:g},{y1:g}")
-    if not (x1 > x0 and y1 > y0):
-        raise ConfigError(extent_key, f"must be x0 < x1 and y0 < y1 (metres), got {x0:g},{x1:g},{y0:g},{y1:g}")
-    try:
-        res = float(resolution)
-    except (TypeError, ValueError):
-        res = math.nan
-    if not (math.isfinite(res) and res > 0):
-        raise ConfigError(resolution_key, f"must be a positive number of metres, got {resolution!r}")
-    # Counted in floats first: a resolution of 1e-300 m is 1e300 vertices, no integer to allocate.
-    fx, fy = (x1 - x0) / res + 1.0, (y1 - y0) / res + 1.0
-    if min(fx, fy) < 1.5:
-        raise ConfigError(resolution_key, f"{res:g} m leaves fewer than two vertices along a side of the "
-                          f"{x1 - x0:g} m x {y1 - y0:g} m extent; allowed: up to {min(x1 - x0, y1 - y0):g} m")
+    x0, x1, y0, y1, res, fx, fy = _grid_counts(extent, resolution, keys)
     vertices = fx * fy
     triangles = 2.0 * (fx - 1.0) * (fy - 1.0)
     views = max(int(views), 1)
@@ -197,7 +215,7 @@ def plan_grid(extent: Sequence[float], resolution: float, views: int, scene=None
     what = f"{shape} ({res:g} m over {x1 - x0:g} m x {y1 - y0:g} m) seen by {views} view(s)"
     require(nbytes, what, resolution_key)
     require_time(seconds, f"searching {what} at least {searches} times each", resolution_key)
-    return GridPlan(int(round(fx)), int(round(fy)), views, int(round(triangles)), nbytes, seconds)
+    return GridPlan(_vertices(fx), _vertices(fy), views, int(min(triangles, 2**62)), nbytes, seconds)
 
 
 def out_of_reach(scene, poses: Sequence[Pose], extent: Sequence[float]) -> list[tuple[int, float]]:
@@ -313,11 +331,12 @@ def grid_axes(extent: Sequence[float], resolution: float) -> tuple[np.ndarray, n
     Raises
     ------
     ConfigError
-        As :func:`plan_grid` (sized against the memory budget as one view's grid).
+        As :func:`plan_grid`'s for the extent and the resolution; a grid whose mesh alone
+        (:data:`BYTES_PER_MESH_VERTEX`) is beyond the memory budget.
     """
-    plan = plan_grid(extent, resolution, 1)
-    x0, x1, y0, y1 = map(float, extent)
-    return np.linspace(x0, x1, plan.nx), np.linspace(y0, y1, plan.ny)
+    x0, x1, y0, y1, res, fx, fy = _grid_counts(extent, resolution, ("extent", "resolution"))
+    require(fx * fy * BYTES_PER_MESH_VERTEX, f"a grid of {fx:.3g} x {fy:.3g} vertices ({res:g} m)", "resolution")
+    return np.linspace(x0, x1, _vertices(fx)), np.linspace(y0, y1, _vertices(fy))
 
 
 def grid_mesh(extent: Sequence[float], resolution: float, heights: np.ndarray | None = None):
