@@ -88,10 +88,17 @@ def test_sizes_are_refused_before_anything_is_built(capsys, files, nothing_built
 
 
 def test_the_budgets_given_are_the_ones_checked(capsys, files, nothing_built):
-    # 161 x 201 vertices, one view: (1800 + 1000) bytes each = 0.0844 GiB; 64,000 triangles x 5
-    # searches x 16 us = 5.1 s.
+    # 161 x 201 vertices, one view: (1800 + 1000) bytes each, and the view's rays and images;
+    # 64,000 triangles x 5 searches x 16 us = 5.1 s.
+    from sonarsim.config.loader import load_scene
+    from sonarsim.config.sonar import image_bytes
+    from sonarsim.core.rays import ray_bytes
+
+    scene = load_scene(files / "start.yaml")
+    view = ray_bytes(scene.sonar, scene.render) + image_bytes(200, 128)
     line = _refused(capsys, files, "--extent", EXTENT, "--resolution", "0.01", budgets=("--max-memory", "64M"))
-    assert "201 x 161 vertices" in line and "0.0844 GiB" in line and "0.0625 GiB" in line
+    assert "201 x 161 vertices" in line and f"{(201 * 161 * 2800 + view) / 2**30:.3g} GiB" in line, line
+    assert "0.0625 GiB" in line
     line = _refused(capsys, files, "--extent", EXTENT, "--resolution", "0.01", budgets=("--max-build-time", "2"))
     assert "about 5.12 s" in line and "budget of 2 s" in line and "--max-build-time" in line
 

@@ -178,7 +178,8 @@ def plan_grid(extent: Sequence[float], resolution: float, views: int, scene=None
     views : int
         Images (each has its renderer and its searches).
     scene : Scene, optional
-        Its objects are built with the floor in every view's scene (:func:`sonarsim.scene.cost.scene_cost`).
+        Every view holds its sonar's rays and images (:func:`sonarsim.core.rays.ray_bytes`), and
+        its objects built with the floor (:func:`sonarsim.scene.cost.scene_cost`).
     levels : int
         Blur levels (each refreshes every view's search at least twice).
     keys : (str, str)
@@ -202,11 +203,18 @@ def plan_grid(extent: Sequence[float], resolution: float, views: int, scene=None
     triangles = 2.0 * (fx - 1.0) * (fy - 1.0)
     views = max(int(views), 1)
     obj_bytes = obj_seconds = 0.0
+    if scene is not None:
+        from ..config.sonar import image_bytes
+        from ..core.rays import ray_bytes
+
+        # Each view's simulator: its ray fan and its frame's images; and the scene's objects.
+        sonar = scene.sonar
+        obj_bytes = float(ray_bytes(sonar, scene.render) + image_bytes(sonar.n_range_bins, sonar.n_beams))
     if scene is not None and scene.objects:
         from ..scene.cost import scene_cost
 
         cost = scene_cost(replace(scene, ground=None))
-        obj_bytes, obj_seconds = cost.bytes, cost.seconds
+        obj_bytes, obj_seconds = obj_bytes + cost.bytes, cost.seconds
     nbytes = vertices * (BYTES_PER_VERTEX + views * BYTES_PER_VERTEX_VIEW) + views * obj_bytes
     searches = min_searches(levels)
     seconds = views * searches * (triangles * SECONDS_PER_TRIANGLE_SEARCH + obj_seconds)
