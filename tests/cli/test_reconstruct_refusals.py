@@ -171,3 +171,29 @@ def test_the_seen_threshold():
     with pytest.raises(rec.ReconstructionRefused, match="fewer than the 10 needed"):
         rec.seen_enough(seen, "x")
     assert rec.ReconstructionRefused.exit_status == 3
+
+
+def test_the_library_refuses_the_same_before_building(files, monkeypatch):
+    from sonarsim.analysis.comparison import load_image
+    from sonarsim.config.loader import load_scene
+    from sonarsim.errors import ConfigError
+
+    def built(*args, **kwargs):
+        raise AssertionError("the grid was built before the refusal")
+
+    monkeypatch.setattr(rec, "grid_mesh", built)
+    scene = load_scene(files / "start.yaml")
+    view = load_image(files / "view.npz")
+    far = Pose((1e6, 0.0, 1.0), (0.0, 25.0, 0.0))
+    cases = [
+        ([view.polar], [view.pose], {"smoothness": -10.0}, ConfigError, "smoothness: must be a number from 0"),
+        ([np.zeros_like(view.polar)], [view.pose], {}, rec.ReconstructionRefused, "images[0]: holds no echo"),
+        ([np.full_like(view.polar, np.nan)], [view.pose], {}, ConfigError, "images[0]: must be a finite 2D image"),
+        ([view.polar], [far], {}, rec.ReconstructionRefused, "no view can see the extent"),
+        ([view.polar], [view.pose], {"resolution": 1e-300}, ConfigError, "resolution: a grid of"),
+    ]
+    for images, poses, kwargs, error, words in cases:
+        kwargs = {"resolution": 0.1, **kwargs}
+        with pytest.raises(error) as e:
+            rec.reconstruct_heights(scene, images, poses, (1.0, 3.0, -0.8, 0.8), **kwargs)
+        assert words in str(e.value), str(e.value)
