@@ -1,9 +1,36 @@
-"""argparse value types shared by the sub-commands: each names what it expected."""
+"""argparse value types shared by the sub-commands: each names what it expected; and the
+parser class every command's parser is (:class:`Parser`: values that begin with a minus)."""
 
 from __future__ import annotations
 
 import argparse
 import math
+import re
+
+#: A token that is a value, not an option, though it begins with a minus: a number in any form
+#: Python's ``float`` reads (``-1``, ``-.5``, ``-1e20``, ``-inf``, ``-nan``) or a comma list
+#: that begins with one (``-1,3,-0.8,0.8``). No option of sonarsim's begins with a minus and
+#: a digit or spells a number.
+NEGATIVE_VALUE = re.compile(r"^-(?:\.?[0-9]|(?:inf|infinity|nan)(?:,|$))", re.IGNORECASE)
+
+
+class Parser(argparse.ArgumentParser):
+    """``argparse.ArgumentParser`` that takes ``--extent -1,3,-0.8,0.8`` and ``--start-time
+    -1e20`` as an option and its value, as it takes ``--gain-db -5``.
+
+    argparse reads a token that begins with a minus as an option unless it is a plain decimal
+    (``-5``, ``-0.5``): ``--extent -1,3,...`` then ends in "expected one argument". This
+    parser reads every token in :data:`NEGATIVE_VALUE`'s form as a value, so that each option
+    that takes a number or a list of numbers accepts a leading minus in the separate-token
+    form too, in every sub-command (``add_subparsers`` makes its parsers of this class). The
+    value then meets the option's own check, which says what is allowed.
+    """
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        # argparse's hook for "looks like a negative number" (its own pattern takes only
+        # plain decimals); set before any option is added, so that none is mistaken for one.
+        self._negative_number_matcher = NEGATIVE_VALUE
 
 
 def positive_float(text: str) -> float:

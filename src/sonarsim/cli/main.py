@@ -89,7 +89,10 @@ def build_parser() -> argparse.ArgumentParser:
     from .show import add_show_parser
     from .view import add_view_parser
 
-    parser = argparse.ArgumentParser(
+    from .argtypes import Parser
+
+    # (values that begin with a minus, --extent -1,3,0,1, in every sub-command: see Parser)
+    parser = Parser(
         prog="sonarsim",
         description="Simulate 2D forward-looking sonar images (with ground echoes) from 3D scenes.",
     )
@@ -100,9 +103,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="memory budget that sizes are checked against before allocating, e.g. 4G "
                         "(default: $SONARSIM_MAX_MEMORY, else 8 GiB or 80%% of the machine's memory)")
     parser.add_argument("--max-build-time", type=_seconds, default=None, metavar="SECONDS",
-                        help="time budget that building a scene (its objects and triangles, a mesh file) is "
-                        "estimated against before it starts, e.g. 300 or 5min (default: $SONARSIM_MAX_BUILD_TIME, "
-                        "else 120 s)")
+                        help="time budget that building a scene (its objects and triangles, a mesh file) and a "
+                        "reconstruction's searches of its grid are estimated against before they start, e.g. 300 or "
+                        "5min (default: $SONARSIM_MAX_BUILD_TIME, else 120 s)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     add_render_parser(sub)

@@ -55,7 +55,8 @@ def add_reconstruct_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--poses", default=None, help="YAML or JSON list of {position_m, rpy_deg}, one per image "
                    "(default: each render.npz's own pose)")
     p.add_argument("--truth", default=None, help="a mesh file of the true floor: the figure shows the error")
-    p.add_argument("--smoothness", type=float, default=1e-3, help="weight of the heights' smoothness (default 1e-3)")
+    p.add_argument("--smoothness", type=float, default=1e-3, help="weight of the heights' smoothness, from 0 (the "
+                   "images alone) to 1000 (a level floor) (default 1e-3)")
     p.add_argument("--reflectivity", action="store_true", help="also fit the floor's reflectivity per grid vertex "
                    "(relative to the scene ground's albedo; written as `reflectivity` and shown in the figure)")
     p.set_defaults(func=cmd_reconstruct)
@@ -95,6 +96,42 @@ def truth_heights(path: str, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return z.reshape(gx.shape)
 
 
+def _images(paths: list[str]) -> list:
+    """The images, each refused by file where it is not finite (exit 2) or holds no echo (exit 3)."""
+    from ..analysis.comparison import load_image
+    from ..diff.reconstruct import ReconstructionRefused
+
+    images = []
+    for path in paths:
+        img = load_image(path)
+        polar = np.asarray(img.polar, float)
+        bad = ~np.isfinite(polar)
+        if bad.any():
+            rows = np.flatnonzero(bad.any(axis=1))
+            raise SonarsimError(f"{path} (frame 0): {int(bad.sum())} pixels are NaN or infinite, in {len(rows)} "
+                                f"range bins from {rows[0]} to {rows[-1]}: give images of finite values")
+        if not np.any(polar > 0):
+            raise ReconstructionRefused(f"{path} (frame 0): holds no echo (no pixel above 0): nothing to "
+                                        "reconstruct from")
+        images.append(img)
+    return images
+
+
+def _truth(path: str, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``--truth`` read and laid on the grid before any reconstruction: a mesh that is missing,
+    unreadable or covers none of the grid is refused by name."""
+    from ..errors import MeshFileError
+
+    try:
+        z = truth_heights(path, x, y)
+    except MeshFileError as exc:
+        raise SonarsimError(f"--truth: {exc}") from None
+    if not np.isfinite(z).any():
+        raise SonarsimError(f"--truth: {path}: the mesh lies over none of the grid's vertices (--extent "
+                            f"{x[0]:g},{x[-1]:g},{y[0]:g},{y[-1]:g}): give the true floor under the extent")
+    return z
+
+
 def cmd_reconstruct(args) -> None:
     import importlib.util
 
@@ -102,31 +139,41 @@ def cmd_reconstruct(args) -> None:
         raise SonarsimError("sonarsim reconstruct needs the differentiable engine (JAX): pip install 'sonarsim[diff]'")
     from dataclasses import replace
 
-    from ..analysis.comparison import load_image
     from ..config.loader import load_scene
     from ..diff import enable_compilation_cache
-    from ..diff.reconstruct import reconstruct_heights
+    from ..diff.reconstruct import (ReconstructionRefused, check_smoothness, grid_axes, out_of_reach, plan_grid,
+                                    reconstruct_heights)
     from ..io.output import atomic_write
     from ..io.run_record import OutputRun, record_beside
 
+    # Everything the user gave is checked, and the cost estimated against the budgets, before
+    # anything is built: a run of minutes must not end in a refusal of its options.
+    smoothness = check_smoothness(args.smoothness, "--smoothness")
+    scene = load_scene(args.scene)
+    plan_grid(args.extent, args.resolution, len(args.images), scene, keys=("--extent", "--resolution"))
     out = Path(args.out)
     figure = out.with_name(out.stem + "_figure.png")
     run = OutputRun(record_beside(out), [(out, "--out"), (figure, "--out")], command=getattr(args, "command_line", None))
-    images = [load_image(path) for path in args.images]
+    images = _images(args.images)
     grids = {(img.polar.shape, tuple(np.round(img.range_m[[0, -1]], 9))) for img in images}
     if len(grids) != 1:
         raise SonarsimError("the images have different grids (range bins, beams): give images of one sonar")
     poses = _poses(args, images)
-    scene = load_scene(args.scene)
     if images[0].sonar is not None:
         scene = replace(scene, sonar=replace(images[0].sonar, elevation_fov_deg=scene.sonar.elevation_fov_deg))
+    far = out_of_reach(scene, poses, args.extent)
+    if len(far) == len(poses):
+        k, distance = min(far, key=lambda f: f[1])
+        raise ReconstructionRefused(
+            f"no image can see --extent: the nearest, {args.images[k]}, was taken {distance:.1f} m from it, beyond "
+            f"the sonar's range of {scene.sonar.range_max_m:g} m (check --poses or the images' poses, and --extent)")
+    truth = _truth(args.truth, *grid_axes(args.extent, args.resolution)) if args.truth else None
     enable_compilation_cache()
     result = reconstruct_heights(scene, [img.polar for img in images], poses, args.extent, args.resolution,
-                                 smoothness=args.smoothness, reflectivity=args.reflectivity,
+                                 smoothness=smoothness, reflectivity=args.reflectivity,
                                  progress=lambda sigma, loss: print(
                                      f"sonarsim reconstruct: blur {sigma[0]:g} x {sigma[1]:g}: loss {loss:.4g}",
                                      file=sys.stderr, flush=True))
-    truth = truth_heights(args.truth, result.x_m, result.y_m) if args.truth else None
     with run:
         extra = {} if result.reflectivity is None else {"reflectivity": result.reflectivity}
         with atomic_write(out, "wb") as f:
@@ -137,8 +184,11 @@ def cmd_reconstruct(args) -> None:
     line = f"{result.seen.sum()} of {result.seen.size} grid vertices seen by {len(images)} image(s), {result.seconds:.1f} s"
     if truth is not None:
         ok = result.seen & np.isfinite(truth)
-        rms = float(np.sqrt(np.mean((result.heights_m - truth)[ok] ** 2))) if ok.any() else float("nan")
-        line += f"; RMS height error over the seen vertices {rms:.4f} m"
+        if ok.any():
+            rms = float(np.sqrt(np.mean((result.heights_m - truth)[ok] ** 2)))
+            line += f"; RMS height error over the {int(ok.sum())} seen vertices under --truth {rms:.4f} m"
+        else:
+            line += "; no seen vertex lies under the --truth mesh: no height error to give"
     print(line)
     print(f"sonarsim: wrote {out} and {figure}", file=sys.stderr)
 

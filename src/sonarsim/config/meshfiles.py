@@ -131,6 +131,8 @@ def _load_mesh_file_cached(path: str, mtime_ns: int, size: int, texture: bool = 
     except Exception as exc:  # trimesh raises many types for unreadable files
         if resolver.refused:
             raise MeshFileError(f"{path}: refers to {resolver.refused[0]}") from None
+        if isinstance(exc, IndexError):  # (trimesh's words for a face past the vertices: numpy's)
+            raise MeshFileError(f"{path}: a face refers to a vertex the file does not define ({exc})") from None
         raise MeshFileError(f"{path}: cannot read mesh ({type(exc).__name__}: {exc})") from None
     if resolver.refused:
         raise MeshFileError(f"{path}: refers to {resolver.refused[0]}")
