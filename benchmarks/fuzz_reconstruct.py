@@ -56,6 +56,7 @@ def run(cases: int, seed: int, real_every: int, progress: bool = True) -> dict:
     return {
         "cases": summary.cases,
         "seed": seed,
+        "real_every": real_every,
         "by_hostile_aspect": dict(sorted(by_aspect.items())),
         "by_exit_status": {str(k): v for k, v in sorted(summary.by_status.items())},
         "written": summary.written,

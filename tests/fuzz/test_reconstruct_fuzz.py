@@ -14,9 +14,9 @@ pytest.importorskip("jax")
 from tests.fuzz import reconstruct_options as fuzz  # noqa: E402
 from tests.fuzz.reconstruct_options import Case, Summary, check_case, generate_cases, make_files  # noqa: E402
 
-# 2 x 150 cases with the reconstruction's stand-in: about 30 s here (2 shared cores).
+# 2 x 100 cases with the reconstruction's stand-in: about 20 s here (2 shared cores, loaded).
 SEEDS = (1, 2)
-CASES_PER_SEED = 150
+CASES_PER_SEED = 100
 
 
 @pytest.fixture(scope="module")

@@ -45,12 +45,16 @@ def add_reconstruct_parser(sub) -> argparse.ArgumentParser:
         description="Reconstruct the sea floor's heights over --extent, on a grid of --resolution metres, from "
         "one or more images (render.npz files, which carry their sonar pose, or recordings with --poses) by "
         "gradient with the differentiable engine. Writes heights_m, x_m, y_m, seen and loss to --out (NPZ) and "
-        "a figure beside it (start | reconstructed | error with --truth).",
+        "a figure beside it (start | reconstructed | error with --truth). Exit status 3 when the result would "
+        "mean nothing: an image without echo, no view within range of the extent, or views that see fewer than "
+        "4 of its vertices or 1%% of them.",
     )
     p.add_argument("images", nargs="+", help="render.npz files (their poses are read) or recordings (with --poses)")
     p.add_argument("--scene", required=True, help="the starting scene (its sonar, objects; its ground is replaced)")
     p.add_argument("--extent", required=True, type=_extent, help="x0,x1,y0,y1 of the floor to reconstruct, metres")
-    p.add_argument("--resolution", required=True, type=_resolution, help="grid spacing, metres")
+    p.add_argument("--resolution", required=True, type=_resolution, help="grid spacing, metres; the grid's memory and "
+                   "time (with the views and the scene) are estimated and checked against --max-memory and "
+                   "--max-build-time before anything is built")
     p.add_argument("--out", required=True, help="where to write the heights (NPZ)")
     p.add_argument("--poses", default=None, help="YAML or JSON list of {position_m, rpy_deg}, one per image "
                    "(default: each render.npz's own pose)")
