@@ -319,3 +319,17 @@ def test_bad_arguments_raise_value_error(kwargs: dict, match: str) -> None:
 def test_fan_geometry_rejects_bad_pixel_size() -> None:
     with pytest.raises(ValueError, match="pixel_size_m"):
         fan_geometry(1.0, 10.0, AZ_UNIFORM, 0)
+
+
+def test_ids_resample_an_integer_map_as_the_float_nearest_mapping_does():
+    from sonarsim.image.fan import FanMapper
+
+    rng = np.random.default_rng(0)
+    n_r, n_b = 40, 9
+    mapper = FanMapper(n_r, 1.0, 5.0, np.linspace(10, -10, n_b), interpolation="nearest")
+    ids = rng.integers(-1, 5, (n_r, n_b)).astype(np.int32)
+    via_float = mapper(ids.astype(np.float32) + 1.0).image.astype(np.int32) - 1
+    np.testing.assert_array_equal(mapper.ids(ids), via_float)
+    assert (mapper.ids(ids, fill=-7)[~mapper.mask] == -7).all()
+    with pytest.raises(ValueError, match="nearest"):
+        FanMapper(n_r, 1.0, 5.0, np.linspace(10, -10, n_b)).ids(ids)  # a linear mapper blends ids

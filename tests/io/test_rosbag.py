@@ -440,3 +440,27 @@ def test_a_bag_is_byte_identical_when_written_again(tmp_path, storage):
     assert names == sorted(p.name for p in b.iterdir()) and "metadata.yaml" in names
     for name in names:
         assert (a / name).read_bytes() == (b / name).read_bytes(), name
+
+
+def test_an_8_bit_devices_image_is_bagged_as_uint8_and_its_fan_as_mono8(tmp_path):
+    # Issue 37: a sensor model's 8-bit output was written as float32 (DTYPE_FLOAT32).
+    scene = {"sonar": sonar_dict(n_range_bins=100), "render": {"elevation_samples": 8},
+             "sensor": {"preset": "aris3000-64"},
+             "objects": [{"name": "block", "primitive": "box", "size_m": [0.4, 0.4, 0.4],
+                          "pose": {"position_m": [2.5, 0.3, 0.0]}}]}
+    sim = sonarsim.Simulator(scene)
+    image = sim.render()
+    assert image.polar.dtype == np.float32 and np.array_equal(image.polar, np.round(image.polar))
+    frame = frame_from_image(image, stamp_ns=rb.DEFAULT_START_NS, fan=True)
+    assert frame.polar.dtype == np.uint8 and frame.fan.dtype == np.uint8
+    np.testing.assert_array_equal(frame.polar, image.polar.astype(np.uint8))
+    topics = read_bag(write_bag(tmp_path / "rosbag", "mcap", [frame]))
+    msg = topics["/sonar/image"][0][2]
+    assert msg.image.dtype == 0  # DTYPE_UINT8
+    data = np.asarray(msg.image.data, dtype=np.uint8).reshape(-1, msg.image.beam_count)
+    np.testing.assert_array_equal(data, image.polar.astype(np.uint8))
+    fan = topics["/sonar/fan"][0][2]
+    assert fan.encoding == "mono8"
+    # The expected output (a mean over the speckle: fractional counts) stays float32.
+    expected = sim.render(speckle=False)
+    assert rb.device_polar(expected).dtype == np.float32

@@ -75,7 +75,7 @@ def rle(ids: np.ndarray, k: int, box: Any = None) -> tuple[dict[str, Any], int]:
     c0, c1 = (0, w - 1) if box is None else (int(box[1]), int(box[3]))
     # Column-major over the columns of the box; the columns before and after it are background.
     inside = (ids[:, c0:c1 + 1] == k).T.reshape(-1)
-    edges = np.flatnonzero(np.diff(inside.astype(np.int8))) + 1
+    edges = np.flatnonzero(inside[1:] != inside[:-1]) + 1
     bounds = np.concatenate([[0], edges, [inside.size]])
     runs = np.diff(bounds).tolist()
     if inside.size and inside[0]:

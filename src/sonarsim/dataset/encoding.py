@@ -203,8 +203,8 @@ def _annotated(id_map: np.ndarray, image: Any, n_objects: int, names: tuple[str,
     if not present:
         return []
     if coco == "fan":
-        # Ids + 1 in float32 (exact below 2**24), resampled by nearest neighbour as the boxes are.
-        pixels = _fan_mapper(grid, None, "nearest")(id_map.astype(np.float32) + 1.0).image.astype(np.int32) - 1
+        # Resampled by nearest neighbour, as the boxes are.
+        pixels = _fan_mapper(grid, None, "nearest").ids(id_map)
     else:
         pixels = id_map[::-1]  # the polar PNG: far range at the top
     out = []

@@ -10,9 +10,13 @@
 checksum; ``spec_sha256`` is :func:`spec_digest` of the frame's :class:`FrameSpec` (index, seed,
 time, pose, scene), so a line made by another scenario is recognised; ``check`` is the sha256 of
 the line's other keys (canonical JSON: sorted keys, no spaces), so a damaged line is recognised
-even when it still parses. ``boxes`` (with ground truth): per object that dominates some cells,
-``{"id", "name", "polar": [bin_min, beam_min, bin_max, beam_max], "fan": [row_min, col_min,
-row_max, col_max]}``, inclusive pixel indices.
+even when it still parses. ``boxes`` (with ground truth): per object whose direct echo (the
+renderer's ``object`` instance map) dominates some cells, ``{"id", "name", "polar": [bin_min,
+beam_min, bin_max, beam_max], "fan": [row_min, col_min, row_max, col_max], "segmentation",
+"area"}`` (inclusive pixel indices; the object's pixels in the image ``coco.json`` names as
+COCO's uncompressed RLE, and their count: :mod:`sonarsim.dataset.coco`); ``ghosts`` (with the
+``ghosts`` option): the same per object and path signature of its multipath echoes, each with
+its ``path``.
 
 While frames are being made, lines are appended in the order frames finish, each written with
 one ``write`` and flushed to disk (``fsync``) before the next frame is committed; a run killed

@@ -555,6 +555,30 @@ class FanMapper:
             pixel_size_m=self.pixel_size_m,
         )
 
+    def ids(self, polar_ids: np.ndarray, fill: int = -1) -> np.ndarray:
+        """An integer map (instance ids) on the polar grid resampled to the fan by nearest
+        neighbour, without a round trip through float32 (a ``nearest`` mapper only).
+
+        Parameters
+        ----------
+        polar_ids : (n_range_bins, n_beams) int array
+        fill : int
+            The value outside the fan.
+
+        Returns
+        -------
+        (height, width) int32 ndarray
+        """
+        if self.interpolation != "nearest":
+            raise ValueError(f"ids() resamples by nearest neighbour: build the mapper with interpolation='nearest', "
+                             f"not {self.interpolation!r}")
+        arr = np.asarray(polar_ids)
+        if arr.dtype.kind not in "iu" or arr.shape != self.polar_shape:
+            raise ValueError(f"polar_ids must be integers of shape {self.polar_shape}, got {arr.dtype} {arr.shape}")
+        out = np.full(self.shape[0] * self.shape[1], fill, dtype=np.int32)
+        out[self._dest] = arr.reshape(-1)[self._src]
+        return out.reshape(self.shape)
+
     def __repr__(self) -> str:
         return (
             f"FanMapper(polar_shape={self.polar_shape}, shape={self.shape}, "

@@ -656,7 +656,8 @@ def frame_from_image(
     stamp_ns : int
         Transmit time, nanoseconds since 1970 (> 0; see :class:`BagFrame`).
     fan : bool or (height, width) ndarray, optional
-        ``True``: the image's default fan (:meth:`SonarImage.fan`); an array: that fan image.
+        ``True``: the image's default fan (:meth:`SonarImage.fan`: float32, ``32FC1``; an
+        8-bit device's in its counts, ``mono8``); an array: that fan image.
     points_world, points_object : ndarray, optional
         Ground-truth points, (n, 3) float32 world frame and (n,) int32 object ids.
     frequency_hz : float, optional
@@ -681,11 +682,19 @@ def frame_from_image(
         frequency_hz = 1000.0 * float(khz) if khz else 0.0
     if sound_speed_m_s is None:
         sound_speed_m_s = float(sensor.get("sound_speed_m_s") or SensorSpec().sound_speed_m_s)
-    fan_image = image.fan().image if fan is True else (None if fan is False else fan)
+    polar = device_polar(image)
+    fan_image = None if fan is False else fan
+    if fan is True:
+        default = image.fan()
+        fan_image = default.image
+        if polar.dtype == np.uint8:  # an 8-bit device's fan in its counts (mono8), as its PNG
+            from ..image.levels import default_levels
+
+            fan_image = default_levels(image, default.image, default.mask)
     return BagFrame(
         stamp_ns=stamp_ns,
         pose=image.pose,
-        polar=device_polar(image),
+        polar=polar,
         range_m=image.range_m,
         azimuth_deg=image.azimuth_deg,
         tx_beamwidth_deg=image.sonar.elevation_fov_deg,
