@@ -224,9 +224,7 @@ def test_unwritable_outputs_stop_the_command_before_any_work(capsys, tmp_path: P
                                                              case: str) -> None:
     args = _unwritable_cases(tmp_path, tiny_scene)[case]
     before = sorted(os.listdir(tmp_path))
-    t0 = time.perf_counter()
     code, err = run_main(capsys, *args)
-    elapsed = time.perf_counter() - t0
     assert code == cli.EXIT_BAD_INPUT
     assert err.count("\n") == 1 and err.startswith("sonarsim: error: "), err
     assert not any(f"missing.{ext}" in err for ext in ("yaml", "npz", "raw")), err  # no input was opened
@@ -247,7 +245,6 @@ def test_unwritable_outputs_stop_the_command_before_any_work(capsys, tmp_path: P
     }[case]
     assert err.startswith(f"sonarsim: error: {expected}"), err
     assert sorted(os.listdir(tmp_path)) == before  # nothing created, nothing left
-    assert elapsed < 5.0
 
 
 def test_unwritable_out_is_found_before_a_large_render(tmp_path: Path, big_scene: Path) -> None:
@@ -306,16 +303,18 @@ def test_stop_signals_in_process(capsys, monkeypatch, tmp_path: Path, tiny_scene
 
     real_write_png = output.write_png
 
+    slept = []
+
     def signalled(path, image):
         real_write_png(path, image)
         os.kill(os.getpid(), signum)  # main turns it into an exception at the next step
         time.sleep(5)  # never reached in full
+        slept.append(path)
 
     monkeypatch.setattr(output, "write_png", signalled)
     out = tmp_path / "out"
-    t0 = time.perf_counter()
     code_, err = run_main(capsys, "render", tiny_scene, "--out", out)
-    assert code_ == code and time.perf_counter() - t0 < 4.0
+    assert code_ == code and slept == []  # the signal cut the first sleep short: no write went on
     name = signal.Signals(signum).name
     assert err.splitlines()[-1] == f"sonarsim: interrupted by {name}; {out / RECORD_NAME} records the run as interrupted"
     assert sorted(os.listdir(out)) == ["polar.png", RECORD_NAME]

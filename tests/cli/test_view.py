@@ -168,7 +168,7 @@ def test_a_host_it_cannot_listen_on_is_refused_at_once_even_with_any_port(host, 
     t0 = time.monotonic()
     with pytest.raises(SonarsimError) as info:
         check_port(host, port)
-    assert time.monotonic() - t0 < 5
+    assert time.monotonic() - t0 < 30  # a hang guard (viser's own search waited forever); milliseconds here
     message = str(info.value)
     assert message.startswith(f"--host {host}: cannot ")
     assert "in use" not in message  # the address is wrong, not the port

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import pytest
@@ -16,12 +15,10 @@ def test_the_tour_runs_and_shows_pictures():
     pytest.importorskip("ipykernel", reason="the test extra's ipykernel is not installed")
 
     nb = nbformat.read(NOTEBOOK, as_version=4)
-    t0 = time.perf_counter()
     # Run where it lies (it reads oculus_floor.yaml and ../../shared/data from there); an error in
     # any cell raises CellExecutionError naming the cell.
     nbclient.NotebookClient(nb, timeout=120, kernel_name="python3",
                             resources={"metadata": {"path": str(NOTEBOOK.parent)}}).execute()
-    elapsed = time.perf_counter() - t0
     code = [cell for cell in nb.cells if cell.cell_type == "code"]
     pictures = [cell for cell in code if any("image/png" in out.get("data", {}) for out in cell.outputs)]
     # The demo's fan, the components, Fig. 9, the polar image, the multipath figure, the comparison
@@ -31,4 +28,5 @@ def test_the_tour_runs_and_shows_pictures():
     assert "SonarImage(aris3000-128" in text
     assert "OculusRecording(" in text or "../shared/data is absent" in text
     assert "L (" in text  # to_pil: an 8-bit grey image
-    assert elapsed < 60, f"the tour took {elapsed:.1f} s"
+    # Its duration (about a minute on a quiet machine) is the README's figure, not a test's: a
+    # loaded machine takes longer with nothing wrong; the cells' timeout above guards a hang.

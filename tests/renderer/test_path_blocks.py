@@ -217,11 +217,16 @@ def test_on_both_cores_runs_every_task_once_and_waits_for_the_other_thread(kind)
     import time
 
     seen, threads = [], set()
+    both = threading.Event()
 
     def task(k):
-        time.sleep(0.002)
-        seen.append(k)
         threads.add(threading.get_ident())
+        if len(threads) == 2:
+            both.set()
+        # Each thread holds its first task until the other has one: on a loaded machine the
+        # worker may start after this thread has drained every 2 ms task (one thread seen).
+        both.wait(30)
+        seen.append(k)
 
     with (ThreadPoolExecutor(1) if kind == "thread_pool" else compiled.SecondCore()) as pool:
         compiled.on_both_cores(task, 9, pool)

@@ -122,6 +122,10 @@ def test_sensor_option_of_another_device_is_refused_unless_forced(tmp_path, caps
     assert err == ["sonarsim: error: --sensor: sensor preset 'aris3000-128' models another device than the scene's "
                    "sonar (sonar preset 'aris1200-48'): use --sensor aris1200-48, or --force to take it anyway"]
     assert not out.exists()  # refused before anything was written
+    assert main(["render", str(scene), "--out", str(out), "--force", "--no-figures"]) == 2  # --force alone
+    assert capsys.readouterr().err.strip() == ("sonarsim: error: --force: takes a --sensor preset of another device "
+                                               "than the scene's sonar: give it with --sensor PRESET")
+    assert not out.exists()
     for options in (["--sensor", "aris1200-48"], ["--sensor", "aris3000-128", "--force"], ["--sensor", "none"]):
         folder = tmp_path / "_".join(options).strip("-")
         assert main(["render", str(scene), "--out", str(folder), "--no-figures", *options]) == 0, options

@@ -111,6 +111,11 @@ def override_render(scene, args):
     if getattr(args, "seed", None) is not None:
         changes["seed"] = args.seed
     sensor = getattr(args, "sensor", None)
+    if getattr(args, "force", False) and sensor in (None, "none"):
+        from ..errors import ConfigError
+
+        raise ConfigError("--force", "takes a --sensor preset of another device than the scene's sonar: give it "
+                          "with --sensor PRESET")
     if not changes and sensor is None:
         return scene
     from ..config.loader import _prefixed
