@@ -506,7 +506,10 @@ def test_a_textured_floors_gain_is_fitted_to_the_textures_mean_output():
     assert after > before + 0.1 and res.values["gain_db"] == pytest.approx(after, abs=0.01)
     lit = realism.auto_regions(np.asarray(real.polar, float))["lit"]
     means = []
-    for seed in (11, 12, 13):
+    # Six texture draws: over three the mean's spread is about 1 %, and the fit's own offset
+    # (-2.2 % on seeds 11-13 before issue 37's cos(elevation) weight, -3.1 % after; -1.7 % over
+    # these six) sat at the edge of the tolerance.
+    for seed in (11, 12, 13, 14, 15, 16):
         sc = replace(res.scene, render=replace(res.scene.render, seed=seed))
         means.append(float(np.asarray(sonarsim.render(sc).polar, float)[lit].mean()))
     assert np.mean(means) == pytest.approx(float(np.asarray(real.polar, float)[lit].mean()), rel=0.03)

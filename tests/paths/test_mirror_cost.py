@@ -114,3 +114,24 @@ def test_the_smooth_mirrors_partners_are_those_of_the_definition(double_beam, mo
         expected = [c for c in range(len(table)) if c != tx and table.length(c) == g and table.flat(c)
                     and (beam == "separate" or rank[c] > rank[tx])]
         assert out == expected
+
+
+def test_a_frame_of_many_transmit_options_lays_its_path_buffer_out_within_a_small_budget(budget):
+    """Regression (mirror fuzz, seed 0, case 165: 20 objects, 16 of them mirrors, three planes,
+    order 4, 672 rays): the path buffer was laid out for every candidate up to 64 MiB whatever
+    the budget, and the frame peaked at 68 MiB under a 64 MiB budget; past an eighth of the
+    budget the paths are counted first (2 MiB)."""
+    import tracemalloc
+
+    from tests.fuzz.mirrors import generate_mirror_cases
+
+    case = list(generate_mirror_cases(166, 0))[165]
+    budget(64 * 2**20)
+    sim = sonarsim.Simulator(case.doc)
+    tracemalloc.start()
+    try:
+        image = sim.render(speckle=False, keep_rays=False)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert image.components["order4"].any() and peak < 16 * 2**20

@@ -31,7 +31,7 @@ from ..core.rays import RayFan
 from ..config.scene import RenderSettings
 from ..config.sonar import SonarConfig
 from ..scene.floor_texture import scale_by_texture
-from ..core.memory import require
+from ..core.memory import memory_budget, require
 
 try:
     from . import _kernels
@@ -603,6 +603,8 @@ PATH_BYTES = 8 + 8 + 8 + 4 + 4 + 1
 # for them alone (:func:`_counted_layout`): many transmit options (the chains of mesh mirrors,
 # ``double_beam: separate``) have many candidates and few paths.
 PATH_BUFFER_BYTES = 64 * 2**20
+#: ... or than the memory budget over this (a small budget counts the paths first sooner).
+PATH_BUFFER_BUDGET_SHARE = 8
 
 
 def _counted_layout(engine, remap: np.ndarray, rank: np.ndarray, options: tuple, offset: np.ndarray,
@@ -819,7 +821,9 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
         in_blocks = in_blocks and not (only >= 0).any()
         rank = np.arange(len(table), dtype=np.int32)  # canonical ids are ranks (ChainTable.key)
         capacity = None
-        if size * PATH_BYTES > PATH_BUFFER_BYTES:  # many transmit options: room for the paths, not the candidates
+        # Many transmit options: room for the paths, not the candidates (and within a small
+        # memory budget: a buffer of 64 MiB for 672 rays broke a 64 MiB budget in the mirror fuzz).
+        if size * PATH_BYTES > min(PATH_BUFFER_BYTES, memory_budget() // PATH_BUFFER_BUDGET_SHARE):
             offset, size, capacity = _counted_layout(engine, remap, rank, options, offset, only, paths, len(blocks),
                                                      pool)
             require(size * PATH_BYTES, f"the frame's {size} paths", "render.max_order")
