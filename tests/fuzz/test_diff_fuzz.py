@@ -15,8 +15,8 @@ pytest.importorskip("jax")
 from tests.fuzz.diff_params import Case, Harness, Summary, check_case, generate_cases  # noqa: E402
 
 SEED = 37
-# About 100 cases after the scene's compilations (the image, its gradient, a batch of two).
-CASES = 100
+# 80 cases after the scene's compilations (the image, its gradient, a batch of two).
+CASES = 80
 
 
 @pytest.fixture(scope="module")
@@ -32,8 +32,8 @@ def test_mutated_parameters_end_in_a_refusal_or_a_finite_image(harness):
         summary.failures[:10])
     # Both sides are reached, in every mode, from many parameters.
     assert set(summary.by_mode) == {"direct", "grad", "vmap", "refresh", "jit"}
-    assert summary.rendered > 0.3 * CASES and sum(summary.refused.values()) > 0.2 * CASES
-    assert len(summary.refused) >= 8, summary.refused
+    assert summary.rendered > 0.25 * CASES and sum(summary.refused.values()) > 0.2 * CASES
+    assert len(summary.refused) >= 6, summary.refused
     assert {"nan", "beyond", "collapsed", "zero"} <= set(summary.by_kind)
 
 
