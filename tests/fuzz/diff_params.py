@@ -258,9 +258,8 @@ def check_case(h: Harness, case: Case) -> Outcome:
             warnings.simplefilter("error", RuntimeWarning)  # NumPy overflow in a check is a defect
             if case.mode == "direct":
                 results = [r.render(given)]
-            elif case.mode == "grad":
-                g = jax.grad(lambda q: jnp.sum(h.w * r.render(q)))(given)
-                results = [g]
+            elif case.mode == "grad":  # with respect to every parameter: one compilation for all cases
+                results = [jax.grad(lambda q: jnp.sum(h.w * r.render(q)))({**h.base, **given})]
             elif case.mode == "vmap":  # every parameter batched: one compilation for all cases
                 full = {**h.base, **given}
                 results = [h.batched({k: jnp.stack([v, h.base[k].astype(v.dtype)]) for k, v in full.items()})]
