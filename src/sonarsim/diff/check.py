@@ -29,7 +29,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..renderer.simulator import Simulator
-from .params import scene_with
+from .params import bound_of, scene_with
 from .search import record_search
 
 #: Default central-difference steps by the parameter's last name part.
@@ -48,9 +48,12 @@ STEPS = {
 # path's bin a jump) within the step.
 HELD_STEP_FACTOR = 1e-2
 
-# Parameters bounded by the scene's validation: a difference at a bound is taken beside it
-# (an error of the order of the step in the derivative of a polynomial law).
-BOUNDS = {"albedo": (0.0, 1.0), "mu": (0.0, 1.0), "specular": (0.0, 1.0)}
+def bounds_of(key: str) -> tuple[float, float]:
+    """``(lo, hi)`` of a parameter: the scene format's bounds (:func:`~sonarsim.diff.params.parameter_bounds`,
+    the ones :meth:`~sonarsim.diff.Renderer.render` checks). A difference at a bound is taken
+    beside it (an error of the order of the step in the derivative of a polynomial law)."""
+    bound = bound_of(key)
+    return (-np.inf, np.inf) if bound is None else (bound.lo, bound.hi)
 
 
 @dataclass(frozen=True)
@@ -208,7 +211,7 @@ def check_gradients(renderer, keys: Iterable[str] | None = None, *, reference: s
                 except ConfigError:
                     kind, h = "held", h * HELD_STEP_FACTOR
             centre = v0
-            lo, hi = BOUNDS.get(key.rsplit(".", 1)[-1], (-np.inf, np.inf))
+            lo, hi = bounds_of(key)
             if np.any(v0 + h * e > hi) or np.any(v0 - h * e < lo):  # at a bound: the difference beside it
                 centre = v0 - h * e if np.any(v0 + h * e > hi) else v0 + h * e
             up, same_up = loss({key: centre + h * e}, kind)

@@ -141,8 +141,13 @@ def check_value(key: str, value: np.ndarray, bounds: dict[str, Bound] | None = N
         at = np.unravel_index(int(np.flatnonzero(~inside.reshape(-1))[0]), v.shape) if v.ndim else ()
         which = f" (at {list(map(int, at))})" if v.ndim else ""
         raise ConfigError(key, f"must be {allowed}; got {shown(float(v[at]))}{which}")
-    if key.endswith(".normal") and v.shape[-1:] == (3,) and not (np.linalg.norm(v, axis=-1) > 0).all():
-        raise ConfigError(key, "must not be the zero vector (a plane's normal)")
+    if key.endswith(".normal") and v.shape[-1:] == (3,):
+        # As the scene format has it (PlaneSpec): the length relative to the largest component
+        # (whose squares may overflow), above 1e-9 of it.
+        big = np.max(np.abs(v), axis=-1, keepdims=True)
+        length = big[..., 0] * np.linalg.norm(v / np.where(big > 0, big, 1.0), axis=-1)
+        if not (length > 1e-9 * np.maximum(1.0, big[..., 0])).all():
+            raise ConfigError(key, f"must not be the zero vector (a plane's normal); got {shown(v.tolist())}")
 
 
 def material_params(prefix: str, material) -> dict[str, float]:

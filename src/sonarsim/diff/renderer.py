@@ -22,6 +22,7 @@ from ..renderer.components import component_table, total_rows
 from ..renderer.simulator import Simulator
 from ..scene.meshes import object_mesh_local
 from . import forward
+from .cost import check_diff_cost
 from .params import check_value, parameter_bounds, scene_params, scene_with, surface_laws
 from .search import Search, padded_size, record_search
 
@@ -90,6 +91,20 @@ class Renderer:
         (barycentric). A sea floor's reflectivity per cell, for one; the scene format has no
         such field, so it exists here only.
 
+    Raises
+    ------
+    ConfigError
+        The renderer's memory or time, estimated from the scene and the sonar's grid before
+        it is built (:func:`sonarsim.diff.cost.check_diff_cost`; again from the search's
+        counts before JAX compiles), exceeds the budgets (``--max-memory`` /
+        ``$SONARSIM_MAX_MEMORY``, ``--max-build-time`` / ``$SONARSIM_MAX_BUILD_TIME``); and
+        what the scene format or the differentiable engine does not take.
+
+    Attributes
+    ----------
+    cost : DiffCost
+        The estimate checked (:mod:`sonarsim.diff.cost`).
+
     Examples
     --------
     >>> r = Renderer("tank.yaml")                                   # doctest: +SKIP
@@ -108,6 +123,9 @@ class Renderer:
             jax.config.update("jax_enable_x64", True)
         self.dtype = jnp.float64 if dtype == "float64" else jnp.float32
         self.scene = load_scene(scene)
+        # Memory and time estimated from the scene and the sonar's grid before anything is
+        # built (and again from the search's counts before JAX compiles anything).
+        self.cost = check_diff_cost(self.scene)
         self.sim = Simulator(self.scene)
         scene = self.scene
         render = scene.render
@@ -250,8 +268,11 @@ class Renderer:
         for name in self.static.planes:
             p = f"planes.{name}"
             if f"{p}.offset_m" in values or f"{p}.normal" in values:
-                n0, n1 = held[f"{p}.normal"], get(f"{p}.normal")
-                n0, n1 = n0 / np.linalg.norm(n0), n1 / max(np.linalg.norm(n1), 1e-300)
+                def unit(n):  # (scaled first: the squares of a normal's huge components overflow)
+                    n = n / max(float(np.max(np.abs(n))), 1e-300)
+                    return n / max(float(np.linalg.norm(n)), 1e-300)
+
+                n0, n1 = unit(held[f"{p}.normal"]), unit(get(f"{p}.normal"))
                 moved = abs(float(get(f"{p}.offset_m")) - float(held[f"{p}.offset_m"])) + reach * float(
                     np.linalg.norm(n1 - n0))
                 if moved > FAR_FRACTION * reach:
@@ -267,10 +288,16 @@ class Renderer:
         sonar's pose, the objects and the planes are searched where ``params`` puts them; the
         sensor's parameters do not move the search (the rays stay the scene's fan)."""
         self.searches += 1
-        # Unknown keys, shapes and values that are not finite are refused by name; the scene
-        # format's bounds are not checked here, so that an optimiser's trial step beyond one
-        # is a step that fails (render refuses it), not a fit that stops.
+        # Unknown keys, shapes and values that are not finite are refused by name, and
+        # geometry beyond the scene format's bounds (the compiled engine searches a scene
+        # made of it); the other bounds are not checked here, so that an optimiser's trial
+        # step beyond one is evaluated (by its own function, or refused by render), not a fit
+        # that stops.
         self._complete(params, bounds=False)
+        table = parameter_bounds()
+        for k, v in (params or {}).items():
+            if k.endswith(GEOMETRY):
+                check_value(k, np.asarray(v, float), table)
         # Only geometry moves the search (laws, reflectances and the sensor do not: they are
         # not even checked against the scene format's bounds here); a value within float32's
         # round-off of the scene's has not moved.
@@ -286,6 +313,11 @@ class Renderer:
             search = record_search(self.sim, scene.sonar_pose, self._capacity)
         # Sizes only grow: a refreshed search of the same size or smaller reuses the compiled
         # functions (a new size compiles them again, a second or more).
+        if search.capacity > self._capacity or self.search is None:
+            self.cost = check_diff_cost(self.scene, n_paths=max(search.capacity, self._capacity),
+                                        n_faces=max(padded_size(len(search.faces), 64), self._face_capacity),
+                                        n_images=search.n_rows + max(len(search.signatures), 1),
+                                        legs=search.rx_planes.shape[1] + search.tx_planes.shape[1])
         self._capacity = max(self._capacity, search.capacity)
         self.search = search
         self._held = {**{k: v for k, v in self._defaults.items() if k.endswith(GEOMETRY)},
@@ -378,7 +410,18 @@ class Renderer:
 
     def render(self, params: Mapping[str, Any] | None = None) -> jax.Array:
         """The expected image (n_range_bins, n_beams): the total of ``render.bounces``, or,
-        with a ``sensor:`` section, the sensor's expected output (no speckle, no noise draws)."""
+        with a ``sensor:`` section, the sensor's expected output (no speckle, no noise draws).
+
+        ``params`` (any subset of :meth:`params`' keys) are checked where they are concrete:
+        given as values, or traced by ``jax.grad``, ``jax.jacfwd`` or ``jax.vmap`` called
+        outside ``jit``. A value that is not finite or lies outside the scene format's bounds
+        (:func:`~sonarsim.diff.params.parameter_bounds`) raises :class:`~sonarsim.errors.ConfigError`
+        naming the key and the range; geometry far from the held search warns
+        (:class:`StaleSearchWarning`, see :meth:`distance_from_search`). Inside ``jit`` the
+        values are abstract and cannot be checked: the forward keeps degenerate geometry
+        (collapsed triangles, a zero scale, a zero width) from turning into NaN, but a NaN
+        given there passes into the image.
+        """
         return self._function("image")(self._checked(params), self._data, self._image_static()).astype(self.dtype)
 
     def echo(self, params: Mapping[str, Any] | None = None) -> jax.Array:
