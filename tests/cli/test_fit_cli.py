@@ -255,3 +255,25 @@ def test_both_methods_give_the_aris_sample_the_same_bounded_pose(shared_data, tm
         assert f"fit: method {method};" in err and "domain band" in err
         poses[method] = yaml.safe_load(out.read_text())["sonar"]["pose"]
     assert poses["search"] == poses["gradient"]
+
+
+def test_auto_is_the_gradient_with_jax_and_the_search_without(monkeypatch):
+    import importlib.util
+
+    notes = []
+    expected = "gradient" if importlib.util.find_spec("jax") is not None else "search"
+    assert fit_cli.resolve_method("auto", notes.append) == expected
+    assert notes == [f"method {expected} (--method auto: " + ("JAX is installed)" if expected == "gradient" else
+                     "JAX is not installed; pip install 'sonarsim[diff]' for the gradient method)")]
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "jax" else find_spec(name, *a))
+    assert fit_cli.resolve_method("auto") == "search" and fit_cli.resolve_method("search") == "search"
+    with pytest.raises(sonarsim.SonarsimError, match="--method gradient: the differentiable engine needs JAX"):
+        fit_cli.resolve_method("gradient")
+    # Both commands default to auto.
+    from sonarsim.cli.main import build_parser
+
+    parser = build_parser()
+    for command in ("fit", "calibrate"):
+        args = parser.parse_args([command, "r.npz", "--scene", "s.yaml", "--out", "o.yaml"])
+        assert args.method == "auto"
