@@ -54,9 +54,19 @@ def test_one_bright_pixel_is_no_echo():
 
 def test_a_saturated_frame_is_no_echo(floor_image):
     x = 255 * floor_image / floor_image.max()
-    x[: int(0.6 * x.shape[0])] = 255.0  # 60 % of the pixels at the top value
-    assert any(p.startswith("60 % of the frame's pixels are at its largest value 255 (saturated")
+    x[: int(0.99 * x.shape[0])] = 255.0  # 99 % of the pixels at the top value
+    assert any(p.startswith("99 % of the frame's pixels are at its largest value 255 (saturated; at most 98 %")
                for p in echo_problems(x))
+    x = 255 * floor_image / floor_image.max()
+    x[: int(0.9 * x.shape[0])] = 255.0  # 90 %: what is left still calibrates
+    assert not any("saturated" in p for p in echo_problems(x))
+
+
+def test_the_structure_is_judged_on_frames_of_two_windows():
+    """Over 8 beams a 15 x 9 window is no local mean: noise there is not judged by it."""
+    noise = np.random.default_rng(4).integers(0, 256, (400, 8)).astype(float)
+    assert echo_problems(noise) == ()
+    assert len(echo_problems(np.random.default_rng(4).integers(0, 256, (400, 18)).astype(float))) == 1
 
 
 def test_a_smooth_band_has_no_speckle_to_calibrate_on():

@@ -238,3 +238,42 @@ def test_free_parameters_no_floor_determines_are_refused_by_name(floor_case, tmp
         "x, y, yaw do not change the render (a step of x 0.05 m, y 0.05 m, yaw 2 deg either way leaves it unchanged)",
         "leave them out of --free"))
     assert list(out.iterdir()) == []
+
+
+def test_both_methods_give_the_aris_sample_the_same_bounded_pose(shared_data, tmp_path, capsys):
+    """A sea bed lit across the window shows no band edge: the band's cost is flat within its
+    bounds. The gradient fitted the images instead and refused by their edges (exit 3) what the
+    search bounds (exit 0); now the search's band fit decides for both."""
+    pytest.importorskip("jax")
+    aris = shared_data / "real" / "aris" / "sample.aris"
+    example = Path(__file__).resolve().parents[2] / "examples" / "aris_seabed.yaml"
+    poses = {}
+    for method in ("search", "gradient"):
+        out = tmp_path / f"{method}.yaml"
+        assert run(["fit", aris, "--scene", example, "--method", method, "--no-figures", "--out", out]) == 0
+        err = capsys.readouterr().err
+        assert f"fit: method {method};" in err and "domain band" in err
+        poses[method] = yaml.safe_load(out.read_text())["sonar"]["pose"]
+    assert poses["search"] == poses["gradient"]
+
+
+def test_auto_is_the_gradient_with_jax_and_the_search_without(monkeypatch):
+    import importlib.util
+
+    notes = []
+    expected = "gradient" if importlib.util.find_spec("jax") is not None else "search"
+    assert fit_cli.resolve_method("auto", notes.append) == expected
+    assert notes == [f"method {expected} (--method auto: " + ("JAX is installed)" if expected == "gradient" else
+                     "JAX is not installed; pip install 'sonarsim[diff]' for the gradient method)")]
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "jax" else find_spec(name, *a))
+    assert fit_cli.resolve_method("auto") == "search" and fit_cli.resolve_method("search") == "search"
+    with pytest.raises(sonarsim.SonarsimError, match="--method gradient: the differentiable engine needs JAX"):
+        fit_cli.resolve_method("gradient")
+    # Both commands default to auto.
+    from sonarsim.cli.main import build_parser
+
+    parser = build_parser()
+    for command in ("fit", "calibrate"):
+        args = parser.parse_args([command, "r.npz", "--scene", "s.yaml", "--out", "o.yaml"])
+        assert args.method == "auto"

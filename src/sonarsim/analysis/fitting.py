@@ -399,11 +399,13 @@ MIN_PROFILE_CORRELATION = 0.5
 # is no echo to fit (it sent a pose fit to a pitch of 87 degrees).
 MIN_ECHO_PIXELS = 20
 # Largest share of the pixels at the frame's largest value: beyond it the frame is saturated
-# and its levels say nothing of the echo.
-MAX_SATURATED_SHARE = 0.5
+# and what is left below saturation is too little to fit (a synthetic floor 91 % saturated by
+# a gain without TVG still calibrates).
+MAX_SATURATED_SHARE = 0.98
 # Least share of a frame's variance that its 15 x 9 local mean explains: pixel noise explains
 # 1/135 (measured: 0.7 % on random bytes in the Oculus and ARIS layouts), an echo far more
-# (82 % on the real Oculus ping, 83 % on the ARIS sample).
+# (82 % on the real Oculus ping, 83 % on the ARIS sample). Judged on frames of at least two
+# windows along each axis (30 bins, 18 beams): over a narrower frame the window is no local mean.
 MIN_STRUCTURE = 0.05
 # A free parameter whose step (:data:`STEPS`) either way changes the render by less than this
 # share of the render's standard deviation (RMS) is not determined by any recording: x, y and
@@ -431,7 +433,7 @@ def echo_problems(image) -> tuple[str, ...]:
     tuple of str
         One clause per problem, with the figure found and the limit.
     """
-    from .baselines import local_mean_image
+    from .baselines import CEILING_WINDOW, local_mean_image
     from .realism import auto_regions
 
     x = np.asarray(image, dtype=np.float64)
@@ -452,6 +454,9 @@ def echo_problems(image) -> tuple[str, ...]:
         out.append(f"the frame's lit region holds {lit} pixel{'s' if lit != 1 else ''} (at least {MIN_ECHO_PIXELS} "
                    "are an echo)")
     var = float(x.var())
+    window = np.asarray(CEILING_WINDOW)
+    if np.any(np.asarray(x.shape) < 2 * window):
+        return tuple(out)
     explained = 1.0 - float(np.mean((local_mean_image(x) - x) ** 2)) / var if var > 0 else 0.0
     if explained < MIN_STRUCTURE:
         out.append(f"the frame shows no echo structure: its 15 x 9 local mean explains {100 * explained:.1f} % of its "

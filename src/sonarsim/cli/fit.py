@@ -264,7 +264,9 @@ def resolve_method(asked: str, note=None) -> str:
     if asked == "auto":
         method = "gradient" if jax_available() else "search"
         if note is not None:
-            note(f"method {method} (--method auto: {'JAX is installed' if method == 'gradient' else 'JAX is not installed; pip install sonarsim[diff] for the gradient method'})")
+            why = ("JAX is installed" if method == "gradient"
+                   else "JAX is not installed; pip install 'sonarsim[diff]' for the gradient method")
+            note(f"method {method} (--method auto: {why})")
         return method
     if asked == "gradient" and not jax_available():
         raise SonarsimError("--method gradient: the differentiable engine needs JAX: pip install 'sonarsim[diff]'")
