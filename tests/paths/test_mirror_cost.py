@@ -135,3 +135,19 @@ def test_a_frame_of_many_transmit_options_lays_its_path_buffer_out_within_a_smal
     finally:
         tracemalloc.stop()
     assert image.components["order4"].any() and peak < 16 * 2**20
+
+
+def test_the_paths_candidates_are_checked_against_the_time_budget(budget, monkeypatch):
+    """Each live ray of a generation is a candidate of each of its transmit options: known once
+    the frame's chains are, and checked before the paths are formed."""
+    from sonarsim.renderer import compiled
+
+    memory.set_time_budget(1.0)
+    image = sonarsim.Simulator(mirror_boxes()).render(speckle=False)  # well within a second's estimate
+    assert image.components["order4"].any()
+    monkeypatch.setattr(compiled, "SECONDS_PER_CANDIDATE", 1.0)
+    with pytest.raises(ConfigError) as err:
+        sonarsim.Simulator(mirror_boxes()).render(speckle=False)
+    assert err.value.key == "render.max_order"
+    assert "forming the frame's paths (" in str(err.value) and "candidates of" in str(err.value)
+    assert "--max-build-time" in str(err.value)
