@@ -13,6 +13,7 @@ import yaml
 import sonarsim
 from sonarsim.cli import fit as fit_cli
 from sonarsim.cli.main import main
+from sonarsim.core.extras import install_command
 
 FLOOR = {"preset": "oculus-m1200d-hf"}
 
@@ -200,7 +201,7 @@ def test_fit_by_gradient_without_jax_names_the_extra(floor_case, tmp_path, capsy
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "jax" else find_spec(name, *a))
     status = run(["fit", real, "--scene", scene(0.45, 31.0), "--method", "gradient", "--out", tmp_path / "f.yaml"])
     err = capsys.readouterr().err
-    assert status == 2 and "pip install 'sonarsim[diff]'" in err and "Traceback" not in err
+    assert status == 2 and install_command("diff") in err and "Traceback" not in err
     assert not (tmp_path / "f.yaml").exists()
 
 
@@ -264,7 +265,7 @@ def test_auto_is_the_gradient_with_jax_and_the_search_without(monkeypatch):
     expected = "gradient" if importlib.util.find_spec("jax") is not None else "search"
     assert fit_cli.resolve_method("auto", notes.append) == expected
     assert notes == [f"method {expected} (--method auto: " + ("JAX is installed)" if expected == "gradient" else
-                     "JAX is not installed; pip install 'sonarsim[diff]' for the gradient method)")]
+                     f"JAX is not installed; {install_command('diff')} for the gradient method)")]
     find_spec = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "jax" else find_spec(name, *a))
     assert fit_cli.resolve_method("auto") == "search" and fit_cli.resolve_method("search") == "search"

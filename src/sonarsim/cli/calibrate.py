@@ -56,7 +56,7 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
                    "search: simplex searches over the sensor's laws, starts and pose family, with the "
                    "channels, common noise, texture and range law; gradient: Levenberg-Marquardt with the "
                    "differentiable engine (gain, TVG law, noise before and after the TVG, elevation width, gamma and "
-                   "the free pose, from the floor band's closed-form start; needs pip install 'sonarsim[diff]'). "
+                   "the free pose, from the floor band's closed-form start; needs the diff extra). "
                    "Both refuse (exit 3, nothing written) the same frames: no echo, pose parameters the frame "
                    "does not identify, a model no better than the frame's mean level")
     p.add_argument("--image", default=None, help="side-by-side PNG (default: --out with .png for .yaml); the "

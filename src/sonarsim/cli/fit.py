@@ -21,6 +21,7 @@ import numpy as np
 
 from .argtypes import frame_index, integer_at_least
 from ..core.console import log as _log
+from ..core.extras import install_command
 from ..errors import SonarsimError
 
 if TYPE_CHECKING:
@@ -72,7 +73,7 @@ def add_fit_parser(sub) -> argparse.ArgumentParser:
                    help="auto (default): gradient where JAX is installed and --domain is auto, search otherwise "
                    "(said on stderr); search: a simplex search on edges or the floor band (--domain, --max-renders); "
                    "gradient: Levenberg-Marquardt on the floor band's edges or on blurred images with the differentiable "
-                   "engine's gradients, coarse to fine (needs pip install 'sonarsim[diff]'; --domain and --max-renders "
+                   "engine's gradients, coarse to fine (needs the diff extra; --domain and --max-renders "
                    "do not apply)")
     p.add_argument("--max-renders", type=_render_budget, default=600, help="render budget of the search (default: 600)")
     p.add_argument("--quiet", action="store_true", help="no progress or notes on stderr (errors still)")
@@ -265,11 +266,11 @@ def resolve_method(asked: str, note=None) -> str:
         method = "gradient" if jax_available() else "search"
         if note is not None:
             why = ("JAX is installed" if method == "gradient"
-                   else "JAX is not installed; pip install 'sonarsim[diff]' for the gradient method")
+                   else f"JAX is not installed; {install_command('diff')} for the gradient method")
             note(f"method {method} (--method auto: {why})")
         return method
     if asked == "gradient" and not jax_available():
-        raise SonarsimError("--method gradient: the differentiable engine needs JAX: pip install 'sonarsim[diff]'")
+        raise SonarsimError(f"--method gradient: the differentiable engine needs JAX: {install_command('diff')}")
     return asked
 
 

@@ -3,7 +3,7 @@
 Writes ``heights_m`` (ny, nx), ``x_m``, ``y_m``, ``seen`` (the grid's vertices some image's
 paths met), ``loss`` (per round) and, with ``--reflectivity``, ``reflectivity`` (ny, nx) to
 ``--out`` (an NPZ), and a figure beside it: start | reconstructed | error where ``--truth``
-gives the true floor (a mesh file), else start | reconstructed (and the reflectivity). Needs the differentiable engine: ``pip install 'sonarsim[diff]'``.
+gives the true floor (a mesh file), else start | reconstructed (and the reflectivity). Needs the differentiable engine (the ``diff`` extra: :func:`sonarsim.core.extras.install_command`).
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.extras import install_command
 from ..errors import ConfigError, SonarsimError
 
 
@@ -140,7 +141,7 @@ def cmd_reconstruct(args) -> None:
     import importlib.util
 
     if importlib.util.find_spec("jax") is None:
-        raise SonarsimError("sonarsim reconstruct needs the differentiable engine (JAX): pip install 'sonarsim[diff]'")
+        raise SonarsimError(f"sonarsim reconstruct needs the differentiable engine (JAX): {install_command('diff')}")
     from dataclasses import replace
 
     from ..config.loader import load_scene
