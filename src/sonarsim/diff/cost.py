@@ -35,8 +35,10 @@ __all__ = ["DiffCost", "check_diff_cost", "diff_cost", "expected_paths"]
 BYTES_PER_PATH = 2000.0
 #: ... and per mirror of its receive or transmit chain (a leg formed again).
 BYTES_PER_PATH_LEG = 500.0
-#: Per cell of an image (range bin x beam) per image held: the stack's rows, the running sums.
-BYTES_PER_CELL = 96.0
+#: Per cell of an image (range bin x beam) per image held: the image, its running sums and
+#: their gradient (the tank, its images of 750 x 256 and 98,000 paths, held 0.39 GB in all
+#: beyond its build: the estimate is about twice that).
+BYTES_PER_CELL = 32.0
 #: Per hit triangle (its corners, plane and gradient).
 BYTES_PER_FACE = 600.0
 #: Per object: XLA's compilation of the gradient keeps a few megabytes for each object's
