@@ -261,7 +261,7 @@ def test_an_object_posed_beyond_the_scenes_extent_is_refused_as_the_scene_format
     r, _, _ = sensed
     edge = {"objects.box.position_m": jnp.asarray([1e6 - 0.1, 0.0, 0.0])}  # the box is 0.4 m wide
     with pytest.raises(ConfigError, match=r"^objects.box.position_m: the vertices of object 'box', scaled and "
-                                          r"posed, reach 1e\+06 m .* within 1e\+06 m"):
+                                          r"posed, reach 1e\+06 m .* within \[-1e\+06, 1e\+06\] m"):
         r.render(edge)
     with pytest.raises(ConfigError, match="objects.box.position_m: the vertices of object 'box'"):
         r.refresh(edge)

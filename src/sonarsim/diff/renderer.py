@@ -227,9 +227,12 @@ class Renderer:
                 world = (m["vertices_m"] * m["scale"]) @ rpy_to_matrix(*np.radians(m["rpy_deg"])).T + m["position_m"]
                 reach = max(reach, float(np.abs(world).max()) if len(world) else 0.0)
             if reach > MAX_COORDINATE_M:
-                raise ConfigError(given[0], f"the vertices of object {obj.name!r}, scaled and posed, reach {reach:.3g} m "
-                                  f"from the origin; allowed: within {MAX_COORDINATE_M:g} m (the scene format's bound; "
-                                  "mind scale and pose)")
+                # Named by a part that moved (all may be given, as to jax.grad).
+                moved = [k for k in given if not np.array_equal(concrete[k], self._defaults[k])]
+                raise ConfigError((moved or given)[0], f"the vertices of object {obj.name!r}, scaled and posed, reach "
+                                  f"{reach:.3g} m from the origin; allowed: within [{-MAX_COORDINATE_M:g}, "
+                                  f"{MAX_COORDINATE_M:g}] m along each axis (the scene format's bound; mind scale and "
+                                  "pose)")
 
     def _checked(self, params: Mapping[str, Any] | None) -> dict[str, Any]:
         """:meth:`_complete` with the bounds, and a :class:`StaleSearchWarning` where the
