@@ -266,3 +266,14 @@ def test_an_object_posed_beyond_the_scenes_extent_is_refused_as_the_scene_format
     with pytest.raises(ConfigError, match="objects.box.position_m: the vertices of object 'box'"):
         r.refresh(edge)
     assert r.distance_from_search({"objects.box.position_m": jnp.asarray([1e6 - 1.0, 0.0, 0.0])})  # within: far only
+
+
+def test_check_params_refuses_what_render_refuses_without_rendering_or_warning(sensed):
+    r, _, _ = sensed
+    p = r.params()
+    far = {**p, "sonar.position_m": p["sonar.position_m"] + jnp.asarray([500.0, 0.0, 0.0])}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", sd.StaleSearchWarning)
+        r.check_params(far)  # a fit's start, before its first refresh: nothing to say
+    with pytest.raises(ConfigError, match=r"^objects.box.albedo: must be finite, within \[0, 1\]"):
+        r.check_params({"objects.box.albedo": jnp.asarray(2.0)})

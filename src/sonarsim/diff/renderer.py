@@ -205,6 +205,17 @@ class Renderer:
             self._check_reach(concrete)
         return {k: v if isinstance(v, jax.core.Tracer) else jnp.asarray(v, self.dtype) for k, v in out.items()}
 
+    def check_params(self, params: Mapping[str, Any]) -> None:
+        """Refuse what :meth:`render` would refuse of ``params`` (unknown keys, shapes, values
+        not finite or beyond the scene format's bounds, where concrete), without rendering and
+        without a :class:`StaleSearchWarning`: for a fit's start before its first refresh.
+
+        Raises
+        ------
+        ConfigError
+        """
+        self._complete(params)
+
     def _check_reach(self, concrete: Mapping[str, np.ndarray]) -> None:
         """Refuse an object whose vertices, scaled and posed, reach beyond the scene's extent
         (as the scene format refuses its mesh: ``MAX_COORDINATE_M`` along any axis)."""
