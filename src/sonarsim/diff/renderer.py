@@ -239,7 +239,7 @@ class Renderer:
                 reach = max(reach, float(np.abs(world).max()) if len(world) else 0.0)
             if reach > MAX_COORDINATE_M:
                 # Named by a part that moved (all may be given, as to jax.grad).
-                moved = [k for k in given if not np.array_equal(concrete[k], self._defaults[k])]
+                moved = [k for k in given if np.any(np.asarray(concrete[k]) != self._defaults[k])]  # (a batch too)
                 raise ConfigError((moved or given)[0], f"the vertices of object {obj.name!r}, scaled and posed, reach "
                                   f"{reach:.3g} m from the origin; allowed: within [{-MAX_COORDINATE_M:g}, "
                                   f"{MAX_COORDINATE_M:g}] m along each axis (the scene format's bound; mind scale and "
