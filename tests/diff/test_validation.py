@@ -253,3 +253,27 @@ def test_an_object_moved_beyond_half_its_size_warns(sensed):
     r.refresh()
     # Inside jit nothing is concrete: nothing to say (and nothing raised).
     assert jax.jit(lambda q: jnp.asarray(len(r.distance_from_search(q))))(moved) == 0
+
+
+def test_an_object_posed_beyond_the_scenes_extent_is_refused_as_the_scene_format_refuses_its_mesh(sensed):
+    """Each coordinate within 1e6 m, yet the box's vertices, posed, reach beyond it: refused by
+    the key that moved it (render and refresh), as the scene format refuses such a mesh."""
+    r, _, _ = sensed
+    edge = {"objects.box.position_m": jnp.asarray([1e6 - 0.1, 0.0, 0.0])}  # the box is 0.4 m wide
+    with pytest.raises(ConfigError, match=r"^objects.box.position_m: the vertices of object 'box', scaled and "
+                                          r"posed, reach 1e\+06 m .* within \[-1e\+06, 1e\+06\] m"):
+        r.render(edge)
+    with pytest.raises(ConfigError, match="objects.box.position_m: the vertices of object 'box'"):
+        r.refresh(edge)
+    assert r.distance_from_search({"objects.box.position_m": jnp.asarray([1e6 - 1.0, 0.0, 0.0])})  # within: far only
+
+
+def test_check_params_refuses_what_render_refuses_without_rendering_or_warning(sensed):
+    r, _, _ = sensed
+    p = r.params()
+    far = {**p, "sonar.position_m": p["sonar.position_m"] + jnp.asarray([500.0, 0.0, 0.0])}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", sd.StaleSearchWarning)
+        r.check_params(far)  # a fit's start, before its first refresh: nothing to say
+    with pytest.raises(ConfigError, match=r"^objects.box.albedo: must be finite, within \[0, 1\]"):
+        r.check_params({"objects.box.albedo": jnp.asarray(2.0)})

@@ -207,6 +207,7 @@ class Harness:
         self.renderer = sd.Renderer(SENSED)
         r = self.renderer
         self.base = r.params()
+        self.numpy_base = {k: np.asarray(v) for k, v in self.base.items()}
         self.shape = tuple(r.render().shape)
         w = jnp.asarray(smooth_weights(self.shape))
         f = r.image_function()
@@ -228,8 +229,15 @@ class Harness:
         jax.block_until_ready(self.batched({k: jnp.stack([v, v]) for k, v in self.base.items()}))
 
 
-def _valid(case: Case, bounds: bool) -> bool:
-    """Whether the scene format takes the case's values (finite, and within the bounds)."""
+def _valid(case: Case, bounds: bool, base: dict | None = None) -> bool:
+    """Whether the scene format takes the case's values (finite, and within the bounds; an
+    object's vertices, scaled and posed, within the scene's extent as the scene format's own
+    :func:`~sonarsim.config.meshfiles.world_reach_m` measures it)."""
+    from types import SimpleNamespace
+
+    from sonarsim.config.meshfiles import world_reach_m
+    from sonarsim.config.scene import MAX_COORDINATE_M
+    from sonarsim.core.transforms import Pose
     from sonarsim.diff.params import check_value
     from sonarsim.errors import ConfigError
 
@@ -238,6 +246,14 @@ def _valid(case: Case, bounds: bool) -> bool:
             check_value(k, v, None if bounds else {})
     except ConfigError:
         return False
+    if bounds and base is not None:
+        objects = {k.split(".")[1] for k in case.values if k.startswith("objects.")}
+        for o in objects:
+            get = lambda part: np.asarray(case.values.get(f"objects.{o}.{part}", base[f"objects.{o}.{part}"]), float)
+            reach = world_reach_m(SimpleNamespace(vertices=get("vertices_m")), get("scale"),
+                                  Pose(tuple(get("position_m")), tuple(get("rpy_deg"))))
+            if reach > MAX_COORDINATE_M:
+                return False
     return True
 
 
@@ -285,7 +301,7 @@ def check_case(h: Harness, case: Case) -> Outcome:
             pass  # a plane or the sonar moved onto the other: the compiled engine cannot search it
         elif key not in case.values:
             out.failure = f"refused a key not changed: {message}"
-        elif case.mode != "jit" and _valid(case, bounds=True):
+        elif case.mode != "jit" and _valid(case, bounds=True, base=h.numpy_base):
             out.failure = f"refused values the scene format takes: {message}"
         elif "within" in message and "[" not in message:
             out.failure = f"the refusal names no range: {message}"
@@ -295,7 +311,7 @@ def check_case(h: Harness, case: Case) -> Outcome:
         out.failure = f"{type(exc).__name__}: {str(exc)[:300]}"
         return out
     out.seconds = time.perf_counter() - t0
-    if case.mode != "jit" and not _valid(case, bounds=True):
+    if case.mode != "jit" and not _valid(case, bounds=True, base=h.numpy_base):
         out.failure = "values the scene format refuses were rendered"
     elif not finite_in:
         out.failure = "values that are not finite were rendered"

@@ -35,13 +35,15 @@ __all__ = ["DiffCost", "check_diff_cost", "diff_cost", "expected_paths"]
 BYTES_PER_PATH = 2000.0
 #: ... and per mirror of its receive or transmit chain (a leg formed again).
 BYTES_PER_PATH_LEG = 500.0
-#: Per cell of an image (range bin x beam) per image held: the stack's rows, the running sums.
-BYTES_PER_CELL = 96.0
+#: Per cell of an image (range bin x beam) per image held: the image, its running sums and
+#: their gradient (the tank, its images of 750 x 256 and 98,000 paths, held 0.39 GB in all
+#: beyond its build: the estimate is about twice that).
+BYTES_PER_CELL = 32.0
 #: Per hit triangle (its corners, plane and gradient).
 BYTES_PER_FACE = 600.0
 #: Per object: XLA's compilation of the gradient keeps a few megabytes for each object's
-#: parameters (gathered into the tables, and their gradients taken apart again): 300 small
-#: spheres peaked at 1.6 GB here, 10 at 0.5 GB.
+#: parameters (gathered into the tables, and their gradients taken apart again): 3 MB each
+#: measured between 10 and 300 small spheres (see below), 4 MB counted.
 BYTES_PER_OBJECT = 4e6
 #: JAX's and XLA's own memory for compiling the forward and its gradient.
 BYTES_BASE = 250 * 2 ** 20
@@ -49,9 +51,12 @@ BYTES_BASE = 250 * 2 ** 20
 #: Compile time of the forward and its gradient: a base, per object (linear and quadratic:
 #: XLA's passes over the gradient's many small outputs grow faster than their count), per
 #: held path and per mirror of the chains (each leg is unrolled into the function). Measured
-#: on a loaded machine and scaled to a quiet one (2 cores); the issue's 300 objects took 20 s.
+#: here at a load of about 4 (build, first render, first gradient; estimated in brackets):
+#: 10 spheres 9.3 s (10.6 s), 258 MiB (304); 100 spheres 16.8 s (15.6), 485 MiB (671); 300
+#: spheres 31.6 s (27.2 before this rate's last step to 0.07), 1,115 MiB (1,484); a box
+#: under 32 x 128 bins 9.5 s (10.1), 296 MiB (259).
 SECONDS_BASE = 8.0
-SECONDS_PER_OBJECT = 0.05
+SECONDS_PER_OBJECT = 0.07
 SECONDS_PER_OBJECT_SQUARED = 1e-5
 SECONDS_PER_PATH = 2e-5
 SECONDS_PER_LEG = 1.0

@@ -171,7 +171,8 @@ def fit(renderer, target: np.ndarray, free: Sequence[str] = ("z", "pitch"), star
     base = {**renderer.params(), **({} if base is None else {k: jnp.asarray(v) for k, v in base.items()})}
     names = _names(free, base)
     target = np.asarray(target, float)
-    expected = tuple(renderer.render(base).shape)
+    renderer.check_params(base)  # refused as render would (the start is far from the held search: no render)
+    expected = tuple(renderer.render().shape)
     if target.shape != expected:
         raise ConfigError("target", f"has shape {target.shape}; the renderer forms {expected}")
     if not np.all(np.isfinite(target)):

@@ -260,6 +260,7 @@ def scene_with(scene: Scene, params: dict) -> Scene:
     for plane in scene.reflecting_planes:
         p = f"planes.{plane.name}"
         normal = v.get(f"{p}.normal", np.asarray(plane.normal, float))
+        normal = normal / np.max(np.abs(normal))  # (first: the squares of a huge normal's parts overflow)
         normal = normal / np.linalg.norm(normal)
         offset = float(v.get(f"{p}.offset_m", plane.offset_m))
         material = _material_with(plane.backscatter, p, v)

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..config.loader import load_scene
-from ..errors import ConfigError
+from ..errors import ConfigError, SonarsimError
 from ..renderer.components import component_table, total_rows
 from ..renderer.simulator import Simulator
 from ..scene.meshes import object_mesh_local
@@ -189,6 +189,7 @@ class Renderer:
         if unknown:
             raise ConfigError(unknown[0], f"no such parameter in this scene; its parameters: {', '.join(out)}")
         table = parameter_bounds()
+        concrete = {}
         for k, v in params.items():
             shape = np.shape(self._defaults[k])
             if not isinstance(v, (jax.Array, jax.core.Tracer, np.ndarray)):
@@ -198,8 +199,51 @@ class Renderer:
             value = concrete_value(v)
             if value is not None:
                 check_value(k, value, table if bounds else {})
+                concrete[k] = value
             out[k] = v
+        if bounds:
+            self._check_reach(concrete)
         return {k: v if isinstance(v, jax.core.Tracer) else jnp.asarray(v, self.dtype) for k, v in out.items()}
+
+    def check_params(self, params: Mapping[str, Any]) -> None:
+        """Refuse what :meth:`render` would refuse of ``params`` (unknown keys, shapes, values
+        not finite or beyond the scene format's bounds, where concrete), without rendering and
+        without a :class:`StaleSearchWarning`: for a fit's start before its first refresh.
+
+        Raises
+        ------
+        ConfigError
+        """
+        self._complete(params)
+
+    def _check_reach(self, concrete: Mapping[str, np.ndarray]) -> None:
+        """Refuse an object whose vertices, scaled and posed, reach beyond the scene's extent
+        (as the scene format refuses its mesh: ``MAX_COORDINATE_M`` along any axis)."""
+        from ..config.scene import MAX_COORDINATE_M
+        from ..core.transforms import rpy_to_matrix
+
+        parts = ("vertices_m", "scale", "rpy_deg", "position_m")
+        for obj in self.scene.objects:
+            p = f"objects.{obj.name}"
+            given = [f"{p}.{part}" for part in parts if f"{p}.{part}" in concrete]
+            if not given:
+                continue
+            v = {part: np.asarray(concrete.get(f"{p}.{part}", self._defaults[f"{p}.{part}"]), float) for part in parts}
+            # A batch (jax.vmap's): each member (the parts not batched are shared).
+            batched = {part: x.ndim > np.ndim(self._defaults[f"{p}.{part}"]) for part, x in v.items()}
+            n = max([len(x) for part, x in v.items() if batched[part]] + [1])
+            reach = 0.0
+            for b in range(n):
+                m = {part: x[b] if batched[part] else x for part, x in v.items()}
+                world = (m["vertices_m"] * m["scale"]) @ rpy_to_matrix(*np.radians(m["rpy_deg"])).T + m["position_m"]
+                reach = max(reach, float(np.abs(world).max()) if len(world) else 0.0)
+            if reach > MAX_COORDINATE_M:
+                # Named by a part that moved (all may be given, as to jax.grad).
+                moved = [k for k in given if np.any(np.asarray(concrete[k]) != self._defaults[k])]  # (a batch too)
+                raise ConfigError((moved or given)[0], f"the vertices of object {obj.name!r}, scaled and posed, reach "
+                                  f"{reach:.3g} m from the origin; allowed: within [{-MAX_COORDINATE_M:g}, "
+                                  f"{MAX_COORDINATE_M:g}] m along each axis (the scene format's bound; mind scale and "
+                                  "pose)")
 
     def _checked(self, params: Mapping[str, Any] | None) -> dict[str, Any]:
         """:meth:`_complete` with the bounds, and a :class:`StaleSearchWarning` where the
@@ -295,9 +339,10 @@ class Renderer:
         # that stops.
         self._complete(params, bounds=False)
         table = parameter_bounds()
-        for k, v in (params or {}).items():
-            if k.endswith(GEOMETRY):
-                check_value(k, np.asarray(v, float), table)
+        geometry = {k: np.asarray(v, float) for k, v in (params or {}).items() if k.endswith(GEOMETRY)}
+        for k, v in geometry.items():
+            check_value(k, v, table)
+        self._check_reach(geometry)
         # Only geometry moves the search (laws, reflectances and the sensor do not: they are
         # not even checked against the scene format's bounds here); a value within float32's
         # round-off of the scene's has not moved.
@@ -305,11 +350,18 @@ class Renderer:
         moved = [k for k, v in values.items() if not k.startswith("sonar.")
                  and not np.allclose(v, self._defaults[k], rtol=1e-6, atol=1e-9)]
         values = {k: v for k, v in values.items() if k.startswith("sonar.") or k in moved}
-        scene = scene_with(self.scene, values) if values else self.scene
         if moved:
-            with Simulator(replace(scene, sensor=self.scene.sensor)) as sim:
+            try:
+                scene = scene_with(self.scene, values)
+                sim = Simulator(replace(scene, sensor=self.scene.sensor))
+            except SonarsimError as exc:
+                # What the scene format refuses of the moved geometry (a mesh posed beyond the
+                # scene's extent, ...), named by the parameter that moved it.
+                raise ConfigError(moved[0], f"the scene at these parameters is refused: {exc}") from None
+            with sim:
                 search = record_search(sim, scene.sonar_pose, self._capacity)
         else:
+            scene = scene_with(self.scene, values) if values else self.scene
             search = record_search(self.sim, scene.sonar_pose, self._capacity)
         # Sizes only grow: a refreshed search of the same size or smaller reuses the compiled
         # functions (a new size compiles them again, a second or more).
