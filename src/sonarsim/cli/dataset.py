@@ -125,6 +125,9 @@ def cmd_dataset(args: argparse.Namespace) -> None:
                 raise ConfigError(option, f"{exc.key.rsplit('.', 1)[-1]}: {exc.detail}") from None
     scenario = load_scenario(args.scenario, frames=args.frames)
     if start_ns is not None:
+        from ..dataset.frames import require_manifest_memory
+
+        require_manifest_memory(scenario)  # before every frame's time is listed
         from ..io.rosbag import frame_stamps
 
         # The last frame's stamp too, here to name the option (generate names start_time).
