@@ -8,9 +8,11 @@ bytes of an uninterrupted run. The generators and the check are in
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 from contextlib import redirect_stderr
+from pathlib import Path
 
 import pytest
 import yaml
@@ -110,8 +112,8 @@ def test_the_check_fails_a_refusal_that_names_nothing_or_leaves_a_folder(tmp_pat
     assert check_case(_valid(), tmp_path).failure.startswith("a refusal naming no option, key or file")
 
     def leaves_folder(scenario, out, **kwargs):
-        (out_path := __import__("pathlib").Path(out)).mkdir()
-        (out_path / "dataset.json").write_text("{}")
+        Path(out).mkdir()
+        (Path(out) / "dataset.json").write_text("{}")
         raise SonarsimError(f"{out}: refused")
 
     monkeypatch.setattr("sonarsim.dataset.generate", leaves_folder)
@@ -123,7 +125,6 @@ def test_the_check_fails_a_resume_that_changes_the_bytes(tmp_path, monkeypatch):
     from sonarsim.dataset import writer
 
     real = writer._write_files
-    runs = {"n": 0}
 
     def differs(out, encoded):
         real(out, encoded)
@@ -131,11 +132,8 @@ def test_the_check_fails_a_resume_that_changes_the_bytes(tmp_path, monkeypatch):
             path = out / encoded.record["files"][0]
             data = path.read_bytes() + b"\0"
             path.write_bytes(data)
-            import hashlib
-
             encoded.record["bytes"][encoded.record["files"][0]] = len(data)
             encoded.record["sha256"][encoded.record["files"][0]] = hashlib.sha256(data).hexdigest()
-        runs["n"] += 1
 
     monkeypatch.setattr(writer, "_write_files", differs)
     out = check_case(_valid("complete"), tmp_path)
@@ -205,7 +203,6 @@ def test_an_empty_ray_address_names_the_option(tmp_path, capsys):
 def test_the_long_run_summary_is_json(tmp_path):
     # benchmarks/fuzz_dataset.py's summary, on 4 cases: counts that add up.
     import sys
-    from pathlib import Path
 
     sys.path.insert(0, str(Path(fuzz.__file__).resolve().parents[2] / "benchmarks"))
     try:
