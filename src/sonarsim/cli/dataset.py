@@ -23,6 +23,12 @@ def _seed(text: str) -> int:
     return integer_at_least(text, 0, "seed")
 
 
+def _address(text: str) -> str:
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"expected a Ray cluster address, 'auto' or 'local', got {text!r}")
+    return text
+
+
 def _names(option: str) -> Any:
     """An argparse type: ``name=value,name=value`` as a dict (each name once)."""
 
@@ -59,7 +65,7 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="render in N processes (default 1; at most the CPU cores, and as many as the memory "
                    "budget holds: a cap is said on stderr), or with --ray N actors (default: the cluster's CPUs); "
                    "the frames are the same whatever N")
-    p.add_argument("--ray", default=None, metavar="ADDRESS",
+    p.add_argument("--ray", type=_address, default=None, metavar="ADDRESS",
                    help="render on a Ray cluster: its address, 'auto' (the cluster this machine belongs to) or "
                    "'local' (a new Ray instance here); needs the ray extra (pip install -e '.[ray]' in a clone)")
     p.add_argument("--rosbag", choices=("mcap", "sqlite3"), default=None,
@@ -125,6 +131,9 @@ def cmd_dataset(args: argparse.Namespace) -> None:
                 raise ConfigError(option, f"{exc.key.rsplit('.', 1)[-1]}: {exc.detail}") from None
     scenario = load_scenario(args.scenario, frames=args.frames)
     if start_ns is not None:
+        from ..dataset.frames import require_manifest_memory
+
+        require_manifest_memory(scenario)  # before every frame's time is listed
         from ..io.rosbag import frame_stamps
 
         # The last frame's stamp too, here to name the option (generate names start_time).

@@ -29,7 +29,8 @@ if TYPE_CHECKING:
     from ..image.result import SonarImage
     from ..renderer.simulator import Simulator
 
-__all__ = ["LABEL_MODES", "Frame", "SimulatorCache", "as_scenario", "frame_arrays", "frame_memory_bytes", "frames", "label_mode", "labels_supported", "render_frame", "rendered_labels"]
+__all__ = ["LABEL_MODES", "Frame", "SimulatorCache", "as_scenario", "frame_arrays", "frame_memory_bytes", "frames", "label_mode", "labels_supported", "render_frame", "rendered_labels",
+           "require_manifest_memory"]
 
 # Simulators kept per process: frames that vary their scene each get their own key, and a
 # simulator holds its meshes and ray-casting structures; a few cover a scenario that cycles
@@ -164,6 +165,37 @@ def frame_memory_bytes(scenario: Scenario, labels: bool | str) -> float:
     return total
 
 
+#: What a dataset holds per frame while it is made, besides the frames being rendered: each
+#: frame's spec digest and manifest header (1.3 kB measured), its finished manifest line with
+#: its boxes and masks, and the fingerprint's digests; a floor, which a random trajectory of
+#: 10**9 frames once spun past (an hour a million frames, and memory without end).
+MANIFEST_BYTES_PER_FRAME = 4096
+
+
+def require_manifest_memory(scenario: Scenario) -> None:
+    """Refuse a dataset of more frames than the memory budget can list (their specs and
+    manifest lines, :data:`MANIFEST_BYTES_PER_FRAME` each), before any frame is listed.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``trajectory.generate.frames`` (random poses) or ``trajectory``, and the file.
+    """
+    from ..core.memory import require
+    from ..errors import ConfigError
+    from .trajectory import RandomPoses
+
+    n = scenario.n_frames
+    key = "trajectory.generate.frames" if isinstance(scenario.trajectory, RandomPoses) else "trajectory"
+    # (a count of 400 digits is no float)
+    count = str(n) if n < 10**6 else f"{float(n):.3g}" if n < 10**300 else f"about 1e{len(str(n)) - 1}"
+    try:
+        require(n * MANIFEST_BYTES_PER_FRAME, f"the manifest of {count} frames", key)
+    except ConfigError as exc:
+        raise ConfigError(key, f"{exc.detail}; make fewer frames (or the first N: --frames N)",
+                          scenario.source) from None
+
+
 def require_dataset_memory(scenario: Scenario, labels: bool | str) -> None:
     """Refuse, before the first frame, frames that would not fit the memory budget: their
     images, rays and sensor fields, and their label maps for the most objects a frame of
@@ -179,6 +211,7 @@ def require_dataset_memory(scenario: Scenario, labels: bool | str) -> None:
     from ..renderer.simulator import require_frame_memory
 
     mode = label_mode(labels)
+    require_manifest_memory(scenario)
     doc, scene = _largest_frame(scenario)
     try:
         require_frame_memory(scene, scene.sonar)
