@@ -47,9 +47,10 @@ EXAMPLES = REPO / "examples"
 #: traced allocation beyond it rather than as a machine that swaps.
 FUZZ_BUDGET_BYTES = 64 * 2**20
 
-#: A case that runs longer than this (seconds) counts as a hang. Loading takes milliseconds; a
-#: render of a scene within the budget takes well under a second here.
-LOAD_TIME_LIMIT_S = 5.0
+#: A case that runs longer than this (seconds) counts as a hang. Loading takes milliseconds (a
+#: document of 7,000 objects about a second, traced); on a machine loaded ten times over the
+#: same load took past 5 s, so the guard is a hang's, not a speed test's.
+LOAD_TIME_LIMIT_S = 30.0
 RENDER_TIME_LIMIT_S = 30.0
 
 #: A frame's images, rays and speckle fields are checked together against the budget

@@ -15,6 +15,7 @@ import pytest
 import yaml
 
 from sonarsim.cli.main import main
+from sonarsim.errors import ConfigError
 from sonarsim.config.loader import parse_sonar
 from sonarsim.config.presets import ARIS_ELEVATION_FOV_DEG, ARIS_MODES, PRESETS
 from sonarsim.config.sensor import SENSOR_PRESETS, OutputSpec, parse_sensor, preset_device_mismatch
@@ -130,6 +131,25 @@ def test_sensor_option_of_another_device_is_refused_unless_forced(tmp_path, caps
         folder = tmp_path / "_".join(options).strip("-")
         assert main(["render", str(scene), "--out", str(folder), "--no-figures", *options]) == 0, options
         assert (folder / "render.npz").is_file()
+
+
+def test_a_scene_file_pairing_another_devices_sensor_preset_is_refused(tmp_path, capsys):
+    from sonarsim.config.loader import load_scene
+
+    doc = copy.deepcopy(SMALL_ARIS)
+    doc["sensor"] = {"preset": "aris3000-128"}
+    scene = tmp_path / "paired.yaml"
+    scene.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ConfigError, match=r"sensor\.preset: sensor preset 'aris3000-128' models another device "
+                                          r".*sonar preset 'aris1200-48'\): use sensor\.preset: aris1200-48"):
+        load_scene(scene)
+    out = tmp_path / "out"
+    assert main(["render", str(scene), "--out", str(out), "--no-figures"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "sensor.preset" in err[0] and not out.exists()
+    doc["sensor"] = {"preset": "aris1200-48"}  # its own device's preset loads
+    scene.write_text(yaml.safe_dump(doc))
+    assert load_scene(scene).sensor.preset == "aris1200-48"
 
 
 # --- saturation -----------------------------------------------------------------------------------

@@ -20,7 +20,7 @@ from .document import MAX_DOCUMENT_BYTES as MAX_SCENE_BYTES, read_document  # no
 from .materials import LAWS, Material, mu_from_db
 from .meshfiles import load_mesh_file, world_reach_m  # below scene: config imports nothing of it
 from .presets import beam_angles_from_table, get_preset
-from .sensor import parse_sensor
+from .sensor import parse_sensor, preset_device_mismatch
 from .scene import MAX_COORDINATE_M, ObjectSpec, PlaneSpec, RenderSettings, Scene, TextureSpec, ground_plane
 from .sonar import MIN_RELATIVE_BIN_WIDTH, RangeBinError, SonarConfig, beam_edges_deg, check_range_window
 from ..core.transforms import Pose
@@ -431,7 +431,7 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
         if not isinstance(planes_raw, list):
             raise ConfigError("planes", f"must be a list of planes, got {type(planes_raw).__name__}")
         sonar, sonar_pose = parse_sonar_section(d["sonar"], base)
-        return _prefixed(
+        scene = _prefixed(
             "",
             Scene,
             sonar=sonar,
@@ -443,6 +443,14 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
             source=source,
             sensor=parse_sensor(d.get("sensor"), base),
         )
+        if scene.sensor is not None and scene.sensor.preset is not None:
+            # The command line's --force takes another device's preset on purpose; in a file the
+            # pairing is a slip (an ARIS's sensor on an Oculus's sonar gives another device's levels).
+            mismatch = preset_device_mismatch(scene.sensor.preset, sonar)
+            if mismatch is not None:
+                raise ConfigError("sensor.preset", mismatch.replace("use --sensor ", "use sensor.preset: ")
+                                  + " (or give the sensor's keys without a preset)")
+        return scene
     except ConfigError as exc:
         if source and exc.source is None:
             raise ConfigError(exc.key, exc.detail, source) from None
