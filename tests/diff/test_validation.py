@@ -117,7 +117,8 @@ def test_the_bounds_are_the_scene_formats_own(make, key, values):
 def test_a_normal_scene_renders_as_before_issue_37(sensed):
     """Images and gradients of the small scenes equal those the engine gave before the
     degenerate-geometry guards and the objects posed at once (``data/before_issue37.npz``,
-    written by the earlier forward), to round-off."""
+    written by the earlier forward with the ray weight's cos(elevation) already in it:
+    ``data/make_before_issue37.py``), to round-off."""
     before = np.load(BEFORE)
     for name, doc in SCENES.items():
         r = sensed[0] if name == "sensed" else sd.Renderer(doc)
