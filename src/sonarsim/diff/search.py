@@ -32,7 +32,7 @@ import numpy as np
 
 from ..config.scene import ON_PLANE_TOLERANCE_M, check_sonar_position
 from ..errors import ConfigError
-from ..paths.engine import SAME, SonarView, path_name, set_continuity
+from ..paths.engine import SAME, path_name, set_continuity
 from ..renderer.components import stack_rows
 from ..renderer.simulator import Simulator
 from ..scene.floor_texture import scale_by_texture
@@ -242,13 +242,10 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
         # As Simulator.render refuses it: a sonar on a plane sees nothing it can be sure of.
         check_sonar_position(scene.reflecting_planes, pose.position_m, "sonar.position_m" if given else
                              "sonar.pose.position_m")
-    sonar = sim.traced_sonar(scene.sonar)
-    fan = sim.ray_fan(scene.sonar)
-    active, multipath, reach = sim.frame_reach(sonar, pose)
-    n_gen = render.max_order if multipath else 1
-    view = SonarView.of(sonar, pose, fan)
-    _, legs, sets, table, _, _ = sim._render_paths(sonar, view, reach, active, n_gen, primitives=True)
-    sets = sets() if callable(sets) else sets
+    paths = sim.trace(pose, primitives=True, paths=True)
+    sonar, fan, view = paths.traced, paths.fan, paths.view
+    legs, table = paths.legs, paths.table
+    sets = paths.sets() if callable(paths.sets) else paths.sets
     n_planes = len(sim.planes)
     n_surfaces = n_planes + len(sim.meshes)
     n_el = fan.shape[2]

@@ -35,6 +35,7 @@ from ..paths.engine import (
     Leg, SonarView, accumulate_paths, drop_occluded, form_paths, ground_signatures, probe_chains, renumber_chains,
     glint_sets, split_by_signature, trace_legs,
 )
+from ..paths.buffer import FramePaths
 from ..paths.facets import FacetSet
 from ..paths.planes import ChainTable, PlaneSet
 from ..sensor.model import SensorModel, elevation_span_deg
@@ -466,9 +467,132 @@ class Simulator:
                 out[name] = image
         return out
 
+    def trace(self, pose: Any = None, sonar: SonarConfig | None = None, labels: bool | str = False,
+              primitives: bool = False, paths: bool = False) -> FramePaths:
+        """The search: the frame's paths for the sonar at ``pose`` (the first step of :meth:`render`).
+
+        Parameters
+        ----------
+        pose : Pose, dict or (4, 4) array, optional
+            Sonar pose in the world frame (sonar-to-world); default the scene's.
+        sonar : SonarConfig, optional
+            Other intrinsics (beams, elevation aperture, range window); default the scene's.
+        labels : bool or {'all', 'total'}
+            Prepare the frame's ground truth (formed by :meth:`form`); see :meth:`render`.
+        primitives : bool
+            Record the triangle and barycentrics each receive leg meets (the differentiable
+            engine holds them fixed).
+        paths : bool
+            Form paths even where ``render.method: paper`` forms Algorithm 2's images instead.
+
+        Returns
+        -------
+        FramePaths
+            The paths and the image stack they were splatted into (:mod:`sonarsim.paths.buffer`).
+
+        Raises
+        ------
+        ConfigError
+            The sonar lies on one of the scene's planes; unknown ``labels``.
+        """
+        t0 = time.perf_counter()
+        if labels not in (False, True, "all", "total"):
+            raise ConfigError("labels", f"unknown labels {labels!r}; allowed: False, True, 'all', 'total'")
+        sonar = sonar if sonar is not None else self.scene.sonar
+        pose_given = pose is not None
+        pose = as_pose(pose) if pose_given else self.scene.sonar_pose
+        if len(self.planes) and np.abs(self.planes.signed_distance(pose.translation)).min() < ON_PLANE_TOLERANCE_M:
+            check_sonar_position(self.scene.reflecting_planes, pose.position_m,
+                                 "pose" if pose_given else "sonar.pose.position_m")
+        if pose_given:
+            self._warn_if_inside(pose.translation, stacklevel=4)
+        render = self.scene.render
+        fan = self.ray_fan(sonar)
+        image_sonar, sonar = sonar, self.traced_sonar(sonar)  # the image's grid; the rays' aperture
+        t1 = time.perf_counter()
+        active, multipath, reach = self.frame_reach(sonar, pose)
+        spec = None
+        if labels:
+            spec = self._label_spec(fan, sonar, len(self.scene.objects), len(self.scene.reflecting_planes),
+                                    labels != "total")
+        n_gen = render.max_order if multipath else 1
+        view = SonarView.of(sonar, pose, fan)  # the frame's pose and fan, its rays rotated once
+        if render.method == "paper" and multipath and self._ground_only and not paths:
+            stack, legs, sets, table, total, formed = self._render_paper(sonar, view, reach)
+        else:
+            stack, legs, sets, table, total, formed = self._render_paths(sonar, view, reach, active, n_gen, spec,
+                                                                         primitives=primitives)
+        t2 = time.perf_counter()
+        return FramePaths(sonar=image_sonar, traced=sonar, pose=pose, view=view, stack=stack, legs=legs, sets=sets,
+                          table=table, total=total, formed=formed, label_spec=spec, labels=labels,
+                          active=active, n_generations=n_gen, reach_m=reach,
+                          timing={"t0": t0, "setup": t1 - t0, "render": t2 - t1})
+
+    def form(self, paths: FramePaths, keep_rays: bool = True, speckle: bool | None = None,
+             frame: int | None = None) -> SonarImage:
+        """Image formation: a frame's paths (:meth:`trace`) -> the image, its components and labels,
+        through the sensor (the second step of :meth:`render`; arguments as there)."""
+        t2 = time.perf_counter()
+        render = self.scene.render
+        sonar, image_sonar, pose, fan = paths.traced, paths.sonar, paths.pose, paths.fan
+        stack, legs, sets, table, total, formed = (paths.stack, paths.legs, paths.sets, paths.table, paths.total,
+                                                   paths.formed)
+        labels, spec = paths.labels, paths.label_spec
+        truth = None
+        if labels:
+            names = (tuple(o.name for o in self.scene.objects), tuple(p.name for p in self.scene.reflecting_planes))
+            label_legs, label_sets = legs, sets
+            if sets is None:  # Algorithm 2 forms no paths: the general engine's, for the labels only
+                # (the frame's own legs and sets stay None: its signature images are the ground's)
+                _, label_legs, label_sets, _, _, formed = self._render_paths(
+                    sonar, paths.view, paths.reach_m, paths.active, paths.n_generations, spec)
+            if formed is None and callable(label_sets):
+                label_sets = label_sets()
+            truth = frame_labels(label_sets, label_legs, spec, image_sonar, *names, render.range_splat, self.path_kernels,
+                                 formed)
+        t3 = time.perf_counter()
+        if sets is None:  # ground only: its four images are the four ground-only signatures
+            rows = {c.name: stack[c.rows[0]] for c in component_table(render.max_order) if len(c.rows) == 1}
+            signatures = functools.partial(ground_signatures, rows)
+        else:
+            signatures = functools.partial(self._signature_images, sonar, fan, legs, sets, table)
+        components = frame_components(stack, render.bounces, render.max_order, signatures, total)
+        total = components["total"]
+        rng = self._rng if frame is None else frame_rng(render.seed, frame)
+        model = self.sensor_model(image_sonar)
+        if model is not None:
+            speckle_rng = rng
+            if self.scene.sensor.speckle is not None and self.scene.sensor.speckle.anchor == "world":
+                speckle_rng = model.anchored_rng(pose.position_m, pose.rpy_deg)  # still sonar, still speckle
+            total = model.apply(total, speckle_rng, speckle is not False, pool=self._pool, noise_rng=rng,
+                                warn_saturation=True)
+        elif render.speckle and speckle is not False:
+            total = (total * rng.exponential(1.0, total.shape)).astype(np.float32)
+        rays = None
+        if keep_rays:
+            primary = legs[0]
+            rays = RayMaps(
+                distance_m=primary.distance.reshape(fan.shape).astype(np.float32),
+                intensity=np.where(primary.sid >= 0, primary.intensity, 0.0).reshape(fan.shape).astype(np.float32),
+                surface_id=primary.sid.reshape(fan.shape).astype(np.int16),
+                azimuth_deg=np.degrees(fan.azimuth_rad),
+                elevation_deg=np.degrees(fan.elevation_rad),
+            )
+        sonar = image_sonar
+        config = {**self._config, "sonar": sonar_section(sonar, pose)}
+        t4 = time.perf_counter()
+        timing = paths.timing or {}
+        self.last_timing = {"setup": timing.get("setup", 0.0), "render": timing.get("render", 0.0),
+                            "labels": t3 - t2, "assemble": t4 - t3,
+                            "total": t4 - timing.get("t0", t2)}
+        return SonarImage(
+            polar=total, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg,
+            components=components, sonar=sonar, pose=pose, rays=rays, config=config, labels=truth,
+        )
+
     def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True,
                speckle: bool | None = None, frame: int | None = None, labels: bool | str = False) -> SonarImage:
-        """Render one image.
+        """Render one image: :meth:`trace` the frame's paths, then :meth:`form` its image.
 
         Parameters
         ----------
@@ -506,80 +630,7 @@ class Simulator:
         ConfigError
             The sonar lies on one of the scene's planes.
         """
-        t0 = time.perf_counter()
-        if labels not in (False, True, "all", "total"):
-            raise ConfigError("labels", f"unknown labels {labels!r}; allowed: False, True, 'all', 'total'")
-        sonar = sonar if sonar is not None else self.scene.sonar
-        pose_given = pose is not None
-        pose = as_pose(pose) if pose_given else self.scene.sonar_pose
-        if len(self.planes) and np.abs(self.planes.signed_distance(pose.translation)).min() < ON_PLANE_TOLERANCE_M:
-            check_sonar_position(self.scene.reflecting_planes, pose.position_m,
-                                 "pose" if pose_given else "sonar.pose.position_m")
-        if pose_given:
-            self._warn_if_inside(pose.translation, stacklevel=3)
-        render = self.scene.render
-        fan = self.ray_fan(sonar)
-        image_sonar, sonar = sonar, self.traced_sonar(sonar)  # the image's grid; the rays' aperture
-        t1 = time.perf_counter()
-        active, multipath, reach = self.frame_reach(sonar, pose)
-        spec = None
-        if labels:
-            names = (tuple(o.name for o in self.scene.objects), tuple(p.name for p in self.scene.reflecting_planes))
-            spec = self._label_spec(fan, sonar, len(names[0]), len(names[1]), labels != "total")
-        n_gen = render.max_order if multipath else 1
-        view = SonarView.of(sonar, pose, fan)  # the frame's pose and fan, its rays rotated once
-        if render.method == "paper" and multipath and self._ground_only:
-            stack, legs, sets, table, total, formed = self._render_paper(sonar, view, reach)
-        else:
-            stack, legs, sets, table, total, formed = self._render_paths(sonar, view, reach, active, n_gen, spec)
-        truth = None
-        t2 = time.perf_counter()
-        if labels:
-            label_legs, label_sets = legs, sets
-            if sets is None:  # Algorithm 2 forms no paths: the general engine's, for the labels only
-                # (the frame's own legs and sets stay None: its signature images are the ground's)
-                _, label_legs, label_sets, _, _, formed = self._render_paths(sonar, view, reach, active, n_gen, spec)
-            if formed is None and callable(label_sets):
-                label_sets = label_sets()
-            truth = frame_labels(label_sets, label_legs, spec, image_sonar, *names, render.range_splat, self.path_kernels,
-                                 formed)
-        t3 = time.perf_counter()
-        if sets is None:  # ground only: its four images are the four ground-only signatures
-            rows = {c.name: stack[c.rows[0]] for c in component_table(render.max_order) if len(c.rows) == 1}
-            paths = functools.partial(ground_signatures, rows)
-        else:
-            paths = functools.partial(self._signature_images, sonar, fan, legs, sets, table)
-        components = frame_components(stack, render.bounces, render.max_order, paths, total)
-        total = components["total"]
-        rng = self._rng if frame is None else frame_rng(render.seed, frame)
-        model = self.sensor_model(image_sonar)
-        if model is not None:
-            speckle_rng = rng
-            if self.scene.sensor.speckle is not None and self.scene.sensor.speckle.anchor == "world":
-                speckle_rng = model.anchored_rng(pose.position_m, pose.rpy_deg)  # still sonar, still speckle
-            total = model.apply(total, speckle_rng, speckle is not False, pool=self._pool, noise_rng=rng,
-                                warn_saturation=True)
-        elif render.speckle and speckle is not False:
-            total = (total * rng.exponential(1.0, total.shape)).astype(np.float32)
-        rays = None
-        if keep_rays:
-            primary = legs[0]
-            rays = RayMaps(
-                distance_m=primary.distance.reshape(fan.shape).astype(np.float32),
-                intensity=np.where(primary.sid >= 0, primary.intensity, 0.0).reshape(fan.shape).astype(np.float32),
-                surface_id=primary.sid.reshape(fan.shape).astype(np.int16),
-                azimuth_deg=np.degrees(fan.azimuth_rad),
-                elevation_deg=np.degrees(fan.elevation_rad),
-            )
-        sonar = image_sonar
-        config = {**self._config, "sonar": sonar_section(sonar, pose)}
-        t4 = time.perf_counter()
-        self.last_timing = {"setup": t1 - t0, "render": t2 - t1, "labels": t3 - t2, "assemble": t4 - t3,
-                            "total": t4 - t0}
-        return SonarImage(
-            polar=total, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg,
-            components=components, sonar=sonar, pose=pose, rays=rays, config=config, labels=truth,
-        )
+        return self.form(self.trace(pose, sonar, labels), keep_rays=keep_rays, speckle=speckle, frame=frame)
 
 
 def render(scene: Any, pose: Any = None, backend: str = "embree", speckle: bool | None = None,
