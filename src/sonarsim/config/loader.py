@@ -10,6 +10,7 @@ import math
 import os
 import sys
 from collections.abc import Mapping
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -21,16 +22,18 @@ from .materials import LAWS, Material, mu_from_db
 from .meshfiles import load_mesh_file, world_reach_m  # below scene: config imports nothing of it
 from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor, preset_device_mismatch
+from .instruments import FlsSpec, instrument_class, mounted
 from .scene import MAX_COORDINATE_M, ObjectSpec, PlaneSpec, RenderSettings, Scene, TextureSpec, ground_plane
 from .sonar import MIN_RELATIVE_BIN_WIDTH, RangeBinError, SonarConfig, beam_edges_deg, check_range_window
 from ..core.transforms import Pose
 
-TOP_KEYS = ("sonar", "render", "ground", "planes", "objects", "sensor")
+TOP_KEYS = ("sonar", "render", "ground", "planes", "objects", "sensor", "vehicle", "instruments")
 SONAR_KEYS = (
     "preset", "n_beams", "azimuth_fov_deg", "beam_angles_deg", "beam_angles_file", "beam_width_deg",
     "elevation_fov_deg", "range_min_m", "range_max_m", "n_range_bins", "range_resolution_m",
-    "frequency_khz", "pose",
+    "frequency_khz", "pose", "type",
 )
+VEHICLE_KEYS = ("pose",)
 POSE_KEYS = ("position_m", "rpy_deg", "quat_xyzw")
 RENDER_KEYS = tuple(RenderSettings.__dataclass_fields__)
 GROUND_KEYS = ("height_m", "albedo", "specular", "material", "texture")
@@ -142,6 +145,10 @@ def parse_sonar_section(d: Any, base_dir: Path | None) -> tuple[SonarConfig, Pos
     pose : Pose
     """
     _check_keys(d, SONAR_KEYS, "sonar")
+    if "type" in d:
+        if d["type"] != "fls":
+            raise ConfigError("sonar.type", f"the intrinsics of an FLS; got type {shown(d['type'])}")
+        d = {k: v for k, v in d.items() if k != "type"}
     merged: dict[str, Any] = {}
     preset_name = None
     if "preset" in d:
@@ -407,6 +414,70 @@ def parse_object(d: Any, index: int, base_dir: Path | None) -> ObjectSpec:
     return spec
 
 
+def parse_instrument(d: Any, key: str, base_dir: Path | None, default_name: str, mount_key: str = "mount"):
+    """One instrument's section (``instruments[i]``, or ``sonar:`` with a ``type``).
+
+    The type's keys are the type's (:mod:`sonarsim.config.instruments`); ``name`` defaults to
+    ``default_name`` and ``mount`` (``mount_key``) to the vehicle's origin.
+
+    Returns
+    -------
+    InstrumentSpec
+    """
+    if not isinstance(d, Mapping):
+        raise ConfigError(key, f"must be a mapping with a type; got {type(d).__name__}")
+    kind = d.get("type", "fls")
+    cls = instrument_class(kind, f"{key}.type")
+    name = _string(d.get("name", default_name), f"{key}.name")
+    mount = parse_pose(d.get(mount_key, {}) or {}, f"{key}.{mount_key}")
+    if cls is FlsSpec:
+        body = {k: v for k, v in d.items() if k not in ("type", "name", mount_key, "ping_rate_hz")}
+        try:
+            sonar, _ = parse_sonar_section(body, base_dir)
+        except ConfigError as exc:
+            raise ConfigError(exc.key.replace("sonar", key, 1), exc.detail) from None
+        rate = d.get("ping_rate_hz")
+        if rate is not None:
+            rate = _number(rate, f"{key}.ping_rate_hz")
+            if not 0 < rate <= 1e4:
+                raise ConfigError(f"{key}.ping_rate_hz", f"must be a rate in (0, 10000] Hz, got {shown(rate)}")
+        return FlsSpec(name=name, mount=mount, sonar=sonar, ping_rate_hz=rate)
+    allowed = ("type", "name", mount_key) + tuple(cls.keys)
+    _check_keys(d, allowed, key)
+    body = {k: v for k, v in d.items() if k not in ("type", "name", mount_key)}
+    return cls.parse(body, key, base_dir, name, mount)
+
+
+def _instruments(d: Mapping, base: Path | None) -> tuple[tuple, Pose]:
+    """The scene's instruments and the vehicle's pose: from ``vehicle`` + ``instruments``, or
+    from a ``sonar:`` section with a ``type`` other than ``fls`` (one instrument, the vehicle at
+    its pose); ``((), pose)`` for today's ``sonar:``."""
+    if "instruments" in d:
+        if "sonar" in d:
+            raise ConfigError("instruments", "give either sonar (one instrument) or instruments, not both")
+        raw = d["instruments"]
+        if not isinstance(raw, list) or not raw:
+            raise ConfigError("instruments", "must be a non-empty list of instruments, each with a type")
+        vehicle = d.get("vehicle") or {}
+        _check_keys(vehicle, VEHICLE_KEYS, "vehicle")
+        pose = parse_pose(vehicle.get("pose", {}) or {}, "vehicle.pose")
+        specs = tuple(parse_instrument(x, f"instruments[{i}]", base, f"{x.get('type', 'fls') if isinstance(x, Mapping) else 'x'}{i}")
+                      for i, x in enumerate(raw))
+        names = [s.name for s in specs]
+        for i, n in enumerate(names):
+            if n in names[:i]:
+                raise ConfigError(f"instruments[{i}].name", f"duplicate instrument name {shown(n)}; names must be unique")
+        return specs, pose
+    if "vehicle" in d:
+        raise ConfigError("vehicle", "a vehicle carries instruments: give instruments: (or sonar: alone)")
+    sonar = d.get("sonar")
+    if isinstance(sonar, Mapping) and sonar.get("type", "fls") != "fls":
+        pose = parse_pose(sonar.get("pose", {}) or {}, "sonar.pose")
+        spec = parse_instrument(sonar, "sonar", base, str(sonar.get("type")), mount_key="pose")
+        return (replace(spec, mount=Pose()),), pose
+    return (), Pose()
+
+
 def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: str | None = None) -> Scene:
     """Build a :class:`Scene` from the scene-file dict.
 
@@ -422,15 +493,30 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
     base = Path(base_dir) if base_dir is not None else None
     try:
         _check_keys(d, TOP_KEYS, "")
-        if "sonar" not in d:
-            raise ConfigError("sonar", "required: the sonar section")
+        instruments, vehicle_pose = _instruments(d, base)
+        if "sonar" not in d and not instruments:
+            raise ConfigError("sonar", "required: the sonar section (or vehicle and instruments)")
         objects_raw = d.get("objects", []) or []
         if not isinstance(objects_raw, list):
             raise ConfigError("objects", f"must be a list of objects, got {type(objects_raw).__name__}")
         planes_raw = d.get("planes", []) or []
         if not isinstance(planes_raw, list):
             raise ConfigError("planes", f"must be a list of planes, got {type(planes_raw).__name__}")
-        sonar, sonar_pose = parse_sonar_section(d["sonar"], base)
+        sensor = parse_sensor(d.get("sensor"), base)
+        if instruments and sensor is not None:
+            # The top-level sensor is the FLS's; another type carries its own (``sensor:`` in its
+            # section; ``sonar:`` of that type: the top-level one is moved into it).
+            if "sonar" in d and "sensor" in type(instruments[0]).keys:
+                instruments, sensor = (replace(instruments[0], sensor=sensor),), None
+            elif not isinstance(instruments[0], FlsSpec):
+                raise ConfigError("sensor", "the top-level sensor is the first instrument's, an FLS's; give "
+                                  f"the {instruments[0].type_name} {shown(instruments[0].name)} its own "
+                                  "sensor: in its section")
+        if instruments:
+            primary = instruments[0].primary
+            sonar, sonar_pose = primary.sonar, mounted(vehicle_pose, primary.mount)
+        else:
+            sonar, sonar_pose = parse_sonar_section(d["sonar"], base)
         scene = _prefixed(
             "",
             Scene,
@@ -441,7 +527,9 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
             planes=tuple(parse_plane(p, i) for i, p in enumerate(planes_raw)),
             render=parse_render(d.get("render", {}) or {}),
             source=source,
-            sensor=parse_sensor(d.get("sensor"), base),
+            sensor=sensor if instruments else parse_sensor(d.get("sensor"), base),
+            instruments=instruments,
+            vehicle_pose=vehicle_pose,
         )
         if scene.sensor is not None and scene.sensor.preset is not None:
             # The command line's --force takes another device's preset on purpose; in a file the

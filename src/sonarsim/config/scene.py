@@ -619,7 +619,15 @@ class Scene:
         File the scene was read from (mesh paths are relative to its folder).
     sensor : SensorSpec or None
         The device model applied after image formation (``sensor:``); ``None``: the image is
-        the renderer's noise-free expected backscatter.
+        the renderer's noise-free expected backscatter. With ``instruments``, the FLS's.
+    instruments : tuple of InstrumentSpec
+        The instruments on the vehicle (``instruments:``, or ``sonar:`` with a ``type`` other
+        than ``fls``); empty for today's ``sonar:`` scene (one FLS, :attr:`sonar` at
+        :attr:`sonar_pose`). With instruments, :attr:`sonar` and :attr:`sonar_pose` are the
+        first instrument's first channel (what the scene's cost checks count).
+    vehicle_pose : Pose
+        The vehicle's pose in the world frame (``vehicle.pose``; with ``sonar:`` of another
+        type, its ``pose``).
     """
 
     sonar: SonarConfig
@@ -631,6 +639,8 @@ class Scene:
     # Last, so that the fields before them keep their positions.
     sonar_pose: Pose = field(default_factory=Pose)
     sensor: SensorSpec | None = None
+    instruments: tuple = ()
+    vehicle_pose: Pose = field(default_factory=Pose)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "objects", tuple(self.objects))
@@ -702,12 +712,17 @@ class Scene:
         return replace(self, sonar_pose=pose)
 
     def to_dict(self) -> dict:
-        """The scene-file form (JSON/YAML-serialisable); the pose is ``sonar.pose``."""
-        out: dict = {
-            "sonar": sonar_section(self.sonar, self.sonar_pose),
+        """The scene-file form (JSON/YAML-serialisable); the pose is ``sonar.pose`` (with
+        instruments: ``vehicle.pose`` and each instrument's ``mount``)."""
+        if self.instruments:
+            out: dict = {"vehicle": {"pose": self.vehicle_pose.to_dict()},
+                         "instruments": [i.to_dict() for i in self.instruments]}
+        else:
+            out = {"sonar": sonar_section(self.sonar, self.sonar_pose)}
+        out.update({
             "render": self.render.to_dict(),
             "objects": [o.to_dict() for o in self.objects],
-        }
+        })
         if self.ground is not None:
             out["ground"] = ground_section(self.ground)
         if self.planes:

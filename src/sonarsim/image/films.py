@@ -132,10 +132,15 @@ class Waterfall:
     geometry : PingGeometry
         One entry per ping.
     labels : dict of str to ndarray, optional
-        Ground truth per sample, each ``(n_pings, 2, n_samples)``: ``instance`` (int16: -1
-        nothing, 0 the floor, k + 1 object k), ``shadow`` (bool). Renders only.
+        Ground truth per sample (renders only): ``instance`` (int32, ``(n_pings, 2,
+        n_samples)``: the id of :attr:`ids` bringing the most energy, -1 none), ``shadow``
+        (bool, same shape: the floor in the beam but hidden behind an object) and ``boxes``
+        (int32 ``(n_ids, 2, 4)``: per id and side ``[ping_min, sample_min, ping_max,
+        sample_max]``, -1 where the id dominates no sample).
     source : str
         Where it came from (a file, or ``"render"``).
+    ids : tuple of str
+        Names of the label ids: the scene's objects in order, then its reflecting planes.
     """
 
     samples: np.ndarray
@@ -144,6 +149,7 @@ class Waterfall:
     geometry: PingGeometry
     labels: dict | None = None
     source: str = "render"
+    ids: tuple = ()
 
     def __post_init__(self) -> None:
         s = np.asarray(self.samples)

@@ -468,7 +468,7 @@ class Simulator:
         return out
 
     def trace(self, pose: Any = None, sonar: SonarConfig | None = None, labels: bool | str = False,
-              primitives: bool = False, paths: bool = False) -> FramePaths:
+              primitives: bool = False, paths: bool = False, fan: RayFan | None = None) -> FramePaths:
         """The search: the frame's paths for the sonar at ``pose`` (the first step of :meth:`render`).
 
         Parameters
@@ -484,6 +484,10 @@ class Simulator:
             engine holds them fixed).
         paths : bool
             Form paths even where ``render.method: paper`` forms Algorithm 2's images instead.
+        fan : RayFan, optional
+            The rays to cast, in the sonar's frame, made for ``sonar`` as it is traced (an
+            instrument's own fan, its pattern in the rays' weights: :func:`~sonarsim.core.rays.make_ray_fan`).
+            Default: the scene's rays for ``sonar`` (:meth:`ray_fan`, with the sensor's pattern).
 
         Returns
         -------
@@ -507,8 +511,11 @@ class Simulator:
         if pose_given:
             self._warn_if_inside(pose.translation, stacklevel=4)
         render = self.scene.render
-        fan = self.ray_fan(sonar)
-        image_sonar, sonar = sonar, self.traced_sonar(sonar)  # the image's grid; the rays' aperture
+        if fan is None:
+            fan = self.ray_fan(sonar)
+            image_sonar, sonar = sonar, self.traced_sonar(sonar)  # the image's grid; the rays' aperture
+        else:
+            image_sonar = sonar
         t1 = time.perf_counter()
         active, multipath, reach = self.frame_reach(sonar, pose)
         spec = None
@@ -529,9 +536,13 @@ class Simulator:
                           timing={"t0": t0, "setup": t1 - t0, "render": t2 - t1})
 
     def form(self, paths: FramePaths, keep_rays: bool = True, speckle: bool | None = None,
-             frame: int | None = None) -> SonarImage:
+             frame: int | None = None, sensor: SensorModel | bool = True) -> SonarImage:
         """Image formation: a frame's paths (:meth:`trace`) -> the image, its components and labels,
-        through the sensor (the second step of :meth:`render`; arguments as there)."""
+        through the sensor (the second step of :meth:`render`; arguments as there).
+
+        ``sensor``: ``True`` the scene's sensor (if any), ``False`` none (the expected echo),
+        or a :class:`~sonarsim.sensor.model.SensorModel` made for the paths' grid (an
+        instrument's own chain)."""
         t2 = time.perf_counter()
         render = self.scene.render
         sonar, image_sonar, pose, fan = paths.traced, paths.sonar, paths.pose, paths.fan
@@ -559,10 +570,10 @@ class Simulator:
         components = frame_components(stack, render.bounces, render.max_order, signatures, total)
         total = components["total"]
         rng = self._rng if frame is None else frame_rng(render.seed, frame)
-        model = self.sensor_model(image_sonar)
+        model = self.sensor_model(image_sonar) if sensor is True else (sensor or None)
         if model is not None:
             speckle_rng = rng
-            if self.scene.sensor.speckle is not None and self.scene.sensor.speckle.anchor == "world":
+            if model.spec.speckle is not None and model.spec.speckle.anchor == "world":
                 speckle_rng = model.anchored_rng(pose.position_m, pose.rpy_deg)  # still sonar, still speckle
             total = model.apply(total, speckle_rng, speckle is not False, pool=self._pool, noise_rng=rng,
                                 warn_saturation=True)

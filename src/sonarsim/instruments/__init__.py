@@ -1,0 +1,165 @@
+"""Every sonar a robot carries, on one engine: the instruments and how each pings.
+
+An instrument (:class:`~sonarsim.config.instruments.InstrumentSpec`) is a mount on the vehicle,
+one or more channels (fans of rays) and a film. Each ping of a channel is one frame of the
+engine: :meth:`Simulator.trace` (the scene's surfaces, the channel's fan, its pose in the world
+-> the frame's paths, :mod:`sonarsim.paths.buffer`), then :meth:`Simulator.form` (paths -> the
+channel's image on its range x beam grid, components and labels). The instrument stacks its
+channels' images into its film (:mod:`sonarsim.image.films`) and applies its sensor chain there.
+
+Types register themselves by name: a module here defines its configuration class (registered
+with :func:`sonarsim.config.instruments.register`) and its renderer (registered with
+:func:`renders`). A scene that names a type imports its module (see
+:func:`sonarsim.config.instruments.instrument_class`).
+
+Examples
+--------
+>>> from sonarsim import Simulator                            # doctest: +SKIP
+>>> from sonarsim.instruments import render_pings              # doctest: +SKIP
+>>> sim = Simulator("survey.yaml")                           # doctest: +SKIP
+>>> waterfall = render_pings(sim, "sss", n_pings=200)          # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+from ..config.instruments import FlsSpec, InstrumentSpec, instrument_class, mounted
+from ..core.transforms import Pose
+from ..errors import ConfigError, shown
+
+__all__ = ["RENDERERS", "renders", "render_pings", "instrument", "vehicle_poses"]
+
+#: Type name -> ``render(sim, spec, poses, times_s, first_ping, speckle, labels) -> film``.
+RENDERERS: dict[str, Callable] = {}
+
+
+def renders(type_name: str) -> Callable:
+    """Decorator: the renderer of an instrument type."""
+    def wrap(fn: Callable) -> Callable:
+        RENDERERS[type_name] = fn
+        return fn
+    return wrap
+
+
+def instrument(sim, name: str | None = None) -> InstrumentSpec:
+    """The scene's instrument called ``name`` (default: the first); a scene with only a
+    ``sonar:`` section has one, its FLS, called ``sonar``.
+
+    Raises
+    ------
+    ConfigError
+        ``instrument``: no such name, with the names the scene has.
+    """
+    specs = sim.scene.instruments or (FlsSpec(name="sonar", sonar=sim.scene.sonar),)
+    if name is None:
+        return specs[0]
+    for s in specs:
+        if s.name == name:
+            return s
+    raise ConfigError("instrument", f"no instrument {shown(name)} in the scene; it has: "
+                      f"{', '.join(s.name for s in specs)}")
+
+
+def vehicle_poses(sim, spec: InstrumentSpec, n_pings: int | None = None, trajectory=None,
+                  times_s: np.ndarray | None = None) -> tuple[list[Pose], np.ndarray]:
+    """The vehicle's pose at each of an instrument's pings.
+
+    Parameters
+    ----------
+    sim : Simulator
+    spec : InstrumentSpec
+    n_pings : int, optional
+        Pings at the instrument's ping period from the trajectory's start (or, without a
+        trajectory, from the scene's vehicle pose, standing still).
+    trajectory : sonarsim.dataset.trajectory.Trajectory, optional
+        The vehicle's timestamped poses: each ping's pose is interpolated at its own time
+        (positions linearly, attitudes by slerp), so a moving vehicle moves between pings.
+    times_s : (n,) array, optional
+        The pings' times instead of ``n_pings`` (within the trajectory's span).
+
+    Returns
+    -------
+    poses : list of Pose
+        Vehicle-to-world, one per ping.
+    times_s : (n,) float64 ndarray
+    """
+    period = spec.ping_period_s()
+    if times_s is None:
+        if n_pings is None:
+            n_pings = 1 if trajectory is None else max(1, int(np.floor(
+                (trajectory.times_s[-1] - trajectory.times_s[0]) / period + 1e-9)) + 1)
+        t0 = 0.0 if trajectory is None else float(trajectory.times_s[0])
+        times_s = t0 + period * np.arange(int(n_pings))
+    times_s = np.asarray(times_s, np.float64)
+    if trajectory is None:
+        pose = sim.scene.vehicle_pose if sim.scene.instruments else sim.scene.sonar_pose
+        return [pose] * len(times_s), times_s
+    return poses_at(trajectory, times_s), times_s
+
+
+def poses_at(trajectory, times_s: np.ndarray) -> list[Pose]:
+    """A trajectory's poses at ``times_s`` (clipped to its span): positions interpolated
+    linearly, orientations by slerp."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    t = np.clip(np.asarray(times_s, np.float64), trajectory.times_s[0], trajectory.times_s[-1])
+    pos = np.column_stack([np.interp(t, trajectory.times_s, trajectory.positions_m[:, i]) for i in range(3)])
+    if trajectory.n_frames == 1:
+        rot = np.repeat(Rotation.from_quat(trajectory.quats_xyzw).as_matrix(), len(t), axis=0)
+    else:
+        rot = Slerp(trajectory.times_s, Rotation.from_quat(trajectory.quats_xyzw))(t).as_matrix()
+    out = []
+    for p, r in zip(pos, rot):
+        m = np.eye(4)
+        m[:3, :3], m[:3, 3] = r, p
+        out.append(Pose.from_matrix(m))
+    return out
+
+
+def render_pings(sim, name: str | None = None, n_pings: int | None = None, trajectory=None,
+                 times_s: np.ndarray | None = None, poses: list | None = None, first_ping: int = 0,
+                 speckle: bool | None = None, labels: bool = False) -> Any:
+    """Render an instrument's pings into its film.
+
+    Parameters
+    ----------
+    sim : Simulator
+        The scene, built once.
+    name : str, optional
+        The instrument (default the scene's first).
+    n_pings, trajectory, times_s
+        When the pings happen and where the vehicle is then (:func:`vehicle_poses`).
+    poses : list of Pose, optional
+        The vehicle's pose at each ping instead (with ``times_s``, or at the ping period).
+    first_ping : int
+        Index of the first ping: ping ``k``'s random draws come from ``(render.seed, k)``,
+        whoever renders it.
+    speckle : bool, optional
+        ``False``: the expected film (no random draws).
+    labels : bool
+        Attach the ground truth per sample (the film's type says which).
+
+    Returns
+    -------
+    The instrument's film: a :class:`~sonarsim.image.films.Waterfall` (side-scan), ...
+    """
+    spec = instrument(sim, name)
+    instrument_class(spec.type_name, "instrument.type")  # the type's module, and so its renderer
+    if spec.type_name not in RENDERERS:
+        import importlib
+
+        importlib.import_module(f"sonarsim.instruments.{spec.type_name}")
+    if poses is None:
+        poses, times_s = vehicle_poses(sim, spec, n_pings, trajectory, times_s)
+    elif times_s is None:
+        times_s = spec.ping_period_s() * np.arange(len(poses))
+    return RENDERERS[spec.type_name](sim, spec, list(poses), np.asarray(times_s, np.float64), first_ping,
+                                     speckle, labels)
+
+
+def channel_pose(vehicle: Pose, channel) -> Pose:
+    """A channel's pose in the world for the vehicle at ``vehicle``."""
+    return mounted(vehicle, channel.mount)

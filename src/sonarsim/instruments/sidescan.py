@@ -1,0 +1,339 @@
+"""Side-scan sonar: a port and a starboard transducer, slant-range lines stacked into a waterfall.
+
+Each side is one channel of the engine: one beam, narrow along track
+(``horizontal_beam_width_deg``), whose rays span the vertical plane across track from nadir up
+past the horizontal (the vertical pattern, ``vertical_beam_width_deg`` at -3 dB, tilted
+``depression_deg`` below the horizontal, weighs them: a line array's two-way pattern, its side
+lobes reaching nadir as a real transducer's do). The channel's axis is the vehicle's +y (port)
+or -y (starboard) turned down by the depression; its range bins are the line's samples. So the
+water column before the first bottom return is dark, the first return comes at the altitude
+(where the pattern reaches nadir), the surface's multipath ghost and objects' shadows come from
+the engine's paths as in any frame.
+
+Scene section (``type: sidescan``)::
+
+    {type: sidescan, preset: seascan_hds_600, range_max_m: 30, n_samples: 1024,
+     depression_deg: 15, vertical_beam_width_deg: 50, horizontal_beam_width_deg: 0.5,
+     frequency_khz: 600, ping_rate_hz: 25, sound_speed_m_s: 1500, sensor: {...}}
+
+Known simplification: the rays of a beam sample azimuth about the channel's own axis, so the
+beam's along-track width narrows as ``cos`` of the angle from the axis towards nadir (a line
+array's beam is a cone of constant along-track width); it changes the intensity near nadir, not
+where anything lies (issue 39, "arrays as built").
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ..config.instruments import Channel, InstrumentSpec, mounted, register
+from ..config.loader import _number, _integer, parse_pose
+from ..config.sensor import PatternSpec, SensorSpec, parse_sensor
+from ..config.sonar import SonarConfig
+from ..core.rays import make_ray_fan
+from ..core.transforms import Pose
+from ..errors import ConfigError, shown
+from ..image.films import PingGeometry, Waterfall
+from ..sensor.model import SensorModel
+from ..sensor.patterns import pattern_gain
+from . import renders
+
+__all__ = ["SidescanSpec", "render_sidescan", "floor_shadow", "ping_geometry"]
+
+SIDES = ("port", "starboard")
+# The rays reach this far past nadir (degrees): the first return's bin sees both its sides.
+NADIR_MARGIN_DEG = 0.5
+
+
+@register
+@dataclass(frozen=True)
+class SidescanSpec(InstrumentSpec):
+    """A side-scan sonar's configuration (validated here: a frozen configuration).
+
+    Attributes
+    ----------
+    frequency_khz : float
+        The carrier, kHz.
+    horizontal_beam_width_deg : float
+        Along-track -3 dB width, degrees, in (0.01, 20].
+    vertical_beam_width_deg : float
+        Across-track -3 dB width of the two-way vertical pattern, degrees, in (1, 120].
+    depression_deg : float
+        The beam axis below the horizontal, degrees, in [1, 60].
+    range_min_m, range_max_m : float
+        The slant-range window, metres.
+    n_samples : int
+        Samples per side per ping.
+    ping_rate_hz : float or None
+        Pings per second; default ``sound_speed_m_s / (2 range_max_m)`` (the next ping leaves
+        when the last echo is in).
+    sound_speed_m_s : float
+        The speed the device ranges with (the ping rate's default).
+    sensor : SensorSpec or None
+        The sensor chain on the waterfall (TVG, speckle, noise, counts): each side's line is a
+        one-beam image of ``n_samples`` range bins.
+    preset : str or None
+    """
+
+    type_name: ClassVar[str] = "sidescan"
+    keys: ClassVar[tuple[str, ...]] = (
+        "preset", "frequency_khz", "horizontal_beam_width_deg", "vertical_beam_width_deg", "depression_deg",
+        "range_min_m", "range_max_m", "n_samples", "ping_rate_hz", "sound_speed_m_s", "sensor",
+    )
+
+    frequency_khz: float = 600.0
+    horizontal_beam_width_deg: float = 0.5
+    vertical_beam_width_deg: float = 50.0
+    depression_deg: float = 15.0
+    range_min_m: float = 0.0
+    range_max_m: float = 30.0
+    n_samples: int = 1024
+    ping_rate_hz: float | None = None
+    sound_speed_m_s: float = 1500.0
+    sensor: SensorSpec | None = None
+    preset: str | None = None
+
+    def __post_init__(self) -> None:
+        def check(name: str, lo: float, hi: float, lo_open: bool = True) -> None:
+            v = getattr(self, name)
+            ok = isinstance(v, (int, float)) and math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi
+            if not ok:
+                raise ConfigError(name, f"must lie in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {shown(v)}")
+        check("frequency_khz", 1.0, 1e5)
+        check("horizontal_beam_width_deg", 0.01, 20.0)
+        check("vertical_beam_width_deg", 1.0, 120.0)
+        check("depression_deg", 1.0, 60.0, lo_open=False)
+        check("sound_speed_m_s", 1300.0, 1700.0, lo_open=False)
+        check("range_max_m", 0.0, 1e4)
+        check("range_min_m", 0.0, self.range_max_m, lo_open=False)
+        if self.range_min_m >= self.range_max_m:
+            raise ConfigError("range_min_m", f"must be below range_max_m ({self.range_max_m:g}), got {self.range_min_m:g}")
+        if not isinstance(self.n_samples, int) or not 1 <= self.n_samples <= 1_000_000:
+            raise ConfigError("n_samples", f"must be an integer in [1, 1000000], got {shown(self.n_samples)}")
+        if self.ping_rate_hz is not None:
+            check("ping_rate_hz", 0.0, 1e3)
+
+    # -- geometry --------------------------------------------------------------------------
+
+    @property
+    def half_span_deg(self) -> float:
+        """Half the rays' elevation span about the axis: from the axis down to nadir, and as far up."""
+        return 90.0 - self.depression_deg + NADIR_MARGIN_DEG
+
+    def channel_sonar(self) -> SonarConfig:
+        """Each side's fan and grid: one beam, ``n_samples`` range bins."""
+        return SonarConfig.uniform(
+            n_beams=1, azimuth_fov_deg=self.horizontal_beam_width_deg, elevation_fov_deg=2.0 * self.half_span_deg,
+            range_min_m=self.range_min_m, range_max_m=self.range_max_m, n_range_bins=self.n_samples,
+            frequency_khz=self.frequency_khz,
+        )
+
+    def channels(self) -> tuple[Channel, ...]:
+        sonar = self.channel_sonar()
+        # Turned to its side (yaw +-90 deg: the channel's x along the vehicle's +-y), then
+        # down by the depression (pitch > 0 looks down): R = Rz(yaw) Ry(pitch).
+        return tuple(Channel(side, sonar, mounted(self.mount, Pose((0.0, 0.0, 0.0), (0.0, self.depression_deg, yaw))))
+                     for side, yaw in zip(SIDES, (90.0, -90.0)))
+
+    def ping_period_s(self) -> float:
+        if self.ping_rate_hz:
+            return 1.0 / self.ping_rate_hz
+        return 2.0 * self.range_max_m / self.sound_speed_m_s
+
+    def vertical_gain(self, elevation_rad: np.ndarray) -> np.ndarray:
+        """The two-way vertical pattern at elevations from the axis (power, 1 on axis)."""
+        spec = PatternSpec(shape="line", width_deg=self.vertical_beam_width_deg, window="rect")
+        return pattern_gain(elevation_rad, spec, self.vertical_beam_width_deg, ways=2)
+
+    # -- files -----------------------------------------------------------------------------
+
+    @classmethod
+    def parse(cls, d: Mapping, key: str, base_dir: Path | None, name: str, mount: Pose) -> "SidescanSpec":
+        values: dict[str, Any] = {}
+        preset = d.get("preset")
+        if preset is not None:
+            values.update(_preset_values(preset, f"{key}.preset", cls))
+        for k in cls.keys:
+            if k in ("preset", "sensor") or k not in d:
+                continue
+            if k == "n_samples":
+                values[k] = _integer(d[k], f"{key}.{k}")
+            elif k == "ping_rate_hz" and d[k] is None:
+                values[k] = None
+            else:
+                values[k] = _number(d[k], f"{key}.{k}")
+        try:
+            sensor = parse_sensor(d.get("sensor"), base_dir) if d.get("sensor") is not None else None
+        except ConfigError as exc:
+            raise ConfigError(f"{key}.{exc.key}", exc.detail) from None
+        try:
+            return cls(name=name, mount=mount, sensor=sensor, preset=preset, **values)
+        except ConfigError as exc:
+            raise ConfigError(f"{key}.{exc.key}", exc.detail) from None
+
+    def to_dict(self) -> dict:
+        out = self._header()
+        for k in self.keys:
+            v = getattr(self, k)
+            if k == "sensor":
+                if v is not None:
+                    out[k] = v.to_dict()
+            elif v is not None:
+                out[k] = v
+        return out
+
+
+def _preset_values(name: Any, key: str, cls) -> dict:
+    """A device preset's values for the keys of ``cls`` (:mod:`sonarsim.config.instrument_presets`)."""
+    from ..config.instrument_presets import instrument_preset
+
+    entry = instrument_preset(name, kind=cls.type_name, key=key)
+    data = entry if isinstance(entry, Mapping) else vars(entry)
+    return {k: data[k] for k in cls.keys if k in data and k not in ("preset", "sensor") and data[k] is not None}
+
+
+# -- rendering ---------------------------------------------------------------------------
+
+_FANS: dict = {}  # (render settings, spec's channel grid and pattern) -> RayFan: shared by every ping
+
+
+def _fan(sim, spec: SidescanSpec, sonar: SonarConfig):
+    key = (sim.scene.render, sonar, spec.vertical_beam_width_deg)
+    fan = _FANS.get(key)
+    if fan is None:
+        sim.require_frame_memory(sonar)
+        fan = make_ray_fan(sonar, sim.scene.render, spec.vertical_gain)
+        _FANS.clear()  # one side-scan at a time is the common case: keep memory flat
+        _FANS[key] = fan
+    return fan
+
+
+def floor_shadow(paths, sim, objects_image: np.ndarray | None = None) -> np.ndarray:
+    """Samples of a line where the floor is in the beam but hidden behind an object.
+
+    A ray whose first surface is an object, and which would have met the ground plane farther
+    on, shadows the ground at that farther range; a sample is shadow where such rays land, no
+    ray sees the ground directly and no object echoes (``objects_image``: the frame's direct
+    echo of the objects). Neighbouring rays of a ray column that are both hidden (or both on
+    the ground) cover the samples between their ranges, as range splatting covers an echo.
+
+    Returns
+    -------
+    (n_range_bins, n_beams) bool ndarray
+    """
+    sonar = paths.sonar
+    shape = (sonar.n_range_bins, sonar.n_beams)
+    ground = sim.scene.ground
+    if ground is None:
+        return np.zeros(shape, bool)
+    distance, sid, _ = paths.first_hits()
+    d = paths.view.directions  # world frame, fan.shape + (3,)
+    dz = d[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_ground = np.where(dz < 0, (ground.height_m - paths.view.origin[2]) / dz, np.inf)
+    n_planes = len(sim.planes)
+    beams = np.broadcast_to(np.arange(sonar.n_beams)[:, None, None], sid.shape)
+    dr = sonar.range_resolution_m
+
+    def covered(t: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """Samples at the ranges ``t`` of the masked rays and between masked neighbours."""
+        k = np.floor((np.where(mask, t, np.nan) - sonar.range_min_m) / dr)
+        lo = np.concatenate([k, np.fmin(k[..., :-1], k[..., 1:])], axis=-1)
+        hi = np.concatenate([k, np.fmax(k[..., :-1], k[..., 1:])], axis=-1)
+        pair = np.concatenate([mask, mask[..., :-1] & mask[..., 1:]], axis=-1)
+        b = np.concatenate([beams, beams[..., :-1]], axis=-1)
+        keep = pair & np.isfinite(lo) & (hi >= 0) & (lo < sonar.n_range_bins)
+        lo = np.clip(lo[keep], 0, sonar.n_range_bins - 1).astype(np.int64)
+        hi = np.clip(hi[keep], 0, sonar.n_range_bins - 1).astype(np.int64)
+        marks = np.zeros((sonar.n_range_bins + 1, sonar.n_beams), np.int64)
+        np.add.at(marks, (lo, b[keep]), 1)
+        np.add.at(marks, (hi + 1, b[keep]), -1)
+        return np.cumsum(marks, axis=0)[:-1] > 0
+
+    on_object = sid >= n_planes
+    hidden = on_object & np.isfinite(t_ground) & (t_ground > distance)
+    lit = sid == 0  # the ground is plane 0
+    shadow = covered(t_ground, hidden) & ~covered(distance, lit)
+    if objects_image is not None:  # an object's own echo is no shadow (the floor beneath it is hidden too)
+        shadow &= ~(objects_image > 0)
+    return shadow
+
+
+def ping_geometry(sim, vehicle_poses: list[Pose], times_s: np.ndarray, spec: SidescanSpec) -> PingGeometry:
+    """What a recording would log of rendered pings: the transducers' height above the ground,
+    the vehicle's attitude and heading (``heading = 90 - yaw``), position, sound speed, window."""
+    n = len(vehicle_poses)
+    at = np.array([mounted(v, spec.mount).position_m for v in vehicle_poses]).reshape(n, 3)
+    rpy = np.array([v.rpy_deg for v in vehicle_poses]).reshape(n, 3)
+    ground = sim.scene.ground
+    altitude = at[:, 2] - ground.height_m if ground is not None else np.full(n, np.nan)
+    speed = np.full(n, np.nan)
+    if n > 1:
+        step = np.linalg.norm(np.diff(at[:, :2], axis=0), axis=1) / np.maximum(np.diff(times_s), 1e-12)
+        speed = np.concatenate([step[:1], step])
+    return PingGeometry.of(
+        n, time_s=times_s, altitude_m=altitude, roll_deg=rpy[:, 0], pitch_deg=rpy[:, 1],
+        heading_deg=np.mod(90.0 - rpy[:, 2], 360.0), heave_m=0.0, sound_speed_m_s=spec.sound_speed_m_s,
+        range_min_m=spec.range_min_m, range_max_m=spec.range_max_m, x_m=at[:, 0], y_m=at[:, 1], speed_m_s=speed,
+    )
+
+
+@renders("sidescan")
+def render_sidescan(sim, spec: SidescanSpec, poses: list[Pose], times_s: np.ndarray, first_ping: int,
+                    speckle: bool | None, labels: bool) -> Waterfall:
+    """A side-scan's pings, one per vehicle pose, stacked into a :class:`Waterfall`.
+
+    Each side of each ping is one frame of the engine (:meth:`Simulator.trace`,
+    :meth:`Simulator.form`) at the channel's pose; ping ``k``'s side ``s`` draws its speckle and
+    noise from ``(render.seed, 2 (first_ping + k) + s)``. With ``labels``, the waterfall's
+    ``labels`` hold per sample ``instance`` (int32: the id of :attr:`Waterfall.ids` bringing the
+    most energy, -1 none) and ``shadow`` (bool: the floor hidden behind an object), and
+    ``boxes`` per object id and side ``[ping_min, sample_min, ping_max, sample_max]``.
+    """
+    channels = spec.channels()
+    sonar = channels[0].sonar
+    fan = _fan(sim, spec, sonar)
+    model = SensorModel(spec.sensor, sonar, sim.scene.render.seed) if spec.sensor is not None else False
+    n = len(poses)
+    from ..core.memory import require
+
+    require(n * 2 * spec.n_samples * 4 * (3 if labels else 1), f"a waterfall of {n} pings x 2 x {spec.n_samples}",
+            "n_pings")
+    out = np.empty((n, 2, spec.n_samples), np.float32)
+    instance = np.full((n, 2, spec.n_samples), -1, np.int32) if labels else None
+    shadow = np.zeros((n, 2, spec.n_samples), bool) if labels else None
+    for k, vehicle in enumerate(poses):  # per ping and side: one engine frame each
+        for s, channel in enumerate(channels):
+            paths = sim.trace(mounted(vehicle, channel.mount), sonar=sonar, labels="total" if labels else False,
+                              fan=fan)
+            image = sim.form(paths, keep_rays=False, speckle=speckle, frame=2 * (first_ping + k) + s, sensor=model)
+            out[k, s] = image.polar[:, 0]
+            if labels:
+                instance[k, s] = image.labels.instance["total"][:, 0]
+                shadow[k, s] = floor_shadow(paths, sim, image.components.get("object"))[:, 0]
+    extra: dict = {}
+    if labels:
+        ids = tuple(o.name for o in sim.scene.objects) + tuple(p.name for p in sim.scene.reflecting_planes)
+        extra = {"labels": {"instance": instance, "shadow": shadow, "boxes": waterfall_boxes(instance, len(ids))},
+                 "ids": ids}
+    return Waterfall(out, spec.range_min_m, spec.range_max_m, ping_geometry(sim, poses, times_s, spec),
+                     source="render", **extra)
+
+
+def waterfall_boxes(instance: np.ndarray, n_ids: int) -> np.ndarray:
+    """Per id and side, ``[ping_min, sample_min, ping_max, sample_max]`` (inclusive) of the
+    samples the id dominates; -1 where it dominates none. ``(n_ids, 2, 4)`` int32."""
+    boxes = np.full((n_ids, 2, 4), -1, np.int32)
+    for side in range(2):
+        ping, sample = np.nonzero(instance[:, side] >= 0)
+        ids = instance[:, side][ping, sample]
+        for i in np.unique(ids):  # per id present (few), each a NumPy reduction
+            m = ids == i
+            boxes[i, side] = (ping[m].min(), sample[m].min(), ping[m].max(), sample[m].max())
+    return boxes
