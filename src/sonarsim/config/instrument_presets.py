@@ -608,7 +608,9 @@ _INSTRUMENT_PRESET_LIST: tuple[InstrumentPreset, ...] = (
             "Blue Robotics 'Ping Echosounder Sonar User Manual' (bluerobotics.com/learn/"
             "ping-sonar-technical-guide, current revision): 115 kHz pulse, 25 deg beam width, "
             "100 m range (an older revision of the same page gave 30 m and 30 deg); Ping Viewer "
-            "documentation (2019 data sheet copy): profiles of 200 samples over the scan range"
+            "documentation (2019 data sheet copy): profiles of 200 samples over the scan range; "
+            "Blue Robotics ping-protocol 'Ping1d messages': scan length at least 1 m, ping "
+            "interval set in ms (no default or limit stated)"
         ),
         notes=(
             "The 25 deg beam width's level (-3 dB or otherwise) is not stated. Not confirmed: "
