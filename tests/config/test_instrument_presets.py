@@ -125,8 +125,8 @@ def test_recording_presets_agree_with_the_design_notes():
     assert seascan["n_samples"] == 1024
     assert seascan["range_max_m"] == pytest.approx(29.98, abs=0.005)
     assert seascan["frequency_khz"] == 600.0
-    # The ping period the recording's headers state: 0.04 s, derived as 2 R / c.
-    assert 1.0 / ping_rate_hz(seascan) == pytest.approx(0.04, abs=0.0005)
+    # The recording's ping interval, 0.123 s (the header's 0.04 s is the listening time, 2 R / c).
+    assert 1.0 / ping_rate_hz(seascan) == pytest.approx(0.123, abs=0.001)
 
     r2 = instrument_preset("r2sonic_2026_400", "multibeam")
     assert (r2["n_beams"], r2["frequency_khz"], r2["pulse_length_us"]) == (256, 400.0, 35.0)
@@ -174,11 +174,12 @@ def test_seascan_preset_agrees_with_the_recording():
         assert n_samples == preset["n_samples"]
         assert slant == pytest.approx(preset["range_max_m"], abs=0.01)
         assert frequency == preset["frequency_khz"]
-        assert per_ping == pytest.approx(1.0 / ping_rate_hz(preset), rel=1e-3)
+        assert per_ping == pytest.approx(2 * preset["range_max_m"] / 1500.0, rel=1e-3)  # listening time
     # The notes' other figure: the pings themselves are about 0.123 s apart (ping 0 excluded:
     # it has no navigation), not 0.04 s.
     interval = (times[-1] - times[1]) / (len(times) - 2)
     assert interval == pytest.approx(0.123, abs=0.002)
+    assert 1.0 / ping_rate_hz(preset) == pytest.approx(interval, rel=0.01)
     assert "0.123 s" in preset.notes
 
 

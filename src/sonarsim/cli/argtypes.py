@@ -55,6 +55,20 @@ def integer_at_least(text: str, minimum: int, what: str) -> int:
     return value
 
 
+def ping_count_or_range(text: str) -> int | tuple[int, int]:
+    """``N`` (a number of pings, >= 1) or ``A:B`` (pings A to B - 1 of a recording, 0 <= A < B)."""
+    if ":" in text:
+        a, _, b = text.partition(":")
+        try:
+            lo, hi = int(a or 0), int(b)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected N or A:B (pings A to B - 1), got {text!r}") from None
+        if not 0 <= lo < hi:
+            raise argparse.ArgumentTypeError(f"expected A:B with 0 <= A < B, got {text!r}")
+        return lo, hi
+    return integer_at_least(text, 1, "number of pings")
+
+
 def frame_index(text: str) -> int:
     """A frame number >= 0."""
     return integer_at_least(text, 0, "frame number")

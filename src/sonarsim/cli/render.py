@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ..core.console import log as _log
-from .argtypes import display_gain_db, display_range_db, frame_index, positive_float
+from .argtypes import display_gain_db, display_range_db, frame_index, positive_float, ping_count_or_range
 
 __all__ = ["RENDER_FIGURES", "RENDER_FILES", "add_image_options", "add_render_options", "add_render_parser", "cmd_render",
            "options_named", "render_and_write"]
@@ -74,6 +74,11 @@ def add_render_parser(subparsers: Any) -> argparse.ArgumentParser:
                               "Files an earlier run listed there and this one does not write are removed.")
     p.add_argument("scene", help="scene file (YAML or JSON)")
     p.add_argument("--out", required=True, help="output folder (created if missing)")
+    g = p.add_argument_group("instruments")
+    g.add_argument("--instrument", default=None, metavar="NAME",
+                   help="with instruments: render this one only (default: every one)")
+    g.add_argument("--pings", type=ping_count_or_range, default=None, metavar="N|A:B",
+                   help="with a side-scan: N pings along the vehicle's track (default: 100)")
     add_render_options(p)
     g = p.add_argument_group("sensor")
     g.add_argument("--sensor", default=None, metavar="PRESET",
@@ -266,5 +271,12 @@ def cmd_render(args) -> None:
     scene = override_render(load_scene(args.scene), args)
     check_pixel_size([scene], args)
     check_scene_cost(scene)  # (the simulator checks it too; here before the folder is made)
+    if scene.instruments:
+        from .instruments import instrument_files, render_instruments
+
+        run = OutputRun.for_folder(out, instrument_files(scene, args), command=getattr(args, "command_line", None))
+        with run:
+            render_instruments(scene, out, args, run)
+        return
     with run:
         render_and_write(scene, out, args, run)

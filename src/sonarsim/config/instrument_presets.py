@@ -303,15 +303,14 @@ _INSTRUMENT_PRESET_LIST: tuple[InstrumentPreset, ...] = (
             "range_max_m": 29.98,
             "n_samples": 1024,
             "pulse_length_us": 40.0,
-            "ping_rate_hz": None,
+            "ping_rate_hz": 8.13,
         },
         source=_SEASCAN_RECORDING,
         notes=(
-            "From the recording: frequency, samples per side, slant range, and the header's "
-            "0.04 s per ping (= 2 x 29.98 m / 1500 m/s, what ping_rate_hz=None derives). The "
-            "ping times in the same file are 0.123 s apart on average (180 consecutive ping "
-            "numbers over 22 s), so the pings were taken about 8 per second, not 25: use "
-            "ping_rate_hz=8.1 to reproduce the recording's along-track spacing. No Marine "
+            "From the recording: frequency, samples per side, slant range, and the ping rate: "
+            "the ping times are 0.123 s apart on average (180 consecutive ping numbers over 22 s), "
+            "8.13 pings a second; the header's 0.04 s per ping is the listening time "
+            "(2 x 29.98 m / 1500 m/s), not the ping interval. No Marine "
             "Sonic data sheet was found: the beam widths (0.5 deg along track, 50 deg across) "
             "and the 10 deg depression are typical values for a 600 kHz AUV side-scan (design "
             "notes section 13: 0.2-1 deg, 40-60 deg, 10-20 deg), not device figures. The 40 us "

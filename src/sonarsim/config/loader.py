@@ -33,7 +33,7 @@ SONAR_KEYS = (
     "elevation_fov_deg", "range_min_m", "range_max_m", "n_range_bins", "range_resolution_m",
     "frequency_khz", "pose", "type",
 )
-VEHICLE_KEYS = ("pose",)
+VEHICLE_KEYS = ("pose", "speed_m_s")
 POSE_KEYS = ("position_m", "rpy_deg", "quat_xyzw")
 RENDER_KEYS = tuple(RenderSettings.__dataclass_fields__)
 GROUND_KEYS = ("height_m", "albedo", "specular", "material", "texture")
@@ -468,14 +468,29 @@ def _instruments(d: Mapping, base: Path | None) -> tuple[tuple, Pose]:
             if n in names[:i]:
                 raise ConfigError(f"instruments[{i}].name", f"duplicate instrument name {shown(n)}; names must be unique")
         return specs, pose
-    if "vehicle" in d:
-        raise ConfigError("vehicle", "a vehicle carries instruments: give instruments: (or sonar: alone)")
     sonar = d.get("sonar")
     if isinstance(sonar, Mapping) and sonar.get("type", "fls") != "fls":
+        vehicle = d.get("vehicle") or {}
+        _check_keys(vehicle, VEHICLE_KEYS, "vehicle")
+        if "pose" in vehicle:
+            raise ConfigError("vehicle.pose", "with one instrument in sonar:, its pose is the vehicle's: give sonar.pose")
         pose = parse_pose(sonar.get("pose", {}) or {}, "sonar.pose")
         spec = parse_instrument(sonar, "sonar", base, str(sonar.get("type")), mount_key="pose")
         return (replace(spec, mount=Pose()),), pose
+    if "vehicle" in d:
+        raise ConfigError("vehicle", "a vehicle carries instruments: give instruments: (or sonar: alone)")
     return (), Pose()
+
+
+def _vehicle_speed(d: Mapping) -> float:
+    """``vehicle.speed_m_s``: the vehicle runs straight ahead (its x axis) at this speed; 0 stands still."""
+    vehicle = d.get("vehicle") or {}
+    if "speed_m_s" not in vehicle:
+        return 0.0
+    v = _number(vehicle["speed_m_s"], "vehicle.speed_m_s")
+    if not 0.0 <= v <= 100.0:
+        raise ConfigError("vehicle.speed_m_s", f"must lie in [0, 100] m/s, got {shown(v)}")
+    return v
 
 
 def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: str | None = None) -> Scene:
@@ -530,6 +545,7 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
             sensor=sensor if instruments else parse_sensor(d.get("sensor"), base),
             instruments=instruments,
             vehicle_pose=vehicle_pose,
+            vehicle_speed_m_s=_vehicle_speed(d) if instruments else 0.0,
         )
         if scene.sensor is not None and scene.sensor.preset is not None:
             # The command line's --force takes another device's preset on purpose; in a file the

@@ -627,7 +627,10 @@ class Scene:
         first instrument's first channel (what the scene's cost checks count).
     vehicle_pose : Pose
         The vehicle's pose in the world frame (``vehicle.pose``; with ``sonar:`` of another
-        type, its ``pose``).
+        type, its ``pose``), at time 0.
+    vehicle_speed_m_s : float
+        ``vehicle.speed_m_s``: without a trajectory the vehicle runs straight ahead (along its
+        x axis) at this speed from ``vehicle_pose``; 0 stands still.
     """
 
     sonar: SonarConfig
@@ -641,6 +644,7 @@ class Scene:
     sensor: SensorSpec | None = None
     instruments: tuple = ()
     vehicle_pose: Pose = field(default_factory=Pose)
+    vehicle_speed_m_s: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "objects", tuple(self.objects))
@@ -715,8 +719,10 @@ class Scene:
         """The scene-file form (JSON/YAML-serialisable); the pose is ``sonar.pose`` (with
         instruments: ``vehicle.pose`` and each instrument's ``mount``)."""
         if self.instruments:
-            out: dict = {"vehicle": {"pose": self.vehicle_pose.to_dict()},
-                         "instruments": [i.to_dict() for i in self.instruments]}
+            vehicle = {"pose": self.vehicle_pose.to_dict()}
+            if self.vehicle_speed_m_s:
+                vehicle["speed_m_s"] = self.vehicle_speed_m_s
+            out: dict = {"vehicle": vehicle, "instruments": [i.to_dict() for i in self.instruments]}
         else:
             out = {"sonar": sonar_section(self.sonar, self.sonar_pose)}
         out.update({

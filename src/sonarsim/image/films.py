@@ -29,6 +29,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from .display import hook
+
 __all__ = ["GEOMETRY_FIELDS", "PingGeometry", "Waterfall", "Soundings", "Envelope", "range_axis"]
 
 #: The per-ping geometry a film carries: field -> (unit, meaning).
@@ -170,6 +172,21 @@ class Waterfall:
     def slant_range_m(self) -> np.ndarray:
         """Centre of each sample, metres, ``(n_samples,)``."""
         return range_axis(self.range_min_m, self.range_max_m, self.n_samples)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every array, by name: ``samples``, ``geometry/<field>``, ``labels/<name>``."""
+        out = {"samples": self.samples, "slant_range_m": self.slant_range_m}
+        out.update({f"geometry/{k}": v for k, v in self.geometry.as_dict().items()})
+        out.update({f"labels/{k}": v for k, v in (self.labels or {}).items()})
+        return out
+
+    def config(self) -> dict:
+        return {"film": "waterfall", "range_min_m": self.range_min_m, "range_max_m": self.range_max_m,
+                "source": self.source, "ids": list(self.ids)}
+
+    def save_npz(self, path) -> None:
+        """Write :meth:`arrays` and :meth:`config` to an NPZ file, atomically."""
+        hook("write_npz", "Waterfall.save_npz")(path, self.arrays(), self.config())
 
     def display(self, samples: np.ndarray | None = None) -> np.ndarray:
         """``(n_pings, 2 n_samples)``: port far -> near, then starboard near -> far."""

@@ -73,7 +73,7 @@ def vehicle_poses(sim, spec: InstrumentSpec, n_pings: int | None = None, traject
     spec : InstrumentSpec
     n_pings : int, optional
         Pings at the instrument's ping period from the trajectory's start (or, without a
-        trajectory, from the scene's vehicle pose, standing still).
+        trajectory, from the scene's vehicle pose, running ahead at ``vehicle.speed_m_s``).
     trajectory : sonarsim.dataset.trajectory.Trajectory, optional
         The vehicle's timestamped poses: each ping's pose is interpolated at its own time
         (positions linearly, attitudes by slerp), so a moving vehicle moves between pings.
@@ -96,7 +96,17 @@ def vehicle_poses(sim, spec: InstrumentSpec, n_pings: int | None = None, traject
     times_s = np.asarray(times_s, np.float64)
     if trajectory is None:
         pose = sim.scene.vehicle_pose if sim.scene.instruments else sim.scene.sonar_pose
-        return [pose] * len(times_s), times_s
+        speed = sim.scene.vehicle_speed_m_s
+        if not speed:
+            return [pose] * len(times_s), times_s
+        # straight ahead along the vehicle's x axis (vehicle.speed_m_s)
+        forward = pose.rotation[:, 0]
+        out = []
+        for t in times_s:
+            m = pose.matrix().copy()
+            m[:3, 3] += speed * t * forward
+            out.append(Pose.from_matrix(m))
+        return out, times_s
     return poses_at(trajectory, times_s), times_s
 
 

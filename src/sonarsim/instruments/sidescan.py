@@ -193,9 +193,11 @@ def _preset_values(name: Any, key: str, cls) -> dict:
     """A device preset's values for the keys of ``cls`` (:mod:`sonarsim.config.instrument_presets`)."""
     from ..config.instrument_presets import instrument_preset
 
-    entry = instrument_preset(name, kind=cls.type_name, key=key)
-    data = entry if isinstance(entry, Mapping) else vars(entry)
-    return {k: data[k] for k in cls.keys if k in data and k not in ("preset", "sensor") and data[k] is not None}
+    try:
+        entry = instrument_preset(name, cls.type_name)
+    except ConfigError as exc:
+        raise ConfigError(key, exc.detail) from None
+    return {k: entry[k] for k in cls.keys if k in entry and k not in ("preset", "sensor") and entry[k] is not None}
 
 
 # -- rendering ---------------------------------------------------------------------------

@@ -1,0 +1,114 @@
+"""``sonarsim render`` for a scene with instruments: each instrument's pings into its film's files.
+
+An FLS writes what ``render`` always wrote (``polar.png``, ``fan.png``, ``render.npz``, in a
+folder named after it when the scene has several instruments); a side-scan writes its waterfall
+(``NAME_waterfall.png``: port on the left far to near, starboard near to far, the first ping at
+the top; ``NAME_ground_range.png``, slant-corrected; ``NAME.npz``: samples, per-ping geometry,
+labels).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core.console import log as _log
+
+__all__ = ["instrument_files", "render_instruments", "WATERFALL_FILES"]
+
+#: What a side-scan writes, per instrument (``{name}`` its name).
+WATERFALL_FILES = ("{name}_waterfall.png", "{name}_ground_range.png", "{name}.npz")
+
+
+def _chosen(scene, args) -> list:
+    chosen = getattr(args, "instrument", None)
+    if chosen is None:
+        return list(scene.instruments)
+    specs = [s for s in scene.instruments if s.name == chosen]
+    if not specs:
+        from ..errors import ConfigError
+
+        raise ConfigError("--instrument", f"no instrument {chosen!r} in the scene; it has: "
+                          f"{', '.join(s.name for s in scene.instruments)}")
+    return specs
+
+
+def instrument_files(scene, args) -> list[str]:
+    """The files ``render`` writes for the scene's instruments (``--instrument``: one)."""
+    from .render import render_files
+
+    specs = _chosen(scene, args)
+    names: list[str] = []
+    for spec in specs:
+        if spec.type_name == "fls":
+            prefix = f"{spec.name}/" if len(specs) > 1 else ""
+            names += [prefix + f for f in render_files(args)]
+        else:
+            names += [f.format(name=spec.name) for f in WATERFALL_FILES]
+    return names
+
+
+def _waterfall_png(samples: np.ndarray, args) -> np.ndarray:
+    from ..image.levels import to_uint8
+
+    finite = np.nan_to_num(samples, nan=0.0)
+    return to_uint8(finite, args.mapping or "db", args.gain_db, args.dynamic_range_db)
+
+
+def render_instruments(scene, out: Path, args, run=None) -> list:
+    """Render every instrument of ``scene`` (or ``--instrument``) and write their files into ``out``.
+
+    Returns
+    -------
+    list
+        Each instrument's film, in order.
+    """
+    from ..errors import ConfigError
+    from ..instruments import instrument, render_pings
+    from ..io.output import write_png
+    from ..renderer.simulator import Simulator
+    from .render import render_and_write
+
+    sim = Simulator(scene, backend=args.backend)
+    names = [s.name for s in _chosen(scene, args)]
+    n_pings = getattr(args, "pings", None)
+    if isinstance(n_pings, tuple):
+        raise ConfigError("--pings", "A:B chooses pings of a recording (with --along); give a number of pings")
+    films = []
+    out.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        spec = instrument(sim, name)
+        t0 = time.perf_counter()
+        if spec.type_name == "fls":
+            from dataclasses import replace
+
+            pose = sim.scene.vehicle_pose
+            from ..config.instruments import mounted
+
+            sub = out / name if len(names) > 1 else out  # (instrument_files names them so)
+            fls_scene = replace(scene, sonar=spec.sonar, sonar_pose=mounted(pose, spec.mount))
+            films.append(render_and_write(fls_scene, sub, args, run))
+            continue
+        if spec.type_name != "sidescan":
+            raise ConfigError(f"instruments.{name}", f"sonarsim render writes no files for a {spec.type_name} yet; "
+                              "render it from Python (sonarsim.instruments.render_pings)")
+        film = render_pings(sim, name, n_pings=n_pings or 100,
+                            speckle=False if getattr(args, "no_speckle", False) else None, labels=True)
+        t1 = time.perf_counter()
+        ground, _ = film.ground_range()
+        images = {f"{name}_waterfall.png": _waterfall_png(film.display(), args),
+                  f"{name}_ground_range.png": _waterfall_png(film.display(ground), args)}
+        for fname, png in images.items():  # both made before either is written
+            if run is not None:
+                run.add(out / fname)
+            write_png(out / fname, png)
+        if run is not None:
+            run.add(out / f"{name}.npz")
+        film.save_npz(out / f"{name}.npz")
+        _log(f"{name}: {film.n_pings} pings x 2 sides x {film.n_samples} samples in {t1 - t0:.3f} s; "
+             f"wrote {', '.join(str(out / f) for f in (*images, name + '.npz'))}")
+        films.append(film)
+    sim.close()
+    return films
