@@ -138,10 +138,27 @@ def oculus_scene() -> dict:
     return doc
 
 
-def record_casts(sim: sonarsim.Simulator) -> list:
+def bare_cast_s(recorded: list, split: int = 1) -> float:
+    """Seconds to cast the recorded rays bare once: on one thread (``split`` 1), or spread over
+    the frame's threads from 4,096 rays a thread (2; the casters split only from more, where
+    waking a sleeping thread pays)."""
+    # Fresh rays each time: Embree writes each hit's distance back into tfar, so a replay of
+    # the same array would cast rays already cut at their hits (3-4 % faster).
+    fresh = [tfar.copy() for _, _, _, tfar, _ in recorded]
+    t = time.perf_counter()
+    for (caster, o, d, _, threads), tfar in zip(recorded, fresh):
+        if split == 1:
+            caster.cast_raw(o, d, tfar, 1)
+        else:
+            caster.cast_raw(o, d, tfar, threads, min_chunk=4096)
+    return time.perf_counter() - t
+
+
+def record_casts(sim: sonarsim.Simulator, frame=None) -> list:
     """Every ray that one frame casts, as ``(caster, origins, directions, tfar, None)`` per
     caster, ready for the caster's bare casting (``cast_raw``: Embree's answer alone, no
-    conversion to hits) on the frame's threads.
+    conversion to hits) on the frame's threads. ``frame``: what renders the frame (default
+    ``sim.render(keep_rays=False)``; an instrument's ping, say).
 
     Recorded at ``intersect``, which every caster has (a textured scene wraps it). The path
     engine's fused blocks cast from compiled code, past ``intersect``: the recording frame
@@ -167,7 +184,7 @@ def record_casts(sim: sonarsim.Simulator) -> list:
     caster_cls.intersect = recording
     compiled.packet_loop = lambda caster: None  # the blocks cast through caster.intersect
     try:
-        sim.render(keep_rays=False)
+        sim.render(keep_rays=False) if frame is None else frame()
     finally:
         caster_cls.intersect = original
         compiled.packet_loop = loop
@@ -225,16 +242,7 @@ def measure(name: str, scene, repeats: int) -> dict:
         # waking a sleeping thread pays; here the threads are kept busy back to back).
         for split in (1, 2):
             for _ in range(block):
-                # Fresh rays each time: Embree writes each hit's distance back into tfar, so a
-                # replay of the same array would cast rays already cut at their hits (3-4 % faster).
-                fresh = [tfar.copy() for _, _, _, tfar, _ in recorded]
-                t = time.perf_counter()
-                for (caster, o, d, _, threads), tfar in zip(recorded, fresh):
-                    if split == 1:
-                        caster.cast_raw(o, d, tfar, 1)
-                    else:
-                        caster.cast_raw(o, d, tfar, threads, min_chunk=4096)
-                casts[split].append(time.perf_counter() - t)
+                casts[split].append(bare_cast_s(recorded, split))
     frame = statistics.median(frames)
     cast_by = {k: statistics.median(v) for k, v in casts.items()}
     cast = min(cast_by.values())
