@@ -267,6 +267,9 @@ class Recording:
     format = ""
     #: What one frame is called in messages, and several.
     unit, units = "frame", "frames"
+    #: The film a frame is: ``"polar"`` (a SonarImage), or a one-ping ``"waterfall"``,
+    #: ``"soundings"`` or ``"envelope"`` (:mod:`sonarsim.image.films`).
+    film = "polar"
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = path
@@ -440,6 +443,36 @@ class Recording:
         """Frame ``frame`` as an exact-pixel PIL image (fan, or ``kind="polar"``), in the device's
         counts as ``sonarsim show`` writes them."""
         return self.read(frame).to_pil(**options)
+
+
+class FilmRecording(Recording):
+    """A recording whose frames are pings of a film (:mod:`sonarsim.image.films`), not polar
+    frames: the picture hooks of :class:`Recording` (fan images) do not apply to it."""
+
+    def __repr__(self) -> str:
+        name = os.path.basename(os.fspath(self.path))
+        try:
+            n = self.n_frames
+        except Exception as exc:  # a repr must not raise
+            return f"{type(self).__name__}({name!r}: unreadable: {exc})"
+        more = f", damaged after them: {self._damage.detail}" if self._damage is not None else ""
+        return f"{type(self).__name__}({name!r}: {n} {self.units}, film {self.film!r}{more})"
+
+    def _repr_png_(self):
+        return None  # no fan to show
+
+    def _not_polar(self, what: str):
+        raise RecordingError(self._source, f"{what} draws FLS frames; this recording's pings are a {self.film} "
+                             "(sonarsim.image.films)")
+
+    def plot(self, frame: int = 0, ax=None, **options):
+        self._not_polar("plot")
+
+    def save(self, path, frame: int = 0, **options) -> None:
+        self._not_polar("save")
+
+    def to_pil(self, frame: int = 0, **options):
+        self._not_polar("to_pil")
 
 
 def recording_repr(recording: Recording) -> str:

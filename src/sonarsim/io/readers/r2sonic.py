@@ -96,6 +96,7 @@ class R2SonicRecording(XtfPackets):
     """
 
     format = "r2sonic"
+    film = "soundings"
     ping_kind = R2SONIC_BATHY
     _what = "R2Sonic bathymetry"
 

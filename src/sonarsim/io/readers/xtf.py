@@ -74,7 +74,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import SonarsimError
-from ._common import Recording, RecordingError, check_within, frame_index, read_at, require_frame_memory
+from ._common import FilmRecording, RecordingError, check_within, frame_index, read_at, require_frame_memory
 
 __all__ = [
     "FILE_HEADER_SIZE",
@@ -176,7 +176,7 @@ def utc_seconds(year: int, month: int, day: int, hour: int, minute: int, second:
     return whole + float(second)
 
 
-class XtfPackets(Recording):
+class XtfPackets(FilmRecording):
     """What the XTF readers share: the file header and a lazy index of the packets.
 
     Subclasses set :attr:`ping_kind` (the packet type that is a frame) and implement
@@ -314,6 +314,7 @@ class XtfSidescanRecording(XtfPackets):
     """
 
     format = "xtf"
+    film = "waterfall"
 
     def _open(self) -> None:
         super()._open()
