@@ -39,9 +39,12 @@ Iver2 / Sea Scan HDS recording in the test data (``iver2_seascan_pings_0-179.xtf
   0.27 m/s, at 0.96 m/s over ground from its positions: a path 15 deg below the horizontal)
   while ``SensorPitch`` reads -20 to -23 deg, i.e. nose down by 20-23 deg;
 * ``roll_deg`` = ``SensorRoll``: XTF's roll is positive "roll to starboard" (starboard down,
-  port up), which is REP-103's positive roll (port up). The side-scan data cannot check this
-  sign (its rolls are -1.4 to 3.9 deg); the multibeam recording in XTF confirms the same
-  convention for its attitude packets (:mod:`sonarsim.io.readers.r2sonic`);
+  port up), which is REP-103's positive roll (port up). The data agree, weakly (the rolls are
+  only -1.4 to 3.9 deg): just beyond nadir (slant ranges 1.0-1.1 x the altitude) the
+  starboard line is brighter than the port line when the roll is positive (correlation of the
+  log ratio with the roll +0.60 over the pings, +0.79 with slow trends removed): the lowered
+  side's beam looks closer to nadir. The multibeam recording in XTF confirms the convention
+  firmly for its attitude packets (:mod:`sonarsim.io.readers.r2sonic`);
 * ``heading_deg`` = ``SensorHeading`` (compass degrees);
 * ``speed_m_s`` = ``SensorSpeed`` in knots x 0.514444: XTF gives knots, and the data agree
   (1.71-1.97, while the logged positions advance 21 m in 22 s: 0.96 m/s = 1.87 kn);
