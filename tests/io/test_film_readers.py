@@ -410,3 +410,31 @@ def test_readers_agree_with_the_module_functions():
         assert one.geometry.time_s[0] == w.geometry.time_s[i]
     e = readers.imagenex.read_envelope(SINGLEBEAM, slice(3, 9, 2))
     np.testing.assert_array_equal(e.samples[1], readers.read(SINGLEBEAM, 5).samples[0])
+
+
+@needs_data
+def test_waterfall_beyond_the_memory_budget_is_refused_before_allocating(monkeypatch):
+    monkeypatch.setenv("SONARSIM_MAX_MEMORY", "1M")
+    with readers.open_recording(SIDESCAN) as rec:
+        rec.read(3)  # one ping fits
+        with pytest.raises(RecordingError, match="NumSamples: a waterfall of 180 pings"):
+            rec.waterfall()
+
+
+def test_xtf_sample_formats():
+    from sonarsim.io.readers.xtf import sample_dtype
+
+    assert sample_dtype("f", 0, 2, 3) == "<u2" and sample_dtype("f", 0, 4, 5) == "<f4"
+    assert sample_dtype("f", 0, 1, 0) == "<u1"
+    with pytest.raises(RecordingError, match="SampleFormat 3 has 2-byte samples, but BytesPerSample is 4"):
+        sample_dtype("f", 1, 4, 3)
+    with pytest.raises(RecordingError, match="not supported"):
+        sample_dtype("f", 1, 4, 1)  # IBM float
+
+
+def test_xtf_sound_speed_rule():
+    from sonarsim.io.readers.xtf import sound_speed
+
+    assert sound_speed(750.0, 29.98, 0.03998) == 1500.0  # c/2, as in the test data
+    assert sound_speed(1500.0, 29.98, 0.03998) == 1500.0  # c
+    assert sound_speed(760.0, 10.0, 0.0) == 1520.0 and sound_speed(1490.0, 10.0, 0.0) == 1490.0

@@ -228,6 +228,17 @@ def require_frame_memory(
         raise RecordingError(source, exc.detail, where, field) from None
 
 
+def require_memory(source: str, nbytes: float, what: str, field: str) -> None:
+    """Refuse an array beyond the memory budget (:mod:`sonarsim.core.memory`) before allocating it."""
+    from ...core.memory import require
+    from ...errors import ConfigError
+
+    try:
+        require(nbytes, what, field)
+    except ConfigError as exc:
+        raise RecordingError(source, exc.detail, None, field) from None
+
+
 class Recording:
     """An open recording file, read on demand with seeks: the rule every format follows.
 

@@ -37,7 +37,7 @@ import struct
 
 import numpy as np
 
-from ._common import FilmRecording, RecordingError, check_within
+from ._common import FilmRecording, RecordingError, check_within, require_memory
 
 __all__ = ["MAGIC", "RANGE_M_LIMITS", "SOUND_SPEED_LIMITS", "ImagenexRecording", "is_imagenex852", "read_envelope"]
 
@@ -160,6 +160,8 @@ class ImagenexRecording(FilmRecording):
         from ...image.films import Envelope, PingGeometry
 
         size, n = self._record, self._pings[0]["n"]
+        require_memory(self._source, (size + 4.0 * n) * len(ks), f"an envelope of {len(ks)} pings x {n} samples",
+                       "nToReadIndex")
         first = self._pings[ks[0]]["offset"]
         # One read for consecutive pings (every record is good and of one size): the echo bytes
         # of each are one column block of the (pings, record) array.

@@ -58,8 +58,8 @@ import struct
 
 import numpy as np
 
-from ._common import RecordingError, check_within
-from .xtf import ATTITUDE, PING_HEADER_SIZE, POSITION, R2SONIC_BATHY, XtfPackets, _EARTH_RADIUS_M, utc_seconds
+from ._common import RecordingError, check_within, require_memory
+from .xtf import (ATTITUDE, PING_HEADER_SIZE, POSITION, R2SONIC_BATHY, XtfPackets, _EARTH_RADIUS_M, utc_seconds)
 
 __all__ = ["ATTITUDE_GAP_S", "POSITION_GAP_S", "N_POINTS_LIMITS", "R2SonicRecording", "read_soundings"]
 
@@ -240,6 +240,8 @@ class R2SonicRecording(XtfPackets):
         from ...image.films import Soundings
 
         n_beams = max(len(self._layouts[k]["two_way_time_s"]) for k in ks)
+        require_memory(self._source, 3 * 8.0 * len(ks) * n_beams, f"soundings of {len(ks)} pings x {n_beams} beams",
+                       "H0.Points")
         out = {name: np.full((len(ks), n_beams), np.nan) for name in ("angle_deg", "two_way_time_s", "intensity")}
         for i, k in enumerate(ks):  # per ping (a ping's beams are one array)
             g = self._layouts[k]

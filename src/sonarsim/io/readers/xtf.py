@@ -77,7 +77,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import SonarsimError
-from ._common import FilmRecording, RecordingError, check_within, frame_index, read_at, require_frame_memory
+from ._common import (FilmRecording, RecordingError, check_within, frame_index, read_at, require_frame_memory,
+                      require_memory)
 
 __all__ = [
     "FILE_HEADER_SIZE",
@@ -324,6 +325,7 @@ class XtfSidescanRecording(XtfPackets):
         fh = self.file_header
         self._chan_types = [int(fh.ChanInfo[i].TypeOfChannel) for i in range(6)]
         self._chan_bytes = [int(fh.ChanInfo[i].BytesPerSample) for i in range(6)]
+        self._chan_formats = [int(fh.ChanInfo[i].SampleFormat) for i in range(6)]
         self._shape: tuple[int, float, float] | None = None  # ping 0's (n_samples, window): all must match
         self._origin: tuple[float, float] | None = None
 
@@ -352,9 +354,7 @@ class XtfSidescanRecording(XtfPackets):
             n = int(ch.NumSamples)
             check_within(src, where, f"channel {c} NumSamples", n, N_SAMPLES_LIMITS, "", "the sample counts of side-scans")
             bps = self._chan_bytes[number]
-            if bps not in (1, 2, 4):
-                raise RecordingError(src, f"channel {number}: {bps} bytes per sample (1, 2 or 4 expected)",
-                                     "file header", "ChanInfo.BytesPerSample")
+            dtype = sample_dtype(src, number, bps, self._chan_formats[number])
             data_at = at + CHANNEL_HEADER_SIZE
             at = data_at + n * bps
             if at > packet.size:
@@ -362,11 +362,11 @@ class XtfSidescanRecording(XtfPackets):
                                      f"packet, which has {packet.size}", where, "NumSamples")
             side = {1: 0, 2: 1}.get(self._chan_types[number])
             if side is not None and side not in sides:
-                sides[side] = (ch, n, bps, data_at, c)
+                sides[side] = (ch, n, bps, data_at, c, dtype)
         if set(sides) != {0, 1}:
             raise RecordingError(src, "the ping has no port and starboard channel pair (ChanInfo.TypeOfChannel 1 "
                                  f"and 2; channel types {self._chan_types})", where, "ChannelNumber")
-        (cp, n_p, _, _, _), (cs, n_s, _, _, _) = sides[0], sides[1]
+        (cp, n_p, *_), (cs, n_s, *_) = sides[0], sides[1]
         if n_p != n_s:
             raise RecordingError(src, f"port has {n_p} samples and starboard {n_s}; a waterfall needs both alike",
                                  where, "NumSamples")
@@ -394,9 +394,9 @@ class XtfSidescanRecording(XtfPackets):
         packet, g = self._pings[k], self._layouts[k]
         out = []
         for side in (0, 1):
-            _ch, n, bps, data_at, c = g["sides"][side]
+            _ch, n, bps, data_at, c, dtype = g["sides"][side]
             raw = self._bytes(packet, k, data_at, n * bps, f"channel {c} samples ({n * bps} bytes)")
-            line = np.frombuffer(raw, dtype=f"<u{bps}", count=n)
+            line = np.frombuffer(raw, dtype=dtype, count=n)
             out.append(line[::-1] if side == 0 else line)  # port is stored far -> nadir
         return np.asarray(out, dtype=np.float32)
 
@@ -464,6 +464,8 @@ class XtfSidescanRecording(XtfPackets):
         from ...image.films import Waterfall
 
         n = self._shape[0]
+        require_memory(self._source, 4.0 * len(ks) * 2 * n, f"a waterfall of {len(ks)} pings x 2 x {n} samples",
+                       "NumSamples")
         samples = np.empty((len(ks), 2, n), np.float32)
         for i, k in enumerate(ks):
             samples[i] = self._samples(k)
@@ -499,6 +501,33 @@ class XtfSidescanRecording(XtfPackets):
         if len(ks) == 0:
             raise RecordingError(self._source, f"pings {pings!r} select none of the {self.n_frames} good pings")
         return self._waterfall(ks)
+
+
+def sample_dtype(source: str, channel: int, bytes_per_sample: int, sample_format: int) -> str:
+    """The NumPy dtype of a channel's samples from the file header's ``ChanInfo``.
+
+    ``SampleFormat`` (XTF X41: 2 = 4-byte integer, 3 = 2-byte integer, 5 = 4-byte IEEE float,
+    8 = 1-byte integer; 0 = legacy, where ``BytesPerSample`` alone decides) must agree with
+    ``BytesPerSample``. Integers are read unsigned, as pyxtf reads them (the test data's
+    samples run 0 to 32767 with ``UniPolar`` 1). IBM floats (1) are not supported.
+
+    Raises
+    ------
+    RecordingError
+        An unknown or unsupported format, or one that contradicts ``BytesPerSample``.
+    """
+    known = {2: (4, "<u4"), 3: (2, "<u2"), 5: (4, "<f4"), 8: (1, "u1")}
+    if sample_format in known:
+        size, dtype = known[sample_format]
+        if size == bytes_per_sample:
+            return dtype
+        raise RecordingError(source, f"channel {channel}: SampleFormat {sample_format} has {size}-byte samples, but "
+                             f"BytesPerSample is {bytes_per_sample}", "file header", "ChanInfo.SampleFormat")
+    if sample_format == 0 and bytes_per_sample in (1, 2, 4):
+        return f"<u{bytes_per_sample}"
+    raise RecordingError(source, f"channel {channel}: SampleFormat {sample_format} with {bytes_per_sample} bytes per "
+                         "sample is not supported (known: 2, 3, 5, 8, or 0 with 1, 2 or 4 bytes)", "file header",
+                         "ChanInfo.SampleFormat")
 
 
 def sound_speed(stored: float, slant_range_m: float, duration_s: float) -> float:
