@@ -472,6 +472,22 @@ class FilmRecording(Recording):
     def _repr_png_(self):
         return None  # no fan to show
 
+    def _ping_range(self, pings) -> range:
+        """The good pings selected by ``pings`` (None: all; a slice; an int), as a range."""
+        n = self.n_frames
+        if pings is None:
+            return range(n)
+        if isinstance(pings, slice):
+            r = range(*pings.indices(n))
+            if pings.stop is not None and pings.stop > n and self._damage is not None:
+                raise self._unreadable(n)
+            return r
+        k = frame_index(pings)
+        self._verify_to(k + 1)
+        if not 0 <= k < n:
+            raise self._unreadable(k)
+        return range(k, k + 1)
+
     def _not_polar(self, what: str):
         raise RecordingError(self._source, f"{what} draws FLS frames; this recording's pings are a {self.film} "
                              "(sonarsim.image.films)")

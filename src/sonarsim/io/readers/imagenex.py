@@ -190,18 +190,9 @@ class ImagenexRecording(FilmRecording):
         Envelope
             ``samples`` ``(n, n_samples)`` float32; ``bottom_range_m`` ``(n,)`` (NaN: none found).
         """
-        n = self.n_frames
-        if pings is None:
-            ks = range(n)
-        elif isinstance(pings, slice):
-            if pings.stop is not None and pings.stop > n and self._damage is not None:
-                raise self._unreadable(n)
-            ks = range(*pings.indices(n))
-        else:
-            self.read(pings)
-            ks = range(int(pings), int(pings) + 1)
+        ks = self._ping_range(pings)
         if len(ks) == 0:
-            raise RecordingError(self._source, f"pings {pings!r} select none of the {n} good pings")
+            raise RecordingError(self._source, f"pings {pings!r} select none of the {self.n_frames} good pings")
         if ks.step != 1:
             parts = [self._envelope(range(k, k + 1)) for k in ks]
             from ...image.films import Envelope, PingGeometry

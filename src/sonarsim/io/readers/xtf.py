@@ -69,7 +69,6 @@ the memory budget before samples are read.
 from __future__ import annotations
 
 import calendar
-import ctypes
 import math
 import struct
 from dataclasses import dataclass
@@ -77,7 +76,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import SonarsimError
-from ._common import (FilmRecording, RecordingError, check_within, frame_index, read_at, require_frame_memory,
+from ._common import (FilmRecording, RecordingError, check_within, read_at, require_frame_memory,
                       require_memory)
 
 __all__ = [
@@ -280,22 +279,6 @@ class XtfPackets(FilmRecording):
     def _bytes(self, packet: Packet, k: int, start: int, size: int, what: str) -> bytes:
         return read_at(self._handle, packet.offset + start, size, self._file_size, self._source,
                        f"ping {k} (packet {packet.index}, byte {packet.offset})", what)
-
-    def _ping_range(self, pings) -> range:
-        """The good pings selected by ``pings`` (None: all; a slice; an int), as a range."""
-        n = self.n_frames
-        if pings is None:
-            return range(n)
-        if isinstance(pings, slice):
-            r = range(*pings.indices(n))
-            if pings.stop is not None and pings.stop > n and self._damage is not None:
-                raise self._unreadable(n)
-            return r
-        k = frame_index(pings)
-        self._verify_to(k + 1)
-        if not 0 <= k < n:
-            raise self._unreadable(k)
-        return range(k, k + 1)
 
 
 class XtfSidescanRecording(XtfPackets):
