@@ -438,3 +438,26 @@ def test_xtf_sound_speed_rule():
     assert sound_speed(750.0, 29.98, 0.03998) == 1500.0  # c/2, as in the test data
     assert sound_speed(1500.0, 29.98, 0.03998) == 1500.0  # c
     assert sound_speed(760.0, 10.0, 0.0) == 1520.0 and sound_speed(1490.0, 10.0, 0.0) == 1490.0
+
+
+@needs_data
+@pytest.mark.parametrize("fmt, cut, message", [
+    ("xtf", 500, "truncated: it starts like an XTF file header .* ends at byte 500"),
+    ("r2sonic", 1025, "truncated: it starts like an XTF file header"),
+    ("imagenex852", 60, "truncated: it starts like an Imagenex 852 record"),
+])
+def test_files_cut_inside_their_first_header_are_named(tmp_path, fmt, cut, message):
+    p = tmp_path / "cut"
+    p.write_bytes(FILES[fmt].read_bytes()[:cut])
+    with pytest.raises(RecordingError, match=message):
+        readers.open_recording(p)
+
+
+@needs_data
+def test_xtf_header_without_packet_magic(tmp_path):
+    data = bytearray(SIDESCAN.read_bytes())
+    data[1024] = 0
+    p = tmp_path / "nomagic.xtf"
+    p.write_bytes(bytes(data))
+    with pytest.raises(RecordingError, match="byte 1024 holds 0xfa00, not the packet magic"):
+        readers.detect_format(p)

@@ -69,11 +69,11 @@ from typing import Union
 from ...errors import SonarsimError
 from ._common import RecordingError
 from .aris import ARIS_SIGNATURE, ArisRecording
-from .imagenex import ImagenexRecording, is_imagenex852
+from .imagenex import ImagenexRecording, imagenex_problem, is_imagenex852
 from .npz import ZIP_SIGNATURE, NpzRecording
 from .oculus import OCULUS_ID, OculusRecording
 from .r2sonic import R2SonicRecording
-from .xtf import XtfSidescanRecording, is_xtf, xtf_kind
+from .xtf import XtfSidescanRecording, is_xtf, xtf_kind, xtf_problem
 
 __all__ = [
     "FORMATS",
@@ -177,6 +177,9 @@ def detect_format(path: PathLike) -> str:
     for name, _cls, _suffixes, test, _what in _CONTENT_FORMATS:
         if test(head, path):
             return name
+    for problem in (xtf_problem(head), imagenex_problem(head)):
+        if problem:
+            raise RecordingError(source, problem, "file header")
     for magic, what in _FOREIGN:
         if head.startswith(magic):
             raise RecordingError(source, f"this is {what}, not a sonar recording")

@@ -39,7 +39,7 @@ import numpy as np
 
 from ._common import FilmRecording, RecordingError, check_within, require_memory
 
-__all__ = ["MAGIC", "RANGE_M_LIMITS", "SOUND_SPEED_LIMITS", "ImagenexRecording", "is_imagenex852", "read_envelope"]
+__all__ = ["MAGIC", "RANGE_M_LIMITS", "SOUND_SPEED_LIMITS", "ImagenexRecording", "imagenex_problem", "is_imagenex852", "read_envelope"]
 
 #: The first bytes of every record.
 MAGIC = b"852"
@@ -60,6 +60,18 @@ _MONTHS = {m: i for i, m in enumerate(("Jan", "Feb", "Mar", "Apr", "May", "Jun",
 def is_imagenex852(head: bytes) -> bool:
     """Whether ``head`` (at least 103 bytes) starts like an Imagenex 852 record."""
     return head[:3] == MAGIC and head[FILE_HEADER_SIZE:FILE_HEADER_SIZE + 3] == RETURN_MAGIC
+
+
+def imagenex_problem(head: bytes) -> str | None:
+    """Why ``head``, which starts with the record magic '852', is no 852 file sonarsim can read;
+    None when it does not start so (or is one)."""
+    if head[:3] != MAGIC or is_imagenex852(head):
+        return None
+    if len(head) < FILE_HEADER_SIZE + 3:
+        return (f"truncated: it starts like an Imagenex 852 record ('852') but ends at byte {len(head)}, before "
+                f"the return header ('IGX' at byte {FILE_HEADER_SIZE})")
+    return (f"it starts like an Imagenex 852 record ('852') but bytes {FILE_HEADER_SIZE}-{FILE_HEADER_SIZE + 2} "
+            f"hold {head[FILE_HEADER_SIZE:FILE_HEADER_SIZE + 3]!r}, not the return header's 'IGX'")
 
 
 def _seven_bit(lo: int, hi: int) -> int | None:

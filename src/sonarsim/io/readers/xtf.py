@@ -88,6 +88,7 @@ __all__ = [
     "SOUND_SPEED_LIMITS",
     "XtfSidescanRecording",
     "is_xtf",
+    "xtf_problem",
     "xtf_kind",
     "read_waterfall",
 ]
@@ -135,6 +136,25 @@ def is_xtf(head: bytes) -> bool:
     the first byte of every JSON file.)"""
     return (len(head) >= FILE_HEADER_SIZE + 2 and head[0] == XTF_FILE_FORMAT
             and int.from_bytes(head[FILE_HEADER_SIZE:FILE_HEADER_SIZE + 2], "little") == PACKET_MAGIC)
+
+
+def xtf_problem(head: bytes) -> str | None:
+    """Why ``head`` (the file's first bytes, up to 1040), which starts like an XTF file header,
+    is no XTF file sonarsim can read; None when it does not look like one at all.
+
+    An XTF file header is binary (``FileFormat`` 0x7B, then names padded with NUL bytes); a
+    JSON file also starts with 0x7B (``{``) but holds no NUL byte.
+    """
+    if not head or head[0] != XTF_FILE_FORMAT or b"\0" not in head[:FILE_HEADER_SIZE]:
+        return None
+    if len(head) < FILE_HEADER_SIZE + 2:
+        return (f"truncated: it starts like an XTF file header (FileFormat 0x7B) but ends at byte {len(head)}, "
+                f"before its first packet (byte {FILE_HEADER_SIZE})")
+    magic = int.from_bytes(head[FILE_HEADER_SIZE:FILE_HEADER_SIZE + 2], "little")
+    if magic != PACKET_MAGIC:
+        return (f"it starts like an XTF file header (FileFormat 0x7B) but byte {FILE_HEADER_SIZE} holds 0x{magic:04x}, "
+                "not the packet magic 0xface")
+    return None
 
 
 def xtf_kind(path, max_packets: int = 256) -> str:
