@@ -18,6 +18,10 @@ from sonarsim.io.readers import RecordingError
 
 pytest.importorskip("pyxtf")
 
+def open_recording_any(path):
+    return readers.open_recording(path, film="any")
+
+
 REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
 SIDESCAN = REAL / "sidescan" / "iver2_seascan_pings_0-179.xtf"
 MULTIBEAM = REAL / "multibeam" / "r2sonic2026_pings_0-459.xtf"
@@ -49,7 +53,7 @@ def test_formats_recognised_by_content_whatever_the_name(tmp_path, fmt):
     copy = tmp_path / "recording.bin"
     copy.write_bytes(FILES[fmt].read_bytes())
     assert readers.detect_format(copy) == fmt
-    with readers.open_recording(copy) as recording:
+    with open_recording_any(copy) as recording:
         assert type(recording) is readers.FORMATS[fmt]
         assert recording.film == readers.FILMS[fmt]
         assert fmt in repr(recording) or recording.units in repr(recording)
@@ -67,13 +71,13 @@ def test_random_bytes_and_empty_file_refused(tmp_path, content):
     p = tmp_path / "x.xtf"
     p.write_bytes(content)
     with pytest.raises(RecordingError):
-        readers.open_recording(p)
+        open_recording_any(p)
 
 
 def test_film_recordings_refuse_fan_pictures_by_name(tmp_path):
     if not REAL.is_dir():
         pytest.skip("../shared/data/real is absent")
-    with readers.open_recording(SINGLEBEAM) as recording:
+    with open_recording_any(SINGLEBEAM) as recording:
         assert recording._repr_png_() is None
         with pytest.raises(RecordingError, match="envelope"):
             recording.plot()
@@ -117,7 +121,7 @@ def test_sidescan_port_is_flipped_to_nadir_first():
     import pyxtf
 
     _, pk = pyxtf.xtf_read(str(SIDESCAN))
-    w = readers.read(SIDESCAN, 5)
+    w = readers.read(SIDESCAN, film="any", frame=5)
     np.testing.assert_array_equal(w.samples[0, 0], pk[0][5].data[0][::-1])
     np.testing.assert_array_equal(w.samples[0, 1], pk[0][5].data[1])
     # The saturated nadir is at sample 0 on both sides.
@@ -158,7 +162,7 @@ def first_return_m(w: Waterfall, factor: float = 4.0) -> np.ndarray:
 
 @needs_data
 def test_multibeam_soundings_and_header():
-    with readers.open_recording(MULTIBEAM) as rec:
+    with open_recording_any(MULTIBEAM) as rec:
         s = rec.soundings()
         h = rec.header(0)
     assert isinstance(s, Soundings) and s.two_way_time_s.shape == (460, 256)
@@ -265,7 +269,7 @@ def ping_offsets(fmt: str) -> list[int]:
 
 
 def check_good(path: Path, n_good: int, damaged: bool) -> None:
-    with readers.open_recording(path) as rec:
+    with open_recording_any(path) as rec:
         assert rec.n_frames == n_good
         assert (rec.damage is not None) == damaged
         rec.read(n_good - 1)
@@ -310,7 +314,7 @@ def test_corrupt_magic_of_one_ping_ends_the_good_pings(tmp_path, fmt):
     p = tmp_path / "corrupt"
     p.write_bytes(bytes(data))
     check_good(p, 7, True)
-    with readers.open_recording(p) as rec:
+    with open_recording_any(p) as rec:
         assert "magic" in (rec.damage.field or "").lower() or "MagicNumber" in str(rec.damage)
 
 
@@ -323,7 +327,7 @@ def test_sidescan_huge_sample_count_refused_by_name(tmp_path):
     struct.pack_into("<I", data, at + pyxtf.XTFPingChanHeader.NumSamples.offset, 10**9)
     p = tmp_path / "huge.xtf"
     p.write_bytes(bytes(data))
-    with readers.open_recording(p) as rec:
+    with open_recording_any(p) as rec:
         assert rec.n_frames == 3
         assert "NumSamples" in rec.damage.field and "1000000000" in rec.damage.detail
 
@@ -337,7 +341,7 @@ def test_multibeam_huge_point_count_refused_by_name(tmp_path):
     struct.pack_into(">H", data, h0 + 4 + struct.calcsize(">12s12sIIIfffffffffHhfffffffIH"), 60000)
     p = tmp_path / "huge.xtf"
     p.write_bytes(bytes(data))
-    with readers.open_recording(p) as rec:
+    with open_recording_any(p) as rec:
         assert rec.n_frames == 4
         assert rec.damage.field == "H0.Points"
 
@@ -348,7 +352,7 @@ def test_singlebeam_bad_bottom_and_sound_speed_refused(tmp_path):
     data[5 * 640 + 108], data[5 * 640 + 109] = 0x00, 0x7F  # a bottom at 162 m in a 10 m window
     p = tmp_path / "bad.852"
     p.write_bytes(bytes(data))
-    with readers.open_recording(p) as rec:
+    with open_recording_any(p) as rec:
         assert rec.n_frames == 5 and rec.damage.field == "profile range"
 
 
@@ -393,7 +397,7 @@ def test_multibeam_corrupt_attitude_packet_between_pings(tmp_path):
     p = tmp_path / "att.xtf"
     p.write_bytes(bytes(data))
     check_good(p, 8, True)
-    with readers.open_recording(p) as rec:
+    with open_recording_any(p) as rec:
         assert f"packet {between}" in rec.damage.detail and rec.damage.field == "MagicNumber"
         s = rec.soundings()
         assert s.n_pings == 8 and np.all(np.isfinite(s.geometry.roll_deg))
@@ -405,17 +409,17 @@ def test_multibeam_corrupt_attitude_packet_between_pings(tmp_path):
 def test_readers_agree_with_the_module_functions():
     w = readers.xtf.read_waterfall(SIDESCAN, slice(10, 13))
     for i, k in enumerate(range(10, 13)):
-        one = readers.read(SIDESCAN, k)
+        one = readers.read(SIDESCAN, film="any", frame=k)
         np.testing.assert_array_equal(one.samples[0], w.samples[i])
         assert one.geometry.time_s[0] == w.geometry.time_s[i]
     e = readers.imagenex.read_envelope(SINGLEBEAM, slice(3, 9, 2))
-    np.testing.assert_array_equal(e.samples[1], readers.read(SINGLEBEAM, 5).samples[0])
+    np.testing.assert_array_equal(e.samples[1], readers.read(SINGLEBEAM, 5, film="envelope").samples[0])
 
 
 @needs_data
 def test_waterfall_beyond_the_memory_budget_is_refused_before_allocating(monkeypatch):
     monkeypatch.setenv("SONARSIM_MAX_MEMORY", "1M")
-    with readers.open_recording(SIDESCAN) as rec:
+    with open_recording_any(SIDESCAN) as rec:
         rec.read(3)  # one ping fits
         with pytest.raises(RecordingError, match="NumSamples: a waterfall of 180 pings"):
             rec.waterfall()
@@ -450,7 +454,7 @@ def test_files_cut_inside_their_first_header_are_named(tmp_path, fmt, cut, messa
     p = tmp_path / "cut"
     p.write_bytes(FILES[fmt].read_bytes()[:cut])
     with pytest.raises(RecordingError, match=message):
-        readers.open_recording(p)
+        open_recording_any(p)
 
 
 @needs_data
@@ -461,3 +465,18 @@ def test_xtf_header_without_packet_magic(tmp_path):
     p.write_bytes(bytes(data))
     with pytest.raises(RecordingError, match="byte 1024 holds 0xfa00, not the packet magic"):
         readers.detect_format(p)
+
+
+@needs_data
+@pytest.mark.parametrize("fmt, film", [("xtf", "waterfall"), ("r2sonic", "soundings"), ("imagenex852", "envelope")])
+def test_programs_for_fls_frames_are_told_what_the_file_is(fmt, film):
+    """open_recording's default (FLS frames: what sonarsim show, view and compare use) refuses
+    the film formats by name and says how to read them."""
+    with pytest.raises(RecordingError, match=f"this {fmt} recording holds {film} pings.*read it with"):
+        readers.open_recording(FILES[fmt])
+    with pytest.raises(RecordingError, match=film):
+        readers.read(FILES[fmt], 0)
+    with readers.open_recording(FILES[fmt], film=film) as rec:
+        assert rec.film == film
+    with pytest.raises(ValueError, match="film must be one of"):
+        readers.open_recording(FILES[fmt], film="fan")

@@ -192,32 +192,67 @@ def detect_format(path: PathLike) -> str:
     )
 
 
-def open_recording(path: PathLike) -> ArisRecording | OculusRecording | NpzRecording:
+_READ_FILM = {
+    "waterfall": "sonarsim.io.readers.xtf.read_waterfall(path)",
+    "soundings": "sonarsim.io.readers.r2sonic.read_soundings(path)",
+    "envelope": "sonarsim.io.readers.imagenex.read_envelope(path)",
+}
+
+
+def open_recording(path: PathLike, film: str = "polar"):
     """Open a recording for repeated reads (a context manager; close it when done).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file (recognised by its content).
+    film : {"polar", "waterfall", "soundings", "envelope", "any"}
+        The frames the caller can use. The default, ``"polar"``, opens the FLS formats (and
+        stored images), whose frames are SonarImages, and refuses a side-scan, multibeam or
+        single-beam recording by name (programs written for FLS frames, such as ``sonarsim
+        show``, then say what the file is instead of failing on its pings); ``"any"`` opens
+        every format.
 
     Returns
     -------
-    ArisRecording, OculusRecording or NpzRecording
-        With ``n_frames`` (the good frames), ``damage`` (why the file ends there, or None),
-        ``read(frame)`` and iteration over the good frames.
+    Recording
+        ArisRecording, OculusRecording, NpzRecording (``film`` "polar"), XtfSidescanRecording,
+        R2SonicRecording or ImagenexRecording: with ``n_frames`` (the good frames), ``damage``
+        (why the file ends there, or None), ``read(frame)``, iteration over the good frames
+        and ``film``.
 
     Raises
     ------
     RecordingError
-        Unknown content, or a first frame that cannot be read (nothing in the file is).
+        Unknown content, a recording of another film than ``film``, or a first frame that
+        cannot be read (nothing in the file is).
     """
-    return FORMATS[detect_format(path)](path)
+    fmt = detect_format(path)
+    kind = FILMS[fmt]
+    if film not in ("any", *_FILM_NAMES):
+        raise ValueError(f"film must be one of {', '.join(('any', *_FILM_NAMES))}, got {film!r}")
+    if film not in ("any", kind):
+        hint = f"; read it with {_READ_FILM[kind]} or open_recording(path, film={kind!r})" if kind in _READ_FILM else ""
+        raise RecordingError(os.fspath(path), f"this {fmt} recording holds {kind} pings (sonarsim.image.films), not "
+                             f"the {film} frames wanted here{hint}")
+    return FORMATS[fmt](path)
 
 
-def n_frames(path: PathLike) -> int:
-    """Number of good frames (ARIS) or simple ping results (Oculus) in a recording: those before
-    the first one that cannot be read (``open_recording(path).damage`` says why it cannot)."""
-    with open_recording(path) as recording:
+_FILM_NAMES = ("polar", "waterfall", "soundings", "envelope")
+
+
+def n_frames(path: PathLike, film: str = "any") -> int:
+    """Number of good frames (ARIS) or simple ping results (Oculus), or pings of the other
+    formats, in a recording: those before the first one that cannot be read
+    (``open_recording(path).damage`` says why it cannot); ``film`` as :func:`open_recording`."""
+    with open_recording(path, film) as recording:
         return recording.n_frames
 
 
-def read(path: PathLike, frame: int = 0):
-    """One frame of a recording as a :class:`~sonarsim.image.result.SonarImage`.
+def read(path: PathLike, frame: int = 0, film: str = "polar"):
+    """One frame of a recording as a :class:`~sonarsim.image.result.SonarImage` (or, with
+    ``film`` "any" or a film's name, one ping of a side-scan, multibeam or single-beam
+    recording as a one-ping film).
 
     Parameters
     ----------
@@ -227,6 +262,8 @@ def read(path: PathLike, frame: int = 0):
     frame : int
         0-based frame (ARIS) or ping (Oculus; other message kinds are not counted); 0 for an
         NPZ, which holds one image.
+    film : str
+        As :func:`open_recording` (default ``"polar"``).
 
     Returns
     -------
@@ -239,22 +276,22 @@ def read(path: PathLike, frame: int = 0):
         Unknown content, a frame that is not among the good frames: truncated, corrupt, after
         such a frame, or out of range (the message gives the valid range).
     """
-    with open_recording(path) as recording:
+    with open_recording(path, film) as recording:
         return recording.read(frame)
 
 
-def read_frames(path: PathLike) -> Iterator:
+def read_frames(path: PathLike, film: str = "polar") -> Iterator:
     """Every frame of a recording, in order, read one at a time (the file stays open meanwhile).
 
     The file is opened and recognised at once (a foreign file, or one whose first frame is
     unreadable, raises here, not at the first ``next``). The good frames are yielded, then the
     first frame that :func:`read` refuses raises the same error (a truncated last frame, a
     corrupt header); a file without frames raises at the first ``next`` (never an empty
-    iteration).
+    iteration). ``film`` as :func:`open_recording`.
     """
-    return _frames(open_recording(path))
+    return _frames(open_recording(path, film))
 
 
-def _frames(recording: ArisRecording | OculusRecording | NpzRecording) -> Iterator:
+def _frames(recording) -> Iterator:
     with recording:
         yield from recording
