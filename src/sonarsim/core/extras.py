@@ -1,4 +1,4 @@
-"""How to install an optional extra (``ros``, ``ray``, ``viewer``, ``diff``): the one home of the
+"""How to install an optional extra (``ros``, ``ray``, ``viewer``, ``diff``, ``xtf``): the one home of the
 install hints that the messages about a missing library give.
 
 From a checkout (sonarsim imported from a clone's ``src/``, as ``pip install -e .`` or
@@ -22,6 +22,7 @@ EXTRAS = {
     "ray": "the Ray extra",
     "viewer": "the viewer extra",
     "diff": "the differentiable engine's extra (JAX)",
+    "xtf": "the XTF extra (pyxtf)",
 }
 
 

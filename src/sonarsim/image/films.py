@@ -291,6 +291,22 @@ class Soundings:
         r = self.range_m
         return np.stack([np.zeros_like(r), r * np.sin(a), -r * np.cos(a)], axis=-1)
 
+    def level_points(self) -> np.ndarray:
+        """:meth:`head_points` turned by each ping's roll and pitch into the level frame (x forward
+        along the heading, y to port, z up; heading not applied), metres, ``(n_pings, n_beams, 3)``.
+
+        ``p_level = Ry(pitch) Rx(roll) p_head`` (REP-103: roll > 0 lifts port, pitch > 0 puts the
+        nose down); a beam at ``angle_deg`` a reaches the level angle ``a + roll`` across track.
+        NaN where the ping's roll or pitch is unknown.
+        """
+        p = self.head_points()
+        roll = np.radians(self.geometry.roll_deg)[:, None]
+        pitch = np.radians(self.geometry.pitch_deg)[:, None]
+        x, y, z = p[..., 0], p[..., 1], p[..., 2]
+        y, z = y * np.cos(roll) - z * np.sin(roll), y * np.sin(roll) + z * np.cos(roll)
+        x, z = x * np.cos(pitch) + z * np.sin(pitch), -x * np.sin(pitch) + z * np.cos(pitch)
+        return np.stack([x, y, z], axis=-1)
+
 
 @dataclass(frozen=True)
 class Envelope:

@@ -13,10 +13,22 @@ Supported, recognised from the file's first bytes (never from its name):
 * ``"aris"``: Sound Metrics ARIS files (DDF_05), see :mod:`sonarsim.io.readers.aris`;
 * ``"oculus"``: Blueprint Subsea Oculus simple-ping-result messages (versions 1 and 2), one or
   many back to back, as liboculus records them; see :mod:`sonarsim.io.readers.oculus`;
+* ``"xtf"``: XTF side-scan recordings (sonar pings; port and starboard lines), read as
+  :class:`~sonarsim.image.films.Waterfall` pings, see :mod:`sonarsim.io.readers.xtf`;
+* ``"r2sonic"``: XTF files of R2Sonic multibeam bathymetry (QINSy's packets of type 65), read
+  as :class:`~sonarsim.image.films.Soundings` pings, see :mod:`sonarsim.io.readers.r2sonic`;
+* ``"imagenex852"``: Imagenex 852 echo-sounder files, read as
+  :class:`~sonarsim.image.films.Envelope` pings, see :mod:`sonarsim.io.readers.imagenex`;
 * ``"npz"``: an image sonarsim stored (``sonarsim dataset``'s ``frames/NNNNNN.npz``, ``sonarsim
   render``'s ``render.npz``, :meth:`SonarImage.save_npz`), read back as a one-frame recording
   whose frame is the stored image with its sonar and pose (not a recording's ``config``: the
   stored configuration); see :mod:`sonarsim.io.readers.npz`.
+
+The FLS formats' frames are :class:`~sonarsim.image.result.SonarImage` polar frames; the
+others' are one-ping films. Each recording class says which in its ``film`` attribute
+(``"polar"``, ``"waterfall"``, ``"soundings"``, ``"envelope"``; :data:`FILMS`), so that a
+program expecting polar frames can refuse the others by name. The XTF readers need the
+optional ``xtf`` extra (pyxtf); recognising an XTF file does not.
 
 Every problem with a file's content raises :class:`RecordingError` (a
 :class:`~sonarsim.errors.SonarsimError`) naming the file, the frame or message and the field.
@@ -57,14 +69,21 @@ from typing import Union
 from ...errors import SonarsimError
 from ._common import RecordingError
 from .aris import ARIS_SIGNATURE, ArisRecording
+from .imagenex import ImagenexRecording, imagenex_problem, is_imagenex852
 from .npz import ZIP_SIGNATURE, NpzRecording
 from .oculus import OCULUS_ID, OculusRecording
+from .r2sonic import R2SonicRecording
+from .xtf import XtfSidescanRecording, is_xtf, xtf_kind, xtf_problem
 
 __all__ = [
     "FORMATS",
+    "FILMS",
     "ArisRecording",
+    "ImagenexRecording",
     "NpzRecording",
     "OculusRecording",
+    "R2SonicRecording",
+    "XtfSidescanRecording",
     "RecordingError",
     "detect_format",
     "n_frames",
@@ -75,8 +94,26 @@ __all__ = [
 
 PathLike = Union[str, "os.PathLike[str]"]
 
+# The formats recognised from their content beyond the first 16 bytes: each entry is the
+# format's name, its reader class, its usual suffixes (for messages only: a file's name never
+# decides) and a test of the file's first bytes (``HEAD_BYTES`` of them) and path. Adding a
+# format is adding its module and one entry here.
+_CONTENT_FORMATS = (
+    ("xtf", XtfSidescanRecording, (".xtf",), lambda head, path: is_xtf(head) and xtf_kind(path) == "xtf",
+     "XTF side-scan (.xtf, 7b ... then ce fa at byte 1024)"),
+    ("r2sonic", R2SonicRecording, (".xtf",), lambda head, path: is_xtf(head) and xtf_kind(path) == "r2sonic",
+     "XTF of R2Sonic bathymetry (.xtf)"),
+    ("imagenex852", ImagenexRecording, (".852",), lambda head, path: is_imagenex852(head),
+     "Imagenex 852 (.852, starting with '852', 'IGX' at byte 100)"),
+)
+#: Bytes read to recognise a format (XTF's first packet starts at byte 1024).
+HEAD_BYTES = 1040
+
 #: Format name -> reader class.
-FORMATS = {"aris": ArisRecording, "oculus": OculusRecording, "npz": NpzRecording}
+FORMATS = {"aris": ArisRecording, "oculus": OculusRecording, "npz": NpzRecording,
+           **{name: cls for name, cls, *_ in _CONTENT_FORMATS}}
+#: Format name -> the film its frames are (``"polar"``: SonarImage frames).
+FILMS = {name: cls.film for name, cls in FORMATS.items()}
 
 # Other files that users are likely to pass by mistake, named in the error message.
 _FOREIGN = (
@@ -98,7 +135,7 @@ def detect_format(path: PathLike) -> str:
 
     Returns
     -------
-    {"aris", "oculus", "npz"}
+    {"aris", "oculus", "npz", "xtf", "r2sonic", "imagenex852"}
         ``"npz"`` for any zip archive: whether it is an image sonarsim stored is found when it
         is opened.
 
@@ -120,7 +157,7 @@ def detect_format(path: PathLike) -> str:
         except SonarsimError as exc:
             raise RecordingError(source, str(exc).split(": ", 1)[-1]) from None
     with open(path, "rb") as handle:
-        head = handle.read(16)
+        head = handle.read(HEAD_BYTES)
     if not head:
         raise RecordingError(source, "the file is empty")
     if len(head) >= 4:
@@ -137,6 +174,12 @@ def detect_format(path: PathLike) -> str:
         return "oculus"
     if head.startswith(ZIP_SIGNATURE):
         return "npz"
+    for name, _cls, _suffixes, test, _what in _CONTENT_FORMATS:
+        if test(head, path):
+            return name
+    for problem in (xtf_problem(head), imagenex_problem(head)):
+        if problem:
+            raise RecordingError(source, problem, "file header")
     for magic, what in _FOREIGN:
         if head.startswith(magic):
             raise RecordingError(source, f"this is {what}, not a sonar recording")
@@ -145,36 +188,71 @@ def detect_format(path: PathLike) -> str:
         f"not a recognised sonar recording (first bytes {head[:8].hex(' ')}); supported: ARIS "
         f"(.aris, starting with {ARIS_SIGNATURE.to_bytes(4, 'little').hex(' ')}), Oculus "
         f"simple ping results (.raw, starting with {OCULUS_ID.to_bytes(2, 'little').hex(' ')}) "
-        "and images sonarsim stored (.npz)",
+        f"{''.join(', ' + what for *_, what in _CONTENT_FORMATS)} and images sonarsim stored (.npz)",
     )
 
 
-def open_recording(path: PathLike) -> ArisRecording | OculusRecording | NpzRecording:
+_READ_FILM = {
+    "waterfall": "sonarsim.io.readers.xtf.read_waterfall(path)",
+    "soundings": "sonarsim.io.readers.r2sonic.read_soundings(path)",
+    "envelope": "sonarsim.io.readers.imagenex.read_envelope(path)",
+}
+
+
+def open_recording(path: PathLike, film: str = "polar"):
     """Open a recording for repeated reads (a context manager; close it when done).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file (recognised by its content).
+    film : {"polar", "waterfall", "soundings", "envelope", "any"}
+        The frames the caller can use. The default, ``"polar"``, opens the FLS formats (and
+        stored images), whose frames are SonarImages, and refuses a side-scan, multibeam or
+        single-beam recording by name (programs written for FLS frames, such as ``sonarsim
+        show``, then say what the file is instead of failing on its pings); ``"any"`` opens
+        every format.
 
     Returns
     -------
-    ArisRecording, OculusRecording or NpzRecording
-        With ``n_frames`` (the good frames), ``damage`` (why the file ends there, or None),
-        ``read(frame)`` and iteration over the good frames.
+    Recording
+        ArisRecording, OculusRecording, NpzRecording (``film`` "polar"), XtfSidescanRecording,
+        R2SonicRecording or ImagenexRecording: with ``n_frames`` (the good frames), ``damage``
+        (why the file ends there, or None), ``read(frame)``, iteration over the good frames
+        and ``film``.
 
     Raises
     ------
     RecordingError
-        Unknown content, or a first frame that cannot be read (nothing in the file is).
+        Unknown content, a recording of another film than ``film``, or a first frame that
+        cannot be read (nothing in the file is).
     """
-    return FORMATS[detect_format(path)](path)
+    fmt = detect_format(path)
+    kind = FILMS[fmt]
+    if film not in ("any", *_FILM_NAMES):
+        raise ValueError(f"film must be one of {', '.join(('any', *_FILM_NAMES))}, got {film!r}")
+    if film not in ("any", kind):
+        hint = f"; read it with {_READ_FILM[kind]} or open_recording(path, film={kind!r})" if kind in _READ_FILM else ""
+        raise RecordingError(os.fspath(path), f"this {fmt} recording holds {kind} pings (sonarsim.image.films), not "
+                             f"the {film} frames wanted here{hint}")
+    return FORMATS[fmt](path)
 
 
-def n_frames(path: PathLike) -> int:
-    """Number of good frames (ARIS) or simple ping results (Oculus) in a recording: those before
-    the first one that cannot be read (``open_recording(path).damage`` says why it cannot)."""
-    with open_recording(path) as recording:
+_FILM_NAMES = ("polar", "waterfall", "soundings", "envelope")
+
+
+def n_frames(path: PathLike, film: str = "any") -> int:
+    """Number of good frames (ARIS) or simple ping results (Oculus), or pings of the other
+    formats, in a recording: those before the first one that cannot be read
+    (``open_recording(path).damage`` says why it cannot); ``film`` as :func:`open_recording`."""
+    with open_recording(path, film) as recording:
         return recording.n_frames
 
 
-def read(path: PathLike, frame: int = 0):
-    """One frame of a recording as a :class:`~sonarsim.image.result.SonarImage`.
+def read(path: PathLike, frame: int = 0, film: str = "polar"):
+    """One frame of a recording as a :class:`~sonarsim.image.result.SonarImage` (or, with
+    ``film`` "any" or a film's name, one ping of a side-scan, multibeam or single-beam
+    recording as a one-ping film).
 
     Parameters
     ----------
@@ -184,6 +262,8 @@ def read(path: PathLike, frame: int = 0):
     frame : int
         0-based frame (ARIS) or ping (Oculus; other message kinds are not counted); 0 for an
         NPZ, which holds one image.
+    film : str
+        As :func:`open_recording` (default ``"polar"``).
 
     Returns
     -------
@@ -196,22 +276,22 @@ def read(path: PathLike, frame: int = 0):
         Unknown content, a frame that is not among the good frames: truncated, corrupt, after
         such a frame, or out of range (the message gives the valid range).
     """
-    with open_recording(path) as recording:
+    with open_recording(path, film) as recording:
         return recording.read(frame)
 
 
-def read_frames(path: PathLike) -> Iterator:
+def read_frames(path: PathLike, film: str = "polar") -> Iterator:
     """Every frame of a recording, in order, read one at a time (the file stays open meanwhile).
 
     The file is opened and recognised at once (a foreign file, or one whose first frame is
     unreadable, raises here, not at the first ``next``). The good frames are yielded, then the
     first frame that :func:`read` refuses raises the same error (a truncated last frame, a
     corrupt header); a file without frames raises at the first ``next`` (never an empty
-    iteration).
+    iteration). ``film`` as :func:`open_recording`.
     """
-    return _frames(open_recording(path))
+    return _frames(open_recording(path, film))
 
 
-def _frames(recording: ArisRecording | OculusRecording | NpzRecording) -> Iterator:
+def _frames(recording) -> Iterator:
     with recording:
         yield from recording

@@ -228,6 +228,17 @@ def require_frame_memory(
         raise RecordingError(source, exc.detail, where, field) from None
 
 
+def require_memory(source: str, nbytes: float, what: str, field: str) -> None:
+    """Refuse an array beyond the memory budget (:mod:`sonarsim.core.memory`) before allocating it."""
+    from ...core.memory import require
+    from ...errors import ConfigError
+
+    try:
+        require(nbytes, what, field)
+    except ConfigError as exc:
+        raise RecordingError(source, exc.detail, None, field) from None
+
+
 class Recording:
     """An open recording file, read on demand with seeks: the rule every format follows.
 
@@ -267,6 +278,9 @@ class Recording:
     format = ""
     #: What one frame is called in messages, and several.
     unit, units = "frame", "frames"
+    #: The film a frame is: ``"polar"`` (a SonarImage), or a one-ping ``"waterfall"``,
+    #: ``"soundings"`` or ``"envelope"`` (:mod:`sonarsim.image.films`).
+    film = "polar"
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = path
@@ -440,6 +454,52 @@ class Recording:
         """Frame ``frame`` as an exact-pixel PIL image (fan, or ``kind="polar"``), in the device's
         counts as ``sonarsim show`` writes them."""
         return self.read(frame).to_pil(**options)
+
+
+class FilmRecording(Recording):
+    """A recording whose frames are pings of a film (:mod:`sonarsim.image.films`), not polar
+    frames: the picture hooks of :class:`Recording` (fan images) do not apply to it."""
+
+    def __repr__(self) -> str:
+        name = os.path.basename(os.fspath(self.path))
+        try:
+            n = self.n_frames
+        except Exception as exc:  # a repr must not raise
+            return f"{type(self).__name__}({name!r}: unreadable: {exc})"
+        more = f", damaged after them: {self._damage.detail}" if self._damage is not None else ""
+        return f"{type(self).__name__}({name!r}: {n} {self.units}, film {self.film!r}{more})"
+
+    def _repr_png_(self):
+        return None  # no fan to show
+
+    def _ping_range(self, pings) -> range:
+        """The good pings selected by ``pings`` (None: all; a slice; an int), as a range."""
+        n = self.n_frames
+        if pings is None:
+            return range(n)
+        if isinstance(pings, slice):
+            r = range(*pings.indices(n))
+            if pings.stop is not None and pings.stop > n and self._damage is not None:
+                raise self._unreadable(n)
+            return r
+        k = frame_index(pings)
+        self._verify_to(k + 1)
+        if not 0 <= k < n:
+            raise self._unreadable(k)
+        return range(k, k + 1)
+
+    def _not_polar(self, what: str):
+        raise RecordingError(self._source, f"{what} draws FLS frames; this recording's pings are a {self.film} "
+                             "(sonarsim.image.films)")
+
+    def plot(self, frame: int = 0, ax=None, **options):
+        self._not_polar("plot")
+
+    def save(self, path, frame: int = 0, **options) -> None:
+        self._not_polar("save")
+
+    def to_pil(self, frame: int = 0, **options):
+        self._not_polar("to_pil")
 
 
 def recording_repr(recording: Recording) -> str:
