@@ -270,3 +270,23 @@ def test_a_tilted_head_sees_the_floor_at_altitude_over_sin_tilt():
     # the strongest return is near the axis's footprint (the pattern's main lobe), not at nadir
     peak = img.range_m[np.argmax(img.samples, axis=0)]
     assert (np.abs(peak - 8.0) < 3.0).all()
+
+
+def test_on_a_vehicle_with_a_single_beam_beside_it():
+    """A vehicle carrying a scanning head 1 m to port and a single-beam 0.2 m below its origin:
+    the head's wall is 1 m nearer (step 100 looks to port), the single-beam's floor 2.8 m off."""
+    doc = {"vehicle": {"pose": {"position_m": [0.0, 0.0, 3.0]}},
+           "instruments": [{**{k: v for k, v in section().items() if k != "pose"}, "name": "head",
+                            "mount": {"position_m": [0.0, 1.0, 0.0]}},
+                           {"type": "singlebeam", "name": "alt", "beam_width_deg": 10, "range_max_m": 10.0,
+                            "n_samples": 500, "mount": {"position_m": [0.5, 0.0, -0.2]}}],
+           "ground": {"height_m": 0.0}, "objects": [wall_to_port()], "render": {"max_order": 1}}
+    with sonarsim.Simulator(doc) as sim:
+        img = render_pings(sim, "head", n_pings=400, speckle=False)
+        env = render_pings(sim, "alt", speckle=False)
+    # The floor (3 m below) echoes in every step alike; the wall is where step 100 (port)
+    # departs from step 300 (starboard, the floor alone).
+    port, starboard = img.samples[:, 100].astype(np.float64), img.samples[:, 300].astype(np.float64)
+    k = int(np.argmax(np.abs(port - starboard) > 1e-3 * port.max()))
+    assert abs(k * DR - (WALL_D - 1.0)) <= 2 * DR, k * DR
+    assert abs(env.bottom_range_m[0] - 2.8) <= 10.0 / 500
