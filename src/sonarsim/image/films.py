@@ -2,7 +2,8 @@
 single-beam echosounder record, with the geometry of every ping.
 
 The forward-looking sonar's film is the polar frame (:class:`~sonarsim.image.result.SonarImage`);
-a mechanical scanning sonar's 360 degree image is one too. The others record per ping:
+a mechanical scanning sonar's is :class:`~sonarsim.instruments.scanning.ScanImage` (a range line
+per step, with its head angle and time; its top view by ``cartesian()``). The others record per ping:
 
 * :class:`Waterfall` (side-scan): per ping a port and a starboard slant-range line, stacked
   along the track: ``samples[ping, side, k]``, side 0 port and 1 starboard, sample 0 the

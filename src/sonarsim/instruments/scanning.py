@@ -1,0 +1,473 @@
+"""Mechanical scanning sonar (Ping360, Tritech Micron): one beam stepped in azimuth, a ping per step.
+
+The head carries one transducer: a beam narrow in azimuth (``horizontal_beam_width_deg``, Ping360
+2 deg) and wide in elevation (``vertical_beam_width_deg``, Ping360 25 deg), its axis
+``tilt_deg`` below the horizontal. A motor steps the head about the mount's z axis; step ``i``
+points at head angle ``i * 360 / steps_per_turn`` degrees (a sector scan sweeps back and forth,
+see :meth:`ScanningSpec.head_steps`). Head angles follow REP-103 yaw: 0 along the mount's x
+(forward), increasing counter-clockwise seen from above, so +90 deg looks to port.
+
+Each step is one ping at its own time, one engine frame (:meth:`Simulator.trace`,
+:meth:`Simulator.form`) at the vehicle's pose at that time: with a trajectory the vehicle moves
+between steps, so a full turn of a moving vehicle is smeared as a real scan is. Step ``k``
+(counted from the scan's first step) draws its speckle and noise from ``(render.seed, k)``.
+
+The step period is the two-way travel time of the range window plus ``step_overhead_s``::
+
+    period = 2 range_max_m / sound_speed_m_s + step_overhead_s
+
+The device's protocol (Blue Robotics ping-protocol, ``ping360`` messages) gives the acoustic
+part: a transmit of 1-1000 us, ``number_of_samples`` (200-1200) samples at ``sample_period`` (25 ns
+ticks, 2-1000 us), so the listening time is ``n_samples * sample_period`` = the window's two-way
+time; its ``auto_transmit`` adds an optional ``delay`` (0-100 ms) between transmits. What the motor
+step and the data upload take is not documented there: ``step_overhead_s`` is that time,
+inferred (default 0: the acoustic limit; set it from a device's measured turn time).
+
+Scene section (``type: scanning``)::
+
+    {type: scanning, preset: ping360, frequency_khz: 750, horizontal_beam_width_deg: 2,
+     vertical_beam_width_deg: 25, tilt_deg: 0, steps_per_turn: 400, step: 1, sector_deg: 360,
+     range_min_m: 0.5, range_max_m: 20, n_samples: 1200, sound_speed_m_s: 1500,
+     step_overhead_s: 0.0, sensor: {...}}
+
+Render a scan with :func:`sonarsim.instruments.render_pings` (``n_pings``: the steps; a turn is
+:meth:`ScanningSpec.steps_per_scan`); the film is a :class:`ScanImage`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ..config.instruments import Channel, InstrumentSpec, mounted, register
+from ..config.loader import _integer, _number
+from ..config.sensor import PatternSpec, SensorSpec, parse_sensor
+from ..config.sonar import SonarConfig
+from ..core.rays import make_ray_fan
+from ..core.transforms import Pose
+from ..errors import ConfigError, shown
+from ..image.films import PingGeometry, range_axis
+from ..sensor.model import SensorModel
+from ..sensor.patterns import half_power_u, pattern_gain
+from . import renders
+
+__all__ = ["ScanningSpec", "ScanImage", "render_scanning", "parse_section", "check_range", "step_geometry"]
+
+#: The rays' elevation span stops this far short of straight up and down (degrees): a line
+#: array's pattern is symmetric about its plane, and the poles add rays that see nothing new.
+POLE_MARGIN_DEG = 5.0
+
+
+def check_range(spec, name: str, lo: float, hi: float, lo_open: bool = True) -> None:
+    """Raise ``ConfigError(name)`` unless ``spec.<name>`` is a finite number in the interval."""
+    v = getattr(spec, name)
+    ok = (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+          and (v > lo if lo_open else v >= lo) and v <= hi)
+    if not ok:
+        raise ConfigError(name, f"must lie in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {shown(v)}")
+
+
+def check_integer(spec, name: str, lo: int, hi: int) -> None:
+    """Raise ``ConfigError(name)`` unless ``spec.<name>`` is an integer in ``[lo, hi]``."""
+    v = getattr(spec, name)
+    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+        raise ConfigError(name, f"must be an integer in [{lo}, {hi}], got {shown(v)}")
+
+
+def check_window(spec) -> None:
+    """The range window and sampling keys every one-beam instrument shares."""
+    check_range(spec, "frequency_khz", 1.0, 1e5)
+    check_range(spec, "sound_speed_m_s", 1300.0, 1700.0, lo_open=False)
+    check_range(spec, "range_max_m", 0.0, 1e4)
+    check_range(spec, "range_min_m", 0.0, spec.range_max_m, lo_open=False)
+    if spec.range_min_m >= spec.range_max_m:
+        raise ConfigError("range_min_m", f"must be below range_max_m ({spec.range_max_m:g}), got {spec.range_min_m:g}")
+    check_integer(spec, "n_samples", 1, 1_000_000)
+
+
+def parse_section(cls, d: Mapping, key: str, base_dir: Path | None, name: str, mount: Pose,
+                  integers: tuple[str, ...] = (), nullable: tuple[str, ...] = (), strings: tuple[str, ...] = ()):
+    """The spec of a scene-file section ``d`` of a one-beam instrument type ``cls``.
+
+    A ``preset`` gives defaults (:mod:`sonarsim.config.instrument_presets`); the section's keys
+    override them. Every error names its key under ``key`` (``sonar.n_samples``).
+    """
+    values: dict[str, Any] = {}
+    preset = d.get("preset")
+    if preset is not None:
+        from .sidescan import _preset_values
+
+        values.update(_preset_values(preset, f"{key}.preset", cls))
+    for k in cls.keys:
+        if k in ("preset", "sensor") or k not in d:
+            continue
+        if k in nullable and d[k] is None:
+            values[k] = None
+        elif k in integers:
+            values[k] = _integer(d[k], f"{key}.{k}")
+        elif k in strings:
+            if not isinstance(d[k], str):
+                raise ConfigError(f"{key}.{k}", f"must be a string, got {shown(d[k])}")
+            values[k] = d[k]
+        else:
+            values[k] = _number(d[k], f"{key}.{k}")
+    try:
+        sensor = parse_sensor(d.get("sensor"), base_dir) if d.get("sensor") is not None else None
+    except ConfigError as exc:
+        raise ConfigError(f"{key}.{exc.key}", exc.detail) from None
+    try:
+        return cls(name=name, mount=mount, sensor=sensor, preset=preset, **values)
+    except ConfigError as exc:
+        raise ConfigError(f"{key}.{exc.key}", exc.detail) from None
+
+
+def section_dict(spec) -> dict:
+    """The scene-file section of a one-beam instrument (its header and every key set)."""
+    out = spec._header()
+    for k in spec.keys:
+        v = getattr(spec, k)
+        if k == "sensor":
+            if v is not None:
+                out[k] = v.to_dict()
+        elif v is not None:
+            out[k] = v
+    return out
+
+
+@register
+@dataclass(frozen=True)
+class ScanningSpec(InstrumentSpec):
+    """A mechanical scanning sonar's configuration (validated here: a frozen configuration).
+
+    Attributes
+    ----------
+    frequency_khz : float
+        The carrier, kHz (Ping360: 750).
+    horizontal_beam_width_deg : float
+        Azimuth -3 dB width, degrees, in (0.01, 30] (Ping360: 2).
+    vertical_beam_width_deg : float
+        Elevation -3 dB width of the two-way vertical pattern, degrees, in (1, 120] (Ping360: 25).
+    tilt_deg : float
+        The beam axis below the head's horizontal plane, degrees, in [-90, 90] (default 0).
+    steps_per_turn : int
+        Motor steps in a full turn, in [4, 100000] (Ping360: 400, one gradian each).
+    step : int
+        Steps the head advances per ping, in [1, steps_per_turn / 2] (Ping360's ``num_steps``: 1-10).
+    sector_deg : float
+        The swept sector, degrees, in (0, 360]: 360 turns round and round; less sweeps back and
+        forth over ``[-sector / 2, +sector / 2]`` about the mount's forward axis.
+    range_min_m, range_max_m : float
+        The range window, metres.
+    n_samples : int
+        Samples per step (Ping360: 200-1200).
+    sound_speed_m_s : float
+        The speed the device ranges with (and its step period's).
+    step_overhead_s : float
+        Seconds each step takes beyond the two-way travel time (motor, upload), in [0, 10];
+        inferred, not from a datasheet (see the module's notes).
+    sensor : SensorSpec or None
+        The sensor chain on each step's line (a one-beam image of ``n_samples`` range bins).
+    preset : str or None
+    """
+
+    type_name: ClassVar[str] = "scanning"
+    keys: ClassVar[tuple[str, ...]] = (
+        "preset", "frequency_khz", "horizontal_beam_width_deg", "vertical_beam_width_deg", "tilt_deg",
+        "steps_per_turn", "step", "sector_deg", "range_min_m", "range_max_m", "n_samples", "sound_speed_m_s",
+        "step_overhead_s", "sensor",
+    )
+
+    frequency_khz: float = 750.0
+    horizontal_beam_width_deg: float = 2.0
+    vertical_beam_width_deg: float = 25.0
+    tilt_deg: float = 0.0
+    steps_per_turn: int = 400
+    step: int = 1
+    sector_deg: float = 360.0
+    range_min_m: float = 0.0
+    range_max_m: float = 20.0
+    n_samples: int = 1200
+    sound_speed_m_s: float = 1500.0
+    step_overhead_s: float = 0.0
+    sensor: SensorSpec | None = None
+    preset: str | None = None
+
+    def __post_init__(self) -> None:
+        check_window(self)
+        check_range(self, "horizontal_beam_width_deg", 0.01, 30.0)
+        check_range(self, "vertical_beam_width_deg", 1.0, 120.0)
+        check_range(self, "tilt_deg", -90.0, 90.0, lo_open=False)
+        check_integer(self, "steps_per_turn", 4, 100_000)
+        check_integer(self, "step", 1, self.steps_per_turn // 2)
+        check_range(self, "sector_deg", 0.0, 360.0)
+        check_range(self, "step_overhead_s", 0.0, 10.0, lo_open=False)
+        if self.sector_deg < 360.0 and self.sector_steps < 2 * self.step:
+            raise ConfigError("sector_deg", f"must span at least two pings ({2 * self.step} steps of "
+                              f"{self.step_deg:g} deg), got {self.sector_deg:g}")
+
+    # -- the head's steps ------------------------------------------------------------------
+
+    @property
+    def step_deg(self) -> float:
+        """One motor step, degrees (Ping360: 0.9)."""
+        return 360.0 / self.steps_per_turn
+
+    @property
+    def sector_steps(self) -> int:
+        """The sector's length in motor steps (even: symmetric about forward)."""
+        return 2 * int(math.floor(self.sector_deg / 2.0 / self.step_deg + 1e-9))
+
+    def steps_per_scan(self) -> int:
+        """Pings in one full image: a turn (``steps_per_turn / step``, rounded up), or one sweep
+        of the sector one way (``sector_steps / step + 1``)."""
+        if self.sector_deg >= 360.0:
+            return -(-self.steps_per_turn // self.step)
+        return self.sector_steps // self.step + 1
+
+    def head_steps(self, pings: np.ndarray) -> np.ndarray:
+        """The head's position, in motor steps, at each ping.
+
+        A full turn: ``(k * step) mod steps_per_turn``. A sector of ``L`` steps sweeps from
+        ``-L/2`` to ``+L/2`` and back, reflecting at its ends: ``-L/2 + tri(k * step)`` with
+        ``tri(u) = u mod 2L`` folded about ``L``.
+
+        Parameters
+        ----------
+        pings : (n,) int array
+            Ping indices from the scan's first.
+
+        Returns
+        -------
+        (n,) int64 ndarray, in ``[0, steps_per_turn)`` for a turn, ``[-L/2, L/2]`` for a sector.
+        """
+        u = np.asarray(pings, np.int64) * self.step
+        if self.sector_deg >= 360.0:
+            return np.mod(u, self.steps_per_turn)
+        length = self.sector_steps
+        q = np.mod(u, 2 * length)
+        return -length // 2 + np.where(q <= length, q, 2 * length - q)
+
+    def head_angles_deg(self, pings: np.ndarray) -> np.ndarray:
+        """The head angle at each ping, degrees (REP-103 yaw about the mount's z; 0 forward,
+        > 0 to port), ``(n,)`` float64, in ``[0, 360)`` for a turn."""
+        return self.head_steps(pings) * self.step_deg
+
+    # -- the beam --------------------------------------------------------------------------
+
+    @property
+    def half_span_deg(self) -> float:
+        """Half the rays' elevation span: to the vertical pattern's second null (the first side
+        lobes' outer edge), at most ``90 - POLE_MARGIN_DEG``."""
+        u3 = half_power_u("rect", None, 2)
+        scale = u3 / math.sin(math.radians(self.vertical_beam_width_deg) / 2.0)  # L / lambda
+        return min(math.degrees(math.asin(min(1.0, 2.0 / scale))), 90.0 - POLE_MARGIN_DEG)
+
+    def channel_sonar(self) -> SonarConfig:
+        """The head's fan and grid: one beam, ``n_samples`` range bins."""
+        return SonarConfig.uniform(
+            n_beams=1, azimuth_fov_deg=self.horizontal_beam_width_deg, elevation_fov_deg=2.0 * self.half_span_deg,
+            range_min_m=self.range_min_m, range_max_m=self.range_max_m, n_range_bins=self.n_samples,
+            frequency_khz=self.frequency_khz,
+        )
+
+    def step_mount(self, angle_deg: float) -> Pose:
+        """The beam's pose on the vehicle at head angle ``angle_deg``: the mount, turned by the
+        head angle about its z, then down by the tilt (``R = Rz(angle) Ry(tilt)``)."""
+        return mounted(self.mount, Pose((0.0, 0.0, 0.0), (0.0, self.tilt_deg, float(angle_deg))))
+
+    def channels(self) -> tuple[Channel, ...]:
+        """The head at angle 0 (every step's fan is this one, turned)."""
+        return (Channel("head", self.channel_sonar(), self.step_mount(0.0)),)
+
+    def ping_period_s(self) -> float:
+        """Seconds per step: the window's two-way travel time plus ``step_overhead_s``."""
+        return 2.0 * self.range_max_m / self.sound_speed_m_s + self.step_overhead_s
+
+    def turn_time_s(self) -> float:
+        """Seconds the device takes for :meth:`steps_per_scan` steps."""
+        return self.steps_per_scan() * self.ping_period_s()
+
+    def vertical_gain(self, elevation_rad: np.ndarray) -> np.ndarray:
+        """The two-way vertical pattern at elevations from the axis (power, 1 on axis)."""
+        spec = PatternSpec(shape="line", width_deg=self.vertical_beam_width_deg, window="rect")
+        return pattern_gain(elevation_rad, spec, self.vertical_beam_width_deg, ways=2)
+
+    # -- files -----------------------------------------------------------------------------
+
+    @classmethod
+    def parse(cls, d: Mapping, key: str, base_dir: Path | None, name: str, mount: Pose) -> "ScanningSpec":
+        return parse_section(cls, d, key, base_dir, name, mount, integers=("n_samples", "steps_per_turn", "step"))
+
+    def to_dict(self) -> dict:
+        return section_dict(self)
+
+
+@dataclass(frozen=True)
+class ScanImage:
+    """A scanning sonar's steps: per step one range line, its head angle, time and geometry.
+
+    Attributes
+    ----------
+    samples : (n_samples, n_steps) float32 ndarray
+        Column ``i`` is step ``i``'s line; row 0 the nearest range sample.
+    angle_deg : (n_steps,) float64 ndarray
+        Each step's head angle, degrees (REP-103 yaw in the mount's frame: 0 forward, > 0 to port).
+    range_min_m, range_max_m : float
+        The range window, metres.
+    geometry : PingGeometry
+        One entry per step (``time_s``: the step's time).
+    step_deg : float
+        The angle between neighbouring steps (motor step times ``step``), degrees.
+    source : str
+    """
+
+    samples: np.ndarray
+    angle_deg: np.ndarray
+    range_min_m: float
+    range_max_m: float
+    geometry: PingGeometry
+    step_deg: float
+    source: str = "render"
+
+    def __post_init__(self) -> None:
+        s = np.asarray(self.samples)
+        if s.ndim != 2:
+            raise ValueError(f"ScanImage.samples must be (n_samples, n_steps), got {s.shape}")
+        if np.shape(self.angle_deg) != (s.shape[1],) or len(self.geometry) != s.shape[1]:
+            raise ValueError(f"ScanImage has {s.shape[1]} steps but {np.shape(self.angle_deg)} angles and "
+                             f"geometry for {len(self.geometry)}")
+
+    @property
+    def n_steps(self) -> int:
+        return self.samples.shape[1]
+
+    @property
+    def n_samples(self) -> int:
+        return self.samples.shape[0]
+
+    @property
+    def times_s(self) -> np.ndarray:
+        """Each step's time, seconds, ``(n_steps,)``."""
+        return self.geometry.time_s
+
+    @property
+    def range_m(self) -> np.ndarray:
+        """Centre of each sample, metres, ``(n_samples,)``."""
+        return range_axis(self.range_min_m, self.range_max_m, self.n_samples)
+
+    def cartesian(self, size_px: int = 512) -> np.ndarray:
+        """The scan as a top view: the head at the centre, forward up, port left.
+
+        Pixel ``(row, col)`` of a ``size_px`` square spanning ``2 range_max_m`` lies at
+        ``x = (size_px / 2 - row - 0.5) p`` forward and ``y = (size_px / 2 - col - 0.5) p`` to
+        port (``p = 2 range_max_m / size_px``); it takes the sample at its range of the step
+        nearest its angle ``atan2(y, x)`` (the latest such step where several share an angle:
+        a second turn overwrites the first, as a display does). Pixels outside the window, or
+        farther than half a step's angle from every step (outside a sector), are 0.
+
+        Returns
+        -------
+        (size_px, size_px) float32 ndarray
+        """
+        from ..core.memory import require
+
+        if isinstance(size_px, bool) or not isinstance(size_px, (int, np.integer)) or not 2 <= size_px <= 16384:
+            raise ValueError(f"size_px must be an integer in [2, 16384], got {size_px!r}")
+        require(int(size_px) ** 2 * 8 * 6, f"a {size_px} x {size_px} Cartesian scan image", "size_px")
+        n = int(size_px)
+        p = 2.0 * self.range_max_m / n
+        c = n / 2.0 - np.arange(n) - 0.5
+        x, y = c[:, None] * p, c[None, :] * p  # forward (rows, up), port (columns, left)
+        r = np.hypot(x, y)
+        theta = np.mod(np.degrees(np.arctan2(y, x)), 360.0)
+        # The latest step per distinct angle, sorted by angle.
+        a = np.mod(np.asarray(self.angle_deg, np.float64), 360.0)
+        order = np.arange(self.n_steps)[::-1]  # latest first: np.unique keeps each angle's first
+        ang, first = np.unique(np.round(a[order], 9), return_index=True)
+        steps = order[first]
+        # Nearest angle with wrap-around: the neighbours either side in the sorted table.
+        ext = np.concatenate([ang - 360.0, ang, ang + 360.0])
+        ext_steps = np.concatenate([steps, steps, steps])
+        hi = np.clip(np.searchsorted(ext, theta), 1, len(ext) - 1)
+        lo = hi - 1
+        pick_hi = (ext[hi] - theta) < (theta - ext[lo])
+        nearest = np.where(pick_hi, hi, lo)
+        gap = np.abs(ext[nearest] - theta)
+        step_index = ext_steps[nearest]
+        dr = (self.range_max_m - self.range_min_m) / self.n_samples
+        k = np.floor((r - self.range_min_m) / dr).astype(np.int64)
+        inside = (k >= 0) & (k < self.n_samples) & (gap <= self.step_deg / 2.0 + 1e-9)
+        out = np.zeros((n, n), np.float32)
+        out[inside] = self.samples[k[inside], step_index[inside]]
+        return out
+
+
+# -- rendering ---------------------------------------------------------------------------
+
+_FANS: dict = {}  # (render settings, grid, vertical width) -> RayFan: shared by every step
+
+
+def _fan(sim, spec: ScanningSpec, sonar: SonarConfig):
+    key = (sim.scene.render, sonar, spec.vertical_beam_width_deg)
+    fan = _FANS.get(key)
+    if fan is None:
+        sim.require_frame_memory(sonar)
+        fan = make_ray_fan(sonar, sim.scene.render, spec.vertical_gain)
+        _FANS.clear()  # one scanning sonar at a time is the common case: keep memory flat
+        _FANS[key] = fan
+    return fan
+
+
+def step_geometry(sim, vehicle_poses: list[Pose], times_s: np.ndarray, spec) -> PingGeometry:
+    """Per ping: the transducer's height above the ground, the vehicle's attitude and heading
+    (``heading = 90 - yaw``), position, speed, sound speed and range window."""
+    n = len(vehicle_poses)
+    at = np.array([mounted(v, spec.mount).position_m for v in vehicle_poses], np.float64).reshape(n, 3)
+    rpy = np.array([v.rpy_deg for v in vehicle_poses], np.float64).reshape(n, 3)
+    ground = sim.scene.ground
+    altitude = at[:, 2] - ground.height_m if ground is not None else np.full(n, np.nan)
+    speed = np.full(n, np.nan)
+    if n > 1:
+        v = np.linalg.norm(np.diff(at[:, :2], axis=0), axis=1) / np.maximum(np.diff(times_s), 1e-12)
+        speed = np.concatenate([v[:1], v])
+    return PingGeometry.of(
+        n, time_s=times_s, altitude_m=altitude, roll_deg=rpy[:, 0], pitch_deg=rpy[:, 1],
+        heading_deg=np.mod(90.0 - rpy[:, 2], 360.0), heave_m=0.0, sound_speed_m_s=spec.sound_speed_m_s,
+        range_min_m=spec.range_min_m, range_max_m=spec.range_max_m, x_m=at[:, 0], y_m=at[:, 1], speed_m_s=speed,
+    )
+
+
+@renders("scanning")
+def render_scanning(sim, spec: ScanningSpec, poses: list[Pose], times_s: np.ndarray, first_ping: int,
+                    speckle: bool | None, labels: bool) -> ScanImage:
+    """A scanning sonar's steps, one per vehicle pose (each at its own time), as a :class:`ScanImage`.
+
+    Step ``k`` of the call is scan step ``first_ping + k``: its head angle is
+    :meth:`ScanningSpec.head_angles_deg` of that index, its draws come from ``(render.seed,
+    first_ping + k)``, so that a step renders alike alone or within its turn. ``labels`` is not
+    supported yet (a step's ground truth is the FLS's per beam; see the report of issue 38).
+    """
+    if labels:
+        raise ConfigError("labels", "a scanning sonar's film has no labels yet; render with labels=False")
+    sonar = spec.channel_sonar()
+    fan = _fan(sim, spec, sonar)
+    model = SensorModel(spec.sensor, sonar, sim.scene.render.seed) if spec.sensor is not None else False
+    n = len(poses)
+    from ..core.memory import require
+
+    require(n * spec.n_samples * 4, f"a scan of {n} steps x {spec.n_samples} samples", "n_pings")
+    pings = first_ping + np.arange(n)
+    angles = spec.head_angles_deg(pings)
+    out = np.empty((spec.n_samples, n), np.float32)
+    for k, vehicle in enumerate(poses):  # per step: one engine frame at the step's own pose and time
+        paths = sim.trace(mounted(vehicle, spec.step_mount(angles[k])), sonar=sonar, fan=fan)
+        image = sim.form(paths, keep_rays=False, speckle=speckle, frame=int(pings[k]), sensor=model)
+        out[:, k] = image.polar[:, 0]
+    return ScanImage(out, angles, spec.range_min_m, spec.range_max_m, step_geometry(sim, poses, times_s, spec),
+                     spec.step_deg * spec.step)
+
