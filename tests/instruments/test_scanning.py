@@ -292,23 +292,12 @@ def test_on_a_vehicle_with_a_single_beam_beside_it():
     assert abs(env.bottom_range_m[0] - 2.8) <= 10.0 / 500
 
 
-def test_a_preset_gives_defaults_and_the_section_overrides_them(monkeypatch):
-    """The presets module is another's (config.instrument_presets); a stand-in with its
-    function's signature checks that a preset's values arrive and the section's keys win."""
-    import sys
-    import types
+def test_a_preset_gives_defaults_and_the_section_overrides_them():
+    """The Ping360's preset (config.instrument_presets) gives its figures; the section's keys win."""
+    from sonarsim.errors import ConfigError
 
-    calls = []
-
-    def instrument_preset(name, kind, key):
-        calls.append((name, kind, key))
-        return {"frequency_khz": 750.0, "horizontal_beam_width_deg": 2.0, "vertical_beam_width_deg": 25.0,
-                "steps_per_turn": 400, "n_samples": 1200, "range_max_m": 50.0, "unrelated": 1}
-
-    fake = types.ModuleType("sonarsim.config.instrument_presets")
-    fake.instrument_preset = instrument_preset
-    monkeypatch.setitem(sys.modules, "sonarsim.config.instrument_presets", fake)
     doc = {"sonar": {"type": "scanning", "preset": "ping360", "range_max_m": 10.0}}
     spec = sonarsim.load_scene(doc).instruments[0]
-    assert calls == [("ping360", "scanning", "sonar.preset")]
+    with pytest.raises(ConfigError, match=r"sonar\.preset.*not a scanning one"):
+        sonarsim.load_scene({"sonar": {"type": "scanning", "preset": "imagenex_852"}})
     assert (spec.n_samples, spec.range_max_m, spec.vertical_beam_width_deg, spec.preset) == (1200, 10.0, 25.0, "ping360")

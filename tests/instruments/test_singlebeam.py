@@ -171,13 +171,7 @@ def test_a_gaussian_beam_finds_the_same_level_bottom():
     assert in_sample(env.bottom_range_m[0], H, 0)
 
 
-def test_a_preset_gives_defaults_and_the_section_overrides_them(monkeypatch):
-    """With a stand-in for config.instrument_presets (another helper's module)."""
-    import sys
-    import types
-
-    fake = types.ModuleType("sonarsim.config.instrument_presets")
-    fake.instrument_preset = lambda name, kind, key: {"beam_width_deg": 7.0, "frequency_khz": 500.0, "n_samples": 400}
-    monkeypatch.setitem(sys.modules, "sonarsim.config.instrument_presets", fake)
-    spec = sonarsim.load_scene({"sonar": {"type": "singlebeam", "preset": "alt", "n_samples": 800}}).instruments[0]
-    assert (spec.beam_width_deg, spec.frequency_khz, spec.n_samples) == (7.0, 500.0, 800)
+def test_a_preset_gives_defaults_and_the_section_overrides_them():
+    """The Imagenex 852's preset (config.instrument_presets) gives its figures; the section's keys win."""
+    spec = sonarsim.load_scene({"sonar": {"type": "singlebeam", "preset": "imagenex_852", "n_samples": 800}}).instruments[0]
+    assert (spec.beam_width_deg, spec.frequency_khz, spec.range_max_m, spec.n_samples) == (30.0, 330.0, 10.0, 800)

@@ -35,16 +35,15 @@ def _chosen(scene, args) -> list:
     return specs
 
 
-def instrument_files(scene, args) -> list[str]:
-    """The files ``render`` writes for the scene's instruments (``--instrument``: one)."""
-    from .render import render_files
-
+def instrument_files(scene, args, fls_files: list[str]) -> list[str]:
+    """The files ``render`` writes for the scene's instruments (``--instrument``: one);
+    ``fls_files``: what an FLS writes (``cli.render.render_files``)."""
     specs = _chosen(scene, args)
     names: list[str] = []
     for spec in specs:
         if spec.type_name == "fls":
             prefix = f"{spec.name}/" if len(specs) > 1 else ""
-            names += [prefix + f for f in render_files(args)]
+            names += [prefix + f for f in fls_files]
         else:
             names += [f.format(name=spec.name) for f in WATERFALL_FILES]
     return names
@@ -57,8 +56,9 @@ def _waterfall_png(samples: np.ndarray, args) -> np.ndarray:
     return to_uint8(finite, args.mapping or "db", args.gain_db, args.dynamic_range_db)
 
 
-def render_instruments(scene, out: Path, args, run=None) -> list:
-    """Render every instrument of ``scene`` (or ``--instrument``) and write their files into ``out``.
+def render_instruments(scene, out: Path, args, run=None, render_fls=None) -> list:
+    """Render every instrument of ``scene`` (or ``--instrument``) and write their files into ``out``;
+    an FLS through ``render_fls(scene, folder, args, run)`` (``cli.render.render_and_write``).
 
     Returns
     -------
@@ -69,7 +69,6 @@ def render_instruments(scene, out: Path, args, run=None) -> list:
     from ..instruments import instrument, render_pings
     from ..io.output import write_png
     from ..renderer.simulator import Simulator
-    from .render import render_and_write
 
     sim = Simulator(scene, backend=args.backend)
     names = [s.name for s in _chosen(scene, args)]
@@ -89,7 +88,7 @@ def render_instruments(scene, out: Path, args, run=None) -> list:
 
             sub = out / name if len(names) > 1 else out  # (instrument_files names them so)
             fls_scene = replace(scene, sonar=spec.sonar, sonar_pose=mounted(pose, spec.mount))
-            films.append(render_and_write(fls_scene, sub, args, run))
+            films.append(render_fls(fls_scene, sub, args, run))
             continue
         if spec.type_name != "sidescan":
             raise ConfigError(f"instruments.{name}", f"sonarsim render writes no files for a {spec.type_name} yet; "

@@ -274,9 +274,10 @@ def cmd_render(args) -> None:
     if scene.instruments:
         from .instruments import instrument_files, render_instruments
 
-        run = OutputRun.for_folder(out, instrument_files(scene, args), command=getattr(args, "command_line", None))
+        run = OutputRun.for_folder(out, instrument_files(scene, args, render_files(args)),
+                                   command=getattr(args, "command_line", None))
         with run:
-            render_instruments(scene, out, args, run)
+            render_instruments(scene, out, args, run, render_fls=render_and_write)
         return
     with run:
         render_and_write(scene, out, args, run)
