@@ -35,10 +35,57 @@ def _chosen(scene, args) -> list:
     return specs
 
 
+#: The instrument type whose pings each film of a recording is.
+TYPE_OF_FILM = {"waterfall": "sidescan"}
+
+
+def read_along(path, pings):
+    """The film of ``--along``'s recording (``--pings A:B`` of it), a side-scan's waterfall."""
+    from ..errors import ConfigError
+    from ..io.readers import FILMS, detect_format, open_recording
+    from ..instruments.replay import ping_slice
+
+    film = FILMS.get(detect_format(path), "polar")
+    if film not in TYPE_OF_FILM:
+        raise ConfigError("--along", f"{path} holds {film} frames; --along replays a side-scan recording's pings "
+                          "(an XTF side-scan file)")
+    with open_recording(path, film) as recording:
+        chosen = ping_slice(recording.n_frames, pings, str(path))
+        return getattr(recording, film)(slice(chosen.start, chosen.stop))
+
+
+def _along_instrument(scene, args, film):
+    """The scene's instrument that replays ``film`` (``--instrument``, or the first of its type)."""
+    from ..errors import ConfigError
+
+    kind = TYPE_OF_FILM["waterfall"]
+    specs = [s for s in _chosen(scene, args) if s.type_name == kind]
+    if not specs:
+        raise ConfigError("--along", f"the scene has no {kind} instrument to replay the recording's pings with"
+                          + (f" (--instrument {args.instrument} is not one)" if getattr(args, "instrument", None) else ""))
+    return specs[0]
+
+
+def _render_along(sim, spec, film, speckle):
+    """The recording's pings rendered where its geometry puts the vehicle, in its layout."""
+    from dataclasses import replace
+
+    from ..instruments import RENDERERS
+    from ..instruments.replay import poses_from_geometry
+
+    layout = replace(spec, range_min_m=film.range_min_m, range_max_m=film.range_max_m, n_samples=film.n_samples)
+    poses = poses_from_geometry(sim.scene, film.geometry)
+    t = film.geometry.time_s
+    times = np.where(np.isfinite(t), t, 0.0)
+    return RENDERERS[spec.type_name](sim, layout, poses, times, 0, speckle, True)
+
+
 def instrument_files(scene, args, fls_files: list[str]) -> list[str]:
     """The files ``render`` writes for the scene's instruments (``--instrument``: one);
     ``fls_files``: what an FLS writes (``cli.render.render_files``)."""
     specs = _chosen(scene, args)
+    if getattr(args, "along", None) is not None:
+        specs = [_along_instrument(scene, args, None)]
     names: list[str] = []
     for spec in specs:
         if spec.type_name == "fls":
@@ -73,7 +120,11 @@ def render_instruments(scene, out: Path, args, run=None, render_fls=None) -> lis
     sim = Simulator(scene, backend=args.backend)
     names = [s.name for s in _chosen(scene, args)]
     n_pings = getattr(args, "pings", None)
-    if isinstance(n_pings, tuple):
+    along = None
+    if getattr(args, "along", None) is not None:
+        along = read_along(args.along, n_pings)
+        names = [_along_instrument(scene, args, along).name]
+    elif isinstance(n_pings, tuple):
         raise ConfigError("--pings", "A:B chooses pings of a recording (with --along); give a number of pings")
     films = []
     out.mkdir(parents=True, exist_ok=True)
@@ -93,8 +144,11 @@ def render_instruments(scene, out: Path, args, run=None, render_fls=None) -> lis
         if spec.type_name != "sidescan":
             raise ConfigError(f"instruments.{name}", f"sonarsim render writes no files for a {spec.type_name} yet; "
                               "render it from Python (sonarsim.instruments.render_pings)")
-        film = render_pings(sim, name, n_pings=n_pings or 100,
-                            speckle=False if getattr(args, "no_speckle", False) else None, labels=True)
+        speckle = False if getattr(args, "no_speckle", False) else None
+        if along is not None:
+            film = _render_along(sim, spec, along, speckle)
+        else:
+            film = render_pings(sim, name, n_pings=n_pings or 100, speckle=speckle, labels=True)
         t1 = time.perf_counter()
         ground, _ = film.ground_range()
         images = {f"{name}_waterfall.png": _waterfall_png(film.display(), args),

@@ -78,7 +78,12 @@ def add_render_parser(subparsers: Any) -> argparse.ArgumentParser:
     g.add_argument("--instrument", default=None, metavar="NAME",
                    help="with instruments: render this one only (default: every one)")
     g.add_argument("--pings", type=ping_count_or_range, default=None, metavar="N|A:B",
-                   help="with a side-scan: N pings along the vehicle's track (default: 100)")
+                   help="with a side-scan: N pings along the vehicle's track (default: 100); with --along, the "
+                   "recording's pings A to B - 1 (default: all)")
+    g.add_argument("--along", default=None, metavar="RECORDING",
+                   help="a side-scan recording (XTF): render its pings where its navigation and attitude put the "
+                   "vehicle (altitude above the scene's ground), in its layout (range window, samples): a survey "
+                   "replayed in simulation")
     add_render_options(p)
     g = p.add_argument_group("sensor")
     g.add_argument("--sensor", default=None, metavar="PRESET",

@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 from ..core.console import log as _log
-from .argtypes import display_gain_db, display_range_db, positive_float
+from .argtypes import display_gain_db, display_range_db, ping_count_or_range, positive_float
 
 __all__ = ["add_show_parser", "cmd_show", "figure_title"]
 
@@ -60,6 +60,8 @@ def add_show_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--frame", type=int, default=0, metavar="N",
                    help="0-based frame (ARIS) or ping (Oculus) to show (default: 0; an NPZ holds frame 0 only)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created if missing)")
+    p.add_argument("--pings", type=ping_count_or_range, default=None, metavar="A:B",
+                   help="a side-scan, multibeam or echo-sounder recording: the pings A to B - 1 (default: all)")
     g = p.add_argument_group("images")
     g.add_argument("--pixel-size", type=positive_float, default=None, metavar="M",
                    help="fan image pixel size in metres (default: the range resolution)")
@@ -104,6 +106,9 @@ def cmd_show(args: argparse.Namespace) -> None:
     from .figures import figure_names, write_figure
 
     out = Path(args.out)
+    film = _film_of(args.recording)
+    if film != "polar":
+        return _show_film(args, film, out)
     # Checked before the recording is read; nothing is written until both images exist.
     run = OutputRun.for_folder(out, ["polar.png", "fan.png", *figure_names(args, ("fan_figure", "polar_figure"))],
                                command=getattr(args, "command_line", None))
@@ -145,6 +150,58 @@ def cmd_show(args: argparse.Namespace) -> None:
                                                                    pixel_size_m=args.pixel_size, title=title), run)
         write_figure(args, out / "polar_figure", lambda: polar_figure(image, scale=scale, colormap=args.colormap,
                                                                        title=title), run)
+
+
+def _film_of(path) -> str:
+    """The film a recording holds (``polar`` for FLS frames and stored images), from its content."""
+    import os.path
+
+    from ..io.readers import FILMS, detect_format
+
+    if not os.path.lexists(path):
+        return "polar"  # (open() names the missing file, as for any recording)
+    return FILMS.get(detect_format(path), "polar")
+
+
+def _show_film(args, film: str, out: Path) -> None:
+    """``show`` for a side-scan (its waterfall and altitude track), a multibeam (its swath and
+    soundings) or an echo sounder (its echogram and bottom track): ``FILM.png`` in exact pixels
+    and ``FILM_figure.png`` annotated."""
+    import numpy as np
+
+    from ..io.output import to_uint8, write_png
+    from ..io.readers import open_recording
+    from ..io.run_record import OutputRun
+    from ..instruments.replay import ping_slice
+    from ..plot.films import envelope_figure, soundings_figure, waterfall_figure
+    from .figures import figure_names, write_figure
+
+    run = OutputRun.for_folder(out, [f"{film}.png", *figure_names(args, (f"{film}_figure",))],
+                               command=getattr(args, "command_line", None))
+    run.protect([(args.recording, "the recording")])
+    source = os.fspath(args.recording)
+    with open_recording(args.recording, film) as recording:
+        total, damage = recording.n_frames, recording.damage
+        pings = ping_slice(total, args.pings, source)
+        data = getattr(recording, film)(slice(pings.start, pings.stop))
+    _log(f"read {film} pings {pings.start}:{pings.stop} of {total} from {source}")
+    if damage is not None:
+        _log(f"note: {source} is damaged after ping {total - 1}: its good pings are 0 to {total - 1} ({damage.detail})")
+    if film == "waterfall":
+        png = to_uint8(data.display(data.samples.astype(np.float64)), args.mapping or "db", args.gain_db,
+                       args.dynamic_range_db)
+        build = lambda: waterfall_figure(data, args.dynamic_range_db, args.gain_db)  # noqa: E731
+    elif film == "soundings":
+        depth = -data.level_points()[..., 2]
+        png = to_uint8(np.nan_to_num(depth), "linear")
+        build = lambda: soundings_figure(data)  # noqa: E731
+    else:
+        png = to_uint8(np.asarray(data.samples, np.float64).T, args.mapping or "db", args.gain_db, args.dynamic_range_db)
+        build = lambda: envelope_figure(data, args.dynamic_range_db)  # noqa: E731
+    with run:
+        write_png(out / f"{film}.png", png)
+        write_figure(args, out / f"{film}_figure", build, run)
+        _log(f"wrote {out / f'{film}.png'} ({png.shape[1]} x {png.shape[0]} px)")
 
 
 def figure_title(image, source: str) -> str:

@@ -1,0 +1,92 @@
+"""``sonarsim render`` for instruments and ``--along`` a recording, ``sonarsim show`` for the
+films of side-scan, multibeam and echo-sounder recordings (issue 38 item 5)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from PIL import Image
+
+from sonarsim.cli.main import main
+
+REAL = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "real"
+SIDESCAN = REAL / "sidescan" / "iver2_seascan_pings_0-179.xtf"
+needs_data = pytest.mark.skipif(not SIDESCAN.is_file(), reason="needs ../shared/data/real")
+
+SCENE = {"sonar": {"type": "sidescan", "preset": "seascan_hds_600", "n_samples": 512, "ping_rate_hz": 10,
+                   "pose": {"position_m": [0, 0, 10]}},
+         "vehicle": {"speed_m_s": 2.0}, "ground": {"height_m": 0.0},
+         "objects": [{"name": "box", "primitive": "box", "size_m": [1, 1, 1], "pose": {"position_m": [2, 12, 0.5]}}]}
+
+
+def write_scene(tmp_path: Path, doc: dict = SCENE) -> Path:
+    path = tmp_path / "scene.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def test_render_writes_a_side_scans_waterfall(tmp_path):
+    out = tmp_path / "out"
+    assert main(["render", str(write_scene(tmp_path)), "--out", str(out), "--pings", "20"]) == 0
+    png = np.asarray(Image.open(out / "sidescan_waterfall.png"))
+    assert png.shape == (20, 1024)
+    z = np.load(out / "sidescan.npz")
+    assert z["samples"].shape == (20, 2, 512)
+    np.testing.assert_allclose(z["geometry/x_m"], 0.2 * np.arange(20), atol=1e-9)  # 2 m/s at 10 pings a second
+    box = z["labels/instance"] == 0  # object 0, the box, to port
+    assert box[:, 0].any() and not box[:, 1].any()
+    assert not (out / "polar.png").exists()
+
+
+def test_render_refuses_what_it_cannot_do(tmp_path, capsys):
+    scene = write_scene(tmp_path)
+    with pytest.raises(SystemExit) as exc:  # (argparse's own usage error)
+        main(["render", str(scene), "--out", str(tmp_path / "a"), "--pings", "3:1"])
+    assert exc.value.code == 2 and "--pings" in capsys.readouterr().err
+    assert main(["render", str(scene), "--out", str(tmp_path / "b"), "--instrument", "nope"]) == 2
+    assert "no instrument 'nope'" in capsys.readouterr().err
+    assert main(["render", str(scene), "--out", str(tmp_path / "c"), "--pings", "0:5"]) == 2
+    assert "with --along" in capsys.readouterr().err
+
+
+@needs_data
+def test_render_along_a_recording_replays_its_pings(tmp_path, capsys):
+    pytest.importorskip("pyxtf")
+    from sonarsim.io.readers.xtf import read_waterfall
+
+    out = tmp_path / "along"
+    assert main(["render", str(write_scene(tmp_path)), "--out", str(out), "--along", str(SIDESCAN),
+                 "--pings", "1:41", "--no-speckle"]) == 0
+    rec = read_waterfall(SIDESCAN, slice(1, 41))
+    z = np.load(out / "sidescan.npz")
+    assert z["samples"].shape == rec.samples.shape  # the recording's layout, not the scene's 512 samples
+    np.testing.assert_allclose(z["geometry/altitude_m"], rec.geometry.altitude_m, rtol=1e-6)
+    np.testing.assert_allclose(z["geometry/roll_deg"], rec.geometry.roll_deg, atol=1e-6)
+    np.testing.assert_allclose(z["geometry/heading_deg"], rec.geometry.heading_deg, atol=1e-6)
+    # each line dark before the floor: nothing nearer than the logged altitude
+    r = (np.arange(rec.n_samples) + 0.5) * rec.range_max_m / rec.n_samples
+    for p in range(40):
+        assert not z["samples"][p][:, r < rec.geometry.altitude_m[p] - 0.1].any()
+    other = REAL / "aris" / "sample.aris"
+    assert main(["render", str(write_scene(tmp_path)), "--out", str(tmp_path / "x"), "--along", str(other)]) == 2
+    assert "--along" in capsys.readouterr().err
+
+
+@needs_data
+@pytest.mark.parametrize("path, film, shape", [
+    (SIDESCAN, "waterfall", (180, 2048)),
+    (REAL / "multibeam" / "r2sonic2026_pings_0-459.xtf", "soundings", (460, 256)),
+    (REAL / "singlebeam" / "imagenex852_2016-11-18.852", "envelope", (500, 917)),
+])
+def test_show_draws_each_film(tmp_path, path, film, shape):
+    pytest.importorskip("pyxtf")
+    out = tmp_path / film
+    assert main(["show", str(path), "--out", str(out)]) == 0
+    assert np.asarray(Image.open(out / f"{film}.png")).shape == shape
+    assert (out / f"{film}_figure.png").stat().st_size > 10_000
+    assert main(["show", str(path), "--out", str(tmp_path / "some"), "--pings", "10:30"]) == 0
+    some = np.asarray(Image.open(tmp_path / "some" / f"{film}.png")).shape
+    assert some == ((20, shape[1]) if film != "envelope" else (shape[0], 20))
