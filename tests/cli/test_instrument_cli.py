@@ -90,3 +90,26 @@ def test_show_draws_each_film(tmp_path, path, film, shape):
     assert main(["show", str(path), "--out", str(tmp_path / "some"), "--pings", "10:30"]) == 0
     some = np.asarray(Image.open(tmp_path / "some" / f"{film}.png")).shape
     assert some == ((20, shape[1]) if film != "envelope" else (shape[0], 20))
+
+
+@needs_data
+def test_calibrate_fits_a_side_scan_on_some_pings_and_scores_it_on_others(tmp_path, capsys):
+    pytest.importorskip("pyxtf")
+    import json
+
+    import sonarsim
+
+    scene = tmp_path / "cal.yaml"
+    scene.write_text(yaml.safe_dump({"sonar": {"type": "sidescan", "preset": "seascan_hds_600"},
+                                     "ground": {"height_m": 0.0, "material": {"law": "lambert", "mu": 0.01}}}))
+    out, figures = tmp_path / "fitted.yaml", tmp_path / "fit.json"
+    assert main(["calibrate", str(SIDESCAN), "--scene", str(scene), "--out", str(out), "--json", str(figures),
+                 "--pings", "1:60", "--evaluate-pings", "120:180"]) == 0
+    fitted = sonarsim.load_scene(out).instruments[0]
+    s = json.loads(figures.read_text())
+    assert s["calibration_pings"] == [1, 59] and s["test_pings"] == [120, 179]
+    assert fitted.depression_deg == pytest.approx(s["fit"]["depression_deg"], abs=1e-3)
+    assert s["first_return"]["model_m"] < s["first_return"]["geometry_m"] < s["first_return"]["altitude_m"]
+    assert main(["calibrate", str(SIDESCAN), "--scene", str(scene), "--out", str(tmp_path / "x.yaml"),
+                 "--pings", "1:60", "--evaluate-pings", "50:80"]) == 2
+    assert "--evaluate-pings" in capsys.readouterr().err and not (tmp_path / "x.yaml").exists()

@@ -26,6 +26,7 @@ device's time-varied gain beyond spreading (``range_exponent``), ``n`` the noise
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
@@ -112,7 +113,8 @@ def profile_db(samples: np.ndarray, n_bins: int = N_BINS) -> np.ndarray:
     s = _clean(samples)
     n = s.shape[2] // n_bins * n_bins
     b = s[..., :n].reshape(s.shape[:2] + (n_bins, -1))
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a bin of saturated samples only: NaN, said so above
         mean = np.nanmean(b, axis=3)
         return np.where(mean > 0, 10.0 * np.log10(mean), np.nan)
 

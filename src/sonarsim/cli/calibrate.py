@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .argtypes import frame_index
+from .argtypes import frame_index, ping_count_or_range
 from ..errors import ConfigError, SonarsimError
 
 
@@ -62,6 +62,12 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--image", default=None, help="side-by-side PNG (default: --out with .png for .yaml); the "
                    "annotated figure goes beside it as *_figure.png")
     p.add_argument("--json", default=None, help="also write the figures as JSON to this file")
+    g = p.add_argument_group("side-scan recordings (XTF)")
+    g.add_argument("--pings", type=ping_count_or_range, default=None, metavar="A:B",
+                   help="the pings to fit on (default: the first half of the pings with navigation); the vehicle is "
+                   "where each ping's navigation and attitude put it")
+    g.add_argument("--evaluate-pings", type=ping_count_or_range, default=None, metavar="C:D",
+                   help="the pings to score the fit on (default: the pings after --pings, else before)")
     from .figures import add_figure_options
 
     add_figure_options(p)
@@ -130,6 +136,11 @@ def format_family(family: dict, method: str = "search", free: tuple = ()) -> str
 
 def cmd_calibrate(args) -> None:
     import json
+
+    from .show import _film_of
+
+    if _film_of(args.real) == "waterfall":
+        return calibrate_sidescan(args)
 
     import yaml
 
@@ -256,3 +267,73 @@ def _json_default(value):
     if isinstance(value, np.ndarray):
         return value.tolist()
     return float(value)
+
+
+def calibrate_sidescan(args) -> None:
+    """``calibrate`` on a side-scan recording: its unknowns (the depression and vertical width of
+    the transducers; the device's gain, time-varied gain and noise) fitted on ``--pings`` with the
+    vehicle where each ping's navigation and attitude put it (:mod:`sonarsim.analysis.sidescan`),
+    scored on ``--evaluate-pings`` beside the trivial predictions. Writes the scene with the
+    fitted side-scan (``--out``) and every figure (``--json``)."""
+    import json
+
+    import yaml
+
+    from ..analysis import sidescan as A
+    from ..config.loader import load_scene
+    from ..io.output import atomic_write
+    from ..io.readers.xtf import read_waterfall
+    from ..io.run_record import OutputRun, record_beside
+    from ..instruments.replay import ping_slice
+
+    out = Path(args.out)
+    outputs = [(out, "--out")] + ([(Path(args.json), "--json")] if args.json else [])
+    run = OutputRun(record_beside(out), outputs, command=getattr(args, "command_line", None))
+    run.protect([(args.real, "the recording")])
+    scene = load_scene(args.scene)
+    specs = [s for s in scene.instruments if s.type_name == "sidescan"]
+    if not specs:
+        raise ConfigError("--scene", "has no sidescan instrument to calibrate on a side-scan recording")
+    rec = read_waterfall(args.real)
+    navigated = np.nonzero(np.isfinite(rec.geometry.altitude_m))[0]
+    if len(navigated) < 4:
+        raise ConfigError(str(args.real), f"only {len(navigated)} pings log an altitude: nothing to fit on")
+    half = navigated[len(navigated) // 2]
+    cal = ping_slice(rec.n_pings, args.pings, str(args.real)) if args.pings is not None else range(navigated[0], half)
+    if args.evaluate_pings is not None:
+        test = ping_slice(rec.n_pings, args.evaluate_pings, str(args.real))
+    else:
+        test = range(cal.stop, rec.n_pings) if cal.stop < rec.n_pings - 1 else range(navigated[0], cal.start)
+    for name, pings in (("--pings", cal), ("--evaluate-pings", test)):
+        known = np.isfinite(rec.geometry.altitude_m[list(pings)]) if len(pings) else np.zeros(0, bool)
+        if known.sum() < 2:
+            raise ConfigError(name, f"pings {pings.start}:{pings.stop} hold {int(known.sum())} with navigation; "
+                              "give at least two")
+    cal = np.array([k for k in cal if np.isfinite(rec.geometry.altitude_m[k])])
+    test = np.array([k for k in test if np.isfinite(rec.geometry.altitude_m[k])])
+    overlap = np.intersect1d(cal, test)
+    if overlap.size:
+        raise ConfigError("--evaluate-pings", f"shares {overlap.size} pings with --pings: score on pings not fitted on")
+    fit = A.calibrate(rec, cal)
+    figures = A.score(rec, fit, cal, test)
+    f, i = figures["first_return"], figures["intensity_db"]
+    print(f"fitted on pings {cal.min()}-{cal.max()}: depression {fit.depression_deg:.1f} deg, vertical width "
+          f"{fit.vertical_beam_width_deg:.1f} deg, gain {fit.gain_db:.1f} dB, TVG r^{fit.range_exponent:.2f}, "
+          f"noise {fit.noise_db:.1f} dB")
+    print(f"scored on pings {test.min()}-{test.max()}: first return median |error| {f['model_m']:.2f} m (logged "
+          f"altitude {f['altitude_m']:.2f} m, flat-floor geometry {f['geometry_m']:.2f} m); intensity rms "
+          f"{i['model_db']:.2f} dB (calibration mean profile {i['mean_profile_db']:.2f}, shifted to each ping's "
+          f"first return {i['shifted_profile_db']:.2f}, ceiling {i['ceiling_neighbours_db']:.2f})")
+    doc = scene.to_dict()
+    section = doc["sonar"] if "sonar" in doc else next(x for x in doc["instruments"] if x["name"] == specs[0].name)
+    section["depression_deg"] = round(fit.depression_deg, 3)
+    section["vertical_beam_width_deg"] = round(fit.vertical_beam_width_deg, 3)
+    with run:
+        with atomic_write(out, "w") as fh:
+            fh.write(f"# calibrated on {Path(args.real).name} pings {cal.min()}-{cal.max()} by sonarsim calibrate; the "
+                     f"device's gain law (gain {fit.gain_db:.2f} dB, TVG r^{fit.range_exponent:.3f}, noise "
+                     f"{fit.noise_db:.2f} dB) is in the JSON figures\n")
+            yaml.safe_dump(doc, fh, sort_keys=False)
+        if args.json:
+            with atomic_write(Path(args.json), "w") as fh:
+                json.dump(figures, fh, indent=1)
