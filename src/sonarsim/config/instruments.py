@@ -145,6 +145,11 @@ class InstrumentSpec:
         """Seconds between pings (or scan steps)."""
         raise NotImplementedError
 
+    def make_fan(self, render):
+        """The rays of the instrument's channels (they share one fan), with its own pattern in
+        their weights; ``None``: the scene's rays for the channel's sonar (an FLS's)."""
+        return None
+
     @classmethod
     def parse(cls, d: Mapping, key: str, base_dir: Path | None, name: str, mount: Pose) -> "InstrumentSpec":
         """The spec of a scene-file section ``d`` (its type-specific keys), named at ``key``."""

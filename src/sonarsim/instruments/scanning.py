@@ -292,6 +292,10 @@ class ScanningSpec(InstrumentSpec):
         """Seconds the device takes for :meth:`steps_per_scan` steps."""
         return self.steps_per_scan() * self.ping_period_s()
 
+    def make_fan(self, render):
+        """The head's rays: its fan weighted by the vertical pattern."""
+        return make_ray_fan(self.channel_sonar(), render, self.vertical_gain)
+
     def vertical_gain(self, elevation_rad: np.ndarray) -> np.ndarray:
         """The two-way vertical pattern at elevations from the axis (power, 1 on axis)."""
         spec = PatternSpec(shape="line", width_deg=self.vertical_beam_width_deg, window="rect")
@@ -417,7 +421,7 @@ def _fan(sim, spec: ScanningSpec, sonar: SonarConfig):
     fan = _FANS.get(key)
     if fan is None:
         sim.require_frame_memory(sonar)
-        fan = make_ray_fan(sonar, sim.scene.render, spec.vertical_gain)
+        fan = spec.make_fan(sim.scene.render)
         _FANS.clear()  # one scanning sonar at a time is the common case: keep memory flat
         _FANS[key] = fan
     return fan

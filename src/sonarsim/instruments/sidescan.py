@@ -146,6 +146,10 @@ class SidescanSpec(InstrumentSpec):
             return 1.0 / self.ping_rate_hz
         return 2.0 * self.range_max_m / self.sound_speed_m_s
 
+    def make_fan(self, render):
+        """Each side's rays: the channel's fan weighted by the vertical pattern."""
+        return make_ray_fan(self.channel_sonar(), render, self.vertical_gain)
+
     def vertical_gain(self, elevation_rad: np.ndarray) -> np.ndarray:
         """The two-way vertical pattern at elevations from the axis (power, 1 on axis)."""
         spec = PatternSpec(shape="line", width_deg=self.vertical_beam_width_deg, window="rect")
@@ -210,7 +214,7 @@ def _fan(sim, spec: SidescanSpec, sonar: SonarConfig):
     fan = _FANS.get(key)
     if fan is None:
         sim.require_frame_memory(sonar)
-        fan = make_ray_fan(sonar, sim.scene.render, spec.vertical_gain)
+        fan = spec.make_fan(sim.scene.render)
         _FANS.clear()  # one side-scan at a time is the common case: keep memory flat
         _FANS[key] = fan
     return fan

@@ -207,6 +207,14 @@ class SinglebeamSpec(InstrumentSpec):
             frequency_khz=self.frequency_khz,
         )
 
+    def make_fan(self, render):
+        """The cone's rays: the square fan, each ray weighted by the conical pattern (0 outside)."""
+        fan = make_ray_fan(self.channel_sonar(), render)
+        alpha = np.arccos(np.clip(fan.directions[..., 0], -1.0, 1.0))  # angle from the axis (x)
+        gain = cone_gain(alpha, self.beam_width_deg, self.pattern)
+        gain = np.where(alpha <= math.radians(self.cone_half_angle_deg), gain, 0.0)
+        return replace(fan, weight=fan.weight * gain)
+
     def channels(self) -> tuple[Channel, ...]:
         # Looking down: pitch +90 deg turns the channel's x onto the mount's -z.
         return (Channel("beam", self.channel_sonar(), mounted(self.mount, Pose((0.0, 0.0, 0.0), (0.0, 90.0, 0.0)))),)
@@ -236,11 +244,7 @@ def _fan(sim, spec: SinglebeamSpec, sonar: SonarConfig):
     fan = _FANS.get(key)
     if fan is None:
         sim.require_frame_memory(sonar)
-        fan = make_ray_fan(sonar, sim.scene.render)
-        alpha = np.arccos(np.clip(fan.directions[..., 0], -1.0, 1.0))  # angle from the axis (x)
-        gain = cone_gain(alpha, spec.beam_width_deg, spec.pattern)
-        gain = np.where(alpha <= math.radians(spec.cone_half_angle_deg), gain, 0.0)
-        fan = replace(fan, weight=fan.weight * gain)
+        fan = spec.make_fan(sim.scene.render)
         _FANS.clear()
         _FANS[key] = fan
     return fan

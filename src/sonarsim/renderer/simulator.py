@@ -218,6 +218,8 @@ class Simulator:
         self._textured = any(f is not None for f in self.textures)
         self._rng = sequential_rng(self.scene.render.seed)  # speckle, frame after frame
         self._fans: dict[SonarConfig, RayFan] = {}  # by intrinsics: every pose shares the fan
+        # The channels of the instruments that make their own fans, by their sonar.
+        self._instrument_fans = {c.sonar: i for i in self.scene.instruments for c in i.channels()}
         self._sensor_models: dict[SonarConfig, SensorModel] = {}
         self._last_fan: tuple[SonarConfig, RayFan] | None = None
         self.last_timing: dict[str, float] = {}
@@ -301,7 +303,8 @@ class Simulator:
         """The (cached) rays of a sonar (its intrinsics) in its own frame.
 
         With a sensor's elevation pattern the rays span the pattern's ``span_deg`` and their
-        weights carry its two-way gain.
+        weights carry its two-way gain; an instrument's channel (a side-scan's side, a
+        single-beam's cone) has its instrument's own rays (``InstrumentSpec.make_fan``).
         """
         if self._last_fan is not None and self._last_fan[0] is sonar:
             return self._last_fan[1]
@@ -309,7 +312,13 @@ class Simulator:
         if fan is None:
             self.require_frame_memory(sonar)
             model = self.sensor_model(sonar)
-            if model is None:
+            own = self._instrument_fans.get(sonar)
+            # an instrument's channel: its own pattern in the rays (a side-scan's vertical
+            # pattern, a single-beam's cone), as the instrument's pings cast them
+            fan = own.make_fan(self.scene.render) if own is not None else None
+            if fan is not None:
+                pass
+            elif model is None:
                 fan = make_ray_fan(sonar, self.scene.render)
             else:
                 fan = make_ray_fan(model.trace_sonar(sonar), self.scene.render, model.elevation_gain)
