@@ -160,6 +160,12 @@ def render_instruments(scene, out: Path, args, run=None, render_fls=None) -> lis
         if run is not None:
             run.add(out / f"{name}.npz")
         film.save_npz(out / f"{name}.npz")
+        from ..plot.films import waterfall_figure
+        from .figures import write_figure
+
+        write_figure(args, out / f"{name}_waterfall_figure",
+                     lambda: waterfall_figure(film, args.dynamic_range_db, args.gain_db,
+                                              title=f"{name}: {film.n_pings} pings rendered"), run)
         _log(f"{name}: {film.n_pings} pings x 2 sides x {film.n_samples} samples in {t1 - t0:.3f} s; "
              f"wrote {', '.join(str(out / f) for f in (*images, name + '.npz'))}")
         films.append(film)

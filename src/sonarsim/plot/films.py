@@ -47,7 +47,7 @@ def waterfall_figure(waterfall, dynamic_range_db: float = 40.0, gain_db: float =
     h = waterfall.geometry.altitude_m
     pings = np.arange(n)
     for sign in (-1, 1):
-        ax.plot(sign * h, pings, color="tab:orange", lw=1, label="logged altitude" if sign > 0 else None)
+        ax.plot(sign * h, pings, color="tab:orange", lw=1, label="altitude" if sign > 0 else None)
     ax.set_xlabel("slant range, m (port < 0 < starboard)")
     ax.set_ylabel("ping")
     ax.legend(loc="lower right", fontsize="small")
