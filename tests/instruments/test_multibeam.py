@@ -340,3 +340,20 @@ def test_spec_round_trips_through_its_section():
     chan = spec.channels()[0]
     np.testing.assert_allclose(chan.mount.rotation @ [1, 0, 0], [0, 0, -1], atol=1e-12)
     np.testing.assert_allclose(chan.mount.rotation @ [0, 1, 0], [0, 1, 0], atol=1e-12)
+
+
+def test_the_banded_detection_equals_the_whole_column_one():
+    rng = np.random.default_rng(1)
+    wc = (rng.random((1024, 64)) ** 8).astype(np.float32)
+    wc[:, 5] = 0.0                    # no echo
+    wc[300:700, 7] = 1.0              # a window longer than the band
+    wc[:, 9] = 0.0
+    wc[1000:, 9] = 1.0                # at the far end of the column
+    wc[:3, 11] = 2.0                  # at the near end
+    full = detect_bottom(wc, 0.0, 50.0, 10.0, 3, band=None)
+    banded = detect_bottom(wc, 0.0, 50.0, 10.0, 3)
+    np.testing.assert_allclose(banded[0], full[0], rtol=1e-12)
+    np.testing.assert_allclose(banded[1], full[1], rtol=1e-6)
+    np.testing.assert_array_equal(banded[2], full[2])
+    # the 3-sample envelope reaches one sample past a sharp edge (a third of the level: within 10 dB)
+    assert np.isnan(full[0][5]) and tuple(full[2][:, 7]) == (299, 701) and tuple(full[2][:, 9]) == (999, 1024)

@@ -79,7 +79,8 @@ from ..sensor.model import SensorModel
 from . import renders
 from .sidescan import _preset_values, ping_geometry
 
-__all__ = ["MultibeamSpec", "SoundSpeedProfile", "render_multibeam", "detect_bottom", "footprint_points",
+__all__ = ["MultibeamSpec", "SoundSpeedProfile", "render_multibeam", "ping_soundings", "detect_bottom",
+           "footprint_points",
            "georeference", "arrivals", "beam_table_deg", "head_angles_deg"]
 
 SPACINGS = ("equiangular", "equidistant")
@@ -92,6 +93,9 @@ ATTITUDE_MARGIN_DEG = 10.0
 # (bridging a one-sample gap between the echoes of neighbouring rays, or of speckle), and
 # weighs the raw samples within it.
 DETECTION_SMOOTHING = 3
+# Samples about each beam's peak the detection works on (a window reaching the band's edge is
+# redone on the whole column).
+DETECTION_BAND = 128
 # A layer whose gradient is below this (1/s) is uniform: the straight-ray forms are exact to
 # c g t^2, below a micrometre over a second's travel.
 FLAT_GRADIENT = 1e-9
@@ -331,6 +335,7 @@ class SoundSpeedProfile:
         p = np.clip(straight / self.speed(z0), 0.0, p_hi * (1.0 - 1e-12))
         done = x <= 0
         p = np.where(done, 0.0, p)
+        done = done | ~np.isfinite(x) | ~np.isfinite(z0) | ~np.isfinite(z1)  # nothing to solve (NaN out)
         for _ in range(_SOLVE_STEPS):
             xi, _, dxdp = self.travel(p, za, zb)
             f = np.where(np.isnan(xi), np.inf, xi - x)  # turned: too steep a p
@@ -418,8 +423,10 @@ class MultibeamSpec(InstrumentSpec):
         across a beam must be dense enough that its footprint on an inclined floor is one
         echo, not a comb: ``auto`` puts neighbours at most a range sample apart at the far
         range in the outermost beam, rolled 10 deg further, over a floor normal to the head's
-        axis (``range_max tan(max angle + 10 deg) width / dr``, 1 to 64); along track, ``auto`` is the
-        engine's rule (``render.elevation_samples: auto``).
+        axis (``range_max tan(max angle + 10 deg) width / dr``, 1 to 64); along track, ``auto`` puts
+        neighbours at most two samples apart at the far range (``render.elevation_samples:
+        auto``'s rule without its floor of 32 rays: along track the footprint spreads in range
+        only as ``r phi^2 / 2``), 3 to 64.
     sensor : SensorSpec or None
     preset : str or None
     """
@@ -531,8 +538,6 @@ class MultibeamSpec(InstrumentSpec):
 
     def ray_counts(self) -> tuple[int, int]:
         """Rays per beam ``(across, along)`` (``rays_across``, ``rays_along`` resolved)."""
-        from ..core.rays import auto_elevation_samples
-
         across = self.rays_across
         if across == "auto":
             dr = (self.range_max_m - self.range_min_m) / self.n_samples
@@ -540,7 +545,11 @@ class MultibeamSpec(InstrumentSpec):
                                       MAX_BEAM_ANGLE_DEG))
             across = int(min(max(math.ceil(self.range_max_m * math.tan(widest)
                                            * math.radians(self.rx_beam_width_across_deg) / dr), 1), 64))
-        along = auto_elevation_samples(self._sonar) if self.rays_along == "auto" else self.rays_along
+        along = self.rays_along
+        if along == "auto":
+            dr = (self.range_max_m - self.range_min_m) / self.n_samples
+            along = int(min(max(math.ceil(math.radians(self.tx_beam_width_along_deg) * self.range_max_m / (2.0 * dr)),
+                                3), 64))
         return int(across), int(along)
 
     def channel_sonar(self) -> SonarConfig:
@@ -643,7 +652,7 @@ class MultibeamSpec(InstrumentSpec):
 # -- per-beam work (vectorised over beams) -------------------------------------------------
 
 def detect_bottom(water_column: np.ndarray, range_min_m: float, range_max_m: float, window_db: float = 10.0,
-                  smoothing: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  smoothing: int = 1, band: int | None = DETECTION_BAND) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Amplitude bottom detection in each beam's column.
 
     Parameters
@@ -657,6 +666,10 @@ def detect_bottom(water_column: np.ndarray, range_min_m: float, range_max_m: flo
     smoothing : int
         The peak and the window are found on the column's moving average over this many
         samples (odd); the centroid weighs the raw samples inside the window.
+    band : int or None
+        Work on the ``band`` samples about each beam's peak (the window is the same: a beam
+        whose window reaches the band's edge is done again on its whole column); None: whole
+        columns. Only the speed differs.
 
     Returns
     -------
@@ -667,32 +680,62 @@ def detect_bottom(water_column: np.ndarray, range_min_m: float, range_max_m: flo
     window : (2, n_beams) int64 ndarray
         The window's first and one-past-last sample.
     """
-    wc = np.asarray(water_column, np.float64)
+    wc = np.asarray(water_column, np.float32)
     n, m = wc.shape
-    cols = np.arange(m)
     env = wc
-    if smoothing > 1:
-        from scipy.ndimage import uniform_filter1d
-
-        env = uniform_filter1d(wc, int(smoothing), axis=0, mode="constant")
+    if smoothing > 1:  # a moving sum over the shifted columns (the threshold is relative: a sum will do)
+        env = wc.copy()
+        for shift in range(1, int(smoothing) // 2 + 1):
+            env[shift:] += wc[:-shift]
+            env[:-shift] += wc[shift:]
     peak = np.argmax(env, axis=0)
-    top = env[peak, cols]
-    found = np.isfinite(top) & (top > 0)
-    above = env >= (top * 10.0 ** (-window_db / 10.0))[None, :]
-    idx = np.arange(n)[:, None]
-    # The samples below the threshold nearest the peak on either side bound the window.
-    last_below = np.maximum.accumulate(np.where(above, -1, idx), axis=0)
-    next_below = np.minimum.accumulate(np.where(above, n, idx)[::-1], axis=0)[::-1]
-    lo = last_below[peak, cols] + 1
-    hi = next_below[peak, cols]
-    inside = (idx >= lo[None, :]) & (idx < hi[None, :])
-    w = np.where(inside, wc, 0.0)
+    if band is None or band >= n:
+        lo, hi, total = _windows(wc, env, peak, window_db)
+    else:
+        # The band about each peak, (band, n_beams), gathered: the full-column passes are the
+        # smoothing and the peak's search alone.
+        start = np.clip(peak - band // 2, 0, n - band)
+        rows = start[None, :] + np.arange(band)[:, None]
+        cols = np.arange(m)[None, :]
+        lo, hi, total = _windows(wc[rows, cols], env[rows, cols], peak - start, window_db)
+        lo, hi = lo + start, hi + start
+        redo = np.nonzero(((lo == start) & (start > 0)) | ((hi == start + band) & (start + band < n)))[0]
+        if len(redo):  # windows longer than the band (rare: a long slant footprint)
+            lo[redo], hi[redo], total[redo] = _windows(wc[:, redo], env[:, redo], peak[redo], window_db)
     r = range_axis(range_min_m, range_max_m, n)
-    total = w.sum(axis=0)
+    found = np.isfinite(total) & (total > 0)
+    if band is None or band >= n:
+        idx = np.arange(n)[:, None]
+        rw = r @ np.where((idx >= lo) & (idx < hi), wc, np.float32(0.0))
+    else:  # the window lies in the band from lo on, except for the beams redone
+        at = lo[None, :] + np.arange(band)[:, None]
+        rows = np.minimum(at, n - 1)
+        wb = np.where(at < hi[None, :], wc[rows, np.arange(m)[None, :]], np.float32(0.0))
+        rw = (r[rows] * wb).sum(axis=0)
+        if len(redo):
+            idx = np.arange(n)[:, None]
+            rw[redo] = r @ np.where((idx >= lo[redo]) & (idx < hi[redo]), wc[:, redo], np.float32(0.0))
+    size = hi - lo
     with np.errstate(invalid="ignore", divide="ignore"):
-        rng = (w * r[:, None]).sum(axis=0) / total
-        level = total / np.maximum(hi - lo, 1)
+        rng = rw / total
+        level = total / np.maximum(size, 1)
     return np.where(found, rng, np.nan), np.where(found, level, np.nan), np.stack([lo, hi])
+
+
+def _windows(wc: np.ndarray, env: np.ndarray, peak: np.ndarray, window_db: float):
+    """The run of samples about ``peak`` (per column) where ``env`` stays within ``window_db``
+    of its value there: ``(lo, hi, total power of wc in [lo, hi))``, vectorised over columns."""
+    cols = np.arange(wc.shape[1])
+    top = env[peak, cols]
+    below = ~(env >= top * np.float32(10.0 ** (-window_db / 10.0)))  # NaN counts as below
+    # The samples with as many below the threshold before them as the peak has (one cumulative
+    # count, no per-beam search), and not below themselves.
+    count = np.cumsum(below, axis=0, dtype=np.int32)
+    inside = (count == count[peak, cols]) & ~below
+    size = inside.sum(axis=0)
+    lo = np.argmax(inside, axis=0)
+    total = np.where(inside, wc, np.float32(0.0)).sum(axis=0, dtype=np.float64)
+    return lo.astype(np.int64), (lo + size).astype(np.int64), np.where(size > 0, total, 0.0)
 
 
 def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.inf) -> np.ndarray:
@@ -707,17 +750,18 @@ def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.in
     (n_beams, 3) float64 ndarray, metres; NaN for a beam whose rays meet nothing.
     """
     distance, sid, intensity = paths.first_hits()
-    d = np.asarray(paths.view.directions, np.float64)  # world frame, fan.shape + (3,)
+    # In the channel's frame (the fan's own directions), one rotation per beam after the sums:
+    # rotating every ray into the world would cost as much as the rest of the ping.
+    d = paths.fan.directions
     o = np.asarray(paths.view.origin, np.float64).reshape(3)
     ok = (sid >= 0) & np.isfinite(distance) & (distance >= range_min_m) & (distance <= range_max_m)
-    w = np.where(ok, intensity, 0.0).astype(np.float64)
-    dist = np.where(ok, distance, 0.0).astype(np.float64)
     n_beams = distance.shape[0]
-    w2 = w.reshape(n_beams, -1)
-    total = w2.sum(axis=1)
-    offset = np.einsum("bk,bkj->bj", w2 * dist.reshape(n_beams, -1), d.reshape(n_beams, -1, 3))
+    w = np.where(ok, intensity, 0.0).reshape(n_beams, -1).astype(np.float64)
+    wd = w * np.where(ok, distance, 0.0).reshape(n_beams, -1)
+    total = w.sum(axis=1)
+    offset = np.einsum("bk,bkj->bj", wd, d.reshape(n_beams, -1, 3))
     with np.errstate(invalid="ignore", divide="ignore"):
-        p = o + offset / total[:, None]
+        p = o + (offset / total[:, None]) @ np.asarray(paths.view.rotation, np.float64).T
     return np.where((total > 0)[:, None], p, np.nan)
 
 
@@ -885,9 +929,7 @@ def render_multibeam(sim, spec: MultibeamSpec, poses: list[Pose], times_s: np.nd
     fan = _fan(sim, spec, sonar)
     sensor = spec.sensor_with_pulse()
     model = SensorModel(sensor, sonar, sim.scene.render.seed) if sensor is not None else False
-    kernel = _pulse_kernel(spec) if sensor is None else np.ones(1)
-    c_head = spec.sound_speed_m_s
-    table = spec.beam_table_deg()
+    kernel = (_pulse_kernel(spec) if sensor is None else np.ones(1)).astype(np.float32)
     water = np.empty((n, ns, m), np.float32)
     angle = np.empty((n, m))
     tilt = np.empty((n, m))
@@ -895,40 +937,64 @@ def render_multibeam(sim, spec: MultibeamSpec, poses: list[Pose], times_s: np.nd
     level = np.empty((n, m))
     truth = np.empty((n, m, 3))
     depth = np.full(n, np.nan)
-    dr = (spec.range_max_m - spec.range_min_m) / ns
     for k, vehicle in enumerate(poses):  # per ping: one engine frame; the beams vectorised
         head = mounted(vehicle, spec.mount)
         paths = sim.trace(mounted(vehicle, channel.mount), sonar=sonar, fan=fan)
         image = sim.form(paths, keep_rays=False, speckle=speckle, frame=first_ping + k, sensor=model)
         wc = image.polar
         if len(kernel) > 1:
-            wc = convolve1d(wc, kernel.astype(np.float32), axis=0, mode="constant")
-        points = footprint_points(paths, spec.range_min_m, spec.range_max_m)
-        origin = np.asarray(head.translation, np.float64)
-        profile = spec.sound_speed_profile
+            wc = convolve1d(wc, kernel, axis=0, mode="constant")
         if spec.surface_height_m is not None:
-            depth[k] = spec.surface_height_m - origin[2]
-        d0 = 0.0 if spec.surface_height_m is None else depth[k]
-        t_one, u = arrivals(origin, points, c_head, profile, d0)
-        if profile is not None:
-            # The head's time axis: each beam's echo at c_head T instead of the straight |P - O|.
-            straight = np.linalg.norm(points - origin, axis=1)
-            factor = np.where(np.isfinite(t_one) & (straight > 0), c_head * t_one / np.where(straight > 0, straight, 1.0),
-                              1.0)
-            wc = _stretch(wc, factor, spec.range_min_m, dr)
-        rng, lev, _ = detect_bottom(wc, spec.range_min_m, spec.range_max_m, spec.detection_window_db,
-                                    DETECTION_SMOOTHING)
-        a, b = head_angles_deg(u, head.rotation)
-        seen = np.isfinite(a) & np.isfinite(b)
-        angle[k] = np.where(seen, a, table)
-        tilt[k] = np.where(seen, b, 0.0)
-        twt[k] = 2.0 * rng / c_head
-        level[k] = lev
-        truth[k] = points
-        water[k] = wc
+            depth[k] = spec.surface_height_m - head.translation[2]
+        water[k], angle[k], tilt[k], twt[k], level[k], truth[k] = ping_soundings(spec, paths, wc, head)
     geometry = ping_geometry(sim, poses, times_s, spec)
     geometry = PingGeometry(**{**geometry.as_dict(), "depth_m": depth})
     return Soundings(angle, twt, level, geometry, water_column=water, points_m=truth, source="render", tilt_deg=tilt)
+
+
+def ping_soundings(spec: MultibeamSpec, paths, water_column: np.ndarray, head: Pose):
+    """One ping's soundings from its paths and water column (the per-beam work, vectorised).
+
+    Parameters
+    ----------
+    spec : MultibeamSpec
+    paths : FramePaths
+        The ping's frame (its first hits give each beam's truth, :func:`footprint_points`).
+    water_column : (n_samples, n_beams) float32 array
+        The formed column (after the pulse).
+    head : Pose
+        The head in the world (its frame: x forward, y port, z up).
+
+    Returns
+    -------
+    water_column : (n_samples, n_beams) float32 ndarray
+        On the head's time axis (mapped through the true profile, if any).
+    angle_deg, tilt_deg : (n_beams,) float64 ndarrays
+        The arrival's angles in the head's frame (the beam table's where a beam sees nothing).
+    two_way_time_s, intensity : (n_beams,) float64 ndarrays
+        The detection's (NaN: none).
+    points_m : (n_beams, 3) float64 ndarray
+        The truth, world frame.
+    """
+    c_head = spec.sound_speed_m_s
+    points = footprint_points(paths, spec.range_min_m, spec.range_max_m)
+    origin = np.asarray(head.translation, np.float64)
+    profile = spec.sound_speed_profile
+    d0 = 0.0 if spec.surface_height_m is None else spec.surface_height_m - origin[2]
+    t_one, u = arrivals(origin, points, c_head, profile, d0)
+    wc = water_column
+    if profile is not None:
+        # The head's time axis: each beam's echo at c_head T instead of the straight |P - O|.
+        straight = np.linalg.norm(points - origin, axis=1)
+        ok = np.isfinite(t_one) & (straight > 0)
+        factor = np.where(ok, c_head * np.where(ok, t_one, 0.0) / np.where(ok, straight, 1.0), 1.0)
+        wc = _stretch(wc, factor, spec.range_min_m, (spec.range_max_m - spec.range_min_m) / spec.n_samples)
+    rng, level, _ = detect_bottom(wc, spec.range_min_m, spec.range_max_m, spec.detection_window_db,
+                                  DETECTION_SMOOTHING)
+    a, b = head_angles_deg(u, head.rotation)
+    seen = np.isfinite(a) & np.isfinite(b)
+    return (wc, np.where(seen, a, spec.beam_table_deg()), np.where(seen, b, 0.0), 2.0 * rng / c_head, level,
+            points)
 
 
 def _stretch(wc: np.ndarray, factor: np.ndarray, range_min_m: float, dr: float) -> np.ndarray:
