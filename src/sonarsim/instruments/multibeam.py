@@ -421,9 +421,10 @@ class MultibeamSpec(InstrumentSpec):
         Rays per beam across its receive width and along the transmit's width. The engine
         spreads a ray's echo over range only between neighbours along track, so the rays
         across a beam must be dense enough that its footprint on an inclined floor is one
-        echo, not a comb: ``auto`` puts neighbours at most a range sample apart at the far
-        range in the outermost beam, rolled 10 deg further, over a floor normal to the head's
-        axis (``range_max tan(max angle + 10 deg) width / dr``, 1 to 64); along track, ``auto`` puts
+        echo, not a comb: ``auto`` puts neighbours at most two range samples apart (the
+        detection's envelope bridges the sample between) at the far range in the outermost
+        beam, rolled 10 deg further, over a floor normal to the head's axis
+        (``range_max tan(max angle + 10 deg) width / (2 dr)``, 1 to 64); along track, ``auto`` puts
         neighbours at most two samples apart at the far range (``render.elevation_samples:
         auto``'s rule without its floor of 32 rays: along track the footprint spreads in range
         only as ``r phi^2 / 2``), 3 to 64.
@@ -543,8 +544,9 @@ class MultibeamSpec(InstrumentSpec):
             dr = (self.range_max_m - self.range_min_m) / self.n_samples
             widest = math.radians(min(float(np.max(np.abs(self.beam_table_deg()))) + ATTITUDE_MARGIN_DEG,
                                       MAX_BEAM_ANGLE_DEG))
+            # two samples apart: the detection's 3-sample envelope bridges the one between
             across = int(min(max(math.ceil(self.range_max_m * math.tan(widest)
-                                           * math.radians(self.rx_beam_width_across_deg) / dr), 1), 64))
+                                           * math.radians(self.rx_beam_width_across_deg) / (2.0 * dr)), 1), 64))
         along = self.rays_along
         if along == "auto":
             dr = (self.range_max_m - self.range_min_m) / self.n_samples
@@ -598,7 +600,11 @@ class MultibeamSpec(InstrumentSpec):
         values: dict[str, Any] = {}
         preset = d.get("preset")
         if preset is not None:
-            values.update(_preset_values(preset, f"{key}.preset", cls))
+            try:
+                values.update(_preset_values(preset, f"{key}.preset", cls))
+            except ModuleNotFoundError:  # a build without the device presets module
+                raise ConfigError(f"{key}.preset", f"no device presets in this build (asked for {shown(preset)}); "
+                                  "give the instrument's keys instead") from None
         if "swath_deg" in d and "beam_angles_deg" not in d:
             values.pop("beam_angles_deg", None)  # the file's swath replaces a preset's table
         if "beam_angles_deg" in d and "swath_deg" not in d:
@@ -1004,14 +1010,19 @@ def _stretch(wc: np.ndarray, factor: np.ndarray, range_min_m: float, dr: float) 
     ``wc``: ``(n_samples, n_beams)``; ``factor``: ``(n_beams,)``. Returns float32.
     """
     n, m = wc.shape
-    r = range_min_m + (np.arange(n) + 0.5) * dr
-    src = (r[:, None] / factor[None, :] - range_min_m) / dr - 0.5  # fractional source sample
-    i0 = np.floor(src).astype(np.int64)
+    # Zero rows about the column (one before, two after): every index below lands on a row,
+    # those outside the window on a zero one, without masks.
+    pad = np.zeros((n + 3, m), np.float32)
+    pad[1:n + 1] = wc
+    # The fractional source sample of each output sample, (k + 0.5 + r0/dr) / factor - r0/dr - 0.5,
+    # in float32 where that resolves a sample to 1/256 (up to 65,536 samples).
+    dtype = np.float32 if n <= 65536 else np.float64
+    offset = range_min_m / dr + 0.5
+    src = (np.arange(n, dtype=dtype) + dtype(offset))[:, None] * (1.0 / np.asarray(factor)).astype(dtype)[None, :]
+    src -= dtype(offset)
+    np.clip(src, -1.0, float(n), out=src)
+    i0 = np.floor(src)
     f = (src - i0).astype(np.float32)
-    cols = np.broadcast_to(np.arange(m), (n, m))
-
-    def at(i):
-        ok = (i >= 0) & (i < n)
-        return np.where(ok, wc[np.clip(i, 0, n - 1), cols], 0.0)
-
-    return ((1.0 - f) * at(i0) + f * at(i0 + 1)).astype(np.float32)
+    flat = (i0.astype(np.intp) + 1) * m + np.arange(m)  # row i0 + 1 of pad, flattened
+    flat_pad = pad.reshape(-1)
+    return (1.0 - f) * flat_pad[flat] + f * flat_pad[flat + m]
