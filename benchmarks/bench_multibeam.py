@@ -4,11 +4,12 @@ against the bare casting of its rays, and how it grows with beams and samples.
 Measures, in one run on this machine:
 
 * an R2Sonic-like ping: 256 beams over 130 deg (0.5 deg across, 1 deg along), 50 m window of
-  1,024 samples, 20 m over a flat floor with a box on it: the ping's time
-  (``render_pings``, one ping: trace, form, pulse, footprints, detection) against the bare
+  1,024 samples, 20 m over a flat floor with a box on it: the ping's time (``render_pings`` of
+  five pings, per ping: trace, form, pulse, footprints, detection) against the bare
   casting of the very rays it cast (Embree alone, on fresh copies, the faster of one thread and
-  the frame's threads, as ``benchmarks/bench_render.py`` measures a frame), and the share of its
-  own per-beam work (footprints, arrivals, detection);
+  the frame's threads, as ``benchmarks/bench_render.py`` measures a frame), the engine's part
+  (trace and form of the frame) and the multibeam's own per-beam work (footprints, arrivals,
+  detection);
 * the same ping through a sound-speed profile (two-point ray tracing per beam, the columns
   mapped to time);
 * sweeps: beams (64 to 512) and samples (512 to 4,096), each with its bare cast and ratio.
@@ -36,6 +37,10 @@ import numpy as np
 import sonarsim
 from sonarsim.instruments import render_pings
 from sonarsim.instruments import multibeam as mb
+
+
+#: Pings per render call measured (the steady state of a survey's pings).
+PINGS = 5
 
 
 def scene(n_beams: int = 256, n_samples: int = 1024, profile: bool = False) -> dict:
@@ -101,12 +106,25 @@ def own_work_s(sim, spec, repeats: int) -> float:
     return statistics.median(times)
 
 
+def engine_s(sim, spec, repeats: int) -> float:
+    """The engine's part of a ping: :meth:`Simulator.trace` and :meth:`Simulator.form` of its frame."""
+    channel = spec.channels()[0]
+    pose = mb.mounted(sim.scene.vehicle_pose, channel.mount)
+    fan = mb._fan(sim, spec, channel.sonar)
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        sim.form(sim.trace(pose, sonar=channel.sonar, fan=fan), keep_rays=False, speckle=False, frame=0, sensor=False)
+        times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
 def measure(name: str, doc: dict, repeats: int) -> dict:
     sim = sonarsim.Simulator(doc)
     spec = sim.scene.instruments[0]
 
-    def ping():
-        return render_pings(sim, n_pings=1, speckle=False)
+    def ping():  # a survey's steady state: PINGS pings per call, the call's own set-up shared
+        return render_pings(sim, n_pings=PINGS, speckle=False)
 
     for _ in range(2):
         ping()
@@ -129,14 +147,17 @@ def measure(name: str, doc: dict, repeats: int) -> dict:
                     else:
                         caster.cast_raw(o, d, tfar, threads, min_chunk=4096)
                 casts[split].append(time.perf_counter() - t)
-    frame = statistics.median(pings)
-    cast = min(statistics.median(v) for v in casts.values())
+    frame = statistics.median(pings) / PINGS
+    cast = min(statistics.median(v) for v in casts.values()) / PINGS
+    n_rays //= PINGS
     own = own_work_s(sim, spec, max(3, repeats // 3))
+    engine = engine_s(sim, spec, max(3, repeats // 3))
     sim.close()
     across, along = spec.ray_counts()
     return {"case": name, "n_beams": spec.n_beams, "n_samples": spec.n_samples, "rays_across": across,
             "rays_along": along, "rays_per_ping": n_rays, "ping_ms": 1e3 * frame, "bare_cast_ms": 1e3 * cast,
-            "ping_over_cast": frame / cast, "own_per_beam_work_ms": 1e3 * own,
+            "ping_over_cast": frame / cast, "engine_trace_form_ms": 1e3 * engine, "engine_over_cast": engine / cast,
+            "own_per_beam_work_ms": 1e3 * own,
             "profile": spec.sound_speed_profile is not None}
 
 
@@ -168,11 +189,14 @@ def main(argv=None) -> int:
                         "bare_cast": exponent(samples, [r["bare_cast_ms"] for r in sweep_samples])},
         },
     }
-    head = f"{'case':<24} {'beams':>5} {'samples':>7} {'rays':>8} {'ping ms':>8} {'cast ms':>8} {'ratio':>6} {'own ms':>7}"
-    print(head)
+    print(f"{'case':<22} {'beams':>5} {'samples':>7} {'rays':>7} {'ping ms':>8} {'cast ms':>8} {'ratio':>6} "
+          f"{'engine ms':>9} {'own ms':>7}")
     for r in rows + sweep_beams + sweep_samples:
-        print(f"{r['case']:<24} {r['n_beams']:>5} {r['n_samples']:>7} {r['rays_per_ping']:>8,} {r['ping_ms']:>8.2f} "
-              f"{r['bare_cast_ms']:>8.2f} {r['ping_over_cast']:>6.2f} {r['own_per_beam_work_ms']:>7.2f}")
+        print(f"{r['case']:<22} {r['n_beams']:>5} {r['n_samples']:>7} {r['rays_per_ping']:>7,} {r['ping_ms']:>8.2f} "
+              f"{r['bare_cast_ms']:>8.2f} {r['ping_over_cast']:>6.2f} {r['engine_trace_form_ms']:>9.2f} "
+              f"{r['own_per_beam_work_ms']:>7.2f}")
+    print("(ping: per ping of a 5-ping call; cast: the bare casting of its rays; engine: trace + form of its frame; "
+          "own: the multibeam's per-beam work)")
     e = results["exponents"]
     print(f"ping time ~ beams^{e['beams']['ping']:.2f} (bare cast ^{e['beams']['bare_cast']:.2f}), "
           f"~ samples^{e['samples']['ping']:.2f} (bare cast ^{e['samples']['bare_cast']:.2f})")

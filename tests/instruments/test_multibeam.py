@@ -235,7 +235,8 @@ def test_a_ray_that_turns_has_no_sounding():
     p = math.sin(math.radians(70.0)) / 1500.0  # horizontal where c = 1596 m/s, at 32 m
     x, z = prof.trace(np.array([p]), np.zeros(1), np.array([0.3]))
     assert np.isnan(x[0]) and np.isnan(z[0])
-    p2, _ = prof.solve(np.zeros(1), np.array([45.0]), np.array([300.0]))  # beyond the 216 m a ray grazing at 45 m reaches
+    # beyond the 216 m that a ray grazing at 45 m reaches
+    p2, _ = prof.solve(np.zeros(1), np.array([45.0]), np.array([300.0]))
     assert np.isnan(p2[0])
 
 
@@ -398,3 +399,24 @@ def test_an_unknown_preset_is_named():
     # (without the presets module in the build, and with it: an unknown name either way)
     with pytest.raises(ConfigError, match="sonar.preset"):
         sonarsim.load_scene(scene(preset="no-such-multibeam"))
+
+
+def test_the_benchmark_runs_at_tiny_sizes(tmp_path):
+    """Smoke test of benchmarks/bench_multibeam.py (no timing is asserted)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    out = tmp_path / "bench.json"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root / "src"), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, str(root / "benchmarks" / "bench_multibeam.py"), "--quick", "--json",
+                           str(out)], capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr
+    res = json.loads(out.read_text())
+    assert [r["n_beams"] for r in res["beams"]] == [16, 32] and len(res["samples"]) == 2
+    for r in res["cases"] + res["beams"] + res["samples"]:
+        assert r["ping_ms"] > 0 and r["bare_cast_ms"] > 0 and r["rays_per_ping"] > 0
+        assert r["ping_over_cast"] == pytest.approx(r["ping_ms"] / r["bare_cast_ms"])

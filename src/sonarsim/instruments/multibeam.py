@@ -154,7 +154,8 @@ class SoundSpeedProfile:
         object.__setattr__(self, "depth_m", z)
         object.__setattr__(self, "speed_m_s", c)
         if not z or len(z) != len(c):
-            raise ConfigError("", f"needs at least one [depth_m, speed_m_s] knot, got {len(z)} depths and {len(c)} speeds")
+            raise ConfigError("", f"needs at least one [depth_m, speed_m_s] knot, got {len(z)} depths and "
+                              f"{len(c)} speeds")
         if not all(math.isfinite(v) and 0.0 <= v <= 1.2e4 for v in z):
             raise ConfigError("", f"depths must lie in [0, 12000] m, got {list(z)}")
         if any(b <= a for a, b in zip(z, z[1:])):
@@ -487,7 +488,8 @@ class MultibeamSpec(InstrumentSpec):
                 raise ConfigError("beam_angles_deg", "must be [first, last]: the port-most and starboard-most beam "
                                   f"centres, degrees within +-{MAX_BEAM_ANGLE_DEG:g}; got {shown(a)}")
             if not a[0] > a[1] and self.n_beams > 1:
-                raise ConfigError("beam_angles_deg", f"the first (port-most, > 0 to port) must exceed the last; got {list(a)}")
+                raise ConfigError("beam_angles_deg",
+                                  f"the first (port-most, > 0 to port) must exceed the last; got {list(a)}")
             object.__setattr__(self, "beam_angles_deg", (float(a[0]), float(a[1])))
         if self.beam_spacing not in SPACINGS:
             raise ConfigError("beam_spacing", f"must be one of {', '.join(SPACINGS)}; got {shown(self.beam_spacing)}")
@@ -587,7 +589,8 @@ class MultibeamSpec(InstrumentSpec):
         ``profile``: ``'processing'`` (default: :attr:`processing`), ``'true'``, None (straight)
         or a profile. Returns ``(world, vehicle)``, each ``(n_pings, n_beams, 3)``, metres.
         """
-        prof = self.processing if profile == "processing" else self.sound_speed_profile if profile == "true" else profile
+        prof = {"processing": self.processing, "true": self.sound_speed_profile}.get(profile, profile) \
+            if isinstance(profile, str) else profile
         return georeference(film.two_way_time_s, film.angle_deg, [v.rpy_deg for v in vehicle_poses], self.mount,
                             position_m=[v.position_m for v in vehicle_poses], heave_m=film.geometry.heave_m,
                             tilt_deg=film.tilt_deg, profile=prof, sound_speed_m_s=self.sound_speed_m_s,
