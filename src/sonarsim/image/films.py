@@ -254,6 +254,9 @@ class Soundings:
     points_m : (n_pings, n_beams, 3) float64 ndarray, optional
         Where each beam met the bottom, the world frame, metres (renders: the truth).
     source : str
+    tilt_deg : (n_pings, n_beams) float64 ndarray, optional
+        Each sounding's angle along track in the head's frame, degrees, > 0 forward (the
+        transmit's tilt, as Kongsberg files log it; a render's refracted arrivals); None: 0.
     """
 
     angle_deg: np.ndarray
@@ -263,6 +266,7 @@ class Soundings:
     water_column: np.ndarray | None = None
     points_m: np.ndarray | None = None
     source: str = "render"
+    tilt_deg: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         shape = np.shape(self.two_way_time_s)
@@ -271,6 +275,8 @@ class Soundings:
                              f"shape, got {np.shape(self.angle_deg)}, {shape}, {np.shape(self.intensity)}")
         if len(self.geometry) != shape[0]:
             raise ValueError(f"Soundings has {shape[0]} pings but geometry for {len(self.geometry)}")
+        if self.tilt_deg is not None and np.shape(self.tilt_deg) != shape:
+            raise ValueError(f"Soundings.tilt_deg must be {shape} like two_way_time_s, got {np.shape(self.tilt_deg)}")
 
     @property
     def n_pings(self) -> int:
@@ -287,10 +293,14 @@ class Soundings:
 
     def head_points(self, refracted: bool = False) -> np.ndarray:
         """Where each beam met the bottom in the head's frame (x forward, y port, z up) with
-        straight rays, metres, ``(n_pings, n_beams, 3)``: ``(0, r sin a, -r cos a)``."""
+        straight rays, metres, ``(n_pings, n_beams, 3)``: ``(0, r sin a, -r cos a)``
+        (``r (sin b, cos b sin a, -cos b cos a)`` with a tilt ``b``)."""
         a = np.radians(self.angle_deg)
         r = self.range_m
-        return np.stack([np.zeros_like(r), r * np.sin(a), -r * np.cos(a)], axis=-1)
+        if self.tilt_deg is None:
+            return np.stack([np.zeros_like(r), r * np.sin(a), -r * np.cos(a)], axis=-1)
+        b = np.radians(self.tilt_deg)
+        return np.stack([r * np.sin(b), r * np.cos(b) * np.sin(a), -r * np.cos(b) * np.cos(a)], axis=-1)
 
     def level_points(self) -> np.ndarray:
         """:meth:`head_points` turned by each ping's roll and pitch into the level frame (x forward
