@@ -519,3 +519,43 @@ def test_corrupted_copies_give_recording_errors_only(tmp_path, fmt):
                             assert k == rec.n_frames
             except RecordingError:
                 pass
+
+
+def _h0_offset(field: str) -> int:
+    """Byte offset of an H0 field from the section's start (after its name and size)."""
+    import re
+
+    from sonarsim.io.readers.r2sonic import _H0, _H0_FIELDS
+
+    tokens = re.findall(r"\d*[a-zA-Z]", _H0.format[1:])  # one token per field
+    return 4 + struct.calcsize(">" + "".join(tokens[:_H0_FIELDS.index(field)]))
+
+
+def _xtf(struct_name: str, field: str) -> int:
+    import pyxtf
+
+    return getattr(getattr(pyxtf, struct_name), field).offset
+
+
+@needs_data
+@pytest.mark.parametrize("fmt, field, patch", [
+    ("xtf", "NumChansToFollow", lambda b, at: struct.pack_into("<H", b, at + _xtf("XTFPingHeader", "NumChansToFollow"), 9)),
+    ("xtf", "SlantRange", lambda b, at: struct.pack_into("<f", b, at + 256 + _xtf("XTFPingChanHeader", "SlantRange"), 1e6)),
+    ("xtf", "SoundVelocity", lambda b, at: struct.pack_into("<f", b, at + _xtf("XTFPingHeader", "SoundVelocity"), 5.0)),
+    ("r2sonic", "H0.SoundSpeed", lambda b, at: struct.pack_into(">f", b, b.find(b"BTH0", at) + 12 + _h0_offset("SoundSpeed"), 99.0)),
+    ("r2sonic", "R0.ScalingFactor", lambda b, at: struct.pack_into(">f", b, b.find(b"R0", b.find(b"BTH0", at)) + 4, 3e38)),
+    ("imagenex852", "range", lambda b, at: b.__setitem__(at + 107, 0)),
+    ("imagenex852", "terminator", lambda b, at: b.__setitem__(at + 612, 0)),
+    ("imagenex852", "data bytes", lambda b, at: b.__setitem__(at + 110, 0)),
+    ("imagenex852", "date", lambda b, at: b.__setitem__(at + 11, ord("X"))),
+])
+def test_impossible_header_fields_end_the_good_pings_by_name(tmp_path, fmt, field, patch):
+    data = bytearray(FILES[fmt].read_bytes())
+    patch(data, ping_offsets(fmt)[6])
+    p = tmp_path / "bad"
+    p.write_bytes(bytes(data))
+    with open_recording_any(p) as rec:
+        assert rec.n_frames == 6
+        assert field in rec.damage.field, rec.damage
+        with pytest.raises(RecordingError, match="ping 6"):
+            rec.read(6)
