@@ -46,7 +46,8 @@ ms of the same second) are interpolated linearly to each ping's time (``H0``'s T
 TimeNanoseconds; headings unwrapped first). A ping more than ``ATTITUDE_GAP_S`` from the
 nearest attitude record (``POSITION_GAP_S`` for positions) gets NaN: the records of the test
 data come at 25 Hz (attitude and position alike), pings at 19 Hz. Only the records before a
-damaged ping are used. (QINSy's own XTF ping header repeats the attitude record before the ping,
+damaged ping are used; records with impossible values (a roll or pitch beyond 90 deg, a latitude
+beyond 90 deg, ...) are skipped. (QINSy's own XTF ping header repeats the attitude record before the ping,
 e.g. the roll of 23:52:15.908 for the ping of 15.920, and ``SoundVelocity`` as c/2; the reader
 uses neither. The ping header's time agrees with H0's to 0.01 s.)
 """
@@ -77,6 +78,12 @@ _H0_FIELDS = ("ModelNumber", "SerialNumber", "TimeSeconds", "TimeNanoseconds", "
               "TxSteeringVert", "TxSteeringHoriz", "ProjTemp", "VTXOffset", "RxBandwidth", "RxSampleRate",
               "RxRange", "RxGain", "RxSpreading", "RxAbsorption", "RxMountTilt", "RxMiscInfo", "reserved", "Points")
 _BTH0 = b"BTH0"
+# Scales of the u16 arrays (the test data: R0 3.8e-6 s, A2 7.0e-7 rad, I1 1.0 uPa), with margins
+# that keep every decoded value plausible (two-way times under 65 s, angles under 90 deg
+# after 1024 steps of 65535) rather than letting a corrupt scale overflow.
+_SCALE_LIMITS = {"R0": (1e-10, 1e-3), "A2": (1e-12, 2e-8 * 1024), "I1": (1e-9, 1e9)}
+_SCALE_WHAT = {"R0": "two-way times under 65 s", "A2": "beam angles within reach of 90 deg",
+               "I1": "intensities finite"}
 
 
 class R2SonicRecording(XtfPackets):
@@ -145,8 +152,8 @@ class R2SonicRecording(XtfPackets):
                 raise RecordingError(src, f"{name} has {ssize} bytes, too few for its {n} points", where,
                                      f"{name}.SectionSize")
             scale = struct.unpack_from(">f", rec, j + 4 + skip)[0]
-            if not (math.isfinite(scale) and scale > 0.0):
-                raise RecordingError(src, f"{scale!r} is not a positive scale", where, f"{name}.ScalingFactor")
+            check_within(src, where, f"{name}.ScalingFactor", scale, _SCALE_LIMITS[name], "",
+                         f"the scales that keep {_SCALE_WHAT[name]}")
             data_at = j + 8 + skip + (24 if name == "A2" else 0)  # A2: 6 reserved floats after the scale
             return scale, np.frombuffer(rec, ">u2", n, data_at)
 
@@ -198,8 +205,14 @@ class R2SonicRecording(XtfPackets):
                 pos.append((t, q.RawYcoordinate, q.RawXcoordinate))
         att_a = np.array(att, np.float64).reshape(-1, 5)
         pos_a = np.array(pos, np.float64).reshape(-1, 3)
-        att_a = att_a[np.isfinite(att_a[:, 0])]
-        pos_a = pos_a[np.isfinite(pos_a[:, 0]) & ~((pos_a[:, 1] == 0) & (pos_a[:, 2] == 0))]
+        # Records with impossible values are skipped, not refused: they only feed the
+        # interpolation (a ping without a record near it gets NaN).
+        with np.errstate(invalid="ignore"):
+            att_ok = (np.isfinite(att_a).all(1) & (np.abs(att_a[:, 1:3]) <= 90.0).all(1)
+                      & (np.abs(att_a[:, 3]) <= 100.0) & (np.abs(att_a[:, 4]) <= 720.0))
+            pos_ok = (np.isfinite(pos_a).all(1) & (np.abs(pos_a[:, 1]) <= 90.0) & (np.abs(pos_a[:, 2]) <= 360.0)
+                      & ~((pos_a[:, 1] == 0) & (pos_a[:, 2] == 0)))
+        att_a, pos_a = att_a[att_ok], pos_a[pos_ok]
         self._aux = (att_a[np.argsort(att_a[:, 0], kind="stable")], pos_a[np.argsort(pos_a[:, 0], kind="stable")])
         return self._aux
 

@@ -52,7 +52,7 @@ Iver2 / Sea Scan HDS recording in the test data (``iver2_seascan_pings_0-179.xtf
   ``SensorXcoordinate``, and ``x_m``, ``y_m`` east and north of the first ping with a position
   (equirectangular, Earth radius 6371 km: side-scan lines span metres, not degrees);
   ``NavUnits`` 0: ``x_m``, ``y_m`` are the coordinates themselves (metres), latitude and
-  longitude NaN.
+  longitude NaN. A latitude beyond 90 deg or a longitude beyond 360 deg is NaN.
 
 Unknown values are NaN. A ping whose position, depth, altitude, pitch, roll, heading and speed
 are all exactly 0 carries no navigation at all (ping 0 of the test file: the vehicle's
@@ -439,6 +439,8 @@ class XtfSidescanRecording(XtfPackets):
             range_max_m=np.full(len(ks), self._shape[2]),
         )
         if int(self.file_header.NavUnits) == 3:
+            off_earth = ~((np.abs(y) <= 90.0) & (np.abs(x) <= 360.0))  # (NaN included)
+            x, y = np.where(off_earth, np.nan, x), np.where(off_earth, np.nan, y)
             geo["latitude_deg"], geo["longitude_deg"] = y, x
             origin = self._position_origin()
             if origin is not None:
@@ -455,7 +457,7 @@ class XtfSidescanRecording(XtfPackets):
             for k in range(self.n_frames):
                 h = self._layouts[k]["header"]
                 lat, lon = float(h.SensorYcoordinate), float(h.SensorXcoordinate)
-                if (lat, lon) != (0.0, 0.0):
+                if (lat, lon) != (0.0, 0.0) and abs(lat) <= 90.0 and abs(lon) <= 360.0:
                     self._origin = (lat, lon)
                     break
         return self._origin
