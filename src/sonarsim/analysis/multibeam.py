@@ -1,0 +1,176 @@
+"""A multibeam recording against the simulator, with its logged attitude (issue 38 item 6).
+
+The R2Sonic recording logs per ping the head's roll, pitch, heave, heading and position, and per
+beam the two-way travel time, the angle and the backscatter. What it does not log is the floor:
+a plane (depth and tilt) is fitted to the soundings of calibration pings, and the simulator
+renders the other pings over it (:mod:`sonarsim.instruments.multibeam`: each beam's bottom
+detected in the engine's water column) with each ping's attitude.
+
+Scored on those other pings, beside trivial predictions on the same pings:
+
+* **per-beam range** (``c t / 2``) against the recorded two-way times: the calibration pings'
+  mean range per beam, and a level flat floor at their mean depth seen straight
+  (``depth / cos(angle)``, attitude ignored);
+* **per-beam backscatter** (dB): the calibration pings' mean per beam, against the floor's
+  angular response (dB against incidence, a table fitted on the calibration pings) read at each
+  beam's incidence as the render finds it (the ping's attitude and the floor's tilt move every
+  beam's incidence), plus each beam's own gain (fitted with it: the head's per-beam
+  calibration).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..image.films import Soundings
+
+__all__ = ["world_points", "fit_floor", "render_pings_over", "score", "INCIDENCE_KNOTS_DEG"]
+
+#: Knots of the fitted angular response, degrees of incidence.
+INCIDENCE_KNOTS_DEG = np.arange(0.0, 75.0, 5.0)
+
+
+def world_points(s: Soundings, pings) -> np.ndarray:
+    """The soundings of ``pings`` in a local world frame (x east, y north, z up; the head's
+    positions and heave), metres, ``(n, n_beams, 3)``: roll and pitch applied
+    (:meth:`Soundings.level_points`), then the heading (yaw ``90 - heading``)."""
+    pings = np.asarray(pings)
+    level = s.level_points()[pings]
+    yaw = np.radians(90.0 - s.geometry.heading_deg[pings])[:, None]
+    x, y = level[..., 0], level[..., 1]
+    g = s.geometry
+    east = x * np.cos(yaw) - y * np.sin(yaw) + np.nan_to_num(g.x_m[pings])[:, None]
+    north = x * np.sin(yaw) + y * np.cos(yaw) + np.nan_to_num(g.y_m[pings])[:, None]
+    up = level[..., 2] + np.nan_to_num(g.heave_m[pings])[:, None]
+    return np.stack([east, north, up], axis=-1)
+
+
+def fit_floor(s: Soundings, pings) -> np.ndarray:
+    """The plane ``z = a + b x + c y`` through the soundings of ``pings`` (least squares, twice:
+    the second time without soundings more than 3 robust sigmas off the first). Returns ``(a, b, c)``."""
+    p = world_points(s, pings).reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1)]
+    keep = np.ones(len(p), bool)
+    for _ in range(2):
+        A = np.column_stack([np.ones(keep.sum()), p[keep, 0], p[keep, 1]])
+        coef = np.linalg.lstsq(A, p[keep, 2], rcond=None)[0]
+        r = p[:, 2] - (coef[0] + coef[1] * p[:, 0] + coef[2] * p[:, 1])
+        keep = np.abs(r) < 3.0 * 1.4826 * np.median(np.abs(r - np.median(r)))
+    return coef
+
+
+def _scene(s: Soundings, floor: np.ndarray, n_samples: int, range_max_m: float) -> dict:
+    a, b, c = floor
+    normal = np.array([-b, -c, 1.0])
+    normal /= np.linalg.norm(normal)
+    first, last = float(np.nanmedian(s.angle_deg[:, 0])), float(np.nanmedian(s.angle_deg[:, -1]))
+    return {
+        "sonar": {"type": "multibeam", "preset": "r2sonic_2026_400", "beam_angles_deg": [first, last],
+                  "n_beams": s.n_beams, "range_max_m": range_max_m, "n_samples": n_samples,
+                  "sound_speed_m_s": float(np.nanmedian(s.geometry.sound_speed_m_s)),
+                  "pose": {"position_m": [0.0, 0.0, 0.0]}},
+        "planes": [{"name": "floor", "point_m": [0.0, 0.0, float(a)], "normal": normal.tolist(),
+                    "material": {"law": "lambert", "mu": 0.01}, "specular": 0.0}],
+        "render": {"max_order": 1},
+    }
+
+
+def render_pings_over(s: Soundings, floor: np.ndarray, pings, n_samples: int = 2048, range_max_m: float = 32.0):
+    """The recording's ``pings`` rendered over the plane ``floor`` with each ping's attitude,
+    heading, position and heave: the simulator's :class:`Soundings` (its ``points_m`` the truth)."""
+    import sonarsim
+    from ..core.transforms import Pose
+    from ..instruments import render_pings
+
+    pings = np.asarray(pings)
+    g = s.geometry
+    poses = [Pose((float(np.nan_to_num(g.x_m[k])), float(np.nan_to_num(g.y_m[k])), float(np.nan_to_num(g.heave_m[k]))),
+                  (float(g.roll_deg[k]), float(g.pitch_deg[k]), float(90.0 - g.heading_deg[k]))) for k in pings]
+    with sonarsim.Simulator(_scene(s, floor, n_samples, range_max_m)) as sim:
+        return render_pings(sim, poses=poses, times_s=g.time_s[pings], speckle=False)
+
+
+def _interp_beams(angle_from: np.ndarray, values: np.ndarray, angle_to: np.ndarray) -> np.ndarray:
+    """Per ping, ``values`` at ``angle_from`` read at ``angle_to`` (angles descend across beams)."""
+    out = np.full(angle_to.shape, np.nan)
+    for p in range(angle_to.shape[0]):  # per ping: one np.interp over its beams
+        ok = np.isfinite(values[p]) & np.isfinite(angle_from[p])
+        if ok.sum() > 1:
+            out[p] = np.interp(-angle_to[p], -angle_from[p][ok], values[p][ok], left=np.nan, right=np.nan)
+    return out
+
+
+def _incidence_deg(render: Soundings, floor: np.ndarray, heads: np.ndarray) -> np.ndarray:
+    a, b, c = floor
+    n = np.array([-b, -c, 1.0]) / np.linalg.norm([-b, -c, 1.0])
+    d = render.points_m - heads[:, None, :]
+    cos = np.abs(d @ n) / np.linalg.norm(d, axis=-1)
+    return np.degrees(np.arccos(np.clip(cos, 0.0, 1.0)))
+
+
+def score(s: Soundings, calibration, test, n_samples: int = 2048) -> dict:
+    """Fit the floor on ``calibration`` pings, render ``test`` pings over it, score (module notes).
+
+    Returns
+    -------
+    dict
+        ``floor`` (depth below the heads' mean height, tilt east and north, degrees);
+        ``range_m``: median absolute error of the model and the baselines; ``backscatter_db``:
+        rms error of the model and the baseline; the pings.
+    """
+    cal, test = np.asarray(calibration), np.asarray(test)
+    floor = fit_floor(s, cal)
+    c_head = s.geometry.sound_speed_m_s[test][:, None]
+    measured = s.two_way_time_s[test] * c_head / 2.0
+    render = render_pings_over(s, floor, test, n_samples)
+    model = _interp_beams(render.angle_deg, render.range_m, s.angle_deg[test])
+    cal_range = s.two_way_time_s[cal] * s.geometry.sound_speed_m_s[cal][:, None] / 2.0
+    per_beam = np.nanmean(cal_range, axis=0)[None, :]
+    depth = float(np.nanmedian(-world_points(s, cal)[..., 2]))
+    level = depth / np.cos(np.radians(s.angle_deg[test]))
+    cells = np.isfinite(measured) & np.isfinite(model)
+    med = lambda a: float(np.median(np.abs(a[cells] - measured[cells])))  # noqa: E731
+
+    # backscatter: the angular response fitted on the calibration pings, read at the render's incidence
+    heads = np.column_stack([np.nan_to_num(s.geometry.x_m), np.nan_to_num(s.geometry.y_m),
+                             np.nan_to_num(s.geometry.heave_m)])
+    with np.errstate(divide="ignore"):
+        db = 20.0 * np.log10(np.where(s.intensity > 0, s.intensity, np.nan))  # micropascal: an amplitude
+    cal_render = render_pings_over(s, floor, cal, n_samples)
+    cal_inc = _interp_beams(cal_render.angle_deg, _incidence_deg(cal_render, floor, heads[cal]), s.angle_deg[cal])
+    test_inc = _interp_beams(render.angle_deg, _incidence_deg(render, floor, heads[test]), s.angle_deg[test])
+    ok = np.isfinite(cal_inc) & np.isfinite(db[cal])
+    knots = INCIDENCE_KNOTS_DEG
+    # piecewise-linear in incidence: hat functions on the knots, least squares
+    def basis(x):
+        return np.clip(1.0 - np.abs(x[:, None] - knots[None, :]) / (knots[1] - knots[0]), 0.0, None)
+    # ... plus each beam's own gain (the head's per-beam calibration): one least squares over
+    # the knots' values and the beams' offsets (their mean held at 0: the knots carry the level)
+    beam = np.broadcast_to(np.arange(s.n_beams), cal_inc.shape)[ok]
+    one_hot = np.zeros((ok.sum(), s.n_beams))
+    one_hot[np.arange(ok.sum()), beam] = 1.0
+    A = np.vstack([np.hstack([basis(cal_inc[ok]), one_hot]),
+                   np.hstack([np.zeros((1, len(knots))), np.ones((1, s.n_beams))])])
+    y = np.concatenate([db[cal][ok], [0.0]])
+    sol = np.linalg.lstsq(A, y, rcond=None)[0]
+    coef, offsets = sol[: len(knots)], sol[len(knots):]
+    bs_cells = np.isfinite(test_inc) & np.isfinite(db[test])
+    bs_model = np.full(test_inc.shape, np.nan)
+    beams_test = np.broadcast_to(np.arange(s.n_beams), test_inc.shape)
+    bs_model[bs_cells] = basis(test_inc[bs_cells]) @ coef + offsets[beams_test[bs_cells]]
+    bs_per_beam = np.nanmean(db[cal], axis=0)[None, :]
+    # what speckle leaves predictable: each test ping's beam by its neighbouring pings' (dB mean)
+    neighbours = np.full(db.shape, np.nan)
+    neighbours[1:-1] = (db[:-2] + db[2:]) / 2.0
+    neighbours = neighbours[test]
+    bs_cells &= np.isfinite(neighbours)
+    rms = lambda a: float(np.sqrt(np.nanmean((a - db[test])[bs_cells] ** 2)))  # noqa: E731
+    tilt = np.degrees(np.arctan(floor[1:]))
+    return {
+        "floor": {"depth_m": depth, "tilt_east_deg": float(tilt[0]), "tilt_north_deg": float(tilt[1])},
+        "range_m": {"model": med(model), "calibration_mean_per_beam": med(np.broadcast_to(per_beam, measured.shape)),
+                    "level_floor": med(level), "cells": int(cells.sum())},
+        "backscatter_db": {"model": rms(bs_model), "calibration_mean_per_beam": rms(np.broadcast_to(bs_per_beam, db[test].shape)),
+                           "ceiling_neighbours": rms(neighbours), "cells": int(bs_cells.sum())},
+        "calibration_pings": [int(cal.min()), int(cal.max())], "test_pings": [int(test.min()), int(test.max())],
+    }
