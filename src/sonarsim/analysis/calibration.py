@@ -497,6 +497,7 @@ class _Problem:
         self.frames: dict = {}
         self.models: dict = {}
         self._residual: np.ndarray | None = None
+        self._sim = None  # (simulator(): built on first use, one for the whole calibration)
         self.renders = 0
 
     def pose(self, v: dict) -> Pose:
@@ -512,14 +513,34 @@ class _Problem:
         if key not in self.frames:
             # Only the elevation pattern acts on the rays: render with it alone.
             s2 = SensorSpec(elevation_pattern=with_values(spec, v).elevation_pattern)
-            sc = replace(self.scene, sensor=s2, sonar=self.sonar)
-            with Simulator(sc) as sim:
-                img = sim.render(pose, keep_rays=False, speckle=False)
+            total = self.pattern_frame(s2, pose)
             self.renders += 1
             if len(self.frames) > 64:
                 self.frames.clear()
-            self.frames[key] = img.components["total"]
+            self.frames[key] = total
         return self.frames[key], pose
+
+    def simulator(self):
+        """One simulator of the scene (without its sensor) for every render of the calibration:
+        each trial's elevation pattern is in the rays it traces (:meth:`pattern_frame`), not in
+        the scene, so that nothing is built again per trial."""
+        if self._sim is None:
+            self._sim = Simulator(replace(self.scene, sensor=None, sonar=self.sonar))
+        return self._sim
+
+    def pattern_frame(self, pattern: SensorSpec, pose: Pose) -> np.ndarray:
+        """The noise-free total image at ``pose`` with ``pattern``'s elevation pattern on the rays
+        (what a simulator of the scene with that sensor renders: its fan and its span), float32."""
+        from ..core.rays import make_ray_fan
+        from ..sensor.model import SensorModel
+
+        sim = self.simulator()
+        model = SensorModel(pattern, self.sonar, self.scene.render.seed, fields=False)
+        traced = model.trace_sonar(self.sonar)
+        sim.require_frame_memory(traced)
+        fan = make_ray_fan(traced, self.scene.render, model.elevation_gain)
+        paths = sim.trace(pose, self.sonar, fan=fan, traced=traced)
+        return sim.form(paths, keep_rays=False, speckle=False, sensor=False).components["total"]
 
     def model(self, spec: SensorSpec):
         from ..sensor.model import SensorModel
@@ -1362,10 +1383,7 @@ def _fit_elevation_correction(problem: _Problem, spec: SensorSpec, v: dict, say)
         db = np.full(n, -300.0)
         db[k] = 0.0
         el_k = replace(base_el, correction_db=tuple(db))
-        sc = replace(problem.scene, sensor=SensorSpec(elevation_pattern=el_k), sonar=problem.sonar)
-        with Simulator(sc) as sim:
-            images.append(np.asarray(sim.render(pose, keep_rays=False, speckle=False).components["total"],
-                                     dtype=np.float64))
+        images.append(np.asarray(problem.pattern_frame(SensorSpec(elevation_pattern=el_k), pose), dtype=np.float64))
         problem.renders += 1
     stack = np.stack(images)  # (n, n_range_bins, n_beams)
     model = problem.model(replace(s2, elevation_pattern=base_el))

@@ -477,7 +477,8 @@ class Simulator:
         return out
 
     def trace(self, pose: Any = None, sonar: SonarConfig | None = None, labels: bool | str = False,
-              primitives: bool = False, paths: bool = False, fan: RayFan | None = None) -> FramePaths:
+              primitives: bool = False, paths: bool = False, fan: RayFan | None = None,
+              traced: SonarConfig | None = None) -> FramePaths:
         """The search: the frame's paths for the sonar at ``pose`` (the first step of :meth:`render`).
 
         Parameters
@@ -497,6 +498,9 @@ class Simulator:
             The rays to cast, in the sonar's frame, made for ``sonar`` as it is traced (an
             instrument's own fan, its pattern in the rays' weights: :func:`~sonarsim.core.rays.make_ray_fan`).
             Default: the scene's rays for ``sonar`` (:meth:`ray_fan`, with the sensor's pattern).
+        traced : SonarConfig, optional
+            With ``fan``: the sonar whose aperture the fan spans (a sensor pattern's wider
+            span); default ``sonar``.
 
         Returns
         -------
@@ -524,7 +528,7 @@ class Simulator:
             fan = self.ray_fan(sonar)
             image_sonar, sonar = sonar, self.traced_sonar(sonar)  # the image's grid; the rays' aperture
         else:
-            image_sonar = sonar
+            image_sonar, sonar = sonar, (traced if traced is not None else sonar)
         t1 = time.perf_counter()
         active, multipath, reach = self.frame_reach(sonar, pose)
         spec = None
