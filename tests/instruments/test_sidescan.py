@@ -177,3 +177,19 @@ def test_spec_round_trips_through_its_section():
     assert isinstance(spec, SidescanSpec) and spec.name == "sidescan"
     again = sonarsim.load_scene(s.to_dict())
     assert again.instruments[0] == spec
+
+
+def test_the_sensor_chain_acts_on_the_waterfall():
+    """A sensor section in the side-scan's section: TVG, noise and speckle, the output in 16-bit
+    counts (integers within full scale); its expected output rises with the floor's echo."""
+    doc = scene(sensor={"speckle": True, "noise": {"level_db": 40.0}, "output": {"dtype": "uint16"}})
+    with sonarsim.Simulator(doc) as sim:
+        drawn = render_pings(sim, n_pings=2)
+        mean = render_pings(sim, n_pings=1, speckle=False)
+    assert np.array_equal(drawn.samples, np.round(drawn.samples))  # drawn: counts (the expected output is their mean)
+    for w in (drawn, mean):
+        assert w.samples.min() >= 0 and w.samples.max() <= 65535
+    r = mean.slant_range_m
+    line = mean.samples[0, 0]
+    assert line[(r > ALTITUDE_M + 1) & (r < 20)].mean() > line[r < ALTITUDE_M - 1].mean()  # floor above the water column
+    assert not np.array_equal(drawn.samples[0], drawn.samples[1])
