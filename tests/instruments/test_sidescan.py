@@ -193,3 +193,28 @@ def test_the_sensor_chain_acts_on_the_waterfall():
     line = mean.samples[0, 0]
     assert line[(r > ALTITUDE_M + 1) & (r < 20)].mean() > line[r < ALTITUDE_M - 1].mean()  # floor above the water column
     assert not np.array_equal(drawn.samples[0], drawn.samples[1])
+
+
+def test_the_surfaces_multipath_ghost_arrives_where_the_mirror_path_says():
+    """A mirror-like surface 5 m above the side-scan (10 m over the floor): no echo of its own
+    (albedo 0), but the paths that meet it. The first to arrive leaves down to the floor and
+    comes back off the surface along the fan's upper edge (elevation e = 90 - 2 depression +
+    margin above the horizontal: straight up is outside the fan): its range is
+    (sqrt((20 / tan e)^2 + 10^2) + 20 / sin e) / 2 (19.04 m at e = 60.5 deg); nothing new
+    arrives before it."""
+    surface = {"name": "surface", "point_m": [0.0, 0.0, ALTITUDE_M + 5.0], "normal": [0.0, 0.0, -1.0],
+               "albedo": 0.0, "specular": 0.9}
+    plain, with_surface = scene(), scene(planes=[surface])
+    for doc in (plain, with_surface):
+        doc["render"] = {"max_order": 3}
+    with sonarsim.Simulator(plain) as sim:
+        a = render_pings(sim, speckle=False).samples[0, 0].astype(np.float64)
+    with sonarsim.Simulator(with_surface) as sim:
+        b = render_pings(sim, speckle=False).samples[0, 0].astype(np.float64)
+    e = math.radians(90.0 - 2 * 15.0 + NADIR_MARGIN_DEG)
+    span = 5.0 + (5.0 + ALTITUDE_M)  # the reflected receive leg's vertical run
+    first = (math.hypot(span / math.tan(e), ALTITUDE_M) + span / math.sin(e)) / 2.0
+    extra = b - a
+    lit = np.nonzero(extra > 1e-9 * a.max())[0]
+    assert abs(lit[0] * DR - first) <= 4 * DR, (lit[0] * DR, first)
+    assert np.all(extra >= -1e-7 * a.max())
