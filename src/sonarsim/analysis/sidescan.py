@@ -25,7 +25,6 @@ device's time-varied gain beyond spreading (``range_exponent``), ``n`` the noise
 
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import asdict, dataclass, replace
 

@@ -29,8 +29,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-import numpy as np
-
 from ..core.transforms import Pose
 from ..errors import ConfigError, shown
 from .sonar import SonarConfig

@@ -69,7 +69,7 @@ import numpy as np
 
 from ..config.instruments import Channel, InstrumentSpec, mounted, register
 from ..config.loader import _integer, _number
-from ..config.sensor import PulseSpec, SensorSpec, parse_sensor
+from ..config.sensor import PulseSpec, SensorSpec
 from ..config.sonar import SonarConfig
 from ..core.rays import make_ray_fan
 from ..core.transforms import Pose, rpy_to_matrix
@@ -77,7 +77,8 @@ from ..errors import ConfigError, shown
 from ..image.films import PingGeometry, Soundings, range_axis
 from ..sensor.model import SensorModel
 from . import renders
-from .sidescan import _preset_values, ping_geometry
+from ._sections import parse_section, section_dict
+from .sidescan import ping_geometry
 
 __all__ = ["MultibeamSpec", "SoundSpeedProfile", "render_multibeam", "ping_soundings", "detect_bottom",
            "footprint_points",
@@ -600,62 +601,34 @@ class MultibeamSpec(InstrumentSpec):
 
     @classmethod
     def parse(cls, d: Mapping, key: str, base_dir: Path | None, name: str, mount: Pose) -> "MultibeamSpec":
-        values: dict[str, Any] = {}
-        preset = d.get("preset")
-        if preset is not None:
-            try:
-                values.update(_preset_values(preset, f"{key}.preset", cls))
-            except ModuleNotFoundError:  # a build without the device presets module
-                raise ConfigError(f"{key}.preset", f"no device presets in this build (asked for {shown(preset)}); "
-                                  "give the instrument's keys instead") from None
-        if "swath_deg" in d and "beam_angles_deg" not in d:
-            values.pop("beam_angles_deg", None)  # the file's swath replaces a preset's table
-        if "beam_angles_deg" in d and "swath_deg" not in d:
-            values.pop("swath_deg", None)
-        for k in cls.keys:
-            if k in ("preset", "sensor") or k not in d:
-                continue
-            v = d[k]
-            if k in ("n_beams", "n_samples"):
-                values[k] = _integer(v, f"{key}.{k}")
-            elif k in ("ping_rate_hz", "surface_height_m", "processing_profile", "sound_speed_profile",
-                       "swath_deg", "beam_angles_deg") and v is None:
-                values[k] = None
-            elif k in ("beam_spacing", "detection") or (k in ("rays_across", "rays_along") and v == "auto"):
-                values[k] = v
-            elif k in ("rays_across", "rays_along"):
-                values[k] = _integer(v, f"{key}.{k}")
-            elif k == "beam_angles_deg":
+        def preset_keys(values: dict, section: Mapping) -> None:
+            if "swath_deg" in section and "beam_angles_deg" not in section:
+                values.pop("beam_angles_deg", None)  # the file's swath replaces a preset's table
+            if "beam_angles_deg" in section and "swath_deg" not in section:
+                values.pop("swath_deg", None)
+
+        def convert(k: str, v: Any, where: str) -> Any:
+            if v is None and k in ("surface_height_m", "processing_profile", "sound_speed_profile", "swath_deg",
+                                   "beam_angles_deg"):
+                return None
+            if k in ("beam_spacing", "detection") or (k in ("rays_across", "rays_along") and v == "auto"):
+                return v
+            if k in ("rays_across", "rays_along"):
+                return _integer(v, where)
+            if k == "beam_angles_deg":
                 if not isinstance(v, (list, tuple)) or len(v) != 2:
-                    raise ConfigError(f"{key}.{k}", f"must be [first, last] (degrees, > 0 to port), got {shown(v)}")
-                values[k] = (_number(v[0], f"{key}.{k}[0]"), _number(v[1], f"{key}.{k}[1]"))
-            elif k in ("sound_speed_profile", "processing_profile"):
-                values[k] = SoundSpeedProfile.parse(v, f"{key}.{k}")
-            else:
-                values[k] = _number(v, f"{key}.{k}")
-        try:
-            sensor = parse_sensor(d.get("sensor"), base_dir) if d.get("sensor") is not None else None
-        except ConfigError as exc:
-            raise ConfigError(f"{key}.{exc.key}", exc.detail) from None
-        try:
-            return cls(name=name, mount=mount, sensor=sensor, preset=preset, **values)
-        except ConfigError as exc:
-            raise ConfigError(f"{key}.{exc.key}", exc.detail) from None
+                    raise ConfigError(where, f"must be [first, last] (degrees, > 0 to port), got {shown(v)}")
+                return (_number(v[0], f"{where}[0]"), _number(v[1], f"{where}[1]"))
+            if k in ("sound_speed_profile", "processing_profile"):
+                return SoundSpeedProfile.parse(v, where)
+            return NotImplemented
+
+        return parse_section(cls, d, key, base_dir, name, mount, integers=("n_beams", "n_samples"),
+                             nullable=("ping_rate_hz",), convert=convert, preset_keys=preset_keys)
 
     def to_dict(self) -> dict:
-        out = self._header()
-        for k in self.keys:
-            v = getattr(self, k)
-            if k == "sensor":
-                if v is not None:
-                    out[k] = v.to_dict()
-            elif isinstance(v, SoundSpeedProfile):
-                out[k] = v.to_list()
-            elif isinstance(v, tuple):
-                out[k] = list(v)
-            elif v is not None:
-                out[k] = v
-        return out
+        return section_dict(self, lambda v: v.to_list() if isinstance(v, SoundSpeedProfile)
+                            else list(v) if isinstance(v, tuple) else v)
 
 
 # -- per-beam work (vectorised over beams) -------------------------------------------------

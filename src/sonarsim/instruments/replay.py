@@ -16,8 +16,6 @@ Unknown values (NaN) fall back to the scene's vehicle pose, each field alone.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ..core.transforms import Pose

@@ -40,20 +40,20 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
 from ..config.instruments import Channel, InstrumentSpec, mounted, register
-from ..config.loader import _integer, _number
-from ..config.sensor import PatternSpec, SensorSpec, parse_sensor
+from ..config.sensor import PatternSpec, SensorSpec
 from ..config.sonar import SonarConfig
 from ..core.rays import make_ray_fan
 from ..core.transforms import Pose
-from ..errors import ConfigError, shown
+from ..errors import ConfigError
 from ..image.films import PingGeometry, range_axis
 from ..sensor.model import SensorModel
 from ..sensor.patterns import half_power_u, pattern_gain
+from ._sections import check_integer, check_range, check_window, parse_section, section_dict  # noqa: F401 (re-exported)
 from . import renders
 
 __all__ = ["ScanningSpec", "ScanImage", "render_scanning", "parse_section", "check_range", "step_geometry"]
@@ -61,82 +61,6 @@ __all__ = ["ScanningSpec", "ScanImage", "render_scanning", "parse_section", "che
 #: The rays' elevation span stops this far short of straight up and down (degrees): a line
 #: array's pattern is symmetric about its plane, and the poles add rays that see nothing new.
 POLE_MARGIN_DEG = 5.0
-
-
-def check_range(spec, name: str, lo: float, hi: float, lo_open: bool = True) -> None:
-    """Raise ``ConfigError(name)`` unless ``spec.<name>`` is a finite number in the interval."""
-    v = getattr(spec, name)
-    ok = (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-          and (v > lo if lo_open else v >= lo) and v <= hi)
-    if not ok:
-        raise ConfigError(name, f"must lie in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {shown(v)}")
-
-
-def check_integer(spec, name: str, lo: int, hi: int) -> None:
-    """Raise ``ConfigError(name)`` unless ``spec.<name>`` is an integer in ``[lo, hi]``."""
-    v = getattr(spec, name)
-    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-        raise ConfigError(name, f"must be an integer in [{lo}, {hi}], got {shown(v)}")
-
-
-def check_window(spec) -> None:
-    """The range window and sampling keys every one-beam instrument shares."""
-    check_range(spec, "frequency_khz", 1.0, 1e5)
-    check_range(spec, "sound_speed_m_s", 1300.0, 1700.0, lo_open=False)
-    check_range(spec, "range_max_m", 0.0, 1e4)
-    check_range(spec, "range_min_m", 0.0, spec.range_max_m, lo_open=False)
-    if spec.range_min_m >= spec.range_max_m:
-        raise ConfigError("range_min_m", f"must be below range_max_m ({spec.range_max_m:g}), got {spec.range_min_m:g}")
-    check_integer(spec, "n_samples", 1, 1_000_000)
-
-
-def parse_section(cls, d: Mapping, key: str, base_dir: Path | None, name: str, mount: Pose,
-                  integers: tuple[str, ...] = (), nullable: tuple[str, ...] = (), strings: tuple[str, ...] = ()):
-    """The spec of a scene-file section ``d`` of a one-beam instrument type ``cls``.
-
-    A ``preset`` gives defaults (:mod:`sonarsim.config.instrument_presets`); the section's keys
-    override them. Every error names its key under ``key`` (``sonar.n_samples``).
-    """
-    values: dict[str, Any] = {}
-    preset = d.get("preset")
-    if preset is not None:
-        from .sidescan import _preset_values
-
-        values.update(_preset_values(preset, f"{key}.preset", cls))
-    for k in cls.keys:
-        if k in ("preset", "sensor") or k not in d:
-            continue
-        if k in nullable and d[k] is None:
-            values[k] = None
-        elif k in integers:
-            values[k] = _integer(d[k], f"{key}.{k}")
-        elif k in strings:
-            if not isinstance(d[k], str):
-                raise ConfigError(f"{key}.{k}", f"must be a string, got {shown(d[k])}")
-            values[k] = d[k]
-        else:
-            values[k] = _number(d[k], f"{key}.{k}")
-    try:
-        sensor = parse_sensor(d.get("sensor"), base_dir) if d.get("sensor") is not None else None
-    except ConfigError as exc:
-        raise ConfigError(f"{key}.{exc.key}", exc.detail) from None
-    try:
-        return cls(name=name, mount=mount, sensor=sensor, preset=preset, **values)
-    except ConfigError as exc:
-        raise ConfigError(f"{key}.{exc.key}", exc.detail) from None
-
-
-def section_dict(spec) -> dict:
-    """The scene-file section of a one-beam instrument (its header and every key set)."""
-    out = spec._header()
-    for k in spec.keys:
-        v = getattr(spec, k)
-        if k == "sensor":
-            if v is not None:
-                out[k] = v.to_dict()
-        elif v is not None:
-            out[k] = v
-    return out
 
 
 @register

@@ -24,25 +24,23 @@ where anything lies (issue 39, "arrays as built").
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
 from ..config.instruments import Channel, InstrumentSpec, mounted, register
-from ..config.loader import _number, _integer, parse_pose
-from ..config.sensor import PatternSpec, SensorSpec, parse_sensor
+from ..config.sensor import PatternSpec, SensorSpec
 from ..config.sonar import SonarConfig
 from ..core.rays import make_ray_fan
 from ..core.transforms import Pose
-from ..errors import ConfigError, shown
 from ..image.films import PingGeometry, Waterfall
 from ..sensor.model import SensorModel
 from ..sensor.patterns import pattern_gain
 from . import renders
+from ._sections import check_range, check_window, parse_section, section_dict
 
 __all__ = ["SidescanSpec", "render_sidescan", "floor_shadow", "ping_geometry"]
 
@@ -100,24 +98,12 @@ class SidescanSpec(InstrumentSpec):
     preset: str | None = None
 
     def __post_init__(self) -> None:
-        def check(name: str, lo: float, hi: float, lo_open: bool = True) -> None:
-            v = getattr(self, name)
-            ok = isinstance(v, (int, float)) and math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi
-            if not ok:
-                raise ConfigError(name, f"must lie in {'(' if lo_open else '['}{lo:g}, {hi:g}], got {shown(v)}")
-        check("frequency_khz", 1.0, 1e5)
-        check("horizontal_beam_width_deg", 0.01, 20.0)
-        check("vertical_beam_width_deg", 1.0, 120.0)
-        check("depression_deg", 1.0, 60.0, lo_open=False)
-        check("sound_speed_m_s", 1300.0, 1700.0, lo_open=False)
-        check("range_max_m", 0.0, 1e4)
-        check("range_min_m", 0.0, self.range_max_m, lo_open=False)
-        if self.range_min_m >= self.range_max_m:
-            raise ConfigError("range_min_m", f"must be below range_max_m ({self.range_max_m:g}), got {self.range_min_m:g}")
-        if not isinstance(self.n_samples, int) or not 1 <= self.n_samples <= 1_000_000:
-            raise ConfigError("n_samples", f"must be an integer in [1, 1000000], got {shown(self.n_samples)}")
+        check_window(self)
+        check_range(self, "horizontal_beam_width_deg", 0.01, 20.0)
+        check_range(self, "vertical_beam_width_deg", 1.0, 120.0)
+        check_range(self, "depression_deg", 1.0, 60.0, lo_open=False)
         if self.ping_rate_hz is not None:
-            check("ping_rate_hz", 0.0, 1e3)
+            check_range(self, "ping_rate_hz", 0.0, 1e3)
 
     # -- geometry --------------------------------------------------------------------------
 
@@ -159,49 +145,10 @@ class SidescanSpec(InstrumentSpec):
 
     @classmethod
     def parse(cls, d: Mapping, key: str, base_dir: Path | None, name: str, mount: Pose) -> "SidescanSpec":
-        values: dict[str, Any] = {}
-        preset = d.get("preset")
-        if preset is not None:
-            values.update(_preset_values(preset, f"{key}.preset", cls))
-        for k in cls.keys:
-            if k in ("preset", "sensor") or k not in d:
-                continue
-            if k == "n_samples":
-                values[k] = _integer(d[k], f"{key}.{k}")
-            elif k == "ping_rate_hz" and d[k] is None:
-                values[k] = None
-            else:
-                values[k] = _number(d[k], f"{key}.{k}")
-        try:
-            sensor = parse_sensor(d.get("sensor"), base_dir) if d.get("sensor") is not None else None
-        except ConfigError as exc:
-            raise ConfigError(f"{key}.{exc.key}", exc.detail) from None
-        try:
-            return cls(name=name, mount=mount, sensor=sensor, preset=preset, **values)
-        except ConfigError as exc:
-            raise ConfigError(f"{key}.{exc.key}", exc.detail) from None
+        return parse_section(cls, d, key, base_dir, name, mount, integers=("n_samples",), nullable=("ping_rate_hz",))
 
     def to_dict(self) -> dict:
-        out = self._header()
-        for k in self.keys:
-            v = getattr(self, k)
-            if k == "sensor":
-                if v is not None:
-                    out[k] = v.to_dict()
-            elif v is not None:
-                out[k] = v
-        return out
-
-
-def _preset_values(name: Any, key: str, cls) -> dict:
-    """A device preset's values for the keys of ``cls`` (:mod:`sonarsim.config.instrument_presets`)."""
-    from ..config.instrument_presets import instrument_preset
-
-    try:
-        entry = instrument_preset(name, cls.type_name)
-    except ConfigError as exc:
-        raise ConfigError(key, exc.detail) from None
-    return {k: entry[k] for k in cls.keys if k in entry and k not in ("preset", "sensor") and entry[k] is not None}
+        return section_dict(self)
 
 
 # -- rendering ---------------------------------------------------------------------------
