@@ -170,6 +170,28 @@ def render_pings(sim, name: str | None = None, n_pings: int | None = None, traje
                                      speckle, labels)
 
 
+def ping_geometry(sim, vehicle_poses: list[Pose], times_s: np.ndarray, spec) -> "PingGeometry":
+    """What a recording would log of rendered pings: the instrument's height above the ground,
+    the vehicle's attitude and heading (``heading = 90 - yaw``), position, speed, the sound speed
+    and the range window (``spec``'s)."""
+    from ..image.films import PingGeometry
+
+    n = len(vehicle_poses)
+    at = np.array([mounted(v, spec.mount).position_m for v in vehicle_poses], np.float64).reshape(n, 3)
+    rpy = np.array([v.rpy_deg for v in vehicle_poses], np.float64).reshape(n, 3)
+    ground = sim.scene.ground
+    altitude = at[:, 2] - ground.height_m if ground is not None else np.full(n, np.nan)
+    speed = np.full(n, np.nan)
+    if n > 1:
+        step = np.linalg.norm(np.diff(at[:, :2], axis=0), axis=1) / np.maximum(np.diff(times_s), 1e-12)
+        speed = np.concatenate([step[:1], step])
+    return PingGeometry.of(
+        n, time_s=times_s, altitude_m=altitude, roll_deg=rpy[:, 0], pitch_deg=rpy[:, 1],
+        heading_deg=np.mod(90.0 - rpy[:, 2], 360.0), heave_m=0.0, sound_speed_m_s=spec.sound_speed_m_s,
+        range_min_m=spec.range_min_m, range_max_m=spec.range_max_m, x_m=at[:, 0], y_m=at[:, 1], speed_m_s=speed,
+    )
+
+
 def channel_pose(vehicle: Pose, channel) -> Pose:
     """A channel's pose in the world for the vehicle at ``vehicle``."""
     return mounted(vehicle, channel.mount)

@@ -78,7 +78,7 @@ from ..image.films import PingGeometry, Soundings, range_axis
 from ..sensor.model import SensorModel
 from . import renders
 from ._sections import parse_section, section_dict
-from .sidescan import ping_geometry
+from . import ping_geometry
 
 __all__ = ["MultibeamSpec", "SoundSpeedProfile", "render_multibeam", "ping_soundings", "detect_bottom",
            "footprint_points",

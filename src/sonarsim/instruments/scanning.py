@@ -54,7 +54,9 @@ from ..image.films import PingGeometry, range_axis
 from ..sensor.model import SensorModel
 from ..sensor.patterns import half_power_u, pattern_gain
 from ._sections import check_integer, check_range, check_window, parse_section, section_dict  # noqa: F401 (re-exported)
-from . import renders
+from . import ping_geometry, renders
+
+step_geometry = ping_geometry  # (its name here before: one home now, instruments.ping_geometry)
 
 __all__ = ["ScanningSpec", "ScanImage", "render_scanning", "parse_section", "check_range", "step_geometry"]
 
@@ -351,25 +353,6 @@ def _fan(sim, spec: ScanningSpec, sonar: SonarConfig):
     return fan
 
 
-def step_geometry(sim, vehicle_poses: list[Pose], times_s: np.ndarray, spec) -> PingGeometry:
-    """Per ping: the transducer's height above the ground, the vehicle's attitude and heading
-    (``heading = 90 - yaw``), position, speed, sound speed and range window."""
-    n = len(vehicle_poses)
-    at = np.array([mounted(v, spec.mount).position_m for v in vehicle_poses], np.float64).reshape(n, 3)
-    rpy = np.array([v.rpy_deg for v in vehicle_poses], np.float64).reshape(n, 3)
-    ground = sim.scene.ground
-    altitude = at[:, 2] - ground.height_m if ground is not None else np.full(n, np.nan)
-    speed = np.full(n, np.nan)
-    if n > 1:
-        v = np.linalg.norm(np.diff(at[:, :2], axis=0), axis=1) / np.maximum(np.diff(times_s), 1e-12)
-        speed = np.concatenate([v[:1], v])
-    return PingGeometry.of(
-        n, time_s=times_s, altitude_m=altitude, roll_deg=rpy[:, 0], pitch_deg=rpy[:, 1],
-        heading_deg=np.mod(90.0 - rpy[:, 2], 360.0), heave_m=0.0, sound_speed_m_s=spec.sound_speed_m_s,
-        range_min_m=spec.range_min_m, range_max_m=spec.range_max_m, x_m=at[:, 0], y_m=at[:, 1], speed_m_s=speed,
-    )
-
-
 @renders("scanning")
 def render_scanning(sim, spec: ScanningSpec, poses: list[Pose], times_s: np.ndarray, first_ping: int,
                     speckle: bool | None, labels: bool) -> ScanImage:
@@ -396,6 +379,6 @@ def render_scanning(sim, spec: ScanningSpec, poses: list[Pose], times_s: np.ndar
         paths = sim.trace(mounted(vehicle, spec.step_mount(angles[k])), sonar=sonar, fan=fan)
         image = sim.form(paths, keep_rays=False, speckle=speckle, frame=int(pings[k]), sensor=model)
         out[:, k] = image.polar[:, 0]
-    return ScanImage(out, angles, spec.range_min_m, spec.range_max_m, step_geometry(sim, poses, times_s, spec),
+    return ScanImage(out, angles, spec.range_min_m, spec.range_max_m, ping_geometry(sim, poses, times_s, spec),
                      spec.step_deg * spec.step)
 

@@ -39,7 +39,7 @@ from ..core.transforms import Pose
 from ..image.films import PingGeometry, Waterfall
 from ..sensor.model import SensorModel
 from ..sensor.patterns import pattern_gain
-from . import renders
+from . import ping_geometry, renders
 from ._sections import check_range, check_window, parse_section, section_dict
 
 __all__ = ["SidescanSpec", "render_sidescan", "floor_shadow", "ping_geometry"]
@@ -216,25 +216,6 @@ def floor_shadow(paths, sim, objects_image: np.ndarray | None = None) -> np.ndar
     if objects_image is not None:  # an object's own echo is no shadow (the floor beneath it is hidden too)
         shadow &= ~(objects_image > 0)
     return shadow
-
-
-def ping_geometry(sim, vehicle_poses: list[Pose], times_s: np.ndarray, spec: SidescanSpec) -> PingGeometry:
-    """What a recording would log of rendered pings: the transducers' height above the ground,
-    the vehicle's attitude and heading (``heading = 90 - yaw``), position, sound speed, window."""
-    n = len(vehicle_poses)
-    at = np.array([mounted(v, spec.mount).position_m for v in vehicle_poses]).reshape(n, 3)
-    rpy = np.array([v.rpy_deg for v in vehicle_poses]).reshape(n, 3)
-    ground = sim.scene.ground
-    altitude = at[:, 2] - ground.height_m if ground is not None else np.full(n, np.nan)
-    speed = np.full(n, np.nan)
-    if n > 1:
-        step = np.linalg.norm(np.diff(at[:, :2], axis=0), axis=1) / np.maximum(np.diff(times_s), 1e-12)
-        speed = np.concatenate([step[:1], step])
-    return PingGeometry.of(
-        n, time_s=times_s, altitude_m=altitude, roll_deg=rpy[:, 0], pitch_deg=rpy[:, 1],
-        heading_deg=np.mod(90.0 - rpy[:, 2], 360.0), heave_m=0.0, sound_speed_m_s=spec.sound_speed_m_s,
-        range_min_m=spec.range_min_m, range_max_m=spec.range_max_m, x_m=at[:, 0], y_m=at[:, 1], speed_m_s=speed,
-    )
 
 
 @renders("sidescan")

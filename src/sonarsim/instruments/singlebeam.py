@@ -53,7 +53,8 @@ from ..errors import ConfigError, shown
 from ..image.films import Envelope
 from ..sensor.model import SensorModel
 from . import renders
-from .scanning import check_range, check_window, parse_section, section_dict, step_geometry
+from . import ping_geometry
+from ._sections import check_range, check_window, parse_section, section_dict
 
 __all__ = ["SinglebeamSpec", "render_singlebeam", "detect_bottom", "cone_gain", "CONE_BEAMS", "PATTERNS"]
 
@@ -283,4 +284,4 @@ def render_singlebeam(sim, spec: SinglebeamSpec, poses: list[Pose], times_s: np.
             env = env * rng.exponential(1.0, env.shape)
         out[k] = np.asarray(env, np.float32)[:, 0]
     bottom = detect_bottom(out, spec.range_min_m, spec.range_max_m, spec.threshold_db)
-    return Envelope(out, spec.range_min_m, spec.range_max_m, bottom, step_geometry(sim, poses, times_s, spec))
+    return Envelope(out, spec.range_min_m, spec.range_max_m, bottom, ping_geometry(sim, poses, times_s, spec))
