@@ -12,7 +12,9 @@ Measures, in one run on this machine:
   detection);
 * the same ping through a sound-speed profile (two-point ray tracing per beam, the columns
   mapped to time);
-* sweeps: beams (64 to 512) and samples (512 to 4,096), each with its bare cast and ratio.
+* sweeps: beams (64 to 512) and samples (512 to 4,096), each with its bare cast and ratio
+  (the automatic rays per beam grow as 1 / the sample's length across and along: rays grow as
+  samples squared).
 
 Usage::
 
@@ -180,7 +182,8 @@ def main(argv=None) -> int:
         return float(np.polyfit(np.log(xs), np.log(ys), 1)[0])
 
     results = {
-        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "platform": platform.platform()},
+        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "platform": platform.platform(),
+                    "load_average_1_5_15": list(os.getloadavg())},
         "cases": rows, "beams": sweep_beams, "samples": sweep_samples,
         "exponents": {
             "beams": {"ping": exponent(beams, [r["ping_ms"] for r in sweep_beams]),

@@ -420,3 +420,18 @@ def test_the_benchmark_runs_at_tiny_sizes(tmp_path):
     for r in res["cases"] + res["beams"] + res["samples"]:
         assert r["ping_ms"] > 0 and r["bare_cast_ms"] > 0 and r["rays_per_ping"] > 0
         assert r["ping_over_cast"] == pytest.approx(r["ping_ms"] / r["bare_cast_ms"])
+
+
+def test_soundings_head_points_with_a_tilt():
+    from sonarsim.image.films import PingGeometry, Soundings
+
+    g = PingGeometry.of(1, sound_speed_m_s=1500.0)
+    t = np.array([[2 * 10.0 / 1500.0, 2 * 20.0 / 1500.0]])
+    s = Soundings(np.array([[30.0, -45.0]]), t, np.ones((1, 2)), g, tilt_deg=np.array([[0.0, 10.0]]))
+    p = s.head_points()
+    np.testing.assert_allclose(p[0, 0], [0.0, 5.0, -10.0 * math.cos(math.radians(30))], atol=1e-12)
+    b, a = math.radians(10.0), math.radians(-45.0)
+    np.testing.assert_allclose(p[0, 1], 20.0 * np.array([math.sin(b), math.cos(b) * math.sin(a), -math.cos(b) * math.cos(a)]))
+    np.testing.assert_allclose(Soundings(s.angle_deg, t, s.intensity, g).head_points()[0, 0], p[0, 0])
+    with pytest.raises(ValueError, match="tilt_deg"):
+        Soundings(s.angle_deg, t, s.intensity, g, tilt_deg=np.zeros(2))
