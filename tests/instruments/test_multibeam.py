@@ -156,6 +156,22 @@ def test_mirrored_scene_gives_the_mirrored_swath():
     np.testing.assert_allclose(a.points_m[:, ::-1] * [1, -1, 1], b.points_m, atol=1e-5)
 
 
+def test_a_beam_half_on_an_object_has_its_truth_on_what_it_detected():
+    """A 2 x 2 x 1 m box floating 4.5 m under the head, 1 to 3 m to port: the beams over its
+    edges see it and the floor behind. The truth of each sounding is on a surface (the box's or
+    the floor), not between them, and the sounding is at it."""
+    box = {"name": "box", "primitive": "box", "size_m": [2.0, 2.0, 1.0], "pose": {"position_m": [0.0, 2.0, 5.0]}}
+    film, spec, world, *_ = render(scene(objects=[box]), speckle=False)
+    p = film.points_m[0]
+    q = np.abs(p - [0.0, 2.0, 5.0]) - [1.0, 1.0, 0.5]
+    to_box = np.abs(np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0))
+    assert np.minimum(np.abs(p[:, 2]), to_box).max() < 1e-3
+    on_box = to_box < 1e-3
+    # its top, or the side facing the head (y = 1 m, seen obliquely)
+    assert 5 <= on_box.sum() <= 20 and ((p[on_box, 2] > 5.5 - 1e-3) | (np.abs(p[on_box, 1] - 1.0) < 1e-3)).all()
+    assert np.linalg.norm(world[0] - p, axis=1).max() <= 2 * DR
+
+
 def test_a_pings_draws_are_its_own():
     doc = scene(sensor={"speckle": True})
     with sonarsim.Simulator(doc) as sim:

@@ -36,8 +36,8 @@ Refraction (``sound_speed_profile``: the TRUE water, depth below the surface -> 
 between knots, constant beyond the first and last; ``surface_height_m``: where the surface is
 in the world, default the head's own height at each ping, a hull mount). The engine casts
 straight rays, so the forward model is: each beam's truth is the point the engine's rays found
-(the energy-weighted first hits of the beam's rays, :func:`footprint_points`: a point of the
-scene's surfaces); its one-way time and the direction the echo arrives from are re-solved
+(the energy-weighted first hits of the beam's rays within the detection's window,
+:func:`footprint_points`: where the energy the detector weighed came from); its one-way time and the direction the echo arrives from are re-solved
 through the true profile (two-point ray tracing, :meth:`SoundSpeedProfile.solve`: Newton on the
 ray parameter, vectorised over beams); the beam's water column is mapped onto the head's time
 axis by that time (each column stretched by ``c_head T / |P - O|``: a target elsewhere in the
@@ -747,26 +747,41 @@ def _windows(wc: np.ndarray, env: np.ndarray, peak: np.ndarray, window_db: float
     return lo.astype(np.int64), (lo + size).astype(np.int64), np.where(size > 0, total, 0.0)
 
 
-def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.inf) -> np.ndarray:
+def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.inf, gate_m: np.ndarray | None = None
+                     ) -> np.ndarray:
     """Each beam's truth: the energy-weighted mean of its rays' first hits, world frame.
 
-    A beam's rays that meet a surface within the range window, weighted by the intensity the
-    engine gave them (pattern, backscatter): a point on the floor where the floor is flat (a
-    mean of points on a plane).
+    A beam's rays that meet a surface within the range window (and within its ``gate_m``),
+    weighted by the intensity the engine gave them (pattern, backscatter): a point on the floor
+    where the floor is flat (a mean of points on a plane).
+
+    Parameters
+    ----------
+    paths : FramePaths
+    range_min_m, range_max_m : float
+        The window, metres.
+    gate_m : (2, n_beams) array, optional
+        Per beam the first hits' distances kept, ``[near, far)`` metres (the detection's window:
+        where the energy the detector weighed came from, so that a beam half on an object and
+        half on the floor behind it has its truth on the one it detected, not between).
 
     Returns
     -------
-    (n_beams, 3) float64 ndarray, metres; NaN for a beam whose rays meet nothing.
+    (n_beams, 3) float64 ndarray, metres; NaN for a beam whose rays meet nothing (in its gate).
     """
     distance, sid, intensity = paths.first_hits()
     # In the channel's frame (the fan's own directions), one rotation per beam after the sums:
     # rotating every ray into the world would cost as much as the rest of the ping.
     d = paths.fan.directions
     o = np.asarray(paths.view.origin, np.float64).reshape(3)
-    ok = (sid >= 0) & np.isfinite(distance) & (distance >= range_min_m) & (distance <= range_max_m)
     n_beams = distance.shape[0]
-    w = np.where(ok, intensity, 0.0).reshape(n_beams, -1).astype(np.float64)
-    wd = w * np.where(ok, distance, 0.0).reshape(n_beams, -1)
+    dist = distance.reshape(n_beams, -1)
+    ok = (sid.reshape(n_beams, -1) >= 0) & np.isfinite(dist) & (dist >= range_min_m) & (dist <= range_max_m)
+    if gate_m is not None:
+        gate = np.asarray(gate_m, np.float64)
+        ok &= (dist >= gate[0][:, None]) & (dist < gate[1][:, None])
+    w = np.where(ok, intensity.reshape(n_beams, -1), 0.0).astype(np.float64)
+    wd = w * np.where(ok, dist, 0.0)
     total = w.sum(axis=1)
     offset = np.einsum("bk,bkj->bj", wd, d.reshape(n_beams, -1, 3))
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -983,23 +998,34 @@ def ping_soundings(spec: MultibeamSpec, paths, water_column: np.ndarray, head: P
     two_way_time_s, intensity : (n_beams,) float64 ndarrays
         The detection's (NaN: none).
     points_m : (n_beams, 3) float64 ndarray
-        The truth, world frame.
+        The truth, world frame: where the detected echo's energy came from (the beam's first
+        hits within the detection window, :func:`footprint_points`); NaN where no ray of the
+        window met a surface (a multipath echo).
     """
     c_head = spec.sound_speed_m_s
+    dr = (spec.range_max_m - spec.range_min_m) / spec.n_samples
     points = footprint_points(paths, spec.range_min_m, spec.range_max_m)
     origin = np.asarray(head.translation, np.float64)
     profile = spec.sound_speed_profile
     d0 = 0.0 if spec.surface_height_m is None else spec.surface_height_m - origin[2]
-    t_one, u = arrivals(origin, points, c_head, profile, d0)
     wc = water_column
+    factor = np.ones(spec.n_beams)
     if profile is not None:
         # The head's time axis: each beam's echo at c_head T instead of the straight |P - O|.
+        t_one, _ = arrivals(origin, points, c_head, profile, d0)
         straight = np.linalg.norm(points - origin, axis=1)
         ok = np.isfinite(t_one) & (straight > 0)
         factor = np.where(ok, c_head * np.where(ok, t_one, 0.0) / np.where(ok, straight, 1.0), 1.0)
-        wc = _stretch(wc, factor, spec.range_min_m, (spec.range_max_m - spec.range_min_m) / spec.n_samples)
-    rng, level, _ = detect_bottom(wc, spec.range_min_m, spec.range_max_m, spec.detection_window_db,
-                                  DETECTION_SMOOTHING)
+        wc = _stretch(wc, factor, spec.range_min_m, dr)
+    rng, level, window = detect_bottom(wc, spec.range_min_m, spec.range_max_m, spec.detection_window_db,
+                                       DETECTION_SMOOTHING)
+    # The truth of what was detected: the first hits within the detection's window (a sample
+    # more either side: range splatting and the pulse spread an echo that far), mapped back to
+    # straight distances. A beam that detected nothing keeps the truth of all its hits.
+    gate = (spec.range_min_m + (window + np.array([[-1], [1]])) * dr) / factor
+    gated = footprint_points(paths, spec.range_min_m, spec.range_max_m, gate)
+    points = np.where(np.isfinite(rng)[:, None], gated, points)
+    t_one, u = arrivals(origin, points, c_head, profile, d0)
     a, b = head_angles_deg(u, head.rotation)
     seen = np.isfinite(a) & np.isfinite(b)
     return (wc, np.where(seen, a, spec.beam_table_deg()), np.where(seen, b, 0.0), 2.0 * rng / c_head, level,
