@@ -256,6 +256,22 @@ def test_a_ray_that_turns_has_no_sounding():
     assert np.isnan(p2[0])
 
 
+def test_a_bent_ray_meets_a_tilted_plane_where_the_ray_equations_put_it():
+    from sonarsim.instruments.multibeam import bent_to_plane
+
+    beta = np.radians([5.0, 30.0, 55.0])
+    alpha = np.radians([0.0, 120.0, -60.0])
+    u = np.stack([np.sin(beta) * np.cos(alpha), np.sin(beta) * np.sin(alpha), -np.cos(beta)], axis=1)
+    n = np.array([0.2, -0.1, 1.0]) / np.linalg.norm([0.2, -0.1, 1.0])  # a 13 deg slope
+    point = np.array([[0.0, 0.0, -25.0]] * 3)  # the plane through (0, 0, -25) below the head
+    origin = np.zeros(3)
+    hit, t = bent_to_plane(origin, u, point, np.tile(n, (3, 1)), PROFILE, 3.0)
+    np.testing.assert_allclose((hit - point) @ n, 0.0, atol=1e-6)
+    for k in range(3):
+        x, z, _ = integrate_ray(PROFILE, beta[k], 3.0, t_end=t[k])
+        np.testing.assert_allclose(hit[k], [x * np.cos(alpha[k]), x * np.sin(alpha[k]), -(z - 3.0)], atol=1e-5)
+
+
 H = 30.0  # the head at the surface, the floor 30 m down
 TRUE = [[0.0, 1500.0], [40.0, 1540.0]]  # 1 m/s per metre: a strong thermocline
 
@@ -264,21 +280,29 @@ def profile_scene(rpy=(0.0, 0.0, 0.0), **keys):
     return scene(rpy, altitude_m=H, range_max_m=80.0, surface_height_m=H, sound_speed_profile=TRUE, **keys)
 
 
+@pytest.mark.parametrize("refraction", ["arrival", "beam"])
 @pytest.mark.parametrize("rpy", [(0.0, 0.0, 0.0), (8.0, 0.0, 0.0), (-8.0, 6.0, 0.0), (5.0, -10.0, 30.0)])
-def test_true_profile_processed_with_itself_lies_on_the_plane(rpy):
-    film, spec, world, *_ = render(profile_scene(rpy), speckle=False)
+def test_true_profile_processed_with_itself_lies_on_the_plane(rpy, refraction):
+    film, spec, world, *_ = render(profile_scene(rpy, refraction=refraction), speckle=False)
     dr = 80.0 / N_SAMPLES
     ok = np.isfinite(film.two_way_time_s[0])
     assert ok.sum() >= 64
     assert np.abs(world[0, ok, 2]).max() <= 2 * dr, np.abs(world[0, ok, 2]).max()
     assert np.linalg.norm(world[0, ok] - film.points_m[0, ok], axis=1).max() <= 2 * dr
+    assert np.abs(film.points_m[0, ok, 2]).max() < 1e-6  # the truth on the floor, either way
+    bent = np.abs(film.angle_deg[0, ok] - spec.beam_table_deg()[ok])
+    if refraction == "beam":  # the beam table's angles (the footprint's centroid: a hundredth of a degree)
+        assert bent.max() < 0.01
+    else:  # the arrival's: bent towards the vertical by up to about a degree at 60 deg
+        assert 0.5 < bent.max() < 2.0
     # refraction is there: processed with straight rays the swath is not flat
     straight, _ = spec.soundings_points(film, [sonarsim.Pose((0, 0, H), rpy)], profile=None)
     assert np.nanmax(np.abs(straight[0, :, 2])) > 0.2
 
 
+@pytest.mark.parametrize("refraction", ["arrival", "beam"])
 @pytest.mark.parametrize("true, c0", [(TRUE, 1500.0), ([[0.0, 1540.0], [40.0, 1500.0]], 1540.0)])
-def test_a_wrong_processing_profile_curls_the_outer_beams(true, c0):
+def test_a_wrong_processing_profile_curls_the_outer_beams(true, c0, refraction):
     """True water 1500 m/s at the surface, faster below (1 m/s per m); the processing assumes
     1500 m/s throughout (and the mirror case: slower below, 1540 m/s assumed: the frown). At nadir the echo comes early: too shallow by about g H^2 / (2 c).
     Away from nadir Snell's law bends the true ray away from the vertical, so the straight
@@ -288,7 +312,7 @@ def test_a_wrong_processing_profile_curls_the_outer_beams(true, c0):
     ray of each beam's arrival angle, integrated through the true water to the floor, gives the
     time, and a straight ray of that time at 1500 m/s its processed depth."""
     doc = profile_scene(processing_profile=[[0.0, c0]])
-    doc["sonar"].update(sound_speed_profile=true, sound_speed_m_s=c0)
+    doc["sonar"].update(sound_speed_profile=true, sound_speed_m_s=c0, refraction=refraction)
     film, spec, world, *_ = render(doc, speckle=False)
     dr = 80.0 / N_SAMPLES
     angle = film.angle_deg[0]
@@ -333,7 +357,7 @@ def test_georeference_applies_heave_and_the_lever_arm():
     ("n_samples", 0), ("range_max_m", -1.0), ("frequency_khz", "x"), ("sound_speed_m_s", 900.0),
     ("sound_speed_profile", [[0, 1500], [0, 1510]]), ("processing_profile", "warm"),
     ("sound_speed_profile", [[0, 1500], [10, 2500]]), ("detection_window_db", 0.0), ("rays_across", 0),
-    ("beam_angles_deg", [10.0, 20.0]), ("surface_height_m", "sea"),
+    ("beam_angles_deg", [10.0, 20.0]), ("surface_height_m", "sea"), ("refraction", "curved"),
 ])
 def test_bad_values_are_named(key, value):
     with pytest.raises(ConfigError, match=f"sonar.{key}"):

@@ -17,7 +17,7 @@ Scene section (``type: multibeam``)::
      beam_spacing: equiangular, tx_beam_width_along_deg: 1, rx_beam_width_across_deg: 0.5,
      pulse_length_us: 50, range_min_m: 0, range_max_m: 100, n_samples: 2048, ping_rate_hz: 10,
      sound_speed_m_s: 1500, sound_speed_profile: [[0, 1500], [30, 1530]],
-     processing_profile: [[0, 1500]], surface_height_m: 30, detection: amplitude,
+     processing_profile: [[0, 1500]], surface_height_m: 30, refraction: arrival, detection: amplitude,
      detection_window_db: 10, sensor: {...}}
 
 ``beam_angles_deg: [first, last]`` (port-most, starboard-most beam centre, degrees, > 0 to port)
@@ -46,6 +46,12 @@ two-way time. The sounding's angles are those of the arrival, so the processing
 (:func:`georeference` with ``processing_profile``, default the true one) turns them back into
 the truth point (up to the detection's error) when the two profiles agree, and into the curled
 outer beams surveyors recognise ("smile" or "frown") when they do not.
+
+``refraction: beam`` instead keeps each beam's direction (the straight ray to its footprint,
+the beam table's angle as a device reports it) and bends that ray through the true profile to
+the tangent plane of the footprint (the energy-weighted normal of the hits there,
+:func:`bent_to_plane`): the same on planar facets, a curvature-sized error on curved surfaces,
+and no occlusion along the bent path (the engine's straight ray decided what was hit).
 
 Without a profile the water is uniform at ``sound_speed_m_s`` and rays are straight: the angles
 are the directions of the truth points (within a fraction of a beam width of the beam table,
@@ -80,11 +86,12 @@ from . import renders
 from .sidescan import _preset_values, ping_geometry
 
 __all__ = ["MultibeamSpec", "SoundSpeedProfile", "render_multibeam", "ping_soundings", "detect_bottom",
-           "footprint_points",
+           "footprint_points", "bent_to_plane",
            "georeference", "arrivals", "beam_table_deg", "head_angles_deg"]
 
 SPACINGS = ("equiangular", "equidistant")
 DETECTIONS = ("amplitude",)
+REFRACTIONS = ("arrival", "beam")
 # The widest beam from the vertical, degrees (the fan must stay inside +-90: SonarConfig).
 MAX_BEAM_ANGLE_DEG = 80.0
 # Roll the auto ray count across a beam allows for (degrees added to the widest beam's angle).
@@ -415,6 +422,13 @@ class MultibeamSpec(InstrumentSpec):
     surface_height_m : float or None
         The world height of the water's surface (profiles count depth from it); None: at the
         head (a hull mount: the head at depth 0 every ping).
+    refraction : {'arrival', 'beam'}
+        How a true profile acts on the engine's straight rays (module notes): ``arrival`` keeps
+        each beam's truth point and re-solves the path to it (exact on any surface; the angles
+        are the arrival's, off the beam table by the bending); ``beam`` keeps the beam's
+        direction and bends its ray to the tangent plane of the surface at that point (the
+        angles stay the table's, as a device's; exact over planar facets, off by about the
+        surface's curvature times the bend's offset squared elsewhere).
     detection : {'amplitude'}
     detection_window_db : float
         The detection window: samples within this of the beam's peak, dB, in (0, 60].
@@ -438,7 +452,8 @@ class MultibeamSpec(InstrumentSpec):
         "preset", "frequency_khz", "n_beams", "swath_deg", "beam_angles_deg", "beam_spacing",
         "tx_beam_width_along_deg", "rx_beam_width_across_deg", "pulse_length_us", "range_min_m", "range_max_m",
         "n_samples", "ping_rate_hz", "sound_speed_m_s", "sound_speed_profile", "processing_profile",
-        "surface_height_m", "detection", "detection_window_db", "rays_across", "rays_along", "sensor",
+        "surface_height_m", "refraction", "detection", "detection_window_db", "rays_across", "rays_along",
+        "sensor",
     )
 
     frequency_khz: float = 400.0
@@ -457,6 +472,7 @@ class MultibeamSpec(InstrumentSpec):
     sound_speed_profile: SoundSpeedProfile | None = None
     processing_profile: SoundSpeedProfile | None = None
     surface_height_m: float | None = None
+    refraction: str = "arrival"
     detection: str = "amplitude"
     detection_window_db: float = 10.0
     rays_across: int | str = "auto"
@@ -511,6 +527,8 @@ class MultibeamSpec(InstrumentSpec):
                 object.__setattr__(self, name, SoundSpeedProfile.parse(v, name))
         if self.surface_height_m is not None:
             check("surface_height_m", -1e5, 1e5)
+        if self.refraction not in REFRACTIONS:
+            raise ConfigError("refraction", f"must be one of {', '.join(REFRACTIONS)}; got {shown(self.refraction)}")
         if self.detection not in DETECTIONS:
             raise ConfigError("detection", f"must be one of {', '.join(DETECTIONS)} (phase detection is not "
                               f"implemented); got {shown(self.detection)}")
@@ -621,7 +639,7 @@ class MultibeamSpec(InstrumentSpec):
             elif k in ("ping_rate_hz", "surface_height_m", "processing_profile", "sound_speed_profile",
                        "swath_deg", "beam_angles_deg") and v is None:
                 values[k] = None
-            elif k in ("beam_spacing", "detection") or (k in ("rays_across", "rays_along") and v == "auto"):
+            elif k in ("beam_spacing", "detection", "refraction") or (k in ("rays_across", "rays_along") and v == "auto"):
                 values[k] = v
             elif k in ("rays_across", "rays_along"):
                 values[k] = _integer(v, f"{key}.{k}")
@@ -747,8 +765,8 @@ def _windows(wc: np.ndarray, env: np.ndarray, peak: np.ndarray, window_db: float
     return lo.astype(np.int64), (lo + size).astype(np.int64), np.where(size > 0, total, 0.0)
 
 
-def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.inf, gate_m: np.ndarray | None = None
-                     ) -> np.ndarray:
+def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.inf, gate_m: np.ndarray | None = None,
+                     normals: bool = False):
     """Each beam's truth: the energy-weighted mean of its rays' first hits, world frame.
 
     A beam's rays that meet a surface within the range window (and within its ``gate_m``),
@@ -765,9 +783,13 @@ def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.in
         where the energy the detector weighed came from, so that a beam half on an object and
         half on the floor behind it has its truth on the one it detected, not between).
 
+    normals : bool
+        Also return each beam's energy-weighted surface normal (unit, towards the head).
+
     Returns
     -------
     (n_beams, 3) float64 ndarray, metres; NaN for a beam whose rays meet nothing (in its gate).
+    With ``normals``, ``(points, normals)``.
     """
     distance, sid, intensity = paths.first_hits()
     # In the channel's frame (the fan's own directions), one rotation per beam after the sums:
@@ -786,7 +808,18 @@ def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.in
     offset = np.einsum("bk,bkj->bj", wd, d.reshape(n_beams, -1, 3))
     with np.errstate(invalid="ignore", divide="ignore"):
         p = o + (offset / total[:, None]) @ np.asarray(paths.view.rotation, np.float64).T
-    return np.where((total > 0)[:, None], p, np.nan)
+    p = np.where((total > 0)[:, None], p, np.nan)
+    if not normals:
+        return p
+    # The surfaces' normals (either orientation as the caster gives them) turned towards the
+    # head, energy-weighted: the tangent plane of the beam's footprint.
+    n = np.asarray(paths.primary.normal, np.float64).reshape(n_beams, -1, 3)
+    rays_world = d.reshape(n_beams, -1, 3) @ np.asarray(paths.view.rotation, np.float64).T
+    facing = np.where(np.einsum("bkj,bkj->bk", n, rays_world) > 0, -1.0, 1.0)
+    nw = np.einsum("bk,bkj->bj", w * facing, np.nan_to_num(n))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        nw /= np.linalg.norm(nw, axis=1, keepdims=True)
+    return p, np.where((total > 0)[:, None], nw, np.nan)
 
 
 def head_angles_deg(u_world: np.ndarray, head_rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -797,6 +830,69 @@ def head_angles_deg(u_world: np.ndarray, head_rotation: np.ndarray) -> tuple[np.
     """
     v = np.asarray(u_world, np.float64) @ np.asarray(head_rotation, np.float64)  # R^T u, row vectors
     return np.degrees(np.arctan2(v[..., 1], -v[..., 2])), np.degrees(np.arcsin(np.clip(v[..., 0], -1.0, 1.0)))
+
+
+def bent_to_plane(origin_m: np.ndarray, direction: np.ndarray, points_m: np.ndarray, normals: np.ndarray,
+                  profile: SoundSpeedProfile, head_depth_m: float = 0.0) -> np.ndarray:
+    """Where refracted rays meet planes: each ray launched from the head along ``direction``,
+    bent through ``profile``, met with the plane through ``points_m`` normal to ``normals``.
+
+    The crossing time is found by the Illinois method (regula falsi that halves a stale end)
+    on ``n . (ray(t) - point)``, vectorised over rays; the bracket is ``[0, 3 |point - head| /
+    c_min]``.
+
+    Parameters
+    ----------
+    origin_m : (3,) array
+        The head, world frame.
+    direction, points_m, normals : (n, 3) arrays
+        Unit launch directions (downwards), the planes' points and unit normals.
+    profile : SoundSpeedProfile
+    head_depth_m : float
+
+    Returns
+    -------
+    points : (n, 3) float64 ndarray
+        The crossings, metres; NaN where the ray turns or meets the plane beyond the bracket.
+    time_s : (n,) float64 ndarray
+        The one-way travel time to them.
+    """
+    o = np.asarray(origin_m, np.float64).reshape(3)
+    u = np.asarray(direction, np.float64)
+    rel = np.asarray(points_m, np.float64) - o
+    nrm = np.asarray(normals, np.float64)
+    c0 = float(profile.speed(head_depth_m))
+    sin_b = np.hypot(u[:, 0], u[:, 1])
+    p = sin_b / c0
+    alpha = np.arctan2(u[:, 1], u[:, 0])
+    d0 = np.full(len(u), float(head_depth_m))
+
+    def at(t):
+        x, z = profile.trace(p, d0, t)
+        return np.stack([x * np.cos(alpha), x * np.sin(alpha), -(z - head_depth_m)], axis=-1)
+
+    def f(t):
+        return np.einsum("ij,ij->i", nrm, at(t) - rel)
+
+    a = np.zeros(len(u))
+    b = 3.0 * np.linalg.norm(rel, axis=1) / min(profile.speed_m_s)
+    fa, fb = f(a), f(b)
+    ok = np.isfinite(fa) & np.isfinite(fb) & (fa * fb <= 0) & (u[:, 2] < 0)
+    fb = np.where(ok, fb, 0.0)
+    fa = np.where(ok, fa, 1.0)
+    for _ in range(_SOLVE_STEPS):
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = np.where(fb != fa, b - fb * (b - a) / (fb - fa), b)
+        fc = np.where(ok, f(np.where(ok, c, 0.0)), 0.0)
+        fc = np.where(np.isfinite(fc), fc, 0.0)
+        swap = fc * fb < 0
+        a, fa = np.where(swap, b, a), np.where(swap, fb, 0.5 * fa)
+        b, fb = c, fc
+        if (np.abs(fb) <= _SOLVE_TOL_M * 10).all():
+            break
+    out = o + at(np.where(ok, b, 0.0))
+    hit = ok & (np.abs(fb) <= 1e-6)
+    return np.where(hit[:, None], out, np.nan), np.where(hit, b, np.nan)
 
 
 def arrivals(origin_m: np.ndarray, points_m: np.ndarray, sound_speed_m_s: float,
@@ -1004,15 +1100,27 @@ def ping_soundings(spec: MultibeamSpec, paths, water_column: np.ndarray, head: P
     """
     c_head = spec.sound_speed_m_s
     dr = (spec.range_max_m - spec.range_min_m) / spec.n_samples
-    points = footprint_points(paths, spec.range_min_m, spec.range_max_m)
     origin = np.asarray(head.translation, np.float64)
     profile = spec.sound_speed_profile
     d0 = 0.0 if spec.surface_height_m is None else spec.surface_height_m - origin[2]
+    bend = profile is not None and spec.refraction == "beam"
+
+    def paths_to(points, normal):
+        """One-way time, direction at the head and the truth of each beam's footprint."""
+        if bend:
+            u = (points - origin) / np.linalg.norm(points - origin, axis=1, keepdims=True)
+            truth, t = bent_to_plane(origin, u, points, normal, profile, d0)
+            return t, u, truth
+        t, u = arrivals(origin, points, c_head, profile, d0)
+        return t, u, points
+
+    found_all = footprint_points(paths, spec.range_min_m, spec.range_max_m, normals=bend)
+    points, normal = found_all if bend else (found_all, None)
     wc = water_column
     factor = np.ones(spec.n_beams)
     if profile is not None:
         # The head's time axis: each beam's echo at c_head T instead of the straight |P - O|.
-        t_one, _ = arrivals(origin, points, c_head, profile, d0)
+        t_one, _, _ = paths_to(points, normal)
         straight = np.linalg.norm(points - origin, axis=1)
         ok = np.isfinite(t_one) & (straight > 0)
         factor = np.where(ok, c_head * np.where(ok, t_one, 0.0) / np.where(ok, straight, 1.0), 1.0)
@@ -1023,13 +1131,17 @@ def ping_soundings(spec: MultibeamSpec, paths, water_column: np.ndarray, head: P
     # more either side: range splatting and the pulse spread an echo that far), mapped back to
     # straight distances. A beam that detected nothing keeps the truth of all its hits.
     gate = (spec.range_min_m + (window + np.array([[-1], [1]])) * dr) / factor
-    gated = footprint_points(paths, spec.range_min_m, spec.range_max_m, gate)
-    points = np.where(np.isfinite(rng)[:, None], gated, points)
-    t_one, u = arrivals(origin, points, c_head, profile, d0)
+    gated = footprint_points(paths, spec.range_min_m, spec.range_max_m, gate, normals=bend)
+    detected = np.isfinite(rng)[:, None]
+    if bend:
+        points, normal = np.where(detected, gated[0], points), np.where(detected, gated[1], normal)
+    else:
+        points = np.where(detected, gated, points)
+    _, u, truth = paths_to(points, normal)
     a, b = head_angles_deg(u, head.rotation)
     seen = np.isfinite(a) & np.isfinite(b)
     return (wc, np.where(seen, a, spec.beam_table_deg()), np.where(seen, b, 0.0), 2.0 * rng / c_head, level,
-            points)
+            truth)
 
 
 def _stretch(wc: np.ndarray, factor: np.ndarray, range_min_m: float, dr: float) -> np.ndarray:
