@@ -35,10 +35,11 @@ speckle-bound than the peak). A beam whose column is empty has no detection (NaN
 Refraction (``sound_speed_profile``: the TRUE water, depth below the surface -> speed, linear
 between knots, constant beyond the first and last; ``surface_height_m``: where the surface is
 in the world, default the head's own height at each ping, a hull mount). The engine casts
-straight rays, so the forward model is: each beam's truth is the point the engine's rays found
-(the energy-weighted first hits of the beam's rays within the detection's window,
-:func:`footprint_points`: where the energy the detector weighed came from); its one-way time and the direction the echo arrives from are re-solved
-through the true profile (two-point ray tracing, :meth:`SoundSpeedProfile.solve`: Newton on the
+straight rays, so the forward model (``refraction: arrival``, the default) is: each beam's
+truth is the point the engine's rays found (the energy-weighted first hits of the beam's rays
+within the detection's window, :func:`footprint_points`: where the energy the detector weighed
+came from); its one-way time and the direction the echo arrives from are re-solved through
+the true profile (two-point ray tracing, :meth:`SoundSpeedProfile.solve`: Newton on the
 ray parameter, vectorised over beams); the beam's water column is mapped onto the head's time
 axis by that time (each column stretched by ``c_head T / |P - O|``: a target elsewhere in the
 beam moves with the bottom's ratio, an approximation), and the detection on it gives the
@@ -57,10 +58,15 @@ Without a profile the water is uniform at ``sound_speed_m_s`` and rays are strai
 are the directions of the truth points (within a fraction of a beam width of the beam table,
 the footprint's centroid).
 
+Rays per beam (``rays_across``, ``rays_along``): the engine spreads a ray's echo over range
+only between neighbours along the elevation axis (along track here), so the rays across a
+beam must be dense enough that a slant footprint is one echo, not a comb (the ``auto`` rule).
+
 Known simplifications: the receive beams are planes of constant azimuth over the transmit's
 width, not cones, and one width (a steered beam widens by ``1 / cos``: DESIGN.md section 15);
+one ray count for every beam (the nadir beams get as many rays across as the outermost);
 ``detection: phase`` is not implemented; the water column itself is straight-ray (only its
-mapping to time per beam is refracted).
+mapping to time per beam is refracted); ``labels`` are not formed (``points_m`` is the truth).
 """
 
 from __future__ import annotations
@@ -86,7 +92,7 @@ from . import renders
 from .sidescan import _preset_values, ping_geometry
 
 __all__ = ["MultibeamSpec", "SoundSpeedProfile", "render_multibeam", "ping_soundings", "detect_bottom",
-           "footprint_points", "bent_to_plane",
+           "footprint_points", "FrameHits", "bent_to_plane",
            "georeference", "arrivals", "beam_table_deg", "head_angles_deg"]
 
 SPACINGS = ("equiangular", "equidistant")
@@ -111,6 +117,8 @@ _FAR_M = 1e7
 # Two-point ray tracing: Newton steps at most, and the horizontal miss accepted (metres).
 _SOLVE_STEPS = 60
 _SOLVE_TOL_M = 1e-9
+# The bent ray's crossing of a plane: the miss accepted (metres).
+_PLANE_TOL_M = 1e-7
 
 
 # -- the water ----------------------------------------------------------------------------
@@ -765,6 +773,60 @@ def _windows(wc: np.ndarray, env: np.ndarray, peak: np.ndarray, window_db: float
     return lo.astype(np.int64), (lo + size).astype(np.int64), np.where(size > 0, total, 0.0)
 
 
+class FrameHits:
+    """A frame's first hits per beam, ready for weighted sums (made once per ping).
+
+    Attributes
+    ----------
+    distance : (n_beams, k) float64 ndarray
+        Each ray's first-hit distance, metres (0 where none or outside the window).
+    weight : (n_beams, k) float64 ndarray
+        The intensity the engine gave the ray there (0 where none or outside the window).
+    """
+
+    def __init__(self, paths, range_min_m: float = 0.0, range_max_m: float = np.inf) -> None:
+        distance, sid, intensity = paths.first_hits()
+        n_beams = distance.shape[0]
+        dist = distance.reshape(n_beams, -1)
+        ok = (sid.reshape(n_beams, -1) >= 0) & np.isfinite(dist) & (dist >= range_min_m) & (dist <= range_max_m)
+        self.paths = paths
+        self.distance = np.where(ok, dist, 0.0).astype(np.float64)
+        self.weight = np.where(ok, intensity.reshape(n_beams, -1), 0.0).astype(np.float64)
+        # In the channel's frame (the fan's own directions), one rotation per beam after the
+        # sums: rotating every ray into the world would cost as much as the rest of the ping.
+        self.directions = paths.fan.directions.reshape(n_beams, -1, 3)
+        self.rotation = np.asarray(paths.view.rotation, np.float64)
+        self.origin = np.asarray(paths.view.origin, np.float64).reshape(3)
+        self._normals = None
+
+    def normals(self) -> np.ndarray:
+        """Each ray's surface normal turned towards the head, the channel's frame, ``(n_beams, k, 3)``."""
+        if self._normals is None:
+            n = np.nan_to_num(np.asarray(self.paths.primary.normal, np.float64)).reshape(self.directions.shape)
+            n = n @ self.rotation  # R^T n: into the channel's frame, beside the rays
+            facing = np.where(np.einsum("bkj,bkj->bk", n, self.directions) > 0, -1.0, 1.0)
+            self._normals = n * facing[..., None]
+        return self._normals
+
+    def points(self, gate_m: np.ndarray | None = None, normals: bool = False):
+        """:func:`footprint_points` of these hits."""
+        w = self.weight
+        if gate_m is not None:
+            gate = np.asarray(gate_m, np.float64)
+            w = np.where((self.distance >= gate[0][:, None]) & (self.distance < gate[1][:, None]), w, 0.0)
+        total = w.sum(axis=1)
+        offset = np.einsum("bk,bkj->bj", w * self.distance, self.directions)
+        found = (total > 0)[:, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            p = np.where(found, self.origin + (offset / total[:, None]) @ self.rotation.T, np.nan)
+        if not normals:
+            return p
+        nw = np.einsum("bk,bkj->bj", w, self.normals()) @ self.rotation.T
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nw /= np.linalg.norm(nw, axis=1, keepdims=True)
+        return p, np.where(found, nw, np.nan)
+
+
 def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.inf, gate_m: np.ndarray | None = None,
                      normals: bool = False):
     """Each beam's truth: the energy-weighted mean of its rays' first hits, world frame.
@@ -782,7 +844,6 @@ def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.in
         Per beam the first hits' distances kept, ``[near, far)`` metres (the detection's window:
         where the energy the detector weighed came from, so that a beam half on an object and
         half on the floor behind it has its truth on the one it detected, not between).
-
     normals : bool
         Also return each beam's energy-weighted surface normal (unit, towards the head).
 
@@ -791,35 +852,7 @@ def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.in
     (n_beams, 3) float64 ndarray, metres; NaN for a beam whose rays meet nothing (in its gate).
     With ``normals``, ``(points, normals)``.
     """
-    distance, sid, intensity = paths.first_hits()
-    # In the channel's frame (the fan's own directions), one rotation per beam after the sums:
-    # rotating every ray into the world would cost as much as the rest of the ping.
-    d = paths.fan.directions
-    o = np.asarray(paths.view.origin, np.float64).reshape(3)
-    n_beams = distance.shape[0]
-    dist = distance.reshape(n_beams, -1)
-    ok = (sid.reshape(n_beams, -1) >= 0) & np.isfinite(dist) & (dist >= range_min_m) & (dist <= range_max_m)
-    if gate_m is not None:
-        gate = np.asarray(gate_m, np.float64)
-        ok &= (dist >= gate[0][:, None]) & (dist < gate[1][:, None])
-    w = np.where(ok, intensity.reshape(n_beams, -1), 0.0).astype(np.float64)
-    wd = w * np.where(ok, dist, 0.0)
-    total = w.sum(axis=1)
-    offset = np.einsum("bk,bkj->bj", wd, d.reshape(n_beams, -1, 3))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        p = o + (offset / total[:, None]) @ np.asarray(paths.view.rotation, np.float64).T
-    p = np.where((total > 0)[:, None], p, np.nan)
-    if not normals:
-        return p
-    # The surfaces' normals (either orientation as the caster gives them) turned towards the
-    # head, energy-weighted: the tangent plane of the beam's footprint.
-    n = np.asarray(paths.primary.normal, np.float64).reshape(n_beams, -1, 3)
-    rays_world = d.reshape(n_beams, -1, 3) @ np.asarray(paths.view.rotation, np.float64).T
-    facing = np.where(np.einsum("bkj,bkj->bk", n, rays_world) > 0, -1.0, 1.0)
-    nw = np.einsum("bk,bkj->bj", w * facing, np.nan_to_num(n))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        nw /= np.linalg.norm(nw, axis=1, keepdims=True)
-    return p, np.where((total > 0)[:, None], nw, np.nan)
+    return FrameHits(paths, range_min_m, range_max_m).points(gate_m, normals)
 
 
 def head_angles_deg(u_world: np.ndarray, head_rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -837,9 +870,10 @@ def bent_to_plane(origin_m: np.ndarray, direction: np.ndarray, points_m: np.ndar
     """Where refracted rays meet planes: each ray launched from the head along ``direction``,
     bent through ``profile``, met with the plane through ``points_m`` normal to ``normals``.
 
-    The crossing time is found by the Illinois method (regula falsi that halves a stale end)
-    on ``n . (ray(t) - point)``, vectorised over rays; the bracket is ``[0, 3 |point - head| /
-    c_min]``.
+    The crossing time is found by Newton's steps on ``n . (ray(t) - point)`` (its rate
+    ``n . velocity``, the velocity ``c (sin b cos a, sin b sin a, -cos b)`` by Snell), kept in a
+    bracket (the straight ray's time +-10 %, else ``[0, 3 |point - head| / c_min]``; a step
+    outside it is a bisection), vectorised over rays.
 
     Parameters
     ----------
@@ -867,32 +901,46 @@ def bent_to_plane(origin_m: np.ndarray, direction: np.ndarray, points_m: np.ndar
     alpha = np.arctan2(u[:, 1], u[:, 0])
     d0 = np.full(len(u), float(head_depth_m))
 
-    def at(t):
-        x, z = profile.trace(p, d0, t)
-        return np.stack([x * np.cos(alpha), x * np.sin(alpha), -(z - head_depth_m)], axis=-1)
+    ca, sa = np.cos(alpha), np.sin(alpha)
 
     def f(t):
-        return np.einsum("ij,ij->i", nrm, at(t) - rel)
+        """The signed distance past the plane at time t, and its rate (n . velocity)."""
+        x, z = profile.trace(p, d0, t)
+        r = np.stack([x * ca, x * sa, -(z - head_depth_m)], axis=-1)
+        c = profile.speed(z)
+        sb = p * c
+        cb = np.sqrt(np.clip(1.0 - sb ** 2, 0.0, 1.0))
+        v = c[:, None] * np.stack([sb * ca, sb * sa, -cb], axis=-1)
+        return np.einsum("ij,ij->i", nrm, r - rel), np.einsum("ij,ij->i", nrm, v), r
 
-    a = np.zeros(len(u))
-    b = 3.0 * np.linalg.norm(rel, axis=1) / min(profile.speed_m_s)
-    fa, fb = f(a), f(b)
-    ok = np.isfinite(fa) & np.isfinite(fb) & (fa * fb <= 0) & (u[:, 2] < 0)
-    fb = np.where(ok, fb, 0.0)
-    fa = np.where(ok, fa, 1.0)
+    # A bracket about the straight ray's time first (most rays bend by a few per cent), the
+    # wide one where that does not hold the crossing; then Newton's steps on t inside it
+    # (bisection where a step leaves it).
+    straight = np.linalg.norm(rel, axis=1) / c0
+    lo, hi = 0.9 * straight, 1.1 * straight
+    f_lo, f_hi = f(lo)[0], f(hi)[0]
+    wide = ~(np.isfinite(f_lo) & np.isfinite(f_hi) & (f_lo * f_hi <= 0))
+    if wide.any():
+        lo = np.where(wide, 0.0, lo)
+        hi = np.where(wide, 3.0 * np.linalg.norm(rel, axis=1) / min(profile.speed_m_s), hi)
+        f_lo, f_hi = f(lo)[0], f(hi)[0]
+    ok = np.isfinite(f_lo) & np.isfinite(f_hi) & (f_lo * f_hi <= 0) & (u[:, 2] < 0)
+    rising = f_hi > f_lo  # the sign of f after the crossing
+    t = np.where(ok, straight, 0.0)
     for _ in range(_SOLVE_STEPS):
-        with np.errstate(invalid="ignore", divide="ignore"):
-            c = np.where(fb != fa, b - fb * (b - a) / (fb - fa), b)
-        fc = np.where(ok, f(np.where(ok, c, 0.0)), 0.0)
-        fc = np.where(np.isfinite(fc), fc, 0.0)
-        swap = fc * fb < 0
-        a, fa = np.where(swap, b, a), np.where(swap, fb, 0.5 * fa)
-        b, fb = c, fc
-        if (np.abs(fb) <= _SOLVE_TOL_M * 10).all():
+        ft, dft, r = f(t)
+        ft = np.where(ok, ft, 0.0)
+        done = np.abs(ft) <= _PLANE_TOL_M
+        if done.all():
             break
-    out = o + at(np.where(ok, b, 0.0))
-    hit = ok & (np.abs(fb) <= 1e-6)
-    return np.where(hit[:, None], out, np.nan), np.where(hit, b, np.nan)
+        past = (ft > 0) == rising
+        hi, lo = np.where(past, t, hi), np.where(past, lo, t)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            step = t - ft / dft
+        step = np.where(np.isfinite(step) & (step > lo) & (step < hi), step, 0.5 * (lo + hi))
+        t = np.where(done, t, step)
+    hit = ok & (np.abs(ft) <= 1e3 * _PLANE_TOL_M)
+    return np.where(hit[:, None], o + r, np.nan), np.where(hit, t, np.nan)
 
 
 def arrivals(origin_m: np.ndarray, points_m: np.ndarray, sound_speed_m_s: float,
@@ -1114,7 +1162,8 @@ def ping_soundings(spec: MultibeamSpec, paths, water_column: np.ndarray, head: P
         t, u = arrivals(origin, points, c_head, profile, d0)
         return t, u, points
 
-    found_all = footprint_points(paths, spec.range_min_m, spec.range_max_m, normals=bend)
+    hits = FrameHits(paths, spec.range_min_m, spec.range_max_m)
+    found_all = hits.points(normals=bend)
     points, normal = found_all if bend else (found_all, None)
     wc = water_column
     factor = np.ones(spec.n_beams)
@@ -1131,7 +1180,7 @@ def ping_soundings(spec: MultibeamSpec, paths, water_column: np.ndarray, head: P
     # more either side: range splatting and the pulse spread an echo that far), mapped back to
     # straight distances. A beam that detected nothing keeps the truth of all its hits.
     gate = (spec.range_min_m + (window + np.array([[-1], [1]])) * dr) / factor
-    gated = footprint_points(paths, spec.range_min_m, spec.range_max_m, gate, normals=bend)
+    gated = hits.points(gate, normals=bend)
     detected = np.isfinite(rng)[:, None]
     if bend:
         points, normal = np.where(detected, gated[0], points), np.where(detected, gated[1], normal)
