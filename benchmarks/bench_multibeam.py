@@ -12,7 +12,9 @@ Measures, in one run on this machine:
   detection);
 * the same ping through a sound-speed profile (two-point ray tracing per beam, the columns
   mapped to time);
-* sweeps: beams (64 to 512) and samples (512 to 4,096), each with its bare cast and ratio.
+* sweeps: beams (64 to 512) and samples (512 to 4,096), each with its bare cast and ratio
+  (the automatic rays per beam grow as 1 / the sample's length across and along: rays grow as
+  samples squared).
 
 Usage::
 
@@ -43,7 +45,7 @@ from sonarsim.instruments import multibeam as mb
 PINGS = 5
 
 
-def scene(n_beams: int = 256, n_samples: int = 1024, profile: bool = False) -> dict:
+def scene(n_beams: int = 256, n_samples: int = 1024, profile: bool = False, refraction: str = "arrival") -> dict:
     section = {"type": "multibeam", "frequency_khz": 400.0, "n_beams": n_beams, "swath_deg": 130.0,
                "beam_spacing": "equiangular", "tx_beam_width_along_deg": 1.0, "rx_beam_width_across_deg": 0.5,
                "pulse_length_us": 50.0, "range_min_m": 0.0, "range_max_m": 50.0, "n_samples": n_samples,
@@ -51,7 +53,8 @@ def scene(n_beams: int = 256, n_samples: int = 1024, profile: bool = False) -> d
                "pose": {"position_m": [0.0, 0.0, 20.0], "rpy_deg": [3.0, 2.0, 0.0]}}
     if profile:
         section.update(sound_speed_profile=[[0.0, 1500.0], [10.0, 1495.0], [30.0, 1520.0]],
-                       processing_profile=[[0.0, 1500.0], [30.0, 1515.0]], surface_height_m=25.0)
+                       processing_profile=[[0.0, 1500.0], [30.0, 1515.0]], surface_height_m=25.0,
+                       refraction=refraction)
     return {"sonar": section, "ground": {"height_m": 0.0},
             "objects": [{"name": "box", "primitive": "box", "size_m": [2.0, 2.0, 1.0],
                          "pose": {"position_m": [0.0, 8.0, 0.5]}}],
@@ -172,7 +175,8 @@ def main(argv=None) -> int:
     samples = (256, 512) if args.quick else (512, 1024, 2048, 4096)
     main_beams = 32 if args.quick else 256
     rows = [measure("r2sonic-like", scene(main_beams), repeats),
-            measure("r2sonic-like, profile", scene(main_beams, profile=True), repeats)]
+            measure("r2sonic-like, profile", scene(main_beams, profile=True), repeats),
+            measure("profile, bent beams", scene(main_beams, profile=True, refraction="beam"), repeats)]
     sweep_beams = [measure(f"beams {b}", scene(b), repeats) for b in beams]
     sweep_samples = [measure(f"samples {s}", scene(main_beams, s), repeats) for s in samples]
 
@@ -180,7 +184,8 @@ def main(argv=None) -> int:
         return float(np.polyfit(np.log(xs), np.log(ys), 1)[0])
 
     results = {
-        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "platform": platform.platform()},
+        "machine": {"python": platform.python_version(), "cpus": os.cpu_count(), "platform": platform.platform(),
+                    "load_average_1_5_15": list(os.getloadavg())},
         "cases": rows, "beams": sweep_beams, "samples": sweep_samples,
         "exponents": {
             "beams": {"ping": exponent(beams, [r["ping_ms"] for r in sweep_beams]),

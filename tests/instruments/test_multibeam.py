@@ -156,6 +156,22 @@ def test_mirrored_scene_gives_the_mirrored_swath():
     np.testing.assert_allclose(a.points_m[:, ::-1] * [1, -1, 1], b.points_m, atol=1e-5)
 
 
+def test_a_beam_half_on_an_object_has_its_truth_on_what_it_detected():
+    """A 2 x 2 x 1 m box floating 4.5 m under the head, 1 to 3 m to port: the beams over its
+    edges see it and the floor behind. The truth of each sounding is on a surface (the box's or
+    the floor), not between them, and the sounding is at it."""
+    box = {"name": "box", "primitive": "box", "size_m": [2.0, 2.0, 1.0], "pose": {"position_m": [0.0, 2.0, 5.0]}}
+    film, spec, world, *_ = render(scene(objects=[box]), speckle=False)
+    p = film.points_m[0]
+    q = np.abs(p - [0.0, 2.0, 5.0]) - [1.0, 1.0, 0.5]
+    to_box = np.abs(np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0))
+    assert np.minimum(np.abs(p[:, 2]), to_box).max() < 1e-3
+    on_box = to_box < 1e-3
+    # its top, or the side facing the head (y = 1 m, seen obliquely)
+    assert 5 <= on_box.sum() <= 20 and ((p[on_box, 2] > 5.5 - 1e-3) | (np.abs(p[on_box, 1] - 1.0) < 1e-3)).all()
+    assert np.linalg.norm(world[0] - p, axis=1).max() <= 2 * DR
+
+
 def test_a_pings_draws_are_its_own():
     doc = scene(sensor={"speckle": True})
     with sonarsim.Simulator(doc) as sim:
@@ -240,6 +256,22 @@ def test_a_ray_that_turns_has_no_sounding():
     assert np.isnan(p2[0])
 
 
+def test_a_bent_ray_meets_a_tilted_plane_where_the_ray_equations_put_it():
+    from sonarsim.instruments.multibeam import bent_to_plane
+
+    beta = np.radians([5.0, 30.0, 55.0])
+    alpha = np.radians([0.0, 120.0, -60.0])
+    u = np.stack([np.sin(beta) * np.cos(alpha), np.sin(beta) * np.sin(alpha), -np.cos(beta)], axis=1)
+    n = np.array([0.2, -0.1, 1.0]) / np.linalg.norm([0.2, -0.1, 1.0])  # a 13 deg slope
+    point = np.array([[0.0, 0.0, -25.0]] * 3)  # the plane through (0, 0, -25) below the head
+    origin = np.zeros(3)
+    hit, t = bent_to_plane(origin, u, point, np.tile(n, (3, 1)), PROFILE, 3.0)
+    np.testing.assert_allclose((hit - point) @ n, 0.0, atol=1e-6)
+    for k in range(3):
+        x, z, _ = integrate_ray(PROFILE, beta[k], 3.0, t_end=t[k])
+        np.testing.assert_allclose(hit[k], [x * np.cos(alpha[k]), x * np.sin(alpha[k]), -(z - 3.0)], atol=1e-5)
+
+
 H = 30.0  # the head at the surface, the floor 30 m down
 TRUE = [[0.0, 1500.0], [40.0, 1540.0]]  # 1 m/s per metre: a strong thermocline
 
@@ -248,49 +280,61 @@ def profile_scene(rpy=(0.0, 0.0, 0.0), **keys):
     return scene(rpy, altitude_m=H, range_max_m=80.0, surface_height_m=H, sound_speed_profile=TRUE, **keys)
 
 
+@pytest.mark.parametrize("refraction", ["arrival", "beam"])
 @pytest.mark.parametrize("rpy", [(0.0, 0.0, 0.0), (8.0, 0.0, 0.0), (-8.0, 6.0, 0.0), (5.0, -10.0, 30.0)])
-def test_true_profile_processed_with_itself_lies_on_the_plane(rpy):
-    film, spec, world, *_ = render(profile_scene(rpy), speckle=False)
+def test_true_profile_processed_with_itself_lies_on_the_plane(rpy, refraction):
+    film, spec, world, *_ = render(profile_scene(rpy, refraction=refraction), speckle=False)
     dr = 80.0 / N_SAMPLES
     ok = np.isfinite(film.two_way_time_s[0])
     assert ok.sum() >= 64
     assert np.abs(world[0, ok, 2]).max() <= 2 * dr, np.abs(world[0, ok, 2]).max()
     assert np.linalg.norm(world[0, ok] - film.points_m[0, ok], axis=1).max() <= 2 * dr
+    assert np.abs(film.points_m[0, ok, 2]).max() < 1e-6  # the truth on the floor, either way
+    bent = np.abs(film.angle_deg[0, ok] - spec.beam_table_deg()[ok])
+    if refraction == "beam":  # the beam table's angles (the footprint's centroid: a hundredth of a degree)
+        assert bent.max() < 0.01
+    else:  # the arrival's: bent towards the vertical by up to about a degree at 60 deg
+        assert 0.5 < bent.max() < 2.0
     # refraction is there: processed with straight rays the swath is not flat
     straight, _ = spec.soundings_points(film, [sonarsim.Pose((0, 0, H), rpy)], profile=None)
     assert np.nanmax(np.abs(straight[0, :, 2])) > 0.2
 
 
-def test_a_wrong_processing_profile_curls_the_outer_beams():
+@pytest.mark.parametrize("refraction", ["arrival", "beam"])
+@pytest.mark.parametrize("true, c0", [(TRUE, 1500.0), ([[0.0, 1540.0], [40.0, 1500.0]], 1540.0)])
+def test_a_wrong_processing_profile_curls_the_outer_beams(true, c0, refraction):
     """True water 1500 m/s at the surface, faster below (1 m/s per m); the processing assumes
-    1500 m/s throughout. At nadir the echo comes early: too shallow by about g H^2 / (2 c).
+    1500 m/s throughout (and the mirror case: slower below, 1540 m/s assumed: the frown). At nadir the echo comes early: too shallow by about g H^2 / (2 c).
     Away from nadir Snell's law bends the true ray away from the vertical, so the straight
     ray of the same time and arrival angle goes deeper than the floor: to second order in the
     gradient the depth error is -(g H^2 / (2 c)) (1 - tan^2 b), zero near 45 deg, positive
     (too deep) beyond. Checked against an independent integration of the ray equations: the
     ray of each beam's arrival angle, integrated through the true water to the floor, gives the
     time, and a straight ray of that time at 1500 m/s its processed depth."""
-    film, spec, world, *_ = render(profile_scene(processing_profile=[[0.0, 1500.0]]), speckle=False)
+    doc = profile_scene(processing_profile=[[0.0, c0]])
+    doc["sonar"].update(sound_speed_profile=true, sound_speed_m_s=c0, refraction=refraction)
+    film, spec, world, *_ = render(doc, speckle=False)
     dr = 80.0 / N_SAMPLES
     angle = film.angle_deg[0]
     depth_error = -world[0, :, 2]  # > 0: deeper than the floor
-    true = SoundSpeedProfile.parse(TRUE, "t")
+    water = SoundSpeedProfile.parse(true, "t")
+    g = (true[1][1] - true[0][1]) / (true[1][0] - true[0][0])  # 1/s
     for j in range(0, 65, 4):
         b = math.radians(abs(angle[j]))
-        x_i, _, t_i = integrate_ray(true, b, 0.0, z_end=H)
-        assert abs(film.two_way_time_s[0, j] / 2.0 - t_i) * 1500.0 <= 1.5 * dr  # the film's time
-        predicted = 1500.0 * t_i * math.cos(b) - H
+        x_i, _, t_i = integrate_ray(water, b, 0.0, z_end=H)
+        assert abs(film.two_way_time_s[0, j] / 2.0 - t_i) * c0 <= 1.5 * dr  # the film's time
+        predicted = c0 * t_i * math.cos(b) - H
         assert abs(depth_error[j] - predicted) <= 1.5 * dr, (j, depth_error[j], predicted)
     # the sign Snell's law gives, and the growth with angle
-    g_term = 1.0 * H ** 2 / (2 * 1500.0)
+    g_term = g * H ** 2 / (2 * c0)  # > 0: faster below
     assert depth_error[32] == pytest.approx(-g_term, rel=0.1)
     outer = np.abs(angle) > 55
-    assert (depth_error[outer] > 0.3).all()
+    assert (np.sign(g) * depth_error[outer] > 0.2).all()
     snell = -g_term * (1.0 - np.tan(np.radians(angle)) ** 2)
     assert np.abs(depth_error - snell).max() < 0.3 * np.abs(snell).max()
-    half = depth_error[32:]  # nadir to starboard edge: the error grows with the angle
+    half = np.sign(g) * depth_error[32:]  # nadir to starboard edge: the error grows with the angle
     assert (np.diff(half) > -0.5 * dr).all() and half[-1] - half[0] > 0.8
-    np.testing.assert_allclose(depth_error, depth_error[::-1], atol=2 * dr)  # symmetric: a smile
+    np.testing.assert_allclose(depth_error, depth_error[::-1], atol=2 * dr)  # symmetric: a smile (or frown)
 
 
 def test_georeference_applies_heave_and_the_lever_arm():
@@ -313,7 +357,7 @@ def test_georeference_applies_heave_and_the_lever_arm():
     ("n_samples", 0), ("range_max_m", -1.0), ("frequency_khz", "x"), ("sound_speed_m_s", 900.0),
     ("sound_speed_profile", [[0, 1500], [0, 1510]]), ("processing_profile", "warm"),
     ("sound_speed_profile", [[0, 1500], [10, 2500]]), ("detection_window_db", 0.0), ("rays_across", 0),
-    ("beam_angles_deg", [10.0, 20.0]), ("surface_height_m", "sea"),
+    ("beam_angles_deg", [10.0, 20.0]), ("surface_height_m", "sea"), ("refraction", "curved"),
 ])
 def test_bad_values_are_named(key, value):
     with pytest.raises(ConfigError, match=f"sonar.{key}"):
@@ -420,3 +464,33 @@ def test_the_benchmark_runs_at_tiny_sizes(tmp_path):
     for r in res["cases"] + res["beams"] + res["samples"]:
         assert r["ping_ms"] > 0 and r["bare_cast_ms"] > 0 and r["rays_per_ping"] > 0
         assert r["ping_over_cast"] == pytest.approx(r["ping_ms"] / r["bare_cast_ms"])
+
+
+def test_soundings_under_speckle_scatter_about_the_floor():
+    """With the sensor's speckle every ping's columns differ; the detection's depths scatter by
+    a couple of samples (more on the slant outer beams, whose echo is long) about the floor,
+    not off it."""
+    with sonarsim.Simulator(scene(sensor={"speckle": True})) as sim:
+        film = render_pings(sim, n_pings=20)
+        spec = sim.scene.instruments[0]
+        world, _ = spec.soundings_points(film, [sim.scene.vehicle_pose] * 20)
+    z = world[..., 2]
+    assert np.isfinite(z).all()
+    assert np.sqrt((z ** 2).mean(axis=0)).max() <= 4 * DR
+    assert abs(z.mean()) <= 0.3 * DR
+    assert np.std(film.intensity[:, 32]) > 0.1 * film.intensity[:, 32].mean()  # the backscatter speckles too
+
+
+def test_soundings_head_points_with_a_tilt():
+    from sonarsim.image.films import PingGeometry, Soundings
+
+    g = PingGeometry.of(1, sound_speed_m_s=1500.0)
+    t = np.array([[2 * 10.0 / 1500.0, 2 * 20.0 / 1500.0]])
+    s = Soundings(np.array([[30.0, -45.0]]), t, np.ones((1, 2)), g, tilt_deg=np.array([[0.0, 10.0]]))
+    p = s.head_points()
+    np.testing.assert_allclose(p[0, 0], [0.0, 5.0, -10.0 * math.cos(math.radians(30))], atol=1e-12)
+    b, a = math.radians(10.0), math.radians(-45.0)
+    np.testing.assert_allclose(p[0, 1], 20.0 * np.array([math.sin(b), math.cos(b) * math.sin(a), -math.cos(b) * math.cos(a)]))
+    np.testing.assert_allclose(Soundings(s.angle_deg, t, s.intensity, g).head_points()[0, 0], p[0, 0])
+    with pytest.raises(ValueError, match="tilt_deg"):
+        Soundings(s.angle_deg, t, s.intensity, g, tilt_deg=np.zeros(2))

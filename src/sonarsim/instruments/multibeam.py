@@ -17,7 +17,7 @@ Scene section (``type: multibeam``)::
      beam_spacing: equiangular, tx_beam_width_along_deg: 1, rx_beam_width_across_deg: 0.5,
      pulse_length_us: 50, range_min_m: 0, range_max_m: 100, n_samples: 2048, ping_rate_hz: 10,
      sound_speed_m_s: 1500, sound_speed_profile: [[0, 1500], [30, 1530]],
-     processing_profile: [[0, 1500]], surface_height_m: 30, detection: amplitude,
+     processing_profile: [[0, 1500]], surface_height_m: 30, refraction: arrival, detection: amplitude,
      detection_window_db: 10, sensor: {...}}
 
 ``beam_angles_deg: [first, last]`` (port-most, starboard-most beam centre, degrees, > 0 to port)
@@ -35,10 +35,11 @@ speckle-bound than the peak). A beam whose column is empty has no detection (NaN
 Refraction (``sound_speed_profile``: the TRUE water, depth below the surface -> speed, linear
 between knots, constant beyond the first and last; ``surface_height_m``: where the surface is
 in the world, default the head's own height at each ping, a hull mount). The engine casts
-straight rays, so the forward model is: each beam's truth is the point the engine's rays found
-(the energy-weighted first hits of the beam's rays, :func:`footprint_points`: a point of the
-scene's surfaces); its one-way time and the direction the echo arrives from are re-solved
-through the true profile (two-point ray tracing, :meth:`SoundSpeedProfile.solve`: Newton on the
+straight rays, so the forward model (``refraction: arrival``, the default) is: each beam's
+truth is the point the engine's rays found (the energy-weighted first hits of the beam's rays
+within the detection's window, :func:`footprint_points`: where the energy the detector weighed
+came from); its one-way time and the direction the echo arrives from are re-solved through
+the true profile (two-point ray tracing, :meth:`SoundSpeedProfile.solve`: Newton on the
 ray parameter, vectorised over beams); the beam's water column is mapped onto the head's time
 axis by that time (each column stretched by ``c_head T / |P - O|``: a target elsewhere in the
 beam moves with the bottom's ratio, an approximation), and the detection on it gives the
@@ -47,14 +48,25 @@ two-way time. The sounding's angles are those of the arrival, so the processing
 the truth point (up to the detection's error) when the two profiles agree, and into the curled
 outer beams surveyors recognise ("smile" or "frown") when they do not.
 
+``refraction: beam`` instead keeps each beam's direction (the straight ray to its footprint,
+the beam table's angle as a device reports it) and bends that ray through the true profile to
+the tangent plane of the footprint (the energy-weighted normal of the hits there,
+:func:`bent_to_plane`): the same on planar facets, a curvature-sized error on curved surfaces,
+and no occlusion along the bent path (the engine's straight ray decided what was hit).
+
 Without a profile the water is uniform at ``sound_speed_m_s`` and rays are straight: the angles
 are the directions of the truth points (within a fraction of a beam width of the beam table,
 the footprint's centroid).
 
+Rays per beam (``rays_across``, ``rays_along``): the engine spreads a ray's echo over range
+only between neighbours along the elevation axis (along track here), so the rays across a
+beam must be dense enough that a slant footprint is one echo, not a comb (the ``auto`` rule).
+
 Known simplifications: the receive beams are planes of constant azimuth over the transmit's
 width, not cones, and one width (a steered beam widens by ``1 / cos``: DESIGN.md section 15);
+one ray count for every beam (the nadir beams get as many rays across as the outermost);
 ``detection: phase`` is not implemented; the water column itself is straight-ray (only its
-mapping to time per beam is refracted).
+mapping to time per beam is refracted); ``labels`` are not formed (``points_m`` is the truth).
 """
 
 from __future__ import annotations
@@ -81,11 +93,12 @@ from ._sections import parse_section, section_dict
 from . import ping_geometry
 
 __all__ = ["MultibeamSpec", "SoundSpeedProfile", "render_multibeam", "ping_soundings", "detect_bottom",
-           "footprint_points",
+           "footprint_points", "FrameHits", "bent_to_plane",
            "georeference", "arrivals", "beam_table_deg", "head_angles_deg"]
 
 SPACINGS = ("equiangular", "equidistant")
 DETECTIONS = ("amplitude",)
+REFRACTIONS = ("arrival", "beam")
 # The widest beam from the vertical, degrees (the fan must stay inside +-90: SonarConfig).
 MAX_BEAM_ANGLE_DEG = 80.0
 # Roll the auto ray count across a beam allows for (degrees added to the widest beam's angle).
@@ -105,6 +118,8 @@ _FAR_M = 1e7
 # Two-point ray tracing: Newton steps at most, and the horizontal miss accepted (metres).
 _SOLVE_STEPS = 60
 _SOLVE_TOL_M = 1e-9
+# The bent ray's crossing of a plane: the miss accepted (metres).
+_PLANE_TOL_M = 1e-7
 
 
 # -- the water ----------------------------------------------------------------------------
@@ -416,6 +431,13 @@ class MultibeamSpec(InstrumentSpec):
     surface_height_m : float or None
         The world height of the water's surface (profiles count depth from it); None: at the
         head (a hull mount: the head at depth 0 every ping).
+    refraction : {'arrival', 'beam'}
+        How a true profile acts on the engine's straight rays (module notes): ``arrival`` keeps
+        each beam's truth point and re-solves the path to it (exact on any surface; the angles
+        are the arrival's, off the beam table by the bending); ``beam`` keeps the beam's
+        direction and bends its ray to the tangent plane of the surface at that point (the
+        angles stay the table's, as a device's; exact over planar facets, off by about the
+        surface's curvature times the bend's offset squared elsewhere).
     detection : {'amplitude'}
     detection_window_db : float
         The detection window: samples within this of the beam's peak, dB, in (0, 60].
@@ -439,7 +461,8 @@ class MultibeamSpec(InstrumentSpec):
         "preset", "frequency_khz", "n_beams", "swath_deg", "beam_angles_deg", "beam_spacing",
         "tx_beam_width_along_deg", "rx_beam_width_across_deg", "pulse_length_us", "range_min_m", "range_max_m",
         "n_samples", "ping_rate_hz", "sound_speed_m_s", "sound_speed_profile", "processing_profile",
-        "surface_height_m", "detection", "detection_window_db", "rays_across", "rays_along", "sensor",
+        "surface_height_m", "refraction", "detection", "detection_window_db", "rays_across", "rays_along",
+        "sensor",
     )
 
     frequency_khz: float = 400.0
@@ -458,6 +481,7 @@ class MultibeamSpec(InstrumentSpec):
     sound_speed_profile: SoundSpeedProfile | None = None
     processing_profile: SoundSpeedProfile | None = None
     surface_height_m: float | None = None
+    refraction: str = "arrival"
     detection: str = "amplitude"
     detection_window_db: float = 10.0
     rays_across: int | str = "auto"
@@ -512,6 +536,8 @@ class MultibeamSpec(InstrumentSpec):
                 object.__setattr__(self, name, SoundSpeedProfile.parse(v, name))
         if self.surface_height_m is not None:
             check("surface_height_m", -1e5, 1e5)
+        if self.refraction not in REFRACTIONS:
+            raise ConfigError("refraction", f"must be one of {', '.join(REFRACTIONS)}; got {shown(self.refraction)}")
         if self.detection not in DETECTIONS:
             raise ConfigError("detection", f"must be one of {', '.join(DETECTIONS)} (phase detection is not "
                               f"implemented); got {shown(self.detection)}")
@@ -611,7 +637,7 @@ class MultibeamSpec(InstrumentSpec):
             if v is None and k in ("surface_height_m", "processing_profile", "sound_speed_profile", "swath_deg",
                                    "beam_angles_deg"):
                 return None
-            if k in ("beam_spacing", "detection") or (k in ("rays_across", "rays_along") and v == "auto"):
+            if k in ("beam_spacing", "detection", "refraction") or (k in ("rays_across", "rays_along") and v == "auto"):
                 return v
             if k in ("rays_across", "rays_along"):
                 return _integer(v, where)
@@ -720,31 +746,86 @@ def _windows(wc: np.ndarray, env: np.ndarray, peak: np.ndarray, window_db: float
     return lo.astype(np.int64), (lo + size).astype(np.int64), np.where(size > 0, total, 0.0)
 
 
-def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.inf) -> np.ndarray:
+class FrameHits:
+    """A frame's first hits per beam, ready for weighted sums (made once per ping).
+
+    Attributes
+    ----------
+    distance : (n_beams, k) float64 ndarray
+        Each ray's first-hit distance, metres (0 where none or outside the window).
+    weight : (n_beams, k) float64 ndarray
+        The intensity the engine gave the ray there (0 where none or outside the window).
+    """
+
+    def __init__(self, paths, range_min_m: float = 0.0, range_max_m: float = np.inf) -> None:
+        distance, sid, intensity = paths.first_hits()
+        n_beams = distance.shape[0]
+        dist = distance.reshape(n_beams, -1)
+        ok = (sid.reshape(n_beams, -1) >= 0) & np.isfinite(dist) & (dist >= range_min_m) & (dist <= range_max_m)
+        self.paths = paths
+        self.distance = np.where(ok, dist, 0.0).astype(np.float64)
+        self.weight = np.where(ok, intensity.reshape(n_beams, -1), 0.0).astype(np.float64)
+        # In the channel's frame (the fan's own directions), one rotation per beam after the
+        # sums: rotating every ray into the world would cost as much as the rest of the ping.
+        self.directions = paths.fan.directions.reshape(n_beams, -1, 3)
+        self.rotation = np.asarray(paths.view.rotation, np.float64)
+        self.origin = np.asarray(paths.view.origin, np.float64).reshape(3)
+        self._normals = None
+
+    def normals(self) -> np.ndarray:
+        """Each ray's surface normal turned towards the head, the channel's frame, ``(n_beams, k, 3)``."""
+        if self._normals is None:
+            n = np.nan_to_num(np.asarray(self.paths.primary.normal, np.float64)).reshape(self.directions.shape)
+            n = n @ self.rotation  # R^T n: into the channel's frame, beside the rays
+            facing = np.where(np.einsum("bkj,bkj->bk", n, self.directions) > 0, -1.0, 1.0)
+            self._normals = n * facing[..., None]
+        return self._normals
+
+    def points(self, gate_m: np.ndarray | None = None, normals: bool = False):
+        """:func:`footprint_points` of these hits."""
+        w = self.weight
+        if gate_m is not None:
+            gate = np.asarray(gate_m, np.float64)
+            w = np.where((self.distance >= gate[0][:, None]) & (self.distance < gate[1][:, None]), w, 0.0)
+        total = w.sum(axis=1)
+        offset = np.einsum("bk,bkj->bj", w * self.distance, self.directions)
+        found = (total > 0)[:, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            p = np.where(found, self.origin + (offset / total[:, None]) @ self.rotation.T, np.nan)
+        if not normals:
+            return p
+        nw = np.einsum("bk,bkj->bj", w, self.normals()) @ self.rotation.T
+        with np.errstate(invalid="ignore", divide="ignore"):
+            nw /= np.linalg.norm(nw, axis=1, keepdims=True)
+        return p, np.where(found, nw, np.nan)
+
+
+def footprint_points(paths, range_min_m: float = 0.0, range_max_m: float = np.inf, gate_m: np.ndarray | None = None,
+                     normals: bool = False):
     """Each beam's truth: the energy-weighted mean of its rays' first hits, world frame.
 
-    A beam's rays that meet a surface within the range window, weighted by the intensity the
-    engine gave them (pattern, backscatter): a point on the floor where the floor is flat (a
-    mean of points on a plane).
+    A beam's rays that meet a surface within the range window (and within its ``gate_m``),
+    weighted by the intensity the engine gave them (pattern, backscatter): a point on the floor
+    where the floor is flat (a mean of points on a plane).
+
+    Parameters
+    ----------
+    paths : FramePaths
+    range_min_m, range_max_m : float
+        The window, metres.
+    gate_m : (2, n_beams) array, optional
+        Per beam the first hits' distances kept, ``[near, far)`` metres (the detection's window:
+        where the energy the detector weighed came from, so that a beam half on an object and
+        half on the floor behind it has its truth on the one it detected, not between).
+    normals : bool
+        Also return each beam's energy-weighted surface normal (unit, towards the head).
 
     Returns
     -------
-    (n_beams, 3) float64 ndarray, metres; NaN for a beam whose rays meet nothing.
+    (n_beams, 3) float64 ndarray, metres; NaN for a beam whose rays meet nothing (in its gate).
+    With ``normals``, ``(points, normals)``.
     """
-    distance, sid, intensity = paths.first_hits()
-    # In the channel's frame (the fan's own directions), one rotation per beam after the sums:
-    # rotating every ray into the world would cost as much as the rest of the ping.
-    d = paths.fan.directions
-    o = np.asarray(paths.view.origin, np.float64).reshape(3)
-    ok = (sid >= 0) & np.isfinite(distance) & (distance >= range_min_m) & (distance <= range_max_m)
-    n_beams = distance.shape[0]
-    w = np.where(ok, intensity, 0.0).reshape(n_beams, -1).astype(np.float64)
-    wd = w * np.where(ok, distance, 0.0).reshape(n_beams, -1)
-    total = w.sum(axis=1)
-    offset = np.einsum("bk,bkj->bj", wd, d.reshape(n_beams, -1, 3))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        p = o + (offset / total[:, None]) @ np.asarray(paths.view.rotation, np.float64).T
-    return np.where((total > 0)[:, None], p, np.nan)
+    return FrameHits(paths, range_min_m, range_max_m).points(gate_m, normals)
 
 
 def head_angles_deg(u_world: np.ndarray, head_rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -755,6 +836,84 @@ def head_angles_deg(u_world: np.ndarray, head_rotation: np.ndarray) -> tuple[np.
     """
     v = np.asarray(u_world, np.float64) @ np.asarray(head_rotation, np.float64)  # R^T u, row vectors
     return np.degrees(np.arctan2(v[..., 1], -v[..., 2])), np.degrees(np.arcsin(np.clip(v[..., 0], -1.0, 1.0)))
+
+
+def bent_to_plane(origin_m: np.ndarray, direction: np.ndarray, points_m: np.ndarray, normals: np.ndarray,
+                  profile: SoundSpeedProfile, head_depth_m: float = 0.0) -> np.ndarray:
+    """Where refracted rays meet planes: each ray launched from the head along ``direction``,
+    bent through ``profile``, met with the plane through ``points_m`` normal to ``normals``.
+
+    The crossing time is found by Newton's steps on ``n . (ray(t) - point)`` (its rate
+    ``n . velocity``, the velocity ``c (sin b cos a, sin b sin a, -cos b)`` by Snell), kept in a
+    bracket (the straight ray's time +-10 %, else ``[0, 3 |point - head| / c_min]``; a step
+    outside it is a bisection), vectorised over rays.
+
+    Parameters
+    ----------
+    origin_m : (3,) array
+        The head, world frame.
+    direction, points_m, normals : (n, 3) arrays
+        Unit launch directions (downwards), the planes' points and unit normals.
+    profile : SoundSpeedProfile
+    head_depth_m : float
+
+    Returns
+    -------
+    points : (n, 3) float64 ndarray
+        The crossings, metres; NaN where the ray turns or meets the plane beyond the bracket.
+    time_s : (n,) float64 ndarray
+        The one-way travel time to them.
+    """
+    o = np.asarray(origin_m, np.float64).reshape(3)
+    u = np.asarray(direction, np.float64)
+    rel = np.asarray(points_m, np.float64) - o
+    nrm = np.asarray(normals, np.float64)
+    c0 = float(profile.speed(head_depth_m))
+    sin_b = np.hypot(u[:, 0], u[:, 1])
+    p = sin_b / c0
+    alpha = np.arctan2(u[:, 1], u[:, 0])
+    d0 = np.full(len(u), float(head_depth_m))
+
+    ca, sa = np.cos(alpha), np.sin(alpha)
+
+    def f(t):
+        """The signed distance past the plane at time t, and its rate (n . velocity)."""
+        x, z = profile.trace(p, d0, t)
+        r = np.stack([x * ca, x * sa, -(z - head_depth_m)], axis=-1)
+        c = profile.speed(z)
+        sb = p * c
+        cb = np.sqrt(np.clip(1.0 - sb ** 2, 0.0, 1.0))
+        v = c[:, None] * np.stack([sb * ca, sb * sa, -cb], axis=-1)
+        return np.einsum("ij,ij->i", nrm, r - rel), np.einsum("ij,ij->i", nrm, v), r
+
+    # A bracket about the straight ray's time first (most rays bend by a few per cent), the
+    # wide one where that does not hold the crossing; then Newton's steps on t inside it
+    # (bisection where a step leaves it).
+    straight = np.linalg.norm(rel, axis=1) / c0
+    lo, hi = 0.9 * straight, 1.1 * straight
+    f_lo, f_hi = f(lo)[0], f(hi)[0]
+    wide = ~(np.isfinite(f_lo) & np.isfinite(f_hi) & (f_lo * f_hi <= 0))
+    if wide.any():
+        lo = np.where(wide, 0.0, lo)
+        hi = np.where(wide, 3.0 * np.linalg.norm(rel, axis=1) / min(profile.speed_m_s), hi)
+        f_lo, f_hi = f(lo)[0], f(hi)[0]
+    ok = np.isfinite(f_lo) & np.isfinite(f_hi) & (f_lo * f_hi <= 0) & (u[:, 2] < 0)
+    rising = f_hi > f_lo  # the sign of f after the crossing
+    t = np.where(ok, straight, 0.0)
+    for _ in range(_SOLVE_STEPS):
+        ft, dft, r = f(t)
+        ft = np.where(ok, ft, 0.0)
+        done = np.abs(ft) <= _PLANE_TOL_M
+        if done.all():
+            break
+        past = (ft > 0) == rising
+        hi, lo = np.where(past, t, hi), np.where(past, lo, t)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            step = t - ft / dft
+        step = np.where(np.isfinite(step) & (step > lo) & (step < hi), step, 0.5 * (lo + hi))
+        t = np.where(done, t, step)
+    hit = ok & (np.abs(ft) <= 1e3 * _PLANE_TOL_M)
+    return np.where(hit[:, None], o + r, np.nan), np.where(hit, t, np.nan)
 
 
 def arrivals(origin_m: np.ndarray, points_m: np.ndarray, sound_speed_m_s: float,
@@ -956,27 +1115,55 @@ def ping_soundings(spec: MultibeamSpec, paths, water_column: np.ndarray, head: P
     two_way_time_s, intensity : (n_beams,) float64 ndarrays
         The detection's (NaN: none).
     points_m : (n_beams, 3) float64 ndarray
-        The truth, world frame.
+        The truth, world frame: where the detected echo's energy came from (the beam's first
+        hits within the detection window, :func:`footprint_points`); NaN where no ray of the
+        window met a surface (a multipath echo).
     """
     c_head = spec.sound_speed_m_s
-    points = footprint_points(paths, spec.range_min_m, spec.range_max_m)
+    dr = (spec.range_max_m - spec.range_min_m) / spec.n_samples
     origin = np.asarray(head.translation, np.float64)
     profile = spec.sound_speed_profile
     d0 = 0.0 if spec.surface_height_m is None else spec.surface_height_m - origin[2]
-    t_one, u = arrivals(origin, points, c_head, profile, d0)
+    bend = profile is not None and spec.refraction == "beam"
+
+    def paths_to(points, normal):
+        """One-way time, direction at the head and the truth of each beam's footprint."""
+        if bend:
+            u = (points - origin) / np.linalg.norm(points - origin, axis=1, keepdims=True)
+            truth, t = bent_to_plane(origin, u, points, normal, profile, d0)
+            return t, u, truth
+        t, u = arrivals(origin, points, c_head, profile, d0)
+        return t, u, points
+
+    hits = FrameHits(paths, spec.range_min_m, spec.range_max_m)
+    found_all = hits.points(normals=bend)
+    points, normal = found_all if bend else (found_all, None)
     wc = water_column
+    factor = np.ones(spec.n_beams)
     if profile is not None:
         # The head's time axis: each beam's echo at c_head T instead of the straight |P - O|.
+        t_one, _, _ = paths_to(points, normal)
         straight = np.linalg.norm(points - origin, axis=1)
         ok = np.isfinite(t_one) & (straight > 0)
         factor = np.where(ok, c_head * np.where(ok, t_one, 0.0) / np.where(ok, straight, 1.0), 1.0)
-        wc = _stretch(wc, factor, spec.range_min_m, (spec.range_max_m - spec.range_min_m) / spec.n_samples)
-    rng, level, _ = detect_bottom(wc, spec.range_min_m, spec.range_max_m, spec.detection_window_db,
-                                  DETECTION_SMOOTHING)
+        wc = _stretch(wc, factor, spec.range_min_m, dr)
+    rng, level, window = detect_bottom(wc, spec.range_min_m, spec.range_max_m, spec.detection_window_db,
+                                       DETECTION_SMOOTHING)
+    # The truth of what was detected: the first hits within the detection's window (a sample
+    # more either side: range splatting and the pulse spread an echo that far), mapped back to
+    # straight distances. A beam that detected nothing keeps the truth of all its hits.
+    gate = (spec.range_min_m + (window + np.array([[-1], [1]])) * dr) / factor
+    gated = hits.points(gate, normals=bend)
+    detected = np.isfinite(rng)[:, None]
+    if bend:
+        points, normal = np.where(detected, gated[0], points), np.where(detected, gated[1], normal)
+    else:
+        points = np.where(detected, gated, points)
+    _, u, truth = paths_to(points, normal)
     a, b = head_angles_deg(u, head.rotation)
     seen = np.isfinite(a) & np.isfinite(b)
     return (wc, np.where(seen, a, spec.beam_table_deg()), np.where(seen, b, 0.0), 2.0 * rng / c_head, level,
-            points)
+            truth)
 
 
 def _stretch(wc: np.ndarray, factor: np.ndarray, range_min_m: float, dr: float) -> np.ndarray:
