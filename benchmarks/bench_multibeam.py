@@ -37,6 +37,8 @@ import time
 import numpy as np
 
 import sonarsim
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_render import record_casts  # noqa: E402 (one recorder of a frame's casts, for any frame)
 from sonarsim.instruments import render_pings
 from sonarsim.instruments import multibeam as mb
 
@@ -59,38 +61,6 @@ def scene(n_beams: int = 256, n_samples: int = 1024, profile: bool = False, refr
             "objects": [{"name": "box", "primitive": "box", "size_m": [2.0, 2.0, 1.0],
                          "pose": {"position_m": [0.0, 8.0, 0.5]}}],
             "render": {"max_order": 1}}
-
-
-def record_casts(sim, frame) -> list:
-    """Every ray one ping casts, as ``(caster, origins, directions, tfar, threads)`` per caster
-    (``benchmarks/bench_render.py``'s ``record_casts``, for any frame: ``frame()`` renders it)."""
-    from sonarsim.renderer import compiled
-
-    caster_cls = type(getattr(sim.caster, "caster", sim.caster))
-    recorded = []
-    original = caster_cls.intersect
-    loop = compiled.packet_loop
-
-    def recording(self, origins, directions, max_distance, threads=None, *args, **kwargs):
-        n = len(directions)
-        o = np.ascontiguousarray(np.broadcast_to(origins, (n, 3)), dtype=np.float32)
-        d = np.ascontiguousarray(directions, dtype=np.float32)
-        recorded.append((self, o, d, np.full(n, max_distance, np.float32), threads))
-        return original(self, origins, directions, max_distance, threads, *args, **kwargs)
-
-    caster_cls.intersect = recording
-    compiled.packet_loop = lambda caster: None  # the blocks cast through caster.intersect
-    try:
-        frame()
-    finally:
-        caster_cls.intersect = original
-        compiled.packet_loop = loop
-    joined = []
-    for caster in dict.fromkeys(r[0] for r in recorded):
-        mine = [r for r in recorded if r[0] is caster and len(r[2])]
-        if mine:
-            joined.append((caster, *(np.concatenate([r[k] for r in mine]) for k in (1, 2, 3)), mine[0][4]))
-    return joined
 
 
 def own_work_s(sim, spec, repeats: int) -> float:
