@@ -113,3 +113,27 @@ def test_calibrate_fits_a_side_scan_on_some_pings_and_scores_it_on_others(tmp_pa
     assert main(["calibrate", str(SIDESCAN), "--scene", str(scene), "--out", str(tmp_path / "x.yaml"),
                  "--pings", "1:60", "--evaluate-pings", "50:80"]) == 2
     assert "--evaluate-pings" in capsys.readouterr().err and not (tmp_path / "x.yaml").exists()
+
+
+def test_render_writes_every_instruments_film(tmp_path):
+    doc = {"vehicle": {"pose": {"position_m": [0, 0, 6]}, "speed_m_s": 1.0}, "ground": {"height_m": 0.0},
+           "instruments": [
+               {"type": "sidescan", "name": "sss", "preset": "seascan_hds_600", "n_samples": 256},
+               {"type": "scanning", "name": "head", "preset": "ping360", "range_max_m": 10, "n_samples": 200,
+                "mount": {"rpy_deg": [0, 30, 0]}},
+               {"type": "singlebeam", "name": "alt", "preset": "ping2", "range_max_m": 10},
+               {"type": "multibeam", "name": "mbes", "preset": "r2sonic_2026_400", "range_max_m": 12, "n_samples": 256},
+               {"type": "fls", "name": "front", "preset": "oculus-m1200d-lf", "mount": {"rpy_deg": [0, 20, 0]}}]}
+    out = tmp_path / "mix"
+    assert main(["render", str(write_scene(tmp_path, doc)), "--out", str(out), "--pings", "6", "--no-figures"]) == 0
+    assert np.load(out / "sss.npz")["samples"].shape == (6, 2, 256)
+    assert np.asarray(Image.open(out / "head_scan.png")).shape == (200, 6)
+    alt = np.load(out / "alt.npz")
+    np.testing.assert_allclose(alt["bottom_range_m"], 6.0, atol=2 * 10 / alt["samples"].shape[1])  # level, 6 m up
+    mbes = np.load(out / "mbes.npz")
+    assert mbes["two_way_time_s"].shape == (6, 256)
+    nadir = np.nanmin(mbes["two_way_time_s"] * mbes["geometry/sound_speed_m_s"][:, None] / 2.0, axis=1)
+    np.testing.assert_allclose(nadir, 6.0, atol=0.05)
+    assert (out / "front" / "polar.png").is_file() and (out / "front" / "render.npz").is_file()
+    record = (out / "sonarsim-run.json").read_text()
+    assert '"complete"' in record and "mbes.npz" in record

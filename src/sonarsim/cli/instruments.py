@@ -4,7 +4,10 @@ An FLS writes what ``render`` always wrote (``polar.png``, ``fan.png``, ``render
 folder named after it when the scene has several instruments); a side-scan writes its waterfall
 (``NAME_waterfall.png``: port on the left far to near, starboard near to far, the first ping at
 the top; ``NAME_ground_range.png``, slant-corrected; ``NAME.npz``: samples, per-ping geometry,
-labels).
+labels; ``NAME_figure.png``); a scanning sonar its scan (``NAME_scan.png``, samples x steps, far
+range up) and its top view (``NAME_top.png``); a single-beam its echogram; a multibeam its
+soundings' depths (pings x beams) and its first ping's water column. Each writes ``NAME.npz``
+(every array of its film, ``sonarsim.image.films``).
 """
 
 from __future__ import annotations
@@ -20,6 +23,9 @@ __all__ = ["instrument_files", "render_instruments", "WATERFALL_FILES"]
 
 #: What a side-scan writes, per instrument (``{name}`` its name).
 WATERFALL_FILES = ("{name}_waterfall.png", "{name}_ground_range.png", "{name}.npz")
+#: What each other type writes.
+FILM_FILES = {"sidescan": WATERFALL_FILES, "scanning": ("{name}_scan.png", "{name}_top.png", "{name}.npz"),
+              "singlebeam": ("{name}_echogram.png", "{name}.npz"), "multibeam": ("{name}_depth.png", "{name}.npz")}
 
 
 def _chosen(scene, args) -> list:
@@ -92,8 +98,32 @@ def instrument_files(scene, args, fls_files: list[str]) -> list[str]:
             prefix = f"{spec.name}/" if len(specs) > 1 else ""
             names += [prefix + f for f in fls_files]
         else:
-            names += [f.format(name=spec.name) for f in WATERFALL_FILES]
+            names += [f.format(name=spec.name) for f in FILM_FILES.get(spec.type_name, ("{name}.npz",))]
     return names
+
+
+def _film_pictures(kind: str, name: str, film, args):
+    """The exact-pixel PNGs of a film (name -> uint8 image) and its figure's builder."""
+    from ..image.levels import to_uint8
+    from ..plot.films import envelope_figure, soundings_figure, waterfall_figure
+
+    db = lambda a: to_uint8(np.nan_to_num(np.asarray(a, np.float64)), args.mapping or "db", args.gain_db,  # noqa: E731
+                            args.dynamic_range_db)
+    if kind == "sidescan":
+        ground, _ = film.ground_range()
+        return ({f"{name}_waterfall.png": _waterfall_png(film.display(), args),
+                 f"{name}_ground_range.png": _waterfall_png(film.display(ground), args)},
+                lambda: waterfall_figure(film, args.dynamic_range_db, args.gain_db,
+                                         title=f"{name}: {film.n_pings} pings rendered"))
+    if kind == "scanning":
+        return ({f"{name}_scan.png": db(film.samples[::-1]), f"{name}_top.png": db(film.cartesian())}, None)
+    if kind == "singlebeam":
+        return ({f"{name}_echogram.png": db(film.samples.T)}, lambda: envelope_figure(film, args.dynamic_range_db))
+    # multibeam: the first ping's water column (range up) and the soundings' depths
+    pictures = {f"{name}_depth.png": to_uint8(np.nan_to_num(-film.head_points()[..., 2]), "linear")}
+    if film.water_column is not None:
+        pictures[f"{name}_water_column.png"] = db(film.water_column[0][::-1])
+    return pictures, lambda: soundings_figure(film)
 
 
 def _waterfall_png(samples: np.ndarray, args) -> np.ndarray:
@@ -120,6 +150,13 @@ def render_instruments(scene, out: Path, args, run=None, render_fls=None) -> lis
     sim = Simulator(scene, backend=args.backend)
     names = [s.name for s in _chosen(scene, args)]
     n_pings = getattr(args, "pings", None)
+    trajectory = None
+    if getattr(args, "trajectory", None) is not None:
+        from ..dataset.trajectory import read_trajectory
+
+        if getattr(args, "along", None) is not None:
+            raise ConfigError("--trajectory", "the vehicle's poses come from --along's recording; give one of the two")
+        trajectory = read_trajectory(args.trajectory, key="--trajectory")
     along = None
     if getattr(args, "along", None) is not None:
         along = read_along(args.along, n_pings)
@@ -141,32 +178,28 @@ def render_instruments(scene, out: Path, args, run=None, render_fls=None) -> lis
             fls_scene = replace(scene, sonar=spec.sonar, sonar_pose=mounted(pose, spec.mount))
             films.append(render_fls(fls_scene, sub, args, run))
             continue
-        if spec.type_name != "sidescan":
-            raise ConfigError(f"instruments.{name}", f"sonarsim render writes no files for a {spec.type_name} yet; "
-                              "render it from Python (sonarsim.instruments.render_pings)")
         speckle = False if getattr(args, "no_speckle", False) else None
         if along is not None:
             film = _render_along(sim, spec, along, speckle)
         else:
-            film = render_pings(sim, name, n_pings=n_pings or 100, speckle=speckle, labels=True)
+            default = 400 if spec.type_name == "scanning" else 100  # (a Ping360's turn)
+            count = n_pings if n_pings is not None else (None if trajectory is not None else default)
+            film = render_pings(sim, name, n_pings=count, trajectory=trajectory, speckle=speckle,
+                                labels=spec.type_name == "sidescan")
         t1 = time.perf_counter()
-        ground, _ = film.ground_range()
-        images = {f"{name}_waterfall.png": _waterfall_png(film.display(), args),
-                  f"{name}_ground_range.png": _waterfall_png(film.display(ground), args)}
-        for fname, png in images.items():  # both made before either is written
+        images, figure = _film_pictures(spec.type_name, name, film, args)
+        for fname, png in images.items():  # all made before any is written
             if run is not None:
                 run.add(out / fname)
             write_png(out / fname, png)
         if run is not None:
             run.add(out / f"{name}.npz")
         film.save_npz(out / f"{name}.npz")
-        from ..plot.films import waterfall_figure
         from .figures import write_figure
 
-        write_figure(args, out / f"{name}_waterfall_figure",
-                     lambda: waterfall_figure(film, args.dynamic_range_db, args.gain_db,
-                                              title=f"{name}: {film.n_pings} pings rendered"), run)
-        _log(f"{name}: {film.n_pings} pings x 2 sides x {film.n_samples} samples in {t1 - t0:.3f} s; "
+        if figure is not None:
+            write_figure(args, out / f"{name}_figure", figure, run)
+        _log(f"{name}: {spec.type_name} pings rendered in {t1 - t0:.3f} s; "
              f"wrote {', '.join(str(out / f) for f in (*images, name + '.npz'))}")
         films.append(film)
     sim.close()

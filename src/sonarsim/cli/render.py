@@ -80,6 +80,10 @@ def add_render_parser(subparsers: Any) -> argparse.ArgumentParser:
     g.add_argument("--pings", type=ping_count_or_range, default=None, metavar="N|A:B",
                    help="with a side-scan: N pings along the vehicle's track (default: 100); with --along, the "
                    "recording's pings A to B - 1 (default: all)")
+    g.add_argument("--trajectory", default=None, metavar="FILE",
+                   help="with instruments: the vehicle's timestamped poses (CSV t,x,y,z,roll_deg,pitch_deg,yaw_deg or "
+                   "TUM, as datasets take them); each instrument pings at its own times along it (default: "
+                   "the scene's vehicle pose, running ahead at vehicle.speed_m_s)")
     g.add_argument("--along", default=None, metavar="RECORDING",
                    help="a side-scan recording (XTF): render its pings where its navigation and attitude put the "
                    "vehicle (altitude above the scene's ground), in its layout (range window, samples): a survey "

@@ -32,7 +32,7 @@ import numpy as np
 
 from .display import hook
 
-__all__ = ["GEOMETRY_FIELDS", "PingGeometry", "Waterfall", "Soundings", "Envelope", "range_axis"]
+__all__ = ["GEOMETRY_FIELDS", "PingGeometry", "Waterfall", "Soundings", "Envelope", "film_arrays", "range_axis"]
 
 #: The per-ping geometry a film carries: field -> (unit, meaning).
 GEOMETRY_FIELDS = {
@@ -116,6 +116,13 @@ class PingGeometry:
         return {k: getattr(self, k) for k in GEOMETRY_FIELDS}
 
 
+def film_arrays(arrays: dict, geometry: "PingGeometry") -> dict:
+    """A film's arrays with its geometry's under ``geometry/<field>`` (what its NPZ holds)."""
+    out = {k: v for k, v in arrays.items() if v is not None}
+    out.update({f"geometry/{k}": v for k, v in geometry.as_dict().items()})
+    return out
+
+
 def range_axis(range_min_m: float, range_max_m: float, n_samples: int) -> np.ndarray:
     """Centres of ``n_samples`` equal range samples over the window, metres, ``(n_samples,)``."""
     dr = (range_max_m - range_min_m) / n_samples
@@ -176,8 +183,7 @@ class Waterfall:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Every array, by name: ``samples``, ``geometry/<field>``, ``labels/<name>``."""
-        out = {"samples": self.samples, "slant_range_m": self.slant_range_m}
-        out.update({f"geometry/{k}": v for k, v in self.geometry.as_dict().items()})
+        out = film_arrays({"samples": self.samples, "slant_range_m": self.slant_range_m}, self.geometry)
         out.update({f"labels/{k}": v for k, v in (self.labels or {}).items()})
         return out
 
@@ -278,6 +284,16 @@ class Soundings:
         if self.tilt_deg is not None and np.shape(self.tilt_deg) != shape:
             raise ValueError(f"Soundings.tilt_deg must be {shape} like two_way_time_s, got {np.shape(self.tilt_deg)}")
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every array, by name (``geometry/<field>`` for the pings' geometry)."""
+        return film_arrays({"angle_deg": self.angle_deg, "two_way_time_s": self.two_way_time_s,
+                            "intensity": self.intensity, "water_column": self.water_column, "points_m": self.points_m,
+                            "tilt_deg": getattr(self, "tilt_deg", None)}, self.geometry)
+
+    def save_npz(self, path) -> None:
+        """Write :meth:`arrays` to an NPZ file, atomically."""
+        hook("write_npz", "Soundings.save_npz")(path, self.arrays(), {"film": "soundings", "source": self.source})
+
     @property
     def n_pings(self) -> int:
         return self.two_way_time_s.shape[0]
@@ -357,3 +373,14 @@ class Envelope:
     @property
     def range_m(self) -> np.ndarray:
         return range_axis(self.range_min_m, self.range_max_m, self.samples.shape[1])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every array, by name (``geometry/<field>`` for the pings' geometry)."""
+        return film_arrays({"samples": self.samples, "range_m": self.range_m, "bottom_range_m": self.bottom_range_m},
+                           self.geometry)
+
+    def save_npz(self, path) -> None:
+        """Write :meth:`arrays` to an NPZ file, atomically."""
+        hook("write_npz", "Envelope.save_npz")(path, self.arrays(), {"film": "envelope", "source": self.source,
+                                                                      "range_min_m": self.range_min_m,
+                                                                      "range_max_m": self.range_max_m})

@@ -264,6 +264,21 @@ class ScanImage:
     step_deg: float
     source: str = "render"
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every array, by name (``geometry/<field>`` for the steps' geometry)."""
+        from ..image.films import film_arrays
+
+        return film_arrays({"samples": self.samples, "angle_deg": self.angle_deg}, self.geometry)
+
+    def save_npz(self, path) -> None:
+        """Write :meth:`arrays` to an NPZ file, atomically."""
+        from ..image.display import hook
+
+        hook("write_npz", "ScanImage.save_npz")(path, self.arrays(), {"film": "scan", "source": self.source,
+                                                                       "range_min_m": self.range_min_m,
+                                                                       "range_max_m": self.range_max_m,
+                                                                       "step_deg": self.step_deg})
+
     def __post_init__(self) -> None:
         s = np.asarray(self.samples)
         if s.ndim != 2:
