@@ -137,3 +137,15 @@ def test_render_writes_every_instruments_film(tmp_path):
     assert (out / "front" / "polar.png").is_file() and (out / "front" / "render.npz").is_file()
     record = (out / "sonarsim-run.json").read_text()
     assert '"complete"' in record and "mbes.npz" in record
+
+
+def test_render_along_a_trajectory_file(tmp_path):
+    track = tmp_path / "track.csv"
+    track.write_text("t,x,y,z,roll_deg,pitch_deg,yaw_deg\n0,0,0,10,0,0,0\n10,0,20,10,0,0,90\n")
+    out = tmp_path / "t"
+    assert main(["render", str(write_scene(tmp_path)), "--out", str(out), "--trajectory", str(track),
+                 "--no-figures"]) == 0
+    z = np.load(out / "sidescan.npz")
+    assert z["samples"].shape[0] == 101  # 10 s at the scene's 10 pings a second
+    np.testing.assert_allclose(z["geometry/y_m"], 2.0 * z["geometry/time_s"], atol=1e-9)
+    np.testing.assert_allclose(z["geometry/heading_deg"][[0, -1]], [90.0, 0.0], atol=1e-9)
