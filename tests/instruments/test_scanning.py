@@ -301,3 +301,24 @@ def test_a_preset_gives_defaults_and_the_section_overrides_them():
     with pytest.raises(ConfigError, match=r"sonar\.preset.*not a scanning one"):
         sonarsim.load_scene({"sonar": {"type": "scanning", "preset": "imagenex_852"}})
     assert (spec.n_samples, spec.range_max_m, spec.vertical_beam_width_deg, spec.preset) == (1200, 10.0, 25.0, "ping360")
+
+
+def test_labels_name_what_each_step_sees():
+    """A box 6 m ahead on the floor, the head 2 m up tilted down 20 degrees: the steps looking
+    ahead carry the box's id where its echo lands, the others only the floor's."""
+    doc = {"sonar": {"type": "scanning", "frequency_khz": 750, "horizontal_beam_width_deg": 2.0,
+                     "vertical_beam_width_deg": 25.0, "tilt_deg": 20.0, "steps_per_turn": 400, "range_max_m": 10.0,
+                     "n_samples": 400, "sound_speed_m_s": 1500.0, "pose": {"position_m": [0.0, 0.0, 2.0]}},
+           "ground": {"height_m": 0.0},
+           "objects": [{"name": "box", "primitive": "box", "size_m": [0.6, 0.6, 0.6], "pose": {"position_m": [6.0, 0.0, 0.3]}}]}
+    with sonarsim.Simulator(doc) as sim:
+        scan = render_pings(sim, n_pings=400, speckle=False, labels=True)
+    box = scan.ids.index("box")
+    inst = scan.labels["instance"]
+    steps = np.nonzero((inst == box).any(axis=0))[0]
+    angles = np.where(scan.angle_deg[steps] > 180, scan.angle_deg[steps] - 360, scan.angle_deg[steps])
+    assert len(steps) >= 2 and np.all(np.abs(angles) < 5.0)  # the box subtends +-2.9 deg, the beam 2 deg
+    r = (np.arange(400) + 0.5) * 10.0 / 400
+    assert np.all(np.abs(r[np.nonzero(inst[:, steps[0]] == box)[0]] - 6.0) < 0.8)
+    ground = scan.ids.index("ground")
+    assert (inst == ground).any(axis=0).sum() > 300  # the floor in most steps

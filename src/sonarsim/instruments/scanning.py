@@ -254,6 +254,10 @@ class ScanImage:
     step_deg : float
         The angle between neighbouring steps (motor step times ``step``), degrees.
     source : str
+    labels : dict or None
+        Renders with labels: ``instance`` (int32 ``(n_samples, n_steps)``, ids of :attr:`ids`, -1 none).
+    ids : tuple of str
+        Names of the label ids: the scene's objects in order, then its reflecting planes.
     """
 
     samples: np.ndarray
@@ -263,12 +267,16 @@ class ScanImage:
     geometry: PingGeometry
     step_deg: float
     source: str = "render"
+    labels: dict | None = None
+    ids: tuple = ()
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Every array, by name (``geometry/<field>`` for the steps' geometry)."""
         from ..image.films import film_arrays
 
-        return film_arrays({"samples": self.samples, "angle_deg": self.angle_deg}, self.geometry)
+        out = film_arrays({"samples": self.samples, "angle_deg": self.angle_deg}, self.geometry)
+        out.update({f"labels/{k}": v for k, v in (self.labels or {}).items()})
+        return out
 
     def save_npz(self, path) -> None:
         """Write :meth:`arrays` to an NPZ file, atomically."""
@@ -375,25 +383,30 @@ def render_scanning(sim, spec: ScanningSpec, poses: list[Pose], times_s: np.ndar
 
     Step ``k`` of the call is scan step ``first_ping + k``: its head angle is
     :meth:`ScanningSpec.head_angles_deg` of that index, its draws come from ``(render.seed,
-    first_ping + k)``, so that a step renders alike alone or within its turn. ``labels`` is not
-    supported yet (a step's ground truth is the FLS's per beam; see the report of issue 38).
+    first_ping + k)``, so that a step renders alike alone or within its turn. With ``labels``,
+    the scan's ``labels`` hold ``instance`` (int32 ``(n_samples, n_steps)``: per sample the id of
+    :attr:`ScanImage.ids` bringing the most energy, -1 none; the engine's labels of each step).
     """
-    if labels:
-        raise ConfigError("labels", "a scanning sonar's film has no labels yet; render with labels=False")
     sonar = spec.channel_sonar()
     fan = _fan(sim, spec, sonar)
     model = SensorModel(spec.sensor, sonar, sim.scene.render.seed) if spec.sensor is not None else False
     n = len(poses)
     from ..core.memory import require
 
-    require(n * spec.n_samples * 4, f"a scan of {n} steps x {spec.n_samples} samples", "n_pings")
+    require(n * spec.n_samples * 4 * (2 if labels else 1), f"a scan of {n} steps x {spec.n_samples} samples", "n_pings")
     pings = first_ping + np.arange(n)
     angles = spec.head_angles_deg(pings)
     out = np.empty((spec.n_samples, n), np.float32)
+    instance = np.full((spec.n_samples, n), -1, np.int32) if labels else None
     for k, vehicle in enumerate(poses):  # per step: one engine frame at the step's own pose and time
-        paths = sim.trace(mounted(vehicle, spec.step_mount(angles[k])), sonar=sonar, fan=fan)
+        paths = sim.trace(mounted(vehicle, spec.step_mount(angles[k])), sonar=sonar, fan=fan,
+                          labels="total" if labels else False)
         image = sim.form(paths, keep_rays=False, speckle=speckle, frame=int(pings[k]), sensor=model)
         out[:, k] = image.polar[:, 0]
+        if labels:
+            instance[:, k] = image.labels.instance["total"][:, 0]
+    ids = tuple(o.name for o in sim.scene.objects) + tuple(p.name for p in sim.scene.reflecting_planes)
     return ScanImage(out, angles, spec.range_min_m, spec.range_max_m, ping_geometry(sim, poses, times_s, spec),
-                     spec.step_deg * spec.step)
+                     spec.step_deg * spec.step, labels={"instance": instance} if labels else None,
+                     ids=ids if labels else ())
 
