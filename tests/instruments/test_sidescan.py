@@ -218,3 +218,12 @@ def test_the_surfaces_multipath_ghost_arrives_where_the_mirror_path_says():
     lit = np.nonzero(extra > 1e-9 * a.max())[0]
     assert abs(lit[0] * DR - first) <= 4 * DR, (lit[0] * DR, first)
     assert np.all(extra >= -1e-7 * a.max())
+
+
+def test_rays_across_the_beam_span_its_along_track_width():
+    doc = scene(horizontal_beam_width_deg=0.4)
+    doc["render"]["azimuth_samples"] = 4
+    with sonarsim.Simulator(doc) as sim:
+        fan = sim.ray_fan(sim.scene.sonar)
+    spread = np.degrees(fan.azimuth_rad.max() - fan.azimuth_rad.min())
+    assert spread == pytest.approx(0.4 * 3 / 4)  # four sub-samples at the centres of quarters of 0.4 deg

@@ -118,6 +118,8 @@ class SidescanSpec(InstrumentSpec):
             n_beams=1, azimuth_fov_deg=self.horizontal_beam_width_deg, elevation_fov_deg=2.0 * self.half_span_deg,
             range_min_m=self.range_min_m, range_max_m=self.range_max_m, n_range_bins=self.n_samples,
             frequency_khz=self.frequency_khz,
+            # its own width (a lone beam's grid is 1 degree wide): the rays across it span it
+            beam_width_deg=self.horizontal_beam_width_deg,
         )
 
     def channels(self) -> tuple[Channel, ...]:
