@@ -422,3 +422,30 @@ def test_a_failure_while_writing_leaves_no_bag(tmp_path):
     with pytest.raises(ConfigError, match=r"mbes.*ping 1.*range window"):
         write(tmp_path, {"mbes": bad}, fake_scene, poses={"mbes": vehicle})
     assert list(tmp_path.iterdir()) == []  # neither the bag nor its temporary folder
+
+
+def test_the_mcap_ros2_decoder_reads_the_new_types(tmp_path, scene):
+    """An independent decoder (mcap_ros2, from the definitions the bag carries) reads the same values."""
+    mcap_reader = pytest.importorskip("mcap.reader")
+    decoder = pytest.importorskip("mcap_ros2.decoder")
+    mount = Pose((0.3, -0.2, -0.5), (0.0, 0.0, 0.0))
+    spec = StubMultibeam(name="mbes", mount=mount)
+    vehicle = [Pose((10.0, 5.0, 10.5), (0.0, 0.0, 60.0)), Pose((11.0, 5.5, 10.5), (0.0, 0.0, 62.0))]
+    film = soundings(vehicle, mount)
+    fake_scene = SimpleNamespace(instruments=(spec, *scene.instruments), vehicle_pose=vehicle[0],
+                                 vehicle_speed_m_s=0.0)
+    w = waterfall()
+    write(tmp_path, {"mbes": film, "sss": w}, fake_scene, poses={"mbes": vehicle, "sss": vehicle + vehicle[:1]})
+    seen: dict = {}
+    with open(tmp_path / "bag" / "bag.mcap", "rb") as fh:
+        reader = mcap_reader.make_reader(fh, decoder_factories=[decoder.DecoderFactory()])
+        for schema, channel, message, msg in reader.iter_decoded_messages():
+            seen.setdefault(channel.topic, []).append((schema.name, message.log_time, msg))
+    assert seen["/sss/raw"][0][0] == "marine_acoustic_msgs/msg/RawSonarImage"
+    assert seen["/mbes/detections"][0][0] == "marine_acoustic_msgs/msg/SonarDetections"
+    for p, (_, _, m) in enumerate(seen["/sss/raw"]):
+        np.testing.assert_array_equal(np.frombuffer(bytes(m.image.data), "<f4").reshape(40, 2), w.samples[p].T)
+        assert m.samples_per_beam == 40 and list(m.rx_angles) == pytest.approx(np.radians([-78.0, 78.0]), rel=1e-6)
+    m = seen["/mbes/detections"][1][2]
+    assert [f.flag for f in m.flags] == [0, 0, 0, 0, 1]
+    np.testing.assert_allclose(m.two_way_travel_times, film.two_way_time_s[1].astype(np.float32))
