@@ -1,0 +1,426 @@
+"""Datasets of every instrument of a scene (side-scan, scanning, single-beam, multibeam, FLS):
+each instrument's films cut into chunks of pings, with their ground truth, a picture for people,
+a manifest, and optionally one ROS 2 bag of them all.
+
+:func:`write_instrument_dataset` writes into ``out``::
+
+    NAME/000000.npz         chunk 0 of instrument NAME: pings [0, chunk) of its film
+    NAME/000000.png         the chunk as people look at it (dB, 8-bit)
+    NAME/000000_labels.png  side-scan only: the labels as grey levels (below)
+    manifest.jsonl          one sealed line per chunk, sorted by instrument then chunk
+    dataset.json            what made it: scene digest, seed, pings, chunk, instruments
+    rosbag/                 optional (``rosbag="mcap"``): every chunk's pings, in time order
+
+Per chunk, the NPZ holds the film's arrays (``config`` says which film):
+
+* side-scan (:class:`~sonarsim.image.films.Waterfall`): ``samples`` ``(n, 2, n_samples)``
+  float32, ``slant_range_m``, ``geometry/<field>``, and its labels ``labels/instance`` (int32,
+  the id of ``config["ids"]`` bringing the most energy to each sample, -1 none),
+  ``labels/shadow`` (bool: the floor hidden behind an object) and ``labels/boxes`` (int32
+  ``(n_ids, 2, 4)``: per id and side ``[ping_min, sample_min, ping_max, sample_max]`` in the
+  chunk's own pings, -1 where the id dominates none); the PNG is the waterfall (port far to
+  near, starboard near to far, the chunk's first ping at the top), the labels PNG 0 where
+  nothing, 64 where shadow, ``128 + id`` (capped at 255) where an id dominates;
+* scanning (:class:`~sonarsim.instruments.scanning.ScanImage`): ``samples`` ``(n_samples,
+  n_steps)``, ``angle_deg``, ``range_m``, ``geometry/<field>``; PNG one row per step;
+* single-beam (:class:`~sonarsim.image.films.Envelope`): ``samples`` ``(n, n_samples)``,
+  ``range_m``, ``bottom_range_m``, ``geometry/<field>``; PNG one row per ping;
+* multibeam (:class:`~sonarsim.image.films.Soundings`): ``angle_deg``, ``two_way_time_s``,
+  ``intensity``, ``range_m`` ``(n, n_beams)``, ``water_column``, ``points_m`` (the truth) when
+  the film has them; PNG the intensity, one row per ping;
+* FLS: one NPZ per ping (``chunk`` is 1 for it), :func:`sonarsim.dataset.frames.frame_arrays`
+  of the frame (the polar image, its instance map, points, boxes), PNG the polar image.
+
+Manifest lines: ``instrument``, ``type``, ``chunk``, ``first_ping``, ``n_pings``, ``time_s``
+(first and last ping), ``seed``, ``files``, their ``bytes`` and ``sha256``, for a side-scan
+``boxes`` (``{"id", "name", "side", "box"}`` per id and side it dominates), and ``check``
+(:func:`~sonarsim.dataset.manifest.seal_record`).
+
+Seeding: ping ``k`` of an instrument draws from ``(seed, k)`` whoever renders it (the chunk
+is rendered with ``render_pings(first_ping=a)``; a side-scan's side ``s`` from ``(seed, 2k +
+s)``), and the vehicle's poses and times are computed once for the whole run, so the files are
+the same bytes whatever the number of workers, the order chunks finish in, and (per ping) the
+chunk size.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import dataclasses
+import hashlib
+import json
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError, shown
+
+__all__ = ["InstrumentDatasetSummary", "chunk_arrays", "write_instrument_dataset"]
+
+_DYNAMIC_RANGE_DB = 60.0
+_SHADOW_GREY = 64
+_ID_GREY0 = 128
+
+
+@dataclass(frozen=True)
+class InstrumentDatasetSummary:
+    """What :func:`write_instrument_dataset` wrote.
+
+    Attributes
+    ----------
+    out : pathlib.Path
+    records : tuple of dict
+        The manifest's lines, in order.
+    pings : dict of str to int
+        Pings per instrument.
+    bag : pathlib.Path or None
+    """
+
+    out: Path
+    records: tuple
+    pings: dict
+    bag: Path | None = None
+
+
+def _scene_of(scene: Any, seed: int | None):
+    """``(Scene, seed)``: the scene (a path, a document, a Scene) with ``render.seed = seed``."""
+    from ..config.loader import load_scene
+
+    s = load_scene(scene)
+    if seed is None:
+        return s, int(s.render.seed)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**63:
+        raise ConfigError("seed", f"must be an integer in [0, 2**63), got {shown(seed)}")
+    return dataclasses.replace(s, render=dataclasses.replace(s.render, seed=int(seed))), int(seed)
+
+
+def _per_instrument(value: Any, names: list[str], key: str, default: Any = None) -> dict:
+    if isinstance(value, Mapping):
+        unknown = [k for k in value if k not in names]
+        if unknown:
+            raise ConfigError(f"{key}.{unknown[0]}", f"no such instrument; the scene has: {', '.join(names)}")
+        return {n: value.get(n, default) for n in names}
+    return {n: value if value is not None else default for n in names}
+
+
+def _positive(value: Any, key: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ConfigError(key, f"must be a positive integer, got {shown(value)}")
+    return int(value)
+
+
+def _png(image: np.ndarray) -> bytes:
+    from ..image.levels import to_uint8
+    from .encoding import _png_bytes
+
+    finite = np.nan_to_num(np.asarray(image, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
+    return _png_bytes(to_uint8(finite, "db", 0.0, _DYNAMIC_RANGE_DB))
+
+
+def chunk_arrays(film: Any, kind: str) -> tuple[dict, dict]:
+    """A chunk's film as NPZ arrays and a JSON-able config (see the module's notes)."""
+    geo = {f"geometry/{k}": v for k, v in film.geometry.as_dict().items()} if hasattr(film, "geometry") else {}
+    if kind == "sidescan":
+        return film.arrays(), film.config()
+    if kind == "scanning":
+        return ({"samples": film.samples, "angle_deg": film.angle_deg, "range_m": film.range_m, **geo},
+                {"film": "scan", "range_min_m": film.range_min_m, "range_max_m": film.range_max_m,
+                 "step_deg": film.step_deg, "source": film.source})
+    if kind == "singlebeam":
+        return ({"samples": film.samples, "range_m": film.range_m, "bottom_range_m": film.bottom_range_m, **geo},
+                {"film": "envelope", "range_min_m": film.range_min_m, "range_max_m": film.range_max_m,
+                 "source": film.source})
+    if kind == "multibeam":
+        arrays = {"angle_deg": film.angle_deg, "two_way_time_s": film.two_way_time_s, "intensity": film.intensity,
+                  "range_m": film.range_m, **geo}
+        if film.water_column is not None:
+            arrays["water_column"] = film.water_column
+        if film.points_m is not None:
+            arrays["points_m"] = film.points_m
+        return arrays, {"film": "soundings", "source": film.source}
+    raise ConfigError("instrument.type", f"no dataset layout for a {kind} film")
+
+
+def _pictures(film: Any, kind: str) -> dict[str, bytes]:
+    """The chunk's PNGs, by suffix."""
+    from .encoding import _png_bytes
+
+    if kind == "sidescan":
+        out = {".png": _png(film.display())}
+        if film.labels is not None:
+            inst = film.display(film.labels["instance"])
+            shadow = film.display(film.labels["shadow"])
+            grey = np.where(inst >= 0, np.minimum(_ID_GREY0 + inst, 255), np.where(shadow, _SHADOW_GREY, 0))
+            out["_labels.png"] = _png_bytes(grey.astype(np.uint8))
+        return out
+    if kind == "scanning":
+        return {".png": _png(film.samples.T)}
+    if kind == "singlebeam":
+        return {".png": _png(film.samples)}
+    return {".png": _png(film.intensity)}
+
+
+def _boxes(film: Any) -> list[dict]:
+    boxes = film.labels["boxes"] if film.labels is not None else np.zeros((0, 2, 4), np.int32)
+    out = []
+    for i in range(boxes.shape[0]):
+        for side, side_name in enumerate(("port", "starboard")):
+            if boxes[i, side, 0] >= 0:
+                out.append({"id": i, "name": film.ids[i], "side": side_name, "box": [int(v) for v in boxes[i, side]]})
+    return out
+
+
+# One chunk (in this process or a worker) --------------------------------------------------
+
+_WORKER: dict[str, Any] = {}
+
+
+def _simulator(scene: Any, backend: str | None):
+    from ..renderer.simulator import Simulator
+
+    key = id(scene)
+    if _WORKER.get("key") != key:
+        if _WORKER.get("sim") is not None:
+            _WORKER["sim"].close()
+        _WORKER["sim"] = Simulator(scene, backend=backend) if backend else Simulator(scene)
+        _WORKER["key"] = key
+    return _WORKER["sim"]
+
+
+def _render_chunk(scene: Any, backend: str | None, name: str, kind: str, a: int, poses: list, times: np.ndarray,
+                  chunk_index: int) -> tuple[dict[str, bytes], dict]:
+    """Render pings ``[a, a + len(poses))`` of ``name`` and encode them: ``(files, record)``."""
+    from ..instruments import render_pings
+    from .encoding import _image_png, npz_bytes
+    from .frames import frame_arrays
+
+    sim = _simulator(scene, backend)
+    stem = f"{name}/{chunk_index:06d}"
+    labels = kind in ("sidescan", "fls")
+    film = render_pings(sim, name, poses=poses, times_s=times, first_ping=a,
+                        labels="total" if kind == "fls" else labels)
+    files: dict[str, bytes] = {}
+    record: dict[str, Any] = {"instrument": name, "type": kind, "chunk": chunk_index, "first_ping": a,
+                              "n_pings": len(poses), "time_s": [float(times[0]), float(times[-1])]}
+    if kind == "fls":
+        image = film[0]
+        files[f"{stem}.npz"] = npz_bytes(frame_arrays(image, components=False), {"film": "polar", **_jsonable(
+            image.config)})
+        files[f"{stem}.png"] = _image_png(image, "polar")
+    else:
+        arrays, config = chunk_arrays(film, kind)
+        files[f"{stem}.npz"] = npz_bytes(arrays, config)
+        for suffix, data in _pictures(film, kind).items():
+            files[f"{stem}{suffix}"] = data
+        if kind == "sidescan":
+            record["boxes"] = _boxes(film)
+    return files, record
+
+
+def _jsonable(config: Any) -> dict:
+    try:
+        return json.loads(json.dumps(config, default=str)) if isinstance(config, Mapping) else {}
+    except (TypeError, ValueError):
+        return {}
+
+
+def _init_worker(scene: Any, backend: str | None) -> None:
+    _WORKER["scene"] = scene
+    _WORKER["backend"] = backend
+
+
+def _worker_task(args: tuple) -> tuple[dict[str, bytes], dict]:
+    return _render_chunk(_WORKER["scene"], _WORKER["backend"], *args)
+
+
+# The dataset ------------------------------------------------------------------------------
+
+
+def write_instrument_dataset(
+    scene: Any,
+    out: str | os.PathLike,
+    n_pings: int | Mapping[str, int] | None = None,
+    chunk: int | Mapping[str, int] = 64,
+    seed: int | None = None,
+    *,
+    instruments: list[str] | None = None,
+    trajectory: Any = None,
+    workers: int = 1,
+    rosbag: str | None = None,
+    start_ns: int | None = None,
+    backend: str | None = None,
+) -> InstrumentDatasetSummary:
+    """Render every instrument of ``scene`` (or ``instruments``) into a dataset folder.
+
+    Parameters
+    ----------
+    scene : str, os.PathLike, mapping or Scene
+        A scene file, document or :class:`~sonarsim.Scene` with ``instruments``.
+    out : str or os.PathLike
+        The dataset folder (created; files in it with the same names are replaced).
+    n_pings : int or mapping of str to int, optional
+        Pings per instrument (one number for all, or per name). Default: with a
+        ``trajectory``, its span at each instrument's ping period; otherwise required.
+    chunk : int or mapping of str to int
+        Pings per file: a side-scan's waterfall chunk, a scanning sonar's steps, single-beam or
+        multibeam pings. An FLS always writes one ping per file.
+    seed : int, optional
+        The renderer's seed (``render.seed``); default the scene's. Ping ``k`` draws from
+        ``(seed, k)``.
+    instruments : list of str, optional
+        Which instruments (default all).
+    trajectory : sonarsim.dataset.trajectory.Trajectory, optional
+        The VEHICLE's timestamped poses (each ping interpolated at its time); default the
+        scene's vehicle pose (running ahead at ``vehicle.speed_m_s``).
+    workers : int
+        Processes rendering chunks (1: this process). The files do not depend on it.
+    rosbag : {"mcap", "sqlite3"}, optional
+        Also write ``out/rosbag`` (:func:`sonarsim.io.rosbag_instruments.write_instrument_bag`).
+    start_ns : int, optional
+        The bag's stamp of the earliest ping (default 2000-01-01T00:00:00Z).
+    backend : str, optional
+        The ray caster (``Simulator(backend=...)``).
+
+    Returns
+    -------
+    InstrumentDatasetSummary
+
+    Raises
+    ------
+    ConfigError
+        An unknown instrument, a count or chunk that is not a positive integer, no ``n_pings``
+        without a trajectory, ``rosbag`` not a storage.
+    """
+    from ..config.instruments import FlsSpec
+    from ..core.memory import require
+    from ..instruments import vehicle_poses
+    from ..io.output import atomic_write
+    from .manifest import canonical_json, seal_record
+
+    sc, seed = _scene_of(scene, seed)
+    specs = sc.instruments or (FlsSpec(name="sonar", sonar=sc.sonar),)
+    names = [s.name for s in specs]
+    chosen = names if instruments is None else list(instruments)
+    for n in chosen:
+        if n not in names:
+            raise ConfigError("instruments", f"no instrument {shown(n)} in the scene; it has: {', '.join(names)}")
+    spec_of = {s.name: s for s in specs}
+    counts = _per_instrument(n_pings, chosen, "n_pings")
+    chunks = _per_instrument(chunk, chosen, "chunk", 64)
+    workers = _positive(workers, "workers")
+    if rosbag is not None and rosbag not in ("mcap", "sqlite3"):
+        raise ConfigError("rosbag", f"must be mcap or sqlite3, got {shown(rosbag)}")
+    sim_like = type("_SceneOnly", (), {"scene": sc})()
+    plan: list[tuple] = []  # (name, kind, a, poses, times, chunk index)
+    all_poses: dict[str, list] = {}
+    all_times: dict[str, np.ndarray] = {}
+    for name in chosen:
+        spec = spec_of[name]
+        if counts[name] is None and trajectory is None:
+            raise ConfigError(f"n_pings.{name}", "give the number of pings (there is no trajectory to span)")
+        n = None if counts[name] is None else _positive(counts[name], f"n_pings.{name}")
+        size = 1 if spec.type_name == "fls" else _positive(chunks[name], f"chunk.{name}")
+        poses, times = vehicle_poses(sim_like, spec, n, trajectory)
+        require(len(poses) * 200, f"the poses of {len(poses)} pings of {name}", "n_pings")
+        all_poses[name], all_times[name] = poses, times
+        for c, a in enumerate(range(0, len(poses), size)):
+            plan.append((name, spec.type_name, a, poses[a:a + size], times[a:a + size], c))
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for name in chosen:
+        (out / name).mkdir(exist_ok=True)
+
+    def write_files(files: dict[str, bytes], record: dict) -> dict:
+        for rel, data in files.items():
+            with atomic_write(out / rel) as fh:
+                fh.write(data)
+        record = {**record, "seed": seed, "files": list(files),
+                  "bytes": {rel: len(data) for rel, data in files.items()},
+                  "sha256": {rel: hashlib.sha256(data).hexdigest() for rel, data in files.items()}}
+        return seal_record(record)
+
+    records: dict[tuple[str, int], dict] = {}
+    tasks = [(name, kind, a, poses, times, c) for name, kind, a, poses, times, c in plan]
+    if workers == 1 or len(tasks) <= 1:
+        for t in tasks:
+            files, record = _render_chunk(sc, backend, *t)
+            records[(t[0], t[5])] = write_files(files, record)
+    else:
+        from .workers import worker_context
+
+        with cf.ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=worker_context(),
+                                    initializer=_init_worker, initargs=(sc, backend)) as pool:
+            futures = {pool.submit(_worker_task, t): (t[0], t[5]) for t in tasks}
+            for fut in cf.as_completed(futures):
+                files, record = fut.result()
+                records[futures[fut]] = write_files(files, record)
+    if _WORKER.get("sim") is not None and workers == 1:
+        _WORKER["sim"].close()
+        _WORKER.clear()
+
+    ordered = [records[k] for k in sorted(records, key=lambda k: (chosen.index(k[0]), k[1]))]
+    with atomic_write(out / "manifest.jsonl", "w") as fh:
+        for r in ordered:
+            fh.write(canonical_json(r) + "\n")
+    info = {"scene_sha256": hashlib.sha256(json.dumps(sc.to_dict(), sort_keys=True, default=str).encode()).hexdigest(),
+            "seed": seed, "instruments": {n: {"type": spec_of[n].type_name, "pings": len(all_poses[n]),
+                                              "chunk": 1 if spec_of[n].type_name == "fls" else chunks[n]}
+                                          for n in chosen}}
+    with atomic_write(out / "dataset.json", "w") as fh:
+        fh.write(json.dumps(info, indent=2, sort_keys=True) + "\n")
+
+    bag = None
+    if rosbag is not None:
+        bag = _write_bag(out, sc, chosen, spec_of, ordered, all_poses, all_times, rosbag, start_ns)
+    return InstrumentDatasetSummary(out, tuple(ordered), {n: len(all_poses[n]) for n in chosen}, bag)
+
+
+def _write_bag(out: Path, sc: Any, chosen: list[str], spec_of: dict, records: list[dict], poses: dict, times: dict,
+               storage: str, start_ns: int | None) -> Path:
+    """The bag of every chunk, read back from the NPZ files just written."""
+    import shutil
+
+    from ..io import rosbag as rb
+    from ..io.output import read_npz
+    from ..io.rosbag_instruments import write_instrument_bag
+
+    films: dict[str, Any] = {}
+    for name in chosen:
+        kind = spec_of[name].type_name
+        if kind == "fls":
+            continue  # the FLS's own bag: sonarsim dataset (its frames are polar images)
+        parts = [read_npz(out / r["files"][0]) for r in records if r["instrument"] == name]
+        films[name] = _film_from_npz(kind, parts)
+    path = out / "rosbag"
+    if path.exists():
+        shutil.rmtree(path)
+    if not films:
+        return None
+    return write_instrument_bag(path, films, sc, poses={n: poses[n] for n in films},
+                                start_ns=rb.DEFAULT_START_NS if start_ns is None else start_ns, storage=storage)
+
+
+def _film_from_npz(kind: str, parts: list[tuple[dict, dict]]) -> Any:
+    """The whole film of an instrument from its chunks' NPZ (arrays, config)."""
+    from ..image.films import GEOMETRY_FIELDS, Envelope, PingGeometry, Soundings, Waterfall
+    from ..instruments.scanning import ScanImage
+
+    geometry = PingGeometry.concatenate([PingGeometry(**{k: a[f"geometry/{k}"] for k in GEOMETRY_FIELDS})
+                                         for a, _ in parts])
+    cat = lambda key, axis=0: np.concatenate([a[key] for a, _ in parts], axis=axis)  # noqa: E731
+    a0, c0 = parts[0]
+    if kind == "sidescan":
+        return Waterfall(cat("samples"), c0["range_min_m"], c0["range_max_m"], geometry)
+    if kind == "scanning":
+        return ScanImage(cat("samples", 1), cat("angle_deg"), c0["range_min_m"], c0["range_max_m"], geometry,
+                         c0["step_deg"])
+    if kind == "singlebeam":
+        return Envelope(cat("samples"), c0["range_min_m"], c0["range_max_m"], cat("bottom_range_m"), geometry)
+    return Soundings(cat("angle_deg"), cat("two_way_time_s"), cat("intensity"), geometry,
+                     cat("water_column") if "water_column" in a0 else None,
+                     cat("points_m") if "points_m" in a0 else None)

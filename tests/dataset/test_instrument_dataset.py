@@ -1,0 +1,177 @@
+"""Datasets of every instrument (sonarsim.dataset.instruments): the files are the same bytes
+whatever the workers; chunking does not change a ping; ping k's draws are (seed, k)'s; the
+side-scan's labels and boxes agree with each other and with the box the vehicle passes; the
+manifest's checksums are the files'; the bag holds what the NPZ hold."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+
+import numpy as np
+import pytest
+
+import sonarsim
+from sonarsim.errors import ConfigError
+from sonarsim.dataset.instruments import write_instrument_dataset
+from sonarsim.dataset.manifest import seal_record
+from sonarsim.instruments import render_pings, vehicle_poses
+from sonarsim.instruments.sidescan import waterfall_boxes
+from sonarsim.io.output import read_npz
+
+# The vehicle runs along +x at 2 m/s, 5 m up; a 1 m box 6 m to port spans x in [0.5, 1.5], so
+# the side-scan's pings at x = 0.6, 0.8, 1.0 (pings 3-5 at 10 Hz) see it, the first ones do not.
+DOC = {
+    "vehicle": {"pose": {"position_m": [0.0, 0.0, 5.0]}, "speed_m_s": 2.0},
+    "instruments": [
+        {"type": "sidescan", "name": "sss", "range_max_m": 15.0, "n_samples": 150, "ping_rate_hz": 10,
+         "depression_deg": 20, "vertical_beam_width_deg": 60},
+        {"type": "scanning", "name": "head", "range_max_m": 8.0, "n_samples": 80, "tilt_deg": 20,
+         "mount": {"position_m": [0.3, 0.0, 0.2]}},
+        {"type": "singlebeam", "name": "alt", "beam_width_deg": 10, "range_max_m": 10.0, "n_samples": 100},
+    ],
+    "objects": [{"name": "box", "primitive": "box", "size_m": [1.0, 1.0, 1.0],
+                 "pose": {"position_m": [1.0, 6.0, 0.5]}}],
+    "ground": {"height_m": 0.0},
+    "render": {"max_order": 1, "elevation_samples": 48, "speckle": True},
+}
+PINGS = {"sss": 6, "head": 5, "alt": 3}
+
+
+def files_of(out) -> dict[str, bytes]:
+    return {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def one_worker(tmp_path_factory):
+    out = tmp_path_factory.mktemp("one")
+    summary = write_instrument_dataset(DOC, out, PINGS, chunk=4, seed=11, rosbag="mcap")
+    return out, summary
+
+
+def test_the_same_files_whatever_the_number_of_workers(one_worker, tmp_path):
+    out, _ = one_worker
+    write_instrument_dataset(DOC, tmp_path, PINGS, chunk=4, seed=11, workers=2, rosbag="mcap")
+    a, b = files_of(out), files_of(tmp_path)
+    assert sorted(a) == sorted(b)
+    assert "sss/000001_labels.png" in a and "head/000001.npz" in a and "alt/000000.npz" in a
+    for name in a:
+        if not name.startswith("rosbag/"):  # the bag's storage file carries no clock either, but
+            assert a[name] == b[name], name  # its metadata names its own folder's file: compared below
+    assert a["rosbag/rosbag.mcap"] == b["rosbag/rosbag.mcap"]
+
+
+def test_chunks_hold_the_pings_a_whole_render_gives_and_ping_k_draws_from_seed_k(one_worker, tmp_path):
+    out, summary = one_worker
+    sss = [read_npz(out / r["files"][0])[0] for r in summary.records if r["instrument"] == "sss"]
+    assert [len(a["samples"]) for a in sss] == [4, 2]
+    samples = np.concatenate([a["samples"] for a in sss])
+    instance = np.concatenate([a["labels/instance"] for a in sss])
+    # Another chunk size: the same pings.
+    write_instrument_dataset(DOC, tmp_path, {"sss": 6}, chunk=3, seed=11, instruments=["sss"])
+    other = [read_npz(tmp_path / "sss" / f"{c:06d}.npz")[0] for c in range(2)]
+    np.testing.assert_array_equal(np.concatenate([a["samples"] for a in other]), samples)
+    # The whole waterfall rendered at once with the same seed: the same pings (speckle on).
+    doc = {**DOC, "render": {**DOC["render"], "seed": 11}}
+    with sonarsim.Simulator(doc) as sim:
+        whole = render_pings(sim, "sss", n_pings=6, labels=True)
+        # Ping 5 alone, at its own pose and time, first_ping=5: its draws are (seed, 5)'s.
+        poses, times = vehicle_poses(sim, sim.scene.instruments[0], 6)
+        alone = render_pings(sim, "sss", poses=poses[5:], times_s=times[5:], first_ping=5)
+        as_ping0 = render_pings(sim, "sss", poses=poses[5:], times_s=times[5:], first_ping=0)
+    np.testing.assert_array_equal(whole.samples, samples)
+    np.testing.assert_array_equal(whole.labels["instance"], instance)
+    np.testing.assert_array_equal(alone.samples[0], samples[5])
+    assert not np.array_equal(as_ping0.samples[0], samples[5])  # another ping's draws differ
+    # Another seed: other speckle.
+    write_instrument_dataset(DOC, tmp_path / "seed12", {"sss": 6}, chunk=4, seed=12, instruments=["sss"])
+    assert not np.array_equal(read_npz(tmp_path / "seed12" / "sss" / "000000.npz")[0]["samples"], samples[:4])
+
+
+def test_side_scan_labels_boxes_and_the_box_passed(one_worker):
+    out, summary = one_worker
+    records = [r for r in summary.records if r["instrument"] == "sss"]
+    box_id = 0  # the scene's first object; then the planes (ground)
+    pings_seen = []
+    for r in records:
+        arrays, config = read_npz(out / r["files"][0])
+        assert config["ids"][box_id] == "box" and config["film"] == "waterfall"
+        inst, shadow = arrays["labels/instance"], arrays["labels/shadow"]
+        # The boxes are the instance map's, in the chunk's own pings; the manifest lists them.
+        np.testing.assert_array_equal(arrays["labels/boxes"], waterfall_boxes(inst, len(config["ids"])))
+        listed = {(b["name"], b["side"]): b["box"] for b in r["boxes"]}
+        for i, name in enumerate(config["ids"]):
+            for s, side in enumerate(("port", "starboard")):
+                if arrays["labels/boxes"][i, s, 0] >= 0:
+                    assert listed[(name, side)] == list(arrays["labels/boxes"][i, s])
+                else:
+                    assert (name, side) not in listed
+        pings_seen += [r["first_ping"] + p for p in np.nonzero((inst[:, 0] == box_id).any(axis=1))[0]]
+        # The box is to port: never on the starboard side; its shadow lies beyond its echo.
+        assert not (inst[:, 1] == box_id).any()
+        for p in np.nonzero((inst[:, 0] == box_id).any(axis=1))[0]:
+            last_echo = np.nonzero(inst[p, 0] == box_id)[0].max()
+            assert shadow[p, 0].any() and np.nonzero(shadow[p, 0])[0].min() > last_echo
+        # The labels PNG: the id's grey where it dominates.
+        from PIL import Image
+
+        png = np.asarray(Image.open(out / r["files"][2]))
+        disp = np.concatenate([inst[:, 0, ::-1], inst[:, 1]], axis=1)
+        assert png.shape == disp.shape and (png[disp == box_id] == 128).all()
+    # Vehicle x at ping k is 0.2 k: the box (x in [0.5, 1.5]) is in the beam from ping 3 on.
+    assert pings_seen == [3, 4, 5]
+    # Its echo's near edge: slant range to the box's near top edge (5.5 m across, 4 m down).
+    arrays, _ = read_npz(out / records[1]["files"][0])
+    first = np.nonzero(arrays["labels/instance"][0, 0] == box_id)[0].min()
+    assert abs(first * 0.1 - np.hypot(5.5, 4.0)) <= 0.25
+
+
+def test_manifest_lines_are_sealed_and_name_their_files(one_worker):
+    out, summary = one_worker
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    assert lines == list(summary.records)
+    assert [(r["instrument"], r["chunk"]) for r in lines] == [("sss", 0), ("sss", 1), ("head", 0), ("head", 1),
+                                                              ("alt", 0)]
+    for r in lines:
+        assert seal_record(r)["check"] == r["check"]
+        for f in r["files"]:
+            data = (out / f).read_bytes()
+            assert r["bytes"][f] == len(data) and r["sha256"][f] == hashlib.sha256(data).hexdigest()
+        arrays, _ = read_npz(out / r["files"][0])
+        t = arrays["geometry/time_s"]
+        assert len(t) == r["n_pings"] and r["time_s"] == [t[0], t[-1]] and r["seed"] == 11
+    # the scanning chunks: head angles continue across chunks (step k at k * 0.9 deg)
+    head = np.concatenate([read_npz(out / r["files"][0])[0]["angle_deg"] for r in lines if r["instrument"] == "head"])
+    np.testing.assert_allclose(head, 0.9 * np.arange(5))
+    info = json.loads((out / "dataset.json").read_text())
+    assert info["seed"] == 11 and info["instruments"]["sss"] == {"type": "sidescan", "pings": 6, "chunk": 4}
+
+
+def test_the_bag_holds_the_chunks(one_worker):
+    from rosbags.highlevel import AnyReader
+
+    out, summary = one_worker
+    samples = np.concatenate([read_npz(out / r["files"][0])[0]["samples"] for r in summary.records
+                              if r["instrument"] == "sss"])
+    envelope = read_npz(out / "alt" / "000000.npz")[0]
+    with AnyReader([out / "rosbag"]) as reader:
+        got = {}
+        for conn, t, raw in reader.messages():
+            got.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype))
+    assert len(got["/sss/raw"]) == 6 and len(got["/head/raw"]) == 5 and len(got["/alt/range"]) == 3
+    for p, m in enumerate(got["/sss/raw"]):
+        np.testing.assert_array_equal(np.frombuffer(np.asarray(m.image.data, np.uint8).tobytes(), "<f4")
+                                      .reshape(150, 2), samples[p].T)
+    assert [m.range for m in got["/alt/range"]] == pytest.approx(list(envelope["bottom_range_m"]))
+
+
+def test_bad_requests_are_named(tmp_path):
+    with pytest.raises(ConfigError, match=r"instruments.*'nope'.*sss, head, alt"):
+        write_instrument_dataset(DOC, tmp_path, 2, instruments=["nope"])
+    with pytest.raises(ConfigError, match=r"n_pings\.sss"):
+        write_instrument_dataset(DOC, tmp_path, None)
+    with pytest.raises(ConfigError, match=r"chunk\.head"):
+        write_instrument_dataset(DOC, tmp_path, 2, chunk={"head": 0})
+    with pytest.raises(ConfigError, match=r"n_pings\.typo"):
+        write_instrument_dataset(DOC, tmp_path, {"typo": 3})
+    assert list(tmp_path.iterdir()) == []
