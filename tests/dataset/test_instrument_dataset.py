@@ -175,3 +175,102 @@ def test_bad_requests_are_named(tmp_path):
     with pytest.raises(ConfigError, match=r"n_pings\.typo"):
         write_instrument_dataset(DOC, tmp_path, {"typo": 3})
     assert list(tmp_path.iterdir()) == []
+
+
+# The scenario and the command ---------------------------------------------------------------
+
+SCENARIO = """\
+seed: 5
+start_time: 2024-05-01T12:00:00Z
+scene:
+  vehicle: {pose: {position_m: [0.0, 0.0, 5.0]}}
+  instruments:
+    - {type: sidescan, name: sss, range_max_m: 15.0, n_samples: 150, ping_rate_hz: 10}
+    - {type: singlebeam, name: alt, beam_width_deg: 10, range_max_m: 10.0, n_samples: 100, ping_rate_hz: 4}
+  ground: {height_m: 0.0}
+  objects: [{name: box, primitive: box, size_m: [1, 1, 1], pose: {position_m: [1.0, 6.0, 0.5]}}]
+  render: {max_order: 1, elevation_samples: 48}
+trajectory:
+  file: track.csv
+  rate_hz: 10
+"""
+
+
+def scenario_file(folder, extra: str = "") -> str:
+    (folder / "track.csv").write_text("t,x,y,z,roll_deg,pitch_deg,yaw_deg\n0,0,0,5,0,0,0\n1,2,0,5,0,0,0\n")
+    (folder / "survey.yaml").write_text(SCENARIO + extra)
+    return str(folder / "survey.yaml")
+
+
+def test_sonarsim_dataset_writes_a_scenario_with_instruments(tmp_path, capsys):
+    """The trajectory is the vehicle's (1 s at 2 m/s along x): the side-scan pings 11 times at
+    10 Hz, the altimeter 5 times at 4 Hz, each at the track's pose at its time; the bag starts
+    at the scenario's start_time."""
+    from rosbags.highlevel import AnyReader
+
+    from sonarsim.cli.main import main
+    from sonarsim.io.rosbag import parse_start_time
+
+    path = scenario_file(tmp_path)
+    out = tmp_path / "out"
+    assert main(["dataset", path, "--out", str(out), "--chunk", "4", "--rosbag", "mcap", "--no-progress"]) == 0
+    assert "sss 11 pings, alt 5 pings" in capsys.readouterr().err
+    lines = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    assert [(r["instrument"], r["first_ping"], r["n_pings"]) for r in lines] == [
+        ("sss", 0, 4), ("sss", 4, 4), ("sss", 8, 3), ("alt", 0, 4), ("alt", 4, 1)]
+    x = np.concatenate([read_npz(out / r["files"][0])[0]["geometry/x_m"] for r in lines if r["instrument"] == "sss"])
+    np.testing.assert_allclose(x, 0.2 * np.arange(11), atol=1e-12)  # the vehicle at 2 m/s, each ping at its time
+    t = read_npz(out / "alt" / "000001.npz")[0]["geometry/time_s"]
+    assert list(t) == [1.0]
+    # box seen to port at x in [0.5, 1.5]: pings 3..7
+    seen = [r["first_ping"] + b["box"][0] for r in lines for b in r.get("boxes", []) if b["name"] == "box"]
+    assert seen == [3, 4]  # the first ping of each chunk where the box is (chunks 0 and 1)
+    with AnyReader([out / "rosbag"]) as reader:
+        stamps = [t for conn, t, _ in reader.messages() if conn.topic == "/sss/raw"]
+    start = parse_start_time("2024-05-01T12:00:00Z")
+    assert stamps == [start + k * 100_000_000 for k in range(11)]
+    # --frames 6 keeps the first 6 poses of the track (0.5 s): 6 side-scan pings, 3 altimeter pings
+    assert main(["dataset", path, "--out", str(tmp_path / "six"), "--frames", "6", "--no-progress"]) == 0
+    info = json.loads((tmp_path / "six" / "dataset.json").read_text())
+    assert info["instruments"]["sss"]["pings"] == 6 and info["instruments"]["alt"]["pings"] == 3
+    # Again in the same folder with another chunk: refused; with the same, the same bytes.
+    before = files_of(out)
+    assert main(["dataset", path, "--out", str(out), "--chunk", "5", "--no-progress"]) == 2
+    assert "holds another dataset" in capsys.readouterr().err
+    assert main(["dataset", path, "--out", str(out), "--chunk", "4", "--rosbag", "mcap", "--no-progress"]) == 0
+    assert files_of(out) == before
+
+
+def test_what_a_scene_with_instruments_cannot_take_is_named(tmp_path, capsys):
+    from sonarsim.cli.main import main
+
+    path = scenario_file(tmp_path)
+    assert main(["dataset", path, "--out", str(tmp_path / "a"), "--labels", "all"]) == 2
+    assert "--labels: applies to an FLS's frames" in capsys.readouterr().err
+    varied = scenario_file(tmp_path, "variation: {ground: {albedo: {uniform: [0.3, 0.6]}}}\n")
+    assert main(["dataset", varied, "--out", str(tmp_path / "b")]) == 2
+    assert "variation" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_the_side_scan_survey_example_writes_its_first_pings(tmp_path):
+    from pathlib import Path
+
+    from sonarsim.dataset import load_scenario
+    from sonarsim.dataset.instruments import write_scenario_instruments
+
+    example = Path(__file__).resolve().parents[2] / "examples" / "scenarios" / "sidescan_survey.yaml"
+    s = load_scenario(example, frames=3)  # the first 0.2 s of the track
+    summary = write_scenario_instruments(s, tmp_path, chunk=8)
+    specs = sonarsim.load_scene(s.scene).instruments
+    # each instrument pings at its own period over the track's 0.2 s
+    assert summary.pings == {i.name: int(np.floor(0.2 / i.ping_period_s() + 1e-9)) + 1 for i in specs}
+    assert summary.pings["sss"] == 3 and summary.pings["altimeter"] == 2
+    sss = read_npz(tmp_path / "sss" / "000000.npz")[0]
+    # 6 m up, the mount 0.2 m below: the floor's first return near 5.8 m slant on both sides
+    dr = 30.0 / 1024
+    for side in range(2):
+        first = np.argmax(sss["samples"][0, side] > 0) * dr
+        assert abs(first - 5.8) < 0.3, first
+    alt = read_npz(tmp_path / "altimeter" / "000000.npz")[0]
+    assert abs(alt["bottom_range_m"][0] - 5.7) < 0.1

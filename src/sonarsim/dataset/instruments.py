@@ -59,7 +59,8 @@ import numpy as np
 
 from ..errors import ConfigError, shown
 
-__all__ = ["InstrumentDatasetSummary", "chunk_arrays", "write_instrument_dataset"]
+__all__ = ["InstrumentDatasetSummary", "chunk_arrays", "has_instruments", "write_instrument_dataset",
+           "write_scenario_instruments"]
 
 _DYNAMIC_RANGE_DB = 60.0
 _SHADOW_GREY = 64
@@ -93,8 +94,10 @@ def _scene_of(scene: Any, seed: int | None):
     s = load_scene(scene)
     if seed is None:
         return s, int(s.render.seed)
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**63:
-        raise ConfigError("seed", f"must be an integer in [0, 2**63), got {shown(seed)}")
+    from .scenario import MAX_SEED
+
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) <= MAX_SEED:
+        raise ConfigError("seed", f"must be an integer in [0, 2**128), got {shown(seed)}")
     return dataclasses.replace(s, render=dataclasses.replace(s.render, seed=int(seed))), int(seed)
 
 
@@ -331,6 +334,12 @@ def write_instrument_dataset(
             plan.append((name, spec.type_name, a, poses[a:a + size], times[a:a + size], c))
 
     out = Path(out)
+    info = {"scene_sha256": hashlib.sha256(json.dumps(sc.to_dict(), sort_keys=True, default=str).encode()).hexdigest(),
+            "seed": seed, "instruments": {n: {"type": spec_of[n].type_name, "pings": len(all_poses[n]),
+                                              "chunk": 1 if spec_of[n].type_name == "fls" else chunks[n]}
+                                          for n in chosen},
+            "trajectory": None if trajectory is None else _trajectory_digest(trajectory)}
+    _check_folder(out, info)
     out.mkdir(parents=True, exist_ok=True)
     for name in chosen:
         (out / name).mkdir(exist_ok=True)
@@ -367,10 +376,6 @@ def write_instrument_dataset(
     with atomic_write(out / "manifest.jsonl", "w") as fh:
         for r in ordered:
             fh.write(canonical_json(r) + "\n")
-    info = {"scene_sha256": hashlib.sha256(json.dumps(sc.to_dict(), sort_keys=True, default=str).encode()).hexdigest(),
-            "seed": seed, "instruments": {n: {"type": spec_of[n].type_name, "pings": len(all_poses[n]),
-                                              "chunk": 1 if spec_of[n].type_name == "fls" else chunks[n]}
-                                          for n in chosen}}
     with atomic_write(out / "dataset.json", "w") as fh:
         fh.write(json.dumps(info, indent=2, sort_keys=True) + "\n")
 
@@ -378,6 +383,78 @@ def write_instrument_dataset(
     if rosbag is not None:
         bag = _write_bag(out, sc, chosen, spec_of, ordered, all_poses, all_times, rosbag, start_ns)
     return InstrumentDatasetSummary(out, tuple(ordered), {n: len(all_poses[n]) for n in chosen}, bag)
+
+
+def _trajectory_digest(trajectory: Any) -> str:
+    h = hashlib.sha256()
+    for name in ("times_s", "positions_m", "quats_xyzw"):
+        h.update(np.ascontiguousarray(getattr(trajectory, name), np.float64).tobytes())
+    return h.hexdigest()
+
+
+def _check_folder(out: Path, info: dict) -> None:
+    """Refuse a folder that holds another dataset (its ``dataset.json`` says another scene,
+    seed, trajectory, instruments, pings or chunks: an FLS dataset's too); the same one is
+    rewritten, to the same bytes."""
+    path = out / "dataset.json"
+    if not path.is_file():
+        return
+    try:
+        old = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        old = None
+    if old != json.loads(json.dumps(info)):
+        raise ConfigError("out", f"{out} holds another dataset (its dataset.json differs: another scene, seed, "
+                          "trajectory, pings or chunk); choose another folder or remove it")
+
+
+def has_instruments(scene_doc: Any) -> bool:
+    """Whether a scene document's instruments include a type other than the FLS (those datasets
+    are written by :func:`write_scenario_instruments`; an FLS alone by ``generate``)."""
+    if not isinstance(scene_doc, Mapping):
+        return False
+    items = scene_doc.get("instruments")
+    sonar = scene_doc.get("sonar")
+    types = [i.get("type", "fls") for i in items if isinstance(i, Mapping)] if isinstance(items, list) else []
+    if isinstance(sonar, Mapping):
+        types.append(sonar.get("type", "fls"))
+    return any(t != "fls" for t in types)
+
+
+def write_scenario_instruments(scenario: Any, out: str | os.PathLike, *, chunk: int | Mapping[str, int] = 64,
+                               workers: int | None = None, rosbag: str | None = None, start_ns: int | None = None,
+                               backend: str | None = None) -> InstrumentDatasetSummary:
+    """A scenario whose scene has instruments, as :func:`write_instrument_dataset` writes it.
+
+    The scenario's trajectory is the VEHICLE's; every instrument pings at its own period over
+    the trajectory's span (its first ``max_frames`` poses when capped: ``--frames N``). Its
+    ``seed`` is the renderer's; its ``start_time`` the bag's first stamp.
+
+    Raises
+    ------
+    ConfigError
+        ``variation`` (a new scene per frame: an instrument's film is one scene's) or a random
+        trajectory (poses without a track).
+    """
+    from ..config.loader import scene_from_dict
+    from .trajectory import Trajectory
+
+    if scenario.variation.objects or scenario.variation.ground or scenario.variation.planes \
+            or scenario.variation.sensor:
+        raise ConfigError("variation", "a scene with instruments is rendered as one scene along the trajectory "
+                          "(a film of pings); a variation per frame is not supported for it")
+    traj = scenario.trajectory
+    if not isinstance(traj, Trajectory):
+        raise ConfigError("trajectory", "a scene with instruments needs a track (a file, an orbit or a lawnmower): "
+                          "random poses make no film of pings")
+    if scenario.max_frames is not None and scenario.max_frames < traj.n_frames:
+        k = scenario.max_frames
+        traj = Trajectory(traj.times_s[:k], traj.positions_m[:k], traj.quats_xyzw[:k],
+                          None if traj.rpy_deg is None else traj.rpy_deg[:k])
+    scene = scene_from_dict(scenario.scene, base_dir=scenario.base_dir, source=scenario.source)
+    return write_instrument_dataset(scene, out, None, chunk, scenario.seed, trajectory=traj, workers=workers or 1,
+                                    rosbag=rosbag, start_ns=start_ns if start_ns is not None else
+                                    scenario.start_time_ns, backend=backend)
 
 
 def _write_bag(out: Path, sc: Any, chosen: list[str], spec_of: dict, records: list[dict], poses: dict, times: dict,
