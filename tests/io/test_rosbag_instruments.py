@@ -407,6 +407,10 @@ def test_wrong_inputs_are_named(tmp_path, scene):
         write(tmp_path, {"head": waterfall()}, scene)
     with pytest.raises(ConfigError, match=r"poses\.sss.*3 Poses"):
         write(tmp_path, {"sss": waterfall()}, scene, poses={"sss": [Pose()]})
+    # Two instruments pinging at one time must agree where the vehicle is.
+    with pytest.raises(ConfigError, match=r"poses\.head.*ping 0.*sss's ping 0.*elsewhere"):
+        write(tmp_path, {"sss": waterfall(1), "head": scan(1)}, scene, times_s={"head": [0.0]},
+              poses={"sss": [Pose()], "head": [Pose((1.0, 0.0, 0.0))]})
     assert not (tmp_path / "bag").exists()
 
 
@@ -449,3 +453,75 @@ def test_the_mcap_ros2_decoder_reads_the_new_types(tmp_path, scene):
     m = seen["/mbes/detections"][1][2]
     assert [f.flag for f in m.flags] == [0, 0, 0, 0, 1]
     np.testing.assert_allclose(m.two_way_travel_times, film.two_way_time_s[1].astype(np.float32))
+
+
+# Real recordings -----------------------------------------------------------------------------
+
+from pathlib import Path  # noqa: E402
+
+REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
+
+
+def test_recording_poses_from_logged_geometry():
+    g = PingGeometry.of(3, time_s=[0, 1, 2], x_m=[np.nan, 1.0, 2.0], y_m=[np.nan, 5.0, np.nan],
+                        depth_m=[np.nan, 10.0, 12.0], roll_deg=[1.0, 2.0, 3.0], pitch_deg=0.0,
+                        heading_deg=[np.nan, 0.0, 90.0])
+    film = Envelope(np.zeros((3, 4), np.float32), 0.0, 1.0, np.full(3, np.nan), g)
+    poses = ri.recording_poses(film)
+    assert [p.position_m for p in poses] == [(1.0, 5.0, -10.0), (1.0, 5.0, -10.0), (2.0, 5.0, -12.0)]
+    # heading 0 (north, +y) is yaw 90; heading 90 (east, +x) yaw 0
+    np.testing.assert_allclose([p.rpy_deg for p in poses], [[1, 0, 90], [2, 0, 90], [3, 0, 0]], atol=1e-9)
+
+
+@pytest.mark.skipif(not (REAL / "sidescan").is_dir(), reason="../shared/data/real is absent")
+def test_a_real_side_scan_recording_converts_to_a_bag(tmp_path):
+    """The Sea Scan HDS XTF (180 pings, 1024 samples a side): every ping's two lines, its real
+    time (seconds since 1970, kept with start_ns) and its logged pose reach the bag."""
+    pytest.importorskip("pyxtf")
+    from sonarsim.io.readers.xtf import read_waterfall
+
+    w = read_waterfall(REAL / "sidescan" / "iver2_seascan_pings_0-179.xtf")
+    doc = {"instruments": [{"type": "sidescan", "name": "seascan", "preset": "seascan_hds_600",
+                            "range_max_m": float(w.range_max_m), "n_samples": int(w.n_samples)}]}
+    poses = ri.recording_poses(w)
+    ns = lambda t: rb._seconds_ns(repr(float(t)))  # noqa: E731 - the logged decimal seconds, to the ns
+    t0_ns = ns(w.geometry.time_s[0])
+    write(tmp_path, {"seascan": w}, sonarsim.load_scene(doc), poses={"seascan": poses}, start_ns=t0_ns)
+    bag = read_bag(tmp_path / "bag")
+    msgs = [m for _, _, m in bag["/seascan/raw"]]
+    assert len(msgs) == w.n_pings == 180
+    for k in (0, 1, 90, 179):
+        np.testing.assert_array_equal(image_array(msgs[k].image, 1024), w.samples[k].T)
+        assert stamp_of(msgs[k]) == ns(w.geometry.time_s[k])  # the recording's own time
+    assert msgs[1].sample_rate == pytest.approx(1500.0 / (2 * w.range_max_m / 1024), rel=1e-6)
+    _, dynamic = tf_tree(bag)
+    m = dynamic[stamp_of(msgs[1])]["vehicle"][1]
+    np.testing.assert_allclose(m[:3, 3], [w.geometry.x_m[1], w.geometry.y_m[1], -w.geometry.depth_m[1]], atol=1e-9)
+    # the logged heading (354 deg, about north) and pitch (20.7 deg, nose down) in the vehicle's x
+    heading = math.degrees(math.atan2(m[0, 0], m[1, 0])) % 360.0  # clockwise from north (+y)
+    assert heading == pytest.approx(w.geometry.heading_deg[1], abs=1e-6)
+    assert math.degrees(math.asin(-m[2, 0])) == pytest.approx(w.geometry.pitch_deg[1], abs=1e-6)
+
+
+@pytest.mark.skipif(not (REAL / "multibeam").is_dir(), reason="../shared/data/real is absent")
+def test_a_real_multibeam_recording_converts_to_a_bag(tmp_path):
+    """R2Sonic 2026 soundings: travel times, angles (+ starboard in the bag), intensities, the
+    beams without a detection flagged; the cloud's points at the straight-ray soundings."""
+    pytest.importorskip("pyxtf")
+    from sonarsim.io.readers.r2sonic import read_soundings
+
+    s = read_soundings(REAL / "multibeam" / "r2sonic2026_pings_0-459.xtf", pings=slice(0, 4))
+    spec = StubMultibeam(name="r2sonic", mount=Pose())
+    fake_scene = SimpleNamespace(instruments=(spec,), vehicle_pose=Pose(), vehicle_speed_m_s=0.0)
+    write(tmp_path, {"r2sonic": s}, fake_scene, poses={"r2sonic": ri.recording_poses(s)})
+    bag = read_bag(tmp_path / "bag")
+    for k, (_, _, d) in enumerate(bag["/r2sonic/detections"]):
+        t = s.two_way_time_s[k]
+        np.testing.assert_array_equal(np.asarray(d.two_way_travel_times), t.astype(np.float32))
+        np.testing.assert_allclose(d.rx_angles, -np.radians(s.angle_deg[k]).astype(np.float32), rtol=1e-6, atol=1e-7)
+        assert [f.flag for f in d.flags] == [0 if np.isfinite(v) else 1 for v in t]
+        c = bag["/r2sonic/points"][k][2]
+        pts = np.frombuffer(np.asarray(c.data, np.uint8).tobytes(), "<f4").reshape(-1, 4)
+        head = s.head_points()[k][np.isfinite(t)]
+        np.testing.assert_allclose(pts[:, :3], head, atol=1e-3)  # identity mount: vehicle = head frame
+    assert np.isfinite(s.two_way_time_s).sum() > 100

@@ -114,6 +114,7 @@ __all__ = [
     "InstrumentBagWriter",
     "beam_unit_vectors",
     "instrument_topics",
+    "recording_poses",
     "write_instrument_bag",
 ]
 
@@ -227,6 +228,46 @@ def beam_unit_vectors(tx_rad: np.ndarray, rx_rad: np.ndarray) -> np.ndarray:
     tx = np.asarray(tx_rad, np.float64)
     rx = np.asarray(rx_rad, np.float64)
     return np.stack([np.sin(tx), np.cos(tx) * np.sin(rx), np.cos(tx) * np.cos(rx)], axis=-1)
+
+
+def recording_poses(film: Any) -> list[Pose]:
+    """The vehicle's pose at each ping of a RECORDING's film, from the geometry it logged: the
+    position ``(x_m, y_m, -depth_m)`` (depth below the surface as world z < 0) and the
+    attitude ``rpy = (roll, pitch, 90 - heading)`` (REP-103, the films' conventions).
+
+    A value a ping does not log (NaN) is the nearest earlier ping's, else the nearest later's,
+    else 0 (a recording without positions stays at the origin). The sonar is taken to be at
+    the vehicle's origin: give the scene's instrument an identity mount (the logged position is
+    the sonar's, or the vehicle's navigation point: the file does not say which).
+
+    Parameters
+    ----------
+    film : Waterfall, Envelope, Soundings or ScanImage
+        Anything with ``geometry`` (:class:`~sonarsim.image.films.PingGeometry`).
+
+    Returns
+    -------
+    list of Pose
+        Vehicle-to-world, one per ping.
+    """
+    g = film.geometry
+
+    def filled(a: np.ndarray) -> np.ndarray:
+        a = np.asarray(a, np.float64).copy()
+        ok = np.isfinite(a)
+        if not ok.any():
+            return np.zeros_like(a)
+        idx = np.where(ok, np.arange(len(a)), -1)
+        np.maximum.accumulate(idx, out=idx)  # the last known ping at or before each
+        first = int(np.argmax(ok))
+        idx[idx < 0] = first  # before the first known value: that value
+        return a[idx]
+
+    x, y, depth = filled(g.x_m), filled(g.y_m), filled(g.depth_m)
+    roll, pitch, heading = filled(g.roll_deg), filled(g.pitch_deg), filled(g.heading_deg)
+    yaw = _wrap_deg(90.0 - heading)
+    return [Pose((float(x[k]), float(y[k]), float(-depth[k])), (float(roll[k]), float(pitch[k]), float(yaw[k])))
+            for k in range(len(g))]
 
 
 # The writer ---------------------------------------------------------------------------------
@@ -607,8 +648,8 @@ def write_instrument_bag(
         Default: the scene's vehicle at each ping's time (standing, or running ahead at
         ``vehicle.speed_m_s``), which is what ``render_pings`` without a trajectory used.
     times_s : mapping of str to (n,) array, optional
-        Ping times for FLS films (which carry none); default the instrument's ping period
-        times the ping index. Other films' times are their ``geometry.time_s``.
+        Ping times, seconds, replacing a film's ``geometry.time_s``; an FLS film carries none,
+        and defaults to the instrument's ping period times the ping index.
     start_ns : int
         Stamp of the earliest ping, nanoseconds since 1970 (> 0,
         :func:`~sonarsim.io.rosbag.parse_start_time`).
@@ -625,7 +666,18 @@ def write_instrument_bag(
     ------
     ConfigError
         An instrument the scene lacks, a film of the wrong type for its instrument, poses or
-        times not one per ping, a name that is no ROS frame name, a stamp past 2038.
+        times not one per ping, two instruments putting the vehicle at two poses at one time, a
+        name that is no ROS frame name, a stamp past 2038.
+
+    Examples
+    --------
+    A recording (its logged geometry as the vehicle's poses, its own times as the stamps):
+
+    >>> w = read_waterfall("survey.xtf")                                   # doctest: +SKIP
+    >>> scene = sonarsim.load_scene({"instruments": [{"type": "sidescan", "name": "sss",
+    ...     "preset": "seascan_hds_600"}]})                                # doctest: +SKIP
+    >>> write_instrument_bag("survey_bag", {"sss": w}, scene, poses={"sss": recording_poses(w)},
+    ...     start_ns=parse_start_time(float(w.geometry.time_s[0])))        # doctest: +SKIP
     """
     from ..instruments import vehicle_poses
 
@@ -673,6 +725,17 @@ def write_instrument_bag(
 
     # Every ping of every instrument, in time order (ties: the films' order, then ping order).
     order = sorted((inst.stamps[k], i, k) for i, inst in enumerate(instruments) for k in range(len(inst.stamps)))
+    # One vehicle: instruments pinging at one stamp must put it at one pose (/tf holds one).
+    at: dict[int, tuple[int, int]] = {}
+    for stamp, i, k in order:
+        if stamp in at:
+            j, q = at[stamp]
+            if not np.allclose(instruments[i].poses[k].matrix(), instruments[j].poses[q].matrix(), atol=1e-9):
+                raise ConfigError(f"poses.{instruments[i].name}",
+                                  f"ping {k} is at the time of {instruments[j].name}'s ping {q} "
+                                  f"({rb.format_stamp(stamp)}) but puts the vehicle elsewhere")
+        else:
+            at[stamp] = (i, k)
     with InstrumentBagWriter(path, storage=storage) as bag:
         bag.set_custom_data("sonarsim.instruments", json.dumps(
             {inst.name: inst.describe() for inst in instruments}, sort_keys=True))
