@@ -112,12 +112,14 @@ def test_side_scan_labels_boxes_and_the_box_passed(one_worker):
         for p in np.nonzero((inst[:, 0] == box_id).any(axis=1))[0]:
             last_echo = np.nonzero(inst[p, 0] == box_id)[0].max()
             assert shadow[p, 0].any() and np.nonzero(shadow[p, 0])[0].min() > last_echo
-        # The labels PNG: the id's grey where it dominates.
+        # The labels PNG: the object's grey (255 for id 0) where it dominates, the floor's 128, shadow 64.
         from PIL import Image
 
         png = np.asarray(Image.open(out / r["files"][2]))
         disp = np.concatenate([inst[:, 0, ::-1], inst[:, 1]], axis=1)
-        assert png.shape == disp.shape and (png[disp == box_id] == 128).all()
+        assert png.shape == disp.shape and (png[disp == box_id] == 255).all() and (png[disp == 1] == 128).all()
+        sh = np.concatenate([shadow[:, 0, ::-1], shadow[:, 1]], axis=1)
+        assert (png[(disp < 0) & sh] == 64).all() and (png[(disp < 0) & ~sh] == 0).all()
     # Vehicle x at ping k is 0.2 k: the box (x in [0.5, 1.5]) is in the beam from ping 3 on.
     assert pings_seen == [3, 4, 5]
     # Its echo's near edge: slant range to the box's near top edge (5.5 m across, 4 m down).

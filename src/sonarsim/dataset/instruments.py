@@ -19,8 +19,8 @@ Per chunk, the NPZ holds the film's arrays (``config`` says which film):
   ``labels/shadow`` (bool: the floor hidden behind an object) and ``labels/boxes`` (int32
   ``(n_ids, 2, 4)``: per id and side ``[ping_min, sample_min, ping_max, sample_max]`` in the
   chunk's own pings, -1 where the id dominates none); the PNG is the waterfall (port far to
-  near, starboard near to far, the chunk's first ping at the top), the labels PNG 0 where
-  nothing, 64 where shadow, ``128 + id`` (capped at 255) where an id dominates;
+  near, starboard near to far, the chunk's first ping at the top), the labels PNG laid out
+  alike: 0 nothing, 64 shadow, 128 a plane (the floor), ``255 - 12 (id mod 8)`` an object;
 * scanning (:class:`~sonarsim.instruments.scanning.ScanImage`): ``samples`` ``(n_samples,
   n_steps)``, ``angle_deg``, ``range_m``, ``geometry/<field>``; PNG one row per step;
 * single-beam (:class:`~sonarsim.image.films.Envelope`): ``samples`` ``(n, n_samples)``,
@@ -64,7 +64,7 @@ __all__ = ["InstrumentDatasetSummary", "chunk_arrays", "has_instruments", "write
 
 _DYNAMIC_RANGE_DB = 60.0
 _SHADOW_GREY = 64
-_ID_GREY0 = 128
+_PLANE_GREY = 128
 
 
 @dataclass(frozen=True)
@@ -148,7 +148,7 @@ def chunk_arrays(film: Any, kind: str) -> tuple[dict, dict]:
     raise ConfigError("instrument.type", f"no dataset layout for a {kind} film")
 
 
-def _pictures(film: Any, kind: str) -> dict[str, bytes]:
+def _pictures(film: Any, kind: str, n_objects: int = 0) -> dict[str, bytes]:
     """The chunk's PNGs, by suffix."""
     from .encoding import _png_bytes
 
@@ -157,7 +157,11 @@ def _pictures(film: Any, kind: str) -> dict[str, bytes]:
         if film.labels is not None:
             inst = film.display(film.labels["instance"])
             shadow = film.display(film.labels["shadow"])
-            grey = np.where(inst >= 0, np.minimum(_ID_GREY0 + inst, 255), np.where(shadow, _SHADOW_GREY, 0))
+            # Objects bright (255, 243, ... for ids 0, 1, ..., repeating after 8), planes mid grey,
+            # shadow dark: what people look for stands out from the floor it lies on.
+            obj = inst < n_objects
+            grey = np.where(inst < 0, np.where(shadow, _SHADOW_GREY, 0),
+                            np.where(obj, 255 - 12 * np.mod(inst, 8), _PLANE_GREY))
             out["_labels.png"] = _png_bytes(grey.astype(np.uint8))
         return out
     if kind == "scanning":
@@ -217,7 +221,7 @@ def _render_chunk(scene: Any, backend: str | None, name: str, kind: str, a: int,
     else:
         arrays, config = chunk_arrays(film, kind)
         files[f"{stem}.npz"] = npz_bytes(arrays, config)
-        for suffix, data in _pictures(film, kind).items():
+        for suffix, data in _pictures(film, kind, len(sim.scene.objects)).items():
             files[f"{stem}{suffix}"] = data
         if kind == "sidescan":
             record["boxes"] = _boxes(film)
@@ -362,12 +366,19 @@ def write_instrument_dataset(
     else:
         from .workers import worker_context
 
-        with cf.ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=worker_context(),
-                                    initializer=_init_worker, initargs=(sc, backend)) as pool:
-            futures = {pool.submit(_worker_task, t): (t[0], t[5]) for t in tasks}
-            for fut in cf.as_completed(futures):
-                files, record = fut.result()
-                records[futures[fut]] = write_files(files, record)
+        try:
+            with cf.ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=worker_context(),
+                                        initializer=_init_worker, initargs=(sc, backend)) as pool:
+                futures = {pool.submit(_worker_task, t): (t[0], t[5]) for t in tasks}
+                for fut in cf.as_completed(futures):
+                    files, record = fut.result()
+                    records[futures[fut]] = write_files(files, record)
+        except cf.process.BrokenProcessPool:
+            from ..errors import SonarsimError
+
+            raise SonarsimError("a worker process died (killed, or out of memory: try fewer workers; from Python, "
+                                "call with workers > 1 from a script file under `if __name__ == '__main__':`, "
+                                "which worker processes import)") from None
     if _WORKER.get("sim") is not None and workers == 1:
         _WORKER["sim"].close()
         _WORKER.clear()
