@@ -276,3 +276,27 @@ def test_the_side_scan_survey_example_writes_its_first_pings(tmp_path):
         assert abs(first - 5.8) < 0.3, first
     alt = read_npz(tmp_path / "altimeter" / "000000.npz")[0]
     assert abs(alt["bottom_range_m"][0] - 5.7) < 0.1
+
+
+def test_a_damaged_or_interrupted_run_resumes_to_the_same_bytes(one_worker, tmp_path):
+    """Chunks whose manifest lines verify are kept; a flipped byte, a missing file and a torn
+    last line (a killed run) each send their chunk back to be made; the end is byte-identical."""
+    out, _ = one_worker
+    import shutil
+
+    shutil.copytree(out, tmp_path / "d")
+    d = tmp_path / "d"
+    shutil.rmtree(d / "rosbag")
+    reference = {k: v for k, v in files_of(out).items() if not k.startswith("rosbag/")}
+    npz = bytearray((d / "sss" / "000001.npz").read_bytes())
+    npz[100] ^= 0xFF
+    (d / "sss" / "000001.npz").write_bytes(bytes(npz))
+    (d / "alt" / "000000.png").unlink()
+    lines = (d / "manifest.jsonl").read_text().splitlines()
+    # the manifest as a killed run leaves it: head's chunk 1 torn mid-line, in finishing order
+    (d / "manifest.jsonl").write_text("\n".join(lines[:3] + [lines[4]] + [lines[3][:40]]))
+    summary = write_instrument_dataset(DOC, d, PINGS, chunk=4, seed=11)
+    assert (summary.kept, summary.rendered) == (2, 3)  # sss 0 and head 0 kept; sss 1, head 1, alt 0 made
+    assert files_of(d) == reference
+    again = write_instrument_dataset(DOC, d, PINGS, chunk=4, seed=11)
+    assert (again.kept, again.rendered) == (5, 0) and files_of(d) == reference

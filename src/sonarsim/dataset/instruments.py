@@ -36,6 +36,13 @@ Manifest lines: ``instrument``, ``type``, ``chunk``, ``first_ping``, ``n_pings``
 ``boxes`` (``{"id", "name", "side", "box"}`` per id and side it dominates), and ``check``
 (:func:`~sonarsim.dataset.manifest.seal_record`).
 
+Resuming: ``dataset.json`` is written first; each chunk's files are written (atomically) before
+its manifest line is appended; a run in a folder of the same dataset keeps every chunk whose
+line verifies (sealed, this chunk's header, every file's size and sha256) and makes the others
+(a killed run's, a damaged or missing file's); the manifest is rewritten in order at the end, so
+a resumed dataset is byte-identical to an uninterrupted one. A folder of another dataset is
+refused.
+
 Seeding: ping ``k`` of an instrument draws from ``(seed, k)`` whoever renders it (the chunk
 is rendered with ``render_pings(first_ping=a)``; a side-scan's side ``s`` from ``(seed, 2k +
 s)``), and the vehicle's poses and times are computed once for the whole run, so the files are
@@ -79,12 +86,16 @@ class InstrumentDatasetSummary:
     pings : dict of str to int
         Pings per instrument.
     bag : pathlib.Path or None
+    rendered, kept : int
+        Chunks made by this run, and kept from an earlier one (their files verified).
     """
 
     out: Path
     records: tuple
     pings: dict
     bag: Path | None = None
+    rendered: int = 0
+    kept: int = 0
 
 
 def _scene_of(scene: Any, seed: int | None):
@@ -268,7 +279,8 @@ def write_instrument_dataset(
     scene : str, os.PathLike, mapping or Scene
         A scene file, document or :class:`~sonarsim.Scene` with ``instruments``.
     out : str or os.PathLike
-        The dataset folder (created; files in it with the same names are replaced).
+        The dataset folder (created; a folder of the same dataset is resumed, one of another
+        refused).
     n_pings : int or mapping of str to int, optional
         Pings per instrument (one number for all, or per name). Default: with a
         ``trajectory``, its span at each instrument's ping period; otherwise required.
@@ -306,7 +318,7 @@ def write_instrument_dataset(
     from ..core.memory import require
     from ..instruments import vehicle_poses
     from ..io.output import atomic_write
-    from .manifest import canonical_json, seal_record
+    from .manifest import ManifestAppender, read_manifest, seal_record, verify_record, write_manifest
 
     sc, seed = _scene_of(scene, seed)
     specs = sc.instruments or (FlsSpec(name="sonar", sonar=sc.sonar),)
@@ -347,6 +359,15 @@ def write_instrument_dataset(
     out.mkdir(parents=True, exist_ok=True)
     for name in chosen:
         (out / name).mkdir(exist_ok=True)
+    # The identity first: a run killed later leaves a folder that only this dataset resumes.
+    with atomic_write(out / "dataset.json", "w", fsync=True) as fh:
+        fh.write(json.dumps(info, indent=2, sort_keys=True) + "\n")
+
+    def header(t: tuple) -> dict:
+        """What a chunk's manifest line must say before its checksums (to verify a kept one)."""
+        name, kind, a, poses, times, c = t
+        return {"instrument": name, "type": kind, "chunk": c, "first_ping": a, "n_pings": len(poses),
+                "time_s": [float(times[0]), float(times[-1])], "seed": seed, "files": _chunk_files(name, kind, c)}
 
     def write_files(files: dict[str, bytes], record: dict) -> dict:
         for rel, data in files.items():
@@ -357,43 +378,61 @@ def write_instrument_dataset(
                   "sha256": {rel: hashlib.sha256(data).hexdigest() for rel, data in files.items()}}
         return seal_record(record)
 
+    # Resume: the chunks whose manifest lines verify (sealed, this chunk's, files intact) are kept.
+    manifest = out / "manifest.jsonl"
+    tasks = [tuple(t) for t in plan]
+    wanted = {(t[0], t[5]): header(t) for t in tasks}
     records: dict[tuple[str, int], dict] = {}
-    tasks = [(name, kind, a, poses, times, c) for name, kind, a, poses, times, c in plan]
-    if workers == 1 or len(tasks) <= 1:
-        for t in tasks:
-            files, record = _render_chunk(sc, backend, *t)
-            records[(t[0], t[5])] = write_files(files, record)
-    else:
-        from .workers import worker_context
+    for r in read_manifest(manifest):
+        key = (r.get("instrument"), r.get("chunk")) if isinstance(r, dict) else None
+        if key in wanted and key not in records and verify_record(r, out, wanted[key]):
+            records[key] = r
+    kept = len(records)
+    write_manifest(manifest, [records[k] for k in sorted(records, key=lambda k: (chosen.index(k[0]), k[1]))])
+    tasks = [t for t in tasks if (t[0], t[5]) not in records]
+    with ManifestAppender(manifest) as appender:
+        def commit(key: tuple, files: dict[str, bytes], record: dict) -> None:
+            records[key] = write_files(files, record)
+            appender.append(records[key])  # after its files: a line always names finished files
 
-        try:
-            with cf.ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=worker_context(),
-                                        initializer=_init_worker, initargs=(sc, backend)) as pool:
-                futures = {pool.submit(_worker_task, t): (t[0], t[5]) for t in tasks}
-                for fut in cf.as_completed(futures):
-                    files, record = fut.result()
-                    records[futures[fut]] = write_files(files, record)
-        except cf.process.BrokenProcessPool:
-            from ..errors import SonarsimError
+        if workers == 1 or len(tasks) <= 1:
+            for t in tasks:
+                commit((t[0], t[5]), *_render_chunk(sc, backend, *t))
+        else:
+            from .workers import worker_context
 
-            raise SonarsimError("a worker process died (killed, or out of memory: try fewer workers; from Python, "
-                                "call with workers > 1 from a script file under `if __name__ == '__main__':`, "
-                                "which worker processes import)") from None
+            try:
+                with cf.ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=worker_context(),
+                                            initializer=_init_worker, initargs=(sc, backend)) as pool:
+                    futures = {pool.submit(_worker_task, t): (t[0], t[5]) for t in tasks}
+                    for fut in cf.as_completed(futures):
+                        commit(futures[fut], *fut.result())
+            except cf.process.BrokenProcessPool:
+                from ..errors import SonarsimError
+
+                raise SonarsimError("a worker process died (killed, or out of memory: try fewer workers; from "
+                                    "Python, call with workers > 1 from a script file under `if __name__ == "
+                                    "'__main__':`, which worker processes import); the chunks written so far are "
+                                    "kept: run again to resume") from None
     if _WORKER.get("sim") is not None and workers == 1:
         _WORKER["sim"].close()
         _WORKER.clear()
 
+    # In instrument then chunk order: the same file whatever the workers and the resumes.
     ordered = [records[k] for k in sorted(records, key=lambda k: (chosen.index(k[0]), k[1]))]
-    with atomic_write(out / "manifest.jsonl", "w") as fh:
-        for r in ordered:
-            fh.write(canonical_json(r) + "\n")
-    with atomic_write(out / "dataset.json", "w") as fh:
-        fh.write(json.dumps(info, indent=2, sort_keys=True) + "\n")
+    write_manifest(manifest, ordered)
 
     bag = None
     if rosbag is not None:
         bag = _write_bag(out, sc, chosen, spec_of, ordered, all_poses, all_times, rosbag, start_ns)
-    return InstrumentDatasetSummary(out, tuple(ordered), {n: len(all_poses[n]) for n in chosen}, bag)
+    return InstrumentDatasetSummary(out, tuple(ordered), {n: len(all_poses[n]) for n in chosen}, bag,
+                                    rendered=len(ordered) - kept, kept=kept)
+
+
+def _chunk_files(name: str, kind: str, c: int) -> list[str]:
+    """A chunk's files, in manifest order."""
+    stem = f"{name}/{c:06d}"
+    return [f"{stem}.npz", f"{stem}.png"] + ([f"{stem}_labels.png"] if kind == "sidescan" else [])
 
 
 def _trajectory_digest(trajectory: Any) -> str:
