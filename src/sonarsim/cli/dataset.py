@@ -189,8 +189,8 @@ def _instrument_dataset(scenario: Any, args: argparse.Namespace, start_ns: int |
     summary = write_scenario_instruments(scenario, args.out, chunk=args.chunk, workers=args.workers,
                                          rosbag=args.rosbag, start_ns=start_ns)
     pings = ", ".join(f"{name} {n} pings" for name, n in summary.pings.items())
-    print(f"sonarsim: {summary.out}: {pings} in {len(summary.records)} chunks in "
-          f"{time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+    print(f"sonarsim: {summary.out}: {pings} in {len(summary.records)} chunks ({summary.rendered} made, "
+          f"{summary.kept} kept) in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
     if summary.bag is not None:
         from ..io.rosbag import DEFAULT_START_NS, format_stamp
 
