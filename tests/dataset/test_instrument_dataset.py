@@ -100,12 +100,12 @@ def test_side_scan_labels_boxes_and_the_box_passed(one_worker):
         # The boxes are the instance map's, in the chunk's own pings; the manifest lists them.
         np.testing.assert_array_equal(arrays["labels/boxes"], waterfall_boxes(inst, len(config["ids"])))
         listed = {(b["name"], b["side"]): b["box"] for b in r["boxes"]}
-        for i, name in enumerate(config["ids"]):
-            for s, side in enumerate(("port", "starboard")):
-                if arrays["labels/boxes"][i, s, 0] >= 0:
-                    assert listed[(name, side)] == list(arrays["labels/boxes"][i, s])
-                else:
-                    assert (name, side) not in listed
+        for s, side in enumerate(("port", "starboard")):  # the objects' (the box), not the floor's
+            if arrays["labels/boxes"][box_id, s, 0] >= 0:
+                assert listed[("box", side)] == list(arrays["labels/boxes"][box_id, s])
+            else:
+                assert ("box", side) not in listed
+        assert all(b["name"] == "box" for b in r["boxes"])
         pings_seen += [r["first_ping"] + p for p in np.nonzero((inst[:, 0] == box_id).any(axis=1))[0]]
         # The box is to port: never on the starboard side; its shadow lies beyond its echo.
         assert not (inst[:, 1] == box_id).any()
@@ -300,3 +300,31 @@ def test_a_damaged_or_interrupted_run_resumes_to_the_same_bytes(one_worker, tmp_
     assert files_of(d) == reference
     again = write_instrument_dataset(DOC, d, PINGS, chunk=4, seed=11)
     assert (again.kept, again.rendered) == (5, 0) and files_of(d) == reference
+
+
+def test_coco_boxes_and_masks_are_the_side_scan_labels_on_the_pngs(one_worker):
+    from PIL import Image
+
+    mask_api = pytest.importorskip("pycocotools.mask")
+    out, summary = one_worker
+    coco = json.loads((out / "coco.json").read_text())
+    assert [c["name"] for c in coco["categories"]] == ["box"]
+    assert [i["file_name"] for i in coco["images"]] == ["sss/000000.png", "sss/000001.png"]
+    by_image = {}
+    for a in coco["annotations"]:
+        by_image.setdefault(a["image_id"], []).append(a)
+    assert sorted(by_image) == [0, 1]  # pings 3 (chunk 0) and 4-5 (chunk 1)
+    for image in coco["images"]:
+        arrays, _ = read_npz(out / image["file_name"].replace(".png", ".npz"))
+        inst = arrays["labels/instance"]
+        disp = np.concatenate([inst[:, 0, ::-1], inst[:, 1]], axis=1)
+        png = np.asarray(Image.open(out / image["file_name"]))
+        assert png.shape == (image["height"], image["width"]) == disp.shape
+        (a,) = by_image[image["id"]]  # port only
+        assert a["side"] == "port" and a["object"] == "box"
+        rows, cols = np.nonzero(disp == 0)
+        assert a["bbox"] == [cols.min(), rows.min(), cols.max() - cols.min() + 1, rows.max() - rows.min() + 1]
+        assert cols.max() < 150  # port: left of nadir
+        rle = mask_api.frPyObjects(a["segmentation"], image["height"], image["width"])
+        np.testing.assert_array_equal(mask_api.decode(rle).astype(bool), disp == 0)
+        assert a["area"] == int((disp == 0).sum())

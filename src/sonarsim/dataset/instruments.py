@@ -8,6 +8,7 @@ a manifest, and optionally one ROS 2 bag of them all.
     NAME/000000.png         the chunk as people look at it (dB, 8-bit)
     NAME/000000_labels.png  side-scan only: the labels as grey levels (below)
     manifest.jsonl          one sealed line per chunk, sorted by instrument then chunk
+    coco.json               side-scan: the objects' boxes and masks on the chunks' PNGs
     dataset.json            what made it: scene digest, seed, pings, chunk, instruments
     rosbag/                 optional (``rosbag="mcap"``): every chunk's pings, in time order
 
@@ -33,7 +34,8 @@ Per chunk, the NPZ holds the film's arrays (``config`` says which film):
 
 Manifest lines: ``instrument``, ``type``, ``chunk``, ``first_ping``, ``n_pings``, ``time_s``
 (first and last ping), ``seed``, ``files``, their ``bytes`` and ``sha256``, for a side-scan
-``boxes`` (``{"id", "name", "side", "box"}`` per id and side it dominates), and ``check``
+``image_shape`` (the PNG's ``[height, width]``) and ``boxes`` (per object and side it dominates:
+``{"id", "name", "side", "box", "display", "segmentation", "area"}``, :func:`_boxes`), and ``check``
 (:func:`~sonarsim.dataset.manifest.seal_record`).
 
 Resuming: ``dataset.json`` is written first; each chunk's files are written (atomically) before
@@ -66,7 +68,7 @@ import numpy as np
 
 from ..errors import ConfigError, shown
 
-__all__ = ["InstrumentDatasetSummary", "chunk_arrays", "has_instruments", "write_instrument_dataset",
+__all__ = ["InstrumentDatasetSummary", "chunk_arrays", "has_instruments", "sidescan_coco", "write_instrument_dataset",
            "write_scenario_instruments"]
 
 _DYNAMIC_RANGE_DB = 60.0
@@ -182,14 +184,62 @@ def _pictures(film: Any, kind: str, n_objects: int = 0) -> dict[str, bytes]:
     return {".png": _png(film.intensity)}
 
 
-def _boxes(film: Any) -> list[dict]:
-    boxes = film.labels["boxes"] if film.labels is not None else np.zeros((0, 2, 4), np.int32)
+def _boxes(film: Any, n_objects: int) -> list[dict]:
+    """Per object (not the planes) and side it dominates: its box in the chunk's samples
+    (``box``: ``[ping_min, sample_min, ping_max, sample_max]``) and in the chunk's PNG
+    (``display``: ``[row_min, col_min, row_max, col_max]``, port mirrored left of nadir), its
+    pixels there as COCO's uncompressed RLE (``segmentation``) and their count (``area``)."""
+    from .coco import rle
+
+    if film.labels is None:
+        return []
+    boxes = film.labels["boxes"]
+    n = film.n_samples
+    disp = film.display(film.labels["instance"])
     out = []
-    for i in range(boxes.shape[0]):
+    for i in range(min(n_objects, boxes.shape[0])):
         for side, side_name in enumerate(("port", "starboard")):
-            if boxes[i, side, 0] >= 0:
-                out.append({"id": i, "name": film.ids[i], "side": side_name, "box": [int(v) for v in boxes[i, side]]})
+            p0, s0, p1, s1 = (int(v) for v in boxes[i, side])
+            if p0 < 0:
+                continue
+            display = [p0, n - 1 - s1, p1, n - 1 - s0] if side == 0 else [p0, n + s0, p1, n + s1]
+            half = np.full_like(disp, -1)
+            cols = slice(0, n) if side == 0 else slice(n, 2 * n)
+            half[:, cols] = disp[:, cols]
+            segmentation, area = rle(half, i, display)
+            out.append({"id": i, "name": film.ids[i], "side": side_name, "box": [p0, s0, p1, s1],
+                        "display": display, "segmentation": segmentation, "area": area})
     return out
+
+
+def sidescan_coco(records: list[dict]) -> dict:
+    """The COCO document of a dataset's side-scan chunks: one image per chunk (its PNG, ``id``
+    its place among them), one annotation per object and side (``bbox`` ``[x, y, w, h]`` in the
+    PNG's pixels, x the column, y the ping; ``segmentation``, ``area``), one category per object
+    kind (:func:`~sonarsim.dataset.coco.category_of`). The labels are the total's: the object
+    bringing the most energy to a sample, multipath included."""
+    from .coco import category_of
+
+    images, annotations, categories = [], [], {}
+    for r in records:
+        if r.get("type") != "sidescan":
+            continue
+        k = len(images)
+        height, width = r["image_shape"]
+        images.append({"id": k, "file_name": r["files"][1], "height": height, "width": width,
+                       "instrument": r["instrument"], "chunk": r["chunk"], "first_ping": r["first_ping"],
+                       "time_s": r["time_s"]})
+        for b in r.get("boxes", []):
+            cid = categories.setdefault(category_of(b["name"]), len(categories) + 1)
+            r0, c0, r1, c1 = b["display"]
+            annotations.append({"id": len(annotations) + 1, "image_id": k, "category_id": cid,
+                                "bbox": [c0, r0, c1 - c0 + 1, r1 - r0 + 1], "area": b["area"],
+                                "segmentation": b["segmentation"], "iscrowd": 0, "object": b["name"],
+                                "side": b["side"]})
+    return {"info": {"description": "sonarsim: objects in side-scan waterfall chunks (the total's labels)",
+                     "version": "1"},
+            "images": images, "annotations": annotations,
+            "categories": [{"id": cid, "name": name, "supercategory": "object"} for name, cid in categories.items()]}
 
 
 # One chunk (in this process or a worker) --------------------------------------------------
@@ -235,7 +285,8 @@ def _render_chunk(scene: Any, backend: str | None, name: str, kind: str, a: int,
         for suffix, data in _pictures(film, kind, len(sim.scene.objects)).items():
             files[f"{stem}{suffix}"] = data
         if kind == "sidescan":
-            record["boxes"] = _boxes(film)
+            record["boxes"] = _boxes(film, len(sim.scene.objects))
+            record["image_shape"] = [film.n_pings, 2 * film.n_samples]
     return files, record
 
 
@@ -421,6 +472,9 @@ def write_instrument_dataset(
     # In instrument then chunk order: the same file whatever the workers and the resumes.
     ordered = [records[k] for k in sorted(records, key=lambda k: (chosen.index(k[0]), k[1]))]
     write_manifest(manifest, ordered)
+    if any(r["type"] == "sidescan" for r in ordered):
+        with atomic_write(out / "coco.json", "w") as fh:
+            json.dump(sidescan_coco(ordered), fh, sort_keys=True, separators=(",", ":"))
 
     bag = None
     if rosbag is not None:
