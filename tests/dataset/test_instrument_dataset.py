@@ -328,3 +328,27 @@ def test_coco_boxes_and_masks_are_the_side_scan_labels_on_the_pngs(one_worker):
         rle = mask_api.frPyObjects(a["segmentation"], image["height"], image["width"])
         np.testing.assert_array_equal(mask_api.decode(rle).astype(bool), disp == 0)
         assert a["area"] == int((disp == 0).sum())
+
+
+def test_a_multibeam_chunk_round_trips_through_its_npz(tmp_path):
+    """The multibeam's layout (its renderer is another module's): a hand-built Soundings chunk,
+    its NPZ and back, every array equal; the bag's films are rebuilt so."""
+    from sonarsim.dataset.encoding import npz_bytes
+    from sonarsim.dataset.instruments import _film_from_npz, chunk_arrays
+    from sonarsim.image.films import PingGeometry, Soundings
+
+    rng = np.random.default_rng(3)
+    n, b = 3, 5
+    g = PingGeometry.of(n, time_s=0.5 * np.arange(n), sound_speed_m_s=1490.0, range_min_m=0.0, range_max_m=40.0)
+    twtt = rng.uniform(0.01, 0.05, (n, b))
+    twtt[1, 2] = np.nan
+    film = Soundings(np.tile(np.linspace(60, -60, b), (n, 1)), twtt, rng.random((n, b)), g,
+                     rng.random((n, 16, b)).astype(np.float32), rng.random((n, b, 3)))
+    arrays, config = chunk_arrays(film, "multibeam")
+    (tmp_path / "c.npz").write_bytes(npz_bytes(arrays, config))
+    back = _film_from_npz("multibeam", [read_npz(tmp_path / "c.npz")] * 2)  # two chunks
+    assert back.n_pings == 2 * n and config["film"] == "soundings"
+    for name in ("angle_deg", "two_way_time_s", "intensity", "water_column", "points_m"):
+        np.testing.assert_array_equal(getattr(back, name)[:n], getattr(film, name), err_msg=name)
+    np.testing.assert_array_equal(read_npz(tmp_path / "c.npz")[0]["range_m"], film.range_m)
+    np.testing.assert_array_equal(back.geometry.sound_speed_m_s[n:], g.sound_speed_m_s)
