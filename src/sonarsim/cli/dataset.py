@@ -102,6 +102,9 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--signatures", action="store_true",
                    help="also store one image per path signature (which planes each echo bounced off), and the "
                    "component images (object, ground, single, double, ..., total)")
+    p.add_argument("--chunk", type=_count, default=64, metavar="N",
+                   help="for a scene with instruments (side-scan, scanning, single-beam, multibeam): pings per file "
+                   "(a side-scan's waterfall of N pings with its labels; default 64); see docs/datasets.md")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.set_defaults(func=cmd_dataset)
     return p
@@ -142,6 +145,11 @@ def cmd_dataset(args: argparse.Namespace) -> None:
         if args.seed > MAX_SEED:
             raise ConfigError("--seed", f"must be below 2**128, got {args.seed}")
         scenario = scenario.with_seed(args.seed)
+    from ..dataset.instruments import has_instruments
+
+    if has_instruments(scenario.scene):
+        _instrument_dataset(scenario, args, start_ns)
+        return
     summary = generate(
         scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
         rosbag=args.rosbag, ray=args.ray, labels=args.labels, signatures=args.signatures, coco=args.coco,
@@ -159,3 +167,33 @@ def cmd_dataset(args: argparse.Namespace) -> None:
         # Said every time: a bag stamped 2000 surprises whoever expected today.
         print(f"sonarsim: {summary.rosbag}: stamped from {format_stamp(summary.rosbag_start_ns)} (--start-time)",
               file=sys.stderr, flush=True)
+
+
+def _instrument_dataset(scenario: Any, args: argparse.Namespace, start_ns: int | None) -> None:
+    """A scenario whose scene has instruments: :func:`sonarsim.dataset.instruments.write_scenario_instruments`."""
+    import time
+
+    from ..dataset.instruments import write_scenario_instruments
+    from ..errors import ConfigError
+
+    # What only the FLS's frames have: refused rather than ignored.
+    for option, given in (("--ray", args.ray is not None), ("--labels", args.labels != "total"),
+                          ("--coco", args.coco != "fan"), ("--coco-ghosts", args.coco_ghosts),
+                          ("--signatures", args.signatures), ("--frame-ids", args.frame_ids is not None),
+                          ("--topics", args.topics is not None)):
+        if given:
+            raise ConfigError(option, "applies to an FLS's frames; this scenario's scene has instruments (side-scan, "
+                              "scanning, single-beam, multibeam), whose datasets are written per instrument in "
+                              "chunks of pings (--chunk)")
+    t0 = time.perf_counter()
+    summary = write_scenario_instruments(scenario, args.out, chunk=args.chunk, workers=args.workers,
+                                         rosbag=args.rosbag, start_ns=start_ns)
+    pings = ", ".join(f"{name} {n} pings" for name, n in summary.pings.items())
+    print(f"sonarsim: {summary.out}: {pings} in {len(summary.records)} chunks ({summary.rendered} made, "
+          f"{summary.kept} kept) in {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
+    if summary.bag is not None:
+        from ..io.rosbag import DEFAULT_START_NS, format_stamp
+
+        first = start_ns if start_ns is not None else (scenario.start_time_ns or DEFAULT_START_NS)
+        print(f"sonarsim: {summary.bag}: stamped from {format_stamp(first)} (--start-time)", file=sys.stderr,
+              flush=True)
