@@ -8,7 +8,6 @@ import math
 
 import numpy as np
 import pytest
-import yaml
 
 from sonarsim import Pose
 from sonarsim.config.loader import load_scene
@@ -140,8 +139,8 @@ def _mirror(pose: Pose) -> Pose:
 def test_a_mirrored_scene_draws_mirrored_fans():
     # A vehicle rolled, pitched and turned, instruments on offset mounts; mirrored in y, every
     # instrument's outline is the original mirrored (side-scan port <-> starboard).
-    mounts = [Pose((0.5, 0.3, -0.1), (2.0, 1.0, 4.0)), Pose((-0.4, -0.2, -0.3)), Pose((1.0, 0.1, 0.0), (0.0, 20.0, 5.0)),
-              Pose((0.0, 0.4, -0.2))]
+    mounts = [Pose((0.5, 0.3, -0.1), (2.0, 1.0, 4.0)), Pose((-0.4, -0.2, -0.3)),
+              Pose((1.0, 0.1, 0.0), (0.0, 20.0, 5.0)), Pose((0.0, 0.4, -0.2))]
     make = [lambda m: sss(mount=m),
             lambda m: MultibeamSpec(name="mb", n_beams=9, beam_angles_deg=(60.0, -40.0), range_max_m=40.0,
                                     n_samples=64, mount=m),
@@ -309,6 +308,21 @@ def test_page_draws_every_fan_under_the_vehicle(doc):
             if viewer.session.fls is not None:
                 want = mounted(Pose((2.0, 1.0, 9.5), (0.0, 0.0, 20.0)), viewer.session.fls.mount)
                 assert np.allclose(viewer.frame.image.pose.matrix(), want.matrix())
+            # A drag of the vehicle's gizmo, handed to viser's own handler (private: skipped if moved).
+            handler = getattr(server.scene, "_handle_transform_controls_updates", None)
+            if handler is not None:
+                import asyncio
+
+                from viser import _messages
+
+                from sonarsim.plot.viewer.state import wxyz_of
+
+                pose = Pose((-1.0, 0.5, 9.0), (0.0, 0.0, -15.0))
+                asyncio.run(handler(0, _messages.TransformControlsUpdateMessage("/vehicle", wxyz_of(pose),
+                                                                                pose.position_m)))
+                assert viewer.wait(30) and viewer.error is None
+                assert viewer.session.vehicle_pose == pose
+                assert [sl.value for sl in viewer.pose_sliders] == [-1.0, 0.5, 9.0, 0.0, 0.0, -15.0]
         finally:
             viewer.close()
     finally:

@@ -419,6 +419,8 @@ class SceneViewer(_Page):
         for fan in fans:
             colour = INSTRUMENT_COLOURS[fan.index % len(INSTRUMENT_COLOURS)]
             node = f"/vehicle/{node_name(fan.instrument)}/{node_name(fan.channel)}"
+            if node in self.fan_nodes:  # two names the same once made tree-safe: keep both
+                node = f"{node}_{len(self.fan_nodes)}"
             api.add_frame(node, show_axes=False, position=fan.mount.position_m, wxyz=wxyz_of(fan.mount))
             api.add_line_segments(f"{node}/fov", fan.segments(), colour, thickness=2.0, thickness_units="screen")
             vertices, faces = fan_surface(fan.limits)

@@ -11,7 +11,6 @@ moving the vehicle moves them all.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
