@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+import yaml
 
 from sonarsim import Pose
 from sonarsim.config.loader import load_scene
@@ -327,3 +328,37 @@ def test_page_draws_every_fan_under_the_vehicle(doc):
             viewer.close()
     finally:
         stop_server(server)
+
+
+def test_an_fls_first_on_the_vehicle_offers_its_sensor_and_saves_its_preset(tmp_path):
+    # The top-level sensor is the first instrument's: with the FLS first, the switch offers
+    # the sensor preset named like its sonar's preset, and the saved file keeps that preset.
+    doc = mixed_scene()
+    fls = {"type": "fls", "name": "front", "preset": "oculus-m1200d-hf", "range_max_m": 10.0, "n_range_bins": 200,
+           "mount": {"position_m": [1.0, 0.0, 0.0], "rpy_deg": [0.0, 30.0, 0.0]}}
+    doc["instruments"] = [fls, doc["instruments"][0]]
+    s = SceneSession(doc)
+    try:
+        assert s.fls.name == "front" and s.sensor_available
+        s.set_options(sensor=True, speckle=False)
+        frame = s.render()
+        assert frame.image.polar.shape[0] == 200 and "sensor on" in frame.title
+        s.save(tmp_path / "out")
+        saved = yaml.safe_load((tmp_path / "out" / "scene.yaml").read_text())
+        assert saved["instruments"][0]["preset"] == "oculus-m1200d-hf" and "sensor" in saved
+        again = SceneSession(tmp_path / "out" / "scene.yaml")
+        try:
+            assert again.sensor_available and again.fls.sonar == s.fls.sonar
+        finally:
+            again.close()
+    finally:
+        s.close()
+    # The FLS second: no sensor switch (a scene file's top-level sensor would be the side-scan's).
+    doc["instruments"].reverse()
+    s = SceneSession(doc)
+    try:
+        assert s.fls.name == "front" and not s.sensor_available
+        with pytest.raises(ConfigError, match="sensor"):
+            s.set_options(sensor=True)
+    finally:
+        s.close()
