@@ -291,6 +291,8 @@ class SceneSession:
     base : Scene
         The scene as loaded.
     sonar_pose : Pose
+        The sonar's pose (without instruments; with, the first channel's as loaded: the FLS
+        rendered sits at its mount on :attr:`vehicle_pose`, ``scene().sonar_pose``).
     object_poses : dict of str to Pose
         By object name.
     vehicle_pose : Pose
@@ -509,7 +511,7 @@ class SceneSession:
         for spec, entry in zip(scene.instruments, doc.get("instruments", ())):
             sonar = getattr(spec, "sonar", None)  # an FLS keeps its preset's name, as sonar: does
             if spec.type_name == "fls" and sonar is not None and sonar.preset is not None and "preset" not in entry:
-                entry.update({"preset": sonar.preset, **{k: v for k, v in entry.items() if k != "preset"}})
+                entry["preset"] = sonar.preset  # (its explicit keys, written too, take precedence)
         return doc
 
     # ------------------------------------------------------------------ rendering
