@@ -206,3 +206,35 @@ def test_a_second_ctrl_c_while_the_viewer_stops_still_says_it_stopped(scene_file
     with pytest.raises(KeyboardInterrupt) as info:
         serve(args, stop=threading.Event(), ready=first_ctrl_c)
     assert getattr(info.value, "__notes__", []) == ["the viewer stopped"]
+
+
+def test_a_sidescan_survey_is_served_with_its_fans_and_named_film(tmp_path, capsys):
+    # The example survey (a side-scan alone on its vehicle): the page draws both fans, says
+    # where the waterfall comes from, moves the vehicle and saves the scene file alone.
+    pytest.importorskip("viser")
+    from sonarsim.cli.main import build_parser
+    from sonarsim.cli.view import serve
+    from sonarsim.config.loader import load_scene
+
+    example = Path(__file__).resolve().parents[2] / "examples" / "sidescan_survey.yaml"
+    args = build_parser().parse_args(["view", str(example), "--port", "0", "--out", str(tmp_path / "out")])
+    stop, seen = threading.Event(), {}
+
+    def ready(viewer, url):
+        try:
+            assert viewer.wait(30)
+            seen["fans"] = list(viewer.fan_nodes)
+            seen["status"] = viewer.status.content
+            viewer.set_vehicle_pose((5.0, 5.0, 9.0), (0.0, 0.0, 45.0))
+            assert viewer.wait(30)
+            seen["files"] = [f.name for f in viewer.save()]
+        finally:
+            stop.set()
+
+    serve(args, stop=stop, ready=ready)
+    assert seen["fans"] == ["/vehicle/sidescan/port", "/vehicle/sidescan/starboard"]
+    assert "no live image of sidescan 'sidescan'" in seen["status"] and f"sonarsim render {example}" in seen["status"]
+    assert seen["files"] == ["scene.yaml"]
+    saved = load_scene(tmp_path / "out" / "scene.yaml")
+    assert saved.vehicle_pose.position_m == (5.0, 5.0, 9.0) and saved.vehicle_speed_m_s == 2.0
+    assert "point your browser at" in capsys.readouterr().err

@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from ...errors import SonarsimError
+from ...errors import ConfigError, SonarsimError
 from . import require_viser
-from .geometry import fov_segments, fov_surface, plane_face, scene_extent
+from .geometry import fan_surface, fov_segments, fov_surface, instrument_fans, plane_face, scene_extent
 from .guard import start_guarded_server
 from .state import (VIEWER_MAX_ORDER, RecordingSession, SceneSession, ViewFrame, component_names, rpy_from_wxyz,
                     wxyz_of)
@@ -42,6 +42,15 @@ JPEG_QUALITY = 90
 FOV_COLOUR = (255, 140, 0)
 SONAR_COLOUR = (250, 200, 40)
 OBJECT_COLOURS = ((120, 160, 220), (150, 200, 120), (220, 150, 110), (190, 140, 210), (110, 200, 200))
+# The instruments' fans, one colour per instrument (the first the FLS's own orange).
+INSTRUMENT_COLOURS = ((255, 140, 0), (230, 40, 120), (40, 170, 240), (120, 200, 40), (150, 90, 230),
+                      (240, 210, 30), (30, 200, 170))
+VEHICLE_COLOUR = (200, 200, 60)
+
+
+def node_name(text: str) -> str:
+    """A name usable as one level of the scene tree (viser splits names at ``/``)."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in str(text)) or "_"
 
 
 def check_port(host: str, port: int) -> None:
@@ -291,6 +300,12 @@ class _Page:
 class SceneViewer(_Page):
     """The page of a scene: the 3D view with gizmos, the live images, pose sliders and switches.
 
+    A scene with instruments shows its vehicle (``/vehicle``, its gizmo and its frame's axes)
+    and under it every channel's fan at its mount (``/vehicle/INSTRUMENT/CHANNEL``: outline,
+    far cap, label; one colour per instrument; :func:`.geometry.instrument_fans`); the gizmo
+    and the sliders move the vehicle, the images are its first FLS's (none without an FLS:
+    the page names the instruments and ``sonarsim render``).
+
     Parameters
     ----------
     server : viser.ViserServer
@@ -316,15 +331,21 @@ class SceneViewer(_Page):
     # ------------------------------------------------------------------ 3D
 
     def _build_scene(self) -> None:
-        from ...scene.meshes import object_mesh_local
-
         scene, api = self.session.base, self.server.scene
-        sonar = scene.sonar
-        pose = self.session.sonar_pose
+        if self.session.has_vehicle:
+            fans = instrument_fans(scene.instruments)
+            pose = self.session.vehicle_pose
+            reach = max(f.limits.range_max_m for f in fans)
+            points = [pose.translation] + [f.world_pose(pose).translation + f.world_pose(pose).rotation[:, 0]
+                                           * f.limits.range_max_m for f in fans]
+        else:
+            sonar = scene.sonar
+            pose = self.session.sonar_pose
+            reach = sonar.range_max_m
+            points = [pose.translation, pose.translation + pose.rotation[:, 0] * sonar.range_max_m]
         forward = pose.rotation[:, 0]
-        points = [pose.translation, pose.translation + forward * sonar.range_max_m]
         points += [o.pose.translation for o in scene.objects]
-        centre, half = scene_extent(points, 0.5 * sonar.range_max_m + 1.0)
+        centre, half = scene_extent(points, 0.5 * reach + 1.0)
         api.add_frame("/world", axes_length=0.3, axes_radius=0.01)
         planes = scene.reflecting_planes
         for plane in planes:
@@ -333,6 +354,38 @@ class SceneViewer(_Page):
             colour = (110, 160, 230) if water else ((190, 175, 140) if plane.name == "ground" else (170, 170, 175))
             api.add_mesh_simple(f"/planes/{plane.name}", vertices, faces, color=colour,
                                 opacity=0.35 if water else (0.9 if plane.name == "ground" else 0.3), side="double")
+        self._build_objects()
+        if self.session.has_vehicle:
+            self._build_vehicle(fans)
+        else:
+            # The sonar: a small body and its field of view, under its gizmo.
+            self.sonar_control = api.add_transform_controls("/sonar", scale=0.45, position=pose.position_m,
+                                                            wxyz=wxyz_of(pose), line_width=3.0)
+            api.add_box("/sonar/body", color=SONAR_COLOUR, dimensions=(0.16, 0.1, 0.1), position=(-0.08, 0.0, 0.0))
+            api.add_line_segments("/sonar/fov", fov_segments(sonar), FOV_COLOUR, thickness=2.0,
+                                  thickness_units="screen")
+            vertices, faces = fov_surface(sonar)
+            api.add_mesh_simple("/sonar/fov_far", vertices, faces, color=FOV_COLOUR, opacity=0.2, side="double")
+
+        async def sonar_dragged(event) -> None:
+            self.set_sonar_pose(*_from_gizmo(event.target.position, event.target.wxyz), source="gizmo")
+
+        self.sonar_control.on_update(sonar_dragged)
+        # The camera: behind and above the sonar (the vehicle), looking down the range window.
+        look = pose.translation + forward * (reach / 2)
+        eye = pose.translation - 0.35 * reach * forward + np.array([0.0, 0.3 * reach, 0.35 * reach])
+        # (behind the sonar, above it and a little to its left, so that heights read)
+
+        def place_camera(client) -> None:
+            client.camera.position = tuple(eye)
+            client.camera.look_at = tuple(look)
+
+        self.server.on_client_connect(place_camera)
+
+    def _build_objects(self) -> None:
+        from ...scene.meshes import object_mesh_local
+
+        scene, api = self.session.base, self.server.scene
         # Objects: the renderer's own triangles (scene.meshes), in object coordinates, under a
         # gizmo that carries the object's pose.
         self.object_controls = {}
@@ -349,30 +402,32 @@ class SceneViewer(_Page):
             api.add_label(f"/objects/{obj.name}/label", obj.name, position=(0.0, 0.0, size / 2 + 0.05))
             control.on_update(self._object_dragged(obj.name))
             self.object_controls[obj.name] = control
-        # The sonar: a small body and its field of view, under its gizmo.
-        self.sonar_control = api.add_transform_controls("/sonar", scale=0.45, position=pose.position_m,
-                                                        wxyz=wxyz_of(pose), line_width=3.0)
-        api.add_box("/sonar/body", color=SONAR_COLOUR, dimensions=(0.16, 0.1, 0.1), position=(-0.08, 0.0, 0.0))
-        api.add_line_segments("/sonar/fov", fov_segments(sonar), FOV_COLOUR, thickness=2.0,
-                              thickness_units="screen")
-        vertices, faces = fov_surface(sonar)
-        api.add_mesh_simple("/sonar/fov_far", vertices, faces, color=FOV_COLOUR, opacity=0.2, side="double")
 
-        async def sonar_dragged(event) -> None:
-            self.set_sonar_pose(*_from_gizmo(event.target.position, event.target.wxyz), source="gizmo")
-
-        self.sonar_control.on_update(sonar_dragged)
-        # The camera: behind and above the sonar, looking down the range window.
-        look = pose.translation + forward * (sonar.range_max_m / 2)
-        reach = sonar.range_max_m
-        eye = pose.translation - 0.35 * reach * forward + np.array([0.0, 0.3 * reach, 0.35 * reach])
-        # (behind the sonar, above it and a little to its left, so that heights read)
-
-        def place_camera(client) -> None:
-            client.camera.position = tuple(eye)
-            client.camera.look_at = tuple(look)
-
-        self.server.on_client_connect(place_camera)
+    def _build_vehicle(self, fans) -> None:
+        """The vehicle under its gizmo, its frame's axes, and under it every channel's fan at
+        its mount (``/vehicle/INSTRUMENT/CHANNEL``), coloured per instrument."""
+        api = self.server.scene
+        pose = self.session.vehicle_pose
+        reach = max(f.limits.range_max_m for f in fans)
+        self.sonar_control = api.add_transform_controls("/vehicle", scale=max(0.6, 0.05 * reach),
+                                                        position=pose.position_m, wxyz=wxyz_of(pose), line_width=3.0)
+        api.add_frame("/vehicle/frame", axes_length=max(0.5, 0.04 * reach), axes_radius=0.02)
+        api.add_box("/vehicle/body", color=VEHICLE_COLOUR, dimensions=(1.0, 0.3, 0.3), opacity=0.6)
+        api.add_label("/vehicle/label", "vehicle", position=(0.0, 0.0, 0.3))
+        #: Scene-tree name -> the fan drawn there (InstrumentFan).
+        self.fan_nodes = {}
+        for fan in fans:
+            colour = INSTRUMENT_COLOURS[fan.index % len(INSTRUMENT_COLOURS)]
+            node = f"/vehicle/{node_name(fan.instrument)}/{node_name(fan.channel)}"
+            if node in self.fan_nodes:  # two names the same once made tree-safe: keep both
+                node = f"{node}_{len(self.fan_nodes)}"
+            api.add_frame(node, show_axes=False, position=fan.mount.position_m, wxyz=wxyz_of(fan.mount))
+            api.add_line_segments(f"{node}/fov", fan.segments(), colour, thickness=2.0, thickness_units="screen")
+            vertices, faces = fan_surface(fan.limits)
+            api.add_mesh_simple(f"{node}/fov_far", vertices, faces, color=colour, opacity=0.2, side="double")
+            api.add_label(f"{node}/label", f"{fan.type_name} {fan.name}",
+                          position=tuple(0.6 * fan.limits.range_max_m * np.array([1.0, 0.0, 0.0])))
+            self.fan_nodes[node] = fan
 
     def _object_dragged(self, name: str):
         async def dragged(event) -> None:
@@ -384,9 +439,12 @@ class SceneViewer(_Page):
     def _build_controls(self) -> None:
         gui = self.server.gui
         session = self.session
-        pose = session.sonar_pose
-        reach = session.base.sonar.range_max_m * 1.5
-        with gui.add_folder("Sonar pose"):
+        pose = session.carrier_pose
+        if session.has_vehicle:
+            reach = max(f.limits.range_max_m for f in self.fan_nodes.values()) * 1.5
+        else:
+            reach = session.base.sonar.range_max_m * 1.5
+        with gui.add_folder("Vehicle pose" if session.has_vehicle else "Sonar pose"):
             self.pose_sliders = []
             for label, value in zip(("x (m)", "y (m)", "z (m)"), pose.position_m):
                 lo, hi = math.floor(value - reach), math.ceil(value + reach)
@@ -411,8 +469,13 @@ class SceneViewer(_Page):
                        self.dynamic_range, self.gain):
             handle.on_update(self._switched)
         with gui.add_folder("Save"):
-            self.save_button = gui.add_button("save scene and images", hint=f"into {self.out}")
-            self.save_status = gui.add_markdown(f"writes scene.yaml, polar.png and fan.png into `{self.out}`")
+            files = session.saved_files
+            self.save_button = gui.add_button("save scene and images" if len(files) > 1 else "save scene",
+                                              hint=f"into {self.out}")
+            listed = ", ".join(files[:-1]) + " and " + files[-1] if len(files) > 1 else files[0]
+            self.save_status = gui.add_markdown(f"writes {listed} into `{self.out}`")
+        if not session.shows_images:  # a vehicle without an FLS: the title and notes say why
+            self.fan_image.visible = self.polar_image.visible = False
         self.save_button.on_click(lambda event: self.save())
 
     async def _slider_moved(self, event) -> None:
@@ -420,7 +483,7 @@ class SceneViewer(_Page):
             return
         # Only the coordinate of the slider moved changes: the others are the session's (a
         # slider may show a clipped value, and would pull the sonar back to it).
-        pose = self.session.sonar_pose
+        pose = self.session.carrier_pose
         values = [*pose.position_m, *pose.rpy_deg]
         k = next(k for k, slider in enumerate(self.pose_sliders) if slider is event.target)
         values[k] = float(event.target.value)
@@ -446,9 +509,10 @@ class SceneViewer(_Page):
     # ------------------------------------------------------------------ the API (what the page's controls call)
 
     def set_sonar_pose(self, position_m: Sequence[float], rpy_deg: Sequence[float], source: str = "api") -> None:
-        """Move the sonar as a drag of its gizmo does: the session, the gizmo and the sliders
-        follow, and the images are re-rendered (asynchronously; :meth:`wait` for them)."""
-        pose = self.session.set_sonar_pose(position_m, rpy_deg)
+        """Move the sonar (with instruments: the vehicle, and every instrument with it) as a
+        drag of its gizmo does: the session, the gizmo and the sliders follow, and the images
+        are re-rendered (asynchronously; :meth:`wait` for them)."""
+        pose = self.session.set_carrier_pose(position_m, rpy_deg)
         if source != "gizmo":
             self.sonar_control.position = pose.position_m
             self.sonar_control.wxyz = wxyz_of(pose)
@@ -458,6 +522,19 @@ class SceneViewer(_Page):
                     slider.min, slider.max = min(slider.min, math.floor(value)), max(slider.max, math.ceil(value))
                 slider.value = float(np.clip(value, slider.min, slider.max))
         self.request_update()
+
+    def set_vehicle_pose(self, position_m: Sequence[float], rpy_deg: Sequence[float], source: str = "api") -> None:
+        """Move the vehicle of a scene with instruments (its gizmo, ``/vehicle``, does the same):
+        every fan follows at its mount, and the FLS's images are re-rendered.
+
+        Raises
+        ------
+        ConfigError
+            A scene without instruments (it has a sonar to move: :meth:`set_sonar_pose`).
+        """
+        if not self.session.has_vehicle:
+            raise ConfigError("pose", "this scene has no vehicle (no instruments): move its sonar")
+        self.set_sonar_pose(position_m, rpy_deg, source)
 
     def set_object_pose(self, name: str, position_m: Sequence[float], rpy_deg: Sequence[float],
                         source: str = "api") -> None:

@@ -8,6 +8,12 @@ shows); :meth:`SceneSession.save` writes the scene file with the current poses a
 (:mod:`sonarsim.plot.viewer.app`) only forwards its controls to these classes, so that all of
 this is tested without a browser.
 
+A scene whose sonars ride a vehicle (``instruments:``, or ``sonar:`` of another type than the
+FLS) is moved by its vehicle (:meth:`SceneSession.set_vehicle_pose`): every instrument's mount
+follows it. The live images are those of its first FLS, at its mount; the films of the other
+types (a side-scan's waterfall, a multibeam's soundings, ...) are pings along a track that
+``sonarsim render`` writes, and the page names them with that command.
+
 Images are rendered with ``frame=0``: a frame's random draws (speckle, noise) then depend on the
 scene and the pose alone, the picture does not flicker while nothing moves, and the saved scene
 renders the same image (``sonarsim render scene.yaml --frame 0``).
@@ -285,8 +291,15 @@ class SceneSession:
     base : Scene
         The scene as loaded.
     sonar_pose : Pose
+        The sonar's pose (without instruments; with, the first channel's as loaded: the FLS
+        rendered sits at its mount on :attr:`vehicle_pose`, ``scene().sonar_pose``).
     object_poses : dict of str to Pose
         By object name.
+    vehicle_pose : Pose
+        With instruments: the vehicle's pose (what the page moves; each instrument rides at its
+        mount). Without, unused.
+    fls : FlsSpec or None
+        With instruments: the first FLS, whose images are rendered; None: no live image.
     options : ViewOptions
     version : int
         Counts the changes of state (a frame rendered at version v shows the state of v).
@@ -296,6 +309,11 @@ class SceneSession:
         self.base: Scene = load_scene(scene)
         self.backend = backend
         self.sonar_pose = _exact(self.base.sonar_pose)
+        self.vehicle_pose = _exact(self.base.vehicle_pose)
+        from ...config.instruments import FlsSpec
+
+        #: The FLS whose images the page shows (the first one on the vehicle), or None.
+        self.fls = next((i for i in self.base.instruments if isinstance(i, FlsSpec)), None)
         self.object_poses = {o.name: _exact(o.pose) for o in self.base.objects}
         self.sensor_spec = self._find_sensor()
         render = self.base.render
@@ -319,6 +337,10 @@ class SceneSession:
         preset; ``None`` when there is none or the scene cannot take one (``render.tvg`` off)."""
         from ...config.sensor import SENSOR_PRESETS, parse_sensor
 
+        if self.base.instruments and (self.fls is None or self.fls is not self.base.instruments[0]):
+            # A top-level sensor is the first instrument's, an FLS's: a scene file could not
+            # hold one for an FLS further down (and the other types' films are not shown).
+            return None
         spec = self.base.sensor
         if spec is None and self.base.sonar.preset in SENSOR_PRESETS:
             spec = parse_sensor({"preset": self.base.sonar.preset})
@@ -338,14 +360,51 @@ class SceneSession:
     def _changed(self) -> None:
         self.version += 1
 
+    @property
+    def has_vehicle(self) -> bool:
+        """Whether the scene's sonars ride a vehicle (instruments): the page then moves the vehicle."""
+        return bool(self.base.instruments)
+
+    @property
+    def carrier_pose(self) -> Pose:
+        """What the page's gizmo and sliders move: the vehicle's pose with instruments, else the sonar's."""
+        return self.vehicle_pose if self.has_vehicle else self.sonar_pose
+
+    def set_carrier_pose(self, position_m: Sequence[float], rpy_deg: Sequence[float]) -> Pose:
+        """Move the vehicle (with instruments) or the sonar (without); see :meth:`set_vehicle_pose`."""
+        if self.has_vehicle:
+            return self.set_vehicle_pose(position_m, rpy_deg)
+        return self.set_sonar_pose(position_m, rpy_deg)
+
+    def set_vehicle_pose(self, position_m: Sequence[float], rpy_deg: Sequence[float]) -> Pose:
+        """Move and turn the vehicle (world frame: metres; roll, pitch, yaw in degrees); every
+        instrument follows at its mount.
+
+        Raises
+        ------
+        ConfigError
+            Non-finite values, or a scene without instruments (``pose``: move its sonar).
+        """
+        if not self.has_vehicle:
+            raise ConfigError("pose", "this scene has no vehicle (no instruments): move its sonar")
+        pose = _pose_of(position_m, rpy_deg)
+        with self._lock:
+            if pose != self.vehicle_pose:
+                self.vehicle_pose = pose
+                self._changed()
+        return pose
+
     def set_sonar_pose(self, position_m: Sequence[float], rpy_deg: Sequence[float]) -> Pose:
         """Move and turn the sonar (world frame: metres; roll, pitch, yaw in degrees).
 
         Raises
         ------
         ConfigError
-            Non-finite values.
+            Non-finite values, or a scene whose sonars ride a vehicle (``pose``: move the
+            vehicle, :meth:`set_vehicle_pose`).
         """
+        if self.has_vehicle:
+            raise ConfigError("pose", "this scene's sonars ride a vehicle: move the vehicle (set_vehicle_pose)")
         pose = _pose_of(position_m, rpy_deg)
         with self._lock:
             if pose != self.sonar_pose:
@@ -410,8 +469,16 @@ class SceneSession:
             objects = tuple(replace(obj, pose=self.object_poses[obj.name]) for obj in self.base.objects)
             render = replace(self.base.render, max_order=o.max_order, bounces=o.bounces,
                              speckle=o.speckle and not o.sensor)
-            return replace(self.base, objects=objects, render=render, sensor=self.sensor_spec if o.sensor else None,
-                           sonar_pose=self.sonar_pose)
+            sensor = self.sensor_spec if o.sensor else None
+            if not self.has_vehicle:
+                return replace(self.base, objects=objects, render=render, sensor=sensor, sonar_pose=self.sonar_pose)
+            # The sonar rendered is the FLS shown (else the first channel, as the loader
+            # sets it), at its mount on the vehicle where it is now.
+            from ...config.instruments import mounted
+
+            channel = (self.fls or self.base.instruments[0]).primary
+            return replace(self.base, objects=objects, render=render, sensor=sensor, sonar=channel.sonar,
+                           sonar_pose=mounted(self.vehicle_pose, channel.mount), vehicle_pose=self.vehicle_pose)
 
     def scene_dict(self, folder: str | os.PathLike | None = None) -> dict:
         """The current scene in scene-file form, its file paths relative to ``folder``.
@@ -439,8 +506,12 @@ class SceneSession:
             for value in sensor.values():
                 if isinstance(value, dict) and isinstance(value.get("table"), str):
                     value["table"] = _rebased(value["table"], base)
-        if scene.sonar.preset is not None:
+        if not scene.instruments and scene.sonar.preset is not None:
             doc["sonar"] = {"preset": scene.sonar.preset, **doc["sonar"]}
+        for spec, entry in zip(scene.instruments, doc.get("instruments", ())):
+            sonar = getattr(spec, "sonar", None)  # an FLS keeps its preset's name, as sonar: does
+            if spec.type_name == "fls" and sonar is not None and sonar.preset is not None and "preset" not in entry:
+                entry["preset"] = sonar.preset  # (its explicit keys, written too, take precedence)
         return doc
 
     # ------------------------------------------------------------------ rendering
@@ -490,8 +561,40 @@ class SceneSession:
         r, p, yaw = pose.rpy_deg
         what = options.component if options.component != "total" else f"total of orders {list(options.bounces)}"
         sensor = "sensor on" if options.sensor else "sensor off"
-        return (f"{what} | {sensor}, speckle {'on' if options.speckle else 'off'} | sonar at ({x:.2f}, {y:.2f}, "
+        who = "sonar" if not self.has_vehicle or self.fls is None else f"fls {self.fls.name!r}"
+        return (f"{what} | {sensor}, speckle {'on' if options.speckle else 'off'} | {who} at ({x:.2f}, {y:.2f}, "
                 f"{z:.2f}) m, roll {r:.1f}, pitch {p:.1f}, yaw {yaw:.1f} deg")
+
+    def film_notes(self) -> tuple[str, ...]:
+        """What the page says of the instruments it shows no live image of (all but the FLS
+        shown): their films come from ``sonarsim render``."""
+        others = [i for i in self.base.instruments if i is not self.fls]
+        if not others:
+            return ()
+        scene = self.base.source or "SCENE"
+        names = ", ".join(f"{i.type_name} {i.name!r}" for i in others)
+        its, films = ("its", "film") if len(others) == 1 else ("their", "films")
+        return (f"no live image of {names} here ({its} fans are drawn in 3D); `sonarsim render {scene} --out DIR` "
+                f"renders {its} {films}",)
+
+    @property
+    def saved_files(self) -> tuple[str, ...]:
+        """The files :meth:`save` writes: the scene file, and the images when there are any."""
+        return SAVED_FILES if self.shows_images else SAVED_FILES[:1]
+
+    @property
+    def shows_images(self) -> bool:
+        """Whether there is a live FLS image (a scene with instruments but no FLS has none)."""
+        return not self.has_vehicle or self.fls is not None
+
+    def _no_image(self) -> ViewFrame:
+        """The page's update for a vehicle without an FLS: no images, the instruments named."""
+        blank = np.full((8, 8, 3), 255, np.uint8)
+        x, y, z = self.vehicle_pose.position_m
+        r, p, yaw = self.vehicle_pose.rpy_deg
+        title = (f"vehicle at ({x:.2f}, {y:.2f}, {z:.2f}) m, roll {r:.1f}, pitch {p:.1f}, yaw {yaw:.1f} deg | "
+                 f"no FLS on it: no live image")
+        return ViewFrame(blank, blank.copy(), title, None, {}, self.film_notes())
 
     def render(self, full: bool = False) -> ViewFrame:
         """Render the current state into the page's images.
@@ -508,6 +611,8 @@ class SceneSession:
         SonarsimError
             The state cannot be rendered (e.g. the sonar on a plane); the page shows the message.
         """
+        if not self.shows_images:
+            return self._no_image()
         t0 = time.perf_counter()
         image, options, notes = self.render_image()
         t1 = time.perf_counter()
@@ -515,7 +620,7 @@ class SceneSession:
         polar_rgb, fan_rgb = _display_mapper(image.sonar.grid, full)(polar, colormap=options.colormap, **mapping)
         t2 = time.perf_counter()
         return ViewFrame(polar_rgb, fan_rgb, self.title(options, image.pose), image,
-                         {"render": t1 - t0, "display": t2 - t1}, notes)
+                         {"render": t1 - t0, "display": t2 - t1}, (*notes, *self.film_notes()))
 
     def save(self, folder: str | os.PathLike, command: Sequence[str] | None = None,
              log: Callable[[str], None] | None = None) -> list[Path]:
@@ -524,7 +629,9 @@ class SceneSession:
         Writes ``scene.yaml`` (loads with :func:`sonarsim.load_scene` and renders the image
         shown: ``render(frame=0)``, with ``speckle=False`` when the speckle switch is off and
         the sensor on), ``polar.png`` and ``fan.png`` (the images shown, coloured, at full
-        resolution; the fan at most ``SAVED_FAN_ROWS`` tall) and the run record, each atomically (:class:`~sonarsim.io.run_record.OutputRun`).
+        resolution; the fan at most ``SAVED_FAN_ROWS`` tall; only the scene file for a vehicle
+        without an FLS: :attr:`saved_files`) and the run record, each atomically
+        (:class:`~sonarsim.io.run_record.OutputRun`).
 
         Returns
         -------
@@ -537,15 +644,17 @@ class SceneSession:
         from ...io.run_record import OutputRun
 
         out = Path(folder)
-        run = OutputRun.for_folder(out, SAVED_FILES, command=command, log=log)
+        images = self.shows_images
+        run = OutputRun.for_folder(out, self.saved_files, command=command, log=log)
         with self._lock:  # the file and the images of one state
             doc = self.scene_dict(out)
-            frame = self.render(full=True)
+            frame = self.render(full=True) if images else None
         with run:
             with atomic_write(out / "scene.yaml", "w") as handle:
                 yaml.safe_dump(doc, handle, sort_keys=False)
-            write_png(out / "polar.png", frame.polar_rgb)
-            write_png(out / "fan.png", frame.fan_rgb)
+            if frame is not None:
+                write_png(out / "polar.png", frame.polar_rgb)
+                write_png(out / "fan.png", frame.fan_rgb)
         return run.files
 
     def close(self) -> None:
