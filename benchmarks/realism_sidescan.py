@@ -48,7 +48,7 @@ def main(argv=None) -> int:
         print(f"  intensity, rms dB over {i['cells']} cells: model {i['model_db']:.2f}; calibration mean profile "
               f"{i['mean_profile_db']:.2f}; shifted to each ping's first return {i['shifted_profile_db']:.2f}; "
               f"ceiling (neighbouring pings) {i['ceiling_neighbours_db']:.2f}")
-        print("  fit: " + ", ".join(f"{k} {v:.3g}" for k, v in s["fit"].items()))
+        print("  fit: " + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in s["fit"].items()))
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1) + "\n")
     return 0
