@@ -1,7 +1,9 @@
 """A side-scan ping against a bare cast of its rays, and how its cost grows (issue 38 item 9).
 
 The Sea Scan HDS preset 10 m over a flat sandy floor with three objects (a box, a sphere, a
-cylinder) and, in case ``surface``, a water surface 15 m above the floor (its multipath). Each
+cylinder) and, in case ``surface``, a water surface 15 m above the floor (its multipath); in
+case ``mesh_floor_32k_rays`` the floor is a mesh (as a bathymetry is: Embree meets every ray)
+and each side casts 4 x 4,096 rays. Each
 ping is two engine frames (port, starboard: ``Simulator.trace`` + ``Simulator.form``); its bare
 cast is Embree casting the very rays the ping cast (``bench_render.record_casts``), nothing
 else. Frames and bare casts alternate in blocks so that the machine's load hits both alike:
@@ -45,6 +47,16 @@ def scene(n_samples: int = 1024, surface: bool = False) -> dict:
     return doc
 
 
+def mesh_floor(doc: dict, azimuth_samples: int = 4, elevation_samples: int = 4096) -> dict:
+    """The same survey over a floor that is a mesh (a bathymetry's case: Embree meets every ray),
+    sampled densely (4 rays across the beam, 4,096 down it)."""
+    out = {**doc, "objects": doc["objects"] + [{"name": "seabed", "primitive": "box", "size_m": [200.0, 200.0, 1.0],
+                                                  "pose": {"position_m": [0.0, 0.0, -0.5]}}]}
+    out.pop("ground")
+    out["render"] = {**doc["render"], "azimuth_samples": azimuth_samples, "elevation_samples": elevation_samples}
+    return out
+
+
 def measure(doc: dict, repeats: int) -> dict:
     sim = sonarsim.Simulator(doc)
     ping = lambda: render_pings(sim, n_pings=1, speckle=False)  # noqa: E731
@@ -76,7 +88,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     results = {}
     for name, doc in (("flat_1024", scene()), ("surface_1024", scene(surface=True)),
-                      ("flat_256", scene(256)), ("flat_4096", scene(4096))):
+                      ("flat_256", scene(256)), ("flat_4096", scene(4096)), ("mesh_floor_32k_rays", mesh_floor(scene()))):
         r = measure(doc, args.repeats)
         results[name] = r
         print(f"{name:13s} {r['rays_per_ping']:7d} rays  ping {r['ping_ms']:7.2f} ms  bare cast {r['bare_cast_ms']:6.2f} ms"
