@@ -149,3 +149,31 @@ def test_render_along_a_trajectory_file(tmp_path):
     assert z["samples"].shape[0] == 101  # 10 s at the scene's 10 pings a second
     np.testing.assert_allclose(z["geometry/y_m"], 2.0 * z["geometry/time_s"], atol=1e-9)
     np.testing.assert_allclose(z["geometry/heading_deg"][[0, -1]], [90.0, 0.0], atol=1e-9)
+
+
+@needs_data
+def test_calibrate_fits_a_multibeam_floor_and_an_echo_sounders_detector(tmp_path):
+    import json
+
+    import sonarsim
+
+    pytest.importorskip("pyxtf")
+    mb = tmp_path / "mb.yaml"
+    mb.write_text(yaml.safe_dump({"vehicle": {"pose": {"position_m": [0, 0, 0]}},
+                                  "instruments": [{"type": "multibeam", "name": "head", "preset": "r2sonic_2026_400",
+                                                   "range_max_m": 32.0}]}))
+    out, figures = tmp_path / "mb_fitted.yaml", tmp_path / "mb.json"
+    assert main(["calibrate", str(REAL / "multibeam" / "r2sonic2026_pings_0-459.xtf"), "--scene", str(mb),
+                 "--out", str(out), "--json", str(figures)]) == 0  # the first half fitted, the second scored
+    s = json.loads(figures.read_text())
+    assert s["range_m"]["model"] < s["range_m"]["calibration_mean_per_beam"] < s["range_m"]["level_floor"]
+    fitted = sonarsim.load_scene(out)
+    floor = [p for p in fitted.planes if p.name == "floor"][0]
+    assert -11.5 < floor.point_m[2] < -10.0
+    sb = tmp_path / "sb.yaml"
+    sb.write_text(yaml.safe_dump({"vehicle": {"pose": {"position_m": [0, 0, 0]}},
+                                  "instruments": [{"type": "singlebeam", "name": "echo", "preset": "imagenex_852"}]}))
+    out = tmp_path / "sb_fitted.yaml"
+    assert main(["calibrate", str(REAL / "singlebeam" / "imagenex852_2016-11-18.852"), "--scene", str(sb),
+                 "--out", str(out)]) == 0
+    assert -10.0 < sonarsim.load_scene(out).instruments[0].threshold_db < 0.0

@@ -136,10 +136,12 @@ def score(s: Soundings, calibration, test, n_samples: int = 2048) -> dict:
                              np.nan_to_num(s.geometry.heave_m)])
     with np.errstate(divide="ignore"):
         db = 20.0 * np.log10(np.where(s.intensity > 0, s.intensity, np.nan))  # micropascal: an amplitude
-    cal_render = render_pings_over(s, floor, cal, n_samples)
-    cal_inc = _interp_beams(cal_render.angle_deg, _incidence_deg(cal_render, floor, heads[cal]), s.angle_deg[cal])
+    # (the angular response from at most about 50 of the calibration pings: 256 beams each)
+    cal_bs = cal[:: max(1, len(cal) // 50)]
+    cal_render = render_pings_over(s, floor, cal_bs, n_samples)
+    cal_inc = _interp_beams(cal_render.angle_deg, _incidence_deg(cal_render, floor, heads[cal_bs]), s.angle_deg[cal_bs])
     test_inc = _interp_beams(render.angle_deg, _incidence_deg(render, floor, heads[test]), s.angle_deg[test])
-    ok = np.isfinite(cal_inc) & np.isfinite(db[cal])
+    ok = np.isfinite(cal_inc) & np.isfinite(db[cal_bs])
     knots = INCIDENCE_KNOTS_DEG
     # piecewise-linear in incidence: hat functions on the knots, least squares
     def basis(x):
@@ -151,7 +153,7 @@ def score(s: Soundings, calibration, test, n_samples: int = 2048) -> dict:
     one_hot[np.arange(ok.sum()), beam] = 1.0
     A = np.vstack([np.hstack([basis(cal_inc[ok]), one_hot]),
                    np.hstack([np.zeros((1, len(knots))), np.ones((1, s.n_beams))])])
-    y = np.concatenate([db[cal][ok], [0.0]])
+    y = np.concatenate([db[cal_bs][ok], [0.0]])
     sol = np.linalg.lstsq(A, y, rcond=None)[0]
     coef, offsets = sol[: len(knots)], sol[len(knots):]
     bs_cells = np.isfinite(test_inc) & np.isfinite(db[test])

@@ -62,7 +62,7 @@ def add_calibrate_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--image", default=None, help="side-by-side PNG (default: --out with .png for .yaml); the "
                    "annotated figure goes beside it as *_figure.png")
     p.add_argument("--json", default=None, help="also write the figures as JSON to this file")
-    g = p.add_argument_group("side-scan recordings (XTF)")
+    g = p.add_argument_group("side-scan, multibeam and echo-sounder recordings (XTF, R2Sonic in XTF, Imagenex 852)")
     g.add_argument("--pings", type=ping_count_or_range, default=None, metavar="A:B",
                    help="the pings to fit on (default: the first half of the pings with navigation); the vehicle is "
                    "where each ping's navigation and attitude put it")
@@ -139,8 +139,11 @@ def cmd_calibrate(args) -> None:
 
     from .show import _film_of
 
-    if _film_of(args.real) == "waterfall":
+    film = _film_of(args.real)
+    if film == "waterfall":
         return calibrate_sidescan(args)
+    if film in ("soundings", "envelope"):
+        return calibrate_survey(args, film)
 
     import yaml
 
@@ -333,6 +336,100 @@ def calibrate_sidescan(args) -> None:
             fh.write(f"# calibrated on {Path(args.real).name} pings {cal.min()}-{cal.max()} by sonarsim calibrate; the "
                      f"device's gain law (gain {fit.gain_db:.2f} dB, TVG r^{fit.range_exponent:.3f}, noise "
                      f"{fit.noise_db:.2f} dB) is in the JSON figures\n")
+            yaml.safe_dump(doc, fh, sort_keys=False)
+        if args.json:
+            with atomic_write(Path(args.json), "w") as fh:
+                json.dump(figures, fh, indent=1)
+
+
+def _ping_split(n: int, args, usable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The calibration and evaluation pings of ``--pings`` / ``--evaluate-pings`` (default: the
+    first and second half of the ``usable`` pings), refusing overlaps and empty choices by name."""
+    from ..instruments.replay import ping_slice
+
+    good = np.nonzero(usable)[0]
+    if len(good) < 4:
+        raise ConfigError(str(args.real), f"only {len(good)} pings can be fitted on: nothing to calibrate")
+    half = good[len(good) // 2]
+    cal = ping_slice(n, args.pings, str(args.real)) if args.pings is not None else range(good[0], half)
+    if args.evaluate_pings is not None:
+        test = ping_slice(n, args.evaluate_pings, str(args.real))
+    else:
+        test = range(cal.stop, n) if cal.stop < n - 1 else range(good[0], cal.start)
+    cal = np.array([k for k in cal if usable[k]], dtype=np.int64)
+    test = np.array([k for k in test if usable[k]], dtype=np.int64)
+    for name, pings in (("--pings", cal), ("--evaluate-pings", test)):
+        if len(pings) < 2:
+            raise ConfigError(name, f"holds {len(pings)} usable pings; give at least two")
+    if np.intersect1d(cal, test).size:
+        raise ConfigError("--evaluate-pings", "shares pings with --pings: score on pings not fitted on")
+    return cal, test
+
+
+def calibrate_survey(args, film: str) -> None:
+    """``calibrate`` on a multibeam recording (the floor's plane fitted on ``--pings``, the other
+    pings rendered over it with their attitude and scored) or an echo sounder's (the bottom
+    detector's threshold fitted on ``--pings``, scored against the sounder's own bottom on
+    ``--evaluate-pings``). Writes the scene with what was fitted (``--out``: the floor as a plane
+    ``floor``, or the single-beam's ``threshold_db``) and every figure (``--json``)."""
+    import json
+
+    import yaml
+
+    from ..config.loader import load_scene
+    from ..io.output import atomic_write
+    from ..io.run_record import OutputRun, record_beside
+
+    out = Path(args.out)
+    outputs = [(out, "--out")] + ([(Path(args.json), "--json")] if args.json else [])
+    run = OutputRun(record_beside(out), outputs, command=getattr(args, "command_line", None))
+    run.protect([(args.real, "the recording")])
+    scene = load_scene(args.scene)
+    kind = {"soundings": "multibeam", "envelope": "singlebeam"}[film]
+    specs = [s for s in scene.instruments if s.type_name == kind]
+    if not specs:
+        raise ConfigError("--scene", f"has no {kind} instrument to calibrate on this {kind} recording")
+    doc = scene.to_dict()
+    section = next(x for x in doc["instruments"] if x["name"] == specs[0].name)
+    if film == "soundings":
+        from ..analysis.multibeam import fit_floor, score
+        from ..io.readers.r2sonic import read_soundings
+
+        rec = read_soundings(args.real)
+        usable = np.isfinite(rec.two_way_time_s).any(axis=1) & np.isfinite(rec.geometry.roll_deg)
+        cal, test = _ping_split(rec.n_pings, args, usable)
+        figures = score(rec, cal, test)
+        r, b, f = figures["range_m"], figures["backscatter_db"], figures["floor"]
+        print(f"fitted on pings {cal.min()}-{cal.max()}: a floor {f['depth_m']:.3f} m below the heads, tilted "
+              f"{f['tilt_east_deg']:.2f} deg east and {f['tilt_north_deg']:.2f} deg north")
+        print(f"scored on pings {test.min()}-{test.max()}: per-beam range median |error| {r['model']:.3f} m "
+              f"(calibration mean per beam {r['calibration_mean_per_beam']:.3f} m, level floor {r['level_floor']:.3f} m); "
+              f"backscatter rms {b['model']:.2f} dB (per-beam mean {b['calibration_mean_per_beam']:.2f} dB, ceiling "
+              f"{b['ceiling_neighbours']:.2f} dB)")
+        a, bx, cy = fit_floor(rec, cal)
+        normal = np.array([-bx, -cy, 1.0]) / np.linalg.norm([-bx, -cy, 1.0])
+        doc.pop("ground", None)
+        planes = [p for p in doc.get("planes", []) if p.get("name") != "floor"]
+        doc["planes"] = planes + [{"name": "floor", "point_m": [0.0, 0.0, float(a)], "normal": normal.tolist()}]
+        note = f"the floor fitted on {Path(args.real).name} pings {cal.min()}-{cal.max()}"
+    else:
+        from ..analysis.singlebeam import bottom_check
+        from ..io.readers.imagenex import read_envelope
+
+        rec = read_envelope(args.real)
+        usable = np.isfinite(rec.bottom_range_m)
+        cal, test = _ping_split(rec.n_pings, args, usable)
+        figures = bottom_check(rec, cal, test)
+        d = figures["detector"]
+        print(f"fitted on pings {cal.min()}-{cal.max()}: bottom detector threshold {figures['threshold_db']:g} dB")
+        print(f"scored on pings {test.min()}-{test.max()}: bottom median |error| {d['median_m']:.3f} m "
+              f"({100 * d['within_0.1_m']:.0f} % within 0.1 m); constant {figures['constant']['median_m']:.2f} m, "
+              f"previous ping {figures['persistence']['median_m']:.2f} m")
+        section["threshold_db"] = figures["threshold_db"]
+        note = f"the bottom detector's threshold fitted on {Path(args.real).name} pings {cal.min()}-{cal.max()}"
+    with run:
+        with atomic_write(out, "w") as fh:
+            fh.write(f"# {note} by sonarsim calibrate; every figure in the JSON\n")
             yaml.safe_dump(doc, fh, sort_keys=False)
         if args.json:
             with atomic_write(Path(args.json), "w") as fh:
