@@ -170,7 +170,7 @@ def render_pings(sim, name: str | None = None, n_pings: int | None = None, traje
                                      speckle, labels)
 
 
-def ping_geometry(sim, vehicle_poses: list[Pose], times_s: np.ndarray, spec) -> "PingGeometry":
+def ping_geometry(sim, vehicle_poses: list[Pose], times_s: np.ndarray, spec):
     """What a recording would log of rendered pings: the instrument's height above the ground,
     the vehicle's attitude and heading (``heading = 90 - yaw``), position, speed, the sound speed
     and the range window (``spec``'s)."""

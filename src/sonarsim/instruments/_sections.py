@@ -16,11 +16,28 @@ from pathlib import Path
 from typing import Any
 
 from ..config.loader import _integer, _number
-from ..config.sensor import parse_sensor
+from ..config.sensor import PatternSpec, parse_sensor
+from ..core.rays import make_ray_fan
 from ..core.transforms import Pose
 from ..errors import ConfigError, shown
+from ..sensor.patterns import pattern_gain
 
-__all__ = ["check_range", "check_integer", "check_window", "preset_values", "parse_section", "section_dict"]
+__all__ = ["LineArrayBeam", "check_range", "check_integer", "check_window", "preset_values", "parse_section", "section_dict"]
+
+
+class LineArrayBeam:
+    """For a spec whose one beam is a line array's (a side-scan's side, a scanning sonar's head):
+    its two-way vertical pattern of ``vertical_beam_width_deg`` in its rays' weights, on the fan
+    of its ``channel_sonar()``."""
+
+    def make_fan(self, render):
+        """The channel's rays weighted by the vertical pattern."""
+        return make_ray_fan(self.channel_sonar(), render, self.vertical_gain)
+
+    def vertical_gain(self, elevation_rad):
+        """The two-way vertical pattern at elevations from the axis (power, 1 on axis)."""
+        spec = PatternSpec(shape="line", width_deg=self.vertical_beam_width_deg, window="rect")
+        return pattern_gain(elevation_rad, spec, self.vertical_beam_width_deg, ways=2)
 
 
 def check_range(spec, name: str, lo: float, hi: float, lo_open: bool = True) -> None:

@@ -45,15 +45,14 @@ from typing import ClassVar
 import numpy as np
 
 from ..config.instruments import Channel, InstrumentSpec, mounted, register
-from ..config.sensor import PatternSpec, SensorSpec
+from ..config.sensor import SensorSpec
 from ..config.sonar import SonarConfig
-from ..core.rays import make_ray_fan
 from ..core.transforms import Pose
 from ..errors import ConfigError
 from ..image.films import PingGeometry, range_axis
 from ..sensor.model import SensorModel
-from ..sensor.patterns import half_power_u, pattern_gain
-from ._sections import check_integer, check_range, check_window, parse_section, section_dict  # noqa: F401 (re-exported)
+from ..sensor.patterns import half_power_u
+from ._sections import LineArrayBeam, check_integer, check_range, check_window, parse_section, section_dict  # noqa: F401 (re-exported)
 from . import ping_geometry, renders
 
 step_geometry = ping_geometry  # (its name here before: one home now, instruments.ping_geometry)
@@ -67,7 +66,7 @@ POLE_MARGIN_DEG = 5.0
 
 @register
 @dataclass(frozen=True)
-class ScanningSpec(InstrumentSpec):
+class ScanningSpec(LineArrayBeam, InstrumentSpec):
     """A mechanical scanning sonar's configuration (validated here: a frozen configuration).
 
     Attributes
@@ -219,15 +218,6 @@ class ScanningSpec(InstrumentSpec):
     def turn_time_s(self) -> float:
         """Seconds the device takes for :meth:`steps_per_scan` steps."""
         return self.steps_per_scan() * self.ping_period_s()
-
-    def make_fan(self, render):
-        """The head's rays: its fan weighted by the vertical pattern."""
-        return make_ray_fan(self.channel_sonar(), render, self.vertical_gain)
-
-    def vertical_gain(self, elevation_rad: np.ndarray) -> np.ndarray:
-        """The two-way vertical pattern at elevations from the axis (power, 1 on axis)."""
-        spec = PatternSpec(shape="line", width_deg=self.vertical_beam_width_deg, window="rect")
-        return pattern_gain(elevation_rad, spec, self.vertical_beam_width_deg, ways=2)
 
     # -- files -----------------------------------------------------------------------------
 

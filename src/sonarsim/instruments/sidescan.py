@@ -32,15 +32,13 @@ from typing import ClassVar
 import numpy as np
 
 from ..config.instruments import Channel, InstrumentSpec, mounted, register
-from ..config.sensor import PatternSpec, SensorSpec
+from ..config.sensor import SensorSpec
 from ..config.sonar import SonarConfig
-from ..core.rays import make_ray_fan
 from ..core.transforms import Pose
-from ..image.films import PingGeometry, Waterfall
+from ..image.films import Waterfall
 from ..sensor.model import SensorModel
-from ..sensor.patterns import pattern_gain
 from . import ping_geometry, renders
-from ._sections import check_range, check_window, parse_section, section_dict
+from ._sections import LineArrayBeam, check_range, check_window, parse_section, section_dict
 
 __all__ = ["SidescanSpec", "render_sidescan", "floor_shadow", "ping_geometry"]
 
@@ -51,7 +49,7 @@ NADIR_MARGIN_DEG = 0.5
 
 @register
 @dataclass(frozen=True)
-class SidescanSpec(InstrumentSpec):
+class SidescanSpec(LineArrayBeam, InstrumentSpec):
     """A side-scan sonar's configuration (validated here: a frozen configuration).
 
     Attributes
@@ -133,15 +131,6 @@ class SidescanSpec(InstrumentSpec):
         if self.ping_rate_hz:
             return 1.0 / self.ping_rate_hz
         return 2.0 * self.range_max_m / self.sound_speed_m_s
-
-    def make_fan(self, render):
-        """Each side's rays: the channel's fan weighted by the vertical pattern."""
-        return make_ray_fan(self.channel_sonar(), render, self.vertical_gain)
-
-    def vertical_gain(self, elevation_rad: np.ndarray) -> np.ndarray:
-        """The two-way vertical pattern at elevations from the axis (power, 1 on axis)."""
-        spec = PatternSpec(shape="line", width_deg=self.vertical_beam_width_deg, window="rect")
-        return pattern_gain(elevation_rad, spec, self.vertical_beam_width_deg, ways=2)
 
     # -- files -----------------------------------------------------------------------------
 
