@@ -103,9 +103,12 @@ class Channel:
 
 def mounted(vehicle: Pose, mount: Pose) -> Pose:
     """The world pose of something at ``mount`` on a vehicle at ``vehicle`` (vehicle-to-world)."""
-    if mount == Pose():  # the same pose, bit for bit (a product would round its angles)
+    if mount == _IDENTITY:  # the same pose, bit for bit (a product would round its angles)
         return vehicle
-    return Pose.from_matrix(vehicle.matrix() @ mount.matrix())
+    return vehicle.compose(mount)
+
+
+_IDENTITY = Pose()
 
 
 @dataclass(frozen=True)

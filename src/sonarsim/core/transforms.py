@@ -173,6 +173,22 @@ class Pose:
         pose._init(m, None)
         return pose
 
+    def compose(self, other: "Pose") -> "Pose":
+        """``self @ other``: the pose of a frame placed at ``other`` in this pose's frame (a
+        mount on a vehicle at this pose). A product of rigid transforms is one: not re-checked
+        (:meth:`from_matrix`'s check costs more than the product, once per ping and channel)."""
+        pose = Pose.__new__(Pose)
+        pose._init(self._matrix @ other._matrix, None)
+        return pose
+
+    def moved(self, offset_m) -> "Pose":
+        """This pose translated by ``offset_m`` (3,), world frame, metres (attitude unchanged)."""
+        m = self._matrix.copy()
+        m[:3, 3] += np.asarray(offset_m, dtype=np.float64)
+        pose = Pose.__new__(Pose)
+        pose._init(m, None)
+        return pose
+
     # Views ------------------------------------------------------------------------------
 
     def matrix(self) -> np.ndarray:

@@ -30,7 +30,11 @@ from ..config.instruments import FlsSpec, InstrumentSpec, instrument_class, moun
 from ..core.transforms import Pose
 from ..errors import ConfigError, shown
 
-__all__ = ["RENDERERS", "renders", "render_pings", "instrument", "vehicle_poses"]
+__all__ = ["RENDERERS", "renders", "render_pings", "instrument", "vehicle_poses", "pose_frames"]
+
+#: The most rays one frame of several pings casts (:func:`pose_frames`): a side-scan side of
+#: 1,024 rays batches 128 pings, a dense one of 16,384 rays 8 (about 600 bytes a ray: 80 MB).
+BATCH_RAYS = 1 << 17
 
 #: Type name -> ``render(sim, spec, poses, times_s, first_ping, speckle, labels) -> film``.
 RENDERERS: dict[str, Callable] = {}
@@ -101,12 +105,7 @@ def vehicle_poses(sim, spec: InstrumentSpec, n_pings: int | None = None, traject
             return [pose] * len(times_s), times_s
         # straight ahead along the vehicle's x axis (vehicle.speed_m_s)
         forward = pose.rotation[:, 0]
-        out = []
-        for t in times_s:
-            m = pose.matrix().copy()
-            m[:3, 3] += speed * t * forward
-            out.append(Pose.from_matrix(m))
-        return out, times_s
+        return [pose.moved(speed * t * forward) for t in times_s], times_s
     return poses_at(trajectory, times_s), times_s
 
 
@@ -195,3 +194,31 @@ def ping_geometry(sim, vehicle_poses: list[Pose], times_s: np.ndarray, spec):
 def channel_pose(vehicle: Pose, channel) -> Pose:
     """A channel's pose in the world for the vehicle at ``vehicle``."""
     return mounted(vehicle, channel.mount)
+
+
+def pose_frames(sim, poses: list[Pose], sonar, fan, labels: bool | str = False):
+    """Frames of consecutive poses of one channel, formed without a sensor: as many poses in one
+    frame as :data:`BATCH_RAYS` allows where the scene lets one frame hold several
+    (:meth:`Simulator.trace_poses`: direct paths), else a frame per pose (the same bits).
+
+    Yields
+    ------
+    start, stop : int
+        The poses ``poses[start:stop]`` the frame holds.
+    paths : FramePaths
+        Its paths (``paths.poses`` the poses where several).
+    image : SonarImage
+        Its image, components and labels, pose ``start + j``'s in the columns ``j n_beams`` to
+        ``(j + 1) n_beams``: the expected echo (no sensor: :meth:`Simulator.sense` takes each
+        pose's share through its chain with its own frame's draws).
+    """
+    per = max(1, BATCH_RAYS // max(fan.n_rays, 1))
+    start = 0
+    while start < len(poses):
+        stop = min(len(poses), start + per)
+        paths = sim.trace_poses(poses[start:stop], sonar=sonar, labels=labels, fan=fan) if stop - start > 1 else None
+        if paths is None:
+            stop = start + 1
+            paths = sim.trace(poses[start], sonar=sonar, labels=labels, fan=fan)
+        yield start, stop, paths, sim.form(paths, keep_rays=False, speckle=False, sensor=False)
+        start = stop

@@ -53,7 +53,7 @@ from ..image.films import PingGeometry, range_axis
 from ..sensor.model import SensorModel
 from ..sensor.patterns import half_power_u
 from ._sections import LineArrayBeam, check_integer, check_range, check_window, parse_section, section_dict  # noqa: F401 (re-exported)
-from . import ping_geometry, renders
+from . import ping_geometry, pose_frames, renders
 
 step_geometry = ping_geometry  # (its name here before: one home now, instruments.ping_geometry)
 
@@ -390,13 +390,20 @@ def render_scanning(sim, spec: ScanningSpec, poses: list[Pose], times_s: np.ndar
     angles = spec.head_angles_deg(pings)
     out = np.empty((spec.n_samples, n), np.float32)
     instance = np.full((spec.n_samples, n), -1, np.int32) if labels else None
-    for k, vehicle in enumerate(poses):  # per step: one engine frame at the step's own pose and time
-        paths = sim.trace(mounted(vehicle, spec.step_mount(angles[k])), sonar=sonar, fan=fan,
-                          labels="total" if labels else False)
-        image = sim.form(paths, keep_rays=False, speckle=speckle, frame=int(pings[k]), sensor=model)
-        out[:, k] = image.polar[:, 0]
+    # Each step at its own pose and time; many steps go through the engine in one frame
+    # (pose_frames), each step's line a column, and through the sensor with its own draws.
+    at = [mounted(vehicle, spec.step_mount(angles[k])) for k, vehicle in enumerate(poses)]
+    model = model or None
+    draws = model is not None or (sim.scene.render.speckle and speckle is not False)
+    for start, stop, _, image in pose_frames(sim, at, sonar, fan, labels="total" if labels else False):
+        lines = image.components["total"]
+        if not draws:
+            out[:, start:stop] = lines
+        else:
+            for j, k in enumerate(range(start, stop)):
+                out[:, k] = sim.sense(lines[:, j:j + 1], at[k], int(pings[k]), speckle, model)[:, 0]
         if labels:
-            instance[:, k] = image.labels.instance["total"][:, 0]
+            instance[:, start:stop] = image.labels.instance["total"]
     ids = tuple(o.name for o in sim.scene.objects) + tuple(p.name for p in sim.scene.reflecting_planes)
     return ScanImage(out, angles, spec.range_min_m, spec.range_max_m, ping_geometry(sim, poses, times_s, spec),
                      spec.step_deg * spec.step, labels={"instance": instance} if labels else None,

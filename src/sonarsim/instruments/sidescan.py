@@ -37,7 +37,7 @@ from ..config.sonar import SonarConfig
 from ..core.transforms import Pose
 from ..image.films import Waterfall
 from ..sensor.model import SensorModel
-from . import ping_geometry, renders
+from . import ping_geometry, pose_frames, renders
 from ._sections import LineArrayBeam, check_range, check_window, parse_section, section_dict
 
 __all__ = ["SidescanSpec", "render_sidescan", "floor_shadow", "ping_geometry"]
@@ -177,10 +177,10 @@ def floor_shadow(paths, sim, objects_image: np.ndarray | None = None) -> np.ndar
     if ground is None:
         return np.zeros(shape, bool)
     distance, sid, _ = paths.first_hits()
-    d = paths.view.directions  # world frame, fan.shape + (3,)
+    origin, d = paths.world_rays()  # world frame, fan.shape + (3,)
     dz = d[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        t_ground = np.where(dz < 0, (ground.height_m - paths.view.origin[2]) / dz, np.inf)
+        t_ground = np.where(dz < 0, (ground.height_m - origin[..., 2]) / dz, np.inf)
     n_planes = len(sim.planes)
     beams = np.broadcast_to(np.arange(sonar.n_beams)[:, None, None], sid.shape)
     dr = sonar.range_resolution_m
@@ -233,15 +233,21 @@ def render_sidescan(sim, spec: SidescanSpec, poses: list[Pose], times_s: np.ndar
     out = np.empty((n, 2, spec.n_samples), np.float32)
     instance = np.full((n, 2, spec.n_samples), -1, np.int32) if labels else None
     shadow = np.zeros((n, 2, spec.n_samples), bool) if labels else None
-    for k, vehicle in enumerate(poses):  # per ping and side: one engine frame each
-        for s, channel in enumerate(channels):
-            paths = sim.trace(mounted(vehicle, channel.mount), sonar=sonar, labels="total" if labels else False,
-                              fan=fan)
-            image = sim.form(paths, keep_rays=False, speckle=speckle, frame=2 * (first_ping + k) + s, sensor=model)
-            out[k, s] = image.polar[:, 0]
-            if labels:
-                instance[k, s] = image.labels.instance["total"][:, 0]
-                shadow[k, s] = floor_shadow(paths, sim, image.components.get("object"))[:, 0]
+    # Ping k's side s is the frame 2 k + s, its pose the vehicle's at the ping, mounted: many
+    # of them go through the engine in one frame (pose_frames), each side's line a column.
+    at = [mounted(vehicle, channel.mount) for vehicle in poses for channel in channels]
+    model = model or None
+    for start, stop, paths, image in pose_frames(sim, at, sonar, fan, labels="total" if labels else False):
+        lines = image.components["total"]
+        flat = out.reshape(2 * n, spec.n_samples)  # frame f = 2 k + s is row f
+        if model is None and not (sim.scene.render.speckle and speckle is not False):
+            flat[start:stop] = lines.T  # no sensor, no draws: the expected lines as they are
+        else:
+            for j, f in enumerate(range(start, stop)):
+                flat[f] = sim.sense(lines[:, j:j + 1], at[f], 2 * first_ping + f, speckle, model)[:, 0]
+        if labels:
+            instance.reshape(2 * n, -1)[start:stop] = image.labels.instance["total"].T
+            shadow.reshape(2 * n, -1)[start:stop] = floor_shadow(paths, sim, image.components.get("object")).T
     extra: dict = {}
     if labels:
         ids = tuple(o.name for o in sim.scene.objects) + tuple(p.name for p in sim.scene.reflecting_planes)

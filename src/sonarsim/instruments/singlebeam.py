@@ -53,7 +53,7 @@ from ..errors import ConfigError, shown
 from ..image.films import Envelope
 from ..sensor.model import SensorModel
 from . import renders
-from . import ping_geometry
+from . import ping_geometry, pose_frames
 from ._sections import check_range, check_window, parse_section, section_dict
 
 __all__ = ["SinglebeamSpec", "render_singlebeam", "detect_bottom", "cone_gain", "CONE_BEAMS", "PATTERNS"]
@@ -273,15 +273,20 @@ def render_singlebeam(sim, spec: SinglebeamSpec, poses: list[Pose], times_s: np.
     width = np.radians(sonar.effective_beam_width_deg())  # (CONE_BEAMS,): the rays' weights are per radian
     out = np.empty((n, spec.n_samples), np.float32)
     render = sim.scene.render
-    for k, vehicle in enumerate(poses):  # per ping: one engine frame
-        paths = sim.trace(mounted(vehicle, channel.mount), sonar=sonar, fan=fan)
-        image = sim.form(paths, keep_rays=False, speckle=False, sensor=False)
-        env = (image.polar.astype(np.float64) @ width)[:, None]
-        rng = frame_rng(render.seed, first_ping + k)
-        if model is not None:
-            env = model.apply(env, rng, speckle is not False, noise_rng=rng)
-        elif render.speckle and speckle is not False:
-            env = env * rng.exponential(1.0, env.shape)
-        out[k] = np.asarray(env, np.float32)[:, 0]
+    at = [mounted(vehicle, channel.mount) for vehicle in poses]
+    nb = sonar.n_beams
+    # Many pings go through the engine in one frame (pose_frames): ping j's cone is the
+    # columns j nb to (j + 1) nb, summed into its envelope, then drawn from its own frame.
+    for start, stop, _, image in pose_frames(sim, at, sonar, fan):
+        polar = image.polar.astype(np.float64)
+        for j, k in enumerate(range(start, stop)):
+            env = (polar[:, j * nb:(j + 1) * nb] @ width)[:, None]
+            if model is not None or (render.speckle and speckle is not False):
+                rng = frame_rng(render.seed, first_ping + k)
+                if model is not None:
+                    env = model.apply(env, rng, speckle is not False, noise_rng=rng)
+                else:
+                    env = env * rng.exponential(1.0, env.shape)
+            out[k] = np.asarray(env, np.float32)[:, 0]
     bottom = detect_bottom(out, spec.range_min_m, spec.range_max_m, spec.threshold_db)
     return Envelope(out, spec.range_min_m, spec.range_max_m, bottom, ping_geometry(sim, poses, times_s, spec))

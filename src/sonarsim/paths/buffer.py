@@ -62,6 +62,10 @@ class FramePaths:
         The longest receive leg followed, metres.
     timing : dict of str to float
         ``setup`` and ``render`` seconds of the trace (``t0``: when it began, ``perf_counter``).
+    poses : tuple of Pose or None
+        A frame of several poses (``Simulator.trace_poses``): pose ``p``'s rays are the fan's
+        ``p``-th share along its beams, its image the grid's ``p``-th share of the beams; ``pose``
+        and ``view`` are the first pose's. None: one pose.
     """
 
     sonar: SonarConfig
@@ -80,6 +84,7 @@ class FramePaths:
     n_generations: int = 1
     reach_m: float = 0.0
     timing: dict | None = None
+    poses: tuple[Pose, ...] | None = None
 
     @property
     def fan(self) -> RayFan:
@@ -90,6 +95,20 @@ class FramePaths:
     def primary(self):
         """The first receive leg (generation 0: each ray's first surface)."""
         return self.legs[0]
+
+    def world_rays(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each ray's origin and direction in the world: ``(origins, directions)``, both shaped
+        ``fan.shape + (3,)`` (float64), each pose's rays from its own pose."""
+        fan = self.fan
+        if self.poses is None:
+            return np.broadcast_to(self.view.origin, fan.shape + (3,)), self.view.directions
+        n = len(self.poses)
+        d = fan.directions.reshape((n, -1, 3))
+        rot = np.array([p.rotation for p in self.poses])
+        org = np.array([p.translation for p in self.poses], dtype=float)
+        out = np.einsum("pij,pkj->pki", rot, d)
+        return (np.broadcast_to(org[:, None, :], out.shape).reshape(fan.shape + (3,)),
+                out.reshape(fan.shape + (3,)))
 
     def first_hits(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Each ray's first surface: ``(distance_m, surface_id, intensity)``, each shaped like

@@ -1959,6 +1959,14 @@ cdef class PathBlocks:
     cdef const double[:, ::1] origin2
     cdef const double[::1] before1
     cdef float origin32[3]
+    # Several poses in one frame (frame()'s pose_rotation, pose_origin): each pose's rays are
+    # rays_per_pose consecutive rays, rotated and placed by their own pose (direct paths only).
+    cdef bint multi
+    cdef const double[:, :, ::1] pose_rot
+    cdef const double[:, ::1] pose_org
+    cdef double[:, ::1] o64
+    cdef double[::1] before_n
+    cdef Py_ssize_t rays_per_pose
     cdef double reach, range_min, range_max, dr, half_el
     cdef bint tvg, spread, separate
     cdef Py_ssize_t n_gen, n_el, n_bins, n_beams, rays_per_beam, n_surfaces, n_planes
@@ -2080,7 +2088,7 @@ cdef class PathBlocks:
               double reach, bint tvg, Py_ssize_t n_gen, Py_ssize_t n_el, double range_min, double dr,
               Py_ssize_t n_bins, Py_ssize_t n_beams, double range_max, double half_el, const double[::1] edges,
               bint spread, bint separate, Py_ssize_t n_surfaces, float[::1] out=None, bint primitives=False,
-              double glint_radius=0.0):
+              double glint_radius=0.0, pose_rotation=None, pose_origin=None):
         """Set the frame: ``out`` (optional: the flat image stack the blocks will splat into;
         block k zeroes its k-th share of the range bins while it traces, whole rows at a time,
         contiguous), ``legs`` (``dist``, ``sid``, ``point``, ``normal``, ``cosine``,
@@ -2089,7 +2097,14 @@ cdef class PathBlocks:
         None; ``n_live``, ``n_cast``: (n_blocks, n_gen) counts; with ``primitives``, also
         ``prim`` and ``uv``, the search's triangles and barycentrics), the planes the sonar
         faces, the pose, the settings. Everything is checked before anything is kept (the
-        kernels read without bounds checks)."""
+        kernels read without bounds checks).
+
+        ``pose_rotation`` (P, 3, 3) and ``pose_origin`` (P, 3), float64: P poses in one frame,
+        pose p's rays the fan's rays ``p n / P`` to ``(p + 1) n / P`` (the fan is P copies of
+        one pose's rays), each rotated and cast from its own pose instead of ``rotation`` and
+        ``origin``: pings of an instrument batched (``Simulator.trace``'s ``poses``). Direct
+        paths only (one generation, no specular returns): a transmit leg by an image source
+        needs the frame's one origin."""
         cdef Py_ssize_t n = self.fan_dirs.shape[0]
         self.ready = False
         self.paths_ready = False
@@ -2104,6 +2119,20 @@ cdef class PathBlocks:
                     raise ValueError(f"legs.{name} missing or of the wrong shape for the specular returns")
         if rotation.shape[0] != 3 or rotation.shape[1] != 3 or origin.shape[0] != 3:
             raise ValueError("the rotation is not 3 x 3 or the origin not 3 numbers")
+        self.multi = pose_rotation is not None or pose_origin is not None
+        if self.multi:
+            rot_p = np.ascontiguousarray(pose_rotation, dtype=np.float64)
+            org_p = np.ascontiguousarray(pose_origin, dtype=np.float64)
+            if (rot_p.ndim != 3 or rot_p.shape[1:] != (3, 3) or org_p.shape != (rot_p.shape[0], 3)
+                    or rot_p.shape[0] < 1 or n % rot_p.shape[0] != 0):
+                raise ValueError("pose_rotation is not (P, 3, 3), pose_origin not (P, 3), or P does not divide the rays")
+            if n_gen != 1 or glint_radius > 0.0:
+                raise ValueError("several poses in one frame trace direct paths only (one generation, no glints)")
+            self.pose_rot, self.pose_org = rot_p, org_p
+            self.rays_per_pose = n // rot_p.shape[0]
+            if self.o64 is None or self.o64.shape[0] != n:
+                self.o64 = np.empty((n, 3))
+                self.before_n = np.zeros(n)
         if n_gen < 1 or n_beams < 1 or n_el < 1 or n % (n_beams * n_el) != 0 or edges.shape[0] != n_beams + 1:
             raise ValueError("the fan's shape does not match the workspace (its beams, rays per beam or edges)")
         for name in ("dist", "cosine", "intensity", "atten", "sid", "chain", "key", "live", "point", "normal") + (
@@ -2181,6 +2210,7 @@ cdef class PathBlocks:
     cdef void _begin(self, Py_ssize_t k, Py_ssize_t a, Py_ssize_t b, bint origins) noexcept nogil:
         """Reset block ``k``'s chains, mark its later generations "nothing", rotate its rays."""
         cdef Py_ssize_t g, i, j, cap = self.children.shape[1], n_p = self.children.shape[2]
+        cdef Py_ssize_t p, lo, hi
         cdef int* ch = &self.children[k, 0, 0]
         for j in range(cap * n_p):
             ch[j] = -1
@@ -2206,8 +2236,23 @@ cdef class PathBlocks:
                     self.prim[g, i] = -1
                     self.uv[g, i, 0] = 0.0
                     self.uv[g, i, 1] = 0.0
-        rotate_impl(self.fan_dirs, self.rotation, self.d64, self.d32, a, b)
-        if origins:
+        if self.multi:  # each pose's share of the block: its own rotation and origin
+            p = a // self.rays_per_pose
+            while p * self.rays_per_pose < b:
+                lo = max(a, p * self.rays_per_pose)
+                hi = min(b, (p + 1) * self.rays_per_pose)
+                rotate_impl(self.fan_dirs, self.pose_rot[p], self.d64, self.d32, lo, hi)
+                for i in range(lo, hi):
+                    self.o64[i, 0] = self.pose_org[p, 0]
+                    self.o64[i, 1] = self.pose_org[p, 1]
+                    self.o64[i, 2] = self.pose_org[p, 2]
+                    self.o32[i, 0] = <float>self.pose_org[p, 0]
+                    self.o32[i, 1] = <float>self.pose_org[p, 1]
+                    self.o32[i, 2] = <float>self.pose_org[p, 2]
+                p += 1
+        else:
+            rotate_impl(self.fan_dirs, self.rotation, self.d64, self.d32, a, b)
+        if origins and not self.multi:
             for i in range(a, b):
                 self.o32[i, 0] = self.origin32[0]
                 self.o32[i, 1] = self.origin32[1]
@@ -2238,8 +2283,11 @@ cdef class PathBlocks:
         # The search (trace_leg_impl) lists the reached rays in live; the weighing reads what it
         # recorded there and keeps those with some energy.
         if g == 0:
-            r = trace_leg_impl(self.ray0[a:b], self.h_dist[a:b], self.h_mesh[a:b], self.h_normal[a:b], self.origin2,
-                               self.d64[a:b], self.before1, self.ones[:1], self.zeros[:1], self.plane_normal,
+            r = trace_leg_impl(self.ray0[a:b], self.h_dist[a:b], self.h_mesh[a:b], self.h_normal[a:b],
+                               self.o64[a:b] if self.multi else self.origin2,
+                               self.d64[a:b], self.before_n[a:b] if self.multi else self.before1,
+                               self.ones[a:b] if self.multi else self.ones[:1],
+                               self.zeros[a:b] if self.multi else self.zeros[:1], self.plane_normal,
                                self.plane_offset, self.active, self.plane_specular, self.reach,
                                True, reflect, self.children[k], self.n_local[k], self.dist[0],
                                self.sid[0], self.point[0], self.normal[0], self.cosine[0], self.atten[0],
@@ -2304,7 +2352,8 @@ cdef class PathBlocks:
                 ss_flag_store(go, 1)
             self._begin(k, a, b, False)
             if b > a:
-                self.cast(self.scene, self.origin32, 0, &self.d32[a, 0], &limit, 0, &self.ids[0], &self.h_dist[a],
+                self.cast(self.scene, &self.o32[a, 0] if self.multi else self.origin32, 3 if self.multi else 0,
+                          &self.d32[a, 0], &limit, 0, &self.ids[0], &self.h_dist[a],
                           &self.h_mesh[a], &self.h_normal[a, 0], &self.h_prim[a] if self.primitives else NULL,
                           &self.h_uv[a, 0] if self.primitives else NULL, b - a, self.coherent)
                 self._step(k, a, b, 0, self.laws)

@@ -689,7 +689,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
                  laws: SurfaceLaws, render: RenderSettings, reach_m: float, n_generations: int, table,
                  n_surfaces: int, stack: np.ndarray, pool=None, occlusion=None, textures: tuple = (),
                  sum_rows: tuple[int, ...] = (), labels=None, primitives: bool = False,
-                 glint_radius_m: float | None = None):
+                 glint_radius_m: float | None = None, poses: tuple[np.ndarray, np.ndarray] | None = None):
     """The whole compiled frame in blocks of beams (:class:`~sonarsim.renderer._kernels.PathBlocks`):
     receive legs, paths, and the image stack.
 
@@ -717,6 +717,10 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
     primitives : bool
         Record the discrete search's triangles and barycentrics in the legs (``Leg.prim``,
         ``Leg.uv``), for what re-evaluates the hit points (the differentiable engine).
+    poses : ((P, 3, 3), (P, 3)) float64 ndarrays, optional
+        A frame of P poses (``view.fan`` P copies of one pose's rays, the grid's beams P
+        copies of its beams): each pose's rays rotated and cast from their own pose instead of
+        ``view``'s (``PathBlocks.frame``; one generation, no specular returns).
 
     Returns
     -------
@@ -801,7 +805,8 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
                  sonar.n_range_bins, n_beams, sonar.range_max_m, sonar.elevation_fov_deg / 2.0,
                  np.ascontiguousarray(sonar.beam_edges_deg), render.range_splat, render.double_beam == "separate",
                  n_surfaces, stack.reshape(-1) if in_blocks else None, primitives,
-                 glint_radius_m if glints else 0.0)
+                 glint_radius_m if glints else 0.0,
+                 *((None, None) if poses is None else poses))
     try:  # the engine lets go of the frame's arrays whatever happens (they go back to the pool)
         while True:
             ok = [True] * len(blocks)

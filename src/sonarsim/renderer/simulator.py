@@ -58,6 +58,10 @@ RANGE_MARGIN = 1.25
 # (OA + OA') / 2 with OA >= range_min); cast that far when there is multipath to form.
 MULTIPATH_REACH = 2.0
 
+# The grid of a frame of several poses (Simulator.trace_poses) spans this many degrees: its
+# columns are the poses' beams side by side, and its azimuths name no direction.
+BATCH_GRID_FOV_DEG = 90.0
+
 
 def as_pose(pose: Any) -> Pose:
     """A :class:`Pose` from a Pose, a ``{position_m, rpy_deg | quat_xyzw}`` dict or a 4x4 matrix."""
@@ -167,6 +171,10 @@ class Simulator:
             kernels = "numpy"
         self.kernels = kernels
         self._work: compiled.Workspace | None = None
+        # Frames of several poses (trace_poses): the fans repeated and their workspaces, the
+        # last two kept (a run of full batches and the shorter last one).
+        self._batch_fans: list[tuple] = []  # (fan, n_poses, the fan repeated n_poses times)
+        self._batch_works: dict[tuple, compiled.Workspace] = {}  # Workspace.layout -> workspace
         self.scene: Scene = load_scene(scene)
         self.backend = backend
         # What the scene and a frame will hold, before any of it is built (issue 21: 20,000
@@ -377,13 +385,15 @@ class Simulator:
         return active, multipath, sonar.range_max_m * RANGE_MARGIN * (MULTIPATH_REACH if multipath else 1.0)
 
     def _render_paths(self, sonar: SonarConfig, view: SonarView, reach: float, active: np.ndarray,
-                      n_generations: int, labels: LabelSpec | None = None, primitives: bool = False):
+                      n_generations: int, labels: LabelSpec | None = None, primitives: bool = False,
+                      poses: tuple[np.ndarray, np.ndarray] | None = None):
         """``method: fast``: receive legs traced, transmit legs by image sources (any planes).
 
         Returns ``(stack, legs, sets, table, total, truth)``: ``truth`` the label maps where
         the compiled engine formed them in the frame's own pass (``labels``), else None. With
         ``primitives`` the legs record the search's triangles and barycentrics (the NumPy twin
-        always does)."""
+        always does). ``poses``: ``(rotations (P, 3, 3), origins (P, 3))`` of a frame of P
+        poses (:meth:`trace_poses`; compiled kernels and direct paths only)."""
         render = self.scene.render
         fan, origin = view.fan, view.origin
         table = ChainTable(self.planes, origin, max(render.max_order - 1, 0), facets=self.facets)
@@ -400,13 +410,21 @@ class Simulator:
         if render.double_line_of_sight:
             occlusion = functools.partial(drop_occluded, table=table, view=view, active=active, caster=self.caster)
         if self.path_kernels == "compiled":
-            self._work = compiled.Workspace.for_fan(self._work, fan)
+            if poses is None:
+                work = self._work = compiled.Workspace.for_fan(self._work, fan)
+            else:  # their own workspaces: the single-pose frames between batches keep theirs
+                layout = (fan.n_rays, fan.shape[0], fan.n_rays // fan.shape[0])
+                work = self._batch_works.pop(layout, None) or compiled.Workspace.for_fan(None, fan)
+                self._batch_works[layout] = work
+                while len(self._batch_works) > 2:
+                    self._batch_works.pop(next(iter(self._batch_works)))
             stack = np.empty((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
             legs, sets, table, total, truth = compiled.render_paths(
-                self.caster, self.planes, active, sonar, view, self._work, self._laws, render, reach,
+                self.caster, self.planes, active, sonar, view, work, self._laws, render, reach,
                 n_generations, table, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
                 textures=self.textures, sum_rows=total_rows(render.bounces, render.max_order), labels=labels,
                 primitives=primitives, glint_radius_m=render.glint_radius_m if render.glints else None,
+                poses=poses,
             )
             return stack, legs, sets, table, total, truth
         directions = view.directions.reshape(-1, 3)
@@ -548,6 +566,92 @@ class Simulator:
                           active=active, n_generations=n_gen, reach_m=reach,
                           timing={"t0": t0, "setup": t1 - t0, "render": t2 - t1})
 
+    def batch_fan(self, fan: RayFan, n_poses: int) -> RayFan:
+        """``fan`` repeated ``n_poses`` times along its beams (the rays of a frame of several
+        poses, :meth:`trace_poses`); the last two kept (full batches and the last one)."""
+        for kept in self._batch_fans:
+            if kept[0] is fan and kept[1] == n_poses:
+                return kept[2]
+        batch = RayFan(np.tile(fan.directions, (n_poses, 1, 1, 1)), np.tile(fan.azimuth_rad, (n_poses, 1)),
+                       fan.elevation_rad, np.tile(fan.weight, (n_poses, 1, 1)))
+        self._batch_fans = self._batch_fans[-1:] + [(fan, n_poses, batch)]
+        return batch
+
+    def trace_poses(self, poses: Any, sonar: SonarConfig | None = None, labels: bool | str = False,
+                    fan: RayFan | None = None, traced: SonarConfig | None = None) -> FramePaths | None:
+        """The search for several poses in one frame: each pose's direct paths, the frame's grid
+        their images side by side (an instrument's pings batched: one cast, one pass of the
+        kernels, where a frame per ping spends most of its time around them).
+
+        Parameters
+        ----------
+        poses : sequence of Pose (or what :meth:`trace` takes as a pose)
+            Sonar-to-world, P of them.
+        sonar, labels, fan, traced
+            As :meth:`trace`.
+
+        Returns
+        -------
+        FramePaths or None
+            Its ``sonar`` the frame's grid: ``n_range_bins`` x ``P n_beams`` beams, pose ``p``'s
+            beams the columns ``p n_beams`` to ``(p + 1) n_beams`` (its azimuths name no
+            direction); ``poses`` the poses. :meth:`form` makes its image, components and
+            labels as for one pose (pose p's columns are bit for bit what :meth:`trace` and
+            :meth:`form` give at that pose). None where one frame cannot hold the poses: a pose
+            that faces a mirror with ``max_order`` > 1 (its transmit legs come from image
+            sources of its own origin), glints, ``double_line_of_sight``, the NumPy twin, poses
+            facing different planes: trace each pose then.
+
+        Raises
+        ------
+        ConfigError
+            A pose lies on one of the scene's planes; unknown ``labels``.
+        """
+        poses = [as_pose(p) for p in poses]
+        render = self.scene.render
+        if (not poses or self.path_kernels != "compiled" or render.glints or render.double_line_of_sight
+                or labels not in (False, True, "all", "total")):
+            return None
+        t0 = time.perf_counter()
+        sonar = sonar if sonar is not None else self.scene.sonar
+        origins = np.array([p.translation for p in poses], dtype=float).reshape(-1, 3)
+        if len(self.planes):
+            near = np.abs(self.planes.signed_distance(origins)).min(axis=1) < ON_PLANE_TOLERANCE_M
+            for k in np.flatnonzero(near):
+                check_sonar_position(self.scene.reflecting_planes, poses[k].position_m, f"poses[{k}]")
+        for p in poses:
+            self._warn_if_inside(p.translation, stacklevel=4)
+        if fan is None:
+            fan = self.ray_fan(sonar)
+            image_sonar, sonar = sonar, self.traced_sonar(sonar)
+        else:
+            image_sonar, sonar = sonar, (traced if traced is not None else sonar)
+        active, multipath, reach = self.frame_reach(sonar, poses[0])
+        if multipath or (len(self.planes) and (
+                (self.planes.signed_distance(origins) > 0.0) != active[None, :]).any()):
+            return None
+        n = len(poses)
+        grid = SonarConfig.uniform(
+            n_beams=n * image_sonar.n_beams, azimuth_fov_deg=BATCH_GRID_FOV_DEG,
+            elevation_fov_deg=sonar.elevation_fov_deg, range_min_m=sonar.range_min_m,
+            range_max_m=sonar.range_max_m, n_range_bins=sonar.n_range_bins, frequency_khz=sonar.frequency_khz,
+        )
+        batch = self.batch_fan(fan, n)
+        spec = None
+        if labels:
+            spec = self._label_spec(batch, grid, len(self.scene.objects), len(self.scene.reflecting_planes),
+                                    labels != "total")
+        view = SonarView.of(grid, poses[0], batch)
+        rotations = np.ascontiguousarray(np.array([p.rotation for p in poses], dtype=float))
+        t1 = time.perf_counter()
+        stack, legs, sets, table, total, formed = self._render_paths(grid, view, reach, active, 1, spec,
+                                                                     poses=(rotations, origins))
+        t2 = time.perf_counter()
+        return FramePaths(sonar=grid, traced=grid, pose=poses[0], view=view, stack=stack, legs=legs, sets=sets,
+                          table=table, total=total, formed=formed, label_spec=spec, labels=labels, active=active,
+                          n_generations=1, reach_m=reach, timing={"t0": t0, "setup": t1 - t0, "render": t2 - t1},
+                          poses=tuple(poses))
+
     def form(self, paths: FramePaths, keep_rays: bool = True, speckle: bool | None = None,
              frame: int | None = None, sensor: SensorModel | bool = True) -> SonarImage:
         """Image formation: a frame's paths (:meth:`trace`) -> the image, its components and labels,
@@ -581,17 +685,8 @@ class Simulator:
         else:
             signatures = functools.partial(self._signature_images, sonar, fan, legs, sets, table)
         components = frame_components(stack, render.bounces, render.max_order, signatures, total)
-        total = components["total"]
-        rng = self._rng if frame is None else frame_rng(render.seed, frame)
         model = self.sensor_model(image_sonar) if sensor is True else (sensor or None)
-        if model is not None:
-            speckle_rng = rng
-            if model.spec.speckle is not None and model.spec.speckle.anchor == "world":
-                speckle_rng = model.anchored_rng(pose.position_m, pose.rpy_deg)  # still sonar, still speckle
-            total = model.apply(total, speckle_rng, speckle is not False, pool=self._pool, noise_rng=rng,
-                                warn_saturation=True)
-        elif render.speckle and speckle is not False:
-            total = (total * rng.exponential(1.0, total.shape)).astype(np.float32)
+        total = self.sense(components["total"], pose, frame, speckle, model)
         rays = None
         if keep_rays:
             primary = legs[0]
@@ -613,6 +708,40 @@ class Simulator:
             polar=total, range_m=sonar.range_m, azimuth_deg=sonar.azimuth_deg,
             components=components, sonar=sonar, pose=pose, rays=rays, config=config, labels=truth,
         )
+
+    def sense(self, total: np.ndarray, pose: Pose, frame: int | None, speckle: bool | None,
+              model: SensorModel | None) -> np.ndarray:
+        """A frame's expected echo through the sensor ``model`` (or, without one, the
+        ``render.speckle`` draw): the last step of :meth:`form`, which an instrument that forms
+        several poses in one frame (:meth:`trace_poses`) takes pose by pose.
+
+        Parameters
+        ----------
+        total : (n_range_bins, n_beams) float32 ndarray
+        pose : Pose
+            The frame's (``sensor.speckle.anchor: world`` draws from it).
+        frame : int or None
+            The frame's index: its draws come from ``(render.seed, frame)``; None: the
+            simulator's own generator.
+        speckle : bool or None
+            ``False``: no draws (the sensor's expected output).
+        model : SensorModel or None
+
+        Returns
+        -------
+        (n_range_bins, n_beams) float32 ndarray
+        """
+        render = self.scene.render
+        if model is None and not (render.speckle and speckle is not False):
+            return total  # nothing drawn: no generator made (a few microseconds a ping and side)
+        rng = self._rng if frame is None else frame_rng(render.seed, frame)
+        if model is not None:
+            speckle_rng = rng
+            if model.spec.speckle is not None and model.spec.speckle.anchor == "world":
+                speckle_rng = model.anchored_rng(pose.position_m, pose.rpy_deg)  # still sonar, still speckle
+            return model.apply(total, speckle_rng, speckle is not False, pool=self._pool, noise_rng=rng,
+                               warn_saturation=True)
+        return (total * rng.exponential(1.0, total.shape)).astype(np.float32)
 
     def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True,
                speckle: bool | None = None, frame: int | None = None, labels: bool | str = False) -> SonarImage:
