@@ -63,6 +63,17 @@ MULTIPATH_REACH = 2.0
 BATCH_GRID_FOV_DEG = 90.0
 
 
+@functools.lru_cache(maxsize=8)
+def batch_grid(sonar: SonarConfig, n_beams: int, n_poses: int) -> SonarConfig:
+    """The grid of a frame of ``n_poses`` poses of ``sonar`` (:meth:`Simulator.trace_poses`):
+    its range bins, ``n_poses n_beams`` beams side by side (their azimuths name no direction)."""
+    return SonarConfig.uniform(
+        n_beams=n_poses * n_beams, azimuth_fov_deg=BATCH_GRID_FOV_DEG, elevation_fov_deg=sonar.elevation_fov_deg,
+        range_min_m=sonar.range_min_m, range_max_m=sonar.range_max_m, n_range_bins=sonar.n_range_bins,
+        frequency_khz=sonar.frequency_khz,
+    )
+
+
 def as_pose(pose: Any) -> Pose:
     """A :class:`Pose` from a Pose, a ``{position_m, rpy_deg | quat_xyzw}`` dict or a 4x4 matrix."""
     if isinstance(pose, Pose):
@@ -631,11 +642,7 @@ class Simulator:
                 (self.planes.signed_distance(origins) > 0.0) != active[None, :]).any()):
             return None
         n = len(poses)
-        grid = SonarConfig.uniform(
-            n_beams=n * image_sonar.n_beams, azimuth_fov_deg=BATCH_GRID_FOV_DEG,
-            elevation_fov_deg=sonar.elevation_fov_deg, range_min_m=sonar.range_min_m,
-            range_max_m=sonar.range_max_m, n_range_bins=sonar.n_range_bins, frequency_khz=sonar.frequency_khz,
-        )
+        grid = batch_grid(sonar, image_sonar.n_beams, n)
         batch = self.batch_fan(fan, n)
         spec = None
         if labels:
