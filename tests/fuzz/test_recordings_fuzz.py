@@ -27,7 +27,7 @@ pytestmark = pytest.mark.skipif(
 )
 
 SEED = 20261123
-N_CASES = 5000
+N_CASES = 2500
 # Small (the default is up to 8 GiB), yet above what the real recordings plan for: 29 MB for
 # an Oculus ping of 703 x 256 values (SonarConfig plans 40 float32 images per frame), 15 MB
 # for an ARIS frame; what they allocate while read is far less (the tracemalloc peaks).
