@@ -83,6 +83,14 @@ def test_frames_it_cannot_hold_are_refused():
         assert sim.trace_poses([Pose((1.0, 0, 2.0), (0, 20, 0)), Pose((2.0, 0, 2.0), (0, 20, 0))]) is not None
 
 
+def test_unknown_labels_are_refused_by_name():
+    from sonarsim.errors import ConfigError
+
+    with sonarsim.Simulator(scene()) as sim, pytest.raises(ConfigError) as err:
+        sim.trace_poses(poses(2), labels="boxes")
+    assert err.value.key == "labels"
+
+
 def test_pose_frames_cover_every_pose_once_in_order_whatever_the_batch(monkeypatch):
     import sonarsim.instruments as inst
 

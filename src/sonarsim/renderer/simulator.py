@@ -618,10 +618,11 @@ class Simulator:
         ConfigError
             A pose lies on one of the scene's planes; unknown ``labels``.
         """
+        if labels not in (False, True, "all", "total"):
+            raise ConfigError("labels", f"unknown labels {labels!r}; allowed: False, True, 'all', 'total'")
         poses = [as_pose(p) for p in poses]
         render = self.scene.render
-        if (not poses or self.path_kernels != "compiled" or render.glints or render.double_line_of_sight
-                or labels not in (False, True, "all", "total")):
+        if not poses or self.path_kernels != "compiled" or render.glints or render.double_line_of_sight:
             return None
         t0 = time.perf_counter()
         sonar = sonar if sonar is not None else self.scene.sonar
