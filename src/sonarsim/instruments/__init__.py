@@ -213,12 +213,13 @@ def pose_frames(sim, poses: list[Pose], sonar, fan, labels: bool | str = False):
         pose's share through its chain with its own frame's draws).
     """
     per = max(1, BATCH_RAYS // max(fan.n_rays, 1))
-    start = 0
-    while start < len(poses):
+    for start in range(0, len(poses), per):
         stop = min(len(poses), start + per)
         paths = sim.trace_poses(poses[start:stop], sonar=sonar, labels=labels, fan=fan) if stop - start > 1 else None
-        if paths is None:
-            stop = start + 1
-            paths = sim.trace(poses[start], sonar=sonar, labels=labels, fan=fan)
-        yield start, stop, paths, sim.form(paths, keep_rays=False, speckle=False, sensor=False)
-        start = stop
+        if paths is not None:
+            yield start, stop, paths, sim.form(paths, keep_rays=False, speckle=False, sensor=False)
+            continue
+        # One frame cannot hold them (multipath, say): the batch's poses one by one, asked once
+        for k in range(start, stop):
+            paths = sim.trace(poses[k], sonar=sonar, labels=labels, fan=fan)
+            yield k, k + 1, paths, sim.form(paths, keep_rays=False, speckle=False, sensor=False)

@@ -626,22 +626,23 @@ class Simulator:
             return None
         t0 = time.perf_counter()
         sonar = sonar if sonar is not None else self.scene.sonar
+        if fan is None:
+            fan = self.ray_fan(sonar)
+            image_sonar, sonar = sonar, self.traced_sonar(sonar)
+        else:
+            image_sonar, sonar = sonar, (traced if traced is not None else sonar)
         origins = np.array([p.translation for p in poses], dtype=float).reshape(-1, 3)
+        # Refused before the poses are checked one by one: trace checks them again
+        active, multipath, reach = self.frame_reach(sonar, poses[0])
+        if multipath or (len(self.planes) and (
+                (self.planes.signed_distance(origins) > 0.0) != active[None, :]).any()):
+            return None
         if len(self.planes):
             near = np.abs(self.planes.signed_distance(origins)).min(axis=1) < ON_PLANE_TOLERANCE_M
             for k in np.flatnonzero(near):
                 check_sonar_position(self.scene.reflecting_planes, poses[k].position_m, f"poses[{k}]")
         for p in poses:
             self._warn_if_inside(p.translation, stacklevel=4)
-        if fan is None:
-            fan = self.ray_fan(sonar)
-            image_sonar, sonar = sonar, self.traced_sonar(sonar)
-        else:
-            image_sonar, sonar = sonar, (traced if traced is not None else sonar)
-        active, multipath, reach = self.frame_reach(sonar, poses[0])
-        if multipath or (len(self.planes) and (
-                (self.planes.signed_distance(origins) > 0.0) != active[None, :]).any()):
-            return None
         n = len(poses)
         grid = batch_grid(sonar, image_sonar.n_beams, n)
         batch = self.batch_fan(fan, n)
