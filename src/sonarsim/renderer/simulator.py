@@ -74,6 +74,12 @@ def batch_grid(sonar: SonarConfig, n_beams: int, n_poses: int) -> SonarConfig:
     )
 
 
+def check_labels(labels: Any) -> None:
+    """Refuse a ``labels`` argument other than False, True, 'all' or 'total' (ConfigError ``labels``)."""
+    if labels not in (False, True, "all", "total"):
+        raise ConfigError("labels", f"unknown labels {labels!r}; allowed: False, True, 'all', 'total'")
+
+
 def as_pose(pose: Any) -> Pose:
     """A :class:`Pose` from a Pose, a ``{position_m, rpy_deg | quat_xyzw}`` dict or a 4x4 matrix."""
     if isinstance(pose, Pose):
@@ -542,8 +548,7 @@ class Simulator:
             The sonar lies on one of the scene's planes; unknown ``labels``.
         """
         t0 = time.perf_counter()
-        if labels not in (False, True, "all", "total"):
-            raise ConfigError("labels", f"unknown labels {labels!r}; allowed: False, True, 'all', 'total'")
+        check_labels(labels)
         sonar = sonar if sonar is not None else self.scene.sonar
         pose_given = pose is not None
         pose = as_pose(pose) if pose_given else self.scene.sonar_pose
@@ -553,11 +558,7 @@ class Simulator:
         if pose_given:
             self._warn_if_inside(pose.translation, stacklevel=4)
         render = self.scene.render
-        if fan is None:
-            fan = self.ray_fan(sonar)
-            image_sonar, sonar = sonar, self.traced_sonar(sonar)  # the image's grid; the rays' aperture
-        else:
-            image_sonar, sonar = sonar, (traced if traced is not None else sonar)
+        fan, image_sonar, sonar = self._cast_fan(sonar, fan, traced)
         t1 = time.perf_counter()
         active, multipath, reach = self.frame_reach(sonar, pose)
         spec = None
@@ -576,6 +577,13 @@ class Simulator:
                           table=table, total=total, formed=formed, label_spec=spec, labels=labels,
                           active=active, n_generations=n_gen, reach_m=reach,
                           timing={"t0": t0, "setup": t1 - t0, "render": t2 - t1})
+
+    def _cast_fan(self, sonar: SonarConfig, fan: RayFan | None, traced: SonarConfig | None):
+        """``(fan, image grid, traced sonar)`` of a trace: the scene's rays for ``sonar`` (a
+        sensor's pattern widening their aperture) or an instrument's own ``fan``."""
+        if fan is None:
+            return self.ray_fan(sonar), sonar, self.traced_sonar(sonar)  # the image's grid; the rays' aperture
+        return fan, sonar, (traced if traced is not None else sonar)
 
     def batch_fan(self, fan: RayFan, n_poses: int) -> RayFan:
         """``fan`` repeated ``n_poses`` times along its beams (the rays of a frame of several
@@ -618,27 +626,22 @@ class Simulator:
         ConfigError
             A pose lies on one of the scene's planes; unknown ``labels``.
         """
-        if labels not in (False, True, "all", "total"):
-            raise ConfigError("labels", f"unknown labels {labels!r}; allowed: False, True, 'all', 'total'")
+        check_labels(labels)
         poses = [as_pose(p) for p in poses]
         render = self.scene.render
         if not poses or self.path_kernels != "compiled" or render.glints or render.double_line_of_sight:
             return None
         t0 = time.perf_counter()
         sonar = sonar if sonar is not None else self.scene.sonar
-        if fan is None:
-            fan = self.ray_fan(sonar)
-            image_sonar, sonar = sonar, self.traced_sonar(sonar)
-        else:
-            image_sonar, sonar = sonar, (traced if traced is not None else sonar)
+        fan, image_sonar, sonar = self._cast_fan(sonar, fan, traced)
         origins = np.array([p.translation for p in poses], dtype=float).reshape(-1, 3)
         # Refused before the poses are checked one by one: trace checks them again
         active, multipath, reach = self.frame_reach(sonar, poses[0])
-        if multipath or (len(self.planes) and (
-                (self.planes.signed_distance(origins) > 0.0) != active[None, :]).any()):
+        distance = self.planes.signed_distance(origins)  # (P, planes)
+        if multipath or (distance.size and ((distance > 0.0) != active[None, :]).any()):
             return None
-        if len(self.planes):
-            near = np.abs(self.planes.signed_distance(origins)).min(axis=1) < ON_PLANE_TOLERANCE_M
+        if distance.size:
+            near = np.abs(distance).min(axis=1) < ON_PLANE_TOLERANCE_M
             for k in np.flatnonzero(near):
                 check_sonar_position(self.scene.reflecting_planes, poses[k].position_m, f"poses[{k}]")
         for p in poses:
