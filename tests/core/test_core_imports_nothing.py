@@ -75,11 +75,15 @@ def test_the_law_codes_are_configs():
     from sonarsim.config import materials
     from sonarsim.core import radiometry
 
-    assert (radiometry.LAMBERTIAN, radiometry.LAMBERT, radiometry.ROUGH) == (
-        materials.LAMBERTIAN, materials.LAMBERT, materials.ROUGH)
+    assert (radiometry.LAMBERTIAN, radiometry.LAMBERT, radiometry.ROUGH, radiometry.SEDIMENT) == (
+        materials.LAMBERTIAN, materials.LAMBERT, materials.ROUGH, materials.SEDIMENT)
     for law in materials.LAWS:
         assert materials.LAWS.index(law) == {"lambertian": radiometry.LAMBERTIAN, "lambert": radiometry.LAMBERT,
-                                             "rough": radiometry.ROUGH}[law]
+                                             "rough": radiometry.ROUGH, "sediment": radiometry.SEDIMENT}[law]
+    # The kernels' own copy of the tabulated law's code.
+    from pathlib import Path
+    kernels = (Path(radiometry.__file__).parents[1] / "renderer" / "_kernels.pyx").read_text()
+    assert f"cdef int SEDIMENT = {radiometry.SEDIMENT}" in kernels
 
 
 def test_config_passes_what_ray_sampling_reads():

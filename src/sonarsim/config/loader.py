@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import ConfigError, MeshFileError, SonarsimError, check_input_file, key_text, shown
 from .document import MAX_DOCUMENT_BYTES as MAX_SCENE_BYTES, read_document  # noqa: F401 - re-exported
-from .materials import LAWS, Material, mu_from_db
+from .materials import LAWS, MAX_LAMBERT_MU, Material, mu_from_db
 from .meshfiles import load_mesh_file, world_reach_m  # below scene: config imports nothing of it
 from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor, preset_device_mismatch
@@ -27,6 +27,8 @@ from .scene import MAX_COORDINATE_M, ObjectSpec, PlaneSpec, RenderSettings, Scen
 from .sonar import MIN_RELATIVE_BIN_WIDTH, RangeBinError, SonarConfig, beam_edges_deg, check_range_window
 from ..core.transforms import Pose
 
+# Lambert's energy bound in dB (-4.97): mu_db above it returns more than the surface receives.
+MAX_LAMBERT_MU_DB = 10.0 * math.log10(MAX_LAMBERT_MU)
 TOP_KEYS = ("sonar", "render", "ground", "planes", "objects", "sensor", "vehicle", "instruments")
 SONAR_KEYS = (
     "preset", "n_beams", "azimuth_fov_deg", "beam_angles_deg", "beam_angles_file", "beam_width_deg",
@@ -41,7 +43,8 @@ PLANE_KEYS = ("name", "point_m", "normal", "albedo", "specular", "material", "te
 TEXTURE_KEYS = tuple(TextureSpec.__dataclass_fields__)
 OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "pose", "scale", "albedo", "material",
                "specular", "normals")
-MATERIAL_KEYS = ("law", "albedo", "mu", "mu_db", "specular_strength", "roughness", "texture")
+MATERIAL_KEYS = ("law", "albedo", "mu", "mu_db", "specular_strength", "roughness", "texture", "sediment",
+                 "grain_size_phi", "level_db")
 
 
 # Plausibility bounds: a sonar scene spans kilometres at most (MAX_COORDINATE_M, from
@@ -247,7 +250,8 @@ def parse_sonar_section(d: Any, base_dir: Path | None) -> tuple[SonarConfig, Pos
 
 
 def parse_material(d: Any, where: str, texture_allowed: bool) -> Material:
-    """A ``material`` mapping: ``{law, albedo | mu | mu_db, specular_strength, roughness, texture}``.
+    """A ``material`` mapping: ``{law, albedo | mu | mu_db, specular_strength, roughness, texture}``,
+    or for the sediment law ``{law: sediment, sediment | grain_size_phi, level_db, texture}``.
 
     ``where`` is the key of the mapping (``objects[0].material``); ``texture`` only where
     ``texture_allowed`` (objects).
@@ -261,13 +265,16 @@ def parse_material(d: Any, where: str, texture_allowed: bool) -> Material:
             raise ConfigError(f"{where}.law", f"unknown law {shown(kw['law'])}; allowed: {', '.join(LAWS)}")
     if "mu" in d and "mu_db" in d:
         raise ConfigError(f"{where}.mu_db", "give either mu (linear) or mu_db, not both")
-    for key in ("albedo", "mu", "specular_strength", "roughness"):
+    for key in ("albedo", "mu", "specular_strength", "roughness", "grain_size_phi", "level_db"):
         if key in d:
             kw[key] = _number(d[key], f"{where}.{key}")
+    if "sediment" in d:
+        kw["sediment"] = _string(d["sediment"], f"{where}.sediment")
     if "mu_db" in d:
         mu_db = _number(d["mu_db"], f"{where}.mu_db")
-        if mu_db > 0:
-            raise ConfigError(f"{where}.mu_db", f"must be <= 0 dB (mu <= 1), got {mu_db}")
+        if mu_db > MAX_LAMBERT_MU_DB:
+            raise ConfigError(f"{where}.mu_db", f"must be <= {MAX_LAMBERT_MU_DB:.2f} dB (mu <= 1/pi: Lambert's energy "
+                                                f"bound), got {mu_db}")
         if kw.get("law", "lambertian") != "lambert":
             raise ConfigError(f"{where}.mu_db", f"not used by the law {shown(kw.get('law', 'lambertian'))}")
         kw["mu"] = mu_from_db(mu_db)

@@ -25,6 +25,23 @@ normal). A ray of weight ``w = beta(theta, phi) * cos(phi) dphi`` meets an area 
     here the free ``specular_strength``: the lobe's value at normal incidence). It peaks at normal
     incidence for ``s <= 1/2`` (rms slope up to about 27 degrees), the range allowed: rougher
     surfaces are no longer "smooth objects" and the single-facet picture fails.
+``sediment`` (a sea bed by its sediment, after the APL-UW high-frequency model)
+    ``sigma = 10**(level_db / 10) * sigma_b(90 deg - alpha; sediment, f)``: interface roughness
+    (small-slope approximation: Kirchhoff's peak near normal incidence, perturbation theory
+    elsewhere) plus the sediment volume, with the Rayleigh coefficient of the sediment's
+    impedance, at the sonar's frequency ``f`` (:mod:`sonarsim.core.seabed`, which gives every
+    equation and its source). ``sediment`` names a class (``rock``, ``cobble``, ``sandy-gravel``
+    ... ``medium-sand`` ... ``clay``: :data:`~sonarsim.core.seabed.SEDIMENT_NAMES`) or
+    ``grain_size_phi`` gives the mean grain size (-1 to 9 phi); ``level_db`` (default 0, within
+    [-30, 30]) shifts the level, as a fit to a recording does. The model was fitted on 10 to
+    100 kHz (:func:`~sonarsim.core.seabed.model_range`); above, it is extrapolated. The
+    renderer evaluates the law once per sonar frequency into a table of
+    :data:`~sonarsim.core.seabed.TABLE_SIZE` incidences (a quarter degree apart) that the kernels
+    interpolate linearly.
+
+Energy: a surface scattering by Lambert's law returns the fraction ``pi mu`` of what it
+receives, so ``lambert``'s ``mu`` is at most ``1 / pi`` (-5 dB). The paper's ``albedo`` (up to
+1, default 0.8: ``pi * 0.8`` = +4 dB above that bound) is kept as the paper has it.
 
 The sensor stage (:mod:`sonarsim.sensor`) reads the image formed with these laws as
 ``sigma / r^2`` summed over each bin, so its target strengths are those of the laws' sigma.
@@ -41,15 +58,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.radiometry import LAMBERT, LAMBERTIAN, ROUGH
+from ..core import seabed
+from ..core.radiometry import LAMBERT, LAMBERTIAN, ROUGH, SEDIMENT
 from ..errors import ConfigError, shown
 
-LAWS = ("lambertian", "lambert", "rough")
-# Law codes of the compiled kernels (index into LAWS): LAMBERTIAN, LAMBERT, ROUGH, defined once in
-# core.radiometry (imported above).
+LAWS = ("lambertian", "lambert", "rough", "sediment")
+# Law codes of the compiled kernels (index into LAWS): LAMBERTIAN, LAMBERT, ROUGH, SEDIMENT,
+# defined once in core.radiometry (imported above).
 # Parameters each law uses (beyond ``law`` and ``texture``).
-LAW_KEYS = {"lambertian": ("albedo",), "lambert": ("mu",), "rough": ("albedo", "specular_strength", "roughness")}
-REQUIRED_KEYS = {"lambertian": (), "lambert": ("mu",), "rough": ("specular_strength", "roughness")}
+LAW_KEYS = {"lambertian": ("albedo",), "lambert": ("mu",), "rough": ("albedo", "specular_strength", "roughness"),
+            "sediment": ("sediment", "grain_size_phi", "level_db")}
+REQUIRED_KEYS = {"lambertian": (), "lambert": ("mu",), "rough": ("specular_strength", "roughness"), "sediment": ()}
+# Lambert's energy bound: mu = 1 / pi returns all that the surface receives.
+MAX_LAMBERT_MU = 1.0 / math.pi
+# The sediment law's level offset, dB: a fit's correction, not a new sea bed.
+LEVEL_RANGE_DB = (-30.0, 30.0)
+DEFAULT_SEDIMENT = "medium-sand"
 # Rms slope above which the Kirchhoff lobe no longer peaks at normal incidence.
 MAX_ROUGHNESS = 0.5
 # The smoothest facets: below this the lobe is a glint narrower than the rays' spacing (and at
@@ -67,16 +91,24 @@ class Material:
 
     Attributes
     ----------
-    law : {'lambertian', 'lambert', 'rough'}
+    law : {'lambertian', 'lambert', 'rough', 'sediment'}
     albedo : float or None
         Diffuse albedo in [0, 1] (``lambertian``, ``rough``); ``None``: 0.8.
     mu : float or None
-        Lambert's parameter in [0, 1], linear (``lambert``; required there).
+        Lambert's parameter in [0, 1 / pi], linear (``lambert``; required there): at most
+        Lambert's energy bound.
     specular_strength : float or None
         The lobe's value at normal incidence, in [0, 1e6] (``rough``; required there).
     roughness : float or None
         Rms facet slope ``s`` (dimensionless, tan of the rms slope angle), in [0.001, 0.5]
         (``rough``; required there).
+    sediment : str or None
+        ``sediment``: the class (:data:`~sonarsim.core.seabed.SEDIMENT_NAMES`); ``None`` with
+        no ``grain_size_phi``: ``medium-sand``.
+    grain_size_phi : float or None
+        ``sediment``: the mean grain size, phi, within [-1, 9], instead of a class.
+    level_db : float or None
+        ``sediment``: dB added to the model's level, within [-30, 30]; ``None``: 0.
     texture : bool
         Scale the diffuse part by the mesh's texture (objects whose mesh has UV coordinates and
         a texture image).
@@ -88,12 +120,23 @@ class Material:
     specular_strength: float | None = None
     roughness: float | None = None
     texture: bool = False
+    sediment: str | None = None
+    grain_size_phi: float | None = None
+    level_db: float | None = None
 
     def __post_init__(self) -> None:
         if self.law not in LAWS:
             raise ConfigError("law", f"unknown law {shown(self.law)}; allowed: {', '.join(LAWS)}")
         used = LAW_KEYS[self.law]
-        for key in ("albedo", "mu", "specular_strength", "roughness"):
+        if self.sediment is not None:
+            if "sediment" not in used:
+                raise ConfigError("sediment", f"not used by the law {shown(self.law)}; its parameters: {', '.join(used)}")
+            if not isinstance(self.sediment, str) or self.sediment not in seabed.SEDIMENT_NAMES:
+                raise ConfigError("sediment", f"unknown sediment {shown(self.sediment)}; allowed: "
+                                              f"{', '.join(seabed.SEDIMENT_NAMES)}")
+            if self.grain_size_phi is not None:
+                raise ConfigError("grain_size_phi", "give either sediment (a class) or grain_size_phi, not both")
+        for key in ("albedo", "mu", "specular_strength", "roughness", "grain_size_phi", "level_db"):
             value = getattr(self, key)
             if value is None:
                 if key in REQUIRED_KEYS[self.law]:
@@ -104,10 +147,19 @@ class Material:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ConfigError(key, f"must be a finite number, got {shown(value)}")
             object.__setattr__(self, key, float(value))
-        for key in ("albedo", "mu"):
-            v = getattr(self, key)
-            if v is not None and not 0.0 <= v <= 1.0:
-                raise ConfigError(key, f"must be within [0, 1], got {v}")
+        if self.albedo is not None and not 0.0 <= self.albedo <= 1.0:
+            raise ConfigError("albedo", f"must be within [0, 1], got {self.albedo}")
+        if self.mu is not None and not 0.0 <= self.mu <= MAX_LAMBERT_MU:
+            raise ConfigError("mu", f"must be within [0, 1/pi = {MAX_LAMBERT_MU:.4f}] (Lambert's law returns pi mu "
+                                    f"of what it receives; -4.97 dB at most), got {self.mu}")
+        if self.grain_size_phi is not None:
+            lo, hi = seabed.GRAIN_SIZE_RANGE_PHI
+            if not lo <= self.grain_size_phi <= hi:
+                raise ConfigError("grain_size_phi", f"must be within [{lo:g}, {hi:g}] phi (sandy gravel to clay), "
+                                                    f"got {self.grain_size_phi}")
+        if self.level_db is not None and not LEVEL_RANGE_DB[0] <= self.level_db <= LEVEL_RANGE_DB[1]:
+            raise ConfigError("level_db", f"must be within [{LEVEL_RANGE_DB[0]:g}, {LEVEL_RANGE_DB[1]:g}] dB, "
+                                          f"got {self.level_db}")
         if self.specular_strength is not None and not 0.0 <= self.specular_strength <= MAX_SPECULAR_STRENGTH:
             raise ConfigError("specular_strength", f"must be within [0, {MAX_SPECULAR_STRENGTH:g}] (the lobe at normal "
                               f"incidence), got {self.specular_strength}")
@@ -127,15 +179,44 @@ class Material:
 
     @property
     def code(self) -> int:
-        """The law's code in the compiled kernels (:data:`LAMBERTIAN`, :data:`LAMBERT`, :data:`ROUGH`)."""
+        """The law's code in the compiled kernels (:data:`LAMBERTIAN`, :data:`LAMBERT`, :data:`ROUGH`,
+        :data:`SEDIMENT`)."""
         return LAWS.index(self.law)
 
     @property
     def coefficient(self) -> float:
-        """The diffuse coefficient: ``albedo`` (default 0.8) or ``mu``; the part a texture scales."""
+        """The diffuse coefficient: ``albedo`` (default 0.8), ``mu``, or the sediment law's
+        ``10**(level_db / 10)``; the part a texture scales."""
         if self.law == "lambert":
             return float(self.mu)
+        if self.law == "sediment":
+            return 10.0 ** ((self.level_db or 0.0) / 10.0)
         return DEFAULT_ALBEDO if self.albedo is None else float(self.albedo)
+
+    def sediment_model(self, water_sound_speed_m_s: float = 1500.0) -> "seabed.Sediment":
+        """The sediment law's parameters (:class:`~sonarsim.core.seabed.Sediment`)."""
+        if self.law != "sediment":
+            raise ValueError(f"the law {self.law!r} has no sediment")
+        if self.grain_size_phi is not None:
+            return seabed.sediment_from_grain_size(self.grain_size_phi, water_sound_speed_m_s=water_sound_speed_m_s)
+        return seabed.sediment(self.sediment or DEFAULT_SEDIMENT, water_sound_speed_m_s)
+
+    def table(self, frequency_hz: float | None, sound_speed_m_s: float = 1500.0) -> np.ndarray | None:
+        """The tabulated per-ray law ``f(alpha)`` of ``sediment`` at ``frequency_hz``
+        (:func:`sonarsim.core.seabed.law_table`, without ``level_db``); ``None`` for the laws
+        the kernels evaluate from their formulas.
+
+        Raises
+        ------
+        ConfigError
+            ``sonar.frequency_khz`` when the law needs a frequency and none is given.
+        """
+        if self.law != "sediment":
+            return None
+        if frequency_hz is None:
+            raise ConfigError("sonar.frequency_khz", "the sediment law scatters by frequency: set the sonar's "
+                                                     "frequency_khz (or sensor.frequency_khz)")
+        return seabed.law_table(self.sediment_model(sound_speed_m_s), float(frequency_hz), float(sound_speed_m_s))
 
     @property
     def lobe(self) -> tuple[float, float]:
@@ -144,7 +225,8 @@ class Material:
             return (0.0, 0.0)
         return (float(self.specular_strength), float(self.roughness))
 
-    def evaluate(self, cos_incidence, texel=None) -> np.ndarray:
+    def evaluate(self, cos_incidence, texel=None, frequency_hz: float | None = None,
+                 sound_speed_m_s: float = 1500.0) -> np.ndarray:
         """The per-ray law ``f(alpha) = sigma(alpha) / cos(alpha)``, from its formula (the reference
         the renderer is tested against).
 
@@ -154,6 +236,8 @@ class Material:
             cos(alpha) in [0, 1].
         texel : (...) float array, optional
             Texture brightness scaling the diffuse part (default 1).
+        frequency_hz, sound_speed_m_s : float
+            The sonar's frequency (Hz) and the water's sound speed (m/s): the sediment law's.
 
         Returns
         -------
@@ -163,6 +247,13 @@ class Material:
         coef = self.coefficient * (1.0 if texel is None else np.asarray(texel, dtype=np.float64))
         if self.law in ("lambertian", "lambert"):
             return coef * c
+        if self.law == "sediment":
+            if frequency_hz is None:
+                raise ConfigError("sonar.frequency_khz", "the sediment law scatters by frequency")
+            grazing = np.pi / 2 - np.arccos(c)
+            sigma = seabed.backscatter(grazing, self.sediment_model(sound_speed_m_s), frequency_hz, sound_speed_m_s)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return np.where(c > 1e-12, coef * sigma / c, 0.0)
         strength, s = self.lobe
         alpha = np.arccos(c)
         with np.errstate(divide="ignore", over="ignore", invalid="ignore"):

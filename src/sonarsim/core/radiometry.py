@@ -4,7 +4,8 @@ A ray hitting a surface at incidence alpha returns ``beta * l(r) * f(alpha) * co
 ``beta * cos(phi) dphi`` is the ray's weight (beam pattern times the solid angle it stands for),
 ``l(r)`` the range compensation and ``f`` the surface's backscatter law
 (:mod:`sonarsim.config.materials`): the paper's Lambertian ``rho * cos(alpha)`` by default,
-Lambert's ``mu * cos(alpha)**2``, or a diffuse part plus a specular lobe.
+Lambert's ``mu * cos(alpha)**2``, a diffuse part plus a specular lobe, or a sea bed's sediment
+(:mod:`sonarsim.core.seabed`), tabulated in incidence at the sonar's frequency.
 
 :class:`SurfaceLaws` holds the laws of a scene's surfaces by surface id, as the compiled
 kernels take them (a law code and its parameters per surface); :func:`backscatter` is their
@@ -22,7 +23,7 @@ import numpy as np
 # :class:`SurfaceLaws`. :mod:`sonarsim.config.materials` gives the same codes
 # (``Material.code``); they are repeated here because core imports nothing of the package
 # above it (tests/core/test_core_imports_nothing.py checks that the two agree).
-LAMBERTIAN, LAMBERT, ROUGH = 0, 1, 2
+LAMBERTIAN, LAMBERT, ROUGH, SEDIMENT = 0, 1, 2, 3
 
 
 class SurfaceMaterial(Protocol):
@@ -35,6 +36,7 @@ class SurfaceMaterial(Protocol):
     def code(self) -> int: ...
     @property
     def lobe(self) -> tuple[float, float]: ...
+    def table(self, frequency_hz: float | None, sound_speed_m_s: float) -> np.ndarray | None: ...
 
 
 @dataclass(frozen=True)
@@ -44,11 +46,14 @@ class SurfaceLaws:
     Attributes
     ----------
     coefficient : (n_surfaces + 1,) float64 ndarray
-        The diffuse coefficient: ``albedo`` (lambertian, rough) or ``mu`` (lambert).
+        The diffuse coefficient: ``albedo`` (lambertian, rough), ``mu`` (lambert) or the
+        sediment law's level (``10**(level_db / 10)``).
     law : (n_surfaces + 1,) int32 ndarray
-        Law code (:data:`~sonarsim.config.materials.LAMBERTIAN`, ``LAMBERT``, ``ROUGH``).
-    lobe : (n_surfaces + 1, 2) float64 ndarray
-        ``(specular_strength, roughness)`` of the rough law's lobe (0 for the others).
+        Law code (:data:`LAMBERTIAN`, :data:`LAMBERT`, :data:`ROUGH`, :data:`SEDIMENT`).
+    lobe : (n_surfaces + 1, 2) or (n_surfaces + 1, 2 + T) float64 ndarray
+        ``(specular_strength, roughness)`` of the rough law's lobe (0 for the others); where a
+        surface's law is tabulated (``SEDIMENT``), ``T`` more columns hold its per-ray law
+        ``f(alpha)`` at ``T`` incidences evenly from 0 to 90 degrees (0 in the other rows).
     """
 
     coefficient: np.ndarray
@@ -56,9 +61,14 @@ class SurfaceLaws:
     lobe: np.ndarray
 
     @classmethod
-    def of(cls, materials: "Sequence[SurfaceMaterial] | np.ndarray | SurfaceLaws") -> "SurfaceLaws":
+    def of(cls, materials: "Sequence[SurfaceMaterial] | np.ndarray | SurfaceLaws",
+           frequency_hz: float | None = None, sound_speed_m_s: float = 1500.0) -> "SurfaceLaws":
         """From the surfaces' materials in surface-id order (row 0 is added), or pass a table
-        through; a plain float array is the Lambertian albedo by surface id + 1 (row 0 included)."""
+        through; a plain float array is the Lambertian albedo by surface id + 1 (row 0 included).
+
+        ``frequency_hz`` and ``sound_speed_m_s``: the sonar's frequency and the water's speed,
+        which a tabulated law (``SEDIMENT``) is evaluated at (its material's ``table`` raises
+        where it needs a frequency and none is given)."""
         if isinstance(materials, SurfaceLaws):
             return materials
         if isinstance(materials, np.ndarray):
@@ -68,7 +78,21 @@ class SurfaceLaws:
         coefficient = np.array([0.0] + [m.coefficient for m in mats], dtype=np.float64)
         law = np.array([LAMBERTIAN] + [m.code for m in mats], dtype=np.int32)
         lobe = np.array([(0.0, 0.0)] + [m.lobe for m in mats], dtype=np.float64).reshape(-1, 2)
+        tables = [m.table(frequency_hz, sound_speed_m_s) if m.code == SEDIMENT else None for m in mats]
+        if any(t is not None for t in tables):
+            width = max(len(t) for t in tables if t is not None)
+            wide = np.zeros((len(lobe), 2 + width))
+            wide[:, :2] = lobe
+            for i, t in enumerate(tables):
+                if t is not None:
+                    wide[i + 1, 2:] = t
+            lobe = wide
         return cls(coefficient, law, lobe)
+
+    @property
+    def tabulated(self) -> bool:
+        """Some surface's law is a table (``SEDIMENT``): the kernels read ``lobe``'s extra columns."""
+        return self.lobe.shape[1] > 2
 
     def __len__(self) -> int:
         return len(self.coefficient)
@@ -80,9 +104,44 @@ class SurfaceLaws:
 
     def concat(self, other: "SurfaceLaws", skip: int = 0) -> "SurfaceLaws":
         """This table followed by ``other``'s rows from ``skip`` on (mirror images of surfaces)."""
+        a, b = self.lobe, other.lobe[skip:]
+        if a.shape[1] != b.shape[1]:  # one of the two tabulates a law: widen the other with zeros
+            width = max(a.shape[1], b.shape[1])
+            a = np.pad(a, ((0, 0), (0, width - a.shape[1])))
+            b = np.pad(b, ((0, 0), (0, width - b.shape[1])))
         return SurfaceLaws(np.concatenate([self.coefficient, other.coefficient[skip:]]),
                            np.concatenate([self.law, other.law[skip:]]),
-                           np.concatenate([self.lobe, other.lobe[skip:]]))
+                           np.concatenate([a, b]))
+
+
+def tabulated_law(cos_incidence: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """A tabulated per-ray law at cos(alpha): ``table`` (..., T) holds ``f`` at ``T``
+    incidences evenly from 0 to 90 degrees, read linearly in ``alpha = arccos(c)`` (the
+    kernels' operations in their order).
+
+    Parameters
+    ----------
+    cos_incidence : (...) float array
+        cos(alpha), clipped to [0, 1].
+    table : (..., T) float array
+        Per-ray law samples, broadcast against ``cos_incidence``.
+
+    Returns
+    -------
+    (...) float64 ndarray
+    """
+    c = np.clip(np.asarray(cos_incidence, dtype=np.float64), 0.0, 1.0)
+    table = np.asarray(table, dtype=np.float64)
+    last = table.shape[-1] - 1
+    a = np.arccos(c) * (last / (np.pi / 2))
+    shape = np.broadcast_shapes(c.shape, table.shape[:-1])
+    a = np.broadcast_to(a, shape)
+    i = np.minimum(a.astype(np.int64), last - 1)
+    t = a - i
+    full = np.broadcast_to(table, shape + table.shape[-1:])
+    lo = np.take_along_axis(full, i[..., None], -1)[..., 0]
+    hi = np.take_along_axis(full, i[..., None] + 1, -1)[..., 0]
+    return lo + (hi - lo) * t
 
 
 def specular_lobe(cos_incidence: np.ndarray, roughness: np.ndarray) -> np.ndarray:
@@ -159,6 +218,9 @@ def backscatter(
     rough = law == ROUGH
     if np.any(rough):
         out = np.where(rough, w * (coefficient * c + lobe[..., 0] * specular_lobe(c, lobe[..., 1])), out)
+    tab = law == SEDIMENT
+    if np.any(tab):
+        out = np.where(tab, w * coefficient * tabulated_law(c, lobe[..., 2:]), out)
     hit = np.isfinite(distance_m)
     out = np.where(hit, out, 0.0)
     if not tvg:

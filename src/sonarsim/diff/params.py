@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config.scene import Scene
+from ..errors import ConfigError
 from ..scene.meshes import object_mesh_local
 
 
@@ -87,7 +88,7 @@ def parameter_bounds() -> dict[str, Bound]:
         "scale": Bound(cs.MIN_LENGTH_M, cs.MAX_LENGTH_M, "", "objects[].scale"),
         "vertices_m": Bound(*coordinate, "objects[].mesh (its vertices' reach)"),
         "albedo": Bound(0.0, 1.0, "", "albedo"),
-        "mu": Bound(0.0, 1.0, "", "material.mu"),
+        "mu": Bound(0.0, materials.MAX_LAMBERT_MU, "", "material.mu"),
         "specular": Bound(0.0, 1.0, "", "specular"),
         "specular_strength": Bound(0.0, materials.MAX_SPECULAR_STRENGTH, "", "material.specular_strength"),
         "roughness": Bound(materials.MIN_ROUGHNESS, materials.MAX_ROUGHNESS, "", "material.roughness"),
@@ -187,6 +188,23 @@ def scene_params(scene: Scene) -> dict[str, np.ndarray]:
         out[f"{p}.specular"] = np.asarray(plane.specular, float)
         out.update({k: np.asarray(v, float) for k, v in material_params(p, plane.backscatter).items()})
     return out
+
+
+#: The laws the differentiable engine has a formula for (forward.law_table).
+DIFF_LAWS = ("lambertian", "lambert", "rough")
+
+
+def check_diff_laws(scene: Scene) -> None:
+    """Refuse a surface whose law the differentiable engine does not take (ConfigError naming
+    its ``material.law``): the sediment law is a table evaluated per frequency, which only the
+    compiled and NumPy renderers read."""
+    rows = [("ground" if p is scene.ground else f"planes.{p.name}", p.backscatter.law) for p in scene.reflecting_planes]
+    rows += [(f"objects.{o.name}", o.backscatter.law) for o in scene.objects]
+    for where, law in rows:
+        if law not in DIFF_LAWS:
+            raise ConfigError(f"{where}.material.law",
+                              f"the differentiable engine takes the laws {', '.join(DIFF_LAWS)}, not {law!r}: render "
+                              f"a {law} surface with sonarsim.Simulator, or give it a lambert law for the fit")
 
 
 def surface_laws(scene: Scene) -> tuple[tuple[str, str], ...]:

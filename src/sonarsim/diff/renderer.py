@@ -23,7 +23,7 @@ from ..renderer.simulator import Simulator
 from ..scene.meshes import object_mesh_local
 from . import forward
 from .cost import check_diff_cost
-from .params import check_value, parameter_bounds, scene_params, scene_with, surface_laws
+from .params import check_diff_laws, check_value, parameter_bounds, scene_params, scene_with, surface_laws
 from .search import Search, padded_size, record_search
 
 
@@ -123,6 +123,7 @@ class Renderer:
             jax.config.update("jax_enable_x64", True)
         self.dtype = jnp.float64 if dtype == "float64" else jnp.float32
         self.scene = load_scene(scene)
+        check_diff_laws(self.scene)
         # Memory and time estimated from the scene and the sonar's grid before anything is
         # built (and again from the search's counts before JAX compiles anything).
         self.cost = check_diff_cost(self.scene)

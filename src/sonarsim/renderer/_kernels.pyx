@@ -14,7 +14,7 @@ All arrays are flat (C-contiguous) views of the ray fan ``(n_beams, n_azimuth, n
 Nothing here allocates per ray; the caller owns every array.
 """
 
-from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, exp, isfinite, INFINITY, NAN
+from libc.math cimport sqrt, sqrtf, fabs, fabsf, atan2, asin, acos, exp, isfinite, INFINITY, NAN
 from libc.math cimport M_PI
 from libc.string cimport memset, memmove
 from libc.stdint cimport int64_t, uint64_t
@@ -106,16 +106,31 @@ cdef double WATER_TOLERANCE_M = 1e-7
 # Law codes (sonarsim.config.materials).
 cdef int LAMBERTIAN = 0
 cdef int LAMBERT = 1
+cdef int SEDIMENT = 3
 
 
-cdef inline double scatter(double w, double coef, int law, const double* lobe, double c) noexcept nogil:
+cdef inline double scatter(double w, double coef, int law, const double* lobe, Py_ssize_t n_table,
+                           double c) noexcept nogil:
     """Backscatter of a ray of weight ``w`` at cos(alpha) ``c`` under a law (twin:
-    ``core.radiometry.backscatter``, operation for operation). ``lobe``: (strength, roughness)."""
-    cdef double c2, c4, s
+    ``core.radiometry.backscatter``, operation for operation). ``lobe``: (strength, roughness),
+    then ``n_table`` samples of a tabulated law (``SEDIMENT``) in incidence from 0 to 90 degrees."""
+    cdef double c2, c4, s, a, t
+    cdef Py_ssize_t i
     if law == LAMBERTIAN:
         return w * coef * c
     if law == LAMBERT:  # Lambert's law per unit area, mu cos^2: per ray mu cos, the paper's form
         return w * coef * c
+    if law == SEDIMENT:  # the table, linear in the incidence angle (core.radiometry.tabulated_law)
+        if c > 1.0:
+            c = 1.0
+        elif c < 0.0:
+            c = 0.0
+        a = acos(c) * ((n_table - 1) / (M_PI / 2))
+        i = <Py_ssize_t>a
+        if i > n_table - 2:
+            i = n_table - 2
+        t = a - i
+        return w * coef * (lobe[2 + i] + (lobe[3 + i] - lobe[2 + i]) * t)
     c2 = c * c
     c4 = c2 * c2
     s = lobe[1]
@@ -132,6 +147,7 @@ cdef class _Laws:
     """
     cdef const int* law
     cdef const double* lobe
+    cdef Py_ssize_t stride  # lobe's row: 2, or 2 + the samples of a tabulated law
     cdef const float* texel
     cdef object keep
 
@@ -139,8 +155,10 @@ cdef class _Laws:
         cdef const int[::1] lv
         cdef const double[:, ::1] bv
         cdef const float[::1] tv
+        cdef Py_ssize_t i
         self.law = NULL
         self.lobe = NULL
+        self.stride = 2
         self.texel = NULL
         self.keep = (law_by_id, lobe_by_id, hit_texel)
         if (law_by_id is None) != (lobe_by_id is None):
@@ -148,8 +166,12 @@ cdef class _Laws:
         if law_by_id is not None:
             lv = law_by_id
             bv = lobe_by_id
-            if lv.shape[0] != n_ids or bv.shape[0] != n_ids or bv.shape[1] != 2:
+            if lv.shape[0] != n_ids or bv.shape[0] != n_ids or not (bv.shape[1] == 2 or bv.shape[1] >= 4):
                 raise ValueError(f"law tables of {lv.shape[0]} and {bv.shape[0]} x {bv.shape[1]} rows for {n_ids} surfaces")
+            for i in range(lv.shape[0]):
+                if lv[i] == SEDIMENT and bv.shape[1] < 4:
+                    raise ValueError(f"surface row {i}: a tabulated law without its table")
+            self.stride = bv.shape[1]
             if n_ids:
                 self.law = &lv[0]
                 self.lobe = &bv[0, 0]
@@ -170,7 +192,7 @@ cdef inline double diffuse_weight(_Laws laws, const double* albedo_by_id, Py_ssi
         coef = coef * texel[0]
     if laws.law == NULL:
         return w * coef * c
-    return scatter(w, coef, laws.law[index], laws.lobe + 2 * index, c)
+    return scatter(w, coef, laws.law[index], laws.lobe + laws.stride * index, laws.stride - 2, c)
 
 
 cdef Py_ssize_t weigh_impl(Py_ssize_t[::1] live, Py_ssize_t n_reached, const int[::1] sid,

@@ -235,8 +235,12 @@ class Simulator:
         if threads > 1:
             self._pool = compiled.SecondCore() if self.kernels == "compiled" else ThreadPoolExecutor(1)
         # Backscatter laws by surface id + 1: index 0 is "no hit", p + 1 plane p, P + k + 1 object k.
-        self._laws = SurfaceLaws.of([p.backscatter for p in self.scene.reflecting_planes]
-                                    + [o.backscatter for o in self.scene.objects])
+        self._materials = ([p.backscatter for p in self.scene.reflecting_planes]
+                           + [o.backscatter for o in self.scene.objects])
+        # A sediment's law depends on the sonar's frequency: tabulated per frequency, on first use.
+        self._tabulated = any(m.law == "sediment" for m in self._materials)
+        self._laws = None if self._tabulated else SurfaceLaws.of(self._materials)
+        self._laws_by_frequency: dict[float | None, SurfaceLaws] = {}
         # The planes' reflectivity textures by plane index (None: untextured), fixed for the
         # simulator's life: anchored in the world, the same every frame.
         self.textures = texture_fields(self.scene.reflecting_planes, self.scene.render.seed)
@@ -359,8 +363,31 @@ class Simulator:
             self._mirrored_caster = with_textures(make_caster(self.backend, mirrored, self.scene.render.threads), mirrored)
         return self._mirrored_caster
 
-    def _intensity(self, fan: RayFan, hits) -> np.ndarray:
-        out = backscatter(fan.weight, hits.cos_incidence, self._laws, hits.surface_id + 1, hits.distance_m,
+    def surface_laws(self, sonar: SonarConfig) -> SurfaceLaws:
+        """The surfaces' backscatter laws by surface id + 1, at ``sonar``'s frequency (that of
+        ``sonar.frequency_khz``, else ``sensor.frequency_khz``; only a sediment's law depends
+        on it) and the sensor's sound speed (1500 m/s without a sensor).
+
+        Raises
+        ------
+        ConfigError
+            ``sonar.frequency_khz`` where a sediment's law needs a frequency and none is set.
+        """
+        if not self._tabulated:
+            return self._laws
+        spec = self.scene.sensor
+        khz = sonar.frequency_khz if sonar.frequency_khz is not None else (spec.frequency_khz if spec else None)
+        laws = self._laws_by_frequency.get(khz)
+        if laws is None:
+            speed = spec.sound_speed_m_s if spec is not None else 1500.0
+            laws = SurfaceLaws.of(self._materials, None if khz is None else khz * 1e3, speed)
+            if len(self._laws_by_frequency) >= 8:  # instruments of a few frequencies: kept, not more
+                self._laws_by_frequency.pop(next(iter(self._laws_by_frequency)))
+            self._laws_by_frequency[khz] = laws
+        return laws
+
+    def _intensity(self, sonar: SonarConfig, fan: RayFan, hits) -> np.ndarray:
+        out = backscatter(fan.weight, hits.cos_incidence, self.surface_laws(sonar), hits.surface_id + 1, hits.distance_m,
                           self.scene.render.tvg, hits.texel)
         if self._textured:  # the ground (surface id 0) is plane 0
             flat = out.reshape(-1)
@@ -379,14 +406,14 @@ class Simulator:
         hits = trace(self.caster, origin, directions, ground, reach)
         images = render_paper(
             self.caster, self.mirrored_caster(), origin, directions, sonar, pose, self.scene.render, ground,
-            fan.weight, self._laws, len(self.meshes), reach, texture=self.textures[0],
+            fan.weight, self.surface_laws(sonar), len(self.meshes), reach, texture=self.textures[0],
         )
         # Rows of the orders formed (a ground alone makes no path beyond order 3).
         stack = np.zeros((stack_rows(self.scene.render.max_order), sonar.n_range_bins, sonar.n_beams), np.float32)
         for row, k in enumerate(("object", "ground", "double", "triple")[: len(stack)]):
             stack[row] = images[k]
         leg = Leg(0, hits.distance_m.reshape(-1), hits.surface_id.reshape(-1), hits.point.reshape(-1, 3),
-                  hits.normal.reshape(-1, 3).astype(np.float32), self._intensity(fan, hits).reshape(-1), np.ones(fan.n_rays),
+                  hits.normal.reshape(-1, 3).astype(np.float32), self._intensity(sonar, fan, hits).reshape(-1), np.ones(fan.n_rays),
                   np.zeros(fan.n_rays, np.int32))
         return stack, [leg], None, None, None, None
 
@@ -437,7 +464,7 @@ class Simulator:
                     self._batch_works.pop(next(iter(self._batch_works)))
             stack = np.empty((rows,) + geometry[2:], dtype=np.float32)  # fresh: components are views of it
             legs, sets, table, total, truth = compiled.render_paths(
-                self.caster, self.planes, active, sonar, view, work, self._laws, render, reach,
+                self.caster, self.planes, active, sonar, view, work, self.surface_laws(sonar), render, reach,
                 n_generations, table, n_surfaces, stack, pool=self._pool, occlusion=occlusion,
                 textures=self.textures, sum_rows=total_rows(render.bounces, render.max_order), labels=labels,
                 primitives=primitives, glint_radius_m=render.glint_radius_m if render.glints else None,
@@ -446,7 +473,7 @@ class Simulator:
             return stack, legs, sets, table, total, truth
         directions = view.directions.reshape(-1, 3)
         glint = render.glint_radius_m if render.glints else None
-        legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self._laws,
+        legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self.surface_laws(sonar),
                           render.tvg, reach, n_generations, table, self.textures, glint_radius_m=glint)
         table = renumber_chains(table, legs)
         sets = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam)
