@@ -15,7 +15,12 @@ Scored on those other pings, beside trivial predictions on the same pings:
   angular response (dB against incidence, a table fitted on the calibration pings) read at each
   beam's incidence as the render finds it (the ping's attitude and the floor's tilt move every
   beam's incidence), plus each beam's own gain (fitted with it: the head's per-beam
-  calibration).
+  calibration);
+* **the angular response** (mean dB in 2-degree bins of incidence, the sea bed's signature):
+  the sediment law (:mod:`sonarsim.core.seabed`) with its grain size and level fitted on the
+  calibration pings' response (:func:`fit_sediment`), against the test pings' response, beside
+  the calibration pings' per-beam mean binned the same way and the calibration pings' own
+  response (the ceiling: what a perfect law fitted there could score).
 """
 
 from __future__ import annotations
@@ -24,10 +29,87 @@ import numpy as np
 
 from ..image.films import Soundings
 
-__all__ = ["world_points", "fit_floor", "render_pings_over", "score", "INCIDENCE_KNOTS_DEG"]
+__all__ = ["world_points", "fit_floor", "render_pings_over", "score", "fit_sediment", "angular_response",
+           "INCIDENCE_KNOTS_DEG", "RESPONSE_BIN_DEG"]
 
 #: Knots of the fitted angular response, degrees of incidence.
 INCIDENCE_KNOTS_DEG = np.arange(0.0, 75.0, 5.0)
+#: Bins of the angular response (mean dB against incidence), degrees.
+RESPONSE_BIN_DEG = 2.0
+#: The R2Sonic 2026's frequency in the recording (its preset's, r2sonic_2026_400), Hz.
+FREQUENCY_HZ = 400e3
+# A bin of the angular response counts where it holds at least this many cells.
+_MIN_CELLS = 20
+
+
+def angular_response(incidence_deg: np.ndarray, db: np.ndarray, edges: np.ndarray | None = None):
+    """Mean dB per bin of incidence: ``(centres_deg, mean_db, counts)`` over the finite cells,
+    bins of :data:`RESPONSE_BIN_DEG` from 0 to 80 degrees (bins with fewer than 20 cells: NaN)."""
+    edges = np.arange(0.0, 80.0 + RESPONSE_BIN_DEG, RESPONSE_BIN_DEG) if edges is None else edges
+    inc, v = np.asarray(incidence_deg).ravel(), np.asarray(db).ravel()
+    ok = np.isfinite(inc) & np.isfinite(v)
+    k = np.digitize(inc[ok], edges) - 1
+    inside = (k >= 0) & (k < len(edges) - 1)
+    counts = np.bincount(k[inside], minlength=len(edges) - 1)
+    sums = np.bincount(k[inside], weights=v[ok][inside], minlength=len(edges) - 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(counts >= _MIN_CELLS, sums / np.maximum(counts, 1), np.nan)
+    return 0.5 * (edges[1:] + edges[:-1]), mean, counts
+
+
+def fit_sediment(incidence_deg: np.ndarray, response_db: np.ndarray, frequency_hz: float,
+                 sound_speed_m_s: float = 1500.0, weights: np.ndarray | None = None) -> dict:
+    """The sediment (grain size, or rock / cobble) and level whose law best fits an angular
+    response (least squares in dB; the level is each candidate's weighted mean residual).
+
+    Parameters
+    ----------
+    incidence_deg, response_db : (n,) float arrays
+        The response: mean dB at each incidence (NaN: no data). The dB are ``10 log10`` of an
+        intensity (or ``20 log10`` of an amplitude) up to a constant, which the level absorbs.
+    frequency_hz, sound_speed_m_s : float
+    weights : (n,) float array, optional
+        Per point (a bin's cell count); default equal.
+
+    Returns
+    -------
+    dict
+        ``sediment`` (a class name or ``None``), ``grain_size_phi``, ``level_db`` (the constant
+        added to ``10 log10 sigma``), ``rms_db`` (weighted, on the points fitted).
+    """
+    from ..core import seabed
+
+    inc = np.asarray(incidence_deg, float)
+    y = np.asarray(response_db, float)
+    w = np.ones_like(y) if weights is None else np.asarray(weights, float)
+    ok = np.isfinite(inc) & np.isfinite(y) & (w > 0) & (inc < 89.0)
+    grazing = np.radians(90.0 - inc[ok])
+    candidates = [(None, phi, seabed.sediment_from_grain_size(phi, water_sound_speed_m_s=sound_speed_m_s))
+                  for phi in np.round(np.arange(-1.0, 9.0001, 0.1), 6)]
+    candidates += [(name, None, seabed.ROCKS[name]) for name in ("cobble", "rock")]
+    best = None
+    for name, phi, sed in candidates:
+        law = 10.0 * np.log10(seabed.backscatter(grazing, sed, frequency_hz, sound_speed_m_s))
+        level = float(np.average(y[ok] - law, weights=w[ok]))
+        rms = float(np.sqrt(np.average((y[ok] - law - level) ** 2, weights=w[ok])))
+        if best is None or rms < best["rms_db"]:
+            best = {"sediment": name, "grain_size_phi": None if phi is None else float(phi), "level_db": level,
+                    "rms_db": rms}
+    return best
+
+
+def sediment_response_db(incidence_deg: np.ndarray, fit: dict, frequency_hz: float,
+                         sound_speed_m_s: float = 1500.0) -> np.ndarray:
+    """The fitted sediment law in dB at ``incidence_deg`` (:func:`fit_sediment`'s result)."""
+    from ..core import seabed
+
+    sed = (seabed.ROCKS[fit["sediment"]] if fit["sediment"] is not None
+           else seabed.sediment_from_grain_size(fit["grain_size_phi"], water_sound_speed_m_s=sound_speed_m_s))
+    inc = np.asarray(incidence_deg, float)
+    out = np.full(inc.shape, np.nan)
+    ok = np.isfinite(inc) & (inc < 89.9)
+    out[ok] = 10.0 * np.log10(seabed.backscatter(np.radians(90.0 - inc[ok]), sed, frequency_hz, sound_speed_m_s))
+    return out + fit["level_db"]
 
 
 def world_points(s: Soundings, pings) -> np.ndarray:
@@ -168,11 +250,31 @@ def score(s: Soundings, calibration, test, n_samples: int = 2048) -> dict:
     bs_cells &= np.isfinite(neighbours)
     rms = lambda a: float(np.sqrt(np.nanmean((a - db[test])[bs_cells] ** 2)))  # noqa: E731
     tilt = np.degrees(np.arctan(floor[1:]))
+
+    # the angular response: the sediment law fitted on the calibration pings' response
+    c_water = float(np.nanmedian(s.geometry.sound_speed_m_s))
+    centres, cal_resp, cal_n = angular_response(cal_inc, db[cal_bs])
+    _, test_resp, test_n = angular_response(test_inc, db[test])
+    fit = fit_sediment(centres, cal_resp, FREQUENCY_HZ, c_water, weights=cal_n)
+    _, per_beam_resp, _ = angular_response(test_inc, np.broadcast_to(bs_per_beam, test_inc.shape))
+    _, knots_resp, _ = angular_response(test_inc, bs_model)
+    both = np.isfinite(test_resp) & np.isfinite(cal_resp)
+
+    def resp_rms(pred):
+        return float(np.sqrt(np.average((pred[both] - test_resp[both]) ** 2, weights=test_n[both])))
+    sediment_db = sediment_response_db(centres, fit, FREQUENCY_HZ, c_water)
     return {
         "floor": {"depth_m": depth, "tilt_east_deg": float(tilt[0]), "tilt_north_deg": float(tilt[1])},
         "range_m": {"model": med(model), "calibration_mean_per_beam": med(np.broadcast_to(per_beam, measured.shape)),
                     "level_floor": med(level), "cells": int(cells.sum())},
         "backscatter_db": {"model": rms(bs_model), "calibration_mean_per_beam": rms(np.broadcast_to(bs_per_beam, db[test].shape)),
                            "ceiling_neighbours": rms(neighbours), "cells": int(bs_cells.sum())},
+        "angular_response_db": {
+            "sediment": resp_rms(sediment_db), "calibration_mean_per_beam": resp_rms(per_beam_resp),
+            "knots_with_beam_gains": resp_rms(knots_resp), "ceiling_calibration_response": resp_rms(cal_resp),
+            "flat": resp_rms(np.full(centres.shape, np.average(cal_resp[both], weights=cal_n[both]))),
+            "bins": int(both.sum()), "incidence_deg": [float(centres[both].min()), float(centres[both].max())],
+            "fit": fit,
+        },
         "calibration_pings": [int(cal.min()), int(cal.max())], "test_pings": [int(test.min()), int(test.max())],
     }

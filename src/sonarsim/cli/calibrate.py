@@ -406,6 +406,12 @@ def calibrate_survey(args, film: str) -> None:
               f"(calibration mean per beam {r['calibration_mean_per_beam']:.3f} m, level floor {r['level_floor']:.3f} m); "
               f"backscatter rms {b['model']:.2f} dB (per-beam mean {b['calibration_mean_per_beam']:.2f} dB, ceiling "
               f"{b['ceiling_neighbours']:.2f} dB)")
+        ar = figures["angular_response_db"]
+        fit = ar["fit"]
+        bed = fit["sediment"] or f"grain size {fit['grain_size_phi']:g} phi"
+        print(f"angular response: the sediment law ({bed}, fitted on the calibration pings) rms {ar['sediment']:.2f} dB "
+              f"over {ar['bins']} bins of incidence (per-beam mean {ar['calibration_mean_per_beam']:.2f} dB, flat "
+              f"{ar['flat']:.2f} dB, ceiling {ar['ceiling_calibration_response']:.2f} dB)")
         a, bx, cy = fit_floor(rec, cal)
         normal = np.array([-bx, -cy, 1.0]) / np.linalg.norm([-bx, -cy, 1.0])
         doc.pop("ground", None)
