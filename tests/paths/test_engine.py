@@ -28,7 +28,9 @@ def _scenes():
 
 
 def test_ground_only_signatures_are_the_paper_paths():
-    img = sonarsim.render(demo_scene_dict())
+    doc = demo_scene_dict()
+    doc["render"]["double_beam"] = "paper"
+    img = sonarsim.render(doc)
     c = img.components
     assert set(c.signatures) == {"O-[objects]-O", "O-[ground]-O", "O-[objects]-ground-O",
                                  "O-ground-[objects]-ground-O"}
@@ -59,7 +61,7 @@ def test_max_order_bounds_the_ground_paths_in_both_methods(max_order):
     images = {}
     for method in ("fast", "paper"):
         doc = demo_scene_dict()
-        doc["render"].update(max_order=max_order, method=method)
+        doc["render"].update(max_order=max_order, method=method, double_beam="paper")
         doc["render"].pop("bounces")
         images[method] = sonarsim.render(doc).components
     fast, paper = images["fast"], images["paper"]

@@ -150,6 +150,7 @@ def test_algorithm_2_textures_the_direct_ground_echo_as_the_fast_method():
 
     doc = _scenes()["demo"]
     doc["ground"]["texture"] = dict(TEXTURE)
+    doc["render"]["double_beam"] = "paper"  # Algorithm 2's convention for the pairs
     fast = sonarsim.render(doc)
     doc["render"]["method"] = "paper"
     paper = sonarsim.render(doc)

@@ -19,7 +19,7 @@ def sphere_scene(centre, radius=0.05, **render):
     return {
         "sonar": sonar_dict(n_beams=96, elevation_fov_deg=26.0, n_range_bins=1000, pose=POSE),
         "ground": {"albedo": 0.5, "specular": 1.0},
-        "render": {"elevation_samples": 600, **render},
+        "render": {"elevation_samples": 600, "double_beam": "paper", **render},  # the paper's convention
         "objects": [{"name": "ball", "primitive": "sphere", "radius_m": radius, "pose": {"position_m": list(centre)}}],
     }
 
@@ -99,11 +99,13 @@ def test_components_sum_to_the_total_and_bounces_select_them():
     doc = demo_scene_dict()
     img = sonarsim.render(doc)
     comp = img.components
-    signatures = {"O-[objects]-O": "object", "O-[ground]-O": "ground", "O-[objects]-ground-O": "double",
-                  "O-ground-[objects]-ground-O": "triple"}
-    assert set(comp) == {"object", "ground", "single", "double", "triple", "total"} | set(signatures)
+    signatures = {"O-[objects]-O": "object", "O-[ground]-O": "ground", "O-ground-[objects]-ground-O": "triple"}
+    pair = ("O-[objects]-ground-O", "O-ground-[objects]-O")  # coherent: both of the reciprocal pair
+    assert set(comp) == {"object", "ground", "single", "double", "triple", "total"} | set(signatures) | set(pair)
     for sig, name in signatures.items():
         np.testing.assert_allclose(comp[sig], comp[name], rtol=1e-5, atol=1e-7 * comp[name].max())
+    np.testing.assert_allclose(comp[pair[0]] + comp[pair[1]], comp["double"], rtol=1e-5,
+                               atol=1e-7 * comp["double"].max())
     assert comp["double"].any() and comp["triple"].any()
     np.testing.assert_allclose(comp["single"], comp["object"] + comp["ground"], rtol=1e-6)
     np.testing.assert_allclose(img.polar, comp["single"] + comp["double"] + comp["triple"], rtol=1e-5, atol=1e-9)
@@ -138,6 +140,7 @@ def test_fast_method_equals_the_literal_algorithm_2(name):
     # moves to the neighbouring bin: 1e-3 of each component's energy covers that with room.
     doc = _scenes()[name]
     doc["render"]["method"] = "fast"
+    doc["render"]["double_beam"] = "paper"  # Algorithm 2's convention for the pairs (the default is coherent)
     fast = sonarsim.render(doc)
     doc["render"]["method"] = "paper"
     paper = sonarsim.render(doc)

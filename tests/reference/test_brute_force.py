@@ -135,14 +135,14 @@ def test_fast_path_equals_the_reference(scene, max_order, kernels):
 
 
 @pytest.mark.parametrize("kernels", ["compiled", "numpy"])
-@pytest.mark.parametrize("double_beam", ["paper", "split", "separate"])
+@pytest.mark.parametrize("double_beam", ["coherent", "paper", "split", "separate"])
 @pytest.mark.parametrize("scene", ["tank", "turned", "ground", "channel"])
 def test_fast_path_equals_the_reference_in_every_double_beam_mode(scene, double_beam, kernels):
     compare(SCENES[scene](3, double_beam), kernels)
 
 
 @pytest.mark.parametrize("kernels", ["compiled", "numpy"])
-@pytest.mark.parametrize("double_beam", ["paper", "separate"])
+@pytest.mark.parametrize("double_beam", ["paper", "separate", "coherent"])
 @pytest.mark.parametrize("scene", ["tank", "turned", "ground", "channel"])
 def test_fast_path_equals_the_reference_with_line_of_sight(scene, double_beam, kernels):
     doc = SCENES[scene](3, double_beam)

@@ -183,6 +183,7 @@ def test_a_double_bounce_lands_at_half_its_unfolded_length():
     doc = scene([{"name": "ball", "primitive": "sphere", "radius_m": 0.25, "pose": {"position_m": [3.0, 0.0, 0.4]}}],
                 ground={"height_m": 0.0, "albedo": 0.0, "specular": 1.0})
     doc["sonar"]["pose"] = {"position_m": [0.0, 0.0, height], "rpy_deg": [0.0, 10.0, 0.0]}
+    doc.setdefault("render", {})["double_beam"] = "paper"  # each pair once, from the leg via the floor
     img = render(doc)
     lab = img.labels
     names = lab.point_components

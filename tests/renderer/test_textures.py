@@ -140,7 +140,7 @@ def test_compiled_and_numpy_kernels_agree_on_textures():
 
 
 def test_algorithm2_and_the_numpy_caster_see_the_same_texture():
-    scene = multipath_scene(elevation_samples=48)
+    scene = multipath_scene(elevation_samples=48, double_beam="paper")  # Algorithm 2's convention for the pairs
     fast = sonarsim.render(scene)
     paper = sonarsim.render(replace(scene, render=replace(scene.render, method="paper")))
     slow = sonarsim.Simulator(scene, backend="numpy").render()

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
+import tokenize
+
 import numpy as np
 from scipy import ndimage
 
@@ -561,7 +563,7 @@ def load_region(path: str | os.PathLike) -> np.ndarray:
         _check_npy_size(path, name)
         try:
             arr = np.load(path, allow_pickle=False)
-        except (OSError, ValueError, EOFError) as exc:
+        except (OSError, ValueError, EOFError, SyntaxError, tokenize.TokenError) as exc:  # (a mangled header)
             raise SonarsimError(f"{name}: cannot read the .npy array: {exc}") from None
         if arr.ndim != 2:
             raise SonarsimError(f"{name}: a region must be a 2-D array (range bins, beams), got shape {arr.shape}")

@@ -26,7 +26,7 @@ from ..core.transforms import Pose
 PRIMITIVES = ("box", "sphere", "cylinder")
 METHODS = ("fast", "paper")
 BEAM_PATTERNS = ("uniform", "gaussian")
-DOUBLE_BEAMS = ("paper", "split", "separate")
+DOUBLE_BEAMS = ("coherent", "paper", "split", "separate")
 MIRROR_NORMALS = ("flat", "smooth")
 # Plane names become parts of component names (``O-surface-[objects]-O``): keep them plain.
 PLANE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
@@ -481,15 +481,25 @@ class RenderSettings:
         Spread the energy between neighbouring rays on one surface over the range interval they
         span (no stripes on grazing surfaces). ``False`` is the paper's Algorithm 1: each ray
         deposits at its own range.
-    double_beam : {'paper', 'split', 'separate'}
+    double_beam : {'coherent', 'paper', 'split', 'separate'} or None
         Paths whose two legs meet different planes come in reciprocal pairs (O-G-A-O and
         O-A-G-O, the paper's cases 2 and 3), of equal length, arriving from different
-        directions. ``'paper'``: each pair is recorded once, in the beam of the leg with more
+        directions. ``None`` (the default): ``'coherent'``, or ``'paper'`` with ``method:
+        paper``. ``'coherent'``: every path of the pair is formed from its own receive ray, in
+        the beam it arrives from, and where both arrive in one beam each carries twice its
+        energy: of one length, they arrive in phase, their amplitudes add and the pair returns
+        ``|a + a|^2 = 4 |a|^2``, four times one path's intensity (in two beams, each beam sees
+        one path: 1x each). They stop adding coherently where their phases part: a rough
+        mirror (the two paths meet it at different points: its roughness's phases differ) or a
+        sonar that moves while the sound travels (the pair's lengths differ by about
+        ``v t (cos b1 - cos b2)`` for speed ``v``, travel time ``t`` and the legs' angles to
+        the motion; once that exceeds a quarter wavelength, ``separate``'s 2x is the better
+        model). ``'paper'``: each pair is recorded once, in the beam of the leg with more
         reflections (ties: the leg whose planes, from the sonar outwards, come later in scene
         order, compared plane by plane), as Algorithm 2 records cases 2/3 in
         the beam of A'. ``'split'``: the same, half the energy in that beam and half in the beam
         the other leg leaves the sonar in. ``'separate'``: every path of the pair is formed from
-        its own receive ray, in the beam it arrives from (the physical picture; the pair then
+        its own receive ray, in the beam it arrives from (two independent paths: the pair then
         carries twice the paper's energy).
     double_line_of_sight : bool
         Also require every transmit leg that is not the receive leg reversed to be unoccluded
@@ -525,7 +535,7 @@ class RenderSettings:
     method: str = "fast"
     beam_pattern: str = "uniform"
     range_splat: bool = True
-    double_beam: str = "paper"
+    double_beam: str | None = None
     double_line_of_sight: bool = False
     speckle: bool = False
     seed: int = 0
@@ -558,6 +568,8 @@ class RenderSettings:
             raise ConfigError(
                 "render.beam_pattern", f"unknown pattern {shown(self.beam_pattern)}; allowed: {', '.join(BEAM_PATTERNS)}"
             )
+        if self.double_beam is None:
+            object.__setattr__(self, "double_beam", "paper" if self.method == "paper" else "coherent")
         if self.double_beam not in DOUBLE_BEAMS:
             raise ConfigError(
                 "render.double_beam", f"unknown choice {shown(self.double_beam)}; allowed: {', '.join(DOUBLE_BEAMS)}"
@@ -672,10 +684,11 @@ class Scene:
             if obj.name in plane_names:
                 raise ConfigError(f"objects[{i}].name", f"{shown(obj.name)} is a reflecting plane's name; an object's "
                                   f"name must differ from 'ground' and the planes' ({', '.join(taken) or 'none'})")
-        if self.render.method == "paper" and self.render.double_beam == "separate":
+        if self.render.method == "paper" and self.render.double_beam in ("separate", "coherent"):
             raise ConfigError(
                 "render.double_beam",
-                "'separate' is not a convention of Algorithm 2 (method: paper); allowed with it: paper, split",
+                f"{self.render.double_beam!r} is not a convention of Algorithm 2 (method: paper); allowed with it: "
+                f"paper, split",
             )
         if self.sensor is not None:
             if not self.render.tvg:

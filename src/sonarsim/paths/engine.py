@@ -23,8 +23,12 @@ of surface interactions: the planes met on both legs plus the scatter.
 When both legs follow the same chain, the transmit leg is the receive leg reversed (the path
 O-G-A-G-O of the paper): its length and validity are the ray's own. Legs on different chains
 come in reciprocal pairs (O-G-A-O and O-A-G-O, the paper's cases 2 and 3); how they are recorded
-is ``render.double_beam`` (see :class:`~sonarsim.scene.RenderSettings`). The default, the
-paper's, records each pair once from the leg with more reflections (``ChainTable.key``).
+is ``render.double_beam`` (see :class:`~sonarsim.scene.RenderSettings`). The default,
+``coherent``, forms each path of the pair from its own receive ray and, where both arrive in
+one beam, doubles each: the two paths have one length, so their amplitudes add and the pair
+returns ``|a + a|^2 = 4 |a|^2``, four times one path's intensity (two independent paths, at
+random phases, return 2x: ``separate``). ``paper`` (the default of ``method: paper``) records
+each pair once from the leg with more reflections (``ChainTable.key``), as Algorithm 2 does.
 
 This module is the NumPy twin of the path engine's compiled kernels, one function per kernel
 with the same inputs and outputs (``rotate``: :func:`rotate`, ``trace_leg``:
@@ -51,6 +55,12 @@ from ..core.splat import RayEnergy, accumulate, continuity
 from ..scene.floor_texture import scale_by_texture
 from ..trace.base import Hits
 from .planes import WATER_TOLERANCE_M, ChainTable, PlaneSet, reflection_points
+
+# How each ``render.double_beam`` forms reciprocal pairs (the kernels' codes, renderer/_kernels.pyx):
+# once (from the leg with more reflections), each path from its own receive ray, or so with the
+# partners' amplitudes added where they arrive in one beam.
+PAIRS_ONCE, PAIRS_SEPARATE, PAIRS_COHERENT = 0, 1, 2
+PAIR_MODES = {"paper": PAIRS_ONCE, "split": PAIRS_ONCE, "separate": PAIRS_SEPARATE, "coherent": PAIRS_COHERENT}
 
 # Reflected rays start this far off the plane so that round-off cannot make them meet it
 # again (or the base of an object resting on it), metres.
@@ -610,9 +620,11 @@ def option_paths(
         Product of the chain's specular reflectances.
     rank : (n_chains,) int array
         :func:`chain_ranks`.
-    separate : bool
-        ``double_beam == 'separate'``: every receive chain pairs with every transmit chain;
-        otherwise only with those of lower rank (each reciprocal pair once).
+    separate : int
+        :data:`PAIR_MODES` of ``double_beam``: 0 (``paper``, ``split``) each receive chain pairs
+        only with transmit chains of lower rank (each reciprocal pair once); 1 (``separate``)
+        with every transmit chain; 2 (``coherent``) so, and a path whose transmit leg leaves
+        in its own beam carries twice its energy (its partner's amplitude adds to its own).
     label : int
         Image row of the paths; 1 with ``same`` means order 1: row 0 on objects, 1 on planes.
     n_planes : int
@@ -693,8 +705,11 @@ def option_paths(
     i = i[k]
     distance = 0.5 * (leg.distance[i] + length[k])
     energy = leg.atten[i] * tx_specular * leg.intensity[i]
-    return (i, distance, energy, (i // rays_per_beam).astype(np.int32), beam_tx[k].astype(np.int32),
-            np.full(len(i), label, dtype=np.int8))
+    beam = (i // rays_per_beam).astype(np.int32)
+    beam_tx = beam_tx[k].astype(np.int32)
+    if separate == PAIRS_COHERENT:
+        energy = np.where(beam_tx == beam, 2.0 * energy, energy)
+    return i, distance, energy, beam, beam_tx, np.full(len(i), label, dtype=np.int8)
 
 
 def set_continuity(points: np.ndarray, normals: np.ndarray, key: np.ndarray, n_elevation: int) -> np.ndarray:
@@ -1059,7 +1074,7 @@ def frame_options(table: ChainTable, n_gen: int, max_order: int, double_beam: st
     out = []
     for g in range(n_gen):
         options = transmit_options(table, g, max_order)
-        if double_beam != "separate":
+        if PAIR_MODES[double_beam] == PAIRS_ONCE:
             # A pair is formed from the leg with more reflections (ChainTable.key): transmit
             # chains longer than this generation's receive chains never qualify.
             options = [tx for tx in options if tx == SAME or table.length(tx) <= g]
@@ -1102,7 +1117,7 @@ def form_paths(
     rays_per_beam : int
         Rays of the fan per beam: ray ``i`` is in beam ``i // rays_per_beam`` (beam-major).
     max_order : int
-    double_beam : {'paper', 'split', 'separate'}
+    double_beam : {'coherent', 'paper', 'split', 'separate'}
     """
     rank = chain_ranks(table)
     no_planes = np.empty(0, np.int32)
@@ -1120,7 +1135,7 @@ def form_paths(
         ray, distance, energy, beam, beam_tx, label = option_paths(
             leg.live_rays(), leg, same, c, table.unfold(c), table.sources(c),
             np.asarray(chain, np.int32) if chain else no_planes, 1.0 if same else table.specular(tx),
-            rank, double_beam == "separate", row, n_planes, rays_per_beam, view, table.planes, active, facets,
+            rank, PAIR_MODES[double_beam], row, n_planes, rays_per_beam, view, table.planes, active, facets,
         )
         if len(ray):
             out += option_sets(g, tx, ray, distance, energy, beam, beam_tx, label, double_beam)
@@ -1152,7 +1167,8 @@ def reciprocal_sets(legs: list[Leg], table: ChainTable, g: int, tx: int, row: in
         chain = table.chains[c]
         ray, distance, energy, beam, beam_tx, label = option_paths(
             live, leg, False, c, table.unfold(c), table.sources(c), np.asarray(chain, np.int32), table.specular(c),
-            rank, True, row, n_planes, rays_per_beam, view, table.planes, active, table.facets,
+            rank, max(PAIR_MODES[double_beam], PAIRS_SEPARATE), row, n_planes, rays_per_beam, view, table.planes,
+            active, table.facets,
         )
         if len(ray):
             for s in option_sets(k, c, ray, distance, energy, beam_tx, beam, label, double_beam):
@@ -1169,7 +1185,7 @@ def partner_chains(table: ChainTable, g: int, tx: int, rank: np.ndarray, double_
     source on either side."""
     c = table.flat_of_length(g)
     c = c[c != tx]
-    if double_beam != "separate":
+    if PAIR_MODES[double_beam] == PAIRS_ONCE:
         c = c[np.asarray(rank)[c] > rank[tx]]
     return c.tolist()
 

@@ -611,8 +611,8 @@ def render_reference(sim, sonar=None, pose=None, *, max_order: int | None = None
     max_order = render.max_order if max_order is None else int(max_order)
     double_beam = render.double_beam if double_beam is None else double_beam
     los = render.double_line_of_sight if double_line_of_sight is None else bool(double_line_of_sight)
-    if double_beam not in ("paper", "split", "separate"):
-        raise ValueError(f"double_beam must be 'paper', 'split' or 'separate', got {double_beam!r}")
+    if double_beam not in ("coherent", "paper", "split", "separate"):
+        raise ValueError(f"double_beam must be 'coherent', 'paper', 'split' or 'separate', got {double_beam!r}")
 
     planes = _Planes(sim.scene.reflecting_planes)
     n_planes = len(planes)
@@ -655,7 +655,7 @@ def render_reference(sim, sonar=None, pose=None, *, max_order: int | None = None
         if tx:
             # The chain ends on the scatterer's own plane or triangle.
             other &= (ev["sid"] != tx[-1]) if tx[-1] < n_planes else (ev["facet"] != tx[-1])
-        if double_beam != "separate":
+        if double_beam not in ("separate", "coherent"):
             other &= rank[rx_id] > rank[c]  # each reciprocal pair once, from the greater receive chain
         idx = np.flatnonzero(other)
         if not len(idx):
@@ -669,8 +669,10 @@ def render_reference(sim, sonar=None, pose=None, *, max_order: int | None = None
         r_tx = float(np.prod([planes.specular[p] if p < n_planes else facets.specular[p - n_planes] for p in tx]))
         for j in np.flatnonzero(ok):
             i = idx[j]
+            # coherent: the partner arrives in the same beam with the same length, amplitudes add
+            both = 2.0 if double_beam == "coherent" and beam_tx[j] == ev["ray"][i] // per_beam else 1.0
             rows.append((tx, ev["chain"][i], ev["sid"][i], 0.5 * (ev["length"][i] + length[j]), length[j],
-                         ev["length"][i], ev["atten"][i] * r_tx * ev["weight"][i], ev["ray"][i] // per_beam,
+                         ev["length"][i], both * ev["atten"][i] * r_tx * ev["weight"][i], ev["ray"][i] // per_beam,
                          beam_tx[j], len(tx) + ev["gen"][i] + 1, ev["ray"][i], False, i, vertices[j]))
 
     paths = ReferencePaths()

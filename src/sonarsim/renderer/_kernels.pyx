@@ -107,6 +107,11 @@ cdef double WATER_TOLERANCE_M = 1e-7
 cdef int LAMBERTIAN = 0
 cdef int LAMBERT = 1
 cdef int SEDIMENT = 3
+# How reciprocal pairs are formed (``render.double_beam``; paths.engine.PAIR_MODES): once (paper,
+# split), each from its own receive ray (separate), or so, adding coherently within one beam.
+cdef int PAIRS_ONCE = 0
+cdef int PAIRS_SEPARATE = 1
+cdef int PAIRS_COHERENT = 2
 
 
 cdef inline double scatter(double w, double coef, int law, const double* lobe, Py_ssize_t n_table,
@@ -1034,7 +1039,7 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
                 const double[:, ::1] point, const double[::1] intensity, const double[::1] atten,
                 const int[::1] chain, bint same, int tx, const double[:, ::1] unfold,
                 const double[:, ::1] sources, const int[::1] tx_planes, double tx_specular,
-                const int[::1] rank, bint separate, int label, int n_planes, Py_ssize_t rays_per_beam,
+                const int[::1] rank, int separate, int label, int n_planes, Py_ssize_t rays_per_beam,
                 double ox, double oy, double oz, const double[:, ::1] rotation,
                 const double[::1] edges, double half_elevation_deg, double range_min, double range_max,
                 const double[:, ::1] plane_normal, const double[::1] plane_offset,
@@ -1120,6 +1125,10 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
         out_energy[m] = atten[i] * tx_specular * intensity[i]
         out_beam[m] = <int>(i // rays_per_beam)
         out_beam_tx[m] = <int>b
+        if separate == PAIRS_COHERENT and b == out_beam[m]:
+            # The pair arrives in one beam with one length: amplitudes add, 4x one path's
+            # intensity over the two (engine.option_paths).
+            out_energy[m] = 2.0 * out_energy[m]
         out_label[m] = <signed char>label
         m += 1
     return m
@@ -1215,7 +1224,7 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
                 const double[:, ::1] point, const double[::1] intensity, const double[::1] atten,
                 const int[::1] chain, bint same, int tx, const double[:, ::1] unfold,
                 const double[:, ::1] sources, const int[::1] tx_planes, double tx_specular,
-                const int[::1] rank, bint separate, int label, int n_planes, Py_ssize_t rays_per_beam,
+                const int[::1] rank, int separate, int label, int n_planes, Py_ssize_t rays_per_beam,
                 double ox, double oy, double oz, const double[:, ::1] rotation,
                 const double[::1] edges, double half_elevation_deg, double range_min, double range_max,
                 const double[:, ::1] plane_normal, const double[::1] plane_offset,
@@ -1990,7 +1999,8 @@ cdef class PathBlocks:
     cdef double[::1] before_n
     cdef Py_ssize_t rays_per_pose
     cdef double reach, range_min, range_max, dr, half_el
-    cdef bint tvg, spread, separate
+    cdef bint tvg, spread
+    cdef int separate  # PAIRS_ONCE, PAIRS_SEPARATE or PAIRS_COHERENT
     cdef Py_ssize_t n_gen, n_el, n_bins, n_beams, rays_per_beam, n_surfaces, n_planes
     cdef bint ready
     # Per frame, after tracing (options()).
@@ -2109,7 +2119,7 @@ cdef class PathBlocks:
     def frame(self, legs, const unsigned char[::1] active, const double[:, ::1] rotation, const double[::1] origin,
               double reach, bint tvg, Py_ssize_t n_gen, Py_ssize_t n_el, double range_min, double dr,
               Py_ssize_t n_bins, Py_ssize_t n_beams, double range_max, double half_el, const double[::1] edges,
-              bint spread, bint separate, Py_ssize_t n_surfaces, float[::1] out=None, bint primitives=False,
+              bint spread, int separate, Py_ssize_t n_surfaces, float[::1] out=None, bint primitives=False,
               double glint_radius=0.0, pose_rotation=None, pose_origin=None):
         """Set the frame: ``out`` (optional: the flat image stack the blocks will splat into;
         block k zeroes its k-th share of the range bins while it traces, whole rows at a time,

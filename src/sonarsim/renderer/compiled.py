@@ -24,7 +24,7 @@ from concurrent.futures import TimeoutError as FuturesTimeout
 
 import numpy as np
 
-from ..paths.engine import Leg, glint_sets
+from ..paths.engine import PAIR_MODES, Leg, glint_sets
 from ..core.radiometry import SurfaceLaws
 
 from ..core.rays import RayFan
@@ -803,7 +803,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
     engine.frame(legs_out, active8, view.rotation, view.origin,
                  reach_m, render.tvg, n_traced, fan.shape[2], sonar.range_min_m, sonar.range_resolution_m,
                  sonar.n_range_bins, n_beams, sonar.range_max_m, sonar.elevation_fov_deg / 2.0,
-                 np.ascontiguousarray(sonar.beam_edges_deg), render.range_splat, render.double_beam == "separate",
+                 np.ascontiguousarray(sonar.beam_edges_deg), render.range_splat, PAIR_MODES[render.double_beam],
                  n_surfaces, stack.reshape(-1) if in_blocks else None, primitives,
                  glint_radius_m if glints else 0.0,
                  *((None, None) if poses is None else poses))

@@ -23,6 +23,7 @@ lists its angles): reading a file must not make sonarsim open another one.
 from __future__ import annotations
 
 import struct
+import tokenize
 import zipfile
 import zlib
 from typing import Any
@@ -42,8 +43,11 @@ ZIP_SIGNATURE = b"PK\x03\x04"
 # (EOFError, OSError), a corrupt deflate stream (zlib.error), encrypted or exotically
 # compressed entries (RuntimeError, NotImplementedError), odd header fields (struct.error,
 # OverflowError, KeyError).
+# (SyntaxError and tokenize.TokenError: NumPy parses an .npy header with ``ast.literal_eval``
+# after tokenizing it; a header cut or mangled mid-dict raises those, not ValueError.)
 _ARCHIVE_ERRORS = (ValueError, OSError, EOFError, KeyError, RuntimeError, NotImplementedError,
-                   OverflowError, MemoryError, zipfile.BadZipFile, zlib.error, struct.error)
+                   OverflowError, MemoryError, zipfile.BadZipFile, zlib.error, struct.error, SyntaxError,
+                   tokenize.TokenError)
 
 # Arrays of a frame that are labels, not echo images, though some share the image's shape and
 # dtype (Labels.arrays(): instance maps and elevation maps); per-ray maps start with "rays_".
