@@ -114,6 +114,9 @@ def make_figures(date: str) -> list[tuple[str, str, str]]:
                              "--evaluate-frames 1,2 --method gradient --out calibrated.yaml"))
         else:
             print(f"make_figures: {ping} absent: the real-data figures are left as they are")
+    run([sys.executable, str(DOCS / "make_seabed_figure.py")])
+    made.append(("seabed_backscatter.png", "the sediment law: backscattering strength against grazing angle for six sea "
+                 "beds at 40 kHz to 1.8 MHz, and their coherent reflectance", "python docs/make_seabed_figure.py"))
     for name, _, _ in made:
         print(f"make_figures: wrote {IMAGES / name}")
     return made
