@@ -53,6 +53,7 @@ def test_rayleigh_coefficient_at_normal_incidence_and_the_critical_angle():
     assert sb.sediment("clay").critical_angle_deg is None  # a slow bed has none
 
 
+@pytest.mark.filterwarnings("ignore::scipy.integrate.IntegrationWarning")  # J0's slow oscillation; checked below
 def test_structure_constant_is_that_of_the_spectrum():
     # D(r) = 2 int (1 - J0(K r)) W(K) d^2K, by quadrature, against C_h^2 r^(2 alpha).
     s = sb.sediment("fine-sand")

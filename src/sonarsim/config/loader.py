@@ -25,15 +25,16 @@ from .sensor import parse_sensor, preset_device_mismatch
 from .instruments import FlsSpec, instrument_class, mounted
 from .scene import MAX_COORDINATE_M, ObjectSpec, PlaneSpec, RenderSettings, Scene, TextureSpec, ground_plane
 from .sonar import MIN_RELATIVE_BIN_WIDTH, RangeBinError, SonarConfig, beam_edges_deg, check_range_window
+from .water import WaterSpec, parse_water
 from ..core.transforms import Pose
 
 # Lambert's energy bound in dB (-4.97): mu_db above it returns more than the surface receives.
 MAX_LAMBERT_MU_DB = 10.0 * math.log10(MAX_LAMBERT_MU)
-TOP_KEYS = ("sonar", "render", "ground", "planes", "objects", "sensor", "vehicle", "instruments")
+TOP_KEYS = ("sonar", "render", "ground", "planes", "objects", "sensor", "vehicle", "instruments", "water")
 SONAR_KEYS = (
     "preset", "n_beams", "azimuth_fov_deg", "beam_angles_deg", "beam_angles_file", "beam_width_deg",
     "elevation_fov_deg", "range_min_m", "range_max_m", "n_range_bins", "range_resolution_m",
-    "frequency_khz", "pose", "type",
+    "frequency_khz", "pose", "type", "sound_speed_m_s",
 )
 VEHICLE_KEYS = ("pose", "speed_m_s")
 POSE_KEYS = ("position_m", "rpy_deg", "quat_xyzw")
@@ -218,7 +219,7 @@ def parse_sonar_section(d: Any, base_dir: Path | None) -> tuple[SonarConfig, Pos
             raise ConfigError("sonar.n_range_bins", f"must be at least 1, got {n_bins}")
     pose = parse_pose(merged.get("pose", {}), "sonar.pose")
     extra = {}
-    for key in ("beam_width_deg", "frequency_khz"):
+    for key in ("beam_width_deg", "frequency_khz", "sound_speed_m_s"):
         if merged.get(key) is not None:
             extra[key] = get(key, _number)
     common = dict(
@@ -500,6 +501,25 @@ def _vehicle_speed(d: Mapping) -> float:
     return v
 
 
+def _water(d: Mapping) -> WaterSpec | None:
+    """The ``water:`` section, refusing a sensor that sets the water's properties otherwise."""
+    water = parse_water(d.get("water"))
+    sensor = d.get("sensor")
+    if water is None or not isinstance(sensor, Mapping):
+        return water
+    # (a value equal to the water's passes: a scene written by to_dict holds the folded values)
+    if "sound_speed_m_s" in sensor and sensor["sound_speed_m_s"] != water.speed_m_s:
+        raise ConfigError("sensor.sound_speed_m_s", "with a water: section the water gives the speed of sound "
+                          f"({water.speed_m_s:.2f} m/s); the speed the device assumes is sonar.sound_speed_m_s")
+    absorption = sensor.get("absorption")
+    if isinstance(absorption, Mapping):
+        for key in ("temperature_c", "salinity_psu", "depth_m", "ph"):
+            if key in absorption and absorption[key] != getattr(water, key):
+                raise ConfigError(f"sensor.absorption.{key}", f"with a water: section the absorption takes the "
+                                  f"water's {key} ({getattr(water, key):g}); set it in water:")
+    return water
+
+
 def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: str | None = None) -> Scene:
     """Build a :class:`Scene` from the scene-file dict.
 
@@ -553,6 +573,7 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
             instruments=instruments,
             vehicle_pose=vehicle_pose,
             vehicle_speed_m_s=_vehicle_speed(d) if instruments else 0.0,
+            water=_water(d),
         )
         if scene.sensor is not None and scene.sensor.preset is not None:
             # The command line's --force takes another device's preset on purpose; in a file the

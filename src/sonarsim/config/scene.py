@@ -20,6 +20,7 @@ from ..errors import ConfigError, shown
 from .materials import Material
 from .sensor import SensorSpec, check_azimuth_width, check_bandwidth
 from .sonar import SonarConfig
+from .water import WaterSpec, fold_into_sensor
 from ..core.rays import check_ray_budget
 from ..core.transforms import Pose
 
@@ -629,6 +630,10 @@ class Scene:
     render : RenderSettings
     source : str or None
         File the scene was read from (mesh paths are relative to its folder).
+    water : WaterSpec or None
+        The water (``water:``, :mod:`sonarsim.config.water`): the speed of sound and the
+        properties the sensor's absorption takes (folded into ``sensor`` here); ``None``: the
+        sensor's own absorption section and speed, and no range scaling.
     sensor : SensorSpec or None
         The device model applied after image formation (``sensor:``); ``None``: the image is
         the renderer's noise-free expected backscatter. With ``instruments``, the FLS's.
@@ -657,8 +662,16 @@ class Scene:
     instruments: tuple = ()
     vehicle_pose: Pose = field(default_factory=Pose)
     vehicle_speed_m_s: float = 0.0
+    water: WaterSpec | None = None
 
     def __post_init__(self) -> None:
+        # The water's properties replace the sensor's own (its absorption, its speed): one water;
+        # its profile is the true water of an instrument that refracts (a multibeam) and has none.
+        object.__setattr__(self, "sensor", fold_into_sensor(self.sensor, self.water))
+        if self.water is not None and self.water.profile is not None:
+            object.__setattr__(self, "instruments", tuple(
+                replace(i, sound_speed_profile=[list(p) for p in self.water.profile])
+                if getattr(i, "sound_speed_profile", False) is None else i for i in self.instruments))
         object.__setattr__(self, "objects", tuple(self.objects))
         object.__setattr__(self, "planes", tuple(self.planes))
         seen: set[str] = set()  # a set: 20,000 objects took 8 s with a list
@@ -748,6 +761,8 @@ class Scene:
             out["planes"] = [p.to_dict() for p in self.planes]
         if self.sensor is not None:
             out["sensor"] = self.sensor.to_dict()
+        if self.water is not None:
+            out["water"] = self.water.to_dict()
         return out
 
 

@@ -37,6 +37,9 @@ MIN_RELATIVE_BIN_WIDTH = 1e-6
 # Carrier frequencies, kHz: imaging sonars run at tens of kHz to a few MHz; this leaves a
 # margin either side. Shared by ``sonar.frequency_khz`` and ``sensor.frequency_khz``.
 FREQUENCY_RANGE_KHZ = (1.0, 1e5)
+# Speeds of sound in water, m/s: fresh water near freezing to warm, deep sea water (and the
+# sensor section's own bounds for its sound_speed_m_s).
+SOUND_SPEED_RANGE_M_S = (1300.0, 1700.0)
 # The narrowest beam, degrees (``beam_width_deg``, a sensor's beam pattern widths), and the
 # narrowest fan and elevation aperture (1e-300 degrees was accepted: every ray on one line).
 MIN_BEAM_WIDTH_DEG = 0.01
@@ -142,6 +145,11 @@ class SonarConfig:
     frequency_khz : float or None
         The carrier frequency, within ``FREQUENCY_RANGE_KHZ`` (1 kHz to 100 MHz); the sensor
         model's absorption uses it.
+    sound_speed_m_s : float or None
+        The speed the device assumes, m/s, within [1300, 1700]: it reports an echo at
+        ``c_device t / 2``. With a ``water:`` section of another speed every range is scaled
+        by ``c_device / c_water`` (:func:`sonarsim.core.water.range_scale`); ``None``: the
+        water's own (a device set right).
     preset : str or None
         Name of the preset the configuration came from, if any.
     """
@@ -154,6 +162,7 @@ class SonarConfig:
     beam_width_deg: float | None = None
     frequency_khz: float | None = None
     preset: str | None = None
+    sound_speed_m_s: float | None = None
     _grid: PolarGrid = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -195,6 +204,10 @@ class SonarConfig:
             raise ConfigError("sonar.frequency_khz",
                               f"must be within [{lo:g}, {hi:g}] kHz (sonars run at tens of kHz to a few MHz), "
                               f"got {self.frequency_khz}")
+        c = self.sound_speed_m_s
+        if c is not None and not (np.isfinite(c) and SOUND_SPEED_RANGE_M_S[0] <= c <= SOUND_SPEED_RANGE_M_S[1]):
+            raise ConfigError("sonar.sound_speed_m_s", f"must be within [{SOUND_SPEED_RANGE_M_S[0]:g}, "
+                                                       f"{SOUND_SPEED_RANGE_M_S[1]:g}] m/s (water), got {c}")
         # As a beam pattern's width (config.sensor.PATTERN_WIDTH_RANGE_DEG): no sonar's beam is
         # far narrower than 0.1 degree.
         if self.beam_width_deg is not None and not MIN_BEAM_WIDTH_DEG <= self.beam_width_deg < 90.0:
@@ -296,7 +309,7 @@ class SonarConfig:
             "range_max_m": self.range_max_m,
             "n_range_bins": self.n_range_bins,
         }
-        for key in ("beam_width_deg", "frequency_khz"):
+        for key in ("beam_width_deg", "frequency_khz", "sound_speed_m_s"):
             if getattr(self, key) is not None:
                 out[key] = getattr(self, key)
         return out

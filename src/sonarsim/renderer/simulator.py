@@ -366,7 +366,7 @@ class Simulator:
     def surface_laws(self, sonar: SonarConfig) -> SurfaceLaws:
         """The surfaces' backscatter laws by surface id + 1, at ``sonar``'s frequency (that of
         ``sonar.frequency_khz``, else ``sensor.frequency_khz``; only a sediment's law depends
-        on it) and the sensor's sound speed (1500 m/s without a sensor).
+        on it) and the water's sound speed (:meth:`water_speed_m_s`).
 
         Raises
         ------
@@ -379,8 +379,7 @@ class Simulator:
         khz = sonar.frequency_khz if sonar.frequency_khz is not None else (spec.frequency_khz if spec else None)
         laws = self._laws_by_frequency.get(khz)
         if laws is None:
-            speed = spec.sound_speed_m_s if spec is not None else 1500.0
-            laws = SurfaceLaws.of(self._materials, None if khz is None else khz * 1e3, speed)
+            laws = SurfaceLaws.of(self._materials, None if khz is None else khz * 1e3, self.water_speed_m_s())
             if len(self._laws_by_frequency) >= 8:  # instruments of a few frequencies: kept, not more
                 self._laws_by_frequency.pop(next(iter(self._laws_by_frequency)))
             self._laws_by_frequency[khz] = laws
@@ -607,10 +606,32 @@ class Simulator:
 
     def _cast_fan(self, sonar: SonarConfig, fan: RayFan | None, traced: SonarConfig | None):
         """``(fan, image grid, traced sonar)`` of a trace: the scene's rays for ``sonar`` (a
-        sensor's pattern widening their aperture) or an instrument's own ``fan``."""
+        sensor's pattern widening their aperture) or an instrument's own ``fan``; the traced
+        sonar's range window in true metres (:meth:`true_ranges`)."""
         if fan is None:
-            return self.ray_fan(sonar), sonar, self.traced_sonar(sonar)  # the image's grid; the rays' aperture
-        return fan, sonar, (traced if traced is not None else sonar)
+            # the image's grid; the rays' aperture
+            return self.ray_fan(sonar), sonar, self.true_ranges(self.traced_sonar(sonar))
+        return fan, sonar, self.true_ranges(traced if traced is not None else sonar)
+
+    def true_ranges(self, sonar: SonarConfig) -> SonarConfig:
+        """``sonar`` with its range window in the water's true metres: a device set to
+        ``sonar.sound_speed_m_s`` reports ``c_device t / 2``, so its bin ``[r0, r1)`` holds the
+        echoes from ``[r0, r1) * c_water / c_device`` (the same bins, each scaled). Unchanged
+        without a ``water:`` section or a device speed, or where the two agree."""
+        water = self.scene.water
+        if water is None or sonar.sound_speed_m_s is None:
+            return sonar
+        k = water.speed_m_s / sonar.sound_speed_m_s
+        if k == 1.0:
+            return sonar
+        return replace(sonar, range_min_m=sonar.range_min_m * k, range_max_m=sonar.range_max_m * k)
+
+    def water_speed_m_s(self) -> float:
+        """The speed of sound in the scene's water, m/s: ``water:``'s, else the sensor's
+        ``sound_speed_m_s``, else 1500."""
+        if self.scene.water is not None:
+            return self.scene.water.speed_m_s
+        return self.scene.sensor.sound_speed_m_s if self.scene.sensor is not None else 1500.0
 
     def batch_fan(self, fan: RayFan, n_poses: int) -> RayFan:
         """``fan`` repeated ``n_poses`` times along its beams (the rays of a frame of several
