@@ -533,7 +533,9 @@ def assert_stamped(bag: Path, expected: list[int]) -> None:
     summary, at ``expected[k]``."""
     seen = read_mcap(bag)
     topics = seen["topics"]
-    assert set(topics) == {"/sonar/image", "/sonar/fan", "/sonar/pose", "/tf"}
+    assert set(topics) == {"/sonar/image", "/sonar/fan", "/sonar/pose", "/tf", "/sonar/image/unit"}
+    # the image's unit once, with the first frame (no sensor: sigma / r^2 per bin)
+    assert [(log, msg.data) for log, _, msg in topics.pop("/sonar/image/unit")] == [(expected[0], "backscatter")]
     for topic, messages in topics.items():
         assert [log for log, _, _ in messages] == expected, topic
         assert [pub for _, pub, _ in messages] == expected, topic
@@ -797,7 +799,7 @@ def test_a_sensor_models_frames_are_drawn_and_bagged_in_the_devices_counts(tmp_p
     with highlevel.AnyReader([out / "rosbag"]) as reader:
         for conn, _, raw in reader.messages():
             seen.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype))
-    assert set(seen) == {"/aris/image", "/aris/fan", "/sonar/pose", "/tf", "/sonar/points"}
+    assert set(seen) == {"/aris/image", "/aris/fan", "/sonar/pose", "/tf", "/sonar/points", "/aris/image/unit"}
     for k, msg in enumerate(seen["/aris/image"]):
         assert msg.image.dtype == 0 and msg.header.frame_id == "sonar_image"  # DTYPE_UINT8
         data = np.frombuffer(bytes(msg.image.data), np.uint8).reshape(-1, msg.image.beam_count)

@@ -250,6 +250,19 @@ def test_real_render_round_trip(tmp_path):
     np.testing.assert_allclose(ping.rx_beamwidths, np.radians(30.0 / 32), rtol=1e-6)
     fan = topics["/sonar/fan"][0][2]
     assert (fan.height, fan.width) == image.fan().image.shape and fan.encoding == "32FC1"
+    # the unit beside the image (no sensor, TVG on: sigma / r^2 per bin and radian)
+    (stamp, msgtype, unit), = topics["/sonar/image/unit"]
+    assert (stamp, msgtype, unit.data) == (rb.DEFAULT_START_NS, "std_msgs/msg/String", "backscatter")
+
+
+def test_the_unit_is_written_with_the_first_frame_and_when_it_changes(tmp_path):
+    frames = [synthetic_frame(i, unit=u) for i, u in enumerate(["counts", "counts", "uPa^2", ""])]
+    topics = read_bag(write_bag(tmp_path / "rosbag", "mcap", frames))
+    assert [(t, m.data) for t, _, m in topics["/sonar/image/unit"]] == [(frames[0].stamp_ns, "counts"),
+                                                                       (frames[2].stamp_ns, "uPa^2")]
+    # beside a remapped image topic
+    topics = read_bag(write_bag(tmp_path / "remapped", "mcap", frames[:1], topics=rb.BagTopics(image="/aris/image")))
+    assert "/aris/image/unit" in topics
 
 
 # Safety --------------------------------------------------------------------------------------

@@ -81,7 +81,8 @@ def test_fan_figure_axes_rings_spokes_colour_bar_and_title():
             x, y = text.get_position()
             assert math.hypot(x, y) == pytest.approx(float(text.get_text().strip()[:-2]))
     (bar,) = colorbars(fig)
-    assert bar.get_ylabel() == "echo level (dB re the image's maximum)"
+    # the image's unit said beside the reference (sonarsim.image.units)
+    assert bar.get_ylabel() == "echo level (dB re the image's maximum; sigma / r^2 per bin and radian of beam)"
     assert bar.get_ylim() == pytest.approx((-40.0, 0.0))
     title = ax.get_title()
     assert "aris3000-128" in title and "0.7\u20135 m" in title and "total (orders 1, 2, 3)" in title
@@ -92,7 +93,7 @@ def test_gain_and_window_move_the_colour_bar():
     fig = F.fan_figure(synthetic(point_target()), gain_db=6.0, dynamic_range_db=30.0)
     assert colorbars(fig)[0].get_ylim() == pytest.approx((-36.0, -6.0))
     fig = F.fan_figure(synthetic(point_target()), mapping="linear")
-    assert colorbars(fig)[0].get_ylabel() == "intensity / the image's maximum"
+    assert colorbars(fig)[0].get_ylabel() == "intensity / the image's maximum; sigma / r^2 per bin and radian of beam"
     assert colorbars(fig)[0].get_ylim() == pytest.approx((0.0, 1.0))
 
 
@@ -323,7 +324,7 @@ def test_titles_write_long_ranges_and_far_poses_without_exponents():
 def test_a_dark_frame_says_so_on_its_colour_bar():
     fig = F.fan_figure(synthetic())  # all zero
     (bar,) = colorbars(fig)
-    assert bar.get_ylabel() == "echo level (dB re 1; no echo: nothing above 0)"  # not "re the image's maximum"
+    assert bar.get_ylabel().startswith("echo level (dB re 1; no echo: nothing above 0")  # not "re the image's maximum"
     assert bar.get_ylim() == pytest.approx((-40.0, 0.0))
     rgb = np.asarray(fig.axes[0].images[0].get_array()).reshape(-1, 3)
     inside = rgb[(rgb != OUTSIDE_FAN_RGB).any(axis=1)]

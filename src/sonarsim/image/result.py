@@ -17,6 +17,7 @@ from .display import hook, image_repr
 from .fan import FanMapper
 from .grid import PolarGrid, PolarSonar
 from .labels import FanLabels, Labels
+from .units import Unit, unit_of
 
 
 
@@ -102,6 +103,13 @@ class SonarImage:
         """(n_range_bins + 1,) range bin edges, metres."""
         return self.sonar.range_edges_m
 
+    @property
+    def unit(self) -> Unit:
+        """What :attr:`polar`'s values are (:mod:`sonarsim.image.units`): ``backscatter``
+        (sigma / r^2 per bin), ``backscatter_per_r2`` (TVG off), ``uPa^2`` (a sensor without
+        output) or ``counts`` (a device's output, a recording)."""
+        return unit_of(self.config)
+
     def fan(self, pixel_size_m: float | None = None, component: str | None = None, interpolation: str = "linear"):
         """The fan-shaped Cartesian image (see :func:`sonarsim.image.fan.polar_to_fan`).
 
@@ -157,9 +165,9 @@ class SonarImage:
         return out
 
     def save_npz(self, path) -> None:
-        """Write :meth:`arrays` and the configuration to an NPZ file, atomically
-        (:func:`sonarsim.io.output.write_npz`)."""
-        hook("write_npz", "SonarImage.save_npz")(path, self.arrays(), self.config)
+        """Write :meth:`arrays`, the image's ``unit`` (a string: :attr:`unit`'s name) and the
+        configuration to an NPZ file, atomically (:func:`sonarsim.io.output.write_npz`)."""
+        hook("write_npz", "SonarImage.save_npz")(path, {**self.arrays(), "unit": np.array(self.unit.name)}, self.config)
 
     # -- pictures (sonarsim.plot, through the hooks of sonarsim.image.display; matplotlib is
     # imported only when a picture is made) ----------------------------------------------------

@@ -2,15 +2,22 @@
 
 A bag written by :class:`BagWriter` holds, per frame (all messages share the frame's stamp):
 
-============== ======================================== ==============================================
-topic          type                                     content
-============== ======================================== ==============================================
-/sonar/image   marine_acoustic_msgs/ProjectedSonarImage the polar image (see the conventions below)
-/sonar/fan     sensor_msgs/Image                        the fan image (optional): mono8 or 32FC1
-/sonar/pose    geometry_msgs/PoseStamped                the sonar's pose in the world frame
-/tf            tf2_msgs/TFMessage                       world -> sonar (the pose), sonar -> sonar_image
-/sonar/points  sensor_msgs/PointCloud2                  ground-truth points (optional): x, y, z, object
-============== ======================================== ==============================================
+================= ======================================== ============================================
+topic             type                                     content
+================= ======================================== ============================================
+/sonar/image      marine_acoustic_msgs/ProjectedSonarImage the polar image (see the conventions below)
+/sonar/fan        sensor_msgs/Image                        the fan image (optional): mono8 or 32FC1
+/sonar/pose       geometry_msgs/PoseStamped                the sonar's pose in the world frame
+/tf               tf2_msgs/TFMessage                       world -> sonar (the pose), sonar -> sonar_image
+/sonar/points     sensor_msgs/PointCloud2                  ground-truth points (optional): x, y, z, object
+/sonar/image/unit std_msgs/String                          the image's unit, with the first frame and
+                                                           whenever it changes (:mod:`sonarsim.image.units`)
+================= ======================================== ============================================
+
+``ProjectedSonarImage`` has no field for what its values are (the community's SonarInfo
+proposal asks for one); ``/sonar/image/unit`` says it beside the image (``backscatter``,
+``backscatter_per_r2``, ``uPa^2`` or ``counts``), stamped like the frame it first applies to:
+a subscriber keeps the last one it received.
 
 Frames (names configurable with :class:`BagFrameIds`)
 -----------------------------------------------------
@@ -124,6 +131,7 @@ TOPICS: Mapping[str, str] = MappingProxyType({
     "pose": "/sonar/pose",
     "tf": "/tf",
     "points": "/sonar/points",
+    "unit": "/sonar/image/unit",
 })
 
 _S = math.sqrt(0.5)
@@ -190,6 +198,7 @@ _MSGTYPES = {
     "pose": "geometry_msgs/msg/PoseStamped",
     "tf": "tf2_msgs/msg/TFMessage",
     "points": "sensor_msgs/msg/PointCloud2",
+    "unit": "std_msgs/msg/String",
 }
 # One point of /sonar/points: x, y, z (float32, world frame, metres) and object id (int32).
 _POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("object", "<i4")])
@@ -239,7 +248,8 @@ class BagTopics:
 
     Attributes
     ----------
-    image, fan, pose, tf, points : str
+    image, fan, pose, tf, points, unit : str
+        (``unit``: default the image's topic followed by ``/unit``.)
         ROS topic names (segments of letters, digits and '_', not starting with a digit,
         joined by '/'; a leading '/' makes them absolute). ``tf`` stays ``/tf`` for tf2's
         tools unless a stack remaps it.
@@ -250,8 +260,11 @@ class BagTopics:
     pose: str = TOPICS["pose"]
     tf: str = TOPICS["tf"]
     points: str = TOPICS["points"]
+    unit: str | None = None
 
     def __post_init__(self) -> None:
+        if self.unit is None:  # beside the image, wherever it is remapped
+            object.__setattr__(self, "unit", f"{self.image.rstrip('/')}/unit")
         names = dataclasses.asdict(self)
         for key, name in names.items():
             if not isinstance(name, str) or not _TOPIC_RE.match(name):
@@ -523,6 +536,9 @@ class BagFrame:
         Ground-truth points in view, world frame, metres. Given with ``points_object``.
     points_object : (n,) int32 ndarray, optional
         Object id of each point (the NPZ's ``points_object``).
+    unit : str
+        What ``polar``'s values are (:mod:`sonarsim.image.units`), written on the unit topic
+        with the first frame and whenever it changes; empty: not written.
     """
 
     stamp_ns: int
@@ -537,9 +553,12 @@ class BagFrame:
     fan: np.ndarray | None = None
     points_world: np.ndarray | None = None
     points_object: np.ndarray | None = None
+    unit: str = ""
 
     def __post_init__(self) -> None:
         put = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731 - frozen
+        if not isinstance(self.unit, str) or len(self.unit) > 64 or not self.unit.isprintable():
+            raise ConfigError("bag_frame.unit", f"must be a short printable string (a unit's name), got {shown(self.unit)}")
         if isinstance(self.stamp_ns, (bool, np.bool_)) or not isinstance(self.stamp_ns, (int, np.integer)) \
                 or not 0 < int(self.stamp_ns) < _MAX_STAMP_NS:
             # Zero is refused: tf2 reads a zero stamp as "the latest transform", not a time.
@@ -704,6 +723,7 @@ def frame_from_image(
         fan=fan_image,
         points_world=points_world,
         points_object=points_object,
+        unit=image.unit.name,
     )
 
 
@@ -782,6 +802,7 @@ class BagWriter:
         self._types: dict[str, type] = {}
         self._typestore: Any = None
         self._last_stamp = -1
+        self._last_unit = ""
 
     # Life cycle ------------------------------------------------------------------------
 
@@ -890,6 +911,8 @@ class BagWriter:
             messages.insert(1, ("fan", self._fan_msg(frame)))
         if frame.points_world is not None:
             messages.append(("points", self._points_msg(frame)))
+        if frame.unit and frame.unit != self._last_unit:
+            messages.append(("unit", self._types["std_msgs/msg/String"](data=frame.unit)))
         try:
             for key, msg in messages:
                 if key not in self._connections:
@@ -901,6 +924,7 @@ class BagWriter:
         except OSError as exc:  # a full disk: the caller's with block discards the bag
             raise SonarsimError(f"{self.path}: cannot write the bag: {exc.strerror or exc}") from None
         self._last_stamp = frame.stamp_ns
+        self._last_unit = frame.unit or self._last_unit
         self.frames_written += 1
 
     def _header(self, stamp_ns: int, frame_id: str) -> Any:

@@ -89,6 +89,9 @@ class DisplayScale:
         values (sensor model, real recordings).
     reference_name : str
         What ``reference`` is, for the colour bar's label (e.g. ``"the image's maximum"``).
+    quantity : str
+        What the image's values are, with their unit (:attr:`Unit.label
+        <sonarsim.image.units.Unit.label>`), said in the colour bar's label; empty: not said.
     """
 
     mapping: str = "db"
@@ -97,6 +100,7 @@ class DisplayScale:
     reference: float | None = None
     units: str = _INTENSITY
     reference_name: str = "the image's maximum"
+    quantity: str = ""
 
     def encode(self, values: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
         """Display levels of ``values`` (any shape), uint8, 0 outside ``mask``."""
@@ -129,11 +133,12 @@ class DisplayScale:
     @property
     def label(self) -> str:
         """The colour bar's label, with its unit."""
+        of = f"; {self.quantity}" if self.quantity and self.units != _COUNTS else ""
         if self.mapping == "db":
-            return f"echo level (dB re {self.reference_name})"
+            return f"echo level (dB re {self.reference_name}{of})"
         if self.units == _COUNTS and self.reference is not None:
             return "device output (counts)"
-        return f"intensity / {self.reference_name}"
+        return f"intensity / {self.reference_name}{of}"
 
 
 @dataclass(frozen=True, eq=False)
@@ -189,7 +194,8 @@ def default_scale(image: Any, mapping: str | None = None, gain_db: float = 0.0,
     if full is not None:
         return DisplayScale(mapping or "linear", gain_db, dynamic_range_db, full, _COUNTS,
                             f"full scale ({full:g})")
-    return DisplayScale(mapping or "db", gain_db, dynamic_range_db)
+    unit = getattr(image, "unit", None)
+    return DisplayScale(mapping or "db", gain_db, dynamic_range_db, quantity=unit.label if unit is not None else "")
 
 
 def _fmt(v: float) -> str:
