@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import ConfigError, MeshFileError, SonarsimError, check_input_file, key_text, shown
 from .document import MAX_DOCUMENT_BYTES as MAX_SCENE_BYTES, read_document  # noqa: F401 - re-exported
-from .materials import LAWS, MAX_LAMBERT_MU, Material, mu_from_db
+from .materials import LAWS, MAX_LAMBERT_MU, Material, mu_from_db, object_material
 from .meshfiles import load_mesh_file, world_reach_m  # below scene: config imports nothing of it
 from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor, preset_device_mismatch
@@ -45,7 +45,7 @@ TEXTURE_KEYS = tuple(TextureSpec.__dataclass_fields__)
 OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "pose", "scale", "albedo", "material",
                "specular", "normals")
 MATERIAL_KEYS = ("law", "albedo", "mu", "mu_db", "specular_strength", "roughness", "texture", "sediment",
-                 "grain_size_phi", "level_db")
+                 "grain_size_phi", "level_db", "preset")
 
 
 # Plausibility bounds: a sonar scene spans kilometres at most (MAX_COORDINATE_M, from
@@ -259,6 +259,12 @@ def parse_material(d: Any, where: str, texture_allowed: bool) -> Material:
     """
     keys = MATERIAL_KEYS if texture_allowed else tuple(k for k in MATERIAL_KEYS if k != "texture")
     _check_keys(d, keys, where)
+    if "preset" in d:  # a named solid: the rough law with its impedance's reflection (object_material)
+        other = [k for k in d if k not in ("preset", "texture")]
+        if other:
+            raise ConfigError(f"{where}.{other[0]}", "not with a material preset (its law is the preset's)")
+        texture = _boolean(d["texture"], f"{where}.texture") if "texture" in d else False
+        return _prefixed(where, object_material, _string(d["preset"], f"{where}.preset"), texture)
     kw: dict[str, Any] = {}
     if "law" in d:
         kw["law"] = _string(d["law"], f"{where}.law")

@@ -274,3 +274,69 @@ class Material:
 def mu_from_db(mu_db: float) -> float:
     """Lambert's ``mu`` from ``10 log10(mu)`` (dB)."""
     return 10.0 ** (mu_db / 10.0)
+
+
+# Objects' materials --------------------------------------------------------------------------
+
+#: Water's characteristic impedance, MRayl (1000 kg/m^3 x 1480 m/s).
+WATER_IMPEDANCE_MRAYL = 1.48
+
+
+@dataclass(frozen=True)
+class ObjectMaterial:
+    """A solid's acoustic make-up, for :func:`object_material`.
+
+    Attributes
+    ----------
+    impedance_mrayl : float
+        Characteristic (longitudinal) impedance ``rho c``, MRayl (handbook values: Kinsler et
+        al., *Fundamentals of Acoustics*, 4th ed., Appendix A10; Selfridge 1985, IEEE SU-32).
+    roughness : float
+        Rms facet slope of a typical finish (our choice: the lobe must be wider than a few rays).
+    diffuse_db : float
+        The diffuse part, Lambert's ``10 log10 mu``, dB (our choice: a rough-surface floor well
+        below the specular lobe).
+    """
+
+    impedance_mrayl: float
+    roughness: float
+    diffuse_db: float
+
+    @property
+    def reflection(self) -> float:
+        """The normal-incidence reflection coefficient against water, ``(Z - Z_w) / (Z + Z_w)``."""
+        return (self.impedance_mrayl - WATER_IMPEDANCE_MRAYL) / (self.impedance_mrayl + WATER_IMPEDANCE_MRAYL)
+
+
+#: Named materials of objects: ``material: {preset: steel}``. Impedances from handbook densities
+#: and longitudinal speeds (steel 7850 kg/m^3 x 5900 m/s, concrete 2400 x 3500, granite 2700 x
+#: 6000, PVC 1380 x 2380, neoprene rubber 1300 x 1600, oak across the grain 720 x 1500...4000 taken
+#: at 2.9); ``rigid`` is the ideal reflector (R = 1) of textbook target strengths.
+OBJECT_MATERIALS: dict[str, ObjectMaterial] = {
+    "rigid": ObjectMaterial(1e9, 0.1, -60.0),
+    "steel": ObjectMaterial(46.3, 0.1, -30.0),
+    "concrete": ObjectMaterial(8.4, 0.2, -20.0),
+    "rock": ObjectMaterial(16.2, 0.3, -15.0),
+    "plastic": ObjectMaterial(3.3, 0.1, -30.0),
+    "rubber": ObjectMaterial(2.1, 0.15, -40.0),
+    "wood": ObjectMaterial(2.9, 0.2, -35.0),
+}
+
+
+def object_material(name: str, texture: bool = False) -> Material:
+    """The ``rough`` law of a named solid (:data:`OBJECT_MATERIALS`): a Kirchhoff lobe of its
+    finish's rms slope ``s`` at Kirchhoff's own scale, ``|R|^2 / (8 pi s^2)`` (``R`` its
+    normal-incidence reflection coefficient), over a weak diffuse part.
+
+    At that scale the lobe integrates, over any smooth convex surface, to the geometric-optics
+    echo of its specular point: ``|R|^2 a1 a2 / 4`` for principal radii ``a1, a2`` (a sphere:
+    ``TS = 10 log10(|R|^2 a^2 / 4)``), whatever ``s`` (tests/renderer/test_object_materials.py).
+    A flat face seen square on gives ``|R|^2 A / (8 pi s^2)``: the incoherent facet picture, not
+    a plate's coherent ``A^2 / lambda^2`` lobe (not modelled).
+    """
+    if name not in OBJECT_MATERIALS:
+        raise ConfigError("preset", f"unknown material {shown(name)}; allowed: {', '.join(OBJECT_MATERIALS)}")
+    m = OBJECT_MATERIALS[name]
+    s = m.roughness
+    return Material("rough", albedo=10.0 ** (m.diffuse_db / 10.0), specular_strength=m.reflection**2 / (8 * math.pi * s * s),
+                    roughness=s, texture=texture)
