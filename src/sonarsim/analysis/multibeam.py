@@ -38,6 +38,8 @@ INCIDENCE_KNOTS_DEG = np.arange(0.0, 75.0, 5.0)
 RESPONSE_BIN_DEG = 2.0
 #: The R2Sonic 2026's frequency in the recording (its preset's, r2sonic_2026_400), Hz.
 FREQUENCY_HZ = 400e3
+# The rendered floor's law: Lambert's, whose known mu cos^2 the footprint is read against.
+FLOOR_MU = 0.01
 # A bin of the angular response counts where it holds at least this many cells.
 _MIN_CELLS = 20
 
@@ -152,7 +154,7 @@ def _scene(s: Soundings, floor: np.ndarray, n_samples: int, range_max_m: float) 
                   "sound_speed_m_s": float(np.nanmedian(s.geometry.sound_speed_m_s)),
                   "pose": {"position_m": [0.0, 0.0, 0.0]}},
         "planes": [{"name": "floor", "point_m": [0.0, 0.0, float(a)], "normal": normal.tolist(),
-                    "material": {"law": "lambert", "mu": 0.01}, "specular": 0.0}],
+                    "material": {"law": "lambert", "mu": FLOOR_MU}, "specular": 0.0}],
         "render": {"max_order": 1},
     }
 
@@ -251,18 +253,50 @@ def score(s: Soundings, calibration, test, n_samples: int = 2048) -> dict:
     rms = lambda a: float(np.sqrt(np.nanmean((a - db[test])[bs_cells] ** 2)))  # noqa: E731
     tilt = np.degrees(np.arctan(floor[1:]))
 
-    # the angular response: the sediment law fitted on the calibration pings' response
+    # The angular response. The recorded per-beam values hold the footprint each beam
+    # insonifies (beam- then pulse-limited: it shrinks away from nadir) as well as the bed's
+    # backscatter; the render over a Lambert floor holds the same footprint times the known
+    # mu cos^2, so that footprint (dB) = render - 10 log10(mu cos^2(incidence)), beam by beam,
+    # and the bed's own response is the recording less it. The sediment law (class and level)
+    # is fitted to the calibration pings' bed response and predicts the test pings' values as
+    # their footprint plus the law, with and without each beam's gain (fitted on the
+    # calibration pings' residuals, as the knots' model has it).
     c_water = float(np.nanmedian(s.geometry.sound_speed_m_s))
-    centres, cal_resp, cal_n = angular_response(cal_inc, db[cal_bs])
+
+    def footprint_db(rendered, incidence, pings):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rdb = 10.0 * np.log10(np.where(rendered.intensity > 0, rendered.intensity, np.nan))
+            law = 10.0 * np.log10(FLOOR_MU * np.cos(np.radians(incidence)) ** 2)
+        return _interp_beams(rendered.angle_deg, rdb, s.angle_deg[pings]) - law
+
+    cal_foot = footprint_db(cal_render, cal_inc, cal_bs)
+    test_foot = footprint_db(render, test_inc, test)
+    centres, cal_bed, cal_n = angular_response(cal_inc, db[cal_bs] - cal_foot)
+    fit = fit_sediment(centres, cal_bed, FREQUENCY_HZ, c_water, weights=cal_n)
+    cal_pred = cal_foot + sediment_response_db(cal_inc, fit, FREQUENCY_HZ, c_water)
+    residual = db[cal_bs] - cal_pred
+    gains = np.nan_to_num(np.nanmean(np.where(np.isfinite(residual), residual, np.nan), axis=0)) \
+        if np.isfinite(residual).any() else np.zeros(s.n_beams)
+    test_pred = test_foot + sediment_response_db(test_inc, fit, FREQUENCY_HZ, c_water)
     _, test_resp, test_n = angular_response(test_inc, db[test])
-    fit = fit_sediment(centres, cal_resp, FREQUENCY_HZ, c_water, weights=cal_n)
+    _, cal_resp, _ = angular_response(cal_inc, db[cal_bs])
+    _, sediment_resp, _ = angular_response(test_inc, test_pred)
+    _, gained_resp, _ = angular_response(test_inc, test_pred + gains[None, :])
     _, per_beam_resp, _ = angular_response(test_inc, np.broadcast_to(bs_per_beam, test_inc.shape))
     _, knots_resp, _ = angular_response(test_inc, bs_model)
-    both = np.isfinite(test_resp) & np.isfinite(cal_resp)
+    # trivial beds over the same footprint, each level fitted on the calibration pings: a flat
+    # bed (no angular law at all) and Lambert's mu cos^2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lambert_cal = 10.0 * np.log10(np.cos(np.radians(cal_inc)) ** 2)
+        lambert_test = 10.0 * np.log10(np.cos(np.radians(test_inc)) ** 2)
+    flat_level = float(np.nanmean(db[cal_bs] - cal_foot))
+    lambert_level = float(np.nanmean(db[cal_bs] - cal_foot - lambert_cal))
+    _, flat_bed_resp, _ = angular_response(test_inc, test_foot + flat_level)
+    _, lambert_resp, _ = angular_response(test_inc, test_foot + lambert_test + lambert_level)
+    both = np.isfinite(test_resp) & np.isfinite(cal_resp) & np.isfinite(sediment_resp)
 
     def resp_rms(pred):
         return float(np.sqrt(np.average((pred[both] - test_resp[both]) ** 2, weights=test_n[both])))
-    sediment_db = sediment_response_db(centres, fit, FREQUENCY_HZ, c_water)
     return {
         "floor": {"depth_m": depth, "tilt_east_deg": float(tilt[0]), "tilt_north_deg": float(tilt[1])},
         "range_m": {"model": med(model), "calibration_mean_per_beam": med(np.broadcast_to(per_beam, measured.shape)),
@@ -270,7 +304,9 @@ def score(s: Soundings, calibration, test, n_samples: int = 2048) -> dict:
         "backscatter_db": {"model": rms(bs_model), "calibration_mean_per_beam": rms(np.broadcast_to(bs_per_beam, db[test].shape)),
                            "ceiling_neighbours": rms(neighbours), "cells": int(bs_cells.sum())},
         "angular_response_db": {
-            "sediment": resp_rms(sediment_db), "calibration_mean_per_beam": resp_rms(per_beam_resp),
+            "sediment": resp_rms(sediment_resp), "sediment_with_beam_gains": resp_rms(gained_resp),
+            "calibration_mean_per_beam": resp_rms(per_beam_resp), "footprint_flat_bed": resp_rms(flat_bed_resp),
+            "footprint_lambert": resp_rms(lambert_resp),
             "knots_with_beam_gains": resp_rms(knots_resp), "ceiling_calibration_response": resp_rms(cal_resp),
             "flat": resp_rms(np.full(centres.shape, np.average(cal_resp[both], weights=cal_n[both]))),
             "bins": int(both.sum()), "incidence_deg": [float(centres[both].min()), float(centres[both].max())],
