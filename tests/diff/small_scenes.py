@@ -7,7 +7,8 @@ from __future__ import annotations
 
 SONAR = {"n_beams": 16, "azimuth_fov_deg": 30.0, "elevation_fov_deg": 20.0, "range_min_m": 0.5, "range_max_m": 4.0,
          "n_range_bins": 80, "pose": {"position_m": [0.0, 0.0, 1.0], "rpy_deg": [0.0, 15.0, 0.0]}}
-SCENE = {"sonar": SONAR, "render": {"elevation_samples": 24, "max_order": 2},
+# (double_beam: paper, as data/before_issue37.npz was made: each reciprocal pair once)
+SCENE = {"sonar": SONAR, "render": {"elevation_samples": 24, "max_order": 2, "double_beam": "paper"},
          "ground": {"albedo": 0.5, "specular": 0.5},
          "objects": [{"name": "box", "primitive": "box", "size_m": [0.4, 0.4, 0.4],
                       "pose": {"position_m": [2.5, 0.1, 0.2], "rpy_deg": [0, 0, 30]}, "albedo": 0.7},

@@ -34,7 +34,7 @@ TOP_KEYS = ("sonar", "render", "ground", "planes", "objects", "sensor", "vehicle
 SONAR_KEYS = (
     "preset", "n_beams", "azimuth_fov_deg", "beam_angles_deg", "beam_angles_file", "beam_width_deg",
     "elevation_fov_deg", "range_min_m", "range_max_m", "n_range_bins", "range_resolution_m",
-    "frequency_khz", "pose", "type", "sound_speed_m_s",
+    "frequency_khz", "pose", "type", "sound_speed_m_s", "beam_shape",
 )
 VEHICLE_KEYS = ("pose", "speed_m_s")
 POSE_KEYS = ("position_m", "rpy_deg", "quat_xyzw")
@@ -222,6 +222,8 @@ def parse_sonar_section(d: Any, base_dir: Path | None) -> tuple[SonarConfig, Pos
     for key in ("beam_width_deg", "frequency_khz", "sound_speed_m_s"):
         if merged.get(key) is not None:
             extra[key] = get(key, _number)
+    if merged.get("beam_shape") is not None:
+        extra["beam_shape"] = _string(merged["beam_shape"], "sonar.beam_shape")
     common = dict(
         elevation_fov_deg=get("elevation_fov_deg", _number),
         range_min_m=r_min,

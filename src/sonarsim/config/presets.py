@@ -64,6 +64,7 @@ SONAR_KEYS: frozenset[str] = frozenset(
         "n_range_bins",
         "range_resolution_m",
         "frequency_khz",
+        "beam_shape",
     }
 )
 
@@ -736,8 +737,12 @@ def _build_presets() -> Mapping[str, Preset]:
                 "confirmed from a stored copy here). Beams spaced evenly in sin(azimuth) with "
                 "the outermost centres at +-65 deg, as the bearings of a recorded M1200d show "
                 "(assumed for this mode). Range window 0.1-40 m, 2000 bins: our choice."
+                " Cone-shaped beams: a beamformed line array selects the direction cosine along "
+                "the array (sin theta_s = cos phi sin theta; H. L. Van Trees, Optimum Array "
+                "Processing, 2002, Ch. 2)."
             ),
             sonar={
+                "beam_shape": "cone",
                 "n_beams": 512,
                 "beam_angles_deg": _angles(sine_spaced_beam_angles_deg(130.0, 512)),
                 "beam_width_deg": 1.0,
@@ -758,8 +763,12 @@ def _build_presets() -> Mapping[str, Preset]:
                 "Beams spaced evenly in sin(azimuth), outermost centres at +-35 deg (law "
                 "measured on an M1200d; assumed here). Range window 0.1-10 m, 1000 bins: our "
                 "choice."
+                " Cone-shaped beams: a beamformed line array selects the direction cosine along "
+                "the array (sin theta_s = cos phi sin theta; H. L. Van Trees, Optimum Array "
+                "Processing, 2002, Ch. 2)."
             ),
             sonar={
+                "beam_shape": "cone",
                 "n_beams": 512,
                 "beam_angles_deg": _angles(sine_spaced_beam_angles_deg(70.0, 512)),
                 "beam_width_deg": 0.6,
@@ -780,8 +789,12 @@ def _build_presets() -> Mapping[str, Preset]:
                 "confirmed from a stored copy here). Beams spaced evenly in sin(azimuth), "
                 "outermost centres at +-65 deg (law measured on this sonar's 2.1 MHz mode; "
                 "assumed here). Range window 0.1-10 m, 1000 bins: our choice."
+                " Cone-shaped beams: a beamformed line array selects the direction cosine along "
+                "the array (sin theta_s = cos phi sin theta; H. L. Van Trees, Optimum Array "
+                "Processing, 2002, Ch. 2)."
             ),
             sonar={
+                "beam_shape": "cone",
                 "n_beams": 512,
                 "beam_angles_deg": _angles(sine_spaced_beam_angles_deg(130.0, 512)),
                 "beam_width_deg": 0.6,
@@ -803,8 +816,12 @@ def _build_presets() -> Mapping[str, Preset]:
                 "0.4 deg angular resolution, 10 m maximum range: Blueprint Subsea M1200d data "
                 "sheet as commonly quoted (not confirmed from a stored copy here). Range window "
                 "0.1-2 m, 669 bins of 2.84 mm (the recording's range resolution): our choice."
+                " Cone-shaped beams: a beamformed line array selects the direction cosine along "
+                "the array (sin theta_s = cos phi sin theta; H. L. Van Trees, Optimum Array "
+                "Processing, 2002, Ch. 2)."
             ),
             sonar={
+                "beam_shape": "cone",
                 "n_beams": 512,
                 "beam_angles_deg": _angles(sine_spaced_beam_angles_deg(60.0, 512)),
                 "beam_width_deg": 0.4,
@@ -825,8 +842,12 @@ def _build_presets() -> Mapping[str, Preset]:
                 "stored copy here). Beams assumed evenly spaced. Range window 1-50 m (the "
                 "ARACATI 2017 data set was recorded with a P900-130 at 50 m), 1929 bins of "
                 "2.54 cm: our choice."
+                " Cone-shaped beams: a beamformed line array selects the direction cosine along "
+                "the array (sin theta_s = cos phi sin theta; H. L. Van Trees, Optimum Array "
+                "Processing, 2002, Ch. 2)."
             ),
             sonar={
+                "beam_shape": "cone",
                 "n_beams": 768,
                 "azimuth_fov_deg": 130.0,
                 "beam_width_deg": 1.0,
@@ -849,8 +870,12 @@ def _build_presets() -> Mapping[str, Preset]:
                 "defaults) - not confirmed from a Tritech document here. Beams assumed evenly "
                 "spaced. Range window 0.2-30 m, 1490 bins of 2 cm: our choice (Tritech quotes "
                 "120 m maximum range and 8 mm range resolution; not confirmed here)."
+                " Cone-shaped beams: a beamformed line array selects the direction cosine along "
+                "the array (sin theta_s = cos phi sin theta; H. L. Van Trees, Optimum Array "
+                "Processing, 2002, Ch. 2)."
             ),
             sonar={
+                "beam_shape": "cone",
                 "n_beams": 256,
                 "azimuth_fov_deg": 120.0,
                 "beam_width_deg": 1.0,

@@ -270,6 +270,13 @@ class PatternSpec:
         Azimuth only: how many beams either side a beam's sidelobes reach. Default: as far as
         the leakage stays above -40 dB of the main beam, at most eight -3 dB widths (a uniform
         array's sidelobes are then below -28 dB) and 256 beams.
+    steering_loss : bool
+        Azimuth only: the receive beams are steered electronically (a phased array), so beam k
+        at azimuth ``theta_k`` sees the array's aperture foreshortened to ``L cos(theta_k)``:
+        its directivity falls by ``10 log10(cos(theta_k))`` (-3 dB at 60 degrees, -3.7 at 65;
+        Urick, *Principles of Underwater Sound*, 3rd ed., sect. 3.7). (The steered beam's
+        widening by ``1 / cos(theta_k)`` is that of beams evenly spaced in sine, as the Oculus
+        presets' are, whose leakage kernel is the same in beams at every steer.)
     """
 
     shape: str = "line"
@@ -280,9 +287,12 @@ class PatternSpec:
     table: str | None = None
     leakage_beams: int | None = None
     correction_db: tuple[float, ...] | None = None
+    steering_loss: bool = False
 
     def __post_init__(self) -> None:
         _choice("shape", self.shape, PATTERN_SHAPES)
+        if not isinstance(self.steering_loss, (bool, np.bool_)):
+            raise ConfigError("steering_loss", f"must be true or false, got {shown(self.steering_loss)}")
         if self.correction_db is not None:
             c = self.correction_db
             if isinstance(c, (str, bytes)) or not hasattr(c, "__len__") or not 2 <= len(c) <= 256:
@@ -618,6 +628,8 @@ class SensorSpec:
             raise ConfigError("azimuth_pattern.span_deg", "only for the elevation pattern")
         if self.azimuth_pattern is not None and self.azimuth_pattern.correction_db is not None:
             raise ConfigError("azimuth_pattern.correction_db", "only for the elevation pattern")
+        if self.elevation_pattern is not None and self.elevation_pattern.steering_loss:
+            raise ConfigError("elevation_pattern.steering_loss", "only for the azimuth pattern (the receive beams)")
         check_bandwidth(self, None)
 
     def carrier_khz(self, sonar_frequency_khz: float | None) -> float | None:
@@ -797,7 +809,7 @@ def parse_sensor(d: Any, base_dir: Path | None = None) -> SensorSpec | None:
 
 
 def _device(frequency_khz: float, elevation_deg: float, beam_deg: float, pulse_us: float, dtype: str = "uint8",
-            source_level_db: float = 182.0, window: str = "hann") -> Mapping[str, Any]:
+            source_level_db: float = 182.0, window: str = "hann", steered: bool = False) -> Mapping[str, Any]:
     """A device's ``sensor`` section from its published figures (the rest: our choices, below)."""
     full = {"uint8": 90.0, "uint16": 120.0}[dtype]  # dB of dynamic range the output spans
     return MappingProxyType({
@@ -806,7 +818,7 @@ def _device(frequency_khz: float, elevation_deg: float, beam_deg: float, pulse_u
         "tvg": {"spreading": 20.0, "absorption": True},
         "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": elevation_deg,
                               "span_deg": min(3.0 * elevation_deg, 60.0)},
-        "azimuth_pattern": {"shape": "line", "window": window, "width_deg": beam_deg},
+        "azimuth_pattern": {"shape": "line", "window": window, "width_deg": beam_deg, "steering_loss": steered},
         "pulse": {"kind": "cw", "length_us": pulse_us},
         "speckle": {"model": "rayleigh", "anchor": "world"},
         "noise": {"level_db": 42.0},
@@ -840,9 +852,10 @@ def _aris_device(mode: ArisMode) -> Mapping[str, Any]:
 SENSOR_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({
     **{mode.name: _aris_device(mode) for mode in ARIS_MODES},
     "didson300": _device(1800.0, 14.0, 0.3, 8.0),
-    "oculus-m750d-lf": _device(750.0, 20.0, 1.0, 20.0),
-    "oculus-m750d-hf": _device(1200.0, 12.0, 0.6, 12.0),
-    "oculus-m1200d-lf": _device(1200.0, 20.0, 0.6, 12.0),
+    # (the beamformed arrays: steering_loss, as their sonar presets' beams are cones)
+    "oculus-m750d-lf": _device(750.0, 20.0, 1.0, 20.0, steered=True),
+    "oculus-m750d-hf": _device(1200.0, 12.0, 0.6, 12.0, steered=True),
+    "oculus-m1200d-lf": _device(1200.0, 20.0, 0.6, 12.0, steered=True),
     # Calibrated (``sonarsim calibrate``, benchmarks/bench_realism.py) on the first real ping
     # of an M1200d at 2.1 MHz over a tank floor (pose z 0.433 m, pitch 29.06, roll 1.42 deg);
     # scores 19.2 dB PSNR on the two held-out pings.
@@ -851,14 +864,14 @@ SENSOR_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({
         "absorption": {"model": "francois-garrison", "temperature_c": 15.0, "salinity_psu": 0.0, "depth_m": 1.0},
         "tvg": {"spreading": 40.0, "absorption": True},
         "elevation_pattern": {"shape": "line", "window": "rect", "width_deg": 7.48, "span_deg": 60.0},
-        "azimuth_pattern": {"shape": "gaussian", "width_deg": 0.423},
+        "azimuth_pattern": {"shape": "gaussian", "width_deg": 0.423, "steering_loss": True},
         "speckle": {"model": "rayleigh", "anchor": "world"},
         "noise": {"level_db": 92.46, "after_tvg_db": 107.83},
         "bang": {"level_db": 90.33, "length_m": 0.0087},
         "output": {"compression": "gamma", "gamma": 0.2616, "floor_db": 60.0, "ceiling_db": 160.0, "dtype": "uint8"},
     }),
-    "blueview-p900-130": _device(900.0, 20.0, 1.0, 15.0, dtype="uint16"),
-    "gemini-720i": _device(720.0, 20.0, 1.0, 20.0),
+    "blueview-p900-130": _device(900.0, 20.0, 1.0, 15.0, dtype="uint16", steered=True),
+    "gemini-720i": _device(720.0, 20.0, 1.0, 20.0, steered=True),
 })
 
 

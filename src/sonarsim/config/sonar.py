@@ -40,6 +40,9 @@ FREQUENCY_RANGE_KHZ = (1.0, 1e5)
 # Speeds of sound in water, m/s: fresh water near freezing to warm, deep sea water (and the
 # sensor section's own bounds for its sound_speed_m_s).
 SOUND_SPEED_RANGE_M_S = (1300.0, 1700.0)
+# A beam's shape in space: the plane of its azimuth (a lens), or a cone about the array's axis
+# (a beamformed line array).
+BEAM_SHAPES = ("plane", "cone")
 # The narrowest beam, degrees (``beam_width_deg``, a sensor's beam pattern widths), and the
 # narrowest fan and elevation aperture (1e-300 degrees was accepted: every ray on one line).
 MIN_BEAM_WIDTH_DEG = 0.01
@@ -145,6 +148,13 @@ class SonarConfig:
     frequency_khz : float or None
         The carrier frequency, within ``FREQUENCY_RANGE_KHZ`` (1 kHz to 100 MHz); the sensor
         model's absorption uses it.
+    beam_shape : {'plane', 'cone'}
+        ``plane``: each beam is the fan plane of its azimuth (an acoustic lens, as the ARIS's
+        and DIDSON's, focuses the horizontal projection of each direction). ``cone``: a
+        beamformed (phased) line array's beam is the cone of directions whose cosine along the
+        array is ``sin(theta)``: at elevation ``phi`` it lies at azimuth
+        ``asin(sin(theta) / cos(phi))``, off the plane's by 1.5-1.8 degrees at the 60-65 degree
+        edges of a 20 degree fan (:func:`sonarsim.core.rays.make_ray_fan`).
     sound_speed_m_s : float or None
         The speed the device assumes, m/s, within [1300, 1700]: it reports an echo at
         ``c_device t / 2``. With a ``water:`` section of another speed every range is scaled
@@ -163,6 +173,7 @@ class SonarConfig:
     frequency_khz: float | None = None
     preset: str | None = None
     sound_speed_m_s: float | None = None
+    beam_shape: str = "plane"
     _grid: PolarGrid = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -204,6 +215,9 @@ class SonarConfig:
             raise ConfigError("sonar.frequency_khz",
                               f"must be within [{lo:g}, {hi:g}] kHz (sonars run at tens of kHz to a few MHz), "
                               f"got {self.frequency_khz}")
+        if self.beam_shape not in BEAM_SHAPES:
+            raise ConfigError("sonar.beam_shape", f"unknown beam shape {self.beam_shape!r}; allowed: "
+                                                  f"{', '.join(BEAM_SHAPES)}")
         c = self.sound_speed_m_s
         if c is not None and not (np.isfinite(c) and SOUND_SPEED_RANGE_M_S[0] <= c <= SOUND_SPEED_RANGE_M_S[1]):
             raise ConfigError("sonar.sound_speed_m_s", f"must be within [{SOUND_SPEED_RANGE_M_S[0]:g}, "
@@ -312,4 +326,6 @@ class SonarConfig:
         for key in ("beam_width_deg", "frequency_khz", "sound_speed_m_s"):
             if getattr(self, key) is not None:
                 out[key] = getattr(self, key)
+        if self.beam_shape != "plane":  # (written only when not the default: older files unchanged)
+            out["beam_shape"] = self.beam_shape
         return out

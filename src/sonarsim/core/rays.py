@@ -183,9 +183,21 @@ def make_ray_fan(sonar: SonarGeometry, render: RaySettings, elevation_gain=None)
 
     cphi, sphi = np.cos(phi), np.sin(phi)
     directions = np.empty(theta.shape + (n_el, 3))
-    directions[..., 0] = np.cos(theta)[..., None] * cphi
-    directions[..., 1] = np.sin(theta)[..., None] * cphi
-    directions[..., 2] = sphi
+    cone = getattr(sonar, "beam_shape", "plane") == "cone"
+    if cone:
+        # A phased array's beam: the directions whose cosine along the array (y) is sin(theta),
+        # at every elevation: x = sqrt(cos^2 phi - sin^2 theta), y = sin(theta), z = sin(phi).
+        # Where sin(theta) exceeds cos(phi) the cone has left the fan's elevation: no ray.
+        u = np.sin(theta)[..., None] * np.ones_like(cphi)
+        x2 = cphi**2 - u**2
+        inside = x2 > 0.0
+        directions[..., 0] = np.sqrt(np.where(inside, x2, 0.0))
+        directions[..., 1] = np.where(inside, u, np.sign(u) * cphi)
+        directions[..., 2] = sphi
+    else:
+        directions[..., 0] = np.cos(theta)[..., None] * cphi
+        directions[..., 1] = np.sin(theta)[..., None] * cphi
+        directions[..., 2] = sphi
 
     beta = np.ones(theta.shape + (n_el,))
     if render.beam_pattern == "gaussian":
@@ -199,4 +211,13 @@ def make_ray_fan(sonar: SonarGeometry, render: RaySettings, elevation_gain=None)
     # sphere's metric (a cell of one dphi x dtheta narrows towards the poles), so that the image
     # is the integral of paper Eq. 3 over solid angle, per radian of beam width.
     weight = beta * (cphi * (dphi / n_az))[None, None, :]
+    if cone:
+        # On a cone the cell is dphi by du = cos(theta) dtheta in the direction cosine; its solid
+        # angle is dphi du / cos(theta'), cos(theta') = x / cos(phi) the cosine of the ray's own
+        # azimuth: cos(phi) dphi dtheta (the plane's) times cos(theta) / x. (At phi = 0 that is
+        # 1; on the axis 1 / cos(phi): a cone's azimuth width grows as 1 / cos(phi).)
+        c_theta = np.cos(theta)[..., None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            stretch = np.where(inside, c_theta / directions[..., 0], 0.0)
+        weight = weight * stretch
     return RayFan(directions=directions, azimuth_rad=theta, elevation_rad=phi, weight=weight)

@@ -11,7 +11,7 @@ built, and again, with the search's exact counts, before JAX compiles anything.
 
 Before the search the paths are estimated from the ray fan: a ray's path at each order of
 ``render.max_order`` where the scene mirrors (planes or mesh mirrors), one where it does not,
-twice with ``render.double_beam: separate`` (each transmit option its own path).
+twice with ``render.double_beam: separate`` or ``coherent`` (each transmit option its own path).
 
 The rates were measured here (2 cores shared with other work, JAX 0.10 on the CPU, float64):
 spheres by the ten and the hundred, sonar grids, the demo and the tank, each built, rendered
@@ -108,7 +108,7 @@ def _mirrors(scene: Scene) -> bool:
 def expected_paths(scene: Scene) -> int:
     """The held paths the search of ``scene`` is expected to find, from its ray fan: one per
     ray and order of ``render.max_order`` where the scene mirrors (one per ray where it does
-    not), two where ``render.double_beam`` is ``separate``.
+    not), two where ``render.double_beam`` is ``separate`` or ``coherent``.
 
     Returns
     -------
@@ -118,7 +118,7 @@ def expected_paths(scene: Scene) -> int:
     n_az, n_el = samples_per_beam(sonar, render)
     rays = int(sonar.n_beams) * n_az * n_el
     orders = int(render.max_order) if _mirrors(scene) else 1
-    return rays * orders * (2 if render.double_beam == "separate" else 1)
+    return rays * orders * (2 if render.double_beam in ("separate", "coherent") else 1)
 
 
 def diff_cost(scene: Scene, n_paths: int | None = None, n_faces: int | None = None, n_images: int | None = None,

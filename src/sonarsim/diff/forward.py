@@ -356,7 +356,11 @@ def follow_azimuth(params: dict, data: dict, static: Any, rot: jax.Array, origin
     local = (a - origin) @ rot  # R^T (A* - O): the sonar's frame
     # (A scatterer on the sonar's z axis has no azimuth: it keeps its ray's.)
     seen = on_object & (local[:, 0] ** 2 + local[:, 1] ** 2 > jnp.finfo(local.dtype).tiny)
-    shift = jnp.where(seen, jnp.arctan2(jnp.where(seen, local[:, 1], 0.0), jnp.where(seen, local[:, 0], 1.0))
+    # the beam's azimuth of the scatterer: atan2(y, x) for plane beams; for cone beams that of its
+    # direction cosine along the array, atan2(y, sqrt(x^2 + z^2)) (image.grid.beam_azimuth_deg;
+    # the turn below stays about z, exact at rest, first-order off it)
+    across = jnp.sqrt(local[:, 0] ** 2 + local[:, 2] ** 2) if getattr(static, "cone", False) else local[:, 0]
+    shift = jnp.where(seen, jnp.arctan2(jnp.where(seen, local[:, 1], 0.0), jnp.where(seen, across, 1.0))
                       - data["ray_azimuth"], 0.0)
     c, s_ = jnp.cos(shift), jnp.sin(shift)
     turned = jnp.stack([c * direction[:, 0] - s_ * direction[:, 1], s_ * direction[:, 0] + c * direction[:, 1],

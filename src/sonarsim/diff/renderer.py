@@ -63,6 +63,7 @@ class Static:
     sensor: Any = None  # sonarsim.diff.sensor.SensorStatic or None
     attach: str = "rays"
     reflective: tuple[str, ...] = ()  # objects with a reflectivity per vertex
+    cone: bool = False  # the sonar's beams are cones (sonar.beam_shape): a scatterer's beam azimuth is asin(y)
 
 
 class Renderer:
@@ -153,7 +154,7 @@ class Renderer:
                       int(sonar.n_beams)),
             n_rows=0, total_rows=total_rows(render.bounces, render.max_order), n_signatures=0,
             sensor=None if self._sensor is None else self._sensor.static, attach=attach,
-            reflective=tuple(reflectivity),
+            reflective=tuple(reflectivity), cone=sonar.beam_shape == "cone",
         )
         self._local_faces = [np.asarray(object_mesh_local(o).faces, np.int64) for o in scene.objects]
         counts = [len(self._defaults[f"objects.{o.name}.vertices_m"]) for o in scene.objects]

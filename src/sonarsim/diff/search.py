@@ -315,6 +315,9 @@ def record_search(sim: Simulator, pose=None, minimum_capacity: int = 1024) -> Se
         factor = g["texture"][ray].copy()
         if render.double_beam == "split" and s.tx != SAME:
             factor *= 0.5
+        if render.double_beam == "coherent" and s.tx != SAME and s.beam_tx is not None:
+            # the pair arrives in one beam with one length: amplitudes add (paths.engine.option_paths)
+            factor *= np.where(np.asarray(s.beam_tx) == np.asarray(s.beam), 2.0, 1.0)
         # Neighbours within the set: consecutive rays of one column, both in the set.
         pos = np.arange(m)
         nxt = np.zeros(m, bool)

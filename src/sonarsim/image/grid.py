@@ -128,6 +128,28 @@ def beam_index(beam_edges_deg: np.ndarray, azimuth_deg) -> np.ndarray:
     return np.where((j >= 0) & (j < len(e) - 1), j, -1)
 
 
+def beam_azimuth_deg(v: np.ndarray, cone: bool = False) -> np.ndarray:
+    """The azimuth that picks a direction's beam, degrees: ``atan2(y, x)`` for plane beams; for
+    a phased array's cone beams the angle of its direction cosine along the array,
+    ``atan2(y, sqrt(x^2 + z^2))``, NaN behind the (baffled) array (the kernels' ``beam_in_view``).
+
+    Parameters
+    ----------
+    v : (..., 3) float array
+        Directions (or points) in the sonar frame.
+    cone : bool
+
+    Returns
+    -------
+    (...) float64 ndarray, degrees (NaN: in no beam).
+    """
+    v = np.asarray(v, dtype=np.float64)
+    if not cone:
+        return np.degrees(np.arctan2(v[..., 1], v[..., 0]))
+    x = np.sqrt(v[..., 0] * v[..., 0] + v[..., 2] * v[..., 2])
+    return np.where(v[..., 0] > 0.0, np.degrees(np.arctan2(v[..., 1], x)), np.nan)
+
+
 def sector_area_m2(r0: float, r1: float, left_deg: float, right_deg: float) -> float:
     """Area of the annular sector ``[r0, r1] x [right_deg, left_deg]``, m^2 (0 if empty)."""
     if r1 <= r0 or left_deg <= right_deg:

@@ -49,7 +49,7 @@ import numpy as np
 from ..config.sonar import SonarConfig
 from ..core.radiometry import SurfaceLaws, backscatter
 from ..core.rays import RayFan
-from ..image.grid import beam_index
+from ..image.grid import beam_azimuth_deg, beam_index
 from ..core.transforms import Pose
 from ..core.splat import RayEnergy, accumulate, continuity
 from ..scene.floor_texture import scale_by_texture
@@ -193,6 +193,9 @@ class PathSet:
         The paths are the reciprocal partners of the ones formed: the sound goes out along
         the set's receive legs (a smooth mirror's, which has no image source) and comes back
         along its transmit chain, in whose beam they are recorded (:func:`form_paths`).
+    beam_tx : (m,) int32 ndarray or None
+        The beam each path's other leg leaves the sonar in (``coherent`` pairs carry twice
+        their energy where it is ``beam``: the differentiable engine holds that factor).
     """
 
     gen: int
@@ -203,6 +206,7 @@ class PathSet:
     beam: np.ndarray
     label: np.ndarray
     swap: bool = False
+    beam_tx: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -222,6 +226,9 @@ class SonarView:
         The rays in the sonar's frame (None: a view for the path formation alone).
     pose : Pose or None
         The pose ``origin`` and ``rotation`` come from.
+    cone : bool
+        The beams are cones (a phased array's, ``sonar.beam_shape``): a direction's beam is
+        that of its direction cosine along the array (:func:`~sonarsim.image.grid.beam_azimuth_deg`).
     """
 
     origin: np.ndarray
@@ -232,6 +239,7 @@ class SonarView:
     range_max_m: float
     fan: RayFan | None = field(default=None, compare=False, repr=False)
     pose: Pose | None = field(default=None, compare=False, repr=False)
+    cone: bool = False
 
     @classmethod
     def of(cls, sonar: SonarConfig, pose: Pose, fan: RayFan | None = None) -> "SonarView":
@@ -240,7 +248,7 @@ class SonarView:
         return cls(
             np.asarray(pose.translation, float), np.ascontiguousarray(pose.rotation),
             np.ascontiguousarray(sonar.beam_edges_deg), sonar.elevation_fov_deg / 2.0,
-            sonar.range_min_m, sonar.range_max_m, fan, pose,
+            sonar.range_min_m, sonar.range_max_m, fan, pose, getattr(sonar, "beam_shape", "plane") == "cone",
         )
 
     @functools.cached_property
@@ -257,6 +265,12 @@ class SonarView:
     def beam_of(self, azimuth_deg: np.ndarray) -> np.ndarray:
         """Beam whose edges contain each azimuth; -1 outside the fan."""
         return beam_index(self.beam_edges_deg, azimuth_deg)
+
+    def beam_of_direction(self, v: np.ndarray) -> np.ndarray:
+        """Beam of each direction ``v`` (..., 3) in the sonar frame (plane or cone beams); -1
+        outside the fan."""
+        az = beam_azimuth_deg(v, self.cone)
+        return np.where(np.isfinite(az), self.beam_of(np.nan_to_num(az, nan=1e9)), -1)
 
 
 # The twins of the compiled kernels, one to one -------------------------------------------
@@ -677,7 +691,7 @@ def option_paths(
     with np.errstate(divide="ignore", invalid="ignore"):
         el = np.arcsin(np.clip(v[:, 2] / length, -1.0, 1.0)) * RAD2DEG
     ok &= np.abs(el) <= view.half_elevation_deg
-    beam_tx = view.beam_of(np.arctan2(v[:, 1], v[:, 0]) * RAD2DEG)
+    beam_tx = view.beam_of_direction(v)
     ok &= beam_tx >= 0
     # Walk back from A towards the sonar's images: each reflection point must lie on its
     # plane, between its neighbours, inside the water.
@@ -928,7 +942,7 @@ def glint_sets(legs: list[Leg], view: SonarView, n_planes: int, rays_per_beam: i
         rot = view.rotation
         v = arrive[:, 0:1] * rot[0] + arrive[:, 1:2] * rot[1] + arrive[:, 2:3] * rot[2]  # R^T: the sonar frame
         el = np.degrees(np.arcsin(np.clip(v[:, 2], -1.0, 1.0)))
-        beam = view.beam_of(np.degrees(np.arctan2(v[:, 1], v[:, 0])))
+        beam = view.beam_of_direction(v)
         keep = (beam >= 0) & (np.abs(el) <= view.half_elevation_deg)
         ray, beam = ray[keep], beam[keep].astype(np.int32)
         distance = 0.5 * leg.back_length[ray]
@@ -1091,7 +1105,7 @@ def option_sets(gen: int, tx: int, ray: np.ndarray, distance: np.ndarray, energy
     if double_beam == "split" and tx != SAME:
         half = 0.5 * energy
         return [PathSet(gen, tx, ray, distance, half, beam, label), PathSet(gen, tx, ray, distance, half, beam_tx, label)]
-    return [PathSet(gen, tx, ray, distance, energy, beam, label)]
+    return [PathSet(gen, tx, ray, distance, energy, beam, label, beam_tx=beam_tx)]
 
 
 def form_paths(
@@ -1221,7 +1235,7 @@ def drop_occluded(sets: list[PathSet], legs: list[Leg], *, table: ChainTable, vi
                                                                  if on_mesh[k + 1] else 0.0)
             free &= hit.distance + lift >= length - slack
         out.append(PathSet(s.gen, s.tx, s.ray[free], s.distance[free], s.energy[free], s.beam[free], s.label[free],
-                           s.swap))
+                           s.swap, None if s.beam_tx is None else s.beam_tx[free]))
     return out
 
 
@@ -1321,7 +1335,8 @@ def split_by_signature(sets: list[PathSet], legs: list[Leg], table: ChainTable, 
                              [names[p] for p in rx_chain])
             k = code == c
             groups.setdefault(name, []).append(
-                PathSet(s.gen, s.tx, s.ray[k], s.distance[k], s.energy[k], s.beam[k], s.label[k], s.swap)
+                PathSet(s.gen, s.tx, s.ray[k], s.distance[k], s.energy[k], s.beam[k], s.label[k], s.swap,
+                        None if s.beam_tx is None else s.beam_tx[k])
             )
     return groups
 

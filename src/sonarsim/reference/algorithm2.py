@@ -33,7 +33,7 @@ from ..core.splat import RayEnergy, accumulate, continuity, form_image
 from ..config.scene import RenderSettings
 from ..config.sonar import SonarConfig
 from ..core.transforms import Pose
-from ..image.grid import beam_index
+from ..image.grid import beam_azimuth_deg, beam_index
 from ..trace.surfaces import GROUND_ID, NO_HIT, ground_distance, trace
 from ..paths.planes import PlaneSet, apply
 
@@ -113,9 +113,9 @@ def ground_echo_rays(
     sel = np.nonzero(reached)
     rel = (paths.point_real[sel] - origin) @ pose.rotation  # sonar frame
     oa = np.linalg.norm(rel, axis=-1)
-    az = np.degrees(np.arctan2(rel[:, 1], rel[:, 0]))
+    az = beam_azimuth_deg(rel, getattr(sonar, "beam_shape", "plane") == "cone")
     el = np.degrees(np.arcsin(np.clip(rel[:, 2] / oa, -1.0, 1.0)))
-    beam_a = beam_index(sonar.beam_edges_deg, az)
+    beam_a = beam_index(sonar.beam_edges_deg, np.nan_to_num(az, nan=1e9))  # (NaN: behind a cone array)
     in_view = (
         (beam_a >= 0)
         & (np.abs(el) <= sonar.elevation_fov_deg / 2)

@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..image.grid import beam_azimuth_deg
 from ..scene.floor_texture import texture_fields
 from ..scene.meshes import object_mesh_world, outer_side
 from ..paths.engine import path_name
@@ -544,7 +545,7 @@ def _in_aperture(sonar, pose, departure: np.ndarray) -> tuple[np.ndarray, np.nda
         Beam whose azimuth edges contain the direction (-1 outside the fan).
     """
     v = departure @ np.asarray(pose.rotation, dtype=float)  # R^T d, row by row
-    azimuth = np.degrees(np.arctan2(v[:, 1], v[:, 0]))
+    azimuth = beam_azimuth_deg(v, getattr(sonar, "beam_shape", "plane") == "cone")
     elevation = np.degrees(np.arcsin(np.clip(v[:, 2] / np.linalg.norm(v, axis=1), -1.0, 1.0)))
     edges = np.asarray(sonar.beam_edges_deg, dtype=float)  # descending, left-most beam first
     beam = np.full(len(v), -1)

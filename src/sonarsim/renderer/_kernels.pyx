@@ -253,7 +253,8 @@ cdef double ANGLE_MARGIN = 1e-9
 
 cdef inline Py_ssize_t beam_in_view(double x, double y, double z, double range_min, double range_max,
                                     double half_elevation_deg, const double* edges, Py_ssize_t n_edges,
-                                    double* length, double sin_half=-1.0, const double* tan_edges=NULL) noexcept nogil:
+                                    double* length, double sin_half=-1.0, const double* tan_edges=NULL,
+                                    bint cone=False) noexcept nogil:
     """The beam that sees a point at ``(x, y, z)`` in the sonar frame, or -1 where it lies
     outside the range window, the elevation aperture or the fan; ``length`` receives its
     distance from the sonar. Cheapest test first: most candidate points fail the range window
@@ -262,7 +263,12 @@ cdef inline Py_ssize_t beam_in_view(double x, double y, double z, double range_m
 
     ``sin_half``: the sine of the half elevation aperture (negative: none), and ``tan_edges``:
     the tangents of the beam edges (NULL: none; :func:`view_tables`), decide without the angles wherever
-    round-off cannot change the decision (:data:`ANGLE_MARGIN`): the same decisions, cheaper."""
+    round-off cannot change the decision (:data:`ANGLE_MARGIN`): the same decisions, cheaper.
+
+    ``cone``: a phased array's beams are cones about its axis (y): a direction belongs to the
+    beam of its direction cosine along the array, ``asin(y / r)``, which is
+    ``atan2(y, sqrt(x^2 + z^2))``: the plane case with ``x`` replaced by that (``core.rays``);
+    the array is baffled, so nothing behind it (``x <= 0``) is in the fan."""
     cdef double r = sqrt(x * x + y * y + z * z), el, a, t, tol
     cdef double rad2deg = 180.0 / M_PI
     cdef Py_ssize_t lo, hi, mid
@@ -281,6 +287,10 @@ cdef inline Py_ssize_t beam_in_view(double x, double y, double z, double range_m
         el = asin(el) * rad2deg
         if not fabs(el) <= half_elevation_deg:
             return -1
+    if cone:
+        if not x > 0.0:  # behind the baffled array (its cones' back halves): outside the fan
+            return -1
+        x = sqrt(x * x + z * z)
     if tan_edges != NULL and x > 0.0:
         # atan2(y, x) rises with y / x for x > 0: count the edges at or above it by tangent.
         t = y / x
@@ -1047,7 +1057,7 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
                 Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
                 int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label,
                 const MirrorTables* mt, const int* leg_prim, double sin_half, const double* tan_edges,
-                int only=-1) noexcept nogil:
+                int only=-1, bint cone=False) noexcept nogil:
     """The loop of :func:`path_events` (also run by :class:`PathBlocks`). ``plane_normal`` and
     ``plane_offset`` hold the planes, then (with ``mt``) the mesh mirrors' planes; the water is
     bounded by the first ``plane_active.shape[0]`` (the planes). ``leg_prim``: the legs'
@@ -1112,7 +1122,7 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
         vy = rotation[0, 1] * ux + rotation[1, 1] * uy + rotation[2, 1] * uz
         vz = rotation[0, 2] * ux + rotation[1, 2] * uy + rotation[2, 2] * uz
         b = beam_in_view(vx, vy, vz, range_min, range_max, half_elevation_deg, &edges[0], edges.shape[0], &length,
-                         sin_half, tan_edges)
+                         sin_half, tan_edges, cone)
         if b < 0:
             continue
         if not (mirror_chain or walk(ax, ay, az_, K, chain_of_tx, &sources[0, 0], pn, po,
@@ -1231,9 +1241,9 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
                 const unsigned char[::1] plane_active,
                 Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
                 int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label, Mirrors mirrors=None,
-                const int[::1] prim=None, int only=-1):
+                const int[::1] prim=None, int only=-1, bint cone=False):
     """Paths of one generation's receive legs and one transmit option (twin:
-    ``engine.option_paths``).
+    ``engine.option_paths``). ``cone``: the beams are cones (:func:`beam_in_view`).
 
     With ``mirrors`` (:class:`Mirrors`), ``plane_normal`` and ``plane_offset`` hold the P planes
     (``plane_active``'s length) and then the M mesh mirrors' planes, a chain's mirror ``P + m``
@@ -1273,7 +1283,7 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
             raise ValueError("mirrors need the legs' triangles (prim, dense)")
         pp = &prim[0] if prim.shape[0] else NULL
     with nogil:
-        m = path_events_impl(live, dist, sid, point, intensity, atten, chain, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, ox, oy, oz, rotation, edges, half_elevation_deg, range_min, range_max, plane_normal, plane_offset, plane_active, out_ray, out_dist, out_energy, out_beam, out_beam_tx, out_label, mt, pp, sin_half, tp, only)
+        m = path_events_impl(live, dist, sid, point, intensity, atten, chain, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, ox, oy, oz, rotation, edges, half_elevation_deg, range_min, range_max, plane_normal, plane_offset, plane_active, out_ray, out_dist, out_energy, out_beam, out_beam_tx, out_label, mt, pp, sin_half, tp, only, cone)
     return m
 
 
@@ -1999,7 +2009,7 @@ cdef class PathBlocks:
     cdef double[::1] before_n
     cdef Py_ssize_t rays_per_pose
     cdef double reach, range_min, range_max, dr, half_el
-    cdef bint tvg, spread
+    cdef bint tvg, spread, cone
     cdef int separate  # PAIRS_ONCE, PAIRS_SEPARATE or PAIRS_COHERENT
     cdef Py_ssize_t n_gen, n_el, n_bins, n_beams, rays_per_beam, n_surfaces, n_planes
     cdef bint ready
@@ -2120,8 +2130,8 @@ cdef class PathBlocks:
               double reach, bint tvg, Py_ssize_t n_gen, Py_ssize_t n_el, double range_min, double dr,
               Py_ssize_t n_bins, Py_ssize_t n_beams, double range_max, double half_el, const double[::1] edges,
               bint spread, int separate, Py_ssize_t n_surfaces, float[::1] out=None, bint primitives=False,
-              double glint_radius=0.0, pose_rotation=None, pose_origin=None):
-        """Set the frame: ``out`` (optional: the flat image stack the blocks will splat into;
+              double glint_radius=0.0, pose_rotation=None, pose_origin=None, bint cone=False):
+        """Set the frame (``cone``: the beams are cones, :func:`beam_in_view`): ``out`` (optional: the flat image stack the blocks will splat into;
         block k zeroes its k-th share of the range bins while it traces, whole rows at a time,
         contiguous), ``legs`` (``dist``, ``sid``, ``point``, ``normal``, ``cosine``,
         ``intensity``, ``atten``, ``chain``, ``key``, ``live``: the (n_gen, n, ...) receive legs,
@@ -2191,6 +2201,7 @@ cdef class PathBlocks:
         if primitives:
             self.prim, self.uv = legs.prim, legs.uv
         self.active, self.rotation, self.edges = active, rotation, edges
+        self.cone = cone
         self.sin_half, self.tan_edges = view_tables(edges, half_el)
         self.remapped[:] = 0
         self.origin2 = np.asarray(origin, dtype=np.float64).reshape(1, 3).copy()
@@ -2688,7 +2699,7 @@ cdef class PathBlocks:
                         self.scratch_energy[a:a + n], self.scratch_beam[a:a + n], self.scratch_beam_tx[a:a + n],
                         self.scratch_label[a:a + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL,
                         self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL,
-                        self.opt_only[o])
+                        self.opt_only[o], self.cone)
                     self.p_count[o * self.n_blocks + k] = cnt
                     continue
                 if self.capacity is not None:  # room for what the counting pass counted
@@ -2703,7 +2714,8 @@ cdef class PathBlocks:
                     self.surf_offset, self.active, self.p_ray[off:off + n], self.p_dist[off:off + n],
                     self.p_energy[off:off + n], self.p_beam[off:off + n], self.p_beam_tx[off:off + n],
                     self.p_label[off:off + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL,
-                    self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL, self.opt_only[o])
+                    self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL, self.opt_only[o],
+                    self.cone)
                 if cnt > n or (self.capacity is not None and cnt != n):
                     self.miscounted[k] = 1
                     cnt = cnt if cnt <= n else n

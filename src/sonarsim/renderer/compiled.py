@@ -806,7 +806,7 @@ def render_paths(caster, planes, active, sonar: SonarConfig, view, work: Workspa
                  np.ascontiguousarray(sonar.beam_edges_deg), render.range_splat, PAIR_MODES[render.double_beam],
                  n_surfaces, stack.reshape(-1) if in_blocks else None, primitives,
                  glint_radius_m if glints else 0.0,
-                 *((None, None) if poses is None else poses))
+                 *((None, None) if poses is None else poses), cone=view.cone)
     try:  # the engine lets go of the frame's arrays whatever happens (they go back to the pool)
         while True:
             ok = [True] * len(blocks)

@@ -223,6 +223,9 @@ class SensorModel:
         # per ray, see config.materials and core.rays); times each beam's width in radians it is
         # sigma / r^2.
         self.column_factor = np.radians(sonar.effective_beam_width_deg()).astype(np.float32)
+        if spec.azimuth_pattern is not None and spec.azimuth_pattern.steering_loss:
+            # a steered beam's aperture is foreshortened: its directivity falls as cos(theta)
+            self.column_factor = (self.column_factor * np.cos(np.radians(sonar.azimuth_deg))).astype(np.float32)
         spacing = float(np.median(np.abs(np.diff(sonar.azimuth_deg)))) if sonar.n_beams > 1 else 1.0
         # The cell a pose is quantised to for world-anchored speckle (see anchored_rng).
         self._anchor_cell = np.array([sonar.range_resolution_m / 2.0] * 3 + [spacing / 2.0] * 3)
