@@ -51,6 +51,9 @@ WINDOWS = ("rect", "hann", "hamming", "blackman", "taylor")
 PULSE_KINDS = ("cw", "chirp")
 SPECKLE_MODELS = ("rayleigh", "k")
 SPECKLE_ANCHORS = ("frame", "world")
+#: Looks a device averages (``speckle.looks``): beyond 64 the speckle is within 0.54 dB of its mean
+#: (1/sqrt(L) contrast 0.125) and the pool, which filters ``ceil(L)`` fields per stored one, grows.
+LOOKS_RANGE = (1.0, 64.0)
 COMPRESSIONS = ("log", "gamma", "linear")
 DTYPES = {"uint8": 255.0, "uint16": 65535.0, "float32": None}
 
@@ -376,17 +379,30 @@ class SpeckleSpec:
         ``frame``: drawn afresh every frame from the frame's seed. ``world``: a function of the
         sonar's pose (quantised to half a resolution cell): a still sonar over a still scene
         sees still speckle, and moving it decorrelates the speckle.
+    looks : float
+        The number of independent looks the device averages in intensity (pings, sub-apertures,
+        frequency bands), within [1, 64]: the speckle intensity's contrast (std / mean) is
+        ``1 / sqrt(looks)`` (gamma law of shape ``looks`` for an integer; a real number is the
+        equivalent number of looks, its contrast exact). 1: single-look speckle (exponential
+        intensity). The K model's texture is common to the looks (the same scatterers).
     """
 
     model: str = "rayleigh"
     k_shape: float = 4.0
     anchor: str = "frame"
+    looks: float = 1.0
 
     def __post_init__(self) -> None:
         _choice("model", self.model, SPECKLE_MODELS)
         if _positive("k_shape", self.k_shape) < 0.1:
             raise ConfigError("k_shape", f"must be at least 0.1 (effective scatterers per cell), got {self.k_shape}")
         _choice("anchor", self.anchor, SPECKLE_ANCHORS)
+        _within("looks", self.looks, LOOKS_RANGE, unit="looks")
+
+    @property
+    def exponential(self) -> bool:
+        """Fully developed single-look speckle: the unit intensity is exponential (closed forms hold)."""
+        return self.model == "rayleigh" and float(self.looks) == 1.0
 
 
 @dataclass(frozen=True)

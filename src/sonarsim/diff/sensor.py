@@ -124,16 +124,16 @@ class SensorPart:
         speckled = spec.speckle is not None
         if out is None:
             kind = "none"
-        elif out.dtype != "float32" and out.full_scale <= MAX_EXACT_STEPS and speckled and spec.speckle.model == "rayleigh":
+        elif out.dtype != "float32" and out.full_scale <= MAX_EXACT_STEPS and speckled and spec.speckle.exponential:
             kind = "exact" if not _FORCE_QUANTILES else "quantiles"
         else:
             kind = "quantiles"
         t = model.expected_output
         self._quantiles = None
         if kind == "quantiles":
-            q = exponential_quantiles() if not speckled or spec.speckle.model == "rayleigh" else None
-            if q is None:  # K speckle: the law the compiled table was formed with
-                q = _table_quantiles(model)
+            q = exponential_quantiles() if not speckled or spec.speckle.exponential else None
+            if q is None:  # several looks, K speckle: the law the compiled table was formed with
+                q = model.speckle_quantiles()
             self._quantiles = q if speckled else np.ones(1)
         self.static = SensorStatic(
             elevation=elevation, elevation_window=None if ep is None else (ep.window, ep.sidelobe_db),
@@ -221,22 +221,6 @@ class SensorPart:
         if spec.correction_db is not None:
             out = out + 10.0 * np.log10(acoustics.tvg_correction_gain(r, spec))
         return out
-
-
-def _table_quantiles(model: SensorModel) -> np.ndarray:
-    """The speckle law's quantiles a compiled K-speckle table was formed with."""
-    from ..sensor import output
-    from ..sensor import speckle as speckle_mod
-
-    pool = model.pool
-    if pool.speckle is not None:
-        return output.empirical_quantiles(np.abs(np.stack([pool.field("speckle", k) for k in range(pool.n_fields)])) ** 2)
-    from ..core import streams
-
-    f = speckle_mod.filter_field(speckle_mod.scatterer_amplitudes(streams.sequential_rng(model.seed), pool.shape,
-                                                                  model.spec.speckle),
-                                 model.range_amplitude, model.beam_amplitude)
-    return output.empirical_quantiles(np.abs(f) ** 2)
 
 
 def fan_rays(params: dict, data: dict, st: SensorStatic) -> tuple[jax.Array, jax.Array]:

@@ -251,17 +251,10 @@ class SensorModel:
         self.pool = speckle_mod.SpecklePool(shape, self.range_amplitude, self.beam_amplitude,
                                             spec.speckle if fields else None, fields and spec.noise is not None,
                                             self.seed)
-        if spec.speckle is None or spec.speckle.model == "rayleigh":
+        if spec.speckle is None or spec.speckle.exponential:
             self.expected_output = output.expected_output(spec.output, spec.speckle is not None)
-        elif self.pool.speckle is not None:
-            quantiles = output.empirical_quantiles(np.abs(np.stack([self.pool.field("speckle", k)
-                                                                    for k in range(self.pool.n_fields)])) ** 2)
-            self.expected_output = output.ExpectedOutput(spec.output, quantiles)
-        else:  # K speckle without its fields: its law from a field drawn for the purpose
-            f = speckle_mod.filter_field(speckle_mod.scatterer_amplitudes(streams.sequential_rng(self.seed), shape,
-                                                                          spec.speckle),
-                                         self.range_amplitude, self.beam_amplitude)
-            self.expected_output = output.ExpectedOutput(spec.output, output.empirical_quantiles(np.abs(f) ** 2))
+        else:
+            self.expected_output = output.ExpectedOutput(spec.output, self.speckle_quantiles())
         out = spec.output
         self._comp = COMPRESSION_CODES[None if out is None else out.compression]
         self._fs = 1.0 if out is None else out.full_scale
@@ -276,6 +269,26 @@ class SensorModel:
         self._work: tuple[np.ndarray, np.ndarray] | None = None
         self._traced: SonarConfig | None = None
         self._saturation_warned = False
+
+    def speckle_quantiles(self) -> np.ndarray | None:
+        """Midpoint quantiles (:data:`~sonarsim.sensor.output.QUANTILES`) of the unit-mean speckle
+        intensity S the expected output averages over; ``None`` without speckle.
+
+        Single-look Rayleigh: the exponential law's. Otherwise (several looks, the K texture) the
+        law of the pool's own fields, as stored (so that the expected output is what the frames
+        average to), or, without fields, of a field drawn for the purpose from the seed.
+        """
+        spec = self.spec.speckle
+        if spec is None:
+            return None
+        if spec.exponential:
+            return output.exponential_quantiles()
+        if self.pool.speckle is not None:
+            return output.empirical_quantiles(np.abs(np.stack([self.pool.field("speckle", k)
+                                                               for k in range(self.pool.n_fields)])) ** 2)
+        f = speckle_mod.speckle_field(streams.sequential_rng(self.seed), self.pool.shape, spec,
+                                      self.range_amplitude, self.beam_amplitude)
+        return output.empirical_quantiles(np.abs(f) ** 2)
 
     # The elevation pattern (used by the renderer when it makes the rays) ---------------------
 
@@ -461,20 +474,33 @@ class SensorModel:
     def reference(self, image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """A frame formed without the pool: fresh scatterers filtered through the point-spreads.
 
-        ``a = PSF * (sqrt(g X') w) + sqrt(N) W`` with X' the image after the beam's
-        column factor, w and W drawn afresh (slow; for tests and for scenes with sharp edges).
+        ``a_l = sqrt(T) PSF * (sqrt(g X') w_l) + sqrt(N) W_l`` with X' the image after the beam's
+        column factor, w_l and W_l drawn afresh for each look l, T the K texture (1 otherwise),
+        and ``P = t G sum_l v_l |a_l|^2`` with the looks' weights v_l
+        (:func:`~sonarsim.sensor.speckle.look_weights`; slow; for tests and for scenes with sharp
+        edges).
         """
         x = np.asarray(image, dtype=np.float64) * self.column_factor[None, :]
         mu = self.echo_gain[:, None] * x + self.bang[:, None] * self.bang_beam[None, :]
-        w = speckle_mod.scatterer_amplitudes(rng, x.shape, self.spec.speckle) if self.spec.speckle else 1.0
-        a = speckle_mod.filter_field(np.sqrt(mu) * w, self.range_amplitude, self.beam_amplitude, circular=False)
-        if self.spec.noise is not None:
-            n = speckle_mod.filter_field(speckle_mod.complex_gaussian(rng, x.shape), self.range_amplitude,
-                                         self.beam_amplitude, circular=False)
-            a = a + np.sqrt(self.noise_row[:, None].astype(np.float64)) * n
-            if self._has_common:
-                a = a + channels.common_noise_amplitude(self.common_power, self.range_amplitude, rng)[:, None]
-        p = (self.tvg[:, None] * self.beam_gain[None, :]).astype(np.float64) * np.abs(a) ** 2
+        spec = self.spec.speckle
+        # Every look in full (scatterers, noise, the row's common noise), averaged in intensity
+        # with the pool's weights; the K texture once per cell, common to the looks.
+        texture = speckle_mod.texture(rng, x.shape, spec)
+        weights = speckle_mod.look_weights(1.0 if spec is None else spec.looks)
+        power = np.zeros(x.shape)
+        for weight in weights:
+            w = speckle_mod.scatterer_amplitudes(rng, x.shape) if spec else 1.0
+            a = speckle_mod.filter_field(np.sqrt(mu) * w, self.range_amplitude, self.beam_amplitude, circular=False)
+            if texture is not None:
+                a = a * np.sqrt(texture)
+            if self.spec.noise is not None:
+                n = speckle_mod.filter_field(speckle_mod.complex_gaussian(rng, x.shape), self.range_amplitude,
+                                             self.beam_amplitude, circular=False)
+                a = a + np.sqrt(self.noise_row[:, None].astype(np.float64)) * n
+                if self._has_common:
+                    a = a + channels.common_noise_amplitude(self.common_power, self.range_amplitude, rng)[:, None]
+            power += weight * np.abs(a) ** 2
+        p = (self.tvg[:, None] * self.beam_gain[None, :]).astype(np.float64) * power
         return output.compress(p, self.spec.output)
 
     # Helpers ------------------------------------------------------------------------------------

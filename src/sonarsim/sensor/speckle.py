@@ -4,8 +4,23 @@ Each resolution cell's echo is a coherent sum of many scatterers: a complex Gaus
 amplitude (Goodman's fully developed speckle: Rayleigh magnitude, exponential intensity).
 Passing white complex amplitudes through the range point-spread (the pulse) and the azimuth
 point-spread (the receive beam) gives speckle its grain: its correlation lengths follow the
-resolution cell. For few scatterers per cell, a gamma-distributed texture of shape nu
-modulates the scatterers' power: the intensity becomes K-distributed.
+resolution cell.
+
+A device that averages L independent looks in intensity (pings, sub-apertures, frequency bands)
+records ``S = sum_l w_l |F_l|^2`` over ``ceil(L)`` independently filtered fields, the weights
+summing to 1 with ``sum_l w_l^2 = 1 / L`` (:func:`look_weights`): S has unit mean and contrast
+``1 / sqrt(L)`` exactly (the gamma law of shape L for an integer L), and the grain of one look
+(each look's field has the same point-spread). The stored field is ``sqrt(S)`` with the first
+look's phase, so that the compiled stage's ``|sqrt(mu) F + sqrt(N) W|^2`` reads ``mu S`` where the
+echo dominates; the noise fields are formed alike (the device averages its noise over the same
+looks). Where echo and noise are comparable the cross term keeps one look's spread
+(:meth:`sonarsim.sensor.model.SensorModel.reference` averages L full looks).
+
+For few scatterers per cell (the K model) the cell's intensity is the speckle's times a gamma
+texture of shape nu (the compound representation of the K law): the texture is the number of
+scatterers in the cell, so it multiplies the speckle after the point-spread, once per cell and
+common to the looks. Drawn per scatterer before the point-spread, as before, it was averaged over
+the cells the point-spread spans and the law drifted towards Rayleigh.
 
 Filtering a fresh field for every frame would cost more than the whole sensor stage may take,
 so a :class:`SpecklePool` filters a few independent fields once per sonar (circularly, so each
@@ -36,13 +51,103 @@ def complex_gaussian(rng: np.random.Generator, shape: tuple[int, ...]) -> np.nda
     return (z[..., 0] + 1j * z[..., 1]).astype(np.complex64) * np.float32(np.sqrt(0.5))
 
 
-def scatterer_amplitudes(rng: np.random.Generator, shape: tuple[int, int], spec: SpeckleSpec | None) -> np.ndarray:
-    """White complex amplitudes of unit mean power; K-model: times the root of a gamma texture."""
-    w = complex_gaussian(rng, shape)
-    if spec is not None and spec.model == "k":
-        texture = rng.gamma(spec.k_shape, 1.0 / spec.k_shape, size=shape).astype(np.float32)
-        w = w * np.sqrt(texture)
-    return w
+def scatterer_amplitudes(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
+    """White complex amplitudes of unit mean power (one look's scatterers, before the point-spread)."""
+    return complex_gaussian(rng, shape)
+
+
+def look_weights(looks: float) -> np.ndarray:
+    """Weights of ``ceil(looks)`` independent unit-mean intensities whose weighted sum has unit
+    mean and contrast ``1 / sqrt(looks)``.
+
+    ``n - 1`` equal weights ``a`` and a last weight ``b = 1 - (n - 1) a`` with
+    ``(n - 1) a^2 + b^2 = 1 / L``, the root that gives ``a = b = 1/n`` at ``L = n`` and
+    ``a = 1/(n-1), b = 0`` as L falls to ``n - 1``.
+
+    Parameters
+    ----------
+    looks : float
+        L >= 1.
+
+    Returns
+    -------
+    (ceil(L),) float64 ndarray, summing to 1.
+    """
+    L = float(looks)
+    if not L >= 1.0:
+        raise ValueError(f"looks must be at least 1, got {looks!r}")
+    n = int(np.ceil(L - 1e-12))
+    if n == 1:
+        return np.ones(1)
+    root = np.sqrt(max(1.0 - n * (L - 1.0) / (L * (n - 1)), 0.0))
+    a = (1.0 + root) / n
+    return np.append(np.full(n - 1, a), 1.0 - (n - 1) * a)
+
+
+def multi_look(make_look, weights: np.ndarray) -> np.ndarray:
+    """``sqrt(sum_l w_l |F_l|^2)`` with the first look's phase: a complex field whose intensity
+    is the looks' weighted average (one look: itself).
+
+    Parameters
+    ----------
+    make_look : callable () -> (n_r, n_b) complex64 ndarray
+        Draws one look's filtered field; called ``len(weights)`` times, in order (one look is
+        held at a time besides the first: the memory of :func:`pool_bytes`).
+    weights : (n_looks,) array
+        :func:`look_weights`.
+    """
+    first = make_look()
+    if len(weights) == 1:
+        return first
+    s = np.float32(weights[0]) * (first.real * first.real + first.imag * first.imag)
+    for w in weights[1:]:
+        f = make_look()
+        s += np.float32(w) * (f.real * f.real + f.imag * f.imag)
+    mag = np.abs(first)
+    phase = np.where(mag > 0, first / np.where(mag > 0, mag, 1.0), np.complex64(1.0))
+    return (np.sqrt(s) * phase).astype(np.complex64)
+
+
+def texture(rng: np.random.Generator, shape: tuple[int, int], spec: SpeckleSpec | None) -> np.ndarray | None:
+    """The K model's per-cell intensity texture (gamma, shape ``k_shape``, unit mean); ``None`` otherwise."""
+    if spec is None or spec.model != "k":
+        return None
+    return rng.gamma(spec.k_shape, 1.0 / spec.k_shape, size=shape).astype(np.float32)
+
+
+def speckle_field(rng: np.random.Generator, shape: tuple[int, int], spec: SpeckleSpec | None,
+                  range_amplitude: np.ndarray, beam_amplitude: np.ndarray, circular: bool = True) -> np.ndarray:
+    """One unit-power speckle field as the device records it: its looks, each through the
+    point-spread, averaged in intensity, then the K texture per cell (see the module's notes).
+
+    Parameters
+    ----------
+    rng : numpy Generator
+    shape : (n_range_bins, n_beams)
+    spec : SpeckleSpec or None
+        ``None``: one Rayleigh look.
+    range_amplitude, beam_amplitude : (odd,) arrays
+        The point-spread's amplitude kernels (squares summing to 1).
+    circular : bool
+        See :func:`filter_field`.
+
+    Returns
+    -------
+    (n_range_bins, n_beams) complex64 ndarray, ``E|F|^2 = 1``.
+    """
+    weights = look_weights(1.0 if spec is None else spec.looks)
+    f = multi_look(lambda: filter_field(scatterer_amplitudes(rng, shape), range_amplitude, beam_amplitude, circular),
+                   weights)
+    t = texture(rng, shape, spec)
+    return f if t is None else (f * np.sqrt(t)).astype(np.complex64)
+
+
+def noise_field(rng: np.random.Generator, shape: tuple[int, int], looks: float,
+                range_amplitude: np.ndarray, beam_amplitude: np.ndarray, circular: bool = True) -> np.ndarray:
+    """One unit-power receiver-noise field: element noise through the beamformer and the receiver
+    band (the point-spread), averaged over the device's looks like the echo."""
+    return multi_look(lambda: filter_field(complex_gaussian(rng, shape), range_amplitude, beam_amplitude, circular),
+                      look_weights(looks))
 
 
 def filter_field(w: np.ndarray, range_amplitude: np.ndarray, beam_amplitude: np.ndarray,
@@ -84,13 +189,13 @@ def filter_field(w: np.ndarray, range_amplitude: np.ndarray, beam_amplitude: np.
 
 def pool_bytes(shape: tuple[int, int], speckle: bool, noise: bool, n_fields: int = POOL_FIELDS) -> int:
     """Bytes a :class:`SpecklePool` takes: the stored fields (one byte per part, beams twice),
-    and while one field is made its complex samples, their filtered copy and the filter's
-    accumulator."""
+    and while one field is made its complex samples, their filtered copy, the filter's
+    accumulator, the first look and the looks' summed intensity."""
     n_r, n_b = int(shape[0]), int(shape[1])
     n_kinds = int(speckle) + int(noise)
     if n_kinds == 0:
         return 0
-    return n_kinds * n_fields * n_r * 4 * n_b + 3 * n_r * n_b * 8
+    return n_kinds * n_fields * n_r * 4 * n_b + 5 * n_r * n_b * 8
 
 
 @dataclass(frozen=True)
@@ -142,15 +247,15 @@ class SpecklePool:
         self.speckle, self.speckle_scale = None, 0.0
         self.noise, self.noise_scale = None, 0.0
         if spec is not None:
-            fields = [filter_field(scatterer_amplitudes(rng, shape, spec), range_amplitude, beam_amplitude)
-                      for _ in range(n_fields)]
+            fields = [speckle_field(rng, shape, spec, range_amplitude, beam_amplitude) for _ in range(n_fields)]
             self.speckle, self.speckle_scale = self._quantised(fields)
         if noise:
             # Element noise reaches each beam through the beamformer: it is correlated across
-            # beams like the speckle (and band-limited like the pulse).
+            # beams like the speckle (and band-limited like the pulse), and averaged over the
+            # same looks.
+            looks = 1.0 if spec is None else spec.looks
             self.noise, self.noise_scale = self._quantised(
-                [filter_field(complex_gaussian(rng, shape), range_amplitude, beam_amplitude)
-                 for _ in range(n_fields)])
+                [noise_field(rng, shape, looks, range_amplitude, beam_amplitude) for _ in range(n_fields)])
 
     @staticmethod
     def _quantised(fields: list[np.ndarray]) -> tuple[np.ndarray, float]:
