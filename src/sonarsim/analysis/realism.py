@@ -138,6 +138,59 @@ def _acf(residual: np.ndarray, keep: np.ndarray, axis: int, max_lag: int) -> np.
     return np.asarray(out)
 
 
+#: The tails' quantile that :func:`log_asymmetry` compares (the 5th and 95th percentiles).
+ASYMMETRY_QUANTILE = 0.05
+
+
+def log_asymmetry(image, mask=None, log_domain: bool = False, window: tuple[int, int] = LOCAL_MEAN_WINDOW,
+                  tail: float = ASYMMETRY_QUANTILE) -> float:
+    """Quantile asymmetry of the image's log-domain values about their local mean, over a region.
+
+    ``(q_hi + q_lo - 2 q_50) / (q_hi - q_lo)`` of the residual (Kelly's measure, ``q_lo`` and
+    ``q_hi`` the ``tail`` and ``1 - tail`` quantiles): the speckle's shape, whatever the output's
+    scale. A log output's counts are logarithmic already (their spread scales with the span, this
+    ratio does not), and the log of a gamma output's counts is ``gamma ln P`` plus a constant. The
+    log of one look's exponential intensity has a long dark tail: -0.27 at the 5th percentile
+    (9 x 5 local mean); L looks -0.15 (3), -0.09 (8), -0.05 (32), towards 0. A ratio of
+    quantiles, it varies far less from one draw to the next than the third moment (a third of
+    the spread over 115,000 cells).
+
+    Parameters
+    ----------
+    image : (n_range_bins, n_beams) array
+        Device values (counts) or intensities.
+    mask : (n_range_bins, n_beams) bool array, optional
+        The region (default the whole image).
+    log_domain : bool
+        The values are logarithmic already (a log output); otherwise their natural log is
+        taken, pixels at 0 or below left out (a quantiser's zeros have no log).
+    window : (int, int)
+        Local-mean window in range bins and beams (over the pixels kept).
+    tail : float
+        In (0, 0.5).
+
+    Returns
+    -------
+    float in [-1, 1], dimensionless: negative where the dark tail is the longer.
+    """
+    x, m = _region(image, mask)
+    if not 0.0 < tail < 0.5:
+        raise ValueError(f"tail must lie in (0, 0.5), got {tail}")
+    if not log_domain:
+        keep = m & (x > 0)
+        y = np.log(np.where(x > 0, x, 1.0))
+    else:
+        keep, y = m, x
+    if keep.sum() < 3:
+        raise ValueError("the region holds fewer than three pixels with echo")
+    weight = np.maximum(local_mean(keep.astype(float), window), 1e-12)
+    r = (y - local_mean(np.where(keep, y, 0.0), window) / weight)[keep]
+    lo, mid, hi = np.quantile(r, [tail, 0.5, 1.0 - tail])
+    if hi <= lo:
+        raise ValueError("the region is flat: no speckle to measure")
+    return float((hi + lo - 2.0 * mid) / (hi - lo))
+
+
 def correlation_lengths(image, mask=None, window: tuple[int, int] = LOCAL_MEAN_WINDOW,
                         max_lag: int = MAX_LAG) -> CorrelationLengths:
     """Grain size of the speckle: 1/e lengths of the residual's autocorrelation.
