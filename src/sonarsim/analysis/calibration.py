@@ -72,6 +72,7 @@ import numpy as np
 from scipy import optimize
 
 from ..config.scene import MIN_CORRELATION_M, Scene
+from ..config import parameters
 from ..config.sensor import SensorSpec, parse_sensor
 from ..core.transforms import Pose
 from ..errors import ConfigError, SonarsimError
@@ -82,12 +83,17 @@ from .fitting import PARAMETERS, check_overlap, parse_free, pose_values, recordi
 
 SENSOR_PARAMETERS = ("gain_db", "noise_db", "noise_after_tvg_db", "bang_db", "bang_length_m", "bang_hold_m",
                      "ringing_db", "ringing_length_m", "elevation_width_deg")
-#: Initial simplex step of each parameter, in its units.
-STEPS = {
-    "gain_db": 6.0, "noise_db": 6.0, "noise_after_tvg_db": 6.0, "bang_db": 6.0, "bang_length_m": 0.01,
-    "bang_hold_m": 0.005, "ringing_db": 6.0, "ringing_length_m": 0.02,
-    "elevation_width_deg": 2.0, "x": 0.02, "y": 0.02, "z": 0.02, "roll": 1.0, "pitch": 1.0, "yaw": 1.0,
+#: The entry of the one table of fittable parameters (:mod:`sonarsim.config.parameters`) each
+#: calibrated parameter is.
+TABLE_NAMES = {
+    "gain_db": "sensor.gain_db", "noise_db": "sensor.noise.level_db", "noise_after_tvg_db": "sensor.noise.after_tvg_db",
+    "bang_db": "sensor.bang.level_db", "bang_length_m": "sensor.bang.length_m", "bang_hold_m": "sensor.bang.hold_m",
+    "ringing_db": "sensor.bang.ringing_db", "ringing_length_m": "sensor.bang.ringing_length_m",
+    "elevation_width_deg": "sensor.elevation_pattern.width_deg",
+    **{k: f"pose.{k}" for k in PARAMETERS},
 }
+#: Initial simplex step of each parameter, in its units: the table's.
+STEPS = {k: parameters.step(name) for k, name in TABLE_NAMES.items()}
 
 #: The least elevation span (degrees) the rays cover while calibrating: the pattern's sidelobes
 #: light the floor well outside the main lobe (on the real Oculus ping, the echo beyond the floor
@@ -336,11 +342,13 @@ def parameter_bounds(spec: SensorSpec, sonar) -> dict[str, tuple[float, float]]:
       saturate);
     * ``gain_db`` from -40 dB (an attenuating front end) to 120 dB (more than any receiver chain
       offers; without a TVG law the gain alone lifts the echo of the far range);
-    * ``elevation_width_deg`` 1-60 degrees; the pose within a kilometre and its angles.
+    * ``elevation_width_deg`` 1-60 degrees; the pose within a kilometre and its angles;
+
+    each within its entry of the one table of fittable parameters (:data:`TABLE_NAMES`).
     """
     ceiling = spec.output.ceiling_db if spec.output is not None else 160.0
     cell = float(sonar.range_resolution_m)
-    return {
+    physical = {
         "gain_db": (-40.0, 120.0), "noise_db": (0.0, spec.source_level_db - 20.0),
         "noise_after_tvg_db": (ceiling - 120.0, ceiling), "bang_db": (0.0, spec.source_level_db),
         "bang_length_m": (0.05 * cell, BANG_REACH_M),
@@ -351,6 +359,8 @@ def parameter_bounds(spec: SensorSpec, sonar) -> dict[str, tuple[float, float]]:
         "x": (-1e3, 1e3), "y": (-1e3, 1e3), "z": (-1e3, 1e3),
         "roll": (-90.0, 90.0), "pitch": (-90.0, 90.0), "yaw": (-180.0, 180.0),
     }
+    # Within the table's (the scene format's) bounds, always.
+    return {k: parameters.parameter(TABLE_NAMES[k]).narrowed(*b) for k, b in physical.items()}
 
 
 def sensor_values(spec: SensorSpec, sonar_elevation_deg: float) -> dict[str, float]:

@@ -34,6 +34,7 @@ import numpy as np
 from scipy import ndimage, optimize
 
 from ..errors import ConfigError, SonarsimError
+from ..config import parameters
 from ..config.scene import Scene
 from ..config.sonar import SonarConfig
 from ..image.result import SonarImage
@@ -41,9 +42,10 @@ from ..renderer.simulator import Simulator
 from ..core.transforms import Pose
 
 PARAMETERS = ("x", "y", "z", "roll", "pitch", "yaw")
-UNITS = {"x": "m", "y": "m", "z": "m", "roll": "deg", "pitch": "deg", "yaw": "deg"}
-# Initial simplex steps: a few range bins of a typical tank window, a few degrees.
-STEPS = {"x": 0.05, "y": 0.05, "z": 0.05, "roll": 2.0, "pitch": 2.0, "yaw": 2.0}
+# Initial simplex steps: a few range bins of a typical tank window, a few degrees (the coarse
+# steps of the one table of fittable parameters: fit starts further off than calibrate).
+STEPS = {k: parameters.parameter(f"pose.{k}").coarse_step for k in PARAMETERS}
+UNITS = {k: "deg" if parameters.parameter(f"pose.{k}").unit == "degrees" else "m" for k in PARAMETERS}
 # Smoothing (range bins, beams) of the coarse-to-fine passes: wide first, to see far edges.
 DEFAULT_SMOOTHING = ((8.0, 4.0), (4.0, 2.0), (2.0, 1.0))
 

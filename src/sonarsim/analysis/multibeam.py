@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..config import parameters
 from ..image.films import Soundings
 
 __all__ = ["world_points", "fit_floor", "render_pings_over", "score", "fit_sediment", "angular_response",
@@ -40,6 +41,8 @@ RESPONSE_BIN_DEG = 2.0
 FREQUENCY_HZ = 400e3
 # The rendered floor's law: Lambert's, whose known mu cos^2 the footprint is read against.
 FLOOR_MU = 0.01
+#: The grain sizes fit_sediment tries are this far apart (phi), over the table's bounds.
+PHI_STEP = 0.1
 # A bin of the angular response counts where it holds at least this many cells.
 _MIN_CELLS = 20
 
@@ -86,8 +89,9 @@ def fit_sediment(incidence_deg: np.ndarray, response_db: np.ndarray, frequency_h
     w = np.ones_like(y) if weights is None else np.asarray(weights, float)
     ok = np.isfinite(inc) & np.isfinite(y) & (w > 0) & (inc < 89.0)
     grazing = np.radians(90.0 - inc[ok])
+    phi_lo, phi_hi = parameters.bounds("material.grain_size_phi")  # the scene format's, from the one table
     candidates = [(None, phi, seabed.sediment_from_grain_size(phi, water_sound_speed_m_s=sound_speed_m_s))
-                  for phi in np.round(np.arange(-1.0, 9.0001, 0.1), 6)]
+                  for phi in np.round(np.arange(phi_lo, phi_hi + 1e-4, PHI_STEP), 6)]
     candidates += [(name, None, seabed.ROCKS[name]) for name in ("cobble", "rock")]
     best = None
     for name, phi, sed in candidates:

@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
+from ..config import parameters
 from ..image.films import Waterfall
 
 __all__ = ["SidescanFit", "first_return_m", "profile_db", "predict", "calibrate", "score", "FIT_KEYS"]
@@ -46,10 +47,9 @@ SMOOTH, FRACTION = 9, 0.25
 HOLD, PERSIST = 33, 0.8
 #: Coarse range bins of the intensity profiles.
 N_BINS = 64
-#: The parameters fitted, and their bounds.
+#: The parameters fitted, and their bounds (``sidescan.*`` in the one table of fittable parameters).
 FIT_KEYS = ("depression_deg", "vertical_beam_width_deg", "gain_db", "range_exponent", "noise_db")
-BOUNDS = {"depression_deg": (1.0, 45.0), "vertical_beam_width_deg": (10.0, 110.0), "gain_db": (-100.0, 200.0),
-          "range_exponent": (-4.0, 4.0), "noise_db": (-100.0, 200.0)}
+BOUNDS = {k: parameters.bounds(f"sidescan.{k}") for k in FIT_KEYS}
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from ..errors import ConfigError, MeshFileError, SonarsimError, check_input_file
 from .document import MAX_DOCUMENT_BYTES as MAX_SCENE_BYTES, read_document  # noqa: F401 - re-exported
 from .materials import LAWS, MAX_LAMBERT_MU, Material, mu_from_db, object_material
 from .meshfiles import load_mesh_file, world_reach_m  # below scene: config imports nothing of it
+from .parameters import MAX_ANGLE_DEG
 from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor, preset_device_mismatch
 from .instruments import FlsSpec, instrument_class, mounted
@@ -48,9 +49,8 @@ MATERIAL_KEYS = ("law", "albedo", "mu", "mu_db", "specular_strength", "roughness
                  "grain_size_phi", "level_db", "preset")
 
 
-# Plausibility bounds: a sonar scene spans kilometres at most (MAX_COORDINATE_M, from
-# config.scene); an angle beyond two turns is a typo.
-MAX_ANGLE_DEG = 720.0
+# Plausibility bounds: a sonar scene spans kilometres at most (MAX_COORDINATE_M); an angle
+# beyond two turns is a typo (MAX_ANGLE_DEG). Both from the one table of fittable parameters.
 
 
 # Typed getters ---------------------------------------------------------------------------

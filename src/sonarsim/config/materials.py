@@ -59,6 +59,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import seabed
+# Bounds of the laws' parameters: the one table of fittable parameters. The roughness: above 0.5
+# the Kirchhoff lobe no longer peaks at normal incidence; below 1e-3 the lobe is a glint narrower
+# than the rays' spacing (at 1e-300 its exponent, -tan^2 / (2 s^2), was 0 / 0: NaN). The lobe's
+# strength: a mirror-smooth facet's Kirchhoff peak, R^2 / (2 s^2), is about 5e5 at the smoothest
+# roughness; 1e300 made the image infinite.
+from .parameters import MAX_LAMBERT_MU, MAX_ROUGHNESS, MAX_SPECULAR_STRENGTH, MIN_ROUGHNESS  # noqa: F401
+from .parameters import SEDIMENT_LEVEL_RANGE_DB as LEVEL_RANGE_DB
 from ..core.radiometry import LAMBERT, LAMBERTIAN, ROUGH, SEDIMENT
 from ..errors import ConfigError, shown
 
@@ -69,19 +76,7 @@ LAWS = ("lambertian", "lambert", "rough", "sediment")
 LAW_KEYS = {"lambertian": ("albedo",), "lambert": ("mu",), "rough": ("albedo", "specular_strength", "roughness"),
             "sediment": ("sediment", "grain_size_phi", "level_db")}
 REQUIRED_KEYS = {"lambertian": (), "lambert": ("mu",), "rough": ("specular_strength", "roughness"), "sediment": ()}
-# Lambert's energy bound: mu = 1 / pi returns all that the surface receives.
-MAX_LAMBERT_MU = 1.0 / math.pi
-# The sediment law's level offset, dB: a fit's correction, not a new sea bed.
-LEVEL_RANGE_DB = (-30.0, 30.0)
 DEFAULT_SEDIMENT = "medium-sand"
-# Rms slope above which the Kirchhoff lobe no longer peaks at normal incidence.
-MAX_ROUGHNESS = 0.5
-# The smoothest facets: below this the lobe is a glint narrower than the rays' spacing (and at
-# 1e-300 its exponent, -tan^2 / (2 s^2), was 0 / 0 at normal incidence: NaN).
-MIN_ROUGHNESS = 1e-3
-# The largest lobe at normal incidence (per unit area): a mirror-smooth facet's Kirchhoff peak,
-# R^2 / (2 s^2), is about 5e5 at the smoothest roughness; 1e300 made the image infinite.
-MAX_SPECULAR_STRENGTH = 1e6
 DEFAULT_ALBEDO = 0.8
 
 

@@ -18,6 +18,11 @@ import numpy as np
 
 from ..errors import ConfigError, shown
 from .materials import Material
+# Objects larger than MAX_LENGTH_M are not objects of a sonar scene (a typo or a unit mistake),
+# nor smaller than MIN_LENGTH_M (a micron; also the smallest scale factor: a sphere of 1e-300 m
+# was accepted and, its vertices all equal in float32, silently invisible); a sonar scene spans
+# kilometres at most. From the one table of fittable parameters.
+from .parameters import MAX_COORDINATE_M, MAX_LENGTH_M, MIN_LENGTH_M  # noqa: F401
 from .sensor import SensorSpec, check_azimuth_width, check_bandwidth
 from .sonar import SonarConfig
 from .water import WaterSpec, fold_into_sensor
@@ -43,13 +48,6 @@ MAX_TEXTURE_STD_DB = 20.0
 MIN_CORRELATION_M, MAX_CORRELATION_M = 1e-2, 1e4
 # Path orders beyond this cost more than they show (R**order of an echo that is already faint).
 MAX_ORDER_LIMIT = 9
-# Objects larger than this are not objects of a sonar scene (a typo or a unit mistake).
-MAX_LENGTH_M = 1e4
-# Nor smaller than this (a micron; also the smallest scale factor): a sphere of 1e-300 m was
-# accepted and, its vertices all equal in float32, silently invisible.
-MIN_LENGTH_M = 1e-6
-# A sonar scene spans kilometres at most: points and planes farther out than this are typos.
-MAX_COORDINATE_M = 1e6
 # Ray-casting threads a scene may ask for: more than the cores of large machines only costs
 # threads' memory and start-up (1,000,000 was accepted and handed to Embree); ``null`` takes
 # every core of any machine.

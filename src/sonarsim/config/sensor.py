@@ -41,19 +41,18 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, SonarsimError, check_input_file, key_text, shown
+from .parameters import (GAIN_RANGE_DB, GAMMA_RANGE, LEVEL_RANGE_DB, LOOKS_RANGE, NEAR_RANGE_LENGTH_M,  # noqa: F401
+                         PATTERN_WIDTH_RANGE_DEG, PER_BEAM_RANGE_DB, PULSE_LENGTH_RANGE_US,
+                         STEERING_EXPONENT_RANGE, TVG_SPREADING)
 from .presets import ARIS_MODES, PRESETS, ArisMode
 from .sonar import FREQUENCY_RANGE_KHZ, MIN_BEAM_WIDTH_DEG
 
 ABSORPTION_MODELS = ("francois-garrison", "ainslie-mccolm", "constant")
-TVG_SPREADING = (0.0, 20.0, 30.0, 40.0)
 PATTERN_SHAPES = ("line", "gaussian", "table")
 WINDOWS = ("rect", "hann", "hamming", "blackman", "taylor")
 PULSE_KINDS = ("cw", "chirp")
 SPECKLE_MODELS = ("rayleigh", "k")
 SPECKLE_ANCHORS = ("frame", "world")
-#: Looks a device averages (``speckle.looks``): beyond 64 the speckle is within 0.54 dB of its mean
-#: (1/sqrt(L) contrast 0.125) and the pool, which filters ``ceil(L)`` fields per stored one, grows.
-LOOKS_RANGE = (1.0, 64.0)
 COMPRESSIONS = ("log", "gamma", "linear")
 DTYPES = {"uint8": 255.0, "uint16": 65535.0, "float32": None}
 
@@ -62,34 +61,15 @@ MAX_KERNEL_HALF_WIDTH = 256
 # A Taylor window's sidelobe level: beyond 13.3 dB (the uniform array's), and no deeper than this
 # (no array gets near it; near 6000 dB the window's own arithmetic overflows).
 MIN_SIDELOBE_DB, MAX_SIDELOBE_DB = 13.3, 200.0
-# Levels and gains, dB: the sensor stage forms powers (10 ** (L / 10)) in float32, which holds
-# about 385 dB. Sonars transmit 180-230 dB re 1 uPa at 1 m; anything beyond these is a typo.
-LEVEL_RANGE_DB = (-300.0, 300.0)
-GAIN_RANGE_DB = (-200.0, 200.0)
+# The bounds of the fittable levels, gains, widths, lengths and looks live in the one table
+# of fittable parameters (config.parameters), imported above.
 MAX_ABSORPTION_DB_PER_M = 1000.0
-# Beam pattern widths (-3 dB, full), degrees: the narrowest beams of imaging sonars are about
-# 0.1 degree wide (an ARIS 3000's 0.24); a beam far narrower than that would need an aperture of
-# tens of metres. (1e-9 degrees was accepted and left the azimuth kernel empty.)
-PATTERN_WIDTH_RANGE_DEG = (MIN_BEAM_WIDTH_DEG, 180.0)
-# Pulse lengths, microseconds: imaging sonars transmit pulses of a few to a few hundred us.
-PULSE_LENGTH_RANGE_US = (0.1, 1e5)
 # The azimuth pattern is averaged over 16 points across each beam (sensor.patterns.azimuth_kernels):
 # a -3 dB width below two of those steps aliases its sidelobes (a 0.01-degree line pattern over
 # beams 10 degrees apart leaked half of each echo into either neighbour and kept 5 %).
 MIN_AZIMUTH_WIDTH_PER_SPACING = 1.0 / 8.0
-# Per-beam factors, dB (stripes, a bang's pattern across beams): a channel more than 60 dB off
-# its neighbours is a dead channel, not a stripe; seeded stripes of more than 20 dB standard
-# deviation are a typo for a level.
-PER_BEAM_RANGE_DB = (-60.0, 60.0)
+# Seeded stripes of more than 20 dB standard deviation are a typo for a level.
 PER_BEAM_STD_RANGE_DB = (0.0, 20.0)
-# The across-fan gain cos(theta)^n: the ARIS's 9 dB over 15 degrees needs n near 60; beyond a few
-# hundred the fan's edge beams are below float32's smallest power.
-STEERING_EXPONENT_RANGE = (0.0, 200.0)
-# Decay lengths and periods of the near-range effects (ringing, row noise), metres: from a tenth
-# of a millimetre (below any range cell) to the longest range window (config.sonar.MAX_RANGE_M).
-NEAR_RANGE_LENGTH_M = (1e-4, 1e4)
-# The output chain's gamma exponent.
-GAMMA_RANGE = (0.05, 4.0)
 
 
 def _within(key: str, value: Any, bounds: tuple[float, float], unit: str = "dB") -> float:

@@ -21,6 +21,7 @@ from ..errors import ConfigError, shown
 
 IMAGES_PER_FRAME = 40
 from ..image.grid import PolarGrid, beam_edges_deg
+from .parameters import MIN_BEAM_WIDTH_DEG
 
 __all__ = ["MAX_RANGE_M", "MIN_BEAM_WIDTH_DEG", "MIN_RELATIVE_BIN_WIDTH", "FREQUENCY_RANGE_KHZ", "RangeBinError",
            "SonarConfig", "beam_edges_deg", "check_range_bins", "check_range_window", "uniform_beam_angles_deg"]
@@ -44,8 +45,8 @@ SOUND_SPEED_RANGE_M_S = (1300.0, 1700.0)
 # (a beamformed line array).
 BEAM_SHAPES = ("plane", "cone")
 # The narrowest beam, degrees (``beam_width_deg``, a sensor's beam pattern widths), and the
-# narrowest fan and elevation aperture (1e-300 degrees was accepted: every ray on one line).
-MIN_BEAM_WIDTH_DEG = 0.01
+# narrowest fan and elevation aperture (1e-300 degrees was accepted: every ray on one line):
+# MIN_BEAM_WIDTH_DEG, from the one table of fittable parameters (imported above).
 
 
 class RangeBinError(ConfigError):

@@ -31,83 +31,62 @@ key                                         shape   meaning, unit
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import replace
 
 import numpy as np
 
+from ..config.parameters import PARAMETERS, Parameter
 from ..config.scene import Scene
 from ..errors import ConfigError
 from ..scene.meshes import object_mesh_local
 
 
-@dataclass(frozen=True)
-class Bound:
-    """The values a parameter may take: the scene format's bounds for the field it stands for.
+#: A parameter's bounds: an entry of the one table of fittable parameters
+#: (:class:`sonarsim.config.parameters.Parameter`: ``lo``, ``hi``, ``unit``, ``field``,
+#: ``open_hi``, ``text()``), under the differentiable engine's key.
+Bound = Parameter
 
-    Attributes
-    ----------
-    lo, hi : float
-        Inclusive bounds (``hi`` exclusive where ``open_hi``).
-    unit : str
-        For the messages.
-    field : str
-        The scene format's field whose bound this is.
-    open_hi : bool
-    """
-
-    lo: float
-    hi: float
-    unit: str
-    field: str
-    open_hi: bool = False
-
-    def text(self) -> str:
-        unit = f" {self.unit}" if self.unit else ""
-        return f"[{self.lo:g}, {self.hi:g}{')' if self.open_hi else ']'}{unit}"
+#: The differentiable engine's keys (by their last part, or whole for the sensor) and the table's
+#: entries whose bounds they take, with the scene field a message names.
+_TABLE_KEYS = {
+    "position_m": ("pose.x", "pose.position_m"),
+    "rpy_deg": ("pose.roll", "pose.rpy_deg"),
+    "scale": ("objects.scale", "objects[].scale"),
+    "vertices_m": ("pose.x", "objects[].mesh (its vertices' reach)"),
+    "albedo": ("material.albedo", "albedo"),
+    "mu": ("material.mu", "material.mu"),
+    "specular": ("material.specular", "specular"),
+    "specular_strength": ("material.specular_strength", "material.specular_strength"),
+    "roughness": ("material.roughness", "material.roughness"),
+    "offset_m": ("planes.offset_m", "planes[].point_m"),
+    "sensor.gain_db": ("sensor.gain_db", "sensor.gain_db"),
+    "sensor.source_level_db": ("sensor.source_level_db", "sensor.source_level_db"),
+    "sensor.noise_db": ("sensor.noise.level_db", "sensor.noise.level_db"),
+    "sensor.noise_after_tvg_db": ("sensor.noise.after_tvg_db", "sensor.noise.after_tvg_db"),
+    "sensor.tvg_spreading": ("sensor.tvg.spreading", "sensor.tvg.spreading"),
+    "sensor.elevation_width_deg": ("sensor.elevation_pattern.width_deg", "sensor.elevation_pattern.width_deg"),
+    "sensor.azimuth_width_deg": ("sensor.azimuth_pattern.width_deg", "sensor.azimuth_pattern.width_deg"),
+    "sensor.gamma": ("sensor.output.gamma", "sensor.output.gamma"),
+    "sensor.beam_gain_db": ("sensor.beam_gain.gain_db", "sensor.beam_gain.gain_db"),
+}
 
 
 def parameter_bounds() -> dict[str, Bound]:
     """Every parameter's bounds by the last part of its key (``albedo``, ``scale``, ...) or,
-    for the sensor, by its whole key: the scene format's own bounds, read from the constants
-    its validation uses (:mod:`sonarsim.config.scene`, :mod:`~sonarsim.config.materials`,
-    :mod:`~sonarsim.config.sensor`, :mod:`~sonarsim.config.loader`), so that a value the scene
-    format refuses is refused here too.
+    for the sensor, by its whole key: the entries of the one table of fittable parameters
+    (:data:`sonarsim.config.parameters.PARAMETERS`), which the scene format validates against,
+    so that a value the scene format refuses is refused here too.
 
-    Two differ, as the differentiable engine makes them continuous: ``sensor.tvg_spreading``
-    (the scene format takes 0, 20, 30 or 40) may lie anywhere between those, and an object's
-    ``reflectivity`` (which the scene format does not have) is any factor of 0 or more.
+    Three are the engine's own: ``sensor.tvg_spreading`` (the scene format takes 0, 20, 30 or
+    40) may lie anywhere between those, a plane's ``normal`` is any direction (not the zero
+    vector), and an object's ``reflectivity`` (which the scene format does not have) is any
+    factor of 0 or more.
     """
-    from ..config import loader, materials
-    from ..config import scene as cs
-    from ..config import sensor as cn
-
-    coordinate = (-cs.MAX_COORDINATE_M, cs.MAX_COORDINATE_M, "m")
-    return {
-        "position_m": Bound(*coordinate, "pose.position_m"),
-        "rpy_deg": Bound(-loader.MAX_ANGLE_DEG, loader.MAX_ANGLE_DEG, "degrees", "pose.rpy_deg"),
-        "scale": Bound(cs.MIN_LENGTH_M, cs.MAX_LENGTH_M, "", "objects[].scale"),
-        "vertices_m": Bound(*coordinate, "objects[].mesh (its vertices' reach)"),
-        "albedo": Bound(0.0, 1.0, "", "albedo"),
-        "mu": Bound(0.0, materials.MAX_LAMBERT_MU, "", "material.mu"),
-        "specular": Bound(0.0, 1.0, "", "specular"),
-        "specular_strength": Bound(0.0, materials.MAX_SPECULAR_STRENGTH, "", "material.specular_strength"),
-        "roughness": Bound(materials.MIN_ROUGHNESS, materials.MAX_ROUGHNESS, "", "material.roughness"),
-        "offset_m": Bound(*coordinate, "planes[].point_m"),
-        "normal": Bound(-np.inf, np.inf, "", "planes[].normal"),  # and not the zero vector
-        "reflectivity": Bound(0.0, np.inf, "", "(the differentiable engine's own)"),
-        "sensor.gain_db": Bound(*cn.GAIN_RANGE_DB, "dB", "sensor.gain_db"),
-        "sensor.source_level_db": Bound(*cn.LEVEL_RANGE_DB, "dB", "sensor.source_level_db"),
-        "sensor.noise_db": Bound(*cn.LEVEL_RANGE_DB, "dB", "sensor.noise.level_db"),
-        "sensor.noise_after_tvg_db": Bound(*cn.LEVEL_RANGE_DB, "dB", "sensor.noise.after_tvg_db"),
-        "sensor.tvg_spreading": Bound(min(cn.TVG_SPREADING), max(cn.TVG_SPREADING), "dB per decade",
-                                      "sensor.tvg.spreading"),
-        "sensor.elevation_width_deg": Bound(*cn.PATTERN_WIDTH_RANGE_DEG, "degrees", "sensor.elevation_pattern.width_deg",
-                                            open_hi=True),
-        "sensor.azimuth_width_deg": Bound(*cn.PATTERN_WIDTH_RANGE_DEG, "degrees", "sensor.azimuth_pattern.width_deg",
-                                          open_hi=True),
-        "sensor.gamma": Bound(*cn.GAMMA_RANGE, "", "sensor.output.gamma"),
-        "sensor.beam_gain_db": Bound(*cn.PER_BEAM_RANGE_DB, "dB", "sensor.beam_gain.gain_db"),
-    }
+    out = {key: replace(PARAMETERS[name], name=key, field=field) for key, (name, field) in _TABLE_KEYS.items()}
+    out["normal"] = Bound("normal", "", -np.inf, np.inf, 0.0, "planes[].normal", "a plane's normal into the water")
+    out["reflectivity"] = Bound("reflectivity", "", 0.0, np.inf, 0.0, "(the differentiable engine's own)",
+                                "an object's factor on its echo")
+    return out
 
 
 def bound_of(key: str, bounds: dict[str, Bound] | None = None) -> Bound | None:

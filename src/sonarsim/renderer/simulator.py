@@ -103,7 +103,8 @@ def frame_memory_parts(scene: Scene, sonar: SonarConfig) -> list[tuple[float, st
         if span != sonar.elevation_fov_deg:
             traced = replace(sonar, elevation_fov_deg=span)
         parts.append((pool_bytes((sonar.n_range_bins, sonar.n_beams), spec.speckle is not None,
-                                 spec.noise is not None), "speckle and noise fields", "sensor.speckle"))
+                                 spec.noise is not None, looks=1.0 if spec.speckle is None else spec.speckle.looks),
+                      "speckle and noise fields", "sensor.speckle"))
     parts.insert(1, (ray_bytes(traced, render), "rays", ray_size_key(traced, render)))
     # Paths of high order (mirrors) keep every generation's legs: 900 mirror boxes at max_order 5
     # with glints trace six generations of every ray.

@@ -187,15 +187,17 @@ def filter_field(w: np.ndarray, range_amplitude: np.ndarray, beam_amplitude: np.
     return out
 
 
-def pool_bytes(shape: tuple[int, int], speckle: bool, noise: bool, n_fields: int = POOL_FIELDS) -> int:
+def pool_bytes(shape: tuple[int, int], speckle: bool, noise: bool, n_fields: int = POOL_FIELDS,
+               looks: float = 1.0) -> int:
     """Bytes a :class:`SpecklePool` takes: the stored fields (one byte per part, beams twice),
-    and while one field is made its complex samples, their filtered copy, the filter's
-    accumulator, the first look and the looks' summed intensity."""
+    and while one field is made its complex samples, their filtered copy and the filter's
+    accumulator; with several looks also the first look and the looks' summed intensity."""
     n_r, n_b = int(shape[0]), int(shape[1])
     n_kinds = int(speckle) + int(noise)
     if n_kinds == 0:
         return 0
-    return n_kinds * n_fields * n_r * 4 * n_b + 5 * n_r * n_b * 8
+    making = 3 if float(looks) <= 1.0 else 5
+    return n_kinds * n_fields * n_r * 4 * n_b + making * n_r * n_b * 8
 
 
 @dataclass(frozen=True)
@@ -239,7 +241,7 @@ class SpecklePool:
     def __init__(self, shape: tuple[int, int], range_amplitude: np.ndarray, beam_amplitude: np.ndarray,
                  spec: SpeckleSpec | None, noise: bool, seed: int, n_fields: int = POOL_FIELDS) -> None:
         n_r, n_b = shape
-        require(pool_bytes(shape, spec is not None, noise, n_fields),
+        require(pool_bytes(shape, spec is not None, noise, n_fields, 1.0 if spec is None else spec.looks),
                 f"the speckle and noise fields of a {n_r} x {n_b} image", "sensor.speckle")
         rng = pool_rng(seed)  # [seed, POOL_STREAM]: see core.streams
         self.shape = shape
