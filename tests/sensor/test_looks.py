@@ -157,3 +157,17 @@ def test_calibration_recovers_the_looks_of_a_synthetic_recording(looks, output):
     lit = np.ones(recording.shape, bool)
     fitted = _fit_looks(recording, start, sonar, total, 5, Pose(), lit)
     assert fitted.speckle.looks == pytest.approx(looks, rel=0.2 if looks < 10 else 0.3)
+
+
+@pytest.mark.parametrize("speckle", [{"model": "rayleigh", "looks": 3.0}, {"model": "rayleigh", "looks": 2.4},
+                                     {"model": "k", "k_shape": 1.5, "looks": 2.0}])
+def test_the_expected_outputs_law_is_the_pools(speckle):
+    # The expected output averages over the spec's intensity law, formed without the pool (a
+    # calibration builds thousands of models); the pool's fields follow the same law.
+    from sonarsim.sensor import output
+
+    m, _ = uniform_model(speckle=speckle, **GRAIN)
+    pool = np.abs(np.stack([m.pool.field("speckle", k) for k in range(m.pool.n_fields)])).ravel() ** 2
+    q = m.speckle_quantiles()
+    assert q is output.intensity_quantiles(speckle["model"], float(speckle.get("k_shape", 4.0)), speckle["looks"])
+    assert stats.ks_2samp(pool[::13], q).statistic < 0.03

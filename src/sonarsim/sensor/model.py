@@ -272,23 +272,13 @@ class SensorModel:
 
     def speckle_quantiles(self) -> np.ndarray | None:
         """Midpoint quantiles (:data:`~sonarsim.sensor.output.QUANTILES`) of the unit-mean speckle
-        intensity S the expected output averages over; ``None`` without speckle.
-
-        Single-look Rayleigh: the exponential law's. Otherwise (several looks, the K texture) the
-        law of the pool's own fields, as stored (so that the expected output is what the frames
-        average to), or, without fields, of a field drawn for the purpose from the seed.
-        """
+        intensity S the expected output averages over (:func:`~sonarsim.sensor.output.intensity_quantiles`:
+        the law of the spec's looks and texture, which the pool's fields follow); ``None``
+        without speckle."""
         spec = self.spec.speckle
         if spec is None:
             return None
-        if spec.exponential:
-            return output.exponential_quantiles()
-        if self.pool.speckle is not None:
-            return output.empirical_quantiles(np.abs(np.stack([self.pool.field("speckle", k)
-                                                               for k in range(self.pool.n_fields)])) ** 2)
-        f = speckle_mod.speckle_field(streams.sequential_rng(self.seed), self.pool.shape, spec,
-                                      self.range_amplitude, self.beam_amplitude)
-        return output.empirical_quantiles(np.abs(f) ** 2)
+        return output.intensity_quantiles(spec.model, float(spec.k_shape), float(spec.looks))
 
     # The elevation pattern (used by the renderer when it makes the rays) ---------------------
 

@@ -174,6 +174,55 @@ def exponential_quantiles(n: int = QUANTILES) -> np.ndarray:
     return q / q.mean()
 
 
+#: Samples (and their generator's seed) of the intensity laws that have no closed-form quantiles.
+LAW_SAMPLES = 2 ** 18
+LAW_SEED = 20261202
+
+
+@functools.lru_cache(maxsize=64)
+def intensity_quantiles(model: str, k_shape: float, looks: float, n: int = QUANTILES) -> np.ndarray:
+    """Midpoint quantiles of the unit-mean speckle intensity a device records (cached).
+
+    The marginal law of one cell does not depend on the point-spread (a filtered circular complex
+    Gaussian field is complex Gaussian in every cell), so it is a function of the speckle spec
+    alone: ``S = T sum_l w_l E_l`` with E_l unit exponentials over the looks' weights
+    (:func:`~sonarsim.sensor.speckle.look_weights`) and T the K model's gamma texture (1 for
+    Rayleigh). One Rayleigh look: the exponential law; a whole number L of looks: the gamma law
+    of shape L (both exact); otherwise :data:`LAW_SAMPLES` seeded samples.
+
+    Parameters
+    ----------
+    model : {'rayleigh', 'k'}
+    k_shape : float
+        The K texture's shape (ignored for Rayleigh).
+    looks : float
+        >= 1.
+    n : int
+
+    Returns
+    -------
+    (n,) float64 ndarray, sorted, mean 1.
+    """
+    from scipy import stats
+
+    from .speckle import look_weights
+
+    u = (np.arange(n) + 0.5) / n
+    weights = look_weights(looks)
+    if model == "rayleigh" and len(weights) == 1:
+        return exponential_quantiles(n)
+    if model == "rayleigh" and np.allclose(weights, weights[0]):
+        q = stats.gamma(len(weights), scale=1.0 / len(weights)).ppf(u)
+        return q / q.mean()
+    rng = np.random.default_rng(LAW_SEED)
+    s = np.zeros(LAW_SAMPLES)
+    for w in weights:
+        s += w * rng.exponential(size=LAW_SAMPLES)
+    if model == "k":
+        s *= rng.gamma(k_shape, 1.0 / k_shape, size=LAW_SAMPLES)
+    return empirical_quantiles(s, n)
+
+
 def empirical_quantiles(samples: np.ndarray, n: int = QUANTILES) -> np.ndarray:
     """Midpoint quantiles of samples, rescaled to unit mean."""
     s = np.sort(np.asarray(samples, dtype=float).ravel())
