@@ -168,7 +168,7 @@ def test_bad_values_are_named(key, value):
 
 def test_a_sensor_key_is_named_in_the_instruments_section():
     with pytest.raises(ConfigError, match=r"sonar\.sensor\.speckle\.looks"):
-        sonarsim.load_scene(scene(sensor={"speckle": {"looks": 1}}))
+        sonarsim.load_scene(scene(sensor={"speckle": {"looks": 0}}))
 
 
 def test_spec_round_trips_through_its_section():
