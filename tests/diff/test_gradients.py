@@ -259,3 +259,26 @@ def test_the_leakage_kernel_is_the_compiled_models_and_sums_to_one():
     k = np.asarray(sensor.leakage_kernel(r.params(), r.data, r.static.sensor))
     assert k.sum() == pytest.approx(1.0, abs=1e-12)
     np.testing.assert_allclose(k, r._sensor.model.beam_leakage, rtol=1e-9, atol=1e-15)
+
+
+def test_the_column_factor_follows_the_azimuth_width_as_the_compiled_models_does():
+    """The beam's cell times the pattern's equivalent width: at the scene's width the compiled
+    model's, and at another width the compiled model built with that width."""
+    from dataclasses import replace
+
+    from sonarsim.diff import sensor
+    from sonarsim.sensor.model import SensorModel
+
+    r = sd.Renderer(OCULUS)
+    params = r.params()
+    np.testing.assert_allclose(np.asarray(sensor.column_factor(params, r.data, r.static.sensor)),
+                               r._sensor.model.column_factor, rtol=1e-6)
+    model = r._sensor.model
+    wide = float(params["sensor.azimuth_width_deg"]) * 1.5
+    reach = (len(model.beam_leakage) - 1) // 2  # the differentiable kernel keeps the scene's reach
+    spec = replace(model.spec, azimuth_pattern=replace(model.spec.azimuth_pattern, width_deg=wide,
+                                                       leakage_beams=reach))
+    other = SensorModel(spec, model.sonar, fields=False)
+    moved = sensor.column_factor({**params, "sensor.azimuth_width_deg": wide}, r.data, r.static.sensor)
+    np.testing.assert_allclose(np.asarray(moved), other.column_factor, rtol=1e-4)
+    assert other.column_factor[0] > model.column_factor[0] * 1.3  # a wider beam hears more of a floor

@@ -141,7 +141,7 @@ def test_taylor_window_holds_its_sidelobe_level():
 
 def test_azimuth_kernels_conserve_power_and_peak_on_the_beam():
     spec = PatternSpec(shape="line", window="rect", width_deg=0.6, leakage_beams=20)
-    leak, amp = patterns.azimuth_kernels(spec, 0.25, 0.25)
+    leak, amp, _ = patterns.azimuth_kernels(spec, 0.25, 0.25)
     assert leak.sum() == pytest.approx(1.0) and np.sum(amp ** 2) == pytest.approx(1.0)
     assert leak.argmax() == 20 and amp.argmax() == 20
     np.testing.assert_allclose(leak, leak[::-1])

@@ -194,7 +194,8 @@ class SensorPart:
             "s_echo_gain": jnp.asarray(10.0 ** (m.echo_gain_db / 10.0)), "s_bang": jnp.asarray(m.bang, jnp.float64),
             "s_bang_beam": jnp.asarray(m.bang_beam, jnp.float64), # The channels' gain without the given per-beam part (a parameter).
             "s_beam_gain": jnp.asarray(10.0 ** ((m.beam_gain_db - self._given_beam_db()) / 10.0), jnp.float64),
-            "s_column": jnp.asarray(m.column_factor, jnp.float64), "s_kr": jnp.asarray(m.range_spread),
+            "s_column": jnp.asarray(m.column_factor, jnp.float64), "s_azimuth_gain": jnp.asarray(m.azimuth_gain),
+            "s_kr": jnp.asarray(m.range_spread),
             "s_norm_r": jnp.asarray(m._norm_r, jnp.float64), "s_common": jnp.asarray(m.common_power),
             "s_tvg_fixed_db": jnp.asarray(self._tvg_fixed_db()), "s_kb": jnp.asarray(m.beam_leakage),
             "s_sl0": jnp.asarray(float(self.spec.source_level_db)),
@@ -250,8 +251,22 @@ def fan_rays(params: dict, data: dict, st: SensorStatic) -> tuple[jax.Array, jax
 def leakage_kernel(params: dict, data: dict, st: SensorStatic) -> jax.Array:
     """The azimuth leakage across beams (:func:`sonarsim.sensor.patterns.azimuth_kernels`),
     on the compiled model's beam offsets, from ``sensor.azimuth_width_deg``."""
+    return _leakage(params, data, st)[0]
+
+
+def column_factor(params: dict, data: dict, st: SensorStatic) -> jax.Array:
+    """(n_beams,) the compiled model's column factor: with an azimuth pattern each beam's cell
+    (radians, the steering's cosine in it) times the pattern's equivalent width in beam
+    spacings (:func:`sonarsim.sensor.patterns.azimuth_kernels`'s gain), which the width moves."""
     if st.azimuth is None:
-        return data["s_kb"]
+        return data["s_column"]
+    return data["s_column"] * _leakage(params, data, st)[1] / data["s_azimuth_gain"]
+
+
+def _leakage(params: dict, data: dict, st: SensorStatic) -> tuple[jax.Array, jax.Array]:
+    """``(kernel, gain)``: the normalised leakage and its sum before normalising."""
+    if st.azimuth is None:
+        return data["s_kb"], jnp.ones(())
     m = jnp.asarray(st.leakage_m, jnp.float64)
     sub = (jnp.arange(16) + 0.5) / 16 - 0.5
     offsets = (m[:, None] + sub[None, :]) * st.beam_spacing_deg * (jnp.pi / 180.0)
@@ -261,7 +276,7 @@ def leakage_kernel(params: dict, data: dict, st: SensorStatic) -> jax.Array:
     total = jnp.sum(k)
     ok = total > jnp.finfo(k.dtype).tiny
     centre = jnp.asarray([1.0 if m == 0 else 0.0 for m in st.leakage_m], k.dtype)
-    return jnp.where(ok, k / jnp.where(ok, total, 1.0), centre)
+    return jnp.where(ok, k / jnp.where(ok, total, 1.0), centre), total
 
 
 def _blur(x: jax.Array, kernel: jax.Array, axis: int) -> jax.Array:
@@ -289,7 +304,7 @@ def _blur(x: jax.Array, kernel: jax.Array, axis: int) -> jax.Array:
 
 def expected_output(image: jax.Array, params: dict, data: dict, st: SensorStatic) -> jax.Array:
     """The sensor's expected output (n_range_bins, n_beams) of the renderer's total image."""
-    x = image * data["s_column"][None, :]
+    x = image * column_factor(params, data, st)[None, :]
     m = _blur(_blur(x, leakage_kernel(params, data, st), axis=1), data["s_kr"], axis=0)
     sl = 10.0 ** ((params["sensor.source_level_db"] - data["s_sl0"]) / 10.0)
     mu = (data["s_echo_gain"] * sl)[:, None] * m + data["s_bang"][:, None] * data["s_bang_beam"][None, :]

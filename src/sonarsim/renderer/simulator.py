@@ -189,6 +189,10 @@ class Simulator:
             kernels = "numpy"
         self.kernels = kernels
         self._work: compiled.Workspace | None = None
+        # The columns' traces (an azimuth pattern weighing a beam's columns of rays apart) run in
+        # a workspace of their own: the frame's paths, read later, stay in the frame's.
+        self._column_work: compiled.Workspace | None = None
+        self._column_fans: tuple | None = None
         # Frames of several poses (trace_poses): the fans repeated and their workspaces, the
         # last two kept (a run of full batches and the shorter last one).
         self._batch_fans: list[tuple] = []  # (fan, n_poses, the fan repeated n_poses times)
@@ -747,7 +751,11 @@ class Simulator:
             signatures = functools.partial(self._signature_images, sonar, fan, legs, sets, table)
         components = frame_components(stack, render.bounces, render.max_order, signatures, total)
         model = self.sensor_model(image_sonar) if sensor is True else (sensor or None)
-        total = self.sense(components["total"], pose, frame, speckle, model)
+        columns = self.ray_columns(paths) if sensor is True and model is not None else None
+        if columns is None:
+            total = self.sense(components["total"], pose, frame, speckle, model)
+        else:
+            total = self.sense(columns[0], pose, frame, speckle, model, column_offsets_deg=columns[1])
         rays = None
         if keep_rays:
             primary = legs[0]
@@ -770,8 +778,53 @@ class Simulator:
             components=components, sonar=sonar, pose=pose, rays=rays, config=config, labels=truth,
         )
 
+    def ray_columns(self, paths: FramePaths) -> tuple[np.ndarray, np.ndarray] | None:
+        """A frame's total image, one for each column of its beams' rays, where the sensor's
+        azimuth pattern weighs them apart (``render.azimuth_samples`` above 1).
+
+        The pattern then acts on each column at its own angle, so that a point target is heard
+        at the pattern's value at its own azimuth, not at its beam's average
+        (:meth:`~sonarsim.sensor.model.SensorModel.fold_columns`). Each column's rays are traced
+        once more, on their own (the frame's cost once more, in a workspace of their own);
+        the components and labels stay the frame's.
+
+        Returns
+        -------
+        None where nothing is weighed apart (no azimuth pattern, one column, an instrument's
+        own rays), else ``(columns, offsets_deg)``: ``(n_range_bins, n_beams, S)`` float32
+        totals (their mean the frame's total) and ``(S,)`` each column's angle from its
+        beam's centre, degrees.
+        """
+        model = self.sensor_model(paths.sonar)
+        fan = paths.fan
+        if (model is None or model.spec.azimuth_pattern is None or fan.shape[1] < 2
+                or fan is not self._fans.get(paths.sonar)):
+            return None
+        n_sub = fan.shape[1]
+        if self._column_fans is None or self._column_fans[0] is not fan:
+            subs = [RayFan(directions=np.ascontiguousarray(fan.directions[:, s:s + 1]),
+                           azimuth_rad=np.ascontiguousarray(fan.azimuth_rad[:, s:s + 1]),
+                           elevation_rad=fan.elevation_rad,
+                           weight=np.ascontiguousarray(fan.weight[:, s:s + 1] * n_sub)) for s in range(n_sub)]
+            centre = np.radians(paths.sonar.azimuth_deg)[:, None]
+            offsets = np.degrees(np.median(fan.azimuth_rad - centre, axis=0))
+            self._column_fans = (fan, subs, offsets)
+        _, subs, offsets = self._column_fans
+        render = self.scene.render
+        traced = self.traced_sonar(paths.sonar)
+        out = np.empty(paths.total.shape + (n_sub,) if paths.total is not None
+                       else (paths.sonar.n_range_bins, paths.sonar.n_beams, n_sub), np.float32)
+        own, self._work = self._work, self._column_work
+        try:
+            for s, sub in enumerate(subs):
+                p = self.trace(paths.pose, paths.sonar, fan=sub, traced=traced)
+                out[..., s] = frame_components(p.stack, render.bounces, render.max_order, None, p.total)["total"]
+        finally:
+            self._column_work, self._work = self._work, own
+        return out, offsets
+
     def sense(self, total: np.ndarray, pose: Pose, frame: int | None, speckle: bool | None,
-              model: SensorModel | None) -> np.ndarray:
+              model: SensorModel | None, column_offsets_deg: np.ndarray | None = None) -> np.ndarray:
         """A frame's expected echo through the sensor ``model`` (or, without one, the
         ``render.speckle`` draw): the last step of :meth:`form`, which an instrument that forms
         several poses in one frame (:meth:`trace_poses`) takes pose by pose.
@@ -779,6 +832,8 @@ class Simulator:
         Parameters
         ----------
         total : (n_range_bins, n_beams) float32 ndarray
+            Or ``(n_range_bins, n_beams, S)``, the total of each column of rays apart, with
+            ``column_offsets_deg`` (:meth:`ray_columns`).
         pose : Pose
             The frame's (``sensor.speckle.anchor: world`` draws from it).
         frame : int or None
@@ -801,7 +856,7 @@ class Simulator:
             if model.spec.speckle is not None and model.spec.speckle.anchor == "world":
                 speckle_rng = model.anchored_rng(pose.position_m, pose.rpy_deg)  # still sonar, still speckle
             return model.apply(total, speckle_rng, speckle is not False, pool=self._pool, noise_rng=rng,
-                               warn_saturation=True)
+                               warn_saturation=True, column_offsets_deg=column_offsets_deg)
         return (total * rng.exponential(1.0, total.shape)).astype(np.float32)
 
     def render(self, pose: Any = None, sonar: SonarConfig | None = None, keep_rays: bool = True,

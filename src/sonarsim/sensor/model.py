@@ -223,9 +223,6 @@ class SensorModel:
         # per ray, see config.materials and core.rays); times each beam's width in radians it is
         # sigma / r^2.
         self.column_factor = np.radians(sonar.effective_beam_width_deg()).astype(np.float32)
-        if spec.azimuth_pattern is not None and spec.azimuth_pattern.steering_loss:
-            # a steered beam's aperture is foreshortened: its directivity falls as cos(theta)
-            self.column_factor = (self.column_factor * np.cos(np.radians(sonar.azimuth_deg))).astype(np.float32)
         spacing = float(np.median(np.abs(np.diff(sonar.azimuth_deg)))) if sonar.n_beams > 1 else 1.0
         # The cell a pose is quantised to for world-anchored speckle (see anchored_rng).
         self._anchor_cell = np.array([sonar.range_resolution_m / 2.0] * 3 + [spacing / 2.0] * 3)
@@ -236,14 +233,27 @@ class SensorModel:
                 check_azimuth_width(spec, spacing, default_width)
         except ConfigError as exc:
             raise ConfigError(exc.key if exc.key.startswith("sonar.") else f"sensor.{exc.key}", exc.detail) from None
+        self._spacing_deg, self._default_width_deg = spacing, default_width
+        self._sub_kernels: dict = {}
         if spec.azimuth_pattern is None:
-            self.beam_leakage, self.beam_amplitude = np.ones(1), np.ones(1)
+            self.beam_leakage, self.beam_amplitude, self.azimuth_gain = np.ones(1), np.ones(1), 1.0
         else:
-            self.beam_leakage, self.beam_amplitude = patterns.azimuth_kernels(spec.azimuth_pattern, spacing,
-                                                                              default_width)
+            self.beam_leakage, self.beam_amplitude, self.azimuth_gain = patterns.azimuth_kernels(
+                spec.azimuth_pattern, spacing, default_width)
+            # With a receive pattern the beam's width is the pattern's: each beam's rays stand
+            # for its cell (one beam spacing of azimuth, where the rays tile the fan), and the
+            # pattern's equivalent width (azimuth_gain spacings) is what a beam hears of an even
+            # floor, while a point target on its axis is heard at the pattern's peak. (The
+            # sonar's beam_width_deg would count the overlap of neighbouring beams twice.)
+            self.column_factor = (np.radians(-np.diff(sonar.beam_edges_deg)) * self.azimuth_gain).astype(np.float32)
+            if spec.azimuth_pattern.steering_loss:
+                # a steered beam's aperture is foreshortened: its directivity falls as cos(theta)
+                self.column_factor = (self.column_factor * np.cos(np.radians(sonar.azimuth_deg))).astype(np.float32)
         self.range_spread, self.range_amplitude = pulse.range_kernels(spec.pulse, sonar.range_resolution_m,
                                                                       spec.sound_speed_m_s)
         self._kb = self.beam_leakage.astype(np.float32)
+        self._one = np.ones(1, np.float32)
+        self._ones_b = np.ones(sonar.n_beams, np.float32)
         self._kr = self.range_spread.astype(np.float32)
         self._norm_b = _edge_norm(self.beam_leakage, sonar.n_beams)
         self._norm_r = _edge_norm(self.range_spread, sonar.n_range_bins)
@@ -333,27 +343,95 @@ class SensorModel:
         pose = np.concatenate([np.asarray(position_m, float), np.asarray(rpy_deg, float)])
         return streams.world_rng(self.seed, np.floor(pose / self._anchor_cell))
 
-    def mean_image(self, image: np.ndarray, pool: Executor | None = None) -> np.ndarray:
-        """``M``: the image through the azimuth leakage and the range spread (float32, same shape)."""
-        x = np.ascontiguousarray(image, dtype=np.float32)
+    def mean_image(self, image: np.ndarray, pool: Executor | None = None,
+                   column_offsets_deg: np.ndarray | None = None) -> np.ndarray:
+        """``M``: the image through the azimuth leakage and the range spread (float32).
+
+        ``image``: (n_range_bins, n_beams), or (n_range_bins, n_beams, S) of a beam's S columns
+        of rays with ``column_offsets_deg`` (see :meth:`fold_columns`)."""
+        x, kb, col, norm_b = self._beams_input(image, column_offsets_deg)
         if _stage is None:
-            return self.mean_image_reference(x)
-        if len(self._kb) == 1 and len(self._kr) == 1:  # no leakage, no pulse: the beam's width only
-            return x * (self.column_factor * self._kb[0])[None, :]
+            return self._mean_reference(x, kb, col, norm_b)
+        if len(kb) == 1 and len(self._kr) == 1:  # no leakage, no pulse: the beam's width only
+            return x * (col * kb[0])[None, :]
         tmp, out = self._buffers(x.shape)
-        self._rows(pool, x.shape[0], lambda a, b: _stage.blur_beams(x, self.column_factor, self._kb, self._norm_b, tmp, a, b))
+        self._rows(pool, x.shape[0], lambda a, b: _stage.blur_beams(x, col, kb, norm_b, tmp, a, b))
         self._rows(pool, x.shape[0], lambda a, b: _stage.blur_range(tmp, self._kr, self._norm_r, out, a, b))
         return out
 
+    def _beams_input(self, image: np.ndarray, column_offsets_deg: np.ndarray | None):
+        """``(x, kb, column, norm_b)`` for the beam blur: the image and the model's own kernel, or
+        a beam's columns of rays already weighed by the pattern (:meth:`fold_columns`), which
+        then pass through the blur unchanged."""
+        x = np.asarray(image)
+        if x.ndim == 2:
+            return np.ascontiguousarray(x, dtype=np.float32), self._kb, self.column_factor, self._norm_b
+        if column_offsets_deg is None:
+            raise ValueError("an image of a beam's columns of rays needs their column_offsets_deg")
+        folded = self.fold_columns(x, column_offsets_deg)
+        return folded, self._one, self._ones_b, self._ones_b
+
+    def column_kernel(self, column_offsets_deg: np.ndarray) -> np.ndarray:
+        """(2K + 1, S) kernel of :func:`~sonarsim.sensor.patterns.sub_ray_kernel` for a beam's S
+        columns of rays at these offsets from its centre (degrees; cached); without an azimuth
+        pattern, every column counts alike in its own beam only."""
+        offsets = np.round(np.asarray(column_offsets_deg, dtype=float).reshape(-1), 12)
+        key = tuple(offsets)
+        k = self._sub_kernels.get(key)
+        if k is None:
+            if self.spec.azimuth_pattern is None:
+                k = np.full((1, len(offsets)), 1.0 / len(offsets))
+            else:
+                k, _ = patterns.sub_ray_kernel(self.spec.azimuth_pattern, self._spacing_deg, self._default_width_deg,
+                                               offsets, (len(self.beam_leakage) - 1) // 2)
+            self._sub_kernels[key] = k
+        return k
+
+    def fold_columns(self, image: np.ndarray, column_offsets_deg: np.ndarray) -> np.ndarray:
+        """A beam's S columns of rays through the azimuth pattern, each at its own angle.
+
+        ``out[:, j] = n_j sum_{d, s} k[K + d, s] c_{j+d} x[:, j + d, s]`` with k the
+        :meth:`column_kernel`, c the column factor and n_j the edge normalisation (an even
+        image stays even). An even image gives what the one-column image does (the kernel
+        averaged over the columns is the beam's leakage); a point target in one column is
+        heard at the pattern's value at that column's angle, within the column's width.
+
+        Parameters
+        ----------
+        image : (n_range_bins, n_beams, S) float array
+            Each column's own image (the beam's image is their mean), ``l(r) = 1``.
+        column_offsets_deg : (S,) float array
+            Each column's angle from its beam's centre, degrees.
+
+        Returns
+        -------
+        (n_range_bins, n_beams) float32 ndarray: the image after the pattern and the column factor.
+        """
+        x = np.asarray(image, dtype=np.float32)
+        if x.ndim != 3 or x.shape[:2] != self.pool.shape or x.shape[2] != len(np.ravel(column_offsets_deg)):
+            raise ValueError(f"columns of shape {x.shape}; this sensor's sonar forms {self.pool.shape} with "
+                             f"{len(np.ravel(column_offsets_deg))} columns a beam")
+        k = self.column_kernel(column_offsets_deg).astype(np.float32)
+        h = (k.shape[0] - 1) // 2
+        n_b = x.shape[1]
+        pad = np.zeros((x.shape[0], n_b + 2 * h, x.shape[2]), np.float32)
+        pad[:, h:h + n_b] = x * self.column_factor[None, :, None]
+        out = np.zeros(x.shape[:2], np.float32)
+        for d in range(k.shape[0]):  # a NumPy product over the frame per offset (2K + 1 of them)
+            out += pad[:, d:d + n_b, :] @ k[d]
+        return np.ascontiguousarray(out * _edge_norm(k.sum(axis=1), n_b).astype(np.float32)[None, :])
+
     def apply(self, image: np.ndarray, rng: np.random.Generator | None = None, speckle: bool = True,
               pool: Executor | None = None, noise_rng: np.random.Generator | None = None,
-              warn_saturation: bool = False) -> np.ndarray:
+              warn_saturation: bool = False, column_offsets_deg: np.ndarray | None = None) -> np.ndarray:
         """The device's output for a range-compensated image.
 
         Parameters
         ----------
-        image : (n_range_bins, n_beams) float array
-            The renderer's total image with ``l(r) = 1``.
+        image : (n_range_bins, n_beams) or (n_range_bins, n_beams, S) float array
+            The renderer's total image with ``l(r) = 1``; or its S columns of rays per beam
+            apart (each an image of its own column, their mean the beam's image), for the
+            azimuth pattern to weigh each at its own angle (:meth:`fold_columns`).
         rng : numpy Generator, optional
             Chooses the speckle and noise fields of this frame (ignored with ``speckle=False``);
             default: frame 0 of the sensor's seed.
@@ -363,6 +441,8 @@ class SensorModel:
             A worker thread: the rows are split between it and the caller.
         noise_rng : numpy Generator, optional
             Chooses the noise field instead of ``rng`` (the frame's, when the speckle is the pose's).
+        column_offsets_deg : (S,) float array, optional
+            With a 3-D ``image``: each column's angle from its beam's centre, degrees.
         warn_saturation : bool
             Warn (:class:`~sonarsim.sensor.output.SaturationWarning`, one line naming the
             fraction) when more than :data:`~sonarsim.sensor.output.SATURATION_WARN_FRACTION` of
@@ -374,17 +454,17 @@ class SensorModel:
         -------
         (n_range_bins, n_beams) float32 ndarray in device units (integers for integer data types).
         """
-        out = self._apply(image, rng, speckle, pool, noise_rng)
+        out = self._apply(image, rng, speckle, pool, noise_rng, column_offsets_deg)
         if warn_saturation and not self._saturation_warned:
             self._saturation_warned = output.saturation_warning(out, self.spec.output) > \
                 output.SATURATION_WARN_FRACTION
         return out
 
     def _apply(self, image: np.ndarray, rng: np.random.Generator | None, speckle: bool, pool: Executor | None,
-               noise_rng: np.random.Generator | None) -> np.ndarray:
-        x = np.ascontiguousarray(image, dtype=np.float32)
+               noise_rng: np.random.Generator | None, column_offsets_deg: np.ndarray | None = None) -> np.ndarray:
+        x, kb, col, norm_b = self._beams_input(image, column_offsets_deg)
         if _stage is None:
-            m = self.mean_image_reference(x)
+            m = self._mean_reference(x, kb, col, norm_b)
             draws = None if not speckle else self.draws(rng or self._default_rng(), noise_rng)
             return self.combine_reference(m, draws, speckle)
         out = np.empty_like(x)
@@ -402,7 +482,7 @@ class SensorModel:
         n_r = x.shape[0]
         t = self.expected_output
         args = (
-            x, self.column_factor, self._kb, self._norm_b, self._kr, self._norm_r,
+            x, col, kb, norm_b, self._kr, self._norm_r,
             self.echo_gain, self.bang, self.bang_beam, self.tvg, self.beam_gain,
             self.noise_row if speckle else self.noise_expected, common_re, common_im,
             sf, ds.field if ds else 0, ds.row if ds else 0, ds.beam if ds else 0, p.speckle_scale,
@@ -421,12 +501,15 @@ class SensorModel:
 
     # NumPy twins (the reference the compiled loops are tested against) -------------------------
 
-    def mean_image_reference(self, image: np.ndarray) -> np.ndarray:
-        x = np.asarray(image, dtype=np.float64) * self.column_factor[None, :]
-        kb, kr = self.beam_leakage, self.range_spread
+    def mean_image_reference(self, image: np.ndarray, column_offsets_deg: np.ndarray | None = None) -> np.ndarray:
+        return self._mean_reference(*self._beams_input(image, column_offsets_deg))
+
+    def _mean_reference(self, image: np.ndarray, kb: np.ndarray, column: np.ndarray, norm_b: np.ndarray) -> np.ndarray:
+        x = np.asarray(image, dtype=np.float64) * column[None, :]
+        kb, kr = np.asarray(kb, dtype=np.float64), self.range_spread
         hb, hr = len(kb) // 2, len(kr) // 2
         xb = np.pad(x, ((0, 0), (hb, hb)))
-        t = sum(kb[m] * xb[:, m:m + x.shape[1]] for m in range(len(kb))) * self._norm_b[None, :]
+        t = sum(kb[m] * xb[:, m:m + x.shape[1]] for m in range(len(kb))) * norm_b[None, :]
         tr = np.pad(t, ((hr, hr), (0, 0)))
         out = sum(kr[m] * tr[m:m + x.shape[0], :] for m in range(len(kr))) * self._norm_r[:, None]
         return out.astype(np.float32)

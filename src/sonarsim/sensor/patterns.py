@@ -144,17 +144,23 @@ def correction_gain(angle_rad: np.ndarray, spec: PatternSpec, width_deg: float) 
 
 
 def azimuth_kernels(spec: PatternSpec, beam_spacing_deg: float, default_width_deg: float,
-                    oversample: int = 16) -> tuple[np.ndarray, np.ndarray]:
+                    oversample: int = 16) -> tuple[np.ndarray, np.ndarray, float]:
     """Across-beam kernels of the receive azimuth pattern, on beams ``-K..K`` (K = leakage_beams).
 
     Returns
     -------
     leakage : (2K + 1,) float64 ndarray, sums to 1
         Power leaking from an echo in beam j into beam j + m: the pattern averaged over the
-        width of the echo's beam (its position inside the beam is not known).
+        beam's cell, one beam spacing wide about its centre (where inside it the echo lies is
+        not known when each beam has one column of rays).
     amplitude : (2K + 1,) float64 ndarray, squares sum to 1
         The pattern's amplitude at beam offsets m: the filter that gives white scatterer
         amplitudes the correlation across beams of the beamformer's output.
+    gain : float
+        The leakage before it was normalised, summed: the pattern's equivalent width in beam
+        spacings (``int g dtheta / spacing``). A beam hears ``gain`` spacings of an even floor
+        (the sonar equation's equivalent beam width), and a point target on its axis at the
+        pattern's peak (:class:`~sonarsim.sensor.model.SensorModel`'s column factor).
 
     The pattern must be at least an eighth of the beam spacing wide
     (:func:`sonarsim.config.sensor.check_azimuth_width`, checked when the scene is built and
@@ -165,9 +171,7 @@ def azimuth_kernels(spec: PatternSpec, beam_spacing_deg: float, default_width_de
     if k is None:
         k = min(max(int(math.ceil(LEAKAGE_WIDTHS * width / beam_spacing_deg)), 1), MAX_KERNEL_HALF_WIDTH)
     m = np.arange(-k, k + 1, dtype=float)
-    sub = (np.arange(oversample) + 0.5) / oversample - 0.5
-    offsets = np.radians((m[:, None] + sub[None, :]) * beam_spacing_deg)
-    leakage = pattern_gain(offsets, spec, default_width_deg, ways=1).mean(axis=1)
+    leakage = _cell_gain(m * beam_spacing_deg, spec, default_width_deg, beam_spacing_deg, oversample)
     if spec.leakage_beams is None:
         # Beyond where every beam's leakage is below LEAKAGE_FLOOR of the main beam, stop:
         # a window's fast-falling sidelobes need fewer beams than a uniform array's.
@@ -175,12 +179,60 @@ def azimuth_kernels(spec: PatternSpec, beam_spacing_deg: float, default_width_de
         reach = int(np.abs(m[strong]).max())
         keep = slice(k - reach, k + reach + 1)
         leakage, m = leakage[keep], m[keep]
-    leakage /= leakage.sum()
+    gain = float(leakage.sum())
+    leakage = leakage / gain
     amp = np.sqrt(pattern_gain(np.radians(m * beam_spacing_deg), spec, default_width_deg, ways=1))
     if spec.shape == "line":  # keep the sign of the sidelobes (the amplitude is real and symmetric)
         amp = _signed_line_amplitude(np.radians(m * beam_spacing_deg), spec, default_width_deg)
     amp = amp / np.sqrt(np.sum(amp * amp))
-    return leakage, amp
+    return leakage, amp, gain
+
+
+def sub_ray_kernel(spec: PatternSpec, beam_spacing_deg: float, default_width_deg: float,
+                   ray_offsets_deg: np.ndarray, half_width: int, oversample: int = 16) -> tuple[np.ndarray, float]:
+    """The azimuth pattern at each of a beam's columns of rays (``render.azimuth_samples``).
+
+    With S columns of rays per beam the image knows where inside a beam an echo came from;
+    the pattern then weighs each column at its own angle, so that a point target on a beam's
+    axis is heard at the pattern's peak and its response across azimuth has the pattern's
+    width (both to within the columns' spacing, ``spacing / S``).
+
+    Parameters
+    ----------
+    spec : PatternSpec
+    beam_spacing_deg, default_width_deg : float
+    ray_offsets_deg : (S,) float array
+        Each column's angle from its beam's centre (:func:`sonarsim.core.rays.make_ray_fan`:
+        ``(s + 1/2) / S - 1/2`` of the beam's width), degrees.
+    half_width : int
+        K: the kernel covers beams ``-K..K`` (that of :func:`azimuth_kernels`).
+
+    Returns
+    -------
+    kernel : (2K + 1, S) float64 ndarray, sums to 1
+        ``kernel[K + d, s]``: the power beam j hears of column s of beam ``j + d``, the pattern
+        at ``theta_{j+d} + offset_s - theta_j = offset_s - d spacing`` averaged over the
+        column's cell (``spacing / S`` wide), divided by ``S`` times ``gain``.
+    gain : float
+        The unnormalised kernel's sum over offsets, averaged over the columns: the equivalent
+        width in beam spacings, as :func:`azimuth_kernels`'s.
+    """
+    offsets = np.asarray(ray_offsets_deg, dtype=float).reshape(-1)
+    n_sub = len(offsets)
+    d = np.arange(-half_width, half_width + 1, dtype=float)
+    angle = offsets[None, :] - d[:, None] * beam_spacing_deg  # (2K + 1, S)
+    k = _cell_gain(angle.reshape(-1), spec, default_width_deg, beam_spacing_deg / n_sub, oversample)
+    k = k.reshape(angle.shape)
+    gain = float(k.sum() / n_sub)
+    return k / (gain * n_sub), gain
+
+
+def _cell_gain(angle_deg: np.ndarray, spec: PatternSpec, default_width_deg: float, cell_deg: float,
+               oversample: int) -> np.ndarray:
+    """The one-way pattern averaged over a cell ``cell_deg`` wide about each angle (midpoints)."""
+    sub = (np.arange(oversample) + 0.5) / oversample - 0.5
+    offsets = np.radians(np.asarray(angle_deg, dtype=float)[:, None] + sub[None, :] * cell_deg)
+    return pattern_gain(offsets, spec, default_width_deg, ways=1).mean(axis=1)
 
 
 def _signed_line_amplitude(a: np.ndarray, spec: PatternSpec, default_width_deg: float) -> np.ndarray:
