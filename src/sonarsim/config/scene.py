@@ -664,7 +664,7 @@ class Scene:
 
     def __post_init__(self) -> None:
         # The water's properties replace the sensor's own (its absorption, its speed): one water;
-        # its profile is the true water of an instrument that refracts (a multibeam) and has none.
+        # its profile is the true water of an instrument that refracts (a multibeam, a side-scan) and has none.
         object.__setattr__(self, "sensor", fold_into_sensor(self.sensor, self.water))
         if self.water is not None and self.water.profile is not None:
             object.__setattr__(self, "instruments", tuple(

@@ -14,7 +14,7 @@ absorption formulas take (they replace those of the sensor's ``absorption`` sect
 presets assume fresh water at 15 degC). A device ranges with the speed it is set to
 (``sonar.sound_speed_m_s``): where that differs from the water's, every range it reports is
 scaled by ``c_device / c_water``. ``profile`` (a layered, piecewise-linear sound-speed profile)
-is the true water of the multibeam's refraction where its section gives none.
+is the true water of the multibeam's and the side-scan's refraction where their sections give none.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ class WaterSpec:
     sound_speed_m_s : float or None
         Given speed, m/s in [1300, 1700]; ``None``: from the equations.
     profile : tuple of (depth_m, speed_m_s) or None
-        A layered profile, depths rising from the surface (the multibeam's true water).
+        A layered profile, depths rising from the surface (the multibeam's and side-scan's true water).
     preset : str or None
         The preset the section started from.
     """

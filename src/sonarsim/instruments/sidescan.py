@@ -16,6 +16,20 @@ Scene section (``type: sidescan``)::
      depression_deg: 15, vertical_beam_width_deg: 50, horizontal_beam_width_deg: 0.5,
      frequency_khz: 600, ping_rate_hz: 25, sound_speed_m_s: 1500, sensor: {...}}
 
+Refraction (``sound_speed_profile``: the true water, depth below the surface -> speed, as the
+multibeam's; default the scene's ``water.profile``; ``surface_height_m``: where the surface is,
+default the head's own height at each ping). The engine casts straight rays, so each side's
+line is formed on straight-ray ranges and then mapped onto the device's time axis: the echo at
+straight range ``rho`` is taken from the floor under the head at that range (at the ping's
+altitude; straight down before the first return) and arrives at the one-way time ``T`` of the
+ray through the profile to that point (two-point ray tracing,
+:meth:`~sonarsim.instruments.multibeam.SoundSpeedProfile.solve`); the device reports it at
+``sound_speed_m_s T``. An object above the floor moves as the floor at its range does (an
+approximation: the offset of a target 1 m above a 10 m altitude floor in a 0.5 s^-1 gradient
+is millimetres), and each sample keeps its intensity (the stretch, ``c_device / c_water``, is
+within 2 % of 1). The straight-ray line is rendered far enough to fill the device's window
+where the water is faster than the speed the device ranges with.
+
 Known simplification: the rays of a beam sample azimuth about the channel's own axis, so the
 beam's along-track width narrows as ``cos`` of the angle from the axis towards nadir (a line
 array's beam is a cone of constant along-track width); it changes the intensity near nadir, not
@@ -24,10 +38,11 @@ where anything lies (issue 39, "arrays as built").
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -38,6 +53,7 @@ from ..core.transforms import Pose
 from ..image.films import Waterfall
 from ..sensor.model import SensorModel
 from . import ping_geometry, pose_frames, renders
+from .multibeam import SoundSpeedProfile
 from ._sections import LineArrayBeam, check_range, check_window, parse_section, section_dict
 
 __all__ = ["SidescanSpec", "render_sidescan", "floor_shadow", "ping_geometry"]
@@ -74,6 +90,12 @@ class SidescanSpec(LineArrayBeam, InstrumentSpec):
     sensor : SensorSpec or None
         The sensor chain on the waterfall (TVG, speckle, noise, counts): each side's line is a
         one-beam image of ``n_samples`` range bins.
+    sound_speed_profile : SoundSpeedProfile or None
+        The true water (scene files: ``[[depth_m, speed_m_s], ...]``; default the scene's
+        ``water.profile``); None: straight rays, ranges as the engine's.
+    surface_height_m : float or None
+        The world height of the water's surface (the profile counts depth from it); None: at
+        the head every ping.
     preset : str or None
     """
 
@@ -81,6 +103,7 @@ class SidescanSpec(LineArrayBeam, InstrumentSpec):
     keys: ClassVar[tuple[str, ...]] = (
         "preset", "frequency_khz", "horizontal_beam_width_deg", "vertical_beam_width_deg", "depression_deg",
         "range_min_m", "range_max_m", "n_samples", "ping_rate_hz", "sound_speed_m_s", "sensor",
+        "sound_speed_profile", "surface_height_m",
     )
 
     frequency_khz: float = 600.0
@@ -93,9 +116,16 @@ class SidescanSpec(LineArrayBeam, InstrumentSpec):
     ping_rate_hz: float | None = None
     sound_speed_m_s: float = 1500.0
     sensor: SensorSpec | None = None
+    sound_speed_profile: SoundSpeedProfile | None = None
+    surface_height_m: float | None = None
     preset: str | None = None
 
     def __post_init__(self) -> None:
+        if self.sound_speed_profile is not None and not isinstance(self.sound_speed_profile, SoundSpeedProfile):
+            object.__setattr__(self, "sound_speed_profile",
+                               SoundSpeedProfile.parse(self.sound_speed_profile, "sound_speed_profile"))
+        if self.surface_height_m is not None:
+            check_range(self, "surface_height_m", -1e5, 1e5)
         check_window(self)
         check_range(self, "horizontal_beam_width_deg", 0.01, 20.0)
         check_range(self, "vertical_beam_width_deg", 1.0, 120.0)
@@ -134,12 +164,38 @@ class SidescanSpec(LineArrayBeam, InstrumentSpec):
 
     # -- files -----------------------------------------------------------------------------
 
+    def traced_sonar(self) -> SonarConfig:
+        """The grid each side's straight-ray line is rendered on: the channel's, its window
+        reaching as far as the profile's fastest water sends the device's last sample."""
+        sonar = self.channel_sonar()
+        if self.sound_speed_profile is None:
+            return sonar
+        stretch = max(self.sound_speed_profile.speed_m_s) / self.sound_speed_m_s
+        if stretch <= 1.0:
+            return sonar
+        n = int(math.ceil(self.n_samples * stretch)) + 1
+        return SonarConfig.uniform(
+            n_beams=1, azimuth_fov_deg=self.horizontal_beam_width_deg, elevation_fov_deg=2.0 * self.half_span_deg,
+            range_min_m=self.range_min_m, range_max_m=self.range_min_m + n * sonar.range_resolution_m,
+            n_range_bins=n, frequency_khz=self.frequency_khz, beam_width_deg=self.horizontal_beam_width_deg,
+        )
+
+    # -- files -----------------------------------------------------------------------------
+
     @classmethod
     def parse(cls, d: Mapping, key: str, base_dir: Path | None, name: str, mount: Pose) -> "SidescanSpec":
-        return parse_section(cls, d, key, base_dir, name, mount, integers=("n_samples",), nullable=("ping_rate_hz",))
+        def convert(k: str, v: Any, where: str) -> Any:
+            if v is None and k in ("sound_speed_profile", "surface_height_m"):
+                return None
+            if k == "sound_speed_profile":
+                return SoundSpeedProfile.parse(v, where)
+            return NotImplemented
+
+        return parse_section(cls, d, key, base_dir, name, mount, integers=("n_samples",), nullable=("ping_rate_hz",),
+                             convert=convert)
 
     def to_dict(self) -> dict:
-        return section_dict(self)
+        return section_dict(self, lambda v: v.to_list() if isinstance(v, SoundSpeedProfile) else v)
 
 
 # -- rendering ---------------------------------------------------------------------------
@@ -223,6 +279,7 @@ def render_sidescan(sim, spec: SidescanSpec, poses: list[Pose], times_s: np.ndar
     """
     channels = spec.channels()
     sonar = channels[0].sonar
+    traced = spec.traced_sonar()  # the straight-ray lines' grid (the device's, or longer)
     fan = _fan(sim, spec, sonar)
     model = SensorModel(spec.sensor, sonar, sim.scene.render.seed) if spec.sensor is not None else False
     n = len(poses)
@@ -237,8 +294,13 @@ def render_sidescan(sim, spec: SidescanSpec, poses: list[Pose], times_s: np.ndar
     # of them go through the engine in one frame (pose_frames), each side's line a column.
     at = [mounted(vehicle, channel.mount) for vehicle in poses for channel in channels]
     model = model or None
-    for start, stop, paths, image in pose_frames(sim, at, sonar, fan, labels="total" if labels else False):
+    source = None
+    if spec.sound_speed_profile is not None:
+        source = refraction_map(spec, sim, at, traced.range_m, sonar.range_m)  # (2 n, n_samples)
+    for start, stop, paths, image in pose_frames(sim, at, traced, fan, labels="total" if labels else False):
         lines = image.components["total"]
+        if source is not None:  # the straight-ray lines onto the device's time axis
+            lines = refract_lines(lines, traced.range_m, source[start:stop])
         flat = out.reshape(2 * n, spec.n_samples)  # frame f = 2 k + s is row f
         if model is None and not (sim.scene.render.speckle and speckle is not False):
             flat[start:stop] = lines.T  # no sensor, no draws: the expected lines as they are
@@ -246,8 +308,13 @@ def render_sidescan(sim, spec: SidescanSpec, poses: list[Pose], times_s: np.ndar
             for j, f in enumerate(range(start, stop)):
                 flat[f] = sim.sense(lines[:, j:j + 1], at[f], 2 * first_ping + f, speckle, model)[:, 0]
         if labels:
-            instance.reshape(2 * n, -1)[start:stop] = image.labels.instance["total"].T
-            shadow.reshape(2 * n, -1)[start:stop] = floor_shadow(paths, sim, image.components.get("object")).T
+            inst = image.labels.instance["total"]
+            hidden = floor_shadow(paths, sim, image.components.get("object"))
+            if source is not None:
+                inst, hidden = (refract_lines(x, traced.range_m, source[start:stop], nearest=True)
+                                for x in (inst, hidden))
+            instance.reshape(2 * n, -1)[start:stop] = inst.T
+            shadow.reshape(2 * n, -1)[start:stop] = hidden.T
     extra: dict = {}
     if labels:
         ids = tuple(o.name for o in sim.scene.objects) + tuple(p.name for p in sim.scene.reflecting_planes)
@@ -255,6 +322,83 @@ def render_sidescan(sim, spec: SidescanSpec, poses: list[Pose], times_s: np.ndar
                  "ids": ids}
     return Waterfall(out, spec.range_min_m, spec.range_max_m, ping_geometry(sim, poses, times_s, spec),
                      source="render", **extra)
+
+
+def refraction_map(spec: SidescanSpec, sim, heads: list[Pose], straight_m: np.ndarray,
+                   device_m: np.ndarray) -> np.ndarray:
+    """Where each of the device's samples finds its echo on the straight-ray line, per frame.
+
+    The echo at straight range ``rho`` comes from the floor under the head (at the ping's
+    altitude above the scene's ground; straight down before the first return, and along the
+    beam's axis where there is no ground) and arrives after the one-way time ``T(rho)`` of the
+    ray through the true profile to that point; the device reports it at ``c T``, c its
+    ``sound_speed_m_s``. ``T`` grows with ``rho``: the device's sample at ``R`` holds the
+    straight-ray line's echo at ``T^-1(R / c)``.
+
+    Parameters
+    ----------
+    spec : SidescanSpec
+        With its ``sound_speed_profile``.
+    sim : Simulator
+        The scene (its ground).
+    heads : list of Pose
+        Each frame's channel pose, world frame.
+    straight_m : (m,) float array
+        The straight-ray line's sample centres, metres.
+    device_m : (n,) float array
+        The device's sample centres, metres (``c t / 2``).
+
+    Returns
+    -------
+    (len(heads), n) float64 ndarray
+        The straight range (metres) each device sample reads; NaN where none reaches it (a
+        shadow zone, or beyond the line).
+    """
+    profile = spec.sound_speed_profile
+    z = np.array([h.translation[2] for h in heads], np.float64)
+    depth = (spec.surface_height_m - z) if spec.surface_height_m is not None else np.zeros_like(z)
+    ground = sim.scene.ground
+    rho = np.asarray(straight_m, np.float64)[None, :]
+    if ground is not None:
+        altitude = np.maximum(z - ground.height_m, 0.0)[:, None]
+        down = np.minimum(rho, altitude)  # to the floor, or straight down in the water before it
+        across = np.sqrt(np.maximum(rho * rho - altitude * altitude, 0.0))
+    else:
+        dip = math.radians(spec.depression_deg)
+        down, across = rho * math.sin(dip), rho * math.cos(dip) + 0.0 * depth[:, None]
+    _, t = profile.solve(depth[:, None] + 0.0 * rho, depth[:, None] + down, across)
+    reported = spec.sound_speed_m_s * t  # (frames, m): where the device puts each straight range
+    out = np.full((len(heads), len(device_m)), np.nan)
+    for f in range(len(heads)):  # per frame: one interpolation over its samples
+        ok = np.isfinite(reported[f])
+        if ok.sum() >= 2:
+            at = reported[f, ok]
+            out[f] = np.interp(device_m, at, rho[0, ok])
+            # beyond the line's ends (by more than rounding): nothing reaches those samples
+            slack = 1e-9 * max(1.0, float(np.abs(at).max()))
+            out[f, (device_m < at[0] - slack) | (device_m > at[-1] + slack)] = np.nan
+    return out
+
+
+def refract_lines(lines: np.ndarray, straight_m: np.ndarray, source_m: np.ndarray, nearest: bool = False) -> np.ndarray:
+    """The straight-ray lines ``(m, frames)`` read at the straight ranges ``source_m`` ``(frames, n)``
+    (:func:`refraction_map`): ``(n, frames)``, linear between samples (``nearest``: the nearest
+    sample, for labels); 0 (or the lines' empty value) where ``source_m`` is NaN."""
+    lines = np.asarray(lines)
+    r0, dr = float(straight_m[0]), float(straight_m[1] - straight_m[0]) if len(straight_m) > 1 else 1.0
+    pos = (source_m.T - r0) / dr  # (n, frames), in samples of the line
+    ok = np.isfinite(pos) & (pos >= -0.5) & (pos <= lines.shape[0] - 0.5)
+    cols = np.broadcast_to(np.arange(lines.shape[1])[None, :], pos.shape)
+    empty = -1 if lines.dtype.kind == "i" else 0
+    if nearest:
+        i = np.clip(np.rint(np.where(ok, pos, 0.0)).astype(np.int64), 0, lines.shape[0] - 1)
+        return np.where(ok, lines[i, cols], np.asarray(empty, lines.dtype)).astype(lines.dtype)
+    p = np.clip(np.where(ok, pos, 0.0), 0.0, lines.shape[0] - 1)
+    i0 = np.floor(p).astype(np.int64)
+    i1 = np.minimum(i0 + 1, lines.shape[0] - 1)
+    w = (p - i0).astype(np.float32)
+    value = lines[i0, cols] * (1.0 - w) + lines[i1, cols] * w
+    return np.where(ok, value, 0.0).astype(lines.dtype)
 
 
 def waterfall_boxes(instance: np.ndarray, n_ids: int) -> np.ndarray:
