@@ -259,7 +259,11 @@ class PatternSpec:
         its directivity falls by ``10 log10(cos(theta_k))`` (-3 dB at 60 degrees, -3.7 at 65;
         Urick, *Principles of Underwater Sound*, 3rd ed., sect. 3.7). (The steered beam's
         widening by ``1 / cos(theta_k)`` is that of beams evenly spaced in sine, as the Oculus
-        presets' are, whose leakage kernel is the same in beams at every steer.)
+        presets' are, whose leakage kernel is the same in beams at every steer: each beam's
+        cell, and with it what it hears of an even floor, widens so, and makes up for the loss
+        there, as a foreshortened aperture's does; a point target keeps the loss. Beams evenly
+        spaced in angle, as the Gemini and BlueView presets' are, do not widen here: their
+        floor falls by the loss too.)
     """
 
     shape: str = "line"
