@@ -77,7 +77,7 @@ def scan(n=4, n_samples=50, angles=(0.0, 90.0, 200.0, 359.1)) -> ScanImage:
 def envelope(n=2, n_samples=60) -> Envelope:
     p, k = np.mgrid[0:n, 0:n_samples]
     return Envelope((100 * p + k).astype(np.float32), 0.0, 30.0, np.array([11.75, np.nan])[:n],
-                    geometry(n, 0.02, 0.25, c=1490.0, hi=30.0))
+                    geometry(n, 0.02, 0.25, c=1490.0, hi=30.0), unit_name="cross_section_per_r2")
 
 
 def transform_matrix(tf) -> np.ndarray:
@@ -152,7 +152,7 @@ def test_types_are_registered_with_marine_acoustic_msgs_field_layout(tmp_path, s
     with rosbags_highlevel.AnyReader([tmp_path / "bag"]) as reader:
         types = {c.topic: c.msgtype for c in reader.connections}
     assert types == {"/tf_static": "tf2_msgs/msg/TFMessage", "/tf": "tf2_msgs/msg/TFMessage",
-                     "/sss/raw": "marine_acoustic_msgs/msg/RawSonarImage"}
+                     "/sss/raw": "marine_acoustic_msgs/msg/RawSonarImage", "/sss/unit": "std_msgs/msg/String"}
 
 
 def test_beam_unit_vectors_hand_computed():
@@ -171,7 +171,12 @@ def test_every_field_of_three_instruments_round_trips(tmp_path, scene, storage):
     write(tmp_path, {"sss": w, "head": s, "alt": e}, scene, storage=storage)
     bag = read_bag(tmp_path / "bag")
     specs = {i.name: i for i in scene.instruments}
-    assert set(bag) == {"/tf_static", "/tf", "/sss/raw", "/head/raw", "/alt/raw", "/alt/range"}
+    assert set(bag) == {"/tf_static", "/tf", "/sss/raw", "/head/raw", "/alt/raw", "/alt/range",
+                        "/sss/unit", "/head/unit", "/alt/unit"}
+    # Each film's unit, once, with its first ping (issue 39 item 6).
+    for topic, film in (("/sss/unit", w), ("/head/unit", s), ("/alt/unit", e)):
+        assert [(m.data, t) for t, _, m in bag[topic]] == [(film.unit_name, bag[topic.replace("unit", "raw")][0][0])]
+    assert bag["/alt/unit"][0][2].data == "cross_section_per_r2" and bag["/sss/unit"][0][2].data == "counts"
 
     # Stamps: the earliest ping (the waterfall's, t = 0) at START; the others by their times.
     def expected(film):
@@ -232,7 +237,8 @@ def test_every_field_of_three_instruments_round_trips(tmp_path, scene, storage):
     meta = yaml.safe_load((tmp_path / "bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     info = json.loads(meta["custom_data"]["sonarsim.instruments"])
     assert info["head"]["range_min_m"] == 0.5 and info["head"]["n_samples"] == 50
-    assert info["sss"]["topics"] == {"raw": "/sss/raw"} and info["alt"]["beam_frame"] == "alt_beam"
+    assert info["sss"]["topics"] == {"raw": "/sss/raw", "unit": "/sss/unit"} and info["alt"]["beam_frame"] == "alt_beam"
+    assert info["alt"]["unit"] == "cross_section_per_r2" and info["sss"]["unit"] == "counts"
 
 
 def test_tf_chain_gives_each_channel_its_world_pose(tmp_path, scene):

@@ -145,11 +145,11 @@ def chunk_arrays(film: Any, kind: str) -> tuple[dict, dict]:
     if kind == "scanning":
         return ({"samples": film.samples, "angle_deg": film.angle_deg, "range_m": film.range_m, **geo},
                 {"film": "scan", "range_min_m": film.range_min_m, "range_max_m": film.range_max_m,
-                 "step_deg": film.step_deg, "source": film.source})
+                 "step_deg": film.step_deg, "source": film.source, "unit": film.unit_name})
     if kind == "singlebeam":
         return ({"samples": film.samples, "range_m": film.range_m, "bottom_range_m": film.bottom_range_m, **geo},
                 {"film": "envelope", "range_min_m": film.range_min_m, "range_max_m": film.range_max_m,
-                 "source": film.source})
+                 "source": film.source, "unit": film.unit_name})
     if kind == "multibeam":
         arrays = {"angle_deg": film.angle_deg, "two_way_time_s": film.two_way_time_s, "intensity": film.intensity,
                   "range_m": film.range_m, **geo}
@@ -157,7 +157,7 @@ def chunk_arrays(film: Any, kind: str) -> tuple[dict, dict]:
             arrays["water_column"] = film.water_column
         if film.points_m is not None:
             arrays["points_m"] = film.points_m
-        return arrays, {"film": "soundings", "source": film.source}
+        return arrays, {"film": "soundings", "source": film.source, "unit": film.unit_name}
     raise ConfigError("instrument.type", f"no dataset layout for a {kind} film")
 
 
@@ -595,13 +595,15 @@ def _film_from_npz(kind: str, parts: list[tuple[dict, dict]]) -> Any:
                                          for a, _ in parts])
     cat = lambda key, axis=0: np.concatenate([a[key] for a, _ in parts], axis=axis)  # noqa: E731
     a0, c0 = parts[0]
+    unit = str(c0.get("unit", "counts"))  # (chunks written before films said their unit: the device's)
     if kind == "sidescan":
-        return Waterfall(cat("samples"), c0["range_min_m"], c0["range_max_m"], geometry)
+        return Waterfall(cat("samples"), c0["range_min_m"], c0["range_max_m"], geometry, unit_name=unit)
     if kind == "scanning":
         return ScanImage(cat("samples", 1), cat("angle_deg"), c0["range_min_m"], c0["range_max_m"], geometry,
-                         c0["step_deg"])
+                         c0["step_deg"], unit_name=unit)
     if kind == "singlebeam":
-        return Envelope(cat("samples"), c0["range_min_m"], c0["range_max_m"], cat("bottom_range_m"), geometry)
+        return Envelope(cat("samples"), c0["range_min_m"], c0["range_max_m"], cat("bottom_range_m"), geometry,
+                        unit_name=unit)
     return Soundings(cat("angle_deg"), cat("two_way_time_s"), cat("intensity"), geometry,
                      cat("water_column") if "water_column" in a0 else None,
-                     cat("points_m") if "points_m" in a0 else None)
+                     cat("points_m") if "points_m" in a0 else None, unit_name=unit)

@@ -31,6 +31,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from .display import hook
+from .units import UNITS, Unit, check_unit
 
 __all__ = ["GEOMETRY_FIELDS", "PingGeometry", "Waterfall", "Soundings", "Envelope", "film_arrays", "range_axis"]
 
@@ -151,6 +152,9 @@ class Waterfall:
         Where it came from (a file, or ``"render"``).
     ids : tuple of str
         Names of the label ids: the scene's objects in order, then its reflecting planes.
+    unit_name : str
+        What :attr:`samples` are (:mod:`sonarsim.image.units`; :attr:`unit`): a render's
+        :func:`~sonarsim.image.units.instrument_unit`, a recording's ``counts``.
     """
 
     samples: np.ndarray
@@ -160,8 +164,15 @@ class Waterfall:
     labels: dict | None = None
     source: str = "render"
     ids: tuple = ()
+    unit_name: str = "counts"
+
+    @property
+    def unit(self) -> Unit:
+        """What :attr:`samples` are (:mod:`sonarsim.image.units`)."""
+        return UNITS[self.unit_name]
 
     def __post_init__(self) -> None:
+        check_unit(self.unit_name, "Waterfall")
         s = np.asarray(self.samples)
         if s.ndim != 3 or s.shape[1] != 2:
             raise ValueError(f"Waterfall.samples must be (n_pings, 2, n_samples), got {s.shape}")
@@ -185,11 +196,12 @@ class Waterfall:
         """Every array, by name: ``samples``, ``geometry/<field>``, ``labels/<name>``."""
         out = film_arrays({"samples": self.samples, "slant_range_m": self.slant_range_m}, self.geometry)
         out.update({f"labels/{k}": v for k, v in (self.labels or {}).items()})
+        out["unit"] = np.array(self.unit_name)
         return out
 
     def config(self) -> dict:
         return {"film": "waterfall", "range_min_m": self.range_min_m, "range_max_m": self.range_max_m,
-                "source": self.source, "ids": list(self.ids)}
+                "source": self.source, "ids": list(self.ids), "unit": self.unit_name}
 
     def save_npz(self, path) -> None:
         """Write :meth:`arrays` and :meth:`config` to an NPZ file, atomically."""
@@ -263,6 +275,10 @@ class Soundings:
     tilt_deg : (n_pings, n_beams) float64 ndarray, optional
         Each sounding's angle along track in the head's frame, degrees, > 0 forward (the
         transmit's tilt, as Kongsberg files log it; a render's refracted arrivals); None: 0.
+    unit_name : str
+        What :attr:`intensity` and :attr:`water_column` are (:mod:`sonarsim.image.units`;
+        :attr:`unit`): a render's :func:`~sonarsim.image.units.instrument_unit`, an R2Sonic's
+        ``uPa``.
     """
 
     angle_deg: np.ndarray
@@ -273,8 +289,15 @@ class Soundings:
     points_m: np.ndarray | None = None
     source: str = "render"
     tilt_deg: np.ndarray | None = None
+    unit_name: str = "counts"
+
+    @property
+    def unit(self) -> Unit:
+        """What :attr:`intensity` and :attr:`water_column` are (:mod:`sonarsim.image.units`)."""
+        return UNITS[self.unit_name]
 
     def __post_init__(self) -> None:
+        check_unit(self.unit_name, "Soundings")
         shape = np.shape(self.two_way_time_s)
         if len(shape) != 2 or np.shape(self.angle_deg) != shape or np.shape(self.intensity) != shape:
             raise ValueError("Soundings.angle_deg, two_way_time_s and intensity must share one (n_pings, n_beams) "
@@ -286,13 +309,16 @@ class Soundings:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Every array, by name (``geometry/<field>`` for the pings' geometry)."""
-        return film_arrays({"angle_deg": self.angle_deg, "two_way_time_s": self.two_way_time_s,
-                            "intensity": self.intensity, "water_column": self.water_column, "points_m": self.points_m,
-                            "tilt_deg": getattr(self, "tilt_deg", None)}, self.geometry)
+        out = film_arrays({"angle_deg": self.angle_deg, "two_way_time_s": self.two_way_time_s,
+                           "intensity": self.intensity, "water_column": self.water_column, "points_m": self.points_m,
+                           "tilt_deg": getattr(self, "tilt_deg", None)}, self.geometry)
+        out["unit"] = np.array(self.unit_name)
+        return out
 
     def save_npz(self, path) -> None:
         """Write :meth:`arrays` to an NPZ file, atomically."""
-        hook("write_npz", "Soundings.save_npz")(path, self.arrays(), {"film": "soundings", "source": self.source})
+        hook("write_npz", "Soundings.save_npz")(path, self.arrays(), {"film": "soundings", "source": self.source,
+                                                                       "unit": self.unit_name})
 
     @property
     def n_pings(self) -> int:
@@ -350,6 +376,9 @@ class Envelope:
         detector's for a render); NaN where none was found.
     geometry : PingGeometry
     source : str
+    unit_name : str
+        What :attr:`samples` are (:mod:`sonarsim.image.units`; :attr:`unit`): a render's
+        :func:`~sonarsim.image.units.instrument_unit`, a recording's ``counts``.
     """
 
     samples: np.ndarray
@@ -358,8 +387,15 @@ class Envelope:
     bottom_range_m: np.ndarray
     geometry: PingGeometry
     source: str = "render"
+    unit_name: str = "counts"
+
+    @property
+    def unit(self) -> Unit:
+        """What :attr:`samples` are (:mod:`sonarsim.image.units`)."""
+        return UNITS[self.unit_name]
 
     def __post_init__(self) -> None:
+        check_unit(self.unit_name, "Envelope")
         s = np.asarray(self.samples)
         if s.ndim != 2:
             raise ValueError(f"Envelope.samples must be (n_pings, n_samples), got {s.shape}")
@@ -376,11 +412,14 @@ class Envelope:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Every array, by name (``geometry/<field>`` for the pings' geometry)."""
-        return film_arrays({"samples": self.samples, "range_m": self.range_m, "bottom_range_m": self.bottom_range_m},
-                           self.geometry)
+        out = film_arrays({"samples": self.samples, "range_m": self.range_m, "bottom_range_m": self.bottom_range_m},
+                          self.geometry)
+        out["unit"] = np.array(self.unit_name)
+        return out
 
     def save_npz(self, path) -> None:
         """Write :meth:`arrays` to an NPZ file, atomically."""
         hook("write_npz", "Envelope.save_npz")(path, self.arrays(), {"film": "envelope", "source": self.source,
                                                                       "range_min_m": self.range_min_m,
-                                                                      "range_max_m": self.range_max_m})
+                                                                      "range_max_m": self.range_max_m,
+                                                                      "unit": self.unit_name})

@@ -87,6 +87,7 @@ from ..core.rays import make_ray_fan
 from ..core.transforms import Pose, rpy_to_matrix
 from ..errors import ConfigError, shown
 from ..image.films import PingGeometry, Soundings, range_axis
+from ..image.units import instrument_unit
 from ..sensor.model import SensorModel
 from . import renders
 from ._sections import parse_section, section_dict
@@ -1090,7 +1091,8 @@ def render_multibeam(sim, spec: MultibeamSpec, poses: list[Pose], times_s: np.nd
         water[k], angle[k], tilt[k], twt[k], level[k], truth[k] = ping_soundings(spec, paths, wc, head)
     geometry = ping_geometry(sim, poses, times_s, spec)
     geometry = PingGeometry(**{**geometry.as_dict(), "depth_m": depth})
-    return Soundings(angle, twt, level, geometry, water_column=water, points_m=truth, source="render", tilt_deg=tilt)
+    return Soundings(angle, twt, level, geometry, water_column=water, points_m=truth, source="render", tilt_deg=tilt,
+                     unit_name=instrument_unit(sensor, sim.scene.render.tvg).name)
 
 
 def ping_soundings(spec: MultibeamSpec, paths, water_column: np.ndarray, head: Pose):

@@ -50,6 +50,7 @@ from ..config.sonar import SonarConfig
 from ..core.transforms import Pose
 from ..errors import ConfigError
 from ..image.films import PingGeometry, range_axis
+from ..image.units import UNITS, check_unit, instrument_unit
 from ..sensor.model import SensorModel
 from ..sensor.patterns import half_power_u
 from ._sections import LineArrayBeam, check_integer, check_range, check_window, parse_section, section_dict  # noqa: F401 (re-exported)
@@ -250,6 +251,9 @@ class ScanImage:
         Renders with labels: ``instance`` (int32 ``(n_samples, n_steps)``, ids of :attr:`ids`, -1 none).
     ids : tuple of str
         Names of the label ids: the scene's objects in order, then its reflecting planes.
+    unit_name : str
+        What :attr:`samples` are (:mod:`sonarsim.image.units`; :attr:`unit`): a render's
+        :func:`~sonarsim.image.units.instrument_unit`, a recording's ``counts``.
     """
 
     samples: np.ndarray
@@ -261,6 +265,12 @@ class ScanImage:
     source: str = "render"
     labels: dict | None = None
     ids: tuple = ()
+    unit_name: str = "counts"
+
+    @property
+    def unit(self):
+        """What :attr:`samples` are (:mod:`sonarsim.image.units`)."""
+        return UNITS[self.unit_name]
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Every array, by name (``geometry/<field>`` for the steps' geometry)."""
@@ -268,6 +278,7 @@ class ScanImage:
 
         out = film_arrays({"samples": self.samples, "angle_deg": self.angle_deg}, self.geometry)
         out.update({f"labels/{k}": v for k, v in (self.labels or {}).items()})
+        out["unit"] = np.array(self.unit_name)
         return out
 
     def save_npz(self, path) -> None:
@@ -277,9 +288,11 @@ class ScanImage:
         hook("write_npz", "ScanImage.save_npz")(path, self.arrays(), {"film": "scan", "source": self.source,
                                                                        "range_min_m": self.range_min_m,
                                                                        "range_max_m": self.range_max_m,
-                                                                       "step_deg": self.step_deg})
+                                                                       "step_deg": self.step_deg,
+                                                                       "unit": self.unit_name})
 
     def __post_init__(self) -> None:
+        check_unit(self.unit_name, "ScanImage")
         s = np.asarray(self.samples)
         if s.ndim != 2:
             raise ValueError(f"ScanImage.samples must be (n_samples, n_steps), got {s.shape}")
@@ -407,5 +420,5 @@ def render_scanning(sim, spec: ScanningSpec, poses: list[Pose], times_s: np.ndar
     ids = tuple(o.name for o in sim.scene.objects) + tuple(p.name for p in sim.scene.reflecting_planes)
     return ScanImage(out, angles, spec.range_min_m, spec.range_max_m, ping_geometry(sim, poses, times_s, spec),
                      spec.step_deg * spec.step, labels={"instance": instance} if labels else None,
-                     ids=ids if labels else ())
+                     ids=ids if labels else (), unit_name=instrument_unit(spec.sensor, sim.scene.render.tvg).name)
 

@@ -51,6 +51,7 @@ from ..config.sensor import SensorSpec
 from ..config.sonar import SonarConfig
 from ..core.transforms import Pose
 from ..image.films import Waterfall
+from ..image.units import instrument_unit
 from ..sensor.model import SensorModel
 from . import ping_geometry, pose_frames, renders
 from .multibeam import SoundSpeedProfile
@@ -321,7 +322,7 @@ def render_sidescan(sim, spec: SidescanSpec, poses: list[Pose], times_s: np.ndar
         extra = {"labels": {"instance": instance, "shadow": shadow, "boxes": waterfall_boxes(instance, len(ids))},
                  "ids": ids}
     return Waterfall(out, spec.range_min_m, spec.range_max_m, ping_geometry(sim, poses, times_s, spec),
-                     source="render", **extra)
+                     source="render", unit_name=instrument_unit(spec.sensor, sim.scene.render.tvg).name, **extra)
 
 
 def refraction_map(spec: SidescanSpec, sim, heads: list[Pose], straight_m: np.ndarray,

@@ -51,6 +51,7 @@ from ..core.streams import frame_rng
 from ..core.transforms import Pose
 from ..errors import ConfigError, shown
 from ..image.films import Envelope
+from ..image.units import instrument_unit
 from ..sensor.model import SensorModel
 from . import renders
 from . import ping_geometry, pose_frames
@@ -289,4 +290,7 @@ def render_singlebeam(sim, spec: SinglebeamSpec, poses: list[Pose], times_s: np.
                     env = env * rng.exponential(1.0, env.shape)
             out[k] = np.asarray(env, np.float32)[:, 0]
     bottom = detect_bottom(out, spec.range_min_m, spec.range_max_m, spec.threshold_db)
-    return Envelope(out, spec.range_min_m, spec.range_max_m, bottom, ping_geometry(sim, poses, times_s, spec))
+    # (without a sensor the envelope is the cone's backscatter summed over its width: per bin, not per radian)
+    unit = instrument_unit(spec.sensor).name if spec.sensor is not None else "cross_section_per_r2"
+    return Envelope(out, spec.range_min_m, spec.range_max_m, bottom, ping_geometry(sim, poses, times_s, spec),
+                    unit_name=unit)

@@ -17,6 +17,10 @@ multibeam (Soundings) ``/NAME/detections``: SonarDetections;         ping
                      ``/NAME/points``: PointCloud2 (vehicle frame);
                      ``/NAME/water_column``: ProjectedSonarImage
 fls (SonarImage list) ``/NAME/image``: ProjectedSonarImage           ping
+every instrument     ``/NAME/unit``: std_msgs/String                the first ping: what the film's
+                                                                   values are (the film's
+                                                                   ``unit_name``,
+                                                                   :mod:`sonarsim.image.units`)
 =================== ============================================= ===============================
 
 and for the vehicle ``/tf`` (``world -> vehicle`` at every stamp a ping has) and ``/tf_static``
@@ -170,10 +174,12 @@ INSTRUMENT_MSGTYPES: Mapping[str, str] = {
     "points": "sensor_msgs/msg/PointCloud2",
     "water_column": "marine_acoustic_msgs/msg/ProjectedSonarImage",
     "image": "marine_acoustic_msgs/msg/ProjectedSonarImage",
+    "unit": "std_msgs/msg/String",
 }
+# (every instrument's ``unit``: what its samples, intensities or images are, once with its first ping)
 _TOPICS_OF_TYPE = {
-    "sidescan": ("raw",), "scanning": ("raw",), "singlebeam": ("raw", "range"),
-    "multibeam": ("detections", "points", "water_column"), "fls": ("image",),
+    "sidescan": ("raw", "unit"), "scanning": ("raw", "unit"), "singlebeam": ("raw", "range", "unit"),
+    "multibeam": ("detections", "points", "water_column", "unit"), "fls": ("image", "unit"),
 }
 _DOWN_LOOKING = ("sidescan", "singlebeam", "multibeam")
 _DETECT_BAD_SONAR = 1
@@ -296,7 +302,7 @@ class InstrumentBagWriter(rb.BagWriter):
                 for name, text in _MSG_DEFS.items():
                     types.update(get_types_from_msg(text, name))
                 store.register(types)
-            for name in ("sensor_msgs/msg/Range", "tf2_msgs/msg/TFMessage", "sensor_msgs/msg/PointCloud2",
+            for name in ("sensor_msgs/msg/Range", "tf2_msgs/msg/TFMessage", "sensor_msgs/msg/PointCloud2", "std_msgs/msg/String",
                          *_MSG_DEFS, "marine_acoustic_msgs/msg/ProjectedSonarImage"):
                 self._types[name] = store.types[name]
         except BaseException:
@@ -332,6 +338,10 @@ class InstrumentBagWriter(rb.BagWriter):
 
     def header(self, stamp_ns: int, frame_id: str) -> Any:
         return self._header(int(stamp_ns), frame_id)
+
+    def string(self, text: str) -> Any:
+        """A ``std_msgs/String`` holding ``text``."""
+        return self._types["std_msgs/msg/String"](data=str(text))
 
     def transform(self, stamp_ns: int, parent: str, child: str, translation: Any, quat_xyzw: Any) -> Any:
         t = self._types
@@ -510,7 +520,7 @@ class _Instrument:
     def describe(self) -> dict:
         """What ``custom_data`` records of this instrument (the exact windows among it)."""
         out: dict[str, Any] = {"type": self.kind, "frame": self.frame, "image_frame": self.image_frame,
-                               "topics": self.topics, "pings": len(self.stamps)}
+                               "topics": self.topics, "pings": len(self.stamps), "unit": self.unit}
         f = self.film
         if self.kind in ("sidescan", "scanning", "singlebeam"):
             n = f.n_samples if self.kind != "singlebeam" else f.samples.shape[1]
@@ -528,9 +538,18 @@ class _Instrument:
             out.append(bag.transform(stamp_ns, self.frame, self.beam_frame, (0.0, 0.0, 0.0), _BEAM_QUAT_XYZW))
         return out
 
+    @property
+    def unit(self) -> str:
+        """The film's unit (:mod:`sonarsim.image.units`): its ``unit_name``, an FLS's images' unit."""
+        f = self.film
+        return f[0].unit.name if self.kind == "fls" else f.unit_name
+
     def messages(self, bag: InstrumentBagWriter, k: int) -> list[tuple[str, str, Any]]:
-        """Ping ``k``'s ``(topic, msgtype, message)``."""
-        return getattr(self, f"_{self.kind}")(bag, k, self.stamps[k])
+        """Ping ``k``'s ``(topic, msgtype, message)``; the first ping's with the film's unit."""
+        out = getattr(self, f"_{self.kind}")(bag, k, self.stamps[k])
+        if k == 0:
+            out.append((self.topics["unit"], INSTRUMENT_MSGTYPES["unit"], bag.string(self.unit)))
+        return out
 
     def _raw(self, bag, key: str, stamp: int, k: int, window: tuple, n_samples: int, samples: np.ndarray,
              tx_deg: Any, rx_deg: Any, tx_bw_deg: Any, rx_bw_deg: Any) -> tuple:

@@ -51,7 +51,8 @@ def waterfall_figure(waterfall, dynamic_range_db: float = 40.0, gain_db: float =
     ax.set_xlabel("slant range, m (port < 0 < starboard)")
     ax.set_ylabel("ping")
     ax.legend(loc="lower right", fontsize="small")
-    ax.set_title(title or f"{waterfall.source}: {n} pings x 2 x {waterfall.n_samples} samples")
+    ax.set_title(title or f"{waterfall.source}: {n} pings x 2 x {waterfall.n_samples} samples\n"
+                 f"{waterfall.unit.label}, {dynamic_range_db:g} dB below the maximum", fontsize="medium")
     g = waterfall.geometry
     for values, label in ((g.altitude_m, "altitude m"), (g.depth_m, "depth m"), (g.roll_deg, "roll deg"),
                           (g.pitch_deg, "pitch deg")):
@@ -91,5 +92,6 @@ def envelope_figure(envelope, dynamic_range_db: float = 40.0, title: str = ""):
     ax.set_xlabel("ping")
     ax.set_ylabel("range, m")
     ax.legend(loc="lower right", fontsize="small")
-    ax.set_title(title or f"{envelope.source}: {envelope.n_pings} pings")
+    ax.set_title(title or f"{envelope.source}: {envelope.n_pings} pings; {envelope.unit.label}, "
+                 f"{dynamic_range_db:g} dB below the maximum", fontsize="medium")
     return fig

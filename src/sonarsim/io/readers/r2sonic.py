@@ -260,7 +260,7 @@ class R2SonicRecording(XtfPackets):
             g = self._layouts[k]
             for name, a in out.items():
                 a[i, :len(g[name])] = g[name]  # pings with fewer points: NaN beyond them
-        return Soundings(geometry=self._geometry(ks), source=self._source, **out)
+        return Soundings(geometry=self._geometry(ks), source=self._source, unit_name="uPa", **out)
 
     def _read(self, k: int):
         return self._soundings(range(k, k + 1))
