@@ -80,3 +80,10 @@ def test_the_profile_round_trips_through_the_section_and_the_water_gives_it():
     assert sonarsim.load_scene(doc).instruments[0].sound_speed_profile.speed_m_s == (1490.0, 1510.0)
     with pytest.raises(sonarsim.ConfigError, match="sound_speed_profile"):
         sonarsim.load_scene(scene(sound_speed_profile=[[0.0, 99.0]]))
+
+
+def test_slower_water_and_a_window_that_starts_late_keep_the_devices_first_and_last_samples():
+    w = waterfall(range_min_m=12.0, sound_speed_profile=[[0.0, 1450.0]]).samples[0, 0]
+    assert w[:3].min() > 0 and w[-3:].min() > 0  # the floor's echo at both ends of the device's window
+    w = waterfall(range_min_m=12.0, sound_speed_profile=[[0.0, 1560.0]]).samples[0, 0]
+    assert w[:3].min() > 0 and w[-3:].min() > 0

@@ -127,3 +127,28 @@ def test_a_point_targets_response_across_azimuth_has_the_patterns_width(width_de
     # the target (0.08 degrees across) and the columns (spacing / 9) blur it a little
     assert above.max() - above.min() == pytest.approx(width_deg, rel=0.15)
     assert offsets[np.argmax(response)] == pytest.approx(0.0, abs=width_deg / 8)
+
+
+def test_the_columns_mean_is_the_frames_total_with_every_path():
+    """Each column's rays traced on their own find the frame's paths: planes, a mesh mirror and a
+    box to order 3 (the chains are the planes' and the mirror's, whichever rays meet them)."""
+    doc = {"sonar": sonar_dict(pose={"position_m": [0, 0, 1.0], "rpy_deg": [0, 15, 0]}),
+           "ground": {"height_m": 0.0, "albedo": 0.5, "specular": 0.8},
+           "planes": [{"name": "surface", "point_m": [0, 0, 2.0], "normal": [0, 0, -1], "albedo": 0.0,
+                       "specular": 0.9}],
+           "objects": [{"name": "box", "primitive": "box", "size_m": [0.4, 0.4, 0.4],
+                        "pose": {"position_m": [2.5, 0.2, 0.3]}},
+                       {"name": "mirror", "primitive": "box", "size_m": [0.05, 1.0, 1.0], "specular": 0.9,
+                        "pose": {"position_m": [3.5, -0.5, 0.6], "rpy_deg": [0, 0, 30]}}],
+           "render": {"elevation_samples": 32, "azimuth_samples": 3, "max_order": 3},
+           "sensor": {"source_level_db": 0.0, "output": False,
+                      "azimuth_pattern": {"shape": "gaussian", "width_deg": 1.5}}}
+    from sonarsim.renderer.components import frame_components
+
+    with sonarsim.Simulator(doc) as sim:
+        paths = sim.trace()
+        columns, offsets = sim.ray_columns(paths)
+        render = sim.scene.render
+        total = frame_components(paths.stack, render.bounces, render.max_order, None, paths.total)["total"]
+    assert columns.shape == total.shape + (3,) and offsets[0] < 0 < offsets[2]
+    assert np.abs(columns.mean(axis=2) - total).sum() < 1e-3 * np.abs(total).sum()

@@ -171,14 +171,18 @@ class SidescanSpec(LineArrayBeam, InstrumentSpec):
         sonar = self.channel_sonar()
         if self.sound_speed_profile is None:
             return sonar
-        stretch = max(self.sound_speed_profile.speed_m_s) / self.sound_speed_m_s
-        if stretch <= 1.0:
+        speeds = self.sound_speed_profile.speed_m_s
+        low = min(1.0, min(speeds) / self.sound_speed_m_s)  # slower water: the device's first samples are nearer
+        high = max(1.0, max(speeds) / self.sound_speed_m_s)  # faster: its last ones farther
+        if low == 1.0 and high == 1.0:
             return sonar
-        n = int(math.ceil(self.n_samples * stretch)) + 1
+        dr = sonar.range_resolution_m
+        r0 = max(self.range_min_m * low - dr, 0.0)
+        n = int(math.ceil((self.range_max_m * high - r0) / dr)) + 1
         return SonarConfig.uniform(
             n_beams=1, azimuth_fov_deg=self.horizontal_beam_width_deg, elevation_fov_deg=2.0 * self.half_span_deg,
-            range_min_m=self.range_min_m, range_max_m=self.range_min_m + n * sonar.range_resolution_m,
-            n_range_bins=n, frequency_khz=self.frequency_khz, beam_width_deg=self.horizontal_beam_width_deg,
+            range_min_m=r0, range_max_m=r0 + n * dr, n_range_bins=n, frequency_khz=self.frequency_khz,
+            beam_width_deg=self.horizontal_beam_width_deg,
         )
 
     # -- files -----------------------------------------------------------------------------
@@ -295,13 +299,13 @@ def render_sidescan(sim, spec: SidescanSpec, poses: list[Pose], times_s: np.ndar
     # of them go through the engine in one frame (pose_frames), each side's line a column.
     at = [mounted(vehicle, channel.mount) for vehicle in poses for channel in channels]
     model = model or None
-    source = None
-    if spec.sound_speed_profile is not None:
-        source = refraction_map(spec, sim, at, traced.range_m, sonar.range_m)  # (2 n, n_samples)
+    refracts = spec.sound_speed_profile is not None
     for start, stop, paths, image in pose_frames(sim, at, traced, fan, labels="total" if labels else False):
         lines = image.components["total"]
-        if source is not None:  # the straight-ray lines onto the device's time axis
-            lines = refract_lines(lines, traced.range_m, source[start:stop])
+        source = None
+        if refracts:  # the straight-ray lines onto the device's time axis (the batch's frames: memory flat)
+            source = refraction_map(spec, sim, at[start:stop], traced.range_m, sonar.range_m)
+            lines = refract_lines(lines, traced.range_m, source)
         flat = out.reshape(2 * n, spec.n_samples)  # frame f = 2 k + s is row f
         if model is None and not (sim.scene.render.speckle and speckle is not False):
             flat[start:stop] = lines.T  # no sensor, no draws: the expected lines as they are
@@ -312,8 +316,7 @@ def render_sidescan(sim, spec: SidescanSpec, poses: list[Pose], times_s: np.ndar
             inst = image.labels.instance["total"]
             hidden = floor_shadow(paths, sim, image.components.get("object"))
             if source is not None:
-                inst, hidden = (refract_lines(x, traced.range_m, source[start:stop], nearest=True)
-                                for x in (inst, hidden))
+                inst, hidden = (refract_lines(x, traced.range_m, source, nearest=True) for x in (inst, hidden))
             instance.reshape(2 * n, -1)[start:stop] = inst.T
             shadow.reshape(2 * n, -1)[start:stop] = hidden.T
     extra: dict = {}
@@ -352,8 +355,8 @@ def refraction_map(spec: SidescanSpec, sim, heads: list[Pose], straight_m: np.nd
     Returns
     -------
     (len(heads), n) float64 ndarray
-        The straight range (metres) each device sample reads; NaN where none reaches it (a
-        shadow zone, or beyond the line).
+        The straight range (metres) each device sample reads; NaN beyond the line's ends (a
+        shadow zone inside the line, where no ray reaches a range, is bridged between its edges).
     """
     profile = spec.sound_speed_profile
     z = np.array([h.translation[2] for h in heads], np.float64)

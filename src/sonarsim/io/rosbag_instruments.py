@@ -542,7 +542,9 @@ class _Instrument:
     def unit(self) -> str:
         """The film's unit (:mod:`sonarsim.image.units`): its ``unit_name``, an FLS's images' unit."""
         f = self.film
-        return f[0].unit.name if self.kind == "fls" else f.unit_name
+        if self.kind == "fls":
+            return f[0].unit.name if len(f) else "backscatter"
+        return f.unit_name
 
     def messages(self, bag: InstrumentBagWriter, k: int) -> list[tuple[str, str, Any]]:
         """Ping ``k``'s ``(topic, msgtype, message)``; the first ping's with the film's unit."""

@@ -216,6 +216,11 @@ def sub_ray_kernel(spec: PatternSpec, beam_spacing_deg: float, default_width_deg
     gain : float
         The unnormalised kernel's sum over offsets, averaged over the columns: the equivalent
         width in beam spacings, as :func:`azimuth_kernels`'s.
+
+    Where the columns tile the beam (``beam_width_deg`` the spacing, or unset) the kernel
+    summed over the columns is the beam's leakage; where the beams are wider than their spacing
+    the columns lie farther apart than their cells, and a point target's response is a little
+    less smoothed than the one-column kernel (an even image reads the same either way).
     """
     offsets = np.asarray(ray_offsets_deg, dtype=float).reshape(-1)
     n_sub = len(offsets)
