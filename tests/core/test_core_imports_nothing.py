@@ -77,9 +77,14 @@ def test_the_law_codes_are_configs():
 
     assert (radiometry.LAMBERTIAN, radiometry.LAMBERT, radiometry.ROUGH, radiometry.SEDIMENT) == (
         materials.LAMBERTIAN, materials.LAMBERT, materials.ROUGH, materials.SEDIMENT)
+    codes = {"lambertian": radiometry.LAMBERTIAN, "lambert": radiometry.LAMBERT, "rough": radiometry.ROUGH,
+             "sediment": radiometry.SEDIMENT, "plate": radiometry.SEDIMENT}  # (every table law: SEDIMENT's code)
     for law in materials.LAWS:
-        assert materials.LAWS.index(law) == {"lambertian": radiometry.LAMBERTIAN, "lambert": radiometry.LAMBERT,
-                                             "rough": radiometry.ROUGH, "sediment": radiometry.SEDIMENT}[law]
+        kw = {"area_m2": 1.0} if law == "plate" else ({"mu": 0.1} if law == "lambert" else {})
+        if law == "rough":
+            kw = {"specular_strength": 1.0, "roughness": 0.1}
+        assert materials.Material(law, **kw).code == codes[law]
+        assert (law in materials.TABULATED_LAWS) == (codes[law] == radiometry.SEDIMENT)
     # The kernels' own copy of the tabulated law's code.
     from pathlib import Path
     kernels = (Path(radiometry.__file__).parents[1] / "renderer" / "_kernels.pyx").read_text()

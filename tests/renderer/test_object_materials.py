@@ -32,7 +32,8 @@ def test_a_rigid_spheres_echo_is_its_geometric_target_strength(radius_m):
 
 def test_a_steel_sphere_returns_its_reflection_coefficient_squared():
     r = OBJECT_MATERIALS["steel"].reflection
-    assert r == pytest.approx((46.3 - WATER_IMPEDANCE_MRAYL) / (46.3 + WATER_IMPEDANCE_MRAYL))
+    z = 7850 * 5900 * 1e-6  # steel's rho c, MRayl
+    assert r == pytest.approx((z - WATER_IMPEDANCE_MRAYL) / (z + WATER_IMPEDANCE_MRAYL))
     assert sphere_ts_db("steel", 0.1) == pytest.approx(10 * math.log10(r * r * 0.1**2 / 4), abs=1.0)
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import ConfigError, MeshFileError, SonarsimError, check_input_file, key_text, shown
 from .document import MAX_DOCUMENT_BYTES as MAX_SCENE_BYTES, read_document  # noqa: F401 - re-exported
-from .materials import LAWS, MAX_LAMBERT_MU, Material, mu_from_db, object_material
+from .materials import LAWS, MAX_LAMBERT_MU, Material, Reflection, mu_from_db, object_material
 from .meshfiles import load_mesh_file, world_reach_m  # below scene: config imports nothing of it
 from .parameters import MAX_ANGLE_DEG
 from .presets import beam_angles_from_table, get_preset
@@ -40,13 +40,14 @@ SONAR_KEYS = (
 VEHICLE_KEYS = ("pose", "speed_m_s")
 POSE_KEYS = ("position_m", "rpy_deg", "quat_xyzw")
 RENDER_KEYS = tuple(RenderSettings.__dataclass_fields__)
-GROUND_KEYS = ("height_m", "albedo", "specular", "material", "texture")
-PLANE_KEYS = ("name", "point_m", "normal", "albedo", "specular", "material", "texture")
+GROUND_KEYS = ("height_m", "albedo", "specular", "material", "texture", "reflection")
+PLANE_KEYS = ("name", "point_m", "normal", "albedo", "specular", "material", "texture", "reflection")
+REFLECTION_KEYS = ("medium", "rms_height_m", "wind_speed_m_s")
 TEXTURE_KEYS = tuple(TextureSpec.__dataclass_fields__)
 OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "pose", "scale", "albedo", "material",
-               "specular", "normals")
+               "specular", "normals", "reflection")
 MATERIAL_KEYS = ("law", "albedo", "mu", "mu_db", "specular_strength", "roughness", "texture", "sediment",
-                 "grain_size_phi", "level_db", "preset")
+                 "grain_size_phi", "level_db", "preset", "area_m2", "reflectance")
 
 
 # Plausibility bounds: a sonar scene spans kilometres at most (MAX_COORDINATE_M); an angle
@@ -274,7 +275,8 @@ def parse_material(d: Any, where: str, texture_allowed: bool) -> Material:
             raise ConfigError(f"{where}.law", f"unknown law {shown(kw['law'])}; allowed: {', '.join(LAWS)}")
     if "mu" in d and "mu_db" in d:
         raise ConfigError(f"{where}.mu_db", "give either mu (linear) or mu_db, not both")
-    for key in ("albedo", "mu", "specular_strength", "roughness", "grain_size_phi", "level_db"):
+    for key in ("albedo", "mu", "specular_strength", "roughness", "grain_size_phi", "level_db", "area_m2",
+                "reflectance"):
         if key in d:
             kw[key] = _number(d[key], f"{where}.{key}")
     if "sediment" in d:
@@ -358,8 +360,10 @@ def parse_ground(d: Any) -> PlaneSpec | None:
     if d is None:
         return None
     _check_keys(d, GROUND_KEYS, "ground")
-    kw = {key: _number(value, f"ground.{key}") for key, value in d.items() if key not in ("material", "texture")}
+    kw = {key: _number(value, f"ground.{key}") for key, value in d.items()
+          if key not in ("material", "texture", "reflection")}
     kw.update(_material_of(d, "ground", texture_allowed=False))
+    kw.update(_reflection_of(d, "ground"))
     if "texture" in d:
         kw["texture"] = parse_texture(d["texture"], "ground.texture")
     return _prefixed("ground", ground_plane, **kw)
@@ -381,9 +385,36 @@ def parse_plane(d: Any, index: int) -> PlaneSpec:
         if key in d:
             kw[key] = _number(d[key], f"{where}.{key}")
     kw.update(_material_of(d, where, texture_allowed=False))
+    kw.update(_reflection_of(d, where))
     if "texture" in d:
         kw["texture"] = parse_texture(d["texture"], f"{where}.texture")
     return _prefixed(where, PlaneSpec, **kw)
+
+
+def parse_reflection(d: Any, where: str) -> Reflection:
+    """A ``reflection`` mapping: ``{medium, rms_height_m | wind_speed_m_s}`` (every key optional;
+    ``{}``: the surface's own material, its own roughness)."""
+    if d is None:
+        d = {}
+    _check_keys(d, REFLECTION_KEYS, where)
+    kw: dict[str, Any] = {}
+    if "medium" in d:
+        kw["medium"] = _string(d["medium"], f"{where}.medium")
+    for key in ("rms_height_m", "wind_speed_m_s"):
+        if key in d:
+            kw[key] = _number(d[key], f"{where}.{key}")
+    return _prefixed(where, Reflection, **kw)
+
+
+def _reflection_of(d: Mapping, where: str) -> dict[str, Any]:
+    """``{'reflection': Reflection}`` from ``d['reflection']`` (empty without one); refuses
+    ``specular`` beside it."""
+    if "reflection" not in d:
+        return {}
+    if "specular" in d:
+        raise ConfigError(f"{where}.specular", "give either specular (one constant R) or reflection (R by the "
+                                               "Rayleigh coefficient and roughness), not both")
+    return {"reflection": parse_reflection(d["reflection"], f"{where}.reflection")}
 
 
 def parse_object(d: Any, index: int, base_dir: Path | None) -> ObjectSpec:
@@ -414,6 +445,7 @@ def parse_object(d: Any, index: int, base_dir: Path | None) -> ObjectSpec:
     if "pose" in d:
         kw["pose"] = parse_pose(d["pose"], f"{where}.pose")
     kw.update(_material_of(d, where, texture_allowed=True))
+    kw.update(_reflection_of(d, where))
     if "mesh" in kw and kw.get("material") is not None and kw["material"].texture:
         try:
             load_mesh_file(kw["mesh"], texture=True)

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, shown
-from .materials import Material
+from .materials import Material, Reflection
 # Objects larger than MAX_LENGTH_M are not objects of a sonar scene (a typo or a unit mistake),
 # nor smaller than MIN_LENGTH_M (a micron; also the smallest scale factor: a sphere of 1e-300 m
 # was accepted and, its vertices all equal in float32, silently invisible); a sonar scene spans
@@ -70,6 +70,32 @@ def _check_material(spec, prefix: str = "", texture_allowed: bool = False) -> No
         raise ConfigError(f"{prefix}albedo", "give either albedo (the Lambertian shorthand) or material, not both")
     if material.texture and not texture_allowed:
         raise ConfigError(f"{prefix}material.texture", "only objects (with a textured mesh) have a texture")
+    if material.law == "plate" and not texture_allowed:  # (planes: texture_allowed is False)
+        raise ConfigError(f"{prefix}material.law", "a plate is an object's flat face of a given area, not an "
+                                                   "infinite plane: give the plane another law")
+
+
+def _resolve_reflection(spec, mirror_by_default: float) -> None:
+    """``specular`` and ``reflection`` (an object's or a plane's): ``specular`` None is the
+    constant ``mirror_by_default`` without a reflection, and 1 (the reflection's scale) with
+    one; a plane or ground of the ``sediment`` law reflects by its sediment's physics unless a
+    constant ``specular`` is given. Both given: refused."""
+    if spec.reflection is not None and not isinstance(spec.reflection, Reflection):
+        raise ConfigError("reflection", f"must be a Reflection, got {type(spec.reflection).__name__}")
+    if spec.specular is not None and spec.reflection is not None:
+        raise ConfigError("reflection", "give either specular (one constant R) or reflection (R by the Rayleigh "
+                                        "coefficient and roughness), not both")
+    if spec.specular is None and spec.reflection is None and mirror_by_default > 0 and spec.material is not None \
+            and spec.material.law == "sediment":
+        object.__setattr__(spec, "reflection", Reflection())
+    if spec.reflection is not None:
+        try:
+            spec.reflection.check_material(spec.material)
+        except ConfigError as exc:
+            raise ConfigError(f"reflection.{exc.key}", exc.detail) from None
+        object.__setattr__(spec, "specular", 1.0)
+    elif spec.specular is None:
+        object.__setattr__(spec, "specular", float(mirror_by_default))
 
 
 @dataclass(frozen=True)
@@ -185,10 +211,14 @@ class ObjectSpec:
     specular : float
         Specular reflectance R in [0, 1]: a ray meeting the object also reflects off it, as off
         a plane, with R times its weight (:mod:`sonarsim.paths.facets`); 0 (the default): the
-        object only scatters.
+        object only scatters. With ``reflection``: 1 (the reflectance is the reflection's).
     normals : {'flat', 'smooth'}
         What a specular object reflects about: each triangle's own normal, or the normal
         interpolated across it from its corners (a smooth mesh of a curved surface).
+    reflection : Reflection or None
+        The object mirrors with the reflectance of its medium's Rayleigh coefficient against
+        grazing angle and its roughness loss (:class:`~sonarsim.config.materials.Reflection`;
+        the medium by default its material's ``preset``), instead of a constant ``specular``.
     """
 
     name: str
@@ -201,8 +231,9 @@ class ObjectSpec:
     scale: float | tuple[float, float, float] = 1.0
     albedo: float = 0.8
     material: Material | None = None
-    specular: float = 0.0
+    specular: float | None = None
     normals: str = "flat"
+    reflection: Reflection | None = None
 
     def __post_init__(self) -> None:
         if (self.primitive is None) == (self.mesh is None):
@@ -234,7 +265,9 @@ class ObjectSpec:
             raise ConfigError("scale", f"must be a number or three numbers within [{MIN_LENGTH_M:g}, {MAX_LENGTH_M:g}], "
                               f"got {self.scale}")
         _check_unit_interval("albedo", self.albedo)
-        _check_unit_interval("specular", self.specular)
+        if self.specular is not None:
+            _check_unit_interval("specular", self.specular)
+        _resolve_reflection(self, 0.0)
         if self.specular > 0 and (not PLANE_NAME.match(str(self.name)) or self.name in RESERVED_PLANE_NAMES):
             # A mirror's name is part of the path names (``O-pipe-[ground]-O``), as a plane's is.
             raise ConfigError("name", f"a specular object's name must be a letter followed by letters, digits or "
@@ -268,7 +301,9 @@ class ObjectSpec:
             out["albedo"] = self.albedo
         else:
             out["material"] = self.material.to_dict()
-        if self.specular:
+        if self.reflection is not None:
+            out["reflection"] = self.reflection.to_dict()
+        elif self.specular:
             out["specular"] = self.specular
         if self.normals != "flat":
             out["normals"] = self.normals
@@ -293,22 +328,30 @@ class PlaneSpec:
     albedo : float
         Diffuse albedo in [0, 1]: the plane's own direct echo (0 for the water surface);
         shorthand for the Lambertian ``material``, used when ``material`` is None.
-    specular : float
+    specular : float or None
         Specular reflectance R in [0, 1]: each reflection off the plane scales a path by R.
+        ``None`` (the default): 1, or where the material is the ``sediment`` law its
+        ``reflection`` by the physics; 1 with a ``reflection`` (its scale).
     material : Material or None
         The backscatter law of the plane's direct echo; give it or ``albedo``, not both.
     texture : TextureSpec or None
         A world-anchored reflectivity texture over the plane (its axes:
         :func:`sonarsim.scene.floor_texture.plane_axes`); ``None``: uniform.
+    reflection : Reflection or None
+        The plane reflects by the Rayleigh coefficient of its medium against grazing angle and
+        the roughness loss of its rms height at the sonar's frequency
+        (:class:`~sonarsim.config.materials.Reflection`; the water surface: ``medium:
+        pressure-release`` with a wind speed), instead of a constant ``specular``.
     """
 
     name: str
     point_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     normal: tuple[float, float, float] = (0.0, 0.0, 1.0)
     albedo: float = 0.0
-    specular: float = 1.0
+    specular: float | None = None
     material: Material | None = None
     texture: TextureSpec | None = None
+    reflection: Reflection | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not PLANE_NAME.fullmatch(self.name) or self.name in RESERVED_PLANE_NAMES:
@@ -333,8 +376,10 @@ class PlaneSpec:
         object.__setattr__(self, "point_m", tuple(float(v) for v in point))
         object.__setattr__(self, "normal", tuple(float(v) for v in normal / length))
         _check_unit_interval("albedo", self.albedo)
-        _check_unit_interval("specular", self.specular)
+        if self.specular is not None:
+            _check_unit_interval("specular", self.specular)
         _check_material(self)
+        _resolve_reflection(self, 1.0)
         _check_texture(self.texture, "")
 
     @property
@@ -379,7 +424,10 @@ class PlaneSpec:
             out["albedo"] = self.albedo
         else:
             out["material"] = self.material.to_dict()
-        out["specular"] = self.specular
+        if self.reflection is not None:
+            out["reflection"] = self.reflection.to_dict()
+        else:
+            out["specular"] = self.specular
         if self.texture is not None:
             out["texture"] = self.texture.to_dict()
         return out
@@ -389,8 +437,9 @@ class PlaneSpec:
 GROUND_ALBEDO = 0.8
 
 
-def ground_plane(height_m: float = 0.0, albedo: float | None = None, specular: float = 1.0,
-                 material: Material | None = None, texture: TextureSpec | None = None) -> PlaneSpec:
+def ground_plane(height_m: float = 0.0, albedo: float | None = None, specular: float | None = None,
+                 material: Material | None = None, texture: TextureSpec | None = None,
+                 reflection: Reflection | None = None) -> PlaneSpec:
     """The ground: the horizontal plane ``z = height_m`` (normal +z) named ``ground``, what a
     scene file's ``ground:`` section stands for.
 
@@ -401,12 +450,15 @@ def ground_plane(height_m: float = 0.0, albedo: float | None = None, specular: f
     albedo : float, optional
         Diffuse albedo in [0, 1] of the direct ground echo (the Lambertian shorthand of
         ``material``); default 0.8 without a ``material``.
-    specular : float
-        Specular reflectance R in [0, 1] that drives the multipath.
+    specular : float, optional
+        Specular reflectance R in [0, 1] that drives the multipath; default 1, or the
+        sediment's physics (``reflection``) where ``material`` is the ``sediment`` law.
     material : Material, optional
         The backscatter law of the direct ground echo; give it or ``albedo``, not both.
     texture : TextureSpec, optional
         A world-anchored reflectivity texture; ``None``: uniform.
+    reflection : Reflection, optional
+        The specular reflectance by the physics (:class:`PlaneSpec`), instead of ``specular``.
 
     Returns
     -------
@@ -424,7 +476,7 @@ def ground_plane(height_m: float = 0.0, albedo: float | None = None, specular: f
     if albedo is None:
         albedo = GROUND_ALBEDO if material is None else PlaneSpec.__dataclass_fields__["albedo"].default
     try:
-        return PlaneSpec(GROUND, (0.0, 0.0, height), (0.0, 0.0, 1.0), albedo, specular, material, texture)
+        return PlaneSpec(GROUND, (0.0, 0.0, height), (0.0, 0.0, 1.0), albedo, specular, material, texture, reflection)
     except ConfigError as exc:
         raise ConfigError(f"ground.{exc.key}", exc.detail) from None
 
@@ -443,9 +495,13 @@ def ground_section(plane: PlaneSpec) -> dict:
     """The ``ground:`` section of a scene file that stands for ``plane`` (:func:`is_ground`)."""
     out: dict = {"height_m": plane.point_m[2]}
     if plane.material is not None:
-        out.update(material=plane.material.to_dict(), specular=plane.specular)
+        out.update(material=plane.material.to_dict())
     else:
-        out.update(albedo=plane.albedo, specular=plane.specular)
+        out.update(albedo=plane.albedo)
+    if plane.reflection is not None:
+        out["reflection"] = plane.reflection.to_dict()
+    else:
+        out["specular"] = plane.specular
     if plane.texture is not None:
         out["texture"] = plane.texture.to_dict()
     return out

@@ -54,11 +54,20 @@ class SurfaceLaws:
         ``(specular_strength, roughness)`` of the rough law's lobe (0 for the others); where a
         surface's law is tabulated (``SEDIMENT``), ``T`` more columns hold its per-ray law
         ``f(alpha)`` at ``T`` incidences evenly from 0 to 90 degrees (0 in the other rows).
+    reflectance : (n_surfaces + 1, T) float64 ndarray or None
+        Where some mirror reflects by the physics (``reflection``): each surface's coherent
+        reflectance ``|V|^2`` against ``c = |cos(incidence)|`` on T points evenly from 0 to 1
+        (:func:`sonarsim.core.reflection.reflectance_table`; a constant ``specular`` as a
+        constant row, 0 for a surface that does not mirror); ``None``: the constants.
+    reflect_q : (n_surfaces + 1,) float64 ndarray or None
+        The roughness loss's ``q = 4 k^2 h^2`` by row (``exp(-q c^2)``; 0 for a constant).
     """
 
     coefficient: np.ndarray
     law: np.ndarray
     lobe: np.ndarray
+    reflectance: np.ndarray | None = None
+    reflect_q: np.ndarray | None = None
 
     @classmethod
     def of(cls, materials: "Sequence[SurfaceMaterial] | np.ndarray | SurfaceLaws",
@@ -83,9 +92,10 @@ class SurfaceLaws:
             width = max(len(t) for t in tables if t is not None)
             wide = np.zeros((len(lobe), 2 + width))
             wide[:, :2] = lobe
+            grid = np.linspace(0.0, 1.0, width)
             for i, t in enumerate(tables):
-                if t is not None:
-                    wide[i + 1, 2:] = t
+                if t is not None:  # a coarser table onto the finest's incidences (linear in alpha, as read)
+                    wide[i + 1, 2:] = t if len(t) == width else np.interp(grid, np.linspace(0.0, 1.0, len(t)), t)
             lobe = wide
         return cls(coefficient, law, lobe)
 
@@ -109,6 +119,8 @@ class SurfaceLaws:
             width = max(a.shape[1], b.shape[1])
             a = np.pad(a, ((0, 0), (0, width - a.shape[1])))
             b = np.pad(b, ((0, 0), (0, width - b.shape[1])))
+        # (Mirror images serve the paper's method, whose one reflection is its constant R: the
+        # joined table has no reflectance.)
         return SurfaceLaws(np.concatenate([self.coefficient, other.coefficient[skip:]]),
                            np.concatenate([self.law, other.law[skip:]]),
                            np.concatenate([a, b]))

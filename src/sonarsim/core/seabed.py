@@ -69,6 +69,7 @@ import numpy as np
 from scipy import integrate, special
 
 from ..errors import ConfigError
+from .reflection import rayleigh_fluid
 
 #: The spectral exponent of the roughness spectrum (the handbook's value for every sediment).
 SPECTRAL_EXPONENT = 3.25
@@ -266,10 +267,7 @@ def rayleigh_coefficient(grazing_rad, sed: Sediment) -> np.ndarray:
     -------
     (...) complex128 ndarray; ``|V|^2`` is the coherent reflectance of a smooth bed.
     """
-    g = np.asarray(grazing_rad, dtype=np.float64)
-    p = _p(g, sed)
-    rs = sed.density_ratio * np.sin(g)
-    return (rs - p) / (rs + p)
+    return rayleigh_fluid(grazing_rad, sed.density_ratio, sed.sound_speed_ratio, sed.loss_parameter)
 
 
 def structure_constant(sed: Sediment) -> tuple[float, float]:
@@ -281,6 +279,17 @@ def structure_constant(sed: Sediment) -> tuple[float, float]:
     ch2 = (2.0 * math.pi * w2_m4 * H0_M ** (-gamma) * special.gamma(1.0 - alpha) * 2.0 ** (-2.0 * alpha)
            / (alpha * special.gamma(1.0 + alpha)))
     return float(ch2), alpha
+
+
+def rms_height_m(sed: Sediment, longest_wavelength_m: float) -> float:
+    """The rms height of the roughness at wavelengths up to ``longest_wavelength_m``, metres:
+    ``h^2 = int_{K_0}^inf W(K) 2 pi K dK = 2 pi w2 h0^-gamma K_0^(2 - gamma) / (gamma - 2)``,
+    ``K_0 = 2 pi / longest_wavelength_m`` (the power law diverges at long wavelengths: a patch's
+    height needs the cut)."""
+    gamma = sed.spectral_exponent
+    k0 = 2.0 * math.pi / float(longest_wavelength_m)
+    h2 = 2.0 * math.pi * sed.spectral_strength_cm4 * 1e-8 * H0_M ** (-gamma) * k0 ** (2.0 - gamma) / (gamma - 2.0)
+    return math.sqrt(h2)
 
 
 def roughness_spectrum(wavenumber_rad_m, sed: Sediment) -> np.ndarray:

@@ -184,6 +184,13 @@ def check_diff_laws(scene: Scene) -> None:
             raise ConfigError(f"{where}.material.law",
                               f"the differentiable engine takes the laws {', '.join(DIFF_LAWS)}, not {law!r}: render "
                               f"a {law} surface with sonarsim.Simulator, or give it a lambert law for the fit")
+    mirrors = [("ground" if p is scene.ground else f"planes.{p.name}", p) for p in scene.reflecting_planes]
+    mirrors += [(f"objects.{o.name}", o) for o in scene.objects]
+    for where, spec in mirrors:
+        if spec.reflection is not None:
+            raise ConfigError(f"{where}.reflection",
+                              "the differentiable engine reflects with a constant specular R: render a reflection "
+                              "by the physics with sonarsim.Simulator, or give the surface a specular for the fit")
 
 
 def surface_laws(scene: Scene) -> tuple[tuple[str, str], ...]:

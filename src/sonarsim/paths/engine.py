@@ -533,6 +533,7 @@ def trace_generation(
     if not mirrors:
         nrm = planes.normal[p]
         spec = planes.specular[p]
+        row = p + 1
     else:
         nrm = np.empty((len(p), 3))
         spec = np.empty(len(p))
@@ -548,6 +549,10 @@ def trace_generation(
         into = _rowdot(d_in - (2.0 * _rowdot(d_in, bent))[:, None] * bent, flat) * _rowdot(d_in, flat) > 0
         nrm[on_facet] = np.where(into[:, None], flat, bent)
         spec[on_facet] = facets.specular[facets.obj[ff]]
+        row = np.where(on_facet, n_planes + facets.obj[np.maximum(f, 0)] + 1, p + 1)
+    if isinstance(laws, SurfaceLaws) and laws.reflectance is not None:
+        # the mirrors' reflectance at each ray's incidence on the normal it reflects about
+        spec = mirror_reflectance(np.abs(_rowdot(d_go, nrm)), row, laws.reflectance, laws.reflect_q)
     twice = 2.0 * _rowdot(d_go, nrm)
     d_ref = d_go - twice[:, None] * nrm
     start = point[go].astype(np.float32).astype(np.float64) + SURFACE_OFFSET_M * d_ref
@@ -593,6 +598,38 @@ def weigh_leg(leg: Leg, reached: np.ndarray, laws: SurfaceLaws | np.ndarray, wei
 RAD2DEG = 180.0 / np.pi
 
 
+def mirror_reflectance(c: np.ndarray, row: np.ndarray, table: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Reflectances at incidences ``c = |cos|`` of surfaces ``row - 1`` (twin of the kernels'
+    ``reflect_at``: :func:`sonarsim.core.reflection.reflectance` row by row)."""
+    c = np.clip(np.nan_to_num(np.asarray(c, dtype=np.float64), nan=0.0), 0.0, 1.0)
+    row = np.asarray(row, dtype=np.intp)
+    x = c * (table.shape[1] - 1)
+    j = np.minimum(x.astype(np.intp), table.shape[1] - 2)
+    f = x - j
+    return (table[row, j] + f * (table[row, j + 1] - table[row, j])) * np.exp(-q[row] * c * c)
+
+
+def transmit_reflectance(u: np.ndarray, tx_planes: np.ndarray, n_planes: int, planes: PlaneSet, facets,
+                         table: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The product of the reflectances along transmit legs of chain ``tx_planes`` (twin of the
+    kernels' ``transmit_reflectance``): the first segment runs along ``u`` (k, 3), the unfolded
+    line from the sonar to each scatterer's image; each reflection meets its mirror at
+    ``|d . n|`` and turns ``d`` about ``n``."""
+    norm = np.sqrt(_rowdot(u, u))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = u / norm[:, None]
+    r = np.ones(len(u))
+    for p in (int(v) for v in tx_planes):
+        if p < n_planes:
+            n, row = planes.normal[p], p + 1
+        else:
+            n, row = facets.mirror_normal[p - n_planes], n_planes + int(facets.mirror_obj[p - n_planes]) + 1
+        dn = d @ n
+        r *= mirror_reflectance(np.abs(dn), np.full(len(u), row), table, q)
+        d = d - 2.0 * dn[:, None] * n
+    return np.where(norm > 0.0, r, 0.0)
+
+
 def option_paths(
     live: np.ndarray,
     leg: Leg,
@@ -611,6 +648,7 @@ def option_paths(
     planes: PlaneSet,
     active: np.ndarray,
     facets=None,
+    reflectance: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Paths of one generation's receive legs and one transmit option (twin of ``_kernels.path_events``).
 
@@ -650,6 +688,9 @@ def option_paths(
     facets : FacetSet, optional
         The mesh mirrors, where the chain holds some (chain mirror ``P + m``: the facets' mirror
         ``m``; the leg must record its triangles, ``leg.prim``).
+    reflectance : (table, q), optional
+        ``SurfaceLaws.reflectance`` and ``reflect_q``: the transmit leg's reflectances at its
+        incidences (:func:`transmit_reflectance`) instead of ``tx_specular``.
 
     Returns
     -------
@@ -718,7 +759,10 @@ def option_paths(
     k = np.flatnonzero(ok)
     i = i[k]
     distance = 0.5 * (leg.distance[i] + length[k])
-    energy = leg.atten[i] * tx_specular * leg.intensity[i]
+    tx_r = tx_specular
+    if reflectance is not None and len(tx_planes):
+        tx_r = transmit_reflectance(u[k], tx_planes, n_planes, planes, facets, *reflectance)
+    energy = leg.atten[i] * tx_r * leg.intensity[i]
     beam = (i // rays_per_beam).astype(np.int32)
     beam_tx = beam_tx[k].astype(np.int32)
     if separate == PAIRS_COHERENT:
@@ -1117,9 +1161,10 @@ def form_paths(
     rays_per_beam: int,
     max_order: int,
     double_beam: str,
+    reflectance: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[PathSet]:
     """Every path of the frame, as compact sets (:func:`option_paths` for each of
-    :func:`frame_options`).
+    :func:`frame_options`); ``reflectance``: the mirrors' (``SurfaceLaws``), else their constants.
 
     Parameters
     ----------
@@ -1150,16 +1195,19 @@ def form_paths(
             leg.live_rays(), leg, same, c, table.unfold(c), table.sources(c),
             np.asarray(chain, np.int32) if chain else no_planes, 1.0 if same else table.specular(tx),
             rank, PAIR_MODES[double_beam], row, n_planes, rays_per_beam, view, table.planes, active, facets,
+            reflectance,
         )
         if len(ray):
             out += option_sets(g, tx, ray, distance, energy, beam, beam_tx, label, double_beam)
     for g, tx, row in smooth:
-        out += reciprocal_sets(legs, table, g, tx, row, rank, view, active, n_planes, rays_per_beam, double_beam)
+        out += reciprocal_sets(legs, table, g, tx, row, rank, view, active, n_planes, rays_per_beam, double_beam,
+                               reflectance)
     return out
 
 
 def reciprocal_sets(legs: list[Leg], table: ChainTable, g: int, tx: int, row: int, rank: np.ndarray, view: SonarView,
-                    active: np.ndarray, n_planes: int, rays_per_beam: int, double_beam: str) -> list[PathSet]:
+                    active: np.ndarray, n_planes: int, rays_per_beam: int, double_beam: str,
+                    reflectance: tuple[np.ndarray, np.ndarray] | None = None) -> list[PathSet]:
     """The paths of option ``(g, tx)`` whose transmit chain ``tx`` meets a smooth mirror, formed
     from their reciprocal partners: the receive legs that followed ``tx`` (traced: no image
     source needed), with a transmit leg by image sources along each flat chain ``c`` of
@@ -1182,7 +1230,7 @@ def reciprocal_sets(legs: list[Leg], table: ChainTable, g: int, tx: int, row: in
         ray, distance, energy, beam, beam_tx, label = option_paths(
             live, leg, False, c, table.unfold(c), table.sources(c), np.asarray(chain, np.int32), table.specular(c),
             rank, max(PAIR_MODES[double_beam], PAIRS_SEPARATE), row, n_planes, rays_per_beam, view, table.planes,
-            active, table.facets,
+            active, table.facets, reflectance,
         )
         if len(ray):
             for s in option_sets(k, c, ray, distance, energy, beam_tx, beam, label, double_beam):

@@ -266,6 +266,7 @@ class _Facets:
         self.normal, self.offset = self.normal[heads], self.offset[heads]  # by mirror from here on
         owner = owner[heads]
         self.specular = self.object_specular[owner] if len(owner) else np.empty(0)
+        self.owner_spec = [objects[k] for k in owner]  # each mirror's object (its reflection)
         # A closed object mirrors on its outside only (its whole mesh, before clipping, tells).
         sides = [outer_side(object_mesh_world(o)) if c else 0 for o, c in zip(objects, counts)]
         self.side = np.array(sides, dtype=int)[owner] if len(owner) else np.empty(0, int)
@@ -309,14 +310,32 @@ class _Planes:
         point = np.array([p.point_m for p in specs], dtype=float).reshape(-1, 3)
         self.offset = np.sum(self.normal * point, axis=1)
         self.specular = np.array([p.specular for p in specs], dtype=float)
+        self.specs = tuple(specs)
 
     def __len__(self) -> int:
         return len(self.names)
 
 
+def _reflectance(spec, cos_incidence: np.ndarray, frequency_hz: float | None, sound_speed_m_s: float) -> np.ndarray:
+    """A mirror's reflectance at ``|cos(incidence)|``: its ``reflection``'s formulas
+    (``Reflection.evaluate``, not the kernels' table), else its constant ``specular``."""
+    c = np.asarray(cos_incidence, dtype=float)
+    if spec.reflection is None:
+        return np.full(c.shape, float(spec.specular))
+    return spec.reflection.evaluate(c, spec.material, frequency_hz, sound_speed_m_s)
+
+
+def _medium(sim, sonar) -> tuple[float | None, float]:
+    """``(frequency Hz or None, the water's sound speed m/s)`` the mirrors reflect at (the
+    sonar's frequency, else the sensor's, as the simulator's)."""
+    spec = sim.scene.sensor
+    khz = sonar.frequency_khz if sonar.frequency_khz is not None else (spec.frequency_khz if spec else None)
+    return (None if khz is None else khz * 1e3), sim.water_speed_m_s()
+
+
 def _receive_legs(sim, planes: _Planes, facets: _Facets, active: np.ndarray, origin: np.ndarray,
                   directions: np.ndarray, weight: np.ndarray, tvg: bool, reach: float, n_reflections: int,
-                  keep_legs: bool) -> dict:
+                  keep_legs: bool, medium: tuple[float | None, float] = (None, 1500.0)) -> dict:
     """Trace the fan's rays with reflections; one scatter event per ray and generation.
 
     Returns
@@ -385,7 +404,7 @@ def _receive_legs(sim, planes: _Planes, facets: _Facets, active: np.ndarray, ori
         law = np.zeros(len(k))
         for q in np.unique(s):
             on = s == q
-            law[on] = materials[q].evaluate(cos[on], texel[on])
+            law[on] = materials[q].evaluate(cos[on], texel[on], *medium)
         for q, field in enumerate(textures):
             if field is not None:
                 on = s == q
@@ -417,12 +436,10 @@ def _receive_legs(sim, planes: _Planes, facets: _Facets, active: np.ndarray, ori
         r = np.empty(len(g))
         for q in np.unique(p):
             sel = p == q
-            if q < n_planes:
-                new_d[sel] = reflect_direction(d[g[sel]], planes.normal[q])
-                r[sel] = planes.specular[q]
-            else:
-                new_d[sel] = reflect_direction(d[g[sel]], facets.normal[q - n_planes])
-                r[sel] = facets.specular[q - n_planes]
+            n = planes.normal[q] if q < n_planes else facets.normal[q - n_planes]
+            spec = planes.specs[q] if q < n_planes else facets.owner_spec[q - n_planes]
+            new_d[sel] = reflect_direction(d[g[sel]], n)
+            r[sel] = _reflectance(spec, np.abs(d[g[sel]] @ n), *medium)
         ray, start, d = ray[g], a[go], new_d
         before, atten = length[g], atten[g] * r
         chains = [chains[i] + (int(q),) for i, q in zip(g, p)]
@@ -632,8 +649,9 @@ def render_reference(sim, sonar=None, pose=None, *, max_order: int | None = None
     directions = fan.directions.reshape(-1, 3) @ rotation.T
     weight = np.asarray(fan.weight, dtype=float).reshape(-1)
     per_beam = len(directions) // sonar.n_beams
+    medium = _medium(sim, sonar)
     ev = _receive_legs(sim, planes, facets, active, origin, directions, weight, render.tvg, reach, n_reflections,
-                       keep_legs)
+                       keep_legs, medium)
     rx_chains = ev["followed"]
 
     # One row per path: (tx chain, rx chain, sid, range, L_tx, L_rx, energy, beam, beam_tx, order,
@@ -667,13 +685,23 @@ def render_reference(sim, sonar=None, pose=None, *, max_order: int | None = None
         if los and ok.any():
             sel = np.flatnonzero(ok)
             ok[sel] &= _unoccluded(sim, vertices[sel], [False] + [p >= n_planes for p in tx] + [True])
-        r_tx = float(np.prod([planes.specular[p] if p < n_planes else facets.specular[p - n_planes] for p in tx]))
+        # Each reflection of the traced transmit leg at its own incidence: the segment arriving
+        # at corner j + 1 against mirror tx[j]'s normal.
+        r_tx = np.ones(len(idx))
+        for j, p in enumerate(tx):
+            seg = vertices[:, j + 1] - vertices[:, j]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                seg = seg / np.linalg.norm(seg, axis=1, keepdims=True)
+            n = planes.normal[p] if p < n_planes else facets.normal[p - n_planes]
+            spec = planes.specs[p] if p < n_planes else facets.owner_spec[p - n_planes]
+            with np.errstate(invalid="ignore"):
+                r_tx *= np.nan_to_num(_reflectance(spec, np.abs(seg @ n), *medium), nan=0.0)
         for j in np.flatnonzero(ok):
             i = idx[j]
             # coherent: the partner arrives in the same beam with the same length, amplitudes add
             both = 2.0 if double_beam == "coherent" and beam_tx[j] == ev["ray"][i] // per_beam else 1.0
             rows.append((tx, ev["chain"][i], ev["sid"][i], 0.5 * (ev["length"][i] + length[j]), length[j],
-                         ev["length"][i], both * ev["atten"][i] * r_tx * ev["weight"][i], ev["ray"][i] // per_beam,
+                         ev["length"][i], both * ev["atten"][i] * r_tx[j] * ev["weight"][i], ev["ray"][i] // per_beam,
                          beam_tx[j], len(tx) + ev["gen"][i] + 1, ev["ray"][i], False, i, vertices[j]))
 
     paths = ReferencePaths()

@@ -554,6 +554,58 @@ cdef size_t _address(a):
     return <size_t>a.ctypes.data if a.size else 0
 
 
+cdef struct Reflectance:
+    # The mirrors' coherent reflectance (``SurfaceLaws.reflectance``; twin:
+    # ``core.reflection.reflectance``): row ``s + 1`` surface s's ``|V|^2`` against
+    # ``c = |cos(incidence)|`` on T points evenly from 0 to 1, times ``exp(-q c^2)``.
+    const double* table           # (n_surfaces + 1, T)
+    const double* q               # (n_surfaces + 1,)
+    Py_ssize_t T
+    Py_ssize_t rows
+
+
+cdef class ReflectanceTable:
+    """The mirrors' reflectance as the kernels read it: ``table`` (n_surfaces + 1, T >= 2)
+    float64 and ``q`` (n_surfaces + 1,) float64 (``SurfaceLaws.reflectance`` and
+    ``reflect_q``), kept read-only for the kernels' pointers."""
+
+    cdef Reflectance t
+    cdef readonly object arrays
+
+    def __init__(self, table, q):
+        table = np.ascontiguousarray(table, np.float64)
+        q = np.ascontiguousarray(q, np.float64).reshape(-1)
+        if table.ndim != 2 or table.shape[1] < 2 or q.shape[0] != table.shape[0]:
+            raise ValueError("a reflectance table (n_surfaces + 1, T >= 2) and its q (n_surfaces + 1,)")
+        if not (np.all(np.isfinite(table)) and np.all(np.isfinite(q)) and table.min(initial=0.0) >= 0.0
+                and q.min(initial=0.0) >= 0.0):
+            raise ValueError("reflectances and roughness exponents must be finite and not negative")
+        table.flags.writeable = False
+        q.flags.writeable = False
+        self.arrays = (table, q)
+        self.t.table = <const double*>_address(table)
+        self.t.q = <const double*>_address(q)
+        self.t.T = table.shape[1]
+        self.t.rows = table.shape[0]
+
+
+cdef inline double reflect_at(const Reflectance* rf, Py_ssize_t row, double c) noexcept nogil:
+    """Surface ``row - 1``'s reflectance at ``c = |cos(incidence)|`` (linear in the table)."""
+    cdef const double* t = rf.table + row * rf.T
+    cdef double x, f
+    cdef Py_ssize_t i
+    if c > 1.0:
+        c = 1.0
+    if not c > 0.0:  # (NaN too)
+        c = 0.0
+    x = c * <double>(rf.T - 1)
+    i = <Py_ssize_t>x
+    if i > rf.T - 2:
+        i = rf.T - 2
+    f = x - <double>i
+    return (t[i] + f * (t[i + 1] - t[i])) * exp(-rf.q[row] * c * c)
+
+
 cdef inline int64_t facet_of(const MirrorTables* mt, Py_ssize_t obj, int prim) noexcept nogil:
     """Facet of triangle ``prim`` of object ``obj``, -1 where the object does not mirror (twin:
     ``FacetSet.facet``)."""
@@ -645,7 +697,7 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
               double[::1] nx_atten, int[::1] nx_chain, const float* hit_texel, float[::1] texel,
               const int[::1] hit_prim, const float[:, ::1] hit_uv, int[::1] prim,
               float[:, ::1] uv, const MirrorTables* mt, int64_t* hkeys, int* hvals, Py_ssize_t hmask,
-              int* parent, int* last_mirror) noexcept nogil:
+              int* parent, int* last_mirror, const Reflectance* rf=NULL) noexcept nogil:
     """The loop of :func:`trace_leg`'s search (also run by :class:`PathBlocks`, block by block):
     writes the legs and lists the reached rays in ``live``; :func:`weigh_impl` weighs them.
 
@@ -653,7 +705,9 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
     meets on a side the facet mirrors on reflects about the facet's normal into chain mirror
     ``P + m``, the child found in the open-addressing table ``hkeys`` / ``hvals`` (``hmask + 1``
     slots, at least twice the chain table's rows; key ``chain * M + m``). ``parent`` and
-    ``last_mirror`` (NULL: not kept) receive each new chain's parent and last mirror."""
+    ``last_mirror`` (NULL: not kept) receive each new chain's parent and last mirror. ``rf``
+    (NULL: the constants ``plane_specular`` and the objects') is the mirrors' reflectance
+    against the incidence at each reflection."""
 
     cdef Py_ssize_t k, i, m = ray.shape[0], n_next = 0, P = plane_normal.shape[0]
     cdef Py_ssize_t row, p, best_p, cap = children.shape[0]
@@ -778,6 +832,8 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
             if mt.obj_smooth[s - P]:
                 smooth_normal(mt.corner_normals + 9 * facet, hit_uv[k, 0], hit_uv[k, 1], dx, dy, dz, &nx, &ny, &nz)
             spec = mt.obj_specular[s - P]
+            if rf != NULL:  # at the incidence on the normal it mirrors about
+                spec = reflect_at(rf, s + 1, fabs(dx * nx + dy * ny + dz * nz))
             hk = <int64_t>ch * mt.n_mirrors + mt.facet_mirror[facet]
             slot = hash_slot(hkeys, hmask, hk)
             if hkeys[slot] == hk:
@@ -796,7 +852,7 @@ cdef (Py_ssize_t, int, double, bint, Py_ssize_t) trace_leg_impl(const Py_ssize_t
         else:
             if not (reflect and s < P and total < reach and plane_specular[s] > 0):
                 continue
-            spec = plane_specular[s]
+            spec = plane_specular[s] if rf == NULL else reflect_at(rf, s + 1, c)
             child = children[ch, s]
             if child < 0:
                 if n_chains >= cap:
@@ -852,7 +908,7 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
               double[::1] nx_atten, int[::1] nx_chain, law_by_id=None, lobe_by_id=None, hit_texel=None,
               hit_prim=None, hit_uv=None, prim=None, uv=None, cosine=None, texel=None, Mirrors mirrors=None,
               int64_t[::1] mirror_keys=None, int[::1] mirror_children=None, int[::1] parent=None,
-              int[::1] last_mirror=None):
+              int[::1] last_mirror=None, ReflectanceTable reflectance=None):
     """One generation of receive legs: the search (closest of objects and active planes, and
     the specular reflection of the rays that meet a plane), then the weighing of what it
     recorded (twin: ``engine.trace_generation``, ``engine.weigh_leg``).
@@ -880,6 +936,8 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
     ``mirror_children`` are the open-addressing table of those chains (a power of 2 of slots,
     at least twice ``children``'s rows; key ``chain * M + m``). ``parent`` and ``last_mirror``
     (as many as ``children``'s rows, optional) receive each new chain's parent and last mirror.
+    ``reflectance`` (:class:`ReflectanceTable`, a row per surface + 1): the mirrors'
+    reflectance against incidence instead of the constants.
 
     Returns
     -------
@@ -927,12 +985,17 @@ def trace_leg(const Py_ssize_t[::1] ray, const float[::1] hit_distance, const in
         if parent.shape[0] < children.shape[0] or last_mirror.shape[0] < children.shape[0]:
             raise ValueError("parent and last_mirror: a row per chain table row")
         par, lst = &parent[0], &last_mirror[0]
+    cdef const Reflectance* rf = NULL
+    if reflectance is not None:
+        if reflectance.t.rows < n_surfaces + 1:
+            raise ValueError(f"a reflectance table of {reflectance.t.rows} rows for {n_surfaces} surfaces (+ 1)")
+        rf = &reflectance.t
     with nogil:
         r = trace_leg_impl(ray, hit_distance, hit_mesh, hit_normal, org, dirs, before, atten, chain, plane_normal,
                            plane_offset, plane_active, plane_specular, reach, first, reflect, children, n_chains,
                            dist, sid, point, normal, cos_out, atten_out, chain_out, key, live, n_surfaces, nx_ray,
                            nx_org, nx_org32, nx_dir, nx_dir32, nx_before, nx_atten, nx_chain, laws.texel, tex_out,
-                           hp, huv, po, uo, mt, hkeys, hvals, hmask, par, lst)
+                           hp, huv, po, uo, mt, hkeys, hvals, hmask, par, lst, rf)
         n_live = weigh_impl(live, r[4], sid, cos_out, dist, tex_out, laws.texel != NULL, <int>plane_normal.shape[0],
                             albedo_by_id, weight, tvg, laws, intensity)
     return r[0], r[1], r[2], r[3], n_live
@@ -1045,6 +1108,31 @@ def returns_to_sonar(const Py_ssize_t[::1] ray, const double[:, ::1] org, const 
                      &back_chain[0])
 
 
+cdef inline double transmit_reflectance(const Reflectance* rf, double ux, double uy, double uz, Py_ssize_t K,
+                                       const int* tx_planes, const double* pn, Py_ssize_t n_planes,
+                                       const MirrorTables* mt) noexcept nogil:
+    """The product of the reflectances along a transmit leg of chain ``tx_planes`` (from the
+    sonar): its first segment runs along ``u``, the unfolded line from the sonar to the
+    scatterer's image; each reflection meets mirror ``p`` (a plane, or mesh mirror
+    ``p - n_planes`` of its object) at ``|d . n_p|`` and turns ``d`` about ``n_p``."""
+    cdef double norm = sqrt(ux * ux + uy * uy + uz * uz), dn, r = 1.0
+    cdef Py_ssize_t j, p, row
+    if not norm > 0.0:
+        return 0.0
+    ux /= norm
+    uy /= norm
+    uz /= norm
+    for j in range(K):
+        p = tx_planes[j]
+        dn = dot3(pn, p, ux, uy, uz)
+        row = p + 1 if p < n_planes else n_planes + mt.mirror_obj[p - n_planes] + 1
+        r *= reflect_at(rf, row, fabs(dn))
+        ux -= 2.0 * dn * pn[3 * p]
+        uy -= 2.0 * dn * pn[3 * p + 1]
+        uz -= 2.0 * dn * pn[3 * p + 2]
+    return r
+
+
 cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] dist, const int[::1] sid,
                 const double[:, ::1] point, const double[::1] intensity, const double[::1] atten,
                 const int[::1] chain, bint same, int tx, const double[:, ::1] unfold,
@@ -1057,20 +1145,22 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
                 Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
                 int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label,
                 const MirrorTables* mt, const int* leg_prim, double sin_half, const double* tan_edges,
-                int only=-1, bint cone=False) noexcept nogil:
+                int only=-1, bint cone=False, const Reflectance* rf=NULL) noexcept nogil:
     """The loop of :func:`path_events` (also run by :class:`PathBlocks`). ``plane_normal`` and
     ``plane_offset`` hold the planes, then (with ``mt``) the mesh mirrors' planes; the water is
     bounded by the first ``plane_active.shape[0]`` (the planes). ``leg_prim``: the legs'
     triangles (dense; needed where a chain ends on a mesh mirror). ``only`` >= 0: only the rays
     whose receive chain is that one, each paired with the transmit chain whatever their ranks
-    (a smooth mirror's reciprocal partners: ``engine.reciprocal_sets``)."""
+    (a smooth mirror's reciprocal partners: ``engine.reciprocal_sets``). ``rf`` (NULL: the
+    chain's constant product ``tx_specular``): the mirrors' reflectance at each reflection of
+    the transmit leg, found along the unfolded line (:func:`transmit_reflectance`)."""
 
     cdef Py_ssize_t k, i, m = 0, n = live.shape[0], K = tx_planes.shape[0], j, q, P = plane_active.shape[0]
     cdef Py_ssize_t room = out_ray.shape[0]  # the outputs' length: nothing is written past it
     cdef int c, s, last = tx_planes[K - 1] if K > 0 else -1, rank_tx = rank[tx] if not same else 0
     cdef int64_t f
     cdef bint mirror_chain = False
-    cdef double ax, ay, az_, ux, uy, uz, vx, vy, vz, length
+    cdef double ax, ay, az_, ux, uy, uz, vx, vy, vz, length, tx_r
     cdef Py_ssize_t b
     # (the planes' and the mesh mirrors' normals: there may be mirrors and no plane)
     cdef const double* pn = &plane_normal[0, 0] if plane_normal.shape[0] > 0 else NULL
@@ -1130,9 +1220,12 @@ cdef Py_ssize_t path_events_impl(const Py_ssize_t[::1] live, const double[::1] d
             continue
         if m >= room:
             return room + 1
+        tx_r = tx_specular
+        if rf != NULL and K > 0:
+            tx_r = transmit_reflectance(rf, ux, uy, uz, K, chain_of_tx, pn, n_planes, mt)
         out_ray[m] = i
         out_dist[m] = 0.5 * (dist[i] + length)
-        out_energy[m] = atten[i] * tx_specular * intensity[i]
+        out_energy[m] = atten[i] * tx_r * intensity[i]
         out_beam[m] = <int>(i // rays_per_beam)
         out_beam_tx[m] = <int>b
         if separate == PAIRS_COHERENT and b == out_beam[m]:
@@ -1241,7 +1334,7 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
                 const unsigned char[::1] plane_active,
                 Py_ssize_t[::1] out_ray, double[::1] out_dist, double[::1] out_energy,
                 int[::1] out_beam, int[::1] out_beam_tx, signed char[::1] out_label, Mirrors mirrors=None,
-                const int[::1] prim=None, int only=-1, bint cone=False):
+                const int[::1] prim=None, int only=-1, bint cone=False, ReflectanceTable reflectance=None):
     """Paths of one generation's receive legs and one transmit option (twin:
     ``engine.option_paths``). ``cone``: the beams are cones (:func:`beam_in_view`).
 
@@ -1249,6 +1342,8 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
     (``plane_active``'s length) and then the M mesh mirrors' planes, a chain's mirror ``P + m``
     is mesh mirror m, and ``prim`` (dense) holds the legs' triangles. ``only`` >= 0: only the
     rays whose receive chain is ``only``, whatever the ranks (a smooth mirror's partners).
+    ``reflectance`` (:class:`ReflectanceTable`): the transmit leg's reflectances by incidence
+    instead of ``tx_specular``.
 
     ``same``: the transmit leg is the receive leg reversed (order label ``label``; for the
     first generation the label is 0 on objects, 1 on planes). Otherwise the transmit leg
@@ -1282,8 +1377,13 @@ def path_events(const Py_ssize_t[::1] live, const double[::1] dist, const int[::
         if prim is None or prim.shape[0] != dist.shape[0]:
             raise ValueError("mirrors need the legs' triangles (prim, dense)")
         pp = &prim[0] if prim.shape[0] else NULL
+    cdef const Reflectance* rf = NULL
+    if reflectance is not None:
+        if reflectance.t.rows < n_planes + 1 + (mirrors.t.n_objects if mirrors is not None else 0):
+            raise ValueError(f"a reflectance table of {reflectance.t.rows} rows for the planes and objects (+ 1)")
+        rf = &reflectance.t
     with nogil:
-        m = path_events_impl(live, dist, sid, point, intensity, atten, chain, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, ox, oy, oz, rotation, edges, half_elevation_deg, range_min, range_max, plane_normal, plane_offset, plane_active, out_ray, out_dist, out_energy, out_beam, out_beam_tx, out_label, mt, pp, sin_half, tp, only, cone)
+        m = path_events_impl(live, dist, sid, point, intensity, atten, chain, same, tx, unfold, sources, tx_planes, tx_specular, rank, separate, label, n_planes, rays_per_beam, ox, oy, oz, rotation, edges, half_elevation_deg, range_min, range_max, plane_normal, plane_offset, plane_active, out_ray, out_dist, out_energy, out_beam, out_beam_tx, out_label, mt, pp, sin_half, tp, only, cone, rf)
     return m
 
 
@@ -2044,12 +2144,14 @@ cdef class PathBlocks:
     cdef int total_rows[16]
     cdef int n_total_rows
     cdef bint paths_ready, splat
+    cdef const Reflectance* rf  # NULL: the mirrors' constant reflectances
+    cdef ReflectanceTable reflectance
 
     def __init__(self, work, const double[:, ::1] directions, const double[::1] weight,
                  const double[::1] albedo_by_id, law_by_id, lobe_by_id, const double[:, ::1] plane_normal,
                  const double[::1] plane_offset, const double[::1] plane_specular, Py_ssize_t n_blocks,
                  Py_ssize_t capacity, scene=None, size_t scene_address=0, size_t cast_address=0, ids=None,
-                 bint coherent=False, Mirrors mirrors=None):
+                 bint coherent=False, Mirrors mirrors=None, ReflectanceTable reflectance=None):
         w = work
         if w.n != directions.shape[0] or weight.shape[0] != w.n:
             raise ValueError(f"a workspace of {w.n} rays for {directions.shape[0]} directions and {weight.shape[0]} weights")
@@ -2072,6 +2174,13 @@ cdef class PathBlocks:
         self.plane_normal, self.plane_offset, self.plane_specular = plane_normal, plane_offset, plane_specular
         self.n_planes = plane_normal.shape[0]
         self.mirrors = mirrors
+        self.reflectance = reflectance
+        self.rf = NULL
+        if reflectance is not None:
+            if reflectance.t.rows != albedo_by_id.shape[0]:
+                raise ValueError(f"a reflectance table of {reflectance.t.rows} rows for {albedo_by_id.shape[0]} "
+                                 f"surfaces (+ 1)")
+            self.rf = &reflectance.t
         self.mt = NULL
         self.surf_normal, self.surf_offset = plane_normal, plane_offset
         if mirrors is not None and mirrors.n_mirrors:
@@ -2343,7 +2452,7 @@ cdef class PathBlocks:
                                self.prim[0] if self.primitives else self.no_prim,
                                self.uv[0] if self.primitives else self.no_uv, self.mt, &self.hkeys[k, 0],
                                &self.hvals[k, 0], self.hkeys.shape[1] - 1, &self.parent[k, 0],
-                               &self.last_mirror[k, 0])
+                               &self.last_mirror[k, 0], self.rf)
         else:
             r = trace_leg_impl(self.r_ray[cur, a:a + m], self.h_dist[a:a + m], self.h_mesh[a:a + m],
                                self.h_normal[a:a + m], self.r_org[cur, a:a + m], self.r_dir[cur, a:a + m],
@@ -2360,7 +2469,7 @@ cdef class PathBlocks:
                                self.prim[g] if self.primitives else self.no_prim,
                                self.uv[g] if self.primitives else self.no_uv, self.mt, &self.hkeys[k, 0],
                                &self.hvals[k, 0], self.hkeys.shape[1] - 1, &self.parent[k, 0],
-                               &self.last_mirror[k, 0])
+                               &self.last_mirror[k, 0], self.rf)
         if g > 0 and self.glint_r2 > 0.0:
             returns_impl(&self.r_ray[cur, a], &self.r_org[cur, a, 0], &self.r_dir[cur, a, 0], &self.r_before[cur, a],
                          &self.r_atten[cur, a], &self.r_chain[cur, a], m, &self.dist[g, 0], self.origin,
@@ -2699,7 +2808,7 @@ cdef class PathBlocks:
                         self.scratch_energy[a:a + n], self.scratch_beam[a:a + n], self.scratch_beam_tx[a:a + n],
                         self.scratch_label[a:a + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL,
                         self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL,
-                        self.opt_only[o], self.cone)
+                        self.opt_only[o], self.cone, self.rf)
                     self.p_count[o * self.n_blocks + k] = cnt
                     continue
                 if self.capacity is not None:  # room for what the counting pass counted
@@ -2715,7 +2824,7 @@ cdef class PathBlocks:
                     self.p_energy[off:off + n], self.p_beam[off:off + n], self.p_beam_tx[off:off + n],
                     self.p_label[off:off + n], self.mt, &self.prim[g, 0] if self.mt != NULL else NULL,
                     self.sin_half, &self.tan_edges[0] if self.tan_edges is not None else NULL, self.opt_only[o],
-                    self.cone)
+                    self.cone, self.rf)
                 if cnt > n or (self.capacity is not None and cnt != n):
                     self.miscounted[k] = 1
                     cnt = cnt if cnt <= n else n

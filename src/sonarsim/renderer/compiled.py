@@ -509,9 +509,10 @@ def path_engine(caster, work: Workspace, fan: RayFan, laws: SurfaceLaws, planes,
         return cached[4]
     law_by_id, lobe_by_id, _ = _law_args(laws, None)
     mirrors = _kernels.Mirrors.of(facets) if facets is not None and facets.any else None
+    reflectance = None if laws.reflectance is None else _kernels.ReflectanceTable(laws.reflectance, laws.reflect_q)
     engine = _kernels.PathBlocks(work, fan.directions.reshape(-1, 3), fan.weight.reshape(-1), laws.coefficient,
                                  law_by_id, lobe_by_id, planes.normal, planes.offset, planes.specular, n_blocks,
-                                 CHAIN_CAPACITY, *(handle or ()), mirrors=mirrors)
+                                 CHAIN_CAPACITY, *(handle or ()), mirrors=mirrors, reflectance=reflectance)
     work.engine = (caster, fan, laws, planes, engine, n_blocks, facets)
     return engine
 

@@ -23,7 +23,8 @@ from ..config.scene import Scene, sonar_section
 from ..config.sonar import SonarConfig, image_bytes
 from ..core.memory import keep_freed_memory, require_together
 from ..scene.cost import check_scene_cost, leg_bytes
-from ..core.radiometry import SurfaceLaws, backscatter
+from ..core.radiometry import SEDIMENT, SurfaceLaws, backscatter
+from ..core import reflection
 from ..core.rays import BYTES_PER_RAY, RayFan, make_ray_fan, ray_bytes, ray_size_key
 from ..core.streams import frame_rng, sequential_rng
 from ..core.transforms import Pose
@@ -61,6 +62,22 @@ MULTIPATH_REACH = 2.0
 # The grid of a frame of several poses (Simulator.trace_poses) spans this many degrees: its
 # columns are the poses' beams side by side, and its azimuths name no direction.
 BATCH_GRID_FOV_DEG = 90.0
+
+
+def mirror_reflectance(mirrors, frequency_hz: float | None, sound_speed_m_s: float) -> dict[str, np.ndarray]:
+    """``SurfaceLaws``' ``reflectance`` and ``reflect_q`` rows (row 0: nothing hit) of surfaces
+    given as ``(specular, reflection or None, material)`` in surface-id order: a constant row
+    where there is no reflection, the medium's ``|V|^2`` table and roughness exponent where
+    there is one."""
+    table = np.zeros((len(mirrors) + 1, reflection.TABLE_SIZE))
+    q = np.zeros(len(mirrors) + 1)
+    for i, (specular, refl, material) in enumerate(mirrors):
+        if refl is None:
+            table[i + 1] = specular
+        else:
+            table[i + 1] = refl.table(material, sound_speed_m_s)
+            q[i + 1] = refl.exponent(material, frequency_hz, sound_speed_m_s)
+    return {"reflectance": table, "reflect_q": q}
 
 
 @functools.lru_cache(maxsize=8)
@@ -242,8 +259,13 @@ class Simulator:
         # Backscatter laws by surface id + 1: index 0 is "no hit", p + 1 plane p, P + k + 1 object k.
         self._materials = ([p.backscatter for p in self.scene.reflecting_planes]
                            + [o.backscatter for o in self.scene.objects])
-        # A sediment's law depends on the sonar's frequency: tabulated per frequency, on first use.
-        self._tabulated = any(m.law == "sediment" for m in self._materials)
+        # The mirrors' reflectances, in the same order: a constant, or a reflection by the physics.
+        self._mirrors = ([(p.specular, p.reflection, p.backscatter) for p in self.scene.reflecting_planes]
+                         + [(o.specular, o.reflection, o.backscatter) for o in self.scene.objects])
+        self._reflecting = any(r is not None for _, r, _ in self._mirrors)
+        # A sediment's law and a rough mirror's reflectance depend on the sonar's frequency:
+        # tabulated per frequency, on first use.
+        self._tabulated = any(m.code == SEDIMENT for m in self._materials) or self._reflecting
         self._laws = None if self._tabulated else SurfaceLaws.of(self._materials)
         self._laws_by_frequency: dict[float | None, SurfaceLaws] = {}
         # The planes' reflectivity textures by plane index (None: untextured), fixed for the
@@ -384,7 +406,10 @@ class Simulator:
         khz = sonar.frequency_khz if sonar.frequency_khz is not None else (spec.frequency_khz if spec else None)
         laws = self._laws_by_frequency.get(khz)
         if laws is None:
-            laws = SurfaceLaws.of(self._materials, None if khz is None else khz * 1e3, self.water_speed_m_s())
+            hz = None if khz is None else khz * 1e3
+            laws = SurfaceLaws.of(self._materials, hz, self.water_speed_m_s())
+            if self._reflecting:
+                laws = replace(laws, **mirror_reflectance(self._mirrors, hz, self.water_speed_m_s()))
             if len(self._laws_by_frequency) >= 8:  # instruments of a few frequencies: kept, not more
                 self._laws_by_frequency.pop(next(iter(self._laws_by_frequency)))
             self._laws_by_frequency[khz] = laws
@@ -477,10 +502,12 @@ class Simulator:
             return stack, legs, sets, table, total, truth
         directions = view.directions.reshape(-1, 3)
         glint = render.glint_radius_m if render.glints else None
-        legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, self.surface_laws(sonar),
+        laws = self.surface_laws(sonar)
+        legs = trace_legs(self.caster, self.planes, active, origin, directions, weight, laws,
                           render.tvg, reach, n_generations, table, self.textures, glint_radius_m=glint)
         table = renumber_chains(table, legs)
-        sets = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam)
+        sets = form_paths(legs, table, view, active, n_planes, per_beam, render.max_order, render.double_beam,
+                          None if laws.reflectance is None else (laws.reflectance, laws.reflect_q))
         if glint is not None:
             sets += glint_sets(legs, view, n_planes, per_beam, render.max_order, weight, glint, render.tvg)
         if occlusion is not None:
