@@ -49,8 +49,10 @@ def test_each_ground_reflection_scales_a_path_by_the_roughness_loss_at_its_grazi
 
 
 def reflecting_tank(max_order: int = 3, double_beam: str = "coherent") -> dict:
-    """The reference tank with a sandy floor, a wind-roughened surface, a steel wall, a concrete
-    wall that mirrors by a constant, and a steel block that mirrors by its medium."""
+    """The reference tank with a sandy floor, a wind-roughened surface, a rough concrete far wall
+    leaning back (a mirror at no right angle to the others: a transmit leg's second incidence
+    depends on the first reflection's turn), side walls that mirror by a constant, and a
+    steel block that mirrors by its medium."""
     doc = tank_dict(max_order=max_order, double_beam=double_beam)
     doc["sonar"]["frequency_khz"] = 300.0
     doc["ground"] = {"height_m": 0.0, "material": {"law": "sediment", "sediment": "coarse-sand"},
@@ -59,7 +61,8 @@ def reflecting_tank(max_order: int = 3, double_beam: str = "coherent") -> dict:
     del planes[0]["specular"]
     planes[0]["reflection"] = {"medium": "pressure-release", "wind_speed_m_s": 0.4}
     del planes[1]["specular"]
-    planes[1]["reflection"] = {"medium": "steel"}
+    planes[1]["reflection"] = {"medium": "concrete", "rms_height_m": 1e-3}
+    planes[1]["normal"] = [-1.0, 0.0, 0.3]
     doc["objects"][1].update(material={"preset": "steel"}, reflection={})
     del doc["objects"][1]["albedo"]
     return doc
@@ -69,6 +72,9 @@ def reflecting_tank(max_order: int = 3, double_beam: str = "coherent") -> dict:
 def test_the_fast_paths_reflect_as_the_reference_does(kernels):
     worst = compare(reflecting_tank(), kernels)
     assert worst  # the tank has paths of every order
+    # Each pair formed from both sides: transmit legs of two reflections (the direction turned
+    # between them) at order 3.
+    assert compare(reflecting_tank(double_beam="separate"), kernels)
     # The physics acts: the same tank with every mirror at R = 1 is brighter in each multipath
     # signature through the floor.
     doc = reflecting_tank()
