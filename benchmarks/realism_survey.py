@@ -46,6 +46,13 @@ def main(argv=None) -> int:
               f"{g['calibration_mean_per_beam']:.3f} m; level floor {g['level_floor']:.3f} m ({g['cells']} beams)")
         print(f"  per-beam backscatter, rms: model {b['model']:.2f} dB; calibration mean per beam "
               f"{b['calibration_mean_per_beam']:.2f} dB; ceiling (neighbouring pings) {b['ceiling_neighbours']:.2f} dB")
+        a = r["angular_response_db"]
+        print(f"  angular response, rms dB over {a['bins']} bins of incidence {a['incidence_deg'][0]:g}-"
+              f"{a['incidence_deg'][1]:g} deg: sediment {a['sediment']:.2f}, with beam gains "
+              f"{a['sediment_with_beam_gains']:.2f}; calibration mean per beam {a['calibration_mean_per_beam']:.2f}; "
+              f"Lambert over the footprint {a['footprint_lambert']:.2f}; flat {a['flat']:.2f}; ceiling (calibration "
+              f"response) {a['ceiling_calibration_response']:.2f}; a beam's incidence moves "
+              f"{a['incidence_spread_per_beam_deg']:.2f} deg (median std over the pings)")
     e = read_envelope(REAL / "singlebeam" / "imagenex852_2016-11-18.852")
     half = e.n_pings // 2
     for cal, test in ((np.arange(half), np.arange(half, e.n_pings)), (np.arange(half, e.n_pings), np.arange(half))):

@@ -188,6 +188,14 @@ def _interp_beams(angle_from: np.ndarray, values: np.ndarray, angle_to: np.ndarr
     return out
 
 
+def _spread_per_beam(values: np.ndarray) -> float:
+    """The median over beams of each beam's standard deviation over pings (NaN ignored)."""
+    ok = np.isfinite(values).sum(axis=0) > 1
+    if not ok.any():
+        return float("nan")
+    return float(np.median(np.nanstd(values[:, ok], axis=0)))
+
+
 def _incidence_deg(render: Soundings, floor: np.ndarray, heads: np.ndarray) -> np.ndarray:
     a, b, c = floor
     n = np.array([-b, -c, 1.0]) / np.linalg.norm([-b, -c, 1.0])
@@ -314,6 +322,11 @@ def score(s: Soundings, calibration, test, n_samples: int = 2048) -> dict:
             "knots_with_beam_gains": resp_rms(knots_resp), "ceiling_calibration_response": resp_rms(cal_resp),
             "flat": resp_rms(np.full(centres.shape, np.average(cal_resp[both], weights=cal_n[both]))),
             "bins": int(both.sum()), "incidence_deg": [float(centres[both].min()), float(centres[both].max())],
+            # how far a beam's incidence moves over the test pings (median over beams of its
+            # standard deviation): where the head holds its beams' angles against the roll, as
+            # the R2Sonic does, a beam keeps its incidence and the per-beam mean is the bed's
+            # response at it; only other attitudes or heights would tell a law from it
+            "incidence_spread_per_beam_deg": _spread_per_beam(test_inc),
             "fit": fit,
         },
         "calibration_pings": [int(cal.min()), int(cal.max())], "test_pings": [int(test.min()), int(test.max())],
