@@ -48,6 +48,10 @@ def main(argv=None) -> int:
         print(f"  intensity, rms dB over {i['cells']} cells: model {i['model_db']:.2f}; calibration mean profile "
               f"{i['mean_profile_db']:.2f}; shifted to each ping's first return {i['shifted_profile_db']:.2f}; "
               f"ceiling (neighbouring pings) {i['ceiling_neighbours_db']:.2f}")
+        for part in ("water_column", "floor"):
+            w = i[part]
+            print(f"    {part.replace('_', ' ')} ({w['cells']} cells): model {w['model_db']:.2f}; shifted profile "
+                  f"{w['shifted_profile_db']:.2f}")
         print("  fit: " + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in s["fit"].items()))
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1) + "\n")

@@ -72,3 +72,11 @@ def test_the_sea_scan_recording_on_pings_it_was_not_fitted_on():
     assert first["model_m"] < 0.5 * first["geometry_m"] and first["geometry_m"] < first["altitude_m"]
     assert level["model_db"] < level["shifted_profile_db"] < level["mean_profile_db"]
     assert level["ceiling_neighbours_db"] < level["model_db"]
+    # where the model loses (issue 39 item 8's 1 dB target): the water column, whose recorded
+    # level falls 5.7 dB over the dive, the model's noise level held (measured 3.2 dB against
+    # the shifted profile's 4.2), and the floor, where the calibration pings' shifted profile
+    # is closer (1.3 against the model's 1.6)
+    water, floor = level["water_column"], level["floor"]
+    assert water["cells"] + floor["cells"] < level["cells"] and min(water["cells"], floor["cells"]) > 2000
+    assert water["model_db"] > 1.5 * floor["model_db"] and water["model_db"] < water["shifted_profile_db"]
+    assert floor["shifted_profile_db"] < floor["model_db"]

@@ -250,6 +250,16 @@ def score(recording: Waterfall, fit: SidescanFit, calibration, test) -> dict:
     intensity = {"model_db": _rmse(d(model)), "mean_profile_db": _rmse(d(np.broadcast_to(mean_profile, measured.shape))),
                  "shifted_profile_db": _rmse(d(shifted)), "ceiling_neighbours_db": _rmse(d(neighbours)),
                  "cells": int(cells.sum())}
+    # The same split where the recording's echo comes from: the water column (bins ending half a
+    # metre before the ping's measured first return: noise, the model's one level) and the floor
+    # (bins from a metre after it), each with the model and the shifted profile.
+    half_bin = centres[1] - centres[0]
+    water = centres[None, None, :] + half_bin / 2 < measured_first[..., None] - 0.5
+    floor = centres[None, None, :] - half_bin / 2 > measured_first[..., None] + 1.0
+    for name, where in (("water_column", water), ("floor", floor)):
+        e = lambda a: np.where(cells & where, a - measured, np.nan)  # noqa: E731
+        intensity[name] = {"model_db": _rmse(e(model)), "shifted_profile_db": _rmse(e(shifted)),
+                           "cells": int((cells & where).sum())}
     return {"first_return": first, "intensity_db": intensity, "fit": asdict(fit),
             "calibration_pings": [int(calibration.min()), int(calibration.max())],
             "test_pings": [int(test.min()), int(test.max())]}
