@@ -23,6 +23,7 @@ EXTRAS = {
     "viewer": "the viewer extra",
     "diff": "the differentiable engine's extra (JAX)",
     "xtf": "the XTF extra (pyxtf)",
+    "live": "the live extra (Cyclone DDS and rosbags)",
 }
 
 

@@ -116,6 +116,7 @@ __all__ = [
     "INSTRUMENT_MSGTYPES",
     "InstrumentBagNames",
     "InstrumentBagWriter",
+    "instrument_typestore",
     "beam_unit_vectors",
     "instrument_topics",
     "recording_poses",
@@ -279,6 +280,22 @@ def recording_poses(film: Any) -> list[Pose]:
 # The writer ---------------------------------------------------------------------------------
 
 
+def instrument_typestore() -> Any:
+    """The typestore of :mod:`sonarsim.io.rosbag` (Humble's messages and ProjectedSonarImage's),
+    with every message the instruments' bags write added (once: adding types changes nothing
+    for the FLS writer, as a bag lists only the types it uses). Raises
+    :class:`~sonarsim.errors.SonarsimError` naming the ``ros`` extra without ``rosbags``."""
+    store = rb._import_rosbags()[2]
+    if "marine_acoustic_msgs/msg/RawSonarImage" not in store.types:
+        from rosbags.typesys import get_types_from_msg
+
+        types: dict[str, Any] = {}
+        for name, text in _MSG_DEFS.items():
+            types.update(get_types_from_msg(text, name))
+        store.register(types)
+    return store
+
+
 class InstrumentBagWriter(rb.BagWriter):
     """A :class:`~sonarsim.io.rosbag.BagWriter` (atomic, either storage) that writes any
     registered message to any topic; :func:`write_instrument_bag` drives it.
@@ -292,16 +309,7 @@ class InstrumentBagWriter(rb.BagWriter):
     def open(self) -> InstrumentBagWriter:
         super().open()
         try:
-            store = self._typestore
-            if "marine_acoustic_msgs/msg/RawSonarImage" not in store.types:
-                # The cached typestore of rosbag.py, extended once (adding types changes nothing
-                # for the FLS writer: a bag lists only the types it uses).
-                from rosbags.typesys import get_types_from_msg
-
-                types: dict[str, Any] = {}
-                for name, text in _MSG_DEFS.items():
-                    types.update(get_types_from_msg(text, name))
-                store.register(types)
+            store = instrument_typestore()
             for name in ("sensor_msgs/msg/Range", "tf2_msgs/msg/TFMessage", "sensor_msgs/msg/PointCloud2", "std_msgs/msg/String",
                          *_MSG_DEFS, "marine_acoustic_msgs/msg/ProjectedSonarImage"):
                 self._types[name] = store.types[name]
