@@ -111,6 +111,8 @@ __all__ = [
     "BagFrameIds",
     "BagTopics",
     "BagWriter",
+    "FrameMessages",
+    "MSGTYPES",
     "bag_naming",
     "beam_directions",
     "device_polar",
@@ -200,6 +202,8 @@ _MSGTYPES = {
     "points": "sensor_msgs/msg/PointCloud2",
     "unit": "std_msgs/msg/String",
 }
+#: The ROS 2 message type of each topic of a frame (keys of :data:`TOPICS`).
+MSGTYPES: Mapping[str, str] = MappingProxyType(_MSGTYPES)
 # One point of /sonar/points: x, y, z (float32, world frame, metres) and object id (int32).
 _POINT_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("object", "<i4")])
 
@@ -752,7 +756,132 @@ def _import_rosbags() -> tuple[Any, Any, Any]:
     return Writer, StoragePlugin, typestore
 
 
-class BagWriter:
+class FrameMessages:
+    """The ROS 2 messages of a :class:`BagFrame`: one home for what they hold, whether they go
+    into a bag (:class:`BagWriter`) or onto live topics (:mod:`sonarsim.live`).
+
+    Parameters
+    ----------
+    typestore : rosbags typestore
+        Where the message classes come from (:func:`_import_rosbags`'s).
+    frame_ids : BagFrameIds, optional
+    """
+
+    #: The message types the frames' messages are built of.
+    TYPES = ("builtin_interfaces/msg/Time", "std_msgs/msg/Header", "geometry_msgs/msg/Vector3",
+             "geometry_msgs/msg/Point", "geometry_msgs/msg/Quaternion", "geometry_msgs/msg/Pose",
+             "geometry_msgs/msg/Transform", "geometry_msgs/msg/TransformStamped",
+             "sensor_msgs/msg/PointField", "marine_acoustic_msgs/msg/PingInfo",
+             "marine_acoustic_msgs/msg/SonarImageData", *_MSGTYPES.values())
+
+    def __init__(self, typestore: Any, frame_ids: BagFrameIds | None = None) -> None:
+        self.frame_ids = frame_ids if frame_ids is not None else BagFrameIds()
+        self._types: dict[str, type] = {name: typestore.types[name] for name in self.TYPES}
+
+    def frame_messages(self, frame: BagFrame, last_unit: str = "", tf: str = "both") -> list[tuple[str, Any]]:
+        """``(key, message)`` of a frame, keys of :data:`TOPICS`: the image, the fan (where the
+        frame has one), the pose, the TF (``tf``: :meth:`_tf_msg`'s parts), the points (where
+        it has them) and the unit (where it differs from ``last_unit``)."""
+        messages = [("image", self._image_msg(frame)), ("pose", self._pose_msg(frame)), ("tf", self._tf_msg(frame, tf))]
+        if frame.fan is not None:
+            messages.insert(1, ("fan", self._fan_msg(frame)))
+        if frame.points_world is not None:
+            messages.append(("points", self._points_msg(frame)))
+        if frame.unit and frame.unit != last_unit:
+            messages.append(("unit", self._types["std_msgs/msg/String"](data=frame.unit)))
+        return messages
+
+    def _header(self, stamp_ns: int, frame_id: str) -> Any:
+        t = self._types
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        return t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
+                                        frame_id=frame_id)
+
+    def _image_msg(self, frame: BagFrame) -> Any:
+        t = self._types
+        vec = t["geometry_msgs/msg/Vector3"]
+        dirs = beam_directions(frame.azimuth_deg)
+        ping = t["marine_acoustic_msgs/msg/PingInfo"](
+            frequency=frame.frequency_hz,
+            sound_speed=frame.sound_speed_m_s,
+            tx_beamwidths=np.radians(frame.tx_beamwidth_deg).astype(np.float32),
+            rx_beamwidths=np.radians(frame.rx_beamwidth_deg).astype(np.float32),
+        )
+        # C order of (n_range_bins, n_beams) is the message's range-major order; frame.polar
+        # is little-endian already (BagFrame), so this is a view, not a copy.
+        data = np.ascontiguousarray(frame.polar).reshape(-1).view(np.uint8)
+        image = t["marine_acoustic_msgs/msg/SonarImageData"](
+            is_bigendian=False, dtype=_SONAR_DTYPES[frame.polar.dtype.newbyteorder("=")],
+            beam_count=frame.n_beams, data=data,
+        )
+        return t["marine_acoustic_msgs/msg/ProjectedSonarImage"](
+            header=self._header(frame.stamp_ns, self.frame_ids.image),
+            ping_info=ping,
+            beam_directions=[vec(x=float(x), y=float(y), z=float(z)) for x, y, z in dirs],
+            ranges=frame.range_m.astype(np.float32),
+            image=image,
+        )
+
+    def _fan_msg(self, frame: BagFrame) -> Any:
+        fan = np.ascontiguousarray(frame.fan)
+        height, width = fan.shape
+        return self._types["sensor_msgs/msg/Image"](
+            header=self._header(frame.stamp_ns, self.frame_ids.sonar),
+            height=height, width=width,
+            encoding=_FAN_ENCODINGS[fan.dtype.newbyteorder("=")],
+            is_bigendian=0, step=width * fan.dtype.itemsize,
+            data=fan.reshape(-1).view(np.uint8),
+        )
+
+    def _pose_parts(self, frame: BagFrame) -> tuple[Any, Any]:
+        t = self._types
+        x, y, z = frame.pose.position_m
+        qx, qy, qz, qw = frame.pose.quat_xyzw
+        return (t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
+                t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))
+
+    def _pose_msg(self, frame: BagFrame) -> Any:
+        t = self._types
+        position, rotation = self._pose_parts(frame)
+        pose = t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=position.x, y=position.y, z=position.z), orientation=rotation)
+        return t["geometry_msgs/msg/PoseStamped"](header=self._header(frame.stamp_ns, self.frame_ids.world), pose=pose)
+
+    def _tf_msg(self, frame: BagFrame, parts: str = "both") -> Any:
+        """``/tf``'s message: world -> sonar (the pose) and sonar -> sonar_image (constant);
+        ``parts`` ``"pose"`` or ``"image"`` gives one of them (live topics send the constant one
+        on ``/tf_static``)."""
+        t = self._types
+        stamped, transform = t["geometry_msgs/msg/TransformStamped"], t["geometry_msgs/msg/Transform"]
+        position, rotation = self._pose_parts(frame)
+        qx, qy, qz, qw = SONAR_TO_IMAGE_QUAT_XYZW
+        pose = stamped(header=self._header(frame.stamp_ns, self.frame_ids.world), child_frame_id=self.frame_ids.sonar,
+                       transform=transform(translation=position, rotation=rotation))
+        image = stamped(header=self._header(frame.stamp_ns, self.frame_ids.sonar), child_frame_id=self.frame_ids.image,
+                        transform=transform(translation=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                                            rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))
+        chosen = {"both": [pose, image], "pose": [pose], "image": [image]}[parts]
+        return t["tf2_msgs/msg/TFMessage"](transforms=chosen)
+
+    def _points_msg(self, frame: BagFrame) -> Any:
+        t = self._types
+        n = frame.points_world.shape[0]
+        cloud = np.empty(n, dtype=_POINT_DTYPE)
+        cloud["x"], cloud["y"], cloud["z"] = frame.points_world.T
+        cloud["object"] = frame.points_object
+        field = t["sensor_msgs/msg/PointField"]
+        fields = [field(name=name, offset=_POINT_DTYPE.fields[name][1],
+                        datatype=_POINTFIELD_INT32 if name == "object" else _POINTFIELD_FLOAT32, count=1)
+                  for name in _POINT_DTYPE.names]
+        return t["sensor_msgs/msg/PointCloud2"](
+            header=self._header(frame.stamp_ns, self.frame_ids.world),
+            height=1, width=n, fields=fields, is_bigendian=False,
+            point_step=_POINT_DTYPE.itemsize, row_step=_POINT_DTYPE.itemsize * n,
+            data=cloud.view(np.uint8), is_dense=True,  # BagFrame admits only finite points
+        )
+
+
+class BagWriter(FrameMessages):
     """Write frames to a ROS 2 bag (a folder), atomically. Use as a context manager.
 
     Parameters
@@ -830,11 +959,7 @@ class BagWriter:
             writer.open()
             self._writer = writer
             self._typestore = typestore
-            for name in ("builtin_interfaces/msg/Time", "std_msgs/msg/Header", "geometry_msgs/msg/Vector3",
-                         "geometry_msgs/msg/Point", "geometry_msgs/msg/Quaternion", "geometry_msgs/msg/Pose",
-                         "geometry_msgs/msg/Transform", "geometry_msgs/msg/TransformStamped",
-                         "sensor_msgs/msg/PointField", "marine_acoustic_msgs/msg/PingInfo",
-                         "marine_acoustic_msgs/msg/SonarImageData", *_MSGTYPES.values()):
+            for name in FrameMessages.TYPES:
                 self._types[name] = typestore.types[name]
         except BaseException:
             self._discard()
@@ -906,13 +1031,7 @@ class BagWriter:
         if frame.stamp_ns < self._last_stamp:
             raise ConfigError("bag_frame.stamp_ns",
                               f"frames must come in time order: {frame.stamp_ns} after {self._last_stamp}")
-        messages = [("image", self._image_msg(frame)), ("pose", self._pose_msg(frame)), ("tf", self._tf_msg(frame))]
-        if frame.fan is not None:
-            messages.insert(1, ("fan", self._fan_msg(frame)))
-        if frame.points_world is not None:
-            messages.append(("points", self._points_msg(frame)))
-        if frame.unit and frame.unit != self._last_unit:
-            messages.append(("unit", self._types["std_msgs/msg/String"](data=frame.unit)))
+        messages = self.frame_messages(frame, self._last_unit)
         try:
             for key, msg in messages:
                 if key not in self._connections:
@@ -926,92 +1045,6 @@ class BagWriter:
         self._last_stamp = frame.stamp_ns
         self._last_unit = frame.unit or self._last_unit
         self.frames_written += 1
-
-    def _header(self, stamp_ns: int, frame_id: str) -> Any:
-        t = self._types
-        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
-        return t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec),
-                                        frame_id=frame_id)
-
-    def _image_msg(self, frame: BagFrame) -> Any:
-        t = self._types
-        vec = t["geometry_msgs/msg/Vector3"]
-        dirs = beam_directions(frame.azimuth_deg)
-        ping = t["marine_acoustic_msgs/msg/PingInfo"](
-            frequency=frame.frequency_hz,
-            sound_speed=frame.sound_speed_m_s,
-            tx_beamwidths=np.radians(frame.tx_beamwidth_deg).astype(np.float32),
-            rx_beamwidths=np.radians(frame.rx_beamwidth_deg).astype(np.float32),
-        )
-        # C order of (n_range_bins, n_beams) is the message's range-major order; frame.polar
-        # is little-endian already (BagFrame), so this is a view, not a copy.
-        data = np.ascontiguousarray(frame.polar).reshape(-1).view(np.uint8)
-        image = t["marine_acoustic_msgs/msg/SonarImageData"](
-            is_bigendian=False, dtype=_SONAR_DTYPES[frame.polar.dtype.newbyteorder("=")],
-            beam_count=frame.n_beams, data=data,
-        )
-        return t["marine_acoustic_msgs/msg/ProjectedSonarImage"](
-            header=self._header(frame.stamp_ns, self.frame_ids.image),
-            ping_info=ping,
-            beam_directions=[vec(x=float(x), y=float(y), z=float(z)) for x, y, z in dirs],
-            ranges=frame.range_m.astype(np.float32),
-            image=image,
-        )
-
-    def _fan_msg(self, frame: BagFrame) -> Any:
-        fan = np.ascontiguousarray(frame.fan)
-        height, width = fan.shape
-        return self._types["sensor_msgs/msg/Image"](
-            header=self._header(frame.stamp_ns, self.frame_ids.sonar),
-            height=height, width=width,
-            encoding=_FAN_ENCODINGS[fan.dtype.newbyteorder("=")],
-            is_bigendian=0, step=width * fan.dtype.itemsize,
-            data=fan.reshape(-1).view(np.uint8),
-        )
-
-    def _pose_parts(self, frame: BagFrame) -> tuple[Any, Any]:
-        t = self._types
-        x, y, z = frame.pose.position_m
-        qx, qy, qz, qw = frame.pose.quat_xyzw
-        return (t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
-                t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))
-
-    def _pose_msg(self, frame: BagFrame) -> Any:
-        t = self._types
-        position, rotation = self._pose_parts(frame)
-        pose = t["geometry_msgs/msg/Pose"](
-            position=t["geometry_msgs/msg/Point"](x=position.x, y=position.y, z=position.z), orientation=rotation)
-        return t["geometry_msgs/msg/PoseStamped"](header=self._header(frame.stamp_ns, self.frame_ids.world), pose=pose)
-
-    def _tf_msg(self, frame: BagFrame) -> Any:
-        t = self._types
-        stamped, transform = t["geometry_msgs/msg/TransformStamped"], t["geometry_msgs/msg/Transform"]
-        position, rotation = self._pose_parts(frame)
-        qx, qy, qz, qw = SONAR_TO_IMAGE_QUAT_XYZW
-        return t["tf2_msgs/msg/TFMessage"](transforms=[
-            stamped(header=self._header(frame.stamp_ns, self.frame_ids.world), child_frame_id=self.frame_ids.sonar,
-                    transform=transform(translation=position, rotation=rotation)),
-            stamped(header=self._header(frame.stamp_ns, self.frame_ids.sonar), child_frame_id=self.frame_ids.image,
-                    transform=transform(translation=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
-                                        rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))),
-        ])
-
-    def _points_msg(self, frame: BagFrame) -> Any:
-        t = self._types
-        n = frame.points_world.shape[0]
-        cloud = np.empty(n, dtype=_POINT_DTYPE)
-        cloud["x"], cloud["y"], cloud["z"] = frame.points_world.T
-        cloud["object"] = frame.points_object
-        field = t["sensor_msgs/msg/PointField"]
-        fields = [field(name=name, offset=_POINT_DTYPE.fields[name][1],
-                        datatype=_POINTFIELD_INT32 if name == "object" else _POINTFIELD_FLOAT32, count=1)
-                  for name in _POINT_DTYPE.names]
-        return t["sensor_msgs/msg/PointCloud2"](
-            header=self._header(frame.stamp_ns, self.frame_ids.world),
-            height=1, width=n, fields=fields, is_bigendian=False,
-            point_step=_POINT_DTYPE.itemsize, row_step=_POINT_DTYPE.itemsize * n,
-            data=cloud.view(np.uint8), is_dense=True,  # BagFrame admits only finite points
-        )
 
 
 # Leftovers of killed runs -------------------------------------------------------------------
