@@ -194,3 +194,25 @@ def test_a_second_process_receives_the_samples_over_the_loopback(tmp_path):
     for sec, frame_id, encoding, width, height, data in lines:
         assert (frame_id, encoding, width, height) == ("sonar", "mono8", "3", "2")
         assert data == sent[int(sec)]
+
+
+def test_without_cyclone_dds_the_error_names_the_live_extra(monkeypatch):
+    from sonarsim.errors import SonarsimError
+    from sonarsim.live.publisher import Publisher
+
+    for name in ("cyclonedds", "cyclonedds.domain", "cyclonedds.idl"):
+        monkeypatch.setitem(sys.modules, name, None)  # an import of it now fails
+    with pytest.raises(SonarsimError, match=r"live.*pip install"):
+        Publisher(0)
+    with pytest.raises(SonarsimError, match="live"):
+        dds._cyclonedds()
+
+
+def test_a_serialized_sample_carries_the_bags_bytes():
+    store = instrument_typestore()
+    rng = np.random.default_rng(3)
+    msg = _random_message(store, "sensor_msgs/msg/PointCloud2", rng)
+    cdr = bytes(store.serialize_cdr(msg, "sensor_msgs/msg/PointCloud2"))
+    sample = dds.serialized_sample("sensor_msgs/msg/PointCloud2", cdr)
+    assert isinstance(sample, dds.dds_type("sensor_msgs/msg/PointCloud2"))  # a writer of the type takes it
+    assert sample.serialize() == cdr == dds.to_sample(msg, "sensor_msgs/msg/PointCloud2").serialize()

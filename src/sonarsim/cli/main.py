@@ -83,6 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .dataset import add_dataset_parser
     from .demo import add_demo_parser
     from .fit import add_fit_parser
+    from .live import add_live_parser
     from .presets import add_presets_parser
     from .reconstruct import add_reconstruct_parser
     from .render import add_render_parser
@@ -120,6 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_reconstruct_parser(sub)
     # Looking: a scene in 3D with its live images, or a recording's frames, in the browser.
     add_view_parser(sub)
+    # Live: ROS 2 topics over DDS.
+    add_live_parser(sub)
     return parser
 
 

@@ -847,6 +847,10 @@ class FrameMessages:
             position=t["geometry_msgs/msg/Point"](x=position.x, y=position.y, z=position.z), orientation=rotation)
         return t["geometry_msgs/msg/PoseStamped"](header=self._header(frame.stamp_ns, self.frame_ids.world), pose=pose)
 
+    def tf_message(self, frame: BagFrame, parts: str = "both") -> Any:
+        """:meth:`_tf_msg`: ``/tf``'s message of a frame, or one of its two transforms."""
+        return self._tf_msg(frame, parts)
+
     def _tf_msg(self, frame: BagFrame, parts: str = "both") -> Any:
         """``/tf``'s message: world -> sonar (the pose) and sonar -> sonar_image (constant);
         ``parts`` ``"pose"`` or ``"image"`` gives one of them (live topics send the constant one

@@ -1,0 +1,184 @@
+"""Render and publish, frame after frame, in real time: the loop of ``sonarsim live``.
+
+Each frame ``k`` has a time ``t_k`` (``k / rate_hz``, or a trajectory's own times) and a pose
+(the trajectory's at ``t_k``, or the scene's); it is rendered (:meth:`Simulator.render` with
+``frame=k``: the same draws whoever renders it), then published when the wall clock reaches
+``t_k`` after the start (``fast``: at once), stamped ``start + t_k`` in the wall clock's time, as
+a ROS 2 sensor driver stamps its data. A frame whose render ends after its time is published at
+once and counted late; the loop never sleeps while behind and never spins while ahead.
+
+Per frame, on the topics of :class:`~sonarsim.io.rosbag.BagTopics` (as a bag holds them:
+:class:`~sonarsim.io.rosbag.FrameMessages`): the ``ProjectedSonarImage``, the fan
+(``sensor_msgs/Image``, unless ``fan=False``), the pose (``PoseStamped``), ``/tf`` (world ->
+sonar) and the image's unit (latched, with the first frame and whenever it changes); once, at
+the start, ``/tf_static`` (sonar -> sonar_image, latched).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..io.rosbag import MSGTYPES, BagFrameIds, BagTopics, FrameMessages, frame_from_image
+
+__all__ = ["LiveOptions", "LiveStats", "stream", "MAX_RATE_HZ"]
+
+#: The highest frame rate ``rate_hz`` takes (frames a second).
+MAX_RATE_HZ = 1000.0
+# The QoS kind of each topic of a frame (dds.qos).
+_KINDS = {"tf": "tf", "unit": "latched"}
+
+
+@dataclass(frozen=True)
+class LiveOptions:
+    """What ``sonarsim live`` publishes, and when.
+
+    Attributes
+    ----------
+    rate_hz : float
+        Frames a second, in (0, :data:`MAX_RATE_HZ`]; with a trajectory, it is resampled at
+        this rate (``None``: the trajectory's own times; without one, 10 Hz).
+    fast : bool
+        Publish each frame as soon as it is rendered (stamps still ``t_k`` apart).
+    n_frames : int or None
+        Stop after this many frames (``None``: the trajectory's, or until stopped).
+    fan : bool
+        Publish the fan image too.
+    speckle : bool or None
+        As :meth:`Simulator.render`'s (``False``: the expected image).
+    frame_ids, topics : BagFrameIds, BagTopics
+    """
+
+    rate_hz: float | None = None
+    fast: bool = False
+    n_frames: int | None = None
+    fan: bool = True
+    speckle: bool | None = None
+    frame_ids: BagFrameIds = field(default_factory=BagFrameIds)
+    topics: BagTopics = field(default_factory=BagTopics)
+
+    def __post_init__(self) -> None:
+        if self.rate_hz is not None:
+            r = self.rate_hz
+            if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) \
+                    or not 0.0 < r <= MAX_RATE_HZ:
+                raise ConfigError("rate_hz", f"must be a number of frames a second in (0, {MAX_RATE_HZ:g}], got {r!r}")
+        n = self.n_frames
+        if n is not None and (isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1):
+            raise ConfigError("n_frames", f"must be a whole number of at least 1, got {n!r}")
+
+
+@dataclass
+class LiveStats:
+    """What a :func:`stream` did: frames published, those late, and per-frame seconds."""
+
+    frames: int = 0
+    late: int = 0
+    render_s: list[float] = field(default_factory=list)
+    publish_s: list[float] = field(default_factory=list)
+    wall_s: float = 0.0
+    interrupted: bool = False
+
+    def summary(self) -> str:
+        """One line: frames, rate held, late frames, render and publish times (median)."""
+        if not self.frames:
+            return "no frame published"
+        med = lambda x: 1e3 * float(np.median(x))  # noqa: E731
+        rate = self.frames / self.wall_s if self.wall_s > 0 else float("inf")
+        return (("stopped by a signal after " if self.interrupted else "") + f"{self.frames} frames in {self.wall_s:.2f} s ({rate:.1f} frames/s), {self.late} late; render "
+                f"{med(self.render_s):.1f} ms, publish {med(self.publish_s):.1f} ms a frame (median)")
+
+
+def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), trajectory: Any = None,
+           start_ns: int | None = None, stop: Callable[[], bool] | None = None,
+           say: Callable[[str], None] | None = None, clock: Callable[[], float] = time.monotonic,
+           sleep: Callable[[float], None] = time.sleep) -> LiveStats:
+    """Render ``sim``'s frames and publish them in real time (module notes).
+
+    Parameters
+    ----------
+    sim : Simulator
+    publisher : Publisher
+        Where the messages go (:class:`sonarsim.live.publisher.Publisher`).
+    options : LiveOptions
+    trajectory : Trajectory, optional
+        The sonar's timestamped poses (:func:`sonarsim.dataset.trajectory.read_trajectory`);
+        default the scene's pose at every frame.
+    start_ns : int, optional
+        The first frame's stamp, ns since the Unix epoch (default: the wall clock now).
+    stop : callable, optional
+        Asked before each frame; ``True`` ends the stream.
+    say : callable, optional
+        Called with a line when nothing subscribes to the image two seconds after the start.
+    clock, sleep : callables
+        Monotonic seconds and a sleep (tests replace them).
+
+    Returns
+    -------
+    LiveStats
+    """
+    from ..io.rosbag_instruments import instrument_typestore
+
+    if trajectory is not None and options.rate_hz is not None:
+        trajectory = trajectory.resampled(options.rate_hz, key="--rate")
+    rate = options.rate_hz if options.rate_hz is not None else 10.0
+    n = options.n_frames
+    if trajectory is not None:
+        n = trajectory.n_frames if n is None else min(n, trajectory.n_frames)
+    messages = FrameMessages(instrument_typestore(), options.frame_ids)
+    stats = LiveStats()
+    start_ns = time.time_ns() if start_ns is None else int(start_ns)
+    t_wall0 = clock()
+    state = {"warned": False, "last_unit": ""}
+    try:
+        _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_ns, t_wall0, stop, say, clock,
+              sleep, state)
+    except KeyboardInterrupt:  # Ctrl-C, SIGTERM: stop between or inside frames, say so
+        stats.interrupted = True
+    stats.wall_s = clock() - t_wall0
+    return stats
+
+
+def _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_ns, t_wall0, stop, say, clock, sleep,
+          state) -> None:
+    topics = options.topics
+    t_first = trajectory.time_s(0) if trajectory is not None else 0.0
+    k = 0
+    while n is None or k < n:
+        if stop is not None and stop():
+            break
+        if trajectory is not None:
+            t_k, pose = trajectory.time_s(k) - t_first, trajectory.pose(k)
+        else:
+            t_k, pose = k / rate, None
+        r0 = clock()
+        image = sim.render(pose=pose, frame=k, speckle=options.speckle)
+        frame = frame_from_image(image, start_ns + round(t_k * 1e9), fan=options.fan)
+        batch = messages.frame_messages(frame, state["last_unit"], tf="pose")
+        r1 = clock()
+        stats.render_s.append(r1 - r0)
+        if k == 0:
+            publisher.publish("/tf_static", "tf2_msgs/msg/TFMessage", messages.tf_message(frame, "image"), "tf_static")
+        if not options.fast:
+            wait = t_wall0 + t_k - clock()
+            if wait > 0:
+                sleep(wait)
+            elif k > 0:
+                stats.late += 1
+        p0 = clock()
+        for key, msg in batch:
+            publisher.publish(getattr(topics, key), MSGTYPES[key], msg, _KINDS.get(key, "sensor"))
+        stats.publish_s.append(clock() - p0)
+        state["last_unit"] = frame.unit or state["last_unit"]
+        stats.frames += 1
+        k += 1
+        if say is not None and not state["warned"] and clock() - t_wall0 > 2.0:
+            state["warned"] = True
+            if publisher.subscribers(topics.image) == 0:
+                say(f"no subscriber on {topics.image} yet (ROS_DOMAIN_ID {publisher.domain}); publishing anyway")
