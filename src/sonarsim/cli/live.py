@@ -41,6 +41,17 @@ def add_live_parser(subparsers: Any) -> argparse.ArgumentParser:
     g.add_argument("--trajectory", default=None, metavar="FILE",
                    help="the sonar's timestamped poses (CSV t,x,y,z,roll_deg,pitch_deg,yaw_deg or TUM); default "
                    "the scene's pose at every frame")
+    g = p.add_argument_group("poses in")
+    g.add_argument("--pose-topic", default=None, metavar="TOPIC",
+                   help="the vehicle's pose from this topic (a simulator's /odom): each frame waits for its time and "
+                   "takes the pose at its stamp, interpolated")
+    g.add_argument("--pose-type", choices=("odometry", "pose_stamped"), default="odometry",
+                   help="what --pose-topic carries: nav_msgs/Odometry (default) or geometry_msgs/PoseStamped")
+    g.add_argument("--max-staleness", type=positive_float, default=0.5, metavar="S",
+                   help="skip a frame whose newest pose is older than S seconds (default 0.5), and say so")
+    g.add_argument("--mount", type=_mount, default=None, metavar="X,Y,Z,ROLL,PITCH,YAW",
+                   help="with --pose-topic: the sonar on the vehicle (metres, degrees; REP-103), default the "
+                   "vehicle's own frame")
     g = p.add_argument_group("topics")
     g.add_argument("--no-fan", action="store_true", help="do not publish the fan image")
     g.add_argument("--frame-ids", type=_names("--frame-ids"), default=None, metavar="NAME=ID,...",
@@ -53,6 +64,22 @@ def add_live_parser(subparsers: Any) -> argparse.ArgumentParser:
     add_render_options(p)
     p.set_defaults(func=cmd_live)
     return p
+
+
+def _mount(text: str) -> Any:
+    """An argparse type: ``x,y,z,roll,pitch,yaw`` (metres, degrees) as a Pose."""
+    from ..core.transforms import Pose
+
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    import math
+
+    if len(v) != 6 or not all(math.isfinite(x) for x in v):
+        raise argparse.ArgumentTypeError(f"--mount must be six numbers x,y,z,roll,pitch,yaw (metres, degrees), "
+                                         f"got {text!r}")
+    return Pose(tuple(v[:3]), tuple(v[3:]))
 
 
 def cmd_live(args: Any) -> None:
@@ -68,8 +95,13 @@ def cmd_live(args: Any) -> None:
     if args.frames is not None and args.frames < 1:
         raise ConfigError("--frames", f"must be at least 1, got {args.frames}")
     frame_ids, topics = bag_naming(frame_ids=args.frame_ids, topics=args.topics)
+    if args.mount is not None and args.pose_topic is None:
+        raise ConfigError("--mount", "places the sonar on a vehicle whose pose comes from --pose-topic: give that too")
+    if args.pose_topic is not None and args.trajectory is not None:
+        raise ConfigError("--pose-topic", "the poses come from a topic or from --trajectory: give one of the two")
     options = LiveOptions(rate_hz=args.rate, fast=args.fast, n_frames=args.frames, fan=not args.no_fan,
-                          speckle=False if args.no_speckle else None, frame_ids=frame_ids, topics=topics)
+                          speckle=False if args.no_speckle else None, frame_ids=frame_ids, topics=topics,
+                          max_staleness_s=args.max_staleness)
     scene = override_render(load_scene(args.scene), args)
     if scene.instruments:
         raise ConfigError("instruments", "sonarsim live publishes the scene's sonar; a scene of instruments is not "
@@ -82,5 +114,14 @@ def cmd_live(args: Any) -> None:
     with Simulator(scene, backend=args.backend) as sim, Publisher(args.domain) as publisher:
         _log(f"live: publishing {topics.image} and its companions on DDS domain {publisher.domain}"
              + (f" for {args.frames} frames" if args.frames else ", Ctrl-C to stop"))
-        stats = stream(sim, publisher, options, trajectory, say=lambda line: _log(f"live: {line}"))
+        poses = None
+        if args.pose_topic is not None:
+            from ..live.dds import dds_topic
+            from ..live.poses import TopicPoses
+
+            dds_topic(args.pose_topic)  # (checked, naming the option's value)
+            poses = TopicPoses(publisher.participant, args.pose_topic, args.pose_type)
+            _log(f"live: poses from {args.pose_topic} ({args.pose_type})")
+        stats = stream(sim, publisher, options, trajectory, say=lambda line: _log(f"live: {line}"), poses=poses,
+                       mount=args.mount)
         _log(f"live: {stats.summary()}")

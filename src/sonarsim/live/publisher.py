@@ -40,6 +40,13 @@ class Publisher:
         self._writers: dict[str, tuple[Any, str]] = {}
         self.published: dict[str, int] = {}
 
+    @property
+    def participant(self) -> Any:
+        """The DDS participant (readers of the same domain are made on it: :mod:`sonarsim.live.poses`)."""
+        if self._participant is None:
+            raise SonarsimError("the publisher is closed")
+        return self._participant
+
     def writer(self, topic: str, ros_type: str, kind: str = "sensor") -> Any:
         """The writer of ``topic`` (a ROS 2 name), made at first use with ``kind``'s QoS;
         a topic keeps the type it was first given."""

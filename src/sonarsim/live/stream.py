@@ -53,6 +53,8 @@ class LiveOptions:
     speckle : bool or None
         As :meth:`Simulator.render`'s (``False``: the expected image).
     frame_ids, topics : BagFrameIds, BagTopics
+    max_staleness_s : float
+        With poses from a topic: the oldest a frame's pose may be, seconds, in (0, 60].
     """
 
     rate_hz: float | None = None
@@ -62,8 +64,12 @@ class LiveOptions:
     speckle: bool | None = None
     frame_ids: BagFrameIds = field(default_factory=BagFrameIds)
     topics: BagTopics = field(default_factory=BagTopics)
+    max_staleness_s: float = 0.5
 
     def __post_init__(self) -> None:
+        m = self.max_staleness_s
+        if isinstance(m, bool) or not isinstance(m, (int, float)) or not math.isfinite(m) or not 0.0 < m <= 60.0:
+            raise ConfigError("max_staleness_s", f"must be a number of seconds in (0, 60], got {m!r}")
         if self.rate_hz is not None:
             r = self.rate_hz
             if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) \
@@ -80,6 +86,7 @@ class LiveStats:
 
     frames: int = 0
     late: int = 0
+    stale: int = 0
     render_s: list[float] = field(default_factory=list)
     publish_s: list[float] = field(default_factory=list)
     wall_s: float = 0.0
@@ -91,14 +98,15 @@ class LiveStats:
             return "no frame published"
         med = lambda x: 1e3 * float(np.median(x))  # noqa: E731
         rate = self.frames / self.wall_s if self.wall_s > 0 else float("inf")
-        return (("stopped by a signal after " if self.interrupted else "") + f"{self.frames} frames in {self.wall_s:.2f} s ({rate:.1f} frames/s), {self.late} late; render "
+        return (("stopped by a signal after " if self.interrupted else "") + f"{self.frames} frames in {self.wall_s:.2f} s ({rate:.1f} frames/s), {self.late} late"
+                + (f", {self.stale} skipped for a stale pose" if self.stale else "") + "; render "
                 f"{med(self.render_s):.1f} ms, publish {med(self.publish_s):.1f} ms a frame (median)")
 
 
 def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), trajectory: Any = None,
            start_ns: int | None = None, stop: Callable[[], bool] | None = None,
            say: Callable[[str], None] | None = None, clock: Callable[[], float] = time.monotonic,
-           sleep: Callable[[float], None] = time.sleep) -> LiveStats:
+           sleep: Callable[[float], None] = time.sleep, poses: Any = None, mount: Any = None) -> LiveStats:
     """Render ``sim``'s frames and publish them in real time (module notes).
 
     Parameters
@@ -118,6 +126,13 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
         Called with a line when nothing subscribes to the image two seconds after the start.
     clock, sleep : callables
         Monotonic seconds and a sleep (tests replace them).
+    poses : TopicPoses, optional
+        The vehicle's poses from a topic (:class:`sonarsim.live.poses.TopicPoses`): each frame
+        waits for its time, then takes the pose at its stamp; a frame whose newest pose is older
+        than ``options.max_staleness_s`` (or that has none yet) is skipped and counted stale.
+    mount : Pose, optional
+        The sonar on the vehicle (with ``poses``): the sonar's pose is the vehicle's composed
+        with it.
 
     Returns
     -------
@@ -135,10 +150,12 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
     stats = LiveStats()
     start_ns = time.time_ns() if start_ns is None else int(start_ns)
     t_wall0 = clock()
-    state = {"warned": False, "last_unit": ""}
+    if poses is not None and trajectory is not None:
+        raise ConfigError("--pose-topic", "the poses come from a topic or from a trajectory: give one of the two")
+    state = {"warned": False, "last_unit": "", "stale": False}
     try:
         _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_ns, t_wall0, stop, say, clock,
-              sleep, state)
+              sleep, state, poses, mount)
     except KeyboardInterrupt:  # Ctrl-C, SIGTERM: stop between or inside frames, say so
         stats.interrupted = True
     stats.wall_s = clock() - t_wall0
@@ -146,7 +163,7 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
 
 
 def _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_ns, t_wall0, stop, say, clock, sleep,
-          state) -> None:
+          state, poses, mount) -> None:
     topics = options.topics
     t_first = trajectory.time_s(0) if trajectory is not None else 0.0
     k = 0
@@ -157,15 +174,35 @@ def _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_n
             t_k, pose = trajectory.time_s(k) - t_first, trajectory.pose(k)
         else:
             t_k, pose = k / rate, None
+        stamp_ns = start_ns + round(t_k * 1e9)
+        if poses is not None:
+            # the pose at the frame's own time is known only once that time has come
+            if not options.fast:
+                wait = t_wall0 + t_k - clock()
+                if wait > 0:
+                    sleep(wait)
+            pose, stale_s = poses.pose_at(stamp_ns)
+            if pose is None or stale_s > options.max_staleness_s:
+                stats.stale += 1
+                if say is not None and not state["stale"]:
+                    say(f"no pose on {poses.topic} yet: frames wait for one" if pose is None else
+                        f"the newest pose on {poses.topic} is {stale_s:.2f} s old, more than --max-staleness "
+                        f"{options.max_staleness_s:g} s: frames are skipped until poses come again")
+                state["stale"] = True
+                k += 1
+                continue
+            state["stale"] = False
+            if mount is not None:
+                pose = pose.compose(mount)
         r0 = clock()
         image = sim.render(pose=pose, frame=k, speckle=options.speckle)
-        frame = frame_from_image(image, start_ns + round(t_k * 1e9), fan=options.fan)
+        frame = frame_from_image(image, stamp_ns, fan=options.fan)
         batch = messages.frame_messages(frame, state["last_unit"], tf="pose")
         r1 = clock()
         stats.render_s.append(r1 - r0)
         if k == 0:
             publisher.publish("/tf_static", "tf2_msgs/msg/TFMessage", messages.tf_message(frame, "image"), "tf_static")
-        if not options.fast:
+        if not options.fast and poses is None:
             wait = t_wall0 + t_k - clock()
             if wait > 0:
                 sleep(wait)
