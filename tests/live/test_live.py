@@ -38,6 +38,9 @@ class _Recorder:
     def __init__(self):
         self.sent = []
 
+    def writer(self, topic, ros_type, kind="sensor"):
+        self.writers = getattr(self, "writers", []) + [topic]
+
     def publish(self, topic, ros_type, msg, kind="sensor"):
         self.sent.append((topic, ros_type, msg, kind))
 
