@@ -28,7 +28,8 @@ def add_live_parser(subparsers: Any) -> argparse.ArgumentParser:
         description="Render the scene's sonar frame after frame and publish each frame as ROS 2 topics over DDS "
         "(Cyclone DDS; the 'live' extra), on ROS_DOMAIN_ID's domain: /sonar/image "
         "(marine_acoustic_msgs/ProjectedSonarImage), /sonar/fan (sensor_msgs/Image), /sonar/pose, /tf "
-        "(world -> sonar) and /tf_static (sonar -> sonar_image), /sonar/image/unit (latched). A ROS 2 node on "
+        "(world -> sonar) and /tf_static (sonar -> sonar_image), /sonar/image/unit (latched), paced by the wall "
+        "clock or, with --use-sim-time, by /clock. A ROS 2 node on "
         "rmw_cyclonedds_cpp or rmw_fastrtps_cpp receives them (docs/ros2.md). Runs until Ctrl-C or --frames.")
     p.add_argument("scene", help="scene file (YAML or JSON)")
     g = p.add_argument_group("timing")
@@ -38,6 +39,9 @@ def add_live_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="publish each frame as soon as it is rendered (stamps stay 1/rate apart)")
     g.add_argument("--frames", type=int, default=None, metavar="N",
                    help="stop after N frames (default: the trajectory's, or until Ctrl-C)")
+    g.add_argument("--use-sim-time", action="store_true",
+                   help="pace and stamp the frames by the simulated time on /clock (rosgraph_msgs/Clock), as a ROS 2 "
+                   "node with use_sim_time does")
     g.add_argument("--trajectory", default=None, metavar="FILE",
                    help="the sonar's timestamped poses (CSV t,x,y,z,roll_deg,pitch_deg,yaw_deg or TUM); default "
                    "the scene's pose at every frame")
@@ -122,6 +126,14 @@ def cmd_live(args: Any) -> None:
             dds_topic(args.pose_topic)  # (checked, naming the option's value)
             poses = TopicPoses(publisher.participant, args.pose_topic, args.pose_type)
             _log(f"live: poses from {args.pose_topic} ({args.pose_type})")
+        timing = {}
+        if args.use_sim_time:
+            from ..live.simclock import SimClock
+
+            sim_clock = SimClock(publisher.participant)
+            _log("live: waiting for /clock")
+            sim_clock.wait_first()
+            timing = {"now_ns": sim_clock.now_ns, "clock": sim_clock.seconds, "sleep": sim_clock.sleep}
         stats = stream(sim, publisher, options, trajectory, say=lambda line: _log(f"live: {line}"), poses=poses,
-                       mount=args.mount)
+                       mount=args.mount, **timing)
         _log(f"live: {stats.summary()}")

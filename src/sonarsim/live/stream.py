@@ -106,7 +106,8 @@ class LiveStats:
 def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), trajectory: Any = None,
            start_ns: int | None = None, stop: Callable[[], bool] | None = None,
            say: Callable[[str], None] | None = None, clock: Callable[[], float] = time.monotonic,
-           sleep: Callable[[float], None] = time.sleep, poses: Any = None, mount: Any = None) -> LiveStats:
+           sleep: Callable[[float], None] = time.sleep, poses: Any = None, mount: Any = None,
+           now_ns: Callable[[], int] = time.time_ns) -> LiveStats:
     """Render ``sim``'s frames and publish them in real time (module notes).
 
     Parameters
@@ -119,13 +120,15 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
         The sonar's timestamped poses (:func:`sonarsim.dataset.trajectory.read_trajectory`);
         default the scene's pose at every frame.
     start_ns : int, optional
-        The first frame's stamp, ns since the Unix epoch (default: the wall clock now).
+        The first frame's stamp, ns since the Unix epoch (default: ``now_ns()`` as the clock
+        starts, after the warm-up).
     stop : callable, optional
         Asked before each frame; ``True`` ends the stream.
     say : callable, optional
         Called with a line when nothing subscribes to the image two seconds after the start.
-    clock, sleep : callables
-        Monotonic seconds and a sleep (tests replace them).
+    clock, sleep, now_ns : callables
+        Monotonic seconds, a sleep, and the time frames are stamped in, ns (the wall clock's;
+        :class:`sonarsim.live.simclock.SimClock`'s simulated time with ``--use-sim-time``).
     poses : TopicPoses, optional
         The vehicle's poses from a topic (:class:`sonarsim.live.poses.TopicPoses`): each frame
         waits for its time, then takes the pose at its stamp; a frame whose newest pose is older
@@ -159,7 +162,7 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
     store = instrument_typestore()
     for key, msg in messages.frame_messages(warm, tf="pose"):
         store.serialize_cdr(msg, MSGTYPES[key])
-    start_ns = time.time_ns() if start_ns is None else int(start_ns)
+    start_ns = int(now_ns()) if start_ns is None else int(start_ns)
     t_wall0 = clock()
     if poses is not None and trajectory is not None:
         raise ConfigError("--pose-topic", "the poses come from a topic or from a trajectory: give one of the two")
