@@ -102,6 +102,13 @@ def test_stream_paces_frames_stamps_them_and_publishes_what_a_bag_holds():
     q = static.transforms[0].transform.rotation
     assert (q.x, q.y, q.z, q.w) == pytest.approx(rb.SONAR_TO_IMAGE_QUAT_XYZW)
     assert got["/sonar/image/unit"].data == image2.unit.name
+    # the fan as fan.png draws it: 8-bit levels, legible as they come
+    from sonarsim.image.levels import default_levels
+
+    fan = [s[2] for s in rec.sent if s[0] == "/sonar/fan"][2]
+    want_fan = default_levels(image2, image2.fan().image, image2.fan().mask)
+    assert fan.encoding == "mono8" and (fan.height, fan.width) == want_fan.shape
+    assert bytes(fan.data) == want_fan.tobytes() and want_fan.max() > 100
 
 
 def test_a_slow_render_is_counted_late_and_never_waited_for():

@@ -9,7 +9,7 @@ once and counted late; the loop never sleeps while behind and never spins while 
 
 Per frame, on the topics of :class:`~sonarsim.io.rosbag.BagTopics` (as a bag holds them:
 :class:`~sonarsim.io.rosbag.FrameMessages`): the ``ProjectedSonarImage``, the fan
-(``sensor_msgs/Image``, unless ``fan=False``), the pose (``PoseStamped``), ``/tf`` (world ->
+(``sensor_msgs/Image``, ``mono8`` as ``fan.png`` draws it, unless ``fan=False``), the pose (``PoseStamped``), ``/tf`` (world ->
 sonar) and the image's unit (latched, with the first frame and whenever it changes); once, at
 the start, ``/tf_static`` (sonar -> sonar_image, latched).
 """
@@ -157,8 +157,8 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
     for key, ros_type in MSGTYPES.items():
         if key != "points" and (key != "fan" or options.fan):
             publisher.writer(getattr(options.topics, key), ros_type, _KINDS.get(key, "sensor"))
-    warm = frame_from_image(sim.render(pose=trajectory.pose(0) if trajectory is not None else None, frame=0,
-                                       speckle=options.speckle), 1, fan=options.fan)
+    first = sim.render(pose=trajectory.pose(0) if trajectory is not None else None, frame=0, speckle=options.speckle)
+    warm = frame_from_image(first, 1, fan=_fan_levels(first) if options.fan else False)
     store = instrument_typestore()
     for key, msg in messages.frame_messages(warm, tf="pose"):
         store.serialize_cdr(msg, MSGTYPES[key])
@@ -174,6 +174,16 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
         stats.interrupted = True
     stats.wall_s = clock() - t_wall0
     return stats
+
+
+def _fan_levels(image: Any) -> np.ndarray:
+    """The fan as ``sonarsim render`` draws ``fan.png``: 8-bit levels (``mono8``), a device's
+    counts where a sensor model makes them, a render's 40 dB below its maximum otherwise: an
+    image a viewer shows as it is, where a float fan (``32FC1``) needs a range set by hand."""
+    from ..image.levels import default_levels
+
+    fan = image.fan()
+    return default_levels(image, fan.image, fan.mask)
 
 
 def _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_ns, t_wall0, stop, say, clock, sleep,
@@ -210,7 +220,7 @@ def _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_n
                 pose = pose.compose(mount)
         r0 = clock()
         image = sim.render(pose=pose, frame=k, speckle=options.speckle)
-        frame = frame_from_image(image, stamp_ns, fan=options.fan)
+        frame = frame_from_image(image, stamp_ns, fan=_fan_levels(image) if options.fan else False)
         batch = messages.frame_messages(frame, state["last_unit"], tf="pose")
         r1 = clock()
         stats.render_s.append(r1 - r0)
