@@ -20,6 +20,8 @@ from sonarsim.io import rosbag as rb  # noqa: E402
 from sonarsim.live import dds  # noqa: E402
 from sonarsim.live.stream import LiveOptions, LiveStats, stream  # noqa: E402
 
+from .receive import receive  # noqa: E402
+
 SCENE = {
     "sonar": {"preset": "oculus-m1200d-hf", "n_range_bins": 200, "pose": {"position_m": [0.0, 0.0, 0.6],
                                                                           "rpy_deg": [0.0, 25.0, 0.0]}},
@@ -166,19 +168,8 @@ def test_sonarsim_live_publishes_to_a_subscriber_in_another_process(tmp_path):
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain)}
     proc = subprocess.Popen([sys.executable, "-m", "sonarsim", "live", str(scene), "--rate", "10", "--frames", "30"],
                             env=env, stderr=subprocess.PIPE, text=True, cwd=Path(__file__).parent)
-    got = {t: [] for t in kinds}
-    try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and proc.poll() is None:
-            for t, r in readers.items():
-                got[t] += [s for s in r.take(N=32) if hasattr(s, "transforms") or hasattr(s, "header")]
-            time.sleep(0.01)
-        for t, r in readers.items():
-            got[t] += [s for s in r.take(N=64) if hasattr(s, "transforms") or hasattr(s, "header")]
-        err = proc.communicate(timeout=30)[1]
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    received, err = receive(readers, proc)
+    got = {t: [s for _, s in samples] for t, samples in received.items()}
     assert proc.returncode == 0, err
     assert "30 frames" in err
     images = got["/sonar/image"]

@@ -18,6 +18,7 @@ pytest.importorskip("rosbags")
 from sonarsim.core.transforms import Pose  # noqa: E402
 from sonarsim.live.stream import LiveOptions, stream  # noqa: E402
 
+from .receive import receive  # noqa: E402
 from .test_live import SCENE, _Recorder  # noqa: E402
 
 
@@ -145,18 +146,8 @@ def test_sonarsim_live_follows_a_pose_topic_from_another_process(tmp_path):
     live = subprocess.Popen([sys.executable, "-m", "sonarsim", "live", str(scene), "--rate", "10", "--frames", "40",
                              "--pose-topic", "/vehicle/pose", "--pose-type", "pose_stamped"],
                             env=env, stderr=subprocess.PIPE, text=True)
-    got = []
-    try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and live.poll() is None:
-            got += [s for s in reader.take(N=32) if hasattr(s, "header")]
-            time.sleep(0.01)
-        got += [s for s in reader.take(N=64) if hasattr(s, "header")]
-        err = live.communicate(timeout=30)[1]
-    finally:
-        for p in (pub, live):
-            if p.poll() is None:
-                p.kill()
+    received, err = receive({"pose": reader}, live, (pub,))
+    got = [s for _, s in received["pose"]]
     assert live.returncode == 0, err
     assert len(got) >= 10, err
     stamps = np.array([s.header.stamp.sec * 10**9 + s.header.stamp.nanosec for s in got])

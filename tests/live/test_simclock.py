@@ -14,6 +14,7 @@ import pytest
 pytest.importorskip("cyclonedds")
 pytest.importorskip("rosbags")
 
+from .receive import receive  # noqa: E402
 from .test_live import SCENE  # noqa: E402
 
 CLOCK_PUBLISHER = textwrap.dedent("""
@@ -60,20 +61,8 @@ def test_frames_follow_a_simulated_clock_running_twice_as_fast(tmp_path):
     clock = subprocess.Popen([sys.executable, str(tmp_path / "clock.py"), str(domain), "2.0", "1000.0", "40"], env=env)
     live = subprocess.Popen([sys.executable, "-m", "sonarsim", "live", str(scene), "--rate", "10", "--frames", "20",
                              "--use-sim-time", "--no-fan"], env=env, stderr=subprocess.PIPE, text=True)
-    got, arrivals = [], []
-    try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and live.poll() is None:
-            for s in reader.take(N=32):
-                if hasattr(s, "header"):
-                    got.append(s)
-                    arrivals.append(time.monotonic())
-            time.sleep(0.005)
-        err = live.communicate(timeout=30)[1]
-    finally:
-        for p in (clock, live):
-            if p.poll() is None:
-                p.kill()
+    received, err = receive({"image": reader}, live, (clock,))
+    arrivals, got = [a for a, _ in received["image"]], [s for _, s in received["image"]]
     assert live.returncode == 0, err
     assert len(got) >= 10, err
     stamps = np.array([s.header.stamp.sec * 10**9 + s.header.stamp.nanosec for s in got]) / 1e9
