@@ -25,6 +25,7 @@ from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor, preset_device_mismatch
 from .instruments import FlsSpec, instrument_class, mounted
 from .scene import MAX_COORDINATE_M, ObjectSpec, PlaneSpec, RenderSettings, Scene, TextureSpec, ground_plane
+from .tracks import TRACK_KEYS, Track, Trajectory, read_trajectory
 from .sonar import MIN_RELATIVE_BIN_WIDTH, RangeBinError, SonarConfig, beam_edges_deg, check_range_window
 from .water import WaterSpec, parse_water
 from ..core.transforms import Pose
@@ -45,7 +46,9 @@ PLANE_KEYS = ("name", "point_m", "normal", "albedo", "specular", "material", "te
 REFLECTION_KEYS = ("medium", "rms_height_m", "wind_speed_m_s")
 TEXTURE_KEYS = tuple(TextureSpec.__dataclass_fields__)
 OBJECT_KEYS = ("name", "primitive", "size_m", "radius_m", "height_m", "mesh", "pose", "scale", "albedo", "material",
-               "specular", "normals", "reflection")
+               "specular", "normals", "reflection", "track")
+#: The fastest an object's velocity track moves, m/s (a torpedo; beyond, a typo).
+MAX_TRACK_SPEED_M_S = 100.0
 MATERIAL_KEYS = ("law", "albedo", "mu", "mu_db", "specular_strength", "roughness", "texture", "sediment",
                  "grain_size_phi", "level_db", "preset", "area_m2", "reflectance")
 
@@ -417,6 +420,60 @@ def _reflection_of(d: Mapping, where: str) -> dict[str, Any]:
     return {"reflection": parse_reflection(d["reflection"], f"{where}.reflection")}
 
 
+def parse_track(d: Any, where: str, base_dir: Path | None, pose: Pose | None = None) -> Track:
+    """An object's ``track``: ``{file, format}`` (a CSV or TUM trajectory file), ``{keys: [{t,
+    position_m, rpy_deg | quat_xyzw}, ...]}``, either with ``repeat``, or ``{velocity_m_s,
+    yaw_rate_deg_s}`` from ``pose`` at time 0."""
+    if not isinstance(d, Mapping):
+        raise ConfigError(where, f"must be a mapping (file, keys or velocity_m_s); got {type(d).__name__}")
+    _check_keys(d, TRACK_KEYS, where)
+    given = [k for k in ("file", "keys", "velocity_m_s") if k in d]
+    if len(given) != 1:
+        raise ConfigError(where, f"give exactly one of file, keys, velocity_m_s; got {', '.join(given) or 'none'}")
+    repeat = d.get("repeat", False)
+    if not isinstance(repeat, bool):
+        raise ConfigError(f"{where}.repeat", f"must be true or false, got {shown(repeat)}")
+    if given[0] == "velocity_m_s":
+        for key in ("format", "repeat"):
+            if key in d:
+                raise ConfigError(f"{where}.{key}", "belongs to timed poses (file or keys), not to a velocity")
+        velocity = _vector(d["velocity_m_s"], f"{where}.velocity_m_s", 3)
+        if max(abs(v) for v in velocity) > MAX_TRACK_SPEED_M_S:
+            raise ConfigError(f"{where}.velocity_m_s", f"must be within +-{MAX_TRACK_SPEED_M_S:g} m/s, got {list(velocity)}")
+        rate = _number(d.get("yaw_rate_deg_s", 0.0), f"{where}.yaw_rate_deg_s")
+        if abs(rate) > MAX_ANGLE_DEG:
+            raise ConfigError(f"{where}.yaw_rate_deg_s", f"must be within +-{MAX_ANGLE_DEG:g} deg/s, got {shown(rate)}")
+        return Track(velocity_m_s=velocity, yaw_rate_deg_s=rate, start=pose or Pose())
+    if "yaw_rate_deg_s" in d:
+        raise ConfigError(f"{where}.yaw_rate_deg_s", "belongs to a velocity_m_s track")
+    if given[0] == "file":
+        path = Path(_string(d["file"], f"{where}.file"))
+        if base_dir is not None and not path.is_absolute():
+            path = base_dir / path
+        fmt = d.get("format")
+        if fmt is not None and fmt not in ("csv", "tum"):
+            raise ConfigError(f"{where}.format", f"unknown format {shown(fmt)}; allowed: csv, tum")
+        return Track(trajectory=read_trajectory(path, fmt, f"{where}.file"), repeat=repeat, source=str(path))
+    if "format" in d:
+        raise ConfigError(f"{where}.format", "belongs to a track file")
+    keys = d["keys"]
+    if not isinstance(keys, (list, tuple)) or not keys:
+        raise ConfigError(f"{where}.keys", "must be a non-empty list of {t, position_m, rpy_deg | quat_xyzw}")
+    times, poses = [], []
+    for i, key in enumerate(keys):
+        at = f"{where}.keys[{i}]"
+        if not isinstance(key, Mapping) or "t" not in key:
+            raise ConfigError(at, "must be a mapping with t (seconds) and a pose (position_m, rpy_deg | quat_xyzw)")
+        t = _number(key["t"], f"{at}.t")
+        if times and not t > times[-1]:
+            raise ConfigError(f"{at}.t", f"{t:g} s does not follow {times[-1]:g} s (times must increase strictly)")
+        times.append(t)
+        poses.append(parse_pose({k: v for k, v in key.items() if k != "t"}, at))
+    trajectory = Trajectory(np.array(times), np.array([p.position_m for p in poses]),
+                            np.array([p.quat_xyzw for p in poses]))
+    return Track(trajectory=trajectory, repeat=repeat)
+
+
 def parse_object(d: Any, index: int, base_dir: Path | None) -> ObjectSpec:
     where = f"objects[{index}]"
     _check_keys(d, OBJECT_KEYS, where)
@@ -444,6 +501,13 @@ def parse_object(d: Any, index: int, base_dir: Path | None) -> ObjectSpec:
         kw["scale"] = _vector(s, f"{where}.scale", 3) if isinstance(s, (list, tuple)) else _number(s, f"{where}.scale")
     if "pose" in d:
         kw["pose"] = parse_pose(d["pose"], f"{where}.pose")
+    if "track" in d:
+        kw["track"] = parse_track(d["track"], f"{where}.track", base_dir, kw.get("pose"))
+        if kw["track"].trajectory is not None:
+            if "pose" in d:
+                raise ConfigError(f"{where}.pose", "an object with timed poses (track.file or track.keys) takes its "
+                                  "pose from them; give no pose (a velocity_m_s track starts from the pose)")
+            kw["pose"] = kw["track"].pose_at(float(kw["track"].trajectory.times_s[0]))
     kw.update(_material_of(d, where, texture_allowed=True))
     kw.update(_reflection_of(d, where))
     if "mesh" in kw and kw.get("material") is not None and kw["material"].texture:

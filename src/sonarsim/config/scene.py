@@ -25,6 +25,7 @@ from .materials import Material, Reflection
 from .parameters import MAX_COORDINATE_M, MAX_LENGTH_M, MIN_LENGTH_M  # noqa: F401
 from .sensor import SensorSpec, check_azimuth_width, check_bandwidth
 from .sonar import SonarConfig
+from .tracks import Track
 from .water import WaterSpec, fold_into_sensor
 from ..core.rays import check_ray_budget
 from ..core.transforms import Pose
@@ -219,6 +220,10 @@ class ObjectSpec:
         The object mirrors with the reflectance of its medium's Rayleigh coefficient against
         grazing angle and its roughness loss (:class:`~sonarsim.config.materials.Reflection`;
         the medium by default its material's ``preset``), instead of a constant ``specular``.
+    track : Track or None
+        The object's own path (:class:`~sonarsim.config.tracks.Track`): its pose at each
+        frame's time, moved without rebuilding the scene (:meth:`Simulator.at_time
+        <sonarsim.renderer.simulator.Simulator.at_time>`); ``pose`` is then its pose at time 0.
     """
 
     name: str
@@ -234,8 +239,11 @@ class ObjectSpec:
     specular: float | None = None
     normals: str = "flat"
     reflection: Reflection | None = None
+    track: Track | None = None
 
     def __post_init__(self) -> None:
+        if self.track is not None and not isinstance(self.track, Track):
+            raise ConfigError("track", f"must be a Track, got {type(self.track).__name__}")
         if (self.primitive is None) == (self.mesh is None):
             raise ConfigError("primitive", "give exactly one of `primitive` or `mesh`")
         if self.primitive is not None:
@@ -295,7 +303,8 @@ class ObjectSpec:
             out["mesh"] = str(self.mesh)
         else:
             out["mesh"] = "<in-memory mesh>"
-        out["pose"] = self.pose.to_dict()
+        if self.track is None or self.track.trajectory is None:  # timed poses give the pose themselves
+            out["pose"] = self.pose.to_dict()
         out["scale"] = list(self.scale) if isinstance(self.scale, tuple) else self.scale
         if self.material is None:
             out["albedo"] = self.albedo
@@ -307,6 +316,8 @@ class ObjectSpec:
             out["specular"] = self.specular
         if self.normals != "flat":
             out["normals"] = self.normals
+        if self.track is not None:
+            out["track"] = self.track.to_dict()
         return out
 
 

@@ -17,9 +17,8 @@ Both answer ``n_frames``, ``time_s(k)`` and ``pose(k, rng)``.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -27,9 +26,13 @@ import numpy as np
 
 from ..config.loader import _check_keys, _integer, _number, _string, _vector
 from ..config.scene import MAX_COORDINATE_M
+from ..config.tracks import (  # noqa: F401  (re-exported: their home before objects had tracks)
+    _BYTES_PER_POSE, CSV_HEADER, RATE_RANGE_HZ, Trajectory, _check_rate, _quats_from_rpy_deg, _unit_quaternions,
+    read_csv_trajectory, read_trajectory, read_tum_trajectory,
+)
 from ..core.memory import require
 from ..core.transforms import Pose
-from ..errors import ConfigError, SonarsimError, check_input_file, shown
+from ..errors import ConfigError, shown
 
 __all__ = [
     "CSV_HEADER", "TRAJECTORY_KEYS", "GENERATORS", "PoseSource", "RandomPoses", "Trajectory", "look_at", "look_at_rpy_deg",
@@ -37,7 +40,6 @@ __all__ = [
 ]
 
 #: The header a CSV trajectory must start with (exactly these columns, in this order).
-CSV_HEADER = ("t", "x", "y", "z", "roll_deg", "pitch_deg", "yaw_deg")
 TRAJECTORY_KEYS = ("file", "format", "rate_hz", "generate")
 FORMATS = ("csv", "tum")
 GENERATORS = ("lawnmower", "orbit", "random")
@@ -46,17 +48,8 @@ GENERATE_KEYS = {
     "orbit": ("kind", "centre_m", "radius_m", "z_m", "frames", "start_deg", "sweep_deg", "roll_deg"),
     "random": ("kind", "frames", "bounds_m", "look_at_m", "look_at_bounds_m", "jitter_deg", "roll_deg"),
 }
-# What one pose costs in memory while a trajectory is built: time, position, quaternion and the
-# interpolation's temporaries (scipy's Rotation holds a few copies), as float64.
-_BYTES_PER_POSE = 8 * 8 * 4
-# Reading a file holds each row as Python floats (about 8 objects of ~30 bytes); a row is at
-# least 14 characters ("0,0,0,0,0,0,0\n"), so a file of S bytes may hold S / 14 rows.
-_BYTES_PER_FILE_BYTE = 8 * 32 // 14 + 1
 # Random poses redraw a position that coincides with its target (no direction to look along).
 _MAX_REDRAWS = 100
-#: Ping rates, Hz: sonars ping a few to a few tens of times a second; 1e-300 Hz stamped frames
-#: 1e300 s apart, 1e300 Hz made every frame's time the same.
-RATE_RANGE_HZ = (1e-3, 1e4)
 #: The fastest survey, m/s: no vehicle a sonar rides goes faster (1e300 m/s was accepted).
 MAX_SPEED_M_S = 100.0
 #: The smallest orbit radius, metres: below it the poses are one point turning on the spot (an
@@ -105,14 +98,6 @@ def look_at(position_m: Any, target_m: Any, roll_deg: float = 0.0) -> Pose:
     return Pose(tuple(float(v) for v in position_m), look_at_rpy_deg(position_m, target_m, roll_deg))
 
 
-def _quats_from_rpy_deg(rpy_deg: np.ndarray) -> np.ndarray:
-    """(n, 3) roll, pitch, yaw in degrees -> (n, 4) unit quaternions (x, y, z, w)."""
-    from scipy.spatial.transform import Rotation
-
-    # Extrinsic x-y-z (lower case in scipy) is R = Rz(yaw) Ry(pitch) Rx(roll), DESIGN.md section 1.
-    return Rotation.from_euler("xyz", rpy_deg, degrees=True).as_quat()
-
-
 # Trajectories ---------------------------------------------------------------------------
 
 class PoseSource(Protocol):
@@ -124,100 +109,6 @@ class PoseSource(Protocol):
     def time_s(self, k: int) -> float: ...
 
     def pose(self, k: int, rng: np.random.Generator | None = None) -> Pose: ...
-
-
-@dataclass(frozen=True, eq=False)
-class Trajectory:
-    """Timestamped sonar poses, held as arrays (read-only).
-
-    Attributes
-    ----------
-    times_s : (n,) float64 ndarray
-        Strictly increasing timestamps, seconds.
-    positions_m : (n, 3) float64 ndarray
-        Sonar positions in the world frame, metres.
-    quats_xyzw : (n, 4) float64 ndarray
-        Unit quaternions (x, y, z, w) of the sonar-to-world rotations.
-    rpy_deg : (n, 3) float64 ndarray or None
-        The roll, pitch, yaw the poses were given with (CSV files, generators), returned
-        exactly by :meth:`pose`; ``None`` where only quaternions are known.
-    """
-
-    times_s: np.ndarray
-    positions_m: np.ndarray
-    quats_xyzw: np.ndarray
-    rpy_deg: np.ndarray | None = field(default=None)
-
-    def __post_init__(self) -> None:
-        t = np.array(self.times_s, dtype=np.float64)
-        p = np.array(self.positions_m, dtype=np.float64).reshape(-1, 3)
-        q = np.array(self.quats_xyzw, dtype=np.float64).reshape(-1, 4)
-        rpy = None if self.rpy_deg is None else np.array(self.rpy_deg, dtype=np.float64).reshape(-1, 3)
-        n = len(t)
-        if t.ndim != 1 or len(p) != n or len(q) != n or (rpy is not None and len(rpy) != n):
-            raise ValueError("times, positions, quaternions (and angles) must have one row per pose")
-        if n == 0:
-            raise ValueError("a trajectory needs at least one pose")
-        if n > 1 and not np.all(np.diff(t) > 0):
-            raise ValueError("trajectory times must be strictly increasing")
-        q, norms = _unit_quaternions(q)
-        if not np.all(norms > 1e-9):
-            raise ValueError("a trajectory quaternion is zero")
-        for name, a in (("times_s", t), ("positions_m", p), ("quats_xyzw", q), ("rpy_deg", rpy)):
-            if a is not None:
-                a.setflags(write=False)
-                object.__setattr__(self, name, a)
-
-    @property
-    def n_frames(self) -> int:
-        """Number of poses."""
-        return len(self.times_s)
-
-    def time_s(self, k: int) -> float:
-        """Timestamp of pose ``k``, seconds."""
-        return float(self.times_s[k])
-
-    def pose(self, k: int, rng: np.random.Generator | None = None) -> Pose:
-        """Pose ``k`` (``rng`` is unused: these poses are fixed)."""
-        position = tuple(float(v) for v in self.positions_m[k])
-        if self.rpy_deg is not None:
-            return Pose(position, tuple(float(v) for v in self.rpy_deg[k]))
-        return Pose.from_quaternion(position, self.quats_xyzw[k])
-
-    def resampled(self, rate_hz: float, key: str = "trajectory.rate_hz") -> "Trajectory":
-        """The trajectory at a ping rate: times ``t0 + i / rate_hz`` up to the last timestamp.
-
-        Positions are interpolated linearly, orientations by spherical linear interpolation
-        (slerp) between the two neighbouring poses.
-
-        Parameters
-        ----------
-        rate_hz : float
-            Pings per second, within ``RATE_RANGE_HZ`` (0.001 to 10000).
-        key : str
-            Key named in errors (the rate's place in the scenario file).
-
-        Raises
-        ------
-        ConfigError
-            ``rate_hz`` is not positive, or gives more poses than the memory budget holds.
-        """
-        from scipy.spatial.transform import Rotation, Slerp
-
-        _check_rate(rate_hz, key)
-        duration = float(self.times_s[-1] - self.times_s[0])
-        # The 1e-9 keeps a last sample that lands on the final timestamp up to round-off.
-        n_float = math.floor(duration * rate_hz * (1 + 1e-12) + 1e-9) + 1
-        require(n_float * _BYTES_PER_POSE, f"{n_float:.3g} poses at {rate_hz:g} Hz over {duration:g} s", key)
-        n = int(n_float)
-        t = self.times_s[0] + np.arange(n) / rate_hz
-        t = np.minimum(t, self.times_s[-1])  # round-off past the end would be an extrapolation
-        positions = np.column_stack([np.interp(t, self.times_s, self.positions_m[:, i]) for i in range(3)])
-        if self.n_frames == 1:
-            quats = np.repeat(self.quats_xyzw, n, axis=0)
-        else:
-            quats = Slerp(self.times_s, Rotation.from_quat(self.quats_xyzw))(t).as_quat()
-        return Trajectory(t, positions, quats)
 
 
 @dataclass(frozen=True)
@@ -420,152 +311,6 @@ def lawnmower(area_m: Any, spacing_m: float, z_m: float, speed_m_s: float, rate_
     return Trajectory(np.arange(n) / rate_hz, positions, _quats_from_rpy_deg(rpy), rpy)
 
 
-# Files ----------------------------------------------------------------------------------
-
-def _file_rows(path: Path, key: str) -> list[tuple[int, str]]:
-    """Non-blank, non-comment lines of a trajectory file with their 1-based line numbers.
-
-    The file is UTF-8 text; a byte-order mark before it (spreadsheets write one) is skipped.
-    """
-    try:  # missing, a directory, a pipe or a device: one message each, nothing opened
-        size = check_input_file(path, "trajectory file").st_size
-    except SonarsimError as exc:
-        raise ConfigError(key, str(exc)) from None
-    require(size * _BYTES_PER_FILE_BYTE, f"reading the trajectory file {path} ({size / 2**20:.3g} MiB)", key)
-    try:
-        # utf-8-sig: a CSV saved with a byte-order mark had the header '\ufefft,x,...' refused.
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise ConfigError(key, f"{path}: not UTF-8 text (byte {exc.start})") from None
-    except OSError as exc:
-        raise ConfigError(key, f"{path}: cannot read the trajectory file: {exc.strerror or exc}") from None
-    rows = []
-    for i, line in enumerate(text.splitlines(), start=1):
-        stripped = line.strip()
-        if stripped and not stripped.startswith("#"):
-            rows.append((i, stripped))
-    if not rows:
-        raise ConfigError(key, f"{path}: the trajectory file has no poses")
-    return rows
-
-
-def _numbers(fields: list[str], n: int, path: Path, line: int, key: str, what: str) -> list[float]:
-    if len(fields) != n:
-        raise ConfigError(key, f"{path}: line {line}: expected {n} values ({what}), got {len(fields)}")
-    out = []
-    for name, text in zip(what.split(), fields):
-        try:
-            v = float(text)
-        except ValueError:
-            raise ConfigError(key, f"{path}: line {line}: {name} is not a number: {shown(text)}") from None
-        if not math.isfinite(v):
-            raise ConfigError(key, f"{path}: line {line}: {name} must be finite, got {shown(text)}")
-        out.append(v)
-    return out
-
-
-def _check_rows(path: Path, lines: list[int], t: np.ndarray, p: np.ndarray, key: str) -> None:
-    """Times strictly increasing and positions within the scene's plausible extent, naming the line."""
-    bad = np.flatnonzero(np.diff(t) <= 0)
-    if len(bad):
-        i = int(bad[0]) + 1
-        raise ConfigError(key, f"{path}: line {lines[i]}: time {t[i]:g} s does not follow the previous "
-                          f"{t[i - 1]:g} s (times must increase strictly)")
-    far = np.flatnonzero(np.abs(p).max(axis=1) > MAX_COORDINATE_M)
-    if len(far):
-        i = int(far[0])
-        raise ConfigError(key, f"{path}: line {lines[i]}: position {p[i].tolist()} lies beyond "
-                          f"{MAX_COORDINATE_M:g} m of the origin")
-
-
-def read_csv_trajectory(path: str | os.PathLike, key: str = "trajectory.file") -> Trajectory:
-    """Read a CSV trajectory: the header ``t,x,y,z,roll_deg,pitch_deg,yaw_deg``, then one pose a row.
-
-    ``t`` in seconds (strictly increasing), position in metres (world frame), angles in degrees
-    (DESIGN.md section 1). Blank lines and lines starting with ``#`` are skipped; spaces
-    around values are allowed.
-
-    Raises
-    ------
-    ConfigError
-        ``key``, with the file and line: a missing or different header, a row without 7
-        numbers, times not increasing, a directory or missing file, no rows.
-    """
-    p = Path(path)
-    rows = _file_rows(p, key)
-    header_line, header = rows[0]
-    names = tuple(h.strip() for h in header.split(","))
-    if names != CSV_HEADER:
-        raise ConfigError(key, f"{p}: line {header_line}: the header must be exactly {','.join(CSV_HEADER)}, "
-                          f"got {shown(header)}")
-    if len(rows) == 1:
-        raise ConfigError(key, f"{p}: the trajectory file has a header but no poses")
-    values = np.array([_numbers(text.split(","), 7, p, line, key, " ".join(CSV_HEADER)) for line, text in rows[1:]])
-    lines = [line for line, _ in rows[1:]]
-    _check_rows(p, lines, values[:, 0], values[:, 1:4], key)
-    angles = values[:, 4:7]
-    big = np.flatnonzero(np.abs(angles).max(axis=1) > 720.0)
-    if len(big):
-        raise ConfigError(key, f"{p}: line {lines[int(big[0])]}: angles must lie within +-720 degrees")
-    return Trajectory(values[:, 0], values[:, 1:4], _quats_from_rpy_deg(angles), angles)
-
-
-def read_tum_trajectory(path: str | os.PathLike, key: str = "trajectory.file") -> Trajectory:
-    """Read a TUM trajectory: ``t x y z qx qy qz qw`` per line (whitespace-separated).
-
-    The quaternion is in ROS order (x, y, z, w), scalar last, and is normalised; ``#`` starts a
-    comment line.
-
-    Raises
-    ------
-    ConfigError
-        ``key``, with the file and line: a row without 8 numbers, a zero quaternion, times not
-        increasing, a directory or missing file, no rows.
-    """
-    p = Path(path)
-    rows = _file_rows(p, key)
-    values = np.array([_numbers(text.split(), 8, p, line, key, "t x y z qx qy qz qw") for line, text in rows])
-    lines = [line for line, _ in rows]
-    _check_rows(p, lines, values[:, 0], values[:, 1:4], key)
-    quats, norms = _unit_quaternions(values[:, 4:8])
-    zero = np.flatnonzero(~(norms > 1e-9))
-    if len(zero):
-        raise ConfigError(key, f"{p}: line {lines[int(zero[0])]}: the quaternion must not be zero")
-    return Trajectory(values[:, 0], values[:, 1:4], quats)
-
-
-def _unit_quaternions(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of ``q`` scaled to unit length, and their lengths, without overflow.
-
-    Each row is divided by its largest magnitude before its length is taken: the squares of
-    ``1e308`` overflow (a quaternion of four 1e308 was called zero). Rows of zeros stay zeros
-    (length 0).
-    """
-    q = np.asarray(q, dtype=np.float64)
-    big = np.abs(q).max(axis=1)
-    safe = np.where(big > 0, big, 1.0)
-    scaled = q / safe[:, None]
-    length = np.sqrt(np.sum(scaled * scaled, axis=1))
-    unit = scaled / np.where(length > 0, length, 1.0)[:, None]
-    with np.errstate(over="ignore"):  # four 1e308 are 2e308 long: inf, still a direction
-        return unit, big * length
-
-
-def read_trajectory(path: str | os.PathLike, fmt: str | None = None, key: str = "trajectory.file") -> Trajectory:
-    """Read a trajectory file, CSV or TUM.
-
-    ``fmt`` ``None`` guesses: CSV when the name ends in ``.csv`` or the first line that is not a
-    comment starts with ``t,``; TUM otherwise.
-    """
-    p = Path(path)
-    if fmt is None:
-        fmt = "csv"
-        if p.suffix.lower() != ".csv":
-            rows = _file_rows(p, key)
-            fmt = "csv" if rows[0][1].replace(" ", "").startswith("t,") else "tum"
-    return read_csv_trajectory(p, key) if fmt == "csv" else read_tum_trajectory(p, key)
-
-
 # The scenario's ``trajectory`` section --------------------------------------------------
 
 def _positive(value: Any, key: str) -> float:
@@ -573,14 +318,6 @@ def _positive(value: Any, key: str) -> float:
     if v <= 0:
         raise ConfigError(key, f"must be > 0, got {shown(value)}")
     return v
-
-
-def _check_rate(rate_hz: Any, key: str) -> float:
-    """``rate_hz`` within :data:`RATE_RANGE_HZ`, or a ConfigError naming ``key``."""
-    lo, hi = RATE_RANGE_HZ
-    if not (isinstance(rate_hz, (int, float)) and lo <= rate_hz <= hi):
-        raise ConfigError(key, f"must be within [{lo:g}, {hi:g}] pings per second, got {shown(rate_hz)}")
-    return float(rate_hz)
 
 
 def _speed(value: Any, key: str) -> float:

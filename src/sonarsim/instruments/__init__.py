@@ -111,21 +111,8 @@ def vehicle_poses(sim, spec: InstrumentSpec, n_pings: int | None = None, traject
 
 def poses_at(trajectory, times_s: np.ndarray) -> list[Pose]:
     """A trajectory's poses at ``times_s`` (clipped to its span): positions interpolated
-    linearly, orientations by slerp."""
-    from scipy.spatial.transform import Rotation, Slerp
-
-    t = np.clip(np.asarray(times_s, np.float64), trajectory.times_s[0], trajectory.times_s[-1])
-    pos = np.column_stack([np.interp(t, trajectory.times_s, trajectory.positions_m[:, i]) for i in range(3)])
-    if trajectory.n_frames == 1:
-        rot = np.repeat(Rotation.from_quat(trajectory.quats_xyzw).as_matrix(), len(t), axis=0)
-    else:
-        rot = Slerp(trajectory.times_s, Rotation.from_quat(trajectory.quats_xyzw))(t).as_matrix()
-    out = []
-    for p, r in zip(pos, rot):
-        m = np.eye(4)
-        m[:3, :3], m[:3, 3] = r, p
-        out.append(Pose.from_matrix(m))
-    return out
+    linearly, orientations by slerp (:meth:`~sonarsim.config.tracks.Trajectory.at`)."""
+    return trajectory.at(times_s)
 
 
 def render_pings(sim, name: str | None = None, n_pings: int | None = None, trajectory=None,

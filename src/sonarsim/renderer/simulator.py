@@ -242,7 +242,15 @@ class Simulator:
         self._ground_only = (self.scene.ground is not None and not self.scene.planes and self.facets is None
                              and not self.scene.render.glints)
         self._warn_about_planes()
-        self.caster = with_textures(make_caster(backend, self.meshes, self.scene.render.threads), self.meshes)
+        self._sides = sides
+        # Objects with their own tracks move every frame (at_time): their caster is built for it
+        # (each object refitted in place); a scene without tracks gets the static, faster tree,
+        # and is rebuilt once for motion on its first move_objects.
+        self.tracked: tuple[str, ...] = tuple(o.name for o in objects if o.track is not None)
+        self._base_caster = make_caster(backend, self.meshes, self.scene.render.threads, dynamic=bool(self.tracked))
+        self.caster = with_textures(self._base_caster, self.meshes)
+        self.last_moves: dict[str, str] = {}
+        self._local_corners: dict[int, np.ndarray] = {}  # by object index: its box in its own frame
         # A sonar inside a closed object sees only its inside: said once per object, for the
         # scene's pose now and for each pose rendered (scene.inside: cheap outside the objects' boxes).
         self._inside = InsideTest(self.caster, self.meshes, [o.name for o in self.scene.objects])
@@ -327,6 +335,95 @@ class Simulator:
         for caster in (self.caster, self._mirrored_caster):
             if hasattr(caster, "close"):
                 caster.close()
+
+    # A world that moves ---------------------------------------------------------------------
+
+    def move_objects(self, poses: Mapping[str, Any]) -> None:
+        """Put objects at new poses for the frames that follow, without rebuilding the scene.
+
+        Each moved object's mesh is posed again (and clipped by the planes); the ray caster
+        refits that object's tree alone (Embree 4; a caster built static is rebuilt once for
+        motion, and engines that cannot move meshes are rebuilt); its mirror facets, the
+        inside test and the frames' recorded scene follow. Labels follow by construction:
+        an object keeps its label id wherever it goes.
+
+        Parameters
+        ----------
+        poses : mapping of str to pose
+            Object name -> its new object-to-world pose (a :class:`~sonarsim.core.transforms.Pose`
+            or a pose mapping ``{position_m, rpy_deg | quat_xyzw}``).
+
+        Raises
+        ------
+        ConfigError
+            An unknown object name (the scene's names are listed), or a bad pose.
+        """
+        index = {o.name: k for k, o in enumerate(self.scene.objects)}
+        objects = list(self.scene.objects)
+        moved: dict[int, Any] = {}
+        boxes: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        for name, pose in poses.items():
+            if name not in index:
+                raise ConfigError(f"objects.{name}", f"no object named {name!r} to move; the scene's objects: "
+                                  f"{', '.join(map(repr, index)) or 'none'}")
+            k = index[name]
+            p = as_pose(pose)
+            if p == objects[k].pose:
+                continue
+            objects[k] = replace(objects[k], pose=p)
+            mesh = object_mesh_world(objects[k])
+            if k not in self._local_corners:  # the object's own box, scaled, unclipped: its 8 corners
+                local = (mesh.vertices - p.translation) @ p.rotation
+                lo, hi = local.min(axis=0), local.max(axis=0)
+                self._local_corners[k] = np.array([[(lo, hi)[(c >> i) & 1][i] for i in range(3)] for c in range(8)])
+            for plane in self.scene.reflecting_planes:
+                mesh = clip_to_water(mesh, plane.point_m, plane.normal)
+            moved[k] = mesh
+            corners = self._local_corners[k] @ p.rotation.T + p.translation
+            boxes[k] = (corners.min(axis=0), corners.max(axis=0))
+        if not moved:
+            self.last_moves = {}
+            return
+        for k, mesh in moved.items():
+            self.meshes[k] = mesh
+        self.scene = replace(self.scene, objects=tuple(objects))
+        # The frames' record: a still scene at this moment (its objects' poses, no tracks), so
+        # that a frame's scene, read back, renders that frame.
+        recorded = list(self._config.get("objects", []))
+        for k in moved:
+            entry = {key: v for key, v in recorded[k].items() if key != "track"}
+            entry["pose"] = objects[k].pose.to_dict()
+            recorded[k] = entry
+        self._config = {**self._config, "objects": recorded}
+        base = self._base_caster
+        if getattr(base, "dynamic", False):
+            done = base.replace_meshes(moved)
+        else:
+            threads = self.scene.render.threads
+            self._base_caster = make_caster(self.backend, self.meshes, threads, dynamic=True)
+            (getattr(base, "release", None) or getattr(base, "close", lambda: None))()
+            done = {k: "rebuilt" for k in moved}
+        self.last_moves = {objects[k].name: what for k, what in done.items()}
+        self.caster = with_textures(self._base_caster, self.meshes)
+        names = [o.name for o in objects]
+        if self.facets is not None and any(objects[k].specular > 0 for k in moved):
+            self.facets = FacetSet.of(self.meshes, names, [o.specular for o in objects],
+                                      [o.normals for o in objects], self._sides)
+        self._inside.moved(self.caster, moved, boxes)
+        if self._mirrored_caster is not None:  # method: paper's mirror images, built again on use
+            (getattr(self._mirrored_caster, "release", None) or self._mirrored_caster.close)()
+            self._mirrored_caster = None
+
+    def object_poses_at(self, t_s: float) -> dict[str, Pose]:
+        """The tracked objects' poses at ``t_s`` seconds of the scene's clock (their ``track``)."""
+        return {o.name: o.track.pose_at(t_s) for o in self.scene.objects if o.track is not None}
+
+    def at_time(self, t_s: float | None) -> None:
+        """Move every object that has a ``track`` to its pose at ``t_s`` (seconds of the scene's
+        clock: a trajectory's time, a dataset frame's, ``live``'s since it started); ``None``
+        leaves them where they are."""
+        if t_s is not None and self.tracked:
+            self.move_objects(self.object_poses_at(float(t_s)))
 
     def __enter__(self) -> "Simulator":
         return self

@@ -67,6 +67,23 @@ class InsideTest:
         self._last: tuple[tuple, list[str]] | None = None
         self._ignored: tuple[frozenset[str], np.ndarray] | None = None
 
+    def moved(self, caster, meshes: dict, boxes: dict | None = None) -> None:
+        """Objects moved (mesh index -> its new mesh), cast through ``caster`` from now on.
+
+        ``boxes`` (mesh index -> (lo, hi), metres) may give boxes that hold the meshes (the
+        posed corners of the object's own box: no pass over its vertices); by default the
+        meshes' own."""
+        self._caster = caster
+        for k, m in meshes.items():
+            self._meshes[k] = m
+            if not len(m.faces):
+                self._lo[k], self._hi[k] = np.inf, -np.inf
+            elif boxes is not None and k in boxes:
+                self._lo[k], self._hi[k] = boxes[k]
+            else:
+                self._lo[k], self._hi[k] = m.vertices.min(axis=0), m.vertices.max(axis=0)
+        self._last = None
+
     def holding(self, point, ignore: frozenset[str] = frozenset()) -> list[str]:
         """Names of the objects whose closed surface encloses ``point`` (world, metres).
 

@@ -27,13 +27,13 @@ def _make_embreex(meshes, threads):
     return EmbreeCaster(meshes, threads)
 
 
-def _make_embree4(meshes, threads):
+def _make_embree4(meshes, threads, dynamic=False):
     from .embree4 import Embree4Caster
 
-    return Embree4Caster(meshes, threads)
+    return Embree4Caster(meshes, threads, dynamic=dynamic)
 
 
-def _make_embree(meshes, threads):
+def _make_embree(meshes, threads, dynamic=False):
     """Our Embree 4 binding where it loads, else embreex's caster (``SONARSIM_EMBREE=embreex`` forces it)."""
     choice = os.environ.get("SONARSIM_EMBREE", "").strip().lower()
     if choice not in ("", "embree4", "embreex"):
@@ -50,7 +50,7 @@ def _make_embree(meshes, threads):
                 _reported.add(str(exc))
                 logger.warning("Embree 4 binding unavailable (%s); using embreex's caster", exc)
         else:
-            return _make_embree4(meshes, threads)
+            return _make_embree4(meshes, threads, dynamic)
     return _make_embreex(meshes, threads)
 
 
@@ -68,11 +68,21 @@ BACKENDS: dict[str, Callable[[Sequence[TriangleMesh], int | None], RayCaster]] =
 }
 
 
-def make_caster(name: str, meshes: Sequence[TriangleMesh], threads: int | None = None) -> RayCaster:
-    """Build the named engine over ``meshes`` (world frame)."""
+def make_caster(name: str, meshes: Sequence[TriangleMesh], threads: int | None = None,
+                dynamic: bool = False) -> RayCaster:
+    """Build the named engine over ``meshes`` (world frame).
+
+    ``dynamic``: meshes will move (``replace_meshes``); the engines that can move meshes in
+    place (Embree 4) build for it, the others ignore it (a simulator rebuilds them instead).
+    """
     if name not in BACKENDS:
         raise ConfigError("backend", f"unknown ray-casting backend {name!r}; allowed: {', '.join(BACKENDS)}")
+    if dynamic and name in DYNAMIC_BACKENDS:
+        return BACKENDS[name](meshes, threads, dynamic=True)
     return BACKENDS[name](meshes, threads)
 
 
-__all__ = ["BACKENDS", "Hits", "RayCaster", "available_cores", "make_caster"]
+#: The engines whose factories take ``dynamic`` (meshes moved in place, each refitted).
+DYNAMIC_BACKENDS = ("embree", "embree4")
+
+__all__ = ["BACKENDS", "DYNAMIC_BACKENDS", "Hits", "RayCaster", "available_cores", "make_caster"]

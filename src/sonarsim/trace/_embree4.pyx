@@ -186,7 +186,9 @@ cdef enum:
     RTC_FORMAT_UINT3 = 0x5003
     RTC_FORMAT_FLOAT3 = 0x9003
     RTC_BUILD_QUALITY_HIGH = 2
+    RTC_BUILD_QUALITY_REFIT = 3
     RTC_SCENE_FLAG_NONE = 0
+    RTC_SCENE_FLAG_DYNAMIC = 1
     RTC_RAY_QUERY_FLAG_INCOHERENT = 0
     RTC_RAY_QUERY_FLAG_COHERENT = 1 << 16
     RTC_DEVICE_PROPERTY_VERSION = 0
@@ -217,6 +219,13 @@ ctypedef void (*f_rtcSetSharedGeometryBuffer)(void* geometry, int type, unsigned
 ctypedef void (*f_rtcCommitGeometry)(void* geometry) noexcept nogil
 ctypedef unsigned int (*f_rtcAttachGeometry)(void* scene, void* geometry) noexcept nogil
 ctypedef void (*f_rtcReleaseGeometry)(void* geometry) noexcept nogil
+ctypedef void* (*f_rtcGetGeometry)(void* scene, unsigned int geomID) noexcept nogil
+ctypedef void (*f_rtcUpdateGeometryBuffer)(void* geometry, int type, unsigned int slot) noexcept nogil
+ctypedef void (*f_rtcSetGeometryBuildQuality)(void* geometry, int quality) noexcept nogil
+ctypedef void (*f_rtcDetachGeometry)(void* scene, unsigned int geomID) noexcept nogil
+ctypedef void (*f_rtcAttachGeometryByID)(void* scene, void* geometry, unsigned int geomID) noexcept nogil
+ctypedef void (*f_rtcEnableGeometry)(void* geometry) noexcept nogil
+ctypedef void (*f_rtcDisableGeometry)(void* geometry) noexcept nogil
 ctypedef void (*f_rtcIntersect1)(void* scene, ss_RTCRayHit* rayhit, ss_RTCIntersectArguments* args) noexcept nogil
 ctypedef void (*f_rtcIntersect8)(const int* valid, void* scene, ss_RTCRayHit8* rayhit,
                                  ss_RTCIntersectArguments* args) noexcept nogil
@@ -239,6 +248,13 @@ cdef struct Api:
     f_rtcReleaseGeometry rtcReleaseGeometry
     f_rtcIntersect1 rtcIntersect1
     f_rtcIntersect8 rtcIntersect8
+    f_rtcGetGeometry rtcGetGeometry
+    f_rtcUpdateGeometryBuffer rtcUpdateGeometryBuffer
+    f_rtcSetGeometryBuildQuality rtcSetGeometryBuildQuality
+    f_rtcDetachGeometry rtcDetachGeometry
+    f_rtcAttachGeometryByID rtcAttachGeometryByID
+    f_rtcEnableGeometry rtcEnableGeometry
+    f_rtcDisableGeometry rtcDisableGeometry
 
 cdef Api api
 cdef void* _handle = NULL
@@ -248,7 +264,8 @@ _SYMBOLS = ("rtcNewDevice", "rtcReleaseDevice", "rtcGetDeviceError", "rtcSetDevi
             "rtcGetDeviceProperty", "rtcNewScene", "rtcReleaseScene", "rtcSetSceneBuildQuality",
             "rtcSetSceneFlags", "rtcCommitScene", "rtcNewGeometry", "rtcSetSharedGeometryBuffer",
             "rtcCommitGeometry", "rtcAttachGeometry", "rtcReleaseGeometry", "rtcIntersect1",
-            "rtcIntersect8")
+            "rtcIntersect8", "rtcGetGeometry", "rtcUpdateGeometryBuffer", "rtcSetGeometryBuildQuality",
+            "rtcDetachGeometry", "rtcAttachGeometryByID", "rtcEnableGeometry", "rtcDisableGeometry")
 
 
 def load(path: str) -> None:
@@ -278,7 +295,7 @@ def load(path: str) -> None:
         err = dlerror()
         raise SonarsimError(f"cannot open the Embree 4 library {path}: "
                             f"{(<bytes>err).decode(errors='replace') if err != NULL else 'unknown error'}")
-    cdef void* found[17]
+    cdef void* found[24]
     missing = []
     cdef bytes bname
     for k, name in enumerate(_SYMBOLS):
@@ -305,6 +322,13 @@ def load(path: str) -> None:
     api.rtcReleaseGeometry = <f_rtcReleaseGeometry>found[14]
     api.rtcIntersect1 = <f_rtcIntersect1>found[15]
     api.rtcIntersect8 = <f_rtcIntersect8>found[16]
+    api.rtcGetGeometry = <f_rtcGetGeometry>found[17]
+    api.rtcUpdateGeometryBuffer = <f_rtcUpdateGeometryBuffer>found[18]
+    api.rtcSetGeometryBuildQuality = <f_rtcSetGeometryBuildQuality>found[19]
+    api.rtcDetachGeometry = <f_rtcDetachGeometry>found[20]
+    api.rtcAttachGeometryByID = <f_rtcAttachGeometryByID>found[21]
+    api.rtcEnableGeometry = <f_rtcEnableGeometry>found[22]
+    api.rtcDisableGeometry = <f_rtcDisableGeometry>found[23]
     _handle = h
     _loaded_path = path
 
@@ -506,13 +530,18 @@ cdef class Scene:
         :func:`sonarsim.trace.embree4.device_config`).
     quality : {"high", "medium", "low"}
         BVH build quality (high: spatial splits, slower to build, faster to cast).
+    dynamic : bool
+        A scene whose geometries move (:meth:`replace`, then :meth:`commit`): Embree's
+        two-level BVH, each geometry refitted; empty meshes are then allowed (disabled).
     """
 
     cdef void* device
     cdef void* scene
     cdef ErrorSlot error
     cdef list _keep
+    cdef list _enabled
     cdef readonly int n_geometries
+    cdef readonly bint dynamic
 
     def __cinit__(self):
         self.device = NULL
@@ -520,11 +549,13 @@ cdef class Scene:
         self.error.code = 0
         self.error.message[0] = 0
 
-    def __init__(self, list vertices, list faces, str config="", str quality="high"):
+    def __init__(self, list vertices, list faces, str config="", str quality="high", bint dynamic=False):
         if _handle == NULL:
             raise SonarsimError("the Embree 4 library is not loaded (call sonarsim.trace._embree4.load first)")
         self._keep = []
+        self._enabled = []
         self.n_geometries = 0
+        self.dynamic = dynamic
         cdef bytes bconf = config.encode()
         self.device = api.rtcNewDevice(bconf)
         if self.device == NULL:
@@ -541,31 +572,107 @@ cdef class Scene:
             raise ValueError(f"quality must be one of {', '.join(qualities)}")
         api.rtcSetSceneBuildQuality(self.scene, qualities[quality])
         # Not ROBUST, as the embreex caster: closed meshes lose no hits at this precision.
-        api.rtcSetSceneFlags(self.scene, RTC_SCENE_FLAG_NONE)
+        # DYNAMIC: Embree's two-level BVH, a tree per geometry under one over them, so that a
+        # geometry moved (replace) is refitted or rebuilt alone and the rest stays as built.
+        api.rtcSetSceneFlags(self.scene, RTC_SCENE_FLAG_DYNAMIC if dynamic else RTC_SCENE_FLAG_NONE)
         cdef void* geom
-        cdef const float[:, ::1] v
-        cdef const int[:, ::1] f
         for vv, ff in zip(vertices, faces):
-            f = ff
-            if f.shape[0] == 0:
+            if len(ff) == 0 and not dynamic:
                 raise SonarsimError("empty meshes are not given to Embree")
-            # Embree reads the last vertex with a 16-byte load: a shared float3 buffer needs 4
-            # bytes of padding after it (rtcSetSharedGeometryBuffer), hence one spare row.
-            arr = np.zeros((len(vv) + 1, 3), np.float32)
-            arr[:-1] = vv
-            v = arr
-            self._keep += [arr, ff]
-            geom = api.rtcNewGeometry(self.device, RTC_GEOMETRY_TYPE_TRIANGLE)
-            self.check("rtcNewGeometry")
-            api.rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                           &v[0, 0], 0, 12, v.shape[0] - 1)
-            api.rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                           &f[0, 0], 0, 12, f.shape[0])
-            api.rtcCommitGeometry(geom)
+            geom = self._geometry(vv, ff)
             api.rtcAttachGeometry(self.scene, geom)
             api.rtcReleaseGeometry(geom)  # the scene holds its own reference
             self.check("building a triangle geometry")
+            self._enabled.append(True)
+            if len(ff) == 0:
+                self._disable(self.n_geometries)
             self.n_geometries += 1
+        with nogil:
+            api.rtcCommitScene(self.scene)
+        self.check("rtcCommitScene")
+
+    cdef void* _geometry(self, vv, ff) except NULL:
+        """A committed triangle geometry sharing copies of ``vv`` (n, 3) and ``ff`` (m, 3); an
+        empty ``ff`` gets one degenerate triangle (the geometry is then disabled)."""
+        cdef const float[:, ::1] v
+        cdef const int[:, ::1] f
+        if len(ff) == 0:
+            vv = np.zeros((3, 3), np.float32)
+            ff = np.array([[0, 1, 2]], np.int32)
+        f = ff
+        # Embree reads the last vertex with a 16-byte load: a shared float3 buffer needs 4
+        # bytes of padding after it (rtcSetSharedGeometryBuffer), hence one spare row.
+        arr = np.zeros((len(vv) + 1, 3), np.float32)
+        arr[:-1] = vv
+        v = arr
+        cdef void* geom = api.rtcNewGeometry(self.device, RTC_GEOMETRY_TYPE_TRIANGLE)
+        self.check("rtcNewGeometry")
+        api.rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                       &v[0, 0], 0, 12, v.shape[0] - 1)
+        api.rtcSetSharedGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                       &f[0, 0], 0, 12, f.shape[0])
+        if self.dynamic:
+            # A move that keeps the triangles refits this geometry's tree instead of rebuilding it.
+            api.rtcSetGeometryBuildQuality(geom, RTC_BUILD_QUALITY_REFIT)
+        api.rtcCommitGeometry(geom)
+        self._keep.append((arr, ff))
+        return geom
+
+    cdef _disable(self, unsigned int k):
+        if self._enabled[k]:
+            api.rtcDisableGeometry(api.rtcGetGeometry(self.scene, k))
+            self._enabled[k] = False
+
+    def replace(self, int k, vertices, faces) -> str:
+        """Give geometry ``k`` new vertices (and faces) for the next commit (dynamic scenes only).
+
+        The same faces as before: the vertices are written into the shared buffer and the
+        geometry's tree is refitted at :meth:`commit`. Other faces: a new geometry takes
+        ``k``'s id (its tree alone is built). No faces: the geometry is disabled (no hits).
+
+        Parameters
+        ----------
+        k : int
+            Geometry id, ``0 <= k < n_geometries``.
+        vertices : (n, 3) float array, metres
+        faces : (m, 3) int32 C-contiguous array
+
+        Returns
+        -------
+        str
+            What was done: ``'refit'``, ``'rebuilt'`` or ``'disabled'``.
+        """
+        if not self.dynamic:
+            raise SonarsimError("this Embree scene is static (built without dynamic=True): its geometries cannot move")
+        if not 0 <= k < self.n_geometries:
+            raise ValueError(f"geometry id {k} out of range 0..{self.n_geometries - 1}")
+        if self.scene == NULL:
+            raise SonarsimError("the Embree scene is closed")
+        cdef void* geom = api.rtcGetGeometry(self.scene, k)
+        if len(faces) == 0:
+            self._disable(k)
+            self.check("rtcDisableGeometry")
+            return "disabled"
+        arr, ff = self._keep[k]
+        if self._enabled[k] and ff.shape == faces.shape and np.array_equal(ff, faces):
+            arr[:-1] = vertices
+            api.rtcUpdateGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0)
+            api.rtcCommitGeometry(geom)
+            self.check("refitting a geometry")
+            return "refit"
+        geom = self._geometry(vertices, np.ascontiguousarray(faces, dtype=np.int32))
+        self._keep[k] = self._keep.pop()
+        api.rtcDetachGeometry(self.scene, k)
+        api.rtcAttachGeometryByID(self.scene, geom, k)
+        api.rtcReleaseGeometry(geom)
+        self._enabled[k] = True
+        self.check("replacing a geometry")
+        return "rebuilt"
+
+    def commit(self) -> None:
+        """Commit the scene after :meth:`replace` (its BVH updated; GIL released)."""
+        if self.scene == NULL:
+            raise SonarsimError("the Embree scene is closed")
         with nogil:
             api.rtcCommitScene(self.scene)
         self.check("rtcCommitScene")

@@ -173,24 +173,36 @@ class Embree4Caster:
         nearly the same origin and direction), which selects its packet traversal that shares
         the BVH walk between lanes: 1.5x faster on a demo frame than the incoherent default, the
         same hits. False for rays in random order.
+    dynamic : bool
+        Meshes that move (:meth:`replace_meshes`): every mesh, empty or not, is its own Embree
+        geometry (id = mesh index) in a two-level BVH, so that moving one refits its tree
+        alone. A static caster (the default) builds one high-quality tree over them all.
     """
 
     name = "embree4"
 
-    def __init__(self, meshes: Sequence[TriangleMesh], threads: int | None = None, coherent: bool = True) -> None:
+    def __init__(self, meshes: Sequence[TriangleMesh], threads: int | None = None, coherent: bool = True,
+                 dynamic: bool = False) -> None:
         binding = load_binding()
         self._binding = binding
         self.coherent = coherent
+        self.dynamic = bool(dynamic)
         self.threads = threads or available_cores()
         self.n_meshes = len(meshes)
-        self._ids, kept = nonempty_meshes(meshes)
+        if self.dynamic:
+            self._ids, kept = np.arange(len(meshes), dtype=np.int32), list(meshes)
+        else:
+            self._ids, kept = nonempty_meshes(meshes)
         self._scene = None
         self._closed = False
         if kept:
             self._scene = binding.Scene(
                 [np.ascontiguousarray(m.vertices, dtype=np.float32) for m in kept],
                 [np.ascontiguousarray(m.faces, dtype=np.int32) for m in kept],
-                device_config(self.threads),
+                # Dynamic: the scene's own quality is that of the tree over the geometries, built
+                # again at every commit: high (spatial splits) made a commit 5 ms, low 0.05 ms;
+                # each geometry keeps its own tree (refitted), and casts stay as fast.
+                device_config(self.threads), "low" if self.dynamic else "high", self.dynamic,
             )
         self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
 
@@ -279,6 +291,44 @@ class Embree4Caster:
                            coherent=coherent)
         self._map(run, self._chunks(n, threads))
         return hits
+
+    def replace_meshes(self, meshes: dict[int, TriangleMesh]) -> dict[int, str]:
+        """Move meshes in place: mesh ``k`` becomes ``meshes[k]`` for the next casts.
+
+        Only the moved meshes' trees change (refitted where the faces are the same, rebuilt where
+        a plane's clip changed them); the scene's address, which the compiled kernels hold,
+        stays. Casts must not run meanwhile (a simulator moves objects between frames).
+
+        Parameters
+        ----------
+        meshes : dict of int to TriangleMesh
+            Mesh index -> its new world-frame mesh.
+
+        Returns
+        -------
+        dict of int to str
+            What each geometry went through: ``'refit'``, ``'rebuilt'`` or ``'disabled'``.
+
+        Raises
+        ------
+        SonarsimError
+            The caster is not dynamic, or is released.
+        """
+        if self._closed:
+            raise SonarsimError("this Embree4Caster is released")
+        if not self.dynamic:
+            raise SonarsimError("this Embree4Caster is static (dynamic=False): its meshes cannot move")
+        done = {}
+        if self._scene is None:
+            return done
+        for k, mesh in meshes.items():
+            if not 0 <= k < self.n_meshes:
+                raise ValueError(f"mesh index {k} out of range 0..{self.n_meshes - 1}")
+            done[k] = self._scene.replace(int(k), np.asarray(mesh.vertices, dtype=np.float32),
+                                          np.ascontiguousarray(mesh.faces, dtype=np.int32))
+        if done:
+            self._scene.commit()
+        return done
 
     def packet_loop(self) -> tuple | None:
         """What the compiled kernels need to cast through the binding's packet loop themselves
