@@ -42,7 +42,7 @@ from ..paths.planes import ChainTable, PlaneSet
 from ..sensor.model import SensorModel, elevation_span_deg
 from ..sensor.speckle import pool_bytes
 from ..scene.inside import InsideTest
-from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_world, outer_side
+from ..scene.meshes import clip_to_water, mirror_across_plane, object_mesh_scaled, object_mesh_world, outer_side, posed_mesh
 from ..scene.floor_texture import scale_by_texture, texture_fields
 from ..scene.textures import with_textures
 from ..trace import available_cores, make_caster
@@ -250,7 +250,7 @@ class Simulator:
         self._base_caster = make_caster(backend, self.meshes, self.scene.render.threads, dynamic=bool(self.tracked))
         self.caster = with_textures(self._base_caster, self.meshes)
         self.last_moves: dict[str, str] = {}
-        self._local_corners: dict[int, np.ndarray] = {}  # by object index: its box in its own frame
+        self._scaled: dict[int, tuple] = {}  # by object index: (scaled mesh, its box's corners), once moved
         # A sonar inside a closed object sees only its inside: said once per object, for the
         # scene's pose now and for each pose rendered (scene.inside: cheap outside the objects' boxes).
         self._inside = InsideTest(self.caster, self.meshes, [o.name for o in self.scene.objects])
@@ -371,15 +371,16 @@ class Simulator:
             if p == objects[k].pose:
                 continue
             objects[k] = replace(objects[k], pose=p)
-            mesh = object_mesh_world(objects[k])
-            if k not in self._local_corners:  # the object's own box, scaled, unclipped: its 8 corners
-                local = (mesh.vertices - p.translation) @ p.rotation
-                lo, hi = local.min(axis=0), local.max(axis=0)
-                self._local_corners[k] = np.array([[(lo, hi)[(c >> i) & 1][i] for i in range(3)] for c in range(8)])
+            if k not in self._scaled:  # the object's mesh, scaled, and the 8 corners of its box
+                scaled = object_mesh_scaled(objects[k])
+                lo, hi = scaled.vertices.min(axis=0), scaled.vertices.max(axis=0)
+                corners = np.array([[(lo, hi)[(c >> i) & 1][i] for i in range(3)] for c in range(8)])
+                self._scaled[k] = (scaled, corners)
+            mesh = posed_mesh(objects[k], self._scaled[k][0])
             for plane in self.scene.reflecting_planes:
                 mesh = clip_to_water(mesh, plane.point_m, plane.normal)
             moved[k] = mesh
-            corners = self._local_corners[k] @ p.rotation.T + p.translation
+            corners = self._scaled[k][1] @ p.rotation.T + p.translation
             boxes[k] = (corners.min(axis=0), corners.max(axis=0))
         if not moved:
             self.last_moves = {}

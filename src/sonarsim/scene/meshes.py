@@ -134,9 +134,28 @@ def object_mesh_world(obj: ObjectSpec) -> TriangleMesh:
     MeshFileError
         A mesh object reaches beyond ``MAX_COORDINATE_M`` of the origin (naming it and its file).
     """
+    return posed_mesh(obj, object_mesh_scaled(obj))
+
+
+def object_mesh_scaled(obj: ObjectSpec) -> TriangleMesh:
+    """The object's mesh in its own coordinates, scaled: what its pose places (kept by a
+    simulator for the objects it moves)."""
     local = object_mesh_local(obj)
     scale = np.broadcast_to(np.asarray(obj.scale, dtype=float), (3,))
-    v = (local.vertices * scale) @ obj.pose.rotation.T + obj.pose.translation
+    return TriangleMesh(local.vertices * scale, np.ascontiguousarray(local.faces, dtype=np.int32), local.uv,
+                        local.texture)
+
+
+def posed_mesh(obj: ObjectSpec, scaled: TriangleMesh) -> TriangleMesh:
+    """``scaled`` (:func:`object_mesh_scaled` of ``obj``) at ``obj``'s pose, in world coordinates.
+
+    Raises
+    ------
+    MeshFileError
+        A mesh object reaches beyond ``MAX_COORDINATE_M`` of the origin.
+    """
+    v = scaled.vertices @ obj.pose.rotation.T + obj.pose.translation
+    local = scaled
     # Primitives are bounded by their sizes and positions; a mesh (a file, or a Trimesh from
     # Python, scaled up to 1e4) is not.
     if obj.primitive is None and len(v) and np.abs(v).max() > MAX_COORDINATE_M:
