@@ -96,16 +96,23 @@ class FrameSpec:
         return hashlib.sha256(text.encode()).hexdigest()
 
     def load_scene(self) -> Scene:
-        """The frame's :class:`~sonarsim.Scene`, posed at :attr:`pose`."""
+        """The frame's :class:`~sonarsim.Scene`, posed at :attr:`pose`, its objects on tracks
+        where they are at :attr:`time_s`."""
         scene = scene_from_dict(self.scene, base_dir=self.base_dir, source=f"frame {self.index}")
+        if any(o.track is not None for o in scene.objects):
+            scene = replace(scene, objects=tuple(o if o.track is None else replace(o, pose=o.track.pose_at(self.time_s))
+                                                 for o in scene.objects))
         return scene.with_pose(self.pose)
 
     def render(self, simulator: Any, **kwargs: Any):
         """Render this frame with a simulator built from :attr:`scene` (same :attr:`scene_key`).
 
         ``simulator.render(pose=self.pose, frame=self.index, **kwargs)``: the renderer's draws
-        come from ``(render.seed, index)``. Returns the :class:`~sonarsim.SonarImage`.
+        come from ``(render.seed, index)``; objects on tracks are first moved to where they are
+        at :attr:`time_s` (:meth:`Simulator.at_time`: whatever frame the simulator rendered
+        before, in whatever worker). Returns the :class:`~sonarsim.SonarImage`.
         """
+        simulator.at_time(self.time_s)
         return simulator.render(pose=self.pose, frame=self.index, **kwargs)
 
 

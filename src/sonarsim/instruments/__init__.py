@@ -183,10 +183,13 @@ def channel_pose(vehicle: Pose, channel) -> Pose:
     return mounted(vehicle, channel.mount)
 
 
-def pose_frames(sim, poses: list[Pose], sonar, fan, labels: bool | str = False):
+def pose_frames(sim, poses: list[Pose], sonar, fan, labels: bool | str = False, times_s=None):
     """Frames of consecutive poses of one channel, formed without a sensor: as many poses in one
     frame as :data:`BATCH_RAYS` allows where the scene lets one frame hold several
     (:meth:`Simulator.trace_poses`: direct paths), else a frame per pose (the same bits).
+
+    With ``times_s`` (one per pose, seconds) and objects on tracks, the objects are moved to
+    each pose's time first (:meth:`Simulator.at_time`), and only poses of one time share a frame.
 
     Yields
     ------
@@ -200,8 +203,22 @@ def pose_frames(sim, poses: list[Pose], sonar, fan, labels: bool | str = False):
         pose's share through its chain with its own frame's draws).
     """
     per = max(1, BATCH_RAYS // max(fan.n_rays, 1))
-    for start in range(0, len(poses), per):
-        stop = min(len(poses), start + per)
+    runs = [(0, len(poses))]
+    if times_s is not None and getattr(sim, "tracked", ()):
+        t = np.asarray(times_s, np.float64)
+        cuts = np.flatnonzero(np.diff(t) != 0) + 1  # runs of one time: a moment of the world
+        edges = [0, *cuts.tolist(), len(poses)]
+        runs = list(zip(edges[:-1], edges[1:]))
+    for first, last in runs:
+        if times_s is not None and getattr(sim, "tracked", ()):
+            sim.at_time(float(times_s[first]))
+        yield from _pose_batches(sim, poses, sonar, fan, labels, per, first, last)
+
+
+def _pose_batches(sim, poses, sonar, fan, labels, per: int, first: int, last: int):
+    """:func:`pose_frames` over ``poses[first:last]`` (one moment of the world)."""
+    for start in range(first, last, per):
+        stop = min(last, start + per)
         paths = sim.trace_poses(poses[start:stop], sonar=sonar, labels=labels, fan=fan) if stop - start > 1 else None
         if paths is not None:
             yield start, stop, paths, sim.form(paths, keep_rays=False, speckle=False, sensor=False)

@@ -1080,6 +1080,7 @@ def render_multibeam(sim, spec: MultibeamSpec, poses: list[Pose], times_s: np.nd
     truth = np.empty((n, m, 3))
     depth = np.full(n, np.nan)
     for k, vehicle in enumerate(poses):  # per ping: one engine frame; the beams vectorised
+        sim.at_time(float(times_s[k]))  # objects on tracks, where they are at the ping
         head = mounted(vehicle, spec.mount)
         paths = sim.trace(mounted(vehicle, channel.mount), sonar=sonar, fan=fan)
         image = sim.form(paths, keep_rays=False, speckle=speckle, frame=first_ping + k, sensor=model)

@@ -408,7 +408,8 @@ def render_scanning(sim, spec: ScanningSpec, poses: list[Pose], times_s: np.ndar
     at = [mounted(vehicle, spec.step_mount(angles[k])) for k, vehicle in enumerate(poses)]
     model = model or None
     draws = model is not None or (sim.scene.render.speckle and speckle is not False)
-    for start, stop, _, image in pose_frames(sim, at, sonar, fan, labels="total" if labels else False):
+    for start, stop, _, image in pose_frames(sim, at, sonar, fan, labels="total" if labels else False,
+                                             times_s=times_s):
         lines = image.components["total"]
         if not draws:
             out[:, start:stop] = lines

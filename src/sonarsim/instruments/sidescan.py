@@ -300,7 +300,9 @@ def render_sidescan(sim, spec: SidescanSpec, poses: list[Pose], times_s: np.ndar
     at = [mounted(vehicle, channel.mount) for vehicle in poses for channel in channels]
     model = model or None
     refracts = spec.sound_speed_profile is not None
-    for start, stop, paths, image in pose_frames(sim, at, traced, fan, labels="total" if labels else False):
+    at_times = np.repeat(np.asarray(times_s, np.float64), len(channels))  # one per line, as ``at``
+    for start, stop, paths, image in pose_frames(sim, at, traced, fan, labels="total" if labels else False,
+                                                 times_s=at_times):
         lines = image.components["total"]
         source = None
         if refracts:  # the straight-ray lines onto the device's time axis (the batch's frames: memory flat)

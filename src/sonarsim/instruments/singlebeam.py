@@ -278,7 +278,7 @@ def render_singlebeam(sim, spec: SinglebeamSpec, poses: list[Pose], times_s: np.
     nb = sonar.n_beams
     # Many pings go through the engine in one frame (pose_frames): ping j's cone is the
     # columns j nb to (j + 1) nb, summed into its envelope, then drawn from its own frame.
-    for start, stop, _, image in pose_frames(sim, at, sonar, fan):
+    for start, stop, _, image in pose_frames(sim, at, sonar, fan, times_s=times_s):
         polar = image.polar.astype(np.float64)
         for j, k in enumerate(range(start, stop)):
             env = (polar[:, j * nb:(j + 1) * nb] @ width)[:, None]
