@@ -51,6 +51,13 @@ def add_live_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "takes the pose at its stamp, interpolated")
     g.add_argument("--pose-type", choices=("odometry", "pose_stamped"), default="odometry",
                    help="what --pose-topic carries: nav_msgs/Odometry (default) or geometry_msgs/PoseStamped")
+    g.add_argument("--pose-frame", default=None, metavar="FRAME",
+                   help="the vehicle's pose from TF instead: FRAME's transform from the world frame on /tf (a "
+                   "simulator's ground truth, e.g. base_link)")
+    g.add_argument("--object-pose", action="append", default=[], metavar="NAME=SOURCE",
+                   help="move the scene's object NAME by a topic: SOURCE is TOPIC (nav_msgs/Odometry), "
+                   "TOPIC:pose_stamped, or tf:FRAME; repeat for more objects (objects with a track in the scene "
+                   "move by it)")
     g.add_argument("--max-staleness", type=positive_float, default=0.5, metavar="S",
                    help="skip a frame whose newest pose is older than S seconds (default 0.5), and say so")
     g.add_argument("--mount", type=_mount, default=None, metavar="X,Y,Z,ROLL,PITCH,YAW",
@@ -86,6 +93,33 @@ def _mount(text: str) -> Any:
     return Pose(tuple(v[:3]), tuple(v[3:]))
 
 
+def _object_sources(items: list[str]) -> dict[str, tuple[str, str, str | None]]:
+    """``--object-pose NAME=SOURCE`` values: name -> (topic, kind, TF frame or None)."""
+    from ..errors import ConfigError
+    from ..live.dds import dds_topic
+
+    out: dict[str, tuple[str, str, str | None]] = {}
+    for item in items:
+        name, sep, source = item.partition("=")
+        if not sep or not name or not source:
+            raise ConfigError("--object-pose", f"must be NAME=TOPIC, NAME=TOPIC:pose_stamped or NAME=tf:FRAME, "
+                              f"got {item!r}")
+        if name in out:
+            raise ConfigError("--object-pose", f"object {name!r} is given twice")
+        if source.startswith("tf:"):
+            if not source[3:]:
+                raise ConfigError("--object-pose", f"{item!r}: tf: needs a frame name (tf:FRAME)")
+            out[name] = ("/tf", "tf", source[3:])
+            continue
+        topic, _, kind = source.partition(":")
+        kind = kind or "odometry"
+        if kind not in ("odometry", "pose_stamped"):
+            raise ConfigError("--object-pose", f"{item!r}: the type after ':' must be odometry or pose_stamped")
+        dds_topic(topic)  # (checked, naming the value)
+        out[name] = (topic, kind, None)
+    return out
+
+
 def cmd_live(args: Any) -> None:
     """Run ``sonarsim live`` (:func:`sonarsim.live.stream.stream`)."""
     from ..config.loader import load_scene
@@ -99,10 +133,15 @@ def cmd_live(args: Any) -> None:
     if args.frames is not None and args.frames < 1:
         raise ConfigError("--frames", f"must be at least 1, got {args.frames}")
     frame_ids, topics = bag_naming(frame_ids=args.frame_ids, topics=args.topics)
-    if args.mount is not None and args.pose_topic is None:
-        raise ConfigError("--mount", "places the sonar on a vehicle whose pose comes from --pose-topic: give that too")
-    if args.pose_topic is not None and args.trajectory is not None:
-        raise ConfigError("--pose-topic", "the poses come from a topic or from --trajectory: give one of the two")
+    if args.pose_topic is not None and args.pose_frame is not None:
+        raise ConfigError("--pose-frame", "the vehicle's pose comes from --pose-topic or from --pose-frame: give one")
+    if args.mount is not None and args.pose_topic is None and args.pose_frame is None:
+        raise ConfigError("--mount", "places the sonar on a vehicle whose pose comes from --pose-topic or --pose-frame: "
+                          "give one of those too")
+    if (args.pose_topic or args.pose_frame) is not None and args.trajectory is not None:
+        raise ConfigError("--pose-topic" if args.pose_topic else "--pose-frame",
+                          "the poses come from a topic or from --trajectory: give one of the two")
+    object_sources = _object_sources(args.object_pose)
     options = LiveOptions(rate_hz=args.rate, fast=args.fast, n_frames=args.frames, fan=not args.no_fan,
                           speckle=False if args.no_speckle else None, frame_ids=frame_ids, topics=topics,
                           max_staleness_s=args.max_staleness)
@@ -115,17 +154,31 @@ def cmd_live(args: Any) -> None:
         from ..dataset.trajectory import read_trajectory
 
         trajectory = read_trajectory(args.trajectory, key="--trajectory")
+    names = [o.name for o in scene.objects]
+    for name in object_sources:
+        if name not in names:
+            raise ConfigError("--object-pose", f"the scene has no object {name!r}; its objects: "
+                              f"{', '.join(map(repr, names)) or 'none'}")
     with Simulator(scene, backend=args.backend) as sim, Publisher(args.domain) as publisher:
         _log(f"live: publishing {topics.image} and its companions on DDS domain {publisher.domain}"
              + (f" for {args.frames} frames" if args.frames else ", Ctrl-C to stop"))
+        from ..live.dds import dds_topic
+        from ..live.poses import TopicPoses
+
         poses = None
         if args.pose_topic is not None:
-            from ..live.dds import dds_topic
-            from ..live.poses import TopicPoses
-
             dds_topic(args.pose_topic)  # (checked, naming the option's value)
             poses = TopicPoses(publisher.participant, args.pose_topic, args.pose_type)
             _log(f"live: poses from {args.pose_topic} ({args.pose_type})")
+        elif args.pose_frame is not None:
+            poses = TopicPoses(publisher.participant, "/tf", "tf", frame=args.pose_frame, world=frame_ids.world)
+            _log(f"live: poses from TF, {frame_ids.world} -> {args.pose_frame}")
+        object_poses = {}
+        for name, (topic, kind, frame) in object_sources.items():
+            object_poses[name] = TopicPoses(publisher.participant, topic, kind, frame=frame, world=frame_ids.world)
+            _log(f"live: object {name!r} moves by {object_poses[name].topic}")
+        if sim.tracked:
+            _log(f"live: objects on tracks: {', '.join(sim.tracked)}")
         timing = {}
         if args.use_sim_time:
             from ..live.simclock import SimClock
@@ -135,5 +188,5 @@ def cmd_live(args: Any) -> None:
             sim_clock.wait_first()
             timing = {"now_ns": sim_clock.now_ns, "clock": sim_clock.seconds, "sleep": sim_clock.sleep}
         stats = stream(sim, publisher, options, trajectory, say=lambda line: _log(f"live: {line}"), poses=poses,
-                       mount=args.mount, **timing)
+                       mount=args.mount, object_poses=object_poses, **timing)
         _log(f"live: {stats.summary()}")

@@ -867,6 +867,21 @@ class FrameMessages:
         chosen = {"both": [pose, image], "pose": [pose], "image": [image]}[parts]
         return t["tf2_msgs/msg/TFMessage"](transforms=chosen)
 
+    def objects_tf(self, stamp_ns: int, poses: Mapping[str, Any]) -> Any:
+        """``/tf``'s message of the objects that move: world -> each object's name (its pose,
+        object-to-world), the ground truth a consumer compares its tracks with."""
+        t = self._types
+        transforms = []
+        for name, pose in poses.items():
+            x, y, z = pose.position_m
+            qx, qy, qz, qw = pose.quat_xyzw
+            transforms.append(t["geometry_msgs/msg/TransformStamped"](
+                header=self._header(stamp_ns, self.frame_ids.world), child_frame_id=str(name),
+                transform=t["geometry_msgs/msg/Transform"](
+                    translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
+                    rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))))
+        return t["tf2_msgs/msg/TFMessage"](transforms=transforms)
+
     def _points_msg(self, frame: BagFrame) -> Any:
         t = self._types
         n = frame.points_world.shape[0]

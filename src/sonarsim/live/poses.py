@@ -21,8 +21,10 @@ from . import dds
 
 __all__ = ["POSE_TYPES", "KEEP", "TopicPoses"]
 
-#: The message types a pose topic may carry (``--pose-type``).
-POSE_TYPES = {"odometry": "nav_msgs/msg/Odometry", "pose_stamped": "geometry_msgs/msg/PoseStamped"}
+#: The message types a pose topic may carry (``--pose-type``); ``tf``: a named frame's
+#: transform on ``/tf`` (``tf2_msgs/TFMessage``), from the world frame.
+POSE_TYPES = {"odometry": "nav_msgs/msg/Odometry", "pose_stamped": "geometry_msgs/msg/PoseStamped",
+              "tf": "tf2_msgs/msg/TFMessage"}
 #: How many of the newest poses are kept for interpolation.
 KEEP = 512
 
@@ -36,22 +38,35 @@ class TopicPoses:
         Where to read (:attr:`sonarsim.live.publisher.Publisher.participant`).
     topic : str
         A ROS 2 topic name (``/odom``).
-    kind : {'odometry', 'pose_stamped'}
+    kind : {'odometry', 'pose_stamped', 'tf'}
+    frame : str, optional
+        With ``tf``: the frame whose transform from ``world`` (its parent) is the pose, e.g.
+        ``base_link`` as a simulator's ground truth publishes it on ``/tf``.
+    world : str
+        With ``tf``: the world frame's id (transforms from other parents are not poses in it).
     """
 
-    def __init__(self, participant: Any, topic: str, kind: str = "odometry") -> None:
+    def __init__(self, participant: Any, topic: str, kind: str = "odometry", frame: str | None = None,
+                 world: str = "map") -> None:
         if kind not in POSE_TYPES:
             raise ConfigError("--pose-type", f"must be one of {', '.join(POSE_TYPES)}, got {kind!r}")
+        if (kind == "tf") != (frame is not None):
+            raise ConfigError("--pose-frame", "a pose from TF names its frame (and only then)")
+        self.frame, self.world = frame, world
         from cyclonedds.sub import DataReader
         from cyclonedds.topic import Topic
 
         from cyclonedds.qos import Policy, Qos
 
-        self.topic, self.kind = topic, kind
+        self.topic, self.kind = (topic if kind != "tf" else f"/tf ({frame})"), kind
         # (a best-effort reader matches reliable writers too; keep more than a frame's worth)
         q = Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(64), Policy.Durability.Volatile)
-        self._reader = DataReader(participant, Topic(participant, dds.dds_topic(topic), dds.dds_type(POSE_TYPES[kind]),
-                                                     qos=q), qos=q)
+        name = dds.dds_topic(topic if kind != "tf" else "/tf")
+        # A topic's QoS must agree within a participant: /tf's is the one its writer (sonarsim
+        # live's own, in the same participant) gives it; the reader stays best effort.
+        topic_qos = dds.qos("tf") if kind == "tf" else q
+        self._reader = DataReader(participant, Topic(participant, name, dds.dds_type(POSE_TYPES[kind]), qos=topic_qos),
+                                  qos=q)
         self.times_ns = np.empty(0, np.int64)
         self.positions = np.empty((0, 3))
         self.quats = np.empty((0, 4))
@@ -75,6 +90,14 @@ class TopicPoses:
         """Take what has arrived; returns how many poses."""
         n = 0
         for s in self._reader.take(N=256):
+            if self.kind == "tf":
+                for t in getattr(s, "transforms", ()):
+                    if t.child_frame_id == self.frame and t.header.frame_id.lstrip("/") == self.world.lstrip("/"):
+                        tr, q = t.transform.translation, t.transform.rotation
+                        self.add(int(t.header.stamp.sec) * 1_000_000_000 + int(t.header.stamp.nanosec),
+                                 (tr.x, tr.y, tr.z), (q.x, q.y, q.z, q.w))
+                        n += 1
+                continue
             if not hasattr(s, "header"):
                 continue  # (a writer that went away)
             p = s.pose.pose if self.kind == "odometry" else s.pose

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -107,7 +107,7 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
            start_ns: int | None = None, stop: Callable[[], bool] | None = None,
            say: Callable[[str], None] | None = None, clock: Callable[[], float] = time.monotonic,
            sleep: Callable[[float], None] = time.sleep, poses: Any = None, mount: Any = None,
-           now_ns: Callable[[], int] = time.time_ns) -> LiveStats:
+           now_ns: Callable[[], int] = time.time_ns, object_poses: Mapping[str, Any] | None = None) -> LiveStats:
     """Render ``sim``'s frames and publish them in real time (module notes).
 
     Parameters
@@ -136,6 +136,12 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
     mount : Pose, optional
         The sonar on the vehicle (with ``poses``): the sonar's pose is the vehicle's composed
         with it.
+    object_poses : mapping of str to TopicPoses, optional
+        Objects of the scene driven by topics (another vehicle, a diver): each frame moves them
+        to their poses at its stamp (:meth:`Simulator.move_objects`). Objects with a ``track``
+        move by it, at the frame's time on the scene's clock (the trajectory's time, else the
+        seconds since the first frame). Every moving object's pose goes out on ``/tf``
+        (world -> its name) with the frame.
 
     Returns
     -------
@@ -166,10 +172,10 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
     t_wall0 = clock()
     if poses is not None and trajectory is not None:
         raise ConfigError("--pose-topic", "the poses come from a topic or from a trajectory: give one of the two")
-    state = {"warned": False, "last_unit": "", "stale": False}
+    state = {"warned": False, "last_unit": "", "stale": False, "objects_said": set()}
     try:
         _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_ns, t_wall0, stop, say, clock,
-              sleep, state, poses, mount)
+              sleep, state, poses, mount, dict(object_poses or {}))
     except KeyboardInterrupt:  # Ctrl-C, SIGTERM: stop between or inside frames, say so
         stats.interrupted = True
     stats.wall_s = clock() - t_wall0
@@ -186,8 +192,33 @@ def _fan_levels(image: Any) -> np.ndarray:
     return default_levels(image, fan.image, fan.mask)
 
 
+def _move_objects(sim, object_poses: dict, stamp_ns: int, t_scene: float, options, say, state) -> dict:
+    """The world at a frame's time: objects on tracks at ``t_scene`` (the scene's clock), objects
+    on topics at ``stamp_ns`` (interpolated; one that has no pose yet stays where it is, one
+    whose newest pose is staler than the bound keeps it; each said once). Returns the moving
+    objects' poses now (for ``/tf``)."""
+    sim.at_time(t_scene)
+    found = {}
+    for name, source in object_poses.items():
+        pose, stale_s = source.pose_at(stamp_ns)
+        if pose is None or stale_s > options.max_staleness_s:
+            key = (name, pose is None)
+            if say is not None and key not in state["objects_said"]:
+                state["objects_said"].add(key)
+                say(f"no pose for the object {name!r} on {source.topic} yet: it stays where the scene puts it"
+                    if pose is None else f"the newest pose of the object {name!r} on {source.topic} is {stale_s:.2f} s "
+                    f"old (more than --max-staleness {options.max_staleness_s:g} s): it is held there")
+            if pose is None:
+                continue
+        found[name] = pose
+    if found:
+        sim.move_objects(found)
+    moving = set(sim.tracked) | set(object_poses)
+    return {o.name: o.pose for o in sim.scene.objects if o.name in moving}
+
+
 def _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_ns, t_wall0, stop, say, clock, sleep,
-          state, poses, mount) -> None:
+          state, poses, mount, object_poses) -> None:
     topics = options.topics
     t_first = trajectory.time_s(0) if trajectory is not None else 0.0
     k = 0
@@ -219,6 +250,7 @@ def _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_n
             if mount is not None:
                 pose = pose.compose(mount)
         r0 = clock()
+        moving = _move_objects(sim, object_poses, stamp_ns, t_first + t_k, options, say, state)
         image = sim.render(pose=pose, frame=k, speckle=options.speckle)
         frame = frame_from_image(image, stamp_ns, fan=_fan_levels(image) if options.fan else False)
         batch = messages.frame_messages(frame, state["last_unit"], tf="pose")
@@ -235,6 +267,8 @@ def _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_n
         p0 = clock()
         for key, msg in batch:
             publisher.publish(getattr(topics, key), MSGTYPES[key], msg, _KINDS.get(key, "sensor"))
+        if moving:  # the moving objects' poses: ground truth on /tf, world -> each object
+            publisher.publish(topics.tf, MSGTYPES["tf"], messages.objects_tf(stamp_ns, moving), _KINDS.get("tf", "sensor"))
         stats.publish_s.append(clock() - p0)
         state["last_unit"] = frame.unit or state["last_unit"]
         stats.frames += 1
