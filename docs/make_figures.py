@@ -181,7 +181,7 @@ def render_table(repeats: int) -> list[str]:
     and bare casts in alternating blocks)."""
     from bench_render import measure, oculus_scene
 
-    from sonarsim.cli.demo import demo_scene_dict
+    from sonarsim.config.examples import demo_scene_dict
 
     import sonarsim
 
@@ -234,7 +234,7 @@ def dataset_table(n_frames: int) -> list[str]:
 def figures_table() -> list[str]:
     """Build-and-write time of each of the demo's figures (best of 3)."""
     import sonarsim
-    from sonarsim.cli.demo import demo_scene_dict, tank_scene_dict
+    from sonarsim.config.examples import demo_scene_dict, tank_scene_dict
     from sonarsim.plot import figures as F
 
     demo = sonarsim.render(demo_scene_dict())

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.errors import ConfigError
 from sonarsim.analysis.fitting import (
     MIN_EDGE_CORRELATION, FitError, choose_domain, fit_pose, fit_problems, floor_band_m, parse_free,
@@ -192,7 +192,7 @@ def test_auto_fits_the_real_oculus_floor_ping_in_the_band_domain(shared_data):
 
 
 def tank_without_multipath():
-    from sonarsim.cli.demo import tank_scene_dict
+    from sonarsim.config.examples import tank_scene_dict
 
     return sonarsim.load_scene(dict(tank_scene_dict(), render={"bounces": [1]}))
 

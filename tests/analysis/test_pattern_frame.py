@@ -10,7 +10,7 @@ import numpy as np
 
 import sonarsim
 from sonarsim.analysis.calibration import _Problem
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.config.sensor import PatternSpec, SensorSpec
 from sonarsim.core.transforms import Pose
 

@@ -8,7 +8,7 @@ import numpy as np
 import yaml
 from PIL import Image
 
-from sonarsim.cli.demo import tank_scene_dict
+from sonarsim.config.examples import tank_scene_dict
 from sonarsim.cli.main import main
 from tests.cli.test_cli import demo_dir  # noqa: F401 (the module-scoped demo run)
 

@@ -10,7 +10,7 @@ import pytest
 
 import sonarsim
 from sonarsim import ConfigError
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.config.loader import load_scene
 from sonarsim.config.materials import Material
 from sonarsim.config.scene import PlaneSpec, Scene, TextureSpec, ground_plane, ground_section

@@ -8,7 +8,7 @@ import sys
 import pytest
 
 import sonarsim
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's heap tuning")

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from sonarsim.cli.demo import tank_scene_dict
+from sonarsim.config.examples import tank_scene_dict
 from sonarsim.dataset import frames, generate
 from sonarsim.dataset.coco import DIRECT_PATH, rle
 from sonarsim.io.output import read_npz

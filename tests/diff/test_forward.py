@@ -11,7 +11,7 @@ import pytest
 jax = pytest.importorskip("jax")
 jnp = pytest.importorskip("jax.numpy")
 
-from sonarsim.cli.demo import demo_scene_dict, tank_scene_dict  # noqa: E402
+from sonarsim.config.examples import demo_scene_dict, tank_scene_dict  # noqa: E402
 from sonarsim.core.extras import install_command  # noqa: E402
 from sonarsim.errors import ConfigError  # noqa: E402
 from sonarsim.renderer.simulator import Simulator  # noqa: E402

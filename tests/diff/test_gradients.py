@@ -13,7 +13,7 @@ import pytest
 jax = pytest.importorskip("jax")
 jnp = pytest.importorskip("jax.numpy")
 
-from sonarsim.cli.demo import demo_scene_dict  # noqa: E402
+from sonarsim.config.examples import demo_scene_dict  # noqa: E402
 
 import sonarsim.diff as sd  # noqa: E402
 from sonarsim.diff import check  # noqa: E402

@@ -26,7 +26,7 @@ pytestmark = pytest.mark.filterwarnings("ignore:Queued a SetCamera.*on a closed 
 
 @pytest.fixture(scope="module")
 def viewer(tmp_path_factory):
-    from sonarsim.cli.demo import demo_scene_dict
+    from sonarsim.config.examples import demo_scene_dict
     from sonarsim.plot.viewer.app import SceneViewer, start_server, stop_server
     from sonarsim.plot.viewer.state import SceneSession
 

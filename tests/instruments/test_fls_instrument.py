@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.config.instruments import FlsSpec, mounted
 from sonarsim.core.transforms import Pose
 from sonarsim.errors import ConfigError

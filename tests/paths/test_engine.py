@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.paths.engine import parse_path_name, path_name
 from tests.reference.test_algorithm2 import _scenes as ground_scenes
 
@@ -104,7 +104,7 @@ def test_a_normal_given_the_wrong_way_round_is_warned_about():
 
 
 def test_signature_images_are_never_empty():
-    from sonarsim.cli.demo import tank_scene_dict
+    from sonarsim.config.examples import tank_scene_dict
 
     doc = tank_scene_dict()
     doc["sonar"].update(n_beams=48, n_range_bins=300)
@@ -116,7 +116,7 @@ def test_signature_images_are_never_empty():
 def test_one_thread_and_two_give_the_same_tank_images():
     # The compiled frame casts the reflected rays on both cores (a share each) while one forms
     # the direct image: the images must not depend on it.
-    from sonarsim.cli.demo import tank_scene_dict
+    from sonarsim.config.examples import tank_scene_dict
 
     doc = tank_scene_dict()
     doc["sonar"].update(n_beams=48, n_range_bins=300)

@@ -483,7 +483,7 @@ def test_labels_cover_the_paths_via_mesh_mirrors_and_the_specular_returns():
     instance map is set exactly where it has energy; the cells that only the plate's ghosts
     reach are labelled with what scattered there (the post among them, not the plate alone),
     with the elevation the ghost arrives at, and points in them."""
-    from sonarsim.cli.demo import tank_scene_dict
+    from sonarsim.config.examples import tank_scene_dict
 
     doc = tank_scene_dict(mirror=True)
     doc["render"].update(elevation_samples=40, glints=True)

@@ -190,7 +190,7 @@ def test_ground_echo_panels_share_one_scale():
 
 
 def test_multipath_panels_are_the_path_families_in_a_grid():
-    from sonarsim.cli.demo import tank_scene_dict
+    from sonarsim.config.examples import tank_scene_dict
     from sonarsim.io.figures import path_families
     import sonarsim
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.config.loader import load_scene, scene_from_dict
 from sonarsim.config.scene import PlaneSpec
 from sonarsim.errors import ConfigError
@@ -91,7 +91,7 @@ def test_plane_quads_lie_in_their_planes_facing_the_water(point, normal):
 
 
 def test_tank_planes_meet_at_their_edges():
-    from sonarsim.cli.demo import tank_scene_dict
+    from sonarsim.config.examples import tank_scene_dict
     from sonarsim.plot.viewer.geometry import plane_face
 
     planes = scene_from_dict(tank_scene_dict()).reflecting_planes  # floor, surface, far and side walls

@@ -206,7 +206,7 @@ def look_and_move(viewer, url: str) -> None:
 
 
 def test_the_page_draws_the_scene_and_the_images_and_follows_the_sonar():
-    from sonarsim.cli.demo import demo_scene_dict
+    from sonarsim.config.examples import demo_scene_dict
     from sonarsim.plot.viewer.app import SceneViewer, start_server, stop_server, url_of
     from sonarsim.plot.viewer.state import SceneSession
 

@@ -9,7 +9,7 @@ import pytest
 
 import sonarsim
 from sonarsim.scene.meshes import TriangleMesh, clip_to_water
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from tests.conftest import sonar_dict
 
 POSE = {"position_m": [0.0, 0.0, 1.0], "rpy_deg": [8.0, 15.0, 4.0]}  # rolled, pitched, yawed

@@ -132,7 +132,7 @@ def test_wall_radiometry_matches_the_integral_of_eq3(tvg):
 
 
 def test_image_does_not_depend_on_the_number_of_rays():
-    from sonarsim.cli.demo import demo_scene_dict
+    from sonarsim.config.examples import demo_scene_dict
 
     doc = demo_scene_dict()
     doc["render"] = {"elevation_samples": 150, "bounces": [1]}
@@ -284,7 +284,7 @@ def test_gaussian_beam_pattern_weights_the_aperture_as_documented():
 
 
 def test_speckle_is_seeded_unit_mean_exponential_and_leaves_the_components_clean():
-    from sonarsim.cli.demo import demo_scene_dict
+    from sonarsim.config.examples import demo_scene_dict
 
     doc = demo_scene_dict()
     doc["render"] = {"speckle": True, "seed": 7, "elevation_samples": 60}

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from sonarsim import Simulator
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.image.fan import FanMapper
 from sonarsim.renderer import compiled
 from sonarsim.paths.engine import Leg, PathSet
@@ -559,7 +559,7 @@ def test_compiled_label_maps_on_an_empty_window_and_no_paths():
 def test_a_tank_with_walls_and_a_surface_labels_every_component(double_beam):
     """Five planes, order 3: ids name the planes after the objects; each component's map is set
     where its image has energy, in both kernels."""
-    from sonarsim.cli.demo import tank_scene_dict
+    from sonarsim.config.examples import tank_scene_dict
 
     doc = tank_scene_dict()
     doc["render"].update(elevation_samples=40, double_beam=double_beam)

@@ -11,7 +11,7 @@ import sonarsim
 from sonarsim.trace import _hits
 from sonarsim.trace.embree import embree_hits
 from sonarsim.renderer import compiled
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 
 pytestmark = pytest.mark.skipif(not compiled.AVAILABLE, reason="compiled kernels not built")
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.config.materials import Material
 from sonarsim.renderer import compiled
 from tests.conftest import sonar_dict

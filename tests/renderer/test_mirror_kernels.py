@@ -425,7 +425,7 @@ def test_a_smooth_object_that_does_not_mirror_beside_one_that_does_renders_compi
     """``normals: smooth`` on an object without ``specular`` (it has no facets, no corner
     normals): the compiled frame renders, as the NumPy one does."""
     import sonarsim
-    from sonarsim.cli.demo import demo_scene_dict
+    from sonarsim.config.examples import demo_scene_dict
 
     doc = demo_scene_dict()
     for obj in doc["objects"]:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import sonarsim
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.paths.engine import SonarView, probe_chains
 from sonarsim.paths.planes import ChainTable, PlaneSet
 from sonarsim.renderer import compiled

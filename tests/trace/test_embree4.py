@@ -13,7 +13,7 @@ import pytest
 import trimesh
 
 import sonarsim
-from sonarsim.cli.demo import demo_scene_dict, tank_scene_dict
+from sonarsim.config.examples import demo_scene_dict, tank_scene_dict
 from sonarsim.errors import SonarsimError
 from sonarsim.scene.meshes import TriangleMesh
 from sonarsim.trace import make_caster
@@ -347,7 +347,7 @@ def test_close_stops_the_threads_and_release_frees_embree():
 IDLE_CPU = """
 import sys, time
 import sonarsim
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 doc = demo_scene_dict()
 doc["render"]["threads"] = int(sys.argv[1])
 sim = sonarsim.Simulator(doc)
