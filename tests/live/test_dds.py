@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import textwrap
@@ -215,4 +216,48 @@ def test_a_serialized_sample_carries_the_bags_bytes():
     cdr = bytes(store.serialize_cdr(msg, "sensor_msgs/msg/PointCloud2"))
     sample = dds.serialized_sample("sensor_msgs/msg/PointCloud2", cdr)
     assert isinstance(sample, dds.dds_type("sensor_msgs/msg/PointCloud2"))  # a writer of the type takes it
-    assert sample.serialize() == cdr == dds.to_sample(msg, "sensor_msgs/msg/PointCloud2").serialize()
+    # on the wire: padded to 4 bytes, the padding counted in the encapsulation options
+    assert len(sample.serialize()) % 4 == 0
+    assert dds.unpadded(sample.serialize()) == cdr == dds.to_sample(msg, "sensor_msgs/msg/PointCloud2").serialize()
+
+
+def test_padding_is_counted_in_the_encapsulation_options_and_dropped_again():
+    """DDS-XTypes 7.6.3.1.2: a payload of 10 bytes goes out as 12 with options byte 3 = 2."""
+    cdr = bytes([0, 1, 0, 0, 2, 0, 0, 0, 0x61, 0])  # std_msgs/String "a", little-endian CDR
+    wire = dds.padded(cdr)
+    assert wire == cdr[:3] + b"\x02" + cdr[4:] + b"\0\0"
+    assert dds.unpadded(wire) == cdr
+    for n in range(4, 12):  # every remainder, and the aligned case left alone
+        body = bytes([0, 1, 0, 0]) + bytes(range(1, n - 3))
+        assert len(dds.padded(body)) % 4 == 0
+        assert dds.unpadded(dds.padded(body)) == body
+    aligned = bytes([0, 1, 0, 0, 4, 0, 0, 0, 0x61, 0x62, 0x63, 0])
+    assert dds.padded(aligned) == aligned == dds.unpadded(aligned)
+
+
+def test_a_raw_reader_receives_the_bags_bytes_as_they_were_sent():
+    """A recorder's reader (:func:`dds.raw_type`) matched with a writer of the decoded type gets
+    exactly rosbags' CDR, strings of every length mod 4 included, while a decoding reader of the
+    same topic still reads the message."""
+    from cyclonedds.domain import DomainParticipant
+    from cyclonedds.pub import DataWriter
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+
+    store = instrument_typestore()
+    ros_type = "std_msgs/msg/String"
+    dp = DomainParticipant(150 + os.getpid() % 50)
+    for text in ("a", "ab", "abc", "abcd"):
+        name = f"rt/sonarsim_test/raw{len(text)}"
+        writer = DataWriter(dp, Topic(dp, name, dds.dds_type(ros_type)), qos=dds.qos("latched"))
+        raw = DataReader(dp, Topic(dp, name, dds.raw_type(ros_type)), qos=dds.qos("latched"))
+        decoded = DataReader(dp, Topic(dp, name, dds.dds_type(ros_type)), qos=dds.qos("latched"))
+        cdr = bytes(store.serialize_cdr(store.types[ros_type](data=text), ros_type))
+        writer.write(dds.serialized_sample(ros_type, cdr))
+        got, seen, deadline = [], [], time.monotonic() + 5
+        while (not got or not seen) and time.monotonic() < deadline:
+            got += [s for s in raw.take(N=4) if isinstance(s, dds.RawSample)]
+            seen += [s.data for s in decoded.take(N=4) if hasattr(s, "data")]
+            time.sleep(0.01)
+        assert [s.cdr for s in got] == [cdr], text
+        assert seen == [text]

@@ -33,7 +33,8 @@ import numpy as np
 from ..core.extras import install_hint
 from ..errors import ConfigError, SonarsimError
 
-__all__ = ["QOS_KINDS", "ROS_DOMAIN_ID_RANGE", "dds_topic", "dds_type", "dds_typename", "domain_id", "qos", "serialized_sample", "to_sample"]
+__all__ = ["QOS_KINDS", "ROS_DOMAIN_ID_RANGE", "RawSample", "dds_topic", "dds_type", "dds_typename", "domain_id", "qos",
+           "padded", "raw_type", "serialized_sample", "to_sample", "unpadded"]
 
 #: The domain ids ROS 2 allows (``ROS_DOMAIN_ID``; 0 by default).
 ROS_DOMAIN_ID_RANGE = (0, 232)
@@ -181,8 +182,60 @@ def serialized_sample(ros_type: str, cdr: bytes) -> Any:
     of that type may write it; its fields are not set."""
     cls = _serialized_type(ros_type)
     sample = cls.__new__(cls)
-    sample._cdr = bytes(cdr)
+    sample._cdr = padded(bytes(cdr))
     return sample
+
+
+def padded(cdr: bytes) -> bytes:
+    """A CDR payload padded to a multiple of 4 bytes, as DDS sends it, with the number of
+    padding bytes in the low two bits of the encapsulation options (DDS-XTypes 1.3, 7.6.3.1.2),
+    so that a reader can drop them again (:func:`unpadded`)."""
+    pad = -len(cdr) % 4
+    if not pad or len(cdr) < 4:
+        return cdr
+    return cdr[:3] + bytes([(cdr[3] & ~3) | pad]) + cdr[4:] + b"\0" * pad
+
+
+def unpadded(cdr: bytes) -> bytes:
+    """A payload as received, less the padding its encapsulation options count: the bytes a
+    ``rosbags`` serialiser gives for the message."""
+    if len(cdr) < 4 or not cdr[3] & 3:
+        return cdr
+    pad = cdr[3] & 3
+    return cdr[:3] + bytes([cdr[3] & ~3]) + cdr[4:-pad]
+
+
+class RawSample:
+    """A sample as it came off the wire: :attr:`cdr` is its serialised payload, the
+    encapsulation header first, less the padding DDS added (the bytes a ROS 2 bag stores),
+    :attr:`sample_info` what DDS said of it."""
+
+    __slots__ = ("cdr", "sample_info")
+
+    def __init__(self, cdr: bytes) -> None:
+        self.cdr = cdr
+        self.sample_info: Any = None
+
+
+@functools.lru_cache(maxsize=None)
+def raw_type(ros_type: str) -> type:
+    """``ros_type``'s DDS type (the same name and fields as :func:`dds_type`, so that it
+    matches any writer of it) whose reader hands back :class:`RawSample` objects instead of
+    decoding: a recorder keeps the CDR as it came (as ``ros2 bag record`` does), without
+    Python decoding large arrays and serialising them again."""
+    idl, annotate, _ = _cyclonedds()
+    store = _typestore()
+    if ros_type not in store.fielddefs:
+        raise ConfigError("type", f"{ros_type} is not a message sonarsim knows")
+    _, fields = store.fielddefs[ros_type]
+    cls = idl.make_idl_struct(ros_type.rsplit("/", 1)[1] + "_", dds_typename(ros_type),
+                              {name: _field_type(node, f"{ros_type}.{name}") for name, node in fields})
+
+    def deserialize(_cls: Any, data: bytes, has_header: bool = True, use_version_2: Any = None) -> RawSample:
+        return RawSample(unpadded(bytes(data)))
+
+    cls.deserialize = classmethod(deserialize)
+    return annotate.final(cls)
 
 
 def domain_id(environ: dict | None = None) -> int:
