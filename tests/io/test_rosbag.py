@@ -477,3 +477,38 @@ def test_an_8_bit_devices_image_is_bagged_as_uint8_and_its_fan_as_mono8(tmp_path
     # The expected output (a mean over the speckle: fractional counts) stays float32.
     expected = sim.render(speckle=False)
     assert rb.device_polar(expected).dtype == np.float32
+
+
+@pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
+def test_write_cdr_stores_a_recorders_bytes_as_they_came(tmp_path, storage):
+    """Messages already serialised (a recorder's) are stored byte for byte, one connection per
+    topic beside the frames' own, at the stamps given; a type change on a topic and a type the
+    typestore lacks are refused by name."""
+    from rosbags.rosbag2 import Reader
+
+    from sonarsim.io.rosbag_instruments import instrument_typestore
+
+    store = instrument_typestore()
+    string_t = store.types["std_msgs/msg/String"]
+    sent = [(f"/chat/{k % 2}", 10 + k, bytes(store.serialize_cdr(string_t(data="x" * k), "std_msgs/msg/String")))
+            for k in range(5)]
+    path = tmp_path / "bag"
+    with BagWriter(path, storage=storage) as bag:
+        bag.write_frame(synthetic_frame(0))
+        for topic, stamp, cdr in sent:
+            bag.write_cdr(topic, "std_msgs/msg/String", stamp, cdr)
+        with pytest.raises(ConfigError, match=r"/chat/0 carries std_msgs/msg/String, not std_msgs/msg/Header"):
+            bag.write_cdr("/chat/0", "std_msgs/msg/Header", 20, sent[0][2])
+        with pytest.raises(ConfigError, match=r"/x: no_pkg/msg/Nothing is not a message"):
+            bag.write_cdr("/x", "no_pkg/msg/Nothing", 20, b"")
+    with BagWriter(tmp_path / "closed") as bag:
+        pass
+    with pytest.raises(SonarsimError, match="not open"):
+        bag.write_cdr("/chat/0", "std_msgs/msg/String", 1, sent[0][2])
+    with Reader(path) as reader:
+        got = [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages() if c.topic.startswith("/chat/")]
+        topics = sorted(c.topic for c in reader.connections)
+    assert sorted(got, key=lambda g: g[1]) == sent
+    assert "/sonar/image" in topics and topics.count("/chat/0") == 1 and topics.count("/chat/1") == 1
+    assert [store.deserialize_cdr(raw, "std_msgs/msg/String").data for _, _, raw in sorted(got, key=lambda g: g[1])] == \
+        ["x" * k for k in range(5)]

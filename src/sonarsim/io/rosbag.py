@@ -1065,6 +1065,35 @@ class BagWriter(FrameMessages):
         self._last_unit = frame.unit or self._last_unit
         self.frames_written += 1
 
+    def write_cdr(self, topic: str, ros_type: str, stamp_ns: int, cdr: bytes) -> None:
+        """Write one message already serialised (a recorder's: the CDR as it arrived).
+
+        Parameters
+        ----------
+        topic : str
+            Its topic; the first message of a topic adds its connection, of ``ros_type``.
+        ros_type : str
+            ``pkg/msg/Name``, a type of the bags' typestore
+            (:func:`~sonarsim.io.rosbag_instruments.instrument_typestore`).
+        stamp_ns : int
+            The bag's time for it (a recorder's: when it arrived), nanoseconds since the epoch.
+        cdr : bytes
+            The serialised message, its encapsulation header first.
+        """
+        if self._writer is None:
+            raise SonarsimError(f"{self.path}: the bag is not open (use 'with BagWriter(...) as bag')")
+        key = f"cdr:{topic}"
+        if key not in self._connections:
+            if ros_type not in self._typestore.fielddefs:
+                raise ConfigError("rosbag", f"{topic}: {ros_type} is not a message sonarsim knows")
+            self._connections[key] = self._writer.add_connection(topic, ros_type, typestore=self._typestore)
+        elif self._connections[key].msgtype != ros_type:
+            raise ConfigError("rosbag", f"{topic} carries {self._connections[key].msgtype}, not {ros_type}")
+        try:
+            self._writer.write(self._connections[key], int(stamp_ns), bytes(cdr))
+        except OSError as exc:
+            raise SonarsimError(f"{self.path}: cannot write the bag: {exc.strerror or exc}") from None
+
 
 # Leftovers of killed runs -------------------------------------------------------------------
 
