@@ -32,7 +32,7 @@ sys.path[:0] = [tree + "/src", tree + "/benchmarks"]
 import sonarsim
 assert sonarsim.__file__.startswith(tree), sonarsim.__file__
 from bench_render import measure, tank_scene
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 demo = measure("a", demo_scene_dict(), int(sys.argv[2]))
 tank = measure("e", tank_scene(6), int(sys.argv[2]))
 print(json.dumps({"demo_frame_ms": demo["frame_ms"], "demo_bare_cast_ms": demo["bare_cast_ms"],

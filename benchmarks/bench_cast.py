@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 import sonarsim
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.trace.embree import EmbreeCaster
 from sonarsim.trace.embree4 import Embree4Caster
 

@@ -29,7 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.dataset import frames, generate, load_scenario
 from sonarsim.dataset.frames import labels_supported
 

@@ -122,7 +122,7 @@ def main(argv=None) -> int:
     except ImportError:
         print("bench_diff: JAX is not installed (pip install 'sonarsim[diff]')", file=sys.stderr)
         return 2
-    from sonarsim.cli.demo import demo_scene_dict
+    from sonarsim.config.examples import demo_scene_dict
 
     repeats = 3 if args.quick else args.repeats
     batch = 2 if args.quick else args.batch

@@ -27,7 +27,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import sonarsim  # noqa: E402
 from bench_render import interleaved, measure, tank_scene  # noqa: E402
-from sonarsim.cli.demo import demo_scene_dict  # noqa: E402
+from sonarsim.config.examples import demo_scene_dict  # noqa: E402
 
 
 def one_run(repeats: int) -> dict:

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 import sonarsim
-from sonarsim.cli.demo import demo_scene_dict, tank_scene_dict
+from sonarsim.config.examples import demo_scene_dict, tank_scene_dict
 from sonarsim.plot import figures as F
 
 

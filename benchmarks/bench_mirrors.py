@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 import sonarsim
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 
 
 def paired_times(docs: list[dict], rounds: int, batch: int = 10) -> tuple[np.ndarray, list[str]]:

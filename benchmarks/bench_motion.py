@@ -31,7 +31,7 @@ import numpy as np
 
 def scenes() -> tuple[dict, dict]:
     """The demo tank still, and with its buoy on a patrol (``track.keys``, repeated)."""
-    from sonarsim.cli.demo import demo_scene_dict
+    from sonarsim.config.examples import demo_scene_dict
 
     still = demo_scene_dict()
     moving = json.loads(json.dumps(still))

@@ -49,7 +49,7 @@ import tracemalloc
 import numpy as np
 
 import sonarsim
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.config.loader import scene_from_dict
 from sonarsim.config.scene import ObjectSpec
 from sonarsim.core.transforms import Pose

@@ -33,7 +33,7 @@ sys.path[:0] = [tree + "/src", tree + "/benchmarks"]
 import sonarsim
 assert sonarsim.__file__.startswith(tree), sonarsim.__file__
 from bench_render import tank_scene
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 
 def scenes():
     demo = demo_scene_dict()

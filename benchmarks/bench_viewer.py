@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from sonarsim.cli.demo import demo_scene_dict
+from sonarsim.config.examples import demo_scene_dict
 from sonarsim.plot.viewer.app import SceneViewer, start_server, stop_server, url_of
 from sonarsim.plot.viewer.state import SceneSession
 

@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import viser
 
-    from sonarsim.cli.demo import demo_scene_dict
+    from sonarsim.config.examples import demo_scene_dict
     from sonarsim.plot.viewer.app import SceneViewer, start_server, stop_server
     from sonarsim.plot.viewer.state import SceneSession
     from tests.fuzz import viewer as fuzz
