@@ -10,12 +10,13 @@ Wiring (in :mod:`sonarsim.cli.main`)::
 from __future__ import annotations
 
 import argparse
+import time
 from typing import Any
 
 from ..core.console import log as _log
 from .argtypes import positive_float
 
-__all__ = ["add_live_parser", "cmd_live"]
+__all__ = ["LIVE_DEMO_FILES", "add_live_demo_parser", "add_live_parser", "cmd_live", "cmd_live_demo"]
 
 
 def add_live_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -190,3 +191,154 @@ def cmd_live(args: Any) -> None:
         stats = stream(sim, publisher, options, trajectory, say=lambda line: _log(f"live: {line}"), poses=poses,
                        mount=args.mount, object_poses=object_poses, **timing)
         _log(f"live: {stats.summary()}")
+
+
+def add_live_demo_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add the ``live-demo`` sub-command; sets ``func=cmd_live_demo``."""
+    p = subparsers.add_parser(
+        "live-demo", help="a scripted vehicle past the demo tank, sonarsim live publishing, a recorder writing a bag",
+        description="The live demo, on the loopback: a scripted pose publisher (standing in for a simulator) drives a "
+        "vehicle past the demo tank's objects on /demo/vehicle/pose (geometry_msgs/PoseStamped, 50 Hz); 'sonarsim "
+        "live' renders the tank, its buoy patrolling across the fan, from those poses and publishes; a recorder "
+        "writes every topic it received into a ROS 2 bag. Writes into --out: scene.yaml (what live renders), bag/ "
+        "(the recording, read with rosbags or 'ros2 bag info'), fan_first.png and fan_last.png (the first and last "
+        "fans received, as rviz2 shows them) and live-demo.json (what the bag holds). Needs the live extra.")
+    p.add_argument("--out", default="sonarsim-live-demo", help="output folder (default: ./sonarsim-live-demo)")
+    p.add_argument("--seconds", type=positive_float, default=8.0, metavar="S",
+                   help="how long the vehicle runs, seconds (default 8, at most 120)")
+    p.add_argument("--rate", type=positive_float, default=10.0, metavar="HZ",
+                   help="sonar frames a second (default 10, at most 50)")
+    p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="the bag's storage (default mcap)")
+    p.add_argument("--domain", type=int, default=None, metavar="ID",
+                   help="the DDS domain (default: $ROS_DOMAIN_ID, else 0)")
+    p.set_defaults(func=cmd_live_demo)
+    return p
+
+
+#: The files ``live-demo`` writes into --out (and the bag folder, ``bag``).
+LIVE_DEMO_FILES = ("scene.yaml", "fan_first.png", "fan_last.png", "live-demo.json")
+
+
+def cmd_live_demo(args: Any) -> None:
+    """Run ``sonarsim live-demo`` (:mod:`sonarsim.live.demo`)."""
+    import json
+    import os
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    import yaml
+
+    from ..errors import ConfigError, SonarsimError
+    from ..io.output import atomic_write, write_png
+    from ..io.run_record import OutputRun
+    from ..live import dds
+    from ..live.demo import MOUNT, POSE_TOPIC, demo_scene, read_back
+
+    if args.seconds > 120:
+        raise ConfigError("--seconds", f"must be at most 120, got {args.seconds:g}")
+    if args.rate > 50:
+        raise ConfigError("--rate", f"must be at most 50 frames a second, got {args.rate:g}")
+    domain = dds.domain_id() if args.domain is None else args.domain
+    lo, hi = dds.ROS_DOMAIN_ID_RANGE
+    if not lo <= domain <= hi:
+        raise ConfigError("--domain", f"must be from {lo} to {hi}, got {domain}")
+    dds.qos("sensor")  # (Cyclone DDS is there, or the live extra is named)
+    from ..io.rosbag_instruments import instrument_typestore
+
+    instrument_typestore()  # (rosbags is there; the recorder's types are known)
+    out = Path(args.out)
+    run = OutputRun.for_folder(out, LIVE_DEMO_FILES, command=getattr(args, "command_line", None))
+    n_frames = max(1, round(args.seconds * args.rate))
+    with run:
+        doc = demo_scene()
+        with atomic_write(out / "scene.yaml", "w") as f:
+            yaml.safe_dump(doc, f, sort_keys=False)
+        tmp = Path(tempfile.mkdtemp(prefix=".bag-", suffix=".tmp", dir=out))
+        try:
+            bag_path = _record_demo(args, out, tmp / "bag", domain, n_frames)
+            got = read_back(bag_path)
+            if not got["images"]:
+                raise SonarsimError(f"live-demo: the recorder received no sonar image on domain {domain} in "
+                                    f"{args.seconds:g} s (is the loopback's multicast blocked?)")
+            # The new bag replaces the previous run's only now that it is complete.
+            old = out / "bag"
+            if old.exists():
+                shutil.rmtree(old)
+            os.rename(bag_path, old)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        write_png(out / "fan_first.png", got["fans"][0][1])
+        write_png(out / "fan_last.png", got["fans"][-1][1])
+        summary = _demo_summary(got, args, domain, n_frames)
+        with atomic_write(out / "live-demo.json", "w") as f:
+            json.dump(summary, f, indent=2)
+    _log(f"live-demo: the bag {out / 'bag'} holds " + ", ".join(f"{n} on {t}" for t, n in sorted(got["messages"].items())))
+    _log(f"live-demo: the vehicle ran x {summary['vehicle_x_m'][0]:.2f} -> {summary['vehicle_x_m'][1]:.2f} m; the buoy "
+         f"moved y {summary['buoy_y_m'][0]:.2f} .. {summary['buoy_y_m'][1]:.2f} m; fans in {out / 'fan_first.png'} "
+         f"and {out / 'fan_last.png'}")
+    _log("live-demo: with ROS 2 installed, the same by hand (docs/ros2.md, 'The live demo'): "
+         f"sonarsim live {out / 'scene.yaml'} --pose-topic {POSE_TOPIC} --pose-type pose_stamped --mount {MOUNT}; "
+         "ros2 bag record /sonar/image /sonar/fan /sonar/pose /tf /tf_static")
+
+
+def _record_demo(args: Any, out: Any, bag_path: Any, domain: int, n_frames: int) -> Any:
+    """The three parts of the demo, the bag written at ``bag_path``; returns it."""
+    import os
+    import subprocess
+    import sys
+
+    from ..errors import SonarsimError
+    from ..io.rosbag import BagWriter
+    from ..live.demo import MOUNT as mount
+    from ..live.demo import POSE_TOPIC as pose_topic
+    from ..live.demo import Recorder, ScriptedVehicle, wait_for
+
+    with BagWriter(bag_path, storage=args.storage) as bag:
+        recorder = Recorder(domain, bag).start()
+        vehicle = ScriptedVehicle(domain).start()
+        live = None
+        try:
+            # Discovery first, so that the first frames are not lost to a recorder not yet matched.
+            if not wait_for(lambda: recorder.matched(pose_topic) > 0, 10.0):
+                raise SonarsimError(f"live-demo: the recorder found no pose publisher on domain {domain} within 10 s "
+                                    "(is the loopback's multicast blocked?)")
+            cmd = [sys.executable, "-m", "sonarsim", "live", str(out / "scene.yaml"), "--pose-topic", pose_topic,
+                   "--pose-type", "pose_stamped", "--mount", mount, "--rate", f"{args.rate:g}",
+                   "--frames", str(n_frames)]
+            _log(f"live-demo: the vehicle publishes {pose_topic} on DDS domain {domain}; starting "
+                 f"sonarsim live for {n_frames} frames at {args.rate:g} Hz")
+            live = subprocess.Popen(cmd, env={**os.environ, "ROS_DOMAIN_ID": str(domain)})
+            rc = live.wait(timeout=args.seconds + 120)
+            if rc != 0:
+                raise SonarsimError(f"live-demo: sonarsim live exited with status {rc} (its messages are above)")
+            time.sleep(0.3)  # (the last frame's samples in flight)
+        except subprocess.TimeoutExpired:
+            raise SonarsimError(f"live-demo: sonarsim live did not finish {n_frames} frames in "
+                                f"{args.seconds + 120:g} s") from None
+        finally:
+            if live is not None and live.poll() is None:
+                live.terminate()
+                try:
+                    live.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    live.kill()
+            vehicle.stop()
+            recorder.stop()
+    return bag_path
+
+
+def _demo_summary(got: dict, args: Any, domain: int, n_frames: int) -> dict:
+    """live-demo.json: what the bag holds, in numbers a reader checks by eye."""
+    stamps = [s for s, _, _ in got["images"]]
+    span = (stamps[-1] - stamps[0]) / 1e9 if len(stamps) > 1 else 0.0
+    xs = [x for _, x, _, _ in got["sonar"]] or [float("nan")]
+    ys = [y for _, y in got["buoy"]] or [float("nan")]
+    return {
+        "domain": domain, "seconds": args.seconds, "rate_hz": args.rate, "frames_asked": n_frames,
+        "messages": dict(sorted(got["messages"].items())),
+        "images_received": len(stamps), "image_rate_hz": (len(stamps) - 1) / span if span > 0 else None,
+        "image_shape_beams_bins": list(got["images"][0][1:]),
+        "vehicle_x_m": [min(xs), max(xs)], "buoy_y_m": [min(ys), max(ys)],
+        "frame_ids": {t: sorted(v) for t, v in sorted(got["frame_ids"].items())},
+    }

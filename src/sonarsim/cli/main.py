@@ -83,7 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .dataset import add_dataset_parser
     from .demo import add_demo_parser
     from .fit import add_fit_parser
-    from .live import add_live_parser
+    from .live import add_live_demo_parser, add_live_parser
     from .presets import add_presets_parser
     from .reconstruct import add_reconstruct_parser
     from .render import add_render_parser
@@ -123,6 +123,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_view_parser(sub)
     # Live: ROS 2 topics over DDS.
     add_live_parser(sub)
+    add_live_demo_parser(sub)
     return parser
 
 
