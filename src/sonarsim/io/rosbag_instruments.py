@@ -116,6 +116,7 @@ __all__ = [
     "INSTRUMENT_MSGTYPES",
     "InstrumentBagNames",
     "InstrumentBagWriter",
+    "InstrumentMessages",
     "instrument_typestore",
     "beam_unit_vectors",
     "instrument_topics",
@@ -296,53 +297,30 @@ def instrument_typestore() -> Any:
     return store
 
 
-class InstrumentBagWriter(rb.BagWriter):
-    """A :class:`~sonarsim.io.rosbag.BagWriter` (atomic, either storage) that writes any
-    registered message to any topic; :func:`write_instrument_bag` drives it.
+class InstrumentMessages(rb.FrameMessages):
+    """The parts of the instruments' messages, built from ``rosbags`` classes: one home for
+    them whether they go into a bag (:class:`InstrumentBagWriter`) or onto live topics
+    (:mod:`sonarsim.live.instruments`).
 
     Parameters
     ----------
-    path, storage
-        As :class:`~sonarsim.io.rosbag.BagWriter`.
+    typestore : rosbags typestore, optional
+        Default :func:`instrument_typestore`.
+    frame_ids : BagFrameIds, optional
     """
 
-    def open(self) -> InstrumentBagWriter:
-        super().open()
-        try:
-            store = instrument_typestore()
-            for name in ("sensor_msgs/msg/Range", "tf2_msgs/msg/TFMessage", "sensor_msgs/msg/PointCloud2", "std_msgs/msg/String",
-                         *_MSG_DEFS, "marine_acoustic_msgs/msg/ProjectedSonarImage"):
-                self._types[name] = store.types[name]
-        except BaseException:
-            self._discard()
-            raise
-        self._topic_connections: dict[str, Any] = {}
-        return self
+    #: The message types the parts are built of, beyond :attr:`FrameMessages.TYPES`.
+    PART_TYPES = ("sensor_msgs/msg/Range", "tf2_msgs/msg/TFMessage", "sensor_msgs/msg/PointCloud2",
+                  "std_msgs/msg/String", *_MSG_DEFS, "marine_acoustic_msgs/msg/ProjectedSonarImage")
 
-    def __enter__(self) -> InstrumentBagWriter:
-        return self.open()
+    def __init__(self, typestore: Any = None, frame_ids: rb.BagFrameIds | None = None) -> None:
+        store = typestore if typestore is not None else instrument_typestore()
+        super().__init__(store, frame_ids)
+        self._add_part_types(store)
 
-    def set_custom_data(self, key: str, value: str) -> None:
-        """A ``custom_data`` entry of ``metadata.yaml`` (text)."""
-        self._writer.set_custom_data(key, value)
-
-    def write_message(self, topic: str, msgtype: str, msg: Any, stamp_ns: int, qos: Sequence[Any] = ()) -> None:
-        """Serialize ``msg`` (CDR) and write it at bag time ``stamp_ns``; the topic's connection
-        is added at its first message (with ``qos``, the offered QoS profiles)."""
-        if self._writer is None:
-            raise SonarsimError(f"{self.path}: the bag is not open (use 'with InstrumentBagWriter(...) as bag')")
-        try:
-            conn = self._topic_connections.get(topic)
-            if conn is None:
-                conn = self._writer.add_connection(topic, msgtype, typestore=self._typestore,
-                                                   offered_qos_profiles=list(qos))
-                self._topic_connections[topic] = conn
-            self._writer.write(conn, int(stamp_ns), self._typestore.serialize_cdr(msg, msgtype))
-        except OSError as exc:
-            raise SonarsimError(f"{self.path}: cannot write the bag: {exc.strerror or exc}") from None
-        self.frames_written += 1
-
-    # message parts ------------------------------------------------------------------------
+    def _add_part_types(self, store: Any) -> None:
+        for name in self.PART_TYPES:
+            self._types[name] = store.types[name]
 
     def header(self, stamp_ns: int, frame_id: str) -> Any:
         return self._header(int(stamp_ns), frame_id)
@@ -429,6 +407,51 @@ class InstrumentBagWriter(rb.BagWriter):
         return self._types["sensor_msgs/msg/Range"](
             header=self.header(stamp_ns, frame_id), radiation_type=_RANGE_ULTRASOUND, field_of_view=float(fov_rad),
             min_range=float(min_m), max_range=float(max_m), range=float(range_m) if math.isfinite(range_m) else math.inf)
+
+
+class InstrumentBagWriter(rb.BagWriter, InstrumentMessages):
+    """A :class:`~sonarsim.io.rosbag.BagWriter` (atomic, either storage) that writes any
+    registered message to any topic, its messages built by :class:`InstrumentMessages`;
+    :func:`write_instrument_bag` drives it.
+
+    Parameters
+    ----------
+    path, storage
+        As :class:`~sonarsim.io.rosbag.BagWriter`.
+    """
+
+    def open(self) -> InstrumentBagWriter:
+        super().open()
+        try:
+            self._add_part_types(instrument_typestore())
+        except BaseException:
+            self._discard()
+            raise
+        self._topic_connections: dict[str, Any] = {}
+        return self
+
+    def __enter__(self) -> InstrumentBagWriter:
+        return self.open()
+
+    def set_custom_data(self, key: str, value: str) -> None:
+        """A ``custom_data`` entry of ``metadata.yaml`` (text)."""
+        self._writer.set_custom_data(key, value)
+
+    def write_message(self, topic: str, msgtype: str, msg: Any, stamp_ns: int, qos: Sequence[Any] = ()) -> None:
+        """Serialize ``msg`` (CDR) and write it at bag time ``stamp_ns``; the topic's connection
+        is added at its first message (with ``qos``, the offered QoS profiles)."""
+        if self._writer is None:
+            raise SonarsimError(f"{self.path}: the bag is not open (use 'with InstrumentBagWriter(...) as bag')")
+        try:
+            conn = self._topic_connections.get(topic)
+            if conn is None:
+                conn = self._writer.add_connection(topic, msgtype, typestore=self._typestore,
+                                                   offered_qos_profiles=list(qos))
+                self._topic_connections[topic] = conn
+            self._writer.write(conn, int(stamp_ns), self._typestore.serialize_cdr(msg, msgtype))
+        except OSError as exc:
+            raise SonarsimError(f"{self.path}: cannot write the bag: {exc.strerror or exc}") from None
+        self.frames_written += 1
 
 
 # Films -> messages --------------------------------------------------------------------------
@@ -537,7 +560,7 @@ class _Instrument:
             out["beam_frame"] = self.beam_frame
         return out
 
-    def static_transforms(self, bag: InstrumentBagWriter, stamp_ns: int, vehicle: str) -> list:
+    def static_transforms(self, bag: InstrumentMessages, stamp_ns: int, vehicle: str) -> list:
         m = self.spec.mount
         image_q = DOWN_TO_IMAGE_QUAT_XYZW if self.kind in _DOWN_LOOKING else rb.SONAR_TO_IMAGE_QUAT_XYZW
         out = [bag.transform(stamp_ns, vehicle, self.frame, m.position_m, m.quat_xyzw),
@@ -554,12 +577,20 @@ class _Instrument:
             return f[0].unit.name if len(f) else "backscatter"
         return f.unit_name
 
-    def messages(self, bag: InstrumentBagWriter, k: int) -> list[tuple[str, str, Any]]:
+    def messages(self, bag: InstrumentMessages, k: int) -> list[tuple[str, str, Any]]:
         """Ping ``k``'s ``(topic, msgtype, message)``; the first ping's with the film's unit."""
-        out = getattr(self, f"_{self.kind}")(bag, k, self.stamps[k])
+        out = self.ping_messages(bag, k)
         if k == 0:
-            out.append((self.topics["unit"], INSTRUMENT_MSGTYPES["unit"], bag.string(self.unit)))
+            out.append(self.unit_message(bag))
         return out
+
+    def ping_messages(self, bag: InstrumentMessages, k: int) -> list[tuple[str, str, Any]]:
+        """Ping ``k``'s ``(topic, msgtype, message)``, at its stamp ``stamps[k]``."""
+        return getattr(self, f"_{self.kind}")(bag, k, self.stamps[k])
+
+    def unit_message(self, bag: InstrumentMessages) -> tuple[str, str, Any]:
+        """``(topic, msgtype, message)`` of the film's unit."""
+        return (self.topics["unit"], INSTRUMENT_MSGTYPES["unit"], bag.string(self.unit))
 
     def _raw(self, bag, key: str, stamp: int, k: int, window: tuple, n_samples: int, samples: np.ndarray,
              tx_deg: Any, rx_deg: Any, tx_bw_deg: Any, rx_bw_deg: Any) -> tuple:
