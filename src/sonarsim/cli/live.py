@@ -30,7 +30,10 @@ def add_live_parser(subparsers: Any) -> argparse.ArgumentParser:
         "(Cyclone DDS; the 'live' extra), on ROS_DOMAIN_ID's domain: /sonar/image "
         "(marine_acoustic_msgs/ProjectedSonarImage), /sonar/fan (sensor_msgs/Image), /sonar/pose, /tf "
         "(world -> sonar) and /tf_static (sonar -> sonar_image), /sonar/image/unit (latched), paced by the wall "
-        "clock or, with --use-sim-time, by /clock. A ROS 2 node on "
+        "clock or, with --use-sim-time, by /clock. A scene with instruments (side-scan, multibeam, scanning, "
+        "single-beam, FLS) publishes each at its own ping rate on /NAME/... (RawSonarImage, SonarDetections, "
+        "PointCloud2, Range, ProjectedSonarImage, as their bags hold them), /tf (world -> vehicle) and /tf_static "
+        "(vehicle -> mounts). A ROS 2 node on "
         "rmw_cyclonedds_cpp or rmw_fastrtps_cpp receives them (docs/ros2.md). Runs until Ctrl-C or --frames.")
     p.add_argument("scene", help="scene file (YAML or JSON)")
     g = p.add_argument_group("timing")
@@ -39,7 +42,7 @@ def add_live_parser(subparsers: Any) -> argparse.ArgumentParser:
     g.add_argument("--fast", action="store_true",
                    help="publish each frame as soon as it is rendered (stamps stay 1/rate apart)")
     g.add_argument("--frames", type=int, default=None, metavar="N",
-                   help="stop after N frames (default: the trajectory's, or until Ctrl-C)")
+                   help="stop after N frames (instruments: N pings each; default: the trajectory's, or until Ctrl-C)")
     g.add_argument("--use-sim-time", action="store_true",
                    help="pace and stamp the frames by the simulated time on /clock (rosgraph_msgs/Clock), as a ROS 2 "
                    "node with use_sim_time does")
@@ -148,8 +151,7 @@ def cmd_live(args: Any) -> None:
                           max_staleness_s=args.max_staleness)
     scene = override_render(load_scene(args.scene), args)
     if scene.instruments:
-        raise ConfigError("instruments", "sonarsim live publishes the scene's sonar; a scene of instruments is not "
-                          "published live yet (write their bags with sonarsim render --rosbag)")
+        _check_instrument_options(args)
     trajectory = None
     if args.trajectory is not None:
         from ..dataset.trajectory import read_trajectory
@@ -161,8 +163,12 @@ def cmd_live(args: Any) -> None:
             raise ConfigError("--object-pose", f"the scene has no object {name!r}; its objects: "
                               f"{', '.join(map(repr, names)) or 'none'}")
     with Simulator(scene, backend=args.backend) as sim, Publisher(args.domain) as publisher:
-        _log(f"live: publishing {topics.image} and its companions on DDS domain {publisher.domain}"
-             + (f" for {args.frames} frames" if args.frames else ", Ctrl-C to stop"))
+        if scene.instruments:
+            _log(f"live: publishing {len(scene.instruments)} instruments on DDS domain {publisher.domain}"
+                 + (f" for {args.frames} pings each" if args.frames else ", Ctrl-C to stop"))
+        else:
+            _log(f"live: publishing {topics.image} and its companions on DDS domain {publisher.domain}"
+                 + (f" for {args.frames} frames" if args.frames else ", Ctrl-C to stop"))
         from ..live.dds import dds_topic
         from ..live.poses import TopicPoses
 
@@ -188,9 +194,51 @@ def cmd_live(args: Any) -> None:
             _log("live: waiting for /clock")
             sim_clock.wait_first()
             timing = {"now_ns": sim_clock.now_ns, "clock": sim_clock.seconds, "sleep": sim_clock.sleep}
+        if scene.instruments:
+            from ..live.instruments import instrument_periods, stream_instruments
+
+            _log("live: instruments, each at its own rate: " + ", ".join(
+                f"{name} every {1e3 * period:.4g} ms on /{name}/..." for name, period in instrument_periods(sim).items()))
+            stats = stream_instruments(sim, publisher, options, trajectory, say=lambda line: _log(f"live: {line}"),
+                                       poses=poses, object_poses=object_poses, vehicle_frame=args.pose_frame or "vehicle",
+                                       vehicle_tf=args.pose_frame is None, **timing)
+            _log(f"live: {_pings_summary(stats)}")
+            return
         stats = stream(sim, publisher, options, trajectory, say=lambda line: _log(f"live: {line}"), poses=poses,
                        mount=args.mount, object_poses=object_poses, **timing)
         _log(f"live: {stats.summary()}")
+
+
+def _check_instrument_options(args: Any) -> None:
+    """Options that mean nothing for a scene's instruments are refused, naming what does."""
+    from ..errors import ConfigError
+
+    if args.rate is not None:
+        raise ConfigError("--rate", "each instrument pings at its own rate (its ping_rate_hz in the scene, or its "
+                          "range's two-way time); use --fast to publish as fast as they render")
+    if args.mount is not None:
+        raise ConfigError("--mount", "the instruments are mounted on the vehicle in the scene (their 'mount')")
+    if args.no_fan:
+        raise ConfigError("--no-fan", "the instruments publish no fan image; leave it out")
+    if args.topics is not None:
+        raise ConfigError("--topics", "an instrument's topics are /NAME/... after its name in the scene")
+    extra = sorted(set(args.frame_ids or {}) - {"world"})
+    if extra:
+        raise ConfigError("--frame-ids", f"with instruments only world=... is taken (the vehicle is 'vehicle', or "
+                          f"--pose-frame; the mounts are named after the instruments), not {', '.join(extra)}")
+
+
+def _pings_summary(stats: Any) -> str:
+    """One line of what :func:`~sonarsim.live.instruments.stream_instruments` did."""
+    import numpy as np
+
+    if not stats.frames:
+        return "no ping published" + (f", {stats.stale} skipped for a stale pose" if stats.stale else "")
+    med = lambda x: 1e3 * float(np.median(x))  # noqa: E731
+    return (("stopped by a signal after " if stats.interrupted else "") + f"{stats.frames} pings in {stats.wall_s:.2f} s ("
+            + ", ".join(f"{name} {n}" for name, n in stats.pings.items()) + f"), {stats.late} late"
+            + (f", {stats.stale} skipped for a stale pose" if stats.stale else "")
+            + f"; render {med(stats.render_s):.1f} ms, publish {med(stats.publish_s):.1f} ms a ping (median)")
 
 
 def add_live_demo_parser(subparsers: Any) -> argparse.ArgumentParser:

@@ -82,7 +82,8 @@ class LiveOptions:
 
 @dataclass
 class LiveStats:
-    """What a :func:`stream` did: frames published, those late, and per-frame seconds."""
+    """What a :func:`stream` did: frames published, those late, and per-frame seconds (of
+    :func:`~sonarsim.live.instruments.stream_instruments`: pings, of all the instruments)."""
 
     frames: int = 0
     late: int = 0
@@ -91,6 +92,8 @@ class LiveStats:
     publish_s: list[float] = field(default_factory=list)
     wall_s: float = 0.0
     interrupted: bool = False
+    #: Pings published per instrument (:func:`sonarsim.live.instruments.stream_instruments`).
+    pings: dict[str, int] = field(default_factory=dict)
 
     def summary(self) -> str:
         """One line: frames, rate held, late frames, render and publish times (median)."""
