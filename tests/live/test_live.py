@@ -113,6 +113,44 @@ def test_stream_paces_frames_stamps_them_and_publishes_what_a_bag_holds():
     assert bytes(fan.data) == want_fan.tobytes() and want_fan.max() > 100
 
 
+def test_points_carry_each_frames_labelled_ground_truth():
+    """With ``points``: per frame a PointCloud2 (x, y, z world, object id) that is the bag's of
+    render(frame=k, labels='total'), the box's points on the box and the floor's on z = 0, and
+    once, latched, the ids' names."""
+    import json
+
+    import sonarsim
+
+    now = [0.0]
+    rec = _Recorder()
+
+    def sleep(s):
+        now[0] += s
+
+    with sonarsim.Simulator(SCENE) as sim:
+        stream(sim, rec, LiveOptions(rate_hz=20.0, n_frames=3, points=True), start_ns=5_000_000_000,
+               clock=lambda: now[0], sleep=sleep)
+        image1 = sim.render(frame=1, labels="total")
+    clouds = [s[2] for s in rec.sent if s[0] == "/sonar/points"]
+    (ids,) = [s for s in rec.sent if s[0] == "/sonar/points/ids"]
+    assert len(clouds) == 3 and ids[3] == "latched"
+    names = json.loads(ids[2].data)
+    assert names == list(image1.labels.ids) and names[0] == "box"
+    store = rb._import_rosbags()[2]
+    want = dict(rb.FrameMessages(store).frame_messages(rb.frame_from_image(
+        image1, 5_050_000_000, fan=False, points_world=image1.labels.points_world,
+        points_object=image1.labels.points_object)))["points"]
+    assert bytes(store.serialize_cdr(clouds[1], rb.MSGTYPES["points"])) == \
+        bytes(store.serialize_cdr(want, rb.MSGTYPES["points"]))
+    cloud = np.frombuffer(bytes(clouds[1].data), rb._POINT_DTYPE)
+    assert clouds[1].header.frame_id == "world" and len(cloud) > 100
+    on_box = cloud[cloud["object"] == 0]
+    floor = cloud[cloud["object"] == names.index("ground")] if "ground" in names else cloud[cloud["object"] == 1]
+    assert len(on_box) > 10 and len(floor) > 10
+    np.testing.assert_allclose(floor["z"], 0.0, atol=1e-4)
+    assert np.all(np.abs(on_box["x"] - 2.0) <= 0.15 + 1e-4) and np.all(on_box["z"] <= 0.3 + 1e-4)
+
+
 def test_a_slow_render_is_counted_late_and_never_waited_for():
     import sonarsim
 

@@ -243,6 +243,7 @@ def test_sonarsim_live_publishes_the_instruments_to_another_process(tmp_path):
     (["--topics", "image=/x"], "--topics"),
     (["--frame-ids", "sonar=s"], "--frame-ids"),
     (["--no-fan"], "--no-fan"),
+    (["--points"], "--points"),
     (["--pose-topic", "/odom", "--mount", "0,0,0,0,0,0"], "--mount"),
 ])
 def test_options_that_mean_nothing_for_instruments_are_refused(tmp_path, args, key):

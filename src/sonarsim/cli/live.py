@@ -69,6 +69,9 @@ def add_live_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "vehicle's own frame")
     g = p.add_argument_group("topics")
     g.add_argument("--no-fan", action="store_true", help="do not publish the fan image")
+    g.add_argument("--points", action="store_true",
+                   help="publish each frame's ground truth on /sonar/points (sensor_msgs/PointCloud2: x, y, z in the "
+                   "world frame, object id) and the ids' names on /sonar/points/ids (latched JSON)")
     g.add_argument("--frame-ids", type=_names("--frame-ids"), default=None, metavar="NAME=ID,...",
                    help="frame names (world, sonar, image), e.g. world=map,sonar=sonar_link")
     g.add_argument("--topics", type=_names("--topics"), default=None, metavar="NAME=TOPIC,...",
@@ -148,7 +151,7 @@ def cmd_live(args: Any) -> None:
     object_sources = _object_sources(args.object_pose)
     options = LiveOptions(rate_hz=args.rate, fast=args.fast, n_frames=args.frames, fan=not args.no_fan,
                           speckle=False if args.no_speckle else None, frame_ids=frame_ids, topics=topics,
-                          max_staleness_s=args.max_staleness)
+                          max_staleness_s=args.max_staleness, points=args.points)
     scene = override_render(load_scene(args.scene), args)
     if scene.instruments:
         _check_instrument_options(args)
@@ -220,6 +223,9 @@ def _check_instrument_options(args: Any) -> None:
         raise ConfigError("--mount", "the instruments are mounted on the vehicle in the scene (their 'mount')")
     if args.no_fan:
         raise ConfigError("--no-fan", "the instruments publish no fan image; leave it out")
+    if args.points:
+        raise ConfigError("--points", "the instruments' ground truth is not published live; a multibeam's soundings "
+                          "go out on /NAME/points")
     if args.topics is not None:
         raise ConfigError("--topics", "an instrument's topics are /NAME/... after its name in the scene")
     extra = sorted(set(args.frame_ids or {}) - {"world"})

@@ -11,11 +11,13 @@ Per frame, on the topics of :class:`~sonarsim.io.rosbag.BagTopics` (as a bag hol
 :class:`~sonarsim.io.rosbag.FrameMessages`): the ``ProjectedSonarImage``, the fan
 (``sensor_msgs/Image``, ``mono8`` as ``fan.png`` draws it, unless ``fan=False``), the pose (``PoseStamped``), ``/tf`` (world ->
 sonar) and the image's unit (latched, with the first frame and whenever it changes); once, at
-the start, ``/tf_static`` (sonar -> sonar_image, latched).
+the start, ``/tf_static`` (sonar -> sonar_image, latched). With ``points``, the frame's labelled
+points too (``PointCloud2``, world frame, each point's surface id) and, once, the ids' names.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -27,7 +29,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..io.rosbag import MSGTYPES, BagFrameIds, BagTopics, FrameMessages, frame_from_image
 
-__all__ = ["LiveOptions", "LiveStats", "stream", "MAX_RATE_HZ"]
+__all__ = ["LiveOptions", "LiveStats", "stream", "MAX_RATE_HZ", "points_ids_topic"]
 
 #: The highest frame rate ``rate_hz`` takes (frames a second).
 MAX_RATE_HZ = 1000.0
@@ -55,6 +57,10 @@ class LiveOptions:
     frame_ids, topics : BagFrameIds, BagTopics
     max_staleness_s : float
         With poses from a topic: the oldest a frame's pose may be, seconds, in (0, 60].
+    points : bool
+        Publish each frame's ground truth: the points in view (``PointCloud2``: x, y, z in the
+        world frame and ``object``, the id of the surface hit), from the frame's labels, and once,
+        latched, the names of the ids (``std_msgs/String``, JSON, on the points' topic + ``/ids``).
     """
 
     rate_hz: float | None = None
@@ -65,6 +71,7 @@ class LiveOptions:
     frame_ids: BagFrameIds = field(default_factory=BagFrameIds)
     topics: BagTopics = field(default_factory=BagTopics)
     max_staleness_s: float = 0.5
+    points: bool = False
 
     def __post_init__(self) -> None:
         m = self.max_staleness_s
@@ -164,10 +171,11 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
     # subscribers already there) and one render and serialisation (the first call's costs:
     # tables, message classes), so that frame 0 is as late as any other.
     for key, ros_type in MSGTYPES.items():
-        if key != "points" and (key != "fan" or options.fan):
+        if (key != "points" or options.points) and (key != "fan" or options.fan):
             publisher.writer(getattr(options.topics, key), ros_type, _KINDS.get(key, "sensor"))
-    first = sim.render(pose=trajectory.pose(0) if trajectory is not None else None, frame=0, speckle=options.speckle)
-    warm = frame_from_image(first, 1, fan=_fan_levels(first) if options.fan else False)
+    first = sim.render(pose=trajectory.pose(0) if trajectory is not None else None, frame=0, speckle=options.speckle,
+                       labels="total" if options.points else False)
+    warm = _frame(first, 1, options)
     store = instrument_typestore()
     for key, msg in messages.frame_messages(warm, tf="pose"):
         store.serialize_cdr(msg, MSGTYPES[key])
@@ -183,6 +191,20 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
         stats.interrupted = True
     stats.wall_s = clock() - t_wall0
     return stats
+
+
+def points_ids_topic(topics: BagTopics) -> str:
+    """The latched topic naming the ids of the points' ``object`` field: the points' + ``/ids``."""
+    return topics.points.rstrip("/") + "/ids"
+
+
+def _frame(image: Any, stamp_ns: int, options: LiveOptions) -> Any:
+    """The BagFrame of a rendered frame: its fan as drawn (unless ``fan`` is off), its labels'
+    points (with ``points``)."""
+    points = {}
+    if options.points:
+        points = {"points_world": image.labels.points_world, "points_object": image.labels.points_object}
+    return frame_from_image(image, stamp_ns, fan=_fan_levels(image) if options.fan else False, **points)
 
 
 def _fan_levels(image: Any) -> np.ndarray:
@@ -254,13 +276,17 @@ def _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_n
                 pose = pose.compose(mount)
         r0 = clock()
         moving = _move_objects(sim, object_poses, stamp_ns, t_first + t_k, options, say, state)
-        image = sim.render(pose=pose, frame=k, speckle=options.speckle)
-        frame = frame_from_image(image, stamp_ns, fan=_fan_levels(image) if options.fan else False)
+        image = sim.render(pose=pose, frame=k, speckle=options.speckle, labels="total" if options.points else False)
+        frame = _frame(image, stamp_ns, options)
         batch = messages.frame_messages(frame, state["last_unit"], tf="pose")
         r1 = clock()
         stats.render_s.append(r1 - r0)
         if k == 0:
             publisher.publish("/tf_static", "tf2_msgs/msg/TFMessage", messages.tf_message(frame, "image"), "tf_static")
+            if options.points:  # what the points' ids name, once (latched)
+                publisher.publish(points_ids_topic(topics), MSGTYPES["unit"],
+                                  messages._types["std_msgs/msg/String"](data=json.dumps(list(image.labels.ids))),
+                                  "latched")
         if not options.fast and poses is None:
             wait = t_wall0 + t_k - clock()
             if wait > 0:
