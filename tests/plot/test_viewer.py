@@ -174,6 +174,51 @@ def test_state_changes_re_render(session):
     assert np.array_equal(session.render().image.polar, first.image.polar)
 
 
+def _patrolling_demo() -> dict:
+    """The small demo with its buoy patrolling across the fan on a track (y -0.4 -> 0.8 -> -0.4 m
+    over 6 s, looping)."""
+    doc = small_demo()
+    buoy = next(o for o in doc["objects"] if o["name"] == "buoy")
+    x, _, z = buoy.pop("pose")["position_m"]
+    buoy["track"] = {"keys": [{"t": 0.0, "position_m": [x, -0.4, z]}, {"t": 3.0, "position_m": [x, 0.8, z]},
+                              {"t": 6.0, "position_m": [x, -0.4, z]}], "repeat": True}
+    return doc
+
+
+def test_the_clock_moves_tracked_objects_without_a_new_simulator():
+    """set_time puts the buoy where its track has it; the image is a still scene's with the buoy
+    there (an independent simulator); the session's simulator is kept (the object is moved in
+    it, not built again), and a drag of an object moves it in place too."""
+    doc = _patrolling_demo()
+    s = SceneSession(doc)
+    try:
+        assert set(s.tracks) == {"buoy"} and s.time_span_s == 6.0
+        assert s.object_poses["buoy"].position_m == pytest.approx((2.4, -0.4, 0.4))
+        first = s.render().image.polar
+        sim = s._sim
+        v = s.version
+        assert s.set_time(1.5) == 1.5 and s.version == v + 1 and s.time_s == 1.5
+        assert s.object_poses["buoy"].position_m == pytest.approx((2.4, 0.2, 0.4))
+        moved = s.render().image.polar
+        assert s._sim is sim and sim.last_moves.keys() == {"buoy"}
+        still = small_demo()
+        next(o for o in still["objects"] if o["name"] == "buoy")["pose"]["position_m"] = [2.4, 0.2, 0.4]
+        with Simulator(still) as ref:
+            want = ref.render(keep_rays=False, frame=0, speckle=False).polar
+        np.testing.assert_allclose(moved, want, rtol=1e-5, atol=1e-6 * float(want.max()))
+        assert not np.allclose(moved, first)
+        s.set_time(7.5)  # looping: 7.5 s is 1.5 s into the patrol
+        assert s.object_poses["buoy"].position_m == pytest.approx((2.4, 0.2, 0.4))
+        s.set_object_pose("plastic_drum", (2.6, 0.3, 0.25), (0.0, 0.0, 0.0))
+        s.render()
+        assert s._sim is sim and sim.last_moves.keys() == {"plastic_drum"}
+        for bad in (-1.0, float("nan"), 1e9, "2", True):
+            with pytest.raises(ConfigError, match="time_s"):
+                s.set_time(bad)
+    finally:
+        s.close()
+
+
 def test_switches_change_the_images(session):
     base = session.render()
     session.set_options(component="ground")
@@ -402,6 +447,35 @@ def test_page_follows_the_api_and_updates_fast(demo_viewer, tmp_path):
     v.out = tmp_path / "saved"
     files = v.save()
     assert [f.name for f in files] == ["scene.yaml", "polar.png", "fan.png"] and "saved" in v.save_status.content
+
+
+@needs_viser
+def test_the_time_slider_runs_the_tracked_objects():
+    from sonarsim.plot.viewer.app import SceneViewer, start_server, stop_server
+
+    server = start_server("127.0.0.1", 0)
+    viewer = SceneViewer(server, SceneSession(_patrolling_demo()), out="unused")
+    try:
+        assert viewer.wait(30) and viewer.time_slider is not None and viewer.time_slider.max == 6.0
+        before = viewer.frame.image.polar
+        viewer.set_time(1.5)
+        assert viewer.wait(10)
+        assert viewer.time_slider.value == 1.5
+        assert np.allclose(viewer.object_controls["buoy"].position, (2.4, 0.2, 0.4))
+        assert not np.array_equal(viewer.frame.image.polar, before)
+        viewer.play.value = True  # the clock runs on its own
+        deadline = time.monotonic() + 10
+        while viewer.session.time_s < 1.75 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        viewer.play.value = False
+        assert viewer.session.time_s >= 1.75
+    finally:
+        viewer.close()
+        stop_server(server)
+
+
+def test_a_scene_without_tracks_has_no_clock(session):
+    assert session.tracks == {} and session.time_span_s == 1.0
 
 
 @needs_viser

@@ -453,6 +453,23 @@ class SceneViewer(_Page):
                 self.pose_sliders.append(gui.add_slider(label, -limit, limit, 0.5, float(np.clip(value, -limit, limit))))
         for slider in self.pose_sliders:
             slider.on_update(self._slider_moved)
+        #: The scene's clock, where objects move on their tracks (None: nothing moves on its own).
+        self.time_slider = self.play = None
+        if session.tracks:
+            with gui.add_folder("Time"):
+                self.time_slider = gui.add_slider("time (s)", 0.0, round(session.time_span_s, 2), 0.05, 0.0,
+                                                  hint="the scene's clock: " + ", ".join(session.tracks)
+                                                  + " on their tracks")
+                self.play = gui.add_checkbox("play", False, hint="run the clock in real time (looping)")
+
+            async def time_moved(event) -> None:
+                if event.client is not None:
+                    self.set_time(float(self.time_slider.value), source="slider")
+
+            self.time_slider.on_update(time_moved)
+            self._playing = True
+            self._player = threading.Thread(target=self._play, name="sonarsim-viewer-clock", daemon=True)
+            self._player.start()
         o = session.options
         with gui.add_folder("Image"):
             self.component = gui.add_dropdown("component", component_names(o.max_order), initial_value=o.component)
@@ -545,6 +562,36 @@ class SceneViewer(_Page):
             control.position = pose.position_m
             control.wxyz = wxyz_of(pose)
         self.request_update()
+
+    def set_time(self, t_s: float, source: str = "api") -> None:
+        """Move the scene's clock (:meth:`SceneSession.set_time`): the tracked objects' gizmos
+        follow, the images are re-rendered."""
+        try:
+            t = self.session.set_time(t_s)
+        except SonarsimError as exc:
+            self.error = str(exc)
+            self._show_status()
+            return
+        for name in self.session.tracks:
+            pose = self.session.object_poses[name]
+            control = self.object_controls[name]
+            control.position = pose.position_m
+            control.wxyz = wxyz_of(pose)
+        if source != "slider" and self.time_slider is not None:
+            self.time_slider.value = float(min(t, self.time_slider.max))
+        self.request_update()
+
+    def _play(self) -> None:
+        # Runs the clock while "play" is ticked, 10 steps a second, looping over the slider's span.
+        while self._playing:
+            time.sleep(0.1)
+            if self.play is not None and self.play.value:
+                span = float(self.time_slider.max)
+                self.set_time(round((self.session.time_s + 0.1) % span, 6) if span > 0 else 0.0)
+
+    def close(self) -> None:
+        self._playing = False
+        super().close()
 
     def set_options(self, **changes: Any) -> None:
         """Change switches (see :meth:`SceneSession.set_options`); the controls follow."""

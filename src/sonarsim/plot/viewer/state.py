@@ -47,6 +47,10 @@ __all__ = ["DisplayMapper", "RecordingOptions", "RecordingSession", "SAVED_FILES
 
 #: The files :meth:`SceneSession.save` writes into its folder (and the run record).
 SAVED_FILES = ("scene.yaml", "polar.png", "fan.png")
+#: The time slider's reach where a track runs on at a constant velocity (seconds).
+OPEN_TRACK_SPAN_S = 60.0
+#: The latest time :meth:`SceneSession.set_time` takes (seconds).
+MAX_TIME_S = 1e6
 
 # Largest path order the viewer offers (each order costs a generation of reflected rays).
 VIEWER_MAX_ORDER = min(6, MAX_ORDER_LIMIT)
@@ -295,6 +299,10 @@ class SceneSession:
         rendered sits at its mount on :attr:`vehicle_pose`, ``scene().sonar_pose``).
     object_poses : dict of str to Pose
         By object name.
+    tracks : dict of str to Track
+        The objects that move on their own (a ``track``), by name.
+    time_s : float
+        The scene's clock (seconds): where the tracked objects are (:meth:`set_time`).
     vehicle_pose : Pose
         With instruments: the vehicle's pose (what the page moves; each instrument rides at its
         mount). Without, unused.
@@ -314,7 +322,11 @@ class SceneSession:
 
         #: The FLS whose images the page shows (the first one on the vehicle), or None.
         self.fls = next((i for i in self.base.instruments if isinstance(i, FlsSpec)), None)
-        self.object_poses = {o.name: _exact(o.pose) for o in self.base.objects}
+        #: Objects with a ``track``, by name: the time slider moves them.
+        self.tracks = {o.name: o.track for o in self.base.objects if o.track is not None}
+        self.time_s = 0.0
+        self.object_poses = {o.name: _exact(self.tracks[o.name].pose_at(0.0) if o.name in self.tracks else o.pose)
+                             for o in self.base.objects}
         self.sensor_spec = self._find_sensor()
         render = self.base.render
         has_sensor = self.base.sensor is not None
@@ -429,6 +441,36 @@ class SceneSession:
                 self._changed()
         return pose
 
+    @property
+    def time_span_s(self) -> float:
+        """How far the time slider reaches, seconds: the longest timed track's end (a looping
+        one's too), or :data:`OPEN_TRACK_SPAN_S` where a track runs at a constant velocity."""
+        ends = [float(t.trajectory.times_s[-1]) for t in self.tracks.values() if t.trajectory is not None]
+        if any(t.trajectory is None for t in self.tracks.values()):
+            ends.append(OPEN_TRACK_SPAN_S)
+        return max([1.0, *ends])
+
+    def set_time(self, t_s: float) -> float:
+        """Move the scene's clock: every object with a ``track`` goes where its track has it at
+        ``t_s`` seconds (a drag of a tracked object holds only until the clock moves again).
+
+        Raises
+        ------
+        ConfigError
+            A time that is not a number of seconds in ``[0, MAX_TIME_S]``.
+        """
+        if isinstance(t_s, bool) or not isinstance(t_s, (int, float, np.floating, np.integer)) \
+                or not math.isfinite(float(t_s)) or not 0.0 <= float(t_s) <= MAX_TIME_S:
+            raise ConfigError("time_s", f"must be a number of seconds in [0, {MAX_TIME_S:g}], got {t_s!r}")
+        t = float(t_s)
+        with self._lock:
+            poses = {name: _exact(track.pose_at(t)) for name, track in self.tracks.items()}
+            if t != self.time_s or any(p != self.object_poses[n] for n, p in poses.items()):
+                self.time_s = t
+                self.object_poses.update(poses)
+                self._changed()
+        return t
+
     def set_options(self, **changes: Any) -> ViewOptions:
         """Change switches (fields of :class:`ViewOptions`); returns the options now in force.
 
@@ -517,20 +559,27 @@ class SceneSession:
     # ------------------------------------------------------------------ rendering
 
     def _simulator(self, scene: Scene):
-        """The simulator of the scene's geometry and settings: kept while only the sonar moves
-        (a new pose is a new render, not a new acceleration structure)."""
+        """The simulator of the scene's settings: kept while only poses change. A new sonar pose
+        is a new render; an object moved (dragged, or by the clock) is moved in it
+        (:meth:`Simulator.move_objects`: its own tree refitted), not a new acceleration
+        structure."""
         from ...renderer.simulator import Simulator
 
-        key = (tuple(o.pose for o in scene.objects), scene.render, scene.sensor is not None)
-        if key != self._sim_key:
-            if self._sim is not None:
-                self._sim.close()
-                self._sim = None
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                self._sim = Simulator(scene, backend=self.backend)
-            self._sim_key = key
-            self._sim_notes = tuple(str(w.message) for w in caught)
+        key = (scene.render, scene.sensor is not None)
+        if key == self._sim_key:
+            now = {o.name: o.pose for o in self._sim.scene.objects}
+            moved = {o.name: o.pose for o in scene.objects if o.pose != now[o.name]}
+            if moved:
+                self._sim.move_objects(moved)
+            return self._sim
+        if self._sim is not None:
+            self._sim.close()
+            self._sim = None
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            self._sim = Simulator(scene, backend=self.backend)
+        self._sim_key = key
+        self._sim_notes = tuple(str(w.message) for w in caught)
         return self._sim
 
     def render_image(self):
