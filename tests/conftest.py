@@ -50,6 +50,17 @@ def block_scene_dict(**sonar) -> dict:
     }
 
 
+def still_doc(doc: dict, name: str, pose) -> dict:
+    """A scene-file dict with object ``name`` standing still at ``pose`` (its track dropped): the
+    independent reference of a moved or tracked object."""
+    out = {**doc, "objects": [dict(o) for o in doc["objects"]]}
+    for o in out["objects"]:
+        if o["name"] == name:
+            o.pop("track", None)
+            o["pose"] = pose.to_dict()
+    return out
+
+
 @pytest.fixture(scope="module")
 def renders():
     """The same scene at full and half range resolution, and in a disjoint range window."""

@@ -17,6 +17,7 @@ from sonarsim.core.transforms import Pose  # noqa: E402
 from sonarsim.live.stream import LiveOptions, stream  # noqa: E402
 
 from .test_live import SCENE, _Recorder  # noqa: E402
+from ..conftest import still_doc  # noqa: E402
 
 START_NS = 2_000_000_000
 
@@ -32,15 +33,6 @@ class _Diver:
 
 def _images(rec):
     return [m for topic, _, m, _ in rec.sent if topic == "/sonar/image"]
-
-
-def _still(scene, name, pose):
-    doc = {**scene, "objects": [dict(o) for o in scene["objects"]]}
-    for o in doc["objects"]:
-        if o["name"] == name:
-            o.pop("track", None)
-            o["pose"] = pose.to_dict()
-    return doc
 
 
 def _payload(sim_doc) -> np.ndarray:
@@ -73,7 +65,7 @@ def test_objects_move_by_their_topics_and_tracks_and_go_out_on_tf():
     # Each frame as a still scene at its moment renders it.
     for k in (0, 3):
         t = 0.1 * k
-        doc = _still(_still(scene, "diver", Pose((1.8, -0.5 + 0.5 * t, 0.3))), "ball", Pose((2.4, 0.3 - t, 0.4)))
+        doc = still_doc(still_doc(scene, "diver", Pose((1.8, -0.5 + 0.5 * t, 0.3))), "ball", Pose((2.4, 0.3 - t, 0.4)))
         want = _payload(doc)
         got = np.frombuffer(bytes(_images(rec)[k].image.data), want.dtype).reshape(want.shape)
         assert want.max() > 0

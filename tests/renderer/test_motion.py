@@ -17,6 +17,8 @@ from sonarsim.errors import ConfigError
 from sonarsim.renderer.simulator import Simulator
 from sonarsim.trace.base import Hits  # noqa: F401  (the casters' answer, compared below)
 
+from ..conftest import still_doc
+
 
 def tank(track: dict | None = None, specular: bool = False) -> dict:
     """A floor, a wall and two objects before an ARIS 3000: the box rests on the floor (the
@@ -42,15 +44,6 @@ def tank(track: dict | None = None, specular: bool = False) -> dict:
     }
 
 
-def moved_doc(doc: dict, name: str, pose: Pose) -> dict:
-    out = {**doc, "objects": [dict(o) for o in doc["objects"]]}
-    for o in out["objects"]:
-        if o["name"] == name:
-            o.pop("track", None)
-            o["pose"] = pose.to_dict()
-    return out
-
-
 @pytest.mark.parametrize("backend, specular", [("embree", False), ("embree", True), ("numpy", False)])
 def test_a_moved_object_renders_as_a_new_simulator_would(backend, specular):
     doc = tank(specular=specular)
@@ -62,7 +55,7 @@ def test_a_moved_object_renders_as_a_new_simulator_would(backend, specular):
     for name, pose in [("ball", Pose((3.4, -0.2, 0.6), (10, 0, 40))), ("block", Pose((2.0, 0.3, 0.05), (0, 0, 75))),
                        ("block", Pose((2.1, 0.3, 0.1), (0, 0, 80))), ("ball", Pose((2.8, 0.0, 0.1), (0, 0, 0)))]:
         sim.move_objects({name: pose})
-        doc = moved_doc(doc, name, pose)
+        doc = still_doc(doc, name, pose)
         moved = sim.render(speckle=False)
         with Simulator(doc, backend=backend) as fresh:
             want = fresh.render(speckle=False)
@@ -283,7 +276,7 @@ def test_instrument_pings_move_objects_to_their_own_times():
     with sonarsim.Simulator(on_vehicle(tank(track={"velocity_m_s": [0.0, -0.3, 0.0]}))) as sim:
         pings = render_pings(sim, n_pings=3, speckle=False)
     for k, ping in enumerate(pings):
-        still = on_vehicle(moved_doc(tank(), "ball", Pose((3.0, 0.4 - 0.3 * 0.5 * k, 0.5))))
+        still = on_vehicle(still_doc(tank(), "ball", Pose((3.0, 0.4 - 0.3 * 0.5 * k, 0.5))))
         with sonarsim.Simulator(still) as fresh:
             want = render_pings(fresh, n_pings=1, speckle=False)[0]
         np.testing.assert_allclose(ping.polar, want.polar, rtol=1e-5, atol=1e-12)
@@ -304,7 +297,7 @@ def test_dataset_frames_see_objects_where_their_tracks_put_them(tmp_path):
     assert [f.spec.time_s for f in rendered] == [0.0, 0.5, 1.0, 1.5]
     for f in rendered:
         y = -0.8 + 1.6 * f.spec.time_s / 1.5
-        still = moved_doc(scene, "ball", Pose((3.0, y, 0.5)))
+        still = still_doc(scene, "ball", Pose((3.0, y, 0.5)))
         with Simulator(still) as fresh:
             want = fresh.render(pose=f.spec.pose, frame=f.index)
         np.testing.assert_allclose(f.image.polar, want.polar, rtol=1e-5, atol=1e-12)
