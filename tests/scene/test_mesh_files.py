@@ -68,12 +68,12 @@ def test_a_mesh_within_the_scene_loads(tmp_path):
     assert scene.objects[0].scale == 999.0
 
 
-@pytest.mark.parametrize("name", ["cloud.xyz", "model.dae", "noext"])
+@pytest.mark.parametrize("name", ["cloud.xyz", "model.fbx", "noext"])
 def test_formats_other_than_meshes_are_refused_by_suffix(tmp_path, name):
     # An OBJ named .xyz failed with "could not convert string to float: 'v'".
     p = tmp_path / name
     p.write_text(TRIANGLE + "f 1 2 3\n")
-    with pytest.raises(ConfigError, match="is not a mesh format sonarsim reads; allowed: .obj, .stl, .ply, .off, .glb, .gltf") as e:
+    with pytest.raises(ConfigError, match="is not a mesh format sonarsim reads; allowed: .obj, .stl, .ply, .off, .glb, .gltf, .dae") as e:
         sonarsim.load_scene(scene_with(p))
     assert e.value.key == "objects[0].mesh" and str(p) in str(e.value)
 

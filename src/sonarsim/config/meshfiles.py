@@ -8,7 +8,10 @@ object. Reading sits here, below both, so that config imports nothing of scene;
 :mod:`sonarsim.scene.meshes` re-exports every name, where it was.
 
 Mesh files are what trimesh reads triangles from, by suffix (:data:`MESH_SUFFIXES`: OBJ, STL,
-PLY, OFF, GLB/glTF); multi-part files (a trimesh Scene) are flattened with their transforms.
+PLY, OFF, GLB/glTF, and Collada ``.dae`` with the ``gazebo`` extra's pycollada); multi-part
+files (a trimesh Scene) are flattened with their transforms. A Collada file's ``<unit meter>``
+and ``<up_axis>`` are applied (trimesh leaves both to the caller): its vertices come out in
+metres, z up (:func:`collada_frame`).
 Files a mesh refers to (an OBJ's material library and the images it names, a glTF's buffers
 and images) are opened only after :func:`~sonarsim.errors.check_input_file` (a pipe named there
 blocked forever); vertices must lie within ``MAX_COORDINATE_M`` of the origin, in the file and
@@ -26,11 +29,72 @@ import numpy as np
 from ..errors import MeshFileError, SonarsimError, check_input_file, shown
 from ..core.triangles import TriangleMesh
 from .scene import MAX_COORDINATE_M
+from .xmlfiles import XmlFileError, local_name, read_xml
 
 #: File suffixes of the mesh formats read: those trimesh reads triangles from (``.xyz``, which
 #: trimesh also knows, holds points: an OBJ named ``.xyz`` failed with "could not convert string
 #: to float: 'v'").
-MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".dae")
+
+#: Collada's up axes and the rotation that takes each to z up (the spec's table: Y_UP has x
+#: right, y up, z toward the viewer; Z_UP has x right, z up, -y toward the viewer; X_UP has -y
+#: right, x up, z toward the viewer).
+COLLADA_UP_AXES = {
+    "Z_UP": np.eye(3),
+    "Y_UP": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),
+    "X_UP": np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]),
+}
+
+
+def collada_frame(path: str | os.PathLike, max_bytes: int) -> np.ndarray:
+    """The (3, 3) matrix that takes a Collada file's coordinates to metres, z up: its
+    ``<asset><unit meter=...>`` (default 1) times the rotation of its ``<up_axis>`` (default
+    ``Y_UP``, the spec's).
+
+    The file is parsed by :func:`~sonarsim.config.xmlfiles.read_xml` first, which also refuses a
+    document type declaration before pycollada sees the file.
+
+    Raises
+    ------
+    MeshFileError
+        Not well-formed XML, not Collada, a document type declaration, a unit that is not a
+        positive number, an unknown up axis.
+    """
+    try:
+        root = read_xml(path, "Collada file", max_bytes)
+    except XmlFileError as exc:
+        raise MeshFileError(str(exc)) from None
+    if local_name(root) != "COLLADA":
+        raise MeshFileError(f"{path}: not a Collada file: the root element is <{root.tag}>, not <COLLADA>")
+    meter, up = 1.0, "Y_UP"
+    asset = next((c for c in root if local_name(c) == "asset"), None)
+    for child in asset if asset is not None else ():
+        if local_name(child) == "unit":
+            text = child.get("meter", "1")
+            try:
+                meter = float(text)
+            except ValueError:
+                meter = float("nan")
+            if not (np.isfinite(meter) and 0 < meter <= 1e4):
+                raise MeshFileError(f"{path}: <unit meter={shown(text)}> must be a positive number of metres "
+                                    "(at most 10000)")
+        elif local_name(child) == "up_axis":
+            up = (child.text or "").strip()
+            if up not in COLLADA_UP_AXES:
+                raise MeshFileError(f"{path}: <up_axis> {shown(up)} is not one of {', '.join(COLLADA_UP_AXES)}")
+    return meter * COLLADA_UP_AXES[up]
+
+
+def _require_collada() -> None:
+    """trimesh reads Collada through pycollada (the ``gazebo`` extra): say so when it is missing."""
+    import importlib
+
+    try:
+        importlib.import_module("collada")
+    except ImportError:
+        from ..core.extras import install_hint
+
+        raise MeshFileError(f"Collada (.dae) meshes need pycollada; {install_hint('gazebo')}") from None
 
 
 def brightness(image) -> np.ndarray:
@@ -123,11 +187,15 @@ def _checked_resolver(path: str):
 def _load_mesh_file_cached(path: str, mtime_ns: int, size: int, texture: bool = False) -> TriangleMesh:
     trimesh = _trimesh()
 
+    collada = path.lower().endswith(".dae")
+    if collada:
+        _require_collada()
+        to_metres = collada_frame(path, max(size, 1))
     resolver = _checked_resolver(path)
     try:
         loaded = trimesh.load(path, force="mesh", process=False, resolver=resolver)
     except ImportError:  # trimesh reaching for an optional text decoder: the bytes are not a mesh it knows
-        raise MeshFileError(f"{path}: not a mesh file trimesh can read (OBJ, STL, PLY, GLB/glTF, OFF)") from None
+        raise MeshFileError(f"{path}: not a mesh file trimesh can read (OBJ, STL, PLY, GLB/glTF, OFF, DAE)") from None
     except Exception as exc:  # trimesh raises many types for unreadable files
         if resolver.refused:
             raise MeshFileError(f"{path}: refers to {resolver.refused[0]}") from None
@@ -139,6 +207,8 @@ def _load_mesh_file_cached(path: str, mtime_ns: int, size: int, texture: bool = 
     if not isinstance(loaded, trimesh.Trimesh):
         raise MeshFileError(f"{path}: no triangle mesh found in the file")
     vertices = np.asarray(loaded.vertices, dtype=float)
+    if collada:
+        vertices = vertices @ to_metres.T
     faces = np.asarray(loaded.faces, dtype=np.int32)
     if len(faces) == 0 or len(vertices) == 0:
         raise MeshFileError(f"{path}: the mesh is empty (no triangles)")

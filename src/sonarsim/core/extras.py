@@ -1,4 +1,4 @@
-"""How to install an optional extra (``ros``, ``ray``, ``viewer``, ``diff``, ``xtf``): the one home of the
+"""How to install an optional extra (``ros``, ``ray``, ``viewer``, ``diff``, ``xtf``, ``gazebo``): the one home of the
 install hints that the messages about a missing library give.
 
 From a checkout (sonarsim imported from a clone's ``src/``, as ``pip install -e .`` or
@@ -24,6 +24,7 @@ EXTRAS = {
     "diff": "the differentiable engine's extra (JAX)",
     "xtf": "the XTF extra (pyxtf)",
     "live": "the live extra (Cyclone DDS and rosbags)",
+    "gazebo": "the Gazebo extra (pycollada, for Collada meshes)",
 }
 
 

@@ -2,7 +2,7 @@
 
 Primitives are built with trimesh; mesh files are read by :mod:`sonarsim.config.meshfiles`
 (which the scene loader checks them with when it loads a scene), by suffix
-(:data:`MESH_SUFFIXES`: OBJ, STL, PLY, OFF, GLB/glTF). An object whose material asks for its
+(:data:`MESH_SUFFIXES`: OBJ, STL, PLY, OFF, GLB/glTF, Collada). An object whose material asks for its
 texture (``material: {texture: true}``) keeps the mesh's UV coordinates and the brightness of
 its texture image (see :mod:`sonarsim.scene.textures`). Vertices must lie within
 ``MAX_COORDINATE_M`` of the origin, in the file and once scaled and posed.
