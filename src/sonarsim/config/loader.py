@@ -25,6 +25,7 @@ from .presets import beam_angles_from_table, get_preset
 from .sensor import parse_sensor, preset_device_mismatch
 from .instruments import FlsSpec, instrument_class, mounted
 from .scene import MAX_COORDINATE_M, ObjectSpec, PlaneSpec, RenderSettings, Scene, TextureSpec, ground_plane
+from .sdf import OVERRIDE_KEYS, WorldSpec, read_sdf_world
 from .tracks import TRACK_KEYS, Track, Trajectory, read_trajectory
 from .sonar import MIN_RELATIVE_BIN_WIDTH, RangeBinError, SonarConfig, beam_edges_deg, check_range_window
 from .water import WaterSpec, parse_water
@@ -32,7 +33,9 @@ from ..core.transforms import Pose
 
 # Lambert's energy bound in dB (-4.97): mu_db above it returns more than the surface receives.
 MAX_LAMBERT_MU_DB = 10.0 * math.log10(MAX_LAMBERT_MU)
-TOP_KEYS = ("sonar", "render", "ground", "planes", "objects", "sensor", "vehicle", "instruments", "water")
+TOP_KEYS = ("sonar", "render", "ground", "planes", "objects", "sensor", "vehicle", "instruments", "water", "world")
+#: Keys of the ``world:`` section (a Gazebo SDF world's models as objects: :mod:`sonarsim.config.sdf`).
+WORLD_KEYS = ("sdf", "model_path", "materials", "skip", "environment")
 SONAR_KEYS = (
     "preset", "n_beams", "azimuth_fov_deg", "beam_angles_deg", "beam_angles_file", "beam_width_deg",
     "elevation_fov_deg", "range_min_m", "range_max_m", "n_range_bins", "range_resolution_m",
@@ -526,6 +529,79 @@ def parse_object(d: Any, index: int, base_dir: Path | None) -> ObjectSpec:
     return spec
 
 
+def parse_world(d: Any, base_dir: Path | None) -> WorldSpec:
+    """The ``world:`` section: ``{sdf, model_path, materials, skip, environment}``.
+
+    ``sdf`` and the ``model_path`` folders (a string or a list) are relative to the scene file;
+    ``materials`` maps a model, ``model::link`` or ``model::link::visual`` to surface keys;
+    ``skip`` lists models left out; ``environment`` (default true) searches
+    :data:`~sonarsim.config.sdf.MODEL_PATH_VARIABLES` after ``model_path``.
+    """
+    _check_keys(d, WORLD_KEYS, "world")
+    if "sdf" not in d:
+        raise ConfigError("world.sdf", "required: the SDF world file (relative to the scene file)")
+
+    def place(text: str) -> Path:
+        p = Path(text)
+        return base_dir / p if base_dir is not None and not p.is_absolute() else p
+
+    sdf = place(_string(d["sdf"], "world.sdf"))
+    folders = d.get("model_path", []) or []
+    if isinstance(folders, str):
+        folders = [folders]
+    if not isinstance(folders, list):
+        raise ConfigError("world.model_path", f"must be a folder or a list of folders, got {shown(folders)}")
+    model_path = tuple(place(_string(f, f"world.model_path[{i}]")) for i, f in enumerate(folders))
+    for i, folder in enumerate(model_path):
+        if not folder.is_dir():
+            raise ConfigError(f"world.model_path[{i}]", f"{folder}: not a folder")
+    materials = d.get("materials", {}) or {}
+    if not isinstance(materials, Mapping):
+        raise ConfigError("world.materials", f"must map model names to surface keys, got {shown(materials)}")
+    for name, value in materials.items():
+        _string(name, "world.materials")
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"world.materials.{key_text(name)}", "must be a mapping of surface keys (material, "
+                              f"albedo, specular, reflection, normals), got {shown(value)}")
+    skip = d.get("skip", []) or []
+    if not isinstance(skip, list):
+        raise ConfigError("world.skip", f"must be a list of model names, got {shown(skip)}")
+    skip = tuple(_string(s, f"world.skip[{i}]") for i, s in enumerate(skip))
+    environment = _boolean(d.get("environment", True), "world.environment")
+    return WorldSpec(sdf, model_path, {str(k): dict(v) for k, v in materials.items()}, skip, environment)
+
+
+def _world_objects(d: Mapping, base: Path | None, own: list) -> tuple[list[ObjectSpec], dict | None]:
+    """The objects and the ground section of the scene's ``world:`` (none without one)."""
+    if d.get("world") is None:
+        return [], None
+    world = read_sdf_world(parse_world(d["world"], base))
+    names = {o.get("name") for o in own if isinstance(o, Mapping)}
+    specs = []
+    for raw in world.objects:
+        name = raw["name"]
+        if name in names:
+            raise ConfigError("world", f"{world_sdf(d, base)}: the model {shown(name)} has the name of one of the "
+                              "scene's objects; rename that object or leave the model out with world.skip")
+        try:
+            # The dicts pass the scene's own checks; errors name the world's model, not an index.
+            specs.append(parse_object(raw, 0, None))
+        except ConfigError as exc:
+            # A surface key came from an override (world.materials) or the table; the rest from the SDF.
+            inner = exc.key.split(".", 1)[1] if "." in exc.key else ""
+            surface = inner.split(".")[0] in OVERRIDE_KEYS
+            raise ConfigError("world.materials" if surface else "world",
+                              f"{world_sdf(d, base)}: model {shown(name)}: {inner + ': ' if inner else ''}"
+                              f"{exc.detail}") from None
+    return specs, world.ground
+
+
+def world_sdf(d: Mapping, base: Path | None) -> str:
+    """The SDF file of a scene's ``world:``, as its messages name it."""
+    sdf = Path(str(d["world"].get("sdf", "")))
+    return str(base / sdf if base is not None and not sdf.is_absolute() else sdf)
+
+
 def parse_instrument(d: Any, key: str, base_dir: Path | None, default_name: str, mount_key: str = "mount"):
     """One instrument's section (``instruments[i]``, or ``sonar:`` with a ``type``).
 
@@ -648,6 +724,15 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
         planes_raw = d.get("planes", []) or []
         if not isinstance(planes_raw, list):
             raise ConfigError("planes", f"must be a list of planes, got {type(planes_raw).__name__}")
+        world_objects, world_ground = _world_objects(d, base, objects_raw)
+        # The scene's own ground: section wins over the world's plane (ground: null: no ground).
+        if "ground" in d or world_ground is None:
+            ground = parse_ground(d.get("ground"))
+        else:
+            try:
+                ground = parse_ground(world_ground)
+            except ConfigError as exc:  # only an override's keys can be wrong here
+                raise ConfigError("world.materials", f"{world_sdf(d, base)}: the ground plane: {exc}") from None
         sensor = parse_sensor(d.get("sensor"), base)
         if instruments and sensor is not None:
             # The top-level sensor is the FLS's; another type carries its own (``sensor:`` in its
@@ -668,8 +753,8 @@ def scene_from_dict(d: Any, base_dir: str | os.PathLike | None = None, source: s
             Scene,
             sonar=sonar,
             sonar_pose=sonar_pose,
-            objects=tuple(parse_object(o, i, base) for i, o in enumerate(objects_raw)),
-            ground=parse_ground(d.get("ground")),
+            objects=tuple(parse_object(o, i, base) for i, o in enumerate(objects_raw)) + tuple(world_objects),
+            ground=ground,
             planes=tuple(parse_plane(p, i) for i, p in enumerate(planes_raw)),
             render=parse_render(d.get("render", {}) or {}),
             source=source,
