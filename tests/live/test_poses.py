@@ -92,6 +92,40 @@ def test_frames_take_the_pose_at_their_stamp_through_the_mount_and_skip_stale_on
         assert (got.position.x, got.position.y, got.position.z) == pytest.approx(w.position_m, abs=1e-9)
         q = got.orientation
         assert (q.x, q.y, q.z, q.w) == pytest.approx(w.quat_xyzw, abs=1e-9)
+    # the TF tree: world -> vehicle per frame (the vehicle's pose), vehicle -> sonar (the mount)
+    # and sonar -> sonar_image static: composed, the sonar pose published
+    tfs = [s[2] for s in rec.sent if s[0] == "/tf"]
+    assert len(tfs) == 8
+    for k, m in enumerate(tfs):
+        (tf,) = m.transforms
+        assert (tf.header.frame_id, tf.child_frame_id) == ("world", "vehicle")
+        v = tf.transform.translation
+        assert (v.x, v.y, v.z) == pytest.approx((min(0.1 * k, 0.5), 0.0, 1.0), abs=1e-9)
+    (static,) = [s[2] for s in rec.sent if s[0] == "/tf_static"]
+    by_child = {t.child_frame_id: t for t in static.transforms}
+    assert by_child["sonar"].header.frame_id == "vehicle" and by_child["sonar_image"].header.frame_id == "sonar"
+    m = by_child["sonar"].transform
+    assert (m.translation.x, m.translation.y, m.translation.z) == pytest.approx(mount.position_m, abs=1e-12)
+    assert (m.rotation.x, m.rotation.y, m.rotation.z, m.rotation.w) == pytest.approx(mount.quat_xyzw, abs=1e-12)
+
+
+def test_with_the_vehicle_from_tf_its_frame_carries_the_mount_and_world_to_it_is_left_alone():
+    import sonarsim
+
+    now = [0.0]
+    rec = _Recorder()
+    mount = Pose((0.5, 0.0, -0.2), (0.0, 30.0, 0.0))
+
+    def sleep(s):
+        now[0] += s
+
+    with sonarsim.Simulator(SCENE) as sim:
+        stream(sim, rec, LiveOptions(rate_hz=10.0, n_frames=3), start_ns=START_NS, clock=lambda: now[0], sleep=sleep,
+               poses=_Poses(newest_s=1.0), mount=mount, vehicle_frame="base_link", vehicle_tf=False)
+    assert not [s for s in rec.sent if s[0] == "/tf"]  # the simulator's TF has world -> base_link
+    (static,) = [s[2] for s in rec.sent if s[0] == "/tf_static"]
+    assert {(t.header.frame_id, t.child_frame_id) for t in static.transforms} == {
+        ("base_link", "sonar"), ("sonar", "sonar_image")}
 
 
 POSE_PUBLISHER = textwrap.dedent("""

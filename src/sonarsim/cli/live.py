@@ -208,7 +208,8 @@ def cmd_live(args: Any) -> None:
             _log(f"live: {_pings_summary(stats)}")
             return
         stats = stream(sim, publisher, options, trajectory, say=lambda line: _log(f"live: {line}"), poses=poses,
-                       mount=args.mount, object_poses=object_poses, **timing)
+                       mount=args.mount, object_poses=object_poses, vehicle_frame=args.pose_frame or "vehicle",
+                       vehicle_tf=args.pose_frame is None, **timing)
         _log(f"live: {stats.summary()}")
 
 

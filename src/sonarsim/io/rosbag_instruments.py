@@ -339,7 +339,8 @@ class InstrumentMessages(rb.FrameMessages):
                 translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
                 rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))
 
-    def tf_message(self, transforms: list) -> Any:
+    def transforms_message(self, transforms: list) -> Any:
+        """A ``tf2_msgs/TFMessage`` of ``transforms`` (:meth:`transform`'s)."""
         return self._types["tf2_msgs/msg/TFMessage"](transforms=transforms)
 
     def ping_info(self, frequency_hz: float, sound_speed_m_s: float, tx_bw_rad: Any, rx_bw_rad: Any) -> Any:
@@ -801,13 +802,13 @@ def write_instrument_bag(
             {inst.name: inst.describe() for inst in instruments}, sort_keys=True))
         first = order[0][0] if order else int(start_ns)
         static = [tf for inst in instruments for tf in inst.static_transforms(bag, first, names.vehicle)]
-        bag.write_message("/tf_static", "tf2_msgs/msg/TFMessage", bag.tf_message(static), first, qos=_static_qos())
+        bag.write_message("/tf_static", "tf2_msgs/msg/TFMessage", bag.transforms_message(static), first, qos=_static_qos())
         last_tf = None
         for stamp, i, k in order:
             inst = instruments[i]
             if stamp != last_tf:  # one world -> vehicle per stamp (instruments pinging together share it)
                 v = inst.poses[k]
-                bag.write_message("/tf", "tf2_msgs/msg/TFMessage", bag.tf_message(
+                bag.write_message("/tf", "tf2_msgs/msg/TFMessage", bag.transforms_message(
                     [bag.transform(stamp, names.world, names.vehicle, v.position_m, v.quat_xyzw)]), stamp)
                 last_tf = stamp
             for topic, msgtype, msg in inst.messages(bag, k):

@@ -147,7 +147,7 @@ def stream_instruments(sim: Any, publisher: Any, options: LiveOptions = LiveOpti
         p.unit = inst.unit
     start_ns = int(now_ns()) if start_ns is None else int(start_ns)
     static = [tf for inst in views for tf in inst.static_transforms(builder, start_ns, names.vehicle)]
-    publisher.publish("/tf_static", "tf2_msgs/msg/TFMessage", builder.tf_message(static), "tf_static")
+    publisher.publish("/tf_static", "tf2_msgs/msg/TFMessage", builder.transforms_message(static), "tf_static")
     for inst in views:
         topic, ros_type, msg = inst.unit_message(builder)
         publisher.publish(topic, ros_type, msg, _UNIT_KIND)
@@ -201,7 +201,7 @@ def stream_instruments(sim: Any, publisher: Any, options: LiveOptions = LiveOpti
                     stats.late += 1
             p0 = clock()
             if vehicle_tf and stamp_ns != last_tf_stamp:  # one world -> vehicle per stamp
-                publisher.publish("/tf", "tf2_msgs/msg/TFMessage", builder.tf_message(
+                publisher.publish("/tf", "tf2_msgs/msg/TFMessage", builder.transforms_message(
                     [builder.transform(stamp_ns, names.world, names.vehicle, vehicle.position_m, vehicle.quat_xyzw)]),
                     "tf")
                 last_tf_stamp = stamp_ns

@@ -27,7 +27,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
-from ..io.rosbag import MSGTYPES, BagFrameIds, BagTopics, FrameMessages, frame_from_image
+from ..core.transforms import Pose
+from ..io.rosbag import MSGTYPES, BagFrameIds, BagTopics, frame_from_image
+from ..io.rosbag_instruments import InstrumentMessages
 
 __all__ = ["LiveOptions", "LiveStats", "stream", "MAX_RATE_HZ", "points_ids_topic"]
 
@@ -117,7 +119,8 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
            start_ns: int | None = None, stop: Callable[[], bool] | None = None,
            say: Callable[[str], None] | None = None, clock: Callable[[], float] = time.monotonic,
            sleep: Callable[[float], None] = time.sleep, poses: Any = None, mount: Any = None,
-           now_ns: Callable[[], int] = time.time_ns, object_poses: Mapping[str, Any] | None = None) -> LiveStats:
+           now_ns: Callable[[], int] = time.time_ns, object_poses: Mapping[str, Any] | None = None,
+           vehicle_frame: str = "vehicle", vehicle_tf: bool = True) -> LiveStats:
     """Render ``sim``'s frames and publish them in real time (module notes).
 
     Parameters
@@ -145,7 +148,14 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
         than ``options.max_staleness_s`` (or that has none yet) is skipped and counted stale.
     mount : Pose, optional
         The sonar on the vehicle (with ``poses``): the sonar's pose is the vehicle's composed
-        with it.
+        with it (default: the vehicle's own frame).
+    vehicle_frame : str
+        With ``poses``: the vehicle's frame. The TF tree is then world -> ``vehicle_frame`` on
+        ``/tf`` per frame, and ``vehicle_frame`` -> sonar (the mount) -> sonar_image on
+        ``/tf_static``; without ``poses``, world -> sonar per frame.
+    vehicle_tf : bool
+        Publish world -> ``vehicle_frame`` (``False`` where the vehicle's pose comes from TF,
+        whose tree already holds it).
     object_poses : mapping of str to TopicPoses, optional
         Objects of the scene driven by topics (another vehicle, a diver): each frame moves them
         to their poses at its stamp (:meth:`Simulator.move_objects`). Objects with a ``track``
@@ -165,7 +175,7 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
     n = options.n_frames
     if trajectory is not None:
         n = trajectory.n_frames if n is None else min(n, trajectory.n_frames)
-    messages = FrameMessages(instrument_typestore(), options.frame_ids)  # (cached: built once)
+    messages = InstrumentMessages(instrument_typestore(), options.frame_ids)  # (cached: built once)
     stats = LiveStats()
     # Before the clock starts: the writers (discovery begins, so the first frames reach the
     # subscribers already there) and one render and serialisation (the first call's costs:
@@ -186,7 +196,7 @@ def stream(sim: Any, publisher: Any, options: LiveOptions = LiveOptions(), traje
     state = {"warned": False, "last_unit": "", "stale": False, "objects_said": set()}
     try:
         _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_ns, t_wall0, stop, say, clock,
-              sleep, state, poses, mount, dict(object_poses or {}))
+              sleep, state, poses, mount, dict(object_poses or {}), (vehicle_frame, vehicle_tf))
     except KeyboardInterrupt:  # Ctrl-C, SIGTERM: stop between or inside frames, say so
         stats.interrupted = True
     stats.wall_s = clock() - t_wall0
@@ -243,8 +253,11 @@ def _move_objects(sim, object_poses: dict, stamp_ns: int, t_scene: float, option
 
 
 def _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_ns, t_wall0, stop, say, clock, sleep,
-          state, poses, mount, object_poses) -> None:
+          state, poses, mount, object_poses, vehicle) -> None:
     topics = options.topics
+    vehicle_frame, vehicle_tf = vehicle
+    ids = options.frame_ids
+    mount_pose = mount if mount is not None else Pose()
     t_first = trajectory.time_s(0) if trajectory is not None else 0.0
     k = 0
     while n is None or k < n:
@@ -272,17 +285,26 @@ def _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_n
                 k += 1
                 continue
             state["stale"] = False
-            if mount is not None:
-                pose = pose.compose(mount)
+            vehicle_pose = pose
+            pose = pose.compose(mount_pose)
         r0 = clock()
         moving = _move_objects(sim, object_poses, stamp_ns, t_first + t_k, options, say, state)
         image = sim.render(pose=pose, frame=k, speckle=options.speckle, labels="total" if options.points else False)
         frame = _frame(image, stamp_ns, options)
         batch = messages.frame_messages(frame, state["last_unit"], tf="pose")
+        if poses is not None:  # the tree: world -> vehicle per frame, the mount static below it
+            batch = [(key, msg) for key, msg in batch if key != "tf"]
+            if vehicle_tf:
+                batch.append(("tf", messages.transforms_message([messages.transform(
+                    stamp_ns, ids.world, vehicle_frame, vehicle_pose.position_m, vehicle_pose.quat_xyzw)])))
         r1 = clock()
         stats.render_s.append(r1 - r0)
         if k == 0:
-            publisher.publish("/tf_static", "tf2_msgs/msg/TFMessage", messages.tf_message(frame, "image"), "tf_static")
+            static = messages.tf_message(frame, "image")
+            if poses is not None:
+                static = messages.transforms_message([messages.transform(stamp_ns, vehicle_frame, ids.sonar, mount_pose.position_m,
+                                                                 mount_pose.quat_xyzw), *static.transforms])
+            publisher.publish("/tf_static", "tf2_msgs/msg/TFMessage", static, "tf_static")
             if options.points:  # what the points' ids name, once (latched)
                 publisher.publish(points_ids_topic(topics), MSGTYPES["unit"],
                                   messages._types["std_msgs/msg/String"](data=json.dumps(list(image.labels.ids))),
