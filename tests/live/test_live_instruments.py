@@ -25,6 +25,7 @@ from sonarsim.live.instruments import instrument_periods, stream_instruments  # 
 from sonarsim.live.stream import LiveOptions  # noqa: E402
 
 from .receive import receive  # noqa: E402
+from .test_live import _Recorder  # noqa: E402  (a stand-in publisher: what is published, in order)
 
 START = 1_700_000_000_000_000_000
 SCENE = {
@@ -48,24 +49,6 @@ SCENE = {
          "mount": {"position_m": [0.4, 0.0, 0.0], "rpy_deg": [0, 40, 0]}},
     ],
 }
-
-
-class _Recorder:
-    """A stand-in publisher: what the stream publishes, in order, with each message's QoS kind."""
-
-    domain = 0
-
-    def __init__(self):
-        self.sent = []
-
-    def writer(self, topic, ros_type, kind="sensor"):
-        pass
-
-    def publish(self, topic, ros_type, msg, kind="sensor"):
-        self.sent.append((topic, ros_type, msg, kind))
-
-    def subscribers(self, topic):
-        return 0
 
 
 def _stamp(msg) -> int:

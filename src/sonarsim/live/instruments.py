@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
-from .stream import LiveOptions, LiveStats, _move_objects
+from .stream import LiveOptions, LiveStats, _move_objects, topic_pose
 
 __all__ = ["instrument_periods", "stream_instruments"]
 
@@ -170,21 +170,9 @@ def stream_instruments(sim: Any, publisher: Any, options: LiveOptions = LiveOpti
             stamp_ns = start_ns + rb._seconds_ns(repr(t))  # (decimal-exact, as a bag of the film stamps it)
             t_scene = t_first + t
             if poses is not None:
-                # the pose at the ping's own time is known only once that time has come
-                if not options.fast:
-                    wait = t_wall0 + t - clock()
-                    if wait > 0:
-                        sleep(wait)
-                vehicle, stale_s = poses.pose_at(stamp_ns)
-                if vehicle is None or stale_s > options.max_staleness_s:
-                    stats.stale += 1
-                    if say is not None and not state["stale"]:
-                        say(f"no pose on {poses.topic} yet: pings wait for one" if vehicle is None else
-                            f"the newest pose on {poses.topic} is {stale_s:.2f} s old, more than --max-staleness "
-                            f"{options.max_staleness_s:g} s: pings are skipped until poses come again")
-                    state["stale"] = True
+                vehicle = topic_pose(poses, stamp_ns, t_wall0 + t, options, clock, sleep, stats, say, state, "pings")
+                if vehicle is None:
                     continue
-                state["stale"] = False
             else:
                 vehicle = vehicle_at(p, t_scene)
             r0 = clock()

@@ -227,6 +227,31 @@ def _fan_levels(image: Any) -> np.ndarray:
     return default_levels(image, fan.image, fan.mask)
 
 
+def topic_pose(poses: Any, stamp_ns: int, due_s: float, options: LiveOptions, clock: Callable[[], float],
+               sleep: Callable[[float], None], stats: LiveStats, say: Callable[[str], None] | None, state: dict,
+               what: str) -> Any:
+    """The vehicle's pose at a frame's (or ping's) stamp from its topic, taken once that time
+    has come (``due_s`` on ``clock``; at once with ``fast``): the pose at a moment is known only
+    after it. ``None`` where there is none yet or the newest is staler than
+    ``options.max_staleness_s``: counted in ``stats.stale`` and said once per stale spell
+    (``what``: "frames" or "pings")."""
+    if not options.fast:
+        wait = due_s - clock()
+        if wait > 0:
+            sleep(wait)
+    pose, stale_s = poses.pose_at(stamp_ns)
+    if pose is None or stale_s > options.max_staleness_s:
+        stats.stale += 1
+        if say is not None and not state["stale"]:
+            say(f"no pose on {poses.topic} yet: {what} wait for one" if pose is None else
+                f"the newest pose on {poses.topic} is {stale_s:.2f} s old, more than --max-staleness "
+                f"{options.max_staleness_s:g} s: {what} are skipped until poses come again")
+        state["stale"] = True
+        return None
+    state["stale"] = False
+    return pose
+
+
 def _move_objects(sim, object_poses: dict, stamp_ns: int, t_scene: float, options, say, state) -> dict:
     """The world at a frame's time: objects on tracks at ``t_scene`` (the scene's clock), objects
     on topics at ``stamp_ns`` (interpolated; one that has no pose yet stays where it is, one
@@ -269,22 +294,10 @@ def _loop(sim, publisher, options, trajectory, messages, stats, n, rate, start_n
             t_k, pose = k / rate, None
         stamp_ns = start_ns + round(t_k * 1e9)
         if poses is not None:
-            # the pose at the frame's own time is known only once that time has come
-            if not options.fast:
-                wait = t_wall0 + t_k - clock()
-                if wait > 0:
-                    sleep(wait)
-            pose, stale_s = poses.pose_at(stamp_ns)
-            if pose is None or stale_s > options.max_staleness_s:
-                stats.stale += 1
-                if say is not None and not state["stale"]:
-                    say(f"no pose on {poses.topic} yet: frames wait for one" if pose is None else
-                        f"the newest pose on {poses.topic} is {stale_s:.2f} s old, more than --max-staleness "
-                        f"{options.max_staleness_s:g} s: frames are skipped until poses come again")
-                state["stale"] = True
+            pose = topic_pose(poses, stamp_ns, t_wall0 + t_k, options, clock, sleep, stats, say, state, "frames")
+            if pose is None:
                 k += 1
                 continue
-            state["stale"] = False
             vehicle_pose = pose
             pose = pose.compose(mount_pose)
         r0 = clock()
