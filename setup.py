@@ -9,6 +9,8 @@
   glibc's vectorised ``expf`` (libmvec) in the gamma compression and vectorise the sums;
   ``-mrecip=none`` keeps square roots exact. Elsewhere the loops are built with plain ``-O3``
   (same results, slower).
+* ``sonarsim.image._fan_levels``: the fan's 8-bit levels gathered from the polar grid's (one
+  pass, integer arithmetic; :meth:`~sonarsim.image.fan.FanMapper.levels` has the NumPy twin).
 * ``sonarsim.trace._embree4``: a small binding to the Embree 4 C API bundled with embreex. It
   is not linked against Embree: it opens the library at run time (dlopen), so only ``-ldl``
   (part of libc on recent glibc) is needed. Not built on Windows (no dlopen there).
@@ -42,6 +44,7 @@ setup(
                     extra_link_args=["-lmvec"] if VECTOR_MATH else [])
           for name, simd in [("_stage", [])] + ([("_stage_avx2", ["-mavx2", "-mfma"])] if X86_64 else [])],
         Extension("sonarsim.trace._hits", ["src/sonarsim/trace/_hits.pyx"], extra_compile_args=flags("-O3")),
+        Extension("sonarsim.image._fan_levels", ["src/sonarsim/image/_fan_levels.pyx"], extra_compile_args=flags("-O3")),
         *([] if IS_MSVC else [
             Extension("sonarsim.trace._embree4", ["src/sonarsim/trace/_embree4.pyx"],
                       extra_compile_args=flags("-O3", "-fno-math-errno", "-fno-tree-slp-vectorize"),

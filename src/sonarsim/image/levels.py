@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MAPPINGS", "default_levels", "device_full_scale", "to_uint8"]
+__all__ = ["MAPPINGS", "default_fan_levels", "default_levels", "device_full_scale", "to_uint8"]
 
 #: Intensity mappings accepted by :func:`to_uint8`.
 MAPPINGS = ("db", "linear")
@@ -185,3 +185,17 @@ def default_levels(image: Any, values: np.ndarray, mask: np.ndarray | None = Non
     if full is not None:
         return to_uint8(values, mapping or "linear", gain_db, dynamic_range_db, full, mask)
     return to_uint8(values, mapping or "db", gain_db, dynamic_range_db, None, mask)
+
+
+def default_fan_levels(image: Any, mapping: str | None = None, gain_db: float = 0.0,
+                       dynamic_range_db: float = 40.0) -> np.ndarray:
+    """The fan as sonarsim draws it (``fan.png``, a dataset's fan PNG, a live or bag ``mono8``
+    fan): :func:`default_levels` of the polar image, on the polar grid, resampled to the fan
+    (:meth:`SonarImage.fan_levels <sonarsim.image.result.SonarImage.fan_levels>`).
+
+    Returns
+    -------
+    (height, width) uint8 ndarray
+    """
+    return image.fan_levels(default_levels(image, image.polar, None, mapping, gain_db, dynamic_range_db))
+

@@ -124,6 +124,27 @@ class SonarImage:
         img = self.polar if component is None else self.components[component]
         return _fan_mapper(self.sonar.grid, pixel_size_m, interpolation)(img)
 
+    def fan_levels(self, polar_levels: np.ndarray, pixel_size_m: float | None = None) -> np.ndarray:
+        """8-bit display levels made on the polar grid (``to_uint8`` or
+        :func:`~sonarsim.image.levels.default_levels` of :attr:`polar` or a component),
+        resampled to the fan of :meth:`fan` (:meth:`FanMapper.levels
+        <sonarsim.image.fan.FanMapper.levels>`: the mapping on the grid's cells, not the fan's
+        pixels; one compiled gather).
+
+        Parameters
+        ----------
+        polar_levels : (n_range_bins, n_beams) uint8 array
+            Nearest range first (as :attr:`polar`).
+        pixel_size_m : float, optional
+            As :meth:`fan`.
+
+        Returns
+        -------
+        (height, width) uint8 ndarray
+            The fan, far range at the top, 0 outside it.
+        """
+        return _fan_mapper(self.sonar.grid, pixel_size_m, "linear").levels(polar_levels)
+
     def fan_labels(self, pixel_size_m: float | None = None) -> FanLabels:
         """The labels resampled to the fan image of :meth:`fan` (nearest neighbour).
 
