@@ -105,10 +105,10 @@ def test_stream_paces_frames_stamps_them_and_publishes_what_a_bag_holds():
     assert (q.x, q.y, q.z, q.w) == pytest.approx(rb.SONAR_TO_IMAGE_QUAT_XYZW)
     assert got["/sonar/image/unit"].data == image2.unit.name
     # the fan as fan.png draws it: 8-bit levels, legible as they come
-    from sonarsim.image.levels import default_levels
+    from sonarsim.image.levels import default_fan_levels
 
     fan = [s[2] for s in rec.sent if s[0] == "/sonar/fan"][2]
-    want_fan = default_levels(image2, image2.fan().image, image2.fan().mask)
+    want_fan = default_fan_levels(image2)
     assert fan.encoding == "mono8" and (fan.height, fan.width) == want_fan.shape
     assert bytes(fan.data) == want_fan.tobytes() and want_fan.max() > 100
 

@@ -233,8 +233,9 @@ def render_and_write(scene, out: Path, args, run=None):
 
         # The polar PNG shows far range at the top, like the fan, so both read the same way.
         polar_png = levels(polar[::-1])
-        fan = image.fan(pixel_size_m=args.pixel_size, component=label)
-        fan_png = levels(fan.image, fan.mask)
+        # The fan's levels are made on the polar grid and resampled (image.fan_levels), as every
+        # fan sonarsim draws: a dataset's, a bag's, a live topic's.
+        fan_png = image.fan_levels(levels(polar), pixel_size_m=args.pixel_size)
         # Both images are made before either is written: a failure leaves neither.
         for kind, png in (("polar", polar_png), ("fan", fan_png)):
             path = out / f"{kind}{name}.png"

@@ -138,12 +138,12 @@ def cmd_show(args: argparse.Namespace) -> None:
     scale = default_scale(image, args.mapping, args.gain_db, args.dynamic_range_db)
     # Far range at the top of the polar PNG, like the fan, so both read the same way.
     polar_png = scale.encode(image.polar[::-1])
-    fan = image.fan(pixel_size_m=args.pixel_size)
-    fan_png = scale.encode(fan.image, fan.mask)
+    # The fan's levels made on the polar grid and resampled, as render draws fan.png.
+    fan_png = image.fan_levels(scale.encode(image.polar), pixel_size_m=args.pixel_size)
     with run:
         write_png(out / "polar.png", polar_png)
         write_png(out / "fan.png", fan_png)
-        _log(f"wrote {out / 'polar.png'} and {out / 'fan.png'} ({fan.shape[1]} x {fan.shape[0]} px) "
+        _log(f"wrote {out / 'polar.png'} and {out / 'fan.png'} ({fan_png.shape[1]} x {fan_png.shape[0]} px) "
              f"in {time.perf_counter() - t1:.3f} s")
         title = figure_title(image, source)
         write_figure(args, out / "fan_figure", lambda: fan_figure(image, scale=scale, colormap=args.colormap,

@@ -11,7 +11,6 @@ importable from :mod:`sonarsim.dataset.writer`, where it was defined before.
 from __future__ import annotations
 
 import hashlib
-import io
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -105,9 +104,14 @@ class DatasetOptions:
     def document(self) -> dict[str, Any]:
         """The options as JSON (``dataset.json`` and the fingerprint). ``boxes: direct`` marks
         datasets whose boxes are the direct echoes' (a folder made before, whose boxes spanned
-        the ghosts, is another dataset)."""
+        the ghosts, is another dataset). ``png`` names the PNG encoder (its bytes are the
+        dataset's: a folder written by another encoder is another dataset, not resumed with
+        these)."""
+        from ..io.png import PNG_ENCODER
+
         return {"labels": self.labels, "formats": list(self.formats), "rosbag": self.rosbag,
-                "signatures": self.signatures, "coco": self.coco, "boxes": "direct", "ghosts": self.ghosts}
+                "signatures": self.signatures, "coco": self.coco, "boxes": "direct", "ghosts": self.ghosts,
+                "png": PNG_ENCODER}
 
     @property
     def pngs(self) -> tuple[str, ...]:
@@ -140,24 +144,22 @@ def npz_bytes(arrays: Mapping[str, np.ndarray], config: Mapping[str, Any]) -> by
 
 
 def _png_bytes(image_uint8: np.ndarray) -> bytes:
-    from PIL import Image
+    from ..io.png import gray_png_bytes
 
-    buffer = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(image_uint8)).save(buffer, format="PNG")
-    return buffer.getvalue()
+    return gray_png_bytes(image_uint8)
 
 
 def _image_png(image: Any, kind: str) -> bytes:
     """A frame's polar or fan image as an 8-bit PNG, as ``sonarsim render`` draws them: a sensor
     model's output in the device's counts (an 8-bit device's values as they are, as a real
     recording shows), a render without one in dB (:func:`~sonarsim.image.levels.default_levels`);
-    the far range at the top; the fan of :meth:`SonarImage.fan`, whose pixels the fan boxes are in."""
-    from ..image.levels import default_levels
+    the far range at the top; the fan of :meth:`SonarImage.fan`, whose pixels the fan boxes are in,
+    its levels made on the polar grid and resampled (:func:`~sonarsim.image.levels.default_fan_levels`)."""
+    from ..image.levels import default_fan_levels, default_levels
 
     if kind == "polar":
         return _png_bytes(default_levels(image, image.polar[::-1], dynamic_range_db=_DYNAMIC_RANGE_DB))
-    fan = image.fan()
-    return _png_bytes(default_levels(image, fan.image, fan.mask, dynamic_range_db=_DYNAMIC_RANGE_DB))
+    return _png_bytes(default_fan_levels(image, dynamic_range_db=_DYNAMIC_RANGE_DB))
 
 
 @dataclass(frozen=True)

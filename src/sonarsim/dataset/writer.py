@@ -161,7 +161,7 @@ def _check_identity(info_path: Path, fingerprint: Fingerprint, n: int, out: Path
 def _bag_frame(out: Path, record: Mapping[str, Any], stamp_ns: int) -> Any:
     """The bag frame of a finished frame, from its NPZ, stamped ``stamp_ns``."""
     from ..config.loader import parse_sonar_section
-    from ..image.levels import default_levels
+    from ..image.levels import default_fan_levels
     from ..image.result import SonarImage
     from ..io.output import read_npz
     from ..io.rosbag import frame_from_image
@@ -170,10 +170,9 @@ def _bag_frame(out: Path, record: Mapping[str, Any], stamp_ns: int) -> Any:
     sonar, pose = parse_sonar_section(config["sonar"], None)
     image = SonarImage(polar=arrays["polar"], range_m=arrays["range_m"], azimuth_deg=arrays["azimuth_deg"],
                        components={}, sonar=sonar, pose=pose, config=config)
-    fan = image.fan()
     # 8-bit fan: what image viewers (rqt, Foxglove) show without a colour map; drawn as the
     # PNGs are (a device's counts, a render's dB).
-    fan_u8 = default_levels(image, fan.image, fan.mask, dynamic_range_db=_DYNAMIC_RANGE_DB)
+    fan_u8 = default_fan_levels(image, dynamic_range_db=_DYNAMIC_RANGE_DB)
     points = {}
     if "points_world" in arrays and "points_object" in arrays:
         points = {"points_world": arrays["points_world"], "points_object": arrays["points_object"]}

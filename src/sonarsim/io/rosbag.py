@@ -711,9 +711,9 @@ def frame_from_image(
         default = image.fan()
         fan_image = default.image
         if polar.dtype == np.uint8:  # an 8-bit device's fan in its counts (mono8), as its PNG
-            from ..image.levels import default_levels
+            from ..image.levels import default_fan_levels
 
-            fan_image = default_levels(image, default.image, default.mask)
+            fan_image = default_fan_levels(image)
     return BagFrame(
         stamp_ns=stamp_ns,
         pose=image.pose,

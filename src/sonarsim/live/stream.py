@@ -221,10 +221,9 @@ def _fan_levels(image: Any) -> np.ndarray:
     """The fan as ``sonarsim render`` draws ``fan.png``: 8-bit levels (``mono8``), a device's
     counts where a sensor model makes them, a render's 40 dB below its maximum otherwise: an
     image a viewer shows as it is, where a float fan (``32FC1``) needs a range set by hand."""
-    from ..image.levels import default_levels
+    from ..image.levels import default_fan_levels
 
-    fan = image.fan()
-    return default_levels(image, fan.image, fan.mask)
+    return default_fan_levels(image)
 
 
 def topic_pose(poses: Any, stamp_ns: int, due_s: float, options: LiveOptions, clock: Callable[[], float],
