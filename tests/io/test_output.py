@@ -144,7 +144,21 @@ def test_png_failure_leaves_old_file_and_no_temp(tmp_path: Path, monkeypatch) ->
 
     monkeypatch.setattr(Image.Image, "save", broken_save)
     with pytest.raises(OSError, match="disk full"):
-        write_png(target, np.zeros((2, 2), np.uint8))
+        write_png(target, np.zeros((2, 2, 3), np.uint8))  # RGB: Pillow's encoder
+    assert os.listdir(tmp_path) == ["frame.png"]
+    assert target.read_bytes() == b"old contents"
+
+
+def test_a_grey_png_that_cannot_be_put_in_place_leaves_the_old_file_and_no_temp(tmp_path: Path, monkeypatch) -> None:
+    target = tmp_path / "frame.png"
+    target.write_bytes(b"old contents")
+
+    def broken_replace(src, dst):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "replace", broken_replace)
+    with pytest.raises(OSError, match="disk full"):
+        write_png(target, np.zeros((2, 2), np.uint8))  # grey: sonarsim.io.png
     assert os.listdir(tmp_path) == ["frame.png"]
     assert target.read_bytes() == b"old contents"
 
