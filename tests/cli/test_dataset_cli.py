@@ -205,7 +205,7 @@ def test_cap_workers_by_hand():
     from sonarsim.dataset.workers import WORKER_BASE_BYTES, cap_workers, worker_bytes
 
     frame = 10 * 2**20
-    each = WORKER_BASE_BYTES + 4 * frame
+    each = WORKER_BASE_BYTES + 5 * frame  # a frame rendering, its copies, and one at the writer thread
     assert worker_bytes(frame) == each
     assert cap_workers(3, frame, cores=4, budget=10 * each) == (3, None)
     n, note = cap_workers(1000, frame, cores=16, budget=int(5.5 * each))

@@ -104,14 +104,14 @@ class DatasetOptions:
     def document(self) -> dict[str, Any]:
         """The options as JSON (``dataset.json`` and the fingerprint). ``boxes: direct`` marks
         datasets whose boxes are the direct echoes' (a folder made before, whose boxes spanned
-        the ghosts, is another dataset). ``png`` names the PNG encoder (its bytes are the
+        the ghosts, is another dataset). ``deflate`` names the compressor of the NPZs and PNGs (its bytes are the
         dataset's: a folder written by another encoder is another dataset, not resumed with
         these)."""
         from ..io.png import PNG_ENCODER
 
         return {"labels": self.labels, "formats": list(self.formats), "rosbag": self.rosbag,
                 "signatures": self.signatures, "coco": self.coco, "boxes": "direct", "ghosts": self.ghosts,
-                "png": PNG_ENCODER}
+                "deflate": PNG_ENCODER}
 
     @property
     def pngs(self) -> tuple[str, ...]:

@@ -31,7 +31,8 @@ from .encoding import _write_files, encode_frame
 from .frames import SimulatorCache, render_frame, rendered_labels
 from .scenario import Scenario
 
-__all__ = ["RAY_HINT", "WORKER_BASE_BYTES", "available_cores", "batches", "cap_workers", "worker_bytes", "encoded_frames", "encoded_frames_ray", "render_batch"]
+__all__ = ["RAY_HINT", "WORKER_BASE_BYTES", "available_cores", "batches", "cap_workers", "worker_bytes", "encoded_frames", "encoded_frames_ray", "render_batch",
+           "rendered_frames"]
 
 #: What to install for ``--ray`` (:mod:`sonarsim.core.extras`: right for a clone and for an installed package).
 RAY_HINT = install_hint("ray")
@@ -53,8 +54,9 @@ def available_cores() -> int:
 WORKER_BASE_BYTES = 160 * 2**20
 #: A worker holds about this many frames' worth of a frame's render memory at its peak: the
 #: render's buffers, the image and its labels, and their copies while they are encoded
-#: (measured: 270 and 430 MiB resident for frames estimated at 46 and 86 MiB, with the base).
-FRAME_COPIES = 4
+#: (measured: 270 and 430 MiB resident for frames estimated at 46 and 86 MiB, with the base),
+#: and one more: the frame the writer thread encodes while the next renders.
+FRAME_COPIES = 5
 
 
 def worker_bytes(frame_bytes: float) -> float:
@@ -173,22 +175,45 @@ def render_batch(indices: Sequence[int], scenario: Scenario | None = None, optio
     workers, then only appends manifest lines instead of receiving and writing a megabyte a
     frame (which held two workers to 1.3-1.7x one once frames took 3 ms).
     """
-    from dataclasses import replace
-
     scenario = scenario if scenario is not None else _STATE["scenario"]
     options = options if options is not None else _STATE["options"]
     width = width if width is not None else _STATE["width"]
     cache = cache if cache is not None else _STATE["cache"]
     folder = _STATE.get("out") if cache is _STATE.get("cache") else None
-    out = []
-    for k in indices:
-        spec = scenario.frame(k)
-        encoded = encode_frame(spec, render_frame(spec, cache, rendered_labels(options.labels)), options, width)
+    return list(rendered_frames(indices, scenario, options, width, cache, folder))
+
+
+def rendered_frames(indices: Sequence[int], scenario: Scenario, options: Any, width: int, cache: SimulatorCache,
+                    folder: Any = None) -> Iterator[Any]:
+    """Render frames ``indices`` in order and encode each (and write its files into ``folder``,
+    sending back ``files == ()``) on a writer thread, while the next frame renders.
+
+    Encoding is deflate (NPZ entries, PNGs), digests and file writes, which release the GIL: a
+    frame's encoding overlaps the next one's render. One frame waits for the writer at most
+    (:data:`FRAME_COPIES` counts it), and the frames come out in order, their bytes what one
+    thread would make (each is encoded from its own render alone).
+    """
+    from dataclasses import replace
+
+    labels = rendered_labels(options.labels)
+
+    def finish(spec: Any, image: Any) -> Any:
+        encoded = encode_frame(spec, image, options, width)
         if folder is not None:
             _write_files(folder, encoded)
             encoded = replace(encoded, files=())
-        out.append(encoded)
-    return out
+        return encoded
+
+    with cf.ThreadPoolExecutor(1, thread_name_prefix="sonarsim-encode") as writer:
+        pending = None
+        for k in indices:
+            spec = scenario.frame(k)
+            image = render_frame(spec, cache, labels)
+            if pending is not None:
+                yield pending.result()
+            pending = writer.submit(finish, spec, image)
+        if pending is not None:
+            yield pending.result()
 
 
 def encoded_frames(scenario: Scenario, indices: Sequence[int], options: Any, width: int, workers: int = 1,
@@ -223,8 +248,7 @@ def encoded_frames(scenario: Scenario, indices: Sequence[int], options: Any, wid
         threads = max(1, available_cores() // workers)
     if workers <= 1:
         with SimulatorCache(threads=threads) as cache:
-            for k in indices:
-                yield from render_batch([k], scenario, options, width, cache)
+            yield from rendered_frames(indices, scenario, options, width, cache, out)
         return
     if batch_size is None:
         batch_size = max(1, min(8, len(indices) // (4 * workers)))
