@@ -129,3 +129,28 @@ def test_without_the_option_no_ghost_is_annotated(tmp_path):
         h, w = a["segmentation"]["size"]
         mask = mask_utils.decode(mask_utils.frPyObjects(a["segmentation"], h, w))
         assert mask.sum() == a["area"] and (h, w) == (750, 256)
+
+
+def test_masks_from_each_objects_box_alone_are_the_whole_fans():
+    """rle_window over FanMapper.window_ids of an object's box gives the counts rle gives over
+    the whole fan's nearest-neighbour instance map (what encoding did before), for every id."""
+    import sonarsim
+    from sonarsim.config.examples import demo_scene_dict
+    from sonarsim.dataset.coco import fan_boxes, rle, rle_window
+    from sonarsim.image.result import _fan_mapper
+
+    with sonarsim.Simulator(demo_scene_dict()) as sim:
+        image = sim.render(frame=0, labels="total")
+    ids = image.labels.instance["total"]
+    mapper = _fan_mapper(image.sonar.grid, None, "nearest")
+    whole = mapper.ids(ids)
+    boxes = fan_boxes(ids, image.sonar.grid, len(image.labels.ids))
+    seen = 0
+    for k, box in enumerate(boxes):
+        if box[0] < 0:
+            continue
+        window = mapper.window_ids(ids, box)
+        assert np.array_equal(window, whole[box[0]:box[2] + 1, box[1]:box[3] + 1])
+        assert rle_window(window, k, box, mapper.shape) == rle(whole, k, box)
+        seen += 1
+    assert seen >= 4  # the demo's objects and the floor

@@ -74,7 +74,33 @@ def rle(ids: np.ndarray, k: int, box: Any = None) -> tuple[dict[str, Any], int]:
     h, w = ids.shape
     c0, c1 = (0, w - 1) if box is None else (int(box[1]), int(box[3]))
     # Column-major over the columns of the box; the columns before and after it are background.
-    inside = (ids[:, c0:c1 + 1] == k).T.reshape(-1)
+    return _counts((ids[:, c0:c1 + 1] == k).T.reshape(-1), h, w, c0, c1)
+
+
+def rle_window(window: np.ndarray, k: int, box: Any, shape: tuple[int, int]) -> tuple[dict[str, Any], int]:
+    """:func:`rle` of an image of ``shape`` known only inside ``box``, which holds every pixel
+    of id ``k``: ``window`` is the box's part of the instance map, everything outside it
+    background. The counts :func:`rle` gives for the whole map, from the box's pixels alone
+    (an instance map resampled for one object's box, not for the whole fan).
+
+    Parameters
+    ----------
+    window : (row_max - row_min + 1, col_max - col_min + 1) int array
+    k : int
+    box : [row_min, col_min, row_max, col_max]
+        Inclusive, within ``shape``.
+    shape : (height, width)
+    """
+    h, w = int(shape[0]), int(shape[1])
+    r0, c0, r1, c1 = (int(v) for v in box)
+    columns = np.zeros((c1 - c0 + 1, h), bool)  # the box's columns, whole, column-major
+    columns[:, r0:r1 + 1] = (np.asarray(window) == k).T
+    return _counts(columns.reshape(-1), h, w, c0, c1)
+
+
+def _counts(inside: np.ndarray, h: int, w: int, c0: int, c1: int) -> tuple[dict[str, Any], int]:
+    """COCO's counts of an object's pixels: ``inside``, columns ``c0 .. c1`` of an ``h x w``
+    image flattened column-major; the other columns background."""
     edges = np.flatnonzero(inside[1:] != inside[:-1]) + 1
     bounds = np.concatenate([[0], edges, [inside.size]])
     runs = np.diff(bounds).tolist()

@@ -194,7 +194,7 @@ def _annotated(id_map: np.ndarray, image: Any, n_objects: int, names: tuple[str,
     pixels in the image ``coco.json`` names (RLE) with their count."""
     from ..image.labels import boxes_of
     from ..image.result import _fan_mapper
-    from .coco import fan_boxes, rle
+    from .coco import fan_boxes, rle, rle_window
 
     n_ids = len(names)
     grid = image.sonar.grid
@@ -205,8 +205,10 @@ def _annotated(id_map: np.ndarray, image: Any, n_objects: int, names: tuple[str,
     if not present:
         return []
     if coco == "fan":
-        # Resampled by nearest neighbour, as the boxes are.
-        pixels = _fan_mapper(grid, None, "nearest").ids(id_map)
+        # Resampled by nearest neighbour, as the boxes are: each object's box alone
+        # (FanMapper.window_ids), not the whole fan.
+        mapper = _fan_mapper(grid, None, "nearest")
+        pixels = None
     else:
         pixels = id_map[::-1]  # the polar PNG: far range at the top
     out = []
@@ -220,7 +222,9 @@ def _annotated(id_map: np.ndarray, image: Any, n_objects: int, names: tuple[str,
         else:
             h = id_map.shape[0]
             box = [h - 1 - polar[k][2], polar[k][1], h - 1 - polar[k][0], polar[k][3]]
-        if box[0] >= 0:
+        if box[0] >= 0 and coco == "fan":
+            entry["segmentation"], entry["area"] = rle_window(mapper.window_ids(id_map, box), k, box, mapper.shape)
+        elif box[0] >= 0:
             entry["segmentation"], entry["area"] = rle(pixels, k, box)
         out.append(entry)
     return out

@@ -29,6 +29,7 @@ and call it on every frame; :func:`polar_to_fan` is the one-off convenience wrap
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -633,6 +634,25 @@ class FanMapper:
         out = np.full(self.shape[0] * self.shape[1], fill, dtype=np.int32)
         out[self._dest] = arr.reshape(-1)[self._src]
         return out.reshape(self.shape)
+
+    def window_ids(self, polar_ids: np.ndarray, box: Sequence[int], fill: int = -1) -> np.ndarray:
+        """:meth:`ids` inside ``box`` alone (``[row_min, col_min, row_max, col_max]``,
+        inclusive fan pixels): the same values as ``ids(polar_ids)[row_min:row_max + 1,
+        col_min:col_max + 1]``, for the box's pixels only."""
+        if self.interpolation != "nearest":
+            raise ValueError("window_ids() resamples by nearest neighbour: build the mapper with interpolation='nearest'")
+        arr = np.asarray(polar_ids)
+        if arr.dtype.kind not in "iu" or arr.shape != self.polar_shape:
+            raise ValueError(f"polar_ids must be integers of shape {self.polar_shape}, got {arr.dtype} {arr.shape}")
+        source = getattr(self, "_source_map", None)
+        if source is None:  # each fan pixel's polar cell, -1 outside the fan (made once)
+            source = np.full(self.shape[0] * self.shape[1], -1, np.int32)
+            source[self._dest] = self._src
+            source = self._source_map = _readonly(source.reshape(self.shape))
+        r0, c0, r1, c1 = (int(v) for v in box)
+        cells = source[r0:r1 + 1, c0:c1 + 1]
+        values = arr.reshape(-1)[np.maximum(cells, 0)].astype(np.int32)
+        return np.where(cells >= 0, values, np.int32(fill))
 
     def __repr__(self) -> str:
         return (
