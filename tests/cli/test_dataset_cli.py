@@ -276,3 +276,14 @@ def test_the_missing_rosbags_hint_names_this_checkout(tmp_path, scenario_file, c
     err = capsys.readouterr().err.strip()
     assert err.endswith(f"install the ROS extra: {install_command('ros')}") and "\n" not in err, err
     assert "pip install -e" in err
+
+
+def test_a_lone_worker_gets_a_second_writer_only_where_a_core_and_the_budget_allow():
+    from sonarsim.dataset.workers import lone_writers, worker_bytes
+
+    frame = 10 * 2**20
+    room = int(worker_bytes(frame) + frame)
+    assert lone_writers(1, frame, cores=2, budget=room) == 2
+    assert lone_writers(1, frame, cores=2, budget=room - 1) == 1  # the second frame would not fit
+    assert lone_writers(1, frame, cores=1, budget=10 * room) == 1  # no idle core
+    assert lone_writers(2, frame, cores=2, budget=10 * room) == 1  # the render takes both cores

@@ -163,6 +163,19 @@ def test_two_workers_give_the_same_files_as_one(tmp_path, reference):
     assert folder_bytes(tmp_path / "ds") == reference
 
 
+def test_a_single_threaded_lone_worker_with_two_writers_gives_the_same_files(tmp_path, reference, monkeypatch):
+    """One worker rendering on one thread gets two writer threads (frames encoded out of
+    order, yielded in order): the same files as the reference."""
+    from sonarsim.dataset import workers
+
+    calls = []
+    real = workers.lone_writers
+    monkeypatch.setattr(workers, "lone_writers", lambda *a, **k: calls.append(real(*a, cores=2, **k)) or calls[-1])
+    summary = generate(VARIED, tmp_path / "ds", formats=("npz", "png"), workers=1, threads=1, progress=False)
+    assert summary.rendered == 12 and calls == [2]
+    assert folder_bytes(tmp_path / "ds") == reference
+
+
 # Full-size frames (an ARIS 3000's 128 x 1288): where the encoder's streams once varied with the
 # process's history (issue 37: 1-2 frames in 10 of a resumed or two-worker run).
 FULL_SIZE = {

@@ -28,10 +28,10 @@ from typing import Any
 from ..core.console import install_warning_format, show_warning
 from ..core.extras import install_hint
 from .encoding import _write_files, encode_frame
-from .frames import SimulatorCache, render_frame, rendered_labels
+from .frames import SimulatorCache, frame_memory_bytes, render_frame, rendered_labels
 from .scenario import Scenario
 
-__all__ = ["RAY_HINT", "WORKER_BASE_BYTES", "available_cores", "batches", "cap_workers", "worker_bytes", "encoded_frames", "encoded_frames_ray", "render_batch",
+__all__ = ["RAY_HINT", "WORKER_BASE_BYTES", "available_cores", "batches", "cap_workers", "lone_writers", "worker_bytes", "encoded_frames", "encoded_frames_ray", "render_batch",
            "rendered_frames"]
 
 #: What to install for ``--ray`` (:mod:`sonarsim.core.extras`: right for a clone and for an installed package).
@@ -63,6 +63,18 @@ def worker_bytes(frame_bytes: float) -> float:
     """A worker process's memory at its peak, for frames that hold ``frame_bytes`` while they
     render (:func:`~sonarsim.dataset.frames.frame_memory_bytes`)."""
     return WORKER_BASE_BYTES + FRAME_COPIES * float(frame_bytes)
+
+
+def lone_writers(threads: int, frame_bytes: float, cores: int | None = None, budget: int | None = None) -> int:
+    """Writer threads of a lone worker (:func:`rendered_frames`): two where it renders on one
+    thread and a core would idle otherwise (a frame's encoding costs several renders' time),
+    and where the budget holds the second frame waiting; one otherwise."""
+    from ..core.memory import memory_budget
+
+    cores = available_cores() if cores is None else cores
+    budget = memory_budget() if budget is None else budget
+    fits = worker_bytes(frame_bytes) + float(frame_bytes) <= budget
+    return 2 if threads == 1 and cores >= 2 and fits else 1
 
 
 def cap_workers(requested: int, frame_bytes: float, cores: int | None = None,
@@ -184,14 +196,15 @@ def render_batch(indices: Sequence[int], scenario: Scenario | None = None, optio
 
 
 def rendered_frames(indices: Sequence[int], scenario: Scenario, options: Any, width: int, cache: SimulatorCache,
-                    folder: Any = None) -> Iterator[Any]:
+                    folder: Any = None, writers: int = 1) -> Iterator[Any]:
     """Render frames ``indices`` in order and encode each (and write its files into ``folder``,
-    sending back ``files == ()``) on a writer thread, while the next frame renders.
+    sending back ``files == ()``) on writer threads, while the next frames render.
 
     Encoding is deflate (NPZ entries, PNGs), digests and file writes, which release the GIL: a
-    frame's encoding overlaps the next one's render. One frame waits for the writer at most
-    (:data:`FRAME_COPIES` counts it), and the frames come out in order, their bytes what one
-    thread would make (each is encoded from its own render alone).
+    frame's encoding overlaps the next one's render. ``writers`` frames wait for the writers
+    at most (:data:`FRAME_COPIES` counts one; :func:`encoded_frames` gives a lone worker two
+    writers only where a core would idle otherwise), and the frames come out in order, their
+    bytes what one thread would make (each is encoded from its own render alone).
     """
     from dataclasses import replace
 
@@ -204,16 +217,19 @@ def rendered_frames(indices: Sequence[int], scenario: Scenario, options: Any, wi
             encoded = replace(encoded, files=())
         return encoded
 
-    with cf.ThreadPoolExecutor(1, thread_name_prefix="sonarsim-encode") as writer:
-        pending = None
+    from collections import deque
+
+    writers = max(1, int(writers))
+    with cf.ThreadPoolExecutor(writers, thread_name_prefix="sonarsim-encode") as pool:
+        pending: deque = deque()
         for k in indices:
             spec = scenario.frame(k)
             image = render_frame(spec, cache, labels)
-            if pending is not None:
-                yield pending.result()
-            pending = writer.submit(finish, spec, image)
-        if pending is not None:
-            yield pending.result()
+            if len(pending) >= writers:
+                yield pending.popleft().result()
+            pending.append(pool.submit(finish, spec, image))
+        while pending:
+            yield pending.popleft().result()
 
 
 def encoded_frames(scenario: Scenario, indices: Sequence[int], options: Any, width: int, workers: int = 1,
@@ -247,8 +263,9 @@ def encoded_frames(scenario: Scenario, indices: Sequence[int], options: Any, wid
     if threads is None:
         threads = max(1, available_cores() // workers)
     if workers <= 1:
+        writers = lone_writers(threads, frame_memory_bytes(scenario, options.labels))
         with SimulatorCache(threads=threads) as cache:
-            yield from rendered_frames(indices, scenario, options, width, cache, out)
+            yield from rendered_frames(indices, scenario, options, width, cache, out, writers)
         return
     if batch_size is None:
         batch_size = max(1, min(8, len(indices) // (4 * workers)))
