@@ -121,22 +121,21 @@ def _streams(data: bytes) -> dict[str, tuple[bytes, bytes]]:
     return out
 
 
-def test_entries_are_level_1_streams_that_no_memory_state_can_change():
+def test_entries_are_the_codecs_streams_that_no_memory_state_can_change():
     # Regression (issue 37): ISA-L's streams for the same content changed in a few bytes with
     # what the process had done before (its compressor state comes from malloc uncleared), so
     # 1-2 frames in 10 of a resumed or multi-worker dataset failed the manifest's SHA-256.
-    # libdeflate (zlib without it) reads nothing it has not written: the stream is a function
-    # of the content alone, here the one a fresh call gives.
-    try:
-        from deflate import deflate_compress
-    except ImportError:  # (zlib's, where the deflate package is missing)
-        def deflate_compress(content, level):
-            squeeze = zlib.compressobj(level, zlib.DEFLATED, -15)
-            return squeeze.compress(content) + squeeze.flush()
+    # Each entry is one fresh zlib-ng compression of its content at the codec's level: the
+    # stream a call of zlib-ng's own gives here, after other compressions.
+    from zlib_ng import zlib_ng
+
+    from sonarsim.io.codec import DEFLATE_LEVEL
+
+    zlib_ng.compress(np.random.default_rng(3).bytes(200_000), 1, wbits=-15)  # (other work first)
     streams = _streams(encode_npz(sample()))
     assert len(streams) == len(sample())
     for name, (stream, content) in streams.items():
-        assert stream == deflate_compress(content, 1), name
+        assert stream == zlib_ng.compress(content, DEFLATE_LEVEL, wbits=-15), name
         assert zlib.decompress(stream, -15) == content, name
 
 

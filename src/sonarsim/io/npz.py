@@ -2,25 +2,11 @@
 
 An NPZ is a zip archive of ``.npy`` files. ``numpy.savez_compressed`` deflates with zlib at
 level 6 and stamps each entry with the current time, so two runs never write the same bytes.
-Here each entry is deflated at level 1 by libdeflate (a raw deflate stream; zlib where the
-``deflate`` package is missing) and the zip container is
-laid out directly, with a fixed date, so the bytes depend on the arrays alone. :mod:`zipfile`
-has no way to take an entry already deflated, hence the few lines of container below; the
-tests read every file back with :mod:`zipfile` (CRC checked) and :func:`numpy.load`.
-
-Why zlib and not ISA-L (the ``isal`` package, about six times faster at the same ratio, used
-here before): ISA-L's stream for the same input was not always the same. Python-isal hands
-ISA-L a compressor state and level buffer from ``malloc`` without clearing them, and 1-2
-frames in 10 of a dataset came out with a few bytes of one entry's stream changed (the
-content and size the same) depending on what the process had done before -- a resumed or
-concurrent-worker run then failed its manifest's SHA-256 (issue 37). zlib's deflate reads no
-memory it has not written, so its output is a function of the input, the level and the zlib
-build. libdeflate (now the compressor: a third faster than zlib's level 1 on a labelled
-frame's arrays, 11 ms instead of 15 on a loaded 2-core machine, and a few per cent smaller)
-is the same kind: portable C whose SIMD is in the checksums only, its match finder cleared
-at every call, so its stream depends on the input and the level alone, on any processor (a
-test compresses frames in processes whose memory has been churned, and compares). ISA-L
-still computes the CRC-32 (a checksum has one answer).
+Here each entry is deflated by :mod:`sonarsim.io.codec` (zlib-ng; why, and what "the same
+bytes" rests on, is said there) and the zip container is laid out directly, with a fixed date,
+so the bytes depend on the arrays alone. :mod:`zipfile` has no way to take an entry already
+deflated, hence the few lines of container below; the tests read every file back with
+:mod:`zipfile` (CRC checked) and :func:`numpy.load`.
 
 Archives beyond the plain zip format's limits (4 GiB entries, 65,535 entries) are written by
 :mod:`zipfile` (zip64) instead: slower, equally valid.
@@ -31,26 +17,14 @@ from __future__ import annotations
 import io
 import struct
 import zipfile
-import zlib
 from collections.abc import Mapping
 
 import numpy as np
 
-try:  # ISA-L's CRC-32: the same checksum as zlib's, several times faster
-    from isal.isal_zlib import crc32 as _crc32
-except ImportError:  # pragma: no cover - isal is a dependency
-    from zlib import crc32 as _crc32
-
-try:  # libdeflate: portable C, whose stream is a function of the input and the level alone
-    from deflate import deflate_compress as _libdeflate
-except ImportError:  # pragma: no cover - deflate is a dependency
-    _libdeflate = None
+from .codec import DEFLATE_LEVEL, crc32 as _crc32, raw_deflate
 
 __all__ = ["DEFLATE_LEVEL", "encode_npz"]
 
-#: The deflate level (1-9). Level 1: a 128 x 1288 float32 sonar image in about 2 ms at ratio
-#: 5-7; level 6 (numpy's) takes twice as long for a few per cent less.
-DEFLATE_LEVEL = 1
 _STORED, _DEFLATED = 0, 8
 _VERSION = 20  # "2.0": deflate, no zip64
 _MADE_BY = (3 << 8) | _VERSION  # Unix, so that the external attributes are file modes
@@ -102,7 +76,7 @@ def encode_npz(arrays: Mapping[str, np.ndarray], stored: frozenset[str] | set[st
         Names stored without compression (data that deflate cannot shrink, such as float
         coordinates: they would cost time for nothing).
     level : int
-        zlib's deflate level (1-9) of the other entries.
+        The deflate level (1-9) of the other entries (:data:`sonarsim.io.codec.DEFLATE_LEVEL`).
 
     Returns
     -------
@@ -143,12 +117,8 @@ def encode_npz(arrays: Mapping[str, np.ndarray], stored: frozenset[str] | set[st
 
 
 def _deflate(header: bytes, data: memoryview, level: int) -> bytes:
-    """A raw deflate stream of ``header`` then ``data``: libdeflate's (the ``deflate``
-    package), else zlib's."""
-    if _libdeflate is not None:
-        return _libdeflate(header + data, level)
-    squeeze = zlib.compressobj(level, zlib.DEFLATED, -15)
-    return squeeze.compress(header) + squeeze.compress(data) + squeeze.flush()
+    """A raw deflate stream of ``header`` then ``data`` (one call: one fresh compressor)."""
+    return raw_deflate(header + data, level)
 
 
 def _encode_zip64(entries: list[tuple[bytes, bytes, np.ndarray]], stored: frozenset[str] | set[str],
