@@ -84,6 +84,10 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "points; default /sonar/image, /sonar/fan, /sonar/pose, /tf, /sonar/points, or the scenario's "
                    "rosbag.topics)")
     p.add_argument("--png", action="store_true", help="also write each frame's polar and fan images as PNG")
+    p.add_argument("--yolo", action="store_true",
+                   help="also write YOLO labels: frames/NNNNNN_fan.txt beside the image coco.json names (each "
+                   "object's outline as a polygon, class = COCO category id - 1), and data.yaml with "
+                   "yolo-train.txt and yolo-val.txt (the last tenth of the frames) for Ultralytics")
     p.add_argument("--seed", type=_seed, default=None, metavar="S",
                    help="replace the scenario's seed (every frame's draws come from it and the frame index)")
     p.add_argument("--labels", choices=("total", "all", "none"), default="total",
@@ -151,7 +155,7 @@ def cmd_dataset(args: argparse.Namespace) -> None:
         _instrument_dataset(scenario, args, start_ns)
         return
     summary = generate(
-        scenario, args.out, workers=args.workers, formats=("npz", "png") if args.png else ("npz",),
+        scenario, args.out, workers=args.workers, formats=("npz",) + (("png",) if args.png else ()) + (("yolo",) if args.yolo else ()),
         rosbag=args.rosbag, ray=args.ray, labels=args.labels, signatures=args.signatures, coco=args.coco,
         ghosts=args.coco_ghosts,
         progress=not args.no_progress,

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..errors import SonarsimError
 
-__all__ = ["DIRECT_PATH", "category_of", "coco_from_records", "fan_boxes", "rle"]
+__all__ = ["DIRECT_PATH", "category_of", "coco_from_records", "fan_boxes", "rle", "scenario_categories"]
 
 _NUMBERED = re.compile(r"^(?P<base>.+)_[0-9]+$")
 #: The path signature of an object's direct echo (:mod:`sonarsim.renderer.components`).
@@ -120,7 +120,21 @@ def category_of(name: str) -> str:
     return match["base"] if match else name
 
 
-def coco_from_records(records: Iterable[Mapping[str, Any]], image: str = "fan") -> dict[str, Any]:
+def scenario_categories(specs: Iterable[Any]) -> tuple[str, ...]:
+    """The object categories of a scenario's frames, in order of first appearance: each frame's
+    scene objects (:attr:`FrameSpec.scene`, ``objects[i].name``, ``object<i>`` unnamed, as the
+    scene loader names them) in frame order, by :func:`category_of`. The one class table of a
+    dataset: ``coco.json``'s category ids (from 1) and YOLO's class numbers (from 0) index it."""
+    seen: dict[str, None] = {}
+    for spec in specs:
+        for i, obj in enumerate(spec.scene.get("objects") or []):
+            name = obj.get("name", f"object{i}") if isinstance(obj, Mapping) else f"object{i}"
+            seen.setdefault(category_of(str(name)), None)
+    return tuple(seen)
+
+
+def coco_from_records(records: Iterable[Mapping[str, Any]], image: str = "fan",
+                      categories: Iterable[str] = ()) -> dict[str, Any]:
     """The COCO document of a dataset's manifest records (each with ``boxes``, see manifest).
 
     Parameters
@@ -132,12 +146,16 @@ def coco_from_records(records: Iterable[Mapping[str, Any]], image: str = "fan") 
         The image ``file_name`` names and the boxes are in: the frame's ``*_fan.png`` (boxes
         from each box's ``fan`` pixels) or its ``*_polar.png`` (boxes from its ``polar`` cells,
         rows counted from the far range, as the PNG is drawn).
+    categories : iterable of str
+        The objects' categories to number first, in this order (:func:`scenario_categories`:
+        the class table YOLO's labels share), whether or not any is annotated.
 
     Returns
     -------
     dict
-        ``{"info", "images", "annotations", "categories"}``; category ids start at 1 in order of
-        first appearance, annotation ids at 1 in frame order (a frame's direct echoes, then its
+        ``{"info", "images", "annotations", "categories"}``; category ids start at 1, those of
+        ``categories`` first, then any other in order of first appearance (ghosts' categories
+        among them); annotation ids at 1 in frame order (a frame's direct echoes, then its
         ghosts: a record's ``ghosts``).
 
     Raises
@@ -150,7 +168,10 @@ def coco_from_records(records: Iterable[Mapping[str, Any]], image: str = "fan") 
     """
     if image not in ("fan", "polar"):
         raise ValueError(f"image must be 'fan' or 'polar', got {image!r}")
-    images, annotations, categories = [], [], {}
+    images, annotations = [], []
+    table: dict[str, tuple[int, str]] = {}
+    for name in categories:
+        table.setdefault(str(name), (len(table) + 1, "object"))
     for record in records:
         k = int(record["frame"])
         name = next((f for f in record["files"] if f.endswith(f"_{image}.png")), None)
@@ -175,7 +196,7 @@ def coco_from_records(records: Iterable[Mapping[str, Any]], image: str = "fan") 
             category = category_of(str(box["name"]))
             path = str(box.get("path", DIRECT_PATH))
             name = f"{category}/{path}" if ghost else category
-            cid = categories.setdefault(name, (len(categories) + 1, category if ghost else "object"))[0]
+            cid = table.setdefault(name, (len(table) + 1, category if ghost else "object"))[0]
             w, h = col1 - col0 + 1, row1 - row0 + 1
             annotation = {"id": len(annotations) + 1, "image_id": k, "category_id": cid,
                           "bbox": [col0, row0, w, h], "area": w * h, "iscrowd": 0,
@@ -188,7 +209,7 @@ def coco_from_records(records: Iterable[Mapping[str, Any]], image: str = "fan") 
                  "images", "version": "2"},
         "images": images,
         "annotations": annotations,
-        "categories": [{"id": cid, "name": name, "supercategory": sup} for name, (cid, sup) in categories.items()],
+        "categories": [{"id": cid, "name": name, "supercategory": sup} for name, (cid, sup) in table.items()],
     }
 
 

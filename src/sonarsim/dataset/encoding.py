@@ -27,9 +27,11 @@ from .scenario import FrameSpec
 __all__ = ["COCO_IMAGES", "FORMATS", "FRAMES_DIR", "DatasetOptions", "EncodedFrame", "encode_frame", "frame_files",
            "npz_bytes"]
 
-#: File formats per frame: ``npz`` (always) and ``png`` (polar and fan images, 8-bit: a sensor
-#: model's output in the device's counts, a render without one in dB).
-FORMATS = ("npz", "png")
+#: File formats per frame: ``npz`` (always), ``png`` (polar and fan images, 8-bit: a sensor
+#: model's output in the device's counts, a render without one in dB) and ``yolo`` (a label
+#: file beside the PNG that ``coco.json`` names, and ``data.yaml``: :mod:`sonarsim.dataset.yolo`;
+#: with ground truth only).
+FORMATS = ("npz", "png", "yolo")
 #: The images ``coco.json`` names and boxes: each frame's fan PNG (boxes in fan pixels, the
 #: default) or its polar PNG (boxes in polar pixels). A dataset with ground truth always
 #: writes that PNG, so that every ``file_name`` in ``coco.json`` is a file of the dataset.
@@ -58,7 +60,7 @@ class DatasetOptions:
         (:func:`~sonarsim.dataset.frames.label_mode`; ``True``/``False`` are taken for
         ``"all"``/``"none"``). A renderer without labels: ``"none"``.
     formats : tuple of str
-        Subset of :data:`FORMATS`; ``npz`` is always written.
+        Subset of :data:`FORMATS`; ``npz`` is always written; ``yolo`` needs ground truth.
     rosbag : {None, "mcap", "sqlite3"}
         Write ``DIR/rosbag`` with this storage.
     signatures : bool
@@ -71,6 +73,10 @@ class DatasetOptions:
     ghosts : bool
         Also annotate each object's multipath ghosts in ``coco.json``, one annotation per path
         signature (:mod:`sonarsim.dataset.coco`); the boxes are the direct echoes' either way.
+    classes : tuple of str
+        The object categories in id order (:func:`~sonarsim.dataset.coco.scenario_categories`),
+        which YOLO's class numbers index; set by :func:`~sonarsim.dataset.generate` from the
+        scenario (not an option of the user's: the scenario, in the fingerprint, fixes it).
     """
 
     labels: bool | str = "total"
@@ -79,6 +85,7 @@ class DatasetOptions:
     signatures: bool = False
     coco: str = "fan"
     ghosts: bool = False
+    classes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         from ..io.rosbag import BAG_STORAGES
@@ -100,6 +107,9 @@ class DatasetOptions:
             raise ConfigError("coco", f"allowed: {', '.join(COCO_IMAGES)}; got {shown(self.coco)}")
         if not isinstance(self.ghosts, bool):
             raise ConfigError("ghosts", f"must be true or false, got {shown(self.ghosts)}")
+        if "yolo" in self.formats and self.labels == "none":
+            raise ConfigError("formats", "yolo labels need ground truth: labels 'total' or 'all', not 'none'")
+        object.__setattr__(self, "classes", tuple(str(c) for c in self.classes))
 
     def document(self) -> dict[str, Any]:
         """The options as JSON (``dataset.json`` and the fingerprint). ``boxes: direct`` marks
@@ -125,7 +135,8 @@ class DatasetOptions:
 def frame_files(k: int, width: int, options: DatasetOptions) -> list[str]:
     """Files of frame ``k``, relative to the dataset folder, in manifest order."""
     stem = f"{FRAMES_DIR}/{k:0{width}d}"
-    return [f"{stem}.npz"] + [f"{stem}_{kind}.png" for kind in options.pngs]
+    yolo = [f"{stem}_{options.coco}.txt"] if "yolo" in options.formats else []
+    return [f"{stem}.npz"] + [f"{stem}_{kind}.png" for kind in options.pngs] + yolo
 
 
 def npz_bytes(arrays: Mapping[str, np.ndarray], config: Mapping[str, Any]) -> bytes:
@@ -189,12 +200,14 @@ def _signature_order(signature: str) -> int:
 
 
 def _annotated(id_map: np.ndarray, image: Any, n_objects: int, names: tuple[str, ...], coco: str,
-               path: str | None = None) -> list[dict]:
+               path: str | None = None, outlines: bool = False) -> list[dict]:
     """Per object of ``id_map`` (polar cells: ids, -1 none): its polar and fan boxes, and its
-    pixels in the image ``coco.json`` names (RLE) with their count."""
+    pixels in the image ``coco.json`` names (RLE) with their count; with ``outlines``, their
+    outline in that image's pixels too (``outline``: :func:`sonarsim.dataset.yolo.outline`, for
+    the YOLO labels; not part of the manifest record)."""
     from ..image.labels import boxes_of
     from ..image.result import _fan_mapper
-    from .coco import fan_boxes, rle, rle_window
+    from .coco import fan_boxes, rle_window
 
     n_ids = len(names)
     grid = image.sonar.grid
@@ -222,10 +235,15 @@ def _annotated(id_map: np.ndarray, image: Any, n_objects: int, names: tuple[str,
         else:
             h = id_map.shape[0]
             box = [h - 1 - polar[k][2], polar[k][1], h - 1 - polar[k][0], polar[k][3]]
-        if box[0] >= 0 and coco == "fan":
-            entry["segmentation"], entry["area"] = rle_window(mapper.window_ids(id_map, box), k, box, mapper.shape)
-        elif box[0] >= 0:
-            entry["segmentation"], entry["area"] = rle(pixels, k, box)
+        if box[0] >= 0:
+            r0, c0, r1, c1 = (int(v) for v in box)
+            window = mapper.window_ids(id_map, box) if coco == "fan" else pixels[r0:r1 + 1, c0:c1 + 1]
+            shape = mapper.shape if coco == "fan" else pixels.shape
+            entry["segmentation"], entry["area"] = rle_window(window, k, box, shape)
+            if outlines:
+                from .yolo import outline
+
+                entry["outline"] = outline(np.asarray(window) == k, (r0, c0))
         out.append(entry)
     return out
 
@@ -243,7 +261,8 @@ def _annotations(spec: FrameSpec, image: Any, options: DatasetOptions) -> tuple[
     # The objects' single-bounce paths (the renderer's ``object`` map); the total's map would
     # give each object the cells of its ghosts too. A renderer without it: the total's.
     direct = labels.instance.get("object", labels.instance["total"])
-    boxes = _annotated(np.asarray(direct), image, n_objects, labels.ids, options.coco)
+    boxes = _annotated(np.asarray(direct), image, n_objects, labels.ids, options.coco,
+                       outlines="yolo" in options.formats)
     ghosts: list[dict] = []
     if options.ghosts:
         components = image.components
@@ -283,18 +302,45 @@ def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: in
     config["dataset"] = {"frame": spec.index, "seed": spec.seed, "time_s": spec.time_s}
     names = frame_files(spec.index, width, options)
     contents = [npz_bytes(arrays, config)] + [_image_png(image, kind) for kind in options.pngs]
+    labelled = options.labels != "none"
+    if labelled:
+        boxes, ghosts, fan_shape = _annotations(spec, image, options)
+        polar_shape = [int(v) for v in np.shape(image.polar)]
+        if "yolo" in options.formats:
+            contents.append(_yolo_labels(boxes, options, fan_shape if options.coco == "fan" else polar_shape))
     record: dict[str, Any] = {
         **frame_header(spec, names),
         "bytes": {n: len(c) for n, c in zip(names, contents)},
         "sha256": {n: hashlib.sha256(c).hexdigest() for n, c in zip(names, contents)},
     }
-    if options.labels != "none":
-        record["boxes"], ghosts, record["fan_shape"] = _annotations(spec, image, options)
+    if labelled:
+        record["boxes"], record["fan_shape"] = boxes, fan_shape
         if options.ghosts:
             record["ghosts"] = ghosts
-        record["polar_shape"] = [int(v) for v in np.shape(image.polar)]
+        record["polar_shape"] = polar_shape
     return EncodedFrame(spec.index, tuple(zip(names, contents)), record,
                         {"encode": time.perf_counter() - t0, **getattr(image, "timing", {})})
+
+
+def _yolo_labels(boxes: list[dict], options: DatasetOptions, shape: list[int] | None) -> bytes:
+    """The frame's YOLO label file from its direct echoes' outlines (taken out of the entries:
+    the manifest record keeps boxes and masks, not polygons)."""
+    from .coco import category_of
+    from .yolo import label_text
+
+    classes = {name: i for i, name in enumerate(options.classes)}
+    objects = []
+    for entry in boxes:
+        ring = entry.pop("outline", None)
+        if ring is None:
+            continue
+        category = category_of(entry["name"])
+        if category not in classes:
+            raise SonarsimError(f"object {entry['name']!r}: its category {category!r} is not in the dataset's class "
+                                f"table ({', '.join(options.classes) or 'empty'}): the scene's objects must be listed "
+                                "in its scene document for YOLO labels")
+        objects.append((classes[category], ring))
+    return label_text(objects, shape or (1, 1))
 
 
 def _write_files(out: Path, encoded: EncodedFrame) -> None:

@@ -12,6 +12,8 @@ A dataset folder ``DIR`` holds::
                               with ground truth and without "png", the one coco.json names
     DIR/coco.json             with ground truth: the objects' boxes in the frames' fan PNGs (or,
                               with coco="polar", polar PNGs; coco module)
+    DIR/frames/000000_fan.txt, DIR/data.yaml, yolo-train.txt, yolo-val.txt   with "yolo" in
+                              formats: YOLO labels beside the PNG coco.json names (yolo module)
     DIR/rosbag/               with rosbag="mcap" or "sqlite3": the ROS 2 bag (sonarsim.io.rosbag)
     DIR/sonarsim-run.json     the run's record (sonarsim.io.run_record)
 
@@ -40,7 +42,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -84,6 +86,8 @@ __all__ = ["FORMATS", "DatasetOptions", "DatasetSummary", "EncodedFrame", "encod
 
 #: Name of the COCO file and of the bag folder inside a dataset folder.
 COCO_NAME = "coco.json"
+#: The YOLO files of a dataset folder with ``yolo`` in its formats (:mod:`sonarsim.dataset.yolo`).
+YOLO_NAMES = ("data.yaml", "yolo-train.txt", "yolo-val.txt")
 BAG_NAME = "rosbag"
 
 
@@ -242,7 +246,8 @@ def generate(
         budget holds (:func:`~sonarsim.dataset.workers.cap_workers`; a cap is said in one line
         to ``log``); with ``ray``, Ray actors (default: the cluster's CPUs).
     formats : iterable of str
-        :data:`FORMATS`: ``"npz"`` (always), ``"png"`` (polar and fan PNGs).
+        :data:`FORMATS`: ``"npz"`` (always), ``"png"`` (polar and fan PNGs), ``"yolo"`` (YOLO
+        labels and ``data.yaml``, :mod:`sonarsim.dataset.yolo`; needs ground truth).
     rosbag : {None, "mcap", "sqlite3"}
         Also write ``out/rosbag`` (needs the ``ros`` extra, :mod:`sonarsim.core.extras`): every frame's
         messages stamped ``start_time`` plus the frame's time after frame 0's.
@@ -308,7 +313,7 @@ def generate(
     """
     from ..io.output import atomic_write, remove_abandoned_temp_files
     from ..io.run_record import OutputRun
-    from .coco import coco_from_records
+    from .coco import coco_from_records, scenario_categories
     from .workers import encoded_frames, encoded_frames_ray
 
     t_start = time.perf_counter()
@@ -371,11 +376,15 @@ def generate(
     fingerprint = Fingerprint(options.document())
     # (and the header of its manifest line: what each line must match to be kept).
     expected = []
+    classes: dict[str, None] = {}  # the class table of coco.json and the YOLO labels
     for spec in scenario.frame_specs():
         expected.append(frame_header(spec, frame_files(spec.index, width, options)))
         fingerprint.add(expected[-1]["spec_sha256"])
+        classes.update(dict.fromkeys(scenario_categories([spec])))
+    options = replace(options, classes=tuple(classes))
 
     names = [INFO_NAME, MANIFEST_NAME] + ([COCO_NAME] if options.labels != "none" else [])
+    names += list(YOLO_NAMES) if "yolo" in options.formats else []
     run = OutputRun.for_folder(out, names, command=command, log=say)
     _check_identity(out / INFO_NAME, fingerprint, n, out)
     with run:
@@ -432,9 +441,11 @@ def generate(
         coco_path = None
         if options.labels != "none":
             coco_path = out / COCO_NAME
-            doc = coco_from_records(ordered, image=options.coco)
+            doc = coco_from_records(ordered, image=options.coco, categories=options.classes)
             with atomic_write(coco_path, "w") as handle:
                 handle.write(canonical_json(doc) + "\n")
+        if "yolo" in options.formats:
+            _write_yolo(out, ordered, options)
         bag_path = _write_bag(out, ordered, options.rosbag, stamps, naming) if options.rosbag else None
     return DatasetSummary(out, n, len(todo), len(kept), time.perf_counter() - t_start, manifest_path,
                           coco_path, bag_path, fingerprint.value, stamps[0] if stamps else None)
@@ -446,6 +457,17 @@ class _NoBar:
 
     def close(self) -> None:
         pass
+
+
+def _write_yolo(out: Path, records: Sequence[Mapping[str, Any]], options: DatasetOptions) -> None:
+    """``data.yaml`` and its image lists (the label files are the frames')."""
+    from ..io.output import atomic_write
+    from .yolo import data_yaml, image_lists
+
+    train, val = image_lists(records, options.coco)
+    for name, text in zip(YOLO_NAMES, (data_yaml(str(out.resolve()), options.classes), train, val)):
+        with atomic_write(out / name, "w") as handle:
+            handle.write(text)
 
 
 def _progress_bar(total: int, done: int, enabled: bool) -> Any:
