@@ -84,6 +84,10 @@ def add_dataset_parser(subparsers: Any) -> argparse.ArgumentParser:
                    "points; default /sonar/image, /sonar/fan, /sonar/pose, /tf, /sonar/points, or the scenario's "
                    "rosbag.topics)")
     p.add_argument("--png", action="store_true", help="also write each frame's polar and fan images as PNG")
+    p.add_argument("--shards", type=int, default=None, metavar="N",
+                   help="also pack the frames into WebDataset tar shards of N frames (shards/000000.tar, ...; "
+                   "listed in shards.jsonl), each written when its last frame is done: what the webdataset "
+                   "library and Hugging Face datasets stream")
     p.add_argument("--yolo", action="store_true",
                    help="also write YOLO labels: frames/NNNNNN_fan.txt beside the image coco.json names (each "
                    "object's outline as a polygon, class = COCO category id - 1), and data.yaml with "
@@ -157,7 +161,7 @@ def cmd_dataset(args: argparse.Namespace) -> None:
     summary = generate(
         scenario, args.out, workers=args.workers, formats=("npz",) + (("png",) if args.png else ()) + (("yolo",) if args.yolo else ()),
         rosbag=args.rosbag, ray=args.ray, labels=args.labels, signatures=args.signatures, coco=args.coco,
-        ghosts=args.coco_ghosts,
+        ghosts=args.coco_ghosts, shards=args.shards,
         progress=not args.no_progress,
         command=getattr(args, "command_line", None), start_time=args.start_time, frame_ids=args.frame_ids,
         topics=args.topics,

@@ -116,6 +116,8 @@ class DatasetSummary:
         The dataset's fingerprint (``dataset.json``).
     rosbag_start_ns : int or None
         The bag's first stamp, nanoseconds since 1970 (with a bag).
+    shards : tuple of str
+        The WebDataset shards' paths relative to ``out``, in order (with ``shards``).
     """
 
     out: Path
@@ -128,6 +130,7 @@ class DatasetSummary:
     rosbag: Path | None
     fingerprint: str
     rosbag_start_ns: int | None = None
+    shards: tuple[str, ...] = ()
 
     @property
     def frames_per_s(self) -> float:
@@ -230,6 +233,7 @@ def generate(
     start_time: Any = None,
     frame_ids: Mapping[str, str] | None = None,
     topics: Mapping[str, str] | None = None,
+    shards: int | None = None,
 ) -> DatasetSummary:
     """Render a scenario's frames into the dataset folder ``out`` (resumable; see the module docs).
 
@@ -292,6 +296,10 @@ def generate(
         :data:`~sonarsim.io.rosbag.DEFAULT_START_TIME` (2000-01-01T00:00:00Z). It shapes the
         bag alone, not the frames or the fingerprint: the bag is written anew at the end of
         every run, so a run with another start time re-stamps it.
+    shards : int, optional
+        Also pack the frames into WebDataset tar shards of this many frames (``shards/``,
+        ``shards.jsonl``; :mod:`sonarsim.dataset.shards`), each written when its last frame
+        is done; not part of the fingerprint (another size rewrites the shards, not the frames).
     frame_ids, topics : mapping of str to str, optional
         The bag's frame names (``world``, ``sonar``, ``image``) and topics (``image``, ``fan``,
         ``pose``, ``tf``, ``points``), replacing the scenario's ``rosbag`` section name by name
@@ -314,6 +322,7 @@ def generate(
     from ..io.output import atomic_write, remove_abandoned_temp_files
     from ..io.run_record import OutputRun
     from .coco import coco_from_records, scenario_categories
+    from .shards import SHARD_INDEX, ShardWriter
     from .workers import encoded_frames, encoded_frames_ray
 
     t_start = time.perf_counter()
@@ -329,6 +338,10 @@ def generate(
         threads = _positive_int(threads, "threads")
     if batch_size is not None:
         batch_size = _positive_int(batch_size, "batch_size")
+    if shards is not None:
+        from .shards import check_shard_frames
+
+        shards = check_shard_frames(shards)
     options = DatasetOptions(labels=labels, formats=tuple(formats), rosbag=rosbag, signatures=signatures,
                              coco=coco, ghosts=ghosts)
     if options.rosbag is not None:
@@ -385,6 +398,7 @@ def generate(
 
     names = [INFO_NAME, MANIFEST_NAME] + ([COCO_NAME] if options.labels != "none" else [])
     names += list(YOLO_NAMES) if "yolo" in options.formats else []
+    names += [SHARD_INDEX] if shards else []
     run = OutputRun.for_folder(out, names, command=command, log=say)
     _check_identity(out / INFO_NAME, fingerprint, n, out)
     with run:
@@ -416,6 +430,7 @@ def generate(
 
         bar = _progress_bar(n, len(kept), progress)
         records = dict(kept)
+        packer = ShardWriter(out, n, shards, kept) if shards else None
         try:
             with ManifestAppender(manifest_path) as manifest:
                 if not todo:
@@ -431,6 +446,8 @@ def generate(
                     _write_files(out, encoded)
                     manifest.append(encoded.record)
                     records[encoded.index] = encoded.record
+                    if packer is not None:
+                        packer.add(encoded.index, encoded.record)
                     bar.update(1)
                     if on_frame is not None:
                         on_frame(encoded.index)
@@ -438,6 +455,7 @@ def generate(
             bar.close()
         ordered = [records[k] for k in range(n)]
         write_manifest(manifest_path, ordered)
+        shard_names = tuple(packer.finish()) if packer is not None else ()
         coco_path = None
         if options.labels != "none":
             coco_path = out / COCO_NAME
@@ -448,7 +466,7 @@ def generate(
             _write_yolo(out, ordered, options)
         bag_path = _write_bag(out, ordered, options.rosbag, stamps, naming) if options.rosbag else None
     return DatasetSummary(out, n, len(todo), len(kept), time.perf_counter() - t_start, manifest_path,
-                          coco_path, bag_path, fingerprint.value, stamps[0] if stamps else None)
+                          coco_path, bag_path, fingerprint.value, stamps[0] if stamps else None, shard_names)
 
 
 class _NoBar:
