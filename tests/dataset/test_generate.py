@@ -59,11 +59,15 @@ def folder_bytes(folder: Path, skip=("sonarsim-run.json",)) -> dict[str, bytes]:
     return out
 
 
+# Every per-frame format and WebDataset shards: what the runs below must reproduce bit for bit.
+FULL = {"formats": ("npz", "png", "yolo"), "shards": 5}
+
+
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory) -> dict[str, bytes]:
-    """An uninterrupted single-process run of VARIED with PNGs."""
+    """An uninterrupted single-process run of VARIED with PNGs, YOLO labels and shards."""
     out = tmp_path_factory.mktemp("ref") / "ds"
-    summary = generate(VARIED, out, formats=("npz", "png"), progress=False)
+    summary = generate(VARIED, out, **FULL, progress=False)
     assert summary.rendered == summary.n_frames == 12 and summary.reused == 0
     return folder_bytes(out)
 
@@ -127,15 +131,17 @@ def test_dataset_layout_and_manifest(tmp_path, reference):
         assert record["pose"] == {"position_m": list(spec.pose.position_m), "rpy_deg": list(spec.pose.rpy_deg)}
         assert record["spec_sha256"] == spec_digest(spec)
         k = record["frame"]
-        assert record["files"] == [f"frames/{k:06d}.npz", f"frames/{k:06d}_polar.png", f"frames/{k:06d}_fan.png"]
+        assert record["files"] == [f"frames/{k:06d}.npz", f"frames/{k:06d}_polar.png", f"frames/{k:06d}_fan.png",
+                                   f"frames/{k:06d}_fan.txt"]
         for name in record["files"]:
             assert record["bytes"][name] == len(reference[name])
             assert record["sha256"][name] == hashlib.sha256(reference[name]).hexdigest()
         assert seal_record(record)["check"] == record["check"]
     info = json.loads(reference["dataset.json"])
-    assert info["n_frames"] == 12 and info["options"]["formats"] == ["npz", "png"]
+    assert info["n_frames"] == 12 and info["options"]["formats"] == ["npz", "png", "yolo"]
     assert set(reference) == {"dataset.json", "manifest.jsonl", *(f for r in lines for f in r["files"])} | (
-        {"coco.json"} if labels_supported() else set())
+        {"coco.json"} if labels_supported() else set()) | {"data.yaml", "yolo-train.txt", "yolo-val.txt"} | {
+        "shards.jsonl", "shards/000000.tar", "shards/000001.tar", "shards/000002.tar"}
 
 
 def test_npz_bytes_depend_on_the_content_alone(tmp_path):
@@ -153,12 +159,12 @@ def test_npz_bytes_depend_on_the_content_alone(tmp_path):
 
 
 def test_a_second_run_equals_the_first_bit_for_bit(tmp_path, reference):
-    generate(VARIED, tmp_path / "ds", formats=("npz", "png"), progress=False)
+    generate(VARIED, tmp_path / "ds", **FULL, progress=False)
     assert folder_bytes(tmp_path / "ds") == reference
 
 
 def test_two_workers_give_the_same_files_as_one(tmp_path, reference):
-    summary = generate(VARIED, tmp_path / "ds", formats=("npz", "png"), workers=2, batch_size=2, progress=False)
+    summary = generate(VARIED, tmp_path / "ds", **FULL, workers=2, batch_size=2, progress=False)
     assert summary.rendered == 12
     assert folder_bytes(tmp_path / "ds") == reference
 
@@ -171,7 +177,7 @@ def test_a_single_threaded_lone_worker_with_two_writers_gives_the_same_files(tmp
     calls = []
     real = workers.lone_writers
     monkeypatch.setattr(workers, "lone_writers", lambda *a, **k: calls.append(real(*a, cores=2, **k)) or calls[-1])
-    summary = generate(VARIED, tmp_path / "ds", formats=("npz", "png"), workers=1, threads=1, progress=False)
+    summary = generate(VARIED, tmp_path / "ds", **FULL, workers=1, threads=1, progress=False)
     assert summary.rendered == 12 and calls == [2]
     assert folder_bytes(tmp_path / "ds") == reference
 
@@ -239,7 +245,7 @@ def test_rerun_keeps_verified_frames_and_redoes_damaged_ones(tmp_path, reference
     lines[9] = json.dumps(seal_record(r9))  # sealed, but not this scenario's frame 9
     lines[11] = lines[11][: len(lines[11]) // 2]
     (out / "manifest.jsonl").write_text("\n".join(lines))
-    summary = generate(VARIED, out, formats=("npz", "png"), progress=False)
+    summary = generate(VARIED, out, **FULL, progress=False)
     assert (summary.rendered, summary.reused) == (5, 7)
     assert folder_bytes(out) == reference
 
@@ -252,7 +258,7 @@ def test_killed_at_random_moments_and_resumed_equals_an_uninterrupted_run(tmp_pa
         from tests.dataset.test_scenario import VARIED
         from sonarsim.dataset import generate
         print("ready", flush=True)
-        generate(VARIED, {str(out)!r}, formats=("npz", "png"), progress=False, log=lambda m: None)
+        generate(VARIED, {str(out)!r}, formats=("npz", "png", "yolo"), shards=5, progress=False, log=lambda m: None)
     """)
     rng = np.random.default_rng(2026)
     partial = 0
@@ -272,7 +278,7 @@ def test_killed_at_random_moments_and_resumed_equals_an_uninterrupted_run(tmp_pa
         n_lines = len(read_manifest(out / "manifest.jsonl"))
         partial += 0 < n_lines < 12
     assert partial >= 3, "the kills did not land while frames were being made; the test proves nothing"
-    summary = generate(VARIED, out, formats=("npz", "png"), progress=False)
+    summary = generate(VARIED, out, **FULL, progress=False)
     assert summary.rendered + summary.reused == 12
     assert folder_bytes(out) == reference
     assert not [p for p in out.rglob("*.tmp")]  # no temporary file left behind
@@ -643,7 +649,7 @@ def test_torch_example_imports_without_torch_and_makes_samples():
 def test_ray_gives_the_same_files_as_local_processes(tmp_path, reference):
     ray = pytest.importorskip("ray")
     try:
-        summary = generate(VARIED, tmp_path / "ds", formats=("npz", "png"), ray="local", workers=2, batch_size=2,
+        summary = generate(VARIED, tmp_path / "ds", **FULL, ray="local", workers=2, batch_size=2,
                            progress=False)
     finally:
         ray.shutdown()
@@ -698,7 +704,7 @@ def test_killing_a_run_with_workers_leaves_no_process_and_resumes(tmp_path, refe
         sys.path.insert(0, {str(REPO)!r})
         from tests.dataset.test_scenario import VARIED
         from sonarsim.dataset import generate
-        generate(VARIED, {str(out)!r}, formats=("npz", "png"), workers=2, batch_size=1, progress=False,
+        generate(VARIED, {str(out)!r}, formats=("npz", "png", "yolo"), shards=5, workers=2, batch_size=1, progress=False,
                  log=lambda m: None)
     """)
     proc = subprocess.Popen([sys.executable, "-c", code], cwd=REPO)
@@ -715,7 +721,7 @@ def test_killing_a_run_with_workers_leaves_no_process_and_resumes(tmp_path, refe
     while any(Path(f"/proc/{pid}").exists() for pid in children):
         assert time.monotonic() < deadline, "worker processes outlived their killed parent"
         time.sleep(0.1)
-    summary = generate(VARIED, out, formats=("npz", "png"), workers=2, progress=False)
+    summary = generate(VARIED, out, **FULL, workers=2, progress=False)
     assert summary.reused >= 2
     assert folder_bytes(out) == reference
 

@@ -483,7 +483,7 @@ def _write_yolo(out: Path, records: Sequence[Mapping[str, Any]], options: Datase
     from .yolo import data_yaml, image_lists
 
     train, val = image_lists(records, options.coco)
-    for name, text in zip(YOLO_NAMES, (data_yaml(str(out.resolve()), options.classes), train, val)):
+    for name, text in zip(YOLO_NAMES, (data_yaml(options.classes), train, val)):
         with atomic_write(out / name, "w") as handle:
             handle.write(text)
 

@@ -22,9 +22,11 @@ object's pixels and the others, so its extent is the pixel box, ``bbox`` of ``co
 polygon, the pieces joined by zero-width cuts from each piece to the nearest point of those
 before it (what Ultralytics' COCO converter does), so that its box spans them all.
 
-``data.yaml`` (what Ultralytics' ``YOLO(...).train(data=...)`` reads): ``path`` the dataset
-folder, ``train`` and ``val`` the image lists (relative paths, ``./frames/...``), ``names`` the
-class table, ``nc`` its length. Ultralytics looks for an image's labels by replacing the last
+``data.yaml`` (what Ultralytics' ``YOLO(...).train(data=...)`` reads): ``train`` and ``val``
+the image lists (relative paths, ``./frames/...``), ``names`` the class table, ``nc`` its
+length; no ``path``, so that readers take the folder of ``data.yaml`` (Ultralytics does; a
+relative ``path`` it would resolve against its own datasets folder) and the folder can move,
+its bytes the same wherever it was made. Ultralytics looks for an image's labels by replacing the last
 ``/images/`` of its path by ``/labels/``; these paths have none, so it reads the ``.txt`` beside
 each PNG: keep the dataset out of folders named ``images``. The validation frames are the last
 tenth of the frames (at least one frame when there are two or more), a block rather than every
@@ -137,11 +139,11 @@ def val_frames(n: int) -> int:
     return 0 if n < 2 else max(1, int(round(VAL_FRACTION * n)))
 
 
-def data_yaml(root: str, classes: Sequence[str]) -> str:
+def data_yaml(classes: Sequence[str]) -> str:
     """``data.yaml`` of a dataset folder whose lists are ``yolo-train.txt`` and ``yolo-val.txt``."""
     import yaml
 
-    doc: dict[str, Any] = {"path": root, "train": "yolo-train.txt", "val": "yolo-val.txt",
+    doc: dict[str, Any] = {"train": "yolo-train.txt", "val": "yolo-val.txt",
                            "nc": len(classes), "names": {i: str(name) for i, name in enumerate(classes)}}
     return yaml.safe_dump(doc, sort_keys=False)
 
