@@ -54,7 +54,7 @@ if TYPE_CHECKING:
     from .encoding import DatasetOptions
     from .scenario import Scenario
 
-__all__ = ["RenderedFrames", "SonarDatasetFolder", "collate", "frame_sample"]
+__all__ = ["RenderedFrames", "SonarDatasetFolder", "collate", "frame_sample", "rle_mask"]
 
 #: What to install for this module (the ``torch`` extra of pyproject.toml).
 TORCH_HINT = "pip install 'sonarsim[torch]'"
@@ -285,11 +285,14 @@ class _FolderBody:
 
     Examples
     --------
-    >>> from torch.utils.data import DataLoader
-    >>> from sonarsim.dataset.torch_data import SonarDatasetFolder, collate
-    >>> data = SonarDatasetFolder("orbit", masks=True)
-    >>> for batch in DataLoader(data, batch_size=8, num_workers=2, collate_fn=collate):
-    ...     images, targets = batch["image"], batch["target"]   # (8, H, W) uint8, 8 dicts
+    ::
+
+        from torch.utils.data import DataLoader
+        from sonarsim.dataset.torch_data import SonarDatasetFolder, collate
+
+        data = SonarDatasetFolder("orbit", masks=True)   # a folder made by `sonarsim dataset`
+        for batch in DataLoader(data, batch_size=8, shuffle=True, num_workers=2, collate_fn=collate):
+            images, targets = batch["image"], batch["target"]   # (8, H, W) uint8; 8 dicts
     """
 
     def __init__(self, root: str | os.PathLike, masks: bool = False,
@@ -441,11 +444,14 @@ class _RenderedBody:
 
     Examples
     --------
-    >>> from torch.utils.data import DataLoader
-    >>> from sonarsim.dataset.torch_data import RenderedFrames, collate
-    >>> data = RenderedFrames("examples/scenarios/orbit_tank.yaml", stop=64)
-    >>> for batch in DataLoader(data, batch_size=8, num_workers=4, collate_fn=collate):
-    ...     batch["polar"].shape, batch["frame"]   # (8, n_range_bins, n_beams); which frames
+    ::
+
+        from torch.utils.data import DataLoader
+        from sonarsim.dataset.torch_data import RenderedFrames, collate
+
+        data = RenderedFrames("examples/scenarios/orbit_tank.yaml", stop=64)
+        for batch in DataLoader(data, batch_size=8, num_workers=4, collate_fn=collate):
+            batch["polar"].shape, batch["frame"]   # (8, n_range_bins, n_beams); which frames
     """
 
     def __init__(self, scenario: Scenario | str | os.PathLike | Mapping, start: int = 0, stop: int | None = None,
@@ -526,8 +532,8 @@ class _RenderedBody:
         return {**self.__dict__, "_cache": None, "_cache_pid": None}
 
     def __repr__(self) -> str:
-        return (f"RenderedFrames({self.scenario.source or 'scenario'!r}, frames {self.indices.start}.."
-                f"{self.indices.stop - 1}, image={self.options.coco!r})")
+        return (f"RenderedFrames({self.scenario.source or 'scenario'!r}, frames [{self.indices.start}, "
+                f"{self.indices.stop}), image={self.options.coco!r})")
 
 
 # The classes, built on first access ------------------------------------------------------------
