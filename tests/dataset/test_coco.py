@@ -10,7 +10,7 @@ import pytest
 
 from sonarsim.config.examples import tank_scene_dict
 from sonarsim.dataset import frames, generate
-from sonarsim.dataset.coco import DIRECT_PATH, rle
+from sonarsim.dataset.coco import DIRECT_PATH, coco_from_records, rle
 from sonarsim.io.output import read_npz
 
 mask_utils = pytest.importorskip("pycocotools.mask")
@@ -154,3 +154,25 @@ def test_masks_from_each_objects_box_alone_are_the_whole_fans():
         assert rle_window(window, k, box, mapper.shape) == rle(whole, k, box)
         seen += 1
     assert seen >= 4  # the demo's objects and the floor
+
+
+def test_written_a_frame_at_a_time_equals_the_documents_canonical_json(tank):
+    import io
+
+    from sonarsim.dataset.coco import write_coco
+    from sonarsim.dataset.manifest import canonical_json
+
+    _, out = tank
+    records = [json.loads(line) for line in (out / "manifest.jsonl").read_text().splitlines()] * 3
+    records = [{**r, "frame": k} for k, r in enumerate(records)]  # (three frames' worth)
+    for image in ("fan",):  # (the polar PNG's path is tested by the polar datasets' tests)
+        for categories in ((), ("post", "nothing_seen")):
+            text = io.StringIO()
+            write_coco(text, lambda: iter(records), image=image, categories=categories)
+            doc = coco_from_records(records, image=image, categories=categories)
+            assert text.getvalue() == canonical_json(doc) + "\n"
+            assert len(doc["annotations"]) > 3
+    assert (out / "coco.json").read_text() == canonical_json(coco_from_records(
+        [json.loads(line) for line in (out / "manifest.jsonl").read_text().splitlines()],
+        categories=[c["name"] for c in json.loads((out / "coco.json").read_text())["categories"]
+                    if c["supercategory"] == "object"])) + "\n"

@@ -37,14 +37,14 @@ from __future__ import annotations
 
 import functools
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
 
 from ..errors import SonarsimError
 
-__all__ = ["DIRECT_PATH", "category_of", "coco_from_records", "fan_boxes", "rle", "scenario_categories"]
+__all__ = ["DIRECT_PATH", "category_of", "coco_from_records", "fan_boxes", "rle", "scenario_categories", "write_coco"]
 
 _NUMBERED = re.compile(r"^(?P<base>.+)_[0-9]+$")
 #: The path signature of an object's direct echo (:mod:`sonarsim.renderer.components`).
@@ -166,12 +166,68 @@ def coco_from_records(records: Iterable[Mapping[str, Any]], image: str = "fan",
         A record lacks that PNG or the image's shape (a manifest written before the COCO file
         named images; make the dataset again).
     """
+    images, annotations = [], []
+    table = _table(image, categories)
+    for entry, found in _entries(records, image, table, 1):
+        images.append(entry)
+        annotations += found
+    return {"info": _info(image), "images": images, "annotations": annotations, "categories": _categories(table)}
+
+
+def write_coco(handle: Any, records: Callable[[], Iterable[Mapping[str, Any]]], image: str = "fan",
+               categories: Iterable[str] = ()) -> None:
+    """Write the COCO document of :func:`coco_from_records` to the text stream ``handle``, a
+    frame at a time: the same text as its canonical JSON
+    (:func:`~sonarsim.dataset.manifest.canonical_json`) and a newline, without the document in
+    memory (``coco.json`` of 100,000 frames is half a GB of text, several of Python objects).
+
+    Parameters
+    ----------
+    handle : text stream
+    records : callable
+        Each call gives the records anew, in frame order (they are read twice: annotations,
+        then images, in the canonical document's key order).
+    image, categories
+        As :func:`coco_from_records`.
+    """
+    from .manifest import canonical_json
+
+    table = _table(image, categories)
+    handle.write('{"annotations":[')
+    next_id = 1
+    for _, found in _entries(records(), image, table, 1):
+        for annotation in found:
+            handle.write(("," if next_id > 1 else "") + canonical_json(annotation))
+            next_id += 1
+    handle.write('],"categories":' + canonical_json(_categories(table)) + ',"images":[')
+    for i, (entry, _) in enumerate(_entries(records(), image, table, 1)):
+        handle.write(("," if i else "") + canonical_json(entry))
+    handle.write('],"info":' + canonical_json(_info(image)) + "}\n")
+
+
+def _table(image: str, categories: Iterable[str]) -> dict[str, tuple[int, str]]:
     if image not in ("fan", "polar"):
         raise ValueError(f"image must be 'fan' or 'polar', got {image!r}")
-    images, annotations = [], []
     table: dict[str, tuple[int, str]] = {}
     for name in categories:
         table.setdefault(str(name), (len(table) + 1, "object"))
+    return table
+
+
+def _info(image: str) -> dict[str, str]:
+    return {"description": f"sonarsim dataset: objects' direct echoes (and ghosts, if asked) in the {image} images",
+            "version": "2"}
+
+
+def _categories(table: Mapping[str, tuple[int, str]]) -> list[dict[str, Any]]:
+    return [{"id": cid, "name": name, "supercategory": sup} for name, (cid, sup) in table.items()]
+
+
+def _entries(records: Iterable[Mapping[str, Any]], image: str, table: dict[str, tuple[int, str]],
+             first_id: int) -> Iterator[tuple[dict[str, Any], list[dict[str, Any]]]]:
+    """Per record: its COCO image and its annotations (ids from ``first_id`` on), adding new
+    categories to ``table`` as they appear."""
+    next_id = first_id
     for record in records:
         k = int(record["frame"])
         name = next((f for f in record["files"] if f.endswith(f"_{image}.png")), None)
@@ -180,11 +236,11 @@ def coco_from_records(records: Iterable[Mapping[str, Any]], image: str = "fan",
             raise SonarsimError(f"frame {k}: the manifest names no {image} PNG or its shape (files "
                              f"{record['files']}); coco.json must name images that exist")
         height, width = (int(v) for v in shape)
-        images.append({"id": k, "file_name": name, "height": height, "width": width,
-                       "time_s": record.get("time_s")})
-        entries = [(box, False) for box in record.get("boxes") or []]
-        entries += [(box, True) for box in record.get("ghosts") or []]
-        for box, ghost in entries:
+        entry = {"id": k, "file_name": name, "height": height, "width": width, "time_s": record.get("time_s")}
+        found = []
+        boxes = [(box, False) for box in record.get("boxes") or []]
+        boxes += [(box, True) for box in record.get("ghosts") or []]
+        for box, ghost in boxes:
             if image == "fan":
                 row0, col0, row1, col1 = (int(v) for v in box["fan"])
             else:
@@ -195,22 +251,17 @@ def coco_from_records(records: Iterable[Mapping[str, Any]], image: str = "fan",
                 continue
             category = category_of(str(box["name"]))
             path = str(box.get("path", DIRECT_PATH))
-            name = f"{category}/{path}" if ghost else category
-            cid = table.setdefault(name, (len(table) + 1, category if ghost else "object"))[0]
+            label = f"{category}/{path}" if ghost else category
+            cid = table.setdefault(label, (len(table) + 1, category if ghost else "object"))[0]
             w, h = col1 - col0 + 1, row1 - row0 + 1
-            annotation = {"id": len(annotations) + 1, "image_id": k, "category_id": cid,
+            annotation = {"id": next_id, "image_id": k, "category_id": cid,
                           "bbox": [col0, row0, w, h], "area": w * h, "iscrowd": 0,
                           "object": str(box["name"]), "path": path, "ghost": ghost}
             if "segmentation" in box:
                 annotation["segmentation"], annotation["area"] = box["segmentation"], int(box["area"])
-            annotations.append(annotation)
-    return {
-        "info": {"description": f"sonarsim dataset: objects' direct echoes (and ghosts, if asked) in the {image} "
-                 "images", "version": "2"},
-        "images": images,
-        "annotations": annotations,
-        "categories": [{"id": cid, "name": name, "supercategory": sup} for name, (cid, sup) in table.items()],
-    }
+            found.append(annotation)
+            next_id += 1
+        yield entry, found
 
 
 @functools.lru_cache(maxsize=8)

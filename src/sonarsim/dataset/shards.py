@@ -150,14 +150,16 @@ class ShardWriter:
     n_frames : int
     size : int
         Frames per shard.
-    records : mapping of int to dict
-        The frames already done (kept from an earlier run): their manifest lines.
+    lines : ManifestLines
+        Where the frames done so far lie in the manifest (kept from an earlier run, and those
+        this run appends: the caller adds each before :meth:`add`). Records are read back from
+        the manifest when a shard is written, not held.
     """
 
-    def __init__(self, out: Path, n_frames: int, size: int, records: Mapping[int, Mapping[str, Any]]) -> None:
+    def __init__(self, out: Path, n_frames: int, size: int, lines: Any) -> None:
         self.out, self.n, self.size = out, n_frames, check_shard_frames(size)
         self.width = max(6, len(str(max(0, (n_frames - 1) // size))))
-        self.records = dict(records)
+        self.lines_of = lines
         self.lines: dict[int, dict[str, Any]] = {}
         if (out / SHARDS_DIR).is_dir():
             from ..io.output import remove_abandoned_temp_files
@@ -201,9 +203,9 @@ class ShardWriter:
         frames = self.frames_of(s)
         if not frames or line.get("shard") != self.name(s) or line["frames"] != [frames[0], frames[-1]]:
             return None
-        if any(k not in self.records for k in frames):
+        if any(k not in self.lines_of for k in frames):
             return None
-        if line.get("members_sha256") != _members_digest([self.records[k] for k in frames]):
+        if line.get("members_sha256") != _members_digest(list(self.lines_of.records(frames))):
             return None
         path = self.out / line["shard"]
         try:
@@ -214,15 +216,14 @@ class ShardWriter:
             return None
         return s if (size, digest) == (line.get("bytes"), line.get("sha256")) else None
 
-    def add(self, k: int, record: Mapping[str, Any]) -> None:
-        """Frame ``k`` is done: write its shard if that completes it."""
-        self.records[k] = record
+    def add(self, k: int) -> None:
+        """Frame ``k`` is done (its line in the manifest): write its shard if that completes it."""
         s = k // self.size
-        if s not in self.lines and all(j in self.records for j in self.frames_of(s)):
+        if s not in self.lines and all(j in self.lines_of for j in self.frames_of(s)):
             self._write(s)
 
     def _write(self, s: int) -> None:
-        line = write_shard(self.out, self.name(s), [self.records[k] for k in self.frames_of(s)])
+        line = write_shard(self.out, self.name(s), list(self.lines_of.records(self.frames_of(s))))
         self.lines[s] = line
         # One write per shard, after its file is complete: a kill mid-line tears the last line,
         # which a later run drops (and redoes that shard).

@@ -73,11 +73,11 @@ from .manifest import (
     MANIFEST_NAME,
     Fingerprint,
     ManifestAppender,
-    canonical_json,
+    ManifestLines,
     frame_header,
-    read_manifest,
+    rewrite_manifest,
+    scan_manifest,
     verify_record,
-    write_manifest,
 )
 from .scenario import Scenario
 
@@ -186,7 +186,7 @@ def _bag_frame(out: Path, record: Mapping[str, Any], stamp_ns: int) -> Any:
     return frame_from_image(image, stamp_ns, fan=fan_u8, **points)
 
 
-def _write_bag(out: Path, records: Sequence[Mapping[str, Any]], storage: str, stamps: Sequence[int],
+def _write_bag(out: Path, records: Iterable[Mapping[str, Any]], storage: str, stamps: Sequence[int],
                naming: tuple[Any, Any] | None = None) -> Path:
     """Write ``out/rosbag`` from the finished frames, in frame order, replacing an older bag.
 
@@ -321,7 +321,7 @@ def generate(
     """
     from ..io.output import atomic_write, remove_abandoned_temp_files
     from ..io.run_record import OutputRun
-    from .coco import coco_from_records, scenario_categories
+    from .coco import scenario_categories, write_coco
     from .shards import SHARD_INDEX, ShardWriter
     from .workers import encoded_frames, encoded_frames_ray
 
@@ -415,22 +415,24 @@ def generate(
             handle.write(json.dumps(info, indent=1, sort_keys=True) + "\n")
 
         # Trust nothing: each line is checked (seal, spec, every file read and hashed).
+        # Records are not held: where each line lies is (ManifestLines), a few integers a frame
+        # where records would take 60 kB each (6 GB for 100,000 frames).
         manifest_path = out / MANIFEST_NAME
-        kept: dict[int, dict] = {}
-        for record in read_manifest(manifest_path):
+        found = ManifestLines(manifest_path)
+        for offset, length, record in scan_manifest(manifest_path):
             k = record.get("frame") if isinstance(record, dict) else None
-            if isinstance(k, int) and not isinstance(k, bool) and 0 <= k < n and k not in kept and verify_record(
+            if isinstance(k, int) and not isinstance(k, bool) and 0 <= k < n and k not in found and verify_record(
                     record, out, expected[k]):
-                kept[k] = {key: v for key, v in record.items() if key != "check"}
+                found.at[k] = (offset, length)
         # Only verified lines stay (a torn or damaged line would confuse readers meanwhile).
-        write_manifest(manifest_path, [kept[k] for k in sorted(kept)])
-        todo = [k for k in range(n) if k not in kept]
-        if kept:
-            say(f"{out}: {len(kept)} of {n} frames verified and kept; making {len(todo)}")
+        lines = rewrite_manifest(manifest_path, found, sorted(found.at))
+        n_kept = len(lines)
+        todo = [k for k in range(n) if k not in lines]
+        if n_kept:
+            say(f"{out}: {n_kept} of {n} frames verified and kept; making {len(todo)}")
 
-        bar = _progress_bar(n, len(kept), progress)
-        records = dict(kept)
-        packer = ShardWriter(out, n, shards, kept) if shards else None
+        bar = _progress_bar(n, n_kept, progress)
+        packer = ShardWriter(out, n, shards, lines) if shards else None
         try:
             with ManifestAppender(manifest_path) as manifest:
                 if not todo:
@@ -444,28 +446,29 @@ def generate(
                     # Files first (here, or by the worker that made them, before it sent the
                     # record): a line always names complete files.
                     _write_files(out, encoded)
-                    manifest.append(encoded.record)
-                    records[encoded.index] = encoded.record
+                    lines.at[encoded.index] = manifest.append(encoded.record)
                     if packer is not None:
-                        packer.add(encoded.index, encoded.record)
+                        packer.add(encoded.index)
                     bar.update(1)
                     if on_frame is not None:
                         on_frame(encoded.index)
         finally:
             bar.close()
-        ordered = [records[k] for k in range(n)]
-        write_manifest(manifest_path, ordered)
+        lines = rewrite_manifest(manifest_path, lines, range(n))  # in frame order
+        if packer is not None:
+            packer.lines_of = lines
         shard_names = tuple(packer.finish()) if packer is not None else ()
         coco_path = None
         if options.labels != "none":
+            # Streamed, a frame at a time (coco.json of 100,000 frames: half a GB).
             coco_path = out / COCO_NAME
-            doc = coco_from_records(ordered, image=options.coco, categories=options.classes)
             with atomic_write(coco_path, "w") as handle:
-                handle.write(canonical_json(doc) + "\n")
+                write_coco(handle, lambda: lines.records(range(n)), image=options.coco, categories=options.classes)
         if "yolo" in options.formats:
-            _write_yolo(out, ordered, options)
-        bag_path = _write_bag(out, ordered, options.rosbag, stamps, naming) if options.rosbag else None
-    return DatasetSummary(out, n, len(todo), len(kept), time.perf_counter() - t_start, manifest_path,
+            _write_yolo(out, n, width, options)
+        bag_path = (_write_bag(out, lines.records(range(n)), options.rosbag, stamps, naming)
+                    if options.rosbag else None)
+    return DatasetSummary(out, n, len(todo), n_kept, time.perf_counter() - t_start, manifest_path,
                           coco_path, bag_path, fingerprint.value, stamps[0] if stamps else None, shard_names)
 
 
@@ -477,12 +480,12 @@ class _NoBar:
         pass
 
 
-def _write_yolo(out: Path, records: Sequence[Mapping[str, Any]], options: DatasetOptions) -> None:
+def _write_yolo(out: Path, n: int, width: int, options: DatasetOptions) -> None:
     """``data.yaml`` and its image lists (the label files are the frames')."""
     from ..io.output import atomic_write
     from .yolo import data_yaml, image_lists
 
-    train, val = image_lists(records, options.coco)
+    train, val = image_lists([frame_files(k, width, options) for k in range(n)], options.coco)
     for name, text in zip(YOLO_NAMES, (data_yaml(options.classes), train, val)):
         with atomic_write(out / name, "w") as handle:
             handle.write(text)

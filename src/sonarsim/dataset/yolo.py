@@ -35,7 +35,7 @@ tenth frame because neighbouring frames of a trajectory see nearly the same thin
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -148,9 +148,17 @@ def data_yaml(classes: Sequence[str]) -> str:
     return yaml.safe_dump(doc, sort_keys=False)
 
 
-def image_lists(records: Sequence[Mapping[str, Any]], image: str) -> tuple[str, str]:
-    """The contents of ``yolo-train.txt`` and ``yolo-val.txt``: each frame's image, ``./``-relative."""
-    names = [next(f for f in r["files"] if f.endswith(f"_{image}.png")) for r in records]
+def image_lists(files: Sequence[Sequence[str]], image: str) -> tuple[str, str]:
+    """The contents of ``yolo-train.txt`` and ``yolo-val.txt``: each frame's image, ``./``-relative.
+
+    Parameters
+    ----------
+    files : sequence of sequence of str
+        Each frame's files (:func:`~sonarsim.dataset.encoding.frame_files`), in frame order.
+    image : {"fan", "polar"}
+        The image ``coco.json`` names.
+    """
+    names = [next(f for f in frame if f.endswith(f"_{image}.png")) for frame in files]
     n_val = val_frames(len(names))
     cut = len(names) - n_val
     return ("".join(f"./{n}\n" for n in names[:cut]), "".join(f"./{n}\n" for n in names[cut:]))
