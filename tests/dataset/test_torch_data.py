@@ -217,7 +217,7 @@ def test_the_module_imports_without_torch_and_says_what_to_install():
     lines = out.stdout.splitlines()
     assert len(lines) == 5 and lines[-1] == "AttributeError", out.stdout
     for line in lines[:4]:
-        assert "needs PyTorch" in line and "pip install 'sonarsim[torch]'" in line
+        assert "needs PyTorch" in line and "pip install" in line and "[torch]" in line
     # Importing the module does not import torch.
     quiet = subprocess.run([sys.executable, "-c", "import sys, sonarsim.dataset.torch_data; "
                             "print('torch' in sys.modules)"], capture_output=True, text=True, timeout=60)

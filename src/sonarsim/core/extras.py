@@ -1,4 +1,4 @@
-"""How to install an optional extra (``ros``, ``ray``, ``viewer``, ``diff``, ``xtf``, ``gazebo``): the one home of the
+"""How to install an optional extra (``ros``, ``ray``, ``viewer``, ``diff``, ``xtf``, ``gazebo``, ``torch``): the one home of the
 install hints that the messages about a missing library give.
 
 From a checkout (sonarsim imported from a clone's ``src/``, as ``pip install -e .`` or
@@ -25,6 +25,7 @@ EXTRAS = {
     "xtf": "the XTF extra (pyxtf)",
     "live": "the live extra (Cyclone DDS and rosbags)",
     "gazebo": "the Gazebo extra (pycollada, for Collada meshes)",
+    "torch": "the PyTorch extra (install the CPU build first where a CUDA one is not wanted)",
 }
 
 

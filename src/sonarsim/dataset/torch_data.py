@@ -56,8 +56,6 @@ if TYPE_CHECKING:
 
 __all__ = ["RenderedFrames", "SonarDatasetFolder", "collate", "frame_sample", "rle_mask"]
 
-#: What to install for this module (the ``torch`` extra of pyproject.toml).
-TORCH_HINT = "pip install 'sonarsim[torch]'"
 
 # Arrays of a frame's NPZ that a sample carries (the rest -- points, component images -- stay
 # in the file: loading them would cost every sample for what few training loops use).
@@ -69,7 +67,9 @@ def _import_torch() -> Any:
     try:
         import torch
     except ImportError as exc:
-        raise SonarsimError(f"sonarsim.dataset.torch_data needs PyTorch ({exc}): {TORCH_HINT}") from None
+        from ..core.extras import install_command
+
+        raise SonarsimError(f"sonarsim.dataset.torch_data needs PyTorch ({exc}): {install_command('torch')}") from None
     return torch
 
 
