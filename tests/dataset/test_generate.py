@@ -657,6 +657,31 @@ def test_ray_gives_the_same_files_as_local_processes(tmp_path, reference):
     assert folder_bytes(tmp_path / "ds") == reference
 
 
+def test_a_ray_run_killed_mid_way_resumes_to_the_same_files(tmp_path, reference):
+    pytest.importorskip("ray")
+    out = tmp_path / "ds"
+    code = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(REPO)!r})
+        from tests.dataset.test_scenario import VARIED
+        from sonarsim.dataset import generate
+        generate(VARIED, {str(out)!r}, formats=("npz", "png", "yolo"), shards=5, ray="local", workers=2,
+                 batch_size=1, progress=False, log=lambda m: None)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", code], cwd=REPO, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 120.0
+    while len(read_manifest(out / "manifest.jsonl")) < 6 and proc.poll() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.002)
+    os.killpg(proc.pid, signal.SIGKILL)  # the driver and the local Ray instance it started
+    proc.wait()
+    assert 0 < len(read_manifest(out / "manifest.jsonl")) < 12
+    summary = generate(VARIED, out, **FULL, workers=2, progress=False)
+    assert summary.reused >= 6
+    assert folder_bytes(out) == reference
+
+
 def test_fan_boxes_equal_the_boxes_of_the_resampled_instance_map():
     from sonarsim.dataset.coco import fan_boxes
 
