@@ -32,7 +32,7 @@ import zlib
 __all__ = ["DEFLATE_LEVEL", "ENCODER", "crc32", "raw_deflate", "zlib_stream"]
 
 #: The deflate level of NPZ entries and PNG data. zlib-ng's levels 1 (a static Huffman code:
-#: 30-40 % larger on sonar images for 30 % less time) to 9; 2 is its fastest with a code made
+#: about 30 % larger on sonar frames for 30 % less time) to 9; 2 is its fastest with a code made
 #: for the data, as small as libdeflate's level 1.
 DEFLATE_LEVEL = 2
 
