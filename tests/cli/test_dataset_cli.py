@@ -287,3 +287,18 @@ def test_a_lone_worker_gets_a_second_writer_only_where_a_core_and_the_budget_all
     assert lone_writers(1, frame, cores=2, budget=room - 1) == 1  # the second frame would not fit
     assert lone_writers(1, frame, cores=1, budget=10 * room) == 1  # no idle core
     assert lone_writers(2, frame, cores=2, budget=10 * room) == 1  # the render takes both cores
+
+
+def test_a_lone_worker_renders_on_a_third_of_the_cores_when_encoding_is_the_larger_part():
+    from sonarsim.dataset.encoding import DatasetOptions
+    from sonarsim.dataset.workers import lone_threads, lone_writers, worker_bytes
+
+    labelled, bare = DatasetOptions(), DatasetOptions(labels="none")
+    assert [lone_threads(labelled, cores=c) for c in (1, 2, 3, 8, 16)] == [1, 1, 1, 3, 5]
+    assert [lone_threads(bare, cores=c) for c in (1, 2, 8)] == [1, 2, 8]
+    assert lone_threads(DatasetOptions(labels="none", formats=("npz", "png")), cores=6) == 2  # PNGs to encode
+    frame = 10 * 2**20
+    plenty = int(10 * worker_bytes(frame) + 20 * frame)
+    assert lone_writers(3, frame, cores=8, budget=plenty) == 6  # the 5 cores left, and one
+    # As many writers as frames waiting fit: the worker and its first frame, then one a writer.
+    assert lone_writers(3, frame, cores=8, budget=int(worker_bytes(frame) + 2 * frame)) == 3
