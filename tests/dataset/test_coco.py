@@ -11,6 +11,7 @@ import pytest
 from sonarsim.config.examples import tank_scene_dict
 from sonarsim.dataset import frames, generate
 from sonarsim.dataset.coco import DIRECT_PATH, coco_from_records, rle
+from sonarsim.errors import SonarsimError
 from sonarsim.io.output import read_npz
 
 mask_utils = pytest.importorskip("pycocotools.mask")
@@ -176,3 +177,23 @@ def test_written_a_frame_at_a_time_equals_the_documents_canonical_json(tank):
         [json.loads(line) for line in (out / "manifest.jsonl").read_text().splitlines()],
         categories=[c["name"] for c in json.loads((out / "coco.json").read_text())["categories"]
                     if c["supercategory"] == "object"])) + "\n"
+
+
+def test_categories_are_read_without_the_annotations(tank, tmp_path):
+    import io
+
+    from sonarsim.dataset.coco import read_categories, write_coco
+
+    _, out = tank
+    assert read_categories(out / "coco.json") == json.loads((out / "coco.json").read_text())["categories"]
+    record = json.loads((out / "manifest.jsonl").read_text().splitlines()[0])
+    text = io.StringIO()
+    write_coco(text, lambda: iter([{**record, "boxes": [], "ghosts": []}]), categories=("a", "b"))
+    (tmp_path / "empty.json").write_text(text.getvalue())  # no annotation at all
+    assert [c["name"] for c in read_categories(tmp_path / "empty.json")] == ["a", "b"]
+    (tmp_path / "indented.json").write_text(json.dumps({"images": [], "categories": [{"id": 1, "name": "x"}]},
+                                                       indent=2))
+    assert read_categories(tmp_path / "indented.json") == [{"id": 1, "name": "x"}]
+    (tmp_path / "bad.json").write_text("{")
+    with pytest.raises(SonarsimError, match="bad.json: no readable categories"):
+        read_categories(tmp_path / "bad.json")

@@ -249,6 +249,9 @@ def test_what_a_scene_with_instruments_cannot_take_is_named(tmp_path, capsys):
     path = scenario_file(tmp_path)
     assert main(["dataset", path, "--out", str(tmp_path / "a"), "--labels", "all"]) == 2
     assert "--labels: applies to an FLS's frames" in capsys.readouterr().err
+    for option in (["--yolo"], ["--shards", "8"]):  # (ML formats of an FLS's frames, not yet of pings)
+        assert main(["dataset", path, "--out", str(tmp_path / "a"), *option]) == 2
+        assert f"{option[0]}: applies to an FLS's frames" in capsys.readouterr().err
     varied = scenario_file(tmp_path, "variation: {ground: {albedo: {uniform: [0.3, 0.6]}}}\n")
     assert main(["dataset", varied, "--out", str(tmp_path / "b")]) == 2
     assert "variation" in capsys.readouterr().err

@@ -104,3 +104,22 @@ def test_the_cli_takes_shards(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "sonarsim", "dataset", str(tmp_path / "s.yaml"), "--out",
                           str(tmp_path / "ds"), "--shards", "0", "--no-progress"], capture_output=True, text=True)
     assert bad.returncode == 2 and "shards" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_a_run_without_shards_removes_an_earlier_runs(tmp_path):
+    track = tmp_path / "track.csv"
+    track.write_text("t,x,y,z,roll_deg,pitch_deg,yaw_deg\n0.0,0.0,0.0,1.4,0.0,2.0,0.0\n")
+    scenario = {"scene": tank_scene_dict(), "seed": 3, "trajectory": {"file": str(track)}}
+    out = tmp_path / "ds"
+    generate(scenario, out, progress=False, shards=4)
+    assert (out / SHARD_INDEX).exists() and (out / "shards/000000.tar").exists()
+    said = []
+    generate(scenario, out, progress=False, log=said.append)
+    assert not (out / SHARD_INDEX).exists() and not (out / "shards").exists()
+    assert any("removed the shards" in line for line in said)
+
+
+def test_a_shard_list_that_is_not_one_is_said(tmp_path):
+    (tmp_path / SHARD_INDEX).write_text('[1, 2]\n')
+    with pytest.raises(SonarsimError, match="not a list of shards"):
+        shard_urls(tmp_path)

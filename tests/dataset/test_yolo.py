@@ -197,3 +197,23 @@ def test_labels_are_frame_files_resumed_like_the_others(yolo_set):
     assert summary.rendered == 1 and summary.reused == 2
     assert {p.name: p.read_bytes() for p in (out / "frames").iterdir()} == before
     assert (out / "data.yaml").read_bytes() == before_yaml
+
+
+def test_a_lone_frame_trains_and_validates():
+    from sonarsim.dataset.yolo import image_lists
+
+    files = [["frames/000000.npz", "frames/000000_fan.png"]]
+    assert image_lists(files, "fan") == ("./frames/000000_fan.png\n", "./frames/000000_fan.png\n")
+    two = files + [["frames/000001.npz", "frames/000001_fan.png"]]
+    assert image_lists(two, "fan") == ("./frames/000000_fan.png\n", "./frames/000001_fan.png\n")
+
+
+def test_a_worker_with_another_deflate_refuses_to_encode(yolo_set):
+    from sonarsim.dataset import frames
+    from sonarsim.dataset.encoding import encode_frame
+    from sonarsim.errors import SonarsimError
+
+    scenario, _ = yolo_set
+    frame = next(frames(scenario, stop=1))
+    with pytest.raises(SonarsimError, match="frame 0: this worker's deflate is zlib-ng.*the dataset's zlib-ng-0.0"):
+        encode_frame(frame.spec, frame.image, DatasetOptions(encoder="zlib-ng-0.0-level2-arm64"), 6)

@@ -188,7 +188,8 @@ def _instrument_dataset(scenario: Any, args: argparse.Namespace, start_ns: int |
     for option, given in (("--ray", args.ray is not None), ("--labels", args.labels != "total"),
                           ("--coco", args.coco != "fan"), ("--coco-ghosts", args.coco_ghosts),
                           ("--signatures", args.signatures), ("--frame-ids", args.frame_ids is not None),
-                          ("--topics", args.topics is not None)):
+                          ("--topics", args.topics is not None), ("--yolo", args.yolo),
+                          ("--shards", args.shards is not None)):
         if given:
             raise ConfigError(option, "applies to an FLS's frames; this scenario's scene has instruments (side-scan, "
                               "scanning, single-beam, multibeam), whose datasets are written per instrument in "

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..errors import SonarsimError
 
-__all__ = ["DIRECT_PATH", "category_of", "coco_from_records", "fan_boxes", "rle", "scenario_categories", "write_coco"]
+__all__ = ["DIRECT_PATH", "category_of", "coco_from_records", "fan_boxes", "rle", "read_categories", "scenario_categories", "write_coco"]
 
 _NUMBERED = re.compile(r"^(?P<base>.+)_[0-9]+$")
 #: The path signature of an object's direct echo (:mod:`sonarsim.renderer.components`).
@@ -203,6 +203,44 @@ def write_coco(handle: Any, records: Callable[[], Iterable[Mapping[str, Any]]], 
     for i, (entry, _) in enumerate(_entries(records(), image, table, 1)):
         handle.write(("," if i else "") + canonical_json(entry))
     handle.write('],"info":' + canonical_json(_info(image)) + "}\n")
+
+
+def read_categories(path: Any) -> list[dict[str, Any]]:
+    """The ``categories`` of a ``coco.json``, without parsing its annotations (half a GB for
+    100,000 frames): :func:`write_coco` writes them after the annotations, behind the one
+    ``],"categories":`` of the file (a string in JSON cannot hold an unescaped quote, so no
+    annotation text can look like it); any other COCO file is parsed whole.
+
+    Raises
+    ------
+    SonarsimError
+        A file that cannot be read or holds no categories, naming it.
+    """
+    import json
+
+    marker = b'],"categories":'
+    try:
+        with open(path, "rb") as handle:
+            head = handle.read(len('{"annotations":['))
+            if head == b'{"annotations":[':
+                tail = b""
+                while True:
+                    chunk = handle.read(1 << 20)
+                    if not chunk:
+                        break
+                    tail = tail[-len(marker):] + chunk
+                    at = tail.find(marker)
+                    if at >= 0:
+                        rest = tail[at + len(marker):] + handle.read(1 << 20)
+                        return json.JSONDecoder().raw_decode(rest.decode("utf-8", "replace"))[0]
+                # the empty list of annotations: '{"annotations":[' then '],"categories":' at once
+            handle.seek(0)
+            doc = json.load(handle)
+        return doc["categories"]
+    except FileNotFoundError:
+        raise SonarsimError(f"{path}: COCO file not found") from None
+    except (OSError, ValueError, TypeError, KeyError) as exc:
+        raise SonarsimError(f"{path}: no readable categories: {exc}") from None
 
 
 def _table(image: str, categories: Iterable[str]) -> dict[str, tuple[int, str]]:

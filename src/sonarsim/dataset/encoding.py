@@ -77,6 +77,11 @@ class DatasetOptions:
         The object categories in id order (:func:`~sonarsim.dataset.coco.scenario_categories`),
         which YOLO's class numbers index; set by :func:`~sonarsim.dataset.generate` from the
         scenario (not an option of the user's: the scenario, in the fingerprint, fixes it).
+    encoder : str
+        The deflate encoder the dataset's fingerprint names (:data:`sonarsim.io.codec.ENCODER`
+        of the process that started the run), set by :func:`~sonarsim.dataset.generate`; a
+        worker whose own differs (another zlib-ng, another architecture: other bytes for the
+        same frame) refuses to encode. Empty: not checked.
     """
 
     labels: bool | str = "total"
@@ -86,6 +91,7 @@ class DatasetOptions:
     coco: str = "fan"
     ghosts: bool = False
     classes: tuple[str, ...] = ()
+    encoder: str = ""
 
     def __post_init__(self) -> None:
         from ..io.rosbag import BAG_STORAGES
@@ -109,7 +115,8 @@ class DatasetOptions:
             raise ConfigError("ghosts", f"must be true or false, got {shown(self.ghosts)}")
         if "yolo" in self.formats and self.labels == "none":
             raise ConfigError("formats", "yolo labels need ground truth: labels 'total' or 'all', not 'none'")
-        object.__setattr__(self, "classes", tuple(str(c) for c in self.classes))
+        classes = (self.classes,) if isinstance(self.classes, str) else tuple(self.classes)
+        object.__setattr__(self, "classes", tuple(str(c) for c in classes))
 
     def document(self) -> dict[str, Any]:
         """The options as JSON (``dataset.json`` and the fingerprint). ``boxes: direct`` marks
@@ -119,9 +126,16 @@ class DatasetOptions:
         these)."""
         from ..io.png import PNG_ENCODER
 
-        return {"labels": self.labels, "formats": list(self.formats), "rosbag": self.rosbag,
-                "signatures": self.signatures, "coco": self.coco, "boxes": "direct", "ghosts": self.ghosts,
-                "deflate": PNG_ENCODER}
+        doc = {"labels": self.labels, "formats": list(self.formats), "rosbag": self.rosbag,
+               "signatures": self.signatures, "coco": self.coco, "boxes": "direct", "ghosts": self.ghosts,
+               "deflate": PNG_ENCODER}
+        if "yolo" in self.formats:
+            # The outlines are contourpy's (sonarsim.dataset.yolo): another version may order
+            # a polygon's vertices otherwise, so it is part of what the label files are.
+            from .yolo import OUTLINE_TRACER
+
+            doc["yolo_outlines"] = OUTLINE_TRACER
+        return doc
 
     @property
     def pngs(self) -> tuple[str, ...]:
@@ -292,6 +306,13 @@ def encode_frame(spec: FrameSpec, image: Any, options: DatasetOptions, width: in
         Digits of the frame number in file names.
     """
     t0 = time.perf_counter()
+    if options.encoder:
+        from ..io.codec import ENCODER
+
+        if ENCODER != options.encoder:
+            raise SonarsimError(f"frame {spec.index}: this worker's deflate is {ENCODER}, the dataset's {options.encoder}: "
+                                "its bytes would differ from the other frames'; give every node the same zlib-ng "
+                                "package and processor architecture")
     arrays = frame_arrays(image, options.signatures, components=options.labels == "all")
     config = dict(image.config)
     # A worker renders with its share of the cores: the scene's own setting goes in the file,

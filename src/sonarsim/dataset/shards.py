@@ -32,13 +32,13 @@ import io
 import json
 import os
 import tarfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError, SonarsimError, shown
 
-__all__ = ["SHARDS_DIR", "SHARD_INDEX", "ShardWriter", "check_shard_frames", "member_name", "shard_urls", "write_shard"]
+__all__ = ["SHARDS_DIR", "SHARD_INDEX", "ShardWriter", "check_shard_frames", "member_name", "remove_shards", "shard_urls", "write_shard"]
 
 #: The shards' folder and their list, in a dataset folder.
 SHARDS_DIR = "shards"
@@ -68,10 +68,17 @@ def _key(record: Mapping[str, Any]) -> str:
     return member_name(record["files"][0]).split(".", 1)[0]
 
 
-def _members_digest(records: Sequence[Mapping[str, Any]]) -> str:
-    """A digest of the frames' files' checksums: what a shard was made from."""
-    text = json.dumps([[r["frame"], [r["sha256"][f] for f in r["files"]]] for r in records], separators=(",", ":"))
-    return hashlib.sha256(text.encode()).hexdigest()
+def _member_line(record: Mapping[str, Any]) -> bytes:
+    """A frame's part of a shard's members digest: its number and its files' checksums."""
+    return (f"{int(record['frame'])}:" + ",".join(record["sha256"][f] for f in record["files"]) + "\n").encode()
+
+
+def _members_digest(records: Iterable[Mapping[str, Any]]) -> str:
+    """A digest of the frames' files' checksums (what a shard was made from), read as a stream."""
+    sha = hashlib.sha256()
+    for record in records:
+        sha.update(_member_line(record))
+    return sha.hexdigest()
 
 
 class _Hashing(io.RawIOBase):
@@ -99,9 +106,10 @@ def _info(name: str, size: int) -> tarfile.TarInfo:
     return info
 
 
-def write_shard(out: Path, name: str, records: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+def write_shard(out: Path, name: str, records: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
     """Write shard ``name`` (relative to ``out``) of the frames of ``records`` (manifest lines,
-    in frame order) from their files in ``out``; atomically (temporary file, then rename).
+    in frame order, read one at a time: a shard of 100,000 frames is never held) from their files
+    in ``out``; atomically (temporary file, then rename).
 
     Returns
     -------
@@ -119,12 +127,15 @@ def write_shard(out: Path, name: str, records: Sequence[Mapping[str, Any]]) -> d
     from .manifest import canonical_json
 
     path = out / name
+    members, frames = hashlib.sha256(), []
     try:
         path.parent.mkdir(exist_ok=True)
         with atomic_write(path, "wb") as handle:
             sink = _Hashing(handle)
             with tarfile.open(fileobj=sink, mode="w", format=tarfile.USTAR_FORMAT) as tar:
                 for record in records:
+                    members.update(_member_line(record))
+                    frames = [frames[0] if frames else int(record["frame"]), int(record["frame"])]
                     for file_name in record["files"]:
                         data = (out / file_name).read_bytes()
                         if hashlib.sha256(data).hexdigest() != record["sha256"][file_name]:
@@ -136,8 +147,8 @@ def write_shard(out: Path, name: str, records: Sequence[Mapping[str, Any]]) -> d
     except OSError as exc:
         raise SonarsimError(f"{getattr(exc, 'filename', None) or path}: cannot write shard {name}: "
                             f"{exc.strerror or exc} (no partial shard is left; run again to resume)") from None
-    return {"shard": name, "frames": [int(records[0]["frame"]), int(records[-1]["frame"])], "bytes": sink.size,
-            "sha256": sink.sha.hexdigest(), "members_sha256": _members_digest(records)}
+    return {"shard": name, "frames": frames, "bytes": sink.size, "sha256": sink.sha.hexdigest(),
+            "members_sha256": members.hexdigest()}
 
 
 class ShardWriter:
@@ -161,6 +172,10 @@ class ShardWriter:
         self.width = max(6, len(str(max(0, (n_frames - 1) // size))))
         self.lines_of = lines
         self.lines: dict[int, dict[str, Any]] = {}
+        # Frames done per shard (a count, not a scan of the shard's frames at each frame).
+        self.done: dict[int, int] = {}
+        for k in lines.at:
+            self.done[k // self.size] = self.done.get(k // self.size, 0) + 1
         if (out / SHARDS_DIR).is_dir():
             from ..io.output import remove_abandoned_temp_files
 
@@ -182,8 +197,12 @@ class ShardWriter:
         path = self.out / SHARD_INDEX
         if not path.exists():
             return []
+        try:
+            text_lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+        except OSError as exc:
+            raise SonarsimError(f"{path}: cannot read the shards' list: {exc.strerror or exc}") from None
         lines = []
-        for text in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        for text in text_lines:
             try:
                 lines.append(json.loads(text))
             except ValueError:  # a torn or damaged line: its shard is redone
@@ -205,7 +224,7 @@ class ShardWriter:
             return None
         if any(k not in self.lines_of for k in frames):
             return None
-        if line.get("members_sha256") != _members_digest(list(self.lines_of.records(frames))):
+        if line.get("members_sha256") != _members_digest(self.lines_of.records(frames)):
             return None
         path = self.out / line["shard"]
         try:
@@ -219,11 +238,12 @@ class ShardWriter:
     def add(self, k: int) -> None:
         """Frame ``k`` is done (its line in the manifest): write its shard if that completes it."""
         s = k // self.size
-        if s not in self.lines and all(j in self.lines_of for j in self.frames_of(s)):
+        self.done[s] = self.done.get(s, 0) + 1
+        if s not in self.lines and self.done[s] >= len(self.frames_of(s)):
             self._write(s)
 
     def _write(self, s: int) -> None:
-        line = write_shard(self.out, self.name(s), list(self.lines_of.records(self.frames_of(s))))
+        line = write_shard(self.out, self.name(s), self.lines_of.records(self.frames_of(s)))
         self.lines[s] = line
         # One write per shard, after its file is complete: a kill mid-line tears the last line,
         # which a later run drops (and redoes that shard).
@@ -252,6 +272,21 @@ class ShardWriter:
                 handle.write(json.dumps(self.lines[s], sort_keys=True) + "\n")
 
 
+def remove_shards(out: Path) -> bool:
+    """Remove the shards of an earlier run (``shards.jsonl`` first, then ``shards/*.tar``): a
+    run without ``shards`` leaves none that would no longer cover the frames. Whether there were."""
+    index, folder = out / SHARD_INDEX, out / SHARDS_DIR
+    found = index.exists() or folder.is_dir()
+    index.unlink(missing_ok=True)
+    if folder.is_dir():
+        for entry in folder.iterdir():
+            if entry.is_file() and (entry.suffix == ".tar" or entry.name.endswith(".tmp")):
+                entry.unlink()
+        if not any(folder.iterdir()):
+            folder.rmdir()
+    return found
+
+
 def shard_urls(folder: str | os.PathLike) -> list[str]:
     """The shards of a finished dataset folder, in order, as paths the ``webdataset`` library
     and Hugging Face ``datasets`` take (from ``shards.jsonl``).
@@ -269,4 +304,9 @@ def shard_urls(folder: str | os.PathLike) -> list[str]:
         raise SonarsimError(f"{path}: no such file: this dataset has no shards (make it with --shards N)") from None
     except (OSError, ValueError) as exc:
         raise SonarsimError(f"{path}: cannot read: {exc}") from None
-    return [str(folder / line["shard"]) for line in sorted(lines, key=lambda line: line["frames"][0])]
+    try:
+        ordered = sorted(lines, key=lambda line: int(line["frames"][0]))
+        return [str(folder / str(line["shard"])) for line in ordered]
+    except (TypeError, KeyError, IndexError, ValueError):
+        raise SonarsimError(f"{path}: not a list of shards (each line a JSON object with 'shard' and 'frames'); "
+                            "make the dataset again with --shards N to rewrite it") from None

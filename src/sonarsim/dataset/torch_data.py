@@ -297,7 +297,7 @@ class _FolderBody:
 
     def __init__(self, root: str | os.PathLike, masks: bool = False,
                  transform: Callable[[dict[str, Any]], Any] | None = None) -> None:
-        from .manifest import INFO_NAME, MANIFEST_NAME, read_manifest, seal_record
+        from .manifest import INFO_NAME, MANIFEST_NAME, ManifestLines, scan_manifest, seal_record
         from .writer import COCO_NAME
 
         self.root = Path(root)
@@ -316,8 +316,12 @@ class _FolderBody:
         if not os.path.lexists(manifest_path):
             raise SonarsimError(f"{manifest_path}: dataset manifest not found; {self.root} is not a finished "
                                 "sonarsim dataset folder (sonarsim.dataset.generate writes one)")
-        by_frame: dict[int, dict] = {}
-        for record in read_manifest(manifest_path):
+        # Where each frame's line lies, not the records (60 kB a frame as objects: 6 GB for
+        # 100,000 frames, and a copy in every spawned DataLoader worker).
+        by_frame = ManifestLines(manifest_path)
+        for offset, length, record in scan_manifest(manifest_path):
+            if record is None:
+                continue  # (a torn last line: its frame is missing, said below)
             # Each line carries its own checksum: a damaged line is said, not read as boxes.
             try:
                 sealed = isinstance(record, dict) and seal_record(record)["check"] == record.get("check")
@@ -327,35 +331,36 @@ class _FolderBody:
             if not sealed or isinstance(k, bool) or not isinstance(k, int):
                 raise SonarsimError(f"{manifest_path}: a damaged line (its check fails); run "
                                     "sonarsim.dataset.generate on the folder again to redo its frame")
-            by_frame[k] = {key: v for key, v in record.items() if key != "check"}
+            by_frame.at[k] = (offset, length)
         missing = [k for k in range(n) if k not in by_frame]
         if missing:
             raise SonarsimError(f"{manifest_path}: holds {n - len(missing)} of the {n} frames {INFO_NAME} names "
                                 f"(frame {missing[0]} missing): the dataset is not finished; run "
                                 "sonarsim.dataset.generate on it again to finish it")
-        self.records = [by_frame[k] for k in range(n)]
+        self.lines, self.n_frames = by_frame, n
 
         self.categories: dict[str, int] = {}
         if labelled:
             coco_path = self.root / COCO_NAME
-            doc = _json_file(coco_path, "COCO file")
+            from .coco import read_categories
+
             try:
-                self.categories = {str(c["name"]): int(c["id"]) for c in doc["categories"]}
+                self.categories = {str(c["name"]): int(c["id"]) for c in read_categories(coco_path)}
             except (TypeError, KeyError, ValueError):
                 raise SonarsimError(f"{coco_path}: no readable categories (each with a name and an id)") from None
 
     def __len__(self) -> int:
-        return len(self.records)
+        return self.n_frames
 
     def __getitem__(self, k: int) -> Any:
         try:
             k = operator.index(k)
         except TypeError:
             raise TypeError(f"a frame index is an integer, got {type(k).__name__}") from None
-        n = len(self.records)
+        n = self.n_frames
         if not -n <= k < n:
             raise IndexError(f"frame {k} out of range: {self.root} holds {n} frames")
-        record = self.records[k % n]
+        record = self.lines.record(k % n)
         # The NPZ and the PNG coco.json names; a second PNG or YOLO labels are not read.
         wanted = [name for name in record["files"] if name.endswith((".npz", f"_{self.image}.png"))]
         files = {name: self._read(name, record) for name in wanted}

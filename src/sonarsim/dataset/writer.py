@@ -322,7 +322,7 @@ def generate(
     from ..io.output import atomic_write, remove_abandoned_temp_files
     from ..io.run_record import OutputRun
     from .coco import scenario_categories, write_coco
-    from .shards import SHARD_INDEX, ShardWriter
+    from .shards import SHARD_INDEX, ShardWriter, remove_shards
     from .workers import encoded_frames, encoded_frames_ray
 
     t_start = time.perf_counter()
@@ -394,7 +394,9 @@ def generate(
         expected.append(frame_header(spec, frame_files(spec.index, width, options)))
         fingerprint.add(expected[-1]["spec_sha256"])
         classes.update(dict.fromkeys(scenario_categories([spec])))
-    options = replace(options, classes=tuple(classes))
+    from ..io.codec import ENCODER
+
+    options = replace(options, classes=tuple(classes), encoder=ENCODER)
 
     names = [INFO_NAME, MANIFEST_NAME] + ([COCO_NAME] if options.labels != "none" else [])
     names += list(YOLO_NAMES) if "yolo" in options.formats else []
@@ -458,6 +460,8 @@ def generate(
         if packer is not None:
             packer.lines_of = lines
         shard_names = tuple(packer.finish()) if packer is not None else ()
+        if packer is None and remove_shards(out):
+            say(f"{out}: removed the shards of an earlier run (this one was asked for none; --shards N makes them)")
         coco_path = None
         if options.labels != "none":
             # Streamed, a frame at a time (coco.json of 100,000 frames: half a GB).

@@ -1,6 +1,6 @@
 """YOLO labels of a dataset's images: one text file per frame, and ``data.yaml``.
 
-With ``yolo`` in a dataset's formats (``sonarsim dataset --format yolo``) each frame gets
+With ``yolo`` in a dataset's formats (``sonarsim dataset --yolo``) each frame gets
 ``frames/NNNNNN_fan.txt`` beside the PNG that ``coco.json`` names (``_polar.txt`` with
 ``coco: polar``), written by the worker with the frame's other files (listed, sized and hashed in
 its manifest line, so a resumed run keeps or redoes it like them), and the finished folder gets
@@ -29,7 +29,7 @@ relative ``path`` it would resolve against its own datasets folder) and the fold
 its bytes the same wherever it was made. Ultralytics looks for an image's labels by replacing the last
 ``/images/`` of its path by ``/labels/``; these paths have none, so it reads the ``.txt`` beside
 each PNG: keep the dataset out of folders named ``images``. The validation frames are the last
-tenth of the frames (at least one frame when there are two or more), a block rather than every
+tenth of the frames (at least one frame when there are two or more; a lone frame is both), a block rather than every
 tenth frame because neighbouring frames of a trajectory see nearly the same thing.
 """
 
@@ -40,8 +40,19 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["VAL_FRACTION", "data_yaml", "image_lists", "label_text", "outline", "val_frames"]
+__all__ = ["OUTLINE_TRACER", "VAL_FRACTION", "data_yaml", "image_lists", "label_text", "outline", "val_frames"]
 
+def _tracer() -> str:
+    try:
+        from importlib.metadata import version
+
+        return f"contourpy-{version('contourpy')}"
+    except Exception:  # pragma: no cover - contourpy comes with matplotlib, a dependency
+        return "contourpy-unknown"
+
+
+#: What traces the outlines, with its version (a dataset's fingerprint names it with ``yolo``).
+OUTLINE_TRACER = _tracer()
 #: The fraction of the frames, the last ones, that ``data.yaml`` names for validation.
 VAL_FRACTION = 0.1
 # Decimals of the normalised coordinates: a 1/100,000 of a side, below a pixel of any image
@@ -159,6 +170,6 @@ def image_lists(files: Sequence[Sequence[str]], image: str) -> tuple[str, str]:
         The image ``coco.json`` names.
     """
     names = [next(f for f in frame if f.endswith(f"_{image}.png")) for frame in files]
-    n_val = val_frames(len(names))
-    cut = len(names) - n_val
-    return ("".join(f"./{n}\n" for n in names[:cut]), "".join(f"./{n}\n" for n in names[cut:]))
+    cut = len(names) - val_frames(len(names))
+    train, val = names[:cut], names[cut:] or names  # one frame: it validates too (a list must not be empty)
+    return "".join(f"./{n}\n" for n in train), "".join(f"./{n}\n" for n in val)

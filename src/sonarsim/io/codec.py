@@ -15,8 +15,9 @@ where a reset compressor's output depended on its past), and a test compresses f
 processes whose memory was churned and compares. zlib-ng does not promise the same stream on
 every processor architecture (its streams may differ between x86-64 and ARM for the same
 input; both decode to the same bytes), which is why :data:`ENCODER` names the version and the
-machine's architecture: a dataset resumed elsewhere is checked frame by frame against its
-manifest either way. Python-isal, used before, handed ISA-L a compressor state from ``malloc``
+machine's architecture: it is part of a dataset's fingerprint, so a folder is resumed only by
+the same encoder, and each worker (a Ray node) checks that its own is the dataset's before it
+encodes a frame. Python-isal, used before, handed ISA-L a compressor state from ``malloc``
 without clearing it, and 1-2 frames in 10 of a dataset came out with a few bytes changed
 depending on what the process had done before (issue 37).
 
