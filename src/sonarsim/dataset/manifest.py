@@ -38,7 +38,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any, Iterator
 
-from ..errors import SonarsimError, check_input_file, key_text, regular_file_bytes
+from ..errors import SonarsimError, check_input_file, key_text
 from ..io.output import file_digest
 from .scenario import FrameSpec
 
@@ -172,19 +172,9 @@ def read_manifest(path: Path) -> list[Any]:
     """The parsed lines of a manifest; lines that are not JSON (a torn last line) are dropped.
 
     A missing manifest has no lines; one that is not a regular file is refused (SonarsimError).
+    (:func:`scan_manifest` reads it as a stream, with where each line lies.)
     """
-    data = regular_file_bytes(path, "dataset manifest")
-    if data is None:
-        return []
-    out = []
-    for line in data.split(b"\n"):
-        if not line.strip():
-            continue
-        try:
-            out.append(json.loads(line))
-        except (UnicodeDecodeError, ValueError):
-            continue
-    return out
+    return [parsed for _, _, parsed in scan_manifest(path) if parsed is not None]
 
 
 def scan_manifest(path: Path) -> Iterator[tuple[int, int, Any]]:
